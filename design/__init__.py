@@ -1,0 +1,1 @@
+"""Design: drive descriptions, operating points and the automatic linearization of the observers."""

@@ -1,0 +1,285 @@
+"""Linearized closed loop of paper 000 by automatic Jacobians; poles, damping, G_c(s) of eq. (15).
+
+``casadi.jacobian`` of the coupled motor+observer system (symbolic/closed_loop.py) gives, at any
+operating point, the state-space model from the true speed w_m to the speed estimate w_hat: the
+closed loop of Fig. 2 whose transfer function is G_c(s), eq. (15). Sweeps over speed x torque are one
+call of ``Function.map``; eigenvalues of the stacked matrices come from one batched numpy call.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import control
+import numpy as np
+from sensorless.design.operating_point import (
+    PARAM_NAMES,
+    analysis_symbols,
+    coupled_system,
+    nominal_equilibrium_function,
+    solve_equilibrium,
+)
+from sensorless.symbolic.gains import LAWS, N_GAIN_PARAMS
+
+STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
+
+
+@functools.cache
+def linearization_function(law: str, injection: bool) -> ca.Function:
+    """Function (x0, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (A, B, C, D, ...).
+
+    A = d x_dot/dx, B = d x_dot/d w_m, C = d w_hat/dx, D = d w_hat/d w_m, all at x0; also the
+    residual x_dot(x0) (zero at an equilibrium), w_hat(x0) and the MTPA current i_s0.
+    """
+    s = analysis_symbols(law, injection)
+    cl, i_s0 = coupled_system(law, injection, s)
+    x, w_m = s["x"], s["w_m"]
+    outs = {
+        "A": ca.jacobian(cl.x_dot, x),
+        "B": ca.jacobian(cl.x_dot, w_m),
+        "C": ca.jacobian(cl.w_hat, x),
+        "D": ca.jacobian(cl.w_hat, w_m),
+        "x_dot": cl.x_dot,
+        "w_hat": cl.w_hat,
+        "i_s0": i_s0,
+    }
+    names = ["x", *PARAM_NAMES]
+    name = f"linearize_{law}{'_inj' if injection else ''}"
+    return ca.Function(name, [s[k] for k in names], list(outs.values()), names, list(outs))
+
+
+@functools.cache
+def nominal_linearization_function(law: str, injection: bool) -> ca.Function:
+    """As :func:`linearization_function` but at the closed-form equilibrium of exact estimates
+    (no ``x0`` input; ``x0`` is an output): the fast path for sweeps, one Function for all of it."""
+    f = linearization_function(law, injection)
+    s = analysis_symbols(law, injection)
+    ins = ["w_m", "T_e", "motor", "p"]
+    x0 = nominal_equilibrium_function(injection)(*[s[k] for k in ins])
+    outs = f(x0, *[s[k] for k in PARAM_NAMES])
+    return ca.Function(
+        f"{f.name()}_nominal",
+        [s[k] for k in PARAM_NAMES],
+        [*outs, x0],
+        list(PARAM_NAMES),
+        [*f.name_out(), "x0"],
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def _mapped(fn: ca.Function, n: int) -> ca.Function:
+    """``fn.map(n)``, kept: building a map costs as much as evaluating a few thousand points."""
+    return fn.map(n)
+
+
+@functools.cache
+def paper_open_loop_function(law: str) -> ca.Function:
+    """Open adaptation loop (12) in the paper's error coordinates (i_tilde, theta_tilde).
+
+    Outputs A (3x3) = [[A1, A2], [0, 0]] and B (3x1) = [B1; 1] of eq. (11)-(12) with the speed error
+    w_m - w_hat as input, and C = [C1, 0] of (12) with F_eps as output; obtained by differentiating
+    the coupled system with the speed estimate imposed, then changing coordinates x -> z(x) with the
+    Jacobian M = dz/dx. The imposed speed is the closed loop's own w_hat(x0), so this holds at any
+    equilibrium.
+    """
+    s = analysis_symbols(law, False)
+    x = s["x"]
+    w_hat_in = ca.SX.sym("w_hat_in")
+    ol, _ = coupled_system(law, False, s, w_hat_override=w_hat_in)
+    cl, _ = coupled_system(law, False, s)
+    xo, fo, zo = x[0:3], ol.x_dot[0:3], ol.z[0:3]
+    M = ca.jacobian(zo, xo)
+    A = ca.mtimes([M, ca.jacobian(fo, xo), ca.inv(M)])
+    B = -M @ ca.jacobian(fo, w_hat_in)  # input: speed error w_m - w_hat
+    B_wm = M @ ca.jacobian(fo, s["w_m"])  # the same input seen through w_m (must equal B)
+    F_eps = s["estimate"][2] * ol.i_tilde[1]  # eq. (8)
+    C = ca.jacobian(F_eps, xo) @ ca.inv(M)
+    outs = [ca.substitute(e, w_hat_in, cl.w_hat) for e in (A, B, B_wm, C)]
+    names = ["x", *PARAM_NAMES]
+    return ca.Function(f"paper_open_loop_{law}", [s[k] for k in names], outs, names, ["A", "B", "B_wm", "C"])
+
+
+def gain_parameters(drive: Any, gain: str | tuple[str, Any] | None = None) -> tuple[str, np.ndarray]:
+    """Resolve a gain choice to (law name, parameter vector).
+
+    ``gain`` is the name of an ``[observer.gains.*]`` table of the drive (default: ``[observer]
+    gain``), or an explicit ``(law, params)`` pair, e.g. ``("speed", [7.18, 471.2])``.
+    """
+    if isinstance(gain, tuple):
+        law, params = gain
+        vec = np.zeros(N_GAIN_PARAMS)
+        vec[: len(params)] = params
+        return law, vec
+    g = drive.gain(gain)
+    law = gain or drive.observer.gain
+    vec = np.zeros(N_GAIN_PARAMS)
+    vals = [getattr(g, n) for n in LAWS[law].param_names]
+    vec[: len(vals)] = vals
+    return law, vec
+
+
+def drive_arguments(drive: Any, gain: str | tuple | None) -> tuple[str, dict[str, np.ndarray]]:
+    """The non-operating-point inputs of the analysis Functions for ``drive``."""
+    law, gvec = gain_parameters(drive, gain)
+    inj = drive.injection
+    args = {
+        "motor": np.array(drive.motor.vector()),
+        "p": np.array(float(drive.motor.p)),
+        "estimate": np.array(drive.estimate.vector()),
+        "gain": gvec,
+        "alpha_fo": np.array(drive.observer.alpha_fo),
+        "inj": np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
+    }
+    return law, args
+
+
+def _nan_reduce(fn: Any, a: np.ndarray) -> np.ndarray:
+    """Row-wise nanmin/nanmax that returns NaN (silently) for all-NaN rows."""
+    out = np.full(a.shape[0], np.nan)
+    has = ~np.isnan(a).all(axis=1)
+    if has.any():
+        out[has] = fn(a[has], axis=1)
+    return out
+
+
+def _unstack(M: Any, n: int, rows: int, cols: int) -> np.ndarray:
+    """(rows, cols*n) horizontally mapped output -> (n, rows, cols)."""
+    return np.asarray(M).reshape(rows, n, cols).transpose(1, 0, 2)
+
+
+def sort_poles(poles: np.ndarray) -> np.ndarray:
+    """Sort each row by (imag, real), a stable order for tables and plots."""
+    order = np.lexsort((poles.real, poles.imag), axis=-1)
+    return np.take_along_axis(poles, order, axis=-1)
+
+
+@dataclass(frozen=True)
+class PoleSweep:
+    """Linearized closed loops at N operating points (arrays have leading dimension N)."""
+
+    law: str
+    injection: bool
+    w_m: np.ndarray  # true electrical speed [rad/s]
+    T_e: np.ndarray  # electromagnetic torque [N m]
+    x0: np.ndarray  # equilibrium states (N, n)
+    i_s0: np.ndarray  # MTPA current, rotor frame (N, 2) [A]
+    A: np.ndarray  # (N, n, n)
+    B: np.ndarray  # (N, n, 1)
+    C: np.ndarray  # (N, 1, n)
+    D: np.ndarray  # (N, 1, 1)
+    poles: np.ndarray  # (N, n) complex [1/s]
+
+    @property
+    def damping(self) -> np.ndarray:
+        """Damping ratio -Re(p)/|p| of each pole; a pole at the origin counts as 0."""
+        mag = np.abs(self.poles)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = np.where(mag > 0, -self.poles.real / np.where(mag > 0, mag, 1), 0.0)
+        return np.where(np.isnan(self.poles), np.nan, z)
+
+    @property
+    def worst_damping(self) -> np.ndarray:
+        """Smallest damping ratio at each point (negative: unstable; NaN: no equilibrium)."""
+        return _nan_reduce(np.nanmin, self.damping)
+
+    @property
+    def max_real(self) -> np.ndarray:
+        """Largest real part of the poles at each point [1/s]; > 0 means unstable."""
+        return _nan_reduce(np.nanmax, self.poles.real)
+
+    @property
+    def decay_rate(self) -> np.ndarray:
+        """-max Re(p) [1/s]: the slowest mode's decay rate."""
+        return -self.max_real
+
+    def statespace(self, k: int) -> control.StateSpace:
+        """The closed loop at point k as a python-control StateSpace, input w_m, output w_hat."""
+        n = self.A.shape[1]
+        return control.ss(
+            self.A[k],
+            self.B[k],
+            self.C[k],
+            self.D[k],
+            inputs=["w_m"],
+            outputs=["w_hat"],
+            states=list(STATE_NAMES[:n]),
+        )
+
+    def transfer_function(self, k: int) -> control.TransferFunction:
+        """G_c(s) = w_hat(s)/w_m(s) at point k, eq. (15)."""
+        return control.ss2tf(self.statespace(k))
+
+
+def linearize(
+    drive: Any,
+    w_m: Any,
+    T_e: Any,
+    gain: str | tuple | None = None,
+    injection: bool = False,
+) -> PoleSweep:
+    """Linearize the coupled system at the operating points (w_m [rad/s], T_e [N m]).
+
+    ``w_m`` and ``T_e`` broadcast against each other; the result is flat over the broadcast shape
+    (row-major). Points where no equilibrium exists (possible with estimation errors) get NaN.
+    """
+    w_b, T_b = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float))
+    w_flat, T_flat = w_b.ravel(), T_b.ravel()
+    n_pts = w_flat.size
+    law, args = drive_arguments(drive, gain)
+    args["w_m"], args["T_e"] = w_flat[None, :], T_flat[None, :]
+    exact = bool(np.array_equal(args["motor"], args["estimate"]))
+    if exact:
+        out = _mapped(nominal_linearization_function(law, injection), n_pts)(*[args[k] for k in PARAM_NAMES])
+        x0 = np.asarray(out[7])
+    else:
+        x0 = solve_equilibrium(law, injection, args, n_pts, exact)
+        out = _mapped(linearization_function(law, injection), n_pts)(x0, *[args[k] for k in PARAM_NAMES])
+    n = x0.shape[0]
+    A = _unstack(out[0], n_pts, n, n)
+    poles = np.full((n_pts, n), np.nan + 0j)
+    ok = np.isfinite(A).all(axis=(1, 2))
+    frozen = np.zeros(n_pts, bool)
+    if injection:
+        # Above w_Delta the injection is off (fade = 0): the PI integrator x_eps has no input and
+        # its row of A is zero. Its structural pole at the origin says nothing about stability;
+        # report it as NaN and analyse the adaptive observer's four poles.
+        frozen = ok & np.all(A[:, 4, :] == 0, axis=1)
+        sub = A[frozen][:, :4, :4]
+        if sub.size:
+            poles[frozen, :4] = sort_poles(np.linalg.eigvals(sub))
+    rest = ok & ~frozen
+    if rest.any():
+        poles[rest] = sort_poles(np.linalg.eigvals(A[rest]))
+    return PoleSweep(
+        law=law,
+        injection=injection,
+        w_m=w_flat,
+        T_e=T_flat,
+        x0=np.asarray(x0).T,
+        i_s0=_unstack(out[6], n_pts, 2, 1)[:, :, 0],
+        A=A,
+        B=_unstack(out[1], n_pts, n, 1),
+        C=_unstack(out[2], n_pts, 1, n),
+        D=_unstack(out[3], n_pts, 1, 1),
+        poles=poles,
+    )
+
+
+def unstable_bands(w: np.ndarray, max_real: np.ndarray, tol: float = 1e-9) -> list[tuple[float, float]]:
+    """Contiguous speed intervals (on the sorted grid ``w``) where max Re(pole) > tol."""
+    bad = max_real > tol
+    bands = []
+    i = 0
+    while i < len(w):
+        if bad[i]:
+            j = i
+            while j + 1 < len(w) and bad[j + 1]:
+                j += 1
+            bands.append((float(w[i]), float(w[j])))
+            i = j + 1
+        else:
+            i += 1
+    return bands

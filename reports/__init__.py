@@ -1,0 +1,1 @@
+"""Reports: pole maps, figures and data files a drive engineer reviews."""

@@ -1,0 +1,94 @@
+"""Pole maps over speed in the style of paper 000 Figs. 4-5, and their CSV data.
+
+Fig. 4 shows the closed-loop poles of G_c(s) at nominal torque while the speed sweeps -1..1 p.u.
+(upper half-plane only, the map is symmetric); Fig. 5 magnifies the origin, where the low-speed
+right-half-plane pole of the motoring mode lives. Both panels are drawn here side by side.
+"""
+
+from __future__ import annotations
+
+import io
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from sensorless.design.linearize import PoleSweep
+
+plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
+
+
+def pole_csv(sweep: PoleSweep, w_base: float) -> str:
+    """CSV text: one row per operating point; poles as re/im pairs [1/s]; units in the header."""
+    n = sweep.poles.shape[1]
+    head = ["w_m_pu", "w_m_rad_s", "T_e_Nm", "i_d_A", "i_q_A"]
+    for k in range(n):
+        head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
+    head += ["worst_damping", "max_real_1_s"]
+    buf = io.StringIO()
+    buf.write(f"# gain law: {sweep.law}; injection: {'on' if sweep.injection else 'off'}; ")
+    buf.write(f"speed base {w_base:.10g} rad/s (electrical)\n")
+    buf.write(",".join(head) + "\n")
+    for j in range(sweep.w_m.size):
+        row = [sweep.w_m[j] / w_base, sweep.w_m[j], sweep.T_e[j], *sweep.i_s0[j]]
+        for p in sweep.poles[j]:
+            row += [p.real, p.imag]
+        row += [sweep.worst_damping[j], sweep.max_real[j]]
+        buf.write(",".join(_fmt(v) for v in row) + "\n")
+    return buf.getvalue()
+
+
+def _fmt(v: float) -> str:
+    return "nan" if not np.isfinite(v) else f"{v:.10g}"
+
+
+def _zoom_window(sweep: PoleSweep, w_base: float) -> float:
+    """Half-width [1/s] of the magnified view: room for the slowest poles at |w_m| <= 0.05 p.u."""
+    low = np.abs(sweep.w_m / w_base) <= 0.05
+    mags = np.abs(sweep.poles[low])
+    slowest = np.where(np.isfinite(mags), mags, np.inf).min(axis=1, initial=np.inf)
+    slowest = slowest[np.isfinite(slowest)]
+    return float(max(1.0, 1.5 * slowest.max())) if slowest.size else 50.0
+
+
+def plot_pole_maps(sweeps: dict[str, PoleSweep], w_base: float, title: str) -> matplotlib.figure.Figure:
+    """One row per sweep: full map (Fig. 4) and magnified origin (Fig. 5), colored by speed."""
+    rows = len(sweeps)
+    fig, axes = plt.subplots(rows, 2, figsize=(11, 4.2 * rows), squeeze=False, layout="constrained")
+    norm = matplotlib.colors.Normalize(-1, 1)
+    cmap = plt.get_cmap("coolwarm")
+    for r, (label, s) in enumerate(sweeps.items()):
+        w_pu = np.repeat(s.w_m / w_base, s.poles.shape[1])
+        p = s.poles.reshape(-1)
+        keep = np.isfinite(p) & (p.imag >= -1e-9)
+        zoom = _zoom_window(s, w_base)
+        for c, ax in enumerate(axes[r]):
+            sc = ax.scatter(
+                p.real[keep], p.imag[keep], c=w_pu[keep], cmap=cmap, norm=norm, s=4, lw=0, rasterized=True
+            )
+            bad = keep & (p.real > 1e-9)
+            if bad.any():
+                ax.scatter(p.real[bad], p.imag[bad], marker="x", c="k", s=14, lw=0.8, label="RHP pole")
+                ax.legend(loc="upper right", fontsize=8)
+            ax.axvline(0, color="0.4", lw=0.8)
+            ax.axhline(0, color="0.4", lw=0.8)
+            ax.set_xlabel("Real axis (1/s)")
+            ax.set_ylabel("Imaginary axis (1/s)")
+            ax.grid(True, lw=0.3)
+            if c == 0:
+                re = p.real[keep]
+                im = p.imag[keep]
+                ax.set_xlim(min(re.min() * 1.05, -1.0), max(0.05 * abs(re.min()), re.max() * 1.1))
+                ax.set_ylim(-0.02 * max(im.max(), 1.0), max(im.max() * 1.1, 1.0))
+                ax.set_title(f"{label}: poles of G_c(s), -1..1 p.u. (Fig. 4 style)", fontsize=9)
+            else:
+                ax.set_xlim(-zoom, 0.4 * zoom)
+                ax.set_ylim(-0.05 * zoom, zoom)
+                ax.set_title(f"{label}: magnified near the origin (Fig. 5 style)", fontsize=9)
+            xl = ax.get_xlim()
+            ax.axvspan(0, xl[1], color="tab:red", alpha=0.06, lw=0)
+            ax.set_xlim(xl)
+        fig.colorbar(sc, ax=axes[r].tolist(), label="rotor speed ω_m0 (p.u.)")
+    fig.suptitle(title, fontsize=10)
+    return fig

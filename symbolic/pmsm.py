@@ -1,0 +1,111 @@
+"""PMSM model of paper 000, eqs. (1)-(3), in a reference frame of arbitrary angle, plus MTPA.
+
+Conventions: space vectors are 2x1 ``[d, q]`` columns; ``J`` is the 90-degree rotation of (1);
+speeds are electrical rad/s. A frame at angle ``theta_f`` sees the rotor at ``theta_tilde =
+theta_m - theta_f``; vectors transform as ``x_f = T(theta_tilde) x_rotor`` (Appendix, eq. (24)).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import casadi as ca
+
+Sym = ca.SX | ca.MX | ca.DM | float
+
+J = ca.DM([[0.0, -1.0], [1.0, 0.0]])  # eq. (1)
+I2 = ca.DM.eye(2)
+
+
+class PmsmParams(NamedTuple):
+    """Electrical parameters [R_s (ohm), L_d (H), L_q (H), psi_pm (V s)] as symbols or numbers."""
+
+    R_s: Sym
+    L_d: Sym
+    L_q: Sym
+    psi_pm: Sym
+
+    @classmethod
+    def of(cls, v: Sym) -> PmsmParams:
+        """Split a 4-vector [R_s, L_d, L_q, psi_pm]."""
+        return cls(v[0], v[1], v[2], v[3])
+
+
+def rot(theta: Sym) -> Sym:
+    """T = cos(theta) I + sin(theta) J: rotates a vector by +theta (Appendix, eq. (24))."""
+    c, s = ca.cos(theta), ca.sin(theta)
+    return ca.vertcat(ca.horzcat(c, -s), ca.horzcat(s, c))
+
+
+def inductance(p: PmsmParams) -> Sym:
+    """L = diag(L_d, L_q), eq. (2)."""
+    return ca.diag(ca.vertcat(p.L_d, p.L_q))
+
+
+def pm_flux(p: PmsmParams) -> Sym:
+    """psi_pm = [psi_pm, 0]^T, eq. (2)."""
+    return ca.vertcat(p.psi_pm, 0)
+
+
+def flux_from_current(i_s: Sym, p: PmsmParams) -> Sym:
+    """psi_s = L i_s + psi_pm in rotor coordinates, eq. (2)."""
+    return inductance(p) @ i_s + pm_flux(p)
+
+
+def current_from_flux(psi_s: Sym, p: PmsmParams) -> Sym:
+    """i_s = L^-1 (psi_s - psi_pm) in rotor coordinates, eq. (2) solved for the current (cf. (5))."""
+    return ca.vertcat((psi_s[0] - p.psi_pm) / p.L_d, psi_s[1] / p.L_q)
+
+
+def current_in_frame(psi_f: Sym, theta_tilde: Sym, p: PmsmParams) -> Sym:
+    """Current in a frame at angle theta_m - theta_tilde from the flux in that frame, eqs. (2), (24)."""
+    T = rot(theta_tilde)
+    return T @ current_from_flux(T.T @ psi_f, p)
+
+
+def stator_voltage(i_s: Sym, dpsi_s: Sym, psi_s: Sym, w_f: Sym, R_s: Sym) -> Sym:
+    """u_s = R_s i_s + dpsi_s/dt + w_f J psi_s, eq. (1) in a frame rotating at w_f (rad/s).
+
+    In rotor coordinates w_f = omega_m; with dpsi_s/dt = 0 this is the operating-point voltage (29).
+    """
+    return R_s * i_s + dpsi_s + w_f * (J @ psi_s)
+
+
+def flux_derivative(u_s: Sym, i_s: Sym, psi_s: Sym, w_f: Sym, R_s: Sym) -> Sym:
+    """dpsi_s/dt = u_s - R_s i_s - w_f J psi_s: eq. (1) solved for the flux derivative."""
+    return u_s - stator_voltage(i_s, 0, psi_s, w_f, R_s)
+
+
+def torque(psi_s: Sym, i_s: Sym, pole_pairs: Sym) -> Sym:
+    """T_e = (3p/2) psi_s^T J^T i_s, eq. (3); frame-invariant."""
+    return 1.5 * pole_pairs * (psi_s.T @ J.T @ i_s)
+
+
+def mtpa_i_d(i_q: Sym, p: PmsmParams) -> Sym:
+    """MTPA d-current for a q-current (Jahns et al. [12]): root of a(i_d^2 - i_q^2) - psi_pm i_d = 0.
+
+    a = L_q - L_d. Written as -2 a i_q^2 / (psi_pm + sqrt(psi_pm^2 + 4 a^2 i_q^2)), which is the
+    usual (psi_pm - sqrt(...)) / (2a) without its 0/0 at L_d = L_q (then i_d = 0).
+    """
+    a = p.L_q - p.L_d
+    return -2 * a * i_q**2 / (p.psi_pm + ca.sqrt(p.psi_pm**2 + 4 * a**2 * i_q**2))
+
+
+def mtpa_current(T_e: Sym, p: PmsmParams, pole_pairs: Sym, iterations: int = 12) -> Sym:
+    """Rotor-frame MTPA current [i_d, i_q] that produces torque T_e (N m).
+
+    Solves T_e = 1.5 p i_q (psi_pm - a i_d(i_q)) by Newton's method unrolled in SX. For i_q > 0 the
+    torque is increasing and convex in i_q and the start T_e/(1.5 p psi_pm) lies at or beyond the root,
+    so the iterates decrease monotonically to it (mirror-symmetric for T_e < 0); 12 steps reach machine
+    precision for any torque up to many times nominal (checked in tests against scipy's brentq).
+    """
+    i_q = T_e / (1.5 * pole_pairs * p.psi_pm)
+    a = p.L_q - p.L_d
+    for _ in range(iterations):
+        i_d = mtpa_i_d(i_q, p)
+        # d i_d / d i_q from differentiating the MTPA condition a(i_d^2 - i_q^2) - psi_pm i_d = 0
+        di_d = 2 * a * i_q / (2 * a * i_d - p.psi_pm)
+        residual = 1.5 * pole_pairs * i_q * (p.psi_pm - a * i_d) - T_e
+        slope = 1.5 * pole_pairs * (p.psi_pm - a * i_d - a * i_q * di_d)
+        i_q = i_q - residual / slope
+    return ca.vertcat(mtpa_i_d(i_q, p), i_q)

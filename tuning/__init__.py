@@ -1,0 +1,1 @@
+"""Tuning: observer gain optimization and gain tables, and the ``sensorless`` command line."""
