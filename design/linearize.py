@@ -22,13 +22,13 @@ from sensorless.design.operating_point import (
     nominal_equilibrium_function,
     solve_equilibrium,
 )
-from sensorless.symbolic.gains import LAWS, N_GAIN_PARAMS
+from sensorless.symbolic.gains import GainLaw, get_law
 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
 
 
 @functools.cache
-def linearization_function(law: str, injection: bool) -> ca.Function:
+def linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
     """Function (x0, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (A, B, C, D, ...).
 
     A = d x_dot/dx, B = d x_dot/d w_m, C = d w_hat/dx, D = d w_hat/d w_m, all at x0; also the
@@ -47,12 +47,12 @@ def linearization_function(law: str, injection: bool) -> ca.Function:
         "i_s0": i_s0,
     }
     names = ["x", *PARAM_NAMES]
-    name = f"linearize_{law}{'_inj' if injection else ''}"
+    name = f"linearize_{get_law(law).name}{'_inj' if injection else ''}"
     return ca.Function(name, [s[k] for k in names], list(outs.values()), names, list(outs))
 
 
 @functools.cache
-def nominal_linearization_function(law: str, injection: bool) -> ca.Function:
+def nominal_linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
     """As :func:`linearization_function` but at the closed-form equilibrium of exact estimates
     (no ``x0`` input; ``x0`` is an output): the fast path for sweeps, one Function for all of it."""
     f = linearization_function(law, injection)
@@ -76,7 +76,7 @@ def _mapped(fn: ca.Function, n: int) -> ca.Function:
 
 
 @functools.cache
-def paper_open_loop_function(law: str) -> ca.Function:
+def paper_open_loop_function(law: str | GainLaw) -> ca.Function:
     """Open adaptation loop (12) in the paper's error coordinates (i_tilde, theta_tilde).
 
     Outputs A (3x3) = [[A1, A2], [0, 0]] and B (3x1) = [B1; 1] of eq. (11)-(12) with the speed error
@@ -102,26 +102,30 @@ def paper_open_loop_function(law: str) -> ca.Function:
     return ca.Function(f"paper_open_loop_{law}", [s[k] for k in names], outs, names, ["A", "B", "B_wm", "C"])
 
 
-def gain_parameters(drive: Any, gain: str | tuple[str, Any] | None = None) -> tuple[str, np.ndarray]:
-    """Resolve a gain choice to (law name, parameter vector).
+def gain_parameters(
+    drive: Any, gain: str | tuple[str | GainLaw, Any] | None = None
+) -> tuple[GainLaw, np.ndarray]:
+    """Resolve a gain choice to (law, parameter vector of the law's width).
 
     ``gain`` is the name of an ``[observer.gains.*]`` table of the drive (default: ``[observer]
-    gain``), or an explicit ``(law, params)`` pair, e.g. ``("speed", [7.18, 471.2])``.
+    gain``), or an explicit ``(law, params)`` pair, e.g. ``("speed", [7.18, 471.2])`` or
+    ``(schedule_law(grid), [lambda1..., lambda2...])``.
     """
     if isinstance(gain, tuple):
-        law, params = gain
-        vec = np.zeros(N_GAIN_PARAMS)
-        vec[: len(params)] = params
-        return law, vec
-    g = drive.gain(gain)
-    law = gain or drive.observer.gain
-    vec = np.zeros(N_GAIN_PARAMS)
-    vals = [getattr(g, n) for n in LAWS[law].param_names]
-    vec[: len(vals)] = vals
+        law = get_law(gain[0])
+        vals = np.asarray(gain[1], float).ravel()
+    else:
+        g = drive.gain(gain)
+        law = get_law(gain or drive.observer.gain)
+        vals = np.array([getattr(g, n) for n in law.param_names], float)
+    if vals.size != law.n_params:
+        raise ValueError(f"gain law {law.name} takes {law.n_params} parameters, got {vals.size}")
+    vec = np.zeros(law.width)
+    vec[: vals.size] = vals
     return law, vec
 
 
-def drive_arguments(drive: Any, gain: str | tuple | None) -> tuple[str, dict[str, np.ndarray]]:
+def drive_arguments(drive: Any, gain: str | tuple | None) -> tuple[GainLaw, dict[str, np.ndarray]]:
     """The non-operating-point inputs of the analysis Functions for ``drive``."""
     law, gvec = gain_parameters(drive, gain)
     inj = drive.injection
@@ -160,7 +164,7 @@ def sort_poles(poles: np.ndarray) -> np.ndarray:
 class PoleSweep:
     """Linearized closed loops at N operating points (arrays have leading dimension N)."""
 
-    law: str
+    law: GainLaw
     injection: bool
     w_m: np.ndarray  # true electrical speed [rad/s]
     T_e: np.ndarray  # electromagnetic torque [N m]

@@ -15,7 +15,7 @@ import functools
 import casadi as ca
 import numpy as np
 from sensorless.symbolic.closed_loop import N_INJ, closed_loop
-from sensorless.symbolic.gains import LAWS, N_GAIN_PARAMS
+from sensorless.symbolic.gains import GainLaw, get_law
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current
 
 N_MOTOR = 4  # [R_s, L_d, L_q, psi_pm]
@@ -25,7 +25,7 @@ class EquilibriumError(RuntimeError):
     """No motor+observer equilibrium was found at an operating point."""
 
 
-def analysis_symbols(law: str, injection: bool) -> dict[str, ca.SX]:
+def analysis_symbols(law: str | GainLaw, injection: bool) -> dict[str, ca.SX]:
     """Named SX inputs shared by every analysis Function of the coupled system."""
     n = 5 if injection else 4
     return {
@@ -35,7 +35,7 @@ def analysis_symbols(law: str, injection: bool) -> dict[str, ca.SX]:
         "motor": ca.SX.sym("motor", N_MOTOR),
         "p": ca.SX.sym("p"),
         "estimate": ca.SX.sym("estimate", N_MOTOR),
-        "gain": ca.SX.sym("gain", N_GAIN_PARAMS),
+        "gain": ca.SX.sym("gain", get_law(law).width),
         "alpha_fo": ca.SX.sym("alpha_fo"),
         "inj": ca.SX.sym("inj", N_INJ),
     }
@@ -44,7 +44,7 @@ def analysis_symbols(law: str, injection: bool) -> dict[str, ca.SX]:
 PARAM_NAMES = ("w_m", "T_e", "motor", "p", "estimate", "gain", "alpha_fo", "inj")
 
 
-def coupled_system(law: str, injection: bool, s: dict[str, ca.SX], w_hat_override=None):
+def coupled_system(law: str | GainLaw, injection: bool, s: dict[str, ca.SX], w_hat_override=None):
     """The coupled system of symbolic/closed_loop.py at the MTPA current of (w_m, T_e)."""
     motor = PmsmParams.of(s["motor"])
     i_s0 = mtpa_current(s["T_e"], motor, s["p"])
@@ -55,7 +55,7 @@ def coupled_system(law: str, injection: bool, s: dict[str, ca.SX], w_hat_overrid
         motor,
         PmsmParams.of(s["estimate"]),
         s["alpha_fo"],
-        LAWS[law],
+        get_law(law),
         s["gain"],
         s["inj"] if injection else None,
         w_hat_override,
@@ -83,7 +83,7 @@ def nominal_equilibrium_function(injection: bool) -> ca.Function:
 
 
 @functools.cache
-def residual_function(law: str, injection: bool) -> ca.Function:
+def residual_function(law: str | GainLaw, injection: bool) -> ca.Function:
     """(x, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> x_dot of the coupled system."""
     s = analysis_symbols(law, injection)
     cl, _ = coupled_system(law, injection, s)
@@ -92,7 +92,7 @@ def residual_function(law: str, injection: bool) -> ca.Function:
 
 
 @functools.cache
-def equilibrium_function(law: str, injection: bool) -> ca.Function:
+def equilibrium_function(law: str | GainLaw, injection: bool) -> ca.Function:
     """Rootfinder: (x_guess, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> x0 at rest."""
     return ca.rootfinder(
         "equilibrium",
@@ -103,7 +103,7 @@ def equilibrium_function(law: str, injection: bool) -> ca.Function:
 
 
 def solve_equilibrium(
-    law: str,
+    law: str | GainLaw,
     injection: bool,
     args: dict[str, np.ndarray],
     n: int,

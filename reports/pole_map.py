@@ -27,7 +27,7 @@ def pole_csv(sweep: PoleSweep, w_base: float) -> str:
         head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
     head += ["worst_damping", "max_real_1_s"]
     buf = io.StringIO()
-    buf.write(f"# gain law: {sweep.law}; injection: {'on' if sweep.injection else 'off'}; ")
+    buf.write(f"# gain law: {sweep.law.name}; injection: {'on' if sweep.injection else 'off'}; ")
     buf.write(f"speed base {w_base:.10g} rad/s (electrical)\n")
     buf.write(",".join(head) + "\n")
     for j in range(sweep.w_m.size):

@@ -7,6 +7,8 @@ evaluates the very same expression; the table of laws below is what a drive TOML
 
 from __future__ import annotations
 
+import functools
+import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -50,11 +52,48 @@ class GainLaw:
     expr: Callable[[Sym, Sym], tuple[Sym, Sym]]
     param_names: tuple[str, ...]
     param_units: tuple[str, ...]
+    grid: tuple[float, ...] = ()  # breakpoints of a schedule law [rad/s]
 
     @property
     def n_params(self) -> int:
-        """Number of parameters; the CasADi functions take a vector of max(n, 1) entries."""
+        """Number of parameters."""
         return len(self.param_names)
+
+    @property
+    def width(self) -> int:
+        """Width of the 'gain' input of the CasADi functions: max(n_params, 2); extra entries unused."""
+        return max(self.n_params, 2)
+
+
+@functools.cache
+def schedule_law(w_grid: tuple[float, ...]) -> GainLaw:
+    """A free gain schedule: lambda1(w_hat), lambda2(w_hat) piecewise linear over the speed grid.
+
+    ``w_grid`` (a tuple; the law is cached per grid so analysis Functions are built once) are
+    strictly increasing breakpoints (electrical rad/s); params =
+    [lambda1 at each breakpoint..., lambda2 at each breakpoint...] (ohm). Between breakpoints the
+    gains are interpolated linearly; beyond the ends they are held constant. The expression is a sum
+    of hat functions, so it is one SX expression for analysis, tuning and C generation alike.
+    """
+    w = tuple(float(v) for v in w_grid)
+    if len(w) < 2 or any(b <= a for a, b in itertools.pairwise(w)):
+        raise ValueError("schedule breakpoints must be at least two, strictly increasing")
+    K = len(w)
+
+    def expr(w_hat: Sym, params: Sym) -> tuple[Sym, Sym]:
+        x = ca.fmin(ca.fmax(w_hat, w[0]), w[-1])  # hold the end values beyond the grid
+        l1, l2 = 0 * w_hat, 0 * w_hat
+        for k in range(K):
+            # hat function of breakpoint k: 1 at w[k], 0 at the neighbours, linear between
+            up = (x - w[k - 1]) / (w[k] - w[k - 1]) if k > 0 else 1
+            down = (w[k + 1] - x) / (w[k + 1] - w[k]) if k < K - 1 else 1
+            h = ca.fmax(0, ca.fmin(up, down))
+            l1 = l1 + params[k] * h
+            l2 = l2 + params[K + k] * h
+        return l1, l2
+
+    names = tuple(f"lambda1[{k}]" for k in range(K)) + tuple(f"lambda2[{k}]" for k in range(K))
+    return GainLaw(f"schedule{K}", expr, names, ("ohm",) * (2 * K), w)
 
 
 LAWS: dict[str, GainLaw] = {
@@ -63,4 +102,12 @@ LAWS: dict[str, GainLaw] = {
     "speed": GainLaw("speed", speed_gain, ("lambda_p", "w_lambda"), ("ohm", "rad/s")),
 }
 
-N_GAIN_PARAMS = 2  # width of the 'gain' input of the analysis functions (unused entries ignored)
+
+def get_law(law: str | GainLaw) -> GainLaw:
+    """A law by name (``zero``, ``constant``, ``speed``) or the law itself."""
+    if isinstance(law, GainLaw):
+        return law
+    try:
+        return LAWS[law]
+    except KeyError:
+        raise KeyError(f"unknown gain law {law!r} (known: {', '.join(LAWS)})") from None

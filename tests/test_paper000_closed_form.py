@@ -65,7 +65,7 @@ def random_cases(drive, n, rng):
         elif law == "speed":
             params = (rng.uniform(0.5, 4) * R0, rng.uniform(0.3, 2) * wb)
         else:
-            params = (0.0, 0.0)
+            params = ()
         Ld = drive.motor.L_d * rng.uniform(0.7, 1.3)
         motor = dataclasses.replace(
             drive.motor,
@@ -161,3 +161,30 @@ def test_transfer_function_dc_gain_is_one(drive, law):
     """G_c(0) = 1: the adaptation integrates, so the estimate tracks a constant speed exactly."""
     s = linearize(drive, 0.5 * drive.base.w, drive.T_N, gain=law)
     assert abs(s.statespace(0)(1e-9) - 1) < 1e-6
+
+
+def test_schedule_law_reproduces_law16_at_breakpoints_and_interpolates(drive):
+    """A schedule sampled from (16) on a grid equals (16) at the breakpoints, is linear between them
+    and is held beyond the ends; linearization with it matches the law-(16) poles at breakpoints."""
+    from sensorless.symbolic.gains import schedule_law
+
+    wb = drive.base.w
+    grid = tuple(np.linspace(-1.5, 1.5, 13) * wb)
+    lp, wl = drive.gain("speed").lambda_p, drive.gain("speed").w_lambda
+    l1 = [paper_gain("speed", w, (lp, wl))[0] for w in grid]
+    l2 = [paper_gain("speed", w, (lp, wl))[1] for w in grid]
+    law = schedule_law(grid)
+    import casadi as ca
+
+    wsym = ca.SX.sym("w")
+    p = ca.SX.sym("p", law.n_params)
+    f = ca.Function("f", [wsym, p], list(law.expr(wsym, p)))
+    for w in (*grid, 0.37 * wb, -2 * wb, 2 * wb):
+        got = [float(v) for v in f(w, l1 + l2)]
+        wc = min(max(w, grid[0]), grid[-1])
+        ref = [np.interp(wc, grid, l1), np.interp(wc, grid, l2)]
+        assert np.allclose(got, ref, rtol=1e-12, atol=1e-12)
+    w = np.array(grid[1:-1])
+    a = linearize(drive, w, drive.T_N, gain=(law, l1 + l2))
+    b = linearize(drive, w, drive.T_N, gain="speed")
+    assert np.allclose(a.poles, b.poles, rtol=1e-9)
