@@ -15,6 +15,7 @@ from typing import Any
 import casadi as ca
 import control
 import numpy as np
+from sensorless.design.batch import evaluate_batch
 from sensorless.design.operating_point import (
     PARAM_NAMES,
     analysis_symbols,
@@ -22,6 +23,7 @@ from sensorless.design.operating_point import (
     nominal_equilibrium_function,
     solve_equilibrium,
 )
+from sensorless.design.poles import eigvals_batched
 from sensorless.symbolic.gains import GainLaw, get_law
 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
@@ -37,18 +39,21 @@ def linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
     s = analysis_symbols(law, injection)
     cl, i_s0 = coupled_system(law, injection, s)
     x, w_m = s["x"], s["w_m"]
+    A = ca.jacobian(cl.x_dot, x)
     outs = {
-        "A": ca.jacobian(cl.x_dot, x),
+        "A": A,
         "B": ca.jacobian(cl.x_dot, w_m),
         "C": ca.jacobian(cl.w_hat, x),
         "D": ca.jacobian(cl.w_hat, w_m),
         "x_dot": cl.x_dot,
         "w_hat": cl.w_hat,
         "i_s0": i_s0,
+        "charpoly": charpoly_sx(A),
     }
     names = ["x", *PARAM_NAMES]
     name = f"linearize_{get_law(law).name}{'_inj' if injection else ''}"
-    return ca.Function(name, [s[k] for k in names], list(outs.values()), names, list(outs))
+    dense = ca.cse([ca.densify(v) for v in outs.values()])  # dense for batch evaluation
+    return ca.Function(name, [s[k] for k in names], dense, names, list(outs))
 
 
 @functools.cache
@@ -59,20 +64,14 @@ def nominal_linearization_function(law: str | GainLaw, injection: bool) -> ca.Fu
     s = analysis_symbols(law, injection)
     ins = ["w_m", "T_e", "motor", "p"]
     x0 = nominal_equilibrium_function(injection)(*[s[k] for k in ins])
-    outs = f(x0, *[s[k] for k in PARAM_NAMES])
+    outs = ca.cse([*f(x0, *[s[k] for k in PARAM_NAMES]), ca.densify(x0)])
     return ca.Function(
         f"{f.name()}_nominal",
         [s[k] for k in PARAM_NAMES],
-        [*outs, x0],
+        outs,
         list(PARAM_NAMES),
         [*f.name_out(), "x0"],
     )
-
-
-@functools.lru_cache(maxsize=64)
-def _mapped(fn: ca.Function, n: int) -> ca.Function:
-    """``fn.map(n)``, kept: building a map costs as much as evaluating a few thousand points."""
-    return fn.map(n)
 
 
 @functools.cache
@@ -149,9 +148,16 @@ def _nan_reduce(fn: Any, a: np.ndarray) -> np.ndarray:
     return out
 
 
-def _unstack(M: Any, n: int, rows: int, cols: int) -> np.ndarray:
-    """(rows, cols*n) horizontally mapped output -> (n, rows, cols)."""
-    return np.asarray(M).reshape(rows, n, cols).transpose(1, 0, 2)
+def charpoly_sx(A: ca.SX) -> ca.SX:
+    """Characteristic polynomial [1, c_{n-1}, ..., c_0] of A, by Faddeev-LeVerrier (symbolic)."""
+    n = A.size1()
+    c = [ca.SX(1)]
+    M = ca.SX.eye(n)
+    for k in range(1, n + 1):
+        AM = A @ M
+        c.append(-ca.trace(AM) / k)
+        M = AM + c[-1] * ca.SX.eye(n)
+    return ca.vertcat(*c)
 
 
 def sort_poles(poles: np.ndarray) -> np.ndarray:
@@ -236,13 +242,15 @@ def linearize(
     args["w_m"], args["T_e"] = w_flat[None, :], T_flat[None, :]
     exact = bool(np.array_equal(args["motor"], args["estimate"]))
     if exact:
-        out = _mapped(nominal_linearization_function(law, injection), n_pts)(*[args[k] for k in PARAM_NAMES])
-        x0 = np.asarray(out[7])
+        fn = nominal_linearization_function(law, injection)
+        out = evaluate_batch(fn, n_pts, [args[k] for k in PARAM_NAMES])
+        x0 = out[8][:, :, 0]
     else:
-        x0 = solve_equilibrium(law, injection, args, n_pts, exact)
-        out = _mapped(linearization_function(law, injection), n_pts)(x0, *[args[k] for k in PARAM_NAMES])
-    n = x0.shape[0]
-    A = _unstack(out[0], n_pts, n, n)
+        x0 = solve_equilibrium(law, injection, args, n_pts, exact).T
+        fn = linearization_function(law, injection)
+        out = evaluate_batch(fn, n_pts, [x0.T, *[args[k] for k in PARAM_NAMES]])
+    A, charpoly = out[0], out[7][:, :, 0]
+    n = A.shape[1]
     poles = np.full((n_pts, n), np.nan + 0j)
     ok = np.isfinite(A).all(axis=(1, 2))
     frozen = np.zeros(n_pts, bool)
@@ -251,23 +259,22 @@ def linearize(
         # its row of A is zero. Its structural pole at the origin says nothing about stability;
         # report it as NaN and analyse the adaptive observer's four poles.
         frozen = ok & np.all(A[:, 4, :] == 0, axis=1)
-        sub = A[frozen][:, :4, :4]
-        if sub.size:
-            poles[frozen, :4] = sort_poles(np.linalg.eigvals(sub))
+        if frozen.any():
+            poles[frozen, :4] = sort_poles(eigvals_batched(A[frozen][:, :4, :4]))
     rest = ok & ~frozen
     if rest.any():
-        poles[rest] = sort_poles(np.linalg.eigvals(A[rest]))
+        poles[rest] = sort_poles(eigvals_batched(A[rest], charpoly[rest]))
     return PoleSweep(
         law=law,
         injection=injection,
         w_m=w_flat,
         T_e=T_flat,
-        x0=np.asarray(x0).T,
-        i_s0=_unstack(out[6], n_pts, 2, 1)[:, :, 0],
+        x0=x0,
+        i_s0=out[6][:, :, 0],
         A=A,
-        B=_unstack(out[1], n_pts, n, 1),
-        C=_unstack(out[2], n_pts, 1, n),
-        D=_unstack(out[3], n_pts, 1, 1),
+        B=out[1],
+        C=out[2],
+        D=out[3],
         poles=poles,
     )
 

@@ -79,7 +79,7 @@ def nominal_equilibrium_function(injection: bool) -> ca.Function:
     extra = [0] if injection else []
     x0 = ca.vertcat(psi_s0, 0, s["w_m"], *extra)
     ins = ["w_m", "T_e", "motor", "p"]
-    return ca.Function("nominal_equilibrium", [s[k] for k in ins], [x0], ins, ["x0"])
+    return ca.Function("nominal_equilibrium", [s[k] for k in ins], [ca.densify(x0)], ins, ["x0"])
 
 
 @functools.cache

@@ -1,0 +1,143 @@
+"""Eigenvalues of many small real matrices at once: closed loops' poles for sweeps.
+
+For 4x4 matrices (the paper-000 closed loop) the poles are the roots of the characteristic polynomial
+(Faddeev-LeVerrier, batched matrix products), found in closed form (Ferrari's method with complex
+arithmetic, all points at once) and polished by Newton steps on the polynomial. Every root is then
+checked by its backward error; rows that fail the check (near-multiple roots, extreme scaling) are
+recomputed by LAPACK, as are all other matrix sizes. Tests compare with numpy.linalg.eigvals.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+
+def charpoly(A: np.ndarray) -> np.ndarray:
+    """Characteristic polynomial coefficients [1, c_{n-1}, ..., c_0] of each matrix in (N, n, n)."""
+    N, n, _ = A.shape
+    c = np.zeros((N, n + 1))
+    c[:, 0] = 1.0
+    M = np.broadcast_to(np.eye(n), A.shape).copy()
+    for k in range(1, n + 1):
+        AM = A @ M
+        c[:, k] = -np.trace(AM, axis1=1, axis2=2) / k
+        M = AM + c[:, k, None, None] * np.eye(n)
+    return c
+
+
+def _cbrt(z: np.ndarray) -> np.ndarray:
+    return np.where(z == 0, 0, np.exp(np.log(np.where(z == 0, 1, z)) / 3))
+
+
+def quartic_roots(c: np.ndarray) -> np.ndarray:
+    """Roots of monic quartics x^4 + a x^3 + b x^2 + c x + d (rows of c[:, 1:]); (N, 4) complex."""
+    a, b, cc, d = (c[:, k].astype(complex) for k in range(1, 5))
+    # depressed quartic y^4 + p y^2 + q y + r, x = y - a/4
+    p = b - 3 * a**2 / 8
+    q = cc - a * b / 2 + a**3 / 8
+    r = d - a * cc / 4 + a**2 * b / 16 - 3 * a**4 / 256
+    # resolvent cubic 8 m^3 + 8 p m^2 + (2 p^2 - 8 r) m - q^2 = 0, by Cardano; take the root of
+    # largest magnitude (never zero unless the quartic is y^4 = 0)
+    A2, A1, A0 = p, (p**2 / 4 - r), -(q**2) / 8
+    P = A1 - A2**2 / 3
+    Q = 2 * A2**3 / 27 - A2 * A1 / 3 + A0
+    disc = np.sqrt(Q**2 / 4 + P**3 / 27)
+    u = _cbrt(-Q / 2 + disc)
+    u2 = _cbrt(-Q / 2 - disc)
+    u = np.where(np.abs(u) >= np.abs(u2), u, u2)
+    w = np.exp(2j * np.pi / 3)
+    best = np.zeros_like(a)
+    for k in range(3):
+        uk = u * w**k
+        mk = uk - np.where(uk == 0, 0, P / (3 * np.where(uk == 0, 1, uk))) - A2 / 3
+        best = np.where(np.abs(mk) > np.abs(best), mk, best)
+    m = best
+    s = np.sqrt(2 * m)
+    t = np.where(s == 0, 0, q / (2 * np.where(s == 0, 1, s)))
+    roots = []
+    for sign in (1, -1):
+        # y^2 + sign*s*y + (p/2 + m - sign*t) = 0
+        B, C = sign * s, p / 2 + m - sign * t
+        D = np.sqrt(B**2 - 4 * C)
+        roots += [(-B + D) / 2, (-B - D) / 2]
+    return np.stack(roots, axis=1) - a[:, None] / 4
+
+
+def _polish(c: np.ndarray, x: np.ndarray, steps: int = 2) -> np.ndarray:
+    """Newton steps on the polynomial, kept only where they reduce the residual."""
+    coef = c.astype(complex)[:, :, None]
+    n = c.shape[1] - 1
+    for _ in range(steps):
+        P = np.zeros_like(x)
+        dP = np.zeros_like(x)
+        for k in range(n + 1):
+            dP = dP * x + P
+            P = P * x + coef[:, k]
+        with np.errstate(all="ignore"):
+            xn = x - P / dP
+            Pn = np.zeros_like(x)
+            for k in range(n + 1):
+                Pn = Pn * xn + coef[:, k]
+        better = np.isfinite(xn) & (np.abs(Pn) < np.abs(P))
+        x = np.where(better, xn, x)
+    return x
+
+
+def backward_error(c: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """|p(x)| / sum |c_k| |x|^k for each root: the relative polynomial residual."""
+    n = c.shape[1] - 1
+    P = np.zeros_like(x)
+    S = np.zeros(x.shape)
+    ax = np.abs(x)
+    for k in range(n + 1):
+        P = P * x + c[:, k, None]
+        S = S * ax + np.abs(c[:, k, None])
+    return np.abs(P) / np.where(S > 0, S, 1)
+
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def _threads() -> int:
+    return min(4, os.cpu_count() or 1)
+
+
+def eigvals_batched(A: np.ndarray, c: np.ndarray | None = None, tol: float = 1e-12) -> np.ndarray:
+    """Eigenvalues of each matrix in (N, n, n); unsorted, shape (N, n) complex.
+
+    Large batches are split over the machine's cores (numpy's array loops release the GIL).
+    """
+    global _POOL
+    N = A.shape[0]
+    k = _threads()
+    if N >= 8192 and k > 1:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(k, thread_name_prefix="sensorless-poles")
+        cs = [None] * k if c is None else np.array_split(c, k)
+        parts = _POOL.map(_eigvals_serial, np.array_split(A, k), cs)
+        return np.concatenate(list(parts))
+    return _eigvals_serial(A, c, tol)
+
+
+def _eigvals_serial(A: np.ndarray, c: np.ndarray | None = None, tol: float = 1e-12) -> np.ndarray:
+    """Eigenvalues of each matrix in (N, n, n); unsorted, shape (N, n) complex.
+
+    ``c`` may pass the characteristic polynomials (N, n+1) when they are already known (the
+    linearization Functions compute them symbolically, which is cheaper than batched numpy products).
+    """
+    N, n, _ = A.shape
+    if n != 4 or N < 64:
+        return np.linalg.eigvals(A)
+    if c is None:
+        c = charpoly(A)
+    with np.errstate(all="ignore"):
+        x = _polish(c, quartic_roots(c))
+        ok = np.isfinite(x).all(axis=1) & (backward_error(c, x).max(axis=1) < tol)
+    # conjugate symmetry of real matrices: make pairs exact so sorting and damping are consistent
+    x = np.where(np.abs(x.imag) <= 1e-14 * (1 + np.abs(x.real)), x.real + 0j, x)
+    if not ok.all():
+        x[~ok] = np.linalg.eigvals(A[~ok])
+    return x
