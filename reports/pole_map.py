@@ -52,20 +52,31 @@ def _zoom_window(sweep: PoleSweep, w_base: float) -> float:
     return float(max(1.0, 1.5 * slowest.max())) if slowest.size else 50.0
 
 
-def plot_pole_maps(sweeps: dict[str, PoleSweep], w_base: float, title: str) -> matplotlib.figure.Figure:
-    """One row per sweep: full map (Fig. 4) and magnified origin (Fig. 5), colored by speed."""
+def plot_pole_maps(
+    sweeps: dict[str, PoleSweep],
+    w_base: float,
+    title: str,
+    low_speed: dict[str, PoleSweep] | None = None,
+) -> matplotlib.figure.Figure:
+    """One row per sweep: full map (Fig. 4) and magnified origin (Fig. 5), colored by speed.
+
+    ``low_speed`` (same keys) are denser sweeps of the low-speed range drawn in the magnified panel.
+    """
     rows = len(sweeps)
     fig, axes = plt.subplots(rows, 2, figsize=(11, 4.2 * rows), squeeze=False, layout="constrained")
-    norm = matplotlib.colors.Normalize(-1, 1)
-    cmap = plt.get_cmap("coolwarm")
-    for r, (label, s) in enumerate(sweeps.items()):
-        w_pu = np.repeat(s.w_m / w_base, s.poles.shape[1])
-        p = s.poles.reshape(-1)
-        keep = np.isfinite(p) & (p.imag >= -1e-9)
-        zoom = _zoom_window(s, w_base)
+    cmap = plt.get_cmap("turbo")  # no white at zero speed: low-speed poles stay visible
+    for r, (label, full) in enumerate(sweeps.items()):
+        zoom = _zoom_window(full, w_base)
         for c, ax in enumerate(axes[r]):
+            s = low_speed[label] if (c == 1 and low_speed) else full
+            w_pu = np.repeat(s.w_m / w_base, s.poles.shape[1])
+            w_max = float(np.abs(s.w_m).max() / w_base) or 1.0
+            norm = matplotlib.colors.Normalize(-w_max, w_max)
+            p = s.poles.reshape(-1)
+            keep = np.isfinite(p) & (p.imag >= -1e-9)
+            size = 4 if c == 0 else 9  # the magnified view shows fewer points: draw them larger
             sc = ax.scatter(
-                p.real[keep], p.imag[keep], c=w_pu[keep], cmap=cmap, norm=norm, s=4, lw=0, rasterized=True
+                p.real[keep], p.imag[keep], c=w_pu[keep], cmap=cmap, norm=norm, s=size, lw=0, rasterized=True
             )
             bad = keep & (p.real > 1e-9)
             if bad.any():
@@ -84,11 +95,13 @@ def plot_pole_maps(sweeps: dict[str, PoleSweep], w_base: float, title: str) -> m
                 ax.set_title(f"{label}: poles of G_c(s), -1..1 p.u. (Fig. 4 style)", fontsize=9)
             else:
                 ax.set_xlim(-zoom, 0.4 * zoom)
-                ax.set_ylim(-0.05 * zoom, zoom)
+                seen = keep & (np.abs(p.real) <= zoom) & (p.imag <= zoom)
+                top = p.imag[seen].max() if seen.any() else 0.0
+                ax.set_ylim(-0.05 * zoom, max(0.25 * zoom, 1.1 * top))
                 ax.set_title(f"{label}: magnified near the origin (Fig. 5 style)", fontsize=9)
             xl = ax.get_xlim()
             ax.axvspan(0, xl[1], color="tab:red", alpha=0.06, lw=0)
             ax.set_xlim(xl)
-        fig.colorbar(sc, ax=axes[r].tolist(), label="rotor speed ω_m0 (p.u.)")
+            fig.colorbar(sc, ax=ax, label="rotor speed ω_m0 (p.u.)")
     fig.suptitle(title, fontsize=10)
     return fig

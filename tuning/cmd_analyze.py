@@ -111,11 +111,13 @@ def analyze_ipmsm(drive: Any, args: argparse.Namespace) -> int:
     from sensorless.reports.pole_map import plot_pole_maps, pole_csv
 
     suffix = "_inj" if inj else ""
+    w_low = np.linspace(-0.05, 0.05, 1001) * wb  # dense low-speed sweep for the magnified panel
     for T in torques:
-        sweeps = {}
+        sweeps, low = {}, {}
         for g in gains:
             s = linearize(drive, w, T, gain=g, injection=inj)
             sweeps[g] = s
+            low[g] = linearize(drive, w_low, T, gain=g, injection=inj)
             tol = 1e-9 * np.nanmax(np.abs(s.poles))
 
             def unstable(ws: np.ndarray, g=g, T=T, tol=tol) -> np.ndarray:
@@ -143,6 +145,7 @@ def analyze_ipmsm(drive: Any, args: argparse.Namespace) -> int:
             wb,
             f"{drive.name}: closed-loop poles, T_e = {T:g} N m"
             f"{' with HF injection (averaged)' if inj else ''}",
+            low,
         )
         out.add_figure(f"pole_map{suffix}_T{T:+g}Nm.png", fig, dpi=110)
         out.add_figure(f"pole_map{suffix}_T{T:+g}Nm.svg", fig)
