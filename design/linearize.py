@@ -229,18 +229,29 @@ def linearize(
     T_e: Any,
     gain: str | tuple | None = None,
     injection: bool = False,
+    estimate: Any = None,
 ) -> PoleSweep:
     """Linearize the coupled system at the operating points (w_m [rad/s], T_e [N m]).
 
     ``w_m`` and ``T_e`` broadcast against each other; the result is flat over the broadcast shape
-    (row-major). Points where no equilibrium exists (possible with estimation errors) get NaN.
+    (row-major). ``estimate`` optionally gives the observer's parameter estimates per point, an
+    array (..., 4) of [R̂s, L̂d, L̂q, ψ̂pm] broadcasting with the operating points (default: the
+    drive's ``[estimate]``), so robustness maps over parameter errors are one call. Points where no
+    equilibrium exists (possible with estimation errors) get NaN.
     """
-    w_b, T_b = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float))
+    if estimate is not None:
+        est = np.asarray(estimate, float)
+        w_b, T_b, _ = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float), est[..., 0])
+        est = np.broadcast_to(est, (*w_b.shape, 4)).reshape(-1, 4).T
+    else:
+        w_b, T_b = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float))
     w_flat, T_flat = w_b.ravel(), T_b.ravel()
     n_pts = w_flat.size
     law, args = drive_arguments(drive, gain)
     args["w_m"], args["T_e"] = w_flat[None, :], T_flat[None, :]
-    exact = bool(np.array_equal(args["motor"], args["estimate"]))
+    if estimate is not None:
+        args["estimate"] = np.ascontiguousarray(est)
+    exact = estimate is None and bool(np.array_equal(args["motor"], args["estimate"]))
     if exact:
         fn = nominal_linearization_function(law, injection)
         out = evaluate_batch(fn, n_pts, [args[k] for k in PARAM_NAMES])

@@ -98,7 +98,9 @@ def equilibrium_function(law: str | GainLaw, injection: bool) -> ca.Function:
         "equilibrium",
         "newton",
         residual_function(law, injection),
-        {"abstol": 1e-12, "max_iter": 50, "error_on_fail": False},
+        # plain Newton: its backtracking line search stalls on this badly scaled system (rows in V and
+        # rad/s^2); continuation in solve_equilibrium keeps the starting points close instead
+        {"abstol": 1e-12, "max_iter": 30, "error_on_fail": False, "line_search": False},
     )
 
 
@@ -108,18 +110,47 @@ def solve_equilibrium(
     args: dict[str, np.ndarray],
     n: int,
     exact: bool,
+    max_rounds: int = 60,
 ) -> np.ndarray:
-    """Equilibria for ``n`` operating points as an (n_x, n) array; NaN columns where none exists."""
+    """Equilibria for ``n`` operating points as an (n_x, n) array; NaN columns where none is found.
+
+    With estimation errors, Newton's method is continued along the estimates
+    est(tau) = true + tau (est - true) from tau = 0 (exact estimates, closed-form equilibrium with
+    theta_tilde = 0) to tau = 1, each point with its own adaptive step (halved after a failed Newton
+    solve, enlarged after a success), all points advanced together in one mapped call per round.
+    This follows the equilibrium branch that starts at the exact-estimate equilibrium; a single
+    Newton solve from theta_tilde = 0 misses it once the position error grows to tenths of a radian.
+    Where the branch ends (a fold: the observer cannot hold the rotor position) the point is NaN.
+    """
     nominal = nominal_equilibrium_function(injection).map(n)
-    x_nom = np.asarray(nominal(args["w_m"], args["T_e"], args["motor"], args["p"]))
+    x = np.asarray(nominal(args["w_m"], args["T_e"], args["motor"], args["p"]))
     if exact:
-        return x_nom
+        return x
     root = equilibrium_function(law, injection).map(n)
-    x0 = np.asarray(root(x_nom, *[args[k] for k in PARAM_NAMES]))
-    # The rootfinder does not raise on failure (error_on_fail=False): verify the residual here.
-    res = np.asarray(residual_function(law, injection).map(n)(x0, *[args[k] for k in PARAM_NAMES]))
-    # x_dot is in V (flux rates) and rad/s^2; 1e-6 of the operating point's size is "at rest"
-    scale = 1.0 + np.abs(np.asarray(args["w_m"])).ravel() + np.abs(x_nom).max(axis=0)
-    bad = ~np.isfinite(res).all(axis=0) | (np.abs(res).max(axis=0) > 1e-6 * scale)
-    x0[:, bad] = np.nan
-    return x0
+    residual = residual_function(law, injection).map(n)
+    true = np.broadcast_to(np.asarray(args["motor"], float).reshape(4, -1), (4, n))
+    est = np.broadcast_to(np.asarray(args["estimate"], float).reshape(4, -1), (4, n))
+    scale = 1.0 + np.abs(np.asarray(args["w_m"])).ravel() + np.abs(x).max(axis=0)
+    tau = np.zeros(n)
+    h = np.full(n, 0.25)
+    lost = np.zeros(n, bool)
+    for _ in range(max_rounds):
+        active = (tau < 1) & ~lost
+        if not active.any():
+            break
+        t_try = np.where(active, np.minimum(1.0, tau + h), tau)
+        a = dict(args, estimate=true + t_try * (est - true))
+        x_try = np.asarray(root(x, *[a[key] for key in PARAM_NAMES]))
+        # The rootfinder does not raise on failure (error_on_fail=False): verify the residual.
+        res = np.asarray(residual(x_try, *[a[key] for key in PARAM_NAMES]))
+        # x_dot is in V (flux rates) and rad/s^2; 1e-6 of the operating point's size is "at rest"
+        ok = np.isfinite(res).all(axis=0) & (np.abs(res).max(axis=0) <= 1e-6 * scale)
+        # a solve that jumps far in position is another branch, not a continuation step
+        ok &= np.abs(x_try[2] - x[2]) < 0.3
+        step_ok = active & ok
+        x[:, step_ok] = x_try[:, step_ok]
+        tau[step_ok] = t_try[step_ok]
+        h = np.where(step_ok, np.minimum(2 * h, 0.5), np.where(active, h / 2, h))
+        lost |= active & ~ok & (h < 1e-3)
+    x[:, lost | (tau < 1)] = np.nan
+    return x

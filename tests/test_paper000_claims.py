@@ -120,3 +120,28 @@ def test_estimation_errors_move_the_equilibrium(drive):
     res = residual_function(law, False).map(w.size)(s.x0.T, *[args[k] for k in PARAM_NAMES])
     assert np.abs(np.asarray(res)).max() < 1e-8
     np.testing.assert_allclose(s.x0[:, 3], w, rtol=1e-9)  # w_hat = w_m at rest (F_eps = 0)
+
+
+def test_per_point_estimates_match_drive_estimates_and_follow_the_branch(drive):
+    """Robustness maps pass estimates per point; the equilibrium branch is followed by continuation
+    (checked against scipy's fsolve started from the continued solution's neighbourhood)."""
+    from scipy.optimize import fsolve
+
+    w = np.array([-0.3, -0.1, 0.1, 0.5]) * drive.base.w
+    k = np.array([0.8, 1.0, 1.0, 1.0])
+    est = np.array(drive.estimate.vector()) * k  # R̂s 20 % low
+    d = dataclasses.replace(drive, estimate=dataclasses.replace(drive.estimate, R_s=est[0]))
+    a = linearize(d, w, drive.T_N, gain="speed")
+    b = linearize(drive, w, drive.T_N, gain="speed", estimate=est)
+    assert np.array_equal(a.x0, b.x0) and np.array_equal(a.A, b.A)
+    assert np.isfinite(a.x0).all()
+    law, args = drive_arguments(d, "speed")
+    f = residual_function(law, False)
+    for j, wj in enumerate(w):
+        args["w_m"], args["T_e"] = np.array(wj), np.array(drive.T_N)
+        x = fsolve(
+            lambda x: np.asarray(f(x, *[args[k] for k in PARAM_NAMES])).ravel(), a.x0[j] + 1e-3, xtol=1e-13
+        )
+        assert np.allclose(x, a.x0[j], rtol=1e-7, atol=1e-9)
+    # the position error at rest grows as the speed falls (resistance error matters at low speed)
+    assert abs(a.x0[1, 2]) > abs(a.x0[0, 2]) > 0.01
