@@ -290,6 +290,49 @@ def linearize(
     )
 
 
+def refine_band_edges(f_unstable: Any, lo: np.ndarray, hi: np.ndarray, iters: int = 40) -> np.ndarray:
+    """Bisect each bracket [lo, hi] (stability differs at the ends) to the switching speed."""
+    s_lo = f_unstable(lo)
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        s_mid = f_unstable(mid)
+        same = s_mid == s_lo
+        lo = np.where(same, mid, lo)
+        hi = np.where(same, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def unstable_speed_bands(
+    drive: Any,
+    w: np.ndarray,
+    T_e: float,
+    gain: str | tuple | None = None,
+    injection: bool = False,
+    sweep: PoleSweep | None = None,
+) -> list[tuple[float, float]]:
+    """Speed intervals [rad/s] with a right-half-plane pole at torque T_e, edges refined by bisection.
+
+    ``w`` is the sorted speed grid that brackets the bands; ``sweep`` may pass its linearization.
+    An edge at the end of the grid is reported as the grid end.
+    """
+    s = sweep if sweep is not None else linearize(drive, w, T_e, gain=gain, injection=injection)
+    tol = 1e-9 * np.nanmax(np.abs(s.poles))
+
+    def unstable(ws: np.ndarray) -> np.ndarray:
+        return linearize(drive, ws, T_e, gain=gain, injection=injection).max_real > tol
+
+    out = []
+    for lo_w, hi_w in unstable_bands(w, s.max_real, tol):
+        i_lo, i_hi = int(np.searchsorted(w, lo_w)), int(np.searchsorted(w, hi_w))
+        edges = [lo_w, hi_w]
+        if i_lo > 0:
+            edges[0] = float(refine_band_edges(unstable, w[[i_lo - 1]], w[[i_lo]])[0])
+        if i_hi < w.size - 1:
+            edges[1] = float(refine_band_edges(unstable, w[[i_hi + 1]], w[[i_hi]])[0])
+        out.append((edges[0], edges[1]))
+    return out
+
+
 def unstable_bands(w: np.ndarray, max_real: np.ndarray, tol: float = 1e-9) -> list[tuple[float, float]]:
     """Contiguous speed intervals (on the sorted grid ``w``) where max Re(pole) > tol."""
     bad = max_real > tol

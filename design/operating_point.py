@@ -100,7 +100,13 @@ def equilibrium_function(law: str | GainLaw, injection: bool) -> ca.Function:
         residual_function(law, injection),
         # plain Newton: its backtracking line search stalls on this badly scaled system (rows in V and
         # rad/s^2); continuation in solve_equilibrium keeps the starting points close instead
-        {"abstol": 1e-12, "max_iter": 30, "error_on_fail": False, "line_search": False},
+        {
+            "abstol": 1e-12,
+            "max_iter": 30,
+            "error_on_fail": False,
+            "line_search": False,
+            "show_eval_warnings": False,
+        },
     )
 
 

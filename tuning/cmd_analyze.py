@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.drive import load_drive
-from sensorless.design.linearize import linearize, unstable_bands
+from sensorless.design.linearize import linearize, unstable_speed_bands
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.reports.files import OutputSet
 
@@ -73,20 +73,6 @@ def parse_torques(values: list[str] | None, T_N: float, source: str = "--torque"
     return out
 
 
-def refine_band_edges(
-    f_unstable: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray, iters: int = 40
-) -> np.ndarray:
-    """Bisect each bracket [lo, hi] (stability differs at the ends) to the switching speed."""
-    s_lo = f_unstable(lo)
-    for _ in range(iters):
-        mid = 0.5 * (lo + hi)
-        s_mid = f_unstable(mid)
-        same = s_mid == s_lo
-        lo = np.where(same, mid, lo)
-        hi = np.where(same, hi, mid)
-    return 0.5 * (lo + hi)
-
-
 def analyze_ipmsm(drive: Any, args: argparse.Namespace) -> int:
     """Paper-000 analysis: pole maps of G_c(s) over speed for each gain and torque."""
     gains = list(drive.observer.gains) if args.gain == "all" else [args.gain or drive.observer.gain]
@@ -119,19 +105,8 @@ def analyze_ipmsm(drive: Any, args: argparse.Namespace) -> int:
             sweeps[g] = s
             low[g] = linearize(drive, w_low, T, gain=g, injection=inj)
             tol = 1e-9 * np.nanmax(np.abs(s.poles))
-
-            def unstable(ws: np.ndarray, g=g, T=T, tol=tol) -> np.ndarray:
-                return linearize(drive, ws, T, gain=g, injection=inj).max_real > tol
-
-            bands = unstable_bands(w, s.max_real, tol)
             text = []
-            for lo_w, hi_w in bands:
-                i_lo, i_hi = np.searchsorted(w, lo_w), np.searchsorted(w, hi_w)
-                edges = [lo_w, hi_w]
-                if i_lo > 0:
-                    edges[0] = float(refine_band_edges(unstable, w[[i_lo - 1]], w[[i_lo]])[0])
-                if i_hi < w.size - 1:
-                    edges[1] = float(refine_band_edges(unstable, w[[i_hi + 1]], w[[i_hi]])[0])
+            for edges in unstable_speed_bands(drive, w, T, gain=g, injection=inj, sweep=s):
                 mode = "motoring" if np.sign(np.mean(edges)) == np.sign(T) else "regenerating"
                 text.append(f"{edges[0] / wb:+.4f}..{edges[1] / wb:+.4f} ({mode})")
             stable = s.max_real <= tol
