@@ -161,7 +161,10 @@ int main(void)
     piippo2008_params p = piippo2008_default_params;
     piippo2008_input in;
     piippo2008_output out;
-    const real bad[] = {NAN, INFINITY, -INFINITY, (real)1e30, (real)-1e30, (real)1e-40, 0};
+    /* NaN, Inf, the largest finite values of the precision, absurd and subnormal magnitudes */
+    const real big = (real)(sizeof(real) == sizeof(float) ? 3.0e38 : 1.0e300);
+    const real bad[] = {NAN, INFINITY, -INFINITY, big, -big, (real)1e30, (real)1e-40, 0};
+    const int nb = (int)(sizeof bad / sizeof bad[0]);
     real l1, l2, w;
     int k, j, rc;
     memset(&in, 0, sizeof in);
@@ -188,12 +191,12 @@ int main(void)
     /* hostile samples: no UB (sanitizers), state stays finite, valid = 0 */
     CHECK(piippo2008_init(&a, &piippo2008_default_params) == 0);
     CHECK(piippo2008_init(&b, &piippo2008_default_params) == 0);
-    for (k = 0; k < 7 * 7 * 4; ++k) {
-        real v = bad[k % 7];
-        in.i_alpha = (k / 7) % 4 == 0 ? v : (real)1;
-        in.i_beta = (k / 7) % 4 == 1 ? v : (real)-2;
-        in.u_alpha = (k / 7) % 4 == 2 ? v : (real)30;
-        in.u_beta = (k / 7) % 4 == 3 ? v : (real)5;
+    for (k = 0; k < nb * 4 * 5; ++k) { /* every value on every channel, repeatedly */
+        real v = bad[k % nb];
+        in.i_alpha = (k / nb) % 4 == 0 ? v : (real)1;
+        in.i_beta = (k / nb) % 4 == 1 ? v : (real)-2;
+        in.u_alpha = (k / nb) % 4 == 2 ? v : (real)30;
+        in.u_beta = (k / nb) % 4 == 3 ? v : (real)5;
         piippo2008_step(&a, &in, &out);
         for (j = 0; j < PIIPPO2008_N_STATE; ++j) CHECK(isfinite(((real *)&a.x)[j]));
         for (j = 0; j < PIIPPO2008_N_OUTPUT; ++j) CHECK(isfinite(((real *)&out)[j]));
@@ -202,7 +205,7 @@ int main(void)
     /* instances are independent: b never stepped, still equals a fresh instance */
     CHECK(memcmp(&b, &fresh, sizeof b) == 0);
     /* the gain schedule is total (NaN and Inf give finite gains) */
-    for (k = 0; k < 7; ++k) {
+    for (k = 0; k < nb; ++k) {
         piippo2008_gains(&a, bad[k], &l1, &l2);
         CHECK(isfinite(l1) && isfinite(l2));
     }
@@ -350,3 +353,78 @@ def test_table_from_another_drive_is_named(tmp_path, capsys, schedule_table):
     other.write_text(json.dumps({**doc, "drive": {**doc["drive"], "name": "elsewhere"}}))
     assert main(["codegen", "piippo2008", "--gains", str(other), "--out", str(tmp_path / "o")]) == 0
     assert "tuned for drive 'elsewhere'" in capsys.readouterr().err
+
+
+def test_a_second_observer_is_a_registration(tmp_path):
+    """The generator knows nothing of paper 000: a toy observer (a PLL on a measured unit vector,
+    no gain schedule) registered with its fields, step and initial state generates, compiles
+    warning-free and matches its Python evaluation."""
+    import casadi as ca
+    from sensorless.design.runtime import RuntimeSetup
+    from sensorless.symbolic.runtime import Field, RuntimeObserver, wrap_angle
+    from sensorless.tuning.codegen import Provenance, generate
+
+    def core(disc: str) -> ca.Function:
+        x, m, p, lam = ca.SX.sym("x", 2), ca.SX.sym("meas", 2), ca.SX.sym("p", 3), ca.SX.sym("lam", 0)
+        eps = m[1] * ca.cos(x[0]) - m[0] * ca.sin(x[0])
+        w = x[1] + p[2] * p[1] * eps
+        x_next = ca.vertcat(wrap_angle(x[0] + p[2] * (w + p[0] * eps)), w)
+        return ca.Function("pll", [x, m, p, lam], [x_next, ca.vertcat(x[0], w, eps)])
+
+    def x0() -> ca.Function:
+        p = ca.SX.sym("p", 3)
+        return ca.Function("x0", [p], [ca.DM.zeros(2)])
+
+    toy = RuntimeObserver(
+        name="pll",
+        title="toy phase-locked loop",
+        state=(Field("theta", "rad", "angle"), Field("w", "rad/s", "speed")),
+        meas=(Field("a", "1", "cos"), Field("b", "1", "sin")),
+        params=(
+            Field("k_p", "rad/s", "", "positive"),
+            Field("k_i", "rad/s^2", "", "positive"),
+            Field("T_s", "s", "", "positive"),
+        ),
+        outputs=(Field("theta", "rad", ""), Field("w", "rad/s", ""), Field("eps", "1", "")),
+        lam=(),
+        schedule_state=None,
+        core=core,
+        initial_state=x0,
+    )
+    params = {"k_p": 200.0, "k_i": 1e4, "T_s": 1e-4}
+    setup = RuntimeSetup(toy, "euler", params, LAWS["zero"], (), "none", "none")
+    files = generate(setup, Provenance("toy", "-", "0" * 64, "test"), precision="double", prefix="pll")
+    assert "pll_gains" not in files["pll.h"]
+    src = tmp_path / "c"
+    src.mkdir()
+    for n, t in files.items():
+        (src / n).write_text(t)
+    exe = build(src, tmp_path / "ex", files=("main.c", "pll.c"))
+    t = np.arange(3000) * 1e-4
+    meas = np.column_stack([np.cos(50 * t + 1), np.sin(50 * t + 1)])
+    f = tmp_path / "m.bin"
+    meas.astype("<f8").tofile(f)
+    out = subprocess.run([str(exe), str(f)], capture_output=True, check=True).stdout
+    c = np.frombuffer(out, "<f8").reshape(len(t), 5)
+    xs, ys = core("euler").mapaccum(len(t))(np.zeros(2), meas.T, toy.pack_params(params), ca.DM(0, len(t)))
+    ref = np.hstack([np.asarray(ys).T, np.asarray(xs).T])
+    assert np.abs(c - ref).max() < 1e-12 * np.abs(ref).max()
+    assert abs(c[-1, 1] - 50) < 1e-3  # and it locked on
+
+
+def test_law16_table_fills_the_parameter_struct(tmp_path, drive):
+    """A tuned law-(16) table: its lambda', omega_lambda and alpha_fo become the default parameters;
+    the law stays closed form in C."""
+    t = GainTable(
+        family="law16",
+        drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
+        gains={"lambda_p": 5.5, "w_lambda": 300.0, "alpha_fo": 250.0},
+    )
+    path = tmp_path / "law16.json"
+    path.write_text(t.to_json())
+    src = codegen(tmp_path / "c", "--gains", path, "--precision", "double")
+    text = (src / "piippo2008.c").read_text()
+    for line in (".lambda_p = 5.5,", ".w_lambda = 300.0,", ".alpha_fo = 250.0,"):
+        assert line in text
+    assert "law16 table" in text and "_gain_w[" not in text
+    build(src, tmp_path / "ex")

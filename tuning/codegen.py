@@ -60,7 +60,7 @@ def _f(fields: tuple[Field, ...]) -> list[tuple[str, str, str]]:
 
 def _gain_param_fields(setup: RuntimeSetup) -> list[tuple[str, str, str]]:
     """Parameters of a closed-form gain law (law16: lambda_p, w_lambda) as params-struct fields."""
-    if setup.family == "schedule":
+    if setup.family in ("schedule", "none"):
         return []
     law = setup.law
     docs = {
@@ -183,7 +183,8 @@ def generate(
         coef="k",
     )
     gain_fields = _gain_param_fields(setup)
-    if n_lam and setup.family != "schedule":
+    has_gains = n_lam > 0 and setup.family != "none"
+    if has_gains and setup.family != "schedule":
         gain = emit(
             _gain_function(setup),
             prec=prec,
@@ -212,6 +213,7 @@ def generate(
         "schedule": "tuned gain schedule, const table with linear interpolation",
         "constant": "constant gain, eq. (7)",
         "zero": "zero gain",
+        "none": "no gain schedule",
     }[setup.family]
     banner = [
         f"/* {P}: {obs.title}.",
@@ -279,10 +281,16 @@ def generate(
         " *  is rejected (out->valid = 0) and the observer coasts (docs/runtime.md). */",
         f"void {P}_step({P}_observer *obs, const {P}_input *in, {P}_output *out);",
         "",
-        "/** Observer gain (7) at speed estimate w_hat [rad/s]: lambda1, lambda2 [ohm]. The step calls",
-        " *  it once per period with the stored estimate obs->x.w_hat. */",
-        f"void {P}_gains(const {P}_observer *obs, {R} w_hat, {R} *lambda1, {R} *lambda2);",
-        "",
+        *(
+            [
+                "/** Observer gain (7) at speed estimate w_hat [rad/s]: lambda1, lambda2 [ohm]. The step",
+                f" *  calls it once per period with the stored estimate obs->x.{obs.schedule_state}. */",
+                f"void {P}_gains(const {P}_observer *obs, {R} w_hat, {R} *lambda1, {R} *lambda2);",
+                "",
+            ]
+            if has_gains
+            else []
+        ),
         "#ifdef __cplusplus",
         "}",
         "#endif",
@@ -293,7 +301,7 @@ def generate(
 
     # ---------------------------------------------------------------------------------------- source
     pvals = dict(setup.params)
-    if setup.family != "schedule":
+    if gain_fields:
         pvals.update(zip(setup.law.param_names, setup.gain, strict=True))
     defaults = [f"    .{n} = {prec.lit(float(pvals[n]))}," for n, _, _ in param_fields]
     checks = [(f.name, f.check) for f in obs.params] + [(n, "any") for n, _, _ in gain_fields]
@@ -319,14 +327,17 @@ def generate(
             *_indent(gain.body),
             "}",
         ]
-    elif setup.family == "schedule":
+    elif has_gains:
         c += _schedule_c(setup, P, prec)
+    if has_gains:
+        c += [
+            "",
+            f"void {P}_gains(const {P}_observer *obs, {R} w_hat, {R} *lambda1, {R} *lambda2)",
+            "{",
+            f"    {P}_gains_impl(obs->coef, w_hat, lambda1, lambda2);",
+            "}",
+        ]
     c += [
-        "",
-        f"void {P}_gains(const {P}_observer *obs, {R} w_hat, {R} *lambda1, {R} *lambda2)",
-        "{",
-        f"    {P}_gains_impl(obs->coef, w_hat, lambda1, lambda2);",
-        "}",
         "",
         f"int {P}_init({P}_observer *obs, const {P}_params *prm)",
         "{",
@@ -363,7 +374,7 @@ def generate(
         "{",
         f"    const {r} *const k = obs->coef;",
     ]
-    if n_lam:
+    if has_gains:
         c += [
             f"    {r} lam[{n_lam}];",
             f"    {P}_gains_impl(k, obs->x.{obs.schedule_state}, &lam[0], &lam[1]);",
@@ -385,6 +396,10 @@ def _example_main(P: str, obs: RuntimeObserver, prov: Provenance) -> str:
     put += [f"            v[{n_y + j}] = (double)observer.x.{f.name};" for j, f in enumerate(obs.state)]
     get = [f"            in.{f.name} = ({R})m[{j}];" for j, f in enumerate(obs.meas)]
     n_m, n_v = len(obs.meas), len(obs.outputs) + len(obs.state)
+    show = [
+        f'            printf(" {f.name}=%g{"" if f.unit == "1" else " " + f.unit}", (double)out.{f.name});'
+        for f in obs.outputs[:5] + obs.outputs[-1:]
+    ]
     return "\n".join(
         [
             f"/* Example use of the generated observer {P} ({prov.drive_name});",
@@ -426,9 +441,9 @@ def _example_main(P: str, obs: RuntimeObserver, prov: Provenance) -> str:
             "        int n;",
             "        for (n = 0; n < 8; ++n) {",
             "            control_isr(&in, &out);",
-            '            printf("k=%d w_hat=%g rad/s theta_hat=%g rad u_c_d=%g V valid=%g\\n", n,',
-            "                   (double)out.w_hat, (double)out.theta_hat, (double)out.u_c_d,",
-            "                   (double)out.valid);",
+            '            printf("k=%d", n);',
+            *show,
+            '            printf("\\n");',
             "        }",
             "        return 0;",
             "    } else {",
