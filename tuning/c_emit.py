@@ -95,7 +95,10 @@ class Precision:
         if not math.isfinite(v):
             raise ValueError(f"non-finite constant {v!r} in an expression to be generated as C")
         if self.single:
-            text = str(np.float32(v))
+            v32 = np.float32(v) if abs(v) <= np.finfo(np.float32).max else np.float32(np.inf)
+            if not np.isfinite(v32):
+                raise ValueError(f"constant {v!r} is beyond the range of float")
+            text = str(v32)
             suffix = "f"
         else:
             text = repr(float(v))

@@ -277,8 +277,9 @@ def generate(
         "/** One sampling period (call it from the PWM/ADC interrupt, every T_s):",
         " *  in:  current sampled now, voltage applied over the coming period (stationary frame);",
         " *  out: speed and angle estimates now, carrier voltage for the next reference, ...",
-        " *  Constant time, no branches on data except selects; never fails: a non-finite result",
-        " *  is rejected (out->valid = 0) and the observer coasts (docs/runtime.md). */",
+        " *  Bounded time (no division, no data-dependent loop but a gain table's bisection).",
+        " *  Never fails: a non-finite result is rejected (out->valid = 0) and the observer",
+        " *  coasts (docs/runtime.md). */",
         f"void {P}_step({P}_observer *obs, const {P}_input *in, {P}_output *out);",
         "",
         *(
