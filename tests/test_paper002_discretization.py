@@ -35,3 +35,17 @@ def test_study_agrees_with_the_independent_plant(drive002, study):
     numpy plant (tests/plant002.py) give the same literal-RK2 bias after the load step."""
     t, w, _, _, w_hat, _, _ = simulate(drive002, 250.0, 5.0, method="rk2")
     assert window_mean(t, w - w_hat, T_END) == pytest.approx(study["rk2", 180].err_w, rel=0.05)
+
+
+def test_divergence_is_reported_not_raised(drive002):
+    """At rated speed (4000 r/min, 5th harmonic at 2.67 kHz against 2.78 kHz Nyquist) the literal RK2
+    diverges at 180 us: the analysis reports NaN there; the default scheme stays finite (and says how
+    large its steady T_L_hat bias is)."""
+    from sensorless.design.linearize_pmac import analyze
+
+    w = drive002.rpm_to_w(np.array([250.0, 4000.0]))
+    lit = analyze(drive002, w, 5.0, method="rk2")
+    assert np.isfinite(lit.err_w[0]) and np.isnan(lit.err_w[1]) and np.isnan(lit.poles_d[1]).all()
+    model = analyze(drive002, w, 5.0)
+    assert np.isfinite(model.err_T).all() and np.isfinite(model.poles_d).all()
+    assert abs(model.err_T[1]) > 5.0  # honest: at rated speed 180 us is too slow for T_L_hat
