@@ -318,7 +318,7 @@ def analysis_arguments(
 
 
 def floquet_exponents(monodromy: np.ndarray, duration: np.ndarray) -> np.ndarray:
-    """ln(eig(monodromy)) / duration, principal branch, sorted by decreasing real part then imag."""
+    """ln(eig(monodromy)) / duration, principal branch, sorted like sort_poles (imag, then real)."""
     mu = np.linalg.eigvals(monodromy).astype(complex)
     with np.errstate(divide="ignore"):
         s = np.log(mu) / np.asarray(duration)[:, None]

@@ -61,8 +61,9 @@ def _print_block(r: ObserverPoles, drive: Any, title: str) -> None:
     print(title)
     print(
         f"  {'speed':>7} {'load':>6}  {'continuous poles [1/s]':<30} {'discrete poles ln(z)/T_s [1/s]':<30} "
-        f"{'e_w [rad/s]':>11} {'e_th [rad]':>10} {'e_TL [N m]':>10}"
+        f"{'damping c/d':>11} {'e_w [rad/s]':>11} {'e_th [rad]':>10} {'e_TL [N m]':>10}"
     )
+    zc, zd = np.nanmin(r.damping_c, axis=1), np.nanmin(r.damping_d, axis=1)
     rpm = drive.w_to_rpm(r.w)
     # a steady T_L_hat bias above 10 % of the load (at least 0.1 N m) means T_s is too long for the speed
     load = np.abs(r.T_L + drive.motor.B * r.w / drive.motor.p_r)
@@ -70,7 +71,8 @@ def _print_block(r: ObserverPoles, drive: Any, title: str) -> None:
     for k in range(r.w.size):
         print(
             f"  {rpm[k]:>7.0f} {r.T_L[k]:>6.3g}  {format_poles(r.poles_c[k]):<30} "
-            f"{format_poles(r.poles_d[k]):<30} {r.err_w[k]:>+11.2e} {r.err_theta[k]:>+10.1e} "
+            f"{format_poles(r.poles_d[k]):<30} {f'{zc[k]:.2f}/{zd[k]:.2f}':>11} "
+            f"{r.err_w[k]:>+11.2e} {r.err_theta[k]:>+10.1e} "
             f"{r.err_T[k]:>+10.2e}{' *' if flag[k] else ''}"
         )
     if flag.any():
