@@ -78,3 +78,8 @@ def evaluate_batch(fn: ca.Function, n: int, args: Sequence[np.ndarray]) -> list[
         # column-major (r, c*n) -> (n, r, c)
         res.append(o.reshape(n, c, r).transpose(0, 2, 1))
     return res
+
+
+def mapped(fn: ca.Function, n: int) -> ca.Function:
+    """``fn.map(n)`` (serial), cached: building a map costs as much as evaluating many points."""
+    return _mapped(fn, n, 1)
