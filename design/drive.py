@@ -20,6 +20,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from sensorless.design.envelope import TuningSettings, load_tuning
 from sensorless.design.units import DriveFileError, parse_quantity
 
 
@@ -167,6 +168,7 @@ class IpmsmDrive:
     control: Control
     observer: Observer
     injection: Injection
+    tuning: TuningSettings = TuningSettings()  # optional [tuning]: envelope and constraints of `tune`
     digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
 
     kind = "ipmsm-adaptive"
@@ -254,7 +256,7 @@ def _check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], file: str, pr
 def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
     _check_keys(
         data,
-        ("drive", "rating", "base", "motor", "estimate", "control", "observer", "injection"),
+        ("drive", "rating", "base", "motor", "estimate", "control", "observer", "injection", "tuning"),
         file,
         "",
     )
@@ -300,6 +302,9 @@ def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
         )
     observer = dataclasses.replace(observer, gains=gains)
     injection = load_section(Injection, _table(data, "injection", file), file, "injection", rel)
+    tuning = TuningSettings()
+    if "tuning" in data:
+        tuning = load_tuning(_table(data, "tuning", file), file, {**rel, "T_N": rating.T_N})
     return IpmsmDrive(
         name=head["name"],
         source=head["source"],
@@ -311,6 +316,7 @@ def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
         control=control,
         observer=observer,
         injection=injection,
+        tuning=tuning,
         digest=digest,
     )
 

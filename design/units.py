@@ -27,6 +27,8 @@ UNITS: dict[str, dict[str, float]] = {
     "angular": {"rad/s": 1.0, "Hz": 2 * math.pi, "kHz": 2e3 * math.pi},
     "mech_speed": {"rpm": 1.0, "r/min": 1.0},
     "viscous": {"Nms": 1.0, "N m s": 1.0, "Nm/(rad/s)": 1.0},
+    "rate": {"1/s": 1.0, "s^-1": 1.0},  # decay rate of a pole
+    "fraction": {"%": 0.01},  # bare numbers are fractions (0.2 = 20 %)
     "dimensionless": {},
     "integer": {},
 }
