@@ -76,7 +76,7 @@ class TuningSettings:
     errors: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # relative errors of the estimates
     tune_alpha_fo: bool = False  # also tune the adaptation bandwidth alpha_fo (10)
     breakpoints: int = 11  # schedule family: breakpoints per direction (plus one at zero speed)
-    smoothing: float = 1e-4  # weight of the family's regularizer (schedule roughness) against damping
+    smoothing: float = 0.0  # weight of the family's regularizer (schedule roughness) against damping
 
     def check(self, file: str, prefix: str = "tuning.") -> None:
         """Raise DriveFileError for inconsistent values (the key named with ``prefix``)."""

@@ -15,7 +15,7 @@ from sensorless.design.units import DriveFileError
 from sensorless.reports.files import OutputExistsError
 
 # Subcommand modules; each defines register(subparsers) that sets a ``func`` default.
-COMMAND_MODULES = ("sensorless.tuning.cmd_analyze",)
+COMMAND_MODULES = ("sensorless.tuning.cmd_analyze", "sensorless.tuning.cmd_tune")
 
 
 class UsageError(ValueError):

@@ -142,8 +142,6 @@ def _common(drive: Any, law: GainLaw, settings: TuningSettings, theta0, lower, u
         point_names=POINT_NAMES,
         make_points=make_points,
         equilibrium=equilibrium,
-        # with exact estimates the equilibrium is psi_s0, theta_tilde = 0, w_i = w_m whatever the gains
-        fixed_equilibrium=lambda P: np.all(P[2:6] == motor[:, None], axis=0),
         point_gains=point_gains,
         nominal_estimate=np.array(est.vector()),
         estimate_names=("R_s", "L_d", "L_q", "psi_pm"),

@@ -147,38 +147,54 @@ def solve(
     theta_start: np.ndarray,
     scale: float,
     *,
-    t_fixed: float | None = None,
     smoothing: float = 0.0,
-    lower: np.ndarray | None = None,
-    upper: np.ndarray | None = None,
+    radius: float = 2.0,
     tol: float = 1e-5,
     progress: Callable[[str], None] | None = None,
 ) -> Solution:
-    """Maximize the worst damping t over ``cand`` (stage 1), or with ``t_fixed`` minimize the
-    regularizer subject to damping >= t_fixed (stage 2), by the exchange method above."""
-    lower = model.lower if lower is None else lower
-    upper = model.upper if upper is None else upper
-    nth, nx = model.n_theta, model.n_x
-    theta = np.clip(np.asarray(theta_start, float), lower, upper)
+    """Maximize the worst damping t over ``cand`` (minus ``smoothing`` times the family's
+    regularizer) by the exchange method above, inside a trust region.
+
+    Each round's NLP keeps theta within ``radius`` typical magnitudes of the round's start (the
+    sector conditions are polynomial: far from the start the Newton model of IPOPT is poor). A
+    round whose solution touches the trust region is followed by another from there; a round
+    that IPOPT cannot solve is retried with half the radius. The method ends when a round's
+    solution is interior to the trust region and no grid point violates.
+    """
+    nth = model.n_theta
+    theta = np.clip(np.asarray(theta_start, float), model.lower, model.upper)
     n0 = max(4, 3 * nth)  # a rich parametrization binds at many points: start with many
     m = margins(model, theta, cand, 0.0, scale)
-    t_now = t_fixed if t_fixed is not None else _start_t(m, cand)
+    t_now = _start_t(m, cand)
     m = m - np.where(cand.kind == 1, t_now, 0.0)
     active = _pick(m, cand, (), n0)
     total_it = 0
-    for rnd in range(1, 50):
+    best: Solution | None = None  # last round with no violated grid point
+    for rnd in range(1, 100):
         M = _slots(len(active))
-        if t_fixed is None:
-            # start each round feasible: below the worst damping of the active points at theta
-            damp_act = [m[i] + t_now for i in active if cand.kind[i] == 1 and np.isfinite(m[i])]
-            t_now = float(np.clip(min([t_now, *damp_act]) - 1e-3, 0.0, T_MAX - 0.01))
-        z, sol = _run(model, cand, active, M, theta, t_now, scale, t_fixed, lower, upper, smoothing)
-        total_it += sol.stats()["iter_count"]
-        status = sol.stats()["return_status"]
-        if not sol.stats()["success"] and status not in ("Solved_To_Acceptable_Level",):
-            raise TuningError(_failure(status, cand, active))
-        theta = np.asarray(z[:nth]).ravel() * model.typical
-        t_now = float(z[nth]) if t_fixed is None else t_fixed
+        # start each round feasible: below the worst damping of the active points at theta
+        damp_act = [m[i] + t_now for i in active if cand.kind[i] == 1 and np.isfinite(m[i])]
+        t_now = float(np.clip(min([t_now, *damp_act]) - 1e-3, 0.0, T_MAX - 0.01))
+        while True:
+            lo = np.maximum(model.lower, theta - radius * model.typical)
+            hi = np.minimum(model.upper, theta + radius * model.typical)
+            z, sol = _run(model, cand, active, M, theta, t_now, scale, lo, hi, smoothing)
+            total_it += sol.stats()["iter_count"]
+            status = sol.stats()["return_status"]
+            if sol.stats()["success"] or status == "Solved_To_Acceptable_Level":
+                break
+            if radius < 0.05:
+                if best is not None:  # a verified feasible solution exists: keep it
+                    if progress:
+                        progress(f"round {rnd}: IPOPT {status}; keeping round {best.rounds}")
+                    return best
+                raise TuningError(_failure(status, cand, active))
+            radius /= 2
+        new = np.asarray(z[:nth]).ravel() * model.typical
+        at_edge = np.any((np.isclose(new, lo, rtol=0, atol=1e-6 * model.typical) & (lo > model.lower))
+                         | (np.isclose(new, hi, rtol=0, atol=1e-6 * model.typical) & (hi < model.upper)))
+        theta = new
+        t_now = float(z[nth])
         m = margins(model, theta, cand, t_now, scale)
         bad = np.flatnonzero(m < -tol)
         if progress:
@@ -186,11 +202,16 @@ def solve(
             progress(
                 f"round {rnd}: {len(active)} active points, {sol.stats()['iter_count']} IPOPT iterations, "
                 f"t = {t_now:.4f}; {bad.size} grid points violate (worst: {worst})"
+                f"{'; at the trust-region edge' if at_edge else ''}"
             )
         if bad.size == 0:
-            return Solution(theta, t_now, tuple(active), rnd, total_it)
-        active = _pick(m, cand, active, max(2, min(bad.size, n0)))
-    raise TuningError("the exchange method did not converge in 50 rounds")
+            gain = t_now - best.t if best is not None else np.inf
+            best = Solution(theta, t_now, tuple(active), rnd, total_it)
+            if not at_edge or gain < 1e-4:
+                return best
+        if bad.size:
+            active = _pick(m, cand, active, max(2, min(bad.size, n0)))
+    raise TuningError("the exchange method did not converge in 100 rounds")
 
 
 def _start_t(m: np.ndarray, cand: Candidates) -> float:
@@ -224,7 +245,7 @@ def _slots(n: int) -> int:
     return M
 
 
-def _run(model, cand, active, M, theta, t_now, scale, t_fixed, lower, upper, smoothing):
+def _run(model, cand, active, M, theta, t_now, scale, lower, upper, smoothing):
     nth, n = model.n_theta, model.n_x
     idx = list(active) + [active[0]] * (M - len(active))  # unused slots: copies, switched off
     P = cand.P[:, idx]
@@ -240,10 +261,9 @@ def _run(model, cand, active, M, theta, t_now, scale, t_fixed, lower, upper, smo
         gm = np.exp(np.mean(np.log(np.abs(pl + sigma[:, None])), axis=1))
     gm = np.where(np.isfinite(gm) & (gm > 0), gm, scale)
     slot_p = np.vstack([P, kind[None, :], sigma[None, :], gm[None, :]])
-    w_t, w_reg = (1.0, smoothing) if t_fixed is None else (0.0, 1.0)
+    w_t, w_reg = 1.0, smoothing
     p = np.concatenate([[w_t, w_reg], slot_p.T.ravel()])
     xs = x0 / model.x_typical[:, None]
-    fixed = model.fixed_equilibrium(P)
     nphi = model.phi_typical.size
     phi0 = np.asarray(model.local.map(M)(theta, P))
     slots, lo, hi = [], [], []
@@ -251,17 +271,14 @@ def _run(model, cand, active, M, theta, t_now, scale, t_fixed, lower, upper, smo
         on = s < len(active)
         f0 = factors_from_poles((pl[s] + sigma[s]) / gm[s])  # start: the factors of the start poles
         slots.append(np.concatenate([phi0[:, s] / model.phi_typical, xs[:, s], f0]))
-        # Equilibria: fixed where they do not depend on the gains; elsewhere kept within half a
-        # typical magnitude of the start (the equilibrium set is periodic in the position error:
-        # stay on the branch the analysis follows). Factor coefficients >= 0 on active slots.
-        half = 0.0 if fixed[s] else 0.5
+        # Equilibria within half a typical magnitude of the start (the equilibrium set is periodic
+        # in the position error: stay on the branch the analysis follows). Factors >= 0 if active.
+        half = 0.5
         lo.append(np.concatenate([np.full(nphi, -np.inf), xs[:, s] - half, np.full(n, 0.0 if on else -np.inf)]))
         hi.append(np.concatenate([np.full(nphi, np.inf), xs[:, s] + half, np.full(n, np.inf)]))
     z0 = np.concatenate([theta / model.typical, [t_now], *slots])
     lbx = np.concatenate([lower / model.typical, [0.0], *lo])
     ubx = np.concatenate([upper / model.typical, [T_MAX], *hi])
-    if t_fixed is not None:
-        lbx[nth] = ubx[nth] = t_fixed
     nq = n_quadratic(n)
     lbg_damp = np.zeros((M, nq))
     lbg_damp[len(active) :, :] = -np.inf
