@@ -77,14 +77,22 @@ def main() -> None:
     best_nlp = float(damping(p).min())
     mn, mg = statistics.median(t_nlp), statistics.median(t_grid)
     print(f"envelope: {W.size} points; brute force: {a.pairs**2} (lambda', omega_lambda) pairs")
-    print(f"NLP   (IPOPT, exchange method): median {mn * 1e3:8.1f} ms  (first call incl. solver build {first * 1e3:.0f} ms)")
+    print(
+        f"NLP   (IPOPT, exchange method): median {mn * 1e3:8.1f} ms  (first call incl. solver build {first * 1e3:.0f} ms)"
+    )
     print(f"grid  (Function.map + eig)    : median {mg * 1e3:8.1f} ms")
-    print(f"NLP optimum : worst damping {best_nlp:.5f} at lambda' = {sol.theta[0] / R:.3f} R_s_hat, "
-          f"omega_lambda = {sol.theta[1] / wb:.4f} p.u.")
-    print(f"grid optimum: worst damping {best_grid:.5f} at lambda' = {pair[0] / R:.3f} R_s_hat, "
-          f"omega_lambda = {pair[1] / wb:.4f} p.u.")
-    print(f"ratio grid/NLP time: {mg / mn:.1f}x (first NLP call: {mg / first:.1f}x); "
-          f"NLP - grid optimum: {best_nlp - best_grid:+.5f}")
+    print(
+        f"NLP optimum : worst damping {best_nlp:.5f} at lambda' = {sol.theta[0] / R:.3f} R_s_hat, "
+        f"omega_lambda = {sol.theta[1] / wb:.4f} p.u."
+    )
+    print(
+        f"grid optimum: worst damping {best_grid:.5f} at lambda' = {pair[0] / R:.3f} R_s_hat, "
+        f"omega_lambda = {pair[1] / wb:.4f} p.u."
+    )
+    print(
+        f"ratio grid/NLP time: {mg / mn:.1f}x (first NLP call: {mg / first:.1f}x); "
+        f"NLP - grid optimum: {best_nlp - best_grid:+.5f}"
+    )
 
 
 if __name__ == "__main__":

@@ -76,7 +76,7 @@ class TuningSettings:
     errors: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # relative errors of the estimates
     tune_alpha_fo: bool = False  # also tune the adaptation bandwidth alpha_fo (10)
     breakpoints: int = 11  # schedule family: breakpoints per direction (plus one at zero speed)
-    smoothing: float = 0.0  # weight of the family's regularizer (schedule roughness) against damping
+    smoothing: float = 1e-3  # weight of the family's regularizer (schedule roughness) against damping
 
     def check(self, file: str, prefix: str = "tuning.") -> None:
         """Raise DriveFileError for inconsistent values (the key named with ``prefix``)."""
@@ -168,7 +168,9 @@ def load_tuning(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -
     if "torques" in table:
         tq = table["torques"]
         if not isinstance(tq, list):
-            raise DriveFileError(file, "tuning.torques", f"expected a list such as ['-1 T_N', '0 Nm'], got {tq!r}")
+            raise DriveFileError(
+                file, "tuning.torques", f"expected a list such as ['-1 T_N', '0 Nm'], got {tq!r}"
+            )
         env["torques_TN"] = tuple(
             parse_relative(v, "torque", rel, file, f"tuning.torques[{i}]") / T_N for i, v in enumerate(tq)
         )

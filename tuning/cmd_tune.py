@@ -16,7 +16,7 @@ from typing import Any
 
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import parse_quantity
 from sensorless.reports.files import OutputSet
 from sensorless.tuning.cli import UsageError
 from sensorless.tuning.cmd_analyze import parse_torques
@@ -35,7 +35,9 @@ def register(sub: Any) -> None:
         "table. Defaults come from the drive's [tuning] section.",
     )
     p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
-    p.add_argument("--family", default="law16", choices=list(DESCRIPTIONS), help="gain family (default law16)")
+    p.add_argument(
+        "--family", default="law16", choices=list(DESCRIPTIONS), help="gain family (default law16)"
+    )
     p.add_argument("--out", default=None, help="output directory (default: tune-<drive name>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--speed-min", type=float, default=None, help="smallest |w_m| of the envelope [p.u.]")

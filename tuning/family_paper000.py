@@ -53,7 +53,9 @@ def _closed_loop(drive: Any, law: GainLaw, tune_alpha: bool) -> tuple[ca.Functio
     dl = ca.jacobian(ca.vertcat(l1, l2), w_hat)
     alpha_fo = th[law.n_params] if tune_alpha else ca.SX(drive.observer.alpha_fo)
     at = ca.substitute(ca.vertcat(l1, l2, dl), w_hat, pt[0])
-    local = ca.Function(f"local_{law.name}", [th, pt], [ca.vertcat(at, pt[0], alpha_fo)], ["theta", "point"], ["phi"])
+    local = ca.Function(
+        f"local_{law.name}", [th, pt], [ca.vertcat(at, pt[0], alpha_fo)], ["theta", "point"], ["phi"]
+    )
 
     lin = linearization_function(taylor_law(), False)
     phi = ca.SX.sym("phi", N_PHI)

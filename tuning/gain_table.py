@@ -137,7 +137,15 @@ def table_csv(table: GainTable) -> str:
         ",".join(head),
     ]
     for p in table.points:
-        row = [p["w_m_pu"], p["w_m_rad_s"], p["T_e_Nm"], p["lambda1"], p["lambda2"], p["damping"], p["decay_rate"]]
+        row = [
+            p["w_m_pu"],
+            p["w_m_rad_s"],
+            p["T_e_Nm"],
+            p["lambda1"],
+            p["lambda2"],
+            p["damping"],
+            p["decay_rate"],
+        ]
         for re, im in p["poles"]:
             row += [re, im]
         b = p["baseline"]

@@ -191,8 +191,10 @@ def solve(
                 raise TuningError(_failure(status, cand, active))
             radius /= 2
         new = np.asarray(z[:nth]).ravel() * model.typical
-        at_edge = np.any((np.isclose(new, lo, rtol=0, atol=1e-6 * model.typical) & (lo > model.lower))
-                         | (np.isclose(new, hi, rtol=0, atol=1e-6 * model.typical) & (hi < model.upper)))
+        at_edge = np.any(
+            (np.isclose(new, lo, rtol=0, atol=1e-6 * model.typical) & (lo > model.lower))
+            | (np.isclose(new, hi, rtol=0, atol=1e-6 * model.typical) & (hi < model.upper))
+        )
         theta = new
         t_now = float(z[nth])
         m = margins(model, theta, cand, t_now, scale)
@@ -274,7 +276,9 @@ def _run(model, cand, active, M, theta, t_now, scale, lower, upper, smoothing):
         # Equilibria within half a typical magnitude of the start (the equilibrium set is periodic
         # in the position error: stay on the branch the analysis follows). Factors >= 0 if active.
         half = 0.5
-        lo.append(np.concatenate([np.full(nphi, -np.inf), xs[:, s] - half, np.full(n, 0.0 if on else -np.inf)]))
+        lo.append(
+            np.concatenate([np.full(nphi, -np.inf), xs[:, s] - half, np.full(n, 0.0 if on else -np.inf)])
+        )
         hi.append(np.concatenate([np.full(nphi, np.inf), xs[:, s] + half, np.full(n, np.inf)]))
     z0 = np.concatenate([theta / model.typical, [t_now], *slots])
     lbx = np.concatenate([lower / model.typical, [0.0], *lo])

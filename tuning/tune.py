@@ -164,7 +164,9 @@ def _candidates(
         P.append(P[0])
         kind.append(np.zeros(W.size))
         sigma.append(np.full(W.size, settings.min_decay))
-        labels += [_label(w, t, wb, f", decay >= {settings.min_decay:g} 1/s") for w, t in zip(W, T, strict=True)]
+        labels += [
+            _label(w, t, wb, f", decay >= {settings.min_decay:g} 1/s") for w, t in zip(W, T, strict=True)
+        ]
     for name, est in error_scenarios(settings, model.nominal_estimate):
         P.append(model.make_points(W, T, est))
         kind.append(np.zeros(W.size))
