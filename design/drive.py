@@ -20,6 +20,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from sensorless.design.envelope import TuningSettings, load_tuning
 from sensorless.design.units import DriveFileError, parse_quantity
 
 
@@ -194,6 +195,7 @@ class IpmsmDrive:
     observer: Observer
     injection: Injection
     runtime: Runtime | None = None  # [runtime], defaults filled in by the loader
+    tuning: TuningSettings = field(default_factory=TuningSettings)  # optional [tuning] of `tune`
     digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
 
     kind = "ipmsm-adaptive"
@@ -281,7 +283,18 @@ def _check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], file: str, pr
 def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
     _check_keys(
         data,
-        ("drive", "rating", "base", "motor", "estimate", "control", "observer", "injection", "runtime"),
+        (
+            "drive",
+            "rating",
+            "base",
+            "motor",
+            "estimate",
+            "control",
+            "observer",
+            "injection",
+            "runtime",
+            "tuning",
+        ),
         file,
         "",
     )
@@ -328,6 +341,9 @@ def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
     observer = dataclasses.replace(observer, gains=gains)
     injection = load_section(Injection, _table(data, "injection", file), file, "injection", rel)
     runtime = _load_runtime(data, file, rel)
+    tuning = TuningSettings()
+    if "tuning" in data:
+        tuning = load_tuning(_table(data, "tuning", file), file, {**rel, "T_N": rating.T_N})
     return IpmsmDrive(
         name=head["name"],
         source=head["source"],
@@ -340,6 +356,7 @@ def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
         observer=observer,
         injection=injection,
         runtime=runtime,
+        tuning=tuning,
         digest=digest,
     )
 

@@ -46,9 +46,10 @@ UNITS: dict[str, dict[str, float]] = {
         "mVs": 1e-3,
         "mWb": 1e-3,
     },
-    "rate": {"1/s": 1.0, "/s": 1.0, "s^-1": 1.0},  # observer gain g of paper 002
+    "rate": {"1/s": 1.0, "/s": 1.0, "s^-1": 1.0},  # observer gain g of paper 002; decay rates
     # load-torque adaptation gain Gamma of paper 002, eq. (10): N m kg m^2 / (V s)^2 = A^2 s^2
     "adaptation": {"A^2 s^2": 1.0, "A2s2": 1.0, "A²s²": 1.0},
+    "fraction": {"%": 0.01},  # bare numbers are fractions (0.2 = 20 %)
     "dimensionless": {},
     "integer": {},
 }

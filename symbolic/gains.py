@@ -111,3 +111,29 @@ def get_law(law: str | GainLaw) -> GainLaw:
         return LAWS[law]
     except KeyError:
         raise KeyError(f"unknown gain law {law!r} (known: {', '.join(LAWS)})") from None
+
+
+def taylor_law() -> GainLaw:
+    """First-order expansion of a gain law at a speed w0: params [lambda1, lambda2, dlambda1/dw_hat,
+    dlambda2/dw_hat, w0] (ohm, ohm, ohm s/rad, ohm s/rad, rad/s).
+
+    At any equilibrium of the coupled system the speed estimate equals the true speed (theta_tilde
+    is at rest), so the residual and the Jacobian of the closed loop at an operating point depend on
+    the gain law only through its value and slope there. Tuning evaluates the real law (and its
+    slope, by AD of the same expression) at each operating point and passes them through this law:
+    the linearization is identical and its cost no longer grows with the number of law parameters.
+    """
+    return _TAYLOR
+
+
+def _taylor_gain(w_hat: Sym, params: Sym) -> tuple[Sym, Sym]:
+    dw = w_hat - params[4]
+    return params[0] + params[2] * dw, params[1] + params[3] * dw
+
+
+_TAYLOR = GainLaw(
+    "taylor",
+    _taylor_gain,
+    ("lambda1", "lambda2", "dlambda1", "dlambda2", "w0"),
+    ("ohm", "ohm", "ohm s/rad", "ohm s/rad", "rad/s"),
+)

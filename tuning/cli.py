@@ -18,6 +18,7 @@ from sensorless.tuning.gain_table import GainTableError
 # Subcommand modules; each defines register(subparsers) that sets a ``func`` default.
 COMMAND_MODULES = (
     "sensorless.tuning.cmd_analyze",
+    "sensorless.tuning.cmd_tune",
     "sensorless.tuning.cmd_codegen",
     "sensorless.tuning.cmd_report",
 )

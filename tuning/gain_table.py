@@ -111,3 +111,44 @@ def read_gain_table(path: str | Path) -> GainTable:
         points=doc.get("points", []),
         summary=doc.get("summary", {}),
     )
+
+
+def table_csv(table: GainTable) -> str:
+    """CSV text of the per-point figures (the dense re-verification grid), units in the header."""
+    env = table.envelope
+    head = [
+        "w_m_pu",
+        "w_m_rad_s",
+        "T_e_Nm",
+        "lambda1_ohm",
+        "lambda2_ohm",
+        "damping",
+        "decay_rate_1_s",
+    ]
+    n = len(table.points[0]["poles"]) if table.points else 0
+    for k in range(n):
+        head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
+    head += ["baseline_lambda1_ohm", "baseline_lambda2_ohm", "baseline_damping", "baseline_decay_rate_1_s"]
+    lines = [
+        f"# sensorless gain table, family {table.family}, drive {table.drive.get('name')}; "
+        f"speed base {env.get('speed_base_rad_s', float('nan')):.10g} rad/s (electrical); "
+        f"baseline = the paper's default gains",
+        "# gains: " + json.dumps(_clean(table.gains), sort_keys=True),
+        ",".join(head),
+    ]
+    for p in table.points:
+        row = [
+            p["w_m_pu"],
+            p["w_m_rad_s"],
+            p["T_e_Nm"],
+            p["lambda1"],
+            p["lambda2"],
+            p["damping"],
+            p["decay_rate"],
+        ]
+        for re, im in p["poles"]:
+            row += [re, im]
+        b = p["baseline"]
+        row += [b["lambda1"], b["lambda2"], b["damping"], b["decay_rate"]]
+        lines.append(",".join("nan" if not math.isfinite(v) else f"{v:.10g}" for v in row))
+    return "\n".join(lines) + "\n"

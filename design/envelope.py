@@ -1,0 +1,204 @@
+"""Operating envelope and tuning constraints: the optional ``[tuning]`` section of a drive TOML.
+
+Defaults are those of the tuning issue: |w_m| in [0.05, 1] p.u. in both directions x T_e in
+{-T_N, 0, T_N}, no decay-rate or gain-magnitude constraint, no parameter-error scenarios. Loading is
+strict like the rest of the drive file: unknown keys, wrong units or types and inconsistent values
+raise DriveFileError naming the file and the key. Speeds are stored in p.u. of the drive's base
+speed (the edge unit of the command line and the tables) and converted by :meth:`Envelope.speeds`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sensorless.design.units import DriveFileError, parse_quantity
+
+ESTIMATE_KEYS = ("R_s", "L_d", "L_q", "psi_pm")  # order of the estimate vector
+DIRECTIONS = ("both", "positive", "negative")
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """Operating points to tune over: speeds (p.u., per direction) x torques (N m)."""
+
+    speed_min: float = 0.05  # smallest |w_m| [p.u.]
+    speed_max: float = 1.0  # largest |w_m| [p.u.]
+    speeds: int = 20  # grid points per direction
+    directions: str = "both"
+    torques_TN: tuple[float, ...] = (-1.0, 0.0, 1.0)  # torques as multiples of T_N
+    dense_factor: int = 4  # the re-verification grid is this many times denser (>= 4)
+
+    def speed_grid(self, w_base: float, factor: int = 1) -> np.ndarray:
+        """Electrical speeds [rad/s], sorted; ``factor`` > 1 refines each interval that many times."""
+        n = (self.speeds - 1) * factor + 1
+        mag = np.linspace(self.speed_min, self.speed_max, n) * w_base
+        parts = []
+        if self.directions in ("both", "negative"):
+            parts.append(-mag[::-1])
+        if self.directions in ("both", "positive"):
+            parts.append(mag)
+        return np.concatenate(parts)
+
+    def torque_grid(self, T_N: float, factor: int = 1) -> np.ndarray:
+        """Torques [N m], sorted; ``factor`` > 1 inserts points in each interval between them."""
+        T = np.unique(np.asarray(self.torques_TN, float)) * T_N
+        if factor == 1 or T.size == 1:
+            return T
+        pieces = [np.linspace(a, b, factor + 1)[:-1] for a, b in itertools.pairwise(T)]
+        return np.concatenate([*pieces, T[-1:]])
+
+    def grid(self, w_base: float, T_N: float, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Flat (w_m [rad/s], T_e [N m]) of the speed x torque grid (torque-major)."""
+        W, T = np.meshgrid(self.speed_grid(w_base, factor), self.torque_grid(T_N, factor))
+        return W.ravel(), T.ravel()
+
+    def describe(self) -> str:
+        """One line for the terminal."""
+        dirs = {"both": "both directions", "positive": "positive speeds", "negative": "negative speeds"}
+        tq = ", ".join(f"{t:g}" for t in self.torques_TN)
+        return (
+            f"|w_m| in [{self.speed_min:g}, {self.speed_max:g}] p.u. ({self.speeds} speeds, "
+            f"{dirs[self.directions]}) x T_e in {{{tq}}} T_N"
+        )
+
+
+@dataclass(frozen=True)
+class TuningSettings:
+    """Envelope, constraints and options of ``sensorless tune`` (drive TOML ``[tuning]``)."""
+
+    envelope: Envelope = Envelope()
+    min_decay: float = 0.0  # required decay rate -max Re(p) at every envelope point [1/s]; 0: off
+    lambda_max: float | None = None  # bound on |lambda1|, |lambda2| [ohm]; None: family's box
+    errors: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # relative errors of the estimates
+    tune_alpha_fo: bool = False  # also tune the adaptation bandwidth alpha_fo (10)
+    breakpoints: int = 11  # schedule family: breakpoints per direction (plus one at zero speed)
+    smoothing: float = 1e-3  # weight of the family's regularizer (schedule roughness) against damping
+
+    def check(self, file: str, prefix: str = "tuning.") -> None:
+        """Raise DriveFileError for inconsistent values (the key named with ``prefix``)."""
+        e = self.envelope
+
+        def bad(key: str, why: str) -> DriveFileError:
+            return DriveFileError(file, f"{prefix}{key}", why)
+
+        if not 0 < e.speed_min < e.speed_max:
+            raise bad("speed_min", f"need 0 < speed_min < speed_max, got {e.speed_min:g}, {e.speed_max:g}")
+        if e.speeds < 2:
+            raise bad("speeds", f"need at least 2 speed points per direction, got {e.speeds}")
+        if e.directions not in DIRECTIONS:
+            raise bad("directions", f"{e.directions!r} is not one of {', '.join(DIRECTIONS)}")
+        if not e.torques_TN:
+            raise bad("torques", "need at least one torque")
+        if e.dense_factor < 4:
+            raise bad("dense_factor", f"the re-verification grid must be >= 4x denser, got {e.dense_factor}")
+        if self.min_decay < 0:
+            raise bad("min_decay", f"must be >= 0, got {self.min_decay:g}")
+        if self.lambda_max is not None and self.lambda_max <= 0:
+            raise bad("lambda_max", f"must be > 0, got {self.lambda_max:g}")
+        for k, v in zip(ESTIMATE_KEYS, self.errors, strict=True):
+            if not 0 <= v < 0.9:
+                raise bad(f"errors.{k}", f"must be in [0 %, 90 %), got {100 * v:g} %")
+        if self.breakpoints < 2:
+            raise bad("breakpoints", f"need at least 2 breakpoints per direction, got {self.breakpoints}")
+        if not 0 <= self.smoothing < 0.1:
+            raise bad("smoothing", f"must be in [0, 0.1), got {self.smoothing:g}")
+
+
+_KEYS = (
+    "speed_min",
+    "speed_max",
+    "speeds",
+    "directions",
+    "torques",
+    "dense_factor",
+    "min_decay",
+    "lambda_max",
+    "errors",
+    "tune_alpha_fo",
+    "breakpoints",
+    "smoothing",
+)
+
+
+def parse_relative(value: Any, dim: str, rel: Mapping[str, float], file: str, key: str) -> float:
+    """A quantity that may carry a relative unit (``pu``, ``R_s_hat``, ``T_N``); returns SI."""
+    if dim == "torque" and isinstance(value, str) and value.strip().endswith("T_N"):
+        num = value.strip()[:-3].strip() or "1"
+        try:
+            return float(num) * rel["T_N"]
+        except ValueError:
+            raise DriveFileError(file, key, f"cannot read {value!r} as '<number> T_N'") from None
+    x, unit = parse_quantity(value, dim, file=file, key=key)
+    if unit is not None:
+        if unit not in rel:
+            raise DriveFileError(file, key, f"unit '{unit}' cannot be resolved here")
+        x *= rel[unit]
+    return x
+
+
+def _int(value: Any, file: str, key: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise DriveFileError(file, key, f"expected an integer, got {value!r}")
+    return value
+
+
+def load_tuning(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -> TuningSettings:
+    """Strictly load a ``[tuning]`` table; absent keys keep their defaults. ``rel`` resolves the
+    relative units: ``pu`` (base speed, rad/s), ``R_s_hat`` (ohm), ``T_N`` (N m)."""
+    for k in table:
+        if k not in _KEYS:
+            raise DriveFileError(file, f"tuning.{k}", f"unknown key (allowed: {', '.join(_KEYS)})")
+    env: dict[str, Any] = {}
+    out: dict[str, Any] = {}
+    w_base, T_N = rel["pu"], rel["T_N"]
+    for k in ("speed_min", "speed_max"):
+        if k in table:
+            env[k] = parse_relative(table[k], "angular", rel, file, f"tuning.{k}") / w_base
+    for k in ("speeds", "dense_factor"):
+        if k in table:
+            env[k] = _int(table[k], file, f"tuning.{k}")
+    if "directions" in table:
+        if not isinstance(table["directions"], str):
+            raise DriveFileError(file, "tuning.directions", f"expected a string, got {table['directions']!r}")
+        env["directions"] = table["directions"]
+    if "torques" in table:
+        tq = table["torques"]
+        if not isinstance(tq, list):
+            raise DriveFileError(
+                file, "tuning.torques", f"expected a list such as ['-1 T_N', '0 Nm'], got {tq!r}"
+            )
+        env["torques_TN"] = tuple(
+            parse_relative(v, "torque", rel, file, f"tuning.torques[{i}]") / T_N for i, v in enumerate(tq)
+        )
+    if "min_decay" in table:
+        out["min_decay"] = parse_relative(table["min_decay"], "rate", rel, file, "tuning.min_decay")
+    if "lambda_max" in table:
+        out["lambda_max"] = parse_relative(table["lambda_max"], "resistance", rel, file, "tuning.lambda_max")
+    if "errors" in table:
+        et = table["errors"]
+        if not isinstance(et, dict):
+            raise DriveFileError(file, "tuning.errors", "expected a table {R_s = '20 %', ...}")
+        errs = [0.0] * 4
+        for k, v in et.items():
+            if k not in ESTIMATE_KEYS:
+                raise DriveFileError(
+                    file, f"tuning.errors.{k}", f"unknown key (allowed: {', '.join(ESTIMATE_KEYS)})"
+                )
+            errs[ESTIMATE_KEYS.index(k)] = parse_relative(v, "fraction", rel, file, f"tuning.errors.{k}")
+        out["errors"] = tuple(errs)
+    if "tune_alpha_fo" in table:
+        if not isinstance(table["tune_alpha_fo"], bool):
+            raise DriveFileError(file, "tuning.tune_alpha_fo", "expected true or false")
+        out["tune_alpha_fo"] = table["tune_alpha_fo"]
+    if "breakpoints" in table:
+        out["breakpoints"] = _int(table["breakpoints"], file, "tuning.breakpoints")
+    if "smoothing" in table:
+        out["smoothing"] = parse_relative(table["smoothing"], "dimensionless", rel, file, "tuning.smoothing")
+    settings = TuningSettings(envelope=dataclasses.replace(Envelope(), **env), **out)
+    settings.check(file)
+    return settings

@@ -1,0 +1,158 @@
+"""Gain tuning: exact sector conditions, law-(16) optimum vs an independent brute force, dense
+re-verification, paper defaults, robustness constraints, CLI errors. Small envelopes keep it fast."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from sensorless.design.envelope import Envelope
+from sensorless.design.linearize import linearize
+from sensorless.tuning.cli import main
+from sensorless.tuning.family_paper000 import with_estimate
+from sensorless.tuning.sector import factors_from_poles
+from sensorless.tuning.tune import tune
+from test_paper000_closed_form import mtpa_reference, paper_gain, paper_matrices
+
+
+def small(drive, **kw):
+    env = Envelope(speed_min=0.05, speed_max=1.0, speeds=8, torques_TN=(-1.0, 1.0))
+    return dataclasses.replace(drive.tuning, envelope=env, **kw)
+
+
+def test_sector_factor_conditions_match_eigenvalues():
+    """Every pole has damping >= zeta iff the quadratic factors satisfy a, b >= 0, a^2 >= 4 zeta^2 b."""
+    rng = np.random.default_rng(3)
+    for _ in range(2000):
+        n = rng.choice([2, 3, 4, 5])
+        A = rng.normal(size=(n, n))
+        p = np.linalg.eigvals(A)
+        zeta = rng.uniform(0, 0.95)
+        f = factors_from_poles(p)
+        a, b = f[0 : 2 * (n // 2) : 2], f[1 : 2 * (n // 2) : 2]
+        ok = (a >= 0).all() and (b >= 0).all() and (a**2 >= 4 * zeta**2 * b).all()
+        if n % 2:
+            ok = ok and f[-1] >= 0
+        truth = (-p.real / np.abs(p)).min() >= zeta
+        assert ok == truth
+        coeffs = np.array([1.0])
+        for i in range(n // 2):
+            coeffs = np.polymul(coeffs, [1, a[i], b[i]])
+        if n % 2:
+            coeffs = np.polymul(coeffs, [1, f[-1]])
+        np.testing.assert_allclose(coeffs, np.poly(A), rtol=1e-8, atol=1e-8)
+
+
+def closed_form_worst_damping(drive, W, T, lam_p, w_lam):
+    """Worst damping from the paper's (11)-(15) typed here: closed loop [[A + kp B C, -B], [-ki C, 0]]."""
+    m, e = drive.motor, drive.estimate
+    a = drive.observer.alpha_fo
+    kp, ki = 2 * a / e.psi_pm, a**2 / e.psi_pm  # eq. (10)
+    worst = np.inf
+    for w, t in zip(W, T, strict=True):
+        i0 = mtpa_reference(t, m.L_d, m.L_q, m.psi_pm, m.p)
+        l1, l2 = paper_gain("speed", w, (lam_p, w_lam))
+        A1, B1, A2 = paper_matrices(w, i0, m.R_s, m.L_d, m.L_q, m.psi_pm, l1, l2)
+        A = np.zeros((3, 3))
+        A[:2, :2], A[:2, 2] = A1, A2
+        B = np.append(B1, 1.0)[:, None]
+        C = np.array([[0.0, e.L_q, 0.0]])
+        Acl = np.block([[A + kp * B @ C, -B], [-ki * C, np.zeros((1, 1))]])
+        p = np.linalg.eigvals(Acl)
+        worst = min(worst, (-p.real / np.abs(p)).min())
+    return worst
+
+
+@pytest.fixture(scope="module")
+def law16(drive):
+    return tune(drive, "law16", small(drive))
+
+
+def test_law16_at_least_as_good_as_brute_force(drive, law16):
+    """The NLP optimum beats (within 0.002) a coarse independent grid search on the same envelope."""
+    W, T = small(drive).envelope.grid(drive.base.w, drive.T_N)
+    R, wb = drive.estimate.R_s, drive.base.w
+    best = max(
+        closed_form_worst_damping(drive, W, T, lp * R, wl * wb)
+        for lp in np.linspace(0.5, 20, 12)
+        for wl in np.linspace(0.1, 3, 12)
+    )
+    nlp_grid = closed_form_worst_damping(drive, W, T, law16.theta[0], law16.theta[1])
+    assert nlp_grid >= best - 0.002, (nlp_grid, best)
+    assert nlp_grid > closed_form_worst_damping(drive, W, T, 2 * R, wb) + 0.1  # and beats the paper
+
+
+def test_table_reports_dense_reverification(drive, law16):
+    s = law16.table.summary
+    env = small(drive).envelope
+    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    wb, TN = drive.base.w, drive.T_N
+    w_opt, w_den = env.speed_grid(wb)[env.speeds :], env.speed_grid(wb, env.dense_factor)
+    assert np.diff(w_den[w_den > 0]).max() <= np.diff(w_opt).max() / 4 + 1e-9  # >= 4x denser per axis
+    assert (
+        np.diff(env.torque_grid(TN, env.dense_factor)).max() <= np.diff(env.torque_grid(TN)).max() / 4 + 1e-9
+    )
+    pts = law16.table.points
+    assert len(pts) == Wd.size
+    assert s["worst_damping"] == min(p["damping"] for p in pts)
+    ref = linearize(drive, Wd, Td, gain=("speed", law16.theta))  # the analysis path, independently
+    assert s["worst_damping"] == pytest.approx(np.nanmin(ref.worst_damping), abs=1e-9)
+    k = int(np.nanargmin(ref.worst_damping))
+    assert s["worst_damping_at"]["w_m_rad_s"] == pytest.approx(Wd[k])
+    doc = json.loads(law16.table.to_json())
+    assert doc["format"] == "sensorless-gain-table/1" and doc["family"] == "law16"
+    assert set(doc["gains"]) == {"lambda_p", "w_lambda", "alpha_fo"}
+
+
+def test_paper_defaults_reproduce(drive, law16):
+    b = law16.table.summary["baseline_parameters"]
+    assert b["lambda_p"] == pytest.approx(2 * drive.estimate.R_s)
+    assert b["w_lambda"] == pytest.approx(drive.base.w)
+    env = small(drive).envelope
+    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    ref = linearize(drive, Wd, Td, gain="speed")
+    assert law16.table.summary["baseline_worst_damping"] == pytest.approx(
+        np.nanmin(ref.worst_damping), abs=1e-9
+    )
+
+
+@pytest.mark.xfail(
+    reason="known open problem: with estimate errors the equilibrium of some envelope points is lost "
+    "during the exchange rounds (TuningError 'no observer equilibrium'); see docs/tuning.md",
+    strict=False,
+)
+def test_stable_under_stated_estimate_errors(drive):
+    st = small(drive, errors=(0.2, 0.0, 0.1, 0.0))
+    r = tune(drive, "law16", st)
+    assert len(r.robust) == 4 and all(x["stable"] for x in r.robust)
+    env = st.envelope
+    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    nom = np.array(drive.estimate.vector())
+    for s1 in (1, -1):
+        for s3 in (1, -1):
+            est = nom * np.array([1 + 0.2 * s1, 1, 1 + 0.1 * s3, 1])
+            ref = linearize(with_estimate(drive, est), Wd, Td, gain=("speed", r.theta))
+            assert np.isfinite(ref.max_real).all() and (ref.max_real < 0).all()
+
+
+def test_cli_errors_leave_no_files(tmp_path, capsys):
+    out = tmp_path / "o"
+    code = main(["tune", "piippo2008", "--speeds", "4", "--min-decay", "5000", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert (code == 2 and "infeasible" in err) or "IPOPT" in err
+    assert not out.exists() or not any(out.iterdir())
+    code = main(["tune", "piippo2008", "--family", "deangelo", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "deangelo" in err and "not available for drive kind 'ipmsm-adaptive'" in err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_cli_tune_writes_tables_deterministically(tmp_path, capsys):
+    args = ["tune", "piippo2008", "--speeds", "6", "--torque=-1T_N,1T_N", "--quiet"]
+    assert main([*args, "--out", str(tmp_path / "a")]) == 0
+    stdout = capsys.readouterr().out
+    assert "worst damping" in stdout and "wrote" in stdout
+    assert main([*args, "--out", str(tmp_path / "b")]) == 0
+    for name in ("gains_law16.json", "gains_law16.csv"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+    assert main([*args, "--out", str(tmp_path / "a")]) == 2  # refuses to overwrite

@@ -1,0 +1,70 @@
+"""Registry of tunable gain families: which family can be tuned on which drive kind.
+
+A family module registers a builder ``(drive, settings) -> TuningModel`` for each drive kind it
+supports (see tuning/family_paper000.py). The families known to the gain-table format
+(tuning/gain_table.py) are always listed, so asking for one that has no builder for the drive's kind
+gives a clear error instead of an unknown-name error. Adding paper 002's ``deangelo`` family is one
+module that calls :func:`register` and one line in ``FAMILY_MODULES``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+from sensorless.design.envelope import TuningSettings
+from sensorless.tuning.model import TuningModel
+
+Builder = Callable[[Any, TuningSettings], TuningModel]
+
+# family -> what it tunes (for help texts and errors)
+DESCRIPTIONS: dict[str, str] = {
+    "law16": "paper 000 eq. (16): lambda', omega_lambda (optionally alpha_fo)",
+    "schedule": "free speed schedule: (lambda1, lambda2) at speed breakpoints, linear in between",
+    "deangelo": "paper 002 reduced-order EMF/load-torque observer: g, Gamma",
+}
+
+# Modules that register builders when imported.
+FAMILY_MODULES = ("sensorless.tuning.family_paper000",)
+
+_BUILDERS: dict[str, dict[str, Builder]] = {}
+
+
+class FamilyError(ValueError):
+    """A family was asked for on a drive kind that does not support it."""
+
+
+def register(family: str, kind: str, builder: Builder) -> None:
+    """Register ``builder`` for ``family`` on drives of ``kind``."""
+    if family not in DESCRIPTIONS:
+        raise ValueError(f"family {family!r} has no description in DESCRIPTIONS")
+    _BUILDERS.setdefault(family, {})[kind] = builder
+
+
+def _load() -> None:
+    for name in FAMILY_MODULES:
+        importlib.import_module(name)
+
+
+def families_for(kind: str) -> list[str]:
+    """Families that can be tuned on drives of ``kind``."""
+    _load()
+    return [f for f in DESCRIPTIONS if kind in _BUILDERS.get(f, {})]
+
+
+def build_model(drive: Any, family: str, settings: TuningSettings) -> TuningModel:
+    """The TuningModel of ``family`` for ``drive``; FamilyError if the kind does not support it."""
+    _load()
+    if family not in DESCRIPTIONS:
+        raise FamilyError(f"unknown family {family!r} (known: {', '.join(DESCRIPTIONS)})")
+    builder = _BUILDERS.get(family, {}).get(drive.kind)
+    if builder is None:
+        kinds = sorted(_BUILDERS.get(family, {}))
+        here = ", ".join(families_for(drive.kind)) or "none"
+        raise FamilyError(
+            f"{drive.file}: family '{family}' ({DESCRIPTIONS[family]}) is not available for drive kind "
+            f"'{drive.kind}'; it is available for: {', '.join(kinds) or 'no installed drive kind'}. "
+            f"Families for '{drive.kind}': {here}"
+        )
+    return builder(drive, settings)

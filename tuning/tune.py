@@ -1,0 +1,259 @@
+"""Gain tuning end to end: envelope -> NLP (stage 1 and 2) -> dense re-verification -> gain table.
+
+The numbers a user sees (terminal summary, CSV, JSON) are all from the *re-verification*: the
+eigenvalues of the linearized closed loop on a grid ``dense_factor`` (>= 4) times denser in speed and
+in torque than the grid the NLP optimized over, for the tuned gains and for the paper's defaults.
+The NLP's own value of the worst damping is kept in the summary only for comparison.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
+from sensorless.tuning import nlp
+from sensorless.tuning.families import DESCRIPTIONS, build_model
+from sensorless.tuning.gain_table import GainTable
+from sensorless.tuning.model import TuningModel, damping, max_real, poles
+
+ROBUST_MARGIN = 1e-3  # under estimate errors require max Re(p) <= -ROBUST_MARGIN * scale (strictly stable)
+
+
+@dataclass(frozen=True)
+class Figures:
+    """Closed-loop figures of one gain set on a grid."""
+
+    w_m: np.ndarray  # [rad/s]
+    T_e: np.ndarray  # [N m]
+    poles: np.ndarray  # (N, n) [1/s]
+    damping: np.ndarray  # worst damping per point
+    decay: np.ndarray  # -max Re per point [1/s]
+    gains: dict[str, np.ndarray]  # lambda1_ohm, lambda2_ohm per point
+
+    def worst(self) -> int:
+        """Index of the worst-damped point (NaN counts as worst)."""
+        return int(np.argmin(np.where(np.isfinite(self.damping), self.damping, -np.inf)))
+
+
+@dataclass(frozen=True)
+class TuneResult:
+    """Everything ``sensorless tune`` reports."""
+
+    family: str
+    model: TuningModel
+    theta: np.ndarray
+    theta0: np.ndarray
+    stage1: nlp.Solution
+    stage2: nlp.Solution | None
+    grid: Figures  # tuned gains on the optimization grid
+    dense: Figures  # tuned gains on the re-verification grid
+    dense_baseline: Figures  # paper defaults on the re-verification grid
+    robust: list[dict[str, Any]]  # per error scenario: worst max Re on the dense grid
+    table: GainTable
+    seconds: float
+
+
+def figures(model: TuningModel, theta: np.ndarray, w: np.ndarray, T: np.ndarray, est=None) -> Figures:
+    """Poles, damping, decay rate and gains of ``theta`` at the points (w, T)."""
+    est = model.nominal_estimate if est is None else est
+    p, _ = poles(model, theta, model.make_points(w, T, est))
+    return Figures(w, T, p, damping(p), -max_real(p), model.point_gains(theta, w))
+
+
+def error_scenarios(settings: TuningSettings, nominal: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """Corners of the stated estimate-error box: every combination of +-error on each parameter
+    with a nonzero error (2^m scenarios). Labelled like 'R_s+30%,L_q-10%'."""
+    keys = [(k, e) for k, e in zip(range(4), settings.errors, strict=True) if e > 0]
+    out = []
+    for signs in itertools.product((1, -1), repeat=len(keys)):
+        est = nominal.copy()
+        parts = []
+        for (k, e), s in zip(keys, signs, strict=True):
+            est[k] = nominal[k] * (1 + s * e)
+            parts.append(f"{ESTIMATE_KEYS[k]}{'+' if s > 0 else '-'}{100 * e:g}%")
+        out.append((",".join(parts), est))
+    return out if keys else []
+
+
+def _label(w: float, T: float, w_base: float, extra: str = "") -> str:
+    return f"w_m = {w / w_base:+.3f} p.u., T_e = {T:+.3g} N m{extra}"
+
+
+def tune(
+    drive: Any,
+    family: str,
+    settings: TuningSettings | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> TuneResult:
+    """Tune ``family`` on ``drive`` over the envelope of ``settings`` (default: the drive's
+    ``[tuning]``). Raises nlp.TuningError if IPOPT fails or the constraints cannot be met."""
+    t_start = time.perf_counter()
+    settings = settings or drive.tuning
+    say = progress or (lambda s: None)
+    model = build_model(drive, family, settings)
+    env = settings.envelope
+    wb, T_N = drive.base.w, drive.T_N
+    W, T = env.grid(wb, T_N)
+    theta0 = np.clip(model.theta0, model.lower, model.upper)
+    base = figures(model, theta0, W, T)
+    if not np.isfinite(base.poles).all():
+        raise nlp.TuningError("the paper's default gains have no closed-loop equilibrium on the envelope")
+    scale = float(np.abs(base.poles).max())
+
+    cand = _candidates(model, settings, W, T, wb, scale)
+    say(
+        f"{family}: {model.n_theta} parameters, {W.size} envelope points"
+        f"{f', {cand.size - W.size} constraint points' if cand.size > W.size else ''}; "
+        f"paper defaults: worst damping {base.damping.min():.4f}"
+    )
+    say("stage 1: maximize the worst damping (IPOPT, sector conditions)")
+    s1 = nlp.solve(model, cand, theta0, scale, smoothing=settings.smoothing, progress=say)
+    theta, s2 = s1.theta, None
+
+    say(f"re-verifying on the {env.dense_factor}x denser grid")
+    Wd, Td = env.grid(wb, T_N, env.dense_factor)
+    dense = figures(model, theta, Wd, Td)
+    dense0 = figures(model, theta0, Wd, Td)
+    grid = figures(model, theta, W, T)
+    if not np.isfinite(dense.damping).all():
+        k = int(np.flatnonzero(~np.isfinite(dense.damping))[0])
+        raise nlp.TuningError(f"tuned gains: no closed-loop equilibrium at {_label(Wd[k], Td[k], wb)}")
+    robust = []
+    for name, est in error_scenarios(settings, model.nominal_estimate):
+        f = figures(model, theta, Wd, Td, est)
+        mr = np.where(np.isfinite(f.decay), -f.decay, np.inf)
+        k = int(np.argmax(mr))
+        robust.append(
+            {
+                "scenario": name,
+                "estimate": est,
+                "max_real_1_s": float(mr[k]),
+                "at_w_m_pu": float(Wd[k] / wb),
+                "at_T_e_Nm": float(Td[k]),
+                "stable": bool(mr[k] < 0),
+            }
+        )
+    unstable = [r for r in robust if not r["stable"]]
+    if unstable:
+        r = unstable[0]
+        raise nlp.TuningError(
+            f"tuned gains are not stable under estimate errors {r['scenario']} at "
+            f"w_m = {r['at_w_m_pu']:+.3f} p.u., T_e = {r['at_T_e_Nm']:+.3g} N m on the dense grid "
+            f"(max Re = {r['max_real_1_s']:.3g} 1/s): use more --speeds"
+        )
+    seconds = time.perf_counter() - t_start
+    result = TuneResult(family, model, theta, theta0, s1, s2, grid, dense, dense0, robust, None, seconds)  # type: ignore[arg-type]
+    table = _table(drive, settings, result, scale)
+    return TuneResult(family, model, theta, theta0, s1, s2, grid, dense, dense0, robust, table, seconds)
+
+
+def _candidates(
+    model: TuningModel, settings: TuningSettings, W: np.ndarray, T: np.ndarray, wb: float, scale: float
+) -> nlp.Candidates:
+    """Damping points of the envelope, decay-rate points, and stability points per error scenario."""
+    P = [model.make_points(W, T, model.nominal_estimate)]
+    kind = [np.ones(W.size)]
+    sigma = [np.zeros(W.size)]
+    labels = [_label(w, t, wb) for w, t in zip(W, T, strict=True)]
+    if settings.min_decay > 0:
+        P.append(P[0])
+        kind.append(np.zeros(W.size))
+        sigma.append(np.full(W.size, settings.min_decay))
+        labels += [
+            _label(w, t, wb, f", decay >= {settings.min_decay:g} 1/s") for w, t in zip(W, T, strict=True)
+        ]
+    for name, est in error_scenarios(settings, model.nominal_estimate):
+        P.append(model.make_points(W, T, est))
+        kind.append(np.zeros(W.size))
+        sigma.append(np.full(W.size, max(settings.min_decay, ROBUST_MARGIN * scale)))
+        labels += [_label(w, t, wb, f", estimates {name}") for w, t in zip(W, T, strict=True)]
+    return nlp.Candidates(np.hstack(P), np.concatenate(kind), np.concatenate(sigma), tuple(labels))
+
+
+def _where(f: Figures, k: int, wb: float) -> dict[str, float]:
+    return {"w_m_pu": float(f.w_m[k] / wb), "w_m_rad_s": float(f.w_m[k]), "T_e_Nm": float(f.T_e[k])}
+
+
+def _table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float) -> GainTable:
+    wb = drive.base.w
+    env = settings.envelope
+    d, d0 = r.dense, r.dense_baseline
+    points = []
+    for j in range(d.w_m.size):
+        points.append(
+            {
+                "w_m_rad_s": float(d.w_m[j]),
+                "w_m_pu": float(d.w_m[j] / wb),
+                "T_e_Nm": float(d.T_e[j]),
+                "lambda1": float(d.gains["lambda1_ohm"][j]),
+                "lambda2": float(d.gains["lambda2_ohm"][j]),
+                "poles": [[float(p.real), float(p.imag)] for p in d.poles[j]],
+                "damping": float(d.damping[j]),
+                "decay_rate": float(d.decay[j]),
+                "baseline": {
+                    "lambda1": float(d0.gains["lambda1_ohm"][j]),
+                    "lambda2": float(d0.gains["lambda2_ohm"][j]),
+                    "poles": [[float(p.real), float(p.imag)] for p in d0.poles[j]],
+                    "damping": float(d0.damping[j]),
+                    "decay_rate": float(d0.decay[j]),
+                },
+            }
+        )
+    k, k0, kg = d.worst(), d0.worst(), r.grid.worst()
+    m = r.model
+    summary = {
+        "worst_damping": float(d.damping[k]),
+        "worst_damping_at": _where(d, k, wb),
+        "baseline_worst_damping": float(d0.damping[k0]),
+        "baseline_worst_damping_at": _where(d0, k0, wb),
+        "min_decay_rate": float(np.min(d.decay)),
+        "baseline_min_decay_rate": float(np.min(d0.decay)),
+        "optimization_grid_worst_damping": float(r.grid.damping[kg]),
+        "nlp_worst_damping": float(r.stage1.t),
+        "ipopt_iterations": int(r.stage1.iterations + (r.stage2.iterations if r.stage2 else 0)),
+        "exchange_rounds": int(r.stage1.rounds + (r.stage2.rounds if r.stage2 else 0)),
+        "robust": r.robust,
+        "parameters": {n: float(v) for n, v in zip(m.names, r.theta, strict=True)},
+        "baseline_parameters": {n: float(v) for n, v in zip(m.names, r.theta0, strict=True)},
+        "sector_scale_1_s": scale,
+    }
+    W, _ = env.grid(wb, drive.T_N)
+    Wd, _ = env.grid(wb, drive.T_N, env.dense_factor)
+    envelope = {
+        "speed_base_rad_s": wb,
+        "speed_min_pu": env.speed_min,
+        "speed_max_pu": env.speed_max,
+        "directions": env.directions,
+        "speeds_rad_s": env.speed_grid(wb),
+        "torques_Nm": env.torque_grid(drive.T_N),
+        "optimization_points": int(W.size),
+        "dense_factor": env.dense_factor,
+        "dense_speeds_rad_s": env.speed_grid(wb, env.dense_factor),
+        "dense_torques_Nm": env.torque_grid(drive.T_N, env.dense_factor),
+        "dense_points": int(Wd.size),
+        "constraints": {
+            "min_decay_1_s": settings.min_decay,
+            "lambda_max_ohm": settings.lambda_max,
+            "estimate_errors": dict(zip(ESTIMATE_KEYS, settings.errors, strict=True)),
+            "smoothing": settings.smoothing,
+        },
+        "bounds": {n: [float(lo), float(hi)] for n, lo, hi in zip(m.names, m.lower, m.upper, strict=True)},
+    }
+    return GainTable(
+        family=r.family,
+        drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
+        gains=m.table_gains(r.theta),
+        envelope=envelope,
+        points=points,
+        summary=summary,
+    )
+
+
+def describe_family(family: str) -> str:
+    """The family's one-line description."""
+    return DESCRIPTIONS[family]
