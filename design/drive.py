@@ -154,6 +154,32 @@ class Injection:
 
 
 @dataclass(frozen=True)
+class Runtime:
+    """Discrete-time runtime settings (not in the paper; choices in docs/runtime.md). Optional section.
+
+    Every key may be omitted; RUNTIME_DEFAULTS are the documented choices for the paper-000 drive.
+    """
+
+    discretization: str = field(metadata={"dim": "choice", "doc": "euler or heun"})
+    w_bp: float = q("angular", doc="band-pass -3 dB bandwidth around w_c [rad/s]")
+    w_lp: float = q("angular", doc="low-pass cut-off after demodulation [rad/s]")
+    x_eps_max: float = q("angular", check="nonnegative", doc="bound on the integral of (21) [rad/s]")
+    carrier_delay: float = q(
+        "dimensionless", check="nonnegative", doc="samples from carrier command to applied voltage"
+    )
+
+
+RUNTIME_DEFAULTS: dict[str, Any] = {
+    "discretization": "heun",
+    "w_bp": "200 Hz",
+    "w_lp": "100 Hz",
+    "x_eps_max": "0.1 pu",
+    "carrier_delay": 1.0,
+}
+DISCRETIZATIONS = ("euler", "heun")
+
+
+@dataclass(frozen=True)
 class IpmsmDrive:
     """A drive of kind 'ipmsm-adaptive': IPMSM + speed-adaptive flux observer (paper 000)."""
 
@@ -167,6 +193,7 @@ class IpmsmDrive:
     control: Control
     observer: Observer
     injection: Injection
+    runtime: Runtime | None = None  # [runtime], defaults filled in by the loader
     digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
 
     kind = "ipmsm-adaptive"
@@ -254,7 +281,7 @@ def _check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], file: str, pr
 def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
     _check_keys(
         data,
-        ("drive", "rating", "base", "motor", "estimate", "control", "observer", "injection"),
+        ("drive", "rating", "base", "motor", "estimate", "control", "observer", "injection", "runtime"),
         file,
         "",
     )
@@ -300,6 +327,7 @@ def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
         )
     observer = dataclasses.replace(observer, gains=gains)
     injection = load_section(Injection, _table(data, "injection", file), file, "injection", rel)
+    runtime = _load_runtime(data, file, rel)
     return IpmsmDrive(
         name=head["name"],
         source=head["source"],
@@ -311,8 +339,25 @@ def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
         control=control,
         observer=observer,
         injection=injection,
+        runtime=runtime,
         digest=digest,
     )
+
+
+def _load_runtime(data: Mapping[str, Any], file: str, rel: Mapping[str, float]) -> Runtime:
+    """The optional [runtime] section; omitted keys take RUNTIME_DEFAULTS (docs/runtime.md)."""
+    table = data.get("runtime", {})
+    if not isinstance(table, dict):
+        raise DriveFileError(file, "runtime", "expected a table [runtime]")
+    merged = {**RUNTIME_DEFAULTS, **table}
+    rt = load_section(Runtime, merged, file, "runtime", rel)
+    if rt.discretization not in DISCRETIZATIONS:
+        raise DriveFileError(
+            file,
+            "runtime.discretization",
+            f"unknown discretization {rt.discretization!r} (known: {', '.join(DISCRETIZATIONS)})",
+        )
+    return rt
 
 
 # kind -> loader(data, file, digest). Other drive kinds register here.
@@ -371,6 +416,7 @@ __all__ = [
     "Motor",
     "Observer",
     "Rating",
+    "Runtime",
     "SpeedGain",
     "ZeroGain",
     "load_drive",

@@ -1,9 +1,10 @@
 """HF signal injection coupled to the adaptive observer, paper 000 Section V, eqs. (17)-(22).
 
 For analysis the demodulated error is taken in its averaged (ideal) form (19),
-eps = K_eps sin(2 theta_tilde); the real carrier/band-pass/demodulation chain belongs to simulation
-and C generation. Both the carrier amplitude u_c and the PI bandwidth alpha_i decrease linearly with
-|w_hat| and reach zero at w_Delta (Section V); ``fade`` is that common factor.
+eps = K_eps sin(2 theta_tilde). The real sampled chain (carrier (17), band-pass, demodulation and
+low-pass (18)) is :func:`hf_chain_step`, used by the runtime step (symbolic/runtime_000.py) that
+simulation and C generation share. Both the carrier amplitude u_c and the PI bandwidth alpha_i decrease
+linearly with |w_hat| and reach zero at w_Delta (Section V); ``fade`` is that common factor.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import casadi as ca
+from sensorless.symbolic.filters import band_pass, biquad_step, low_pass
 from sensorless.symbolic.pmsm import PmsmParams, Sym
 
 
@@ -59,3 +61,62 @@ def injection_pi(eps: Sym, x_eps: Sym, gamma_p: Sym, gamma_i: Sym) -> InjectionR
     gamma_i does not rescale what was already integrated, and so it can be bounded (Section V).
     """
     return InjectionRates(gamma_p * eps + x_eps, gamma_i * eps, eps)
+
+
+def carrier_voltage(u_c: Sym, phi_c: Sym) -> Sym:
+    """u_c cos(w_c t), eq. (17), at the carrier phase phi_c = w_c t [V] (on the estimated d axis)."""
+    return u_c * ca.cos(phi_c)
+
+
+def demodulation_gain(w_c: Sym, T_s: Sym) -> Sym:
+    """2 sin(Delta/2) / Delta with Delta = w_c T_s: undoes the gain of the sampled carrier response.
+
+    A carrier held constant over each sampling period (zero-order hold) integrates, in the inductance,
+    to a sampled current Delta / (2 sin(Delta/2)) times the continuous-time response of amplitude
+    u_c / w_c; this factor makes the demodulated error equal (19) exactly (docs/runtime.md).
+    """
+    Delta = w_c * T_s
+    return 2 * ca.sin(Delta / 2) / Delta
+
+
+def demodulation_phase(w_c: Sym, T_s: Sym, delay: Sym) -> Sym:
+    """(delay + 1/2) w_c T_s [rad]: lag of the sampled q-current response behind the carrier command.
+
+    ``delay`` samples pass between a command and the voltage the motor sees (1 for the usual one-sample
+    computation delay); the zero-order hold adds half a sample (docs/runtime.md).
+    """
+    return (delay + 0.5) * w_c * T_s
+
+
+class HfChainStep(NamedTuple):
+    """One sample of the HF-injection chain, eqs. (17), (18)."""
+
+    u_c_d: Sym  # carrier voltage to add on the estimated d axis, eq. (17) [V]
+    eps: Sym  # demodulated, low-pass filtered error, eq. (18) [A]
+    z_bp_next: Sym  # band-pass state (2x1) [A]
+    z_lp_next: Sym  # low-pass state (2x1) [A]
+
+
+def hf_chain_step(
+    i_q: Sym,
+    phi_c: Sym,
+    z_bp: Sym,
+    z_lp: Sym,
+    u_c: Sym,
+    w_c: Sym,
+    T_s: Sym,
+    w_bp: Sym,
+    w_lp: Sym,
+    delay: Sym,
+) -> HfChainStep:
+    """Carrier command (17) and error signal (18) at one sample of the carrier phase phi_c = w_c t_k.
+
+    ``i_q`` is the measured current on the estimated q axis [A]; ``u_c`` the (faded) carrier amplitude
+    [V]. The band-pass (centre w_c, bandwidth w_bp) extracts i_qc; it is demodulated by the sine of the
+    carrier phase delayed by :func:`demodulation_phase`, scaled by :func:`demodulation_gain`, and
+    low-pass filtered (Butterworth, cut-off w_lp). In steady state eps = K_eps sin(2 theta_tilde), (19).
+    """
+    bp = biquad_step(band_pass(w_c, w_bp, T_s), z_bp, i_q)  # i_qc: HF part of i_q
+    ref = ca.sin(phi_c - demodulation_phase(w_c, T_s, delay))  # sin(w_c t) aligned with the response
+    lp = biquad_step(low_pass(w_lp, T_s), z_lp, demodulation_gain(w_c, T_s) * bp.y * ref)  # eq. (18)
+    return HfChainStep(carrier_voltage(u_c, phi_c), lp.y, bp.z_next, lp.z_next)

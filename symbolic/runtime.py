@@ -1,0 +1,128 @@
+"""Discrete-time runtime observers: the common interface that simulation and C generation consume.
+
+An observer that runs on a drive is registered here as a :class:`RuntimeObserver`: named, unit-carrying
+fields of its state, measurement, parameter and output vectors, a builder of its one-sampling-period step
+as a ``casadi.Function``, and a Function giving its initial state. The step's contract (docs/runtime.md):
+
+    step(x[n_x], meas[n_m], p[n_p], lam[n_lam]) -> (x_next[n_x], y[n_y])
+
+``lam`` carries gains scheduled outside the step (paper 000: lambda1, lambda2 of eq. (7), evaluated by
+the gain law at the speed estimate stored in the state field ``schedule_state``); observers without a
+schedule have ``n_lam = 0``. Adding an observer = writing its step in SX from its symbolic/ equations and
+registering it in ``REGISTRY`` (see :func:`register`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import casadi as ca
+import numpy as np
+from sensorless.symbolic.pmsm import Sym
+
+X_MAX = 1e30  # a state component beyond this (or NaN/Inf) makes a step invalid (docs/runtime.md)
+
+DISCRETIZATIONS = ("euler", "heun")  # forward Euler; Heun's method (explicit trapezoidal RK2)
+
+
+class Field(NamedTuple):
+    """One element of a runtime vector: C-identifier name, SI unit, one-line meaning."""
+
+    name: str
+    unit: str
+    doc: str
+    check: str = "any"  # parameters: "positive", "nonnegative", "flag" (0 or 1) or "any"
+
+
+@dataclass(frozen=True)
+class RuntimeObserver:
+    """A registered discrete-time observer (see the module docstring)."""
+
+    name: str  # short identifier, e.g. "adaptive000"
+    title: str  # one line for generated headers
+    state: tuple[Field, ...]
+    meas: tuple[Field, ...]
+    params: tuple[Field, ...]
+    outputs: tuple[Field, ...]
+    lam: tuple[Field, ...]  # scheduled gains input (may be empty)
+    schedule_state: str | None  # state field at which the gain schedule is evaluated
+    core: Callable[[str], ca.Function]  # discretization -> step Function with ``lam`` as an input
+    initial_state: Callable[[], ca.Function]  # Function p -> x0
+
+    def index(self, vector: str, name: str) -> int:
+        """Position of field ``name`` in ``vector`` ('state', 'meas', 'params', 'outputs', 'lam')."""
+        fields = getattr(self, vector)
+        for k, f in enumerate(fields):
+            if f.name == name:
+                return k
+        raise KeyError(f"{self.name}: no {vector} field {name!r}")
+
+    def pack_params(self, values: dict[str, float]) -> np.ndarray:
+        """Parameter vector from a dict keyed by field name; every field required, no extras."""
+        names = [f.name for f in self.params]
+        missing = [n for n in names if n not in values]
+        extra = [n for n in values if n not in names]
+        if missing or extra:
+            raise KeyError(f"{self.name} parameters: missing {missing}, unknown {extra}")
+        return np.array([float(values[n]) for n in names])
+
+    def check_params(self, values: dict[str, float]) -> None:
+        """Raise ValueError naming the first parameter that violates its field's check."""
+        for f in self.params:
+            v = float(values[f.name])
+            ok = {
+                "positive": v > 0,
+                "nonnegative": v >= 0,
+                "flag": v in (0.0, 1.0),
+                "any": math.isfinite(v),
+            }[f.check]
+            if not (ok and math.isfinite(v)):
+                raise ValueError(f"{self.name} parameter {f.name} = {v!r}: must be {f.check} and finite")
+
+    def unpack(self, vector: str, v: Sym) -> dict[str, Sym]:
+        """Dict field name -> element (or row, for a matrix with one column per sample)."""
+        a = np.asarray(v)
+        if a.ndim == 2 and a.shape[0] == len(getattr(self, vector)):
+            return {f.name: a[k] for k, f in enumerate(getattr(self, vector))}
+        return {f.name: v[k] for k, f in enumerate(getattr(self, vector))}
+
+
+REGISTRY: dict[str, RuntimeObserver] = {}
+
+
+def register(obs: RuntimeObserver) -> RuntimeObserver:
+    """Add an observer to ``REGISTRY`` (by its name) and return it."""
+    REGISTRY[obs.name] = obs
+    return obs
+
+
+def wrap_angle(theta: Sym) -> Sym:
+    """theta mapped to (-pi, pi]: theta - 2 pi ceil((theta - pi) / (2 pi)).
+
+    Keeping angles small keeps the float build exact to its resolution (an unwrapped angle loses a bit
+    of resolution each time it doubles). Uses ceil, never a float-to-integer conversion, so NaN and Inf
+    stay well defined (they propagate as NaN).
+    """
+    return theta - 2 * math.pi * ca.ceil((theta - math.pi) * (1 / (2 * math.pi)))
+
+
+def all_within(v: Sym, bound: float = X_MAX) -> Sym:
+    """1 if every element of ``v`` is finite and |v_j| <= bound, else 0 (NaN compares false)."""
+    ok = 1
+    for k in range(v.numel()):
+        ok = ca.logic_and(ok, ca.fabs(v[k]) <= bound)
+    return ok
+
+
+def guarded(x_coast: Sym, x_cand: Sym, y_cand: Sym, y_coast: Sym) -> tuple[Sym, Sym, Sym]:
+    """Accept a step only if its new state is finite: (x_next, y, valid).
+
+    An invalid step (NaN/Inf/absurdly large result, e.g. from a NaN sample) gives ``x_coast`` and
+    ``y_coast`` instead, computed from the previous (finite) state alone (docs/runtime.md);
+    ``if_else`` selects without arithmetic, so no NaN leaks into the state.
+    """
+    valid = all_within(x_cand)
+    return ca.if_else(valid, x_cand, x_coast), ca.if_else(valid, y_cand, y_coast), valid
