@@ -31,9 +31,11 @@ from typing import NamedTuple
 import casadi as ca
 from sensorless.symbolic.drive_control import (
     delay_compensated_angle,
+    low_pass_step,
     pi_current_control,
     speed_control,
 )
+from sensorless.symbolic.filters import band_pass, biquad_step
 from sensorless.symbolic.plant import Mechanics, ipmsm_outputs, ipmsm_period
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, rot, torque
 
@@ -57,6 +59,11 @@ LOOP_STATE = (
     Signal("u_i_d", "V", "current-PI integral state, controller frame"),
     Signal("u_i_q", "V", "current-PI integral state, controller frame"),
     Signal("x_s", "N m", "speed-controller integral state"),
+    Signal("w_f", "rad/s", "low-pass filtered speed estimate used by the controllers"),
+    Signal("nf_d1", "A", "carrier notch filter state, controller-frame d current"),
+    Signal("nf_d2", "A", "carrier notch filter state, controller-frame d current"),
+    Signal("nf_q1", "A", "carrier notch filter state, controller-frame q current"),
+    Signal("nf_q2", "A", "carrier notch filter state, controller-frame q current"),
 )
 
 # per-sample inputs
@@ -90,6 +97,10 @@ PARAMS = (
     Signal("sensor", "1", "1: controllers use the measured angle and speed; 0: the estimates"),
     Signal("speed_mode", "1", "1: speed control; 0: torque control (T_ext)"),
     Signal("stiff", "1", "1: speed prescribed by a stiff load machine (w_ref); 0: inertia"),
+    Signal("alpha_w", "rad/s", "bandwidth of the low-pass filter on the controllers' speed feedback"),
+    Signal("notch", "1", "1: remove the carrier from the current-controller feedback (band-stop)"),
+    Signal("w_n", "rad/s", "band-stop centre (the carrier frequency w_c)"),
+    Signal("B_n", "rad/s", "band-stop -3 dB bandwidth"),
 )
 
 # recorded signals (at t_k); the observer's own outputs follow these
@@ -151,6 +162,7 @@ def loop_function(
     x_plant = z[0:4]
     u_now = z[4:6]
     u_i = z[6:8]
+    nf_d, nf_q = z[10:12], z[12:14]
     x_obs = z[len(LOOP_STATE) :]
 
     # motor at t_k: current measured (with noise), torque
@@ -168,7 +180,8 @@ def loop_function(
 
     sensor = Q["sensor"]
     theta_c = sensor * Z["theta_m"] + (1 - sensor) * theta_hat  # controller frame angle
-    w_c = sensor * Z["w_m"] + (1 - sensor) * w_hat
+    w_f_next = low_pass_step(Z["w_f"], w_hat, Q["alpha_w"], T_s)
+    w_c = sensor * Z["w_m"] + (1 - sensor) * w_f_next
 
     # speed control (IP) or torque control, torque limit, MTPA references [12]
     sc = speed_control(V["w_ref"], w_c, Z["x_s"], Q["alpha_s"], Q["J_hat"], Q["p"], T_s, Q["T_max"])
@@ -180,7 +193,11 @@ def loop_function(
 
     # current control in the controller frame; carrier (17) on its d axis; delay-compensated output
     i_c = rot(theta_c).T @ i_meas
-    cc = pi_current_control(i_ref, i_c, u_i, w_c, est, Q["alpha_c"], T_s, Q["u_max"])
+    # the carrier response is the observer's signal, not a current error: band-stop it (d and q)
+    bp = band_pass(Q["w_n"], Q["B_n"], T_s)
+    hf_d, hf_q = biquad_step(bp, nf_d, i_c[0]), biquad_step(bp, nf_q, i_c[1])
+    i_fb = i_c - Q["notch"] * ca.vertcat(hf_d.y, hf_q.y)
+    cc = pi_current_control(i_ref, i_fb, u_i, w_c, est, Q["alpha_c"], T_s, Q["u_max"])
     u_ref = cc.u_ref + ca.vertcat(u_c_d, 0)
     u_next = rot(delay_compensated_angle(theta_c, w_c, T_s)) @ u_ref
 
@@ -189,7 +206,9 @@ def loop_function(
     x_in = ca.vertcat(x_plant[0:3], w_presc)
     x_plant_next = ipmsm_period(x_in, u_now, V["T_L"], motor, mech, Q["stiff"], T_s, n_sub)
 
-    z_next = ca.vertcat(x_plant_next, u_next, cc.u_i_next, x_s_next, x_obs_next)
+    z_next = ca.vertcat(
+        x_plant_next, u_next, cc.u_i_next, x_s_next, w_f_next, hf_d.z_next, hf_q.z_next, x_obs_next
+    )
     T_e_hat = torque(flux_from_current(i_c, est), i_c, Q["p"])
     rec = ca.vertcat(
         V["w_ref"],

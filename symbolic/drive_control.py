@@ -123,3 +123,14 @@ def delay_compensated_angle(theta: Sym, w: Sym, T_s: Sym) -> Sym:
     over [t_k + T_s, t_k + 2 T_s], whose midpoint the rotor reaches 1.5 samples later.
     """
     return theta + 1.5 * w * T_s
+
+
+def low_pass_step(y: Sym, u: Sym, alpha: Sym, T_s: Sym) -> Sym:
+    """First-order low-pass alpha/(s + alpha) sampled exactly for an input held over the period.
+
+    Used on the speed estimate fed to the controllers: the adaptation law (9) has a proportional path
+    (k_p = 2 alpha_fo / psî_pm) that passes current-measurement ripple straight into w_hat, and
+    through the speed controller's and the decoupling's gains that would close a loop at the
+    Nyquist frequency with the computation delay (docs/simulation.md).
+    """
+    return y + (1 - ca.exp(-alpha * T_s)) * (u - y)
