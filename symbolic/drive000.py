@@ -124,8 +124,12 @@ RECORD = (
 )
 
 
-def _ix(fields: tuple, name: str) -> int:
-    return [f.name for f in fields].index(name)
+_RECORDED = frozenset(s.name for s in RECORD)
+
+
+def observer_record(outputs: tuple) -> tuple:
+    """The observer's outputs that the loop records after RECORD (those not already in it)."""
+    return tuple(f for f in outputs if f.name not in _RECORDED)
 
 
 def wrap(theta: ca.SX) -> ca.SX:
@@ -224,7 +228,7 @@ def loop_function(
         out.i_r,
         i_ref,
         u_ref,
-        y,
+        *[y[k] for k, n in enumerate(y_names) if n not in _RECORDED],  # the observer's other outputs
     )
     name = f"drive000_loop_{step.name() if step is not None else 'sensor'}_{n_sub}"
     return ca.Function(

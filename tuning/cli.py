@@ -13,9 +13,10 @@ from collections.abc import Sequence
 from sensorless.design.operating_point import EquilibriumError
 from sensorless.design.units import DriveFileError
 from sensorless.reports.files import OutputExistsError
+from sensorless.tuning.gain_table import GainTableError
 
 # Subcommand modules; each defines register(subparsers) that sets a ``func`` default.
-COMMAND_MODULES = ("sensorless.tuning.cmd_analyze",)
+COMMAND_MODULES = ("sensorless.tuning.cmd_analyze", "sensorless.tuning.cmd_simulate")
 
 
 class UsageError(ValueError):
@@ -60,6 +61,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         OutputExistsError,
         UsageError,
         EquilibriumError,
+        GainTableError,
         KeyError,
     ) as e:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
