@@ -360,8 +360,18 @@ def _load_runtime(data: Mapping[str, Any], file: str, rel: Mapping[str, float]) 
     return rt
 
 
+def _load_pmac(data: Mapping[str, Any], file: str, digest: str) -> Any:
+    """Kind 'pmac-reduced-order' (paper 002), schema in design/drive_pmac.py (imported on use)."""
+    from sensorless.design.drive_pmac import load_pmac
+
+    return load_pmac(data, file, digest)
+
+
 # kind -> loader(data, file, digest). Other drive kinds register here.
-KINDS: dict[str, Callable[[Mapping[str, Any], str, str], Any]] = {"ipmsm-adaptive": _load_ipmsm}
+KINDS: dict[str, Callable[[Mapping[str, Any], str, str], Any]] = {
+    "ipmsm-adaptive": _load_ipmsm,
+    "pmac-reduced-order": _load_pmac,
+}
 
 
 def preset_names() -> list[str]:

@@ -160,6 +160,14 @@ def charpoly_sx(A: ca.SX) -> ca.SX:
     return ca.vertcat(*c)
 
 
+def damping_ratio(poles: np.ndarray) -> np.ndarray:
+    """Damping ratio -Re(p)/|p| of each pole; a pole at the origin counts as 0, NaN stays NaN."""
+    mag = np.abs(poles)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = np.where(mag > 0, -poles.real / np.where(mag > 0, mag, 1), 0.0)
+    return np.where(np.isnan(poles), np.nan, z)
+
+
 def sort_poles(poles: np.ndarray) -> np.ndarray:
     """Sort each row by (imag, real), a stable order for tables and plots."""
     order = np.lexsort((poles.real, poles.imag), axis=-1)
@@ -185,10 +193,7 @@ class PoleSweep:
     @property
     def damping(self) -> np.ndarray:
         """Damping ratio -Re(p)/|p| of each pole; a pole at the origin counts as 0."""
-        mag = np.abs(self.poles)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            z = np.where(mag > 0, -self.poles.real / np.where(mag > 0, mag, 1), 0.0)
-        return np.where(np.isnan(self.poles), np.nan, z)
+        return damping_ratio(self.poles)
 
     @property
     def worst_damping(self) -> np.ndarray:

@@ -26,7 +26,29 @@ UNITS: dict[str, dict[str, float]] = {
     # electrical angular speed or bandwidth
     "angular": {"rad/s": 1.0, "Hz": 2 * math.pi, "kHz": 2e3 * math.pi},
     "mech_speed": {"rpm": 1.0, "r/min": 1.0},
-    "viscous": {"Nms": 1.0, "N m s": 1.0, "Nm/(rad/s)": 1.0},
+    "viscous": {
+        "Nms": 1.0,
+        "N m s": 1.0,
+        "Nm/(rad/s)": 1.0,
+        "kgm2/s": 1.0,  # paper 002 writes B in kg m^2/s
+        "kg m^2/s": 1.0,
+        "kg·m^2/s": 1.0,
+    },
+    # flux derivative d lambda / d theta, eq. (4) of paper 002 (= torque per ampere)
+    "flux_derivative": {
+        "Vs": 1.0,
+        "V s": 1.0,
+        "Wb": 1.0,
+        "Vs/rad": 1.0,
+        "V s/rad": 1.0,
+        "Nm/A": 1.0,
+        "N m/A": 1.0,
+        "mVs": 1e-3,
+        "mWb": 1e-3,
+    },
+    "rate": {"1/s": 1.0, "/s": 1.0, "s^-1": 1.0},  # observer gain g of paper 002
+    # load-torque adaptation gain Gamma of paper 002, eq. (10): N m kg m^2 / (V s)^2 = A^2 s^2
+    "adaptation": {"A^2 s^2": 1.0, "A2s2": 1.0, "A²s²": 1.0},
     "dimensionless": {},
     "integer": {},
 }
@@ -35,6 +57,7 @@ UNITS: dict[str, dict[str, float]] = {
 RELATIVE_UNITS: dict[str, tuple[str, ...]] = {
     "angular": ("pu",),
     "resistance": ("R_s_hat", "Rs_hat"),
+    "flux_derivative": ("Phi_1",),  # a multiple of the fundamental, e.g. Phi_5 = "0.04 Phi_1"
 }
 
 _QTY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
