@@ -97,6 +97,8 @@ def plot_traces(traces: Any, panels: tuple[str, ...], title: str) -> Any:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
+
     k = max(1, -(-len(traces.t) // MAX_POINTS))
     if k > 1:
         traces = dataclasses.replace(
