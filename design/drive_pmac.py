@@ -141,6 +141,13 @@ class PmacDrive:
         assert len(vals) == len(param_names(e.harmonics))
         return np.array(vals, float)
 
+    def speed_params(self, feedforward: bool = True) -> np.ndarray:
+        """``params`` of the speed controller (symbolic/pmac_control.SPEED_PARAM_NAMES)."""
+        from sensorless.symbolic.pmac_control import speed_pi_gains
+
+        k_p, k_i = speed_pi_gains(self.control.alpha_s, self.estimate.J, self.motor.p_r)
+        return np.array([k_p, k_i, self.control.T_max, self.control.T_s, float(feedforward)])
+
 
 # --------------------------------------------------------------------------------------------------
 # Loading

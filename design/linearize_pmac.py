@@ -379,14 +379,17 @@ def analyze(
     om, oo, motor, params = analysis_arguments(drive, **over)
     poles_c = continuous_poles(drive, w_f, T_f, load_estimation, n_angles, **over)
     n_c = poles_c.shape[1]
+    # per point, so that a point's result does not depend on the others analysed with it
+    slow = np.nanmax(poles_c.real, axis=1)
     if settle_time is None:
-        slow = np.nanmax(poles_c.real)
-        settle_time = float(np.clip(8 / abs(slow), 0.02, 3.0)) if slow < 0 else 3.0
+        t_set = np.where(slow < 0, np.clip(8 / np.abs(slow), 0.02, 3.0), 3.0)
+    else:
+        t_set = np.full(n, float(settle_time))
     period = angle_period(om, oo)
     M = period_steps(2 * math.pi if math.isinf(period) else period, w_f, T_s)  # error window
     M_jac = period_steps(period, w_f, T_s)  # monodromy window (1 step for a sinusoidal EMF)
-    m_max = int(M.max())
-    n_steps = int(np.ceil(settle_time / T_s)) + m_max
+    end = np.ceil(t_set / T_s).astype(int) + np.maximum(M, M_jac)  # steps simulated for each point
+    n_steps = int(end.max())
     theta0 = np.full(n, 0.3)  # start on the exact (continuous-time) orbit
     x0 = np.asarray(
         _mapped(exact_state_function(om, oo, load_estimation), n)(
@@ -398,15 +401,19 @@ def analyze(
     xc, err = (np.asarray(a) for a in orbit(np.vstack([x0, theta0[None]]), par))
     xc = xc.reshape(N_STATE + 1, n, n_steps)
     err = err.reshape(3, n, n_steps)
-    win = np.arange(n_steps)[None, :] >= (n_steps - M)[:, None]  # (n, n_steps): each point's window
+    k_idx = np.arange(n_steps)[None, :]
+    win = (k_idx >= (end - M)[:, None]) & (k_idx < end[:, None])  # (n, n_steps): each point's window
     e_win = np.where(win[None], err, np.nan)
     mean = np.nanmean(e_win, axis=2)
     ptp = np.nanmax(e_win, axis=2) - np.nanmin(e_win, axis=2)
-    # one-step Jacobians along the last M_jac steps: state after step j (angle theta_j) -> step j+1
+    # one-step Jacobians along each point's last M_jac steps: the state after step j (at angle
+    # theta_j) is mapped one step further; shorter windows are padded with identities in front
     mj = int(M_jac.max())
-    cols = np.arange(n_steps - 1 - mj, n_steps - 1)  # (mj,)
-    xs = xc[:N_STATE][:, :, cols].reshape(N_STATE, n * mj)
-    ths = xc[N_STATE][:, cols].reshape(n * mj)
+    rows = np.arange(n)[:, None]
+    cols = np.maximum(end[:, None] - 1 - mj + np.arange(mj)[None, :], 0)  # (n, mj)
+    keep = np.arange(mj)[None, :] >= (mj - M_jac)[:, None]
+    xs = xc[:N_STATE][:, rows, cols].reshape(N_STATE, n * mj)
+    ths = xc[N_STATE][rows, cols].reshape(n * mj)
     jac = _mapped(discrete_jacobian_function(method, om, oo, load_estimation), n * mj)
     Jy = np.asarray(
         jac(
@@ -415,8 +422,6 @@ def analyze(
     )
     nd = Jy.shape[0]
     Jy = Jy.reshape(nd, n * mj, nd).transpose(1, 0, 2).reshape(n, mj, nd, nd)
-    # points with a shorter window: the leading (oldest) factors become identities
-    keep = np.arange(mj)[None, :] >= (mj - M_jac)[:, None]
     Jy = np.where(keep[:, :, None, None], Jy, np.eye(nd))
     mu = np.linalg.eigvals(ordered_product(Jy)).astype(complex)
     order = np.argsort(-np.abs(mu), axis=-1, kind="stable")

@@ -7,3 +7,8 @@ from sensorless.design.drive import load_drive
 @pytest.fixture(scope="session")
 def drive():
     return load_drive("piippo2008")
+
+
+@pytest.fixture(scope="session")
+def drive002():
+    return load_drive("deangelo2006")

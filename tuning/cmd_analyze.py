@@ -1,6 +1,7 @@
 """``sensorless analyze``: pole maps over speed, unstable speed bands and worst damping (paper 000 IV).
 
-Dispatches on the drive kind; each kind registers its analysis in ``ANALYZERS``.
+Dispatches on the drive kind; each kind registers its analysis in ``ANALYZERS`` (paper 002's
+"pmac-reduced-order" lives in tuning/analyze_pmac.py).
 """
 
 from __future__ import annotations
@@ -43,6 +44,29 @@ def register(sub: Any) -> None:
     p.add_argument("--injection", action="store_true", help="include the averaged HF injection (19)-(22)")
     p.add_argument("--speed-max", type=float, default=1.0, help="sweep |w_m| up to this (p.u.); default 1")
     p.add_argument("--points", type=int, default=2001, help="speed grid points; default 2001")
+    p.add_argument(
+        "--speed",
+        action="append",
+        default=None,
+        help="pmac-reduced-order drives: mechanical speeds, e.g. --speed=250rpm,-400rpm "
+        "(default: the drive's [envelope] speeds)",
+    )
+    p.add_argument(
+        "--load",
+        action="append",
+        default=None,
+        help="pmac-reduced-order drives: load torques in N m, e.g. --load=0,5Nm (default: [envelope] loads)",
+    )
+    p.add_argument(
+        "--discretization",
+        default=None,
+        help="pmac-reduced-order drives: observer scheme (default: the drive's [control] discretization)",
+    )
+    p.add_argument(
+        "--study",
+        action="store_true",
+        help="pmac-reduced-order drives: also run the discretization study (all schemes x 45..360 us)",
+    )
     p.add_argument("--out", default=None, help="output directory (default: analysis-<drive name>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=run)
@@ -89,6 +113,11 @@ def refine_band_edges(
 
 def analyze_ipmsm(drive: Any, args: argparse.Namespace) -> int:
     """Paper-000 analysis: pole maps of G_c(s) over speed for each gain and torque."""
+    for opt in ("speed", "load", "discretization"):
+        if getattr(args, opt, None) is not None:
+            raise DriveFileError("command line", f"--{opt}", "applies to pmac-reduced-order drives only")
+    if getattr(args, "study", False):
+        raise DriveFileError("command line", "--study", "applies to pmac-reduced-order drives only")
     gains = list(drive.observer.gains) if args.gain == "all" else [args.gain or drive.observer.gain]
     for g in gains:
         drive.gain(g)  # raises a clear KeyError for an unknown gain name
@@ -157,4 +186,12 @@ def analyze_ipmsm(drive: Any, args: argparse.Namespace) -> int:
     return 0
 
 
+def analyze_pmac(drive: Any, args: argparse.Namespace) -> int:
+    """Paper-002 analysis (tuning/analyze_pmac.py, imported on use)."""
+    from sensorless.tuning.analyze_pmac import analyze_pmac as run_pmac
+
+    return run_pmac(drive, args)
+
+
 ANALYZERS["ipmsm-adaptive"] = analyze_ipmsm
+ANALYZERS["pmac-reduced-order"] = analyze_pmac
