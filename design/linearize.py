@@ -168,6 +168,15 @@ def damping_ratio(poles: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(poles), np.nan, z)
 
 
+@functools.lru_cache(maxsize=64)
+def _mapped(fn: ca.Function, n: int) -> ca.Function:
+    """``fn.map(n)``, kept: building a map costs as much as evaluating a few thousand points.
+
+    (Used by design/linearize_pmac.py; restored when merging branches issue3 and issue6.)
+    """
+    return fn.map(n)
+
+
 def sort_poles(poles: np.ndarray) -> np.ndarray:
     """Sort each row by (imag, real), a stable order for tables and plots."""
     order = np.lexsort((poles.real, poles.imag), axis=-1)

@@ -9,11 +9,13 @@ gain table (docs/gain_tables.md). Simulation and C generation both start here.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
 import numpy as np
+from sensorless.design.units import DriveFileError
 from sensorless.symbolic.gains import LAWS, GainLaw, schedule_law
 from sensorless.symbolic.runtime import RuntimeObserver
 from sensorless.symbolic.runtime_000 import OBSERVER as ADAPTIVE000
@@ -69,6 +71,18 @@ def ipmsm_params(drive: Any, alpha_fo: float | None = None) -> dict[str, float]:
     }
 
 
+def _check_sampling(drive: Any, params: dict[str, float]) -> None:
+    """Frequencies the sampled chain must resolve lie below the Nyquist frequency pi / T_s."""
+    nyquist = math.pi / params["T_s"]
+    for key, name in (("injection.w_c", "w_c"), ("runtime.w_lp", "w_lp")):
+        if params[name] >= nyquist:
+            raise DriveFileError(
+                drive.file,
+                key,
+                f"{params[name]:.6g} rad/s is not below the Nyquist frequency pi/T_s = {nyquist:.6g} rad/s",
+            )
+
+
 def _drive_gain(drive: Any, name: str) -> tuple[GainLaw, tuple[float, ...], str]:
     g = drive.gain(name)  # KeyError naming the file if absent
     law = LAWS[name]
@@ -120,6 +134,7 @@ def runtime_setup(
         law, values, family = _drive_gain(drive, name)
         params = ipmsm_params(drive)
         source = f"{drive.file} [observer.gains.{name}]"
+    _check_sampling(drive, params)
     ADAPTIVE000.check_params(params)
     if not np.all(np.isfinite(values)):
         raise GainTableError(f"{table_file if table else drive.file}: non-finite gain values")

@@ -205,7 +205,7 @@ def observer_step_core(discretization: str = "euler") -> ca.Function:
     return ca.Function(
         f"{NAME}_core_{discretization}",
         [s["x"], s["meas"], s["p"], s["lam"]],
-        [ca.cse(x_next), ca.cse(y)],
+        ca.cse([x_next, y]),  # one graph: y shares the step's work
         ["x", "meas", "p", "lam"],
         ["x_next", "y"],
     )

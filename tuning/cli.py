@@ -16,7 +16,11 @@ from sensorless.reports.files import OutputExistsError
 from sensorless.tuning.gain_table import GainTableError
 
 # Subcommand modules; each defines register(subparsers) that sets a ``func`` default.
-COMMAND_MODULES = ("sensorless.tuning.cmd_analyze", "sensorless.tuning.cmd_simulate")
+COMMAND_MODULES = (
+    "sensorless.tuning.cmd_analyze",
+    "sensorless.tuning.cmd_codegen",
+    "sensorless.tuning.cmd_simulate",
+)
 
 
 class UsageError(ValueError):

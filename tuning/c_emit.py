@@ -1,0 +1,295 @@
+"""C statements from a CasADi SX Function's algorithm, with parameter-only work hoisted out of the step.
+
+This is a printer of the expression graph CasADi already built (its instruction list: one operation per
+instruction), in the style of CasADi's own code generator but targeted at an embedded step function:
+
+- **typed for one precision**: ``float`` code uses ``sinf``-style libm calls and ``f``-suffixed literals
+  only, so the float build contains no double operation (docs/codegen.md);
+- **hoisting**: every value that depends on the parameters alone (gains (10), (22), filter coefficients,
+  reciprocals of inductances, ...) is computed once by the ``*_init`` code into a coefficient array; the
+  step computes only what depends on the state and the measurements. A division of a runtime value by a
+  parameter-only value becomes a multiplication by a hoisted reciprocal;
+- **selects**: CasADi's ``if_else`` (``c ? a : 0`` + ``!c ? b : 0``) is printed as one ``c ? a : b``
+  (the two differ only in the sign of a zero result);
+- SSA style (``const`` temporaries, one per instruction); all inputs are read before any output is
+  written, so a state struct may be updated in place.
+
+Operations outside the table below raise ``NotImplementedError`` at generation time, never silently.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+_OPS = {getattr(ca, n): n[3:] for n in dir(ca) if n.startswith("OP_")}
+
+# op -> (C template over a, b; libm function or None). "{f}" is the precision-specific function name.
+_BINARY = {
+    "ADD": "({a} + {b})",
+    "SUB": "({a} - {b})",
+    "MUL": "({a} * {b})",
+    "DIV": "({a} / {b})",
+    "LT": "(({r})({a} < {b}))",
+    "LE": "(({r})({a} <= {b}))",
+    "EQ": "(({r})({a} == {b}))",
+    "NE": "(({r})({a} != {b}))",
+    "AND": "(({r})({a} && {b}))",
+    "OR": "(({r})({a} || {b}))",
+    "IF_ELSE_ZERO": "({a} ? {b} : {zero})",
+    "FMIN": "{f}({a}, {b})",
+    "FMAX": "{f}({a}, {b})",
+    "POW": "{f}({a}, {b})",
+    "CONSTPOW": "{f}({a}, {b})",
+    "ATAN2": "{f}({a}, {b})",
+    "FMOD": "{f}({a}, {b})",
+    "COPYSIGN": "{f}({a}, {b})",
+    "HYPOT": "{f}({a}, {b})",
+}
+_UNARY = {
+    "NEG": "(-{a})",
+    "TWICE": "({a} + {a})",
+    "SQ": "({a} * {a})",
+    "INV": "({one} / {a})",
+    "NOT": "(({r})(!{a}))",
+    "ASSIGN": "{a}",
+    "SIGN": "({a} < {zero} ? -{one} : ({a} > {zero} ? {one} : {a}))",
+    **{
+        op: "{f}({a})"
+        for op in (
+            "SQRT SIN COS TAN ASIN ACOS ATAN EXP LOG SINH COSH TANH FABS FLOOR CEIL ERF EXPM1 LOG1P"
+        ).split()
+    },
+}
+_LIBM = {
+    "FMIN": "fmin",
+    "FMAX": "fmax",
+    "POW": "pow",
+    "CONSTPOW": "pow",
+    "ATAN2": "atan2",
+    "FMOD": "fmod",
+    "COPYSIGN": "copysign",
+    "HYPOT": "hypot",
+    "ERF": "erf",
+    "EXPM1": "expm1",
+    "LOG1P": "log1p",
+}
+
+
+@dataclass(frozen=True)
+class Precision:
+    """C spelling of one floating-point precision."""
+
+    real: str  # "float" or "double"
+
+    @property
+    def single(self) -> bool:
+        """True for float."""
+        return self.real == "float"
+
+    def lit(self, v: float) -> str:
+        """A literal of exactly the value the precision holds: shortest round-trip digits."""
+        if not math.isfinite(v):
+            raise ValueError(f"non-finite constant {v!r} in an expression to be generated as C")
+        if self.single:
+            v32 = np.float32(v) if abs(v) <= np.finfo(np.float32).max else np.float32(np.inf)
+            if not np.isfinite(v32):
+                raise ValueError(f"constant {v!r} is beyond the range of float")
+            text = str(v32)
+            suffix = "f"
+        else:
+            text = repr(float(v))
+            suffix = ""
+        if "e" not in text and "." not in text:
+            text += ".0"
+        return f"({text}{suffix})" if text.startswith("-") else f"{text}{suffix}"
+
+    def fn(self, name: str) -> str:
+        """libm function of this precision: sin -> sinf for float."""
+        return name + "f" if self.single else name
+
+
+@dataclass
+class _Node:
+    op: str
+    args: tuple[int, ...] = ()
+    const: float = 0.0
+    source: tuple[int, int] | None = None  # (input index, nonzero) of an INPUT node
+    param: bool = False  # depends on the parameters (and constants) only
+
+
+@dataclass
+class Emitted:
+    """C text of one Function: coefficient code for ``*_init`` and the step body."""
+
+    init: list[str] = field(default_factory=list)  # computes coefficients into {coef}[offset + j]
+    body: list[str] = field(default_factory=list)  # reads inputs, computes, writes outputs
+    n_coef: int = 0
+
+
+def emit(
+    f: ca.Function,
+    *,
+    prec: Precision,
+    runtime_in: dict[int, list[str]],
+    param_in: dict[int, list[str]],
+    out: dict[int, list[str]],
+    coef: str,
+    coef_offset: int = 0,
+    prefix: str = "t",
+) -> Emitted:
+    """Print ``f`` (an SX Function) as C.
+
+    ``runtime_in[i][nz]`` is the C expression reading nonzero ``nz`` of input ``i`` in the step;
+    ``param_in[i][nz]`` the expression reading a parameter in the init code; every input of ``f`` is in
+    exactly one of the two. ``out[i][nz]`` is the C lvalue receiving an output nonzero. Coefficients
+    are ``{coef}[coef_offset + j]`` (an array expression valid in both the init code and the step).
+    """
+    if not f.is_a("SXFunction"):
+        raise TypeError(f"{f.name()}: only SX Functions can be printed as C")
+    for i in range(f.n_in()):
+        if (i in runtime_in) == (i in param_in):
+            raise ValueError(f"{f.name()}: input {f.name_in(i)} must be either runtime or parameter")
+
+    nodes: list[_Node] = []
+    work: dict[int, int] = {}
+    outputs: list[tuple[tuple[int, int], int]] = []
+    for k in range(f.n_instructions()):
+        op = _OPS[f.instruction_id(k)]
+        ins, outs = f.instruction_input(k), f.instruction_output(k)
+        if op == "OUTPUT":
+            outputs.append(((outs[0], outs[1]), work[ins[0]]))
+            continue
+        if op == "CONST":
+            node = _Node("CONST", const=float(f.instruction_constant(k)), param=True)
+        elif op == "INPUT":
+            node = _Node("INPUT", source=(ins[0], ins[1]), param=ins[0] in param_in)
+        elif op in _BINARY or op in _UNARY:
+            args = tuple(work[j] for j in ins[: 2 if op in _BINARY else 1])
+            node = _Node(op, args, param=all(nodes[a].param for a in args))
+        else:
+            raise NotImplementedError(f"{f.name()}: CasADi operation OP_{op} has no C spelling here")
+        nodes.append(node)
+        work[outs[0]] = len(nodes) - 1
+
+    _strength_reduce(nodes)
+    _fuse_selects(nodes)
+    alias = _forward_trivial_selects(nodes)
+    outputs = [(o, alias.get(n, n)) for o, n in outputs]
+
+    # coefficients: parameter-only, non-constant values that runtime values or outputs read
+    used_by_runtime: list[int] = []
+    seen: set[int] = set()
+
+    def need(a: int) -> None:
+        if nodes[a].param and nodes[a].op != "CONST" and a not in seen:
+            seen.add(a)
+            used_by_runtime.append(a)
+
+    live = _live(nodes, [n for _, n in outputs])
+    for idx in sorted(live):
+        if not nodes[idx].param:
+            for a in nodes[idx].args:
+                need(a)
+    for _, n in outputs:
+        need(n)
+    coef_of = {n: coef_offset + j for j, n in enumerate(sorted(used_by_runtime))}
+
+    r = prec.real
+    zero, one = prec.lit(0.0), prec.lit(1.0)
+
+    def ref(a: int, in_init: bool) -> str:
+        nd = nodes[a]
+        if nd.op == "CONST":
+            return prec.lit(nd.const)
+        if not in_init and nd.param:
+            return f"{coef}[{coef_of[a]}]"
+        return f"{prefix}{a}"
+
+    def expr(idx: int, in_init: bool) -> str:
+        nd = nodes[idx]
+        if nd.op == "INPUT":
+            i, nz = nd.source
+            return (param_in if nd.param else runtime_in)[i][nz]
+        if nd.op == "SELECT":
+            c, a, b = (ref(x, in_init) for x in nd.args)
+            return f"({c} ? {a} : {b})"
+        a = ref(nd.args[0], in_init)
+        b = ref(nd.args[1], in_init) if len(nd.args) > 1 else ""
+        fname = prec.fn(_LIBM.get(nd.op, nd.op.lower()))
+        tmpl = _BINARY.get(nd.op) or _UNARY[nd.op]
+        return tmpl.format(a=a, b=b, f=fname, r=r, zero=zero, one=one)
+
+    res = Emitted(n_coef=len(coef_of))
+    init_live = _live(nodes, list(coef_of))
+    for idx in sorted(init_live):
+        if nodes[idx].op != "CONST":
+            res.init.append(f"const {r} {prefix}{idx} = {expr(idx, True)};")
+    for n, j in coef_of.items():
+        res.init.append(f"{coef}[{j}] = {prefix}{n};")
+    body_live = [i for i in sorted(live) if not nodes[i].param]
+    # inputs first (in-place state update is safe), then the arithmetic
+    for idx in sorted(body_live, key=lambda i: nodes[i].op != "INPUT"):
+        res.body.append(f"const {r} {prefix}{idx} = {expr(idx, False)};")
+    for (i, nz), n in outputs:
+        res.body.append(f"{out[i][nz]} = {ref(n, False)};")
+    return res
+
+
+def _live(nodes: list[_Node], roots: list[int]) -> set[int]:
+    """Indices of the nodes the roots depend on (roots included)."""
+    live: set[int] = set()
+    stack = list(roots)
+    while stack:
+        n = stack.pop()
+        if n in live:
+            continue
+        live.add(n)
+        stack.extend(nodes[n].args)
+    return live
+
+
+def _strength_reduce(nodes: list[_Node]) -> None:
+    """runtime / parameter-only  ->  runtime * (1 / parameter-only), the reciprocal hoisted;
+    x / 2^n  ->  x * 2^-n (exact)."""
+    recip: dict[int, int] = {}
+    for idx, nd in enumerate(list(nodes)):
+        if nd.op == "DIV" and nodes[nd.args[1]].op == "CONST":
+            c = nodes[nd.args[1]].const
+            m, _ = math.frexp(c)
+            if c != 0 and abs(m) == 0.5:  # a power of two: the reciprocal is exact
+                nodes.append(_Node("CONST", const=1.0 / c, param=True))
+                nodes[idx] = _Node("MUL", (nd.args[0], len(nodes) - 1), param=nd.param)
+        elif nd.op == "DIV" and not nd.param:
+            a, b = nd.args
+            if nodes[b].param and nodes[b].op != "CONST":
+                if b not in recip:
+                    nodes.append(_Node("INV", (b,), param=True))
+                    recip[b] = len(nodes) - 1
+                nodes[idx] = _Node("MUL", (a, recip[b]), param=False)
+
+
+def _fuse_selects(nodes: list[_Node]) -> None:
+    """ADD(IF_ELSE_ZERO(c, a), IF_ELSE_ZERO(NOT(c), b))  ->  SELECT(c, a, b)."""
+    for idx, nd in enumerate(nodes):
+        if nd.op != "ADD" or nd.param:
+            continue
+        p, q = (nodes[a] for a in nd.args)
+        if p.op == "IF_ELSE_ZERO" and q.op == "IF_ELSE_ZERO":
+            c = p.args[0]
+            nq = nodes[q.args[0]]
+            if nq.op == "NOT" and nq.args[0] == c:
+                nodes[idx] = _Node("SELECT", (c, p.args[1], q.args[1]), param=False)
+
+
+def _forward_trivial_selects(nodes: list[_Node]) -> dict[int, int]:
+    """SELECT(c, a, a) -> a: users are rewired to ``a``; returns the map for the outputs."""
+    alias: dict[int, int] = {}
+    for idx, nd in enumerate(nodes):
+        nd.args = tuple(alias.get(a, a) for a in nd.args)
+        if nd.op == "SELECT" and nd.args[1] == nd.args[2]:
+            alias[idx] = nd.args[1]
+    return alias
