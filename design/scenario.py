@@ -25,7 +25,17 @@ from sensorless.design.units import DriveFileError, parse_quantity
 INTERPOLATIONS = ("step", "linear")
 FEEDBACK = ("observer", "sensor")
 MODES = ("speed", "torque")
-PANELS = ("speed", "speed_error", "torque", "theta_error", "current", "load_torque", "emf_error", "w_eps")
+PANELS = (
+    "speed",
+    "speed_error",
+    "tracking_error",
+    "torque",
+    "theta_error",
+    "current",
+    "load_torque",
+    "emf_error",
+    "w_eps",
+)
 
 
 @dataclass(frozen=True)
@@ -65,6 +75,7 @@ class Scenario:
     stiff_load: bool  # the load machine prescribes the speed (w_ref profile)
     feedforward: bool  # add the load-torque estimate to the torque reference (paper 002)
     speed_filter: float  # bandwidth of the low-pass on the controllers' speed feedback [rad/s]
+    current_bandwidth: float | None  # current-control bandwidth [rad/s]; None: the drive's
     w_m0: float  # initial electrical speed [rad/s]
     theta_m0: float  # initial rotor angle [rad]
     theta_err0: float  # initial position estimation error theta_m - theta_hat [rad]
@@ -101,6 +112,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "stiff_load": ("bool", False),
         "feedforward": ("bool", False),
         "speed_filter": ("angular", 2 * np.pi * 50),  # 10 x the paper's speed bandwidth
+        "current_bandwidth": ("angular", None),  # None: the drive's alpha_c (paper 002: 2 pi 400 rad/s)
     },
     "initial": {
         "w_m": ("angular_any", 0.0),
@@ -162,6 +174,13 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
         if "T_N" not in rel:
             raise DriveFileError(file, key, "'T_N' needs a drive with a nominal torque")
         return x * rel["T_N"]
+    if dim in ("angular_any", "angular") and isinstance(raw, str) and raw.strip().endswith(("rpm", "r/min")):
+        num = raw.strip().removesuffix("rpm").removesuffix("r/min")
+        x, _ = parse_quantity(num, "dimensionless", file=file, key=key)
+        x *= rel["rpm"]
+        if dim == "angular" and x < 0:
+            raise DriveFileError(file, key, f"non-physical value {raw!r}: must be >= 0")
+        return x
     base_dim = {"angular_any": "angular"}.get(dim, dim)
     x, unit = parse_quantity(raw, base_dim, file=file, key=key)
     if unit is not None:
@@ -264,6 +283,7 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         stiff_load=c["stiff_load"],
         feedforward=c["feedforward"],
         speed_filter=c["speed_filter"],
+        current_bandwidth=c["current_bandwidth"],
         w_m0=s["initial"]["w_m"],
         theta_m0=s["initial"]["theta_m"],
         theta_err0=s["initial"]["theta_error"],
@@ -278,8 +298,10 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
 
 
 def drive_units(drive: Any) -> dict[str, float]:
-    """The drive-relative units a scenario may use: 'pu' (base speed) and 'T_N' (nominal torque)."""
-    return {"pu": drive.base.w, "T_N": drive.T_N}
+    """Drive-relative units a scenario may use: 'pu' (base speed), 'rpm' (mechanical r/min, converted
+    to electrical rad/s with the pole pairs) and 'T_N' (nominal torque)."""
+    w_base = drive.base.w if hasattr(drive, "base") else drive.w_base
+    return {"pu": w_base, "T_N": drive.T_N, "rpm": np.pi / 30 * drive.motor.p}
 
 
 def load_scenario(spec: str | Path, drive: Any) -> Scenario:

@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 from sensorless.design.compiled import compiled
 from sensorless.design.scenario import Scenario
+from sensorless.design.units import DriveFileError
 from sensorless.symbolic.drive000 import (
     INPUTS,
     LOOP_STATE,
@@ -168,7 +169,7 @@ def build_ipmsm(drive: Any, sc: Scenario, table: GainTable | None, table_file: s
         "L_q_hat": est.L_q,
         "psi_pm_hat": est.psi_pm,
         "J_hat": m.J * k["J"],
-        "alpha_c": c.alpha_c,
+        "alpha_c": sc.current_bandwidth or c.alpha_c,
         "alpha_s": c.alpha_s,
         "T_max": c.T_max,
         "u_max": c.u_dc / math.sqrt(3),
@@ -202,6 +203,8 @@ def build_ipmsm(drive: Any, sc: Scenario, table: GainTable | None, table_file: s
         "base_w": drive.base.w,
         "T_N": drive.T_N,
         "pole_pairs": m.p,
+        "speed_unit": "p.u.",
+        "speed_scale": 1 / drive.base.w,  # rad/s (electrical) -> speed_unit
     }
     return LoopSetup(
         loop=loop,
@@ -216,9 +219,154 @@ def build_ipmsm(drive: Any, sc: Scenario, table: GainTable | None, table_file: s
     )
 
 
+# --------------------------------------------------------------------------------------------------
+# Paper 002: PMAC motor, reduced-order EMF/load-torque observer (kind "pmac-reduced-order")
+# --------------------------------------------------------------------------------------------------
+PMAC_ALPHA_C = 2 * math.pi * 400  # [rad/s] the paper's "fast current control loop", not specified
+
+
+def _pmac_gains(drive: Any, table: GainTable | None, table_file: str) -> tuple[float, float, str]:
+    """(g, Gamma, source) from a 'deangelo' gain table or the drive's [observer]."""
+    from sensorless.tuning.gain_table import GainTableError
+
+    if table is None:
+        return drive.observer.g, drive.observer.Gamma, f"{drive.file} [observer]"
+    if table.family != "deangelo":
+        raise GainTableError(
+            f"{table_file}: key 'family': {table.family!r} gains are not for the paper-002 observer "
+            "(use a deangelo table)"
+        )
+    try:
+        g, Gamma = float(table.gains["g"]), float(table.gains["Gamma"])
+    except (TypeError, ValueError) as e:
+        raise GainTableError(f"{table_file}: key 'gains': {e}") from None
+    if not (g > 0 and Gamma >= 0):
+        raise GainTableError(f"{table_file}: key 'gains': need g > 0 and Gamma >= 0")
+    return g, Gamma, f"deangelo table {table_file} (tuned for {table.drive.get('name')})"
+
+
+def build_pmac(drive: Any, sc: Scenario, table: GainTable | None, table_file: str) -> LoopSetup:
+    """Loop set-up of the paper-002 drive (Fig. 1) for scenario ``sc``."""
+    from sensorless.symbolic import drive002
+    from sensorless.symbolic.pmac import EmfSeries, flux_derivative, ripple_free_current
+    from sensorless.symbolic.reduced_order_observer import ObserverParams, zeta_tau
+    from sensorless.symbolic.reduced_order_step import observer_step_function
+
+    m, e, c = drive.motor, drive.estimate, drive.control
+    if tuple(m.harmonics) != tuple(e.harmonics):
+        raise DriveFileError(
+            drive.file, "estimate.harmonics", "simulation needs the same harmonic orders as [motor]"
+        )
+    orders = tuple(int(n) for n in m.harmonics)
+    disc = sc.discretization or c.discretization
+    step = observer_step_function(disc, orders)
+    loop = drive002.loop_function(step, orders)
+    k = sc.estimate_scale
+    g, Gamma, source = _pmac_gains(drive, table, table_file)
+    if not sc.load_torque_estimation:
+        Gamma = 0.0  # the observer of [11]: no load-torque state (tau stays 0, so T_L_hat = 0)
+    R_hat, L_hat, J_hat = e.R * k["R_s"], e.L * k["L_d"], e.J * k["J"]
+    Phi_hat = np.asarray(e.Phi, float) * k["Phi"]
+    p_obs = np.array([R_hat, L_hat, J_hat, m.p_r, g, Gamma, c.T_s, *Phi_hat])
+    gain = np.asarray(drive.speed_params(feedforward=sc.feedforward), float)
+    B = m.B + sc.viscous
+    w_max = drive.w_base
+    u_max = 2 * float(np.sum(np.abs(m.Phi))) * w_max / m.p_r  # ideal inverter: twice the EMF at n_N
+    qd = {
+        "R": m.R,
+        "L": m.L,
+        "J": m.J,
+        "B": B,
+        "p_r": m.p_r,
+        "R_hat": R_hat,
+        "L_hat": L_hat,
+        "alpha_c": sc.current_bandwidth or PMAC_ALPHA_C,
+        "u_max": u_max,
+        "T_s": c.T_s,
+        "sensor": 1.0 if sc.feedback == "sensor" else 0.0,
+        "alpha_w": sc.speed_filter,
+    }
+    q = np.array([*(qd[s.name] for s in drive002.PARAMS), *m.Phi, *Phi_hat])
+
+    # initial state: steady state at (w_m0, T_L(0)), observer converged
+    w0, th0 = sc.w_m0, sc.theta_m0
+    T_L0 = float(sc.load_torque.sample(np.array([0.0]))[0])
+    T0 = T_L0 + B * w0 / m.p_r
+    emf_t = EmfSeries(orders, ca.DM(m.Phi))
+    emf_h = EmfSeries(orders, ca.DM(Phi_hat))
+    phi0 = flux_derivative(th0, emf_t)
+    i0 = np.asarray(ripple_free_current(T0, phi0)).ravel()
+    e0 = np.asarray(phi0 * (w0 / m.p_r)).ravel()
+    u0 = m.R * i0 + e0
+    th_hat0 = math.remainder(th0 - sc.theta_err0, 2 * math.pi)
+    phi_hat0 = flux_derivative(th_hat0, emf_h)
+    T_L_hat0 = T0 if Gamma > 0 else 0.0
+    op = ObserverParams(R_hat, L_hat, J_hat, m.p_r, g, Gamma)
+    zeta0, tau0 = zeta_tau(phi_hat0 * (w0 / m.p_r), T_L_hat0, phi_hat0, ca.DM(i0), op)
+    x_obs0 = np.array([*np.asarray(zeta0).ravel(), float(tau0), th_hat0, w0, *i0, *u0])
+    Rc = np.array([[math.cos(th0), math.sin(th0)], [-math.sin(th0), math.cos(th0)]])
+    z0 = {
+        "i_a": i0[0],
+        "i_b": i0[1],
+        "theta_m": th0,
+        "w_m": w0,
+        "u_a": u0[0],
+        "u_b": u0[1],
+        "x_s": T0 - (T_L_hat0 if sc.feedforward else 0.0),
+        "w_f": w0,
+        "u_a_last": u0[0],
+        "u_b_last": u0[1],
+    }
+    z0["u_i_d"], z0["u_i_q"] = Rc @ (R_hat * i0)
+    z = np.array([*(z0.get(s.name, 0.0) for s in drive002.LOOP_STATE), *x_obs0])
+
+    n = round(sc.duration / c.T_s) + 1
+    t = np.arange(n) * c.T_s
+    v = np.zeros((len(drive002.INPUTS), n))
+    v[0] = sc.speed_reference.sample(t)
+    v[1] = sc.load_torque.sample(t)
+    if sc.i_noise > 0:
+        v[2:4] = sc.i_noise * np.random.default_rng(sc.seed).standard_normal((2, n))
+    rpm = np.pi / 30 * m.p  # electrical rad/s per r/min
+    meta = {
+        "drive": drive.name,
+        "drive_file": drive.file,
+        "drive_sha256": drive.digest,
+        "kind": drive.kind,
+        "scenario": sc.name,
+        "scenario_title": sc.title,
+        "scenario_source": sc.source,
+        "gain": f"{source}: g = {g:g} 1/s, Gamma = {Gamma:g}"
+        + ("" if sc.load_torque_estimation else " (load-torque estimation off)"),
+        "gain_law": "deangelo",
+        "discretization": disc,
+        "injection": False,
+        "feedback": sc.feedback,
+        "feedforward": sc.feedforward,
+        "T_s": c.T_s,
+        "base_w": drive.w_base,
+        "T_N": drive.T_N,
+        "pole_pairs": m.p,
+        "speed_unit": "r/min",
+        "speed_scale": 1 / rpm,
+    }
+    return LoopSetup(
+        loop=loop,
+        q=q,
+        p_obs=p_obs,
+        gain=gain,
+        z0=z,
+        inputs=v,
+        record=drive002.RECORD,
+        T_s=c.T_s,
+        meta=meta,
+    )
+
+
 # kind -> builder(drive, scenario, gain table or None, table file name) -> LoopSetup
 BUILDERS: dict[str, Callable[[Any, Scenario, GainTable | None, str], LoopSetup]] = {
     "ipmsm-adaptive": build_ipmsm,
+    "pmac-reduced-order": build_pmac,
 }
 
 

@@ -2,8 +2,11 @@
 
 Panels (names used by a scenario's ``figure`` list):
 
-- ``speed``: rotor speed (solid), its estimate (dashed), its reference (dotted), p.u. (paper 000 Fig. 9)
-- ``speed_error``: speed estimation error w_m - w_hat, p.u. (Fig. 6 first subplot)
+- ``speed``: rotor speed (solid), its estimate (dashed), its reference (dotted) (paper 000 Fig. 9)
+
+Speeds are shown in the drive's display unit (p.u. for paper 000, mechanical r/min for paper 002).
+- ``speed_error``: speed estimation error w_m - w_hat (paper 000 Fig. 6; paper 002 Figs. 2(b), 3(b))
+- ``tracking_error``: speed tracking error w_ref - w_m (paper 002 Fig. 5)
 - ``torque``: estimated electromagnetic torque (solid) and load torque (dotted), p.u. of T_N (Fig. 9)
 - ``theta_error``: position estimation error, electrical degrees (Figs. 6, 9, 10 last subplot)
 - ``current``: stator current components in the true rotor frame, A
@@ -21,17 +24,23 @@ import numpy as np
 
 
 def _speed(ax: Any, tr: Any) -> None:
-    wb = tr.meta["base_w"]
-    ax.plot(tr.t, tr["w_m"] / wb, "k-", lw=1.0, label=r"$\omega_\mathrm{m}$")
-    ax.plot(tr.t, tr["w_hat"] / wb, "k--", lw=1.0, label=r"$\hat\omega_\mathrm{m}$")
-    ax.plot(tr.t, tr["w_ref"] / wb, "k:", lw=1.0, label=r"$\omega_\mathrm{m,ref}$")
-    ax.set_ylabel(r"$\omega_\mathrm{m}$ (p.u.)")
+    k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
+    ax.plot(tr.t, tr["w_m"] * k, "k-", lw=1.0, label=r"$\omega_\mathrm{m}$")
+    ax.plot(tr.t, tr["w_hat"] * k, "k--", lw=1.0, label=r"$\hat\omega_\mathrm{m}$")
+    ax.plot(tr.t, tr["w_ref"] * k, "k:", lw=1.0, label=r"$\omega_\mathrm{m,ref}$")
+    ax.set_ylabel(rf"$\omega_\mathrm{{m}}$ ({unit})")
 
 
 def _speed_error(ax: Any, tr: Any) -> None:
-    wb = tr.meta["base_w"]
-    ax.plot(tr.t, (tr["w_m"] - tr["w_hat"]) / wb, "k-", lw=1.0, label=r"$\tilde\omega_\mathrm{m}$")
-    ax.set_ylabel(r"$\tilde\omega_\mathrm{m}$ (p.u.)")
+    k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
+    ax.plot(tr.t, (tr["w_m"] - tr["w_hat"]) * k, "k-", lw=1.0, label=r"$\omega - \hat\omega$")
+    ax.set_ylabel(rf"speed est. error ({unit})")
+
+
+def _tracking_error(ax: Any, tr: Any) -> None:
+    k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
+    ax.plot(tr.t, (tr["w_ref"] - tr["w_m"]) * k, "k-", lw=1.0, label=r"$\omega_\mathrm{ref} - \omega$")
+    ax.set_ylabel(rf"tracking error ({unit})")
 
 
 def _torque(ax: Any, tr: Any) -> None:
@@ -73,6 +82,7 @@ def _w_eps(ax: Any, tr: Any) -> None:
 PANELS: dict[str, Callable[[Any, Any], None]] = {
     "speed": _speed,
     "speed_error": _speed_error,
+    "tracking_error": _tracking_error,
     "torque": _torque,
     "theta_error": _theta_error,
     "current": _current,

@@ -55,18 +55,20 @@ def pi_current_control(
     alpha_c: Sym,
     T_s: Sym,
     u_max: Sym,
+    u_ff: Sym = 0,
 ) -> CurrentControl:
     """PI current control in a frame rotating at w_f (the estimated rotor frame), with decoupling.
 
     u_ref = k_p (i_ref - i_s) + u_i + w_f J psî_s, psî_s = L̂ i_s + psî_pm (eqs. (1)-(2) with the
     estimates): the back-EMF and the cross coupling of (1) are fed forward, the PI handles the rest.
     The integral u_i advances by T_s k_i (i_ref - i_s) and is corrected by the limiting deficit
-    (realizable reference), so it never winds up against the voltage limit u_max.
+    (realizable reference), so it never winds up against the voltage limit u_max. ``u_ff`` is an
+    extra feedforward voltage in the same frame (paper 002: the model EMF with its harmonics).
     """
     k_p, k_i = current_gains(alpha_c, est)
     e = i_ref - i_s
     ff = w_f * (J @ flux_from_current(i_s, est))  # eq. (1) rotational voltage, estimated
-    u_unlim = k_p @ e + u_i + ff
+    u_unlim = k_p @ e + u_i + ff + u_ff
     u_ref = limit_magnitude(u_unlim, u_max)
     u_i_next = u_i + T_s * (k_i @ e) + (u_ref - u_unlim)  # realizable reference anti-windup
     return CurrentControl(u_ref, u_i_next)

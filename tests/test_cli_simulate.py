@@ -174,3 +174,38 @@ def test_builtin_scenarios_encode_the_papers_experiments():
         assert not s.injection and s.gain == "speed"
         assert s.speed_reference.sample(np.array([2.0]))[0] == pytest.approx(w * wb)
         assert s.load_torque.sample(np.array([0.99, 1.0])) == pytest.approx([0, T * T_N])
+
+
+def test_paper002_drive_lists_and_runs_its_scenarios(tmp_path, capsys):
+    code, stdout, _ = run(["simulate", "deangelo2006", "--list"], capsys)
+    assert code == 0
+    for name in ("fig2", "fig3", "fig4", "fig5a", "fig5b"):
+        assert name in stdout
+    assert "fig9b" not in stdout
+    table = tmp_path / "t.json"
+    table.write_text(
+        json.dumps(
+            {
+                "format": "sensorless-gain-table/1",
+                "drive": {"name": "x"},
+                "family": "deangelo",
+                "gains": {"g": 300, "Gamma": 5000},
+            }
+        )
+    )
+    args = [
+        "simulate",
+        "deangelo2006",
+        "--scenario",
+        "fig5b",
+        *SHORT,
+        "--gains",
+        str(table),
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    code, stdout, _ = run(args, capsys)
+    assert code == 0 and "g = 300 1/s, Gamma = 5000" in stdout and "r/min" in stdout
+    assert "1 p.u. = " in (tmp_path / "o" / "traces.csv").read_text()
+    code, _, err = run(["simulate", "deangelo2006", "--scenario", "fig9b"], capsys)
+    assert code == 2 and "written for 'ipmsm-adaptive' drives" in err

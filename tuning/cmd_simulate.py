@@ -142,11 +142,11 @@ def run(args: argparse.Namespace) -> int:
 
 def print_summary(tr: Any) -> None:
     """RMS and peak estimation errors over the run."""
-    wb = tr.meta["base_w"]
+    k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     e_th = np.degrees(tr["theta_err"])
-    e_w = (tr["w_m"] - tr["w_hat"]) / wb
+    e_w = (tr["w_m"] - tr["w_hat"]) * k
     print(
         f"position error: RMS {np.sqrt(np.mean(e_th**2)):.3g} deg, peak {np.max(np.abs(e_th)):.3g} deg, "
-        f"final {e_th[-1]:+.3g} deg; speed error: RMS {np.sqrt(np.mean(e_w**2)):.3g} p.u., "
-        f"peak {np.max(np.abs(e_w)):.3g} p.u."
+        f"final {e_th[-1]:+.3g} deg; speed error: RMS {np.sqrt(np.mean(e_w**2)):.3g} {unit}, "
+        f"peak {np.max(np.abs(e_w)):.3g} {unit}, final {e_w[-1]:+.3g} {unit}"
     )
