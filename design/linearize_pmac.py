@@ -9,11 +9,15 @@ the paper); its voltage follows from (2). The observer is fed by those signals.
   states are taken in rotor coordinates y = [R(-theta) zeta, tau], which makes the linearization
   time-invariant for a sinusoidal EMF. The Jacobian is evaluated on the exact-estimate orbit (e_hat = e,
   T_L_hat = T_L + B omega), which the continuous observer follows exactly. With EMF harmonics the
-  linearization is periodic in theta: it is evaluated at angles over one period and the worst is kept.
+  linearization is periodic in theta and the poles are its Floquet exponents over one period (frozen-
+  angle eigenvalues would be misleading: the variation is fast at speed).
 - **Discrete time**: the Jacobian of the one-step map that runs (symbolic/reduced_order_step.py) in
   rotor coordinates y = [R(-theta) zeta, tau, theta_hat - theta, w_hat], evaluated on the discrete
   observer's own steady orbit (simulated from the exact state until settled; the same simulation gives
-  the steady-state errors). Its eigenvalues z map to s = ln(z) / T_s.
+  the steady-state errors). Its eigenvalues z map to s = ln(z) / T_s; with harmonics, the product of the
+  one-step Jacobians over whole periods (Floquet multipliers).
+
+docs/paper002.md explains the method and its choices.
 
 Without load-torque estimation (Gamma = 0, [11]) T_L_hat stays 0 and tau is left out of the state.
 Sweeps over speed x load are ``Function.map`` calls.
@@ -75,7 +79,13 @@ def _no_load_estimation(params: ca.SX) -> ca.SX:
     return ca.vertcat(params[0:5], 0, params[6:])
 
 
-def exact_state(s: dict[str, ca.SX], orders_m, orders_o, load_estimation: bool, theta: Any = None) -> ca.SX:
+def exact_state(
+    s: dict[str, ca.SX],
+    orders_m: tuple[int, ...],
+    orders_o: tuple[int, ...],
+    load_estimation: bool,
+    theta: Any = None,
+) -> ca.SX:
     """Observer state x (9) that agrees exactly with the motor at angle theta (the continuous orbit)."""
     theta = s["theta"] if theta is None else theta
     params = s["params"] if load_estimation else _no_load_estimation(s["params"])
@@ -197,7 +207,9 @@ def _coupled_step_function(method: str, orders_m, orders_o, load_estimation: boo
 
 
 @functools.cache
-def orbit_function(method: str, orders_m, orders_o, load_estimation: bool, n_steps: int) -> ca.Function:
+def orbit_function(
+    method: str, orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool, n_steps: int
+) -> ca.Function:
     """(xc0 [10], par) -> (xc [10 x n], err [3 x n]): n steps of the observer fed by the motor."""
     F = _coupled_step_function(method, orders_m, orders_o, load_estimation).mapaccum(n_steps)
     xc0 = ca.MX.sym("xc0", N_STATE + 1)
@@ -207,7 +219,9 @@ def orbit_function(method: str, orders_m, orders_o, load_estimation: bool, n_ste
 
 
 @functools.cache
-def exact_state_function(orders_m, orders_o, load_estimation: bool) -> ca.Function:
+def exact_state_function(
+    orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool
+) -> ca.Function:
     """(theta, w, T_L, motor, params) -> x: the observer state that matches the motor exactly."""
     s = symbols(orders_m, orders_o)
     x = exact_state(s, orders_m, orders_o, load_estimation)
@@ -293,7 +307,7 @@ class ObserverPoles:
 
 def analysis_arguments(
     drive: Any, T_s: float | None = None, g: float | None = None, Gamma: float | None = None
-):
+) -> tuple[tuple[int, ...], tuple[int, ...], np.ndarray, np.ndarray]:
     """(orders_m, orders_o, motor vector, params vector) of a paper-002 drive."""
     return (
         tuple(drive.motor.harmonics),
@@ -346,7 +360,8 @@ def continuous_poles(
     if K == 1:
         return sort_poles(np.linalg.eigvals(A[:, 0]))
     T_p = period / np.abs(w_f)  # [s]
-    M = ordered_product(expm(A * (T_p / K)[:, None, None, None]))
+    # (contiguous: scipy's batched expm is ~20x slower on strided views)
+    M = ordered_product(expm(np.ascontiguousarray(A * (T_p / K)[:, None, None, None])))
     return floquet_exponents(M, T_p)
 
 
@@ -403,9 +418,15 @@ def analyze(
     err = err.reshape(3, n, n_steps)
     k_idx = np.arange(n_steps)[None, :]
     win = (k_idx >= (end - M)[:, None]) & (k_idx < end[:, None])  # (n, n_steps): each point's window
-    e_win = np.where(win[None], err, np.nan)
-    mean = np.nanmean(e_win, axis=2)
-    ptp = np.nanmax(e_win, axis=2) - np.nanmin(e_win, axis=2)
+    # a scheme can diverge at a point (too long T_s for its speed): NaN results there, not an exception
+    ok = np.isfinite(err).all(axis=(0, 2)) & np.isfinite(xc).all(axis=(0, 2))
+    e_win = np.where(win[None], err, 0.0)
+    mean = np.where(ok, e_win.sum(axis=2) / M, np.nan)
+    ptp = np.where(
+        ok,
+        np.where(win[None], err, -np.inf).max(axis=2) - np.where(win[None], err, np.inf).min(axis=2),
+        np.nan,
+    )
     # one-step Jacobians along each point's last M_jac steps: the state after step j (at angle
     # theta_j) is mapped one step further; shorter windows are padded with identities in front
     mj = int(M_jac.max())
@@ -423,15 +444,19 @@ def analyze(
     nd = Jy.shape[0]
     Jy = Jy.reshape(nd, n * mj, nd).transpose(1, 0, 2).reshape(n, mj, nd, nd)
     Jy = np.where(keep[:, :, None, None], Jy, np.eye(nd))
+    ok &= np.isfinite(Jy).all(axis=(1, 2, 3))
+    Jy[~ok] = np.eye(nd)
     mu = np.linalg.eigvals(ordered_product(Jy)).astype(complex)
     order = np.argsort(-np.abs(mu), axis=-1, kind="stable")
     mu = np.take_along_axis(mu, order, axis=-1)
     with np.errstate(divide="ignore"):
         s_d = np.log(mu[:, :n_c]) / (M_jac * T_s)[:, None]
+    s_d[~ok] = np.nan
     # the fast "memory" modes (previous position/speed of (19)-(21)) vanish in the product; their
     # size per step comes from the single-step eigenvalues, largest along the window
     z1 = -np.sort(-np.abs(np.linalg.eigvals(Jy)), axis=-1)[..., n_c:]  # (n, mj, nd - n_c)
     memory_z = np.where(keep[:, :, None], z1, 0.0).max(axis=1)
+    memory_z[~ok] = np.nan
     return ObserverPoles(
         w=w_f,
         T_L=T_f,

@@ -126,7 +126,7 @@ def ripple_free_current(T: Sym, phi: Sym) -> Sym:
 def pmac_rhs(i: Sym, theta: Sym, w: Sym, v: Sym, T_L: Sym, p: PmacParams, emf_series: EmfSeries) -> Sym:
     """[di/dt; dtheta/dt; dw/dt] of the motor, eqs. (2)-(5), load T_L plus viscosity B omega."""
     phi = flux_derivative(theta, emf_series)  # eq. (4)
-    e = phi * (w / p.p_r)  # eq. (3)
+    e = emf(theta, w, emf_series, p.p_r)  # eq. (3)
     T_load = T_L + viscous_torque(w, p.B, p.p_r)
     return ca.vertcat(
         current_derivative(i, e, v, p.R, p.L),  # eq. (2)
@@ -158,7 +158,7 @@ def ideal_current_control(
     i = ripple_free_current(T_e, phi)  # eq. (25)
     di_dtheta = T_e * (slope * n2 - 2 * phi * ca.dot(phi, slope)) / n2**2
     di = dT_e * phi / n2 + w * di_dtheta
-    e = phi * (w / p.p_r)  # eq. (3)
+    e = emf(theta, w, emf_series, p.p_r)  # eq. (3)
     return CurrentControlled(i, di, e, p.R * i + p.L * di + e)  # eq. (2)
 
 

@@ -36,7 +36,8 @@ import functools
 from typing import NamedTuple
 
 import casadi as ca
-from sensorless.symbolic.pmac import EmfSeries, Sym, flux_derivative, flux_derivative_slope
+from sensorless.symbolic.pmac import EmfSeries, Sym, flux_derivative_slope
+from sensorless.symbolic.pmac import emf as emf_of
 from sensorless.symbolic.reduced_order_observer import (
     Estimates,
     ObserverParams,
@@ -131,7 +132,7 @@ def integrate(
         if method == "rk2-model":
 
             def E(dt: Sym) -> Sym:
-                return flux_derivative(th0 + w0 * dt, emf) * (w0 / p.p_r)
+                return emf_of(th0 + w0 * dt, w0, emf, p.p_r)  # eq. (3) at the estimates
 
             def dE(dt: Sym) -> Sym:
                 return flux_derivative_slope(th0 + w0 * dt, emf) * (w0 * w0 / p.p_r)
