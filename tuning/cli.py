@@ -19,6 +19,7 @@ from sensorless.tuning.gain_table import GainTableError
 COMMAND_MODULES = (
     "sensorless.tuning.cmd_analyze",
     "sensorless.tuning.cmd_tune",
+    "sensorless.tuning.cmd_simulate",
     "sensorless.tuning.cmd_codegen",
     "sensorless.tuning.cmd_report",
 )

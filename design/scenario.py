@@ -1,0 +1,331 @@
+"""Simulation scenarios as data: strict TOML loading of references, load, noise and parameter errors.
+
+A scenario says what happens to a drive over time: speed (or torque) reference and load torque as
+piecewise profiles, the observer's gain and injection, the controllers' feedback (estimates or
+sensor), initial conditions, measurement noise and parameter errors. The papers' experiments ship as
+built-in scenarios named after their figures (``fig6a`` ... ``fig10`` for paper 000, ``fig2`` ...
+``fig5`` for paper 002; ``sensorless simulate --list``). Loading is strict like drive files: unknown
+or missing keys, wrong units and non-physical values raise :class:`DriveFileError` naming the file
+and the dotted key. The schema is documented in docs/simulation.md.
+"""
+
+from __future__ import annotations
+
+import itertools
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sensorless.design.units import DriveFileError, parse_quantity
+
+INTERPOLATIONS = ("step", "linear")
+FEEDBACK = ("observer", "sensor")
+MODES = ("speed", "torque")
+PANELS = (
+    "speed",
+    "speed_error",
+    "tracking_error",
+    "torque",
+    "theta_error",
+    "current",
+    "load_torque",
+    "emf_error",
+    "w_eps",
+)
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A piecewise signal: breakpoints t [s] (increasing) and values (SI); step or linear between."""
+
+    t: tuple[float, ...] = (0.0,)
+    value: tuple[float, ...] = (0.0,)
+    interpolation: str = "step"
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        """Values at times ``t``; before the first breakpoint the first value, after the last the last."""
+        tb, vb = np.asarray(self.t), np.asarray(self.value)
+        if self.interpolation == "linear":
+            return np.interp(t, tb, vb)
+        k = np.searchsorted(tb, t, side="right") - 1
+        return vb[np.clip(k, 0, len(vb) - 1)]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A simulation scenario (see the module docstring and docs/simulation.md)."""
+
+    name: str
+    title: str
+    source: str
+    kind: str  # drive kind it is written for
+    file: str
+    duration: float  # [s]
+    figure: tuple[str, ...]  # panels of the figure, top to bottom
+    gain: str | None  # [observer.gains.*] name; None: the drive's default
+    injection: bool
+    discretization: str | None  # None: the drive's [runtime] choice
+    load_torque_estimation: bool  # paper 002: estimate T_L (Fig. 3) or not (Fig. 2)
+    feedback: str  # "observer" (sensorless) or "sensor"
+    mode: str  # "speed" or "torque"
+    stiff_load: bool  # the load machine prescribes the speed (w_ref profile)
+    feedforward: bool  # add the load-torque estimate to the torque reference (paper 002)
+    speed_filter: float  # bandwidth of the low-pass on the controllers' speed feedback [rad/s]
+    current_bandwidth: float | None  # current-control bandwidth [rad/s]; None: the drive's
+    w_m0: float  # initial electrical speed [rad/s]
+    theta_m0: float  # initial rotor angle [rad]
+    theta_err0: float  # initial position estimation error theta_m - theta_hat [rad]
+    speed_reference: Profile
+    load_torque: Profile
+    torque_reference: Profile
+    viscous: float  # extra viscous load B [N m s/rad] (added to the drive's own)
+    i_noise: float  # standard deviation of the current-measurement noise, per axis [A]
+    seed: int
+    estimate_scale: Mapping[str, float] = field(default_factory=dict)  # parameter errors
+
+
+REQUIRED = object()
+
+# section -> key -> (dimension or type, default in SI; REQUIRED = must be given)
+_SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
+    "scenario": {
+        "name": ("str", REQUIRED),
+        "title": ("str", REQUIRED),
+        "source": ("str", ""),
+        "kind": ("str", REQUIRED),
+        "duration": ("time", REQUIRED),
+        "figure": ("panels", ("speed", "torque", "theta_error")),
+    },
+    "observer": {
+        "gain": ("str", None),
+        "injection": ("bool", True),
+        "discretization": ("str", None),
+        "load_torque_estimation": ("bool", True),
+    },
+    "control": {
+        "feedback": ("str", "observer"),
+        "mode": ("str", "speed"),
+        "stiff_load": ("bool", False),
+        "feedforward": ("bool", False),
+        "speed_filter": ("angular", 2 * np.pi * 50),  # 10 x the paper's speed bandwidth
+        "current_bandwidth": ("angular", None),  # None: the drive's alpha_c (paper 002: 2 pi 400 rad/s)
+    },
+    "initial": {
+        "w_m": ("angular_any", 0.0),
+        "theta_m": ("angle", 0.0),
+        "theta_error": ("angle", 0.0),
+    },
+    "noise": {"i_std": ("current", 0.0), "seed": ("int", 0)},
+    "mechanics": {"B": ("viscous", 0.0)},
+    "estimate_scale": {k: ("factor", 1.0) for k in ("R_s", "L_d", "L_q", "psi_pm", "J", "Phi")},
+}
+_PROFILES = {"speed_reference": "angular_any", "load_torque": "torque", "torque_reference": "torque"}
+
+BUILTIN = "sensorless.design.scenarios"
+
+
+def builtin_names(kind: str | None = None) -> list[str]:
+    """Names of the built-in scenarios (for one drive kind if given)."""
+    names = []
+    for p in resources.files(BUILTIN).iterdir():
+        if p.name.endswith(".toml"):
+            if kind is None or tomllib.loads(p.read_text(encoding="utf-8"))["scenario"]["kind"] == kind:
+                names.append(p.name[:-5])
+    return sorted(names)
+
+
+def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) -> Any:
+    if dim == "str":
+        if not isinstance(raw, str):
+            raise DriveFileError(file, key, f"expected a string, got {raw!r}")
+        return raw
+    if dim == "bool":
+        if not isinstance(raw, bool):
+            raise DriveFileError(file, key, f"expected true or false, got {raw!r}")
+        return raw
+    if dim == "int":
+        if not isinstance(raw, int) or isinstance(raw, bool) or raw < 0:
+            raise DriveFileError(file, key, f"expected a non-negative integer, got {raw!r}")
+        return raw
+    if dim == "panels":
+        if not isinstance(raw, list) or not raw or any(p not in PANELS for p in raw):
+            raise DriveFileError(file, key, f"expected a list of panels from: {', '.join(PANELS)}")
+        return tuple(raw)
+    if dim == "factor":
+        x, _ = parse_quantity(raw, "dimensionless", file=file, key=key)
+        if x <= 0:
+            raise DriveFileError(file, key, f"non-physical scale factor {raw!r}: must be > 0")
+        return x
+    if dim == "angle":
+        if isinstance(raw, str) and raw.strip().endswith("deg"):
+            x, _ = parse_quantity(raw.strip()[:-3], "dimensionless", file=file, key=key)
+            return np.deg2rad(x)
+        if isinstance(raw, str) and raw.strip().endswith("rad"):
+            raw = raw.strip()[:-3]
+        x, _ = parse_quantity(raw, "dimensionless", file=file, key=key)
+        return x
+    if dim == "torque" and isinstance(raw, str) and raw.strip().endswith("T_N"):
+        num = raw.strip()[:-3].strip() or "1"
+        x, _ = parse_quantity(num, "dimensionless", file=file, key=key)
+        if "T_N" not in rel:
+            raise DriveFileError(file, key, "'T_N' needs a drive with a nominal torque")
+        return x * rel["T_N"]
+    if dim in ("angular_any", "angular") and isinstance(raw, str) and raw.strip().endswith(("rpm", "r/min")):
+        num = raw.strip().removesuffix("rpm").removesuffix("r/min")
+        x, _ = parse_quantity(num, "dimensionless", file=file, key=key)
+        x *= rel["rpm"]
+        if dim == "angular" and x < 0:
+            raise DriveFileError(file, key, f"non-physical value {raw!r}: must be >= 0")
+        return x
+    base_dim = {"angular_any": "angular"}.get(dim, dim)
+    x, unit = parse_quantity(raw, base_dim, file=file, key=key)
+    if unit is not None:
+        if unit not in rel:
+            raise DriveFileError(file, key, f"unit '{unit}' cannot be resolved here")
+        x *= rel[unit]
+    if dim in ("time", "angular", "current", "viscous") and x < 0:
+        raise DriveFileError(file, key, f"non-physical value {raw!r}: must be >= 0")
+    if dim == "time" and key.endswith("duration") and x <= 0:
+        raise DriveFileError(file, key, f"non-physical value {raw!r}: must be > 0")
+    return x
+
+
+def _section(data: Mapping[str, Any], name: str, file: str, rel: Mapping[str, float]) -> dict[str, Any]:
+    schema = _SCHEMA[name]
+    table = data.get(name, {})
+    if not isinstance(table, dict):
+        raise DriveFileError(file, name, "expected a table [section]")
+    for k in table:
+        if k not in schema:
+            raise DriveFileError(file, f"{name}.{k}", f"unknown key (allowed: {', '.join(schema)})")
+    out = {}
+    for k, (dim, default) in schema.items():
+        key = f"{name}.{k}"
+        if k not in table:
+            if default is REQUIRED:
+                raise DriveFileError(file, key, "missing key")
+            out[k] = default
+            continue
+        out[k] = _value(table[k], dim, file, key, rel)
+    return out
+
+
+def _profile(data: Mapping[str, Any], name: str, file: str, rel: Mapping[str, float]) -> Profile:
+    table = data.get(name)
+    if table is None:
+        return Profile()
+    if not isinstance(table, dict):
+        raise DriveFileError(file, name, "expected a table [section]")
+    for k in table:
+        if k not in ("t", "value", "interpolation"):
+            raise DriveFileError(file, f"{name}.{k}", "unknown key (allowed: t, value, interpolation)")
+    interp = table.get("interpolation", "step")
+    if interp not in INTERPOLATIONS:
+        raise DriveFileError(file, f"{name}.interpolation", f"expected one of: {', '.join(INTERPOLATIONS)}")
+    ts, vs = table.get("t"), table.get("value")
+    for k, v in (("t", ts), ("value", vs)):
+        if not isinstance(v, list) or not v:
+            raise DriveFileError(file, f"{name}.{k}", "expected a non-empty list")
+    if len(ts) != len(vs):
+        raise DriveFileError(file, f"{name}.value", f"{len(vs)} values for {len(ts)} times")
+    t = [_value(x, "time", file, f"{name}.t[{i}]", rel) for i, x in enumerate(ts)]
+    if any(b < a for a, b in itertools.pairwise(t)):
+        raise DriveFileError(file, f"{name}.t", "times must not decrease")
+    v = [_value(x, _PROFILES[name], file, f"{name}.value[{i}]", rel) for i, x in enumerate(vs)]
+    return Profile(tuple(t), tuple(v), interp)
+
+
+def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenario:
+    """Parse and validate scenario TOML ``text``; ``rel`` resolves 'pu' and 'T_N' (from the drive)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise DriveFileError(file, "(syntax)", f"not valid TOML: {e}") from None
+    allowed = (*_SCHEMA, *_PROFILES)
+    for k in data:
+        if k not in allowed:
+            raise DriveFileError(file, k, f"unknown section (allowed: {', '.join(allowed)})")
+    if "scenario" not in data:
+        raise DriveFileError(file, "scenario", "missing section")
+    s = {name: _section(data, name, file, rel) for name in _SCHEMA}
+    c, o = s["control"], s["observer"]
+    for key, val, allowed_vals in (
+        ("control.feedback", c["feedback"], FEEDBACK),
+        ("control.mode", c["mode"], MODES),
+    ):
+        if val not in allowed_vals:
+            raise DriveFileError(file, key, f"{val!r}: expected one of: {', '.join(allowed_vals)}")
+    if c["stiff_load"] and c["mode"] != "torque":
+        raise DriveFileError(file, "control.stiff_load", "a prescribed speed needs control.mode = 'torque'")
+    if c["mode"] == "torque" and "torque_reference" not in data:
+        raise DriveFileError(file, "torque_reference", "missing section (control.mode = 'torque')")
+    if c["speed_filter"] <= 0:
+        raise DriveFileError(file, "control.speed_filter", "must be > 0")
+    head = s["scenario"]
+    return Scenario(
+        name=head["name"],
+        title=head["title"],
+        source=head["source"],
+        kind=head["kind"],
+        file=file,
+        duration=head["duration"],
+        figure=head["figure"],
+        gain=o["gain"],
+        injection=o["injection"],
+        discretization=o["discretization"],
+        load_torque_estimation=o["load_torque_estimation"],
+        feedback=c["feedback"],
+        mode=c["mode"],
+        stiff_load=c["stiff_load"],
+        feedforward=c["feedforward"],
+        speed_filter=c["speed_filter"],
+        current_bandwidth=c["current_bandwidth"],
+        w_m0=s["initial"]["w_m"],
+        theta_m0=s["initial"]["theta_m"],
+        theta_err0=s["initial"]["theta_error"],
+        speed_reference=_profile(data, "speed_reference", file, rel),
+        load_torque=_profile(data, "load_torque", file, rel),
+        torque_reference=_profile(data, "torque_reference", file, rel),
+        viscous=s["mechanics"]["B"],
+        i_noise=s["noise"]["i_std"],
+        seed=s["noise"]["seed"],
+        estimate_scale=s["estimate_scale"],
+    )
+
+
+def drive_units(drive: Any) -> dict[str, float]:
+    """Drive-relative units a scenario may use: 'pu' (base speed), 'rpm' (mechanical r/min, converted
+    to electrical rad/s with the pole pairs) and 'T_N' (nominal torque)."""
+    w_base = drive.base.w if hasattr(drive, "base") else drive.w_base
+    return {"pu": w_base, "T_N": drive.T_N, "rpm": np.pi / 30 * drive.motor.p}
+
+
+def load_scenario(spec: str | Path, drive: Any) -> Scenario:
+    """A built-in scenario by name (e.g. ``"fig9b"``) or a scenario TOML file, checked against ``drive``."""
+    spec_s = str(spec)
+    path = Path(spec_s)
+    rel = drive_units(drive)
+    if path.suffix != ".toml" and "/" not in spec_s:
+        res = resources.files(BUILTIN) / f"{spec_s}.toml"
+        if not res.is_file():
+            have = ", ".join(builtin_names(drive.kind)) or "none"
+            raise FileNotFoundError(
+                f"{spec_s}: no such scenario file, and not a built-in one for "
+                f"{drive.kind} drives (built-in: {have})"
+            )
+        sc = load_scenario_text(res.read_text(encoding="utf-8"), f"scenario:{spec_s}", rel)
+    else:
+        if not path.is_file():
+            raise FileNotFoundError(f"{spec_s}: no such scenario file")
+        sc = load_scenario_text(path.read_text(encoding="utf-8"), str(path), rel)
+    if sc.kind != drive.kind:
+        raise DriveFileError(
+            sc.file,
+            "scenario.kind",
+            f"written for {sc.kind!r} drives, but {drive.file} is a {drive.kind!r} drive",
+        )
+    return sc

@@ -1,0 +1,1 @@
+"""Built-in simulation scenarios (package data): the papers' experiments, named after their figures."""

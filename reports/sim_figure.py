@@ -1,0 +1,128 @@
+"""Figures of simulated traces in the style of the papers' figures: stacked panels over time, black lines.
+
+Panels (names used by a scenario's ``figure`` list):
+
+- ``speed``: rotor speed (solid), its estimate (dashed), its reference (dotted) (paper 000 Fig. 9)
+
+Speeds are shown in the drive's display unit (p.u. for paper 000, mechanical r/min for paper 002).
+- ``speed_error``: speed estimation error w_m - w_hat (paper 000 Fig. 6; paper 002 Figs. 2(b), 3(b))
+- ``tracking_error``: speed tracking error w_ref - w_m (paper 002 Fig. 5)
+- ``torque``: estimated electromagnetic torque (solid) and load torque (dotted), p.u. of T_N (Fig. 9)
+- ``theta_error``: position estimation error, electrical degrees (Figs. 6, 9, 10 last subplot)
+- ``current``: stator current components in the true rotor frame, A
+- ``load_torque``: load torque (dashed) and its estimate (solid), N m (paper 002 Figs. 3-4)
+- ``emf_error``: norm of the EMF estimation error, V (paper 002 Figs. 2-3)
+- ``w_eps``: HF-injection correction omega_eps (21), rad/s
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+
+def _speed(ax: Any, tr: Any) -> None:
+    k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
+    ax.plot(tr.t, tr["w_m"] * k, "k-", lw=1.0, label=r"$\omega_\mathrm{m}$")
+    ax.plot(tr.t, tr["w_hat"] * k, "k--", lw=1.0, label=r"$\hat\omega_\mathrm{m}$")
+    ax.plot(tr.t, tr["w_ref"] * k, "k:", lw=1.0, label=r"$\omega_\mathrm{m,ref}$")
+    ax.set_ylabel(rf"$\omega_\mathrm{{m}}$ ({unit})")
+
+
+def _speed_error(ax: Any, tr: Any) -> None:
+    k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
+    ax.plot(tr.t, (tr["w_m"] - tr["w_hat"]) * k, "k-", lw=1.0, label=r"$\omega - \hat\omega$")
+    ax.set_ylabel(rf"speed est. error ({unit})")
+
+
+def _tracking_error(ax: Any, tr: Any) -> None:
+    k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
+    ax.plot(tr.t, (tr["w_ref"] - tr["w_m"]) * k, "k-", lw=1.0, label=r"$\omega_\mathrm{ref} - \omega$")
+    ax.set_ylabel(rf"tracking error ({unit})")
+
+
+def _torque(ax: Any, tr: Any) -> None:
+    T_N = tr.meta["T_N"]
+    ax.plot(tr.t, tr["T_e_hat"] / T_N, "k-", lw=1.0, label=r"$\hat T_\mathrm{e}$")
+    ax.plot(tr.t, tr["T_L"] / T_N, "k:", lw=1.0, label=r"$T_\mathrm{L}$")
+    ax.set_ylabel(r"$T$ (p.u.)")
+
+
+def _theta_error(ax: Any, tr: Any) -> None:
+    ax.plot(tr.t, np.degrees(tr["theta_err"]), "k-", lw=1.0, label=r"$\tilde\theta_\mathrm{m}$")
+    ax.set_ylabel(r"$\tilde\theta_\mathrm{m}$ (deg)")
+
+
+def _current(ax: Any, tr: Any) -> None:
+    ax.plot(tr.t, tr["i_d"], "k-", lw=1.0, label=r"$i_d$")
+    ax.plot(tr.t, tr["i_q"], "k--", lw=1.0, label=r"$i_q$")
+    ax.set_ylabel("current (A)")
+
+
+def _load_torque(ax: Any, tr: Any) -> None:
+    ax.plot(
+        tr.t, tr["T_L_total"] if "T_L_total" in tr.data else tr["T_L"], "k--", lw=1.0, label=r"$T_\mathrm{L}$"
+    )
+    ax.plot(tr.t, tr["T_L_hat"], "k-", lw=1.0, label=r"$\hat T_\mathrm{L}$")
+    ax.set_ylabel(r"$T_\mathrm{L}$ (N m)")
+
+
+def _emf_error(ax: Any, tr: Any) -> None:
+    ax.plot(tr.t, tr["emf_err"], "k-", lw=1.0, label=r"$\|\varepsilon_e\|$")
+    ax.set_ylabel(r"$\|\varepsilon_e\|$ (V)")
+
+
+def _w_eps(ax: Any, tr: Any) -> None:
+    ax.plot(tr.t, tr["w_eps"], "k-", lw=1.0, label=r"$\omega_\varepsilon$")
+    ax.set_ylabel(r"$\omega_\varepsilon$ (rad/s)")
+
+
+PANELS: dict[str, Callable[[Any, Any], None]] = {
+    "speed": _speed,
+    "speed_error": _speed_error,
+    "tracking_error": _tracking_error,
+    "torque": _torque,
+    "theta_error": _theta_error,
+    "current": _current,
+    "load_torque": _load_torque,
+    "emf_error": _emf_error,
+    "w_eps": _w_eps,
+}
+
+
+MAX_POINTS = 20000  # per line: more is invisible at figure resolution and bloats the SVG
+
+
+def plot_traces(traces: Any, panels: tuple[str, ...], title: str) -> Any:
+    """A matplotlib Figure with the given panels stacked over a shared time axis.
+
+    Long runs are thinned to at most MAX_POINTS samples per line (every k-th sample).
+    """
+    import dataclasses
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
+
+    k = max(1, -(-len(traces.t) // MAX_POINTS))
+    if k > 1:
+        traces = dataclasses.replace(
+            traces, t=traces.t[::k], data={n: v[::k] for n, v in traces.data.items()}
+        )
+    fig, axes = plt.subplots(len(panels), 1, sharex=True, figsize=(6.4, 1.9 * len(panels) + 0.8))
+    axes = np.atleast_1d(axes)
+    for ax, name in zip(axes, panels, strict=True):
+        PANELS[name](ax, traces)
+        ax.grid(True, lw=0.3, color="0.8")
+        if len(ax.get_lines()) > 1:
+            ax.legend(loc="best", fontsize=8, frameon=False, ncol=len(ax.get_lines()))
+    axes[-1].set_xlabel("time (s)")
+    axes[-1].set_xlim(traces.t[0], traces.t[-1])
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    return fig
