@@ -169,61 +169,130 @@ def _unit_of(doc: str) -> str:
 
 
 def drive_tables(drive: Any) -> dict[str, list[dict[str, Any]]]:
-    """Drive and observer data as rows (name, value, unit, per-unit where it applies)."""
-    b = drive.base
-    pu = {
-        "angular": b.w,
-        "voltage": b.u,
-        "current": b.i,
-        "resistance": b.Z,
-        "inductance": b.Z / b.w,
-        "flux": b.psi,
-    }
+    """Drive and observer data as rows (name, value, unit, per-unit where the drive has bases)."""
+    b = getattr(drive, "base", None)
+    pu = (
+        {
+            "angular": b.w,
+            "voltage": b.u,
+            "current": b.i,
+            "resistance": b.Z,
+            "inductance": b.Z / b.w,
+            "flux": b.psi,
+        }
+        if b is not None
+        else {}
+    )
     tables: dict[str, list[dict[str, Any]]] = {}
-    for section in ("rating", "base", "motor", "estimate", "control", "injection"):
-        obj = getattr(drive, section)
-        rows = []
-        for f in dataclasses.fields(obj):
+    for sf in dataclasses.fields(drive):
+        obj = getattr(drive, sf.name)
+        if not dataclasses.is_dataclass(obj) or sf.name in ("observer", "runtime", "tuning"):
+            continue
+        tables[sf.name] = _rows(obj, pu)
+    obs = drive.observer
+    rows = []
+    for f in dataclasses.fields(obs):
+        v = getattr(obs, f.name)
+        if f.name == "gains":
+            for gname, g in v.items():
+                for gf in dataclasses.fields(g):
+                    doc = gf.metadata.get("doc", "")
+                    rows.append(
+                        {
+                            "name": f"{gname}.{gf.name}",
+                            "value": _f(getattr(g, gf.name)),
+                            "unit": _unit_of(doc),
+                            "what": f"gain law '{gname}': {doc}",
+                            "pu": None,
+                        }
+                    )
+        elif isinstance(v, int | float) and not isinstance(v, bool):
+            doc = f.metadata.get("doc", "")
             dim = f.metadata.get("dim")
-            v = getattr(obj, f.name)
-            unit = (
-                f.metadata.get("doc", "").rsplit("[", 1)[-1].rstrip("]")
-                if "[" in f.metadata.get("doc", "")
-                else ""
-            )
             rows.append(
                 {
                     "name": f.name,
                     "value": _f(v),
-                    "unit": unit,
-                    "what": f.metadata.get("doc", ""),
+                    "unit": _unit_of(doc),
+                    "what": doc,
                     "pu": _f(v / pu[dim]) if dim in pu else None,
                 }
             )
-        tables[section] = rows
-    obs = [
-        {
-            "name": "alpha_fo",
-            "value": _f(drive.observer.alpha_fo),
-            "unit": "rad/s",
-            "what": "speed-adaptation bandwidth, eq. (10)",
-            "pu": _f(drive.observer.alpha_fo / b.w),
-        }
-    ]
-    for gname, g in drive.observer.gains.items():
-        for f in dataclasses.fields(g):
-            v = getattr(g, f.name)
-            obs.append(
+    tables["observer"] = rows
+    return tables
+
+
+def _rows(obj: Any, pu: dict[str, float]) -> list[dict[str, Any]]:
+    rows = []
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        doc = f.metadata.get("doc", "")
+        dim = f.metadata.get("dim")
+        if isinstance(v, tuple | list):
+            if not all(isinstance(x, int | float) for x in v):
+                continue
+            rows.append(
                 {
-                    "name": f"{gname}.{f.name}",
-                    "value": _f(v),
-                    "unit": f.metadata.get("doc", ""),
-                    "what": f"gain law '{gname}'",
+                    "name": f.name,
+                    "value": None,
+                    "unit": _unit_of(doc),
+                    "what": doc,
                     "pu": None,
+                    "values": [_f(x) for x in v],
                 }
             )
-    tables["observer"] = obs
-    return tables
+            continue
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            rows.append({"name": f.name, "value": None, "unit": "", "what": f"{doc} = {v}", "pu": None})
+            continue
+        rows.append(
+            {
+                "name": f.name,
+                "value": _f(v),
+                "unit": _unit_of(doc),
+                "what": doc,
+                "pu": _f(v / pu[dim]) if dim in pu else None,
+            }
+        )
+    return rows
+
+
+TIME_DOMAIN = {  # built-in scenarios re-run with the gains under review, per drive kind
+    "ipmsm-adaptive": ("fig9b", "fig10", "fig6b"),
+    "pmac-reduced-order": ("fig3", "fig5b"),
+}
+
+
+def time_domain_checks(
+    drive: Any, table: Any | None, progress: Progress
+) -> tuple[dict[str, Any], dict[str, str]]:
+    """Re-run the papers' experiments (built-in scenarios) with the gains under review."""
+    from sensorless.design.scenario import load_scenario
+    from sensorless.design.simulate import simulate
+    from sensorless.reports.sim_figure import plot_traces
+
+    data: dict[str, Any] = {}
+    figs: dict[str, str] = {}
+    for name in TIME_DOMAIN.get(drive.kind, ()):
+        sc = load_scenario(name, drive)
+        progress(f"      simulating {name}: {sc.title}")
+        tr = simulate(drive, sc, table=table, table_file="gain table")
+        m: dict[str, Any] = {"duration_s": _f(tr.t[-1]), "samples": int(tr.t.size)}
+        if "theta_err" in tr.data:
+            th = np.asarray(tr["theta_err"])
+            m["rms_theta_err_deg"] = _f(np.degrees(np.sqrt(np.mean(th**2))))
+            m["max_abs_theta_err_deg"] = _f(np.degrees(np.max(np.abs(th))))
+        if "w_m" in tr.data and "w_hat" in tr.data:
+            e = np.asarray(tr["w_m"]) - np.asarray(tr["w_hat"])
+            m["max_abs_speed_err_rad_s"] = _f(np.max(np.abs(e)))
+            m["final_speed_err_rad_s"] = _f(np.mean(e[-max(1, e.size // 20) :]))
+        cap = (
+            f"{sc.title} ({sc.source}), re-run with the gains under review "
+            f"({'tuned table' if table is not None else 'paper gains'})."
+        )
+        data[name] = {"title": sc.title, "caption": cap, "metrics": m}
+        figs[f"sim_{name}"] = _svg_data_uri(plot_traces(tr, sc.figure, f"{drive.name}: {sc.title}"))
+    return data, figs
 
 
 def compute_report_data(
@@ -334,7 +403,10 @@ def compute_report_data(
     data["robustness"] = rob
     figs["robustness"] = _svg_data_uri(_robustness_figure(rob, w_rob / wb, review.label))
 
-    progress(f"[5/{steps}] verdict")
+    progress(f"[5/{steps}] time-domain checks (paper experiments re-run)")
+    td, td_figs = time_domain_checks(drive, table, progress)
+    data["time_domain"] = td
+    figs.update(td_figs)
     data["verdict"] = verdict(data, review.label, min_damping)
     return data, figs
 
@@ -432,41 +504,10 @@ def _num(v: Any, digits: int = 4) -> str:
 
 def render_html(data: dict[str, Any], figs: dict[str, str], version: str, date: str) -> str:
     """The report page (well-formed XHTML-compatible HTML5, no external resources)."""
-    p: list[str] = []
-    inp = data["inputs"]
-    p.append("<!DOCTYPE html>")
-    p.append('<html lang="en"><head><meta charset="utf-8"/>')
-    p.append(f"<title>sensorless stability report: {_e(inp['drive'])}</title>")
-    p.append(f"<style>{CSS}</style></head><body>")
-    p.append(f"<h1>Stability report: {_e(inp['drive'])}</h1>")
-    p.append(
-        f'<p class="meta">sensorless {_e(version)} &#183; generated {_e(date)} &#183; drive TOML sha256 '
-        f"<code>{_e(inp['drive_sha256'][:16])}…</code> &#183; gains "
-        + (f"<code>{_e(inp['gains_sha256'][:16])}…</code>" if inp["gains_sha256"] else "paper defaults")
-        + f" &#183; gains under review: <b>{_e(data['review'])}</b></p>"
-    )
+    p = _head(data, version, date)
     p.append(_verdict_html(data["verdict"]))
 
-    p.append("<h2>1. Drive and observer data</h2>")
-    p.append('<div class="tables">')
-    for section, rows in data["drive"].items():
-        p.append(
-            f"<table><caption>[{_e(section)}]</caption><tr><th>name</th><th>value</th><th>unit</th>"
-            "<th>p.u.</th><th>meaning</th></tr>"
-        )
-        for r in rows:
-            p.append(
-                f'<tr><td><code>{_e(r["name"])}</code></td><td class="num">{_num(r["value"], 6)}</td>'
-                f'<td>{_e(r["unit"])}</td><td class="num">{_num(r["pu"], 4)}</td>'
-                f"<td>{_e(r['what'])}</td></tr>"
-            )
-        p.append("</table>")
-    p.append("</div>")
-    p.append(
-        '<p class="meta">SI units; speeds are electrical rad/s. Per-unit bases: '
-        "speed = [base] w, voltage = [base] u, current = [base] i, impedance = u/i, flux = u/w.</p>"
-    )
-
+    _drive_section(p, data)
     p.append("<h2>2. Pole maps over speed</h2>")
     p.append(
         "<table><tr><th>gains</th><th>torque (N m)</th><th>RHP speed bands (p.u.)</th>"
@@ -548,15 +589,86 @@ def render_html(data: dict[str, Any], figs: dict[str, str], version: str, date: 
         )
     p.append("</table>")
 
-    p.append("<h2>5. Time-domain checks</h2>")
-    td = data.get("time_domain")
-    if td:
-        for key, item in td.items():
-            p.append(_figure(figs[f"sim_{key}"], item["caption"]))
-    else:
-        p.append("<p>No time-domain simulation results are included in this report.</p>")
+    _time_domain_section(p, data, figs, 5)
     p.append("</body></html>")
     return "\n".join(p) + "\n"
+
+
+def _head(data: dict[str, Any], version: str, date: str) -> list[str]:
+    inp = data["inputs"]
+    p = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8"/>',
+        f"<title>sensorless stability report: {_e(inp['drive'])}</title>",
+        f"<style>{CSS}</style></head><body>",
+        f"<h1>Stability report: {_e(inp['drive'])}</h1>",
+    ]
+    p.append(
+        f'<p class="meta">sensorless {_e(version)} &#183; generated {_e(date)} &#183; drive TOML sha256 '
+        f"<code>{_e(inp['drive_sha256'][:16])}…</code> &#183; gains "
+        + (f"<code>{_e(inp['gains_sha256'][:16])}…</code>" if inp["gains_sha256"] else "paper defaults")
+        + f" &#183; gains under review: <b>{_e(data['review'])}</b></p>"
+    )
+    return p
+
+
+def _drive_section(p: list[str], data: dict[str, Any]) -> None:
+    p.append("<h2>1. Drive and observer data</h2>")
+    p.append('<div class="tables">')
+    for section, rows in data["drive"].items():
+        p.append(
+            f"<table><caption>[{_e(section)}]</caption><tr><th>name</th><th>value</th><th>unit</th>"
+            "<th>p.u.</th><th>meaning</th></tr>"
+        )
+        for r in rows:
+            p.append(
+                f'<tr><td><code>{_e(r["name"])}</code></td><td class="num">{_cell(r)}</td>'
+                f'<td>{_e(r["unit"])}</td><td class="num">{_num(r["pu"], 4)}</td>'
+                f"<td>{_e(r['what'])}</td></tr>"
+            )
+        p.append("</table>")
+    p.append("</div>")
+    bases = "base" in data["drive"]
+    p.append(
+        '<p class="meta">SI units; speeds are electrical rad/s unless marked r/min (mechanical). '
+        + (
+            "Per-unit bases: speed = [base] w, voltage = [base] u, current = [base] i, impedance = u/i, "
+            "flux = u/w.</p>"
+            if bases
+            else "This drive description defines no per-unit bases.</p>"
+        )
+    )
+
+
+def _cell(r: dict[str, Any]) -> str:
+    if "values" in r:
+        return ", ".join(_num(v, 6) for v in r["values"])
+    return _num(r["value"], 6)
+
+
+def _time_domain_section(p: list[str], data: dict[str, Any], figs: dict[str, str], number: int) -> None:
+    p.append(f"<h2>{number}. Time-domain checks</h2>")
+    td = data.get("time_domain")
+    if not td:
+        p.append("<p>No time-domain simulation results are included in this report.</p>")
+        return
+    p.append(
+        "<table><tr><th>scenario</th><th>simulated (s)</th><th>RMS position error (deg)</th>"
+        "<th>max |position error| (deg)</th><th>max |speed error| (rad/s)</th>"
+        "<th>final speed error (rad/s)</th></tr>"
+    )
+    for key, item in td.items():
+        m = item["metrics"]
+        p.append(
+            f'<tr><td>{_e(key)}: {_e(item["title"])}</td><td class="num">{_num(m["duration_s"])}</td>'
+            f'<td class="num">{_num(m.get("rms_theta_err_deg"))}</td>'
+            f'<td class="num">{_num(m.get("max_abs_theta_err_deg"))}</td>'
+            f'<td class="num">{_num(m.get("max_abs_speed_err_rad_s"))}</td>'
+            f'<td class="num">{_num(m.get("final_speed_err_rad_s"))}</td></tr>'
+        )
+    p.append("</table>")
+    for key, item in td.items():
+        p.append(_figure(figs[f"sim_{key}"], item["caption"]))
 
 
 def _figure(uri: str, caption: str) -> str:
@@ -604,3 +716,163 @@ def report_json(data: dict[str, Any], version: str) -> str:
 def today() -> str:
     """UTC date for the report header."""
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d")
+
+
+# --------------------------------------------------------------------------------------------------
+# Paper 002 (reduced-order EMF + load-torque observer): g, Gamma over speed x load
+# --------------------------------------------------------------------------------------------------
+def _pole_list(p: np.ndarray) -> list[list[Any]]:
+    return [[_f(z.real), _f(z.imag)] for z in p]
+
+
+def compute_report_data_pmac(
+    drive: Any,
+    table: Any | None = None,
+    min_damping: float = 0.2,
+    progress: Progress = _stderr_progress,
+    resolution: str = "normal",
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """All numbers and figures of the report for a paper-002 drive (kind pmac-reduced-order)."""
+    from sensorless.design.linearize_pmac import analyze
+    from sensorless.reports.pmac_report import plot_poles
+
+    env = drive.envelope
+    rpm = np.array(env.speeds, float)
+    loads = np.array(env.loads, float)
+    w = drive.rpm_to_w(rpm)
+    choices: list[tuple[str, float | None, float | None]] = [("paper gains", None, None)]
+    if table is not None:
+        if table.family != "deangelo":
+            raise ValueError(f"a {table.family} gain table does not apply to a {drive.kind} drive")
+        choices.append(("tuned", float(table.gains["g"]), float(table.gains["Gamma"])))
+    review = choices[-1][0]
+    data: dict[str, Any] = {
+        "inputs": {
+            "drive": drive.name,
+            "drive_sha256": drive.digest,
+            "gains_sha256": table_digest(table),
+            "min_damping": min_damping,
+        },
+        "drive": drive_tables(drive),
+        "review": review,
+        "sampling_period_s": _f(drive.control.T_s),
+        "discretization": drive.control.discretization,
+    }
+    figs: dict[str, str] = {}
+    progress(f"[1/3] observer poles over the envelope ({rpm.size} speeds x {loads.size} loads)")
+    analysis: dict[str, Any] = {}
+    for label, g, Gamma in choices:
+        results = {}
+        for le in (True, False):
+            r = analyze(drive, w[:, None], loads[None, :], load_estimation=le, g=g, Gamma=Gamma)
+            key = f"{label}, {'with' if le else 'without'} T_L estimation"
+            results[key] = r
+            zc, zd = r.damping_c.min(axis=1), r.damping_d.min(axis=1)
+            dc, dd = -r.poles_c.real.max(axis=1), -r.poles_d.real.max(axis=1)
+            k = int(np.argmin(dd))
+            analysis[key] = {
+                "g": _f(g if g is not None else drive.observer.g),
+                "Gamma": _f(0.0 if not le else (Gamma if Gamma is not None else drive.observer.Gamma)),
+                "points": [
+                    {
+                        "speed_rpm": _f(drive.w_to_rpm(r.w[j])),
+                        "T_L_Nm": _f(r.T_L[j]),
+                        "poles_c": _pole_list(r.poles_c[j]),
+                        "poles_d": _pole_list(r.poles_d[j]),
+                        "damping_c": _f(zc[j]),
+                        "damping_d": _f(zd[j]),
+                        "decay_c": _f(dc[j]),
+                        "decay_d": _f(dd[j]),
+                        "err_w_rad_s": _f(r.err_w[j]),
+                        "err_T_Nm": _f(r.err_T[j]),
+                    }
+                    for j in range(r.w.size)
+                ],
+                "worst_discrete": {
+                    "speed_rpm": _f(drive.w_to_rpm(r.w[k])),
+                    "T_L_Nm": _f(r.T_L[k]),
+                    "decay_rate": _f(dd[k]),
+                    "damping": _f(zd.min()),
+                },
+                "max_abs_err_T_Nm": _f(np.max(np.abs(r.err_T))) if le else None,
+            }
+        figs[f"poles_{label}"] = _svg_data_uri(
+            plot_poles(results, drive, f"{drive.name}: observer poles ({label}), continuous o, discrete x")
+        )
+    data["analysis"] = analysis
+    progress("[2/3] time-domain checks (paper experiments re-run)")
+    td, td_figs = time_domain_checks(drive, table, progress)
+    data["time_domain"] = td
+    figs.update(td_figs)
+    progress("[3/3] verdict")
+    key = f"{review}, with T_L estimation"
+    a = analysis[key]
+    stable = all(p["decay_d"] is not None and p["decay_d"] > 0 for p in a["points"])
+    damped = all(p["damping_d"] is not None and p["damping_d"] >= min_damping for p in a["points"])
+    biased = [p for p in a["points"] if p["err_T_Nm"] is not None and abs(p["err_T_Nm"]) > 1.0]
+    reasons = []
+    if biased:
+        worst = max(biased, key=lambda p: abs(p["err_T_Nm"]))
+        reasons.append(
+            f"steady load-torque estimation bias up to {worst['err_T_Nm']:.3g} N m at "
+            f"{worst['speed_rpm']:g} r/min: at this speed the EMF harmonics approach the Nyquist "
+            f"frequency of T_s = {drive.control.T_s * 1e6:g} us (docs/paper002.md); sample faster there"
+        )
+    data["verdict"] = {
+        "gains": key,
+        "min_damping": min_damping,
+        "stable": stable,
+        "damped": damped,
+        "worst_discrete": a["worst_discrete"],
+        "reasons": reasons,
+        "biased_points": [[p["speed_rpm"], p["T_L_Nm"]] for p in biased],
+    }
+    return data, figs
+
+
+def render_html_pmac(data: dict[str, Any], figs: dict[str, str], version: str, date: str) -> str:
+    """The report page of a paper-002 drive."""
+    p = _head(data, version, date)
+    v = data["verdict"]
+    wd = v["worst_discrete"]
+    cls = "ok" if v["stable"] and v["damped"] else "bad"
+    p.append(
+        f'<div class="verdict"><h2 style="margin-top:0">Verdict</h2><p class="{cls}">Gains '
+        f"<b>{_e(v['gains'])}</b>: discrete-time observer at T_s = "
+        f"{data['sampling_period_s'] * 1e6:g} us ({_e(data['discretization'])}) "
+        f"{'stable' if v['stable'] else 'NOT stable'} over the envelope; damping "
+        f"{'meets' if v['damped'] else 'does not meet'} {v['min_damping']:g} everywhere. "
+        f"Slowest discrete mode: decay {_num(wd['decay_rate'], 4)} 1/s at {_num(wd['speed_rpm'])} r/min, "
+        f"{_num(wd['T_L_Nm'])} N m.</p>"
+    )
+    for r in v["reasons"]:
+        p.append(f'<p class="bad">{_e(r)}</p>')
+    p.append("</div>")
+    _drive_section(p, data)
+    p.append("<h2>2. Observer poles over speed × load (g, Gamma)</h2>")
+    for key in sorted(k for k in figs if k.startswith("poles_")):
+        p.append(
+            _figure(
+                figs[key],
+                "Real parts of the observer error-dynamics poles over speed, continuous "
+                "time (o) and the discrete observer at the sampling period, ln(z)/T_s (x), with "
+                "and without load-torque estimation; middle and bottom: the discrete observer's "
+                "steady speed and load-torque errors. Colours: load torque.",
+            )
+        )
+    p.append(
+        "<table><tr><th>variant</th><th>g (1/s)</th><th>Gamma</th><th>slowest discrete decay (1/s)</th>"
+        "<th>at (r/min, N m)</th><th>max |steady T_L error| (N m)</th></tr>"
+    )
+    for key, a in data["analysis"].items():
+        wd = a["worst_discrete"]
+        p.append(
+            f'<tr><td>{_e(key)}</td><td class="num">{_num(a["g"])}</td>'
+            f'<td class="num">{_num(a["Gamma"])}</td><td class="num">{_num(wd["decay_rate"])}</td>'
+            f'<td class="num">{_num(wd["speed_rpm"])}, {_num(wd["T_L_Nm"])}</td>'
+            f'<td class="num">{_num(a["max_abs_err_T_Nm"])}</td></tr>'
+        )
+    p.append("</table>")
+    _time_domain_section(p, data, figs, 3)
+    p.append("</body></html>")
+    return "\n".join(p) + "\n"

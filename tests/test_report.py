@@ -99,3 +99,38 @@ def test_report_renders_in_headless_chromium(report, tmp_path):
     subprocess.run(cmd, check=True, capture_output=True, timeout=120)
     data = shot.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20000  # a real, non-blank page
+
+
+def test_time_domain_section_reruns_the_paper_experiments(report):
+    data = json.loads((report / "report.json").read_text())
+    td = data["time_domain"]
+    assert set(td) == {"fig9b", "fig10", "fig6b"}
+    # Fig. 9(b) with the speed-dependent gain and injection: the estimate follows the steps
+    assert td["fig9b"]["metrics"]["max_abs_theta_err_deg"] < 20
+    text = (report / "report.html").read_text()
+    assert text.count("<figure>") >= 5 + len(td)
+
+
+@pytest.fixture(scope="module")
+def report_pmac(tmp_path_factory):
+    out = tmp_path_factory.mktemp("report_pmac")
+    assert main(["report", "deangelo2006", "--quick", "--out", str(out)]) == 0
+    return out
+
+
+def test_pmac_report_numbers_equal_the_api(report_pmac, tmp_path):
+    from sensorless.design.drive import load_drive
+    from sensorless.design.linearize_pmac import analyze
+
+    d = load_drive("deangelo2006")
+    data = json.loads((report_pmac / "report.json").read_text())
+    pts = data["analysis"]["paper gains, with T_L estimation"]["points"]
+    p = pts[4]
+    r = analyze(d, d.rpm_to_w(p["speed_rpm"]), p["T_L_Nm"])
+    assert p["decay_d"] == pytest.approx(-r.poles_d.real.max(), rel=1e-9)
+    assert p["damping_c"] == pytest.approx(r.damping_c.min(), rel=1e-9)
+    text = (report_pmac / "report.html").read_text()
+    ET.fromstring(text[len("<!DOCTYPE html>") :])
+    assert "Verdict" in text and set(data["time_domain"]) == {"fig3", "fig5b"}
+    assert main(["report", "deangelo2006", "--quick", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "report.json").read_bytes() == (report_pmac / "report.json").read_bytes()

@@ -29,7 +29,14 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Compute the report, then write both files at once."""
-    from sensorless.reports.report import compute_report_data, render_html, report_json, today
+    from sensorless.reports.report import (
+        compute_report_data,
+        compute_report_data_pmac,
+        render_html,
+        render_html_pmac,
+        report_json,
+        today,
+    )
     from sensorless.tuning.cli import version
     from sensorless.tuning.gain_table import read_gain_table
 
@@ -40,12 +47,16 @@ def run(args: argparse.Namespace) -> int:
     out.add_text("report.json", "")
     out.check_free()
     t0 = time.perf_counter()
-    data, figs = compute_report_data(
+    compute, render = {
+        "ipmsm-adaptive": (compute_report_data, render_html),
+        "pmac-reduced-order": (compute_report_data_pmac, render_html_pmac),
+    }[drive.kind]
+    data, figs = compute(
         drive, table, min_damping=args.min_damping, resolution="quick" if args.quick else "normal"
     )
     v = version()
     out.add_text("report.json", report_json(data, v))
-    out.add_text("report.html", render_html(data, figs, v, today()))
+    out.add_text("report.html", render(data, figs, v, today()))
     for p in out.commit():
         print(f"wrote {p}")
     print(f"report computed in {time.perf_counter() - t0:.1f} s")
