@@ -310,12 +310,7 @@ def compute_report_data(
     w_env = 0.05 * wb  # where the tuning envelope starts (issue default)
     choices, review = gain_choices(drive, table)
     data: dict[str, Any] = {
-        "inputs": {
-            "drive": drive.name,
-            "drive_sha256": drive.digest,
-            "gains_sha256": table_digest(table),
-            "min_damping": min_damping,
-        },
+        "inputs": report_inputs(drive, table, min_damping),
         "drive": drive_tables(drive),
         "review": review.label,
     }
@@ -409,6 +404,16 @@ def compute_report_data(
     figs.update(td_figs)
     data["verdict"] = verdict(data, review.label, min_damping)
     return data, figs
+
+
+def report_inputs(drive: Any, table: Any | None, min_damping: float) -> dict[str, Any]:
+    """What a report describes: the drive, the hashes of its inputs, the required damping."""
+    return {
+        "drive": drive.name,
+        "drive_sha256": drive.digest,
+        "gains_sha256": table_digest(table),
+        "min_damping": min_damping,
+    }
 
 
 def table_digest(table: Any | None) -> str | None:
@@ -747,12 +752,7 @@ def compute_report_data_pmac(
         choices.append(("tuned", float(table.gains["g"]), float(table.gains["Gamma"])))
     review = choices[-1][0]
     data: dict[str, Any] = {
-        "inputs": {
-            "drive": drive.name,
-            "drive_sha256": drive.digest,
-            "gains_sha256": table_digest(table),
-            "min_damping": min_damping,
-        },
+        "inputs": report_inputs(drive, table, min_damping),
         "drive": drive_tables(drive),
         "review": review,
         "sampling_period_s": _f(drive.control.T_s),
