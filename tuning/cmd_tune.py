@@ -158,6 +158,8 @@ def print_summary(drive: Any, r: Any) -> None:
         f"worst damping on the optimization grid {s['optimization_grid_worst_damping']:.4f} "
         f"(NLP: {s['nlp_worst_damping']:.4f}); the table reports the dense re-verification"
     )
+    if s.get("selection"):
+        print(f"kept: {s['selection']['text']}")
     for rb in s["robust"]:
         print(
             f"estimates {rb['scenario']}: max Re(p) = {rb['max_real_1_s']:.4g} 1/s at "

@@ -1,7 +1,10 @@
 """Registry of tunable gain families: which family can be tuned on which drive kind.
 
-A family module registers a builder ``(drive, settings) -> TuningModel`` for each drive kind it
-supports (see tuning/family_paper000.py). The families known to the gain-table format
+A family module registers a builder ``(drive, settings, seed) -> TuningModel`` for each drive kind it
+supports (see tuning/family_paper000.py). A family may name a *seed family*: the tuner first tunes
+the seed family and passes its tuned parameters as ``seed`` (e.g. the free schedule starts from the
+tuned law (16), which it can represent exactly, so it can only improve on it); otherwise ``seed`` is
+None. The families known to the gain-table format
 (tuning/gain_table.py) are always listed, so asking for one that has no builder for the drive's kind
 gives a clear error instead of an unknown-name error. Adding paper 002's ``deangelo`` family is one
 module that calls :func:`register` and one line in ``FAMILY_MODULES``.
@@ -13,10 +16,11 @@ import importlib
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from sensorless.design.envelope import TuningSettings
 from sensorless.tuning.model import TuningModel
 
-Builder = Callable[[Any, TuningSettings], TuningModel]
+Builder = Callable[[Any, TuningSettings, np.ndarray | None], TuningModel]
 
 # family -> what it tunes (for help texts and errors)
 DESCRIPTIONS: dict[str, str] = {
@@ -29,17 +33,27 @@ DESCRIPTIONS: dict[str, str] = {
 FAMILY_MODULES = ("sensorless.tuning.family_paper000",)
 
 _BUILDERS: dict[str, dict[str, Builder]] = {}
+_SEEDS: dict[tuple[str, str], str] = {}  # (family, kind) -> seed family
 
 
 class FamilyError(ValueError):
     """A family was asked for on a drive kind that does not support it."""
 
 
-def register(family: str, kind: str, builder: Builder) -> None:
-    """Register ``builder`` for ``family`` on drives of ``kind``."""
+def register(family: str, kind: str, builder: Builder, seed: str | None = None) -> None:
+    """Register ``builder`` for ``family`` on drives of ``kind``; ``seed``: the family tuned first,
+    whose parameters the builder receives."""
     if family not in DESCRIPTIONS:
         raise ValueError(f"family {family!r} has no description in DESCRIPTIONS")
     _BUILDERS.setdefault(family, {})[kind] = builder
+    if seed is not None:
+        _SEEDS[family, kind] = seed
+
+
+def seed_family(family: str, kind: str) -> str | None:
+    """The family whose tuned parameters start ``family`` on ``kind`` (None: none)."""
+    _load()
+    return _SEEDS.get((family, kind))
 
 
 def _load() -> None:
@@ -53,8 +67,11 @@ def families_for(kind: str) -> list[str]:
     return [f for f in DESCRIPTIONS if kind in _BUILDERS.get(f, {})]
 
 
-def build_model(drive: Any, family: str, settings: TuningSettings) -> TuningModel:
-    """The TuningModel of ``family`` for ``drive``; FamilyError if the kind does not support it."""
+def build_model(
+    drive: Any, family: str, settings: TuningSettings, seed: np.ndarray | None = None
+) -> TuningModel:
+    """The TuningModel of ``family`` for ``drive`` (``seed``: the tuned parameters of its seed
+    family, if it has one); FamilyError if the kind does not support it."""
     _load()
     if family not in DESCRIPTIONS:
         raise FamilyError(f"unknown family {family!r} (known: {', '.join(DESCRIPTIONS)})")
@@ -67,4 +84,4 @@ def build_model(drive: Any, family: str, settings: TuningSettings) -> TuningMode
             f"'{drive.kind}'; it is available for: {', '.join(kinds) or 'no installed drive kind'}. "
             f"Families for '{drive.kind}': {here}"
         )
-    return builder(drive, settings)
+    return builder(drive, settings, seed)
