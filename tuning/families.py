@@ -30,10 +30,14 @@ DESCRIPTIONS: dict[str, str] = {
 }
 
 # Modules that register builders when imported.
-FAMILY_MODULES = ("sensorless.tuning.family_paper000",)
+FAMILY_MODULES = ("sensorless.tuning.family_paper000", "sensorless.tuning.family_paper002")
 
 _BUILDERS: dict[str, dict[str, Builder]] = {}
 _SEEDS: dict[tuple[str, str], str] = {}  # (family, kind) -> seed family
+# Families with a tuner of their own instead of a TuningModel for the generic NLP:
+# (drive, settings or None, progress) -> a result with .table (GainTable) and .summary_lines().
+Tuner = Callable[[Any, Any, Callable[[str], None] | None], Any]
+_TUNERS: dict[tuple[str, str], Tuner] = {}
 
 
 class FamilyError(ValueError):
@@ -50,6 +54,20 @@ def register(family: str, kind: str, builder: Builder, seed: str | None = None) 
         _SEEDS[family, kind] = seed
 
 
+def register_tuner(family: str, kind: str, tuner: Tuner) -> None:
+    """Register a family's own tuner on drives of ``kind`` (for families the generic NLP of
+    tuning/nlp.py does not fit; e.g. paper 002's, whose poles are Floquet exponents)."""
+    if family not in DESCRIPTIONS:
+        raise ValueError(f"family {family!r} has no description in DESCRIPTIONS")
+    _TUNERS[family, kind] = tuner
+
+
+def tuner_for(family: str, kind: str) -> Tuner | None:
+    """The family's own tuner on ``kind``, if it has one."""
+    _load()
+    return _TUNERS.get((family, kind))
+
+
 def seed_family(family: str, kind: str) -> str | None:
     """The family whose tuned parameters start ``family`` on ``kind`` (None: none)."""
     _load()
@@ -64,7 +82,7 @@ def _load() -> None:
 def families_for(kind: str) -> list[str]:
     """Families that can be tuned on drives of ``kind``."""
     _load()
-    return [f for f in DESCRIPTIONS if kind in _BUILDERS.get(f, {})]
+    return [f for f in DESCRIPTIONS if kind in _BUILDERS.get(f, {}) or (f, kind) in _TUNERS]
 
 
 def build_model(
@@ -77,7 +95,7 @@ def build_model(
         raise FamilyError(f"unknown family {family!r} (known: {', '.join(DESCRIPTIONS)})")
     builder = _BUILDERS.get(family, {}).get(drive.kind)
     if builder is None:
-        kinds = sorted(_BUILDERS.get(family, {}))
+        kinds = sorted({*_BUILDERS.get(family, {}), *(k for f, k in _TUNERS if f == family)})
         here = ", ".join(families_for(drive.kind)) or "none"
         raise FamilyError(
             f"{drive.file}: family '{family}' ({DESCRIPTIONS[family]}) is not available for drive kind "

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
 from sensorless.tuning import nlp
-from sensorless.tuning.families import DESCRIPTIONS, build_model, seed_family
+from sensorless.tuning.families import DESCRIPTIONS, build_model, seed_family, tuner_for
 from sensorless.tuning.gain_table import GainTable
 from sensorless.tuning.model import TuningModel, damping, max_real, poles
 
@@ -89,11 +89,16 @@ def _label(w: float, T: float, w_base: float, extra: str = "") -> str:
 def tune(
     drive: Any,
     family: str,
-    settings: TuningSettings | None = None,
+    settings: Any = None,
     progress: Callable[[str], None] | None = None,
-) -> TuneResult:
+) -> Any:
     """Tune ``family`` on ``drive`` over the envelope of ``settings`` (default: the drive's
-    ``[tuning]``). Raises nlp.TuningError if IPOPT fails or the constraints cannot be met."""
+    ``[tuning]``; a family with its own tuner takes its own settings type). Returns a TuneResult
+    (or the own tuner's result). Raises nlp.TuningError if IPOPT fails or the constraints cannot be
+    met."""
+    own = tuner_for(family, drive.kind)
+    if own is not None:  # e.g. paper 002's deangelo family (tuning/family_paper002.py)
+        return own(drive, settings, progress)
     t_start = time.perf_counter()
     settings = settings or drive.tuning
     say = progress or (lambda s: None)
