@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 from sensorless.design.envelope import Envelope
 from sensorless.design.linearize import linearize
+from sensorless.symbolic.gains import schedule_law
 from sensorless.tuning.cli import main
+from sensorless.tuning.families import build_model
 from sensorless.tuning.family_paper000 import with_estimate
+from sensorless.tuning.nlp import Solution
 from sensorless.tuning.sector import factors_from_poles
-from sensorless.tuning.tune import tune
+from sensorless.tuning.tune import _select, tune
 from test_paper000_closed_form import mtpa_reference, paper_gain, paper_matrices
 
 
@@ -44,23 +47,34 @@ def test_sector_factor_conditions_match_eigenvalues():
 
 
 def closed_form_worst_damping(drive, W, T, lam_p, w_lam):
-    """Worst damping from the paper's (11)-(15) typed here: closed loop [[A + kp B C, -B], [-ki C, 0]]."""
+    """Worst damping over the points (W, T) with eq. (16), from the paper's (11)-(15) typed here."""
+    return min(
+        closed_form_damping(drive, w, t, *paper_gain("speed", w, (lam_p, w_lam)))
+        for w, t in zip(W, T, strict=True)
+    )
+
+
+def closed_form_schedule(drive, w, t, w_hat, theta):
+    """Worst damping of the closed form of (11)-(15) at one point with a schedule's gains there."""
+    K = w_hat.size
+    l1, l2 = np.interp(w, w_hat, theta[:K]), np.interp(w, w_hat, theta[K:])
+    return closed_form_damping(drive, w, t, l1, l2)
+
+
+def closed_form_damping(drive, w, t, l1, l2):
+    """Worst damping from (11)-(15) at one point with gains (l1, l2) there: closed loop
+    [[A + kp B C, -B], [-ki C, 0]]."""
     m, e = drive.motor, drive.estimate
     a = drive.observer.alpha_fo
     kp, ki = 2 * a / e.psi_pm, a**2 / e.psi_pm  # eq. (10)
-    worst = np.inf
-    for w, t in zip(W, T, strict=True):
-        i0 = mtpa_reference(t, m.L_d, m.L_q, m.psi_pm, m.p)
-        l1, l2 = paper_gain("speed", w, (lam_p, w_lam))
-        A1, B1, A2 = paper_matrices(w, i0, m.R_s, m.L_d, m.L_q, m.psi_pm, l1, l2)
-        A = np.zeros((3, 3))
-        A[:2, :2], A[:2, 2] = A1, A2
-        B = np.append(B1, 1.0)[:, None]
-        C = np.array([[0.0, e.L_q, 0.0]])
-        Acl = np.block([[A + kp * B @ C, -B], [-ki * C, np.zeros((1, 1))]])
-        p = np.linalg.eigvals(Acl)
-        worst = min(worst, (-p.real / np.abs(p)).min())
-    return worst
+    i0 = mtpa_reference(t, m.L_d, m.L_q, m.psi_pm, m.p)
+    A1, B1, A2 = paper_matrices(w, i0, m.R_s, m.L_d, m.L_q, m.psi_pm, l1, l2)
+    A = np.zeros((3, 3))
+    A[:2, :2], A[:2, 2] = A1, A2
+    B = np.append(B1, 1.0)[:, None]
+    C = np.array([[0.0, e.L_q, 0.0]])
+    p = np.linalg.eigvals(np.block([[A + kp * B @ C, -B], [-ki * C, np.zeros((1, 1))]]))
+    return (-p.real / np.abs(p)).min()
 
 
 @pytest.fixture(scope="module")
@@ -114,6 +128,59 @@ def test_paper_defaults_reproduce(drive, law16):
     assert law16.table.summary["baseline_worst_damping"] == pytest.approx(
         np.nanmin(ref.worst_damping), abs=1e-9
     )
+
+
+@pytest.fixture(scope="module")
+def schedule(drive):
+    return tune(drive, "schedule", small(drive, breakpoints=6))
+
+
+def test_schedule_at_least_as_good_as_law16(drive, law16, schedule):
+    """The free schedule's dense-verified worst damping is >= law (16)'s, checked by the analysis
+    path; its start reproduces the tuned law (16) exactly (a kink breakpoint at omega_lambda)."""
+    s = schedule.table.summary
+    env = small(drive).envelope
+    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    g = schedule.table.gains
+    law = schedule_law(tuple(g["w_hat"]))
+    ref = linearize(drive, Wd, Td, gain=(law, np.concatenate([g["lambda1"], g["lambda2"]])))
+    assert np.isfinite(ref.worst_damping).all()
+    assert s["worst_damping"] == pytest.approx(np.min(ref.worst_damping), abs=1e-9)
+    assert s["worst_damping"] >= law16.table.summary["worst_damping"] - 1e-9
+    assert s["selection"]["start_worst_damping"] == pytest.approx(
+        law16.table.summary["worst_damping"], abs=1e-6
+    )
+    assert np.isclose(np.abs(g["w_hat"]), law16.theta[1]).sum() == 2  # +-omega_lambda are breakpoints
+    assert s["worst_damping"] > law16.table.summary["worst_damping"] + 0.03  # and it does improve
+    # without giving up decay rate (a pole creeping to the origin has damping 1)
+    assert np.min(-ref.max_real) >= law16.table.summary["min_decay_rate"] * (1 - 1e-6)
+
+
+def test_dense_reverification_rejects_between_grid_instability(drive, law16):
+    """Gains that equal the start at every speed of the optimization grid but differ between them
+    are judged by the dense grid: a schedule perturbed in the null space of grid interpolation is
+    identical on the grid (checked with the closed form), worse between, and not selected."""
+    st = small(drive, breakpoints=11)  # more breakpoints than grid speeds: such perturbations exist
+    m = build_model(drive, "schedule", st, law16.theta)
+    env = st.envelope
+    wb, TN = drive.base.w, drive.T_N
+    W, T = env.grid(wb, TN)
+    Wd, Td = env.grid(wb, TN, env.dense_factor)
+    w = np.array(m.table_gains(m.start)["w_hat"])
+    K = w.size
+    G = np.array([np.interp(x, w, np.eye(K)[k]) for x in np.unique(W) for k in range(K)]).reshape(-1, K)
+    _, sv, Vt = np.linalg.svd(G)
+    null = Vt[int(np.sum(sv > 1e-9)) :]
+    assert null.shape[0] > 0
+    d = null[0] / np.abs(null[0]).max() * 15 * drive.estimate.R_s
+    bad = np.clip(m.start + np.concatenate([np.zeros(K), d]), m.lower, m.upper)  # perturb lambda2
+    on_grid = [closed_form_schedule(drive, x, t, w, bad) for x, t in zip(W, T, strict=True)]
+    on_grid_ok = [closed_form_schedule(drive, x, t, w, m.start) for x, t in zip(W, T, strict=True)]
+    np.testing.assert_allclose(on_grid, on_grid_ok, atol=1e-9)  # identical at the optimization grid
+    sol = Solution(bad, 0.9, (), 1, 1, (bad,))
+    theta, _, note = _select(m, sol, m.start, Wd, Td, lambda s: None)
+    assert note["nlp_solution_worst_damping"] < note["start_worst_damping"] - 0.05
+    assert note["selected"] == "start" and np.array_equal(theta, m.start)
 
 
 @pytest.mark.xfail(

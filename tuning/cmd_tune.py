@@ -36,7 +36,10 @@ def register(sub: Any) -> None:
     )
     p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
     p.add_argument(
-        "--family", default="law16", choices=list(DESCRIPTIONS), help="gain family (default law16)"
+        "--family",
+        default=None,
+        choices=list(DESCRIPTIONS),
+        help="gain family (default: law16 for ipmsm-adaptive drives, deangelo for pmac-reduced-order)",
     )
     p.add_argument("--out", default=None, help="output directory (default: tune-<drive name>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -57,12 +60,60 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--tune-alpha-fo", action="store_true", help="also tune alpha_fo of eq. (10)")
     p.add_argument("--breakpoints", type=int, default=None, help="schedule: breakpoints per direction")
+    p.add_argument(
+        "--g-max", type=float, default=None, help="deangelo: upper bound on g [1/s] (default 2x the drive's)"
+    )
+    p.add_argument(
+        "--Gamma-max",
+        type=float,
+        default=None,
+        help="deangelo: upper bound on Gamma [A^2 s^2] (default 100x the drive's)",
+    )
+    p.add_argument(
+        "--min-damping", type=float, default=None, help="deangelo: worst damping required (default 0.707)"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=run)
 
 
+PAPER000_ONLY = ("speed_min", "speed_max", "speeds", "directions", "torque", "min_decay", "lambda_max")
+PAPER000_ONLY += ("errors", "tune_alpha_fo", "breakpoints")
+PAPER002_ONLY = ("g_max", "Gamma_max", "min_damping")
+
+
+def _option(key: str) -> str:
+    return "--" + key.replace("_", "-")
+
+
+def _refuse(args: argparse.Namespace, keys: tuple[str, ...], kind: str) -> None:
+    """Options of another drive kind have no meaning here: refuse them rather than ignore them."""
+    for k in keys:
+        if getattr(args, k) not in (None, False):
+            raise UsageError(f"{_option(k)}: not an option for drive kind '{kind}'")
+
+
+def settings_002(drive: Any, args: argparse.Namespace) -> Any:
+    """deangelo settings: the drive's [envelope] and default bounds, with the overrides."""
+    from sensorless.tuning.family_paper002 import default_settings
+
+    _refuse(args, PAPER000_ONLY, drive.kind)
+    s = default_settings(drive)
+    out: dict[str, Any] = {}
+    for key in ("g_max", "Gamma_max", "min_damping", "dense_factor"):
+        v = getattr(args, key)
+        if v is not None:
+            out[key] = v
+    s = dataclasses.replace(s, **out)
+    try:
+        s.check("command line")
+    except TuningError as e:
+        raise UsageError(str(e)) from None
+    return s
+
+
 def settings_from_args(drive: Any, args: argparse.Namespace) -> TuningSettings:
     """The drive's [tuning] settings with the command-line overrides applied and checked."""
+    _refuse(args, PAPER002_ONLY, drive.kind)
     s = drive.tuning
     env: dict[str, Any] = {}
     for key in ("speed_min", "speed_max", "speeds", "directions", "dense_factor"):
@@ -98,12 +149,14 @@ def settings_from_args(drive: Any, args: argparse.Namespace) -> TuningSettings:
 
 def run(args: argparse.Namespace) -> int:
     """Tune, print the summary, write the tables."""
+    from sensorless.tuning.families import families_for
     from sensorless.tuning.tune import tune
 
     drive = load_drive(args.drive)
-    settings = settings_from_args(drive, args)
+    fam = args.family or families_for(drive.kind)[0]
+    paper002 = drive.kind == "pmac-reduced-order"
+    settings = settings_002(drive, args) if paper002 else settings_from_args(drive, args)
     out = OutputSet(args.out or f"tune-{drive.name}", force=args.force)
-    fam = args.family
     json_name, csv_name = f"gains_{fam}.json", f"gains_{fam}.csv"
     out.add_bytes(json_name, b"")  # reserve the names: refuse existing outputs before the work
     out.add_bytes(csv_name, b"")
@@ -116,12 +169,21 @@ def run(args: argparse.Namespace) -> int:
 
     print(f"{drive.name}: {drive.source}")
     print(f"family {fam}: {DESCRIPTIONS[fam]}")
-    print(f"envelope: {settings.envelope.describe()}; 1 p.u. = {drive.base.w:.2f} rad/s electrical")
+    if paper002:
+        print(
+            f"envelope: speeds {', '.join(f'{v:g}' for v in settings.speeds_rpm)} r/min x loads "
+            f"{', '.join(f'{v:g}' for v in settings.loads_Nm)} N m"
+        )
+    else:
+        print(f"envelope: {settings.envelope.describe()}; 1 p.u. = {drive.base.w:.2f} rad/s electrical")
     try:
         r = tune(drive, fam, settings, progress=progress)
     except (TuningError, FamilyError) as e:
         raise UsageError(str(e)) from None
-    print_summary(drive, r)
+    if hasattr(r, "summary_lines"):
+        print("\n".join(r.summary_lines()))
+    else:
+        print_summary(drive, r)
     out.add_text(json_name, r.table.to_json())
     out.add_text(csv_name, table_csv(r.table))
     for p in out.commit():
@@ -158,6 +220,8 @@ def print_summary(drive: Any, r: Any) -> None:
         f"worst damping on the optimization grid {s['optimization_grid_worst_damping']:.4f} "
         f"(NLP: {s['nlp_worst_damping']:.4f}); the table reports the dense re-verification"
     )
+    if s.get("selection"):
+        print(f"kept: {s['selection']['text']}")
     for rb in s["robust"]:
         print(
             f"estimates {rb['scenario']}: max Re(p) = {rb['max_real_1_s']:.4g} 1/s at "

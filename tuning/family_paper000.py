@@ -8,9 +8,12 @@ design/linearize.py (``linearization_function``): the NLP differentiates exactly
 - law16: theta = [lambda' (ohm), omega_lambda (rad/s)], eq. (16). Paper default (Fig. 4(c)):
   lambda' = 2 R̂s, omega_lambda = 1 p.u. (the drive's ``[observer.gains.speed]``).
 - schedule: theta = [lambda1 at each breakpoint..., lambda2 at each breakpoint...] (ohm), linear in
-  the speed estimate between breakpoints, held beyond the ends (``schedule_law``). Breakpoints: zero
-  and ``breakpoints`` speeds per direction from speed_min to speed_max. Its start and baseline is
-  eq. (16) with the paper's defaults sampled at the breakpoints.
+  the speed estimate between breakpoints, held beyond the ends (``schedule_law``). Breakpoints: zero,
+  ``breakpoints`` speeds per direction from speed_min to speed_max, and the kinks +-omega_lambda of
+  the paper's law (16) and of the tuned law16 (its seed) inside the envelope. Eq. (16) is piecewise
+  linear with kinks only at 0 and +-omega_lambda, so on these breakpoints the schedule reproduces
+  both laws *exactly* over the envelope: its baseline is the paper's defaults sampled at the
+  breakpoints, its NLP start the tuned law16 sampled there, and the tuner can only improve on law16.
 """
 
 from __future__ import annotations
@@ -156,7 +159,7 @@ def _alpha_reg(th: ca.SX, law: GainLaw, settings: TuningSettings, a0: float) -> 
     return (th[law.n_params] / a0 - 1) ** 2 if settings.tune_alpha_fo else 0
 
 
-def build_law16(drive: Any, settings: TuningSettings) -> TuningModel:
+def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
     """Family law16: eq. (16) with lambda' and omega_lambda free."""
     law = get_law("speed")
     R = drive.estimate.R_s
@@ -188,24 +191,40 @@ def build_law16(drive: Any, settings: TuningSettings) -> TuningModel:
     )
 
 
-def schedule_breakpoints(drive: Any, settings: TuningSettings) -> tuple[float, ...]:
-    """Breakpoints [rad/s]: zero and ``breakpoints`` speeds per direction over the envelope."""
+def schedule_breakpoints(
+    drive: Any, settings: TuningSettings, kinks: tuple[float, ...] = ()
+) -> tuple[float, ...]:
+    """Breakpoints [rad/s]: zero, ``breakpoints`` speeds per direction over the envelope, and +-each
+    of ``kinks`` [rad/s] that lies inside the envelope and not within 1e-3 p.u. of another."""
     e = settings.envelope
-    mag = np.linspace(e.speed_min, e.speed_max, settings.breakpoints) * drive.base.w
+    wb = drive.base.w
+    mag = list(np.linspace(e.speed_min, e.speed_max, settings.breakpoints) * wb)
+    for k in kinks:
+        k = abs(float(k))
+        if e.speed_min * wb < k < e.speed_max * wb and min(abs(k - m) for m in mag) > 1e-3 * wb:
+            mag.append(k)
+    mag = np.sort(mag)
     return tuple(float(v) for v in np.concatenate([-mag[::-1], [0.0], mag]))
 
 
-def build_schedule(drive: Any, settings: TuningSettings) -> TuningModel:
-    """Family schedule: free (lambda1, lambda2) at each breakpoint, linear in between."""
-    grid = schedule_breakpoints(drive, settings)
+def _law16_at(grid: tuple[float, ...], params: np.ndarray) -> np.ndarray:
+    """eq. (16) with params [lambda', omega_lambda] sampled at the breakpoints: [lambda1..., lambda2...]."""
+    l1, l2 = _law_values(get_law("speed")).map(len(grid))(np.array(grid)[None, :], params[:2])
+    return np.concatenate([np.asarray(l1).ravel(), np.asarray(l2).ravel()])
+
+
+def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
+    """Family schedule: free (lambda1, lambda2) at each breakpoint, linear in between; started from
+    ``seed``, the tuned law16 parameters (lambda', omega_lambda[, alpha_fo]), when given."""
+    g = drive.gain("speed")
+    paper = np.array([g.lambda_p, g.w_lambda])
+    grid = schedule_breakpoints(drive, settings, (g.w_lambda, *(() if seed is None else (seed[1],))))
     law = schedule_law(grid)
     K = len(grid)
     R = drive.estimate.R_s
     a0 = drive.observer.alpha_fo
     lam_max = settings.lambda_max if settings.lambda_max is not None else GAIN_BOX * R
-    g = drive.gain("speed")
-    l1, l2 = _law_values(get_law("speed")).map(K)(np.array(grid)[None, :], [g.lambda_p, g.w_lambda])
-    theta0 = np.concatenate([np.asarray(l1).ravel(), np.asarray(l2).ravel()])
+    theta0 = _law16_at(grid, paper)
     lower = np.concatenate([np.full(K, max(LAMBDA1_MIN * R, -lam_max)), np.full(K, -lam_max)])
     upper = np.full(2 * K, lam_max)
     w = np.array(grid)
@@ -230,6 +249,11 @@ def build_schedule(drive: Any, settings: TuningSettings) -> TuningModel:
             "alpha_fo": float(theta[2 * K] if settings.tune_alpha_fo else a0),
         }
 
+    start = None
+    if seed is not None:
+        start = _law16_at(grid, np.asarray(seed, float))
+        if settings.tune_alpha_fo:
+            start = np.append(start, seed[2])
     return _common(
         drive,
         law,
@@ -241,6 +265,8 @@ def build_schedule(drive: Any, settings: TuningSettings) -> TuningModel:
         family="schedule",
         regularizer=regularizer,
         table_gains=table_gains,
+        start=start,
+        start_label="law16 optimum" if seed is not None else "",
     )
 
 
@@ -253,4 +279,4 @@ def with_estimate(drive: Any, estimate: np.ndarray) -> Any:
 
 
 register("law16", KIND, build_law16)
-register("schedule", KIND, build_schedule)
+register("schedule", KIND, build_schedule, seed="law16")

@@ -27,7 +27,7 @@ FORMAT = "sensorless-gain-table/1"
 GAIN_KEYS: dict[str, tuple[str, ...]] = {
     "law16": ("lambda_p", "w_lambda", "alpha_fo"),  # eq. (16) [ohm, rad/s], eq. (10) [rad/s]
     "schedule": ("w_hat", "lambda1", "lambda2", "alpha_fo"),  # breakpoints [rad/s], gains [ohm]
-    "deangelo": ("g", "Gamma"),  # paper 002 observer gains
+    "deangelo": ("g", "Gamma"),  # paper 002 observer gains [1/s], [A^2 s^2], eqs. (9)-(10)
 }
 
 
@@ -113,42 +113,59 @@ def read_gain_table(path: str | Path) -> GainTable:
     )
 
 
+# family -> (CSV heading, point key) of the leading per-point columns, and of the baseline's
+_PAPER000 = (
+    [
+        ("w_m_pu", "w_m_pu"),
+        ("w_m_rad_s", "w_m_rad_s"),
+        ("T_e_Nm", "T_e_Nm"),
+        ("lambda1_ohm", "lambda1"),
+        ("lambda2_ohm", "lambda2"),
+    ],
+    [("lambda1_ohm", "lambda1"), ("lambda2_ohm", "lambda2")],
+)
+POINT_COLUMNS: dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]] = {
+    "law16": _PAPER000,
+    "schedule": _PAPER000,
+    "deangelo": (
+        [
+            ("n_rpm", "n_rpm"),
+            ("w_rad_s", "w_rad_s"),
+            ("T_L_Nm", "T_L_Nm"),
+            ("g_1_s", "g"),
+            ("Gamma_A2s2", "Gamma"),
+        ],
+        [("g_1_s", "g"), ("Gamma_A2s2", "Gamma")],
+    ),
+}
+
+
 def table_csv(table: GainTable) -> str:
     """CSV text of the per-point figures (the dense re-verification grid), units in the header."""
     env = table.envelope
-    head = [
-        "w_m_pu",
-        "w_m_rad_s",
-        "T_e_Nm",
-        "lambda1_ohm",
-        "lambda2_ohm",
-        "damping",
-        "decay_rate_1_s",
-    ]
+    lead, base = POINT_COLUMNS[table.family]
+    head = [h for h, _ in lead] + ["damping", "decay_rate_1_s"]
     n = len(table.points[0]["poles"]) if table.points else 0
     for k in range(n):
         head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
-    head += ["baseline_lambda1_ohm", "baseline_lambda2_ohm", "baseline_damping", "baseline_decay_rate_1_s"]
+    head += [f"baseline_{h}" for h, _ in base] + ["baseline_damping", "baseline_decay_rate_1_s"]
+    where = (
+        f"speed base {env.get('speed_base_rad_s', float('nan')):.10g} rad/s (electrical)"
+        if "speed_base_rad_s" in env
+        else "speeds mechanical r/min, w electrical; discrete poles at "
+        f"T_s = {env.get('T_s_s', float('nan')):.6g} s"
+    )
     lines = [
         f"# sensorless gain table, family {table.family}, drive {table.drive.get('name')}; "
-        f"speed base {env.get('speed_base_rad_s', float('nan')):.10g} rad/s (electrical); "
-        f"baseline = the paper's default gains",
+        f"{where}; baseline = the paper's default gains",
         "# gains: " + json.dumps(_clean(table.gains), sort_keys=True),
         ",".join(head),
     ]
     for p in table.points:
-        row = [
-            p["w_m_pu"],
-            p["w_m_rad_s"],
-            p["T_e_Nm"],
-            p["lambda1"],
-            p["lambda2"],
-            p["damping"],
-            p["decay_rate"],
-        ]
+        row = [p[k] for _, k in lead] + [p["damping"], p["decay_rate"]]
         for re, im in p["poles"]:
             row += [re, im]
         b = p["baseline"]
-        row += [b["lambda1"], b["lambda2"], b["damping"], b["decay_rate"]]
+        row += [b[k] for _, k in base] + [b["damping"], b["decay_rate"]]
         lines.append(",".join("nan" if not math.isfinite(v) else f"{v:.10g}" for v in row))
     return "\n".join(lines) + "\n"

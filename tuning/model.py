@@ -32,7 +32,7 @@ class TuningModel:
     family: str
     names: tuple[str, ...]  # tunable parameters, in theta order
     units: tuple[str, ...]
-    theta0: np.ndarray  # the paper's default gains: the baseline and the start of the NLP
+    theta0: np.ndarray  # the paper's default gains: the baseline (and the NLP's start if no ``start``)
     lower: np.ndarray  # box bounds of theta
     upper: np.ndarray
     typical: np.ndarray  # magnitudes that scale theta to O(1) for the NLP
@@ -48,6 +48,8 @@ class TuningModel:
     point_gains: Callable[[np.ndarray, np.ndarray], dict[str, np.ndarray]]  # (theta, w_hat) -> columns
     nominal_estimate: np.ndarray  # the drive's own estimates (no error)
     estimate_names: tuple[str, ...]  # names of the estimate entries of a point, for error scenarios
+    start: np.ndarray | None = None  # NLP start (e.g. the seed family's optimum); None: theta0
+    start_label: str = ""  # what ``start`` is, for messages and the table's summary
 
     @property
     def n_theta(self) -> int:

@@ -25,6 +25,7 @@ smoothest. The reported damping is never the NLP's t: see tuning/tune.py (dense 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import os
@@ -68,6 +69,7 @@ class Solution:
     active: tuple[int, ...]  # candidate indices in the final active set
     rounds: int
     iterations: int  # IPOPT iterations, all rounds
+    verified: tuple[np.ndarray, ...] = ()  # theta of every round with no violated grid point, in order
 
 
 @functools.cache
@@ -170,6 +172,7 @@ def solve(
     active = _pick(m, cand, (), n0)
     total_it = 0
     best: Solution | None = None  # last round with no violated grid point
+    verified: list[np.ndarray] = []  # every such round's theta (the caller re-verifies them densely)
     for rnd in range(1, 100):
         M = _slots(len(active))
         # start each round feasible: below the worst damping of the active points at theta
@@ -187,7 +190,7 @@ def solve(
                 if best is not None:  # a verified feasible solution exists: keep it
                     if progress:
                         progress(f"round {rnd}: IPOPT {status}; keeping round {best.rounds}")
-                    return best
+                    return dataclasses.replace(best, iterations=total_it)
                 raise TuningError(_failure(status, cand, active))
             radius /= 2
         new = np.asarray(z[:nth]).ravel() * model.typical
@@ -208,7 +211,8 @@ def solve(
             )
         if bad.size == 0:
             gain = t_now - best.t if best is not None else np.inf
-            best = Solution(theta, t_now, tuple(active), rnd, total_it)
+            verified.append(theta)
+            best = Solution(theta, t_now, tuple(active), rnd, total_it, tuple(verified))
             if not at_edge or gain < 1e-4:
                 return best
         if bad.size:

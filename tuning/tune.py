@@ -8,6 +8,7 @@ The NLP's own value of the worst damping is kept in the summary only for compari
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import time
 from collections.abc import Callable
@@ -17,7 +18,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
 from sensorless.tuning import nlp
-from sensorless.tuning.families import DESCRIPTIONS, build_model
+from sensorless.tuning.families import DESCRIPTIONS, build_model, seed_family, tuner_for
 from sensorless.tuning.gain_table import GainTable
 from sensorless.tuning.model import TuningModel, damping, max_real, poles
 
@@ -56,6 +57,7 @@ class TuneResult:
     robust: list[dict[str, Any]]  # per error scenario: worst max Re on the dense grid
     table: GainTable
     seconds: float
+    selection: dict[str, Any]  # which dense-verified candidate was kept and why ({}: the NLP's)
 
 
 def figures(model: TuningModel, theta: np.ndarray, w: np.ndarray, T: np.ndarray, est=None) -> Figures:
@@ -87,37 +89,65 @@ def _label(w: float, T: float, w_base: float, extra: str = "") -> str:
 def tune(
     drive: Any,
     family: str,
-    settings: TuningSettings | None = None,
+    settings: Any = None,
     progress: Callable[[str], None] | None = None,
-) -> TuneResult:
+) -> Any:
     """Tune ``family`` on ``drive`` over the envelope of ``settings`` (default: the drive's
-    ``[tuning]``). Raises nlp.TuningError if IPOPT fails or the constraints cannot be met."""
+    ``[tuning]``; a family with its own tuner takes its own settings type). Returns a TuneResult
+    (or the own tuner's result). Raises nlp.TuningError if IPOPT fails or the constraints cannot be
+    met."""
+    own = tuner_for(family, drive.kind)
+    if own is not None:  # e.g. paper 002's deangelo family (tuning/family_paper002.py)
+        return own(drive, settings, progress)
     t_start = time.perf_counter()
     settings = settings or drive.tuning
     say = progress or (lambda s: None)
-    model = build_model(drive, family, settings)
+    seed_theta = None
+    seed_name = seed_family(family, drive.kind)
+    if seed_name is not None:
+        say(f"{family}: tuning its start, the {seed_name} family, first")
+        seed_res = tune(drive, seed_name, settings, progress=lambda m: say(f"  [{seed_name}] {m}"))
+        seed_theta = seed_res.theta
+    model = build_model(drive, family, settings, seed_theta)
     env = settings.envelope
     wb, T_N = drive.base.w, drive.T_N
     W, T = env.grid(wb, T_N)
     theta0 = np.clip(model.theta0, model.lower, model.upper)
+    start = theta0 if model.start is None else np.clip(model.start, model.lower, model.upper)
     base = figures(model, theta0, W, T)
     if not np.isfinite(base.poles).all():
         raise nlp.TuningError("the paper's default gains have no closed-loop equilibrium on the envelope")
     scale = float(np.abs(base.poles).max())
 
+    if model.start is not None:
+        # Damping alone would trade decay for damping (a pole creeping to the origin has damping 1):
+        # a started family must keep at least the start's decay rate on the grid.
+        start_decay = float(np.min(figures(model, start, W, T).decay))
+        if start_decay > settings.min_decay:
+            say(f"keeping the start's decay rate: >= {start_decay:.4g} 1/s at every point")
+            settings = dataclasses.replace(settings, min_decay=start_decay)
     cand = _candidates(model, settings, W, T, wb, scale)
     say(
         f"{family}: {model.n_theta} parameters, {W.size} envelope points"
         f"{f', {cand.size - W.size} constraint points' if cand.size > W.size else ''}; "
         f"paper defaults: worst damping {base.damping.min():.4f}"
     )
-    say("stage 1: maximize the worst damping (IPOPT, sector conditions)")
-    s1 = nlp.solve(model, cand, theta0, scale, smoothing=settings.smoothing, progress=say)
-    theta, s2 = s1.theta, None
-
-    say(f"re-verifying on the {env.dense_factor}x denser grid")
+    say(
+        "stage 1: maximize the worst damping (IPOPT, sector conditions)"
+        + (f", starting from the {model.start_label}" if model.start is not None else "")
+    )
     Wd, Td = env.grid(wb, T_N, env.dense_factor)
-    dense = figures(model, theta, Wd, Td)
+    try:
+        s1 = nlp.solve(model, cand, start, scale, smoothing=settings.smoothing, progress=say)
+    except nlp.TuningError as e:
+        if model.start is None:
+            raise
+        # the start is a verified solution of its own family: report it rather than fail
+        say(f"the NLP failed ({e}); keeping the {model.start_label}")
+        s1 = nlp.Solution(start, float("nan"), (), 0, 0, ())
+    say(f"re-verifying on the {env.dense_factor}x denser grid")
+    theta, dense, note = _select(model, s1, start, Wd, Td, say)
+    s2 = None
     dense0 = figures(model, theta0, Wd, Td)
     grid = figures(model, theta, W, T)
     if not np.isfinite(dense.damping).all():
@@ -147,9 +177,86 @@ def tune(
             f"(max Re = {r['max_real_1_s']:.3g} 1/s): use more --speeds"
         )
     seconds = time.perf_counter() - t_start
-    result = TuneResult(family, model, theta, theta0, s1, s2, grid, dense, dense0, robust, None, seconds)  # type: ignore[arg-type]
+    result = TuneResult(
+        family,
+        model,
+        theta,
+        theta0,
+        s1,
+        s2,
+        grid,
+        dense,
+        dense0,
+        robust,
+        None,
+        seconds,
+        note,  # type: ignore[arg-type]
+    )
     table = _table(drive, settings, result, scale)
-    return TuneResult(family, model, theta, theta0, s1, s2, grid, dense, dense0, robust, table, seconds)
+    return dataclasses.replace(result, table=table)
+
+
+def _worst(f: Figures) -> float:
+    """Worst damping of a grid; -inf if any point has no equilibrium."""
+    return float(np.min(f.damping)) if np.isfinite(f.damping).all() else -np.inf
+
+
+def _select(
+    model: TuningModel, s1: nlp.Solution, start: np.ndarray, Wd: np.ndarray, Td: np.ndarray, say
+) -> tuple[np.ndarray, Figures, dict[str, Any]]:
+    """The NLP's final gains, or, for a family with a start of its own (``model.start``), the best
+    on the dense grid among the start and every round the exchange method verified on its grid.
+
+    A free schedule is only checked at the grid speeds by the NLP; between them it may be worse
+    (even unstable), which only the dense grid shows. Re-verifying each candidate densely and
+    keeping the best means the reported gains are never worse than the start (for the schedule:
+    the tuned law16, which it reproduces exactly)."""
+    final = figures(model, s1.theta, Wd, Td)
+    if model.start is None:
+        return s1.theta, final, {}
+    cands = [("start", start, figures(model, start, Wd, Td))]
+    for k, th in enumerate(s1.verified[:-1]):
+        cands.append(
+            (f"exchange round {k + 1} of {len(s1.verified)} verified", th, figures(model, th, Wd, Td))
+        )
+    if s1.verified:
+        cands.append(("NLP solution", s1.theta, final))
+    decay0 = float(np.min(cands[0][2].decay))
+
+    def rank(i: int) -> tuple[bool, float, int]:
+        # never slower than the start: admissible first, then the worst damping; ties: the later
+        f = cands[i][2]
+        return (bool(np.min(f.decay) >= decay0 * (1 - 1e-6)), _worst(f), i)
+
+    best = max(range(len(cands)), key=rank)
+    name, theta, dense = cands[best]
+    w_start, w_final = _worst(cands[0][2]), _worst(final) if s1.verified else float("nan")
+    if name == "start":
+        text = (
+            f"kept the start ({model.start_label}): on the dense grid the NLP's gains reach a worst "
+            f"damping of {w_final:.4f} (start {w_start:.4f}) and a slowest decay of "
+            f"{np.min(final.decay):.4g} 1/s (start {decay0:.4g} 1/s): worse between the optimization "
+            "grid points"
+        )
+    elif name == "NLP solution":
+        text = f"NLP solution; the start ({model.start_label}) had {w_start:.4f} on the dense grid"
+    else:
+        text = (
+            f"{name} (the final NLP solution has {w_final:.4f} on the dense grid, the start "
+            f"({model.start_label}) {w_start:.4f})"
+        )
+    say(text)
+    return (
+        theta,
+        dense,
+        {
+            "selected": name,
+            "start": model.start_label,
+            "start_worst_damping": w_start,
+            "nlp_solution_worst_damping": w_final,
+            "text": text,
+        },
+    )
 
 
 def _candidates(
@@ -218,6 +325,7 @@ def _table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float) ->
         "ipopt_iterations": int(r.stage1.iterations + (r.stage2.iterations if r.stage2 else 0)),
         "exchange_rounds": int(r.stage1.rounds + (r.stage2.rounds if r.stage2 else 0)),
         "robust": r.robust,
+        "selection": r.selection,
         "parameters": {n: float(v) for n, v in zip(m.names, r.theta, strict=True)},
         "baseline_parameters": {n: float(v) for n, v in zip(m.names, r.theta0, strict=True)},
         "sector_scale_1_s": scale,
