@@ -184,8 +184,8 @@ def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = 
         upper=[lam_max, 10.0 * wb],
         typical=[R, wb],
         family="law16",
-        # no stage 2: the optimum is a ridge (lambda' |w|/omega_lambda fixed at the binding speed)
-        # and any point on it is as good; stage 1 is deterministic for given inputs
+        # no regularizer: the optimum is a ridge (lambda' |w|/omega_lambda fixed at the binding
+        # speed) and any point on it is as good; the NLP is deterministic for given inputs
         regularizer=None,
         table_gains=table_gains,
     )

@@ -43,7 +43,7 @@ class TuningModel:
     point_names: tuple[str, ...]
     make_points: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]  # (w_m, T_e, est) -> P
     equilibrium: Callable[[np.ndarray, np.ndarray], np.ndarray]  # (theta, P) -> x0 (n_x, N); NaN: none
-    regularizer: Callable[[ca.SX], ca.SX] | None  # dimensionless stage-2 objective of theta; None: no stage 2
+    regularizer: Callable[[ca.SX], ca.SX] | None  # dimensionless penalty of theta (x smoothing); None: none
     table_gains: Callable[[np.ndarray], dict[str, Any]]  # the gain table's "gains" entry
     point_gains: Callable[[np.ndarray, np.ndarray], dict[str, np.ndarray]]  # (theta, w_hat) -> columns
     nominal_estimate: np.ndarray  # the drive's own estimates (no error)

@@ -1,14 +1,15 @@
 """Max-min damping NLP (IPOPT via casadi.nlpsol) over an operating envelope, by an exchange method.
 
-Problem (stage 1)::
+Problem::
 
-    maximize t  over theta (gains), t
+    maximize t - smoothing * regularizer(theta)  over theta (gains), t
     s.t. at every damping point i:  all poles of A_i(theta) have damping ratio >= t
          at every stability point j: all poles of A_j(theta) have Re <= -sigma_j
          theta in its box
 
-The pole conditions are the exact smooth sector conditions of tuning/sector.py (Hermite minors of
-the rotated characteristic polynomial >= 0), so IPOPT sees only smooth functions. Points with
+The pole conditions are the exact smooth sector conditions of tuning/sector.py (the characteristic
+polynomial factored into quadratics with a, b >= 0 and a^2 >= 4 t^2 b, the factor coefficients
+being unknowns of the NLP), so IPOPT sees only smooth functions. Points with
 parameter errors have an equilibrium that moves with the gains: there the equilibrium x_j is an
 unknown of the NLP with the equality x_dot(x_j, theta) = 0, from the same closed-loop Function.
 
@@ -18,17 +19,15 @@ bounds): solve, evaluate every grid point numerically by eigenvalues, add the po
 re-solve (a classical exchange method for semi-infinite programs). It stops when no grid point
 violates, i.e. the solution is optimal for the whole grid, up to IPOPT's local optimality.
 
-Stage 2 (optional): fix t >= t* - slack and minimize the family's regularizer (gain size, and
-roughness of a schedule) on the same constraints: among (near-)optimal gains, the quietest and
-smoothest. The reported damping is never the NLP's t: see tuning/tune.py (dense re-verification).
+The regularizer (a schedule's roughness and gain size; none for law16) is weighted by the
+``smoothing`` setting. The reported damping is never the NLP's t: see tuning/tune.py (dense
+re-verification).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import json
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -123,13 +122,12 @@ def _solver(model: TuningModel, M: int) -> ca.Function:
     reg = ca.Function("reg", [th_sx], [r])
     f = -w_t * t + w_reg * reg(theta)
     opts = {
-        "ipopt.print_level": int(os.environ.get("SL_IPOPT_PRINT", "0")),
+        "ipopt.print_level": 0,
         "print_time": False,
         "ipopt.tol": 1e-9,
         "ipopt.acceptable_tol": 1e-7,
         "ipopt.max_iter": 500,
         "ipopt.sb": "yes",
-        **json.loads(os.environ.get("SL_IPOPT_OPTS", "{}")),
     }
     g = ca.vertcat(ca.vec(g_phi), ca.vec(g_eq), ca.vec(g_damp))
     return ca.nlpsol(f"tune_{model.family}_{M}", "ipopt", {"x": z, "p": p, "f": f, "g": g}, opts)

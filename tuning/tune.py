@@ -1,4 +1,4 @@
-"""Gain tuning end to end: envelope -> NLP (stage 1 and 2) -> dense re-verification -> gain table.
+"""Gain tuning end to end: envelope -> NLP -> dense re-verification -> gain table.
 
 The numbers a user sees (terminal summary, CSV, JSON) are all from the *re-verification*: the
 eigenvalues of the linearized closed loop on a grid ``dense_factor`` (>= 4) times denser in speed and
@@ -49,8 +49,7 @@ class TuneResult:
     model: TuningModel
     theta: np.ndarray
     theta0: np.ndarray
-    stage1: nlp.Solution
-    stage2: nlp.Solution | None
+    solution: nlp.Solution  # the exchange method's result (its t is the NLP's, not the verified value)
     grid: Figures  # tuned gains on the optimization grid
     dense: Figures  # tuned gains on the re-verification grid
     dense_baseline: Figures  # paper defaults on the re-verification grid
@@ -133,7 +132,7 @@ def tune(
         f"paper defaults: worst damping {base.damping.min():.4f}"
     )
     say(
-        "stage 1: maximize the worst damping (IPOPT, sector conditions)"
+        "maximize the worst damping (IPOPT, sector conditions)"
         + (f", starting from the {model.start_label}" if model.start is not None else "")
     )
     Wd, Td = env.grid(wb, T_N, env.dense_factor)
@@ -147,7 +146,6 @@ def tune(
         s1 = nlp.Solution(start, float("nan"), (), 0, 0, ())
     say(f"re-verifying on the {env.dense_factor}x denser grid")
     theta, dense, note = _select(model, s1, start, Wd, Td, say)
-    s2 = None
     dense0 = figures(model, theta0, Wd, Td)
     grid = figures(model, theta, W, T)
     if not np.isfinite(dense.damping).all():
@@ -178,19 +176,18 @@ def tune(
         )
     seconds = time.perf_counter() - t_start
     result = TuneResult(
-        family,
-        model,
-        theta,
-        theta0,
-        s1,
-        s2,
-        grid,
-        dense,
-        dense0,
-        robust,
-        None,
-        seconds,
-        note,  # type: ignore[arg-type]
+        family=family,
+        model=model,
+        theta=theta,
+        theta0=theta0,
+        solution=s1,
+        grid=grid,
+        dense=dense,
+        dense_baseline=dense0,
+        robust=robust,
+        table=None,  # type: ignore[arg-type]  (filled below from the result itself)
+        seconds=seconds,
+        selection=note,
     )
     table = _table(drive, settings, result, scale)
     return dataclasses.replace(result, table=table)
@@ -321,9 +318,9 @@ def _table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float) ->
         "min_decay_rate": float(np.min(d.decay)),
         "baseline_min_decay_rate": float(np.min(d0.decay)),
         "optimization_grid_worst_damping": float(r.grid.damping[kg]),
-        "nlp_worst_damping": float(r.stage1.t),
-        "ipopt_iterations": int(r.stage1.iterations + (r.stage2.iterations if r.stage2 else 0)),
-        "exchange_rounds": int(r.stage1.rounds + (r.stage2.rounds if r.stage2 else 0)),
+        "nlp_worst_damping": float(r.solution.t),
+        "ipopt_iterations": int(r.solution.iterations),
+        "exchange_rounds": int(r.solution.rounds),
         "robust": r.robust,
         "selection": r.selection,
         "parameters": {n: float(v) for n, v in zip(m.names, r.theta, strict=True)},
