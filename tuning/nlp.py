@@ -140,7 +140,10 @@ def _solver(model: TuningModel, M: int) -> ca.Function:
     f = -w_t * t + w_reg * reg(theta)
     g = ca.vertcat(ca.vec(g_phi), ca.vec(g_eq), ca.vec(g_damp))
     return ca.nlpsol(
-        f"tune_{model.family}_{M}", "ipopt", {"x": z, "p": p, "f": f, "g": g}, dict(SOLVER_OPTIONS)
+        f"tune_{model.family}_{M}",
+        "ipopt",
+        {"x": z, "p": p, "f": f, "g": g},
+        {**SOLVER_OPTIONS, "ipopt.hessian_approximation": model.hessian},
     )
 
 
