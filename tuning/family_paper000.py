@@ -188,6 +188,10 @@ def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = 
         # speed) and any point on it is as good; the NLP is deterministic for given inputs
         regularizer=None,
         table_gains=table_gains,
+        # L-BFGS: the same optimum in as many iterations without the Hessian of the slots (default
+        # envelope: 45 -> 30 ms, benchmarks/bench_tune.py). Not for the schedule: with 50
+        # parameters it needs 10x the iterations and ends lower.
+        hessian="limited-memory",
     )
 
 

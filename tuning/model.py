@@ -50,6 +50,7 @@ class TuningModel:
     estimate_names: tuple[str, ...]  # names of the estimate entries of a point, for error scenarios
     start: np.ndarray | None = None  # NLP start (e.g. the seed family's optimum); None: theta0
     start_label: str = ""  # what ``start`` is, for messages and the table's summary
+    hessian: str = "exact"  # IPOPT hessian_approximation: "exact" or "limited-memory" (L-BFGS)
 
     @property
     def n_theta(self) -> int:

@@ -125,6 +125,7 @@ def tune(
         if start_decay > settings.min_decay:
             say(f"keeping the start's decay rate: >= {start_decay:.4g} 1/s at every point")
             settings = dataclasses.replace(settings, min_decay=start_decay)
+    _check_error_equilibria(model, settings, start, W, T, wb)
     cand = _candidates(model, settings, W, T, wb, scale)
     say(
         f"{family}: {model.n_theta} parameters, {W.size} envelope points"
@@ -254,6 +255,24 @@ def _select(
             "text": text,
         },
     )
+
+
+def _check_error_equilibria(
+    model: TuningModel, settings: TuningSettings, theta: np.ndarray, W: np.ndarray, T: np.ndarray, wb: float
+) -> None:
+    """Under estimate errors the equilibrium branch of exact estimates can end in a fold (the observer
+    cannot hold the rotor position: at 0.05 p.u. and full torque already with R̂s 0.75 % off and the
+    paper's gains). Then "stable under these errors" has no meaning there: say so before the NLP."""
+    for name, est in error_scenarios(settings, model.nominal_estimate):
+        x0 = model.equilibrium(theta, model.make_points(W, T, est))
+        bad = np.flatnonzero(~np.isfinite(x0).all(axis=0))
+        if bad.size:
+            where = "; ".join(_label(W[k], T[k], wb) for k in bad[:4])
+            raise nlp.TuningError(
+                f"the envelope is infeasible under estimate errors {name}: with the start gains the "
+                f"observer has no equilibrium (it cannot hold the rotor position) at {where}"
+                f"{' and more' if bad.size > 4 else ''}; use smaller --errors or a larger --speed-min"
+            )
 
 
 def _candidates(
