@@ -29,7 +29,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))  # the motor simulation helper of the tests
 
 import numpy as np  # noqa: E402
-from runtime_sim import profile_from_segments, simulate  # noqa: E402
+from runtime_sim import TRAJECTORY_SEGMENTS, profile_from_segments, simulate  # noqa: E402
 from sensorless.design.drive import load_drive  # noqa: E402
 from sensorless.design.runtime import runtime_setup  # noqa: E402
 from sensorless.tuning.codegen import Provenance, generate  # noqa: E402
@@ -80,16 +80,7 @@ def main() -> int:
     drive = load_drive("piippo2008")
     setup = runtime_setup(drive)
     prov = Provenance(drive.name, drive.file, drive.digest, "bench")
-    segs = [
-        (0.3, 0, 0, 1.0),
-        (0.3, 0, 0.3, 1.0),
-        (0.3, 0.3, 0.3, 0.5),
-        (0.4, 0.3, -0.8, 0.5),
-        (0.4, -0.8, -0.8, -1.0),
-        (0.3, -0.8, 0.05, 0.0),
-        (0.4, 0.05, 0.05, 1.0),
-    ]
-    prof = profile_from_segments(segs, drive.control.T_s, drive.base.w, drive.T_N)
+    prof = profile_from_segments(TRAJECTORY_SEGMENTS, drive.control.T_s, drive.base.w, drive.T_N)
     meas = simulate(setup, drive, prof, theta0=0.2)["meas"]
     n = len(meas)
 

@@ -91,7 +91,8 @@ def _drive_gain(drive: Any, name: str) -> tuple[GainLaw, tuple[float, ...], str]
     return law, values, family
 
 
-def _table_gain(table: GainTable, where: str) -> tuple[GainLaw, tuple[float, ...], float, str]:
+def table_gain(table: GainTable, where: str) -> tuple[GainLaw, tuple[float, ...], float, str]:
+    """(law, params, alpha_fo [rad/s], family) of a paper-000 gain table; ``where`` names it in errors."""
     g = table.gains
     try:
         if table.family == "law16":
@@ -126,7 +127,7 @@ def runtime_setup(
             raise GainTableError(
                 f"{table_file}: key 'drive.kind': {kind!r} does not match the drive ({drive.kind})"
             )
-        law, values, alpha_fo, family = _table_gain(table, table_file)
+        law, values, alpha_fo, family = table_gain(table, table_file)
         params = ipmsm_params(drive, alpha_fo)
         source = f"{family} table {table_file} (tuned for {table.drive.get('name')})"
     else:

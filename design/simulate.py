@@ -143,6 +143,19 @@ def _sample_inputs(sc: Scenario, n: int, T_s: float) -> np.ndarray:
     return v
 
 
+def _provenance(drive: Any, sc: Scenario) -> dict[str, Any]:
+    """What a run describes: the drive (and its TOML hash) and the scenario; shared by every kind."""
+    return {
+        "drive": drive.name,
+        "drive_file": drive.file,
+        "drive_sha256": drive.digest,
+        "kind": drive.kind,
+        "scenario": sc.name,
+        "scenario_title": sc.title,
+        "scenario_source": sc.source,
+    }
+
+
 def build_ipmsm(drive: Any, sc: Scenario, table: GainTable | None, table_file: str) -> LoopSetup:
     """Loop set-up of the paper-000 drive (Fig. 7) for scenario ``sc``."""
     from sensorless.design.runtime import runtime_setup
@@ -187,13 +200,7 @@ def build_ipmsm(drive: Any, sc: Scenario, table: GainTable | None, table_file: s
     n = round(sc.duration / c.T_s) + 1
     obs_record = tuple(Signal(f.name, f.unit, f.doc) for f in observer_record(obs.outputs))
     meta = {
-        "drive": drive.name,
-        "drive_file": drive.file,
-        "drive_sha256": drive.digest,
-        "kind": drive.kind,
-        "scenario": sc.name,
-        "scenario_title": sc.title,
-        "scenario_source": sc.source,
+        **_provenance(drive, sc),
         "gain": setup.gain_source,
         "gain_law": setup.law.name,
         "discretization": setup.discretization,
@@ -329,13 +336,7 @@ def build_pmac(drive: Any, sc: Scenario, table: GainTable | None, table_file: st
         v[2:4] = sc.i_noise * np.random.default_rng(sc.seed).standard_normal((2, n))
     rpm = np.pi / 30 * m.p  # electrical rad/s per r/min
     meta = {
-        "drive": drive.name,
-        "drive_file": drive.file,
-        "drive_sha256": drive.digest,
-        "kind": drive.kind,
-        "scenario": sc.name,
-        "scenario_title": sc.title,
-        "scenario_source": sc.source,
+        **_provenance(drive, sc),
         "gain": f"{source}: g = {g:g} 1/s, Gamma = {Gamma:g}"
         + ("" if sc.load_torque_estimation else " (load-torque estimation off)"),
         "gain_law": "deangelo",

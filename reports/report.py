@@ -22,7 +22,6 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.linearize import PoleSweep, linearize, unstable_speed_bands
-from sensorless.symbolic.gains import schedule_law
 
 Progress = Callable[[str], None]
 
@@ -49,15 +48,11 @@ def gain_choices(drive: Any, table: Any | None) -> tuple[list[GainChoice], GainC
     if table is None:
         review = next(c for c in paper if c.gain == drive.observer.gain)
         return paper, review
-    g = table.gains
-    d = dataclasses.replace(drive, observer=dataclasses.replace(drive.observer, alpha_fo=g["alpha_fo"]))
-    if table.family == "law16":
-        tuned = GainChoice("tuned law16", d, ("speed", [g["lambda_p"], g["w_lambda"]]))
-    elif table.family == "schedule":
-        law = schedule_law(tuple(float(v) for v in g["w_hat"]))
-        tuned = GainChoice("tuned schedule", d, (law, list(g["lambda1"]) + list(g["lambda2"])))
-    else:
-        raise ValueError(f"a {table.family} gain table does not apply to a {drive.kind} drive")
+    from sensorless.design.runtime import table_gain
+
+    law, values, alpha_fo, family = table_gain(table, "gain table")
+    d = dataclasses.replace(drive, observer=dataclasses.replace(drive.observer, alpha_fo=alpha_fo))
+    tuned = GainChoice(f"tuned {family}", d, (law, list(values)))
     return [*paper, tuned], tuned
 
 

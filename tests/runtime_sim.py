@@ -112,3 +112,17 @@ def profile_from_segments(segments, T_s: float, w_base: float, T_N: float) -> np
         w = np.linspace(w0, w1, n, endpoint=False) * w_base
         rows.append(np.column_stack([w, np.full(n, tq * T_N)]))
     return np.vstack(rows)
+
+
+# The recorded trajectory that the C code is checked (tests) and timed (benchmarks) on: standstill
+# with injection, ramps through w_Delta and zero, +-0.8 p.u., low speed. Rows: (duration [s], speed
+# from, speed to [p.u.], torque [T_N]) as profile_from_segments takes them.
+TRAJECTORY_SEGMENTS = (
+    (0.3, 0, 0, 1.0),
+    (0.3, 0, 0.3, 1.0),
+    (0.3, 0.3, 0.3, 0.5),
+    (0.4, 0.3, -0.8, 0.5),
+    (0.4, -0.8, -0.8, -1.0),
+    (0.3, -0.8, 0.05, 0.0),
+    (0.4, 0.05, 0.05, 1.0),
+)

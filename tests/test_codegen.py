@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 import pytest
-from runtime_sim import profile_from_segments, simulate
+from runtime_sim import TRAJECTORY_SEGMENTS, profile_from_segments, simulate
 from sensorless.design.runtime import run_trajectory, runtime_setup
 from sensorless.symbolic.gains import LAWS, schedule_law
 from sensorless.symbolic.runtime_000 import OUTPUTS, STATE
@@ -67,16 +67,7 @@ def deviation(c, ref):
 def trajectory(drive):
     """>= 10^4 samples of the simulated motor (tests/runtime_sim.py) driving the observer: standstill
     with injection and an initial angle error, ramps through w_Delta and zero, +-0.8 p.u., low speed."""
-    segs = [
-        (0.3, 0, 0, 1.0),
-        (0.3, 0, 0.3, 1.0),
-        (0.3, 0.3, 0.3, 0.5),
-        (0.4, 0.3, -0.8, 0.5),
-        (0.4, -0.8, -0.8, -1.0),
-        (0.3, -0.8, 0.05, 0.0),
-        (0.4, 0.05, 0.05, 1.0),
-    ]
-    prof = profile_from_segments(segs, drive.control.T_s, drive.base.w, drive.T_N)
+    prof = profile_from_segments(TRAJECTORY_SEGMENTS, drive.control.T_s, drive.base.w, drive.T_N)
     r = simulate(runtime_setup(drive), drive, prof, theta0=0.2)
     assert len(r["meas"]) >= 10_000
     return r["meas"]
