@@ -280,6 +280,16 @@ def _check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], file: str, pr
             raise DriveFileError(file, f"{prefix}{k}", f"unknown key (allowed: {', '.join(allowed)})")
 
 
+def drive_header(data: Mapping[str, Any], file: str) -> Mapping[str, Any]:
+    """The [drive] table common to every kind: name, kind, source (strings)."""
+    head = _table(data, "drive", file)
+    _check_keys(head, ("name", "kind", "source"), file, "drive.")
+    for k in ("name", "source"):
+        if not isinstance(head.get(k), str):
+            raise DriveFileError(file, f"drive.{k}", "missing key or not a string")
+    return head
+
+
 def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
     _check_keys(
         data,
@@ -298,11 +308,7 @@ def _load_ipmsm(data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
         file,
         "",
     )
-    head = _table(data, "drive", file)
-    _check_keys(head, ("name", "kind", "source"), file, "drive.")
-    for k in ("name", "source"):
-        if not isinstance(head.get(k), str):
-            raise DriveFileError(file, f"drive.{k}", "missing key or not a string")
+    head = drive_header(data, file)
     rating = load_section(Rating, _table(data, "rating", file), file, "rating")
     base = load_section(Base, _table(data, "base", file), file, "base")
     motor = load_section(Motor, _table(data, "motor", file), file, "motor")

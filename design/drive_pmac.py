@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from sensorless.design.drive import _check_keys, _table, load_section, q
+from sensorless.design.drive import _check_keys, _table, drive_header, load_section, q
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.reduced_order_step import DISCRETIZATIONS, param_names
 
@@ -222,11 +222,7 @@ def _quantities(table: Mapping[str, Any], key: str, dim: str, file: str, section
 def load_pmac(data: Mapping[str, Any], file: str, digest: str) -> PmacDrive:
     """Validate a parsed TOML document of kind 'pmac-reduced-order'."""
     _check_keys(data, ("drive", "rating", "motor", "estimate", "observer", "control", "envelope"), file, "")
-    head = _table(data, "drive", file)
-    _check_keys(head, ("name", "kind", "source"), file, "drive.")
-    for k in ("name", "source"):
-        if not isinstance(head.get(k), str):
-            raise DriveFileError(file, f"drive.{k}", "missing key or not a string")
+    head = drive_header(data, file)
     rating = load_section(PmacRating, _table(data, "rating", file), file, "rating")
     motor = _with_harmonics(PmacMotor, _table(data, "motor", file), file, "motor")
     if motor.p < 1:
