@@ -1,6 +1,10 @@
-"""Operating envelope and tuning constraints: the optional ``[tuning]`` section of a drive TOML.
+"""Operating envelope and tuning constraints of a PMSM observer: the optional ``[tuning]`` section of a drive.
 
-Defaults are those of the tuning issue: |w_m| in [0.05, 1] p.u. in both directions x T_e in
+Shared by the families whose tunables go through the max-min damping NLP (tuning/tune.py): a grid of
+speeds (p.u. of the drive's base, per direction) x torques (multiples of T_N), constraints, and errors
+of the PMSM estimates (R̂s, L̂d, L̂q, ψ̂pm) to stay stable under.
+
+Defaults: |w_m| in [0.05, 1] p.u. in both directions x T_e in
 {-T_N, 0, T_N}, no decay-rate or gain-magnitude constraint, no parameter-error scenarios. Loading is
 strict like the rest of the drive file: unknown keys, wrong units or types and inconsistent values
 raise DriveFileError naming the file and the key. Speeds are stored in p.u. of the drive's base

@@ -1,31 +1,80 @@
-"""Eigenvalues of many small real matrices at once: closed loops' poles for sweeps.
+"""Poles of many small real matrices at once, and the pole metrics every family reports.
 
-For 4x4 matrices (the paper-000 closed loop) the poles are the roots of the characteristic polynomial
-(Faddeev-LeVerrier, batched matrix products), found in closed form (Ferrari's method with complex
-arithmetic, all points at once) and polished by Newton steps on the polynomial. Every root is then
-checked by its backward error; rows that fail the check (near-multiple roots, extreme scaling) are
-recomputed by LAPACK, as are all other matrix sizes. Tests compare with numpy.linalg.eigvals.
+Metrics: damping ratio -Re(p)/|p| per pole, the worst per point, the largest real part and the decay
+rate -max Re(p); NaN (no equilibrium at a point) stays NaN. One module so that analysis, tuning and
+reports compute them the same way.
+
+Eigenvalues: for 4x4 matrices (the adaptive observer's closed loop) the poles are the roots of the
+characteristic polynomial (symbolic/linalg.py, evaluated in batch), found in closed form (Ferrari's
+method with complex arithmetic, all points at once) and polished by Newton steps on the polynomial.
+Every root is then checked by its backward error; rows that fail the check (near-multiple roots,
+extreme scaling) are recomputed by LAPACK, as are all other matrix sizes. Tests compare with
+numpy.linalg.eigvals.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
+import casadi as ca
 import numpy as np
+from sensorless.design.batch import evaluate_batch
+from sensorless.symbolic.linalg import charpoly as charpoly_sx
+
+
+# --------------------------------------------------------------------------------------------------
+# Metrics
+# --------------------------------------------------------------------------------------------------
+def damping_ratio(poles: np.ndarray) -> np.ndarray:
+    """Damping ratio -Re(p)/|p| of each pole; a pole at the origin counts as 0, NaN stays NaN."""
+    mag = np.abs(poles)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = np.where(mag > 0, -poles.real / np.where(mag > 0, mag, 1), 0.0)
+    return np.where(np.isnan(poles), np.nan, z)
+
+
+def nan_reduce(fn: Any, a: np.ndarray) -> np.ndarray:
+    """Row-wise nanmin/nanmax that returns NaN (silently) for all-NaN rows."""
+    out = np.full(a.shape[0], np.nan)
+    has = ~np.isnan(a).all(axis=1)
+    if has.any():
+        out[has] = fn(a[has], axis=1)
+    return out
+
+
+def worst_damping(poles: np.ndarray) -> np.ndarray:
+    """Smallest damping ratio of each row of poles (negative: unstable; NaN: no poles there)."""
+    return nan_reduce(np.nanmin, damping_ratio(poles))
+
+
+def max_real(poles: np.ndarray) -> np.ndarray:
+    """Largest real part of each row of poles [1/s]; > 0 means unstable."""
+    return nan_reduce(np.nanmax, poles.real)
+
+
+def sort_poles(poles: np.ndarray) -> np.ndarray:
+    """Sort each row by (imag, real), a stable order for tables and plots."""
+    order = np.lexsort((poles.real, poles.imag), axis=-1)
+    return np.take_along_axis(poles, order, axis=-1)
+
+
+# --------------------------------------------------------------------------------------------------
+# Eigenvalues in batch
+# --------------------------------------------------------------------------------------------------
+@functools.cache
+def _charpoly_function(n: int) -> ca.Function:
+    A = ca.SX.sym("A", n, n)
+    return ca.Function("charpoly", [ca.vec(A)], [ca.vertcat(*charpoly_sx(A))], ["A"], ["c"])
 
 
 def charpoly(A: np.ndarray) -> np.ndarray:
     """Characteristic polynomial coefficients [1, c_{n-1}, ..., c_0] of each matrix in (N, n, n)."""
     N, n, _ = A.shape
-    c = np.zeros((N, n + 1))
-    c[:, 0] = 1.0
-    M = np.broadcast_to(np.eye(n), A.shape).copy()
-    for k in range(1, n + 1):
-        AM = A @ M
-        c[:, k] = -np.trace(AM, axis1=1, axis2=2) / k
-        M = AM + c[:, k, None, None] * np.eye(n)
-    return c
+    cols = np.ascontiguousarray(A.transpose(0, 2, 1).reshape(N, n * n).T)  # column-major vec per point
+    return evaluate_batch(_charpoly_function(n), N, [cols])[0][:, :, 0]
 
 
 def _cbrt(z: np.ndarray) -> np.ndarray:

@@ -1,12 +1,13 @@
 """Simulation scenarios as data: strict TOML loading of references, load, noise and parameter errors.
 
 A scenario says what happens to a drive over time: speed (or torque) reference and load torque as
-piecewise profiles, the observer's gain and injection, the controllers' feedback (estimates or
-sensor), initial conditions, measurement noise and parameter errors. The papers' experiments ship as
-built-in scenarios named after their figures (``fig6a`` ... ``fig10`` for paper 000, ``fig2`` ...
-``fig5`` for paper 002; ``sensorless simulate --list``). Loading is strict like drive files: unknown
-or missing keys, wrong units and non-physical values raise :class:`DriveFileError` naming the file
-and the dotted key. The schema is documented in docs/simulation.md.
+piecewise profiles, the controllers' feedback (estimates or sensor), initial conditions, measurement
+noise and parameter errors, plus the keys its observer family adds (``ObserverFamily.scenario_options``,
+e.g. the adaptive observer's gain choice and HF injection), kept in :attr:`Scenario.options`. Each
+family ships its papers' experiments as built-in scenarios named after their figures, in its own
+``scenarios`` package (``sensorless simulate --list``). Loading is strict like drive files: unknown or
+missing keys, wrong units and non-physical values raise :class:`DriveFileError` naming the file and
+the dotted key. The schema is documented in docs/simulation.md.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from sensorless.design import registry
 from sensorless.design.units import DriveFileError, parse_quantity
 
 INTERPOLATIONS = ("step", "linear")
@@ -66,14 +68,10 @@ class Scenario:
     file: str
     duration: float  # [s]
     figure: tuple[str, ...]  # panels of the figure, top to bottom
-    gain: str | None  # [observer.gains.*] name; None: the drive's default
-    injection: bool
-    discretization: str | None  # None: the drive's [runtime] choice
-    load_torque_estimation: bool  # paper 002: estimate T_L (Fig. 3) or not (Fig. 2)
+    discretization: str | None  # None: the drive's choice
     feedback: str  # "observer" (sensorless) or "sensor"
     mode: str  # "speed" or "torque"
     stiff_load: bool  # the load machine prescribes the speed (w_ref profile)
-    feedforward: bool  # add the load-torque estimate to the torque reference (paper 002)
     speed_filter: float  # bandwidth of the low-pass on the controllers' speed feedback [rad/s]
     current_bandwidth: float | None  # current-control bandwidth [rad/s]; None: the drive's
     w_m0: float  # initial electrical speed [rad/s]
@@ -86,6 +84,7 @@ class Scenario:
     i_noise: float  # standard deviation of the current-measurement noise, per axis [A]
     seed: int
     estimate_scale: Mapping[str, float] = field(default_factory=dict)  # parameter errors
+    options: Mapping[str, Any] = field(default_factory=dict)  # the family's keys (scenario_options)
 
 
 REQUIRED = object()
@@ -101,16 +100,12 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "figure": ("panels", ("speed", "torque", "theta_error")),
     },
     "observer": {
-        "gain": ("str", None),
-        "injection": ("bool", True),
         "discretization": ("str", None),
-        "load_torque_estimation": ("bool", True),
     },
     "control": {
         "feedback": ("str", "observer"),
         "mode": ("str", "speed"),
         "stiff_load": ("bool", False),
-        "feedforward": ("bool", False),
         "speed_filter": ("angular", 2 * np.pi * 50),  # 10 x the paper's speed bandwidth
         "current_bandwidth": ("angular", None),  # None: the drive's alpha_c (paper 002: 2 pi 400 rad/s)
     },
@@ -125,17 +120,27 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
 }
 _PROFILES = {"speed_reference": "angular_any", "load_torque": "torque", "torque_reference": "torque"}
 
-BUILTIN = "sensorless.design.scenarios"
+
+def _builtin(kind: str) -> dict[str, Any]:
+    """Built-in scenario name -> resource of the family of ``kind``."""
+    pkg = registry.family(kind).scenarios
+    if pkg is None:
+        return {}
+    return {p.name[:-5]: p for p in resources.files(pkg).iterdir() if p.name.endswith(".toml")}
 
 
-def builtin_names(kind: str | None = None) -> list[str]:
-    """Names of the built-in scenarios (for one drive kind if given)."""
-    names = []
-    for p in resources.files(BUILTIN).iterdir():
-        if p.name.endswith(".toml"):
-            if kind is None or tomllib.loads(p.read_text(encoding="utf-8"))["scenario"]["kind"] == kind:
-                names.append(p.name[:-5])
-    return sorted(names)
+def builtin_names(kind: str) -> list[str]:
+    """Names of the built-in scenarios of the family of drive kind ``kind``."""
+    return sorted(_builtin(kind))
+
+
+def _schema(kind: str | None) -> dict[str, dict[str, tuple[str, Any]]]:
+    """The common schema plus the keys of the family of ``kind`` (if known)."""
+    schema = {k: dict(v) for k, v in _SCHEMA.items()}
+    if kind is not None:
+        for section, keys in registry.family(kind).scenario_options.items():
+            schema.setdefault(section, {}).update(keys)
+    return schema
 
 
 def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) -> Any:
@@ -194,8 +199,10 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
     return x
 
 
-def _section(data: Mapping[str, Any], name: str, file: str, rel: Mapping[str, float]) -> dict[str, Any]:
-    schema = _SCHEMA[name]
+def _section(
+    data: Mapping[str, Any], name: str, file: str, rel: Mapping[str, float], schema_all: Mapping[str, Any]
+) -> dict[str, Any]:
+    schema = schema_all[name]
     table = data.get(name, {})
     if not isinstance(table, dict):
         raise DriveFileError(file, name, "expected a table [section]")
@@ -245,13 +252,19 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise DriveFileError(file, "(syntax)", f"not valid TOML: {e}") from None
-    allowed = (*_SCHEMA, *_PROFILES)
+    if "scenario" not in data:
+        raise DriveFileError(file, "scenario", "missing section")
+    head0 = data["scenario"]
+    kind = head0.get("kind") if isinstance(head0, dict) else None
+    if isinstance(kind, str) and kind not in registry.kinds():
+        known = ", ".join(registry.kinds())
+        raise DriveFileError(file, "scenario.kind", f"unknown drive kind {kind!r} (known: {known})")
+    schema = _schema(kind if isinstance(kind, str) else None)
+    allowed = (*schema, *_PROFILES)
     for k in data:
         if k not in allowed:
             raise DriveFileError(file, k, f"unknown section (allowed: {', '.join(allowed)})")
-    if "scenario" not in data:
-        raise DriveFileError(file, "scenario", "missing section")
-    s = {name: _section(data, name, file, rel) for name in _SCHEMA}
+    s = {name: _section(data, name, file, rel, schema) for name in schema}
     c, o = s["control"], s["observer"]
     for key, val, allowed_vals in (
         ("control.feedback", c["feedback"], FEEDBACK),
@@ -274,14 +287,10 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         file=file,
         duration=head["duration"],
         figure=head["figure"],
-        gain=o["gain"],
-        injection=o["injection"],
         discretization=o["discretization"],
-        load_torque_estimation=o["load_torque_estimation"],
         feedback=c["feedback"],
         mode=c["mode"],
         stiff_load=c["stiff_load"],
-        feedforward=c["feedforward"],
         speed_filter=c["speed_filter"],
         current_bandwidth=c["current_bandwidth"],
         w_m0=s["initial"]["w_m"],
@@ -294,14 +303,14 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         i_noise=s["noise"]["i_std"],
         seed=s["noise"]["seed"],
         estimate_scale=s["estimate_scale"],
+        options={k: s[sec][k] for sec, keys in schema.items() for k in keys if k not in _SCHEMA.get(sec, {})},
     )
 
 
 def drive_units(drive: Any) -> dict[str, float]:
     """Drive-relative units a scenario may use: 'pu' (base speed), 'rpm' (mechanical r/min, converted
     to electrical rad/s with the pole pairs) and 'T_N' (nominal torque)."""
-    w_base = drive.base.w if hasattr(drive, "base") else drive.w_base
-    return {"pu": w_base, "T_N": drive.T_N, "rpm": np.pi / 30 * drive.motor.p}
+    return {"pu": drive.w_base, "T_N": drive.T_N, "rpm": np.pi / 30 * drive.pole_pairs}
 
 
 def load_scenario(spec: str | Path, drive: Any) -> Scenario:
@@ -310,8 +319,8 @@ def load_scenario(spec: str | Path, drive: Any) -> Scenario:
     path = Path(spec_s)
     rel = drive_units(drive)
     if path.suffix != ".toml" and "/" not in spec_s:
-        res = resources.files(BUILTIN) / f"{spec_s}.toml"
-        if not res.is_file():
+        res = _builtin(drive.kind).get(spec_s)
+        if res is None:
             have = ", ".join(builtin_names(drive.kind)) or "none"
             raise FileNotFoundError(
                 f"{spec_s}: no such scenario file, and not a built-in one for "

@@ -1,4 +1,4 @@
-"""Pole maps over speed in the style of paper 000 Figs. 4-5, and their CSV data.
+"""Pole maps over speed in the style of Piippo et al. (2008) Figs. 4-5, and their CSV data, for any family.
 
 Fig. 4 shows the closed-loop poles of G_c(s) at nominal torque while the speed sweeps -1..1 p.u.
 (upper half-plane only, the map is symmetric); Fig. 5 magnifies the origin, where the low-speed
@@ -14,24 +14,36 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-from sensorless.design.linearize import PoleSweep
+from sensorless.design.linearization import Linearization
 
 plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
 
 
-def pole_csv(sweep: PoleSweep, w_base: float) -> str:
-    """CSV text: one row per operating point; poles as re/im pairs [1/s]; units in the header."""
+def pole_csv(sweep: Linearization, w_base: float) -> str:
+    """CSV text: one row per operating point; poles as re/im pairs [1/s]; units in the header.
+
+    The operating point's current (``i_s0``, rotor frame) is a column where the family gives it."""
     n = sweep.poles.shape[1]
-    head = ["w_m_pu", "w_m_rad_s", "T_e_Nm", "i_d_A", "i_q_A"]
+    i_s0 = getattr(sweep, "i_s0", None)
+    head = [
+        "w_m_pu",
+        "w_m_rad_s",
+        f"{sweep.torque_name}_Nm",
+        *(["i_d_A", "i_q_A"] if i_s0 is not None else []),
+    ]
     for k in range(n):
         head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
     head += ["worst_damping", "max_real_1_s"]
     buf = io.StringIO()
-    buf.write(f"# gain law: {sweep.law.name}; injection: {'on' if sweep.injection else 'off'}; ")
+    law, inj = getattr(sweep, "law", None), getattr(sweep, "injection", None)
+    if law is not None:
+        buf.write(f"# gain law: {law.name}; injection: {'on' if inj else 'off'}; ")
+    else:
+        buf.write("# ")
     buf.write(f"speed base {w_base:.10g} rad/s (electrical)\n")
     buf.write(",".join(head) + "\n")
-    for j in range(sweep.w_m.size):
-        row = [sweep.w_m[j] / w_base, sweep.w_m[j], sweep.T_e[j], *sweep.i_s0[j]]
+    for j in range(sweep.w.size):
+        row = [sweep.w[j] / w_base, sweep.w[j], sweep.torque[j], *(i_s0[j] if i_s0 is not None else [])]
         for p in sweep.poles[j]:
             row += [p.real, p.imag]
         row += [sweep.worst_damping[j], sweep.max_real[j]]
@@ -43,9 +55,9 @@ def _fmt(v: float) -> str:
     return "nan" if not np.isfinite(v) else f"{v:.10g}"
 
 
-def _zoom_window(sweep: PoleSweep, w_base: float) -> float:
+def _zoom_window(sweep: Linearization, w_base: float) -> float:
     """Half-width [1/s] of the magnified view: room for the slowest poles at |w_m| <= 0.05 p.u."""
-    low = np.abs(sweep.w_m / w_base) <= 0.05
+    low = np.abs(sweep.w / w_base) <= 0.05
     mags = np.abs(sweep.poles[low])
     slowest = np.where(np.isfinite(mags), mags, np.inf).min(axis=1, initial=np.inf)
     slowest = slowest[np.isfinite(slowest)]
@@ -53,10 +65,10 @@ def _zoom_window(sweep: PoleSweep, w_base: float) -> float:
 
 
 def plot_pole_maps(
-    sweeps: dict[str, PoleSweep],
+    sweeps: dict[str, Linearization],
     w_base: float,
     title: str,
-    low_speed: dict[str, PoleSweep] | None = None,
+    low_speed: dict[str, Linearization] | None = None,
 ) -> matplotlib.figure.Figure:
     """One row per sweep: full map (Fig. 4) and magnified origin (Fig. 5), colored by speed.
 
@@ -69,8 +81,8 @@ def plot_pole_maps(
         zoom = _zoom_window(full, w_base)
         for c, ax in enumerate(axes[r]):
             s = low_speed[label] if (c == 1 and low_speed) else full
-            w_pu = np.repeat(s.w_m / w_base, s.poles.shape[1])
-            w_max = float(np.abs(s.w_m).max() / w_base) or 1.0
+            w_pu = np.repeat(s.w / w_base, s.poles.shape[1])
+            w_max = float(np.abs(s.w).max() / w_base) or 1.0
             norm = matplotlib.colors.Normalize(-w_max, w_max)
             p = s.poles.reshape(-1)
             keep = np.isfinite(p) & (p.imag >= -1e-9)

@@ -1,10 +1,12 @@
-"""PM AC motor of paper 002 (De Angelo et al. 2006) in stationary alpha-beta coordinates, eqs. (2)-(5).
+"""PM AC motor with arbitrary EMF harmonics in stationary alpha-beta coordinates, eqs. (2)-(5).
+
+De Angelo, Bossio, Solsona, Garcia, Valla (2006).
 
 The EMF waveform is data: the flux-derivative series (4) is a tuple of odd harmonic orders ``n`` with
 amplitudes ``Phi_n`` (:class:`EmfSeries`). A negative order is a negative-sequence harmonic; the paper
 prints (4) with every harmonic in positive sequence, and the preset follows the print.
 
-Conventions (docs/paper002.md):
+Conventions (docs/families/pmac_reduced_order.md):
 - ``theta`` and ``w`` are the **electrical** rotor angle and speed (rad, rad/s); (4) is a function of the
   electrical angle.
 - The paper does not say whether omega, J, T_L in (2) are electrical or mechanical. The drive setting
@@ -22,8 +24,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import casadi as ca
-
-Sym = ca.SX | ca.MX | ca.DM | float
+from sensorless.symbolic.frames import Sym
 
 
 class EmfSeries(NamedTuple):

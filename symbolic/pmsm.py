@@ -1,8 +1,16 @@
-"""PMSM model of paper 000, eqs. (1)-(3), in a reference frame of arbitrary angle, plus MTPA.
+"""Permanent-magnet synchronous motor in dq form: Piippo, Hinkkanen, Luomi (2008) eqs. (1)-(3), MTPA, plant.
 
-Conventions: space vectors are 2x1 ``[d, q]`` columns; ``J`` is the 90-degree rotation of (1);
-speeds are electrical rad/s. A frame at angle ``theta_f`` sees the rotor at ``theta_tilde =
-theta_m - theta_f``; vectors transform as ``x_f = T(theta_tilde) x_rotor`` (Appendix, eq. (24)).
+The model every PMSM observer family shares (salient or not). Conventions (symbolic/frames.py): space
+vectors are 2x1 ``[d, q]`` columns; ``J`` is the 90-degree rotation of (1); speeds are electrical rad/s.
+A frame at angle ``theta_f`` sees the rotor at ``theta_tilde = theta_m - theta_f``; vectors transform
+as ``x_f = T(theta_tilde) x_rotor`` (Appendix, eq. (24)).
+
+The plant for simulation (bottom of the module): state ``[psi_d, psi_q, theta_m, w_m]``, the stator
+flux in the true rotor frame (V s), the rotor angle and electrical speed; the stator voltage is held
+in the stationary frame over each sampling period (zero-order hold of an ideal inverter) and the
+plant is integrated by RK4 substeps (symbolic/integrators.py). Mechanics in electrical speed:
+(J/p) dw_m/dt = T_e - T_L - B w_m/p, B the viscous friction [N m s/rad, mechanical]; a prescribed speed
+(a stiff load machine, ``stiff``) replaces that equation by dw_m/dt = 0 over the period.
 """
 
 from __future__ import annotations
@@ -10,11 +18,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import casadi as ca
-
-Sym = ca.SX | ca.MX | ca.DM | float
-
-J = ca.DM([[0.0, -1.0], [1.0, 0.0]])  # eq. (1)
-I2 = ca.DM.eye(2)
+from sensorless.symbolic.frames import J, Sym, rot, wrap_angle
+from sensorless.symbolic.integrators import rk4
 
 
 class PmsmParams(NamedTuple):
@@ -29,12 +34,6 @@ class PmsmParams(NamedTuple):
     def of(cls, v: Sym) -> PmsmParams:
         """Split a 4-vector [R_s, L_d, L_q, psi_pm]."""
         return cls(v[0], v[1], v[2], v[3])
-
-
-def rot(theta: Sym) -> Sym:
-    """T = cos(theta) I + sin(theta) J: rotates a vector by +theta (Appendix, eq. (24))."""
-    c, s = ca.cos(theta), ca.sin(theta)
-    return ca.vertcat(ca.horzcat(c, -s), ca.horzcat(s, c))
 
 
 def inductance(p: PmsmParams) -> Sym:
@@ -110,3 +109,63 @@ def mtpa_current(T_e: Sym, p: PmsmParams, pole_pairs: Sym, iterations: int = 8) 
         slope = 1.5 * pole_pairs * (p.psi_pm - a * i_d - a * i_q * di_d)
         i_q = i_q - residual / slope
     return ca.vertcat(mtpa_i_d(i_q, p), i_q)
+
+
+# --------------------------------------------------------------------------------------------------
+# Plant for simulation
+# --------------------------------------------------------------------------------------------------
+class Mechanics(NamedTuple):
+    """Mechanical parameters [J (kg m^2), B (N m s/rad), p]."""
+
+    J: Sym
+    B: Sym
+    pole_pairs: Sym
+
+
+def plant_rates(x: Sym, u_ab: Sym, T_L: Sym, motor: PmsmParams, mech: Mechanics, stiff: Sym) -> Sym:
+    """dx/dt of the plant state [psi_d, psi_q, theta_m, w_m] for the stationary-frame voltage u_ab.
+
+    Flux: eq. (1) in the rotor frame, dpsi/dt = u - R_s i - w_m J psi with i from (2); torque (3).
+    ``stiff`` = 1 holds the speed (prescribed by a load machine), 0 lets the mechanics act.
+    """
+    psi, theta_m, w_m = x[0:2], x[2], x[3]
+    u_r = rot(theta_m).T @ u_ab  # stationary -> rotor frame, eq. (24) with theta_tilde = theta_m
+    i_r = current_from_flux(psi, motor)  # eq. (2)
+    dpsi = flux_derivative(u_r, i_r, psi, w_m, motor.R_s)  # eq. (1)
+    T_e = torque(psi, i_r, mech.pole_pairs)  # eq. (3)
+    dw = (1 - stiff) * mech.pole_pairs / mech.J * (T_e - T_L - mech.B * w_m / mech.pole_pairs)
+    return ca.vertcat(dpsi, w_m, dw)
+
+
+class PlantOutputs(NamedTuple):
+    """What the plant shows at a sampling instant."""
+
+    i_ab: Sym  # stator current, stationary frame [A]
+    i_r: Sym  # stator current, true rotor frame [A]
+    T_e: Sym  # electromagnetic torque [N m]
+
+
+def plant_outputs(x: Sym, motor: PmsmParams, pole_pairs: Sym) -> PlantOutputs:
+    """Current (2) in both frames and torque (3) at the plant state x."""
+    psi, theta_m = x[0:2], x[2]
+    i_r = current_from_flux(psi, motor)
+    return PlantOutputs(rot(theta_m) @ i_r, i_r, torque(psi, i_r, pole_pairs))
+
+
+def plant_period(
+    x: Sym,
+    u_ab: Sym,
+    T_L: Sym,
+    motor: PmsmParams,
+    mech: Mechanics,
+    stiff: Sym,
+    T_s: Sym,
+    n_sub: int,
+) -> Sym:
+    """Plant state one sampling period later, u_ab and T_L held (zero-order hold), RK4 x n_sub.
+
+    The angle is wrapped to (-pi, pi] at the end of the period, so that it stays accurate in long runs;
+    it enters the dynamics only through sin and cos.
+    """
+    x_next = rk4(lambda xx: plant_rates(xx, u_ab, T_L, motor, mech, stiff), x, T_s, n_sub)
+    return ca.vertcat(x_next[0:2], wrap_angle(x_next[2]), x_next[3])

@@ -1,15 +1,20 @@
-"""Discrete-time runtime observers: the common interface that simulation and C generation consume.
+"""The runtime contract: one discrete-time step per sampling period, the same for every observer family.
 
-An observer that runs on a drive is registered here as a :class:`RuntimeObserver`: named, unit-carrying
-fields of its state, measurement, parameter and output vectors, a builder of its one-sampling-period step
-as a ``casadi.Function``, and a Function giving its initial state. The step's contract (docs/runtime.md):
+A family's observer, as it runs on a drive, is a :class:`RuntimeObserver`: named, unit-carrying fields
+of its state, measurement, parameter and output vectors, a builder of its one-sampling-period step as a
+``casadi.Function``, and a Function giving its initial state. The step's contract (docs/architecture.md):
 
     step(x[n_x], meas[n_m], p[n_p], lam[n_lam]) -> (x_next[n_x], y[n_y])
 
-``lam`` carries gains scheduled outside the step (paper 000: lambda1, lambda2 of eq. (7), evaluated by
-the gain law at the speed estimate stored in the state field ``schedule_state``); observers without a
-schedule have ``n_lam = 0``. Adding an observer = writing its step in SX from its symbolic/ equations and
-registering it in ``REGISTRY`` (see :func:`register`).
+``meas`` is what the drive samples (currents, the applied voltage); ``p`` every parameter, gains
+included, so firmware can change them at run time; ``lam`` carries gains scheduled outside the step
+(the adaptive observer's lambda1, lambda2 of Piippo et al. (2008) eq. (7), evaluated by its gain law at
+the speed estimate stored in the state field ``schedule_state``); observers without a schedule have
+``n_lam = 0``. Simulation runs this step, ``sensorless codegen`` prints it as C, and the family's
+analysis linearizes it: one expression graph for all three.
+
+Every step is *guarded* (:func:`guarded`): a sample whose result is not finite is rejected, the output
+``valid`` says so, and the observer coasts on its previous state.
 """
 
 from __future__ import annotations
@@ -21,11 +26,9 @@ from typing import NamedTuple
 
 import casadi as ca
 import numpy as np
-from sensorless.symbolic.pmsm import Sym
+from sensorless.symbolic.frames import Sym
 
-X_MAX = 1e30  # a state whose sum of magnitudes exceeds this (or NaN/Inf) is rejected (docs/runtime.md)
-
-DISCRETIZATIONS = ("euler", "heun")  # forward Euler; Heun's method (explicit trapezoidal RK2)
+X_MAX = 1e30  # a state whose sum of magnitudes exceeds this (or NaN/Inf) is rejected
 
 
 class Field(NamedTuple):
@@ -41,7 +44,7 @@ class Field(NamedTuple):
 class RuntimeObserver:
     """A registered discrete-time observer (see the module docstring)."""
 
-    name: str  # short identifier, e.g. "adaptive000"
+    name: str  # short identifier, e.g. "ipmsm_adaptive"
     title: str  # one line for generated headers
     state: tuple[Field, ...]
     meas: tuple[Field, ...]
@@ -51,6 +54,14 @@ class RuntimeObserver:
     schedule_state: str | None  # state field at which the gain schedule is evaluated
     core: Callable[[str], ca.Function]  # discretization -> step Function with ``lam`` as an input
     initial_state: Callable[[], ca.Function]  # Function p -> x0
+    discretizations: tuple[str, ...] = ()  # schemes ``core`` accepts; the first is the default
+    # Function (p, op) -> x: the observer converged at an operating point ``op`` of the drive loop it
+    # runs in (for a PMSM: symbolic/pmsm_drive.OPERATING_POINT); None if it has none
+    steady_state: Callable[[], ca.Function] | None = None
+    # one-line texts for the generated C API (what init resets to; what the step takes and gives)
+    doc_init: str = "the state of ``initial_state``"
+    doc_in: str = "the measurements of this sampling period"
+    doc_out: str = "the estimates of this sampling period"
 
     def index(self, vector: str, name: str) -> int:
         """Position of field ``name`` in ``vector`` ('state', 'meas', 'params', 'outputs', 'lam')."""
@@ -90,25 +101,6 @@ class RuntimeObserver:
         return {f.name: v[k] for k, f in enumerate(getattr(self, vector))}
 
 
-REGISTRY: dict[str, RuntimeObserver] = {}
-
-
-def register(obs: RuntimeObserver) -> RuntimeObserver:
-    """Add an observer to ``REGISTRY`` (by its name) and return it."""
-    REGISTRY[obs.name] = obs
-    return obs
-
-
-def wrap_angle(theta: Sym) -> Sym:
-    """theta mapped to (-pi, pi]: theta - 2 pi ceil((theta - pi) / (2 pi)).
-
-    Keeping angles small keeps the float build exact to its resolution (an unwrapped angle loses a bit
-    of resolution each time it doubles). Uses ceil, never a float-to-integer conversion, so NaN and Inf
-    stay well defined (they propagate as NaN).
-    """
-    return theta - 2 * math.pi * ca.ceil((theta - math.pi) * (1 / (2 * math.pi)))
-
-
 def all_within(v: Sym, bound: float = X_MAX) -> Sym:
     """1 if sum_j |v_j| <= bound (so every element is finite and bounded), else 0.
 
@@ -121,7 +113,7 @@ def guarded(x_coast: Sym, x_cand: Sym, y_cand: Sym, y_coast: Sym) -> tuple[Sym, 
     """Accept a step only if its new state is finite: (x_next, y, valid).
 
     An invalid step (NaN/Inf/absurdly large result, e.g. from a NaN sample) gives ``x_coast`` and
-    ``y_coast`` instead, computed from the previous (finite) state alone (docs/runtime.md);
+    ``y_coast`` instead, computed from the previous (finite) state alone;
     ``if_else`` selects without arithmetic, so no NaN leaks into the state.
     """
     valid = all_within(x_cand)

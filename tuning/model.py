@@ -1,13 +1,12 @@
-"""What the tuner needs from a tunable gain family on a drive kind: the TuningModel contract.
+"""What the shared NLP needs from a tunable gain family on a drive: the TuningModel contract.
 
-A family (law16, schedule, deangelo, ...) on a drive kind supplies one :class:`TuningModel`. The
+A tunable (law16, schedule, ...; tuning/family.py) on a drive supplies one :class:`TuningModel`. The
 generic NLP (tuning/nlp.py) and the verification only see this: a parameter vector theta with
 bounds; ``local``, what the closed loop at one operating point needs of theta (phi: e.g. the gains
 and their slopes there), so that per-point derivatives do not grow with the size of theta; the
 linearized closed loop as a CasADi Function of (phi, state, operating point) built from the analysis
 model in symbolic/ (never a second copy of the equations); numeric equilibria; and the gains to
-write into the table. Adding a family is one module that builds a TuningModel and
-registers it (tuning/families.py).
+write into the table. A tunable's ``build`` returns one (tuning/family.py).
 """
 
 from __future__ import annotations
@@ -32,7 +31,7 @@ class TuningModel:
     family: str
     names: tuple[str, ...]  # tunable parameters, in theta order
     units: tuple[str, ...]
-    theta0: np.ndarray  # the paper's default gains: the baseline (and the NLP's start if no ``start``)
+    theta0: np.ndarray  # the drive file's gains: the baseline (and the NLP's start if no ``start``)
     lower: np.ndarray  # box bounds of theta
     upper: np.ndarray
     typical: np.ndarray  # magnitudes that scale theta to O(1) for the NLP
@@ -78,17 +77,3 @@ def poles(model: TuningModel, theta: np.ndarray, P: np.ndarray) -> tuple[np.ndar
         good = ok & np.isfinite(A).all(axis=(1, 2))
         out[good] = np.linalg.eigvals(A[good])
     return out, x0
-
-
-def damping(p: np.ndarray) -> np.ndarray:
-    """Worst damping ratio -Re/|p| per row of poles (NaN rows stay NaN)."""
-    mag = np.abs(p)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        z = np.where(mag > 0, -p.real / np.where(mag > 0, mag, 1.0), 0.0)
-    z = np.where(np.isnan(p), np.nan, z)
-    return np.min(z, axis=1)
-
-
-def max_real(p: np.ndarray) -> np.ndarray:
-    """Largest real part per row [1/s] (NaN rows stay NaN)."""
-    return np.max(p.real, axis=1)

@@ -33,7 +33,8 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
-from sensorless.tuning.model import TuningModel, damping, max_real, poles
+from sensorless.design.poles import max_real, worst_damping
+from sensorless.tuning.model import TuningModel, poles
 from sensorless.tuning.sector import damping_inequalities, factor_equalities, factors_from_poles, n_quadratic
 
 
@@ -151,7 +152,7 @@ def margins(model: TuningModel, theta: np.ndarray, cand: Candidates, t: float, s
     """Numeric margin of every candidate at theta by eigenvalues (>= 0: satisfied): damping - t for
     damping points, (-max Re - sigma)/scale for stability points; -inf where no equilibrium."""
     p, _ = poles(model, theta, cand.P)
-    m = np.where(cand.kind == 1, damping(p) - t, (-max_real(p) - cand.sigma) / scale)
+    m = np.where(cand.kind == 1, worst_damping(p) - t, (-max_real(p) - cand.sigma) / scale)
     return np.where(np.isfinite(m), m, -np.inf)
 
 

@@ -13,7 +13,7 @@ differentiates eigenvalues. It uses this exact equivalence instead:
 a complex pair of damping a / (2 sqrt(b)) >= zeta. =>: every real polynomial factors into real
 quadratics and linears; pair conjugate poles, and real poles among themselves.) The factor
 coefficients are extra unknowns of the NLP, tied to A by n polynomial equalities (the coefficients of
-the product equal those of the characteristic polynomial, computed by Faddeev-LeVerrier). Everything
+the product equal those of the characteristic polynomial, symbolic/linalg.py). Everything
 is a low-degree polynomial, hence smooth, and coalescing poles are just a quadratic factor whose
 discriminant changes sign: nothing is singular there. A decay-rate condition (every Re(p_i) <=
 -sigma) is the same with zeta = 0 on A + sigma I. See docs/tuning.md.
@@ -23,19 +23,7 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
-
-
-def charpoly(A: ca.SX) -> list[ca.SX]:
-    """Coefficients [c_0, ..., c_n] (c_n = 1) of det(sI - A) by the Faddeev-LeVerrier recursion."""
-    n = A.shape[0]
-    c: list = [None] * (n + 1)
-    c[n] = 1
-    M = ca.SX.zeros(n, n)
-    I = ca.SX.eye(n)
-    for k in range(1, n + 1):
-        M = A @ M + c[n - k + 1] * I
-        c[n - k] = -ca.trace(A @ M) / k
-    return c
+from sensorless.symbolic.linalg import charpoly
 
 
 def n_quadratic(n: int) -> int:
@@ -61,7 +49,7 @@ def product_coefficients(f: ca.SX, n: int) -> list[ca.SX]:
 def factor_equalities(A: ca.SX, f: ca.SX, sigma: ca.SX | float = 0.0) -> ca.SX:
     """n expressions, all zero iff f factors det(sI - A - sigma I) as in the module docstring."""
     n = A.shape[0]
-    c = charpoly(A + sigma * ca.SX.eye(n))
+    c = charpoly(A + sigma * ca.SX.eye(n))[::-1]  # lowest power first
     prod = product_coefficients(f, n)
     return ca.vertcat(*[c[k] - prod[k] for k in range(n)])
 

@@ -1,8 +1,11 @@
 """Gain tuning end to end: envelope -> NLP -> dense re-verification -> gain table.
 
-The numbers a user sees (terminal summary, CSV, JSON) are all from the *re-verification*: the
+``tune(drive, name)`` tunes the tunable gain family ``name`` of the drive's observer family (tuning/
+family.py): with its own tuner if it has one, else by the shared pipeline below on the TuningModel it
+builds. The numbers a user sees (terminal summary, CSV, JSON) are all from the *re-verification*: the
 eigenvalues of the linearized closed loop on a grid ``dense_factor`` (>= 4) times denser in speed and
-in torque than the grid the NLP optimized over, for the tuned gains and for the paper's defaults.
+in torque than the grid the NLP optimized over, for the tuned gains and for the drive file's gains
+(the baseline).
 The NLP's own value of the worst damping is kept in the summary only for comparison.
 """
 
@@ -17,10 +20,11 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
+from sensorless.design.gain_table import GainTable
+from sensorless.design.poles import max_real, worst_damping
 from sensorless.tuning import nlp
-from sensorless.tuning.families import DESCRIPTIONS, build_model, seed_family, tuner_for
-from sensorless.tuning.gain_table import GainTable
-from sensorless.tuning.model import TuningModel, damping, max_real, poles
+from sensorless.tuning.family import tunable_for
+from sensorless.tuning.model import TuningModel, poles
 
 ROBUST_MARGIN = 1e-3  # under estimate errors require max Re(p) <= -ROBUST_MARGIN * scale (strictly stable)
 
@@ -52,18 +56,57 @@ class TuneResult:
     solution: nlp.Solution  # the exchange method's result (its t is the NLP's, not the verified value)
     grid: Figures  # tuned gains on the optimization grid
     dense: Figures  # tuned gains on the re-verification grid
-    dense_baseline: Figures  # paper defaults on the re-verification grid
+    dense_baseline: Figures  # the drive file's gains on the re-verification grid
     robust: list[dict[str, Any]]  # per error scenario: worst max Re on the dense grid
     table: GainTable
     seconds: float
     selection: dict[str, Any]  # which dense-verified candidate was kept and why ({}: the NLP's)
+
+    def summary_lines(self, drive: Any) -> list[str]:
+        """The terminal summary: parameters and worst damping before -> after, and where."""
+        s = self.table.summary
+        wb = drive.w_base
+        env = self.table.envelope
+        out = [
+            f"optimized over {env['optimization_points']} points in {s['exchange_rounds']} exchange rounds "
+            f"({s['ipopt_iterations']} IPOPT iterations); re-verified on {env['dense_points']} points "
+            f"({env['dense_factor']}x denser) in {self.seconds:.1f} s",
+            f"{'':<22}{'drive file':>18}{'tuned':>18}",
+        ]
+        for n, u, v0, v in zip(self.model.names, self.model.units, self.theta0, self.theta, strict=True):
+            if u == "rad/s":
+                out.append(f"{n + ' [p.u.]':<22}{v0 / wb:>18.4g}{v / wb:>18.4g}")
+            elif self.model.n_theta <= 6:
+                out.append(f"{n + ' [' + u + ']':<22}{v0:>18.4g}{v:>18.4g}")
+
+        def where(key: str) -> str:
+            a = s[key]
+            return f"at {a['w_m_pu']:+.3f} p.u., {a['T_e_Nm']:+.3g} N m"
+
+        out += [
+            f"{'worst damping':<22}{s['baseline_worst_damping']:>18.4f}{s['worst_damping']:>18.4f}",
+            f"{'  where':<22}{where('baseline_worst_damping_at'):>36}",
+            f"{'':<22}{where('worst_damping_at'):>36}",
+            f"{'slowest decay [1/s]':<22}{s['baseline_min_decay_rate']:>18.4g}{s['min_decay_rate']:>18.4g}",
+            f"worst damping on the optimization grid {s['optimization_grid_worst_damping']:.4f} "
+            f"(NLP: {s['nlp_worst_damping']:.4f}); the table reports the dense re-verification",
+        ]
+        if s.get("selection"):
+            out.append(f"kept: {s['selection']['text']}")
+        for rb in s["robust"]:
+            out.append(
+                f"estimates {rb['scenario']}: max Re(p) = {rb['max_real_1_s']:.4g} 1/s at "
+                f"{rb['at_w_m_pu']:+.3f} p.u., {rb['at_T_e_Nm']:+.3g} N m "
+                f"({'stable' if rb['stable'] else 'UNSTABLE'})"
+            )
+        return out
 
 
 def figures(model: TuningModel, theta: np.ndarray, w: np.ndarray, T: np.ndarray, est=None) -> Figures:
     """Poles, damping, decay rate and gains of ``theta`` at the points (w, T)."""
     est = model.nominal_estimate if est is None else est
     p, _ = poles(model, theta, model.make_points(w, T, est))
-    return Figures(w, T, p, damping(p), -max_real(p), model.point_gains(theta, w))
+    return Figures(w, T, p, worst_damping(p), -max_real(p), model.point_gains(theta, w))
 
 
 def error_scenarios(settings: TuningSettings, nominal: np.ndarray) -> list[tuple[str, np.ndarray]]:
@@ -87,35 +130,36 @@ def _label(w: float, T: float, w_base: float, extra: str = "") -> str:
 
 def tune(
     drive: Any,
-    family: str,
+    family: str | None = None,
     settings: Any = None,
     progress: Callable[[str], None] | None = None,
 ) -> Any:
-    """Tune ``family`` on ``drive`` over the envelope of ``settings`` (default: the drive's
-    ``[tuning]``; a family with its own tuner takes its own settings type). Returns a TuneResult
-    (or the own tuner's result). Raises nlp.TuningError if IPOPT fails or the constraints cannot be
-    met."""
-    own = tuner_for(family, drive.kind)
-    if own is not None:  # e.g. paper 002's deangelo family (tuning/family_paper002.py)
-        return own(drive, settings, progress)
+    """Tune the gain family ``family`` (None: the default of the drive's observer family) on ``drive``
+    over the envelope of ``settings`` (default: the tunable's, e.g. the drive's ``[tuning]``). Returns a
+    TuneResult (or the own tuner's result). Raises nlp.TuningError if IPOPT fails or the constraints
+    cannot be met, CapabilityError if the family cannot be tuned."""
+    tunable = tunable_for(drive, family)
+    family = tunable.name
+    settings = settings if settings is not None else tunable.settings(drive)
+    if tunable.tuner is not None:  # e.g. the reduced-order observer's deangelo family
+        return tunable.tuner(drive, settings, progress)
     t_start = time.perf_counter()
-    settings = settings or drive.tuning
     say = progress or (lambda s: None)
     seed_theta = None
-    seed_name = seed_family(family, drive.kind)
-    if seed_name is not None:
+    if tunable.seed is not None:
+        seed_name = tunable.seed
         say(f"{family}: tuning its start, the {seed_name} family, first")
         seed_res = tune(drive, seed_name, settings, progress=lambda m: say(f"  [{seed_name}] {m}"))
         seed_theta = seed_res.theta
-    model = build_model(drive, family, settings, seed_theta)
+    model = tunable.build(drive, settings, seed_theta)
     env = settings.envelope
-    wb, T_N = drive.base.w, drive.T_N
+    wb, T_N = drive.w_base, drive.T_N
     W, T = env.grid(wb, T_N)
     theta0 = np.clip(model.theta0, model.lower, model.upper)
     start = theta0 if model.start is None else np.clip(model.start, model.lower, model.upper)
     base = figures(model, theta0, W, T)
     if not np.isfinite(base.poles).all():
-        raise nlp.TuningError("the paper's default gains have no closed-loop equilibrium on the envelope")
+        raise nlp.TuningError("the drive file's gains have no closed-loop equilibrium on the envelope")
     scale = float(np.abs(base.poles).max())
 
     if model.start is not None:
@@ -130,7 +174,7 @@ def tune(
     say(
         f"{family}: {model.n_theta} parameters, {W.size} envelope points"
         f"{f', {cand.size - W.size} constraint points' if cand.size > W.size else ''}; "
-        f"paper defaults: worst damping {base.damping.min():.4f}"
+        f"drive file's gains: worst damping {base.damping.min():.4f}"
     )
     say(
         "maximize the worst damping (IPOPT, sector conditions)"
@@ -262,7 +306,7 @@ def _check_error_equilibria(
 ) -> None:
     """Under estimate errors the equilibrium branch of exact estimates can end in a fold (the observer
     cannot hold the rotor position: at 0.05 p.u. and full torque already with R̂s 0.75 % off and the
-    paper's gains). Then "stable under these errors" has no meaning there: say so before the NLP."""
+    drive file's gains). Then "stable under these errors" has no meaning there: say so before the NLP."""
     for name, est in error_scenarios(settings, model.nominal_estimate):
         x0 = model.equilibrium(theta, model.make_points(W, T, est))
         bad = np.flatnonzero(~np.isfinite(x0).all(axis=0))
@@ -303,7 +347,7 @@ def _where(f: Figures, k: int, wb: float) -> dict[str, float]:
 
 
 def _table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float) -> GainTable:
-    wb = drive.base.w
+    wb = drive.w_base
     env = settings.envelope
     d, d0 = r.dense, r.dense_baseline
     points = []
@@ -376,8 +420,3 @@ def _table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float) ->
         points=points,
         summary=summary,
     )
-
-
-def describe_family(family: str) -> str:
-    """The family's one-line description."""
-    return DESCRIPTIONS[family]

@@ -1,0 +1,120 @@
+"""The observer-family contract: everything a command may ask of a family, in one base class.
+
+An observer family (the speed-adaptive flux observer of Piippo et al., the reduced-order EMF observer
+of De Angelo et al., a firmware's flux observer + PLL, ...) is one :class:`ObserverFamily` instance,
+registered in :mod:`sensorless.design.registry`, which is the only place that maps a drive file's
+``[drive] kind`` to code. A family provides:
+
+- its drive-file schema (:meth:`ObserverFamily.load`), presets and built-in scenarios (packages);
+- its gains: which gain-table families it accepts and their keys, and the gains of a drive
+  (:meth:`gains`, from the drive file or a tuned table);
+- its runtime observer: the discrete-time step of the one runtime contract (symbolic/runtime.py),
+  with its parameters from a drive (:meth:`runtime`), which simulation runs and codegen prints as C;
+- its linearization (:meth:`linearize`), returning the common result type
+  :class:`~sensorless.design.linearization.Linearization`;
+- its simulation set-up for a scenario (:meth:`simulation`) and the scenario keys it adds;
+- the names of the modules that hold its higher-layer hooks: tuning (tunable gain families, tuners;
+  imported by ``sensorless.tuning``) and reports (analysis output, report sections; imported by
+  ``sensorless.reports``). The design layer never imports them, so no layer reaches up
+  (docs/architecture.md).
+
+A capability a family does not have raises :class:`CapabilityError`, which every command turns into
+one line naming the family and what it lacks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Protocol
+
+
+class CapabilityError(ValueError):
+    """A family lacks what was asked of it; the message names the family and the capability."""
+
+
+class Drive(Protocol):
+    """What shared code reads of any family's drive description (each family adds its own sections)."""
+
+    name: str
+    kind: str
+    source: str
+    file: str  # the file it was loaded from (or "preset:<name>"), for messages
+    digest: str  # sha256 of the TOML text
+
+    @property
+    def T_N(self) -> float:
+        """Nominal torque [N m]."""
+        ...
+
+    @property
+    def w_base(self) -> float:
+        """Per-unit speed base [rad/s, electrical]."""
+        ...
+
+    @property
+    def pole_pairs(self) -> int:
+        """Pole pairs (mechanical r/min <-> electrical rad/s)."""
+        ...
+
+    @property
+    def T_s(self) -> float:
+        """Sampling period of the runtime observer [s]."""
+        ...
+
+
+@dataclass(frozen=True)
+class GainSet:
+    """The gains an observer runs with: which gain family, the values (SI), and where they come from."""
+
+    family: str  # gain family: e.g. "law16", "schedule", "constant", "zero", "deangelo"
+    values: Mapping[str, Any] = field(default_factory=dict)  # SI; lists for tables
+    source: str = ""  # for headers and messages: the drive file's section or the table file
+
+
+class ObserverFamily:
+    """Base class of an observer family; subclasses override what they support (module docstring)."""
+
+    kind: ClassVar[str]  # the drive files' [drive] kind: written nowhere else
+    name: ClassVar[str]  # identifier = folder name in symbolic/, design/, tuning/, reports/
+    title: ClassVar[str]  # one line: what the observer is
+    citation: ClassVar[str]  # the paper(s) it implements, authors and year
+    presets: ClassVar[str | None] = None  # package holding preset drive TOMLs
+    scenarios: ClassVar[str | None] = None  # package holding built-in scenario TOMLs
+    tuning: ClassVar[str | None] = None  # module of its tuning hooks (sensorless.tuning.family)
+    report: ClassVar[str | None] = None  # module of its report hooks (sensorless.reports.family)
+    # gain-table family -> required keys of the table's "gains" (docs/gain_tables.md)
+    gain_families: ClassVar[Mapping[str, tuple[str, ...]]] = {}
+    # extra scenario keys: section -> key -> (dimension, default); see design/scenario.py
+    scenario_options: ClassVar[Mapping[str, Mapping[str, tuple[str, Any]]]] = {}
+
+    # ---------------------------------------------------------------------------------- drive file
+    def load(self, data: Mapping[str, Any], file: str, digest: str) -> Any:
+        """The drive of a parsed TOML document (strict; DriveFileError naming file and key)."""
+        raise CapabilityError(f"observer family {self.name!r} cannot load drive files")
+
+    # --------------------------------------------------------------------------------------- gains
+    def gains(
+        self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
+    ) -> GainSet:
+        """The gains of ``drive``: from the gain table ``table`` if given, else the drive file's
+        (``name`` chooses among several gain sections where the family has them)."""
+        raise CapabilityError(f"observer family {self.name!r} has no gains to choose")
+
+    # ------------------------------------------------------------------------------------- runtime
+    def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
+        """The runtime set-up (design/runtime.RuntimeSetup): observer step, parameters, schedule."""
+        raise CapabilityError(f"observer family {self.name!r} has no runtime observer")
+
+    # ------------------------------------------------------------------------------- linearization
+    def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
+        """Linearization (design/linearization.Linearization) at speeds ``w`` [rad/s] x ``torque``."""
+        raise CapabilityError(f"observer family {self.name!r} has no linearization")
+
+    # ---------------------------------------------------------------------------------- simulation
+    def simulation(self, drive: Any, scenario: Any, gains: GainSet) -> Any:
+        """The loop set-up (design/simulate.LoopSetup) of ``scenario`` on ``drive``."""
+        raise CapabilityError(f"observer family {self.name!r} has no time-domain simulation")
+
+    def __repr__(self) -> str:
+        return f"<observer family {self.name} (kind {self.kind!r})>"

@@ -1,0 +1,75 @@
+"""Speed-adaptive stator-flux observer for interior PMSMs (Piippo, Hinkkanen, Luomi 2008): the family.
+
+This module registers the family (design/registry.py finds ``FAMILY``); the drive kind string of its
+drive files is written here and nowhere else in the code. Its pieces: schema.py (drive files),
+runtime.py (gains, runtime set-up), operating_point.py and linearize.py (the closed loop of Section IV),
+simulation.py (Fig. 7 for a scenario), presets/ and scenarios/ (the paper's drive and experiments).
+Equations: symbolic/ipmsm_adaptive/. Theory and choices: docs/families/ipmsm_adaptive.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
+from sensorless.design.gain_table import GainTableError
+from sensorless.design.ipmsm_adaptive import linearize as _linearize
+from sensorless.design.ipmsm_adaptive import runtime as _runtime
+from sensorless.design.ipmsm_adaptive import schema, simulation
+
+
+class AdaptiveFluxObserver(ObserverFamily):
+    """The speed-adaptive stator-flux observer with gain (7)/(16), PI adaptation and HF injection."""
+
+    kind = "ipmsm-adaptive"
+    name = "ipmsm_adaptive"
+    title = "speed-adaptive stator-flux observer with HF injection, for (interior) PMSMs"
+    citation = "Piippo, Hinkkanen, Luomi (2008)"
+    presets = "sensorless.design.ipmsm_adaptive.presets"
+    scenarios = "sensorless.design.ipmsm_adaptive.scenarios"
+    tuning = "sensorless.tuning.ipmsm_adaptive"
+    report = "sensorless.reports.ipmsm_adaptive"
+    gain_families = _runtime.GAIN_FAMILIES
+    scenario_options = simulation.SCENARIO_OPTIONS
+
+    def load(self, data: Any, file: str, digest: str) -> schema.IpmsmDrive:
+        return schema.load(data, file, digest, self.kind)
+
+    def gains(
+        self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
+    ) -> GainSet:
+        if table is None:
+            return _runtime.drive_gains(drive, name)
+        if name is not None:
+            raise CapabilityError("a gain table holds the gains: name no [observer.gains.*] with it")
+        kind = table.drive.get("kind")
+        if kind is not None and kind != drive.kind:
+            where = table_file or "gain table"
+            raise GainTableError(
+                f"{where}: key 'drive.kind': {kind!r} does not match the drive ({drive.kind})"
+            )
+        return _runtime.table_gains(table, table_file or "gain table")
+
+    def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
+        return _runtime.runtime_setup(drive, gains, discretization)
+
+    def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
+        """Closed-loop poles (design/ipmsm_adaptive/linearize.py); options: injection, estimate."""
+        return _linearize.linearize(
+            with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
+        )
+
+    def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+        return simulation.build(drive, scenario, gains)
+
+
+def with_alpha_fo(drive: Any, gains: GainSet) -> Any:
+    """The drive with the adaptation bandwidth (10) of ``gains`` (a tuned table may carry its own)."""
+    a = gains.values.get("alpha_fo", drive.observer.alpha_fo)
+    if a == drive.observer.alpha_fo:
+        return drive
+    return dataclasses.replace(drive, observer=dataclasses.replace(drive.observer, alpha_fo=float(a)))
+
+
+FAMILY = AdaptiveFluxObserver()

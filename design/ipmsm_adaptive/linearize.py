@@ -1,0 +1,301 @@
+"""Linearized motor + adaptive-observer closed loop by automatic Jacobians; poles, G_c(s) of eq. (15).
+
+``casadi.jacobian`` of the coupled motor+observer system (symbolic/ipmsm_adaptive/closed_loop.py)
+gives, at any operating point, the state-space model from the true speed w_m to the speed estimate
+w_hat: the closed loop of Piippo, Hinkkanen, Luomi (2008) Fig. 2 whose transfer function is G_c(s),
+eq. (15). Sweeps over speed x torque are one call of ``Function.map``; eigenvalues of the stacked
+matrices come from one batched numpy call.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import control
+import numpy as np
+from sensorless.design.batch import evaluate_batch
+from sensorless.design.ipmsm_adaptive.operating_point import (
+    PARAM_NAMES,
+    analysis_symbols,
+    coupled_system,
+    nominal_equilibrium_function,
+    solve_equilibrium,
+)
+from sensorless.design.linearization import Linearization
+from sensorless.design.poles import eigvals_batched, sort_poles
+from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
+from sensorless.symbolic.linalg import charpoly
+
+STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
+
+
+@functools.cache
+def linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
+    """Function (x0, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (A, B, C, D, ...).
+
+    A = d x_dot/dx, B = d x_dot/d w_m, C = d w_hat/dx, D = d w_hat/d w_m, all at x0; also the
+    residual x_dot(x0) (zero at an equilibrium), w_hat(x0) and the MTPA current i_s0.
+    """
+    s = analysis_symbols(law, injection)
+    cl, i_s0 = coupled_system(law, injection, s)
+    x, w_m = s["x"], s["w_m"]
+    A = ca.jacobian(cl.x_dot, x)
+    outs = {
+        "A": A,
+        "B": ca.jacobian(cl.x_dot, w_m),
+        "C": ca.jacobian(cl.w_hat, x),
+        "D": ca.jacobian(cl.w_hat, w_m),
+        "x_dot": cl.x_dot,
+        "w_hat": cl.w_hat,
+        "i_s0": i_s0,
+        "charpoly": ca.vertcat(*charpoly(A)),
+    }
+    names = ["x", *PARAM_NAMES]
+    name = f"linearize_{get_law(law).name}{'_inj' if injection else ''}"
+    dense = ca.cse([ca.densify(v) for v in outs.values()])  # dense for batch evaluation
+    return ca.Function(name, [s[k] for k in names], dense, names, list(outs))
+
+
+@functools.cache
+def nominal_linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
+    """As :func:`linearization_function` but at the closed-form equilibrium of exact estimates
+    (no ``x0`` input; ``x0`` is an output): the fast path for sweeps, one Function for all of it."""
+    f = linearization_function(law, injection)
+    s = analysis_symbols(law, injection)
+    ins = ["w_m", "T_e", "motor", "p"]
+    x0 = nominal_equilibrium_function(injection)(*[s[k] for k in ins])
+    outs = ca.cse([*f(x0, *[s[k] for k in PARAM_NAMES]), ca.densify(x0)])
+    return ca.Function(
+        f"{f.name()}_nominal",
+        [s[k] for k in PARAM_NAMES],
+        outs,
+        list(PARAM_NAMES),
+        [*f.name_out(), "x0"],
+    )
+
+
+@functools.cache
+def paper_open_loop_function(law: str | GainLaw) -> ca.Function:
+    """Open adaptation loop (12) in the paper's error coordinates (i_tilde, theta_tilde).
+
+    Outputs A (3x3) = [[A1, A2], [0, 0]] and B (3x1) = [B1; 1] of eq. (11)-(12) with the speed error
+    w_m - w_hat as input, and C = [C1, 0] of (12) with F_eps as output; obtained by differentiating
+    the coupled system with the speed estimate imposed, then changing coordinates x -> z(x) with the
+    Jacobian M = dz/dx. The imposed speed is the closed loop's own w_hat(x0), so this holds at any
+    equilibrium.
+    """
+    s = analysis_symbols(law, False)
+    x = s["x"]
+    w_hat_in = ca.SX.sym("w_hat_in")
+    ol, _ = coupled_system(law, False, s, w_hat_override=w_hat_in)
+    cl, _ = coupled_system(law, False, s)
+    xo, fo, zo = x[0:3], ol.x_dot[0:3], ol.z[0:3]
+    M = ca.jacobian(zo, xo)
+    A = ca.mtimes([M, ca.jacobian(fo, xo), ca.inv(M)])
+    B = -M @ ca.jacobian(fo, w_hat_in)  # input: speed error w_m - w_hat
+    B_wm = M @ ca.jacobian(fo, s["w_m"])  # the same input seen through w_m (must equal B)
+    F_eps = s["estimate"][2] * ol.i_tilde[1]  # eq. (8)
+    C = ca.jacobian(F_eps, xo) @ ca.inv(M)
+    outs = [ca.substitute(e, w_hat_in, cl.w_hat) for e in (A, B, B_wm, C)]
+    names = ["x", *PARAM_NAMES]
+    return ca.Function(f"paper_open_loop_{law}", [s[k] for k in names], outs, names, ["A", "B", "B_wm", "C"])
+
+
+def gain_parameters(
+    drive: Any, gain: str | tuple[str | GainLaw, Any] | None = None
+) -> tuple[GainLaw, np.ndarray]:
+    """Resolve a gain choice to (law, parameter vector of the law's width).
+
+    ``gain`` is the name of an ``[observer.gains.*]`` table of the drive (default: ``[observer]
+    gain``), or an explicit ``(law, params)`` pair, e.g. ``("speed", [7.18, 471.2])`` or
+    ``(schedule_law(grid), [lambda1..., lambda2...])``.
+    """
+    if isinstance(gain, tuple):
+        law = get_law(gain[0])
+        vals = np.asarray(gain[1], float).ravel()
+    else:
+        g = drive.gain(gain)
+        law = get_law(gain or drive.observer.gain)
+        vals = np.array([getattr(g, n) for n in law.param_names], float)
+    if vals.size != law.n_params:
+        raise ValueError(f"gain law {law.name} takes {law.n_params} parameters, got {vals.size}")
+    vec = np.zeros(law.width)
+    vec[: vals.size] = vals
+    return law, vec
+
+
+def drive_arguments(drive: Any, gain: str | tuple | None) -> tuple[GainLaw, dict[str, np.ndarray]]:
+    """The non-operating-point inputs of the analysis Functions for ``drive``."""
+    law, gvec = gain_parameters(drive, gain)
+    inj = drive.injection
+    args = {
+        "motor": np.array(drive.motor.vector()),
+        "p": np.array(float(drive.motor.p)),
+        "estimate": np.array(drive.estimate.vector()),
+        "gain": gvec,
+        "alpha_fo": np.array(drive.observer.alpha_fo),
+        "inj": np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
+    }
+    return law, args
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoleSweep(Linearization):
+    """Linearized closed loops at N operating points (w: true speed w_m, torque: T_e), with their
+    state-space models from w_m to w_hat (arrays have leading dimension N)."""
+
+    law: GainLaw
+    injection: bool
+    x0: np.ndarray  # equilibrium states (N, n)
+    i_s0: np.ndarray  # MTPA current, rotor frame (N, 2) [A]
+    A: np.ndarray  # (N, n, n)
+    B: np.ndarray  # (N, n, 1)
+    C: np.ndarray  # (N, 1, n)
+    D: np.ndarray  # (N, 1, 1)
+
+    def statespace(self, k: int) -> control.StateSpace:
+        """The closed loop at point k as a python-control StateSpace, input w_m, output w_hat."""
+        n = self.A.shape[1]
+        return control.ss(
+            self.A[k],
+            self.B[k],
+            self.C[k],
+            self.D[k],
+            inputs=["w_m"],
+            outputs=["w_hat"],
+            states=list(STATE_NAMES[:n]),
+        )
+
+    def transfer_function(self, k: int) -> control.TransferFunction:
+        """G_c(s) = w_hat(s)/w_m(s) at point k, eq. (15)."""
+        return control.ss2tf(self.statespace(k))
+
+
+def linearize(
+    drive: Any,
+    w_m: Any,
+    T_e: Any,
+    gain: str | tuple | None = None,
+    injection: bool = False,
+    estimate: Any = None,
+) -> PoleSweep:
+    """Linearize the coupled system at the operating points (w_m [rad/s], T_e [N m]).
+
+    ``w_m`` and ``T_e`` broadcast against each other; the result is flat over the broadcast shape
+    (row-major). ``estimate`` optionally gives the observer's parameter estimates per point, an
+    array (..., 4) of [R̂s, L̂d, L̂q, ψ̂pm] broadcasting with the operating points (default: the
+    drive's ``[estimate]``), so robustness maps over parameter errors are one call. Points where no
+    equilibrium exists (possible with estimation errors) get NaN.
+    """
+    if estimate is not None:
+        est = np.asarray(estimate, float)
+        w_b, T_b, _ = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float), est[..., 0])
+        est = np.broadcast_to(est, (*w_b.shape, 4)).reshape(-1, 4).T
+    else:
+        w_b, T_b = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float))
+    w_flat, T_flat = w_b.ravel(), T_b.ravel()
+    n_pts = w_flat.size
+    law, args = drive_arguments(drive, gain)
+    args["w_m"], args["T_e"] = w_flat[None, :], T_flat[None, :]
+    if estimate is not None:
+        args["estimate"] = np.ascontiguousarray(est)
+    exact = estimate is None and bool(np.array_equal(args["motor"], args["estimate"]))
+    if exact:
+        fn = nominal_linearization_function(law, injection)
+        out = evaluate_batch(fn, n_pts, [args[k] for k in PARAM_NAMES])
+        x0 = out[8][:, :, 0]
+    else:
+        x0 = solve_equilibrium(law, injection, args, n_pts, exact).T
+        fn = linearization_function(law, injection)
+        out = evaluate_batch(fn, n_pts, [x0.T, *[args[k] for k in PARAM_NAMES]])
+    A, charpoly = out[0], out[7][:, :, 0]
+    n = A.shape[1]
+    poles = np.full((n_pts, n), np.nan + 0j)
+    ok = np.isfinite(A).all(axis=(1, 2))
+    frozen = np.zeros(n_pts, bool)
+    if injection:
+        # Above w_Delta the injection is off (fade = 0): the PI integrator x_eps has no input and
+        # its row of A is zero. Its structural pole at the origin says nothing about stability;
+        # report it as NaN and analyse the adaptive observer's four poles.
+        frozen = ok & np.all(A[:, 4, :] == 0, axis=1)
+        if frozen.any():
+            poles[frozen, :4] = sort_poles(eigvals_batched(A[frozen][:, :4, :4]))
+    rest = ok & ~frozen
+    if rest.any():
+        poles[rest] = sort_poles(eigvals_batched(A[rest], charpoly[rest]))
+    return PoleSweep(
+        law=law,
+        injection=injection,
+        w=w_flat,
+        torque=T_flat,
+        x0=x0,
+        i_s0=out[6][:, :, 0],
+        A=A,
+        B=out[1],
+        C=out[2],
+        D=out[3],
+        poles=poles,
+    )
+
+
+def refine_band_edges(f_unstable: Any, lo: np.ndarray, hi: np.ndarray, iters: int = 40) -> np.ndarray:
+    """Bisect each bracket [lo, hi] (stability differs at the ends) to the switching speed."""
+    s_lo = f_unstable(lo)
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        s_mid = f_unstable(mid)
+        same = s_mid == s_lo
+        lo = np.where(same, mid, lo)
+        hi = np.where(same, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def unstable_speed_bands(
+    drive: Any,
+    w: np.ndarray,
+    T_e: float,
+    gain: str | tuple | None = None,
+    injection: bool = False,
+    sweep: PoleSweep | None = None,
+) -> list[tuple[float, float]]:
+    """Speed intervals [rad/s] with a right-half-plane pole at torque T_e, edges refined by bisection.
+
+    ``w`` is the sorted speed grid that brackets the bands; ``sweep`` may pass its linearization.
+    An edge at the end of the grid is reported as the grid end.
+    """
+    s = sweep if sweep is not None else linearize(drive, w, T_e, gain=gain, injection=injection)
+    tol = 1e-9 * np.nanmax(np.abs(s.poles))
+
+    def unstable(ws: np.ndarray) -> np.ndarray:
+        return linearize(drive, ws, T_e, gain=gain, injection=injection).max_real > tol
+
+    out = []
+    for lo_w, hi_w in unstable_bands(w, s.max_real, tol):
+        i_lo, i_hi = int(np.searchsorted(w, lo_w)), int(np.searchsorted(w, hi_w))
+        edges = [lo_w, hi_w]
+        if i_lo > 0:
+            edges[0] = float(refine_band_edges(unstable, w[[i_lo - 1]], w[[i_lo]])[0])
+        if i_hi < w.size - 1:
+            edges[1] = float(refine_band_edges(unstable, w[[i_hi + 1]], w[[i_hi]])[0])
+        out.append((edges[0], edges[1]))
+    return out
+
+
+def unstable_bands(w: np.ndarray, max_real: np.ndarray, tol: float = 1e-9) -> list[tuple[float, float]]:
+    """Contiguous speed intervals (on the sorted grid ``w``) where max Re(pole) > tol."""
+    bad = max_real > tol
+    bands = []
+    i = 0
+    while i < len(w):
+        if bad[i]:
+            j = i
+            while j + 1 < len(w) and bad[j + 1]:
+                j += 1
+            bands.append((float(w[i]), float(w[j])))
+            i = j + 1
+        else:
+            i += 1
+    return bands

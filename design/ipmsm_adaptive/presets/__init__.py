@@ -1,0 +1,1 @@
+"""Preset drive files of the adaptive-observer family (package data)."""

@@ -1,0 +1,162 @@
+"""The adaptive observer's gains and runtime set-up from a drive file or a tuned gain table.
+
+Gains (:class:`~sensorless.design.family.GainSet`) come from the drive's ``[observer.gains.*]`` (gain
+families ``zero``, ``constant``, ``law16`` = the ``speed`` table, eq. (16)) or from a gain table of
+family ``law16`` or ``schedule`` (docs/gain_tables.md); either way with the adaptation bandwidth
+alpha_fo (10). The runtime parameters (estimates, sampling period, injection and filter settings)
+come from the drive file; the gain law (7)/(16) is scheduled at the stored speed estimate.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from sensorless.design.family import GainSet
+from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.runtime import GainSchedule, RuntimeSetup
+from sensorless.design.units import DriveFileError
+from sensorless.symbolic.ipmsm_adaptive.gains import LAWS, GainLaw, schedule_law
+from sensorless.symbolic.ipmsm_adaptive.step import OBSERVER
+from sensorless.symbolic.runtime import Field
+
+# gain-table family -> keys of its "gains" (all SI)
+GAIN_FAMILIES: dict[str, tuple[str, ...]] = {
+    "law16": ("lambda_p", "w_lambda", "alpha_fo"),  # eq. (16) [ohm, rad/s], eq. (10) [rad/s]
+    "schedule": ("w_hat", "lambda1", "lambda2", "alpha_fo"),  # breakpoints [rad/s], gains [ohm]
+}
+# the drive file's [observer.gains.<name>] -> gain family
+DRIVE_GAINS = {"zero": "zero", "constant": "constant", "speed": "law16"}
+LAW_OF = {"zero": "zero", "constant": "constant", "law16": "speed"}
+
+_DOCS = {
+    "lambda_p": "lambda' of the speed-dependent gain, eq. (16)",
+    "w_lambda": "omega_lambda of the speed-dependent gain, eq. (16)",
+    "lambda1": "constant gain lambda1, eq. (7)",
+    "lambda2": "constant gain lambda2, eq. (7)",
+}
+_TEXT = {
+    "law16": "speed-dependent gain, eq. (16), closed form",
+    "schedule": "tuned gain schedule, const table with linear interpolation",
+    "constant": "constant gain, eq. (7)",
+    "zero": "zero gain",
+}
+
+
+def drive_gains(drive: Any, name: str | None = None) -> GainSet:
+    """The drive file's ``[observer.gains.<name>]`` (default: ``[observer] gain``) with its alpha_fo."""
+    name = name or drive.observer.gain
+    g = drive.gain(name)  # KeyError naming the file if absent
+    fam = DRIVE_GAINS[name]
+    values: dict[str, Any] = {n: float(getattr(g, n)) for n in LAWS[LAW_OF[fam]].param_names}
+    values["alpha_fo"] = float(drive.observer.alpha_fo)
+    return GainSet(fam, values, f"{drive.file} [observer.gains.{name}]")
+
+
+def table_gains(table: GainTable, where: str) -> GainSet:
+    """The gains of a ``law16`` or ``schedule`` table; ``where`` names the table in errors."""
+    if table.family not in GAIN_FAMILIES:
+        raise GainTableError(
+            f"{where}: key 'family': {table.family!r} gains are not for the speed-adaptive observer "
+            f"(use a {' or '.join(GAIN_FAMILIES)} table)"
+        )
+    g = table.gains
+    try:
+        if table.family == "law16":
+            values: dict[str, Any] = {k: float(g[k]) for k in GAIN_FAMILIES["law16"]}
+        else:
+            n = len(g["w_hat"])
+            for k in ("lambda1", "lambda2"):
+                if len(g[k]) != n:
+                    raise GainTableError(f"{where}: key 'gains.{k}': length {len(g[k])} != len(w_hat) {n}")
+            values = {
+                "w_hat": [float(w) for w in g["w_hat"]],
+                "lambda1": [float(v) for v in g["lambda1"]],
+                "lambda2": [float(v) for v in g["lambda2"]],
+                "alpha_fo": float(g["alpha_fo"]),
+            }
+            schedule_law(tuple(values["w_hat"]))  # validates the breakpoints
+    except (TypeError, ValueError) as e:
+        raise GainTableError(f"{where}: key 'gains': {e}") from None
+    flat = [v for x in values.values() for v in (x if isinstance(x, list) else [x])]
+    if not np.all(np.isfinite(flat)):
+        raise GainTableError(f"{where}: key 'gains': non-finite gain values")
+    return GainSet(
+        table.family, values, f"{table.family} table {where} (tuned for {table.drive.get('name')})"
+    )
+
+
+def law_of(gains: GainSet) -> tuple[GainLaw, tuple[float, ...]]:
+    """(gain law of symbolic/ipmsm_adaptive/gains.py, its parameter vector) of a gain set."""
+    v = gains.values
+    if gains.family == "schedule":
+        law = schedule_law(tuple(float(w) for w in v["w_hat"]))
+        return law, tuple(float(x) for x in [*v["lambda1"], *v["lambda2"]])
+    law = LAWS[LAW_OF[gains.family]]
+    return law, tuple(float(v[n]) for n in law.param_names)
+
+
+@functools.cache
+def law_function(law: GainLaw) -> ca.Function:
+    """(w_hat, gain) -> [lambda1, lambda2]: the law's own SX expression, eqs. (7), (16)."""
+    w = ca.SX.sym("w_hat")
+    g = ca.SX.sym("gain", law.n_params)
+    return ca.Function(f"gains_{law.name}", [w, g], [ca.vertcat(*law.expr(w, g))], ["w_hat", "gain"], ["lam"])
+
+
+def schedule_of(gains: GainSet) -> GainSchedule:
+    """The runtime schedule of a gain set: law (7)/(16) or a table, evaluated at the stored w_hat."""
+    law, values = law_of(gains)
+    fields = tuple(
+        Field(n, u, _DOCS.get(n, "gain law parameter"))
+        for n, u in zip(law.param_names, law.param_units, strict=True)
+    )
+    return GainSchedule(gains.family, law_function(law), values, fields, law.grid, _TEXT[gains.family])
+
+
+def runtime_params(drive: Any, alpha_fo: float | None = None) -> dict[str, float]:
+    """Parameters of the runtime step (step.PARAMS) from a drive of this family."""
+    e, inj, rt = drive.estimate, drive.injection, drive.runtime
+    return {
+        "R_s": e.R_s,
+        "L_d": e.L_d,
+        "L_q": e.L_q,
+        "psi_pm": e.psi_pm,
+        "alpha_fo": drive.observer.alpha_fo if alpha_fo is None else float(alpha_fo),
+        "T_s": drive.control.T_s,
+        "injection": 1.0,
+        "w_c": inj.w_c,
+        "u_c": inj.u_c,
+        "alpha_i": inj.alpha_i,
+        "w_Delta": inj.w_Delta,
+        "x_eps_max": rt.x_eps_max,
+        "w_bp": rt.w_bp,
+        "w_lp": rt.w_lp,
+        "carrier_delay": rt.carrier_delay,
+    }
+
+
+def _check_sampling(drive: Any, params: dict[str, float]) -> None:
+    """Frequencies the sampled chain must resolve lie below the Nyquist frequency pi / T_s."""
+    nyquist = math.pi / params["T_s"]
+    for key, name in (("injection.w_c", "w_c"), ("runtime.w_lp", "w_lp")):
+        if params[name] >= nyquist:
+            raise DriveFileError(
+                drive.file,
+                key,
+                f"{params[name]:.6g} rad/s is not below the Nyquist frequency pi/T_s = {nyquist:.6g} rad/s",
+            )
+
+
+def runtime_setup(drive: Any, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
+    """The runtime observer of ``drive`` with ``gains`` (discretization: the drive's ``[runtime]``)."""
+    disc = discretization or drive.runtime.discretization
+    if disc not in OBSERVER.discretizations:
+        raise ValueError(f"unknown discretization {disc!r} (known: {', '.join(OBSERVER.discretizations)})")
+    params = runtime_params(drive, gains.values.get("alpha_fo"))
+    _check_sampling(drive, params)
+    OBSERVER.check_params(params)
+    return RuntimeSetup(OBSERVER, disc, params, gains, schedule_of(gains))

@@ -1,0 +1,308 @@
+"""Drive files of the speed-adaptive observer (kind of ipmsm_adaptive/__init__.py): schema and loading.
+
+The sections of Piippo, Hinkkanen, Luomi (2008) Tables I-II and Sections IV-VI: ``[rating]``, ``[base]``
+(per-unit bases), ``[motor]`` (the true motor), ``[estimate]`` (the observer's parameter estimates, kept
+apart so parameter errors can be studied), ``[control]``, ``[observer]`` with ``[observer.gains.*]``,
+``[injection]``, and the optional ``[runtime]`` (discrete-time settings) and ``[tuning]`` (envelope of
+``sensorless tune``). Strict like every drive file (design/drive_file.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
+from sensorless.design.envelope import TuningSettings, load_tuning
+from sensorless.design.units import DriveFileError
+from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
+
+
+@dataclass(frozen=True)
+class Rating:
+    """Nameplate data (Table I). Informational, and the source of the per-unit bases."""
+
+    P_N: float = q("power", doc="nominal power [W]")
+    U_N: float = q("voltage", doc="nominal line-to-line rms voltage [V]")
+    I_N: float = q("current", doc="nominal rms current [A]")
+    f_N: float = q("frequency", doc="nominal electrical frequency [Hz]")
+    n_N: float = q("mech_speed", doc="nominal mechanical speed [r/min]")
+    T_N: float = q("torque", doc="nominal torque [N m]")
+
+
+@dataclass(frozen=True)
+class Base:
+    """Per-unit bases (peak-value scaling). Only inputs/outputs use per unit; internals are SI."""
+
+    w: float = q("angular", doc="base electrical angular speed [rad/s]")
+    u: float = q("voltage", doc="base voltage, peak phase [V]")
+    i: float = q("current", doc="base current, peak [A]")
+
+    @property
+    def psi(self) -> float:
+        """Base flux linkage [V s]."""
+        return self.u / self.w
+
+    @property
+    def Z(self) -> float:
+        """Base impedance [ohm]."""
+        return self.u / self.i
+
+
+@dataclass(frozen=True)
+class Motor:
+    """True motor parameters, eqs. (1)-(3) and Table I."""
+
+    p: int = q("integer", doc="pole pairs")
+    R_s: float = q("resistance", doc="stator resistance [ohm]")
+    L_d: float = q("inductance", doc="d-axis inductance [H]")
+    L_q: float = q("inductance", doc="q-axis inductance [H]")
+    psi_pm: float = q("flux", doc="permanent-magnet flux linkage [V s]")
+    J: float = q("inertia", doc="total moment of inertia [kg m^2]")
+
+    def vector(self) -> list[float]:
+        """[R_s, L_d, L_q, psi_pm]: the electrical parameter vector the CasADi functions take."""
+        return [self.R_s, self.L_d, self.L_q, self.psi_pm]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The observer's parameter estimates (R̂s, L̂d, L̂q, ψ̂pm); kept apart from the true motor."""
+
+    R_s: float = q("resistance", doc="estimated stator resistance [ohm]")
+    L_d: float = q("inductance", doc="estimated d-axis inductance [H]")
+    L_q: float = q("inductance", doc="estimated q-axis inductance [H]")
+    psi_pm: float = q("flux", doc="estimated PM flux linkage [V s]")
+
+    def vector(self) -> list[float]:
+        """[R̂s, L̂d, L̂q, ψ̂pm]."""
+        return [self.R_s, self.L_d, self.L_q, self.psi_pm]
+
+
+@dataclass(frozen=True)
+class Control:
+    """Control-system settings (Table II and Section VI)."""
+
+    T_s: float = q("time", doc="sampling period [s]")
+    alpha_c: float = q("angular", doc="current-control bandwidth [rad/s]")
+    alpha_s: float = q("angular", doc="speed-control bandwidth [rad/s]")
+    T_max: float = q("torque", doc="electromagnetic torque limit [N m]")
+    u_dc: float = q("voltage", doc="nominal DC-link voltage [V]")
+
+
+@dataclass(frozen=True)
+class ZeroGain:
+    """lambda = 0 (Fig. 4(a))."""
+
+
+@dataclass(frozen=True)
+class ConstantGain:
+    """lambda = lambda1 I + lambda2 J with constant lambda1, lambda2 (eq. (7), Fig. 4(b))."""
+
+    lambda1: float = q("resistance", check="any", doc="[ohm]; the paper requires lambda1 > -R̂s")
+    lambda2: float = q("resistance", check="any", doc="[ohm]")
+
+
+@dataclass(frozen=True)
+class SpeedGain:
+    """Speed-dependent gain of eq. (16) (Fig. 4(c))."""
+
+    lambda_p: float = q("resistance", doc="lambda' [ohm]")
+    w_lambda: float = q("angular", doc="omega_lambda [rad/s]")
+
+
+GAIN_SCHEMAS: dict[str, type] = {"zero": ZeroGain, "constant": ConstantGain, "speed": SpeedGain}
+
+
+@dataclass(frozen=True)
+class Observer:
+    """Adaptive observer settings: speed-adaptation bandwidth (10) and the gain choices (7), (16)."""
+
+    alpha_fo: float = q("angular", doc="speed-adaptation bandwidth alpha_fo [rad/s], eq. (10)")
+    gain: str = field(default="speed", metadata={"dim": "choice", "doc": "default gain law"})
+    gains: Mapping[str, Any] = field(default_factory=dict, metadata={"dim": "gains"})
+
+
+@dataclass(frozen=True)
+class Injection:
+    """HF signal injection, Section V: carrier (17), PI (21)-(22), linear fade to w_Delta."""
+
+    w_c: float = q("angular", doc="carrier angular frequency [rad/s]")
+    u_c: float = q("voltage", doc="carrier amplitude at zero speed [V]")
+    alpha_i: float = q("angular", doc="PI (21) bandwidth at zero speed [rad/s], eq. (22)")
+    w_Delta: float = q("angular", doc="transition speed where injection reaches zero [rad/s]")
+
+
+@dataclass(frozen=True)
+class Runtime:
+    """Discrete-time runtime settings (not in the paper; choices in docs/families/ipmsm_adaptive.md).
+
+    An optional section: every key may be omitted; RUNTIME_DEFAULTS are the documented choices.
+    """
+
+    discretization: str = field(metadata={"dim": "choice", "doc": "heun or euler"})
+    w_bp: float = q("angular", doc="band-pass -3 dB bandwidth around w_c [rad/s]")
+    w_lp: float = q("angular", doc="low-pass cut-off after demodulation [rad/s]")
+    x_eps_max: float = q("angular", check="nonnegative", doc="bound on the integral of (21) [rad/s]")
+    carrier_delay: float = q(
+        "dimensionless", check="nonnegative", doc="samples from carrier command to applied voltage"
+    )
+
+
+RUNTIME_DEFAULTS: dict[str, Any] = {
+    "discretization": DISCRETIZATIONS[0],
+    "w_bp": "200 Hz",
+    "w_lp": "100 Hz",
+    "x_eps_max": "0.1 pu",
+    "carrier_delay": 1.0,
+}
+
+
+@dataclass(frozen=True)
+class IpmsmDrive:
+    """A drive of the speed-adaptive observer family: IPMSM + speed-adaptive flux observer."""
+
+    name: str
+    kind: str
+    source: str
+    file: str
+    rating: Rating
+    base: Base
+    motor: Motor
+    estimate: Estimate
+    control: Control
+    observer: Observer
+    injection: Injection
+    runtime: Runtime | None = None  # [runtime], defaults filled in by the loader
+    tuning: TuningSettings = field(default_factory=TuningSettings)  # optional [tuning] of `tune`
+    digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
+
+    def gain(self, name: str | None = None) -> Any:
+        """The gain settings named ``name`` (default: ``[observer] gain``)."""
+        name = name or self.observer.gain
+        try:
+            return self.observer.gains[name]
+        except KeyError:
+            have = ", ".join(self.observer.gains) or "none"
+            raise KeyError(f"{self.file}: no [observer.gains.{name}] (defined: {have})") from None
+
+    @property
+    def T_N(self) -> float:
+        """Nominal torque [N m]."""
+        return self.rating.T_N
+
+    @property
+    def w_base(self) -> float:
+        """Per-unit speed base [rad/s, electrical]: ``[base] w``."""
+        return self.base.w
+
+    @property
+    def pole_pairs(self) -> int:
+        """Pole pairs."""
+        return self.motor.p
+
+    @property
+    def T_s(self) -> float:
+        """Sampling period [s]."""
+        return self.control.T_s
+
+    def pu_speed(self, w: Any) -> Any:
+        """Electrical rad/s -> per unit of ``base.w``."""
+        return w / self.base.w
+
+
+def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDrive:
+    """Validate a parsed drive TOML of this family."""
+    check_keys(
+        data,
+        (
+            "drive",
+            "rating",
+            "base",
+            "motor",
+            "estimate",
+            "control",
+            "observer",
+            "injection",
+            "runtime",
+            "tuning",
+        ),
+        file,
+        "",
+    )
+    head = drive_header(data, file)
+    rating = load_section(Rating, table(data, "rating", file), file, "rating")
+    base = load_section(Base, table(data, "base", file), file, "base")
+    motor = load_section(Motor, table(data, "motor", file), file, "motor")
+    if motor.p < 1:
+        raise DriveFileError(file, "motor.p", f"non-physical value {motor.p}: must be >= 1")
+    estimate = load_section(Estimate, table(data, "estimate", file), file, "estimate")
+    rel = {"pu": base.w, "R_s_hat": estimate.R_s, "Rs_hat": estimate.R_s}
+    control = load_section(Control, table(data, "control", file), file, "control", rel)
+    obs_t = table(data, "observer", file)
+    observer = load_section(Observer, obs_t, file, "observer", rel, skip=("gains",))
+    gains_t = table(obs_t, "gains", file, "observer.")
+    gains: dict[str, Any] = {}
+    for gname, gtab in gains_t.items():
+        if gname not in GAIN_SCHEMAS:
+            raise DriveFileError(
+                file,
+                f"observer.gains.{gname}",
+                f"unknown gain law (known: {', '.join(GAIN_SCHEMAS)})",
+            )
+        if not isinstance(gtab, dict):
+            raise DriveFileError(file, f"observer.gains.{gname}", "expected a table")
+        g = load_section(GAIN_SCHEMAS[gname], gtab, file, f"observer.gains.{gname}", rel)
+        if gname == "constant" and g.lambda1 <= -estimate.R_s:
+            raise DriveFileError(
+                file,
+                "observer.gains.constant.lambda1",
+                f"lambda1 = {g.lambda1:g} ohm must be > -R̂s = {-estimate.R_s:g} ohm (Section IV-B)",
+            )
+        gains[gname] = g
+    if observer.gain not in gains:
+        raise DriveFileError(
+            file,
+            "observer.gain",
+            f"'{observer.gain}' has no [observer.gains.{observer.gain}] table",
+        )
+    observer = dataclasses.replace(observer, gains=gains)
+    injection = load_section(Injection, table(data, "injection", file), file, "injection", rel)
+    runtime = _load_runtime(data, file, rel)
+    tuning = TuningSettings()
+    if "tuning" in data:
+        tuning = load_tuning(table(data, "tuning", file), file, {**rel, "T_N": rating.T_N})
+    return IpmsmDrive(
+        name=head["name"],
+        kind=kind,
+        source=head["source"],
+        file=file,
+        rating=rating,
+        base=base,
+        motor=motor,
+        estimate=estimate,
+        control=control,
+        observer=observer,
+        injection=injection,
+        runtime=runtime,
+        tuning=tuning,
+        digest=digest,
+    )
+
+
+def _load_runtime(data: Mapping[str, Any], file: str, rel: Mapping[str, float]) -> Runtime:
+    """The optional [runtime] section; omitted keys take RUNTIME_DEFAULTS."""
+    given = data.get("runtime", {})
+    if not isinstance(given, dict):
+        raise DriveFileError(file, "runtime", "expected a table [runtime]")
+    merged = {**RUNTIME_DEFAULTS, **given}
+    rt = load_section(Runtime, merged, file, "runtime", rel)
+    if rt.discretization not in DISCRETIZATIONS:
+        raise DriveFileError(
+            file,
+            "runtime.discretization",
+            f"unknown discretization {rt.discretization!r} (known: {', '.join(DISCRETIZATIONS)})",
+        )
+    return rt

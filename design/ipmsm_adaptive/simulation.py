@@ -1,0 +1,74 @@
+"""Simulation set-up of the adaptive-observer drive: Piippo, Hinkkanen, Luomi (2008) Fig. 7 for a scenario.
+
+The shared PMSM drive loop (design/pmsm_drive.py) around this family's runtime step, with the
+scenario's gain choice, HF injection switch, discretization and parameter errors applied to the
+observer's parameters.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from sensorless.design.family import GainSet
+from sensorless.design.ipmsm_adaptive.runtime import drive_gains, runtime_setup
+from sensorless.design.pmsm_drive import PmsmDrive, loop_setup
+from sensorless.design.runtime import RuntimeSetup
+from sensorless.design.scenario import Scenario
+from sensorless.design.simulate import LoopSetup
+
+# scenario keys this family adds (design/scenario.py): section -> key -> (dimension, default)
+SCENARIO_OPTIONS = {
+    "observer": {
+        "gain": ("str", None),  # [observer.gains.*] name; None: the drive's default
+        "injection": ("bool", True),  # HF injection (Section V)
+    }
+}
+
+
+def scaled_setup(setup: RuntimeSetup, sc: Scenario) -> RuntimeSetup:
+    """The runtime set-up with the scenario's injection switch and parameter errors."""
+    params = dict(setup.params)
+    params["injection"] = 1.0 if sc.options["injection"] else 0.0
+    for k in ("R_s", "L_d", "L_q", "psi_pm"):
+        params[k] = params[k] * sc.estimate_scale.get(k, 1.0)
+    setup.observer.check_params(params)
+    return dataclasses.replace(setup, params=params)
+
+
+def pmsm_drive(drive: Any) -> PmsmDrive:
+    """The numbers of the drive loop from a drive of this family."""
+    m, e, c = drive.motor, drive.estimate, drive.control
+    return PmsmDrive(
+        R_s=m.R_s,
+        L_d=m.L_d,
+        L_q=m.L_q,
+        psi_pm=m.psi_pm,
+        p=m.p,
+        J=m.J,
+        R_s_hat=e.R_s,
+        L_d_hat=e.L_d,
+        L_q_hat=e.L_q,
+        psi_pm_hat=e.psi_pm,
+        alpha_c=c.alpha_c,
+        alpha_s=c.alpha_s,
+        T_max=c.T_max,
+        u_dc=c.u_dc,
+        T_s=c.T_s,
+        carrier=drive.injection.w_c,
+        carrier_band=drive.runtime.w_bp,
+    )
+
+
+def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
+    """Loop set-up of ``sc`` on ``drive``; ``gains`` None: the scenario's [observer] gain choice."""
+    gains = gains or drive_gains(drive, sc.options.get("gain"))
+    setup = scaled_setup(runtime_setup(drive, gains, sc.discretization), sc)
+    return loop_setup(
+        drive,
+        pmsm_drive(drive),
+        sc,
+        setup,
+        carrier=bool(sc.options["injection"]),
+        meta={"injection": bool(sc.options["injection"])},
+    )

@@ -1,0 +1,70 @@
+"""Extended reduced-order EMF and load-torque observer for PM AC motors (De Angelo et al. 2006): the family.
+
+This module registers the family (design/registry.py finds ``FAMILY``); the drive kind string of its
+drive files is written here and nowhere else in the code. Its pieces: schema.py (drive files),
+runtime.py (gains, runtime set-up), linearize.py (continuous and discrete error dynamics),
+discretization.py (the sampling study), simulation.py (Fig. 1 for a scenario), presets/ and scenarios/.
+Equations: symbolic/pmac_reduced_order/. Theory and choices: docs/families/pmac_reduced_order.md.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
+from sensorless.design.gain_table import GainTableError
+from sensorless.design.pmac_reduced_order import linearize as _linearize
+from sensorless.design.pmac_reduced_order import runtime as _runtime
+from sensorless.design.pmac_reduced_order import schema, simulation
+
+
+class ReducedOrderObserver(ObserverFamily):
+    """The extended reduced-order observer of the EMF (with harmonics) and the load torque."""
+
+    kind = "pmac-reduced-order"
+    name = "pmac_reduced_order"
+    title = "extended reduced-order EMF and load-torque observer, for PM AC motors with EMF harmonics"
+    citation = "De Angelo, Bossio, Solsona, Garcia, Valla (2006)"
+    presets = "sensorless.design.pmac_reduced_order.presets"
+    scenarios = "sensorless.design.pmac_reduced_order.scenarios"
+    tuning = "sensorless.tuning.pmac_reduced_order"
+    report = "sensorless.reports.pmac_reduced_order"
+    gain_families = _runtime.GAIN_FAMILIES
+    scenario_options = simulation.SCENARIO_OPTIONS
+
+    def load(self, data: Any, file: str, digest: str) -> schema.PmacDrive:
+        return schema.load(data, file, digest, self.kind)
+
+    def gains(
+        self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
+    ) -> GainSet:
+        if name is not None:
+            raise CapabilityError(
+                f"{drive.file}: this observer has one set of gains ([observer] g, Gamma); there is no "
+                f"[observer.gains.{name}] to choose"
+            )
+        if table is None:
+            return _runtime.drive_gains(drive)
+        kind = table.drive.get("kind")
+        if kind is not None and kind != drive.kind:
+            where = table_file or "gain table"
+            raise GainTableError(
+                f"{where}: key 'drive.kind': {kind!r} does not match the drive ({drive.kind})"
+            )
+        return _runtime.table_gains(table, table_file or "gain table")
+
+    def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
+        return _runtime.runtime_setup(drive, gains, discretization)
+
+    def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
+        """Observer poles, continuous and discrete (linearize.analyze); ``torque`` is the load T_L.
+
+        Options: load_estimation, method, T_s, settle_time, n_angles."""
+        g = gains.values
+        return _linearize.analyze(drive, w, torque, g=g["g"], Gamma=g["Gamma"], **options)
+
+    def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+        return simulation.build(drive, scenario, gains)
+
+
+FAMILY = ReducedOrderObserver()

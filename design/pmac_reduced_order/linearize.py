@@ -1,0 +1,469 @@
+"""Linearized error dynamics of the reduced-order observer by automatic Jacobians, continuous and discrete.
+
+De Angelo, Bossio, Solsona, Garcia, Valla (2006).
+
+Operating point = true electrical speed w (rad/s) and load torque T_L (N m). The motor runs at constant
+speed carrying the ripple-free current (25) of T_e = T_L + B omega (viscosity is part of the load, as in
+the paper); its voltage follows from (2). The observer is fed by those signals.
+
+- **Continuous time**: the observer (16) with the position defined by (18)-(22) in the limit T_s -> 0,
+  where the predicted angle equals the estimate (an implicit equation, differentiated implicitly). The
+  states are taken in rotor coordinates y = [R(-theta) zeta, tau], which makes the linearization
+  time-invariant for a sinusoidal EMF. The Jacobian is evaluated on the exact-estimate orbit (e_hat = e,
+  T_L_hat = T_L + B omega), which the continuous observer follows exactly. With EMF harmonics the
+  linearization is periodic in theta and the poles are its Floquet exponents over one period (frozen-
+  angle eigenvalues would be misleading: the variation is fast at speed).
+- **Discrete time**: the Jacobian of the one-step map that runs (symbolic/reduced_order_step.py) in
+  rotor coordinates y = [R(-theta) zeta, tau, theta_hat - theta, w_hat], evaluated on the discrete
+  observer's own steady orbit (simulated from the exact state until settled; the same simulation gives
+  the steady-state errors). Its eigenvalues z map to s = ln(z) / T_s; with harmonics, the product of the
+  one-step Jacobians over whole periods (Floquet multipliers).
+
+docs/families/pmac_reduced_order.md explains the method and its choices.
+
+Without load-torque estimation (Gamma = 0, [11]) T_L_hat stays 0 and tau is left out of the state.
+Sweeps over speed x load are ``Function.map`` calls.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from sensorless.design.batch import mapped as _mapped
+from sensorless.design.linearization import Linearization
+from sensorless.design.poles import damping_ratio, sort_poles
+from sensorless.symbolic.frames import J, rot, wrap_angle
+from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
+from sensorless.symbolic.pmac_reduced_order.observer import estimates, rates, zeta_tau
+from sensorless.symbolic.pmac_reduced_order.step import N_STATE, param_names, split_params, step
+
+INPUT_NAMES = ("theta", "w", "T_L", "motor", "params")
+
+
+def motor_names(orders: tuple[int, ...]) -> tuple[str, ...]:
+    """Entries of the ``motor`` input: R, L, J, B, p_r, Phi_n of each order."""
+    return ("R", "L", "J", "B", "p_r", *(f"Phi_{n}" for n in orders))
+
+
+def split_motor(motor: Any, orders: tuple[int, ...]) -> tuple[PmacParams, EmfSeries]:
+    """(motor parameters, EMF series) from the ``motor`` vector."""
+    return PmacParams(motor[0], motor[1], motor[2], motor[3], motor[4]), EmfSeries(orders, motor[5:])
+
+
+def symbols(orders_m: tuple[int, ...], orders_o: tuple[int, ...]) -> dict[str, ca.SX]:
+    """Named inputs shared by the analysis Functions."""
+    return {
+        "theta": ca.SX.sym("theta"),  # electrical rotor angle [rad]
+        "w": ca.SX.sym("w"),  # electrical speed [rad/s]
+        "T_L": ca.SX.sym("T_L"),  # load torque [N m] (viscosity added by the model)
+        "motor": ca.SX.sym("motor", len(motor_names(orders_m))),
+        "params": ca.SX.sym("params", len(param_names(orders_o))),
+    }
+
+
+def _plant(s: dict[str, ca.SX], theta: Any, orders_m: tuple[int, ...]):
+    mp, emf_m = split_motor(s["motor"], orders_m)
+    sig, T_e = operating_point_signals(theta, s["w"], s["T_L"], mp, emf_m)
+    return sig, T_e
+
+
+def _no_load_estimation(params: ca.SX) -> ca.SX:
+    """The params with Gamma = 0: the observer without load-torque estimation ([11])."""
+    return ca.vertcat(params[0:5], 0, params[6:])
+
+
+def exact_state(
+    s: dict[str, ca.SX],
+    orders_m: tuple[int, ...],
+    orders_o: tuple[int, ...],
+    load_estimation: bool,
+    theta: Any = None,
+) -> ca.SX:
+    """Observer state x (9) that agrees exactly with the motor at angle theta (the continuous orbit)."""
+    theta = s["theta"] if theta is None else theta
+    params = s["params"] if load_estimation else _no_load_estimation(s["params"])
+    p, emf_o, _ = split_params(params, orders_o)
+    sig, T_e = _plant(s, theta, orders_m)
+    T_L_hat = T_e if load_estimation else 0  # T_L + B omega, or nothing without estimation
+    zeta, tau = zeta_tau(sig.e, T_L_hat, flux_derivative(theta, emf_o), sig.i, p)  # eq. (15)
+    return ca.vertcat(zeta, tau, theta, s["w"], sig.i, sig.v)
+
+
+@functools.cache
+def continuous_jacobian_function(
+    orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool = True
+) -> ca.Function:
+    """(theta, w, T_L, motor, params) -> A: the continuous-time error dynamics in rotor coordinates.
+
+    A = dF/dy - dF/da (dh/da)^-1 dh/dy, where F is the rotor-frame rate of y = [R(-theta) zeta, tau]
+    (tau left out without load estimation) and h = sin(theta_hat(y, a) - a) = 0 defines the position
+    a = theta_hat implicitly: the harmonics (19) are removed at the estimate itself (T_s -> 0 limit of
+    (21)). Evaluated on the exact-estimate orbit at angle theta. Also returns y0 and the rate dy/dt
+    there (zero for a sinusoidal EMF: the orbit is an equilibrium in rotor coordinates).
+    """
+    s = symbols(orders_m, orders_o)
+    params = s["params"] if load_estimation else _no_load_estimation(s["params"])
+    p, emf_o, _ = split_params(params, orders_o)
+    th, w = s["theta"], s["w"]
+    ny = 3 if load_estimation else 2
+    y, a = ca.SX.sym("y", ny), ca.SX.sym("a")
+    zeta = rot(th) @ y[0:2]
+    tau = y[2] if load_estimation else 0
+    sig, _ = _plant(s, th, orders_m)
+    sigma = ca.if_else(w >= 0, 1, -1)
+    # speed (13) at the implicit position a, used by the harmonic removal (19)
+    e_hat = zeta - p.g * p.L * sig.i
+    phi_a = flux_derivative(a, emf_o)
+    w_a = sigma * p.p_r * ca.sqrt(ca.dot(e_hat, e_hat) / ca.dot(phi_a, phi_a))
+    est = estimates(zeta, tau, sig.i, a, w_a, sigma, p, emf_o)
+    dzeta, dtau = rates(est, sig.i, sig.v, p)  # eq. (16)
+    F = ca.vertcat(rot(th).T @ dzeta - w * (J @ y[0:2]), *([dtau] if load_estimation else []))
+    h = ca.sin(est.theta_hat - a)
+    A = ca.jacobian(F, y) - ca.jacobian(F, a) @ ca.jacobian(h, y) / ca.jacobian(h, a)
+    x0 = exact_state(s, orders_m, orders_o, load_estimation)
+    y0 = ca.vertcat(rot(th).T @ x0[0:2], *([x0[2]] if load_estimation else []))
+    sub = ca.Function("sub", [y, a, *s.values()], [A, F])
+    A0, F0 = sub(y0, th, *s.values())
+    name = f"pmac_reduced_order_jacobian_c{'' if load_estimation else '_noTL'}"
+    return ca.Function(name, list(s.values()), [A0, y0, F0], list(INPUT_NAMES), ["A", "y0", "dy"])
+
+
+def _rotor_coordinates(x: Any, theta: Any, load_estimation: bool) -> Any:
+    """y = [R(-theta) zeta, tau, wrap(theta_hat - theta), w_hat] from the step state x."""
+    parts = [
+        rot(theta).T @ x[0:2],
+        *([x[2]] if load_estimation else []),
+        wrap_angle(x[3] - theta),
+        x[4],
+    ]
+    return ca.vertcat(*parts)
+
+
+def _coupled_step(s: dict[str, ca.SX], x: Any, method: str, orders_m, orders_o, load_estimation: bool):
+    """One observer step from angle theta (t_(k-1)) to theta + w T_s, fed by the motor's samples."""
+    params = s["params"] if load_estimation else _no_load_estimation(s["params"])
+    _, _, T_s = split_params(params, orders_o)
+    th0 = s["theta"]
+    th1 = th0 + s["w"] * T_s
+    sig0, _ = _plant(s, th0, orders_m)
+    sig1, T_e = _plant(s, th1, orders_m)
+    x_in = ca.vertcat(x[0:5], sig0.i, sig0.v)  # the previous samples are the motor's
+    st = step(x_in, sig1.i, sig1.v, params, orders_o, method)
+    return st, th1, T_e
+
+
+@functools.cache
+def discrete_jacobian_function(
+    method: str, orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool = True
+) -> ca.Function:
+    """(x, theta, w, T_L, motor, params) -> Jy: the one-step map's Jacobian in rotor coordinates.
+
+    ``x`` is the observer state at t_(k-1) (its stored samples are replaced by the motor's at theta);
+    the step takes the motor from theta to theta + w T_s. Jy = d y_k / d y_(k-1) with y of
+    :func:`_rotor_coordinates` (5 states; 4 without load estimation, tau held at 0).
+    """
+    s = symbols(orders_m, orders_o)
+    ny = 5 if load_estimation else 4
+    y = ca.SX.sym("y", ny)
+    th0 = s["theta"]
+    zeta = rot(th0) @ y[0:2]
+    tau = y[2] if load_estimation else 0
+    x = ca.vertcat(zeta, tau, y[ny - 2] + th0, y[ny - 1], ca.DM.zeros(4))
+    st, th1, _ = _coupled_step(s, x, method, orders_m, orders_o, load_estimation)
+    y1 = _rotor_coordinates(st.x_next, th1, load_estimation)
+    Jy = ca.jacobian(y1, y)
+    x_sym = ca.SX.sym("x", N_STATE)
+    y_of_x = _rotor_coordinates(x_sym, th0, load_estimation)
+    f = ca.Function("f", [y, *s.values()], [Jy, st.x_next])
+    Jy0, x_next = f(y_of_x, *s.values())
+    name = f"pmac_reduced_order_jacobian_d_{method.replace('-', '_')}{'' if load_estimation else '_noTL'}"
+    return ca.Function(name, [x_sym, *s.values()], [Jy0, x_next], ["x", *INPUT_NAMES], ["Jy", "x_next"])
+
+
+@functools.cache
+def _coupled_step_function(method: str, orders_m, orders_o, load_estimation: bool) -> ca.Function:
+    """(xc = [x; theta], par = [w; T_L; motor; params]) -> (xc_next, errors at t_k)."""
+    s = symbols(orders_m, orders_o)
+    x = ca.SX.sym("x", N_STATE)
+    st, th1, T_e = _coupled_step(s, x, method, orders_m, orders_o, load_estimation)
+    err = ca.vertcat(
+        s["w"] - st.est.w_hat,  # speed error [rad/s]
+        wrap_angle(th1 - st.est.theta_hat),  # position error [rad]
+        T_e - st.est.T_L_hat,  # load-torque error (viscosity included) [N m]
+    )
+    par = ca.vertcat(s["w"], s["T_L"], s["motor"], s["params"])
+    xc = ca.vertcat(x, s["theta"])
+    # keep the angle bounded so long runs do not lose precision
+    return ca.Function("coupled", [xc, par], [ca.vertcat(st.x_next, wrap_angle(th1)), err])
+
+
+@functools.cache
+def orbit_function(
+    method: str, orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool, n_steps: int
+) -> ca.Function:
+    """(xc0 [10], par) -> (xc [10 x n], err [3 x n]): n steps of the observer fed by the motor."""
+    F = _coupled_step_function(method, orders_m, orders_o, load_estimation).mapaccum(n_steps)
+    xc0 = ca.MX.sym("xc0", N_STATE + 1)
+    par = ca.MX.sym("par", F.size1_in(1))
+    xc, err = F(xc0, ca.repmat(par, 1, n_steps))
+    return ca.Function(f"orbit{n_steps}", [xc0, par], [xc, err], ["xc0", "par"], ["xc", "err"])
+
+
+@functools.cache
+def exact_state_function(
+    orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool
+) -> ca.Function:
+    """(theta, w, T_L, motor, params) -> x: the observer state that matches the motor exactly."""
+    s = symbols(orders_m, orders_o)
+    x = exact_state(s, orders_m, orders_o, load_estimation)
+    return ca.Function("exact_state", list(s.values()), [x], list(INPUT_NAMES), ["x"])
+
+
+def angle_period(orders_m: tuple[int, ...], orders_o: tuple[int, ...]) -> float:
+    """Period in theta of the rotor-frame dynamics: 2 pi / gcd(|n - 1|) over all harmonics (inf if none)."""
+    g = 0
+    for n in (*orders_m, *orders_o):
+        g = math.gcd(g, abs(n - 1))
+    return 2 * math.pi / g if g else math.inf
+
+
+def ordered_product(mats: np.ndarray) -> np.ndarray:
+    """mats[..., M-1, :, :] @ ... @ mats[..., 0, :, :] (later factors left), in log2(M) batched steps."""
+    while mats.shape[-3] > 1:
+        if mats.shape[-3] % 2:
+            eye = np.broadcast_to(np.eye(mats.shape[-1]), (*mats.shape[:-3], 1, *mats.shape[-2:]))
+            mats = np.concatenate([mats, eye], axis=-3)
+        mats = mats[..., 1::2, :, :] @ mats[..., 0::2, :, :]
+    return mats[..., 0, :, :]
+
+
+def period_steps(period: float, w: np.ndarray, T_s: float, cap: int = 4000, tol: float = 0.005) -> np.ndarray:
+    """Steps M per point that cover a whole number of rotor-frame periods as closely as possible.
+
+    The angle advances |w| T_s per step; M = round(q P / (|w| T_s)) for the smallest q whose rounding
+    error is below ``tol`` of M (else the best q with M <= cap). 1 for a sinusoidal EMF (P = inf).
+    """
+    if math.isinf(period):
+        return np.ones(w.size, int)
+    r = period / (np.abs(w) * T_s)  # steps per period (real)
+    out = np.empty(w.size, int)
+    for k, rk in enumerate(r):  # a few points; each a short scalar search
+        best, best_err = max(1, round(rk)), math.inf
+        q = 1
+        while q * rk <= cap or q == 1:
+            m = max(1, round(q * rk))
+            err = abs(m - q * rk) / m
+            if err < best_err:
+                best, best_err = m, err
+            if err < tol:
+                break
+            q += 1
+        out[k] = min(best, cap)
+    return out
+
+
+@dataclass(frozen=True, kw_only=True)
+class ObserverPoles(Linearization):
+    """Continuous- (``poles``) and discrete-time (``poles_discrete``: ln(z)/T_s of the n dominant
+    eigenvalues of the one-step map) poles of the observer error dynamics at N operating points
+    (``w`` electrical speed, ``torque`` the load torque T_L), and the discrete observer's steady errors.
+
+    With EMF harmonics the poles are Floquet exponents over one period of the rotor-frame dynamics
+    (imaginary parts modulo 2 pi / period); for a sinusoidal EMF they are plain eigenvalues.
+    """
+
+    load_estimation: bool
+    method: str  # discretization
+    memory_z: np.ndarray  # (N, n_d - n) |z| of the other one-step eigenvalues (largest along the window)
+    steps: np.ndarray  # (N,) steps M of the discrete monodromy (1 for a sinusoidal EMF)
+    err_w: np.ndarray  # steady-state speed error w - w_hat, mean over a period [rad/s]
+    err_theta: np.ndarray  # steady-state position error theta - theta_hat, mean [rad]
+    err_T: np.ndarray  # steady-state load error T_L + B omega - T_L_hat, mean [N m]
+    ripple_w: np.ndarray  # peak-to-peak speed error over the window [rad/s]
+    ripple_T: np.ndarray  # peak-to-peak load error over the window [N m]
+
+    @property
+    def T_L(self) -> np.ndarray:
+        """(N,) load torque [N m] (the operating point's torque)."""
+        return self.torque
+
+    @property
+    def damping_discrete(self) -> np.ndarray:
+        """(N, n) damping ratio of each discrete pole mapped to s."""
+        return damping_ratio(self.poles_discrete)
+
+
+def analysis_arguments(
+    drive: Any, T_s: float | None = None, g: float | None = None, Gamma: float | None = None
+) -> tuple[tuple[int, ...], tuple[int, ...], np.ndarray, np.ndarray]:
+    """(orders_m, orders_o, motor vector, params vector) of a drive of this family."""
+    return (
+        tuple(drive.motor.harmonics),
+        tuple(drive.estimate.harmonics),
+        drive.motor.vector(),
+        drive.observer_params(g=g, Gamma=Gamma, T_s=T_s),
+    )
+
+
+def floquet_exponents(monodromy: np.ndarray, duration: np.ndarray) -> np.ndarray:
+    """ln(eig(monodromy)) / duration, principal branch, sorted like sort_poles (imag, then real)."""
+    mu = np.linalg.eigvals(monodromy).astype(complex)
+    with np.errstate(divide="ignore"):
+        s = np.log(mu) / np.asarray(duration)[:, None]
+    return sort_poles(s)
+
+
+def continuous_poles(
+    drive: Any, w: Any, T_L: Any, load_estimation: bool = True, n_angles: int = 64, **over: Any
+) -> np.ndarray:
+    """Continuous-time poles at the operating points (broadcast, flattened) [1/s].
+
+    For a sinusoidal EMF the linearization is time-invariant in rotor coordinates: its eigenvalues. With
+    harmonics it is periodic in theta: the Floquet exponents ln(mu)/T_p of the monodromy matrix over one
+    period T_p (a product of matrix exponentials over ``n_angles`` sub-intervals); their real parts are
+    the decay rates, their imaginary parts are defined modulo 2 pi / T_p (principal branch).
+    """
+    from scipy.linalg import expm
+
+    w_f, T_f = (a.ravel() for a in np.broadcast_arrays(np.asarray(w, float), np.asarray(T_L, float)))
+    om, oo, motor, params = analysis_arguments(drive, **over)
+    period = angle_period(om, oo)
+    n = w_f.size
+    K = 1 if math.isinf(period) else n_angles
+    step = 0.0 if K == 1 else period / K
+    # midpoints of the K sub-intervals, in the direction of rotation
+    theta = 0.3 + np.sign(w_f)[:, None] * (np.arange(K)[None, :] + 0.5) * step  # (n, K)
+    fn = _mapped(continuous_jacobian_function(om, oo, load_estimation), n * K)
+    A = np.asarray(
+        fn(
+            theta.reshape(1, -1),
+            np.repeat(w_f, K)[None],
+            np.repeat(T_f, K)[None],
+            motor[:, None],
+            params[:, None],
+        )[0]
+    )
+    ny = A.shape[0]
+    A = A.reshape(ny, n * K, ny).transpose(1, 0, 2).reshape(n, K, ny, ny)
+    if K == 1:
+        return sort_poles(np.linalg.eigvals(A[:, 0]))
+    T_p = period / np.abs(w_f)  # [s]
+    # (contiguous: scipy's batched expm is ~20x slower on strided views)
+    M = ordered_product(expm(np.ascontiguousarray(A * (T_p / K)[:, None, None, None])))
+    return floquet_exponents(M, T_p)
+
+
+def analyze(
+    drive: Any,
+    w: Any,
+    T_L: Any,
+    load_estimation: bool = True,
+    method: str | None = None,
+    T_s: float | None = None,
+    g: float | None = None,
+    Gamma: float | None = None,
+    settle_time: float | None = None,
+    n_angles: int = 64,
+) -> ObserverPoles:
+    """Continuous and discrete poles and the discrete steady-state errors at (w [rad/s], T_L [N m]).
+
+    ``w`` and ``T_L`` broadcast; the result is flat (row-major). The discrete observer is simulated from
+    the exact state for ``settle_time`` (default: 8 time constants of the slowest continuous pole,
+    0.02..3 s), then over a window of M steps covering whole periods of the rotor-frame dynamics: the
+    errors are averaged over it and the one-step Jacobians along it multiply to the monodromy matrix.
+    """
+    method = method or drive.control.discretization
+    T_s = drive.control.T_s if T_s is None else T_s
+    over = {"T_s": T_s, "g": g, "Gamma": Gamma}
+    w_f, T_f = (a.ravel() for a in np.broadcast_arrays(np.asarray(w, float), np.asarray(T_L, float)))
+    if np.any(w_f == 0):
+        raise ValueError("zero speed: the EMF observer is undefined at standstill")
+    n = w_f.size
+    om, oo, motor, params = analysis_arguments(drive, **over)
+    poles_c = continuous_poles(drive, w_f, T_f, load_estimation, n_angles, **over)
+    n_c = poles_c.shape[1]
+    # per point, so that a point's result does not depend on the others analysed with it
+    slow = np.nanmax(poles_c.real, axis=1)
+    if settle_time is None:
+        t_set = np.where(slow < 0, np.clip(8 / np.abs(slow), 0.02, 3.0), 3.0)
+    else:
+        t_set = np.full(n, float(settle_time))
+    period = angle_period(om, oo)
+    M = period_steps(2 * math.pi if math.isinf(period) else period, w_f, T_s)  # error window
+    M_jac = period_steps(period, w_f, T_s)  # monodromy window (1 step for a sinusoidal EMF)
+    end = np.ceil(t_set / T_s).astype(int) + np.maximum(M, M_jac)  # steps simulated for each point
+    n_steps = int(end.max())
+    theta0 = np.full(n, 0.3)  # start on the exact (continuous-time) orbit
+    x0 = np.asarray(
+        _mapped(exact_state_function(om, oo, load_estimation), n)(
+            theta0[None], w_f[None], T_f[None], motor[:, None], params[:, None]
+        )
+    )
+    par = np.vstack([w_f[None], T_f[None], np.repeat(motor[:, None], n, 1), np.repeat(params[:, None], n, 1)])
+    orbit = _mapped(orbit_function(method, om, oo, load_estimation, n_steps), n)
+    xc, err = (np.asarray(a) for a in orbit(np.vstack([x0, theta0[None]]), par))
+    xc = xc.reshape(N_STATE + 1, n, n_steps)
+    err = err.reshape(3, n, n_steps)
+    k_idx = np.arange(n_steps)[None, :]
+    win = (k_idx >= (end - M)[:, None]) & (k_idx < end[:, None])  # (n, n_steps): each point's window
+    # a scheme can diverge at a point (too long T_s for its speed): NaN results there, not an exception
+    ok = np.isfinite(err).all(axis=(0, 2)) & np.isfinite(xc).all(axis=(0, 2))
+    e_win = np.where(win[None], err, 0.0)
+    mean = np.where(ok, e_win.sum(axis=2) / M, np.nan)
+    ptp = np.where(
+        ok,
+        np.where(win[None], err, -np.inf).max(axis=2) - np.where(win[None], err, np.inf).min(axis=2),
+        np.nan,
+    )
+    # one-step Jacobians along each point's last M_jac steps: the state after step j (at angle
+    # theta_j) is mapped one step further; shorter windows are padded with identities in front
+    mj = int(M_jac.max())
+    rows = np.arange(n)[:, None]
+    cols = np.maximum(end[:, None] - 1 - mj + np.arange(mj)[None, :], 0)  # (n, mj)
+    keep = np.arange(mj)[None, :] >= (mj - M_jac)[:, None]
+    xs = xc[:N_STATE][:, rows, cols].reshape(N_STATE, n * mj)
+    ths = xc[N_STATE][rows, cols].reshape(n * mj)
+    jac = _mapped(discrete_jacobian_function(method, om, oo, load_estimation), n * mj)
+    Jy = np.asarray(
+        jac(
+            xs, ths[None], np.repeat(w_f, mj)[None], np.repeat(T_f, mj)[None], motor[:, None], params[:, None]
+        )[0]
+    )
+    nd = Jy.shape[0]
+    Jy = Jy.reshape(nd, n * mj, nd).transpose(1, 0, 2).reshape(n, mj, nd, nd)
+    Jy = np.where(keep[:, :, None, None], Jy, np.eye(nd))
+    ok &= np.isfinite(Jy).all(axis=(1, 2, 3))
+    Jy[~ok] = np.eye(nd)
+    mu = np.linalg.eigvals(ordered_product(Jy)).astype(complex)
+    order = np.argsort(-np.abs(mu), axis=-1, kind="stable")
+    mu = np.take_along_axis(mu, order, axis=-1)
+    with np.errstate(divide="ignore"):
+        s_d = np.log(mu[:, :n_c]) / (M_jac * T_s)[:, None]
+    s_d[~ok] = np.nan
+    # the fast "memory" modes (previous position/speed of (19)-(21)) vanish in the product; their
+    # size per step comes from the single-step eigenvalues, largest along the window
+    z1 = -np.sort(-np.abs(np.linalg.eigvals(Jy)), axis=-1)[..., n_c:]  # (n, mj, nd - n_c)
+    memory_z = np.where(keep[:, :, None], z1, 0.0).max(axis=1)
+    memory_z[~ok] = np.nan
+    return ObserverPoles(
+        w=w_f,
+        torque=T_f,
+        torque_name="T_L",
+        load_estimation=load_estimation,
+        method=method,
+        T_s=T_s,
+        poles=poles_c,
+        poles_discrete=sort_poles(s_d),
+        memory_z=memory_z,
+        steps=M_jac,
+        err_w=mean[0],
+        err_theta=mean[1],
+        err_T=mean[2],
+        ripple_w=ptp[0],
+        ripple_T=ptp[2],
+    )

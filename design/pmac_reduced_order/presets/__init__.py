@@ -1,0 +1,1 @@
+"""Preset drive files of the reduced-order observer family (package data)."""

@@ -1,0 +1,63 @@
+"""The reduced-order observer's gains and runtime set-up from a drive file or a tuned gain table.
+
+Gains g (9) and Gamma (10) come from the drive's ``[observer]`` or a gain table of family ``deangelo``
+(docs/gain_tables.md). Every parameter of the runtime step (symbolic/pmac_reduced_order/step.py), the
+gains and the EMF series of the observer's model included, is a runtime parameter; nothing is
+scheduled outside the step.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from sensorless.design.family import GainSet
+from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.runtime import RuntimeSetup
+from sensorless.symbolic.pmac_reduced_order.step import runtime_observer
+
+GAIN_FAMILIES: dict[str, tuple[str, ...]] = {
+    "deangelo": ("g", "Gamma"),  # observer gains [1/s], [A^2 s^2], eqs. (9)-(10)
+}
+
+
+def drive_gains(drive: Any) -> GainSet:
+    """The drive file's ``[observer]`` g and Gamma."""
+    o = drive.observer
+    return GainSet("deangelo", {"g": float(o.g), "Gamma": float(o.Gamma)}, f"{drive.file} [observer]")
+
+
+def table_gains(table: GainTable, where: str) -> GainSet:
+    """The gains of a ``deangelo`` table; ``where`` names the table in errors."""
+    if table.family not in GAIN_FAMILIES:
+        raise GainTableError(
+            f"{where}: key 'family': {table.family!r} gains are not for the reduced-order observer "
+            "(use a deangelo table)"
+        )
+    try:
+        g, Gamma = float(table.gains["g"]), float(table.gains["Gamma"])
+    except (TypeError, ValueError) as e:
+        raise GainTableError(f"{where}: key 'gains': {e}") from None
+    if not (math.isfinite(g) and math.isfinite(Gamma) and g > 0 and Gamma >= 0):
+        raise GainTableError(f"{where}: key 'gains': need finite g > 0 and Gamma >= 0")
+    return GainSet(
+        "deangelo", {"g": g, "Gamma": Gamma}, f"deangelo table {where} (tuned for {table.drive.get('name')})"
+    )
+
+
+def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:
+    """Parameters of the runtime step from the drive's estimates, sampling period and ``gains``."""
+    obs = runtime_observer(tuple(drive.estimate.harmonics))
+    vals = drive.observer_params(g=gains.values["g"], Gamma=gains.values["Gamma"])
+    return {f.name: float(v) for f, v in zip(obs.params, vals, strict=True)}
+
+
+def runtime_setup(drive: Any, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
+    """The runtime observer of ``drive`` with ``gains`` (discretization: the drive's ``[control]``)."""
+    obs = runtime_observer(tuple(drive.estimate.harmonics))
+    disc = discretization or drive.control.discretization
+    if disc not in obs.discretizations:
+        raise ValueError(f"unknown discretization {disc!r} (known: {', '.join(obs.discretizations)})")
+    params = runtime_params(drive, gains)
+    obs.check_params(params)
+    return RuntimeSetup(obs, disc, params, gains)

@@ -1,0 +1,280 @@
+"""Drive files of the reduced-order EMF/load observer family (De Angelo et al. 2006): schema and loading.
+
+PM AC motor + extended reduced-order EMF and load-torque observer. Same strictness as every drive file
+(design/drive_file.py): unknown or missing keys, wrong units or types and non-physical values raise
+:class:`~sensorless.design.units.DriveFileError` naming the file and the key.
+
+The EMF is data: ``harmonics`` lists odd orders (negative = negative sequence), ``Phi`` their amplitudes
+(eq. (4)); ``"0.04 Phi_1"`` is a multiple of the fundamental. ``reading`` says how eq. (2) is read
+(docs/families/pmac_reduced_order.md): "mechanical" (omega, J, B, T_L and Phi_n per mechanical
+radian, eq. (4) in the electrical angle p theta_m) or "electrical" (the printed equations literally,
+omega electrical).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
+from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS, param_names
+
+READINGS = {
+    "mechanical": "omega, J, B, T_L of eq. (2) and Phi_n are mechanical; (4) in the electrical angle",
+    "electrical": "eqs. (2)-(5) as printed, omega electrical (J, B, T_L, Phi_n per electrical radian)",
+}
+
+
+@dataclass(frozen=True)
+class PmacRating:
+    """Nameplate data (Section IV); informational, and the per-unit speed base (1 p.u. = n_N)."""
+
+    P_N: float = q("power", doc="nominal power [W]")
+    n_N: float = q("mech_speed", doc="nominal mechanical speed [r/min]")
+
+
+@dataclass(frozen=True)
+class PmacMotor:
+    """The true motor, eqs. (2)-(5)."""
+
+    p: int = q("integer", doc="pole pairs")
+    reading: str = field(metadata={"dim": "choice", "doc": "reading of eq. (2): mechanical|electrical"})
+    R: float = q("resistance", doc="stator resistance [ohm]")
+    L: float = q("inductance", doc="stator inductance [H]")
+    J: float = q("inertia", doc="inertia [kg m^2]")
+    B: float = q("viscous", check="nonnegative", doc="viscous friction [N m s]")
+    harmonics: tuple[int, ...] = field(default=(1,), metadata={"dim": "orders"})
+    Phi: tuple[float, ...] = field(default=(), metadata={"dim": "flux_derivative"})
+
+    @property
+    def p_r(self) -> float:
+        """Speed in eq. (2) per electrical speed: omega_paper = w / p_r (symbolic/pmac.py)."""
+        return float(self.p) if self.reading == "mechanical" else 1.0
+
+    def vector(self) -> np.ndarray:
+        """[R, L, J, B, p_r, Phi_n...]: the motor vector of the analysis Functions."""
+        return np.array([self.R, self.L, self.J, self.B, self.p_r, *self.Phi])
+
+
+@dataclass(frozen=True)
+class PmacEstimate:
+    """The observer's model of the motor (kept apart from the true one for parameter-error studies)."""
+
+    R: float = q("resistance", doc="estimated stator resistance [ohm]")
+    L: float = q("inductance", doc="estimated inductance [H]")
+    J: float = q("inertia", doc="estimated inertia [kg m^2]")
+    harmonics: tuple[int, ...] = field(default=(1,), metadata={"dim": "orders"})
+    Phi: tuple[float, ...] = field(default=(), metadata={"dim": "flux_derivative"})
+
+
+@dataclass(frozen=True)
+class PmacObserver:
+    """Observer gains, eqs. (9)-(10)."""
+
+    g: float = q("rate", doc="EMF observer gain g [1/s]")
+    Gamma: float = q("adaptation", check="nonnegative", doc="load-torque adaptation gain [A^2 s^2]")
+
+
+@dataclass(frozen=True)
+class PmacControl:
+    """Sampling, discretization, and the speed loop of Fig. 1 (its gains are not given in the paper)."""
+
+    T_s: float = q("time", doc="sampling period [s]")
+    discretization: str = field(metadata={"dim": "choice", "doc": "observer discretization scheme"})
+    alpha_s: float = q("angular", doc="speed-loop bandwidth [rad/s]")
+    T_max: float = q("torque", doc="torque reference limit [N m]")
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """Operating points analysed by default: mechanical speeds (r/min, nonzero) x load torques (N m)."""
+
+    speeds: tuple[float, ...] = field(default=(), metadata={"dim": "mech_speed"})
+    loads: tuple[float, ...] = field(default=(), metadata={"dim": "torque"})
+
+
+@dataclass(frozen=True)
+class PmacDrive:
+    """A drive of the reduced-order observer family."""
+
+    name: str
+    kind: str
+    source: str
+    file: str
+    rating: PmacRating
+    motor: PmacMotor
+    estimate: PmacEstimate
+    observer: PmacObserver
+    control: PmacControl
+    envelope: Envelope
+    digest: str = ""
+
+    @property
+    def T_N(self) -> float:
+        """Nominal shaft torque P_N / (2 pi n_N / 60) [N m]."""
+        return self.rating.P_N / (self.rating.n_N * math.pi / 30)
+
+    @property
+    def w_base(self) -> float:
+        """Per-unit speed base: the nominal speed as electrical rad/s."""
+        return self.rpm_to_w(self.rating.n_N)
+
+    @property
+    def pole_pairs(self) -> int:
+        """Pole pairs."""
+        return self.motor.p
+
+    @property
+    def T_s(self) -> float:
+        """Sampling period [s]."""
+        return self.control.T_s
+
+    def rpm_to_w(self, n: Any) -> Any:
+        """Mechanical r/min -> electrical rad/s (the pole pairs relate them in either reading)."""
+        return np.asarray(n, float) * (math.pi / 30) * self.motor.p
+
+    def w_to_rpm(self, w: Any) -> Any:
+        """Electrical rad/s -> mechanical r/min."""
+        return np.asarray(w, float) / ((math.pi / 30) * self.motor.p)
+
+    def observer_params(
+        self, g: float | None = None, Gamma: float | None = None, T_s: float | None = None
+    ) -> np.ndarray:
+        """The ``p`` vector of the observer step (symbolic/pmac_reduced_order/step.param_names)."""
+        e, o = self.estimate, self.observer
+        vals = [e.R, e.L, e.J, self.motor.p_r, o.g if g is None else g, o.Gamma if Gamma is None else Gamma]
+        vals += [self.control.T_s if T_s is None else T_s, *e.Phi]
+        assert len(vals) == len(param_names(e.harmonics))
+        return np.array(vals, float)
+
+
+# --------------------------------------------------------------------------------------------------
+# Loading
+# --------------------------------------------------------------------------------------------------
+def _list(table: Mapping[str, Any], key: str, file: str, section: str) -> list[Any]:
+    full = f"{section}.{key}"
+    if key not in table:
+        raise DriveFileError(file, full, "missing key")
+    v = table[key]
+    if not isinstance(v, list) or not v:
+        raise DriveFileError(file, full, f"expected a non-empty list, got {v!r}")
+    return v
+
+
+def _harmonics(
+    table: Mapping[str, Any], file: str, section: str
+) -> tuple[tuple[int, ...], tuple[float, ...]]:
+    """Orders and amplitudes of eq. (4), validated: odd, distinct, fundamental first and positive."""
+    raw = _list(table, "harmonics", file, section)
+    key = f"{section}.harmonics"
+    for n in raw:
+        if isinstance(n, bool) or not isinstance(n, int) or n % 2 == 0:
+            raise DriveFileError(file, key, f"harmonic orders must be odd integers, got {n!r}")
+    if len(set(raw)) != len(raw):
+        raise DriveFileError(file, key, f"repeated harmonic order in {raw}")
+    if raw[0] != 1:
+        raise DriveFileError(file, key, "the first order must be the fundamental 1 (eq. (18) needs it)")
+    orders = tuple(raw)
+    amps = _list(table, "Phi", file, section)
+    key = f"{section}.Phi"
+    if len(amps) != len(orders):
+        raise DriveFileError(file, key, f"{len(amps)} amplitudes for {len(orders)} harmonic orders")
+    Phi: list[float] = []
+    for k, a in enumerate(amps):
+        x, rel = parse_quantity(a, "flux_derivative", file=file, key=f"{key}[{k}]")
+        if rel is not None:
+            if k == 0:
+                raise DriveFileError(file, f"{key}[0]", "the fundamental cannot be relative to itself")
+            x *= Phi[0]
+        if k == 0 and x <= 0:
+            raise DriveFileError(file, f"{key}[0]", f"non-physical value {a!r}: Phi_1 must be > 0")
+        Phi.append(x)
+    # (13) and (25) divide by |phi(theta)|^2: it must not vanish at any angle
+    theta = np.linspace(0, 2 * np.pi, 64 * max(abs(n) for n in orders) + 1)
+    n_arr = np.array(orders)[:, None]
+    P = np.array(Phi)[:, None]
+    mag = np.hypot((P * np.sin(n_arr * theta)).sum(0), (P * np.cos(n_arr * theta)).sum(0))
+    if mag.min() <= 1e-6 * Phi[0]:
+        k = int(np.argmin(mag))
+        raise DriveFileError(
+            file, key, f"non-physical series: |phi(theta)| vanishes near theta = {theta[k]:.4f} rad"
+        )
+    return orders, tuple(Phi)
+
+
+def _with_harmonics(cls: type, table: Mapping[str, Any], file: str, section: str) -> Any:
+    obj = load_section(cls, table, file, section, skip=("harmonics", "Phi"))
+    orders, Phi = _harmonics(table, file, section)
+    return dataclasses.replace(obj, harmonics=orders, Phi=Phi)
+
+
+def _quantities(table: Mapping[str, Any], key: str, dim: str, file: str, section: str) -> tuple[float, ...]:
+    out = []
+    for k, v in enumerate(_list(table, key, file, section)):
+        x, rel = parse_quantity(v, dim, file=file, key=f"{section}.{key}[{k}]")
+        if rel is not None:
+            raise DriveFileError(file, f"{section}.{key}[{k}]", f"unit '{rel}' cannot be resolved here")
+        out.append(x)
+    return tuple(out)
+
+
+def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
+    """Validate a parsed drive TOML of this family."""
+    check_keys(data, ("drive", "rating", "motor", "estimate", "observer", "control", "envelope"), file, "")
+    head = drive_header(data, file)
+    rating = load_section(PmacRating, table(data, "rating", file), file, "rating")
+    motor = _with_harmonics(PmacMotor, table(data, "motor", file), file, "motor")
+    if motor.p < 1:
+        raise DriveFileError(file, "motor.p", f"non-physical value {motor.p}: must be >= 1")
+    if motor.reading not in READINGS:
+        raise DriveFileError(
+            file, "motor.reading", f"unknown reading {motor.reading!r} (known: {', '.join(READINGS)})"
+        )
+    estimate = _with_harmonics(PmacEstimate, table(data, "estimate", file), file, "estimate")
+    observer = load_section(PmacObserver, table(data, "observer", file), file, "observer")
+    control = load_section(PmacControl, table(data, "control", file), file, "control")
+    if control.discretization not in DISCRETIZATIONS:
+        raise DriveFileError(
+            file,
+            "control.discretization",
+            f"unknown scheme {control.discretization!r} (known: {', '.join(DISCRETIZATIONS)})",
+        )
+    env_t = table(data, "envelope", file)
+    check_keys(env_t, ("speeds", "loads"), file, "envelope.")
+    envelope = Envelope(
+        speeds=_quantities(env_t, "speeds", "mech_speed", file, "envelope"),
+        loads=_quantities(env_t, "loads", "torque", file, "envelope"),
+    )
+    for k, n in enumerate(envelope.speeds):
+        if n == 0:
+            raise DriveFileError(
+                file, f"envelope.speeds[{k}]", "zero speed: the EMF observer is undefined at standstill"
+            )
+    drive = PmacDrive(
+        name=head["name"],
+        kind=kind,
+        source=head["source"],
+        file=file,
+        rating=rating,
+        motor=motor,
+        estimate=estimate,
+        observer=observer,
+        control=control,
+        envelope=envelope,
+        digest=digest,
+    )
+    # The speed sign (14) reads the angle step modulo pi: |w| T_s must stay below pi/2.
+    w_max = float(np.max(np.abs(drive.rpm_to_w(envelope.speeds))))
+    if w_max * control.T_s >= math.pi / 2:
+        raise DriveFileError(
+            file,
+            "control.T_s",
+            f"too long for the envelope: w T_s = {w_max * control.T_s:.3f} rad per step at "
+            f"{drive.w_to_rpm(w_max):g} r/min (the speed sign (14) needs < pi/2)",
+        )
+    return drive

@@ -1,0 +1,114 @@
+"""Simulation set-up of the reduced-order-observer drive: De Angelo et al. (2006) Fig. 1 for a scenario.
+
+The drive loop of symbolic/pmac_reduced_order/drive_loop.py around this family's runtime step, with
+the scenario's load-torque estimation switch (Gamma = 0 without it: the observer of their [11]),
+feedforward, discretization and parameter errors.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+from sensorless.design.family import GainSet
+from sensorless.design.pmac_reduced_order.runtime import drive_gains, runtime_setup
+from sensorless.design.scenario import Scenario
+from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
+from sensorless.design.units import DriveFileError
+from sensorless.symbolic.pmac_reduced_order import drive_loop
+
+PMAC_ALPHA_C = 2 * math.pi * 400  # [rad/s] the paper's "fast current control loop", not specified
+
+# scenario keys this family adds (design/scenario.py): section -> key -> (dimension, default)
+SCENARIO_OPTIONS = {
+    "observer": {"load_torque_estimation": ("bool", True)},  # estimate T_L (Fig. 3) or not (Fig. 2)
+    "control": {"feedforward": ("bool", False)},  # add T_L_hat to the torque reference (Fig. 5(b))
+}
+
+
+def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
+    """Loop set-up of ``sc`` on ``drive`` (Fig. 1); ``gains`` None: the drive's [observer]."""
+    m, e, c = drive.motor, drive.estimate, drive.control
+    if tuple(m.harmonics) != tuple(e.harmonics):
+        raise DriveFileError(
+            drive.file, "estimate.harmonics", "simulation needs the same harmonic orders as [motor]"
+        )
+    if sc.mode != "speed" or sc.stiff_load:
+        raise DriveFileError(sc.file, "control.mode", "this drive's loop (Fig. 1) has speed control only")
+    orders = tuple(int(n) for n in m.harmonics)
+    gains = gains or drive_gains(drive)
+    if not sc.options["load_torque_estimation"]:
+        # the observer of [11]: no load-torque state (tau stays 0, so T_L_hat = 0)
+        gains = dataclasses.replace(
+            gains,
+            values={**gains.values, "Gamma": 0.0},
+            source=gains.source + " (load-torque estimation off)",
+        )
+    setup = runtime_setup(drive, gains, sc.discretization)
+    k = sc.estimate_scale
+    params = dict(setup.params)
+    params.update(R=e.R * k["R_s"], L=e.L * k["L_d"], J=e.J * k["J"])
+    Phi_hat = np.asarray(e.Phi, float) * k["Phi"]
+    for f, v in zip(setup.observer.params[-len(orders) :], Phi_hat, strict=True):
+        params[f.name] = float(v)
+    setup.observer.check_params(params)
+    setup = dataclasses.replace(setup, params=params)
+
+    B = m.B + sc.viscous
+    u_max = 2 * float(np.sum(np.abs(m.Phi))) * drive.w_base / m.p_r  # ideal inverter: twice the EMF at n_N
+    qd = {
+        "R": m.R,
+        "L": m.L,
+        "J": m.J,
+        "B": B,
+        "p_r": m.p_r,
+        "R_hat": params["R"],
+        "L_hat": params["L"],
+        "alpha_c": sc.current_bandwidth or PMAC_ALPHA_C,
+        "u_max": u_max,
+        "T_s": c.T_s,
+        "sensor": 1.0 if sc.feedback == "sensor" else 0.0,
+        "alpha_w": sc.speed_filter,
+        "J_hat": params["J"],
+        "alpha_s": c.alpha_s,
+        "T_max": c.T_max,
+        "feedforward": 1.0 if sc.options["feedforward"] else 0.0,
+    }
+    q = np.array([*(qd[s.name] for s in drive_loop.PARAMS), *m.Phi, *Phi_hat])
+    t = sample_times(sc, c.T_s)
+    v = np.zeros((len(drive_loop.INPUTS), t.size))
+    v[0] = sc.speed_reference.sample(t)
+    v[1] = sc.load_torque.sample(t)
+    v[2:4] = noise(sc, t.size)
+    z0 = drive_loop.initial_state_function(orders)(q, setup.p, v[:, 0], sc.w_m0, sc.theta_m0, sc.theta_err0)
+    obs = setup.observer
+    loop = drive_loop.loop_function(setup.step_function(), tuple(f.name for f in obs.outputs), orders)
+    g = setup.gains.values
+    meta = {
+        **provenance(drive, sc),
+        "gain": f"{setup.gain_source}: g = {g['g']:g} 1/s, Gamma = {g['Gamma']:g}",
+        "gain_law": "deangelo",
+        "discretization": setup.discretization,
+        "injection": False,
+        "feedback": sc.feedback,
+        "feedforward": bool(sc.options["feedforward"]),
+        "T_s": c.T_s,
+        "base_w": drive.w_base,
+        "T_N": drive.T_N,
+        "pole_pairs": m.p,
+        "speed_unit": "r/min",
+        "speed_scale": 30 / (math.pi * m.p),  # rad/s (electrical) -> r/min
+    }
+    return LoopSetup(
+        loop=loop,
+        q=q,
+        p_obs=setup.p,
+        gain=setup.gain,
+        z0=np.asarray(z0).ravel(),
+        inputs=v,
+        record=drive_loop.RECORD,
+        T_s=c.T_s,
+        meta=meta,
+    )

@@ -1,1 +1,0 @@
-"""Built-in simulation scenarios (package data): the papers' experiments, named after their figures."""

@@ -1,0 +1,50 @@
+"""``sensorless analyze``: the linearized observer of a drive over speed (and torque), as its family sees it.
+
+The adaptive observer prints unstable speed bands and worst damping of its closed loop with pole maps
+(Piippo et al. 2008, Figs. 4-5); the reduced-order observer the continuous and discrete poles and the
+steady errors over its envelope (De Angelo et al. 2006). Each family's output comes from its report
+hooks (reports/family.py); options of another family are refused, never ignored.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from sensorless.design.drive import load_drive
+from sensorless.design.family import CapabilityError
+from sensorless.design.registry import family_of
+from sensorless.reports.family import add_family_options, hooks, refuse_foreign
+from sensorless.reports.files import OutputSet
+
+
+def register(sub: Any) -> None:
+    """Add the ``analyze`` subcommand."""
+    p = sub.add_parser(
+        "analyze",
+        help="linearized observer poles over speed (pole maps, unstable bands, damping, steady errors)",
+        description="Linearize the observer (with the motor) of a drive by automatic Jacobians over its "
+        "operating points; print what its family reports (unstable speed bands, worst damping, poles, "
+        "steady errors); write the data (CSV) and figures.",
+    )
+    p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
+    p.add_argument("--gains", metavar="TABLE", default=None, help="analyse the gains of a tuned gain table")
+    p.add_argument("--out", default=None, help="output directory (default: analysis-<drive name>)")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    add_family_options(p, "analyze")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Load the drive and run the analysis of its family."""
+    drive = load_drive(args.drive)
+    fam = family_of(drive)
+    h = hooks(fam)
+    if h.analyze is None:
+        raise CapabilityError(f"observer family {fam.name!r} has no analysis to run")
+    refuse_foreign(args, fam, "analyze")
+    out = OutputSet(args.out or f"analysis-{drive.name}", force=args.force)
+    h.analyze(drive, args, out)
+    for p in out.commit():
+        print(f"wrote {p}")
+    return 0

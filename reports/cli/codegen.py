@@ -1,0 +1,99 @@
+"""``sensorless codegen``: C code of the runtime observer of a drive (docs/codegen.md).
+
+Writes ``<prefix>.c``, ``<prefix>.h``, an example ``main.c`` and a ``Makefile`` into ``--out``, all or
+nothing (OutputSet), refusing to overwrite unless ``--force``. Deterministic: the same drive, gains and
+options give byte-identical files. Any observer family with a runtime observer (design/family.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from sensorless.design.drive import load_drive
+from sensorless.design.gain_table import read_gain_table
+from sensorless.design.registry import family_of
+from sensorless.reports.cli.common import UsageError, version
+from sensorless.reports.codegen.generate import PRECISIONS, Provenance, c_identifier, generate
+from sensorless.reports.files import OutputSet
+
+
+def register(sub: Any) -> None:
+    """Add the ``codegen`` subcommand."""
+    p = sub.add_parser(
+        "codegen",
+        help="generate the runtime observer as C (state/input/param structs, init, step, gains)",
+        description="Generate C99 code of the drive's runtime observer from the same CasADi expressions "
+        "used for analysis and simulation: typed API, parameter struct (gains included) from the drive "
+        "and the gains, double or float.",
+    )
+    p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
+    p.add_argument("--gains", metavar="TABLE", help="tuned gain table (JSON, sensorless-gain-table/1)")
+    p.add_argument(
+        "--gain",
+        default=None,
+        help="without --gains: which [observer.gains.*] of the drive, where the drive file has several "
+        "(adaptive observer: zero, constant, speed; default: the drive's [observer] gain)",
+    )
+    p.add_argument("--precision", choices=PRECISIONS, default="float", help="C floating type (default float)")
+    p.add_argument(
+        "--discretization",
+        default=None,
+        help="override the drive's discretization of the runtime step (the family's schemes)",
+    )
+    p.add_argument("--prefix", default=None, help="C name prefix (default: the drive name)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Generate and write the files."""
+    drive = load_drive(args.drive)
+    fam = family_of(drive)
+    table = read_gain_table(args.gains) if args.gains else None
+    if table is not None and args.gain:
+        raise UsageError("--gain and --gains exclude each other (the table holds the gains)")
+    if table is not None:
+        tuned_for = table.drive.get("name")
+        sha = table.drive.get("sha256")
+        if tuned_for != drive.name or (sha and sha != drive.digest):
+            print(
+                f"sensorless codegen: warning: {args.gains} was tuned for drive {tuned_for!r}"
+                f"{' (another version of its file)' if tuned_for == drive.name else ''}, "
+                f"generating for {drive.name!r}",
+                file=sys.stderr,
+            )
+    gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
+    try:
+        setup = fam.runtime(drive, gains, discretization=args.discretization)
+    except ValueError as e:
+        raise UsageError(f"--discretization: {e}") from None
+    prefix = args.prefix or c_identifier(drive.name)
+    try:
+        files = generate(
+            setup,
+            Provenance(drive.name, drive.file, drive.digest, f"sensorless {version()}"),
+            precision=args.precision,
+            prefix=prefix,
+        )
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    out = OutputSet(args.out, force=args.force)
+    for name, text in files.items():
+        out.add_text(name, text)
+    written = out.commit()
+    print(f"{drive.name}: {setup.observer.title}")
+    print(
+        f"{setup.discretization} at T_s = {setup.params['T_s'] * 1e6:g} us, {args.precision}; "
+        f"gains: {setup.gain_source}"
+    )
+    api = f"{prefix}_init, {prefix}_step" + (f", {prefix}_gains" if setup.schedule is not None else "")
+    print(f"API: {api} ({prefix}.h)")
+    for note in setup.notes:
+        print(f"note: {note}")
+    for p in written:
+        print(f"wrote {p}")
+    print(f"build the example: make -C {args.out}; Cortex-M4F object: make -C {args.out} {prefix}-m4.o")
+    return 0

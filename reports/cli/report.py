@@ -1,0 +1,66 @@
+"""``sensorless report``: a self-contained HTML stability report and its data as JSON, for any family."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from typing import Any
+
+from sensorless.design.drive import load_drive
+from sensorless.design.family import CapabilityError
+from sensorless.design.registry import family_of
+from sensorless.reports.cli.common import version
+from sensorless.reports.document import report_json
+from sensorless.reports.family import hooks
+from sensorless.reports.files import OutputSet
+from sensorless.reports.html import render
+
+
+def register(sub: Any) -> None:
+    """Add the ``report`` subcommand."""
+    p = sub.add_parser(
+        "report",
+        help="stability report (HTML + JSON) of the drive file's gains and, optionally, tuned gains",
+        description="Write report.html (self-contained, figures embedded as SVG) and report.json (every "
+        "number the report shows) for a drive and, with --gains, a tuned gain table.",
+    )
+    p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
+    p.add_argument("--gains", default=None, help="gain table JSON from `sensorless tune` to review")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--min-damping", type=float, default=0.2, help="required damping ratio (default 0.2)")
+    p.add_argument("--quick", action="store_true", help="coarser grids (for previews and tests)")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compute the report, then write both files at once."""
+    from sensorless.design.gain_table import read_gain_table
+
+    drive = load_drive(args.drive)
+    fam = family_of(drive)
+    compute = hooks(fam).report
+    if compute is None:
+        raise CapabilityError(f"observer family {fam.name!r} has no stability report")
+    table = read_gain_table(args.gains) if args.gains else None
+    out = OutputSet(args.out, force=args.force)
+    out.add_text("report.html", "")  # refuse early if the outputs exist, before minutes of work
+    out.add_text("report.json", "")
+    out.check_free()
+    t0 = time.perf_counter()
+    rep = compute(
+        drive,
+        table,
+        args.gains or "",
+        min_damping=args.min_damping,
+        resolution="quick" if args.quick else "normal",
+        progress=lambda msg: print(msg, file=sys.stderr, flush=True),
+    )
+    v = version()
+    out.add_text("report.json", report_json(rep.data, v))
+    out.add_text("report.html", render(rep, v))
+    for p in out.commit():
+        print(f"wrote {p}")
+    print(f"verdict: {rep.verdict.status}; report computed in {time.perf_counter() - t0:.1f} s")
+    return 0

@@ -1,0 +1,85 @@
+"""``sensorless tune``: tuned observer gains over an operating envelope, written as gain tables.
+
+The drive's observer family offers tunable gain families (tuning/family.py; ``--family``, default its
+first); envelope and constraints come from the drive file and the family's options (reports/family.py).
+Progress goes to stderr; the summary and the written files to stdout. If the tuner fails or the
+constraints cannot be met, one line says so and the exit status is 2; nothing is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from typing import Any
+
+from sensorless.design.drive import load_drive
+from sensorless.design.family import CapabilityError
+from sensorless.design.registry import family_of
+from sensorless.reports.cli.common import UsageError
+from sensorless.reports.family import add_family_options, hooks, refuse_foreign
+from sensorless.reports.files import OutputSet
+from sensorless.reports.gain_csv import table_csv
+from sensorless.tuning.family import all_tunables, tunable_for
+from sensorless.tuning.nlp import TuningError
+
+
+def register(sub: Any) -> None:
+    """Add the ``tune`` subcommand."""
+    fams = all_tunables()
+    p = sub.add_parser(
+        "tune",
+        help="optimal observer gains over an operating envelope (gain tables CSV + JSON)",
+        description="Tune a gain family of the drive's observer over an envelope of operating points, "
+        "re-verify on a denser grid, and write the gain table. Families: "
+        + "; ".join(f"{k}: {v}" for k, v in fams.items()),
+    )
+    p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
+    p.add_argument(
+        "--family",
+        default=None,
+        choices=list(fams),
+        help="gain family to tune (default: the first of the drive's observer family)",
+    )
+    p.add_argument("--out", default=None, help="output directory (default: tune-<drive name>)")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_family_options(p, "tune")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Tune, print the summary, write the tables."""
+    from sensorless.tuning.tune import tune
+
+    drive = load_drive(args.drive)
+    fam = family_of(drive)
+    h = hooks(fam)
+    tunable = tunable_for(drive, args.family)
+    refuse_foreign(args, fam, "tune")
+    settings = h.tune_settings(drive, args, tunable) if h.tune_settings is not None else None
+    out = OutputSet(args.out or f"tune-{drive.name}", force=args.force)
+    json_name, csv_name = f"gains_{tunable.name}.json", f"gains_{tunable.name}.csv"
+    out.add_bytes(json_name, b"")  # reserve the names: refuse existing outputs before the work
+    out.add_bytes(csv_name, b"")
+    out.check_free()
+    t0 = time.perf_counter()
+
+    def progress(msg: str) -> None:
+        if not args.quiet:
+            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    print(f"{drive.name}: {drive.source}")
+    print(f"family {tunable.name}: {tunable.description}")
+    if h.describe_envelope is not None and settings is not None:
+        print(h.describe_envelope(drive, settings))
+    try:
+        r = tune(drive, tunable.name, settings, progress=progress)
+    except (TuningError, CapabilityError) as e:
+        raise UsageError(str(e)) from None
+    print("\n".join(r.summary_lines(drive)))
+    out.add_text(json_name, r.table.to_json())
+    out.add_text(csv_name, table_csv(r.table, tunable.columns))
+    for p in out.commit():
+        print(f"wrote {p}")
+    return 0

@@ -1,0 +1,257 @@
+"""A stability report as data: sections of paragraphs, tables and figures, a verdict, and its JSON numbers.
+
+Each family computes its report (its report hooks, reports/family.py) into a :class:`Report`: the
+numbers (``data``, written as report.json: every number the HTML shows, no date, so reruns give
+identical bytes) and the sections to show, made of :class:`Paragraph`, :class:`Table` and
+:class:`Figure` blocks. The shared renderer (reports/html.py) turns any family's report into one
+self-contained HTML page. The helpers below are what every family's report uses: JSON-safe numbers,
+figures as data URIs, the drive-data tables.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import hashlib
+import io
+import json
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+# --------------------------------------------------------------------------------------------------
+# Blocks and sections
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Paragraph:
+    """A paragraph; ``cls`` "ok" or "bad" colours it."""
+
+    text: str
+    cls: str = ""
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table of already formatted cells; ``numeric`` marks right-aligned columns (by index)."""
+
+    header: tuple[str, ...]
+    rows: tuple[tuple[str, ...], ...]
+    caption: str = ""
+    numeric: frozenset[int] = frozenset()
+    code: frozenset[int] = frozenset()  # columns shown as code (names of keys)
+
+
+@dataclass(frozen=True)
+class Figure:
+    """A figure as a data URI (SVG) with its caption."""
+
+    uri: str
+    caption: str
+
+
+@dataclass(frozen=True)
+class Row:
+    """Blocks side by side (e.g. small tables)."""
+
+    blocks: tuple[Any, ...]
+
+
+@dataclass(frozen=True)
+class Section:
+    """A numbered section of the report."""
+
+    title: str
+    blocks: tuple[Any, ...]
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The verdict box: ``status`` "pass", "warn" or "fail", and its lines (Paragraphs, lists)."""
+
+    status: str
+    lines: tuple[Paragraph, ...]
+    findings: tuple[str, ...] = ()  # bullet points: what failed and where
+
+
+@dataclass(frozen=True)
+class Report:
+    """A whole report: its numbers (JSON) and what the HTML shows."""
+
+    drive: str
+    review: str  # the gains under review
+    data: dict[str, Any]
+    verdict: Verdict
+    sections: tuple[Section, ...] = field(default_factory=tuple)
+
+
+# --------------------------------------------------------------------------------------------------
+# Numbers and figures
+# --------------------------------------------------------------------------------------------------
+def f(x: Any) -> Any:
+    """JSON-safe float (None for NaN/inf), rounded to 12 significant digits for stable text."""
+    x = float(x)
+    return float(f"{x:.12g}") if np.isfinite(x) else None
+
+
+def arr(a: np.ndarray) -> list:
+    """JSON-safe nested list of a 1-D or 2-D array."""
+    return [[f(v) for v in row] for row in np.atleast_2d(a)] if np.ndim(a) == 2 else [f(v) for v in a]
+
+
+def num(v: Any, digits: int = 4) -> str:
+    """A number for a table cell ('–' for none)."""
+    return "–" if v is None else f"{v:.{digits}g}"
+
+
+def svg_uri(fig: Any) -> str:
+    """A matplotlib figure as an SVG data URI (closed afterwards; no date inside)."""
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="svg", metadata={"Date": None})
+    plt.close(fig)
+    return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def report_json(data: dict[str, Any], version: str) -> str:
+    """Deterministic JSON text of the report data."""
+    doc = {"format": "sensorless-report/1", "toolbox": {"name": "sensorless", "version": version}, **data}
+    return json.dumps(doc, indent=1, sort_keys=True, allow_nan=False) + "\n"
+
+
+def report_inputs(drive: Any, table: Any | None, min_damping: float) -> dict[str, Any]:
+    """What a report describes: the drive, the hashes of its inputs, the required damping."""
+    return {
+        "drive": drive.name,
+        "drive_sha256": drive.digest,
+        "gains_sha256": table_digest(table),
+        "min_damping": min_damping,
+    }
+
+
+def table_digest(table: Any | None) -> str | None:
+    """sha256 of a gain table's canonical JSON, or None."""
+    return None if table is None else hashlib.sha256(table.to_json().encode()).hexdigest()
+
+
+# --------------------------------------------------------------------------------------------------
+# Drive data
+# --------------------------------------------------------------------------------------------------
+def _unit_of(doc: str) -> str:
+    """The unit in square brackets of a field's doc text ("stator resistance [ohm]" -> "ohm")."""
+    m = re.search(r"\[([^\]]+)\]", doc)
+    return m.group(1) if m else ""
+
+
+def _rows(obj: Any, pu: dict[str, float]) -> list[dict[str, Any]]:
+    rows = []
+    for fd in dataclasses.fields(obj):
+        v = getattr(obj, fd.name)
+        doc = fd.metadata.get("doc", "")
+        dim = fd.metadata.get("dim")
+        if isinstance(v, tuple | list):
+            if not all(isinstance(x, int | float) for x in v):
+                continue
+            rows.append(
+                {
+                    "name": fd.name,
+                    "value": None,
+                    "unit": _unit_of(doc),
+                    "what": doc,
+                    "pu": None,
+                    "values": [f(x) for x in v],
+                }
+            )
+            continue
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            if isinstance(v, str):
+                rows.append({"name": fd.name, "value": None, "unit": "", "what": f"{doc} = {v}", "pu": None})
+            continue
+        rows.append(
+            {
+                "name": fd.name,
+                "value": f(v),
+                "unit": _unit_of(doc),
+                "what": doc,
+                "pu": f(v / pu[dim]) if dim in pu else None,
+            }
+        )
+    return rows
+
+
+def drive_tables(drive: Any) -> dict[str, list[dict[str, Any]]]:
+    """Drive and observer data as rows (name, value, unit, per-unit where the drive has bases).
+
+    Every dataclass section of the drive; gain tables nested in a section (a mapping of dataclasses)
+    become rows named ``<gain>.<key>``.
+    """
+    b = getattr(drive, "base", None)
+    pu = (
+        {
+            "angular": b.w,
+            "voltage": b.u,
+            "current": b.i,
+            "resistance": b.Z,
+            "inductance": b.Z / b.w,
+            "flux": b.psi,
+        }
+        if b is not None
+        else {}
+    )
+    tables: dict[str, list[dict[str, Any]]] = {}
+    for sf in dataclasses.fields(drive):
+        obj = getattr(drive, sf.name)
+        if not dataclasses.is_dataclass(obj) or sf.name in ("runtime", "tuning"):
+            continue
+        rows = _rows(obj, pu)
+        for fd in dataclasses.fields(obj):
+            v = getattr(obj, fd.name)
+            if isinstance(v, dict):  # nested gain sections, e.g. [observer.gains.*]
+                for gname, g in v.items():
+                    for gf in dataclasses.fields(g):
+                        doc = gf.metadata.get("doc", "")
+                        rows.append(
+                            {
+                                "name": f"{gname}.{gf.name}",
+                                "value": f(getattr(g, gf.name)),
+                                "unit": _unit_of(doc),
+                                "what": f"gain law '{gname}': {doc}",
+                                "pu": None,
+                            }
+                        )
+        tables[sf.name] = rows
+    return tables
+
+
+def drive_section(number: int, data: dict[str, Any]) -> Section:
+    """The section "Drive and observer data" from ``drive_tables`` data."""
+    tables = []
+    for name, rows in data.items():
+        cells = tuple(
+            (
+                r["name"],
+                ", ".join(num(v, 6) for v in r["values"]) if "values" in r else num(r["value"], 6),
+                r["unit"],
+                num(r["pu"], 4),
+                r["what"],
+            )
+            for r in rows
+        )
+        tables.append(
+            Table(
+                ("name", "value", "unit", "p.u.", "meaning"),
+                cells,
+                f"[{name}]",
+                frozenset({1, 3}),
+                frozenset({0}),
+            )
+        )
+    note = "SI units; speeds are electrical rad/s unless marked r/min (mechanical). " + (
+        "Per-unit bases: speed = [base] w, voltage = [base] u, current = [base] i, impedance = u/i, flux = u/w."
+        if "base" in data
+        else "This drive description defines no per-unit bases."
+    )
+    return Section(f"{number}. Drive and observer data", (Row(tuple(tables)), Paragraph(note, "meta")))

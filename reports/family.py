@@ -1,0 +1,93 @@
+"""Report hooks of the observer families: their command-line options, analysis output and report sections.
+
+An observer family names the module of its report hooks (``ObserverFamily.report``); that module
+defines ``HOOKS``, a :class:`ReportHooks`. The shared commands (reports/cli/) reach a family only
+through it and through the family record: ``analyze`` asks it to analyse and stage its files,
+``tune`` to turn its command-line options into a tunable's settings, ``report`` for the report's
+content (data and sections, reports/document.py), which the shared renderer turns into HTML.
+
+Options are data (:class:`Option`), declared per family and registered once per flag by the CLI; a
+flag that the drive's family does not declare is refused with one line, never silently ignored.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from sensorless.design.family import CapabilityError, ObserverFamily
+from sensorless.design.registry import families
+
+
+@dataclass(frozen=True)
+class Option:
+    """A command-line option: its flags and the argparse keywords (``default`` is always None, so a
+    command can tell a value the user gave from none; the family applies its own default)."""
+
+    flags: tuple[str, ...]
+    kwargs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def dest(self) -> str:
+        """The attribute name on the parsed arguments."""
+        return self.flags[0].lstrip("-").replace("-", "_")
+
+
+@dataclass(frozen=True)
+class ReportHooks:
+    """What a family contributes to the commands (each callable is optional)."""
+
+    # sensorless analyze: options, and (drive, args, out: OutputSet) -> None (prints, stages files)
+    analyze_options: tuple[Option, ...] = ()
+    analyze: Callable[[Any, argparse.Namespace, Any], None] | None = None
+    # sensorless tune: options, (drive, args, tunable) -> settings, (drive, settings) -> one line
+    tune_options: tuple[Option, ...] = ()
+    tune_settings: Callable[[Any, argparse.Namespace, Any], Any] | None = None
+    describe_envelope: Callable[[Any, Any], str] | None = None
+    # sensorless report: (drive, table or None, table file, min_damping, resolution, progress) -> Report
+    report: Callable[..., Any] | None = None
+
+
+def hooks(family: ObserverFamily) -> ReportHooks:
+    """The report hooks of ``family`` (empty hooks if it names none)."""
+    if family.report is None:
+        return ReportHooks()
+    h = getattr(importlib.import_module(family.report), "HOOKS", None)
+    if not isinstance(h, ReportHooks):
+        raise CapabilityError(f"{family.report} defines no ReportHooks HOOKS")
+    return h
+
+
+def all_options(kind: str) -> dict[str, tuple[Option, list[str]]]:
+    """Every family's options of command ``kind`` ("analyze" or "tune"): dest -> (option, families)."""
+    out: dict[str, tuple[Option, list[str]]] = {}
+    for fam in families():
+        for opt in getattr(hooks(fam), f"{kind}_options"):
+            if opt.dest in out:
+                out[opt.dest][1].append(fam.name)
+            else:
+                out[opt.dest] = (opt, [fam.name])
+    return out
+
+
+def add_family_options(parser: argparse.ArgumentParser, kind: str) -> None:
+    """Register every family's options of command ``kind``, each flag once, under one group."""
+    group = parser.add_argument_group("options of some observer families (refused by the others)")
+    for opt, fams in all_options(kind).values():
+        kw = {**opt.kwargs, "default": None}
+        kw["help"] = f"{kw.get('help', '')} [{', '.join(fams)}]".strip()
+        group.add_argument(*opt.flags, **kw)
+
+
+def refuse_foreign(args: argparse.Namespace, family: ObserverFamily, kind: str) -> None:
+    """CapabilityError naming the first option given that ``family`` does not declare for ``kind``."""
+    mine = {o.dest for o in getattr(hooks(family), f"{kind}_options")}
+    for dest, (opt, fams) in all_options(kind).items():
+        if dest not in mine and getattr(args, dest, None) not in (None, False):
+            raise CapabilityError(
+                f"{opt.flags[0]}: not an option for {family.title} drives (kind '{family.kind}'); "
+                f"it applies to: {', '.join(fams)}"
+            )

@@ -1,0 +1,19 @@
+"""Report hooks of the adaptive observer: its ``analyze`` output, ``tune`` options and stability report.
+
+Piippo, Hinkkanen, Luomi (2008). analyze.py (pole maps, unstable bands), tune.py (envelope options of
+the shared NLP), report.py and figures.py (the stability report).
+"""
+
+from __future__ import annotations
+
+from sensorless.reports.family import ReportHooks
+from sensorless.reports.ipmsm_adaptive import analyze, report, tune
+
+HOOKS = ReportHooks(
+    analyze_options=analyze.OPTIONS,
+    analyze=analyze.analyze,
+    tune_options=tune.OPTIONS,
+    tune_settings=tune.settings,
+    describe_envelope=tune.describe,
+    report=report.compute,
+)

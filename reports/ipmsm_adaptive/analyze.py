@@ -1,0 +1,105 @@
+"""``sensorless analyze`` for the adaptive observer: pole maps of G_c(s) over speed, unstable bands, damping.
+
+Piippo, Hinkkanen, Luomi (2008) Section IV: the linearized motor+observer closed loop (11)-(15) over
+-speed_max..speed_max p.u. at the given torques, for each gain choice, optionally with the averaged HF
+injection (19)-(22). Prints the right-half-plane speed bands (edges refined by bisection) and the worst
+damping; stages the pole data (CSV) and Fig. 4-5 style pole maps (PNG, SVG).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+from sensorless.design.ipmsm_adaptive import FAMILY, with_alpha_fo
+from sensorless.design.ipmsm_adaptive.linearize import unstable_speed_bands
+from sensorless.design.ipmsm_adaptive.runtime import law_of
+from sensorless.reports.cli.common import UsageError, parse_torques
+from sensorless.reports.family import Option
+from sensorless.reports.files import OutputSet
+
+OPTIONS = (
+    Option(
+        ("--gain",),
+        {"help": "gain from [observer.gains.*]: zero, constant, speed, or 'all' (default: [observer] gain)"},
+    ),
+    Option(
+        ("--torque",),
+        {
+            "action": "append",
+            "help": "torque(s) in N m or relative to nominal, comma-separated or repeated "
+            "(e.g. --torque=1T_N,-1T_N or --torque 14); default: nominal torque T_N",
+        },
+    ),
+    Option(("--injection",), {"action": "store_true", "help": "include the averaged HF injection (19)-(22)"}),
+    Option(("--speed-max",), {"type": float, "help": "sweep |w_m| up to this (p.u.); default 1"}),
+    Option(("--points",), {"type": int, "help": "speed grid points; default 2001"}),
+)
+
+
+def gain_choices(drive: Any, args: argparse.Namespace) -> dict[str, Any]:
+    """Label -> GainSet of the gains to analyse (a table's, or the drive file's named ones)."""
+    if args.gains:
+        from sensorless.design.gain_table import read_gain_table
+
+        if args.gain:
+            raise UsageError("--gain and --gains exclude each other (the table holds the gains)")
+        g = FAMILY.gains(drive, table=read_gain_table(args.gains), table_file=args.gains)
+        return {f"tuned {g.family}": g}
+    names = list(drive.observer.gains) if args.gain == "all" else [args.gain or drive.observer.gain]
+    return {n: FAMILY.gains(drive, name=n) for n in names}
+
+
+def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
+    """Print the bands and worst damping per gain and torque; stage CSV and figures into ``out``."""
+    choices = gain_choices(drive, args)
+    torques = parse_torques(args.torque, drive.T_N)
+    speed_max = 1.0 if args.speed_max is None else args.speed_max
+    points = 2001 if args.points is None else args.points
+    if points < 3 or not speed_max > 0:
+        raise UsageError("--points/--speed-max: need >= 3 points and a positive range")
+    wb = drive.w_base
+    w = np.linspace(-speed_max, speed_max, points) * wb
+    inj = bool(args.injection)
+
+    print(f"{drive.name}: {drive.source}")
+    print(
+        f"linearized closed loop ({FAMILY.citation} eqs. (11)-(15)"
+        f"{', HF injection (19)-(22)' if inj else ''}); {points} speeds in [-{speed_max:g}, {speed_max:g}] "
+        f"p.u., 1 p.u. = {wb:.2f} rad/s electrical"
+    )
+    print(f"{'gain':<14} {'T_e [N m]':>9}  {'unstable speed bands [p.u.]':<38} worst damping (stable pts)")
+
+    import matplotlib.pyplot as plt
+    from sensorless.reports.pole_map import plot_pole_maps, pole_csv
+
+    suffix = "_inj" if inj else ""
+    w_low = np.linspace(-0.05, 0.05, 1001) * wb  # dense low-speed sweep for the magnified panel
+    for T in torques:
+        sweeps, low = {}, {}
+        for label, g in choices.items():
+            s = FAMILY.linearize(drive, g, w, T, injection=inj)
+            sweeps[label] = s
+            low[label] = FAMILY.linearize(drive, g, w_low, T, injection=inj)
+            tol = 1e-9 * np.nanmax(np.abs(s.poles))
+            text = []
+            d = with_alpha_fo(drive, g)
+            for edges in unstable_speed_bands(d, w, T, gain=law_of(g), injection=inj, sweep=s):
+                mode = "motoring" if np.sign(np.mean(edges)) == np.sign(T) else "regenerating"
+                text.append(f"{edges[0] / wb:+.4f}..{edges[1] / wb:+.4f} ({mode})")
+            stable = s.max_real <= tol
+            wd = np.where(stable, s.worst_damping, np.inf)
+            k = int(np.argmin(wd))
+            worst = f"{wd[k]:.3f} at {w[k] / wb:+.3f} p.u." if np.isfinite(wd[k]) else "n/a"
+            print(f"{label:<14} {T:>9.3g}  {'; '.join(text) or 'none':<38} {worst}")
+            out.add_text(f"poles_{label.replace(' ', '_')}{suffix}_T{T:+g}Nm.csv", pole_csv(s, wb))
+        fig = plot_pole_maps(
+            sweeps,
+            wb,
+            f"{drive.name}: closed-loop poles, T_e = {T:g} N m{' with HF injection (averaged)' if inj else ''}",
+            low,
+        )
+        out.add_figure(f"pole_map{suffix}_T{T:+g}Nm.png", fig, dpi=110)
+        out.add_figure(f"pole_map{suffix}_T{T:+g}Nm.svg", fig)
+        plt.close(fig)

@@ -1,0 +1,127 @@
+"""Tables and figures of the reduced-order observer's analysis: poles (continuous vs discrete), steady errors."""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
+
+plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
+
+
+def _fmt(v: float) -> str:
+    return "nan" if not np.isfinite(v) else f"{v:.10g}"
+
+
+def format_poles(poles: np.ndarray, digits: int = 4) -> str:
+    """'-400, -389.2, -10.66' with complex pairs as '-200±34.1j' (upper member only)."""
+    out = []
+    for p in poles:
+        if p.imag < -1e-9 * max(1.0, abs(p)):
+            continue
+        if abs(p.imag) > 1e-9 * max(1.0, abs(p)):
+            out.append(f"{p.real:.{digits}g}±{abs(p.imag):.{digits - 1}g}j")
+        else:
+            out.append(f"{p.real:.{digits}g}")
+    return ", ".join(out)
+
+
+def poles_csv(r: ObserverPoles, drive: Any) -> str:
+    """One row per operating point; poles as re/im pairs [1/s]; units and settings in the header."""
+    n_c, n_m = r.poles.shape[1], r.memory_z.shape[1]
+    head = ["speed_rpm", "w_rad_s", "T_L_Nm"]
+    head += [f"pole_c{k}_{ri}_1_s" for k in range(n_c) for ri in ("re", "im")]
+    head += [f"pole_d{k}_{ri}_1_s" for k in range(n_c) for ri in ("re", "im")]
+    head += [f"memory_abs_z{k}" for k in range(n_m)]
+    head += ["monodromy_steps", "worst_damping_c", "worst_damping_d"]
+    head += ["err_w_rad_s", "err_theta_rad", "err_T_L_Nm", "ripple_w_rad_s", "ripple_T_L_Nm"]
+    buf = io.StringIO()
+    buf.write(
+        f"# {drive.name}: load-torque estimation {'on' if r.load_estimation else 'off (Gamma = 0)'}; "
+        f"discretization {r.method}, T_s = {r.T_s:.10g} s; speeds: electrical rad/s and mechanical r/min "
+        f"(p = {drive.motor.p}); errors: true minus estimate, steady state of the discrete observer\n"
+    )
+    buf.write(",".join(head) + "\n")
+    wd_c = np.nanmin(r.damping, axis=1)
+    wd_d = np.nanmin(r.damping_discrete, axis=1)
+    for j in range(r.w.size):
+        row = [float(drive.w_to_rpm(r.w[j])), r.w[j], r.T_L[j]]
+        for p in (*r.poles[j], *r.poles_discrete[j]):
+            row += [p.real, p.imag]
+        row += [*r.memory_z[j], r.steps[j], wd_c[j], wd_d[j]]
+        row += [r.err_w[j], r.err_theta[j], r.err_T[j], r.ripple_w[j], r.ripple_T[j]]
+        buf.write(",".join(_fmt(float(v)) for v in row) + "\n")
+    return buf.getvalue()
+
+
+def study_csv(rows: Sequence[Any], drive: Any) -> str:
+    """The discretization study (design/pmac_reduced_order/discretization.py) as CSV."""
+    buf = io.StringIO()
+    buf.write(
+        f"# {drive.name}: steady state of the discrete observer with load-torque estimation; "
+        "effect_w = |speed error without load estimation| (continuous time)\n"
+    )
+    buf.write(
+        "method,T_s_s,speed_rpm,T_L_Nm,err_w_rad_s,err_theta_rad,err_T_L_Nm,ripple_w_rad_s,"
+        "effect_w_rad_s,slow_pole_c_1_s,slow_pole_d_1_s\n"
+    )
+    for s in rows:
+        vals = [
+            s.T_s,
+            s.rpm,
+            s.T_L,
+            s.err_w,
+            s.err_theta,
+            s.err_T,
+            s.ripple_w,
+            s.effect_w,
+            s.slow_c,
+            s.slow_d,
+        ]
+        buf.write(s.method + "," + ",".join(_fmt(v) for v in vals) + "\n")
+    return buf.getvalue()
+
+
+def plot_poles(results: dict[str, ObserverPoles], drive: Any, title: str) -> matplotlib.figure.Figure:
+    """Per variant (column): real parts of the poles vs speed, continuous (o) and discrete ln(z)/T_s (x),
+    and the discrete observer's steady speed and load-torque errors vs speed; colored by load."""
+    cols = len(results)
+    fig, axes = plt.subplots(
+        3, cols, figsize=(5.6 * cols, 9.0), squeeze=False, layout="constrained", sharex=True
+    )
+    loads = np.unique(np.concatenate([r.T_L for r in results.values()]))
+    colors = {T: plt.get_cmap("tab10")(k % 10) for k, T in enumerate(loads)}
+    for c, (label, r) in enumerate(results.items()):
+        rpm = drive.w_to_rpm(r.w)
+        ax_p, ax_w, ax_t = axes[0, c], axes[1, c], axes[2, c]
+        for T in loads:
+            sel = r.T_L == T
+            order = np.argsort(rpm[sel])
+            x = rpm[sel][order]
+            col = colors[T]
+            for k in range(r.poles.shape[1]):
+                lab = f"T_L = {T:g} N m" if k == 0 else None
+                ax_p.plot(x, r.poles[sel][order, k].real, "o", mfc="none", color=col, ms=6, label=lab)
+                ax_p.plot(x, r.poles_discrete[sel][order, k].real, "x", color=col, ms=6)
+            ax_w.plot(x, r.err_w[sel][order], "x-", color=col, lw=0.8, label=f"T_L = {T:g} N m")
+            ax_t.plot(x, r.err_T[sel][order], "x-", color=col, lw=0.8)
+        ax_p.set_title(f"{label}\npoles: o continuous, x {r.method} at {r.T_s * 1e6:g} us", fontsize=9)
+        ax_p.set_ylabel("Re(pole) (1/s)")
+        ax_w.set_ylabel("steady speed error w - w_hat (rad/s)")
+        ax_t.set_ylabel("steady load error (N m)")
+        ax_t.set_xlabel("speed (r/min)")
+        for ax in (ax_w, ax_t):
+            ax.set_yscale("symlog", linthresh=1e-4)
+        for ax in (ax_p, ax_w, ax_t):
+            ax.grid(True, lw=0.3)
+            ax.set_xscale("symlog", linthresh=100)
+        ax_p.legend(loc="lower left", fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    return fig

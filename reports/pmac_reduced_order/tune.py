@@ -1,0 +1,49 @@
+"""``sensorless tune`` options of the reduced-order observer: bounds and damping floor of the deangelo tuner.
+
+The drive's ``[envelope]`` with default bounds around its ``[observer]`` gains
+(tuning/pmac_reduced_order/deangelo.py), and the command-line overrides, checked.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from typing import Any
+
+from sensorless.reports.cli.common import UsageError
+from sensorless.reports.family import Option
+from sensorless.tuning.nlp import TuningError
+from sensorless.tuning.pmac_reduced_order.deangelo import DeAngeloSettings, default_settings
+
+OPTIONS = (
+    Option(("--dense-factor",), {"type": int, "help": "re-verification refinement (>= 4)"}),
+    Option(("--g-max",), {"type": float, "help": "upper bound on g [1/s] (default 2x the drive's)"}),
+    Option(
+        ("--Gamma-max",), {"type": float, "help": "upper bound on Gamma [A^2 s^2] (default 100x the drive's)"}
+    ),
+    Option(("--min-damping",), {"type": float, "help": "worst damping required (default 0.707)"}),
+)
+
+
+def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> DeAngeloSettings:
+    """deangelo settings: the drive's [envelope] and default bounds, with the overrides."""
+    s = default_settings(drive)
+    out: dict[str, Any] = {}
+    for key in ("g_max", "Gamma_max", "min_damping", "dense_factor"):
+        v = getattr(args, key)
+        if v is not None:
+            out[key] = v
+    s = dataclasses.replace(s, **out)
+    try:
+        s.check("command line")
+    except TuningError as e:
+        raise UsageError(str(e)) from None
+    return s
+
+
+def describe(drive: Any, settings: DeAngeloSettings) -> str:
+    """One line: the envelope."""
+    return (
+        f"envelope: speeds {', '.join(f'{v:g}' for v in settings.speeds_rpm)} r/min x loads "
+        f"{', '.join(f'{v:g}' for v in settings.loads_Nm)} N m"
+    )

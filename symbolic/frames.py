@@ -1,0 +1,34 @@
+"""Space vectors and reference frames: the 90-degree rotation J, rotation by an angle, angle wrapping.
+
+Every model in this package writes a space vector as a 2x1 column, ``[d, q]`` in a rotating frame or
+``[alpha, beta]`` in the stationary frame. ``J`` is the rotation by +90 degrees of Piippo, Hinkkanen,
+Luomi (2008) eq. (1); ``rot(theta)`` rotates by +theta (their Appendix, eq. (24)). A frame at angle
+``theta_f`` sees a vector of the frame at angle ``theta`` as ``rot(theta - theta_f) @ x``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+
+Sym = ca.SX | ca.MX | ca.DM | float
+
+J = ca.DM([[0.0, -1.0], [1.0, 0.0]])
+I2 = ca.DM.eye(2)
+
+
+def rot(theta: Sym) -> Sym:
+    """T = cos(theta) I + sin(theta) J: rotates a vector by +theta."""
+    c, s = ca.cos(theta), ca.sin(theta)
+    return ca.vertcat(ca.horzcat(c, -s), ca.horzcat(s, c))
+
+
+def wrap_angle(theta: Sym) -> Sym:
+    """theta mapped to (-pi, pi]: theta - 2 pi ceil((theta - pi) / (2 pi)).
+
+    Keeping angles small keeps a float build exact to its resolution (an unwrapped angle loses a bit
+    of resolution each time it doubles). Uses ceil, never a float-to-integer conversion, so NaN and Inf
+    stay well defined (they propagate as NaN) and the generated C needs no branch.
+    """
+    return theta - 2 * math.pi * ca.ceil((theta - math.pi) * (1 / (2 * math.pi)))

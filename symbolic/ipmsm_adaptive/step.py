@@ -1,0 +1,277 @@
+"""Runtime step of the speed-adaptive observer: what simulation runs and ``codegen`` emits as C.
+
+One sampling period of the speed-adaptive flux observer of Piippo, Hinkkanen, Luomi (2008), eqs.
+(4)-(10), with the HF-injection correction (17)-(22), built in SX from the continuous-time definitions
+in observer.py, gains.py and injection.py (nothing re-typed here), discretized by forward Euler or
+Heun's method. The interface and every timing convention are in docs/families/ipmsm_adaptive.md; in
+short, at sample k (time t_k):
+
+- ``meas`` = [i_alpha, i_beta] sampled at t_k and [u_alpha, u_beta], the stator voltage applied during
+  [t_k, t_k + T_s] (with a one-sample computation delay: the reference computed at step k-1, carrier
+  included), all in the stationary frame. The step transforms them with its own angle estimate.
+- outputs: the estimates at t_k (w_hat, theta_hat, psi_hat), the carrier voltage to add on the
+  estimated d axis of the next voltage reference, the error signal eps (18), omega_eps (21), the gains.
+- the state advances to t_k + T_s. The gain (7) is scheduled at the previous sample's speed estimate
+  (state ``w_hat``) and held over the period, like the inputs; the HF chain and the integral of (21)
+  are sampled-data by nature (forward Euler for the integral).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import casadi as ca
+from sensorless.symbolic.frames import Sym, rot, wrap_angle
+from sensorless.symbolic.ipmsm_adaptive.gains import LAWS, GainLaw, get_law
+from sensorless.symbolic.ipmsm_adaptive.injection import (
+    fade,
+    faded_pi_gains,
+    hf_chain_step,
+    injection_gain,
+    injection_pi,
+)
+from sensorless.symbolic.ipmsm_adaptive.observer import observer_rates, speed_adaptation
+from sensorless.symbolic.pmsm import PmsmParams, flux_from_current
+from sensorless.symbolic.runtime import Field, RuntimeObserver, guarded
+
+NAME = "ipmsm_adaptive"
+DISCRETIZATIONS = ("heun", "euler")  # Heun's method (explicit trapezoidal RK2); forward Euler
+
+STATE = (
+    Field("psi_d", "V s", "stator-flux estimate psi_hat, estimated d axis, eq. (4)/(20)"),
+    Field("psi_q", "V s", "stator-flux estimate psi_hat, estimated q axis"),
+    Field("w_i", "rad/s", "integral part of the speed adaptation (9)"),
+    Field("theta", "rad", "rotor-position estimate theta_hat (electrical), in (-pi, pi]"),
+    Field("w_hat", "rad/s", "latest speed estimate (output w_hat): schedules the gain (7), (16)"),
+    Field("phi_c", "rad", "carrier phase w_c t, in (-pi, pi]"),
+    Field("bp_z1", "A", "band-pass filter state (transposed direct form II)"),
+    Field("bp_z2", "A", "band-pass filter state"),
+    Field("lp_z1", "A", "low-pass filter state (transposed direct form II)"),
+    Field("lp_z2", "A", "low-pass filter state"),
+    Field("x_eps", "rad/s", "integral part of the PI (21), bounded to +-x_eps_max"),
+)
+
+MEAS = (
+    Field("i_alpha", "A", "stator current at t_k, stationary frame"),
+    Field("i_beta", "A", "stator current at t_k, stationary frame"),
+    Field("u_alpha", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
+    Field("u_beta", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
+)
+
+PARAMS = (
+    Field("R_s", "ohm", "stator resistance estimate", "positive"),
+    Field("L_d", "H", "d-axis inductance estimate", "positive"),
+    Field("L_q", "H", "q-axis inductance estimate", "positive"),
+    Field("psi_pm", "V s", "PM flux estimate", "positive"),
+    Field("alpha_fo", "rad/s", "speed-adaptation bandwidth, eq. (10)", "positive"),
+    Field("T_s", "s", "sampling period", "positive"),
+    Field("injection", "1", "HF injection on (1) or off (0)", "flag"),
+    Field("w_c", "rad/s", "carrier angular frequency, eq. (17)", "positive"),
+    Field("u_c", "V", "carrier amplitude at zero speed, eq. (17)", "positive"),
+    Field("alpha_i", "rad/s", "PI (21) bandwidth at zero speed, eq. (22)", "positive"),
+    Field("w_Delta", "rad/s", "speed where the injection has faded to zero (Section V)", "positive"),
+    Field("x_eps_max", "rad/s", "bound on the integral part of (21)", "nonnegative"),
+    Field("w_bp", "rad/s", "band-pass -3 dB bandwidth (centre w_c)", "positive"),
+    Field("w_lp", "rad/s", "low-pass (Butterworth) cut-off", "positive"),
+    Field("carrier_delay", "samples", "delay from carrier command to applied voltage", "nonnegative"),
+)
+
+OUTPUTS = (
+    Field("w_hat", "rad/s", "speed estimate (9): the rate theta_hat advances at over this period"),
+    Field("theta_hat", "rad", "position estimate at t_k (electrical), in (-pi, pi]"),
+    Field("psi_hat_d", "V s", "stator-flux estimate at t_k, estimated d axis"),
+    Field("psi_hat_q", "V s", "stator-flux estimate at t_k, estimated q axis"),
+    Field("u_c_d", "V", "carrier voltage to add to the estimated-d-axis voltage reference, eq. (17)"),
+    Field("eps", "A", "demodulated error signal, eq. (18) (0 where the injection is off)"),
+    Field("w_eps", "rad/s", "correction speed omega_eps of (20), (21)"),
+    Field("lambda1", "ohm", "observer gain lambda1 applied this period, eq. (7)"),
+    Field("lambda2", "ohm", "observer gain lambda2 applied this period, eq. (7)"),
+    Field("fade", "1", "injection fade factor (1 at zero speed, 0 beyond w_Delta)"),
+    Field("valid", "1", "1: sample used; 0: non-finite result, the observer coasted"),
+)
+
+LAM = (
+    Field("lambda1", "ohm", "gain lambda1 of eq. (7), scheduled at state w_hat"),
+    Field("lambda2", "ohm", "gain lambda2 of eq. (7), scheduled at state w_hat"),
+)
+
+_IX = {f.name: k for k, f in enumerate(STATE)}
+_HELD = LAWS["constant"]  # lambda1, lambda2 given as numbers: the scheduled gains, held over a period
+
+
+def _step(discretization: str, x: Sym, meas: Sym, p: Sym, lam: Sym) -> tuple[Sym, Sym]:
+    """(x_next, y) of one sampling period; see the module docstring."""
+    P = {f.name: p[k] for k, f in enumerate(PARAMS)}
+    X = {f.name: x[k] for k, f in enumerate(STATE)}
+    est = PmsmParams(P["R_s"], P["L_d"], P["L_q"], P["psi_pm"])
+    T_s = P["T_s"]
+    psi, theta = x[0:2], X["theta"]
+    i_ab, u_ab = meas[0:2], meas[2:4]
+
+    T = rot(theta)
+    i_s = T.T @ i_ab  # measured current in the estimated rotor frame, eq. (24) with theta_hat
+    u_s = T.T @ u_ab
+    w_hat = speed_adaptation(psi, X["w_i"], i_s, est, P["alpha_fo"]).w_hat  # eq. (9)
+
+    # HF injection, Section V: carrier (17), error signal (18), PI (21)-(22), fading to w_Delta
+    f = P["injection"] * fade(w_hat, P["w_Delta"])
+    hf = hf_chain_step(
+        i_s[1],
+        X["phi_c"],
+        x[6:8],
+        x[8:10],
+        f * P["u_c"],
+        P["w_c"],
+        T_s,
+        P["w_bp"],
+        P["w_lp"],
+        P["carrier_delay"],
+    )
+    K_eps_hat = injection_gain(P["u_c"], P["w_c"], est)  # eq. (19) from the estimates
+    # off: any finite K keeps the (unused) gains finite, also for a non-salient motor
+    K_eps_hat = ca.if_else(P["injection"] > 0, K_eps_hat, 1)
+    gamma_p, gamma_i = faded_pi_gains(f, P["alpha_i"], K_eps_hat)  # eq. (22)
+    eps = ca.if_else(f > 0, hf.eps, 0)  # no carrier, no signal: leakage must not steer the observer
+    pi = injection_pi(eps, X["x_eps"], gamma_p, gamma_i)  # eq. (21)
+    x_eps_next = ca.fmin(ca.fmax(X["x_eps"] + T_s * pi.dx_eps, -P["x_eps_max"]), P["x_eps_max"])
+
+    def rates(psi_: Sym, w_i_: Sym, u_: Sym) -> tuple[Sym, Sym, Sym]:
+        r = observer_rates(psi_, w_i_, u_, i_s, est, P["alpha_fo"], _HELD, lam, pi.w_eps)  # (4)/(20)
+        return r.dpsi_hat, r.dw_i, r.w_hat
+
+    d_psi0, d_wi0, w0 = rates(psi, X["w_i"], u_s)
+    if discretization == "euler":
+        psi_next = psi + T_s * d_psi0
+        w_i_next = X["w_i"] + T_s * d_wi0
+        w_step = w0
+    elif discretization == "heun":
+        # predictor; the voltage is held in the stationary frame (as the inverter holds it), the
+        # current in the estimated rotor frame (where it is nearly constant)
+        theta_p = theta + T_s * w0
+        d_psi1, d_wi1, w1 = rates(psi + T_s * d_psi0, X["w_i"] + T_s * d_wi0, rot(theta_p).T @ u_ab)
+        psi_next = psi + T_s / 2 * (d_psi0 + d_psi1)
+        w_i_next = X["w_i"] + T_s / 2 * (d_wi0 + d_wi1)
+        w_step = (w0 + w1) / 2
+    else:
+        raise ValueError(f"unknown discretization {discretization!r} (known: {', '.join(DISCRETIZATIONS)})")
+
+    x_cand = ca.vertcat(
+        psi_next,
+        w_i_next,
+        wrap_angle(theta + T_s * w_step),  # theta_hat integrates w_hat (Section III)
+        w_step,
+        wrap_angle(X["phi_c"] + P["w_c"] * T_s),
+        hf.z_bp_next,
+        hf.z_lp_next,
+        x_eps_next,
+    )
+    y_cand = ca.vertcat(w_step, theta, psi, hf.u_c_d, eps, pi.w_eps, lam[0], lam[1], f, 1)
+    # invalid sample: coast. The angle and the carrier phase advance at the latest speed estimate, the
+    # rest is held (the flux in the estimated frame is constant in steady state); no carrier.
+    x_coast = ca.vertcat(
+        x[0:3],
+        wrap_angle(theta + T_s * X["w_hat"]),
+        x[4],
+        wrap_angle(X["phi_c"] + P["w_c"] * T_s),
+        x[6:11],
+    )
+    y_coast = ca.vertcat(X["w_hat"], theta, psi, 0, 0, X["x_eps"], lam[0], lam[1], 0, 0)
+    x_next, y, _ = guarded(x_coast, x_cand, y_cand, y_coast)
+    return x_next, y
+
+
+def _symbols(n_lam: int = 2) -> dict[str, ca.SX]:
+    return {
+        "x": ca.SX.sym("x", len(STATE)),
+        "meas": ca.SX.sym("meas", len(MEAS)),
+        "p": ca.SX.sym("p", len(PARAMS)),
+        "lam": ca.SX.sym("lam", n_lam),
+    }
+
+
+@functools.cache
+def observer_step_core(discretization: str = "euler") -> ca.Function:
+    """Step with the scheduled gains as an input: (x, meas, p, lam) -> (x_next, y).
+
+    This is what the C generator emits; the gain schedule becomes a C function of its own that the
+    generated ``*_step`` calls with the state ``w_hat``.
+    """
+    s = _symbols()
+    x_next, y = _step(discretization, s["x"], s["meas"], s["p"], s["lam"])
+    return ca.Function(
+        f"{NAME}_core_{discretization}",
+        [s["x"], s["meas"], s["p"], s["lam"]],
+        ca.cse([x_next, y]),  # one graph: y shares the step's work
+        ["x", "meas", "p", "lam"],
+        ["x_next", "y"],
+    )
+
+
+@functools.cache
+def observer_step_function(discretization: str = "euler", law: str | GainLaw = "speed") -> ca.Function:
+    """One sampling period of the adaptive observer: (x, meas, p, gain) -> (x_next, y).
+
+    ``law`` is a gain law of gains.py (``zero``, ``constant``, ``speed`` = eq. (16), or a
+    ``schedule_law(grid)``); ``gain`` its parameter vector (``law.param_names``). Vector layouts are
+    ``STATE``, ``MEAS``, ``PARAMS``, ``OUTPUTS`` of this module.
+    Suited to ``mapaccum`` (the state is the first input and the first output).
+    """
+    law = get_law(law)
+    s = _symbols()
+    gain = ca.SX.sym("gain", law.n_params)
+    lam = ca.vertcat(*law.expr(s["x"][_IX["w_hat"]], gain))  # eq. (7)/(16) at the stored estimate
+    x_next, y = observer_step_core(discretization)(s["x"], s["meas"], s["p"], lam)
+    return ca.Function(
+        f"{NAME}_step_{discretization}_{law.name}",
+        [s["x"], s["meas"], s["p"], gain],
+        [x_next, y],
+        ["x", "meas", "p", "gain"],
+        ["x_next", "y"],
+    )
+
+
+@functools.cache
+def initial_state_function() -> ca.Function:
+    """x0(p): the observer at rest at theta_hat = 0: psi_hat = [psi_pm_hat, 0], everything else 0."""
+    p = ca.SX.sym("p", len(PARAMS))
+    x0 = ca.SX.zeros(len(STATE))
+    x0[_IX["psi_d"]] = p[[f.name for f in PARAMS].index("psi_pm")]
+    return ca.Function(f"{NAME}_init", [p], [x0], ["p"], ["x0"])
+
+
+@functools.cache
+def steady_state_function() -> ca.Function:
+    """x(p, op): converged at the operating point op = [theta_hat, w, i_d, i_q] of a PMSM drive loop.
+
+    The flux estimate is the estimated-parameter flux (2) of the current, the adaptation's integral and
+    the stored speed estimate are the speed, the injection chain is at rest.
+    """
+    p = ca.SX.sym("p", len(PARAMS))
+    op = ca.SX.sym("op", 4)
+    P = {f.name: p[k] for k, f in enumerate(PARAMS)}
+    x = initial_state_function()(p)
+    est = PmsmParams(P["R_s"], P["L_d"], P["L_q"], P["psi_pm"])
+    psi = flux_from_current(op[2:4], est)  # eq. (2) with the estimates
+    x[_IX["psi_d"]], x[_IX["psi_q"]] = psi[0], psi[1]
+    x[_IX["w_i"]], x[_IX["w_hat"]] = op[1], op[1]
+    x[_IX["theta"]] = wrap_angle(op[0])
+    return ca.Function(f"{NAME}_steady_state", [p, op], [x], ["p", "op"], ["x"])
+
+
+OBSERVER = RuntimeObserver(
+    name=NAME,
+    title="speed-adaptive stator-flux observer with HF injection (Piippo, Hinkkanen, Luomi 2008)",
+    state=STATE,
+    meas=MEAS,
+    params=PARAMS,
+    outputs=OUTPUTS,
+    lam=LAM,
+    schedule_state="w_hat",
+    core=observer_step_core,
+    initial_state=initial_state_function,
+    discretizations=DISCRETIZATIONS,
+    steady_state=steady_state_function,
+    doc_init="theta_hat = 0, psi_hat = [psi_pm, 0], everything else 0",
+    doc_in="current sampled now, voltage applied over the coming period (stationary frame)",
+    doc_out="speed and angle estimates now, the carrier voltage for the next reference",
+)

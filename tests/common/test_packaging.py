@@ -1,0 +1,30 @@
+"""Installation: the console script exists and runs, and only the ``sensorless`` namespace is installed."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+
+def test_installed_console_script_runs(tmp_path):
+    """The ``sensorless`` script that ``pip install`` puts next to the interpreter, run as a program."""
+    script = Path(sys.executable).parent / "sensorless"
+    assert script.is_file(), f"no console script at {script}"
+    r = subprocess.run([str(script), "--version"], capture_output=True, text=True, cwd=tmp_path, check=False)
+    assert r.returncode == 0 and r.stdout.startswith("sensorless "), r.stderr
+    r = subprocess.run([str(script), "analyze", "nope"], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "nope" in r.stderr  # one line, no traceback
+
+
+@pytest.mark.parametrize("name", ["design", "reports", "symbolic", "tuning"])
+def test_no_generic_top_level_modules(tmp_path, name):
+    """The card folders install under the sensorless namespace only. Checked in a fresh interpreter
+    started outside the checkout, so that the repository's own folders are not on the path."""
+    code = (
+        "import importlib.util, sys\n"
+        f"assert importlib.util.find_spec('sensorless.{name}') is not None\n"
+        f"sys.exit(0 if importlib.util.find_spec('{name}') is None else 1)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr or f"a top-level module {name!r} is importable"

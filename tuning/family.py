@@ -1,0 +1,100 @@
+"""Tuning hooks of the observer families: the tunable gain families each offers, and how each is tuned.
+
+An observer family names the module of its tuning hooks (``ObserverFamily.tuning``); that module
+defines ``HOOKS``, a :class:`TuningHooks` listing its :class:`Tunable` gain families (law16 and schedule
+of the adaptive observer, deangelo of the reduced-order observer, ...). A tunable is tuned either by
+the shared max-min damping NLP (tuning/nlp.py, through a :class:`~sensorless.tuning.model.TuningModel`
+its ``build`` returns) or by a tuner of its own (``tuner``: a few parameters, a search of its own).
+Either way the result has a gain table (design/gain_table.py) and a terminal summary.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from sensorless.design.family import CapabilityError, ObserverFamily
+from sensorless.design.registry import families, family_of
+
+Progress = Callable[[str], None]
+
+
+class TuneOutcome(Protocol):
+    """What a tuner returns: the gain table and the lines of its terminal summary."""
+
+    family: str
+    table: Any  # design.gain_table.GainTable
+
+    def summary_lines(self, drive: Any) -> list[str]:
+        """Parameters before -> after, worst figures and where, what was kept and why."""
+        ...
+
+
+@dataclass(frozen=True)
+class Tunable:
+    """A tunable gain family: its name (the gain table's ``family``) and how it is tuned.
+
+    Exactly one of ``build`` (drive, settings, seed) -> TuningModel for the shared NLP, and ``tuner``
+    (drive, settings, progress) -> TuneOutcome, is given. ``seed`` names a tunable tuned first whose
+    parameters start this one (the schedule starts from the tuned law (16)). ``settings`` (drive) ->
+    the default settings (envelope, bounds) of this tunable. ``columns`` are the leading per-point
+    columns of its CSV table, (heading, point key), and those of the baseline.
+    """
+
+    name: str
+    description: str
+    settings: Callable[[Any], Any]
+    build: Callable[[Any, Any, Any], Any] | None = None
+    tuner: Callable[[Any, Any, Progress | None], TuneOutcome] | None = None
+    seed: str | None = None
+    columns: tuple[tuple[tuple[str, str], ...], tuple[tuple[str, str], ...]] = ((), ())
+
+
+@dataclass(frozen=True)
+class TuningHooks:
+    """A family's tunables; the first is the default of ``sensorless tune``."""
+
+    tunables: tuple[Tunable, ...]
+
+    def tunable(self, name: str | None, family: ObserverFamily) -> Tunable:
+        """The tunable called ``name`` (None: the default); CapabilityError naming what exists."""
+        if name is None:
+            return self.tunables[0]
+        for t in self.tunables:
+            if t.name == name:
+                return t
+        have = ", ".join(t.name for t in self.tunables)
+        raise CapabilityError(
+            f"gain family {name!r} cannot be tuned for {family.title} drives (kind '{family.kind}'); "
+            f"it has: {have}"
+        )
+
+
+def hooks(family: ObserverFamily) -> TuningHooks:
+    """The tuning hooks of ``family``; CapabilityError if it has none."""
+    if family.tuning is None:
+        raise CapabilityError(f"observer family {family.name!r} has nothing to tune")
+    h = getattr(importlib.import_module(family.tuning), "HOOKS", None)
+    if not isinstance(h, TuningHooks):
+        raise CapabilityError(f"{family.tuning} defines no TuningHooks HOOKS")
+    return h
+
+
+def tunable_for(drive: Any, name: str | None = None) -> Tunable:
+    """The tunable ``name`` (None: the default) of the drive's family."""
+    fam = family_of(drive)
+    return hooks(fam).tunable(name, fam)
+
+
+def all_tunables() -> dict[str, str]:
+    """Every tunable of every registered family: name -> description (for help texts)."""
+    out: dict[str, str] = {}
+    for fam in families():
+        try:
+            for t in hooks(fam).tunables:
+                out.setdefault(t.name, t.description)
+        except CapabilityError:
+            continue
+    return out

@@ -1,0 +1,47 @@
+"""Tuning hooks of the adaptive observer: the gain families law16 (eq. (16)) and schedule, by the shared NLP.
+
+Piippo, Hinkkanen, Luomi (2008). Builders of the TuningModels: families.py. Settings: the drive's
+``[tuning]`` section (design/envelope.py).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sensorless.tuning.family import Tunable, TuningHooks
+from sensorless.tuning.ipmsm_adaptive.families import build_law16, build_schedule
+
+_POINTS = (
+    ("w_m_pu", "w_m_pu"),
+    ("w_m_rad_s", "w_m_rad_s"),
+    ("T_e_Nm", "T_e_Nm"),
+    ("lambda1_ohm", "lambda1"),
+    ("lambda2_ohm", "lambda2"),
+)
+_BASELINE = (("lambda1_ohm", "lambda1"), ("lambda2_ohm", "lambda2"))
+
+
+def _settings(drive: Any) -> Any:
+    """The drive's [tuning] settings (defaults where the section is absent)."""
+    return drive.tuning
+
+
+HOOKS = TuningHooks(
+    tunables=(
+        Tunable(
+            "law16",
+            "eq. (16): lambda', omega_lambda (optionally alpha_fo)",
+            _settings,
+            build=build_law16,
+            columns=(_POINTS, _BASELINE),
+        ),
+        Tunable(
+            "schedule",
+            "free speed schedule: (lambda1, lambda2) at speed breakpoints, linear in between",
+            _settings,
+            build=build_schedule,
+            seed="law16",
+            columns=(_POINTS, _BASELINE),
+        ),
+    )
+)

@@ -1,0 +1,281 @@
+"""Tunable gain families of the adaptive observer: law (16) and the free speed schedule.
+
+Both are gain laws of symbolic/ipmsm_adaptive/gains.py plugged into the analysis closed loop of
+design/ipmsm_adaptive/linearize.py (``linearization_function``): the NLP differentiates exactly the
+Jacobian that ``sensorless analyze`` evaluates. theta is the law's parameter vector, plus alpha_fo (10) when
+``tune_alpha_fo`` is set.
+
+- law16: theta = [lambda' (ohm), omega_lambda (rad/s)], eq. (16) of Piippo, Hinkkanen, Luomi (2008).
+  Baseline: the drive's ``[observer.gains.speed]`` (the paper's Fig. 4(c): lambda' = 2 R̂s,
+  omega_lambda = 1 p.u.).
+- schedule: theta = [lambda1 at each breakpoint..., lambda2 at each breakpoint...] (ohm), linear in
+  the speed estimate between breakpoints, held beyond the ends (``schedule_law``). Breakpoints: zero,
+  ``breakpoints`` speeds per direction from speed_min to speed_max, and the kinks +-omega_lambda of
+  the drive file's law (16) and of the tuned law16 (its seed) inside the envelope. Eq. (16) is
+  piecewise linear with kinks only at 0 and +-omega_lambda, so on these breakpoints the schedule reproduces
+  both laws *exactly* over the envelope: its baseline is the drive file's gains sampled at the
+  breakpoints, its NLP start the tuned law16 sampled there, and the tuner can only improve on law16.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from sensorless.design.envelope import TuningSettings
+from sensorless.design.ipmsm_adaptive.linearize import linearization_function
+from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
+from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law, schedule_law, taylor_law
+from sensorless.tuning.model import TuningModel
+
+POINT_NAMES = ("w_m", "T_e", "R_s_hat", "L_d_hat", "L_q_hat", "psi_pm_hat")
+N_PHI = 6  # local gain data: lambda1, lambda2, their slopes in w_hat, w_m, alpha_fo
+GAIN_BOX = 20.0  # default search box |lambda| <= 20 R̂s when no lambda_max is given
+LAMBDA1_MIN = -0.9  # lambda1 > -R̂s (Section IV-B): the box keeps lambda1 >= -0.9 R̂s
+
+
+def _closed_loop(drive: Any, law: GainLaw, tune_alpha: bool) -> tuple[ca.Function, ca.Function]:
+    """(local, linearization) Functions of the family.
+
+    local(theta, point) -> phi = [lambda1, lambda2, dlambda1/dw_hat, dlambda2/dw_hat, w_m, alpha_fo]:
+    the law (16) or schedule and its slope at the point's speed, by AD of the one law expression.
+    linearization(phi, x, point) -> (A, x_dot): the analysis closed loop (ipmsm_adaptive/linearize.py)
+    with the law replaced by its first-order expansion at w_m, which gives the same residual and Jacobian
+    at any equilibrium (w_hat = w_m there; see ``taylor_law``). Drive constants are inlined.
+    """
+    nth = law.n_params + int(tune_alpha)
+    th = ca.SX.sym("theta", nth)
+    pt = ca.SX.sym("point", len(POINT_NAMES))
+    w_hat = ca.SX.sym("w_hat")
+    params = ca.vertcat(th[: law.n_params], ca.SX.zeros(law.width - law.n_params))
+    l1, l2 = law.expr(w_hat, params)
+    dl = ca.jacobian(ca.vertcat(l1, l2), w_hat)
+    alpha_fo = th[law.n_params] if tune_alpha else ca.SX(drive.observer.alpha_fo)
+    at = ca.substitute(ca.vertcat(l1, l2, dl), w_hat, pt[0])
+    local = ca.Function(
+        f"local_{law.name}", [th, pt], [ca.vertcat(at, pt[0], alpha_fo)], ["theta", "point"], ["phi"]
+    )
+
+    lin = linearization_function(taylor_law(), False)
+    phi = ca.SX.sym("phi", N_PHI)
+    x = ca.SX.sym("x", 4)
+    inj = drive.injection
+    out = lin(
+        x=x,
+        w_m=pt[0],
+        T_e=pt[1],
+        motor=ca.DM(drive.motor.vector()),
+        p=float(drive.motor.p),
+        estimate=pt[2:6],
+        gain=phi[:5],
+        alpha_fo=phi[5],
+        inj=ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
+    )
+    linear = ca.Function(
+        "closed_loop_local", [phi, x, pt], [out["A"], out["x_dot"]], ["phi", "x", "point"], ["A", "x_dot"]
+    )
+    return local, linear
+
+
+@functools.cache
+def _law_values(law: GainLaw) -> ca.Function:
+    """(w_hat, params) -> (lambda1, lambda2) of a law, numerically."""
+    w, p = ca.SX.sym("w_hat"), ca.SX.sym("params", law.width)
+    l1, l2 = law.expr(w, p)
+    return ca.Function(f"gains_{law.name}", [w, p], [l1, l2], ["w_hat", "params"], ["lambda1", "lambda2"])
+
+
+def _common(drive: Any, law: GainLaw, settings: TuningSettings, theta0, lower, upper, typical, **kw):
+    """Fields shared by both families."""
+    tune_alpha = settings.tune_alpha_fo
+    a0 = drive.observer.alpha_fo
+    names, units = law.param_names, law.param_units
+    if tune_alpha:
+        names, units = (*names, "alpha_fo"), (*units, "rad/s")
+        theta0 = np.append(theta0, a0)
+        lower, upper = np.append(lower, 0.2 * a0), np.append(upper, 4.0 * a0)
+        typical = np.append(typical, a0)
+    motor = np.array(drive.motor.vector())
+    inj = drive.injection
+
+    def equilibrium(theta: np.ndarray, P: np.ndarray) -> np.ndarray:
+        N = P.shape[1]
+        gain = np.zeros(law.width)
+        gain[: law.n_params] = theta[: law.n_params]
+        args = {
+            "w_m": P[0:1],
+            "T_e": P[1:2],
+            "motor": motor,
+            "p": np.array(float(drive.motor.p)),
+            "estimate": P[2:6],
+            "gain": gain,
+            "alpha_fo": np.array(theta[law.n_params] if tune_alpha else a0),
+            "inj": np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
+        }
+        exact = bool(np.all(P[2:6] == motor[:, None]))
+        return solve_equilibrium(law, False, args, N, exact)
+
+    def point_gains(theta: np.ndarray, w_hat: np.ndarray) -> dict[str, np.ndarray]:
+        gain = np.zeros(law.width)
+        gain[: law.n_params] = theta[: law.n_params]
+        f = _law_values(law).map(w_hat.size)
+        l1, l2 = f(w_hat[None, :], gain)
+        return {"lambda1_ohm": np.asarray(l1).ravel(), "lambda2_ohm": np.asarray(l2).ravel()}
+
+    def make_points(w: np.ndarray, T: np.ndarray, est: np.ndarray) -> np.ndarray:
+        w_b, T_b = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))
+        return np.vstack([w_b.ravel(), T_b.ravel(), np.repeat(np.asarray(est, float)[:, None], w_b.size, 1)])
+
+    est = drive.estimate
+    local, linear = _closed_loop(drive, law, tune_alpha)
+    R, wb = est.R_s, drive.base.w
+    return TuningModel(
+        names=tuple(names),
+        units=tuple(units),
+        theta0=np.asarray(theta0, float),
+        lower=np.asarray(lower, float),
+        upper=np.asarray(upper, float),
+        typical=np.asarray(typical, float),
+        local=local,
+        phi_typical=np.array([R, R, R / wb, R / wb, wb, a0]),
+        linearization=linear,
+        x_typical=np.array([est.psi_pm, est.psi_pm, 1.0, drive.base.w]),
+        point_names=POINT_NAMES,
+        make_points=make_points,
+        equilibrium=equilibrium,
+        point_gains=point_gains,
+        nominal_estimate=np.array(est.vector()),
+        estimate_names=("R_s", "L_d", "L_q", "psi_pm"),
+        **kw,
+    )
+
+
+def _alpha_reg(th: ca.SX, law: GainLaw, settings: TuningSettings, a0: float) -> ca.SX:
+    """Keep a tuned alpha_fo near the drive's value unless damping needs otherwise."""
+    return (th[law.n_params] / a0 - 1) ** 2 if settings.tune_alpha_fo else 0
+
+
+def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
+    """Family law16: eq. (16) with lambda' and omega_lambda free."""
+    law = get_law("speed")
+    R = drive.estimate.R_s
+    wb = drive.base.w
+    g = drive.gain("speed")
+    lam_max = settings.lambda_max if settings.lambda_max is not None else GAIN_BOX * R
+    a0 = drive.observer.alpha_fo
+
+    def table_gains(theta: np.ndarray) -> dict[str, Any]:
+        return {
+            "lambda_p": float(theta[0]),
+            "w_lambda": float(theta[1]),
+            "alpha_fo": float(theta[2] if settings.tune_alpha_fo else a0),
+        }
+
+    return _common(
+        drive,
+        law,
+        settings,
+        theta0=[g.lambda_p, g.w_lambda],
+        lower=[0.0, 0.01 * wb],
+        upper=[lam_max, 10.0 * wb],
+        typical=[R, wb],
+        family="law16",
+        # no regularizer: the optimum is a ridge (lambda' |w|/omega_lambda fixed at the binding
+        # speed) and any point on it is as good; the NLP is deterministic for given inputs
+        regularizer=None,
+        table_gains=table_gains,
+        # L-BFGS: the same optimum in as many iterations without the Hessian of the slots (default
+        # envelope: 45 -> 30 ms, benchmarks/bench_tune.py). Not for the schedule: with 50
+        # parameters it needs 10x the iterations and ends lower.
+        hessian="limited-memory",
+    )
+
+
+def schedule_breakpoints(
+    drive: Any, settings: TuningSettings, kinks: tuple[float, ...] = ()
+) -> tuple[float, ...]:
+    """Breakpoints [rad/s]: zero, ``breakpoints`` speeds per direction over the envelope, and +-each
+    of ``kinks`` [rad/s] that lies inside the envelope and not within 1e-3 p.u. of another."""
+    e = settings.envelope
+    wb = drive.base.w
+    mag = list(np.linspace(e.speed_min, e.speed_max, settings.breakpoints) * wb)
+    for k in kinks:
+        k = abs(float(k))
+        if e.speed_min * wb < k < e.speed_max * wb and min(abs(k - m) for m in mag) > 1e-3 * wb:
+            mag.append(k)
+    mag = np.sort(mag)
+    return tuple(float(v) for v in np.concatenate([-mag[::-1], [0.0], mag]))
+
+
+def _law16_at(grid: tuple[float, ...], params: np.ndarray) -> np.ndarray:
+    """eq. (16) with params [lambda', omega_lambda] sampled at the breakpoints: [lambda1..., lambda2...]."""
+    l1, l2 = _law_values(get_law("speed")).map(len(grid))(np.array(grid)[None, :], params[:2])
+    return np.concatenate([np.asarray(l1).ravel(), np.asarray(l2).ravel()])
+
+
+def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
+    """Family schedule: free (lambda1, lambda2) at each breakpoint, linear in between; started from
+    ``seed``, the tuned law16 parameters (lambda', omega_lambda[, alpha_fo]), when given."""
+    g = drive.gain("speed")
+    baseline = np.array([g.lambda_p, g.w_lambda])
+    grid = schedule_breakpoints(drive, settings, (g.w_lambda, *(() if seed is None else (seed[1],))))
+    law = schedule_law(grid)
+    K = len(grid)
+    R = drive.estimate.R_s
+    a0 = drive.observer.alpha_fo
+    lam_max = settings.lambda_max if settings.lambda_max is not None else GAIN_BOX * R
+    theta0 = _law16_at(grid, baseline)
+    lower = np.concatenate([np.full(K, max(LAMBDA1_MIN * R, -lam_max)), np.full(K, -lam_max)])
+    upper = np.full(2 * K, lam_max)
+    w = np.array(grid)
+    h = np.diff(w)
+    h_mean = float(h.mean())
+
+    def regularizer(th: ca.SX) -> ca.SX:
+        # roughness: squared change of slope between neighbouring intervals (zero for a straight
+        # line, as (16) is below omega_lambda), plus a small pull towards small gains
+        total = 0
+        for part in (th[:K], th[K : 2 * K]):
+            slope = [(part[k + 1] - part[k]) / h[k] for k in range(K - 1)]
+            total += sum(((slope[k + 1] - slope[k]) * h_mean / R) ** 2 for k in range(K - 2))
+            total += 0.01 * sum((part[k] / R) ** 2 for k in range(K)) / K
+        return total + _alpha_reg(th, law, settings, a0)
+
+    def table_gains(theta: np.ndarray) -> dict[str, Any]:
+        return {
+            "w_hat": list(grid),
+            "lambda1": [float(v) for v in theta[:K]],
+            "lambda2": [float(v) for v in theta[K : 2 * K]],
+            "alpha_fo": float(theta[2 * K] if settings.tune_alpha_fo else a0),
+        }
+
+    start = None
+    if seed is not None:
+        start = _law16_at(grid, np.asarray(seed, float))
+        if settings.tune_alpha_fo:
+            start = np.append(start, seed[2])
+    return _common(
+        drive,
+        law,
+        settings,
+        theta0=theta0,
+        lower=lower,
+        upper=upper,
+        typical=np.full(2 * K, R),
+        family="schedule",
+        regularizer=regularizer,
+        table_gains=table_gains,
+        start=start,
+        start_label="law16 optimum" if seed is not None else "",
+    )
+
+
+def with_estimate(drive: Any, estimate: np.ndarray) -> Any:
+    """The drive with other parameter estimates (for analysis of the error scenarios)."""
+    e = dataclasses.replace(
+        drive.estimate, R_s=estimate[0], L_d=estimate[1], L_q=estimate[2], psi_pm=estimate[3]
+    )
+    return dataclasses.replace(drive, estimate=e)

@@ -1,0 +1,31 @@
+"""Tuning hooks of the reduced-order observer: the gain family deangelo (g, Gamma), by a tuner of its own.
+
+De Angelo et al. (2006). Its poles are Floquet exponents of the sampled observer, so it does not go
+through the shared NLP: deangelo.py has a closed form and a compass search on the discrete poles.
+"""
+
+from __future__ import annotations
+
+from sensorless.tuning.family import Tunable, TuningHooks
+from sensorless.tuning.pmac_reduced_order.deangelo import default_settings, tune_deangelo
+
+HOOKS = TuningHooks(
+    tunables=(
+        Tunable(
+            "deangelo",
+            "reduced-order EMF/load-torque observer: g, Gamma",
+            default_settings,
+            tuner=tune_deangelo,
+            columns=(
+                (
+                    ("n_rpm", "n_rpm"),
+                    ("w_rad_s", "w_rad_s"),
+                    ("T_L_Nm", "T_L_Nm"),
+                    ("g_1_s", "g"),
+                    ("Gamma_A2s2", "Gamma"),
+                ),
+                (("g_1_s", "g"), ("Gamma_A2s2", "Gamma")),
+            ),
+        ),
+    )
+)
