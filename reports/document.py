@@ -250,7 +250,8 @@ def drive_section(number: int, data: dict[str, Any]) -> Section:
             )
         )
     note = "SI units; speeds are electrical rad/s unless marked r/min (mechanical). " + (
-        "Per-unit bases: speed = [base] w, voltage = [base] u, current = [base] i, impedance = u/i, flux = u/w."
+        "Per-unit bases: speed = [base] w, voltage = [base] u, current = [base] i, impedance = u/i, "
+        "flux = u/w."
         if "base" in data
         else "This drive description defines no per-unit bases."
     )

@@ -27,6 +27,7 @@ from sensorless.design.ipmsm_adaptive.operating_point import (
 from sensorless.design.linearization import Linearization
 from sensorless.design.poles import eigvals_batched, sort_poles
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
+from sensorless.symbolic.ipmsm_adaptive.observer import error_term
 from sensorless.symbolic.linalg import charpoly
 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
@@ -97,7 +98,7 @@ def paper_open_loop_function(law: str | GainLaw) -> ca.Function:
     A = ca.mtimes([M, ca.jacobian(fo, xo), ca.inv(M)])
     B = -M @ ca.jacobian(fo, w_hat_in)  # input: speed error w_m - w_hat
     B_wm = M @ ca.jacobian(fo, s["w_m"])  # the same input seen through w_m (must equal B)
-    F_eps = s["estimate"][2] * ol.i_tilde[1]  # eq. (8)
+    F_eps = error_term(ol.i_tilde, s["estimate"][2])  # eq. (8)
     C = ca.jacobian(F_eps, xo) @ ca.inv(M)
     outs = [ca.substitute(e, w_hat_in, cl.w_hat) for e in (A, B, B_wm, C)]
     names = ["x", *PARAM_NAMES]

@@ -39,7 +39,13 @@ from sensorless.design.linearization import Linearization
 from sensorless.design.poles import damping_ratio, sort_poles
 from sensorless.symbolic.frames import J, rot, wrap_angle
 from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
-from sensorless.symbolic.pmac_reduced_order.observer import estimates, rates, zeta_tau
+from sensorless.symbolic.pmac_reduced_order.observer import (
+    emf_from_zeta,
+    estimates,
+    rates,
+    speed_from_emf,
+    zeta_tau,
+)
 from sensorless.symbolic.pmac_reduced_order.step import N_STATE, param_names, split_params, step
 
 INPUT_NAMES = ("theta", "w", "T_L", "motor", "params")
@@ -117,9 +123,8 @@ def continuous_jacobian_function(
     sig, _ = _plant(s, th, orders_m)
     sigma = ca.if_else(w >= 0, 1, -1)
     # speed (13) at the implicit position a, used by the harmonic removal (19)
-    e_hat = zeta - p.g * p.L * sig.i
-    phi_a = flux_derivative(a, emf_o)
-    w_a = sigma * p.p_r * ca.sqrt(ca.dot(e_hat, e_hat) / ca.dot(phi_a, phi_a))
+    e_hat = emf_from_zeta(zeta, sig.i, p)  # eq. (17)
+    w_a = speed_from_emf(e_hat, flux_derivative(a, emf_o), sigma, p.p_r)  # eqs. (13)-(14)
     est = estimates(zeta, tau, sig.i, a, w_a, sigma, p, emf_o)
     dzeta, dtau = rates(est, sig.i, sig.v, p)  # eq. (16)
     F = ca.vertcat(rot(th).T @ dzeta - w * (J @ y[0:2]), *([dtau] if load_estimation else []))

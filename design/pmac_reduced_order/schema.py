@@ -14,14 +14,17 @@ omega electrical).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import casadi as ca
 import numpy as np
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.symbolic.pmac import EmfSeries, flux_derivative
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS, param_names
 
 READINGS = {
@@ -196,15 +199,21 @@ def _harmonics(
         Phi.append(x)
     # (13) and (25) divide by |phi(theta)|^2: it must not vanish at any angle
     theta = np.linspace(0, 2 * np.pi, 64 * max(abs(n) for n in orders) + 1)
-    n_arr = np.array(orders)[:, None]
-    P = np.array(Phi)[:, None]
-    mag = np.hypot((P * np.sin(n_arr * theta)).sum(0), (P * np.cos(n_arr * theta)).sum(0))
+    mag = _phi_magnitude(orders).map(theta.size)(theta[None, :], np.array(Phi))
+    mag = np.asarray(mag).ravel()
     if mag.min() <= 1e-6 * Phi[0]:
         k = int(np.argmin(mag))
         raise DriveFileError(
             file, key, f"non-physical series: |phi(theta)| vanishes near theta = {theta[k]:.4f} rad"
         )
     return orders, tuple(Phi)
+
+
+@functools.cache
+def _phi_magnitude(orders: tuple[int, ...]) -> ca.Function:
+    """(theta, Phi) -> |phi(theta)| of eq. (4) (symbolic/pmac.py)."""
+    th, Phi = ca.SX.sym("theta"), ca.SX.sym("Phi", len(orders))
+    return ca.Function("phi_magnitude", [th, Phi], [ca.norm_2(flux_derivative(th, EmfSeries(orders, Phi)))])
 
 
 def _with_harmonics(cls: type, table: Mapping[str, Any], file: str, section: str) -> Any:

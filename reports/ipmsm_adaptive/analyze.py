@@ -97,7 +97,8 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
         fig = plot_pole_maps(
             sweeps,
             wb,
-            f"{drive.name}: closed-loop poles, T_e = {T:g} N m{' with HF injection (averaged)' if inj else ''}",
+            f"{drive.name}: closed-loop poles, T_e = {T:g} N m"
+            f"{' with HF injection (averaged)' if inj else ''}",
             low,
         )
         out.add_figure(f"pole_map{suffix}_T{T:+g}Nm.png", fig, dpi=110)

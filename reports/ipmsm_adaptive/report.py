@@ -108,7 +108,8 @@ def compute(
         pole_figs.append(
             Figure(
                 svg_uri(fig),
-                f"Closed-loop poles of G_c(s), eq. (15), at T_e = {T:+g} N m while the speed sweeps -1…1 p.u. "
+                f"Closed-loop poles of G_c(s), eq. (15), at T_e = {T:+g} N m while the speed sweeps "
+                "-1…1 p.u. "
                 "(left, Fig. 4 style; upper half-plane), and magnified near the origin with a dense "
                 "low-speed sweep (right, Fig. 5 style). Crosses: right-half-plane poles; the RHP is shaded.",
             )
@@ -346,15 +347,18 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
     if frm is not None:
         lines.append(
             Paragraph(
-                f"Gains {v['gains']}: stable with damping ≥ {v['min_damping']:g} for |ω| ≥ {frm:.3g} p.u. at all "
-                f"analysed torques (±1.5 T_N); {100 * env['fraction_ok']:.1f} % of the speed × torque grid meets it.",
+                f"Gains {v['gains']}: stable with damping ≥ {v['min_damping']:g} for |ω| ≥ {frm:.3g} p.u. "
+                "at all "
+                f"analysed torques (±1.5 T_N); {100 * env['fraction_ok']:.1f} % of the speed × torque grid "
+                "meets it.",
                 "ok" if v["status"] == "pass" else "",
             )
         )
     else:
         lines.append(
             Paragraph(
-                f"Gains {v['gains']}: the required damping {v['min_damping']:g} is not met at high speed for some torque.",
+                f"Gains {v['gains']}: the required damping {v['min_damping']:g} is not met at high speed "
+                "for some torque.",
                 "bad",
             )
         )

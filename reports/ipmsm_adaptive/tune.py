@@ -27,7 +27,8 @@ OPTIONS = (
     Option(
         ("--errors",),
         {
-            "help": "stay stable with estimates off by these fractions, e.g. R_s=30%%,L_q=10%% (all sign corners)"
+            "help": "stay stable with estimates off by these fractions, e.g. R_s=30%%,L_q=10%% "
+            "(all sign corners)"
         },
     ),
     Option(("--tune-alpha-fo",), {"action": "store_true", "help": "also tune alpha_fo of eq. (10)"}),

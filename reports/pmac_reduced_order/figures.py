@@ -1,4 +1,4 @@
-"""Tables and figures of the reduced-order observer's analysis: poles (continuous vs discrete), steady errors."""
+"""Tables and figures of the reduced-order observer analysis: poles (continuous, discrete), steady errors."""
 
 from __future__ import annotations
 

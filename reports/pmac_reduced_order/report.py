@@ -182,7 +182,8 @@ def _verdict(data: dict[str, Any]) -> Verdict:
     text = (
         f"Gains {v['gains']}: discrete-time observer at T_s = {data['sampling_period_s'] * 1e6:g} us "
         f"({data['discretization']}) {'stable' if v['stable'] else 'NOT stable'} over the envelope; damping "
-        f"{'meets' if v['damped'] else 'does not meet'} {v['min_damping']:g} everywhere. Slowest discrete mode: "
+        f"{'meets' if v['damped'] else 'does not meet'} {v['min_damping']:g} everywhere. "
+        "Slowest discrete mode: "
         f"decay {num(wd['decay_rate'], 4)} 1/s at {num(wd['speed_rpm'])} r/min, {num(wd['T_L_Nm'])} N m."
     )
     lines = [Paragraph(text, "ok" if v["status"] == "pass" else "bad" if v["status"] == "fail" else "")]

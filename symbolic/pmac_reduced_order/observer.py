@@ -86,6 +86,11 @@ def emf_fundamental(e_hat: Sym, theta_pred: Sym, w_pred: Sym, p_r: Sym, emf: Emf
     return e_hat - e_h  # eq. (22)
 
 
+def speed_from_emf(e_hat: Sym, phi_hat: Sym, sigma: Sym, p_r: Sym) -> Sym:
+    """w_hat = sigma p_r |e_hat| / |phi_hat|, eqs. (13)-(14): the electrical speed with the sign (14)."""
+    return sigma * p_r * ca.sqrt(ca.dot(e_hat, e_hat) / ca.dot(phi_hat, phi_hat))
+
+
 def speed_sign(theta_raw: Sym, theta_prev: Sym) -> Sym:
     """sign(Delta theta_hat / Delta t) of eq. (14), +1 or -1 (+1 when the angle has not moved).
 
@@ -117,7 +122,7 @@ def estimates(
     theta_raw = ca.atan2(-e1[0], e1[1])  # eq. (18), branch-free
     theta_hat = ca.atan2(-sigma * e1[0], sigma * e1[1])  # eq. (18) on the branch of the speed sign
     phi_hat = flux_derivative(theta_hat, emf)  # eq. (23)
-    w_hat = sigma * p.p_r * ca.sqrt(ca.dot(e_hat, e_hat) / ca.dot(phi_hat, phi_hat))  # eqs. (13)-(14)
+    w_hat = speed_from_emf(e_hat, phi_hat, sigma, p.p_r)  # eqs. (13)-(14)
     dphi_hat = w_hat * flux_derivative_slope(theta_hat, emf)  # eq. (24)
     T_L_hat = load_torque_from_tau(tau, phi_hat, i, p)  # eq. (17)
     return Estimates(e_hat, theta_raw, theta_hat, w_hat, phi_hat, dphi_hat, T_L_hat)
