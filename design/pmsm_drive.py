@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from sensorless.design.family import CapabilityError
+from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
@@ -101,8 +103,11 @@ def loop_setup(
     not see. ``meta`` adds the family's own lines (gains, injection, ...) to the provenance.
     """
     obs = setup.observer
-    if obs.steady_state is None:
-        raise ValueError(f"{obs.name}: the observer has no steady state to start a simulation from")
+    if obs.steady_state is None:  # a capability the family lacks: one line from every command
+        raise CapabilityError(
+            f"observer family {family_of(drive).name!r}: its runtime observer {obs.name} has no steady "
+            "state (RuntimeObserver.steady_state) to start a simulation from"
+        )
     step = setup.step_function()
     loop = loop_function(step, tuple(f.name for f in obs.outputs))
     q = _params(data, sc, carrier)

@@ -12,8 +12,10 @@ import sys
 from typing import Any
 
 from sensorless.design.drive import load_drive
-from sensorless.design.gain_table import read_gain_table
+from sensorless.design.family import CapabilityError
+from sensorless.design.gain_table import GainTableError, read_gain_table
 from sensorless.design.registry import family_of
+from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.common import UsageError, version
 from sensorless.reports.codegen.generate import PRECISIONS, Provenance, c_identifier, generate
 from sensorless.reports.files import OutputSet
@@ -68,8 +70,10 @@ def run(args: argparse.Namespace) -> int:
     gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
     try:
         setup = fam.runtime(drive, gains, discretization=args.discretization)
+    except (CapabilityError, DriveFileError, GainTableError):
+        raise  # already one line naming the family, or the file and key (not the option)
     except ValueError as e:
-        raise UsageError(f"--discretization: {e}") from None
+        raise UsageError(f"--discretization: {e}" if args.discretization else str(e)) from None
     prefix = args.prefix or c_identifier(drive.name)
     try:
         files = generate(

@@ -1,0 +1,1 @@
+"""Preset drive TOMLs of the PLL test family."""

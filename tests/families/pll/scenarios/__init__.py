@@ -1,0 +1,1 @@
+"""Built-in scenario TOMLs of the PLL test family."""
