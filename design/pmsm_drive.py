@@ -21,6 +21,7 @@ from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
 from sensorless.symbolic.pmsm_drive import (
     INPUTS,
+    MEAS,
     PARAMS,
     RECORD,
     initial_loop_state_function,
@@ -103,6 +104,12 @@ def loop_setup(
     not see. ``meta`` adds the family's own lines (gains, injection, ...) to the provenance.
     """
     obs = setup.observer
+    meas = tuple(f.name for f in obs.meas)
+    if meas != MEAS:
+        raise CapabilityError(
+            f"{obs.name}: the PMSM drive loop feeds the measurements {', '.join(MEAS)}, "
+            f"the observer takes {', '.join(meas)}"
+        )
     if obs.steady_state is None:  # a capability the family lacks: one line from every command
         raise CapabilityError(
             f"observer family {family_of(drive).name!r}: its runtime observer {obs.name} has no steady "

@@ -28,8 +28,12 @@ def register(family: ObserverFamily) -> ObserverFamily:
     """Add ``family`` (keyed by its kind); a second family of the same kind or name is an error."""
     _discover()
     for other in _FAMILIES.values():
-        if other is not family and (other.kind == family.kind or other.name == family.name):
-            raise ValueError(f"{family!r} clashes with the registered {other!r}")
+        if other is family:
+            continue
+        shared = set(other.gain_families) & set(family.gain_families)
+        if other.kind == family.kind or other.name == family.name or shared:
+            what = f"gain families {sorted(shared)}" if shared else "kind or name"
+            raise ValueError(f"{family!r} clashes with the registered {other!r}: {what}")
     _FAMILIES[family.kind] = family
     return family
 

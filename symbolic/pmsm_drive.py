@@ -241,6 +241,9 @@ def loop_function(
     )
 
 
+# what the loop feeds the observer's step as ``meas``, in this order (the runtime contract's MEAS fields)
+MEAS = ("i_alpha", "i_beta", "u_alpha", "u_beta")
+
 # the operating point a PMSM observer's ``steady_state`` Function takes (RuntimeObserver.steady_state)
 OPERATING_POINT = (
     Field("theta_hat", "rad", "angle estimate (electrical)"),

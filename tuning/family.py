@@ -51,6 +51,10 @@ class Tunable:
     seed: str | None = None
     columns: tuple[tuple[tuple[str, str], ...], tuple[tuple[str, str], ...]] = ((), ())
 
+    def __post_init__(self) -> None:
+        if (self.build is None) == (self.tuner is None):
+            raise ValueError(f"tunable {self.name!r}: give exactly one of build (shared NLP) and tuner")
+
 
 @dataclass(frozen=True)
 class TuningHooks:

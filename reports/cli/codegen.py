@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     written = out.commit()
     print(f"{drive.name}: {setup.observer.title}")
     print(
-        f"{setup.discretization} at T_s = {setup.params['T_s'] * 1e6:g} us, {args.precision}; "
+        f"{setup.discretization} at T_s = {drive.T_s * 1e6:g} us, {args.precision}; "
         f"gains: {setup.gain_source}"
     )
     api = f"{prefix}_init, {prefix}_step" + (f", {prefix}_gains" if setup.schedule is not None else "")

@@ -321,7 +321,7 @@ def verdict(data: dict[str, Any], label: str, min_damping: float) -> dict[str, A
         if ok[absw >= thr].all():
             envelope["abs_speed_pu_from"] = f(thr)
             break
-    if not findings:
+    if not findings and not reasons:
         status = "pass"
     elif envelope["abs_speed_pu_from"] is not None:
         status = "warn"
