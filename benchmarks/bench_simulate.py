@@ -2,10 +2,11 @@
 
 Run:  python benchmarks/bench_simulate.py [--repeats N] [--motulator-python PATH] [--no-motulator]
 
-Ours: the paper-000 Fig. 9(b) scenario (4 s at 5 kHz: 20001 control periods of the whole drive -
-motor with RK4 between samples, controllers, adaptive observer with HF injection chain, Heun), run as a
-compiled CasADi ``mapaccum`` over the loop step. Also shown: the same loop on CasADi's virtual machine
-(no compiler), and the one-off cost of building and compiling it.
+Ours: the Fig. 9(b) scenario of Piippo, Hinkkanen, Luomi (2008) on the ``piippo2008`` preset (4 s at
+5 kHz: 20001 control periods of the whole drive - motor with RK4 between samples, controllers, adaptive
+observer with HF injection chain, Heun), run as a compiled CasADi ``mapaccum`` over the loop step built
+by the family's simulation set-up (``family_of(drive).simulation``). Also shown: the same loop on
+CasADi's virtual machine (no compiler), and the one-off cost of building and compiling it.
 
 Baseline: motulator's sensorless 2.2-kW IPMSM drive (the same motor, flux-vector control with its
 sensorless observer, motulator's own example configuration: speed step to 2 p.u. at 0.2 s, 0.7 p.u. load
@@ -31,8 +32,9 @@ import time
 
 from sensorless.design.compiled import cache_dir
 from sensorless.design.drive import load_drive
+from sensorless.design.registry import family_of
 from sensorless.design.scenario import load_scenario
-from sensorless.design.simulate import BUILDERS, CHUNK, compiled_chunk, run_loop
+from sensorless.design.simulate import CHUNK, compiled_chunk, run_loop
 
 # Configures motulator's sensorless 2.2-kW IPMSM drive through its public API, runs it, prints JSON.
 MOTULATOR_SCRIPT = r"""
@@ -146,7 +148,7 @@ def main() -> None:
     drive = load_drive("piippo2008")
     sc = load_scenario("fig9b", drive)
     t0 = time.perf_counter()
-    setup = BUILDERS[drive.kind](drive, sc, None, "")
+    setup = family_of(drive).simulation(drive, sc, None)
     compiled_chunk(setup.loop, CHUNK)
     t_build = time.perf_counter() - t0
     n = setup.inputs.shape[1]
@@ -158,7 +160,7 @@ def main() -> None:
         median_time(lambda: run_loop(short, compile=False), max(1, args.repeats // 2)) / short.inputs.shape[1]
     )
     per_ours = t_ours / n
-    print(f"sensorless simulate, paper 000 Fig. 9(b): {n} control periods (T_s = {setup.T_s * 1e6:g} us)")
+    print(f"sensorless simulate, piippo2008 Fig. 9(b): {n} control periods (T_s = {setup.T_s * 1e6:g} us)")
     print(f"  build + compile (once; cached on disk afterwards): {t_build:.2f} s")
     print(f"  compiled mapaccum loop:   {per_ours * 1e6:8.2f} us per control period (median {t_ours:.3f} s)")
     print(

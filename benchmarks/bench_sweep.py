@@ -2,10 +2,11 @@
 
 Run:  python benchmarks/bench_sweep.py [--points N]
 
-Both paths compute, per operating point (speed x torque, paper-000 drive, speed-dependent gain (16)),
-the MTPA current, the 4th-order closed loop of eqs. (11)-(14) and its poles. The batched path is
-``sensorless.design.linearize.linearize`` (automatic Jacobians, Function.map, batched poles); the
-baseline is a Python loop calling numpy on the closed form typed from the paper. Timings are medians
+Both paths compute, per operating point (speed x torque, the ``piippo2008`` drive of Piippo, Hinkkanen,
+Luomi (2008), speed-dependent gain (16)), the MTPA current, the 4th-order closed loop of eqs. (11)-(14)
+and its poles. The batched path is ``sensorless.design.ipmsm_adaptive.linearize.linearize`` (automatic
+Jacobians, Function.map, batched poles); the baseline is a Python loop calling numpy on the closed form
+typed from the paper. Timings are medians
 of repeated runs in the same process; the poles of both paths are compared as a sanity check.
 """
 
@@ -17,7 +18,8 @@ import time
 
 import numpy as np
 from sensorless.design.drive import load_drive
-from sensorless.design.linearize import linearize, sort_poles
+from sensorless.design.ipmsm_adaptive.linearize import linearize
+from sensorless.design.poles import sort_poles
 
 Jm = np.array([[0.0, -1.0], [1.0, 0.0]])
 

@@ -17,11 +17,12 @@ import time
 
 import numpy as np
 from sensorless.design.drive import load_drive
-from sensorless.design.linearize import drive_arguments, nominal_linearization_function
-from sensorless.design.operating_point import PARAM_NAMES
+from sensorless.design.ipmsm_adaptive.linearize import drive_arguments, nominal_linearization_function
+from sensorless.design.ipmsm_adaptive.operating_point import PARAM_NAMES
+from sensorless.design.poles import worst_damping
 from sensorless.tuning import nlp
-from sensorless.tuning.families import build_model
-from sensorless.tuning.model import damping, poles
+from sensorless.tuning.family import tunable_for
+from sensorless.tuning.model import poles
 from sensorless.tuning.tune import _candidates
 
 
@@ -50,7 +51,7 @@ def main() -> None:
     settings = drive.tuning
     wb, R = drive.base.w, drive.estimate.R_s
     W, T = settings.envelope.grid(wb, drive.T_N)
-    model = build_model(drive, "law16", settings)
+    model = tunable_for(drive, "law16").build(drive, settings, None)
     lp = np.linspace(model.lower[0], model.upper[0], a.pairs)
     wl = np.linspace(model.lower[1], 3 * wb, a.pairs)
     law, _ = drive_arguments(drive, "speed")
@@ -74,7 +75,7 @@ def main() -> None:
         best_grid, pair = grid_search(drive, W, T, lp, wl, fn)
         t_grid.append(time.perf_counter() - t0)
     p, _ = poles(model, sol.theta, model.make_points(W, T, model.nominal_estimate))
-    best_nlp = float(damping(p).min())
+    best_nlp = float(worst_damping(p).min())
     mn, mg = statistics.median(t_nlp), statistics.median(t_grid)
     print(f"envelope: {W.size} points; brute force: {a.pairs**2} (lambda', omega_lambda) pairs")
     print(

@@ -107,7 +107,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "mode": ("str", "speed"),
         "stiff_load": ("bool", False),
         "speed_filter": ("angular", 2 * np.pi * 50),  # 10 x the paper's speed bandwidth
-        "current_bandwidth": ("angular", None),  # None: the drive's alpha_c (paper 002: 2 pi 400 rad/s)
+        "current_bandwidth": ("angular", None),  # None: the drive's (reduced-order drive: 2 pi 400 rad/s)
     },
     "initial": {
         "w_m": ("angular_any", 0.0),

@@ -30,11 +30,11 @@ UNITS: dict[str, dict[str, float]] = {
         "Nms": 1.0,
         "N m s": 1.0,
         "Nm/(rad/s)": 1.0,
-        "kgm2/s": 1.0,  # paper 002 writes B in kg m^2/s
+        "kgm2/s": 1.0,  # De Angelo et al. (2006) write B in kg m^2/s
         "kg m^2/s": 1.0,
         "kg·m^2/s": 1.0,
     },
-    # flux derivative d lambda / d theta, eq. (4) of paper 002 (= torque per ampere)
+    # flux derivative d lambda / d theta, eq. (4) of De Angelo et al. (2006) (= torque per ampere)
     "flux_derivative": {
         "Vs": 1.0,
         "V s": 1.0,
@@ -46,8 +46,8 @@ UNITS: dict[str, dict[str, float]] = {
         "mVs": 1e-3,
         "mWb": 1e-3,
     },
-    "rate": {"1/s": 1.0, "/s": 1.0, "s^-1": 1.0},  # observer gain g of paper 002; decay rates
-    # load-torque adaptation gain Gamma of paper 002, eq. (10): N m kg m^2 / (V s)^2 = A^2 s^2
+    "rate": {"1/s": 1.0, "/s": 1.0, "s^-1": 1.0},  # observer gain g of De Angelo et al. (2006); decay rates
+    # load-torque adaptation gain Gamma of De Angelo et al. (2006), eq. (10): N m kg m^2 / (V s)^2 = A^2 s^2
     "adaptation": {"A^2 s^2": 1.0, "A2s2": 1.0, "A²s²": 1.0},
     "fraction": {"%": 0.01},  # bare numbers are fractions (0.2 = 20 %)
     "dimensionless": {},

@@ -2,17 +2,22 @@
 
 Panels (names used by a scenario's ``figure`` list):
 
-- ``speed``: rotor speed (solid), its estimate (dashed), its reference (dotted) (paper 000 Fig. 9)
-
-Speeds are shown in the drive's display unit (p.u. for paper 000, mechanical r/min for paper 002).
-- ``speed_error``: speed estimation error w_m - w_hat (paper 000 Fig. 6; paper 002 Figs. 2(b), 3(b))
-- ``tracking_error``: speed tracking error w_ref - w_m (paper 002 Fig. 5)
-- ``torque``: estimated electromagnetic torque (solid) and load torque (dotted), p.u. of T_N (Fig. 9)
-- ``theta_error``: position estimation error, electrical degrees (Figs. 6, 9, 10 last subplot)
+- ``speed``: rotor speed (solid), its estimate (dashed), its reference (dotted) (Piippo et al. 2008
+  Fig. 9)
+- ``speed_error``: speed estimation error w_m - w_hat (Piippo et al. 2008 Fig. 6; De Angelo et al.
+  2006 Figs. 2(b), 3(b))
+- ``tracking_error``: speed tracking error w_ref - w_m (De Angelo et al. 2006 Fig. 5)
+- ``torque``: estimated electromagnetic torque (solid) and load torque (dotted), p.u. of T_N (Piippo
+  et al. 2008 Fig. 9)
+- ``theta_error``: position estimation error, electrical degrees (Piippo et al. 2008 Figs. 6, 9, 10,
+  last subplot)
 - ``current``: stator current components in the true rotor frame, A
-- ``load_torque``: load torque (dashed) and its estimate (solid), N m (paper 002 Figs. 3-4)
-- ``emf_error``: norm of the EMF estimation error, V (paper 002 Figs. 2-3)
+- ``load_torque``: load torque (dashed) and its estimate (solid), N m (De Angelo et al. 2006 Figs. 3-4)
+- ``emf_error``: norm of the EMF estimation error, V (De Angelo et al. 2006 Figs. 2-3)
 - ``w_eps``: HF-injection correction omega_eps (21), rad/s
+
+Speeds are shown in the drive's display unit (the simulation set-up's ``speed_unit``: p.u. for PMSM
+drives, design/pmsm_drive.py; mechanical r/min for the reduced-order-observer drive).
 """
 
 from __future__ import annotations

@@ -1,13 +1,14 @@
 """Digital second-order filters (biquads) for the runtime signal chains, built in SX from their design data.
 
-The HF-injection chain of paper 000 (Section V, eq. (18)) needs a band-pass and a low-pass filter that the
-paper does not specify; the choices are documented in docs/runtime.md. Both are analog prototypes mapped
+The HF-injection chain of Piippo, Hinkkanen, Luomi (2008) (Section V, eq. (18)) needs a band-pass and a
+low-pass filter that the paper does not specify; the choices are documented in
+docs/families/ipmsm_adaptive.md ("HF injection chain"). Both are analog prototypes mapped
 to discrete time by the bilinear transform *prewarped at the frequency that matters* (the band-pass centre,
 the low-pass cut-off), so that the digital filter has exactly the prototype's response there: the
 band-pass has unit gain and zero phase at the carrier frequency, whatever the sampling period.
 
 Coefficients are SX expressions of the design data (frequencies, sampling period), so a parameter change
-needs no regeneration; the C generator hoists them into the ``*_init`` function (docs/runtime.md).
+needs no regeneration; the C generator hoists them into the ``*_init`` function (docs/codegen.md).
 The filter runs in transposed direct form II (two states per biquad, well conditioned in float).
 """
 

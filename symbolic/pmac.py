@@ -14,7 +14,7 @@ Conventions (docs/families/pmac_reduced_order.md):
   (pole pairs) for the mechanical reading, ``p_r = 1`` for the electrical (literal) reading. With it the
   paper's equations hold unchanged in the paper's own variables: omega_paper = w / p_r,
   e = phi(theta) omega_paper (3), T_e = phi . i (5), J d omega_paper/dt = T_e - T_L (2).
-  ``Phi_n``, ``J``, ``B`` and torques are in the units of that reading (docs/paper002.md).
+  ``Phi_n``, ``J``, ``B`` and torques are in the units of that reading.
 - Vectors are 2x1 columns [alpha, beta]; the alpha-beta scaling is the one that makes (5) hold
   (power-invariant).
 """

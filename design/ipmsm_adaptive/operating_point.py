@@ -41,7 +41,7 @@ PARAM_NAMES = ("w_m", "T_e", "motor", "p", "estimate", "gain", "alpha_fo", "inj"
 
 
 def coupled_system(law: str | GainLaw, injection: bool, s: dict[str, ca.SX], w_hat_override=None):
-    """The coupled system of symbolic/closed_loop.py at the MTPA current of (w_m, T_e)."""
+    """The coupled system of symbolic/ipmsm_adaptive/closed_loop.py at the MTPA current of (w_m, T_e)."""
     motor = PmsmParams.of(s["motor"])
     i_s0 = mtpa_current(s["T_e"], motor, s["p"])
     return closed_loop(

@@ -13,7 +13,7 @@ the paper); its voltage follows from (2). The observer is fed by those signals.
   T_L_hat = T_L + B omega), which the continuous observer follows exactly. With EMF harmonics the
   linearization is periodic in theta and the poles are its Floquet exponents over one period (frozen-
   angle eigenvalues would be misleading: the variation is fast at speed).
-- **Discrete time**: the Jacobian of the one-step map that runs (symbolic/reduced_order_step.py) in
+- **Discrete time**: the Jacobian of the one-step map that runs (symbolic/pmac_reduced_order/step.py) in
   rotor coordinates y = [R(-theta) zeta, tau, theta_hat - theta, w_hat], evaluated on the discrete
   observer's own steady orbit (simulated from the exact state until settled; the same simulation gives
   the steady-state errors). Its eigenvalues z map to s = ln(z) / T_s; with harmonics, the product of the

@@ -74,7 +74,7 @@ def demodulation_gain(w_c: Sym, T_s: Sym) -> Sym:
 
     A carrier held constant over each sampling period (zero-order hold) integrates, in the inductance,
     to a sampled current Delta / (2 sin(Delta/2)) times the continuous-time response of amplitude
-    u_c / w_c; this factor makes the demodulated error equal (19) exactly (docs/runtime.md).
+    u_c / w_c; this factor makes the demodulated error equal (19) exactly (docs/families/ipmsm_adaptive.md).
     """
     Delta = w_c * T_s
     return 2 * ca.sin(Delta / 2) / Delta
@@ -84,7 +84,7 @@ def demodulation_phase(w_c: Sym, T_s: Sym, delay: Sym) -> Sym:
     """(delay + 1/2) w_c T_s [rad]: lag of the sampled q-current response behind the carrier command.
 
     ``delay`` samples pass between a command and the voltage the motor sees (1 for the usual one-sample
-    computation delay); the zero-order hold adds half a sample (docs/runtime.md).
+    computation delay); the zero-order hold adds half a sample (docs/families/ipmsm_adaptive.md).
     """
     return (delay + 0.5) * w_c * T_s
 

@@ -7,9 +7,9 @@ paper). It keeps the previous samples in its state so every scheme can use both 
     x = [zeta_a, zeta_b, tau, theta_hat, w_hat, i_a_prev, i_b_prev, u_a_prev, u_b_prev]
 
 ``theta_hat``/``w_hat`` are the previous estimates, needed by the harmonic removal (19)-(21) and the
-speed sign (14). The right-hand side is evaluated by :func:`~sensorless.symbolic.reduced_order_observer.
-observer_rhs` only; the schemes differ in where they evaluate it (docs/families/pmac_reduced_order.md,
-"Discretization"):
+speed sign (14). The right-hand side is evaluated by
+:func:`~sensorless.symbolic.pmac_reduced_order.observer.observer_rhs` only; the schemes differ in
+where they evaluate it (docs/families/pmac_reduced_order.md, "Discretization"):
 
 - ``euler``: forward Euler at the start of the interval (t_(k-1), i_(k-1), u_(k-1)).
 - ``rk2-hold``: Heun's RK2 with the inputs held at the interval's first samples (what integrating

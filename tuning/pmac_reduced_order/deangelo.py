@@ -7,7 +7,7 @@ maximizing the worst damping is degenerate here: the tuner maximizes the worst *
 (slowest pole) of the observer's error dynamics over the envelope (speeds x load torques, the
 drive's ``[envelope]``), subject to a worst damping >= ``min_damping`` (default 1/sqrt(2)) and box
 bounds on g and Gamma (noise: e_hat carries the current noise times g L, T_L_hat the EMF noise
-times Gamma; defaults 2x the drive's g and 100x its Gamma, see docs/tuning.md).
+times Gamma; defaults 2x the drive's g and 100x its Gamma, see docs/families/pmac_reduced_order.md).
 
 Formulation (a sound simpler one than the sector NLP of tuning/nlp.py, for two parameters):
 
