@@ -28,3 +28,19 @@ def test_no_generic_top_level_modules(tmp_path, name):
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 0, r.stderr or f"a top-level module {name!r} is importable"
+
+
+def test_every_source_folder_is_a_package():
+    """setup.py installs packages only: a folder of modules without __init__.py would be missing
+    from a non-editable install (the editable one used in development hides it)."""
+    root = Path(__file__).resolve().parents[2]
+    missing = [
+        str(d.relative_to(root))
+        for layer in ("symbolic", "design", "tuning", "reports")
+        for d in [root / layer, *(root / layer).rglob("*")]
+        if d.is_dir()
+        and d.name != "__pycache__"
+        and any(d.glob("*.py"))
+        and not (d / "__init__.py").is_file()
+    ]
+    assert not missing, missing
