@@ -1,5 +1,7 @@
-/* Driver of benchmarks/bench_codegen.py: times the generated step (piippo2008_step) against the
- * hand-written yardstick (ref_step) on a recorded trajectory, in one process.
+/* Driver of benchmarks/bench_codegen.py: times a generated step against its hand-written yardstick on a
+ * recorded trajectory, in one process. Built once per observer:
+ *   -DBENCH_IPMSM_ADAPTIVE      piippo2008_step      vs ref_step      (ref_step_ipmsm_adaptive.c)
+ *   -DBENCH_PMAC_REDUCED_ORDER  deangelo2006_step    vs ref_pmac_step (ref_step_pmac_reduced_order.c)
  *   bench MODE samples.bin [passes]
  * MODE: check (max relative output difference), time (median ns/step of each, interleaved),
  *       gen / ref (one pass of one implementation: for callgrind instruction counts). */
@@ -10,8 +12,44 @@
 #include <string.h>
 #include <time.h>
 
+#if defined(BENCH_PMAC_REDUCED_ORDER)
+#include "deangelo2006.h"
+#include "ref_step_pmac_reduced_order.h"
+#define GEN(name) deangelo2006_##name
+#define N_OUT 8
+#define N_PARAM 9
+#define REF_INIT ref_pmac_init
+#define REF_STEP ref_pmac_step
+typedef ref_pmac_observer ref_obs;
+
+static void ref_params(double p[N_PARAM])
+{
+    /* the generated parameter struct is R L J p_r g Gamma T_s Phi_1 Phi_5, all double */
+    typedef char same_layout[sizeof(deangelo2006_params) == N_PARAM * sizeof(double) ? 1 : -1];
+    (void)sizeof(same_layout);
+    memcpy(p, &deangelo2006_default_params, sizeof(deangelo2006_params));
+}
+#elif defined(BENCH_IPMSM_ADAPTIVE)
 #include "piippo2008.h"
-#include "ref_step_000.h"
+#include "ref_step_ipmsm_adaptive.h"
+#define GEN(name) piippo2008_##name
+#define N_OUT 11
+#define N_PARAM 17
+#define REF_INIT ref_init
+#define REF_STEP ref_step
+typedef ref_observer ref_obs;
+
+static void ref_params(double p[N_PARAM])
+{
+    const piippo2008_params *d = &piippo2008_default_params;
+    const double v[N_PARAM] = {d->R_s, d->L_d, d->L_q, d->psi_pm, d->alpha_fo, d->T_s, d->injection,
+                               d->w_c, d->u_c, d->alpha_i, d->w_Delta, d->x_eps_max, d->w_bp, d->w_lp,
+                               d->carrier_delay, d->lambda_p, d->w_lambda};
+    memcpy(p, v, sizeof v);
+}
+#else
+#error "define BENCH_IPMSM_ADAPTIVE or BENCH_PMAC_REDUCED_ORDER"
+#endif
 
 static double now(void)
 {
@@ -20,43 +58,39 @@ static double now(void)
     return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
-static void ref_params(double p[17])
-{
-    const piippo2008_params *d = &piippo2008_default_params;
-    const double v[17] = {d->R_s, d->L_d, d->L_q, d->psi_pm, d->alpha_fo, d->T_s, d->injection,
-                          d->w_c, d->u_c, d->alpha_i, d->w_Delta, d->x_eps_max, d->w_bp, d->w_lp,
-                          d->carrier_delay, d->lambda_p, d->w_lambda};
-    memcpy(p, v, sizeof v);
-}
-
 static double sink; /* keeps the outputs alive */
+
+static void set_input(GEN(input) * in, const double *m)
+{
+    in->i_alpha = m[0];
+    in->i_beta = m[1];
+    in->u_alpha = m[2];
+    in->u_beta = m[3];
+}
 
 static void run_gen(const double *m, long n)
 {
-    static piippo2008_observer o;
-    piippo2008_output out;
-    piippo2008_input in;
+    static GEN(observer) o;
+    GEN(output) out;
+    GEN(input) in;
     long k;
-    piippo2008_init(&o, &piippo2008_default_params);
+    GEN(init)(&o, &GEN(default_params));
     for (k = 0; k < n; ++k) {
-        in.i_alpha = m[4 * k];
-        in.i_beta = m[4 * k + 1];
-        in.u_alpha = m[4 * k + 2];
-        in.u_beta = m[4 * k + 3];
-        piippo2008_step(&o, &in, &out);
+        set_input(&in, m + 4 * k);
+        GEN(step)(&o, &in, &out);
         sink += out.w_hat;
     }
 }
 
 static void run_ref(const double *m, long n)
 {
-    static ref_observer o;
-    double p[17], out[11];
+    static ref_obs o;
+    double p[N_PARAM], out[N_OUT];
     long k;
     ref_params(p);
-    ref_init(&o, p);
+    REF_INIT(&o, p);
     for (k = 0; k < n; ++k) {
-        ref_step(&o, m + 4 * k, out);
+        REF_STEP(&o, m + 4 * k, out);
         sink += out[0];
     }
 }
@@ -89,31 +123,28 @@ int main(int argc, char **argv)
     } else if (strcmp(argv[1], "ref") == 0) {
         run_ref(m, n);
     } else if (strcmp(argv[1], "check") == 0) {
-        static piippo2008_observer g;
-        static ref_observer r;
-        double p[17], yr[11], worst = 0, scale[11] = {0}, diff[11] = {0};
-        piippo2008_input in;
-        piippo2008_output y;
+        static GEN(observer) g;
+        static ref_obs r;
+        double p[N_PARAM], yr[N_OUT], worst = 0, scale[N_OUT] = {0}, diff[N_OUT] = {0};
+        GEN(input) in;
+        GEN(output) y;
         long k;
         int j;
         ref_params(p);
-        ref_init(&r, p);
-        piippo2008_init(&g, &piippo2008_default_params);
+        REF_INIT(&r, p);
+        GEN(init)(&g, &GEN(default_params));
         for (k = 0; k < n; ++k) {
-            in.i_alpha = m[4 * k];
-            in.i_beta = m[4 * k + 1];
-            in.u_alpha = m[4 * k + 2];
-            in.u_beta = m[4 * k + 3];
-            piippo2008_step(&g, &in, &y);
-            ref_step(&r, m + 4 * k, yr);
-            for (j = 0; j < 11; ++j) {
+            set_input(&in, m + 4 * k);
+            GEN(step)(&g, &in, &y);
+            REF_STEP(&r, m + 4 * k, yr);
+            for (j = 0; j < N_OUT; ++j) {
                 double d = fabs(((double *)&y)[j] - yr[j]);
-                if (j == 1) d = fabs(remainder(d, 2 * 3.141592653589793));
+                if (j == 1) d = fabs(remainder(d, 2 * 3.141592653589793)); /* theta_hat, both observers */
                 if (d > diff[j]) diff[j] = d;
                 if (fabs(yr[j]) > scale[j]) scale[j] = fabs(yr[j]);
             }
         }
-        for (j = 0; j < 11; ++j)
+        for (j = 0; j < N_OUT; ++j)
             if (scale[j] > 0 && diff[j] / scale[j] > worst) worst = diff[j] / scale[j];
         printf("%.3e\n", worst);
     } else {

@@ -109,12 +109,18 @@ def all_within(v: Sym, bound: float = X_MAX) -> Sym:
     return ca.sum1(ca.fabs(v)) <= bound
 
 
-def guarded(x_coast: Sym, x_cand: Sym, y_cand: Sym, y_coast: Sym) -> tuple[Sym, Sym, Sym]:
+def guarded(
+    x_coast: Sym, x_cand: Sym, y_cand: Sym, y_coast: Sym, ok: Sym | None = None
+) -> tuple[Sym, Sym, Sym]:
     """Accept a step only if its new state is finite: (x_next, y, valid).
 
     An invalid step (NaN/Inf/absurdly large result, e.g. from a NaN sample) gives ``x_coast`` and
     ``y_coast`` instead, computed from the previous (finite) state alone;
-    ``if_else`` selects without arithmetic, so no NaN leaks into the state.
+    ``if_else`` selects without arithmetic, so no NaN leaks into the state. ``ok`` is an optional
+    further condition of the family for accepting the step (e.g. a speed estimate within the range
+    its discretization is valid in); False (or NaN) rejects the step as well.
     """
     valid = all_within(x_cand)
+    if ok is not None:
+        valid = ca.logic_and(valid, ok)
     return ca.if_else(valid, x_cand, x_coast), ca.if_else(valid, y_cand, y_coast), valid

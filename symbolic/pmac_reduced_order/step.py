@@ -34,13 +34,18 @@ As a runtime observer (:func:`runtime_observer`, the contract of symbolic/runtim
 ``meas`` = [i_alpha, i_beta, u_alpha, u_beta] sampled at t_k and every parameter, the gains g and Gamma
 and the EMF series Phi_n included, in ``p``: firmware can retune them without regenerating code. The
 harmonic *orders* shape the expression and are fixed per generated observer. A sample whose result is
-not finite is rejected (output ``valid`` = 0): the observer coasts, its EMF state turning at the speed
-estimate and its angle advancing by w_hat T_s.
+not finite, or whose speed estimate leaves the range the step is valid in (|w_hat| T_s <= pi/2, where
+the speed sign (14) reads the angle step modulo pi), is rejected (output ``valid`` = 0): the observer
+coasts, its EMF state turning at the speed estimate and its angle advancing by w_hat T_s, and keeps the
+newest finite samples for the next period. Both matter after an absurd but finite sample (an ADC
+glitch of 1e5 A): accepting a speed beyond the range, or keeping a glitch that an accepted period
+stored, would make every later period diverge and be rejected, for good.
 """
 
 from __future__ import annotations
 
 import functools
+import math
 from typing import NamedTuple
 
 import casadi as ca
@@ -57,7 +62,7 @@ from sensorless.symbolic.pmac_reduced_order.observer import (
     observer_rhs,
     speed_sign,
 )
-from sensorless.symbolic.runtime import Field, RuntimeObserver, guarded
+from sensorless.symbolic.runtime import Field, RuntimeObserver, all_within, guarded
 
 DISCRETIZATIONS: dict[str, str] = {
     "euler": "forward Euler at the interval start",
@@ -220,13 +225,14 @@ def _runtime_step(method: str, orders: tuple[int, ...], x: Sym, meas: Sym, p: Sy
     e = s.est
     y = ca.vertcat(e.w_hat, e.theta_hat, e.T_L_hat, e.e_hat, e.phi_hat, 1)
     # coasting: the EMF (and zeta with it) turns at the speed estimate, the angle advances by w T_s;
-    # the stored samples stay those of the last accepted period
+    # the stored samples become this period's if they are finite (else stay those of the last period
+    # that had finite ones): a glitch stored by an accepted period must not poison every later one
     par, emf, T_s = split_params(p, orders)
     w0 = x[4]
     R = rot(w0 * T_s)
     theta_c = wrap_angle(x[3] + w0 * T_s)
     zeta_c = R @ x[0:2]
-    x_coast = ca.vertcat(zeta_c, x[2], theta_c, w0, x[5:9])
+    x_coast = ca.vertcat(zeta_c, x[2], theta_c, w0, ca.if_else(all_within(meas), meas, x[5:9]))
     phi_c = flux_derivative(theta_c, emf)
     y_coast = ca.vertcat(
         w0,
@@ -236,7 +242,10 @@ def _runtime_step(method: str, orders: tuple[int, ...], x: Sym, meas: Sym, p: Sy
         phi_c,
         0,
     )
-    x_next, y_out, _ = guarded(x_coast, s.x_next, y, y_coast)
+    # accepted: finite, and the speed within the step's range |w_hat| T_s <= pi/2 (speed_sign); beyond
+    # it the discrete observer diverges, so a state accepted there could never be left again
+    in_range = ca.fabs(e.w_hat) <= (math.pi / 2) / T_s
+    x_next, y_out, _ = guarded(x_coast, s.x_next, y, y_coast, ok=in_range)
     return x_next, y_out
 
 

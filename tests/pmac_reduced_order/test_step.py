@@ -122,3 +122,32 @@ def test_rates_keep_the_exact_orbit_in_both_directions(drive002, w):
             assert np.abs(lit).max() < 1e-12
         else:  # off by 2 w^2 d phi/d theta / p_r: a large EMF-rate error
             assert np.abs(lit).max() > 0.1 * w**2 * Phi[0] / 8.0
+
+
+@pytest.mark.parametrize("method", ["rk2-model", "rk2"])
+def test_one_absurd_sample_is_rejected_and_forgotten(drive002, method):
+    """Guard and coasting (symbolic/pmac_reduced_order/step.py): one absurd but finite sample (an ADC
+    glitch) or a NaN on any channel is rejected (with the next period, whose first stage uses the
+    stored sample, if it was stored), and the observer is back within 0.1 s. Before the speed range
+    |w_hat| T_s <= pi/2 was part of the guard, a 1e5 A or 1e20 V sample made it accept a diverging
+    state, then reject every later sample for good. Coasting stores the newest sample only when it
+    is finite."""
+    from helpers.plant_pmac import codegen_trajectory
+    from sensorless.design.pmac_reduced_order import FAMILY
+    from sensorless.design.runtime import run_trajectory
+
+    setup = FAMILY.runtime(drive002, FAMILY.gains(drive002), discretization=method)
+    meas = codegen_trajectory(drive002, ((0.5, 250, 250, 5.0),))["meas"]
+    _, clean = run_trajectory(setup, meas)
+    k = 1500
+    for ch in range(4):
+        for v in (1e5, -1e20, np.nan):
+            m = meas.copy()
+            m[k, ch] = v
+            xs, ys = run_trajectory(setup, m)
+            # rejected: the glitch, and the next period (whose stage at t_(k-1) uses it) if it was stored
+            n = 2 if np.isfinite(v) else 1
+            assert np.all(ys[k : k + n, 7] == 0) and np.all(ys[k + n :, 7] == 1)
+            assert xs[k, 5 + ch] == (v if np.isfinite(v) else meas[k - 1, ch])  # newest finite sample
+            back = slice(k + 550, None)  # 0.1 s on
+            assert np.abs(ys[back, 0] - clean[back, 0]).max() < 1e-3 * np.abs(clean[back, 0]).max()

@@ -1,6 +1,7 @@
-/* Hand-written yardstick of the paper-000 runtime step: see ref_step_000.c (benchmarks only). */
-#ifndef REF_STEP_000_H
-#define REF_STEP_000_H
+/* Hand-written yardstick of the speed-adaptive observer's runtime step (Piippo et al. 2008):
+ * see ref_step_ipmsm_adaptive.c (benchmarks only). */
+#ifndef REF_STEP_IPMSM_ADAPTIVE_H
+#define REF_STEP_IPMSM_ADAPTIVE_H
 
 typedef struct {
     double psi_d, psi_q, w_i, theta, w_hat, phi_c, bp1, bp2, lp1, lp2, x_eps;

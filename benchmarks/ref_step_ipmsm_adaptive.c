@@ -1,10 +1,11 @@
-/* Hand-written C reference of the paper-000 runtime step (Heun, law (16), HF injection), a YARDSTICK
- * for benchmarks/bench_codegen.py only: it is what a careful engineer would type from
- * docs/runtime.md, with every parameter-only quantity precomputed. The product is the generated code;
- * this file exists to measure it against (the benchmark also checks that both compute the same). */
+/* Hand-written C reference of the speed-adaptive observer's runtime step (Piippo, Hinkkanen, Luomi
+ * 2008: Heun, law (16), HF injection), a YARDSTICK for benchmarks/bench_codegen.py only: it is what a
+ * careful engineer would type from docs/runtime.md, with every parameter-only quantity precomputed.
+ * The product is the generated code; this file exists to measure it against (the benchmark also
+ * checks that both compute the same). */
 #include <math.h>
 
-#include "ref_step_000.h"
+#include "ref_step_ipmsm_adaptive.h"
 
 #define PI 3.141592653589793
 
