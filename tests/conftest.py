@@ -1,4 +1,4 @@
-"""Shared fixtures: the built-in paper-000 drive."""
+"""Shared fixtures: the two built-in presets."""
 
 import pytest
 from sensorless.design.drive import load_drive
@@ -10,5 +10,5 @@ def drive():
 
 
 @pytest.fixture(scope="session")
-def drive002():
+def deangelo2006():
     return load_drive("deangelo2006")

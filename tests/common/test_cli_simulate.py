@@ -7,7 +7,7 @@ import zipfile
 
 import numpy as np
 import pytest
-from helpers.simulation import drive000
+from helpers.simulation import piippo2008
 from sensorless.design.scenario import load_scenario, load_scenario_text
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.main import main
@@ -72,7 +72,7 @@ def test_existing_outputs_are_refused_before_running(tmp_path, capsys):
 
 
 def test_gain_table_gives_the_same_run_as_the_same_gains_from_the_drive(tmp_path, capsys):
-    d = drive000()
+    d = piippo2008()
     g = d.gain("speed")
     table = {
         "format": "sensorless-gain-table/1",
@@ -153,14 +153,14 @@ def test_list_and_clear_errors(tmp_path, capsys):
     ],
 )
 def test_scenario_loading_is_strict(text, key):
-    d = drive000()
+    d = piippo2008()
     with pytest.raises(DriveFileError) as e:
         load_scenario_text(text, "my.toml", {"pu": d.base.w, "T_N": d.T_N})
     assert e.value.file == "my.toml" and e.value.key == key
 
 
 def test_builtin_scenarios_encode_the_papers_experiments():
-    d = drive000()
+    d = piippo2008()
     wb, T_N = d.base.w, d.T_N
     s = load_scenario("fig9a", d)
     t = np.array([0.5, 1.5, 2.5, 3.5])

@@ -1,4 +1,4 @@
-"""An independent numpy/scipy model of the paper-002 motor for tests (not the package's symbolic one).
+"""An independent numpy/scipy model of the PM AC motor of De Angelo et al. (2006), for tests only.
 
 The motor (2)-(5) with a stiff sensored speed PI and ideal current control: the current is the
 ripple-free (25) of the PI's torque at the true position, so the voltage is v = R i + L di/dt + e.

@@ -1,4 +1,4 @@
-"""Test helper: a small sampled-data simulation of the paper-000 motor driving the runtime observer.
+"""Test helper: a sampled-data simulation of the IPMSM of Piippo et al. (2008) driving the runtime observer.
 
 Not a drive simulator (that is `sensorless simulate`): the motor's speed is prescribed, its voltage is
 open loop (the steady-state voltage (29) of the MTPA current for a prescribed torque, at the true angle)

@@ -12,7 +12,7 @@ from sensorless.design.simulate import simulate
 
 
 @functools.cache
-def drive000():
+def piippo2008():
     return load_drive("piippo2008")
 
 
@@ -26,14 +26,14 @@ def changed(sc, **changes):
 @functools.cache
 def run(name: str, **changes):
     """Simulate the built-in scenario ``name`` with overrides (cached per process)."""
-    d = drive000()
+    d = piippo2008()
     return simulate(d, changed(load_scenario(name, d), **changes))
 
 
 @functools.cache
 def run_text(text: str, **changes):
     """Simulate a scenario given as TOML text."""
-    d = drive000()
+    d = piippo2008()
     return simulate(d, changed(load_scenario_text(text, "test-scenario", drive_units(d)), **changes))
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
-from helpers.simulation import drive000, matrix_pencil, run, run_text
+from helpers.simulation import matrix_pencil, piippo2008, run, run_text
 from scipy.integrate import solve_ivp
 from sensorless.design.ipmsm_adaptive.linearize import linearize
 from sensorless.symbolic.pmsm import Mechanics, PmsmParams, plant_period
@@ -24,7 +24,7 @@ DEG = np.pi / 180
 # --------------------------------------------------------------------------------------------------
 def test_sampled_plant_matches_scipy_in_the_stationary_frame():
     """RK4 between samples (rotor frame) vs. scipy's adaptive RK on eqs. (1)-(3) in alpha-beta."""
-    m = drive000().motor
+    m = piippo2008().motor
     R, Ld, Lq, psi_f, p, J = m.R_s, m.L_d, m.L_q, m.psi_pm, m.p, m.J
     T_s, T_L = 2e-4, 3.0
 
@@ -82,7 +82,7 @@ value = ["0.3 pu", "0.31 pu"]
 
 def test_speed_loop_is_critically_damped_at_alpha_s():
     """IP speed control: w_m/w_ref = alpha_s^2/(s + alpha_s)^2 (design of drive_control.speed_gains)."""
-    d = drive000()
+    d = piippo2008()
     tr = run_text(SPEED_STEP)
     a = d.control.alpha_s
     m = tr.t >= 0.05
@@ -97,10 +97,10 @@ def test_speed_loop_is_critically_damped_at_alpha_s():
 
 
 # --------------------------------------------------------------------------------------------------
-# Paper 000 Fig. 6: low speed, nominal load, no injection
+# Piippo et al. (2008) Fig. 6: low speed, nominal load, no injection
 # --------------------------------------------------------------------------------------------------
 def test_fig6a_diverges_at_0p01pu_motoring():
-    d = drive000()
+    d = piippo2008()
     tr = run("fig6a")
     e = tr["theta_err"]
     assert np.max(np.abs(e[tr.window(0, 1)])) < 0.01 * DEG  # converged before the load step
@@ -118,7 +118,7 @@ def test_fig6a_diverges_at_0p01pu_motoring():
 
 @pytest.mark.parametrize("name", ["fig6b", "fig6c"])
 def test_fig6bc_stay_bounded(name):
-    d = drive000()
+    d = piippo2008()
     tr = run(name)
     assert np.max(np.abs(tr["theta_err"])) < 5 * DEG  # the load-step transient (measured 2.2 deg)
     end = tr.window(5, 6)
@@ -127,7 +127,7 @@ def test_fig6bc_stay_bounded(name):
 
 
 def test_injection_stabilizes_fig6a():
-    d = drive000()
+    d = piippo2008()
     tr = run("fig6a", injection=True)
     after = tr.window(2, 10)
     assert np.max(np.abs(tr["theta_err"][after])) < 1 * DEG
@@ -153,7 +153,7 @@ value = ["0 Nm", "1 T_N"]
 
 
 def test_zero_speed_under_nominal_load_is_held_with_injection():
-    d = drive000()
+    d = piippo2008()
     tr = run_text(STANDSTILL)
     held = tr.window(1.5, 3)
     assert np.max(np.abs(tr["w_m"][held])) < 0.001 * d.base.w
@@ -167,7 +167,7 @@ def test_zero_speed_under_nominal_load_is_held_with_injection():
 
 
 # --------------------------------------------------------------------------------------------------
-# Paper 000 Fig. 9: speed steps at nominal load; constant vs speed-dependent gain
+# Piippo et al. (2008) Fig. 9: speed steps at nominal load; constant vs speed-dependent gain
 # --------------------------------------------------------------------------------------------------
 STEPS = (1.0, 2.0, 3.0)
 
@@ -185,7 +185,7 @@ def oscillation(tr, t0, t1):
 
 @pytest.mark.parametrize("name", ["fig9a", "fig9b"])
 def test_fig9_estimate_follows_the_steps(name):
-    d = drive000()
+    d = piippo2008()
     wb = d.base.w
     tr = run(name)
     assert np.max(np.abs(tr["w_m"] - tr["w_hat"])) < 0.05 * wb  # through every step, under load
@@ -202,7 +202,7 @@ def test_fig9_speed_dependent_gain_damps_better():
     # measured: 0.39, 0.68, 0.47 (see docs/simulation.md); the paper's claim is the direction
     assert max(ratios) < 0.8
     # the linear analysis predicts the same ranking at the step speeds (Fig. 4(b) vs (c))
-    d = drive000()
+    d = piippo2008()
     for w in (0.67, -0.67):
         z_const = linearize(d, w * d.base.w, d.T_N, gain="constant").worst_damping[0]
         z_speed = linearize(d, w * d.base.w, d.T_N, gain="speed").worst_damping[0]
@@ -249,7 +249,7 @@ def test_small_step_decays_at_the_dominant_linearized_pole(gain, discretization)
     (a 21 % lower decay rate for the constant gain). What remains is the current loop (bandwidth
     alpha_c = 11 |p|, 1.5-sample delay) and the fit: 8 % on the decay rate and 5 % on the frequency.
     """
-    d = drive000()
+    d = piippo2008()
     tr = run_text(SMALL_STEP, gain=gain, discretization=discretization)
     e = tr["w_m"] - tr["w_hat"]
     win = tr.window(0.32, 0.5)  # from 20 ms after the step: the faster poles have decayed by e^-4

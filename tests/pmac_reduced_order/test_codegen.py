@@ -87,12 +87,12 @@ def rpm_error(drive, w_hat, w):
 
 
 @pytest.fixture(scope="module")
-def trajectory(drive002):
+def trajectory(deangelo2006):
     """>= 10^4 samples (2.6 s) of the plant under a sensored speed PI: load steps of both signs,
     ramps 250 -> 400 r/min and 400 -> -300 r/min (through zero), the observer starting from its
     initial state (w_hat = 0) while the motor runs."""
-    tr = codegen_trajectory(drive002)
-    rpm = drive002.w_to_rpm(tr["w"])
+    tr = codegen_trajectory(deangelo2006)
+    rpm = deangelo2006.w_to_rpm(tr["w"])
     assert len(tr["meas"]) >= 10_000
     assert rpm.max() > 390 and rpm.min() < -290  # both directions
     assert tr["T_L"].max() > 15 and tr["T_L"].min() < -10  # load steps of both signs
@@ -114,22 +114,22 @@ NEGATIVE_SEGMENTS = (
 
 
 @pytest.fixture(scope="module")
-def negative_trajectory(drive002):
-    tr = codegen_trajectory(drive002, NEGATIVE_SEGMENTS)
-    assert len(tr["meas"]) >= 10_000 and drive002.w_to_rpm(tr["w"]).max() < -100
+def negative_trajectory(deangelo2006):
+    tr = codegen_trajectory(deangelo2006, NEGATIVE_SEGMENTS)
+    assert len(tr["meas"]) >= 10_000 and deangelo2006.w_to_rpm(tr["w"]).max() < -100
     return tr
 
 
 @pytest.fixture(scope="module")
-def tuned_table(tmp_path_factory, drive002):
+def tuned_table(tmp_path_factory, deangelo2006):
     """A `deangelo` gain table as `sensorless tune` writes it, with the closed-form optimum for the
     default bounds (non-round numbers, far from the drive file's g = 400, Gamma = 10^4)."""
-    s = default_settings(drive002)
-    g, Gamma = closed_form(drive002, s.g_max, s.Gamma_max)
-    assert (g, Gamma) != (drive002.observer.g, drive002.observer.Gamma)
+    s = default_settings(deangelo2006)
+    g, Gamma = closed_form(deangelo2006, s.g_max, s.Gamma_max)
+    assert (g, Gamma) != (deangelo2006.observer.g, deangelo2006.observer.Gamma)
     t = GainTable(
         family="deangelo",
-        drive={"name": drive002.name, "kind": drive002.kind, "sha256": drive002.digest},
+        drive={"name": deangelo2006.name, "kind": deangelo2006.kind, "sha256": deangelo2006.digest},
         gains={"g": g, "Gamma": Gamma},
     )
     path = tmp_path_factory.mktemp("tables") / "deangelo.json"
@@ -142,7 +142,7 @@ def tuned_table(tmp_path_factory, drive002):
     "disc,gains", [("rk2-model", None), ("euler", None), ("rk2", None), ("rk2-model", "tuned")]
 )
 def test_double_matches_python_on_the_trajectory(
-    drive002, trajectory, negative_trajectory, tuned_table, tmp_path, disc, gains
+    deangelo2006, trajectory, negative_trajectory, tuned_table, tmp_path, disc, gains
 ):
     """Every output and state of every sample to 1e-12 of that signal's largest magnitude (angles
     modulo 2 pi), for the default scheme, forward Euler, the literal RK2, and tuned gains (on negative
@@ -151,11 +151,11 @@ def test_double_matches_python_on_the_trajectory(
     args = ["--precision", "double", "--discretization", disc]
     if gains == "tuned":
         args += ["--gains", tuned_table]
-        setup = runtime_setup(drive002, table=read_gain_table(tuned_table), discretization=disc)
+        setup = runtime_setup(deangelo2006, table=read_gain_table(tuned_table), discretization=disc)
         assert setup.params["g"] == read_gain_table(tuned_table).gains["g"]
         trajectory = negative_trajectory
     else:
-        setup = runtime_setup(drive002, discretization=disc)
+        setup = runtime_setup(deangelo2006, discretization=disc)
     src = codegen(tmp_path / "c", *args)
     c = replay(build(src, tmp_path / "ex"), trajectory["meas"], tmp_path)
     ref = python_reference(setup, trajectory["meas"])
@@ -163,19 +163,21 @@ def test_double_matches_python_on_the_trajectory(
     assert rel.max() < 1e-12, {n: f"{r:.1e}" for n, r in zip(NAMES, rel, strict=True)}
     # a real run: every sample accepted, and the estimate follows the motor through both directions
     assert np.all(ref[:, Y["valid"]] == 1)
-    settled = np.arange(len(c)) * drive002.T_s > 0.1
-    assert rpm_error(drive002, c[settled, Y["w_hat"]], trajectory["w"][settled]).max() < 10  # of 400 r/min
+    settled = np.arange(len(c)) * deangelo2006.T_s > 0.1
+    assert (
+        rpm_error(deangelo2006, c[settled, Y["w_hat"]], trajectory["w"][settled]).max() < 10
+    )  # of 400 r/min
     running = settled & (np.abs(trajectory["w"]) >= 30)  # the EMF, hence the angle, vanishes at zero
     th = np.angle(np.exp(1j * (c[running, Y["theta_hat"]] - trajectory["theta"][running])))
     assert np.abs(th).max() < 0.05
 
 
-def test_gains_and_emf_series_are_runtime_parameters(drive002, trajectory, tuned_table, tmp_path):
+def test_gains_and_emf_series_are_runtime_parameters(deangelo2006, trajectory, tuned_table, tmp_path):
     """The tuned g and Gamma and the drive's Phi_n are fields of the generated default parameter struct
     (exactly, every field), and nothing of them is baked into the step: the code generated with the
     tuned table, initialized at run time with other gains and another EMF series, matches the Python
     step evaluated with those parameters to 1e-12."""
-    setup = runtime_setup(drive002, table=read_gain_table(tuned_table))
+    setup = runtime_setup(deangelo2006, table=read_gain_table(tuned_table))
     src = codegen(tmp_path / "c", "--gains", tuned_table, "--precision", "double")
     text = (src / f"{P}.c").read_text()
     block = re.search(r"_default_params = \{(.*?)\};", text, re.S).group(1)
@@ -183,10 +185,10 @@ def test_gains_and_emf_series_are_runtime_parameters(drive002, trajectory, tuned
     assert defaults == setup.params
     t = read_gain_table(tuned_table).gains
     assert defaults["g"] == t["g"] and defaults["Gamma"] == t["Gamma"]
-    assert [defaults["Phi_1"], defaults["Phi_5"]] == list(drive002.estimate.Phi)
+    assert [defaults["Phi_1"], defaults["Phi_5"]] == list(deangelo2006.estimate.Phi)
     step = text[text.index(f"void {P}_step(") :]
     literals = {float(x) for x in re.findall(r"(?<![\w.])\d+\.\d*(?:e[-+]?\d+)?", step)}
-    baked = {t["g"], t["Gamma"], *drive002.estimate.Phi, t["g"] * drive002.estimate.L}
+    baked = {t["g"], t["Gamma"], *deangelo2006.estimate.Phi, t["g"] * deangelo2006.estimate.L}
     assert not (literals & baked), literals & baked
 
     (src / "replay_params.c").write_text(REPLAY_PARAMS)
@@ -235,7 +237,7 @@ int main(int argc, char **argv)
 """
 
 
-def test_float_matches_python_within_float_resolution(drive002, trajectory, tmp_path):
+def test_float_matches_python_within_float_resolution(deangelo2006, trajectory, tmp_path):
     """Float build against the double Python evaluation (eps_f = 2^-24 = 6e-8). Tolerances:
 
     - samples stored in the state: one rounding each, |error| <= eps_f |value|, element by element;
@@ -253,7 +255,7 @@ def test_float_matches_python_within_float_resolution(drive002, trajectory, tmp_
       4e-5 and 2e-3 of its largest magnitude; T_L_hat = tau + (Gamma L / J) phi_hat . i adds
       1.28 |i| (<= 226 A) times that: 1e-4 running, 1e-3 of its largest magnitude anywhere.
     """
-    setup = runtime_setup(drive002)
+    setup = runtime_setup(deangelo2006)
     src = codegen(tmp_path / "c", "--precision", "float")
     meas = trajectory["meas"]
     c = replay(build(src, tmp_path / "ex"), meas, tmp_path)
@@ -278,14 +280,14 @@ def test_float_matches_python_within_float_resolution(drive002, trajectory, tmp_
 
 
 # ---------------------------------------------------------------- glitches: C == Python, recovery
-def test_glitches_are_rejected_identically_and_the_observer_recovers(drive002, trajectory, tmp_path):
+def test_glitches_are_rejected_identically_and_the_observer_recovers(deangelo2006, trajectory, tmp_path):
     """Absurd and non-finite samples on every channel, at positive and negative speed: the C rejects
     exactly the samples the Python step rejects and coasts identically (1e-12 of the clean run's
     scale); non-finite samples give valid = 0; 200 periods (36 ms) after each glitch the estimates
     are back with those of the clean run. (The step before this test existed latched for good on
     the 1e5 and 1e20 glitches: it accepted a speed estimate beyond |w| T_s = pi/2, then rejected
     every later period.)"""
-    setup = runtime_setup(drive002)
+    setup = runtime_setup(deangelo2006)
     meas = trajectory["meas"].copy()
     glitches = [  # (first sample, samples, channel, value)
         (1500, 1, 0, np.nan),
@@ -310,7 +312,7 @@ def test_glitches_are_rejected_identically_and_the_observer_recovers(drive002, t
         assert c[k, Y["valid"]] == 0  # rejected, coasted
         after = slice(k + n + 200, k + n + 400)
         assert np.all(c[after, Y["valid"]] == 1)
-        assert rpm_error(drive002, c[after, Y["w_hat"]], clean[after, Y["w_hat"]]).max() < 2
+        assert rpm_error(deangelo2006, c[after, Y["w_hat"]], clean[after, Y["w_hat"]]).max() < 2
     assert np.abs(c[:, ANGLES]).max() <= math.pi  # the documented range, coasting included
 
 

@@ -15,14 +15,14 @@ def speed_params(drive, feedforward=True):
     return np.array([k_p, k_i, drive.control.T_max, drive.control.T_s, float(feedforward)])
 
 
-def test_pi_gains_place_a_double_pole(drive002):
+def test_pi_gains_place_a_double_pole(deangelo2006):
     """Closed loop of s w = (p_r/J)(k_p + k_i/s)(w_ref - w): s^2 + (p_r k_p/J) s + p_r k_i/J = (s+a)^2."""
     for reading_p_r in (8.0, 1.0):
         k_p, k_i = speed_pi_gains(7.0, 0.78, reading_p_r)
         np.testing.assert_allclose(
             np.roots([1, reading_p_r * k_p / 0.78, reading_p_r * k_i / 0.78]), [-7, -7]
         )
-    assert len(speed_params(drive002)) == len(SPEED_PARAM_NAMES)
+    assert len(speed_params(deangelo2006)) == len(SPEED_PARAM_NAMES)
 
 
 def test_current_references_are_the_least_current_for_the_torque():
@@ -40,14 +40,14 @@ def test_current_references_are_the_least_current_for_the_torque():
         np.testing.assert_allclose(i_ref, np.linalg.pinv(phi[None, :]) @ [float(T_ref)], rtol=1e-12)
 
 
-def test_feedforward_takes_the_load_off_the_integrator(drive002):
+def test_feedforward_takes_the_load_off_the_integrator(deangelo2006):
     """Closed speed loop on an ideal plant, dw/dt = p_r (T - T_L)/J, with an exact T_L_hat: with
     feedforward the PI integral settles at 0, without it at T_L; the speed settles at the reference."""
     F = speed_controller_function()
     J, p_r = 0.78, 8.0
     w_ref, T_L, dt = 200.0, 5.0, 1e-3
     for ff, x_i_end in ((1.0, 0.0), (0.0, T_L)):
-        par = speed_params(drive002, feedforward=bool(ff))
+        par = speed_params(deangelo2006, feedforward=bool(ff))
         par[3] = dt
         w, x_i = w_ref, 0.0
         for _ in range(5000):

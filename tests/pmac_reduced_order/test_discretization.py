@@ -1,4 +1,4 @@
-"""Sampling period and discretization: measured steady-state errors (docs/paper002.md, Discretization)."""
+"""Sampling period and discretization: measured steady-state errors (docs/families/pmac_reduced_order.md)."""
 
 import numpy as np
 import pytest
@@ -7,8 +7,8 @@ from sensorless.design.pmac_reduced_order.discretization import discretization_s
 
 
 @pytest.fixture(scope="module")
-def study(drive002):
-    rows = discretization_study(drive002, ["euler", "rk2", "rk2-model"], [90e-6, 180e-6], [250.0], [5.0])
+def study(deangelo2006):
+    rows = discretization_study(deangelo2006, ["euler", "rk2", "rk2-model"], [90e-6, 180e-6], [250.0], [5.0])
     return {(r.method, round(r.T_s * 1e6)): r for r in rows}
 
 
@@ -30,22 +30,22 @@ def test_literal_rk2_does_not_keep_the_continuous_behaviour_at_180us(study):
         assert r.slow_d == pytest.approx(r.slow_c, rel=0.02 if m == "euler" else 0.005)
 
 
-def test_study_agrees_with_the_independent_plant(drive002, study):
+def test_study_agrees_with_the_independent_plant(deangelo2006, study):
     """The study's orbit (exact constant-speed signals) and the closed speed loop of the independent
     numpy plant (tests/plant002.py) give the same literal-RK2 bias after the load step."""
-    t, w, _, _, w_hat, _, _ = simulate(drive002, 250.0, 5.0, method="rk2")
+    t, w, _, _, w_hat, _, _ = simulate(deangelo2006, 250.0, 5.0, method="rk2")
     assert window_mean(t, w - w_hat, T_END) == pytest.approx(study["rk2", 180].err_w, rel=0.05)
 
 
-def test_divergence_is_reported_not_raised(drive002):
+def test_divergence_is_reported_not_raised(deangelo2006):
     """At rated speed (4000 r/min, 5th harmonic at 2.67 kHz against 2.78 kHz Nyquist) the literal RK2
     diverges at 180 us: the analysis reports NaN there; the default scheme stays finite (and says how
     large its steady T_L_hat bias is)."""
     from sensorless.design.pmac_reduced_order.linearize import analyze
 
-    w = drive002.rpm_to_w(np.array([250.0, 4000.0]))
-    lit = analyze(drive002, w, 5.0, method="rk2")
+    w = deangelo2006.rpm_to_w(np.array([250.0, 4000.0]))
+    lit = analyze(deangelo2006, w, 5.0, method="rk2")
     assert np.isfinite(lit.err_w[0]) and np.isnan(lit.err_w[1]) and np.isnan(lit.poles_discrete[1]).all()
-    model = analyze(drive002, w, 5.0)
+    model = analyze(deangelo2006, w, 5.0)
     assert np.isfinite(model.err_T).all() and np.isfinite(model.poles_discrete).all()
     assert abs(model.err_T[1]) > 5.0  # honest: at rated speed 180 us is too slow for T_L_hat

@@ -15,8 +15,8 @@ def edit(old: str, new: str) -> str:
     return PRESET.replace(old, new, 1)
 
 
-def test_preset_has_the_papers_values(drive002):
-    d = drive002
+def test_preset_has_the_papers_values(deangelo2006):
+    d = deangelo2006
     m = d.motor
     assert d.kind == "pmac-reduced-order"
     assert (m.p, m.R, m.J, m.B) == (8, 0.01, 0.78, 0.0015)

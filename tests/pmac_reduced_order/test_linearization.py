@@ -1,4 +1,4 @@
-"""Paper 002: automatic linearization vs a hand derivation (sinusoidal EMF), and discrete vs continuous."""
+"""De Angelo et al. (2006): automatic linearization vs a hand derivation; discrete vs continuous poles."""
 
 import dataclasses
 
@@ -17,7 +17,7 @@ def sinusoidal(drive, reading="mechanical", **motor):
 
 
 def hand_matrix(g, Gamma, Phi1, J, p_r, with_load):
-    """Error dynamics derived by hand (docs/paper002.md, "Hand derivation").
+    """Error dynamics derived by hand (docs/families/pmac_reduced_order.md, "Hand derivation").
 
     Sinusoidal EMF: e = (w/p_r) Phi1 [-sin th, cos th], so (w_hat, theta_hat) are polar coordinates of
     e_hat and (9) splits into a radial and a tangential part. With delta = theta - theta_hat,
@@ -39,17 +39,17 @@ def hand_matrix(g, Gamma, Phi1, J, p_r, with_load):
 
 @pytest.mark.parametrize("reading", ["mechanical", "electrical"])
 @pytest.mark.parametrize("with_load", [True, False])
-def test_continuous_poles_match_hand_derivation(drive002, reading, with_load):
+def test_continuous_poles_match_hand_derivation(deangelo2006, reading, with_load):
     """Random parameters, gains, speeds (both signs) and loads: same characteristic polynomial."""
     rng = np.random.default_rng(2006)
     for _ in range(6):
         params = {
-            "R": drive002.motor.R * rng.uniform(0.2, 5),
-            "L": drive002.motor.L * rng.uniform(0.2, 5),
-            "J": drive002.motor.J * rng.uniform(0.2, 5),
-            "Phi": (drive002.motor.Phi[0] * rng.uniform(0.2, 5),),
+            "R": deangelo2006.motor.R * rng.uniform(0.2, 5),
+            "L": deangelo2006.motor.L * rng.uniform(0.2, 5),
+            "J": deangelo2006.motor.J * rng.uniform(0.2, 5),
+            "Phi": (deangelo2006.motor.Phi[0] * rng.uniform(0.2, 5),),
         }
-        d = sinusoidal(drive002, reading, **params)
+        d = sinusoidal(deangelo2006, reading, **params)
         g, Gamma = rng.uniform(50, 2000), rng.uniform(0, 1e5)
         w = d.rpm_to_w(rng.choice([-1, 1]) * rng.uniform(20, 4000, 3))
         T_L = rng.uniform(-100, 100, 3)
@@ -68,11 +68,11 @@ def test_continuous_poles_match_hand_derivation(drive002, reading, with_load):
             np.testing.assert_allclose(np.sort_complex(poles[0]), want, rtol=1e-7, atol=1e-9 * g)
 
 
-def test_without_estimation_loaded_poles_move_by_the_steady_offset(drive002):
+def test_without_estimation_loaded_poles_move_by_the_steady_offset(deangelo2006):
     """Loaded and without load estimation, [11]'s observer settles at the speed offset
     e_w = -p_r (T_L + B omega) / (J g); the linearization (taken on the exact orbit) then differs from
     the hand matrix by O(e_w / w), and by no more."""
-    d = sinusoidal(drive002)
+    d = sinusoidal(deangelo2006)
     w = d.rpm_to_w(np.array([100.0, 250.0, 1000.0]))
     T_L = 5.0
     poles = continuous_poles(d, w, T_L, False)
@@ -83,11 +83,11 @@ def test_without_estimation_loaded_poles_move_by_the_steady_offset(drive002):
         assert err < 10 * offset / wk, (err, offset / wk)
 
 
-def test_preset_poles_are_the_papers_gains(drive002):
+def test_preset_poles_are_the_papers_gains(deangelo2006):
     """g = 400, Gamma = 10000, Phi1 = 0.5021, J = 0.78: -400, -389.4 and the slow -10.6 1/s, at every speed
     and load, in both readings (the poles do not depend on the reading: p_r cancels)."""
     for reading in ("mechanical", "electrical"):
-        d = sinusoidal(drive002, reading)
+        d = sinusoidal(deangelo2006, reading)
         w = d.rpm_to_w([-4000, -250, 100, 250, 4000])
         poles = continuous_poles(d, w[:, None], np.array([0, 5, -7])[None, :])
         k2 = 1e4 * (0.5021 / 0.78) ** 2
@@ -108,10 +108,10 @@ def charpoly_error(p, q, scale):
 
 
 @pytest.mark.parametrize("method", ["euler", "rk2", "rk2-model"])
-def test_discrete_poles_converge_to_continuous(drive002, method):
+def test_discrete_poles_converge_to_continuous(deangelo2006, method):
     """The one-step map's eigenvalues, mapped by ln(z)/T_s, approach the continuous poles as T_s -> 0
     (first order for Euler, second for the RK2 schemes)."""
-    d = sinusoidal(drive002)
+    d = sinusoidal(deangelo2006)
     w, T_L = d.rpm_to_w(250.0), 5.0
     pc = continuous_poles(d, w, T_L)[0]
     errs = []
@@ -124,11 +124,11 @@ def test_discrete_poles_converge_to_continuous(drive002, method):
     assert order > (0.8 if method == "euler" else 1.6), (errs, order)
 
 
-def test_default_discretization_keeps_continuous_poles_at_180us(drive002):
+def test_default_discretization_keeps_continuous_poles_at_180us(deangelo2006):
     """At the paper's 180 us the runtime scheme's poles are within 3 % of the continuous ones (harmonic
     motor: Floquet exponents over one period), over the preset's envelope."""
-    w = drive002.rpm_to_w(np.array([-250, 100, 250, 400, 1000]))
-    r = analyze(drive002, w[:, None], np.array([0.0, 5.0])[None, :])
+    w = deangelo2006.rpm_to_w(np.array([-250, 100, 250, 400, 1000]))
+    r = analyze(deangelo2006, w[:, None], np.array([0.0, 5.0])[None, :])
     assert r.method == "rk2-model"
     for pd, pc in zip(r.poles_discrete, r.poles, strict=True):
         assert charpoly_error(pd, pc, 400.0) < 0.02
@@ -138,12 +138,12 @@ def test_default_discretization_keeps_continuous_poles_at_180us(drive002):
 
 
 @pytest.mark.parametrize("harmonics", [False, True])
-def test_slow_pole_is_the_simulated_decay_rate(drive002, harmonics):
+def test_slow_pole_is_the_simulated_decay_rate(deangelo2006, harmonics):
     """Linear analysis vs simulation: a T_L_hat error of 0.5 N m on the running observer decays at the
     rate of the slowest discrete pole (the Floquet exponent with harmonics), within 1 %."""
     from sensorless.design.pmac_reduced_order.linearize import exact_state_function, orbit_function
 
-    d = drive002 if harmonics else sinusoidal(drive002)
+    d = deangelo2006 if harmonics else sinusoidal(deangelo2006)
     w, T_L, T_s = float(d.rpm_to_w(250.0)), 5.0, d.control.T_s
     r = analyze(d, w, T_L)
     om, oo = d.motor.harmonics, d.estimate.harmonics

@@ -8,8 +8,10 @@ from helpers.observer_pmac import T_END, T_STEP, WINDOW, simulate, window_mean
 
 
 @pytest.fixture(scope="module", params=["mechanical", "electrical"])
-def runs(request, drive002):
-    d = dataclasses.replace(drive002, motor=dataclasses.replace(drive002.motor, reading=request.param))
+def runs(request, deangelo2006):
+    d = dataclasses.replace(
+        deangelo2006, motor=dataclasses.replace(deangelo2006.motor, reading=request.param)
+    )
     return d, {G: simulate(d, 250.0, 5.0, Gamma=G) for G in (0.0, None)}
 
 
@@ -33,7 +35,7 @@ def test_without_load_estimation_speed_error_is_constant_and_nonzero(runs):
 def test_with_load_estimation_speed_error_returns_to_zero(runs):
     """Fig. 3: with the adaptation (10) the error returns to (near) zero. 'Near' = at most 2 % of the
     error the estimation removes (the Gamma = 0 steady state): the default discretization leaves a
-    steady bias far below that (docs/paper002.md), so 2 % is a margin, not a fit."""
+    steady bias far below that (docs/families/pmac_reduced_order.md), so 2 % is a margin, not a fit."""
     _, res = runs
     t, w, th, _, w_hat, th_hat, _ = res[None]
     ref = abs(window_mean(t, res[0.0][1] - res[0.0][4], T_END))

@@ -13,13 +13,13 @@ from sensorless.design.simulate import simulate
 
 
 @functools.cache
-def drive002():
+def deangelo2006():
     return load_drive("deangelo2006")
 
 
 @functools.cache
 def run(name: str, **changes):
-    d = drive002()
+    d = deangelo2006()
     return simulate(d, changed(load_scenario(name, d), **changes))
 
 
@@ -38,7 +38,7 @@ def test_without_load_estimation_the_error_stays_after_a_load_step_with_it_it_go
 
     Both runs share a small sampling bias (0.06 r/min, second order in w T_s: docs/simulation.md), so
     the claim is checked on the change the load step causes."""
-    d = drive002()
+    d = deangelo2006()
     before, after = (0.3, 0.5), (1.5, 2.0)
     shift, emf_ratio = {}, {}
     for name in ("fig2", "fig3"):
@@ -62,7 +62,7 @@ def test_viscous_load_is_estimated():
     docs/simulation.md). So the run-up of Fig. 4 is made twice, with and without an extra viscous load
     of 0.05 N m s (1.57 N m at 300 r/min): the bias cancels in the difference, which must follow the
     difference of B omega through the run-up (measured: within 0.3 % at 300 r/min)."""
-    d = drive002()
+    d = deangelo2006()
     a, b = run("fig4", viscous=0.05), run("fig4")
     d_est = a["T_L_hat"] - b["T_L_hat"]
     d_true = a["T_L_total"] - b["T_L_total"]
@@ -82,7 +82,7 @@ def test_feedforward_cuts_the_speed_tracking_error():
     """Fig. 5: sensorless at 300 r/min, 5 N m load step; the load-torque feedforward cuts the tracking
     error (the paper reports almost 75 % in the experiment of Fig. 8; measured here: peak 3.60 ->
     1.87 r/min, integral of |error| 1.58 -> 0.82 r/min s, with the speed-PI bandwidth of the preset)."""
-    d = drive002()
+    d = deangelo2006()
     res = {}
     for name in ("fig5a", "fig5b"):
         tr = run(name)

@@ -52,22 +52,22 @@ def exact_state(drive, theta, w, T_L_hat=0.0):
 
 @pytest.mark.parametrize("method", sorted(DISCRETIZATIONS))
 @pytest.mark.parametrize("sign", [1, -1])
-def test_every_scheme_tracks_both_directions(drive002, method, sign):
+def test_every_scheme_tracks_both_directions(deangelo2006, method, sign):
     """Unloaded motor at +-250 r/min, observer started 0.2 rad behind with the speed 5 % off: every
     scheme converges to the right position (the atan2 branch follows the speed sign, eq. (18)) and
     speed sign (14). Tolerances are loose: this is about branch and sign, not accuracy."""
-    w = sign * float(drive002.rpm_to_w(250.0))
-    T_s = drive002.control.T_s
+    w = sign * float(deangelo2006.rpm_to_w(250.0))
+    T_s = deangelo2006.control.T_s
     n = 600  # 0.11 s: 40 time constants of the EMF error dynamics (g = 400)
     th = 0.3 + w * T_s * np.arange(1, n + 1)
-    emf = EmfSeries(drive002.motor.harmonics, drive002.motor.Phi)
+    emf = EmfSeries(deangelo2006.motor.harmonics, deangelo2006.motor.Phi)
     phi = np.asarray(ca.Function("phi", [(t := ca.SX.sym("t"))], [flux_derivative(t, emf)]).map(n)(th[None]))
-    e = phi * w / drive002.motor.p_r
-    x0, _ = exact_state(drive002, 0.3 - 0.2 * sign, 1.05 * w)
-    x0[5:7], x0[7:9] = 0, np.asarray(flux_derivative(0.3, emf)).ravel() * w / drive002.motor.p_r
-    F = runtime_observer(tuple(drive002.estimate.harmonics)).core(method)
+    e = phi * w / deangelo2006.motor.p_r
+    x0, _ = exact_state(deangelo2006, 0.3 - 0.2 * sign, 1.05 * w)
+    x0[5:7], x0[7:9] = 0, np.asarray(flux_derivative(0.3, emf)).ravel() * w / deangelo2006.motor.p_r
+    F = runtime_observer(tuple(deangelo2006.estimate.harmonics)).core(method)
     x, u = ca.MX.sym("x", 9), ca.MX.sym("u", 4)
-    x_next, y = F(x, u, drive002.observer_params(), ca.DM(0, 1))
+    x_next, y = F(x, u, deangelo2006.observer_params(), ca.DM(0, 1))
     G = ca.Function("g", [x, u], [x_next, y[0:2]]).mapaccum(n)
     _, out = G(x0, np.vstack([np.zeros((2, n)), e]))
     w_hat, th_hat = np.asarray(out)
@@ -76,11 +76,11 @@ def test_every_scheme_tracks_both_directions(drive002, method, sign):
     assert np.abs(w_hat[-100:] / w - 1).max() < 0.02
 
 
-def test_position_branch_and_signed_speed_at_negative_speed(drive002):
+def test_position_branch_and_signed_speed_at_negative_speed(deangelo2006):
     """(18) as atan2(-e_a1, e_b1) is off by pi at negative speed; with the sign (14) the estimate is the
     rotor position and the speed is negative (symbolic/pmac_reduced_order/observer.py)."""
     p = ObserverParams(0.01, 1e-4, 0.78, 8.0, 400.0, 1e4)
-    emf = EmfSeries((1, 5), ca.DM(drive002.motor.Phi))
+    emf = EmfSeries((1, 5), ca.DM(deangelo2006.motor.Phi))
     theta, w = 1.1, -200.0
     e = flux_derivative(theta, emf) * w / 8.0
     i = ca.DM([3.0, -2.0])
@@ -92,12 +92,12 @@ def test_position_branch_and_signed_speed_at_negative_speed(drive002):
 
 
 @pytest.mark.parametrize("w", [200.0, -200.0])
-def test_rates_keep_the_exact_orbit_in_both_directions(drive002, w):
+def test_rates_keep_the_exact_orbit_in_both_directions(deangelo2006, w):
     """On the exact orbit (e_hat = e, T_L_hat = T_L) the observer's rates equal the true rates, so the
     orbit is a solution: d zeta/dt = de/dt + g L di/dt. The literal (16), which multiplies d phi_hat/dt by
     the unsigned speed (13), breaks this at negative speed (the paper's (9) has the signed speed)."""
     p = ObserverParams(0.01, 1e-4, 0.78, 8.0, 400.0, 1e4)
-    Phi = drive002.motor.Phi
+    Phi = deangelo2006.motor.Phi
     emf = EmfSeries((1, 5), ca.DM(Phi))
     th = ca.SX.sym("th")
     T = 5.0
@@ -125,7 +125,7 @@ def test_rates_keep_the_exact_orbit_in_both_directions(drive002, w):
 
 
 @pytest.mark.parametrize("method", ["rk2-model", "rk2"])
-def test_one_absurd_sample_is_rejected_and_forgotten(drive002, method):
+def test_one_absurd_sample_is_rejected_and_forgotten(deangelo2006, method):
     """Guard and coasting (symbolic/pmac_reduced_order/step.py): one absurd but finite sample (an ADC
     glitch) or a NaN on any channel is rejected (with the next period, whose first stage uses the
     stored sample, if it was stored), and the observer is back within 0.1 s. Before the speed range
@@ -136,8 +136,8 @@ def test_one_absurd_sample_is_rejected_and_forgotten(drive002, method):
     from sensorless.design.pmac_reduced_order import FAMILY
     from sensorless.design.runtime import run_trajectory
 
-    setup = FAMILY.runtime(drive002, FAMILY.gains(drive002), discretization=method)
-    meas = codegen_trajectory(drive002, ((0.5, 250, 250, 5.0),))["meas"]
+    setup = FAMILY.runtime(deangelo2006, FAMILY.gains(deangelo2006), discretization=method)
+    meas = codegen_trajectory(deangelo2006, ((0.5, 250, 250, 5.0),))["meas"]
     _, clean = run_trajectory(setup, meas)
     k = 1500
     for ch in range(4):

@@ -1,4 +1,4 @@
-"""deangelo family (paper 002 g, Gamma): the closed form against an independent scan of the hand-
+"""deangelo family (De Angelo et al. 2006: g, Gamma): the closed form against an independent scan of the hand-
 derived characteristic polynomial, the tuned gains against the paper's on the dense discrete-time
 grid (through the analysis path), the gain table, and the CLI."""
 
@@ -23,17 +23,17 @@ from sensorless.tuning.pmac_reduced_order.deangelo import (
 
 
 def hand_poles(g, Gamma, Phi1, J):
-    """Roots of (s + g)(s^2 + g s + Gamma (Phi1/J)^2) (docs/paper002.md, hand derivation)."""
+    """Roots of (s + g)(s^2 + g s + Gamma (Phi1/J)^2): the hand derivation of the family doc."""
     return np.roots(np.polymul([1, g], [1, g, Gamma * (Phi1 / J) ** 2]))
 
 
 @pytest.mark.parametrize("bounds", [(800.0, 1e6), (800.0, 2e4), (300.0, 1e6)])
-def test_closed_form_is_the_best_of_a_scan(drive002, bounds):
+def test_closed_form_is_the_best_of_a_scan(deangelo2006, bounds):
     """No (g, Gamma) in the box with damping >= 0.707 decays faster than the closed form, which is
     itself feasible (damping 1): an independent scan of the hand-derived polynomial."""
     g_max, G_max = bounds
-    Phi1, J = drive002.estimate.Phi[0], drive002.estimate.J
-    g, G = closed_form(drive002, g_max, G_max)
+    Phi1, J = deangelo2006.estimate.Phi[0], deangelo2006.estimate.J
+    g, G = closed_form(deangelo2006, g_max, G_max)
     assert g <= g_max * (1 + 1e-12) and G <= G_max * (1 + 1e-12)
     p = hand_poles(g, G, Phi1, J)
     best = -p.real.max()
@@ -54,20 +54,20 @@ def small002(drive):
 
 
 @pytest.fixture(scope="module")
-def deangelo(drive002):
-    return tune_deangelo(drive002, small002(drive002))
+def deangelo(deangelo2006):
+    return tune_deangelo(deangelo2006, small002(deangelo2006))
 
 
-def test_tuned_beat_the_papers_gains_on_the_dense_grid(drive002, deangelo):
+def test_tuned_beat_the_papers_gains_on_the_dense_grid(deangelo2006, deangelo):
     """Re-verified through design/linearize_pmac.analyze: the tuned gains decay faster than the
     paper's g = 400, Gamma = 10000 at every dense point's worst, meet the damping floor, and the
     table reports exactly that grid."""
-    st = small002(drive002)
+    st = small002(deangelo2006)
     n, T = grid(st, st.dense_factor)
     assert speed_grid(st.speeds_rpm, st.dense_factor).size == 5 and n.size == 25
-    w = drive002.rpm_to_w(n)
-    ref = analyze(drive002, w, T, g=deangelo.g, Gamma=deangelo.Gamma)
-    ref0 = analyze(drive002, w, T, g=400.0, Gamma=10000.0)
+    w = deangelo2006.rpm_to_w(n)
+    ref = analyze(deangelo2006, w, T, g=deangelo.g, Gamma=deangelo.Gamma)
+    ref0 = analyze(deangelo2006, w, T, g=400.0, Gamma=10000.0)
     s = deangelo.table.summary
     decay, decay0 = -ref.poles_discrete.real.max(axis=1), -ref0.poles_discrete.real.max(axis=1)
     assert s["slowest_decay_rate"] == pytest.approx(decay.min(), rel=1e-9)
