@@ -3,7 +3,7 @@
     python benchmarks/bench_codegen.py [--passes 21] [--observer ipmsm_adaptive|pmac_reduced_order]
 
 For each observer family with a runtime observer:
-- the speed-adaptive observer of Piippo et al. (2008), preset piippo2008 (Heun, law (16), HF
+- the speed-adaptive observer of Piippo et al. (2008), preset piippo2008 (zoh, law (16), HF
   injection), against benchmarks/ref_step_ipmsm_adaptive.c, on 12000 samples of the simulated motor
   (tests/helpers/runtime_loop.py);
 - the reduced-order EMF and load-torque observer of De Angelo et al. (2006), preset deangelo2006

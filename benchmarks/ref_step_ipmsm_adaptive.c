@@ -1,8 +1,8 @@
 /* Hand-written C reference of the speed-adaptive observer's runtime step (Piippo, Hinkkanen, Luomi
- * 2008: Heun, law (16), HF injection), a YARDSTICK for benchmarks/bench_codegen.py only: it is what a
- * careful engineer would type from docs/runtime.md, with every parameter-only quantity precomputed.
- * The product is the generated code; this file exists to measure it against (the benchmark also
- * checks that both compute the same). */
+ * 2008: discretization zoh, law (16), HF injection), a YARDSTICK for benchmarks/bench_codegen.py only:
+ * it is what a careful engineer would type from docs/families/ipmsm_adaptive.md, with every
+ * parameter-only quantity precomputed. The product is the generated code; this file exists to measure
+ * it against (the benchmark also checks that both compute the same). */
 #include <math.h>
 
 #include "ref_step_ipmsm_adaptive.h"
@@ -27,13 +27,15 @@ void ref_init(ref_observer *o, const double p[17])
     const double K = p[6] > 0 ? K_eps : 1.0;
     ref_coef *c = &o->c;
     c->T = T;
+    c->T2 = T / 2;
     c->R_s = p[0];
     c->inv_Ld = 1 / p[1];
     c->inv_Lq = 1 / p[2];
-    c->L_q = p[2];
+    c->R_Ld = p[0] / p[1];
+    c->R_Lq = p[0] / p[2];
     c->psi_pm = p[3];
-    c->k_p = 2 * p[4] / p[3];
-    c->k_i = p[4] * p[4] / p[3];
+    c->kpLq = 2 * p[4] / p[3] * p[2]; /* k_p of (10) times C1 of (8) */
+    c->kiLq = p[4] * p[4] / p[3] * p[2];
     c->inj = p[6];
     c->u_c = p[8];
     c->inv_wD = 1 / p[10];
@@ -56,33 +58,12 @@ void ref_init(ref_observer *o, const double p[17])
     o->x.bp1 = o->x.bp2 = o->x.lp1 = o->x.lp2 = o->x.x_eps = 0;
 }
 
-typedef struct {
-    double dpsi_d, dpsi_q, dw_i, w;
-} rates;
-
-/* eqs. (5), (6), (8), (9), (20) in the estimated frame; i held, u given */
-static rates f(const ref_coef *c, double psi_d, double psi_q, double w_i, double i_d, double i_q,
-               double u_d, double u_q, double l1, double l2, double w_eps)
-{
-    rates r;
-    const double ih_d = (psi_d - c->psi_pm) * c->inv_Ld, ih_q = psi_q * c->inv_Lq;
-    const double e_d = i_d - ih_d, e_q = i_q - ih_q;
-    const double F = c->L_q * e_q;
-    const double w = -c->k_p * F + w_i;
-    const double wr = w - w_eps;
-    r.w = w;
-    r.dw_i = -c->k_i * F;
-    r.dpsi_d = u_d - c->R_s * ih_d + wr * psi_q + (l1 * e_d - l2 * e_q);
-    r.dpsi_q = u_q - c->R_s * ih_q - wr * psi_d + (l2 * e_d + l1 * e_q);
-    return r;
-}
-
 void ref_step(ref_observer *o, const double in[4], double out[11])
 {
     const ref_coef *c = &o->c;
     const ref_state x = o->x;
     ref_state n;
-    const double T = c->T;
+    const double T = c->T, T2 = c->T2;
     /* gain (16) at the stored estimate */
     const double ratio = x.w_hat * c->inv_wl;
     const double l1 = c->lambda_p * fmin(fabs(ratio), 1.0);
@@ -91,8 +72,12 @@ void ref_step(ref_observer *o, const double in[4], double out[11])
     const double co = cos(x.theta), si = sin(x.theta);
     const double i_d = co * in[0] + si * in[1], i_q = co * in[1] - si * in[0];
     const double u_d = co * in[2] + si * in[3], u_q = co * in[3] - si * in[2];
-    /* speed (9) at t_k, fade, HF chain (17)-(18), PI (21)-(22) */
-    const double w0 = -c->k_p * c->L_q * (i_q - x.psi_q * c->inv_Lq) + x.w_i;
+    /* current estimate (5), error (6), error term (8) and speed (9) at t_k */
+    const double ih_d = (x.psi_d - c->psi_pm) * c->inv_Ld, ih_q = x.psi_q * c->inv_Lq;
+    const double e_d = i_d - ih_d, e_q = i_q - ih_q;
+    const double w0 = x.w_i - c->kpLq * e_q;
+    const double dw_i = -c->kiLq * e_q;
+    /* fade, HF chain (17)-(18), PI (21)-(22) */
     const double fd = c->inj * fmax(0.0, 1.0 - fabs(w0) * c->inv_wD);
     const double y_bp = c->bp_b0 * i_q + x.bp1;
     const double m = c->g_dem * y_bp * sin(x.phi_c - c->delay);
@@ -100,20 +85,23 @@ void ref_step(ref_observer *o, const double in[4], double out[11])
     const double eps = fd > 0 ? e : 0.0;
     const double w_eps = c->gamma_p * eps + x.x_eps;
     double x_eps = x.x_eps + T * (fd * c->gamma_i * eps);
-    rates r0, r1;
-    double w, th1, co1, si1, sum;
+    /* zoh: the current error held over the period, so w_i and theta_hat advance exactly */
+    const double w = w0 + T2 * dw_i;
+    const double cb = cos(T * w), sb = sin(T * w); /* back to the frame of t_k+1 */
+    /* (20) without voltage and rotation, g = -R_s i_hat + lambda i_tilde + w_eps J psi, at t_k */
+    const double le_d = l1 * e_d - l2 * e_q, le_q = l2 * e_d + l1 * e_q;
+    const double h_d = T2 * (le_d - c->R_s * ih_d - w_eps * x.psi_q);
+    const double h_q = T2 * (le_q - c->R_s * ih_q + w_eps * x.psi_d);
+    /* flux + exact ZOH voltage + half of g0, rotated into the frame of t_k+1 */
+    const double v_d = x.psi_d + T * u_d + h_d, v_q = x.psi_q + T * u_q + h_q;
+    const double r_d = cb * v_d + sb * v_q, r_q = cb * v_q - sb * v_d;
+    /* predictor (Euler for g), then g at the predicted flux, the current error held */
+    const double p_d = r_d + cb * h_d + sb * h_q, p_q = r_q + cb * h_q - sb * h_d;
+    double sum;
     x_eps = fmin(fmax(x_eps, -c->x_max), c->x_max);
-    /* Heun */
-    r0 = f(c, x.psi_d, x.psi_q, x.w_i, i_d, i_q, u_d, u_q, l1, l2, w_eps);
-    th1 = x.theta + T * r0.w;
-    co1 = cos(th1);
-    si1 = sin(th1);
-    r1 = f(c, x.psi_d + T * r0.dpsi_d, x.psi_q + T * r0.dpsi_q, x.w_i + T * r0.dw_i, i_d, i_q,
-           co1 * in[2] + si1 * in[3], co1 * in[3] - si1 * in[2], l1, l2, w_eps);
-    w = (r0.w + r1.w) / 2;
-    n.psi_d = x.psi_d + T / 2 * (r0.dpsi_d + r1.dpsi_d);
-    n.psi_q = x.psi_q + T / 2 * (r0.dpsi_q + r1.dpsi_q);
-    n.w_i = x.w_i + T / 2 * (r0.dw_i + r1.dw_i);
+    n.psi_d = r_d + T2 * (le_d - c->R_Ld * (p_d - c->psi_pm) - w_eps * p_q);
+    n.psi_q = r_q + T2 * (le_q - c->R_Lq * p_q + w_eps * p_d);
+    n.w_i = x.w_i + T * dw_i;
     n.theta = wrap(x.theta + T * w);
     n.w_hat = w;
     n.phi_c = wrap(x.phi_c + c->dphi);

@@ -8,8 +8,8 @@ typedef struct {
 } ref_state;
 
 typedef struct {
-    double T, R_s, inv_Ld, inv_Lq, L_q, psi_pm, k_p, k_i, inj, u_c, inv_wD, x_max, dphi, delay, g_dem;
-    double bp_b0, bp_a1, bp_a2, lp_b0, lp_a1, lp_a2, gamma_p, gamma_i, lambda_p, inv_wl;
+    double T, T2, R_s, inv_Ld, inv_Lq, R_Ld, R_Lq, psi_pm, kpLq, kiLq, inj, u_c, inv_wD, x_max, dphi;
+    double delay, g_dem, bp_b0, bp_a1, bp_a2, lp_b0, lp_a1, lp_a2, gamma_p, gamma_i, lambda_p, inv_wl;
 } ref_coef;
 
 typedef struct {

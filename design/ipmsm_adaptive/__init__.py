@@ -55,7 +55,8 @@ class AdaptiveFluxObserver(ObserverFamily):
         return _runtime.runtime_setup(drive, gains, discretization)
 
     def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
-        """Closed-loop poles (design/ipmsm_adaptive/linearize.py); options: injection, estimate."""
+        """Closed-loop poles (design/ipmsm_adaptive/linearize.py); options: injection, estimate, and
+        discretization (with T_s): also the discrete-time observer that runs (discrete.py)."""
         return _linearize.linearize(
             with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
         )

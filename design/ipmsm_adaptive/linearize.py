@@ -174,6 +174,20 @@ class PoleSweep(Linearization):
         """G_c(s) = w_hat(s)/w_m(s) at point k, eq. (15)."""
         return control.ss2tf(self.statespace(k))
 
+    @property
+    def acceleration_lag(self) -> np.ndarray:
+        """(N,) steady position error per unit of speed ramp [rad per rad/s^2]: -[A^-2 B]_theta_tilde.
+
+        Under w_m = a t the loop (of type 2: no steady error at constant speed) settles to
+        theta_tilde = a * acceleration_lag. NaN where A is singular or undefined.
+        """
+        out = np.full(self.A.shape[0], np.nan)
+        ok = np.isfinite(self.A).all(axis=(1, 2)) & (np.abs(np.linalg.det(self.A)) > 0)
+        if ok.any():
+            x = np.linalg.solve(self.A[ok], np.linalg.solve(self.A[ok], self.B[ok]))
+            out[ok] = -x[:, STATE_NAMES.index("theta_tilde"), 0]
+        return out
+
 
 def linearize(
     drive: Any,
@@ -182,6 +196,8 @@ def linearize(
     gain: str | tuple | None = None,
     injection: bool = False,
     estimate: Any = None,
+    discretization: str | None = None,
+    T_s: float | None = None,
 ) -> PoleSweep:
     """Linearize the coupled system at the operating points (w_m [rad/s], T_e [N m]).
 
@@ -189,7 +205,9 @@ def linearize(
     (row-major). ``estimate`` optionally gives the observer's parameter estimates per point, an
     array (..., 4) of [R̂s, L̂d, L̂q, ψ̂pm] broadcasting with the operating points (default: the
     drive's ``[estimate]``), so robustness maps over parameter errors are one call. Points where no
-    equilibrium exists (possible with estimation errors) get NaN.
+    equilibrium exists (possible with estimation errors) get NaN. With ``discretization`` (a scheme
+    of the runtime step) the result is a ``DiscretePoleSweep`` (discrete.py): also the discrete-time
+    observer that runs at ``T_s`` (default the drive's), its poles, steady errors and feedthrough.
     """
     if estimate is not None:
         est = np.asarray(estimate, float)
@@ -227,7 +245,7 @@ def linearize(
     rest = ok & ~frozen
     if rest.any():
         poles[rest] = sort_poles(eigvals_batched(A[rest], charpoly[rest]))
-    return PoleSweep(
+    sweep = PoleSweep(
         law=law,
         injection=injection,
         w=w_flat,
@@ -240,6 +258,11 @@ def linearize(
         D=out[3],
         poles=poles,
     )
+    if discretization is None:
+        return sweep
+    from sensorless.design.ipmsm_adaptive.discrete import discrete_sweep  # builds on this module
+
+    return discrete_sweep(drive, sweep, args["gain"], discretization, T_s, args["estimate"])
 
 
 def refine_band_edges(f_unstable: Any, lo: np.ndarray, hi: np.ndarray, iters: int = 40) -> np.ndarray:

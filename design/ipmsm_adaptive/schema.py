@@ -142,7 +142,9 @@ class Runtime:
     An optional section: every key may be omitted; RUNTIME_DEFAULTS are the documented choices.
     """
 
-    discretization: str = field(metadata={"dim": "choice", "doc": "heun or euler"})
+    discretization: str = field(
+        metadata={"dim": "choice", "doc": f"runtime step's scheme: {', '.join(DISCRETIZATIONS)}"}
+    )
     w_bp: float = q("angular", doc="band-pass -3 dB bandwidth around w_c [rad/s]")
     w_lp: float = q("angular", doc="low-pass cut-off after demodulation [rad/s]")
     x_eps_max: float = q("angular", check="nonnegative", doc="bound on the integral of (21) [rad/s]")

@@ -3,12 +3,15 @@
 Piippo, Hinkkanen, Luomi (2008) Section IV: the linearized motor+observer closed loop (11)-(15) over
 -speed_max..speed_max p.u. at the given torques, for each gain choice, optionally with the averaged HF
 injection (19)-(22). Prints the right-half-plane speed bands (edges refined by bisection) and the worst
-damping; stages the pole data (CSV) and Fig. 4-5 style pole maps (PNG, SVG).
+damping; stages the pole data (CSV) and Fig. 4-5 style pole maps (PNG, SVG). With ``--discrete`` also the
+discrete-time observer that runs, with ``--study`` every discretization over the sampling period
+(discrete.py).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 import numpy as np
@@ -18,6 +21,7 @@ from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.reports.cli.common import UsageError, parse_torques
 from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
+from sensorless.reports.ipmsm_adaptive import discrete
 
 OPTIONS = (
     Option(
@@ -35,6 +39,7 @@ OPTIONS = (
     Option(("--injection",), {"action": "store_true", "help": "include the averaged HF injection (19)-(22)"}),
     Option(("--speed-max",), {"type": float, "help": "sweep |w_m| up to this (p.u.); default 1"}),
     Option(("--points",), {"type": int, "help": "speed grid points; default 2001"}),
+    *discrete.OPTIONS,
 )
 
 
@@ -62,6 +67,8 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
     wb = drive.w_base
     w = np.linspace(-speed_max, speed_max, points) * wb
     inj = bool(args.injection)
+    disc = discrete.scheme(drive, args)
+    opts = {"injection": inj} if disc is None else {"discretization": disc}
 
     print(f"{drive.name}: {drive.source}")
     print(
@@ -76,12 +83,15 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
 
     suffix = "_inj" if inj else ""
     w_low = np.linspace(-0.05, 0.05, 1001) * wb  # dense low-speed sweep for the magnified panel
+    discrete_sweeps = []
     for T in torques:
         sweeps, low = {}, {}
         for label, g in choices.items():
-            s = FAMILY.linearize(drive, g, w, T, injection=inj)
+            s = FAMILY.linearize(drive, g, w, T, **opts)
             sweeps[label] = s
-            low[label] = FAMILY.linearize(drive, g, w_low, T, injection=inj)
+            low[label] = FAMILY.linearize(drive, g, w_low, T, **opts)
+            if disc is not None:
+                discrete_sweeps.append((label, T, s, low[label]))
             tol = 1e-9 * np.nanmax(np.abs(s.poles))
             text = []
             d = with_alpha_fo(drive, g)
@@ -104,3 +114,7 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
         out.add_figure(f"pole_map{suffix}_T{T:+g}Nm.png", fig, dpi=110)
         out.add_figure(f"pole_map{suffix}_T{T:+g}Nm.svg", fig)
         plt.close(fig)
+    if discrete_sweeps:
+        discrete.analyze_output(drive, discrete_sweeps, out)
+    if args.study:
+        discrete.study_output(drive, choices, out, lambda t: print(f"  ... {t}", file=sys.stderr, flush=True))

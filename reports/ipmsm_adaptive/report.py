@@ -3,7 +3,8 @@
 Piippo, Hinkkanen, Luomi (2008): pole maps over speed at +-T_N for each gain (Figs. 4-5 style) and with
 the averaged HF injection (19)-(22); worst damping and decay rate over the speed x torque plane;
 robustness maps under misestimated R̂s, L̂d, L̂q, ψ̂pm; the paper's experiments re-run (Figs. 9(b), 10,
-6(b)); and a verdict that states where the gains under review meet the required damping and where not.
+6(b)); the discrete-time observer that runs (discrete.py); and a verdict that states where the gains
+under review meet the required damping and where not.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from sensorless.reports.document import (
     report_inputs,
     svg_uri,
 )
+from sensorless.reports.ipmsm_adaptive.discrete import report_section as discrete_section
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
 
 TIME_DOMAIN = ("fig9b", "fig10", "fig6b")  # built-in scenarios re-run with the gains under review
@@ -91,7 +93,7 @@ def compute(
         return [[f(a / wb), f(b / wb)] for a, b in out]
 
     # 1. pole maps over speed at +-T_N, each gain; then the gain under review with injection
-    steps = 5
+    steps = 6
     progress(f"[1/{steps}] pole maps over speed ({len(choices)} gains x 2 torques, {w.size} speeds)")
     pm: dict[str, Any] = {}
     for T in (T_N, -T_N):
@@ -194,6 +196,8 @@ def compute(
         drive, td_gains, TIME_DOMAIN, "tuned table" if table is not None else "paper gains", progress
     )
     data["time_domain"] = td
+    progress(f"[6/{steps}] the discrete-time observer that runs ({drive.runtime.discretization})")
+    data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
     data["verdict"] = verdict(data, review, min_damping)
     sections = (
         drive_section(1, data["drive"]),
@@ -201,6 +205,7 @@ def compute(
         Section("3. Damping and decay rate over speed × torque", (plane_fig, _plane_table(maps))),
         Section("4. Robustness to parameter-estimate errors", (rob_fig, _robustness_table(rob))),
         time_domain.section(5, td, td_figs),
+        disc_section,
     )
     return Report(drive.name, review, data, verdict_block(data["verdict"]), sections)
 

@@ -2,9 +2,9 @@
 
 One sampling period of the speed-adaptive flux observer of Piippo, Hinkkanen, Luomi (2008), eqs.
 (4)-(10), with the HF-injection correction (17)-(22), built in SX from the continuous-time definitions
-in observer.py, gains.py and injection.py (nothing re-typed here), discretized by forward Euler or
-Heun's method. The interface and every timing convention are in docs/families/ipmsm_adaptive.md; in
-short, at sample k (time t_k):
+in observer.py, gains.py and injection.py (nothing re-typed here). The interface, every timing
+convention and the discretizations are in docs/families/ipmsm_adaptive.md; in short, at sample k
+(time t_k):
 
 - ``meas`` = [i_alpha, i_beta] sampled at t_k and [u_alpha, u_beta], the stator voltage applied during
   [t_k, t_k + T_s] (with a one-sample computation delay: the reference computed at step k-1, carrier
@@ -14,6 +14,23 @@ short, at sample k (time t_k):
 - the state advances to t_k + T_s. The gain (7) is scheduled at the previous sample's speed estimate
   (state ``w_hat``) and held over the period, like the inputs; the HF chain and the integral of (21)
   are sampled-data by nature (forward Euler for the integral).
+
+Discretizations (``DISCRETIZATIONS``, the first is the default), compared by the discrete-time analysis
+of design/ipmsm_adaptive/discrete.py:
+
+- ``zoh``: every input held over the period as the drive holds it. The voltage is constant in the
+  stationary frame (the inverter's zero-order hold) and is integrated exactly there; the rotation of
+  the estimated frame is exact; the current error of t_k is held (the current of t_k+1 is not known
+  yet); the resistive drop and the corrections of (20) by the trapezoidal rule. No voltage
+  feedthrough to w_hat, no steady angle lag.
+- ``heun``: Heun's method (explicit trapezoidal RK2) in the estimated frame, the measured current of t_k
+  held in both stages. Its second stage compares the flux predicted at t_k+1 with the current of t_k,
+  so a voltage step moves w_hat by k_p T_s / 2 per volt before the current has answered.
+- ``euler``: forward Euler with every input at t_k; the voltage is taken at the angle of t_k, which
+  lags the period's mean by w T_s / 2: a steady angle error of about that much.
+- ``heun-model``: Heun with the current at t_k+1 predicted by the observer's model from the measured
+  one: no feedthrough, but the rotating frame's trapezoidal rule leaves a steady angle error growing
+  as (w T_s)^2.
 """
 
 from __future__ import annotations
@@ -30,12 +47,12 @@ from sensorless.symbolic.ipmsm_adaptive.injection import (
     injection_gain,
     injection_pi,
 )
-from sensorless.symbolic.ipmsm_adaptive.observer import observer_rates, speed_adaptation
-from sensorless.symbolic.pmsm import PmsmParams, flux_from_current
+from sensorless.symbolic.ipmsm_adaptive.observer import ObserverRates, observer_rates, speed_adaptation
+from sensorless.symbolic.pmsm import PmsmParams, current_from_flux, flux_from_current
 from sensorless.symbolic.runtime import Field, RuntimeObserver, guarded
 
 NAME = "ipmsm_adaptive"
-DISCRETIZATIONS = ("heun", "euler")  # Heun's method (explicit trapezoidal RK2); forward Euler
+DISCRETIZATIONS = ("zoh", "heun", "euler", "heun-model")  # the first is the default (module docstring)
 
 STATE = (
     Field("psi_d", "V s", "stator-flux estimate psi_hat, estimated d axis, eq. (4)/(20)"),
@@ -135,23 +152,51 @@ def _step(discretization: str, x: Sym, meas: Sym, p: Sym, lam: Sym) -> tuple[Sym
     pi = injection_pi(eps, X["x_eps"], gamma_p, gamma_i)  # eq. (21)
     x_eps_next = ca.fmin(ca.fmax(X["x_eps"] + T_s * pi.dx_eps, -P["x_eps_max"]), P["x_eps_max"])
 
-    def rates(psi_: Sym, w_i_: Sym, u_: Sym) -> tuple[Sym, Sym, Sym]:
-        r = observer_rates(psi_, w_i_, u_, i_s, est, P["alpha_fo"], _HELD, lam, pi.w_eps)  # (4)/(20)
-        return r.dpsi_hat, r.dw_i, r.w_hat
+    def rates(psi_: Sym, w_i_: Sym, u_: Sym, i_: Sym = i_s, w_hat_: Sym | None = None) -> ObserverRates:
+        # (4) with the correction of (20)
+        return observer_rates(psi_, w_i_, u_, i_, est, P["alpha_fo"], _HELD, lam, pi.w_eps, w_hat_)
 
-    d_psi0, d_wi0, w0 = rates(psi, X["w_i"], u_s)
-    if discretization == "euler":
-        psi_next = psi + T_s * d_psi0
-        w_i_next = X["w_i"] + T_s * d_wi0
-        w_step = w0
-    elif discretization == "heun":
-        # predictor; the voltage is held in the stationary frame (as the inverter holds it), the
-        # current in the estimated rotor frame (where it is nearly constant)
-        theta_p = theta + T_s * w0
-        d_psi1, d_wi1, w1 = rates(psi + T_s * d_psi0, X["w_i"] + T_s * d_wi0, rot(theta_p).T @ u_ab)
-        psi_next = psi + T_s / 2 * (d_psi0 + d_psi1)
-        w_i_next = X["w_i"] + T_s / 2 * (d_wi0 + d_wi1)
-        w_step = (w0 + w1) / 2
+    if discretization == "zoh":
+        # Each input is held over the period as the drive holds it: the voltage in the stationary frame
+        # (the inverter), the current error of t_k in the estimated frame (the next current is not
+        # known yet, so nothing of the voltage applied now reaches w_hat now).
+        a = speed_adaptation(psi, X["w_i"], i_s, est, P["alpha_fo"])  # (5), (6), (8), (9) at t_k
+        w_i_next = X["w_i"] + T_s * a.dw_i  # integral of (9) with F_eps held: exact
+        w_step = a.w_hat + T_s / 2 * a.dw_i  # mean of (9) over the period: theta_hat advances exactly
+        back = rot(T_s * w_step).T  # the estimated frame of t_k seen from that of t_k+1
+
+        def g(psi_: Sym) -> Sym:
+            """(20) without the voltage and without the frame's rotation: -R_s i_hat + lambda i_tilde
+            + w_eps J psi_hat, the current error held. (w_hat imposed 0: the rotation is exact, below.)"""
+            i_ = current_from_flux(psi_, est) + a.i_tilde
+            return rates(psi_, X["w_i"], ca.DM.zeros(2), i_, 0).dpsi_hat
+
+        # (20) in the stationary frame is d psi/dt = u + T(theta_hat) g: the held voltage integrates
+        # exactly, the rotation of the estimated frame is exact, g by the trapezoidal rule (Heun)
+        g0 = g(psi)
+        psi_p = back @ (psi + T_s * (u_s + g0))  # predictor, in the frame of t_k+1
+        psi_next = back @ (psi + T_s * (u_s + g0 / 2)) + T_s / 2 * g(psi_p)
+    elif discretization == "euler":
+        r0 = rates(psi, X["w_i"], u_s)
+        psi_next = psi + T_s * r0.dpsi_hat
+        w_i_next = X["w_i"] + T_s * r0.dw_i
+        w_step = r0.w_hat
+    elif discretization in ("heun", "heun-model"):
+        r0 = rates(psi, X["w_i"], u_s)
+        # predictor; the voltage is held in the stationary frame (as the inverter holds it)
+        theta_p = theta + T_s * r0.w_hat
+        if discretization == "heun":
+            i_p = i_s  # the current of t_k held in the estimated frame: against the predicted flux,
+            # the voltage applied now reaches w_hat now (k_p T_s / 2 per volt)
+        else:
+            # the current at t_k+1 predicted by the observer model (2), (4) from the measured one:
+            # the voltage enters it as it enters the predicted flux, and cancels in the current error
+            psi_m = flux_from_current(i_s, est)
+            i_p = current_from_flux(psi_m + T_s * rates(psi_m, X["w_i"], u_s, i_s, r0.w_hat).dpsi_hat, est)
+        r1 = rates(psi + T_s * r0.dpsi_hat, X["w_i"] + T_s * r0.dw_i, rot(theta_p).T @ u_ab, i_p)
+        psi_next = psi + T_s / 2 * (r0.dpsi_hat + r1.dpsi_hat)
+        w_i_next = X["w_i"] + T_s / 2 * (r0.dw_i + r1.dw_i)
+        w_step = (r0.w_hat + r1.w_hat) / 2
     else:
         raise ValueError(f"unknown discretization {discretization!r} (known: {', '.join(DISCRETIZATIONS)})")
 
@@ -190,7 +235,7 @@ def _symbols(n_lam: int = 2) -> dict[str, ca.SX]:
 
 
 @functools.cache
-def observer_step_core(discretization: str = "euler") -> ca.Function:
+def observer_step_core(discretization: str = DISCRETIZATIONS[0]) -> ca.Function:
     """Step with the scheduled gains as an input: (x, meas, p, lam) -> (x_next, y).
 
     This is what the C generator emits; the gain schedule becomes a C function of its own that the
@@ -199,7 +244,7 @@ def observer_step_core(discretization: str = "euler") -> ca.Function:
     s = _symbols()
     x_next, y = _step(discretization, s["x"], s["meas"], s["p"], s["lam"])
     return ca.Function(
-        f"{NAME}_core_{discretization}",
+        f"{NAME}_core_{discretization.replace('-', '_')}",
         [s["x"], s["meas"], s["p"], s["lam"]],
         ca.cse([x_next, y]),  # one graph: y shares the step's work
         ["x", "meas", "p", "lam"],
@@ -208,7 +253,9 @@ def observer_step_core(discretization: str = "euler") -> ca.Function:
 
 
 @functools.cache
-def observer_step_function(discretization: str = "euler", law: str | GainLaw = "speed") -> ca.Function:
+def observer_step_function(
+    discretization: str = DISCRETIZATIONS[0], law: str | GainLaw = "speed"
+) -> ca.Function:
     """One sampling period of the adaptive observer: (x, meas, p, gain) -> (x_next, y).
 
     ``law`` is a gain law of gains.py (``zero``, ``constant``, ``speed`` = eq. (16), or a
@@ -222,7 +269,7 @@ def observer_step_function(discretization: str = "euler", law: str | GainLaw = "
     lam = ca.vertcat(*law.expr(s["x"][_IX["w_hat"]], gain))  # eq. (7)/(16) at the stored estimate
     x_next, y = observer_step_core(discretization)(s["x"], s["meas"], s["p"], lam)
     return ca.Function(
-        f"{NAME}_step_{discretization}_{law.name}",
+        f"{NAME}_step_{discretization.replace('-', '_')}_{law.name}",
         [s["x"], s["meas"], s["p"], gain],
         [x_next, y],
         ["x", "meas", "p", "gain"],

@@ -50,6 +50,14 @@ def test_json_numbers_equal_the_api(report, drive):
     ).worst_damping[0]
     got = rob["damping"][k][m]
     assert (got is None and np.isnan(val)) or got == pytest.approx(val, rel=1e-9)
+    # the discrete-time observer that runs (the --quick grid: 41 speeds)
+    disc = data["discrete"]
+    assert disc["discretization"] == drive.runtime.discretization
+    a = linearize(drive, np.linspace(-1, 1, 41) * wb, drive.T_N, gain="speed", discretization="zoh")
+    entry = disc["gains"]["paper speed"]["+14"]
+    assert entry["err_theta_max_deg"] == pytest.approx(np.degrees(np.abs(a.err_theta).max()), rel=1e-9)
+    assert entry["feedthrough_max"] == 0
+    assert {r["discretization"] for r in disc["study"]} == {"zoh", "heun", "euler", "heun-model"}
 
 
 def test_html_is_well_formed_self_contained_and_captioned(report):

@@ -82,3 +82,53 @@ def test_bad_drive_file_exits_2_naming_key(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
     code, _, err = run(["analyze", "piippo2008", "--gain", "nope", "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and "observer.gains.nope" in err
+
+
+def test_discrete_analysis_and_study(tmp_path, capsys):
+    """--discrete: the runtime step's one-step map beside the continuous loop (the drive's scheme, zoh:
+    no voltage feedthrough, steady angle error 0.01 deg); --discretization picks another scheme
+    (heun: k_p T_s / 2 = 0.115 rad/s per V); --study: every scheme over 50..400 us."""
+    import numpy as np
+
+    out = tmp_path / "d"
+    code, stdout, _ = run(
+        ["analyze", "piippo2008", "--discrete", "--points", "201", "--out", str(out)], capsys
+    )
+    assert code == 0
+    assert "discrete-time observer that runs: zoh at T_s = 200 us" in stdout
+    row = [ln for ln in stdout.splitlines() if ln.startswith("speed")][-1].split()
+    assert float(row[-1]) == 0 and abs(float(row[4])) < 0.02  # feedthrough; steady error [deg]
+    for name in ("poles_discrete_speed_T+14Nm.csv", "pole_map_discrete_T+14Nm.svg", "poles_speed_T+14Nm.csv"):
+        assert (out / name).exists(), name
+    data = np.genfromtxt(out / "poles_discrete_speed_T+14Nm.csv", delimiter=",", names=True, skip_header=1)
+    assert data.size == 201 and np.nanmax(np.abs(data["err_theta_deg"])) < 0.02
+    code, stdout, _ = run(
+        [
+            "analyze",
+            "piippo2008",
+            "--discretization",
+            "heun",
+            "--points",
+            "51",
+            "--study",
+            "--out",
+            str(tmp_path / "h"),
+        ],
+        capsys,
+    )
+    assert code == 0 and "heun at T_s = 200 us" in stdout
+    row = [ln for ln in stdout.splitlines() if ln.startswith("speed")][-1].split()
+    assert float(row[-1]) == 0.115
+    study = (tmp_path / "h" / "discretization_study.csv").read_text().splitlines()
+    assert len(study) == 2 + 4 * 4  # comment, header, 4 schemes x 4 sampling periods
+    assert any(ln.startswith("speed,zoh,0.0002,") for ln in study)
+
+
+def test_discrete_analysis_refuses_what_it_cannot_do(tmp_path, capsys):
+    code, _, err = run(["analyze", "piippo2008", "--discrete", "--injection", "--out", str(tmp_path)], capsys)
+    assert code == 2 and "without the HF injection" in err
+    code, _, err = run(["analyze", "piippo2008", "--discretization", "rk9", "--out", str(tmp_path)], capsys)
+    assert code == 2 and "'rk9'" in err and "zoh" in err
+    code, _, err = run(["analyze", "deangelo2006", "--discrete", "--out", str(tmp_path)], capsys)
+    assert code == 2 and "--discrete" in err
+    assert not any(tmp_path.iterdir())

@@ -100,7 +100,16 @@ def schedule_table(tmp_path_factory, drive):
 
 # -------------------------------------------------------------------------------- C == Python
 @pytest.mark.parametrize(
-    "disc,gains", [("heun", None), ("euler", None), ("heun", "schedule"), ("euler", "constant")]
+    "disc,gains",
+    [
+        ("zoh", None),
+        ("heun", None),
+        ("euler", None),
+        ("heun-model", None),
+        ("zoh", "schedule"),
+        ("zoh", "constant"),
+        ("euler", "constant"),
+    ],
 )
 def test_double_matches_python_on_the_trajectory(drive, trajectory, schedule_table, tmp_path, disc, gains):
     """Every output and state of every sample to 1e-12 of that signal's largest magnitude (angles

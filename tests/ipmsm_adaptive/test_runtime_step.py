@@ -28,7 +28,7 @@ Y = {f.name: k for k, f in enumerate(OUTPUTS)}
 X = {f.name: k for k, f in enumerate(STATE)}
 
 
-def setup_with(drive, disc="heun", **params):
+def setup_with(drive, disc="zoh", **params):
     s = FAMILY.runtime(drive, FAMILY.gains(drive), discretization=disc)
     return dataclasses.replace(s, params={**s.params, **params})
 
@@ -42,22 +42,27 @@ def test_interface_is_named_and_registered(drive):
     assert F.name_in() == ["x", "meas", "p", "gain"] and F.name_out() == ["x_next", "y"]
     assert [F.size1_in(k) for k in range(4)] == [len(STATE), len(MEAS), len(PARAMS), 2]
     assert [F.size1_out(k) for k in range(2)] == [len(STATE), len(OUTPUTS)]
-    core = observer_step_core("heun")
+    core = observer_step_core("zoh")
     assert core.name_in() == ["x", "meas", "p", "lam"]
-    assert OBSERVER.core("heun") is core and FAMILY.runtime(drive, FAMILY.gains(drive)).observer is OBSERVER
+    assert OBSERVER.core("zoh") is core and FAMILY.runtime(drive, FAMILY.gains(drive)).observer is OBSERVER
+    assert OBSERVER.discretizations == ("zoh", "heun", "euler", "heun-model")
     with pytest.raises(ValueError, match="unknown discretization"):
         observer_step_core("rk4")
 
 
 def test_drive_runtime_section_defaults_and_errors(drive):
-    assert drive.runtime.discretization == "heun"
+    assert drive.runtime.discretization == "zoh"
     assert drive.runtime.w_bp == pytest.approx(2 * math.pi * 200)
     assert drive.runtime.x_eps_max == pytest.approx(0.1 * drive.base.w)
     from importlib import resources
 
     text = (resources.files(FAMILY.presets) / "piippo2008.toml").read_text()
     head = text.split("[runtime]")[0]
-    assert load_drive_text(head, "x.toml").runtime.discretization == "heun"  # section optional
+    assert load_drive_text(head, "x.toml").runtime.discretization == "zoh"  # section optional
+    # a drive file written for the schemes of before keeps its meaning
+    old = load_drive_text(head + '[runtime]\ndiscretization = "heun"\n', "x.toml")
+    assert old.runtime.discretization == "heun"
+    assert FAMILY.runtime(old, FAMILY.gains(old)).discretization == "heun"
     with pytest.raises(ValueError, match=r"x.toml: key 'runtime.discretization'"):
         load_drive_text(head + '[runtime]\ndiscretization = "rk9"\n', "x.toml")
     with pytest.raises(ValueError, match=r"x.toml: key 'runtime.w_bq': unknown key"):
@@ -91,7 +96,7 @@ def test_filters_are_the_prewarped_bilinear_prototypes(drive):
     assert abs(Hc[0] - 1) < 1e-12 and abs(Hc[1]) < 1e-15 and abs(Hc[2]) < 1e-12
 
 
-@pytest.mark.parametrize("disc", ["euler", "heun"])
+@pytest.mark.parametrize("disc", ["zoh", "euler", "heun"])
 def test_demodulated_error_is_eq19(drive, disc):
     """With the PI (21) practically off, the observer's angle stays where it starts; the chain run on
     the simulated motor's currents then measures eps = K_eps sin(2 theta_tilde), eq. (19), with K_eps
@@ -146,11 +151,14 @@ def test_injection_fades_out_and_integral_is_bounded(drive):
     assert np.array_equal(y[fast, Y["w_eps"]][-1000:], held[-1000:])  # omega_eps = held integral
 
 
-@pytest.mark.parametrize("disc", ["euler", "heun"])
-def test_tracks_the_motor_and_heun_removes_eulers_angle_lag(drive, disc):
+@pytest.mark.parametrize("disc", ["zoh", "heun", "euler", "heun-model"])
+def test_tracks_the_motor_with_the_steady_angle_error_of_its_discretization(drive, disc):
     """Constant speeds at nominal torque: the speed estimate converges to the true speed; the steady
-    angle error is what the discretization allows: forward Euler evaluates the voltage at the start of
-    the period, which lags by w T_s / 2 in angle (0.047 rad at 1 p.u.); Heun does not."""
+    angle error is what the discretization allows. Forward Euler takes the voltage at the angle of the
+    start of the period, which lags the period's mean by w T_s / 2 (0.047 rad at 1 p.u.): an error of
+    about that size. The others stay below 0.1 electrical degree at 1 p.u. (measured: zoh 0.01, heun
+    0.085, heun-model 0.032 deg); the discrete-time analysis (design/ipmsm_adaptive/discrete.py) gives
+    the same steady error from the one-step map's fixed point, within 2 % (or 2e-4 deg)."""
     for w_pu in (0.3, -1.0, 1.0):
         prof = profile_from_segments([(0.25, w_pu, w_pu, 1.0)], 2e-4, drive.base.w, drive.T_N)
         r = simulate(setup_with(drive, disc), drive, prof)
@@ -161,7 +169,9 @@ def test_tracks_the_motor_and_heun_removes_eulers_angle_lag(drive, disc):
         if disc == "euler":
             assert 0.5 * lag < abs(err) < 1.2 * lag, (w_pu, err)
         else:
-            assert abs(err) < 0.05 * lag, (w_pu, err)
+            assert abs(err) < math.radians(0.1), (w_pu, err)
+        a = FAMILY.linearize(drive, FAMILY.gains(drive), w_pu * drive.base.w, drive.T_N, discretization=disc)
+        assert a.err_theta[0] == pytest.approx(err, rel=0.02, abs=math.radians(2e-4))
 
 
 def test_invalid_samples_coast_and_recover(drive):

@@ -197,10 +197,15 @@ def test_fig9_estimate_follows_the_steps(name):
 
 
 def test_fig9_speed_dependent_gain_damps_better():
+    """Oscillation after the steps to 0.67 p.u. and to -0.67 p.u. (measured ratio speed-dependent /
+    constant 0.38 and 0.70); the paper's claim is the direction. The third step ends at standstill,
+    where (16) gives zero gain and the damping argument does not apply: both oscillations are at the
+    floor there (0.018 and 0.026 rad/s, 5e-5 p.u.; with Heun's voltage feedthrough the constant gain's
+    was 0.051 rad/s, which made that ratio look like 0.48)."""
     a, b = run("fig9a"), run("fig9b")
-    ratios = [oscillation(b, t + 0.03, t + 0.5) / oscillation(a, t + 0.03, t + 0.5) for t in STEPS]
-    # measured: 0.39, 0.68, 0.47 (see docs/simulation.md); the paper's claim is the direction
-    assert max(ratios) < 0.8
+    osc = [(oscillation(b, t + 0.03, t + 0.5), oscillation(a, t + 0.03, t + 0.5)) for t in STEPS]
+    assert max(ob / oa for ob, oa in osc[:2]) < 0.8
+    assert max(osc[2]) < 1e-4 * piippo2008().base.w
     # the linear analysis predicts the same ranking at the step speeds (Fig. 4(b) vs (c))
     d = piippo2008()
     for w in (0.67, -0.67):
@@ -236,18 +241,18 @@ value = ["1 T_N"]
 
 
 @pytest.mark.parametrize("gain", ["constant", "speed"])
-@pytest.mark.parametrize("discretization", ["heun", "euler"])
-def test_small_step_decays_at_the_dominant_linearized_pole(gain, discretization):
+@pytest.mark.parametrize("discretization", ["zoh", "heun", "euler", "heun-model"])
+def test_small_step_decays_at_the_dominant_discrete_pole(gain, discretization):
     """The load machine holds the speed (the analysis' input w_m) and steps it by 0.01 p.u.; the
     speed-estimation error then decays through the closed loop G_c(s) of eq. (15). Its dominant
     pole, estimated from the simulated error by the matrix pencil (no model), is compared with the
-    dominant pole of the linearization at 0.5 p.u., nominal torque.
+    dominant pole ln(z)/T_s of the discrete-time observer that runs (design/ipmsm_adaptive/discrete.py)
+    at 0.5 p.u., nominal torque.
 
-    Tolerance: the analysis is continuous-time with ideal current control. Heun's method maps p to
-    exp(p T_s) up to (p T_s)^3/6 (< 0.01 % here); forward Euler maps it to 1 + p T_s, i.e. to the
-    continuous pole p - p^2 T_s/2 + ..., which the test derives and uses as the Euler prediction
-    (a 21 % lower decay rate for the constant gain). What remains is the current loop (bandwidth
-    alpha_c = 11 |p|, 1.5-sample delay) and the fit: 8 % on the decay rate and 5 % on the frequency.
+    Tolerance: the analysis assumes ideal current control (the sampled current held on its operating
+    point); what remains is the drive's current loop (bandwidth alpha_c = 11 |p|, 1.5-sample delay)
+    and the fit: 8 % on the decay rate and 5 % on the frequency (measured within 4 % and 3 %). For
+    forward Euler the continuous pole decays 22 % faster (constant gain) and fails this tolerance.
     """
     d = piippo2008()
     tr = run_text(SMALL_STEP, gain=gain, discretization=discretization)
@@ -255,10 +260,43 @@ def test_small_step_decays_at_the_dominant_linearized_pole(gain, discretization)
     win = tr.window(0.32, 0.5)  # from 20 ms after the step: the faster poles have decayed by e^-4
     p_sim = matrix_pencil(e[win][::2], 2 * tr.meta["T_s"])
     p_sim = p_sim[np.argmax(p_sim.imag)]
-    poles = linearize(d, 0.5 * d.base.w, d.T_N, gain=gain).poles[0]
+    a = linearize(d, 0.5 * d.base.w, d.T_N, gain=gain, discretization=discretization, T_s=tr.meta["T_s"])
+    poles = a.poles_discrete[0]
     p_lin = poles[np.argmax(poles.real)]
     p_lin = complex(p_lin.real, abs(p_lin.imag))
-    if discretization == "euler":
-        p_lin = p_lin - p_lin**2 * tr.meta["T_s"] / 2  # log(1 + p T_s)/T_s to second order
     assert -p_sim.real == pytest.approx(-p_lin.real, rel=0.08)
     assert p_sim.imag == pytest.approx(p_lin.imag, rel=0.05)
+    if discretization == "euler" and gain == "constant":
+        p_c = a.poles[0][np.argmax(a.poles[0].real)]
+        assert -p_c.real > 1.2 * -p_sim.real
+
+
+def test_fig9_position_error_speed_dependent_against_constant_gain():
+    """Piippo et al. (2008) on Fig. 9: "the estimation error of the rotor position remains slightly
+    smaller when using the speed-dependent gain". Re-examined with the default discretization (zoh,
+    no voltage feedthrough, no steady lag):
+
+    - in the torque-limited reversal the speed-dependent gain lags about twice as much (measured peak
+      11.9 vs 5.7 deg without noise): the continuous observer's own acceleration lag -[A^-2 B]_theta
+      (PoleSweep.acceleration_lag) at the operating point of the peak predicts the ranking (ratio 1.9);
+    - with current-measurement noise (0.02 A) the steady-state error at +-0.67 p.u. is smaller with the
+      speed-dependent gain (RMS 0.035 vs 0.041 deg): the paper's claim holds for the noise, not for the
+      transients.
+    """
+    d = piippo2008()
+    a, b = run("fig9a"), run("fig9b")
+    assert a.meta["discretization"] == b.meta["discretization"] == "zoh"
+    rev = a.window(2.0, 3.0)
+    peak_a = np.abs(a["theta_err"][rev]).max()
+    peak_b = np.abs(b["theta_err"][rev]).max()
+    assert peak_b > 1.6 * peak_a
+    k = np.flatnonzero(rev)[np.argmax(np.abs(b["theta_err"][rev]))]
+    w, T = b["w_m"][k], b["T_e"][k]
+    lag = {g: linearize(d, w, T, gain=g).acceleration_lag[0] for g in ("constant", "speed")}
+    assert lag["speed"] > 1.5 * lag["constant"] > 0
+    noisy = {n: run(n, i_noise=0.02) for n in ("fig9a", "fig9b")}
+    steady = a.window(1.5, 2.0) | a.window(2.5, 3.0)
+    rms = {n: np.sqrt(np.mean(tr["theta_err"][steady] ** 2)) for n, tr in noisy.items()}
+    assert rms["fig9b"] < 0.95 * rms["fig9a"]
+    peak = {n: np.abs(tr["theta_err"][rev]).max() for n, tr in noisy.items()}
+    assert peak["fig9b"] > 1.6 * peak["fig9a"]
