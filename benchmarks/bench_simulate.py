@@ -4,7 +4,7 @@ Run:  python benchmarks/bench_simulate.py [--repeats N] [--motulator-python PATH
 
 Ours: the Fig. 9(b) scenario of Piippo, Hinkkanen, Luomi (2008) on the ``piippo2008`` preset (4 s at
 5 kHz: 20001 control periods of the whole drive - motor with RK4 between samples, controllers, adaptive
-observer with HF injection chain, Heun), run as a compiled CasADi ``mapaccum`` over the loop step built
+observer with HF injection chain, zoh), run as a compiled CasADi ``mapaccum`` over the loop step built
 by the family's simulation set-up (``family_of(drive).simulation``). Also shown: the same loop on
 CasADi's virtual machine (no compiler), and the one-off cost of building and compiling it.
 
