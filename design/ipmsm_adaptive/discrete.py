@@ -19,7 +19,9 @@ linearizes the continuous observer, by automatic Jacobians of the same expressio
 - **Equilibrium.** Its fixed point, by Newton's method from the continuous equilibrium: the discrete
   observer's own steady state. Its theta_tilde is the steady position error the discretization leaves
   at the sampling instants; the steady speed error w_m - w_hat is zero at any fixed point (theta_hat
-  integrates the output w_hat, and theta_tilde is at rest).
+  integrates the output w_hat, and theta_tilde is at rest). Where a real pole passes through zero (the
+  edge of the low-speed unstable band) any bias grows without bound and the fixed point may not be
+  found: NaN there.
 - **Poles.** The eigenvalues z of the map's Jacobian at the fixed point, shown as s = ln(z)/T_s beside
   the continuous poles; the four of largest |z| correspond to the continuous observer's four, the
   fifth (the one-sample memory of the gain's schedule, z = 0 where the schedule does not act) is
@@ -159,15 +161,16 @@ def fixed_points(
 ) -> dict[str, np.ndarray]:
     """Newton's method on y_next(y) = y from ``y0`` (N, 5); the map's Jacobian and feedthrough there.
 
-    ``p`` is (n_p,) or (n_p, N). A point whose iteration does not settle (residual above 1e-9 of the
-    state's scale), or that starts from NaN, gets NaN.
+    ``p`` is (n_p,) or (n_p, N). A point whose iteration does not settle (a residual above 1e-9 of its
+    component's scale: the flux, the speed, 1 rad), or that starts from NaN, gets NaN.
     """
     fn = one_step_function(discretization, law)
     n = y0.shape[0]
     args = [w_m[None, :], i_s0.T, u_z.T, p, np.asarray(gain, float)[: law.n_params]]
     bad = ~np.isfinite(y0).all(axis=1)
     y = np.where(bad[:, None], 0.0, y0)
-    scale = 1.0 + np.abs(y[:, 0:2]).max(axis=1) + np.abs(w_m)
+    flux, speed = 1.0 + np.abs(y[:, 0:2]).max(axis=1), 1.0 + np.abs(w_m)
+    scale = np.column_stack([flux, flux, speed, np.ones(n), speed])
     eye = np.eye(N_Y)
 
     def residual(y_next: np.ndarray) -> np.ndarray:
@@ -178,7 +181,7 @@ def fixed_points(
     for _ in range(iterations):
         y_next, Jy = evaluate_batch(fn, n, [y.T, *args])[:2]
         r = residual(y_next)
-        todo = ~(np.abs(r).max(axis=1) <= 1e-13 * scale) & np.isfinite(Jy).all(axis=(1, 2))
+        todo = ~(np.abs(r) <= 1e-13 * scale).all(axis=1) & np.isfinite(Jy).all(axis=(1, 2))
         if not todo.any():
             break
         A = Jy[todo] - eye
@@ -186,7 +189,7 @@ def fixed_points(
         idx = np.flatnonzero(todo)[ok]
         y[idx] -= np.linalg.solve(A[ok], r[idx][:, :, None])[:, :, 0]
     y_next, Jy, w_hat, D_u = evaluate_batch(fn, n, [y.T, *args])
-    bad |= ~(np.abs(residual(y_next)).max(axis=1) <= 1e-9 * scale)
+    bad |= ~(np.abs(residual(y_next)) <= 1e-9 * scale).all(axis=1)
     y[bad] = np.nan
     return {
         "y": y,

@@ -80,12 +80,14 @@ TABLE_HEAD = (
 
 
 def line(label: str, T: float, a: DiscretePoleSweep, w_base: float) -> str:
-    """One row: worst damping continuous/discrete (|w| >= 0.05 p.u.), the largest pole error [1/s], the
-    largest steady position error and where, the voltage feedthrough [rad/s per V]."""
+    """One row: worst damping continuous/discrete and the largest steady position error (and where) at
+    |w| >= 0.05 p.u. (below, at the edge of the low-speed unstable band, a real pole passes through
+    zero and any bias grows without bound), the largest pole error [1/s], the voltage feedthrough
+    [rad/s per V]."""
     ok = np.abs(a.w) >= 0.05 * w_base
     zc = np.nanmin(a.worst_damping[ok], initial=np.inf)
     zd = np.nanmin(a.worst_damping_discrete[ok], initial=np.inf)
-    k = int(np.nanargmax(np.abs(a.err_theta)))
+    k = int(np.nanargmax(np.where(ok, np.abs(a.err_theta), -1)))
     err = f"{np.degrees(a.err_theta[k]):+.4f} at {a.w[k] / w_base:+.3f} p.u."
     return (
         f"{label:<14} {T:>9.3g}  {f'{zc:.3f}/{zd:.3f}':>17}  {np.nanmax(a.pole_error):>10.3g}  "
@@ -134,8 +136,8 @@ def analyze_output(drive: Any, sweeps: list[tuple[str, float, Any, Any]], out: A
         full[label] = Linearization(a.w, a.torque, a.poles_discrete)
         lows[label] = Linearization(low.w, low.torque, low.poles_discrete)
     print(
-        "  (damping at |w_m| >= 0.05 p.u.; pole error: largest |ln(z)/T_s - s| [1/s]; steady angle error"
-        " = theta_m - theta_hat at the samples; w_hat per volt: d w_hat / d u [rad/s per V])"
+        "  (damping and steady angle error theta_m - theta_hat at the samples over |w_m| >= 0.05 p.u.;\n"
+        "   pole error: largest |ln(z)/T_s - s| [1/s]; w_hat per volt: d w_hat / d u [rad/s per V])"
     )
     a = sweeps[0][2]
     for T, (full, lows) in by_T.items():
@@ -259,13 +261,12 @@ def report_section(
     for label, g in choices.items():
         for T in (drive.T_N, -drive.T_N):
             a = FAMILY.linearize(drive, g, w, T, discretization=disc)
-            k = int(np.nanargmax(np.abs(a.err_theta)))
+            env = np.abs(w) >= 0.05 * wb  # below: the low-speed unstable band and its edge
+            k = int(np.nanargmax(np.where(env, np.abs(a.err_theta), -1)))
             entry = {
                 "T_Nm": f(T),
-                "worst_damping_c": f(np.nanmin(np.where(np.abs(w) >= 0.05 * wb, a.worst_damping, np.nan))),
-                "worst_damping_d": f(
-                    np.nanmin(np.where(np.abs(w) >= 0.05 * wb, a.worst_damping_discrete, np.nan))
-                ),
+                "worst_damping_c": f(np.nanmin(np.where(env, a.worst_damping, np.nan))),
+                "worst_damping_d": f(np.nanmin(np.where(env, a.worst_damping_discrete, np.nan))),
                 "pole_error_max": f(np.nanmax(a.pole_error)),
                 "err_theta_max_deg": f(np.degrees(abs(a.err_theta[k]))),
                 "err_theta_at_w_pu": f(a.w[k] / wb),
@@ -315,7 +316,7 @@ def report_section(
             "torque (N m)",
             "worst damping cont. / discr., |ω| ≥ 0.05 p.u.",
             "largest pole error (1/s)",
-            "largest steady angle error (deg)",
+            "largest steady angle error, |ω| ≥ 0.05 p.u. (deg)",
             "ŵ per volt (rad/s/V)",
         ),
         tuple(rows),
