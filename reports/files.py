@@ -20,6 +20,10 @@ So a kill at any point leaves the target as it was or with the whole new set; wh
 (SIGKILL) can leave is a hidden staging directory beside it, which the next run for the same target
 removes. Ctrl-C and SIGTERM are recorded (reports/interrupts.py): an interrupt that arrives before the
 move writes nothing, one during the move lets it finish.
+
+One exception: a target that is a mount point (a container's volume, say) cannot be renamed. Its set
+is staged inside it (``.sensorless-stage-<pid>-<random>``) and renamed in file by file, so each file
+is whole, but a kill during those renames can leave new files beside old ones.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from typing import Any
 from sensorless.reports import interrupts
 
 STAGE_TAG = ".sensorless-"
+INNER_STAGE = re.compile(r"^\.sensorless-stage-(\d+)-[A-Za-z0-9_]+$")  # inside a mount point
 
 
 class OutputError(Exception):
@@ -84,6 +89,18 @@ def remove_stale_stages(target: Path) -> list[Path]:
             shutil.rmtree(e.path, ignore_errors=True)
             removed.append(Path(e.path))
     return removed
+
+
+def _remove_stale_inner_stages(target: Path) -> None:
+    """Staging directories that killed runs left inside a mount-point target."""
+    try:
+        entries = list(os.scandir(target))
+    except OSError:
+        return
+    for e in entries:
+        m = INNER_STAGE.match(e.name)
+        if m and int(m.group(1)) != os.getpid() and not _alive(int(m.group(1))):
+            shutil.rmtree(e.path, ignore_errors=True)
 
 
 def _exchange(a: Path, b: Path) -> None:
@@ -203,8 +220,11 @@ class OutputSet:
                     f"{label}: is the current directory or contains it; outputs replace their directory "
                     "as a whole, so name a directory of their own"
                 )
+            mount = os.path.ismount(real)
+            if mount:
+                _remove_stale_inner_stages(real)
             try:
-                entries = list(os.scandir(real))
+                entries = [e for e in os.scandir(real) if not (mount and INNER_STAGE.match(e.name))]
             except OSError as e:
                 raise OutputError(f"{label}: cannot read the directory: {e.strerror}") from None
             for e in entries:
@@ -231,7 +251,7 @@ class OutputSet:
                     )
             if not os.access(real, os.W_OK | os.X_OK):
                 raise OutputError(f"{label}: not writable")
-            self._probe(real.parent, label)
+            self._probe(real if mount else real.parent, label)
         else:
             anc = Path(os.path.abspath(d)).parent
             while not os.path.lexists(anc) and anc != anc.parent:
@@ -260,6 +280,8 @@ class OutputSet:
         self.check()
         target = Path(os.path.realpath(self.directory))
         remove_stale_stages(target)
+        if target.exists() and os.path.ismount(target):
+            return self._commit_into_mount_point(target)
         with interrupts.deferred():
             stage: Path | None = None
             try:
@@ -281,5 +303,25 @@ class OutputSet:
                 raise OutputError(f"{self._label()}: cannot write: {e.strerror or e}") from None
             finally:
                 if stage is not None:  # the staging leftovers, or the old directory after an exchange
+                    shutil.rmtree(stage, ignore_errors=True)
+        return self.paths()
+
+    def _commit_into_mount_point(self, target: Path) -> list[Path]:
+        """A target that cannot be renamed: stage inside it, then rename the files in one by one."""
+        with interrupts.deferred():
+            stage: Path | None = None
+            try:
+                stage = Path(tempfile.mkdtemp(prefix=f".sensorless-stage-{os.getpid()}-", dir=target))
+                mode = 0o666 & ~_umask()
+                for name, data in self.files.items():
+                    with open(stage / name, "xb") as f:
+                        f.write(data)
+                    os.chmod(stage / name, mode)
+                for name in self.files:
+                    os.replace(stage / name, target / name)
+            except OSError as e:
+                raise OutputError(f"{self._label()}: cannot write: {e.strerror or e}") from None
+            finally:
+                if stage is not None:
                     shutil.rmtree(stage, ignore_errors=True)
         return self.paths()

@@ -69,8 +69,6 @@ def run(args: argparse.Namespace) -> int:
         check_prefix(prefix)
     except ValueError as e:
         raise UsageError(f"argument --prefix: {e}") from None
-    out = OutputSet(args.out, force=args.force, names=output_names(prefix))
-    out.check()  # before any computation
     gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
     if table is not None:
         tuned_for = table.drive.get("name")
@@ -87,7 +85,9 @@ def run(args: argparse.Namespace) -> int:
     except (CapabilityError, DriveFileError, GainTableError):
         raise  # already one line naming the family, or the file and key (not the option)
     except ValueError as e:
-        raise UsageError(f"--discretization: {e}" if args.discretization else str(e)) from None
+        raise UsageError(f"argument --discretization: {e}" if args.discretization else str(e)) from None
+    out = OutputSet(args.out, force=args.force, names=output_names(prefix))
+    out.check()  # before the C is generated
     try:
         files = generate(
             setup,

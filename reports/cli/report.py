@@ -49,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
     if compute is None:
         raise CapabilityError(f"observer family {fam.name!r} has no stability report")
     table = read_gain_table(args.gains) if args.gains else None
+    if table is not None:
+        fam.gains(drive, table=table, table_file=args.gains)  # the table suits the drive: one line if not
     out = OutputSet(args.out, force=args.force, names=("report.html", "report.json"))
     out.check()  # before minutes of work
     t0 = time.perf_counter()

@@ -193,6 +193,25 @@ def test_without_an_atomic_exchange_two_renames_do(tmp_path, monkeypatch):
     assert snapshot(out) == {**NEW, "keep": b"k"} and stages(tmp_path) == []
 
 
+def test_a_mount_point_gets_its_files_renamed_in_one_by_one(tmp_path, monkeypatch):
+    """A mount point cannot be renamed (EBUSY): the set is staged inside it; a staging directory a
+    killed run left there is removed (not taken for a subdirectory of the outputs)."""
+    out = tmp_path / "volume"
+    out.mkdir()
+    (out / "a.txt").write_bytes(b"old")
+    (out / "keep").write_text("k")
+    (out / ".sensorless-stage-999999999-dead").mkdir()  # pid 999999999: no such process
+    real_ismount = os.path.ismount
+    monkeypatch.setattr(files.os.path, "ismount", lambda p: Path(p) == out or real_ismount(p))
+    monkeypatch.setattr(files, "move_into_place", lambda *a: pytest.fail("renamed the mount point"))
+    s = OutputSet(out, force=True, names=NEW)
+    s.check()
+    for k, v in NEW.items():
+        s.add_bytes(k, v)
+    s.commit()
+    assert snapshot(out) == {**NEW, "keep": b"k"} and stages(tmp_path) == []
+
+
 def test_an_output_named_twice_is_an_error(tmp_path):
     with pytest.raises(OutputError, match="would be written twice"):
         OutputSet(tmp_path / "o", names=["x.c", "x.c"])
