@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         shown = f"{worst:.4g}" if isinstance(worst, int | float) else "not finite"
         print(
             f"sensorless tune: warning: the tuned gains' worst damping ({shown}) is below {MIN_DAMPING:g}, "
-            "the damping `sensorless report` requires by default: nearly undamped somewhere in the envelope "
+            "the damping `sensorless report` requires by default: poorly damped somewhere in the envelope "
             "(narrow the envelope or relax its constraints)",
             file=sys.stderr,
         )
