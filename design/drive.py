@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from sensorless.design import registry
-from sensorless.design.drive_file import table
+from sensorless.design.drive_file import read_text, table
 from sensorless.design.units import DriveFileError
 
 
@@ -65,7 +65,7 @@ def load_drive(spec: str | Path) -> Any:
         raise FileNotFoundError(
             f"{spec_s}: no such drive file, and not a preset (presets: {', '.join(sorted(presets))})"
         )
-    return load_drive_text(path.read_text(encoding="utf-8"), str(path))
+    return load_drive_text(read_text(path), str(path))
 
 
 def per_unit_speed_text(drive: Any, w: float) -> str:

@@ -14,9 +14,20 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import field
+from pathlib import Path
 from typing import Any
 
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
+
+
+def read_text(path: Path) -> str:
+    """The UTF-8 text of a drive or scenario file; DriveFileError naming it if unreadable or not UTF-8."""
+    try:
+        return path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise DriveFileError(str(path), "(encoding)", f"not UTF-8 text (byte {e.start})") from None
+    except OSError as e:
+        raise DriveFileError(str(path), "(file)", f"cannot read: {e.strerror}") from None
 
 
 def q(dim: str, check: str | None = "positive", doc: str = "") -> Any:
@@ -75,7 +86,7 @@ def load_section(
         if rel is not None:
             if rel not in relative:
                 raise DriveFileError(file, key, f"unit '{rel}' cannot be resolved here")
-            x *= relative[rel]
+            x = check_magnitude(x * relative[rel], raw, file=file, key=key)
         check = f.metadata.get("check") or "any"
         ok, why = _CHECKS[check]
         if not ok(x):

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import DriveFileError, check_magnitude, parse_number, parse_quantity
 
 ESTIMATE_KEYS = ("R_s", "L_d", "L_q", "psi_pm")  # order of the estimate vector
 DIRECTIONS = ("both", "positive", "negative")
@@ -133,15 +133,12 @@ def parse_relative(value: Any, dim: str, rel: Mapping[str, float], file: str, ke
     """A quantity that may carry a relative unit (``pu``, ``R_s_hat``, ``T_N``); returns SI."""
     if dim == "torque" and isinstance(value, str) and value.strip().endswith("T_N"):
         num = value.strip()[:-3].strip() or "1"
-        try:
-            return float(num) * rel["T_N"]
-        except ValueError:
-            raise DriveFileError(file, key, f"cannot read {value!r} as '<number> T_N'") from None
+        return check_magnitude(parse_number(num, file=file, key=key) * rel["T_N"], value, file=file, key=key)
     x, unit = parse_quantity(value, dim, file=file, key=key)
     if unit is not None:
         if unit not in rel:
             raise DriveFileError(file, key, f"unit '{unit}' cannot be resolved here")
-        x *= rel[unit]
+        x = check_magnitude(x * rel[unit], value, file=file, key=key)
     return x
 
 

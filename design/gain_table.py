@@ -11,6 +11,11 @@ Format ``sensorless-gain-table/1`` (see docs/gain_tables.md)::
      "summary": {...}}
 
 Writing is deterministic (sorted keys, floats as repr) so equal inputs give byte-identical files.
+Reading is strict like drive files: the text must be UTF-8 JSON without NaN or infinite numbers, every
+section must have its type, and every gain must be a finite number (or a non-empty list of them) of a
+magnitude the drive files accept (design/units.py); each error is a :class:`GainTableError` naming the
+file and the key. Whether the gains suit a drive (its kind, its observer's gain families, the
+family's own checks) is the observer family's part (``ObserverFamily.gains``).
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from sensorless.design.registry import families
+from sensorless.design.units import MAGNITUDE
 
 FORMAT = "sensorless-gain-table/1"
 
@@ -45,6 +51,11 @@ class GainTable:
     envelope: dict[str, Any] = field(default_factory=dict)
     points: list[dict[str, Any]] = field(default_factory=list)
     summary: dict[str, Any] = field(default_factory=dict)
+    file: str = field(default="", compare=False)  # the file it was read from ("": built in memory)
+
+    def where(self, table_file: str = "") -> str:
+        """How messages name this table: ``table_file`` if given, else the file it was read from."""
+        return table_file or self.file or "gain table (in memory)"
 
     def to_json(self) -> str:
         """Deterministic JSON text."""
@@ -73,20 +84,64 @@ def clean(x: Any) -> Any:
     return x
 
 
+class _NotFinite(ValueError):
+    pass
+
+
+def _finite_float(text: str) -> float:
+    x = float(text)
+    if not math.isfinite(x):
+        raise _NotFinite(f"number {text} is not finite")
+    return x
+
+
+def _no_constant(name: str) -> Any:
+    raise _NotFinite(f"{name} is not a number JSON allows")
+
+
+def _gain_value(v: Any, where: str, key: str) -> None:
+    """A gain: a finite number, or a non-empty list of them, each zero or of a magnitude in MAGNITUDE."""
+    items = v if isinstance(v, list) else [v]
+    if isinstance(v, list) and not v:
+        raise GainTableError(f"{where}: key 'gains.{key}': an empty list")
+    lo, hi = MAGNITUDE
+    for x in items:
+        if isinstance(x, bool) or not isinstance(x, int | float):
+            what = "a number or a list of numbers" if x is v else "a list of numbers"
+            raise GainTableError(f"{where}: key 'gains.{key}': expected {what}, got {x!r}")
+        if not math.isfinite(x) or (x != 0 and not lo <= abs(x) <= hi):
+            raise GainTableError(
+                f"{where}: key 'gains.{key}': value {x!r} is out of range: magnitudes from {lo:g} to {hi:g} "
+                "(SI) or 0 are accepted"
+            )
+
+
 def read_gain_table(path: str | Path) -> GainTable:
-    """Read and validate a gain table JSON file."""
+    """Read and validate a gain table JSON file (module docstring); errors name the file and the key."""
     p = Path(path)
+    if p.is_dir():
+        raise GainTableError(f"{p}: is a directory, not a gain table")
     if not p.is_file():
         raise FileNotFoundError(f"{p}: no such gain table")
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise GainTableError(f"{p}: not a gain table: not UTF-8 text (byte {e.start})") from None
+    except OSError as e:
+        raise GainTableError(f"{p}: cannot read: {e.strerror}") from None
+    try:
+        doc = json.loads(text, parse_float=_finite_float, parse_constant=_no_constant)
     except json.JSONDecodeError as e:
         raise GainTableError(f"{p}: not valid JSON: {e}") from None
+    except _NotFinite as e:
+        raise GainTableError(f"{p}: not a gain table: {e} (gains and figures must be finite)") from None
+    except RecursionError:
+        raise GainTableError(f"{p}: not a gain table: nested too deeply") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise GainTableError(f"{p}: key 'format': expected {FORMAT!r}")
     fam = doc.get("family")
     known = gain_keys()
-    if fam not in known:
+    if not isinstance(fam, str) or fam not in known:
         raise GainTableError(f"{p}: key 'family': unknown family {fam!r} (known: {', '.join(known)})")
     gains = doc.get("gains")
     if not isinstance(gains, dict):
@@ -94,9 +149,27 @@ def read_gain_table(path: str | Path) -> GainTable:
     for k in known[fam]:
         if k not in gains:
             raise GainTableError(f"{p}: key 'gains.{k}': missing for family {fam}")
+    for k in gains:
+        if k not in known[fam]:
+            raise GainTableError(
+                f"{p}: key 'gains.{k}': unknown key for family {fam} (known: {', '.join(known[fam])})"
+            )
+        _gain_value(gains[k], str(p), k)
     drive = doc.get("drive")
-    if not isinstance(drive, dict) or "name" not in drive:
-        raise GainTableError(f"{p}: key 'drive': missing or without 'name'")
+    if not isinstance(drive, dict) or not isinstance(drive.get("name"), str):
+        raise GainTableError(f"{p}: key 'drive': missing, or without a 'name' string")
+    for k in ("kind", "sha256"):
+        if k in drive and not isinstance(drive[k], str):
+            raise GainTableError(f"{p}: key 'drive.{k}': expected a string, got {drive[k]!r}")
+    for k, typ, what in (
+        ("envelope", dict, "an object"),
+        ("points", list, "a list"),
+        ("summary", dict, "an object"),
+    ):
+        if k in doc and not isinstance(doc[k], typ):
+            raise GainTableError(f"{p}: key '{k}': expected {what}")
+    if any(not isinstance(pt, dict) for pt in doc.get("points", [])):
+        raise GainTableError(f"{p}: key 'points': expected a list of objects")
     return GainTable(
         family=fam,
         drive=drive,
@@ -104,4 +177,5 @@ def read_gain_table(path: str | Path) -> GainTable:
         envelope=doc.get("envelope", {}),
         points=doc.get("points", []),
         summary=doc.get("summary", {}),
+        file=str(p),
     )

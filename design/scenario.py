@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 from sensorless.design import registry
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.drive_file import read_text
+from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 
 INTERPOLATIONS = ("step", "linear")
 FEEDBACK = ("observer", "sensor")
@@ -178,11 +179,11 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
         x, _ = parse_quantity(num, "dimensionless", file=file, key=key)
         if "T_N" not in rel:
             raise DriveFileError(file, key, "'T_N' needs a drive with a nominal torque")
-        return x * rel["T_N"]
+        return check_magnitude(x * rel["T_N"], raw, file=file, key=key)
     if dim in ("angular_any", "angular") and isinstance(raw, str) and raw.strip().endswith(("rpm", "r/min")):
         num = raw.strip().removesuffix("rpm").removesuffix("r/min")
         x, _ = parse_quantity(num, "dimensionless", file=file, key=key)
-        x *= rel["rpm"]
+        x = check_magnitude(x * rel["rpm"], raw, file=file, key=key)
         if dim == "angular" and x < 0:
             raise DriveFileError(file, key, f"non-physical value {raw!r}: must be >= 0")
         return x
@@ -191,7 +192,7 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
     if unit is not None:
         if unit not in rel:
             raise DriveFileError(file, key, f"unit '{unit}' cannot be resolved here")
-        x *= rel[unit]
+        x = check_magnitude(x * rel[unit], raw, file=file, key=key)
     if dim in ("time", "angular", "current", "viscous") and x < 0:
         raise DriveFileError(file, key, f"non-physical value {raw!r}: must be >= 0")
     if dim == "time" and key.endswith("duration") and x <= 0:
@@ -330,7 +331,7 @@ def load_scenario(spec: str | Path, drive: Any) -> Scenario:
     else:
         if not path.is_file():
             raise FileNotFoundError(f"{spec_s}: no such scenario file")
-        sc = load_scenario_text(path.read_text(encoding="utf-8"), str(path), rel)
+        sc = load_scenario_text(read_text(path), str(path), rel)
     if sc.kind != drive.kind:
         raise DriveFileError(
             sc.file,

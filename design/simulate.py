@@ -5,6 +5,10 @@ the loop step around the runtime observer step that is also generated to C, the 
 the initial state and the per-sample inputs) and runs the loop as ``Function.mapaccum`` over chunks of
 samples, compiled to native code (design/compiled.py). No Python code runs per sample; Python only
 moves from one chunk to the next, which is where progress is reported.
+
+Limits and checks (docs/simulation.md): a run has at most :data:`MAX_SAMPLES` control periods
+(:func:`check_length`, before anything is allocated); :meth:`Traces.problems` says whether a result
+holds: every recorded signal finite, and the position estimate not lost (:func:`position_lost`).
 """
 
 from __future__ import annotations
@@ -25,6 +29,19 @@ from sensorless.design.scenario import Scenario
 from sensorless.symbolic.runtime import Field
 
 CHUNK = 2048  # samples per compiled call: progress granularity; the per-call cost is negligible
+# Most control periods one run may have: 400 s at 200 us. The traces take about 0.2 kB per period in
+# memory (and more as CSV), so the limit keeps a run within a few hundred MB.
+MAX_SAMPLES = 2_000_000
+# The position estimate is lost when its error, after having been below this, reaches it while the
+# rotor turns at LOST_MIN_SPEED of the base speed or faster: beyond 90 degrees the torque produced in
+# the estimated frame has the opposite sign of the one commanded. (At standstill an EMF-based
+# estimate is undefined, and a flip as the rotor starts is not a loss.)
+LOST_ANGLE = math.pi / 2
+LOST_MIN_SPEED = 0.01
+
+
+class SimulationError(ValueError):
+    """A simulation that cannot be run as asked (the message names the file or option and why)."""
 
 
 @dataclass(frozen=True)
@@ -60,6 +77,74 @@ class Traces:
         """Boolean mask of the samples with t0 <= t < t1."""
         return (self.t >= t0) & (self.t < t1)
 
+    def nonfinite(self) -> tuple[str, float] | None:
+        """(first signal, time [s]) where a recorded signal first stops being finite; None if all are."""
+        first: tuple[str, float] | None = None
+        for name, x in self.data.items():
+            bad = ~np.isfinite(np.asarray(x, float))
+            if bad.any():
+                t = float(self.t[int(np.argmax(bad))])
+                if first is None or t < first[1]:
+                    first = (name, t)
+        return first
+
+    def problems(self) -> list[str]:
+        """What makes the result not hold, one line each (empty: it holds)."""
+        out = []
+        bad = self.nonfinite()
+        if bad is not None:
+            out.append(
+                f"the simulation diverged: {bad[0]} is not finite from t = {bad[1]:.4g} s on (the motor "
+                "and controllers at T_s; check the drive's parameters, e.g. an inertia J too small)"
+            )
+        elif "theta_err" in self.data:
+            w_min = LOST_MIN_SPEED * self.meta.get("base_w", 0.0)
+            moving = np.abs(self["w_m"]) >= w_min if "w_m" in self.data else None
+            lost = position_lost(self.t, self["theta_err"], moving)
+            if lost is not None:
+                out.append(
+                    f"the position estimate was lost: its error reached {np.degrees(LOST_ANGLE):.0f} deg at "
+                    f"t = {lost:.4g} s (peak {np.degrees(np.max(np.abs(_wrap(self['theta_err'])))):.0f} deg)"
+                )
+        return out
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return np.angle(np.exp(1j * np.asarray(angle, float)))
+
+
+def position_lost(t: np.ndarray, theta_err: np.ndarray, moving: np.ndarray | None = None) -> float | None:
+    """The time [s] at which the position estimate is lost: its error (wrapped to +-180 deg) reaches
+    :data:`LOST_ANGLE` after having been below it (a run that starts with a large error and converges
+    is not lost), at a sample where ``moving`` (default: every sample); None if it never is."""
+    e = np.abs(_wrap(theta_err))
+    below = np.flatnonzero(e < LOST_ANGLE)
+    if below.size == 0:
+        return None
+    bad = e >= LOST_ANGLE
+    if moving is not None:
+        bad &= np.asarray(moving, bool)
+    after = np.flatnonzero(bad[below[0] :])
+    return None if after.size == 0 else float(t[below[0] + after[0]])
+
+
+def samples(scenario: Scenario, T_s: float) -> int:
+    """Number of samples of ``scenario`` at the sampling period ``T_s`` (both ends included)."""
+    return round(scenario.duration / T_s) + 1
+
+
+def check_length(scenario: Scenario, T_s: float, source: str = "") -> int:
+    """The number of samples, or SimulationError naming ``source`` (default: the scenario file's key)
+    if it is more than :data:`MAX_SAMPLES`."""
+    n = scenario.duration / T_s + 1
+    if n > MAX_SAMPLES:
+        where = source or f"{scenario.file}: key 'scenario.duration'"
+        raise SimulationError(
+            f"{where}: {scenario.duration:g} s at T_s = {T_s * 1e6:g} us is {n:.3g} control periods, more "
+            f"than the limit of {MAX_SAMPLES} ({MAX_SAMPLES * T_s:g} s; docs/simulation.md)"
+        )
+    return samples(scenario, T_s)
+
 
 def provenance(drive: Any, sc: Scenario) -> dict[str, Any]:
     """What a run describes: the drive (and its TOML hash) and the scenario; shared by every kind."""
@@ -75,8 +160,8 @@ def provenance(drive: Any, sc: Scenario) -> dict[str, Any]:
 
 
 def sample_times(scenario: Scenario, T_s: float) -> np.ndarray:
-    """The sampling instants t_k = k T_s of ``scenario`` [s]."""
-    return np.arange(round(scenario.duration / T_s) + 1) * T_s
+    """The sampling instants t_k = k T_s of ``scenario`` [s] (at most MAX_SAMPLES: check_length)."""
+    return np.arange(check_length(scenario, T_s)) * T_s
 
 
 def noise(scenario: Scenario, n: int) -> np.ndarray:
@@ -145,7 +230,9 @@ def simulate(
     compile: bool = True,
 ) -> Traces:
     """Simulate ``scenario`` on ``drive`` (``gains``: e.g. of a tuned table; None: the scenario's or
-    the drive file's); returns the traces."""
+    the drive file's); returns the traces (see :meth:`Traces.problems`). SimulationError if the
+    scenario is longer than MAX_SAMPLES control periods."""
+    check_length(scenario, drive.T_s)
     setup = family_of(drive).simulation(drive, scenario, gains)
     if compile:
         compiled_chunk(setup.loop, CHUNK)  # build and compile (or load from the cache) outside the timing

@@ -63,6 +63,11 @@ RELATIVE_UNITS: dict[str, tuple[str, ...]] = {
 
 _QTY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
 
+# The magnitudes a drive, scenario, gain table or command line may give, in SI (zero aside): wider than
+# any drive's values by many orders of magnitude, narrow enough that products and squares of them stay
+# finite in double precision (a value of 1e300 or 1e-300 otherwise turns into inf, 0 or NaN downstream).
+MAGNITUDE = (1e-12, 1e12)
+
 
 class DriveFileError(ValueError):
     """A drive description is malformed; the message names the file and the key."""
@@ -72,33 +77,51 @@ class DriveFileError(ValueError):
         super().__init__(f"{file}: key '{key}': {problem}")
 
 
+def check_magnitude(x: float, raw: object, *, file: str, key: str) -> float:
+    """``x`` if it is finite and zero or of a magnitude within :data:`MAGNITUDE`; else DriveFileError
+    naming ``file`` and ``key`` (``raw`` is the value as written)."""
+    if not math.isfinite(x):
+        raise DriveFileError(file, key, f"value {raw!r} is not finite")
+    lo, hi = MAGNITUDE
+    if x != 0 and not lo <= abs(x) <= hi:
+        raise DriveFileError(
+            file,
+            key,
+            f"value {raw!r} is out of range: magnitudes from {lo:g} to {hi:g} (SI) or 0 are accepted",
+        )
+    return x
+
+
+def parse_number(text: object, *, file: str, key: str) -> float:
+    """A plain number (int, float or numeric string such as "-1.5e3"), finite and within :data:`MAGNITUDE`."""
+    return parse_quantity(text, "dimensionless", file=file, key=key)[0]
+
+
 def parse_quantity(value: object, dim: str, *, file: str, key: str) -> tuple[float, str | None]:
     """Return (number, relative unit or None); the number is SI unless a relative unit is given.
 
-    Raises DriveFileError naming ``file`` and ``key`` for a wrong type or a unit of another dimension.
+    Raises DriveFileError naming ``file`` and ``key`` for a wrong type, a unit of another dimension, or
+    a value that is not finite or out of range (:func:`check_magnitude`; "1e999 ohm" is not infinity).
     """
     if isinstance(value, bool):
         raise DriveFileError(file, key, f"expected a {dim} quantity, got a boolean")
     if dim == "integer":
         if not isinstance(value, int):
             raise DriveFileError(file, key, f"expected an integer, got {value!r}")
-        return float(value), None
+        return check_magnitude(float(value), value, file=file, key=key), None
     if isinstance(value, int | float):
-        x = float(value)
-        if not math.isfinite(x):
-            raise DriveFileError(file, key, f"value {value!r} is not finite")
-        return x, None
+        return check_magnitude(float(value), value, file=file, key=key), None
     if not isinstance(value, str):
         raise DriveFileError(file, key, f"expected a number or a '<number> <unit>' string, got {value!r}")
     m = _QTY.match(value)
     if not m:
         raise DriveFileError(file, key, f"cannot read {value!r} as '<number> <unit>'")
-    x, unit = float(m.group(1)), m.group(2)
+    x, unit = check_magnitude(float(m.group(1)), value, file=file, key=key), m.group(2)
     if unit == "":
         return x, None
     table = UNITS[dim]
     if unit in table:
-        return x * table[unit], None
+        return check_magnitude(x * table[unit], value, file=file, key=key), None
     if unit in RELATIVE_UNITS.get(dim, ()):
         return x, unit
     allowed = list(table) + list(RELATIVE_UNITS.get(dim, ()))

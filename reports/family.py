@@ -20,6 +20,7 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError, ObserverFamily
 from sensorless.design.registry import families
+from sensorless.reports.cli.common import COUNT, FINITE
 
 
 @dataclass(frozen=True)
@@ -40,9 +41,12 @@ class Option:
 class ReportHooks:
     """What a family contributes to the commands (each callable is optional)."""
 
-    # sensorless analyze: options, and (drive, args, out: OutputSet) -> None (prints, stages files)
+    # sensorless analyze: options, and (drive, args, out: OutputSet) -> None (prints, stages files);
+    # analyze_check (drive, args) -> None checks the options against the drive before anything is
+    # computed or written (one-line errors; analyze may then trust them)
     analyze_options: tuple[Option, ...] = ()
     analyze: Callable[[Any, argparse.Namespace, Any], None] | None = None
+    analyze_check: Callable[[Any, argparse.Namespace], None] | None = None
     # sensorless tune: options, (drive, args, tunable) -> settings, (drive, settings) -> one line
     tune_options: tuple[Option, ...] = ()
     tune_settings: Callable[[Any, argparse.Namespace, Any], Any] | None = None
@@ -74,10 +78,17 @@ def all_options(kind: str) -> dict[str, tuple[Option, list[str]]]:
 
 
 def add_family_options(parser: argparse.ArgumentParser, kind: str) -> None:
-    """Register every family's options of command ``kind``, each flag once, under one group."""
+    """Register every family's options of command ``kind``, each flag once, under one group.
+
+    A numeric option declared with a bare ``float`` or ``int`` is parsed by the shared checked number
+    (reports/cli/common.py: finite, of a magnitude drive files accept); families state ranges with
+    ``common.Number`` themselves."""
     group = parser.add_argument_group("options of some observer families (refused by the others)")
     for opt, fams in all_options(kind).values():
         kw = {**opt.kwargs, "default": None}
+        kw["type"] = {float: FINITE, int: COUNT}.get(kw.get("type"), kw.get("type"))
+        if kw["type"] is None:
+            del kw["type"]
         kw["help"] = f"{kw.get('help', '')} [{', '.join(fams)}]".strip()
         group.add_argument(*opt.flags, **kw)
 

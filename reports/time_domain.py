@@ -2,7 +2,9 @@
 
 Shared by every family with a simulation (design/simulate.py): each scenario is simulated with the
 gains under review; the metrics are the position error (RMS, peak) and the speed error (peak, final),
-and the figure is the scenario's own.
+and the figure is the scenario's own. A run that does not hold (traces not finite, rotor position
+lost: design/simulate.Traces.problems) is said so in its entry (``problems``), in the section, and by
+``sensorless report`` (a warning, exit status 3).
 """
 
 from __future__ import annotations
@@ -39,7 +41,10 @@ def checks(
             m["max_abs_speed_err_rad_s"] = f(np.max(np.abs(e)))
             m["final_speed_err_rad_s"] = f(np.mean(e[-max(1, e.size // 20) :]))
         cap = f"{sc.title} ({sc.source}), re-run with the gains under review ({label})."
-        data[name] = {"title": sc.title, "caption": cap, "metrics": m}
+        problems = tr.problems()
+        if problems:
+            cap += " " + " ".join(f"{p[0].upper()}{p[1:]}." for p in problems)
+        data[name] = {"title": sc.title, "caption": cap, "metrics": m, "problems": problems}
         figs.append(Figure(svg_uri(plot_traces(tr, sc.figure, f"{drive.name}: {sc.title}")), cap))
     return data, figs
 

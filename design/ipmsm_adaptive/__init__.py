@@ -45,11 +45,11 @@ class AdaptiveFluxObserver(ObserverFamily):
             raise CapabilityError("a gain table holds the gains: name no [observer.gains.*] with it")
         kind = table.drive.get("kind")
         if kind is not None and kind != drive.kind:
-            where = table_file or "gain table"
+            where = table.where(table_file)
             raise GainTableError(
                 f"{where}: key 'drive.kind': {kind!r} does not match the drive ({drive.kind})"
             )
-        return _runtime.table_gains(table, table_file or "gain table")
+        return _runtime.table_gains(table, table.where(table_file))
 
     def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
         return _runtime.runtime_setup(drive, gains, discretization)

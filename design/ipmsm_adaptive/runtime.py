@@ -64,6 +64,11 @@ def table_gains(table: GainTable, where: str) -> GainSet:
             f"(use a {' or '.join(GAIN_FAMILIES)} table)"
         )
     g = table.gains
+    scalars = GAIN_FAMILIES["law16"] if table.family == "law16" else ("alpha_fo",)
+    for k in GAIN_FAMILIES[table.family]:
+        if isinstance(g[k], list) == (k in scalars):
+            what = "a number" if k in scalars else "a list of numbers, one per breakpoint"
+            raise GainTableError(f"{where}: key 'gains.{k}': expected {what}, got {g[k]!r}")
     try:
         if table.family == "law16":
             values: dict[str, Any] = {k: float(g[k]) for k in GAIN_FAMILIES["law16"]}
@@ -79,11 +84,16 @@ def table_gains(table: GainTable, where: str) -> GainSet:
                 "alpha_fo": float(g["alpha_fo"]),
             }
             schedule_law(tuple(values["w_hat"]))  # validates the breakpoints
+    except GainTableError:
+        raise
     except (TypeError, ValueError) as e:
         raise GainTableError(f"{where}: key 'gains': {e}") from None
     flat = [v for x in values.values() for v in (x if isinstance(x, list) else [x])]
     if not np.all(np.isfinite(flat)):
         raise GainTableError(f"{where}: key 'gains': non-finite gain values")
+    for k in ("lambda_p", "w_lambda", "alpha_fo"):  # as in the drive file: eq. (16) and (10) need them > 0
+        if k in values and not values[k] > 0:
+            raise GainTableError(f"{where}: key 'gains.{k}': non-physical value {values[k]!r}: must be > 0")
     return GainSet(
         table.family, values, f"{table.family} table {where} (tuned for {table.drive.get('name')})"
     )

@@ -43,7 +43,12 @@ def run(args: argparse.Namespace) -> int:
     if h.analyze is None:
         raise CapabilityError(f"observer family {fam.name!r} has no analysis to run")
     refuse_foreign(args, fam, "analyze")
+    if h.analyze_check is not None:
+        h.analyze_check(drive, args)  # the family's options against the drive, before any computation
+    # the file names depend on the options and come with the results: an existing directory must be
+    # empty (or --force)
     out = OutputSet(args.out or f"analysis-{drive.name}", force=args.force)
+    out.check()
     h.analyze(drive, args, out)
     for p in out.commit():
         print(f"wrote {p}")

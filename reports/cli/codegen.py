@@ -17,7 +17,14 @@ from sensorless.design.gain_table import GainTableError, read_gain_table
 from sensorless.design.registry import family_of
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.common import UsageError, version
-from sensorless.reports.codegen.generate import PRECISIONS, Provenance, c_identifier, generate
+from sensorless.reports.codegen.generate import (
+    PRECISIONS,
+    Provenance,
+    c_identifier,
+    check_prefix,
+    generate,
+    output_names,
+)
 from sensorless.reports.files import OutputSet
 
 
@@ -57,6 +64,12 @@ def run(args: argparse.Namespace) -> int:
     table = read_gain_table(args.gains) if args.gains else None
     if table is not None and args.gain:
         raise UsageError("--gain and --gains exclude each other (the table holds the gains)")
+    prefix = args.prefix or c_identifier(drive.name)
+    try:
+        check_prefix(prefix)
+    except ValueError as e:
+        raise UsageError(f"argument --prefix: {e}") from None
+    gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
     if table is not None:
         tuned_for = table.drive.get("name")
         sha = table.drive.get("sha256")
@@ -67,14 +80,14 @@ def run(args: argparse.Namespace) -> int:
                 f"generating for {drive.name!r}",
                 file=sys.stderr,
             )
-    gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
     try:
         setup = fam.runtime(drive, gains, discretization=args.discretization)
     except (CapabilityError, DriveFileError, GainTableError):
         raise  # already one line naming the family, or the file and key (not the option)
     except ValueError as e:
-        raise UsageError(f"--discretization: {e}" if args.discretization else str(e)) from None
-    prefix = args.prefix or c_identifier(drive.name)
+        raise UsageError(f"argument --discretization: {e}" if args.discretization else str(e)) from None
+    out = OutputSet(args.out, force=args.force, names=output_names(prefix))
+    out.check()  # before the C is generated
     try:
         files = generate(
             setup,
@@ -84,7 +97,6 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError as e:
         raise UsageError(str(e)) from None
-    out = OutputSet(args.out, force=args.force)
     for name, text in files.items():
         out.add_text(name, text)
     written = out.commit()

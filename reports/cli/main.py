@@ -1,59 +1,136 @@
-"""The ``sensorless`` entry point: the parser of every subcommand, and one-line errors.
+"""The ``sensorless`` entry point: the parser of every subcommand, one-line errors and exit statuses.
 
-Errors a user can cause (bad drive file, missing file, existing outputs, unknown gain, a capability
-the drive's observer family lacks) are printed as one line naming the file and key, and the process
-exits with status 2; nothing is half-written.
+Exit statuses (docs/conventions.md):
+
+- 0: done.
+- 2: an error the user can fix (bad drive file, gain table or option value, missing file, output path
+  that cannot be written, a capability the drive's observer family lacks): one line naming the file,
+  key or option; nothing is written.
+- 3: the computation ran but its result does not hold: not finite (nothing is written), or written
+  with a warning line (a simulated drive that lost the rotor position, tuned gains below the damping
+  a report requires).
+- 130 (Ctrl-C) or 143 (SIGTERM): one line "interrupted"; nothing is written (reports/interrupts.py).
+- 141: standard output closed early (``| head``): quietly.
+- 1: a bug (the traceback says where).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
-from sensorless.design.family import CapabilityError
-from sensorless.design.gain_table import GainTableError
-from sensorless.design.units import DriveFileError
-from sensorless.reports.cli import analyze, codegen, report, simulate, tune
-from sensorless.reports.cli.common import UsageError, version
-from sensorless.reports.files import OutputExistsError
-from sensorless.tuning.nlp import TuningError
+from sensorless.reports import interrupts
 
-COMMANDS = (analyze, tune, simulate, codegen, report)  # each: register(subparsers) sets ``func``
+# The subcommands (each module's register(subparsers) sets ``func``); imported by main() once Ctrl-C
+# is handled, since importing CasADi and the families takes a moment.
+COMMAND_NAMES = ("analyze", "tune", "simulate", "codegen", "report")
+EXIT_USAGE, EXIT_RESULT, EXIT_PIPE = 2, 3, 141
+
+
+def user_errors() -> tuple[type[BaseException], ...]:
+    """The errors a user can cause: one line, exit status 2."""
+    from sensorless.design.family import CapabilityError
+    from sensorless.design.gain_table import GainTableError
+    from sensorless.design.simulate import SimulationError
+    from sensorless.design.units import DriveFileError
+    from sensorless.reports.cli.common import UsageError
+    from sensorless.reports.files import OutputError
+    from sensorless.tuning.nlp import TuningError
+
+    return (
+        DriveFileError,
+        FileNotFoundError,
+        OutputError,
+        UsageError,
+        GainTableError,
+        CapabilityError,
+        TuningError,
+        SimulationError,
+        KeyError,
+    )
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: 'sensorless analyze: error: argument --points: ...'."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand registered."""
-    parser = argparse.ArgumentParser(
+    import importlib
+
+    from sensorless.reports.cli.common import version
+
+    parser = Parser(
         prog="sensorless",
         description="Design, analyse, tune and code-generate observers for sensorless PM drives.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for cmd in COMMANDS:
-        cmd.register(sub)
+    for name in COMMAND_NAMES:
+        importlib.import_module(f"sensorless.reports.cli.{name}").register(sub)
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``sensorless`` script."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def _quiet_stdout() -> None:
+    """After a broken pipe: send what is left of stdout to /dev/null (no second error at exit)."""
     try:
-        return int(args.func(args) or 0)
-    except (
-        DriveFileError,
-        FileNotFoundError,
-        OutputExistsError,
-        UsageError,
-        GainTableError,
-        CapabilityError,
-        TuningError,
-        KeyError,
-    ) as e:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout is not a real file (e.g. captured by a test)
+        pass
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``sensorless`` script; returns the exit status (module docstring).
+
+    ``argv`` None: the script's own arguments; the process exits next, so a Ctrl-C that arrives after
+    the work is done is ignored rather than killing it on the way out."""
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    command = words[0] if words and words[0] in COMMAND_NAMES else ""
+    try:
+        with interrupts.handled():
+            try:
+                args = build_parser().parse_args(argv)
+                code = int(args.func(args) or 0)
+                interrupts.check()  # an interrupt the computation swallowed (CasADi may)
+                sys.stdout.flush()  # a closed pipe shows here, not at exit
+                return code
+            except BaseException as e:
+                return _exit_status(e, f"sensorless {command}".strip())
+    finally:
+        if argv is None:
+            interrupts.ignore()
+
+
+def _exit_status(e: BaseException, prefix: str) -> int:
+    """The exit status of a run that ended with ``e``, after its one line on stderr."""
+    signum = interrupts.received()
+    if signum is not None:  # whatever the exception: CasADi turns Ctrl-C into its own errors
+        interrupts.reset()
+        what = "interrupted" if signum == interrupts.SIGNALS[0] else "terminated"
+        print(f"{prefix}: {what}", file=sys.stderr)
+        return 128 + signum
+    if isinstance(e, SystemExit):
+        raise e
+    if isinstance(e, BrokenPipeError):
+        _quiet_stdout()
+        return EXIT_PIPE
+    from sensorless.reports.cli.common import ResultError
+
+    if isinstance(e, ResultError):
+        print(f"{prefix}: error: {e}", file=sys.stderr)
+        return EXIT_RESULT
+    if isinstance(e, user_errors()):
         msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-        print(f"sensorless {args.command}: error: {msg}", file=sys.stderr)
-        return 2
+        print(f"{prefix}: error: {msg}", file=sys.stderr)
+        return EXIT_USAGE
+    raise e
 
 
 if __name__ == "__main__":  # pragma: no cover

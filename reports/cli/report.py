@@ -10,7 +10,7 @@ from typing import Any
 from sensorless.design.drive import load_drive
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
-from sensorless.reports.cli.common import version
+from sensorless.reports.cli.common import MIN_DAMPING, Number, version
 from sensorless.reports.document import report_json
 from sensorless.reports.family import hooks
 from sensorless.reports.files import OutputSet
@@ -28,7 +28,12 @@ def register(sub: Any) -> None:
     p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
     p.add_argument("--gains", default=None, help="gain table JSON from `sensorless tune` to review")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--min-damping", type=float, default=0.2, help="required damping ratio (default 0.2)")
+    p.add_argument(
+        "--min-damping",
+        type=Number(0, 1),
+        default=MIN_DAMPING,
+        help=f"required damping ratio, in [0, 1] (default {MIN_DAMPING:g})",
+    )
     p.add_argument("--quick", action="store_true", help="coarser grids (for previews and tests)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=run)
@@ -44,10 +49,10 @@ def run(args: argparse.Namespace) -> int:
     if compute is None:
         raise CapabilityError(f"observer family {fam.name!r} has no stability report")
     table = read_gain_table(args.gains) if args.gains else None
-    out = OutputSet(args.out, force=args.force)
-    out.add_text("report.html", "")  # refuse early if the outputs exist, before minutes of work
-    out.add_text("report.json", "")
-    out.check_free()
+    if table is not None:
+        fam.gains(drive, table=table, table_file=args.gains)  # the table suits the drive: one line if not
+    out = OutputSet(args.out, force=args.force, names=("report.html", "report.json"))
+    out.check()  # before minutes of work
     t0 = time.perf_counter()
     rep = compute(
         drive,
@@ -63,4 +68,11 @@ def run(args: argparse.Namespace) -> int:
     for p in out.commit():
         print(f"wrote {p}")
     print(f"verdict: {rep.verdict.status}; report computed in {time.perf_counter() - t0:.1f} s")
-    return 0
+    problems = [
+        f"time-domain check {name}: {line}"
+        for name, item in (rep.data.get("time_domain") or {}).items()
+        for line in item.get("problems", ())
+    ]
+    for line in problems:
+        print(f"sensorless report: warning: {line}", file=sys.stderr)
+    return 3 if problems else 0

@@ -1,7 +1,10 @@
 """``sensorless simulate``: time-domain simulation of the whole sensorless drive for a scenario.
 
 Writes the traces (CSV or NPZ, units in the header) and a figure in the style of the paper's figures
-(PNG and SVG) into one directory, atomically; prints a short summary of the estimation errors.
+(PNG and SVG) into one directory, atomically; prints a short summary of the estimation errors. A run
+longer than design/simulate.MAX_SAMPLES control periods is refused before it starts; a run whose
+traces are not finite writes nothing (exit status 3); one that loses the rotor position writes its
+outputs, with a warning, and exits with status 3.
 """
 
 from __future__ import annotations
@@ -16,7 +19,8 @@ import numpy as np
 from sensorless.design.drive import load_drive
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import builtin_names, load_scenario
-from sensorless.reports.cli.common import UsageError
+from sensorless.design.simulate import MAX_SAMPLES, check_length
+from sensorless.reports.cli.common import Number, ResultError, UsageError
 from sensorless.reports.files import OutputSet
 
 
@@ -39,9 +43,18 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--injection", choices=("on", "off"), help="override the scenario's [observer] injection switch"
     )
-    p.add_argument("--duration", type=float, help="override the scenario's duration [s]")
+    p.add_argument(
+        "--duration",
+        type=Number(0, 1e6, lo_open=True, unit="s"),
+        help=f"override the scenario's duration [s] (at most {MAX_SAMPLES} control periods)",
+    )
     p.add_argument("--format", choices=("csv", "npz"), default="csv", help="traces file format (default csv)")
-    p.add_argument("--every", type=int, default=1, help="write every N-th sample (default 1: all)")
+    p.add_argument(
+        "--every",
+        type=Number(1, 1e9, integer=True),
+        default=1,
+        help="write every N-th sample (default 1: all)",
+    )
     p.add_argument("--out", help="output directory (default: simulation-<drive>-<scenario>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress display")
@@ -87,8 +100,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if not args.scenario:
         raise UsageError("--scenario NAME_OR_TOML is required (see --list)")
-    if args.every < 1:
-        raise UsageError("--every must be >= 1")
     sc = load_scenario(args.scenario, drive)
     changes: dict[str, Any] = {}
     options = dict(sc.options)
@@ -102,10 +113,9 @@ def run(args: argparse.Namespace) -> int:
         fam.gains(drive, name=args.gain)  # clear error naming the drive file if absent
     changes["options"] = options
     if args.duration is not None:
-        if not args.duration > 0:
-            raise UsageError("--duration must be > 0")
         changes["duration"] = args.duration
     sc = dataclasses.replace(sc, **changes)
+    check_length(sc, drive.T_s, "argument --duration" if args.duration is not None else "")
     gains = None
     if args.gains:
         from sensorless.design.gain_table import read_gain_table
@@ -114,13 +124,13 @@ def run(args: argparse.Namespace) -> int:
 
     from sensorless.design.simulate import simulate
 
-    out = OutputSet(args.out or f"simulation-{drive.name}-{sc.name}", force=args.force)
     name = f"traces.{args.format}"
-    out.add_bytes(name, b"")  # refuse existing outputs before spending time on the run
-    out.add_bytes(f"{sc.name}.png", b"")
-    out.add_bytes(f"{sc.name}.svg", b"")
-    out.check_free()
-    out.files.clear()
+    out = OutputSet(
+        args.out or f"simulation-{drive.name}-{sc.name}",
+        force=args.force,
+        names=(name, f"{sc.name}.png", f"{sc.name}.svg"),
+    )
+    out.check()  # the outputs, before spending time on the run
 
     print(f"{drive.name}: {sc.title}")
     progress = None if args.quiet else Progress(f"simulate {sc.name}", drive.T_s)
@@ -130,6 +140,9 @@ def run(args: argparse.Namespace) -> int:
         f"{n} samples ({tr.t[-1]:.3g} s at T_s = {tr.meta['T_s']:g} s) in {tr.wall_time:.2f} s "
         f"({1e6 * tr.wall_time / n:.2f} us per control period); gains: {tr.meta['gain']}"
     )
+    problems = tr.problems()
+    if tr.nonfinite() is not None:
+        raise ResultError(f"{problems[0]}; nothing written")
     print_summary(tr)
 
     from sensorless.reports.sim_figure import plot_traces
@@ -147,7 +160,9 @@ def run(args: argparse.Namespace) -> int:
     plt.close(fig)
     for p in out.commit():
         print(f"wrote {p}")
-    return 0
+    for line in problems:
+        print(f"sensorless simulate: warning: {line}", file=sys.stderr)
+    return 3 if problems else 0
 
 
 def print_summary(tr: Any) -> None:

@@ -3,12 +3,16 @@
 The drive's observer family offers tunable gain families (tuning/family.py; ``--family``, default its
 first); envelope and constraints come from the drive file and the family's options (reports/family.py).
 Progress goes to stderr; the summary and the written files to stdout. If the tuner fails or the
-constraints cannot be met, one line says so and the exit status is 2; nothing is written.
+constraints cannot be met, one line says so and the exit status is 2; nothing is written. If the best
+gains found are still below the damping a report requires by default (common.MIN_DAMPING), or their
+worst damping is not finite, the tables are written (they are the result) with a warning line, and
+the exit status is 3.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from typing import Any
@@ -16,7 +20,7 @@ from typing import Any
 from sensorless.design.drive import load_drive
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
-from sensorless.reports.cli.common import UsageError
+from sensorless.reports.cli.common import MIN_DAMPING, UsageError
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 from sensorless.reports.gain_csv import table_csv
@@ -58,11 +62,9 @@ def run(args: argparse.Namespace) -> int:
     tunable = tunable_for(drive, args.family)
     refuse_foreign(args, fam, "tune")
     settings = h.tune_settings(drive, args, tunable) if h.tune_settings is not None else None
-    out = OutputSet(args.out or f"tune-{drive.name}", force=args.force)
     json_name, csv_name = f"gains_{tunable.name}.json", f"gains_{tunable.name}.csv"
-    out.add_bytes(json_name, b"")  # reserve the names: refuse existing outputs before the work
-    out.add_bytes(csv_name, b"")
-    out.check_free()
+    out = OutputSet(args.out or f"tune-{drive.name}", force=args.force, names=(json_name, csv_name))
+    out.check()  # refuse unwritable or existing outputs before the work
     t0 = time.perf_counter()
 
     def progress(msg: str) -> None:
@@ -82,4 +84,14 @@ def run(args: argparse.Namespace) -> int:
     out.add_text(csv_name, table_csv(r.table, tunable.columns))
     for p in out.commit():
         print(f"wrote {p}")
+    worst = r.table.summary.get("worst_damping")
+    if not isinstance(worst, int | float) or not math.isfinite(worst) or worst < MIN_DAMPING:
+        shown = f"{worst:.4g}" if isinstance(worst, int | float) else "not finite"
+        print(
+            f"sensorless tune: warning: the tuned gains' worst damping ({shown}) is below {MIN_DAMPING:g}, "
+            "the damping `sensorless report` requires by default: poorly damped somewhere in the envelope "
+            "(narrow the envelope or relax its constraints)",
+            file=sys.stderr,
+        )
+        return 3
     return 0

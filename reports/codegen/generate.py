@@ -43,6 +43,23 @@ def c_identifier(name: str) -> str:
     return f"obs_{s}" if s[0].isdigit() else s
 
 
+EXAMPLE_FILES = ("main.c", "Makefile")  # the example program and its build, beside the observer's files
+
+
+def output_names(prefix: str) -> tuple[str, ...]:
+    """The files :func:`generate` writes for ``prefix``."""
+    return (f"{prefix}.h", f"{prefix}.c", *EXAMPLE_FILES)
+
+
+def check_prefix(prefix: str) -> None:
+    """ValueError unless ``prefix`` is a C identifier whose files do not collide with the example's."""
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix):
+        raise ValueError(f"prefix {prefix!r} is not a C identifier")
+    clash = sorted(set(output_names(prefix)[:2]) & set(EXAMPLE_FILES))
+    if clash:
+        raise ValueError(f"prefix {prefix!r}: {clash[0]} is also the example program's file; choose another")
+
+
 @functools.cache
 def _templates() -> jinja2.Environment:
     return jinja2.Environment(
@@ -112,8 +129,7 @@ def generate(
     obs: RuntimeObserver = setup.observer
     prec = Precision(precision)
     P = prefix or c_identifier(provenance.drive_name)
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", P):
-        raise ValueError(f"prefix {P!r} is not a C identifier")
+    check_prefix(P)
     sch = setup.schedule
     n_lam = len(obs.lam)
     if (sch is None) != (n_lam == 0):

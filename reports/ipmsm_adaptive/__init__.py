@@ -12,6 +12,7 @@ from sensorless.reports.ipmsm_adaptive import analyze, report, tune
 HOOKS = ReportHooks(
     analyze_options=analyze.OPTIONS,
     analyze=analyze.analyze,
+    analyze_check=analyze.check,
     tune_options=tune.OPTIONS,
     tune_settings=tune.settings,
     describe_envelope=tune.describe,

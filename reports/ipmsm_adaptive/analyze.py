@@ -18,7 +18,7 @@ import numpy as np
 from sensorless.design.ipmsm_adaptive import FAMILY, with_alpha_fo
 from sensorless.design.ipmsm_adaptive.linearize import unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
-from sensorless.reports.cli.common import UsageError, parse_torques
+from sensorless.reports.cli.common import Number, UsageError, parse_torques
 from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
 from sensorless.reports.ipmsm_adaptive import discrete
@@ -37,8 +37,17 @@ OPTIONS = (
         },
     ),
     Option(("--injection",), {"action": "store_true", "help": "include the averaged HF injection (19)-(22)"}),
-    Option(("--speed-max",), {"type": float, "help": "sweep |w_m| up to this (p.u.); default 1"}),
-    Option(("--points",), {"type": int, "help": "speed grid points; default 2001"}),
+    Option(
+        ("--speed-max",),
+        {
+            "type": Number(0, 100, lo_open=True, unit="p.u."),
+            "help": "sweep |w_m| up to this (p.u.); default 1",
+        },
+    ),
+    Option(
+        ("--points",),
+        {"type": Number(3, 100_000, integer=True), "help": "speed grid points (3..100000); default 2001"},
+    ),
     *discrete.OPTIONS,
 )
 
@@ -56,14 +65,19 @@ def gain_choices(drive: Any, args: argparse.Namespace) -> dict[str, Any]:
     return {n: FAMILY.gains(drive, name=n) for n in names}
 
 
+def check(drive: Any, args: argparse.Namespace) -> None:
+    """The options against the drive, before anything is computed: gains, table, torques."""
+    gain_choices(drive, args)
+    parse_torques(args.torque, drive.T_N)
+    discrete.scheme(drive, args)
+
+
 def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
     """Print the bands and worst damping per gain and torque; stage CSV and figures into ``out``."""
     choices = gain_choices(drive, args)
     torques = parse_torques(args.torque, drive.T_N)
-    speed_max = 1.0 if args.speed_max is None else args.speed_max
+    speed_max = 1.0 if args.speed_max is None else args.speed_max  # ranges: OPTIONS
     points = 2001 if args.points is None else args.points
-    if points < 3 or not speed_max > 0:
-        raise UsageError("--points/--speed-max: need >= 3 points and a positive range")
     wb = drive.w_base
     w = np.linspace(-speed_max, speed_max, points) * wb
     inj = bool(args.injection)

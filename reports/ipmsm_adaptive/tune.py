@@ -11,18 +11,27 @@ import dataclasses
 from typing import Any
 
 from sensorless.design.envelope import DIRECTIONS, ESTIMATE_KEYS, TuningSettings
-from sensorless.design.units import parse_quantity
-from sensorless.reports.cli.common import UsageError, parse_torques
+from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.reports.cli.common import Number, UsageError, option_error, parse_torques
 from sensorless.reports.family import Option
 
+SPEED = Number(0, 100, lo_open=True, unit="p.u.")
+DENSE_FACTOR = Number(4, 64, integer=True)
+
 OPTIONS = (
-    Option(("--speed-min",), {"type": float, "help": "smallest |w_m| of the envelope [p.u.]"}),
-    Option(("--speed-max",), {"type": float, "help": "largest |w_m| of the envelope [p.u.]"}),
-    Option(("--speeds",), {"type": int, "help": "optimization grid: speeds per direction"}),
+    Option(("--speed-min",), {"type": SPEED, "help": "smallest |w_m| of the envelope [p.u.]"}),
+    Option(("--speed-max",), {"type": SPEED, "help": "largest |w_m| of the envelope [p.u.]"}),
+    Option(
+        ("--speeds",),
+        {"type": Number(2, 1000, integer=True), "help": "optimization grid: speeds per direction (2..1000)"},
+    ),
     Option(("--directions",), {"choices": list(DIRECTIONS), "help": "envelope directions"}),
     Option(("--torque",), {"action": "append", "help": "envelope torques, N m or e.g. -1T_N,0,1T_N"}),
-    Option(("--dense-factor",), {"type": int, "help": "re-verification refinement (>= 4)"}),
-    Option(("--min-decay",), {"type": float, "help": "minimum decay rate -max Re(p) [1/s]"}),
+    Option(("--dense-factor",), {"type": DENSE_FACTOR, "help": "re-verification refinement (4..64)"}),
+    Option(
+        ("--min-decay",),
+        {"type": Number(0, 1e6, unit="1/s"), "help": "minimum decay rate -max Re(p) [1/s]"},
+    ),
     Option(("--lambda-max",), {"help": "bound on |lambda1|, |lambda2|: ohm or e.g. 5R_s_hat"}),
     Option(
         ("--errors",),
@@ -32,7 +41,10 @@ OPTIONS = (
         },
     ),
     Option(("--tune-alpha-fo",), {"action": "store_true", "help": "also tune alpha_fo of eq. (10)"}),
-    Option(("--breakpoints",), {"type": int, "help": "schedule: breakpoints per direction"}),
+    Option(
+        ("--breakpoints",),
+        {"type": Number(2, 200, integer=True), "help": "schedule: breakpoints per direction (2..200)"},
+    ),
 )
 
 
@@ -51,7 +63,10 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> TuningSettin
         out["min_decay"] = args.min_decay
     if args.lambda_max is not None:
         txt = args.lambda_max.replace("R_s_hat", " R_s_hat").strip()
-        x, rel = parse_quantity(txt, "resistance", file="command line", key="--lambda-max")
+        try:
+            x, rel = parse_quantity(txt, "resistance", file="", key="--lambda-max")
+        except DriveFileError as e:
+            raise option_error("--lambda-max", e.problem) from None
         out["lambda_max"] = x * drive.estimate.R_s if rel else x
     if args.errors:
         errs = [0.0] * 4
@@ -59,7 +74,10 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> TuningSettin
             k, _, v = item.partition("=")
             if k.strip() not in ESTIMATE_KEYS or not v:
                 raise UsageError(f"--errors: expected NAME=PERCENT% with NAME in {', '.join(ESTIMATE_KEYS)}")
-            x, _ = parse_quantity(v.strip(), "fraction", file="command line", key="--errors")
+            try:
+                x, _ = parse_quantity(v.strip(), "fraction", file="", key="--errors")
+            except DriveFileError as e:
+                raise option_error("--errors", e.problem) from None
             errs[ESTIMATE_KEYS.index(k.strip())] = x
         out["errors"] = tuple(errs)
     if args.tune_alpha_fo:
@@ -67,7 +85,13 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> TuningSettin
     if args.breakpoints is not None:
         out["breakpoints"] = args.breakpoints
     result = dataclasses.replace(s, **out)
-    result.check("command line", prefix="")
+    try:
+        result.check("", prefix="")
+    except DriveFileError as e:  # name the option, not the drive file's key
+        key = e.key.split(".")[0]
+        raise option_error(
+            {"torques": "--torque"}.get(key, f"--{key.replace('_', '-')}"), e.problem
+        ) from None
     return result
 
 

@@ -15,8 +15,7 @@ import numpy as np
 from sensorless.design.pmac_reduced_order import FAMILY
 from sensorless.design.pmac_reduced_order.discretization import discretization_study
 from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
-from sensorless.design.units import DriveFileError
-from sensorless.reports.cli.common import quantities
+from sensorless.reports.cli.common import RELATIVE_LIMIT, option_error, quantities
 from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS
@@ -73,20 +72,46 @@ def _print_block(r: ObserverPoles, drive: Any, title: str) -> None:
         )
 
 
+def options(drive: Any, args: argparse.Namespace) -> tuple[list[float], list[float], str]:
+    """(speeds [r/min], loads [N m], scheme) from the options or the drive, checked (one-line errors)."""
+    rpm_max = drive.w_to_rpm(RELATIVE_LIMIT * drive.w_base)
+    rpm = quantities(
+        args.speed,
+        "mech_speed",
+        "--speed",
+        (rpm_max, f"|speed| <= {RELATIVE_LIMIT:g} p.u. = {rpm_max:.4g} r/min"),
+    ) or list(drive.envelope.speeds)
+    T_max = RELATIVE_LIMIT * drive.T_N
+    loads = quantities(
+        args.load, "torque", "--load", (T_max, f"|load| <= {RELATIVE_LIMIT:g} T_N = {T_max:.4g} N m")
+    ) or list(drive.envelope.loads)
+    if any(n == 0 for n in rpm):
+        raise option_error("--speed", "zero speed: the EMF observer is undefined there")
+    n_max = max(abs(n) for n in rpm)
+    if drive.rpm_to_w(n_max) * drive.control.T_s >= np.pi / 2:  # as the drive file's [envelope]
+        raise option_error(
+            "--speed",
+            f"{n_max:g} r/min is too fast for T_s = {drive.control.T_s * 1e6:g} us: the speed sign (14) "
+            "needs |w| T_s < pi/2",
+        )
+    method = args.discretization or drive.control.discretization
+    if method not in DISCRETIZATIONS:
+        raise option_error(
+            "--discretization", f"unknown scheme {method!r} (known: {', '.join(DISCRETIZATIONS)})"
+        )
+    return rpm, loads, method
+
+
+def check(drive: Any, args: argparse.Namespace) -> None:
+    """The options and the gain table against the drive, before anything is computed."""
+    FAMILY.gains(drive, table=_table(args), table_file=args.gains or "")
+    options(drive, args)
+
+
 def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
     """Poles at the operating points, with and without load-torque estimation; stage CSV and figures."""
     gains = FAMILY.gains(drive, table=_table(args), table_file=args.gains or "")
-    rpm = quantities(args.speed, "mech_speed", "--speed") or list(drive.envelope.speeds)
-    loads = quantities(args.load, "torque", "--load") or list(drive.envelope.loads)
-    if any(n == 0 for n in rpm):
-        raise DriveFileError("command line", "--speed", "zero speed: the EMF observer is undefined there")
-    method = args.discretization or drive.control.discretization
-    if method not in DISCRETIZATIONS:
-        raise DriveFileError(
-            "command line",
-            "--discretization",
-            f"unknown scheme {method!r} (known: {', '.join(DISCRETIZATIONS)})",
-        )
+    rpm, loads, method = options(drive, args)
     m, c = drive.motor, drive.control
     g, Gamma = gains.values["g"], gains.values["Gamma"]
     print(f"{drive.name}: {drive.source}")

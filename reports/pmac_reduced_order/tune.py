@@ -10,18 +10,34 @@ import argparse
 import dataclasses
 from typing import Any
 
-from sensorless.reports.cli.common import UsageError
+from sensorless.reports.cli.common import Number, UsageError
 from sensorless.reports.family import Option
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.pmac_reduced_order.deangelo import DeAngeloSettings, default_settings
 
 OPTIONS = (
-    Option(("--dense-factor",), {"type": int, "help": "re-verification refinement (>= 4)"}),
-    Option(("--g-max",), {"type": float, "help": "upper bound on g [1/s] (default 2x the drive's)"}),
     Option(
-        ("--Gamma-max",), {"type": float, "help": "upper bound on Gamma [A^2 s^2] (default 100x the drive's)"}
+        ("--dense-factor",),
+        {"type": Number(4, 64, integer=True), "help": "re-verification refinement (4..64)"},
     ),
-    Option(("--min-damping",), {"type": float, "help": "worst damping required (default 0.707)"}),
+    Option(
+        ("--g-max",),
+        {
+            "type": Number(0, 1e9, lo_open=True, unit="1/s"),
+            "help": "upper bound on g [1/s] (default 2x the drive's)",
+        },
+    ),
+    Option(
+        ("--Gamma-max",),
+        {
+            "type": Number(0, 1e12, lo_open=True, unit="A^2 s^2"),
+            "help": "upper bound on Gamma [A^2 s^2] (default 100x the drive's)",
+        },
+    ),
+    Option(
+        ("--min-damping",),
+        {"type": Number(0, 1, hi_open=True), "help": "worst damping required, in [0, 1) (default 0.707)"},
+    ),
 )
 
 

@@ -10,6 +10,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 from sensorless.design.ipmsm_adaptive.linearize import linearize
+from sensorless.reports.cli.common import version
 from sensorless.reports.cli.main import main
 
 
@@ -77,7 +78,10 @@ def test_html_is_well_formed_self_contained_and_captioned(report):
         img = fig.find("img")
         assert img.get("src").startswith("data:image/svg+xml;base64,")
     assert not re.search(r"https?://(?!www\.w3\.org)", text.replace("data:image", ""))
-    assert "sensorless 0" in text or "sensorless " in text  # version stated
+    assert f"sensorless {version()}" in text  # the version that made it stated
+    assert not re.search(
+        r"\b(19|20)\d\d-[01]\d-[0-3]\d\b", text
+    )  # and no date (tests/common/test_outputs.py)
     assert "Verdict" in text
 
 

@@ -408,7 +408,7 @@ class PllObserverFamily(ObserverFamily):
                 f"{table_file or 'gain table'}: key 'drive.kind': {kind!r} does not match the drive "
                 f"({drive.kind})"
             )
-        return table_gains(table, table_file or "gain table")
+        return table_gains(table, table.where(table_file))
 
     def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> RuntimeSetup:
         return runtime_setup(drive, gains, discretization)

@@ -1,0 +1,159 @@
+"""Gain tables are validated on load like drive files: encoding, JSON, types, finiteness, magnitudes and
+the family's match with the drive; every error is one line that starts with the table's file name."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from sensorless.design.drive import load_drive
+from sensorless.design.gain_table import GainTable, GainTableError, read_gain_table
+from sensorless.design.registry import family_of
+from sensorless.reports.cli.main import main
+
+LAW16 = {
+    "format": "sensorless-gain-table/1",
+    "drive": {"name": "piippo2008", "kind": "ipmsm-adaptive"},
+    "family": "law16",
+    "gains": {"lambda_p": 7.18, "w_lambda": 471.2, "alpha_fo": 314.16},
+}
+SCHEDULE = {
+    **LAW16,
+    "family": "schedule",
+    "gains": {
+        "w_hat": [-400.0, 0.0, 400.0],
+        "lambda1": [1.0, 2.0, 1.0],
+        "lambda2": [0.0, 1.0, 0.0],
+        "alpha_fo": 314.0,
+    },
+}
+
+
+def changed(doc, **gains):
+    return {**doc, "gains": {**doc["gains"], **gains}}
+
+
+CASES = [
+    # (name, file bytes or document, drive, words after "<file>: ")
+    (
+        "latin1",
+        json.dumps(LAW16).replace("piippo2008", "pi\u00e9ppo").encode("latin-1"),
+        "piippo2008",
+        "not UTF-8",
+    ),
+    ("not-json", b'{"format": ', "piippo2008", "not valid JSON"),
+    ("nan-literal", json.dumps(changed(LAW16, lambda_p=float("nan"))), "piippo2008", "NaN is not a number"),
+    ("huge-literal", json.dumps(LAW16).replace("7.18", "1e999"), "piippo2008", "number 1e999 is not finite"),
+    (
+        "1e308",
+        changed(LAW16, lambda_p=1e308),
+        "piippo2008",
+        "key 'gains.lambda_p': value 1e+308 is out of range",
+    ),
+    (
+        "1e-300",
+        changed(LAW16, w_lambda=1e-300),
+        "piippo2008",
+        "key 'gains.w_lambda': value 1e-300 is out of range",
+    ),
+    ("string", changed(LAW16, lambda_p="7"), "piippo2008", "key 'gains.lambda_p': expected a number"),
+    ("bool", changed(LAW16, alpha_fo=True), "piippo2008", "key 'gains.alpha_fo': expected a number"),
+    (
+        "w_hat-number",
+        changed(SCHEDULE, w_hat=5),
+        "piippo2008",
+        "key 'gains.w_hat': expected a list of numbers",
+    ),
+    ("lambda-list", changed(LAW16, lambda_p=[1.0]), "piippo2008", "key 'gains.lambda_p': expected a number"),
+    ("empty-list", changed(SCHEDULE, lambda1=[]), "piippo2008", "key 'gains.lambda1': an empty list"),
+    (
+        "short-list",
+        changed(SCHEDULE, lambda1=[1.0]),
+        "piippo2008",
+        "key 'gains.lambda1': length 1 != len(w_hat) 3",
+    ),
+    ("unsorted", changed(SCHEDULE, w_hat=[0.0, -1.0, 1.0]), "piippo2008", "strictly increasing"),
+    (
+        "negative",
+        changed(LAW16, w_lambda=-1.0),
+        "piippo2008",
+        "key 'gains.w_lambda': non-physical value -1.0",
+    ),
+    ("unknown-key", changed(LAW16, lambda_q=1.0), "piippo2008", "key 'gains.lambda_q': unknown key"),
+    ("missing-key", {**LAW16, "gains": {"lambda_p": 1.0}}, "piippo2008", "key 'gains.w_lambda': missing"),
+    ("no-name", {**LAW16, "drive": {"kind": "ipmsm-adaptive"}}, "piippo2008", "key 'drive'"),
+    ("points", {**LAW16, "points": {"a": 1}}, "piippo2008", "key 'points': expected a list"),
+    ("law16-to-reduced-order", LAW16, "deangelo2006", "key 'drive.kind': 'ipmsm-adaptive' does not match"),
+    (
+        "law16-no-kind-to-reduced-order",
+        {**LAW16, "drive": {"name": "piippo2008"}},
+        "deangelo2006",
+        "key 'family': 'law16' gains are not for the reduced-order observer",
+    ),
+    (
+        "deangelo-to-adaptive",
+        {**LAW16, "family": "deangelo", "drive": {"name": "x"}, "gains": {"g": 1, "Gamma": 1}},
+        "piippo2008",
+        "key 'family': 'deangelo' gains are not for",
+    ),
+    ("unknown-family", {**LAW16, "family": "pid"}, "piippo2008", "key 'family': unknown family 'pid'"),
+]
+
+
+def write(tmp_path, name, content):
+    p = tmp_path / f"{name}.json"
+    if isinstance(content, bytes):
+        p.write_bytes(content)
+    else:
+        p.write_text(content if isinstance(content, str) else json.dumps(content))
+    return p
+
+
+@pytest.mark.parametrize(("name", "content", "drive", "words"), CASES, ids=[c[0] for c in CASES])
+def test_bad_tables_are_one_line_naming_the_file(tmp_path, capsys, name, content, drive, words):
+    table = write(tmp_path, name, content)
+    out = tmp_path / "o"
+    code = main(["codegen", drive, "--gains", str(table), "--out", str(out)])
+    cap = capsys.readouterr()
+    assert code == 2 and cap.err.count("\n") == 1 and "Traceback" not in cap.err, cap.err
+    assert cap.err.startswith(f"sensorless codegen: error: {table}: ") and words in cap.err, cap.err
+    assert cap.out == "" and not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("content", "drive"),
+    [
+        (json.dumps(changed(LAW16, lambda_p=float("nan"))), "piippo2008"),
+        (changed(LAW16, lambda_p=1e308), "piippo2008"),
+        (LAW16, "deangelo2006"),
+        (changed(SCHEDULE, w_hat="0, 1"), "piippo2008"),
+    ],
+)
+def test_report_refuses_bad_tables_before_computing(tmp_path, capsys, content, drive):
+    """The audited cases that broke `sensorless report` (a NaN gain, lambda' = 1e308, a law16 table
+    for the reduced-order drive, w_hat not a list): one line, at once."""
+    table = write(tmp_path, "t", content)
+    code = main(["report", drive, "--gains", str(table), "--quick", "--out", str(tmp_path / "r")])
+    cap = capsys.readouterr()
+    assert code == 2 and cap.err.count("\n") == 1, cap.err
+    assert cap.err.startswith(f"sensorless report: error: {table}: "), cap.err
+    assert cap.out == "" and not (tmp_path / "r").exists()
+
+
+def test_a_directory_or_a_missing_file_is_named(tmp_path):
+    with pytest.raises(GainTableError, match=f"^{tmp_path}: is a directory"):
+        read_gain_table(tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"nope\.json: no such gain table"):
+        read_gain_table(tmp_path / "nope.json")
+
+
+def test_a_good_table_reads_and_names_its_file(tmp_path):
+    p = write(tmp_path, "good", SCHEDULE)
+    t = read_gain_table(p)
+    assert t.file == str(p) and t.where() == str(p) and t.where("other.json") == "other.json"
+    d = load_drive("piippo2008")
+    g = family_of(d).gains(d, table=t)  # no table_file given: messages and the source still name it
+    assert str(p) in g.source
+    mem = GainTable("law16", {"name": "x", "kind": "pmac-reduced-order"}, LAW16["gains"])
+    with pytest.raises(GainTableError, match=r"^gain table \(in memory\): key 'drive.kind'"):
+        family_of(d).gains(d, table=mem)
