@@ -1,23 +1,36 @@
 /* Hand-written C reference of the speed-adaptive observer's runtime step (Piippo, Hinkkanen, Luomi
  * 2008: Heun, law (16), HF injection), a YARDSTICK for benchmarks/bench_codegen.py only: it is what a
- * careful engineer would type from docs/runtime.md, with every parameter-only quantity precomputed.
- * The product is the generated code; this file exists to measure it against (the benchmark also
- * checks that both compute the same). */
+ * careful engineer would type from docs/families/ipmsm_adaptive.md, with every parameter-only
+ * quantity precomputed, including the runtime contract's guard (the state's bounds), coasting and
+ * self-reset after RESET_AFTER rejected samples in a row (symbolic/runtime.py), written with
+ * branches: the coasting state is computed and checked only when a sample is rejected. The product
+ * is the generated code; this file exists to measure it against (the benchmark also checks that
+ * both compute the same). */
 #include <math.h>
 
 #include "ref_step_ipmsm_adaptive.h"
 
 #define PI 3.141592653589793
+#define X_MAX 1e30       /* symbolic/runtime.py */
+#define RESET_AFTER 100  /* symbolic/runtime.py */
 
-static double wrap(double th)
+static double wrap(double th) /* to (-pi, pi], symbolic/frames.py */
 {
-    return th - 2.0 * PI * ceil((th - PI) * (1.0 / (2.0 * PI)));
+    const double r = th - 2.0 * PI * ceil((th - PI) * (1.0 / (2.0 * PI)));
+    return r > PI ? r - 2.0 * PI : r;
 }
 
-void ref_init(ref_observer *o, const double p[17])
+static void reset_state(ref_observer *o)
+{
+    o->x.psi_d = o->c.psi_pm;
+    o->x.psi_q = o->x.w_i = o->x.theta = o->x.w_hat = o->x.phi_c = 0;
+    o->x.bp1 = o->x.bp2 = o->x.lp1 = o->x.lp2 = o->x.x_eps = o->x.rejects = 0;
+}
+
+void ref_init(ref_observer *o, const double p[18])
 {
     /* p: R_s L_d L_q psi_pm alpha_fo T_s injection w_c u_c alpha_i w_Delta x_eps_max w_bp w_lp
-     *    carrier_delay lambda_p w_lambda */
+     *    carrier_delay w_max lambda_p w_lambda */
     const double T = p[5], w_c = p[7], B = p[12], w_l = p[13];
     const double Kb = w_c / tan(w_c * T / 2), Kl = w_l / tan(w_l * T / 2);
     const double ab = Kb * Kb + B * Kb + w_c * w_c;
@@ -49,11 +62,11 @@ void ref_init(ref_observer *o, const double p[17])
     c->lp_a2 = (Kl * Kl - sqrt(2.0) * w_l * Kl + w_l * w_l) / al;
     c->gamma_p = p[9] / (2 * K);
     c->gamma_i = p[9] * p[9] / (6 * K);
-    c->lambda_p = p[15];
-    c->inv_wl = 1 / p[16];
-    o->x.psi_d = p[3];
-    o->x.psi_q = o->x.w_i = o->x.theta = o->x.w_hat = o->x.phi_c = 0;
-    o->x.bp1 = o->x.bp2 = o->x.lp1 = o->x.lp2 = o->x.x_eps = 0;
+    c->lambda_p = p[16];
+    c->inv_wl = 1 / p[17];
+    c->psi_b = 4 * p[3];                       /* the state's bounds (step.py) */
+    c->w_b = fmin(2 * p[15], PI / (2 * T));
+    reset_state(o);
 }
 
 typedef struct {
@@ -77,7 +90,7 @@ static rates f(const ref_coef *c, double psi_d, double psi_q, double w_i, double
     return r;
 }
 
-void ref_step(ref_observer *o, const double in[4], double out[11])
+void ref_step(ref_observer *o, const double in[4], double out[12])
 {
     const ref_coef *c = &o->c;
     const ref_state x = o->x;
@@ -102,6 +115,7 @@ void ref_step(ref_observer *o, const double in[4], double out[11])
     double x_eps = x.x_eps + T * (fd * c->gamma_i * eps);
     rates r0, r1;
     double w, th1, co1, si1, sum;
+    int ok;
     x_eps = fmin(fmax(x_eps, -c->x_max), c->x_max);
     /* Heun */
     r0 = f(c, x.psi_d, x.psi_q, x.w_i, i_d, i_q, u_d, u_q, l1, l2, w_eps);
@@ -122,9 +136,14 @@ void ref_step(ref_observer *o, const double in[4], double out[11])
     n.lp1 = 2 * c->lp_b0 * m - c->lp_a1 * e + x.lp2;
     n.lp2 = c->lp_b0 * m - c->lp_a2 * e;
     n.x_eps = x_eps;
-    sum = fabs(n.psi_d) + fabs(n.psi_q) + fabs(n.w_i) + fabs(n.theta) + fabs(n.w_hat) + fabs(n.phi_c) +
-          fabs(n.bp1) + fabs(n.bp2) + fabs(n.lp1) + fabs(n.lp2) + fabs(n.x_eps);
-    if (sum <= 1e30) {
+    n.rejects = 0;
+    /* the guard: the bounded fields within their bounds, the filter states finite */
+    sum = fabs(n.bp1) + fabs(n.bp2) + fabs(n.lp1) + fabs(n.lp2);
+    ok = fabs(n.psi_d) <= c->psi_b && fabs(n.psi_q) <= c->psi_b && fabs(n.w_i) <= c->w_b &&
+         fabs(n.theta) <= PI && fabs(n.w_hat) <= c->w_b && fabs(n.phi_c) <= PI && fabs(n.x_eps) <= c->x_max &&
+         sum <= X_MAX;
+    out[11] = 0;
+    if (ok) {
         o->x = n;
         out[0] = w;
         out[4] = fd * c->u_c * cos(x.phi_c);
@@ -132,12 +151,17 @@ void ref_step(ref_observer *o, const double in[4], double out[11])
         out[6] = w_eps;
         out[9] = fd;
         out[10] = 1;
-    } else { /* coast */
+    } else { /* coast; after RESET_AFTER rejected samples in a row, reset (the angles stay wrapped:
+              * the coasting state cannot leave the bounds) */
         o->x.theta = wrap(x.theta + T * x.w_hat);
         o->x.phi_c = n.phi_c;
         out[0] = x.w_hat;
         out[4] = out[5] = out[9] = out[10] = 0;
         out[6] = x.x_eps;
+        if (++o->x.rejects >= RESET_AFTER) {
+            reset_state(o);
+            out[11] = 1;
+        }
     }
     out[1] = x.theta;
     out[2] = x.psi_d;
