@@ -11,7 +11,9 @@ For each observer family with a runtime observer:
   of the independent plant (tests/helpers/plant_pmac.py: load steps, speed ramps through zero);
 
 it generates the double step, compiles it with the yardstick (written by hand from the equations with
-every parameter-only quantity precomputed) and benchmarks/bench_codegen_main.c into one program, checks
+every parameter-only quantity precomputed, and the runtime contract's guard, state bounds, coasting and
+self-reset written with branches, symbolic/runtime.py) and benchmarks/bench_codegen_main.c into one
+program, checks
 that both compute the same outputs on the trajectory, then measures, in the same run:
 - ns/step of each (median of interleaved passes over the trajectory) and their ratio;
 - instructions/step of each under valgrind's callgrind (only the step functions and their callees),

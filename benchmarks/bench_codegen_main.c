@@ -16,15 +16,15 @@
 #include "deangelo2006.h"
 #include "ref_step_pmac_reduced_order.h"
 #define GEN(name) deangelo2006_##name
-#define N_OUT 8
-#define N_PARAM 9
+#define N_OUT 9
+#define N_PARAM 10
 #define REF_INIT ref_pmac_init
 #define REF_STEP ref_pmac_step
 typedef ref_pmac_observer ref_obs;
 
 static void ref_params(double p[N_PARAM])
 {
-    /* the generated parameter struct is R L J p_r g Gamma T_s Phi_1 Phi_5, all double */
+    /* the generated parameter struct is R L J p_r g Gamma T_s T_max Phi_1 Phi_5, all double */
     typedef char same_layout[sizeof(deangelo2006_params) == N_PARAM * sizeof(double) ? 1 : -1];
     (void)sizeof(same_layout);
     memcpy(p, &deangelo2006_default_params, sizeof(deangelo2006_params));
@@ -33,8 +33,8 @@ static void ref_params(double p[N_PARAM])
 #include "piippo2008.h"
 #include "ref_step_ipmsm_adaptive.h"
 #define GEN(name) piippo2008_##name
-#define N_OUT 11
-#define N_PARAM 17
+#define N_OUT 12
+#define N_PARAM 18
 #define REF_INIT ref_init
 #define REF_STEP ref_step
 typedef ref_observer ref_obs;
@@ -44,7 +44,7 @@ static void ref_params(double p[N_PARAM])
     const piippo2008_params *d = &piippo2008_default_params;
     const double v[N_PARAM] = {d->R_s, d->L_d, d->L_q, d->psi_pm, d->alpha_fo, d->T_s, d->injection,
                                d->w_c, d->u_c, d->alpha_i, d->w_Delta, d->x_eps_max, d->w_bp, d->w_lp,
-                               d->carrier_delay, d->lambda_p, d->w_lambda};
+                               d->carrier_delay, d->w_max, d->lambda_p, d->w_lambda};
     memcpy(p, v, sizeof v);
 }
 #else

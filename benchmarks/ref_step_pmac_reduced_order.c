@@ -1,7 +1,8 @@
 /* Hand-written C reference of the reduced-order EMF and load-torque observer's runtime step (De Angelo,
  * Bossio, Solsona, Garcia, Valla 2006, eqs. (13)-(24); the default scheme rk2-model of
- * symbolic/pmac_reduced_order/step.py for EMF harmonics of orders 1 and 5, with its guard and
- * coasting), a YARDSTICK for benchmarks/bench_codegen.py only: what a careful engineer would type from
+ * symbolic/pmac_reduced_order/step.py for EMF harmonics of orders 1 and 5, with the runtime contract's
+ * guard (the state's bounds), coasting and self-reset after RESET_AFTER rejected samples in a row,
+ * symbolic/runtime.py), a YARDSTICK for benchmarks/bench_codegen.py only: what a careful engineer would type from
  * the equations, with every parameter-only quantity precomputed at init, each sine and cosine computed
  * once per angle, the helpers inlined, and the coasting computed only when a sample is rejected. No
  * trigonometric identity the equations do not spell out (sin 5x from sin x and cos x,
@@ -13,16 +14,24 @@
 #include "ref_step_pmac_reduced_order.h"
 
 #define PI 3.141592653589793
-#define X_MAX 1e30 /* symbolic/runtime.py */
+#define X_MAX 1e30      /* symbolic/runtime.py */
+#define RESET_AFTER 100 /* symbolic/runtime.py */
 
-static double wrap(double th)
+static double wrap(double th) /* to (-pi, pi], symbolic/frames.py */
 {
-    return th - 2.0 * PI * ceil((th - PI) * (1.0 / (2.0 * PI)));
+    const double r = th - 2.0 * PI * ceil((th - PI) * (1.0 / (2.0 * PI)));
+    return r > PI ? r - 2.0 * PI : r;
 }
 
-void ref_pmac_init(ref_pmac_observer *o, const double p[9])
+static void reset_state(ref_pmac_observer *o)
 {
-    /* p: R L J p_r g Gamma T_s Phi_1 Phi_5 */
+    o->x.zeta_a = o->x.zeta_b = o->x.tau = o->x.theta = o->x.w_hat = 0;
+    o->x.i_a = o->x.i_b = o->x.u_a = o->x.u_b = o->x.rejects = 0;
+}
+
+void ref_pmac_init(ref_pmac_observer *o, const double p[10])
+{
+    /* p: R L J p_r g Gamma T_s T_max Phi_1 Phi_5 */
     ref_pmac_coef *c = &o->c;
     c->R = p[0];
     c->g = p[4];
@@ -34,12 +43,12 @@ void ref_pmac_init(ref_pmac_observer *o, const double p[9])
     c->G_J = p[5] / p[2];       /* Gamma L / J times di_hat = (u - R i - e_hat) / L, eq. (11) */
     c->T = p[6];
     c->T_2 = p[6] / 2;
-    c->P1 = p[7];
-    c->P5 = p[8];
-    c->P5x5 = 5 * p[8];
-    c->w_max = (PI / 2) / p[6]; /* the step's range |w_hat| T_s <= pi/2 */
-    o->x.zeta_a = o->x.zeta_b = o->x.tau = o->x.theta = o->x.w_hat = 0;
-    o->x.i_a = o->x.i_b = o->x.u_a = o->x.u_b = 0;
+    c->P1 = p[8];
+    c->P5 = p[9];
+    c->P5x5 = 5 * p[9];
+    c->w_max = (PI / 2) / p[6];                      /* the step's range |w_hat| T_s <= pi/2 */
+    c->tau_max = 2 * (1 + p[5] * p[1] / p[2]) * p[7]; /* the load state's bound */
+    reset_state(o);
 }
 
 typedef struct {
@@ -85,6 +94,7 @@ static inline est estimate(const ref_pmac_coef *c, const emf *m, double tau, dou
 {
     est e;
     e.th = atan2(-sigma * m->e1_a, sigma * m->e1_b);
+    e.th = e.th > -PI ? e.th : PI; /* (-pi, pi], symbolic/frames.py half_open */
     e.h = harmonics_at(e.th);
     e.phi_a = -(c->P1 * e.h.s1 + c->P5 * e.h.s5);
     e.phi_b = c->P1 * e.h.c1 + c->P5 * e.h.c5;
@@ -108,7 +118,7 @@ static inline void rates(const ref_pmac_coef *c, const emf *m, const est *e, dou
     *dtau = -(c->G_J * (e->phi_a * v_a + e->phi_b * v_b) + c->kG * (dphi_a * i_a + dphi_b * i_b));
 }
 
-void ref_pmac_step(ref_pmac_observer *o, const double in[4], double out[8])
+void ref_pmac_step(ref_pmac_observer *o, const double in[4], double out[9])
 {
     const ref_pmac_coef *c = &o->c;
     const ref_pmac_state x = o->x;
@@ -164,16 +174,17 @@ void ref_pmac_step(ref_pmac_observer *o, const double in[4], double out[8])
     sigma = dth >= 0 ? 1.0 : -1.0;
     e = estimate(c, &m, n.tau, in[0], in[1], sigma);
     n.theta = e.th;
+    n.rejects = 0;
     n.w_hat = e.w;
     n.i_a = in[0];
     n.i_b = in[1];
     n.u_a = in[2];
     n.u_b = in[3];
 
-    /* the guard: a finite state, the speed within the step's range */
-    sum = fabs(n.zeta_a) + fabs(n.zeta_b) + fabs(n.tau) + fabs(n.theta) + fabs(n.w_hat) + fabs(n.i_a) +
-          fabs(n.i_b) + fabs(n.u_a) + fabs(n.u_b);
-    if (sum <= X_MAX && fabs(e.w) <= c->w_max) {
+    /* the guard: the angle, the speed and the load state within their bounds, the rest finite */
+    sum = fabs(n.zeta_a) + fabs(n.zeta_b) + fabs(n.i_a) + fabs(n.i_b) + fabs(n.u_a) + fabs(n.u_b);
+    out[8] = 0;
+    if (fabs(n.theta) <= PI && fabs(e.w) <= c->w_max && fabs(n.tau) <= c->tau_max && sum <= X_MAX) {
         o->x = n;
         out[0] = e.w;
         out[1] = e.th;
@@ -204,5 +215,12 @@ void ref_pmac_step(ref_pmac_observer *o, const double in[4], double out[8])
         out[5] = phi_a;
         out[6] = phi_b;
         out[7] = 0;
+        /* after RESET_AFTER rejected samples in a row, or a coasting state beyond the bounds: reset */
+        sum = fabs(o->x.zeta_a) + fabs(o->x.zeta_b) + fabs(o->x.i_a) + fabs(o->x.i_b) + fabs(o->x.u_a) +
+              fabs(o->x.u_b);
+        if (++o->x.rejects >= RESET_AFTER || !(sum <= X_MAX)) {
+            reset_state(o);
+            out[8] = 1;
+        }
     }
 }

@@ -25,10 +25,20 @@ def rot(theta: Sym) -> Sym:
 
 
 def wrap_angle(theta: Sym) -> Sym:
-    """theta mapped to (-pi, pi]: theta - 2 pi ceil((theta - pi) / (2 pi)).
+    """theta mapped to (-pi, pi]: r = theta - 2 pi ceil((theta - pi) / (2 pi)), then r - 2 pi if r > pi.
 
     Keeping angles small keeps a float build exact to its resolution (an unwrapped angle loses a bit
     of resolution each time it doubles). Uses ceil, never a float-to-integer conversion, so NaN and Inf
-    stay well defined (they propagate as NaN) and the generated C needs no branch.
+    stay well defined (they propagate as NaN) and the generated C needs no branch. The last step
+    catches the rounding of the quotient: for theta within an ulp above -pi (or -3 pi, ...) it rounds
+    to the integer and r lands an ulp above pi, in double and in float; r - 2 pi is then exact
+    (Sterbenz) and in range. So for |theta| < 5 pi (every use here: a wrapped angle plus at most
+    pi/2) the result is in (-pi, pi] in the arithmetic of either precision, pi being that precision's.
     """
-    return theta - 2 * math.pi * ca.ceil((theta - math.pi) * (1 / (2 * math.pi)))
+    r = theta - 2 * math.pi * ca.ceil((theta - math.pi) * (1 / (2 * math.pi)))
+    return ca.if_else(r > math.pi, r - 2 * math.pi, r)
+
+
+def half_open(theta: Sym) -> Sym:
+    """An angle in [-pi, pi] (the range of atan2) in (-pi, pi]: -pi becomes pi (one comparison)."""
+    return ca.if_else(theta > -math.pi, theta, math.pi)

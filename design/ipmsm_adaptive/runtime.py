@@ -146,6 +146,7 @@ def runtime_params(drive: Any, alpha_fo: float | None = None) -> dict[str, float
         "w_bp": rt.w_bp,
         "w_lp": rt.w_lp,
         "carrier_delay": rt.carrier_delay,
+        "w_max": rt.w_max,
     }
 
 

@@ -151,6 +151,7 @@ class Runtime:
     carrier_delay: float = q(
         "dimensionless", check="nonnegative", doc="samples from carrier command to applied voltage"
     )
+    w_max: float = q("angular", doc="highest speed of the drive [rad/s]: the runtime state's speed bounds")
 
 
 RUNTIME_DEFAULTS: dict[str, Any] = {
@@ -159,6 +160,7 @@ RUNTIME_DEFAULTS: dict[str, Any] = {
     "w_lp": "100 Hz",
     "x_eps_max": "0.1 pu",
     "carrier_delay": 1.0,
+    "w_max": "2 pu",
 }
 
 

@@ -90,7 +90,7 @@ class PmacControl:
     T_s: float = q("time", doc="sampling period [s]")
     discretization: str = field(metadata={"dim": "choice", "doc": "observer discretization scheme"})
     alpha_s: float = q("angular", doc="speed-loop bandwidth [rad/s]")
-    T_max: float = q("torque", doc="torque reference limit [N m]")
+    T_max: float = q("torque", doc="torque reference limit [N m]; bounds the runtime observer's load state")
 
 
 @dataclass(frozen=True)
@@ -151,7 +151,7 @@ class PmacDrive:
         """The ``p`` vector of the observer step (symbolic/pmac_reduced_order/step.param_names)."""
         e, o = self.estimate, self.observer
         vals = [e.R, e.L, e.J, self.motor.p_r, o.g if g is None else g, o.Gamma if Gamma is None else Gamma]
-        vals += [self.control.T_s if T_s is None else T_s, *e.Phi]
+        vals += [self.control.T_s if T_s is None else T_s, self.control.T_max, *e.Phi]
         assert len(vals) == len(param_names(e.harmonics))
         return np.array(vals, float)
 

@@ -11,6 +11,9 @@ instruction), in the style of CasADi's own code generator but targeted at an emb
   parameter-only value becomes a multiplication by a hoisted reciprocal;
 - **selects**: CasADi's ``if_else`` (``c ? a : 0`` + ``!c ? b : 0``) is printed as one ``c ? a : b``
   (the two differ only in the sign of a zero result);
+- **truth values**: a comparison or logical operation of the step is an ``int`` temporary (what C's
+  operators give), converted to the precision only where arithmetic or an output reads it, so that
+  the guard's tests and selects cost no float conversions;
 - SSA style (``const`` temporaries, one per instruction); all inputs are read before any output is
   written, so a state struct may be updated in place.
 
@@ -63,6 +66,15 @@ _UNARY = {
             "SQRT SIN COS TAN ASIN ACOS ATAN EXP LOG SINH COSH TANH FABS FLOOR CEIL ERF EXPM1 LOG1P"
         ).split()
     },
+}
+_LOGIC = {  # the same operations as truth values (int), for the step's temporaries
+    "LT": "({a} < {b})",
+    "LE": "({a} <= {b})",
+    "EQ": "({a} == {b})",
+    "NE": "({a} != {b})",
+    "AND": "({a} && {b})",
+    "OR": "({a} || {b})",
+    "NOT": "(!{a})",
 }
 _LIBM = {
     "FMIN": "fmin",
@@ -201,12 +213,19 @@ def emit(
     r = prec.real
     zero, one = prec.lit(0.0), prec.lit(1.0)
 
-    def ref(a: int, in_init: bool) -> str:
+    def truth(a: int, in_init: bool) -> bool:
+        """An int temporary of the step (a comparison or logical operation)."""
+        return not in_init and not nodes[a].param and nodes[a].op in _LOGIC
+
+    def ref(a: int, in_init: bool, cond: bool = False) -> str:
+        """How an operand reads node ``a``; ``cond``: as a truth value (condition, logical operand)."""
         nd = nodes[a]
         if nd.op == "CONST":
             return prec.lit(nd.const)
         if not in_init and nd.param:
             return f"{coef}[{coef_of[a]}]"
+        if truth(a, in_init) and not cond:
+            return f"(({r}){prefix}{a})"
         return f"{prefix}{a}"
 
     def expr(idx: int, in_init: bool) -> str:
@@ -215,13 +234,20 @@ def emit(
             i, nz = nd.source
             return (param_in if nd.param else runtime_in)[i][nz]
         if nd.op == "SELECT":
-            c, a, b = (ref(x, in_init) for x in nd.args)
+            c = ref(nd.args[0], in_init, cond=True)
+            a, b = (ref(x, in_init) for x in nd.args[1:])
             return f"({c} ? {a} : {b})"
-        a = ref(nd.args[0], in_init)
-        b = ref(nd.args[1], in_init) if len(nd.args) > 1 else ""
+        logical = nd.op in ("AND", "OR", "NOT", "IF_ELSE_ZERO")  # operands read as truth values
+        a = ref(nd.args[0], in_init, cond=logical)
+        b = ref(nd.args[1], in_init, cond=logical and nd.op != "IF_ELSE_ZERO") if len(nd.args) > 1 else ""
+        if truth(idx, in_init):
+            return _LOGIC[nd.op].format(a=a, b=b)
         fname = prec.fn(_LIBM.get(nd.op, nd.op.lower()))
         tmpl = _BINARY.get(nd.op) or _UNARY[nd.op]
         return tmpl.format(a=a, b=b, f=fname, r=r, zero=zero, one=one)
+
+    def decl(idx: int, in_init: bool) -> str:
+        return "int" if truth(idx, in_init) else r
 
     res = Emitted(n_coef=len(coef_of))
     init_live = _live(nodes, list(coef_of))
@@ -233,7 +259,7 @@ def emit(
     body_live = [i for i in sorted(live) if not nodes[i].param]
     # inputs first (in-place state update is safe), then the arithmetic
     for idx in sorted(body_live, key=lambda i: nodes[i].op != "INPUT"):
-        res.body.append(f"const {r} {prefix}{idx} = {expr(idx, False)};")
+        res.body.append(f"const {decl(idx, False)} {prefix}{idx} = {expr(idx, False)};")
     for (i, nz), n in outputs:
         res.body.append(f"{out[i][nz]} = {ref(n, False)};")
     return res

@@ -22,7 +22,7 @@ import jinja2
 import numpy as np
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.reports.codegen.c_emit import Precision, emit
-from sensorless.symbolic.runtime import Field, RuntimeObserver
+from sensorless.symbolic.runtime import REJECTS, RESET, VALID, X_MAX, Field, RuntimeObserver
 
 PRECISIONS = ("double", "float")
 
@@ -86,6 +86,16 @@ def _struct(name: str, fields: list[tuple[str, str, str]], what: str) -> dict[st
 
 def _f(fields: tuple[Field, ...]) -> list[tuple[str, str, str]]:
     return [(f.name, f.unit, f.doc) for f in fields]
+
+
+def _bounds(obs: RuntimeObserver, p: np.ndarray) -> list[dict[str, str]]:
+    """The state's bounds for the header: field, expression, value with the default parameters."""
+    values = np.asarray(obs.bounds()(p)).ravel()
+    return [
+        {"name": f.name, "text": f.bound, "value": f"{v:.6g}", "unit": f.unit}
+        for f, v in zip(obs.state[:-1], values, strict=False)
+        if f.bound
+    ]
 
 
 def _check(name: str, check: str, prec: Precision) -> str:
@@ -208,7 +218,11 @@ def generate(
             _struct(
                 f"{P}_params", param_fields, "Parameters, SI units. Fill from the drive: see the defaults."
             ),
-            _struct(f"{P}_state", _f(obs.state), "Observer state (public: read it freely)."),
+            _struct(
+                f"{P}_state",
+                _f(obs.state),
+                f"Observer state (public: read it freely; {P}_step keeps it within its bounds).",
+            ),
             _struct(f"{P}_input", _f(obs.meas), "Measurements of one sampling period."),
             _struct(f"{P}_output", _f(obs.outputs), "Estimates and signals of one sampling period."),
         ],
@@ -234,8 +248,16 @@ def generate(
         "n_values": len(obs.outputs) + len(obs.state),
         "show": [
             {"name": f.name, "unit": "" if f.unit == "1" else " " + f.unit}
-            for f in obs.outputs[:5] + obs.outputs[-1:]
+            for f in obs.outputs[:5] + obs.outputs[-2:]
         ],
+        "bounds": _bounds(obs, setup.p),
+        "free": [f.name for f in obs.state[:-1] if not f.bound],
+        "rejects": REJECTS.name,
+        "reset_after": obs.state[-1].bound,
+        "reset_define": obs.state[-1].bound if obs.state[-1].bound.isdigit() else "",
+        "x_max": f"{X_MAX:g}",
+        "valid": VALID.name,
+        "reset": RESET.name,
     }
     env = _templates()
     return {

@@ -49,23 +49,28 @@ from sensorless.symbolic.ipmsm_adaptive.injection import (
 )
 from sensorless.symbolic.ipmsm_adaptive.observer import ObserverRates, observer_rates, speed_adaptation
 from sensorless.symbolic.pmsm import PmsmParams, current_from_flux, flux_from_current
-from sensorless.symbolic.runtime import Field, RuntimeObserver, guarded
+from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, guarded
 
 NAME = "ipmsm_adaptive"
 DISCRETIZATIONS = ("zoh", "heun", "euler", "heun-model")  # the first is the default (module docstring)
 
+# bounds (docs/families/ipmsm_adaptive.md, "Bounds and recovery"): the flux within 4 psi_pm (the PM
+# flux plus a current of 3 psi_pm / L), the speeds within twice the drive's highest speed and within the
+# sampling limit |w| T_s <= pi/2, the angles wrapped; the filter states only finite
+_W_BOUND = "min(2 * w_max, pi / (2 * T_s))"
 STATE = (
-    Field("psi_d", "V s", "stator-flux estimate psi_hat, estimated d axis, eq. (4)/(20)"),
-    Field("psi_q", "V s", "stator-flux estimate psi_hat, estimated q axis"),
-    Field("w_i", "rad/s", "integral part of the speed adaptation (9)"),
-    Field("theta", "rad", "rotor-position estimate theta_hat (electrical), in (-pi, pi]"),
-    Field("w_hat", "rad/s", "latest speed estimate (output w_hat): schedules the gain (7), (16)"),
-    Field("phi_c", "rad", "carrier phase w_c t, in (-pi, pi]"),
+    Field("psi_d", "V s", "stator-flux estimate psi_hat, estimated d axis, eq. (4)/(20)", bound="4 * psi_pm"),
+    Field("psi_q", "V s", "stator-flux estimate psi_hat, estimated q axis", bound="4 * psi_pm"),
+    Field("w_i", "rad/s", "integral part of the speed adaptation (9)", bound=_W_BOUND),
+    Field("theta", "rad", "rotor-position estimate theta_hat (electrical), in (-pi, pi]", bound="pi"),
+    Field("w_hat", "rad/s", "latest speed estimate (output w_hat): schedules the gain (7)", bound=_W_BOUND),
+    Field("phi_c", "rad", "carrier phase w_c t, in (-pi, pi]", bound="pi"),
     Field("bp_z1", "A", "band-pass filter state (transposed direct form II)"),
     Field("bp_z2", "A", "band-pass filter state"),
     Field("lp_z1", "A", "low-pass filter state (transposed direct form II)"),
     Field("lp_z2", "A", "low-pass filter state"),
-    Field("x_eps", "rad/s", "integral part of the PI (21), bounded to +-x_eps_max"),
+    Field("x_eps", "rad/s", "integral part of the PI (21), bounded to +-x_eps_max", bound="x_eps_max"),
+    REJECTS,
 )
 
 MEAS = (
@@ -91,6 +96,7 @@ PARAMS = (
     Field("w_bp", "rad/s", "band-pass -3 dB bandwidth (centre w_c)", "positive"),
     Field("w_lp", "rad/s", "low-pass (Butterworth) cut-off", "positive"),
     Field("carrier_delay", "samples", "delay from carrier command to applied voltage", "nonnegative"),
+    Field("w_max", "rad/s", "highest speed of the drive (electrical): the speed states' bounds", "positive"),
 )
 
 OUTPUTS = (
@@ -104,7 +110,8 @@ OUTPUTS = (
     Field("lambda1", "ohm", "observer gain lambda1 applied this period, eq. (7)"),
     Field("lambda2", "ohm", "observer gain lambda2 applied this period, eq. (7)"),
     Field("fade", "1", "injection fade factor (1 at zero speed, 0 beyond w_Delta)"),
-    Field("valid", "1", "1: sample used; 0: non-finite result, the observer coasted"),
+    VALID,
+    RESET,
 )
 
 LAM = (
@@ -210,7 +217,7 @@ def _step(discretization: str, x: Sym, meas: Sym, p: Sym, lam: Sym) -> tuple[Sym
         hf.z_lp_next,
         x_eps_next,
     )
-    y_cand = ca.vertcat(w_step, theta, psi, hf.u_c_d, eps, pi.w_eps, lam[0], lam[1], f, 1)
+    y_cand = ca.vertcat(w_step, theta, psi, hf.u_c_d, eps, pi.w_eps, lam[0], lam[1], f)
     # invalid sample: coast. The angle and the carrier phase advance at the latest speed estimate, the
     # rest is held (the flux in the estimated frame is constant in steady state); no carrier.
     x_coast = ca.vertcat(
@@ -220,9 +227,10 @@ def _step(discretization: str, x: Sym, meas: Sym, p: Sym, lam: Sym) -> tuple[Sym
         wrap_angle(X["phi_c"] + P["w_c"] * T_s),
         x[6:11],
     )
-    y_coast = ca.vertcat(X["w_hat"], theta, psi, 0, 0, X["x_eps"], lam[0], lam[1], 0, 0)
-    x_next, y, _ = guarded(x_coast, x_cand, y_cand, y_coast)
-    return x_next, y
+    y_coast = ca.vertcat(X["w_hat"], theta, psi, 0, 0, X["x_eps"], lam[0], lam[1], 0)
+    # rejected (not finite, beyond the bounds): coast; too many rejected (REJECTS): start afresh
+    cand, coast, x0 = (x_cand, y_cand), (x_coast, y_coast), initial_state_function()(p)
+    return guarded(x, p, STATE, PARAMS, cand=cand, coast=coast, reset=x0)
 
 
 def _symbols(n_lam: int = 2) -> dict[str, ca.SX]:

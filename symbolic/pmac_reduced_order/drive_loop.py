@@ -47,7 +47,7 @@ from sensorless.symbolic.pmac import (
 )
 from sensorless.symbolic.pmac_reduced_order.control import speed_controller, speed_pi_gains
 from sensorless.symbolic.pmac_reduced_order.observer import zeta_tau
-from sensorless.symbolic.pmac_reduced_order.step import N_STATE, param_names, split_params
+from sensorless.symbolic.pmac_reduced_order.step import STATE, param_names, split_params
 from sensorless.symbolic.pmsm import PmsmParams
 from sensorless.symbolic.runtime import Field
 
@@ -233,7 +233,7 @@ def initial_state_function(orders: tuple[int, ...]) -> ca.Function:
     phi_hat0 = flux_derivative(th_hat0, emf_hat)
     T_L_hat0 = ca.if_else(op.Gamma > 0, T0, 0)
     zeta0, tau0 = zeta_tau(phi_hat0 * (w0 / p_r), T_L_hat0, phi_hat0, i0, op)  # eq. (15)
-    x_obs0 = ca.vertcat(zeta0, tau0, th_hat0, w0, i0, u0)
+    x_obs0 = ca.vertcat(zeta0, tau0, th_hat0, w0, i0, u0, 0)  # and the runtime contract's counter
     u_i0 = rot(th0).T @ (Q["R_hat"] * i0)
     Z = {s.name: ca.SX(0) for s in LOOP_STATE}
     Z.update(
@@ -251,6 +251,6 @@ def initial_state_function(orders: tuple[int, ...]) -> ca.Function:
         u_b_last=u0[1],
     )
     z0 = ca.vertcat(*[Z[s.name] for s in LOOP_STATE], x_obs0)
-    assert x_obs0.size1() == N_STATE
+    assert x_obs0.size1() == len(STATE)
     names = ["q", "p_obs", "v0", "w0", "theta0", "theta_err0"]
     return ca.Function("pmac_drive_initial", [q, p_obs, v0, w0, th0, err0], [z0], names, ["z0"])

@@ -27,7 +27,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import casadi as ca
-from sensorless.symbolic.frames import Sym
+from sensorless.symbolic.frames import Sym, half_open
 from sensorless.symbolic.pmac import (
     EmfSeries,
     current_derivative,
@@ -120,7 +120,7 @@ def estimates(
     e_hat = emf_from_zeta(zeta, i, p)  # eq. (17)
     e1 = emf_fundamental(e_hat, theta_pred, w_pred, p.p_r, emf)  # eqs. (19)-(22)
     theta_raw = ca.atan2(-e1[0], e1[1])  # eq. (18), branch-free
-    theta_hat = ca.atan2(-sigma * e1[0], sigma * e1[1])  # eq. (18) on the branch of the speed sign
+    theta_hat = half_open(ca.atan2(-sigma * e1[0], sigma * e1[1]))  # eq. (18), speed-sign branch, (-pi, pi]
     phi_hat = flux_derivative(theta_hat, emf)  # eq. (23)
     w_hat = speed_from_emf(e_hat, phi_hat, sigma, p.p_r)  # eqs. (13)-(14)
     dphi_hat = w_hat * flux_derivative_slope(theta_hat, emf)  # eq. (24)

@@ -39,13 +39,14 @@ the speed sign (14) reads the angle step modulo pi), is rejected (output ``valid
 coasts, its EMF state turning at the speed estimate and its angle advancing by w_hat T_s, and keeps the
 newest finite samples for the next period. Both matter after an absurd but finite sample (an ADC
 glitch of 1e5 A): accepting a speed beyond the range, or keeping a glitch that an accepted period
-stored, would make every later period diverge and be rejected, for good.
+stored, would make every later period diverge and be rejected, for good. After RESET_AFTER rejected
+samples in a row the step starts afresh from the initial state (output ``reset``; the contract's
+recovery, symbolic/runtime.py).
 """
 
 from __future__ import annotations
 
 import functools
-import math
 from typing import NamedTuple
 
 import casadi as ca
@@ -62,7 +63,7 @@ from sensorless.symbolic.pmac_reduced_order.observer import (
     observer_rhs,
     speed_sign,
 )
-from sensorless.symbolic.runtime import Field, RuntimeObserver, all_within, guarded
+from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, all_within, guarded
 
 DISCRETIZATIONS: dict[str, str] = {
     "euler": "forward Euler at the interval start",
@@ -74,11 +75,11 @@ DISCRETIZATIONS: dict[str, str] = {
 }
 DEFAULT_DISCRETIZATION = "rk2-model"
 
-N_STATE = 9  # [zeta_a, zeta_b, tau, theta_hat, w_hat, i_a_prev, i_b_prev, u_a_prev, u_b_prev]
+N_STATE = 9  # of step(): [zeta_a, zeta_b, tau, theta_hat, w_hat, i_a_prev, i_b_prev, u_a_prev, u_b_prev]
 
 
 def param_names(orders: tuple[int, ...]) -> tuple[str, ...]:
-    """Names of the ``params`` entries: R, L, J, p_r, g, Gamma, T_s, then Phi_n of each order."""
+    """Names of the ``params`` entries: R, L, J, p_r, g, Gamma, T_s, T_max, then Phi_n of each order."""
     return tuple(f.name for f in params_fields(tuple(orders)))
 
 
@@ -163,16 +164,22 @@ def step(x: Sym, i: Sym, u: Sym, params: Sym, orders: tuple[int, ...], method: s
 # --------------------------------------------------------------------------------------------------
 # As a runtime observer (symbolic/runtime.py)
 # --------------------------------------------------------------------------------------------------
+# the runtime state: step()'s, then the contract's counter. Bounds: the angle wrapped, the speed within
+# the range the step is valid in (|w_hat| T_s <= pi/2, where the speed sign (14) reads the angle step
+# modulo pi), the load state within twice what the torque limit gives it (|T_L_hat| <= T_max and
+# |phi_hat . i| <= T_max in (15)); the EMF state and the stored samples only finite
+_TAU_BOUND = "2 * (1 + Gamma * L / J) * T_max"
 STATE = (
     Field("zeta_a", "V", "EMF state zeta = e_hat + g L i, eq. (15), alpha axis"),
     Field("zeta_b", "V", "EMF state, beta axis"),
-    Field("tau", "N m", "load state tau = T_L_hat - (Gamma L / J) phi_hat . i, eq. (15)"),
-    Field("theta", "rad", "position estimate theta_hat (electrical), in (-pi, pi], eq. (18)"),
-    Field("w_hat", "rad/s", "speed estimate (electrical), eqs. (13)-(14)"),
+    Field("tau", "N m", "load state tau = T_L_hat - (Gamma L / J) phi_hat . i, eq. (15)", bound=_TAU_BOUND),
+    Field("theta", "rad", "position estimate theta_hat (electrical), in (-pi, pi], eq. (18)", bound="pi"),
+    Field("w_hat", "rad/s", "speed estimate (electrical), eqs. (13)-(14)", bound="pi / 2 / T_s"),
     Field("i_a_prev", "A", "current sample of the previous period, alpha axis"),
     Field("i_b_prev", "A", "current sample of the previous period, beta axis"),
     Field("u_a_prev", "V", "voltage sample of the previous period, alpha axis"),
     Field("u_b_prev", "V", "voltage sample of the previous period, beta axis"),
+    REJECTS,
 )
 
 MEAS = (
@@ -190,6 +197,7 @@ _BASE_PARAMS = (
     Field("g", "1/s", "EMF observer gain, eq. (9)", "positive"),
     Field("Gamma", "A^2 s^2", "load-torque adaptation gain, eq. (10) (0: no load estimation)", "nonnegative"),
     Field("T_s", "s", "sampling period", "positive"),
+    Field("T_max", "N m", "torque limit of the drive: the load state's bound", "positive"),
 )
 
 OUTPUTS = (
@@ -200,12 +208,13 @@ OUTPUTS = (
     Field("e_beta", "V", "EMF estimate, beta axis"),
     Field("phi_alpha", "V s", "flux derivative phi(theta_hat), eq. (23): direction of the references (25)"),
     Field("phi_beta", "V s", "flux derivative phi(theta_hat), beta axis"),
-    Field("valid", "1", "1: sample used; 0: non-finite result, the observer coasted"),
+    VALID,
+    RESET,
 )
 
 
 def params_fields(orders: tuple[int, ...]) -> tuple[Field, ...]:
-    """The ``p`` fields: R, L, J, p_r, g, Gamma, T_s, then Phi_n of each harmonic order."""
+    """The ``p`` fields: R, L, J, p_r, g, Gamma, T_s, T_max, then Phi_n of each harmonic order."""
     phi = tuple(
         Field(
             f"Phi_{n}" if n > 0 else f"Phi_m{-n}",
@@ -223,7 +232,7 @@ def _runtime_step(method: str, orders: tuple[int, ...], x: Sym, meas: Sym, p: Sy
     i, u = meas[0:2], meas[2:4]
     s = step(x, i, u, p, orders, method)
     e = s.est
-    y = ca.vertcat(e.w_hat, e.theta_hat, e.T_L_hat, e.e_hat, e.phi_hat, 1)
+    y = ca.vertcat(e.w_hat, e.theta_hat, e.T_L_hat, e.e_hat, e.phi_hat)
     # coasting: the EMF (and zeta with it) turns at the speed estimate, the angle advances by w T_s;
     # the stored samples become this period's if they are finite (else stay those of the last period
     # that had finite ones): a glitch stored by an accepted period must not poison every later one
@@ -240,13 +249,11 @@ def _runtime_step(method: str, orders: tuple[int, ...], x: Sym, meas: Sym, p: Sy
         load_torque_from_tau(x[2], phi_c, x[5:7], par),
         emf_from_zeta(zeta_c, R @ x[5:7], par),
         phi_c,
-        0,
     )
-    # accepted: finite, and the speed within the step's range |w_hat| T_s <= pi/2 (speed_sign); beyond
-    # it the discrete observer diverges, so a state accepted there could never be left again
-    in_range = ca.fabs(e.w_hat) <= (math.pi / 2) / T_s
-    x_next, y_out, _ = guarded(x_coast, s.x_next, y, y_coast, ok=in_range)
-    return x_next, y_out
+    # accepted: finite, and the speed within the step's range |w_hat| T_s <= pi/2 (the bound of w_hat:
+    # beyond it the discrete observer diverges, so a state accepted there could never be left again)
+    cand, coast = (s.x_next, y), (x_coast, y_coast)
+    return guarded(x, p, STATE, params_fields(orders), cand=cand, coast=coast, reset=ca.DM.zeros(len(STATE)))
 
 
 @functools.cache
@@ -261,7 +268,7 @@ def runtime_observer(orders: tuple[int, ...] = (1,)) -> RuntimeObserver:
         if discretization not in DISCRETIZATIONS:
             known = ", ".join(DISCRETIZATIONS)
             raise ValueError(f"unknown discretization {discretization!r} (known: {known})")
-        x = ca.SX.sym("x", N_STATE)
+        x = ca.SX.sym("x", len(STATE))
         meas = ca.SX.sym("meas", len(MEAS))
         p = ca.SX.sym("p", len(fields))
         lam = ca.SX.sym("lam", 0)
@@ -278,7 +285,7 @@ def runtime_observer(orders: tuple[int, ...] = (1,)) -> RuntimeObserver:
     def initial_state() -> ca.Function:
         # at rest at theta_hat = 0 with w_hat = 0: the EMF states zero, no load estimate
         p = ca.SX.sym("p", len(fields))
-        return ca.Function(f"pmac_reduced_order_{tag}_init", [p], [ca.DM.zeros(N_STATE)], ["p"], ["x0"])
+        return ca.Function(f"pmac_reduced_order_{tag}_init", [p], [ca.DM.zeros(len(STATE))], ["p"], ["x0"])
 
     return RuntimeObserver(
         name=f"pmac_reduced_order_{tag}",

@@ -27,9 +27,9 @@ def simulate(drive, rpm, T_L, Gamma=None, method=None):
     e0 = phi0[:, 0] * Y[1, 0] / m.p_r
     zeta0 = e0 + g * L * i[:, 0]  # eq. (15) with the true EMF
     tau0 = 0.0 - Gam * L / J * phi0[:, 0] @ i[:, 0]  # eq. (15) with T_L_hat = 0
-    x0 = np.r_[zeta0, tau0, Y[0, 0], Y[1, 0], i[:, 0], v[:, 0]]
+    x0 = np.r_[zeta0, tau0, Y[0, 0], Y[1, 0], i[:, 0], v[:, 0], 0]  # 0: no rejected sample
     F = runtime_observer(tuple(m.harmonics)).core(method or drive.control.discretization)
-    x, u = ca.MX.sym("x", 9), ca.MX.sym("u", 4)
+    x, u = ca.MX.sym("x", x0.size), ca.MX.sym("u", 4)
     x_next, y = F(x, u, params, ca.DM(0, 1))
     step = ca.Function("s", [x, u], [x_next, y[0:3]])  # w_hat, theta_hat, T_L_hat
     _, est = step.mapaccum(t.size - 1)(x0, np.vstack([i[:, 1:], v[:, 1:]]))

@@ -371,37 +371,42 @@ def test_a_second_observer_is_a_registration(tmp_path):
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.reports.codegen.generate import Provenance, generate
     from sensorless.symbolic.frames import wrap_angle
-    from sensorless.symbolic.runtime import Field, RuntimeObserver
+    from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, guarded
+
+    state = (Field("theta", "rad", "angle", bound="pi"), Field("w", "rad/s", "speed", bound="k_p"), REJECTS)
+    params = (
+        Field("k_p", "rad/s", "", "positive"),
+        Field("k_i", "rad/s^2", "", "positive"),
+        Field("T_s", "s", "", "positive"),
+    )
 
     def core(disc: str) -> ca.Function:
-        x, m, p, lam = ca.SX.sym("x", 2), ca.SX.sym("meas", 2), ca.SX.sym("p", 3), ca.SX.sym("lam", 0)
+        x, m, p, lam = ca.SX.sym("x", 3), ca.SX.sym("meas", 2), ca.SX.sym("p", 3), ca.SX.sym("lam", 0)
         eps = m[1] * ca.cos(x[0]) - m[0] * ca.sin(x[0])
         w = x[1] + p[2] * p[1] * eps
-        x_next = ca.vertcat(wrap_angle(x[0] + p[2] * (w + p[0] * eps)), w)
-        return ca.Function("pll", [x, m, p, lam], [x_next, ca.vertcat(x[0], w, eps)])
+        cand = ca.vertcat(wrap_angle(x[0] + p[2] * (w + p[0] * eps)), w), ca.vertcat(x[0], w, eps)
+        coast = ca.vertcat(wrap_angle(x[0] + p[2] * x[1]), x[1]), ca.vertcat(x[0], x[1], 0)
+        x_next, y = guarded(x, p, state, params, cand=cand, coast=coast, reset=ca.DM.zeros(3))
+        return ca.Function("pll", [x, m, p, lam], [x_next, y])
 
     def x0() -> ca.Function:
         p = ca.SX.sym("p", 3)
-        return ca.Function("x0", [p], [ca.DM.zeros(2)])
+        return ca.Function("x0", [p], [ca.DM.zeros(3)])
 
     toy = RuntimeObserver(
         name="pll",
         title="toy phase-locked loop",
-        state=(Field("theta", "rad", "angle"), Field("w", "rad/s", "speed")),
+        state=state,
         meas=(Field("a", "1", "cos"), Field("b", "1", "sin")),
-        params=(
-            Field("k_p", "rad/s", "", "positive"),
-            Field("k_i", "rad/s^2", "", "positive"),
-            Field("T_s", "s", "", "positive"),
-        ),
-        outputs=(Field("theta", "rad", ""), Field("w", "rad/s", ""), Field("eps", "1", "")),
+        params=params,
+        outputs=(Field("theta", "rad", ""), Field("w", "rad/s", ""), Field("eps", "1", ""), VALID, RESET),
         lam=(),
         schedule_state=None,
         core=core,
         initial_state=x0,
     )
-    params = {"k_p": 200.0, "k_i": 1e4, "T_s": 1e-4}
-    setup = RuntimeSetup(toy, "euler", params, GainSet("none", {}, "none"))
+    values = {"k_p": 200.0, "k_i": 1e4, "T_s": 1e-4}
+    setup = RuntimeSetup(toy, "euler", values, GainSet("none", {}, "none"))
     files = generate(setup, Provenance("toy", "-", "0" * 64, "test"), precision="double", prefix="pll")
     assert "pll_gains" not in files["pll.h"]
     src = tmp_path / "c"
@@ -414,8 +419,8 @@ def test_a_second_observer_is_a_registration(tmp_path):
     f = tmp_path / "m.bin"
     meas.astype("<f8").tofile(f)
     out = subprocess.run([str(exe), str(f)], capture_output=True, check=True).stdout
-    c = np.frombuffer(out, "<f8").reshape(len(t), 5)
-    xs, ys = core("euler").mapaccum(len(t))(np.zeros(2), meas.T, toy.pack_params(params), ca.DM(0, len(t)))
+    c = np.frombuffer(out, "<f8").reshape(len(t), 8)
+    xs, ys = core("euler").mapaccum(len(t))(np.zeros(3), meas.T, toy.pack_params(values), ca.DM(0, len(t)))
     ref = np.hstack([np.asarray(ys).T, np.asarray(xs).T])
     assert np.abs(c - ref).max() < 1e-12 * np.abs(ref).max()
     assert abs(c[-1, 1] - 50) < 1e-3  # and it locked on

@@ -363,11 +363,14 @@ int main(void)
     p.T_s = 0;
     CHECK(deangelo2006_init(&b, &p) == 7);
     p = deangelo2006_default_params;
-    p.Phi_1 = 0;
+    p.T_max = 0;
     CHECK(deangelo2006_init(&b, &p) == 8);
     p = deangelo2006_default_params;
-    p.Phi_5 = INFINITY;
+    p.Phi_1 = 0;
     CHECK(deangelo2006_init(&b, &p) == 9);
+    p = deangelo2006_default_params;
+    p.Phi_5 = INFINITY;
+    CHECK(deangelo2006_init(&b, &p) == 10);
     p.Phi_5 = -p.Phi_1 / 10; /* a negative harmonic amplitude is data, not an error */
     CHECK(deangelo2006_init(&b, &p) == 0);
     /* hostile samples: no UB (sanitizers), state and outputs finite, valid = 0 on non-finite ones */

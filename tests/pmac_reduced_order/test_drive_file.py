@@ -47,7 +47,7 @@ def test_electrical_reading_and_arbitrary_harmonics():
     assert d.motor.harmonics == (1, -5, 7, 11, 13)
     assert d.motor.Phi == pytest.approx((0.5, -0.02, 0.02, 0.005, 0.001))
     # the observer's params vector follows the estimate's own series
-    assert d.observer_params().size == 7 + 2
+    assert d.observer_params().size == 8 + 2
 
 
 @pytest.mark.parametrize(

@@ -31,9 +31,10 @@ def test_step_function_interface():
         "phi_alpha",
         "phi_beta",
         "valid",
+        "reset",
     ]
-    assert [F.size1_in(k) for k in range(4)] == [len(STATE), len(MEAS), 9, 0]
-    assert param_names((1, 5)) == ("R", "L", "J", "p_r", "g", "Gamma", "T_s", "Phi_1", "Phi_5")
+    assert [F.size1_in(k) for k in range(4)] == [len(STATE), len(MEAS), 10, 0]
+    assert param_names((1, 5)) == ("R", "L", "J", "p_r", "g", "Gamma", "T_s", "T_max", "Phi_1", "Phi_5")
     assert [f.name for f in obs.params] == list(param_names((1, 5)))
     assert runtime_observer((1, 5)) is obs and obs.core("rk2-model") is F  # built once
     assert obs.discretizations[0] == "rk2-model"
@@ -47,7 +48,7 @@ def exact_state(drive, theta, w, T_L_hat=0.0):
     emf = EmfSeries(drive.estimate.harmonics, drive.estimate.Phi)
     p_r = drive.motor.p_r
     e = np.asarray(flux_derivative(theta, emf)).ravel() * w / p_r
-    return np.r_[e, T_L_hat, theta, w, 0, 0, e], e
+    return np.r_[e, T_L_hat, theta, w, 0, 0, e, 0], e  # the last: no sample rejected
 
 
 @pytest.mark.parametrize("method", sorted(DISCRETIZATIONS))
@@ -66,7 +67,7 @@ def test_every_scheme_tracks_both_directions(deangelo2006, method, sign):
     x0, _ = exact_state(deangelo2006, 0.3 - 0.2 * sign, 1.05 * w)
     x0[5:7], x0[7:9] = 0, np.asarray(flux_derivative(0.3, emf)).ravel() * w / deangelo2006.motor.p_r
     F = runtime_observer(tuple(deangelo2006.estimate.harmonics)).core(method)
-    x, u = ca.MX.sym("x", 9), ca.MX.sym("u", 4)
+    x, u = ca.MX.sym("x", len(STATE)), ca.MX.sym("u", 4)
     x_next, y = F(x, u, deangelo2006.observer_params(), ca.DM(0, 1))
     G = ca.Function("g", [x, u], [x_next, y[0:2]]).mapaccum(n)
     _, out = G(x0, np.vstack([np.zeros((2, n)), e]))

@@ -40,7 +40,7 @@ from sensorless.design.simulate import LoopSetup
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.frames import J, rot, wrap_angle
 
-from families.pll.symbolic import DISCRETIZATIONS, OBSERVER, PARAMS, STATE, rhs_function
+from families.pll.symbolic import DISCRETIZATIONS, N_OBS, OBSERVER, PARAMS, rhs_function
 
 KIND = "pmsm-pll"
 GAIN_FAMILIES: dict[str, tuple[str, ...]] = {"pll": ("w_pll",)}  # PLL bandwidth [rad/s]
@@ -219,6 +219,7 @@ def runtime_params(drive: PllDrive, gains: GainSet) -> dict[str, float]:
         "w_pll": float(gains.values["w_pll"]),
         "w_0": o.w_0,
         "T_s": drive.control.T_s,
+        "w_max": 2 * drive.w_base,  # the runtime bound of the PLL integrator: twice the nominal speed
     }
 
 
@@ -243,7 +244,7 @@ class PllLinearization(Linearization):
 
 
 NEWTON_STEPS = 12
-_N_X = len(STATE)
+_N_X = N_OBS  # the observer's states (the runtime state adds the contract's counter)
 _IX_TS = [f.name for f in PARAMS].index("T_s")
 
 
@@ -275,7 +276,7 @@ def _equilibrium_function(discrete: bool, discretization: str) -> ca.Function:
         core = OBSERVER.core(discretization)
         th1 = w * p[_IX_TS]
         # the voltage held over the period (ZOH, stationary frame): the steady one at mid-period
-        x1, _ = core(x, ca.vertcat(i_r, rot(th1 / 2) @ u_r), p, ca.SX(0, 1))
+        x1, _ = core(ca.vertcat(x, 0), ca.vertcat(i_r, rot(th1 / 2) @ u_r), p, ca.SX(0, 1))  # 0 rejected
         F = ca.vertcat(rot(-th1) @ x1[0:2], wrap_angle(th1 - x1[2]), x1[3])
         G = F - x_r
     else:

@@ -33,8 +33,12 @@ period, ``meas`` = [i_alpha, i_beta] sampled at t_k and [u_alpha, u_beta] applie
 period, (1) converges to the EMF of the middle of the period, half a period ahead of the current
 sample: the PLL error (2) is taken at the angle theta_hat + w_i T_s / 2 so that theta_hat is the angle
 at t_k (without it the angle would lag by w T_s / 2, 3.6 degrees at 0.8 p.u. of the test drive). A
-sample whose result is not finite is rejected (``valid`` = 0): the observer coasts, its EMF state
-turning and its angle advancing at w_i.
+sample whose result is not finite, or whose PLL integrator leaves +-w_max (the drive's highest speed,
+a runtime parameter) or EMF state +-4 w_max psi_pm, is rejected (``valid`` = 0): the observer coasts,
+its EMF state turning and its angle advancing at w_i; after the runtime contract's count of rejected
+samples it resets itself (symbolic/runtime.py). At 0.5 p.u. and above the PLL pulls in by itself
+from anywhere within the bounds, in a time that grows with the square of its speed error; at lower
+speeds a wrong speed sign of w_i can hold it in a limit cycle (tests/common/test_third_family.py).
 """
 
 from __future__ import annotations
@@ -44,17 +48,24 @@ from typing import NamedTuple
 
 import casadi as ca
 from sensorless.symbolic.frames import J, Sym, rot, wrap_angle
-from sensorless.symbolic.runtime import Field, RuntimeObserver, guarded
+from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, guarded
 
 NAME = "pmsm_pll"
 DISCRETIZATIONS = ("euler",)
 
+# bounds (the runtime contract's guard): the angle wrapped, the PLL integrator within the drive's highest
+# speed (and the sampling limit |w| T_s <= pi/2), the EMF state within 4 times the EMF at that speed
+# (z = e_hat + g L i: room for g L i up to 3 times the EMF)
+_W_BOUND = "min(w_max, pi / 2 / T_s)"
+_Z_BOUND = "4 * w_max * psi_pm"
 STATE = (
-    Field("z_alpha", "V", "EMF observer state z = e_hat + g L i, alpha axis, eq. (1)"),
-    Field("z_beta", "V", "EMF observer state, beta axis"),
-    Field("theta", "rad", "angle estimate theta_hat (electrical), in (-pi, pi]"),
-    Field("w_i", "rad/s", "PLL integrator: integral part of the speed estimate, eq. (3)"),
+    Field("z_alpha", "V", "EMF observer state z = e_hat + g L i, alpha axis, eq. (1)", bound=_Z_BOUND),
+    Field("z_beta", "V", "EMF observer state, beta axis", bound=_Z_BOUND),
+    Field("theta", "rad", "angle estimate theta_hat (electrical), in (-pi, pi]", bound="pi"),
+    Field("w_i", "rad/s", "PLL integrator: integral part of the speed estimate, eq. (3)", bound=_W_BOUND),
+    REJECTS,  # the runtime contract's counter of rejected samples
 )
+N_OBS = len(STATE) - 1  # the observer's own states
 
 MEAS = (
     Field("i_alpha", "A", "stator current at t_k, stationary frame"),
@@ -71,6 +82,9 @@ PARAMS = (
     Field("w_pll", "rad/s", "PLL bandwidth: k_p = 2 w_pll, k_i = w_pll^2, eq. (3)", "positive"),
     Field("w_0", "rad/s", "speed below which the PLL error (2) fades", "positive"),
     Field("T_s", "s", "sampling period", "positive"),
+    Field(
+        "w_max", "rad/s", "highest speed of the drive (electrical): the PLL integrator's bound", "positive"
+    ),
 )
 
 OUTPUTS = (
@@ -79,7 +93,8 @@ OUTPUTS = (
     Field("e_alpha", "V", "back-EMF estimate e_hat at t_k, alpha axis, eq. (1)"),
     Field("e_beta", "V", "back-EMF estimate e_hat at t_k, beta axis"),
     Field("eps", "1", "PLL error (2), ~ sin(theta - theta_hat)"),
-    Field("valid", "1", "1: sample used; 0: non-finite result, the observer coasted"),
+    VALID,
+    RESET,
 )
 
 
@@ -93,6 +108,7 @@ class Params(NamedTuple):
     w_pll: Sym
     w_0: Sym
     T_s: Sym
+    w_max: Sym
 
     @classmethod
     def of(cls, p: Sym) -> Params:
@@ -142,7 +158,7 @@ def observer_rhs(x: Sym, i: Sym, u: Sym, p: Params, lead: Sym = 0) -> Rates:
 @functools.cache
 def rhs_function() -> ca.Function:
     """(x, i, u, p) -> dx/dt of (1)-(3) as a Function (what the continuous linearization takes)."""
-    x, i, u = ca.SX.sym("x", len(STATE)), ca.SX.sym("i", 2), ca.SX.sym("u", 2)
+    x, i, u = ca.SX.sym("x", N_OBS), ca.SX.sym("i", 2), ca.SX.sym("u", 2)
     p = ca.SX.sym("p", len(PARAMS))
     return ca.Function(f"{NAME}_rhs", [x, i, u, p], [observer_rhs(x, i, u, Params.of(p)).dx])
 
@@ -157,12 +173,12 @@ def _step(discretization: str, x: Sym, meas: Sym, p_vec: Sym) -> tuple[Sym, Sym]
     x_cand = ca.vertcat(
         x[0:2] + p.T_s * r.dx[0:2], wrap_angle(x[2] + p.T_s * r.dx[2]), x[3] + p.T_s * r.dx[3]
     )
-    y_cand = ca.vertcat(r.w_hat, x[2], r.e_hat, r.eps, 1)
+    y_cand = ca.vertcat(r.w_hat, x[2], r.e_hat, r.eps)
     w_i = x[3]
     x_coast = ca.vertcat(rot(w_i * p.T_s) @ x[0:2], wrap_angle(x[2] + p.T_s * w_i), w_i)
-    y_coast = ca.vertcat(w_i, x[2], 0, 0, 0, 0)
-    x_next, y, _ = guarded(x_coast, x_cand, y_cand, y_coast)
-    return x_next, y
+    y_coast = ca.vertcat(w_i, x[2], 0, 0, 0)
+    x0 = initial_state_function()(p_vec)
+    return guarded(x, p_vec, STATE, PARAMS, cand=(x_cand, y_cand), coast=(x_coast, y_coast), reset=x0)
 
 
 @functools.cache
@@ -203,7 +219,7 @@ def steady_state_function() -> ca.Function:
     T = rot(theta_hat)
     e_hat = w * p.psi_pm * (T @ ca.vertcat(0, 1))
     z = e_hat + p.g * p.L * (T @ op[2:4])
-    x = ca.vertcat(z, wrap_angle(theta_hat), w)
+    x = ca.vertcat(z, wrap_angle(theta_hat), w, 0)
     return ca.Function(f"{NAME}_steady_state", [p_vec, op], [x], ["p", "op"], ["x"])
 
 
