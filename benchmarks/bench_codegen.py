@@ -13,8 +13,9 @@ For each observer family with a runtime observer:
 it generates the double step, compiles it with the yardstick (written by hand from the equations with
 every parameter-only quantity precomputed, and the runtime contract's guard, state bounds, coasting and
 self-reset written with branches, symbolic/runtime.py) and benchmarks/bench_codegen_main.c into one
-program, checks
-that both compute the same outputs on the trajectory, then measures, in the same run:
+program, checks that both compute the same outputs and states on the trajectory, and on a copy of it
+with samples the guard must reject (``with_rejected_samples``: coasting, the counter, self-resets),
+then measures on the clean trajectory, in the same run:
 - ns/step of each (median of interleaved passes over the trajectory) and their ratio;
 - instructions/step of each under valgrind's callgrind (only the step functions and their callees),
   and their ratio, where valgrind is installed;
@@ -61,6 +62,20 @@ def reduced_order_trajectory(setup: Any, drive: Any) -> np.ndarray:
     from helpers.plant_pmac import codegen_trajectory
 
     return codegen_trajectory(drive)["meas"]
+
+
+def with_rejected_samples(meas: np.ndarray) -> np.ndarray:
+    """The trajectory with samples the guard must reject: a short NaN burst (coasting), absurd but finite
+    currents, a long burst of infinite voltage (a reset at RESET_AFTER), then 2 rejected samples of every
+    3 (the counter climbs by one per 3 samples: a reset only if accepted samples count it down by one)."""
+    m = meas.copy()
+    n = len(m)
+    m[n // 5 : n // 5 + 10, 0] = np.nan
+    m[n // 4 : n // 4 + 3, :2] = 1e4 * np.abs(meas[:, :2]).max()
+    m[n // 3 : n // 3 + 150, 2] = np.inf
+    k = np.arange(n // 2, n // 2 + 330)
+    m[k[k % 3 != 0], 1] = np.nan
+    return m
 
 
 @dataclass(frozen=True)
@@ -148,8 +163,9 @@ def run_case(case: Case, cc: str, passes: int, work: Path) -> dict[str, Any] | N
     work.mkdir(parents=True)
     write(generate(setup, prov, precision="double"), work / "double")
     write(generate(setup, prov, precision="float"), work / "float")
-    traj = work / "samples.bin"
+    traj, hostile = work / "samples.bin", work / "rejected.bin"
     np.ascontiguousarray(meas, dtype="<f8").tofile(traj)
+    np.ascontiguousarray(with_rejected_samples(meas), dtype="<f8").tofile(hostile)
     exe = work / "bench"
     src = [work / "double" / f"{prefix}.c", HERE / f"{case.reference}.c", HERE / "bench_codegen_main.c"]
     inc = ["-I", str(work / "double"), "-I", str(HERE), f"-DBENCH_{case.name.upper()}"]
@@ -157,11 +173,16 @@ def run_case(case: Case, cc: str, passes: int, work: Path) -> dict[str, Any] | N
 
     print(f"\n{case.what}")
     print(f"preset {drive.name}, {setup.discretization}, double; trajectory of {n} samples")
-    agree = float(subprocess.run([str(exe), "check", str(traj)], capture_output=True, text=True).stdout)
-    print(f"generated vs hand-written outputs: max relative difference {agree:.1e}")
-    if not agree < 1e-11:
-        print("the two implementations disagree: the yardstick is not the same equations")
-        return None
+    for what, path in (("", traj), (" with rejected samples", hostile)):
+        r = subprocess.run([str(exe), "check", str(path)], capture_output=True, text=True, check=True)
+        d_y, d_x, rejected, resets = (float(v) for v in r.stdout.split())
+        print(
+            f"generated vs hand-written{what}: max relative difference outputs {d_y:.1e}, states {d_x:.1e}"
+            f" ({rejected:.0f} rejected, {resets:.0f} resets)"
+        )
+        if not (d_y < 1e-11 and d_x < 1e-11):
+            print("the two implementations disagree: the yardstick is not the same equations")
+            return None
 
     res: dict[str, Any] = {"case": case, "n": n}
     r = subprocess.run([str(exe), "time", str(traj), str(passes)], capture_output=True, text=True)

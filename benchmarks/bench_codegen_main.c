@@ -3,7 +3,8 @@
  *   -DBENCH_IPMSM_ADAPTIVE      piippo2008_step      vs ref_step      (ref_step_ipmsm_adaptive.c)
  *   -DBENCH_PMAC_REDUCED_ORDER  deangelo2006_step    vs ref_pmac_step (ref_step_pmac_reduced_order.c)
  *   bench MODE samples.bin [passes]
- * MODE: check (max relative output difference), time (median ns/step of each, interleaved),
+ * MODE: check (max relative difference of the outputs and of the states; the rejected samples and the
+ *       resets of the generated step), time (median ns/step of each, interleaved),
  *       gen / ref (one pass of one implementation: for callgrind instruction counts). */
 #define _POSIX_C_SOURCE 199309L
 #include <math.h>
@@ -17,6 +18,8 @@
 #include "ref_step_pmac_reduced_order.h"
 #define GEN(name) deangelo2006_##name
 #define N_OUT 9
+#define N_STATE 10
+#define X_ANGLE2 (-1) /* the state's angles: theta (3) and this one */
 #define N_PARAM 10
 #define REF_INIT ref_pmac_init
 #define REF_STEP ref_pmac_step
@@ -34,6 +37,8 @@ static void ref_params(double p[N_PARAM])
 #include "ref_step_ipmsm_adaptive.h"
 #define GEN(name) piippo2008_##name
 #define N_OUT 12
+#define N_STATE 12
+#define X_ANGLE2 5 /* the state's angles: theta (3) and phi_c */
 #define N_PARAM 18
 #define REF_INIT ref_init
 #define REF_STEP ref_step
@@ -59,6 +64,34 @@ static double now(void)
 }
 
 static double sink; /* keeps the outputs alive */
+
+/* the state structs: the same fields, all double, in the same order (angles: theta; phi_c) */
+#define STATE_SIZE_OK (sizeof(GEN(state)) == sizeof(((ref_obs *)0)->x))
+typedef char same_state[STATE_SIZE_OK && sizeof(GEN(state)) == N_STATE * sizeof(double) ? 1 : -1];
+
+/* largest relative difference so far: |a - b| per component over its largest |b|; angles modulo 2 pi */
+static void differ(const double *a, const double *b, int n, int angle1, int angle2, double *diff,
+                   double *scale)
+{
+    int j;
+    for (j = 0; j < n; ++j) {
+        double d = fabs(a[j] - b[j]);
+        if (j == angle1 || j == angle2) d = fabs(remainder(d, 2 * 3.141592653589793));
+        if (!(d <= diff[j])) diff[j] = d; /* NaN sticks */
+        if (fabs(b[j]) > scale[j]) scale[j] = fabs(b[j]);
+    }
+}
+
+static double worst_of(const double *diff, const double *scale, int n)
+{
+    double worst = 0;
+    int j;
+    for (j = 0; j < n; ++j) {
+        const double r = diff[j] == 0 ? 0 : scale[j] > 0 ? diff[j] / scale[j] : INFINITY;
+        if (!(r <= worst)) worst = r;
+    }
+    return worst;
+}
 
 static void set_input(GEN(input) * in, const double *m)
 {
@@ -125,11 +158,11 @@ int main(int argc, char **argv)
     } else if (strcmp(argv[1], "check") == 0) {
         static GEN(observer) g;
         static ref_obs r;
-        double p[N_PARAM], yr[N_OUT], worst = 0, scale[N_OUT] = {0}, diff[N_OUT] = {0};
+        double p[N_PARAM], yr[N_OUT], worst, scale[N_OUT] = {0}, diff[N_OUT] = {0};
+        double xs[N_STATE] = {0}, xd[N_STATE] = {0};
         GEN(input) in;
         GEN(output) y;
-        long k;
-        int j;
+        long k, rejected = 0, resets = 0;
         ref_params(p);
         REF_INIT(&r, p);
         GEN(init)(&g, &GEN(default_params));
@@ -137,16 +170,13 @@ int main(int argc, char **argv)
             set_input(&in, m + 4 * k);
             GEN(step)(&g, &in, &y);
             REF_STEP(&r, m + 4 * k, yr);
-            for (j = 0; j < N_OUT; ++j) {
-                double d = fabs(((double *)&y)[j] - yr[j]);
-                if (j == 1) d = fabs(remainder(d, 2 * 3.141592653589793)); /* theta_hat, both observers */
-                if (d > diff[j]) diff[j] = d;
-                if (fabs(yr[j]) > scale[j]) scale[j] = fabs(yr[j]);
-            }
+            differ((const double *)&y, yr, N_OUT, 1, -1, diff, scale); /* theta_hat, both observers */
+            differ((const double *)&g.x, (const double *)&r.x, N_STATE, 3, X_ANGLE2, xd, xs);
+            rejected += ((const double *)&y)[N_OUT - 2] == 0; /* valid, reset: the last outputs */
+            resets += ((const double *)&y)[N_OUT - 1] != 0;
         }
-        for (j = 0; j < N_OUT; ++j)
-            if (scale[j] > 0 && diff[j] / scale[j] > worst) worst = diff[j] / scale[j];
-        printf("%.3e\n", worst);
+        worst = worst_of(diff, scale, N_OUT);
+        printf("%.3e %.3e %ld %ld\n", worst, worst_of(xd, xs, N_STATE), rejected, resets);
     } else {
         const int passes = argc > 3 ? atoi(argv[3]) : 21;
         double *tg = malloc(sizeof(double) * (size_t)passes), *tr = malloc(sizeof(double) * (size_t)passes);

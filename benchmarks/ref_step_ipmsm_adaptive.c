@@ -1,23 +1,35 @@
 /* Hand-written C reference of the speed-adaptive observer's runtime step (Piippo, Hinkkanen, Luomi
  * 2008: discretization zoh, law (16), HF injection), a YARDSTICK for benchmarks/bench_codegen.py only:
  * it is what a careful engineer would type from docs/families/ipmsm_adaptive.md, with every
- * parameter-only quantity precomputed. The product is the generated code; this file exists to measure
- * it against (the benchmark also checks that both compute the same). */
+ * parameter-only quantity precomputed, including the runtime contract's guard (the state's bounds),
+ * coasting and self-reset (symbolic/runtime.py: the counter of rejected samples goes up by one per
+ * rejected and down by one per accepted sample, not below 0; at RESET_AFTER, or if coasting would leave
+ * the bounds, the state is reset), written with branches: the coasting state is computed and checked
+ * only when a sample is rejected. The product is the generated code; this file exists to measure it
+ * against (the benchmark also checks that both compute the same). */
 #include <math.h>
 
 #include "ref_step_ipmsm_adaptive.h"
 
 #define PI 3.141592653589793
+#define X_MAX 1e30      /* symbolic/runtime.py */
+#define RESET_AFTER 100 /* symbolic/runtime.py */
 
-static double wrap(double th)
+static double wrap(double th) /* to (-pi, pi], symbolic/frames.py */
 {
-    return th - 2.0 * PI * ceil((th - PI) * (1.0 / (2.0 * PI)));
+    const double r = th - 2.0 * PI * ceil((th - PI) * (1.0 / (2.0 * PI)));
+    return r > PI ? r - 2.0 * PI : r;
 }
 
-void ref_init(ref_observer *o, const double p[17])
+static void reset_state(ref_observer *o)
 {
-    /* p: R_s L_d L_q psi_pm alpha_fo T_s injection w_c u_c alpha_i w_Delta x_eps_max w_bp w_lp
-     *    carrier_delay lambda_p w_lambda */
+    o->x.psi_d = o->c.psi_pm;
+    o->x.psi_q = o->x.w_i = o->x.theta = o->x.w_hat = o->x.phi_c = 0;
+    o->x.bp1 = o->x.bp2 = o->x.lp1 = o->x.lp2 = o->x.x_eps = o->x.rejects = 0;
+}
+
+void ref_init(ref_observer *o, const double p[18])
+{
     const double T = p[5], w_c = p[7], B = p[12], w_l = p[13];
     const double Kb = w_c / tan(w_c * T / 2), Kl = w_l / tan(w_l * T / 2);
     const double ab = Kb * Kb + B * Kb + w_c * w_c;
@@ -51,14 +63,14 @@ void ref_init(ref_observer *o, const double p[17])
     c->lp_a2 = (Kl * Kl - sqrt(2.0) * w_l * Kl + w_l * w_l) / al;
     c->gamma_p = p[9] / (2 * K);
     c->gamma_i = p[9] * p[9] / (6 * K);
-    c->lambda_p = p[15];
-    c->inv_wl = 1 / p[16];
-    o->x.psi_d = p[3];
-    o->x.psi_q = o->x.w_i = o->x.theta = o->x.w_hat = o->x.phi_c = 0;
-    o->x.bp1 = o->x.bp2 = o->x.lp1 = o->x.lp2 = o->x.x_eps = 0;
+    c->lambda_p = p[16];
+    c->inv_wl = 1 / p[17];
+    c->psi_b = 4 * p[3]; /* the state's bounds (step.py) */
+    c->w_b = fmin(2 * p[15], PI / (2 * T));
+    reset_state(o);
 }
 
-void ref_step(ref_observer *o, const double in[4], double out[11])
+void ref_step(ref_observer *o, const double in[4], double out[12])
 {
     const ref_coef *c = &o->c;
     const ref_state x = o->x;
@@ -84,7 +96,6 @@ void ref_step(ref_observer *o, const double in[4], double out[11])
     const double e = c->lp_b0 * m + x.lp1;
     const double eps = fd > 0 ? e : 0.0;
     const double w_eps = c->gamma_p * eps + x.x_eps;
-    double x_eps = x.x_eps + T * (fd * c->gamma_i * eps);
     /* zoh: the current error held over the period, so w_i and theta_hat advance exactly */
     const double w = w0 + T2 * dw_i;
     const double cb = cos(T * w), sb = sin(T * w); /* back to the frame of t_k+1 */
@@ -98,7 +109,6 @@ void ref_step(ref_observer *o, const double in[4], double out[11])
     /* predictor (Euler for g), then g at the predicted flux, the current error held */
     const double p_d = r_d + cb * h_d + sb * h_q, p_q = r_q + cb * h_q - sb * h_d;
     double sum;
-    x_eps = fmin(fmax(x_eps, -c->x_max), c->x_max);
     n.psi_d = r_d + T2 * (le_d - c->R_Ld * (p_d - c->psi_pm) - w_eps * p_q);
     n.psi_q = r_q + T2 * (le_q - c->R_Lq * p_q + w_eps * p_d);
     n.w_i = x.w_i + T * dw_i;
@@ -109,10 +119,14 @@ void ref_step(ref_observer *o, const double in[4], double out[11])
     n.bp2 = -c->bp_b0 * i_q - c->bp_a2 * y_bp;
     n.lp1 = 2 * c->lp_b0 * m - c->lp_a1 * e + x.lp2;
     n.lp2 = c->lp_b0 * m - c->lp_a2 * e;
-    n.x_eps = x_eps;
-    sum = fabs(n.psi_d) + fabs(n.psi_q) + fabs(n.w_i) + fabs(n.theta) + fabs(n.w_hat) + fabs(n.phi_c) +
-          fabs(n.bp1) + fabs(n.bp2) + fabs(n.lp1) + fabs(n.lp2) + fabs(n.x_eps);
-    if (sum <= 1e30) {
+    n.x_eps = fmin(fmax(x.x_eps + T * (fd * c->gamma_i * eps), -c->x_max), c->x_max);
+    n.rejects = x.rejects > 0 ? x.rejects - 1 : x.rejects;
+    /* the guard: the bounded fields within their bounds, the filter states finite */
+    sum = fabs(n.bp1) + fabs(n.bp2) + fabs(n.lp1) + fabs(n.lp2);
+    out[11] = 0;
+    if (fabs(n.psi_d) <= c->psi_b && fabs(n.psi_q) <= c->psi_b && fabs(n.w_i) <= c->w_b &&
+        fabs(n.theta) <= PI && fabs(w) <= c->w_b && fabs(n.phi_c) <= PI && fabs(n.x_eps) <= c->x_max &&
+        sum <= X_MAX) {
         o->x = n;
         out[0] = w;
         out[4] = fd * c->u_c * cos(x.phi_c);
@@ -120,12 +134,19 @@ void ref_step(ref_observer *o, const double in[4], double out[11])
         out[6] = w_eps;
         out[9] = fd;
         out[10] = 1;
-    } else { /* coast */
-        o->x.theta = wrap(x.theta + T * x.w_hat);
-        o->x.phi_c = n.phi_c;
+    } else { /* coast: the angles advance, the rest is held; no carrier */
+        const double theta = wrap(x.theta + T * x.w_hat);
         out[0] = x.w_hat;
         out[4] = out[5] = out[9] = out[10] = 0;
         out[6] = x.x_eps;
+        if (x.rejects + 1 >= RESET_AFTER || !(fabs(theta) <= PI && fabs(n.phi_c) <= PI)) {
+            reset_state(o); /* too many rejected samples, or coasting would leave the bounds */
+            out[11] = 1;
+        } else {
+            o->x.theta = theta;
+            o->x.phi_c = n.phi_c;
+            o->x.rejects = x.rejects + 1;
+        }
     }
     out[1] = x.theta;
     out[2] = x.psi_d;

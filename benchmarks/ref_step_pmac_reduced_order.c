@@ -1,11 +1,12 @@
 /* Hand-written C reference of the reduced-order EMF and load-torque observer's runtime step (De Angelo,
  * Bossio, Solsona, Garcia, Valla 2006, eqs. (13)-(24); the default scheme rk2-model of
  * symbolic/pmac_reduced_order/step.py for EMF harmonics of orders 1 and 5, with the runtime contract's
- * guard (the state's bounds), coasting and self-reset after RESET_AFTER rejected samples in a row,
- * symbolic/runtime.py), a YARDSTICK for benchmarks/bench_codegen.py only: what a careful engineer would type from
- * the equations, with every parameter-only quantity precomputed at init, each sine and cosine computed
- * once per angle, the helpers inlined, and the coasting computed only when a sample is rejected. No
- * trigonometric identity the equations do not spell out (sin 5x from sin x and cos x,
+ * guard (the state's bounds), coasting and self-reset (symbolic/runtime.py: the counter of rejected
+ * samples goes up by one per rejected and down by one per accepted sample, not below 0; at RESET_AFTER,
+ * or if coasting would leave the bounds, the state is reset), a YARDSTICK for benchmarks/bench_codegen.py
+ * only: what a careful engineer would type from the equations, with every parameter-only quantity
+ * precomputed at init, each sine and cosine computed once per angle, the helpers inlined, and the
+ * coasting computed only when a sample is rejected. No trigonometric identity the equations do not spell out (sin 5x from sin x and cos x,
  * sin(atan2(y, x)) = y / |(x, y)|, theta_hat from the branch-free angle): those would change the
  * equations in either implementation. The product is the generated code; this file exists to measure
  * it against (the benchmark also checks that both compute the same). */
@@ -174,7 +175,7 @@ void ref_pmac_step(ref_pmac_observer *o, const double in[4], double out[9])
     sigma = dth >= 0 ? 1.0 : -1.0;
     e = estimate(c, &m, n.tau, in[0], in[1], sigma);
     n.theta = e.th;
-    n.rejects = 0;
+    n.rejects = x.rejects > 0 ? x.rejects - 1 : x.rejects; /* down per accepted sample, not below 0 */
     n.w_hat = e.w;
     n.i_a = in[0];
     n.i_b = in[1];
@@ -215,10 +216,10 @@ void ref_pmac_step(ref_pmac_observer *o, const double in[4], double out[9])
         out[5] = phi_a;
         out[6] = phi_b;
         out[7] = 0;
-        /* after RESET_AFTER rejected samples in a row, or a coasting state beyond the bounds: reset */
+        /* at RESET_AFTER rejected samples (less the accepted ones), or coasting beyond the bounds: reset */
         sum = fabs(o->x.zeta_a) + fabs(o->x.zeta_b) + fabs(o->x.i_a) + fabs(o->x.i_b) + fabs(o->x.u_a) +
               fabs(o->x.u_b);
-        if (++o->x.rejects >= RESET_AFTER || !(sum <= X_MAX)) {
+        if (++o->x.rejects >= RESET_AFTER || !(fabs(th_c) <= PI && sum <= X_MAX)) {
             reset_state(o);
             out[8] = 1;
         }

@@ -9,13 +9,22 @@ instruction), in the style of CasADi's own code generator but targeted at an emb
   reciprocals of inductances, ...) is computed once by the ``*_init`` code into a coefficient array; the
   step computes only what depends on the state and the measurements. A division of a runtime value by a
   parameter-only value becomes a multiplication by a hoisted reciprocal;
+- **products of parameter-only factors**: ``p * (q * x)`` with ``p``, ``q`` parameter-only becomes
+  ``(p q) * x``, the product hoisted (a gain times an inductance times a current error: one
+  multiplication in the step instead of two; the result differs by rounding only);
 - **selects**: CasADi's ``if_else`` (``c ? a : 0`` + ``!c ? b : 0``) is printed as one ``c ? a : b``
   (the two differ only in the sign of a zero result);
+- **branches**: where many selects share a condition (the runtime guard's ``valid``: accept, or coast
+  and maybe reset), the step branches on it, ``if (c) {...} else {...}``: what only one side reads
+  is computed only there (the coasting state only for a rejected sample), the selects on ``c``
+  vanish, and the condition's value simplifies the logic inside (``!c``, ``c && d``, ...). A branch is
+  taken only where it shortens the longer path and duplicates no more than it saves; each side may
+  branch again (nesting at most ``_MAX_DEPTH``). The values are the same as with the selects;
 - **truth values**: a comparison or logical operation of the step is an ``int`` temporary (what C's
   operators give), converted to the precision only where arithmetic or an output reads it, so that
   the guard's tests and selects cost no float conversions;
 - SSA style (``const`` temporaries, one per instruction); all inputs are read before any output is
-  written, so a state struct may be updated in place.
+  written (the branches included), so a state struct may be updated in place.
 
 Operations outside the table below raise ``NotImplementedError`` at generation time, never silently.
 """
@@ -188,6 +197,7 @@ def emit(
         work[outs[0]] = len(nodes) - 1
 
     _strength_reduce(nodes)
+    _fold_parameter_products(nodes)
     _fuse_selects(nodes)
     alias = _forward_trivial_selects(nodes)
     outputs = [(o, alias.get(n, n)) for o, n in outputs]
@@ -256,12 +266,31 @@ def emit(
             res.init.append(f"const {r} {prefix}{idx} = {expr(idx, True)};")
     for n, j in coef_of.items():
         res.init.append(f"{coef}[{j}] = {prefix}{n};")
-    body_live = [i for i in sorted(live) if not nodes[i].param]
-    # inputs first (in-place state update is safe), then the arithmetic
-    for idx in sorted(body_live, key=lambda i: nodes[i].op != "INPUT"):
-        res.body.append(f"const {decl(idx, False)} {prefix}{idx} = {expr(idx, False)};")
-    for (i, nz), n in outputs:
-        res.body.append(f"{out[i][nz]} = {ref(n, False)};")
+
+    def compute(idxs: set[int], indent: str) -> list[str]:
+        return [f"{indent}const {decl(i, False)} {prefix}{i} = {expr(i, False)};" for i in sorted(idxs)]
+
+    def block(outs: list[tuple[str, int]], available: set[int], depth: int, indent: str) -> list[str]:
+        """Lines computing ``outs`` (lvalue, node) from the ``available`` temporaries: the nodes they
+        need, then the assignments, or a branch on a select condition (the module docstring)."""
+        need = _runtime(nodes, [n for _, n in outs]) - available
+        split = _best_branch(nodes, [n for _, n in outs], need, available) if depth < _MAX_DEPTH else None
+        if split is None:
+            return compute(need, indent) + [f"{indent}{lv} = {ref(n, False)};" for lv, n in outs]
+        c, common, sides = split
+        lines = compute(common, indent)
+        available = available | common
+        both = [(lv, n) for (lv, n), t, f in zip(outs, *sides, strict=True) if t == f == n]
+        lines += [f"{indent}{lv} = {ref(n, False)};" for lv, n in both]  # the same on either side
+        rest = [k for k, o in enumerate(outs) if o not in both]
+        for side, head in zip(sides, (f"if ({ref(c, False, cond=True)}) {{", "} else {"), strict=True):
+            lines.append(indent + head)
+            lines += block([(outs[k][0], side[k]) for k in rest], available, depth + 1, indent + "    ")
+        return [*lines, indent + "}"]
+
+    # every input first (in-place state update is safe, whichever branch runs), then the arithmetic
+    inputs = {i for i in live if nodes[i].op == "INPUT" and not nodes[i].param}
+    res.body = compute(inputs, "") + block([(out[i][nz], n) for (i, nz), n in outputs], inputs, 0, "")
     return res
 
 
@@ -298,6 +327,38 @@ def _strength_reduce(nodes: list[_Node]) -> None:
                 nodes[idx] = _Node("MUL", (a, recip[b]), param=False)
 
 
+def _fold_parameter_products(nodes: list[_Node]) -> None:
+    """MUL(p, MUL(q, x)) -> MUL(MUL(p, q), x) for parameter-only p, q and a runtime x (either order).
+
+    In instruction order, so a chain p * (q * (r * x)) folds into one product of the three; a folded
+    inner product that nothing else reads is no longer printed. One product node per pair (p, q)."""
+    products: dict[tuple[int, int], int] = {}
+
+    def split(nd: _Node) -> tuple[int, int] | None:
+        """(parameter-only factor, runtime factor) of a runtime MUL with exactly one of each."""
+        if nd.op != "MUL" or nd.param:
+            return None
+        a, b = nd.args
+        if nodes[a].param != nodes[b].param:
+            return (a, b) if nodes[a].param else (b, a)
+        return None
+
+    for idx in range(len(nodes)):
+        outer = split(nodes[idx])
+        inner = split(nodes[outer[1]]) if outer else None
+        if outer is None or inner is None:
+            continue
+        key = (min(outer[0], inner[0]), max(outer[0], inner[0]))
+        if key not in products:
+            p, q = (nodes[k] for k in key)
+            if p.op == "CONST" and q.op == "CONST":
+                nodes.append(_Node("CONST", const=p.const * q.const, param=True))
+            else:
+                nodes.append(_Node("MUL", key, param=True))
+            products[key] = len(nodes) - 1
+        nodes[idx] = _Node("MUL", (products[key], inner[1]), param=False)
+
+
 def _fuse_selects(nodes: list[_Node]) -> None:
     """ADD(IF_ELSE_ZERO(c, a), IF_ELSE_ZERO(NOT(c), b))  ->  SELECT(c, a, b)."""
     for idx, nd in enumerate(nodes):
@@ -319,3 +380,100 @@ def _forward_trivial_selects(nodes: list[_Node]) -> dict[int, int]:
         if nd.op == "SELECT" and nd.args[1] == nd.args[2]:
             alias[idx] = nd.args[1]
     return alias
+
+
+_MAX_DEPTH = 3  # nesting of the step's branches
+_CHOICE = ("SELECT", "IF_ELSE_ZERO")  # operations that read one of their operands by a condition
+
+
+def _runtime(nodes: list[_Node], roots: list[int]) -> set[int]:
+    """The runtime (not parameter-only) nodes the roots depend on."""
+    return {i for i in _live(nodes, roots) if not nodes[i].param}
+
+
+def _weight(nodes: list[_Node], idxs: set[int]) -> int:
+    """Work of computing ``idxs``: one per operation (reading an input or a constant is free)."""
+    return sum(nodes[i].op not in ("INPUT", "CONST") for i in idxs)
+
+
+def _truth_of(nd: _Node) -> bool | None:
+    """The truth value of a constant node, None for any other."""
+    return nd.const != 0 if nd.op == "CONST" else None
+
+
+def _specialize(nodes: list[_Node], roots: list[int], available: set[int], c: int, value: bool) -> list[int]:
+    """``roots`` with condition node ``c`` known to be ``value``: the replacement of each root.
+
+    A select or ``IF_ELSE_ZERO`` on a known condition becomes the operand it reads; ``NOT``, ``AND``,
+    ``OR`` of known values become constants (``c && d`` with ``c`` true: ``d``); a node whose operands
+    changed becomes a copy (appended to ``nodes``) reading the replacements, unless it is ``available``
+    (computed already: its value holds). Runtime nodes are in topological order of their indices
+    (parameter-only ones do not depend on ``c``)."""
+    consts: dict[float, int] = {}
+
+    def const(v: float) -> int:
+        if v not in consts:
+            nodes.append(_Node("CONST", const=v, param=True))
+            consts[v] = len(nodes) - 1
+        return consts[v]
+
+    sub = {c: const(float(value))}
+    for idx in sorted(_runtime(nodes, roots) - {c}):
+        nd = nodes[idx]
+        args = tuple(sub.get(a, a) for a in nd.args)
+        known = [_truth_of(nodes[a]) for a in args]
+        new: int | None = None
+        if nd.op == "NOT" and known[0] is not None:
+            new = const(float(not known[0]))
+        elif nd.op in ("AND", "OR"):
+            decisive = nd.op == "OR"  # the operand value that decides the result alone
+            if decisive in known:
+                new = const(float(decisive))
+            elif None not in known:
+                new = const(float(not decisive))
+            elif known != [None, None]:
+                other = args[1] if known[0] is not None else args[0]
+                if nodes[other].op in _LOGIC:  # a truth value already: the result itself
+                    new = other
+        elif nd.op == "SELECT" and known[0] is not None:
+            new = args[1] if known[0] else args[2]
+        elif nd.op == "IF_ELSE_ZERO" and known[0] is not None:
+            new = args[1] if known[0] else const(0.0)
+        if new is None and args != nd.args and idx not in available:
+            nodes.append(_Node(nd.op, args, nd.const, nd.source, param=False))
+            new = len(nodes) - 1
+        if new is not None:
+            sub[idx] = new
+    return [sub.get(n, n) for n in roots]
+
+
+def _best_branch(
+    nodes: list[_Node], roots: list[int], need: set[int], available: set[int]
+) -> tuple[int, set[int], tuple[list[int], list[int]]] | None:
+    """The condition to branch on for computing ``roots`` (``need``: the nodes still to compute), or None.
+
+    Candidates are the runtime conditions of the selects in ``need``. For each, the two sides are
+    specialized (:func:`_specialize`); the work common to both (and the condition) comes first. The
+    choice shortens the longer path the most, by at least 4 operations, and duplicates no more work
+    than it saves. Returns (condition, common nodes, (roots if true, roots if false))."""
+    conds: set[int] = set()
+    for i in need:
+        if nodes[i].op in _CHOICE and not nodes[nodes[i].args[0]].param:
+            c = nodes[i].args[0]
+            while nodes[c].op == "NOT":  # !c ? a : b reads c
+                c = nodes[c].args[0]
+            conds.add(c)
+    total = _weight(nodes, need)
+    best, best_gain = None, 3
+    for c in sorted(conds):
+        n_before = len(nodes)
+        sides = tuple(_specialize(nodes, roots, available, c, v) for v in (True, False))
+        live = [_runtime(nodes, side) - available for side in sides]
+        common = (live[0] & live[1]) | (_runtime(nodes, [c]) - available)
+        w_common, w_sides = _weight(nodes, common), [_weight(nodes, s - common) for s in live]
+        gain = total - w_common - max(w_sides)
+        if gain > best_gain and w_common + sum(w_sides) - total <= gain:
+            best, best_gain = (c, common, sides), gain
+        else:
+            del nodes[n_before:]  # the copies of a candidate not chosen
+    return best

@@ -39,9 +39,9 @@ the speed sign (14) reads the angle step modulo pi), is rejected (output ``valid
 coasts, its EMF state turning at the speed estimate and its angle advancing by w_hat T_s, and keeps the
 newest finite samples for the next period. Both matter after an absurd but finite sample (an ADC
 glitch of 1e5 A): accepting a speed beyond the range, or keeping a glitch that an accepted period
-stored, would make every later period diverge and be rejected, for good. After RESET_AFTER rejected
-samples in a row the step starts afresh from the initial state (output ``reset``; the contract's
-recovery, symbolic/runtime.py).
+stored, would make every later period diverge and be rejected, for good. When the counter of rejected
+samples (up per rejected, down per accepted sample) reaches RESET_AFTER, the step starts afresh from the
+initial state (output ``reset``; the contract's recovery, symbolic/runtime.py).
 """
 
 from __future__ import annotations
