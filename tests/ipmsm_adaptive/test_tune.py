@@ -14,7 +14,7 @@ from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law
 from sensorless.tuning.ipmsm_adaptive.families import build_schedule, with_estimate
 from sensorless.tuning.nlp import Solution
 from sensorless.tuning.sector import factors_from_poles
-from sensorless.tuning.tune import _select, tune
+from sensorless.tuning.tune import _select, figures, tune
 
 
 def small(drive, **kw):
@@ -177,9 +177,10 @@ def test_dense_reverification_rejects_between_grid_instability(drive, law16):
     on_grid_ok = [closed_form_schedule(drive, x, t, w, m.start) for x, t in zip(W, T, strict=True)]
     np.testing.assert_allclose(on_grid, on_grid_ok, atol=1e-9)  # identical at the optimization grid
     sol = Solution(bad, 0.9, (), 1, 1, (bad,))
-    theta, _, note = _select(m, sol, m.start, Wd, Td, lambda s: None)
+    floor = float(np.min(figures(m, m.start, W, T).decay))
+    theta, _, note, _ = _select(m, [sol], [(m.start_label, m.start)], Wd, Td, floor, None, lambda s: None)
     assert note["nlp_solution_worst_damping"] < note["start_worst_damping"] - 0.05
-    assert note["selected"] == "start" and np.array_equal(theta, m.start)
+    assert note["selected"] == m.start_label and np.array_equal(theta, m.start)
 
 
 def test_stable_under_stated_estimate_errors(drive):
