@@ -34,6 +34,7 @@ import numpy as np
 from sensorless.tuning.model import TuningModel, evaluate
 
 STEP_MIN = 0.05  # smallest pattern step of the basin search, in typical magnitudes (the NLP polishes)
+NEAR_FEASIBLE = 0.05  # infeasible gains within this margin (relative to the pole scale) are polished
 TIE = 1e-4  # weight of the decay tie-break (never changes a damping comparison by more than this)
 
 
@@ -285,7 +286,7 @@ def _polish(model, speeds, torques, idx, x, f, floor, scale, limit, typ, figures
     NT = torques.size
     est = model.nominal_estimate
     for j in idx:
-        if f[j] >= nlp.T_MAX:  # on the plateau of damping 1: nothing to polish
+        if f[j] >= nlp.T_MAX or f[j] < -10.0 - NEAR_FEASIBLE:  # plateau of damping 1, or far from feasible
             continue
         P = model.make_points(np.full(NT, speeds[j]), torques, est)
         parts = [(P, np.ones(NT), np.zeros(NT))]
@@ -300,7 +301,16 @@ def _polish(model, speeds, torques, idx, x, f, floor, scale, limit, typ, figures
             tuple(f"T = {tq:+.4g} N m" for _ in parts for tq in torques),
         )
         try:
-            sol = nlp.solve(model, cand, x[j] * typ, scale, max_noise=limit, n_initial=4)
+            # infeasible start: one retry (IPOPT's restoration either finds gains quickly or not)
+            sol = nlp.solve(
+                model,
+                cand,
+                x[j] * typ,
+                scale,
+                max_noise=limit,
+                n_initial=4,
+                min_radius=1.0 if f[j] < 0 else 0.05,
+            )
         except nlp.TuningError:
             continue
         # accept within the NLP's tolerance on the floor (the score would reject 1e-7 1/s below it)

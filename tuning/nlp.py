@@ -142,38 +142,38 @@ def _slot_function(model: TuningModel, free_x: bool) -> ca.Function:
 
 @functools.cache
 def _noise_function(model: TuningModel) -> ca.Function:
-    """One noise slot: (phi, x, point, scale, kappa, c1, c2, f, Pv) -> (g_eq, g_noise).
+    """One noise slot: (phi, x, point, scale, s, c1, c2, f, Pv) -> (g_eq, g_noise).
 
     The closed loop must be stable (factors f >= 0 of charpoly(A/scale)), and Pv (the upper triangle of
-    P~) solves the scaled Lyapunov equation A^ P~ + P~ A^T + B^ B^T / (scale kappa) = 0 with
-    A^ = X^-1 A X / scale, B^ = X^-1 B, X = diag(x_typical): the state covariance per unit noise density
-    is X P~ X kappa / scale (design/noise.py). g_noise_i = c1_i (C X P~ X C^T)_ii + c2_i (D D^T)_ii - 1 (<= 0)
-    with c1_i = sigma^2 T_s kappa / limit_i^2, c2_i = sigma^2 / limit_i^2 (0: output not limited).
+    P~) solves the scaled Lyapunov equation A^ P~ + P~ A^T + B^ B^T / scale = 0 with A^ = S^-1 A S / scale,
+    B^ = S^-1 B, S = diag(s): the state covariance per unit noise density is S P~ S (design/noise.py),
+    and s (the square roots of its diagonal at the round's start) makes P~ a correlation-like matrix
+    of order one. g_noise_i = c1_i (C S P~ S C^T)_ii + c2_i (D D^T)_ii - 1 (<= 0) with
+    c1_i = sigma^2 T_s / limit_i^2, c2_i = sigma^2 / limit_i^2 (0: output not limited).
     """
     n, npt, no = model.n_x, len(model.point_names), len(model.noise_outputs)
     th = ca.SX.sym("phi", model.phi_typical.size)
     x = ca.SX.sym("x", n)
     pt = ca.SX.sym("point", npt)
-    scale, kappa = ca.SX.sym("scale"), ca.SX.sym("kappa")
+    scale = ca.SX.sym("scale")
+    sv = ca.SX.sym("s", n)
     c1, c2 = ca.SX.sym("c1", no), ca.SX.sym("c2", no)
     f = ca.SX.sym("f", n)
     Pv = ca.SX.sym("P", n * (n + 1) // 2)
     A, _ = model.linearization(th, x, pt)
     B, C, D = model.noise(th, x, pt)
-    X = ca.diag(ca.DM(model.x_typical))
-    Xi = ca.diag(ca.DM(1.0 / model.x_typical))
-    Ah = Xi @ A @ X / scale
-    Bh = Xi @ B
+    S = ca.diag(sv)
+    Si = ca.diag(1 / sv)
+    Ah = Si @ A @ S / scale
+    Bh = Si @ B
     P = _sym(Pv, n)
-    lyap = _upper(Ah @ P + P @ Ah.T + Bh @ Bh.T / (scale * kappa))
-    CX = C @ X
-    var_state = ca.diag(CX @ P @ CX.T)
-    var_direct = ca.diag(D @ D.T)
-    g_noise = c1 * var_state + c2 * var_direct - 1
+    lyap = _upper(Ah @ P + P @ Ah.T + Bh @ Bh.T / scale)
+    CS = C @ S
+    g_noise = c1 * ca.diag(CS @ P @ CS.T) + c2 * ca.diag(D @ D.T) - 1
     eq = ca.vertcat(factor_equalities(A / scale, f, 0.0), lyap)
-    names = ["phi", "x", "point", "scale", "kappa", "c1", "c2", "f", "P"]
+    names = ["phi", "x", "point", "scale", "s", "c1", "c2", "f", "P"]
     return ca.Function(
-        "noise_slot", [th, x, pt, scale, kappa, c1, c2, f, Pv], [eq, g_noise], names, ["g_eq", "g_noise"]
+        "noise_slot", [th, x, pt, scale, sv, c1, c2, f, Pv], [eq, g_noise], names, ["g_eq", "g_noise"]
     )
 
 
@@ -197,7 +197,7 @@ def _solver(model: TuningModel, L: _Layout) -> ca.Function:
     """IPOPT solver for the slot layout L. Variables z = [theta/typical, t, free slots (phi/phi_typ,
     x/x_typ, f), fixed slots (phi/phi_typ, f), noise slots (phi/phi_typ, f, P~)]; parameters
     p = [w_t, w_reg, free (point, kind, sigma, scale), fixed (point, kind, sigma, scale, x), noise
-    (point, scale, x, kappa, c1, c2)]. Each slot's local data phi is a variable tied to theta by
+    (point, scale, s, x, c1, c2)]. Each slot's local data phi is a variable tied to theta by
     phi = local(theta, point): the slots' derivatives stay small and block-diagonal whatever the
     number of parameters."""
     nth = model.n_theta
@@ -205,7 +205,7 @@ def _solver(model: TuningModel, L: _Layout) -> ca.Function:
     no = len(model.noise_outputs)
     per_free, per_fixed, per_noise = nphi + 2 * n, nphi + n, nphi + n + nP
     nz = nth + 1 + per_free * L.free + per_fixed * L.fixed + per_noise * L.noise
-    pf, px, pn = npt + 3, npt + 3 + n, npt + 2 + n + 2 * no
+    pf, px, pn = npt + 3, npt + 3 + n, npt + 1 + 2 * n + 2 * no
     npar = 2 + pf * L.free + px * L.fixed + pn * L.noise
     z = ca.MX.sym("z", nz)
     p = ca.MX.sym("p", npar)
@@ -247,15 +247,15 @@ def _solver(model: TuningModel, L: _Layout) -> ca.Function:
         V, zi = take(z, zi, per_noise, L.noise)
         S, pi = take(p, pi, pn, L.noise)
         Phi = tie(V[:nphi, :], S, L.noise)
-        o = npt + 2 + n
+        o = npt + 1
         e, d = _noise_function(model).map(L.noise)(
             Phi,
-            S[npt + 2 : o, :],
+            S[o + n : o + 2 * n, :],
             S[:npt, :],
             S[npt, :],
-            S[npt + 1, :],
-            S[o : o + no, :],
-            S[o + no :, :],
+            S[o : o + n, :],
+            S[o + 2 * n : o + 2 * n + no, :],
+            S[o + 2 * n + no :, :],
             V[nphi : nphi + n, :],
             V[nphi + n :, :],
         )
@@ -327,6 +327,7 @@ def solve(
     tol: float = 1e-5,
     max_noise: np.ndarray | None = None,
     n_initial: int | None = None,
+    min_radius: float = 0.05,
     progress: Callable[[str], None] | None = None,
 ) -> Solution:
     """Maximize the worst damping t over ``cand`` (minus ``smoothing`` times the family's
@@ -337,7 +338,8 @@ def solve(
     round whose solution touches the trust region is followed by another from there; a round
     that IPOPT cannot solve is retried with half the radius. The method ends when a round's
     solution is interior to the trust region and no grid point violates. Noise points (kind 2) need
-    ``max_noise`` (per noise output of the model; inf: not limited).
+    ``max_noise`` (per noise output of the model; inf: not limited). A failing round is retried with
+    half the radius until it falls below ``min_radius``.
     """
     nth = model.n_theta
     radius0 = radius
@@ -363,7 +365,7 @@ def solve(
             status = sol.stats()["return_status"]
             if sol.stats()["success"] or status == "Solved_To_Acceptable_Level":
                 break
-            if radius < 0.05:
+            if radius < min_radius:
                 if best is not None:  # a verified feasible solution exists: keep it
                     if progress:
                         progress(f"round {rnd}: IPOPT {status}; keeping round {best.rounds}")
@@ -500,14 +502,12 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
         gm = np.where(np.isfinite(gm) & (gm > 0), gm, scale)
         B = _noise_matrices(model, theta, P, x0)[0]
         A = _A(model, theta, P, x0)
-        Xi = 1.0 / model.x_typical
-        Ah = Xi[None, :, None] * A * model.x_typical[None, None, :] / gm[:, None, None]
-        Bh = Xi[None, :, None] * B
-        Q = Bh @ Bh.transpose(0, 2, 1) / gm[:, None, None]
         with np.errstate(all="ignore"):
-            Pt = lyapunov(Ah, Q)  # kappa = 1 solution; kappa normalizes it to O(1)
-        kappa = np.where(np.isfinite(Pt).all(axis=(1, 2)), np.abs(Pt).max(axis=(1, 2)), 1.0)
-        kappa = np.where(kappa > 0, kappa, 1.0)
+            Pc = lyapunov(A / gm[:, None, None], B @ B.transpose(0, 2, 1) / gm[:, None, None])
+        ok = np.isfinite(Pc).all(axis=(1, 2)) & (np.diagonal(Pc, axis1=1, axis2=2) > 0).all(axis=1)
+        sv = np.where(
+            ok[:, None], np.sqrt(np.abs(np.diagonal(Pc, axis1=1, axis2=2))), model.x_typical[None, :]
+        )
         lim = (
             np.asarray(max_noise, float)
             if max_noise is not None
@@ -515,13 +515,13 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
         )
         s2 = model.noise_sigma**2
         iu = np.triu_indices(n)
+        c1 = np.where(np.isfinite(lim), s2 * model.T_s / lim**2, 0.0)
+        c2 = np.where(np.isfinite(lim), s2 / lim**2, 0.0)
         for s in range(M):
             on = s < len(act)
-            c1 = np.where(np.isfinite(lim), s2 * model.T_s * kappa[s] / lim**2, 0.0)
-            c2 = np.where(np.isfinite(lim), s2 / lim**2, 0.0)
-            par.append(np.concatenate([P[:, s], [gm[s], *x0[:, s]], [kappa[s]], c1, c2]))
+            par.append(np.concatenate([P[:, s], [gm[s]], sv[s], x0[:, s], c1, c2]))
             f0 = factors_from_poles(pl[s] / gm[s])
-            p0 = (Pt[s] / kappa[s])[iu] if np.isfinite(Pt[s]).all() else np.zeros(nP)
+            p0 = (Pc[s] / np.outer(sv[s], sv[s]))[iu] if ok[s] else np.zeros(nP)
             z0.append(np.concatenate([phi0[:, s] / model.phi_typical, f0, p0]))
             lbx.append(
                 np.concatenate(

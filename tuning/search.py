@@ -12,10 +12,11 @@ batched call of the compiled linearization (tuning/model.py ``evaluate``), and r
    the problem's pole scale, or the noise against its limit).
 
 If no candidate is feasible, the worst margin is maximized from the best few by a batched pattern
-search in the scaled parameters (families with a few parameters). The NLP then starts from the best
-distinct feasible candidates. If none is found, the caller reports the envelope as infeasible only
-with evidence: the envelope speeds where no gain at all (the pointwise model, tuning/bound.py) meets
-the constraints.
+search in the scaled parameters (families with a few parameters); with a noise limit, the best
+feasible ones are also refined by the worst damping (the noise-constrained NLP is multimodal). The
+NLP then starts from the best distinct feasible candidates. If none is found, the caller reports the
+envelope as infeasible only with evidence: the envelope speeds where no gain at all (the pointwise
+model, tuning/bound.py) meets the constraints.
 """
 
 from __future__ import annotations
@@ -132,11 +133,12 @@ def global_phase(
         f"global phase: {r.evaluated} candidate gains on {cand.size} conditions, {nf} meet them all"
         + (f"; best worst damping {r.damping[0]:.4f}" if nf else f"; best worst margin {r.margin[0]:.3g}")
     )
-    if nf or model.n_theta > MAX_PATTERN_PARAMETERS:
+    if model.n_theta > MAX_PATTERN_PARAMETERS or (nf and max_noise is None):
         return r
-    # no candidate is feasible: maximize the worst margin from the best few
+    # none feasible: maximize the worst margin from the best few; with a noise limit (a multimodal
+    # problem for the NLP): also refine the best feasible ones by the worst damping
     x = r.thetas[:5] / model.typical
-    f = r.margin[:5].copy()
+    f = np.where(r.feasible[:5], r.damping[:5], -10.0 + np.clip(r.margin[:5], -1e6, 0))
     lo, hi = model.lower / model.typical, model.upper / model.typical
     n = model.n_theta
     D = np.vstack([np.eye(n), -np.eye(n)])
@@ -146,25 +148,26 @@ def global_phase(
                 for b in (1, -1):
                     D = np.vstack([D, (np.eye(n)[i] * a + np.eye(n)[j] * b) / np.sqrt(2)])
     h = np.full(x.shape[0], 0.5)
+    step_min = 0.02 if nf else 1e-3
     for _ in range(200):
-        act = np.flatnonzero((h >= 1e-3) & (f < 0))
+        act = np.flatnonzero(h >= step_min)
         if act.size == 0:
             break
         polls = np.clip(x[act, None, :] + h[act, None, None] * D[None], lo, hi)
-        _, mp, _ = _margins(model, (polls * model.typical).reshape(-1, n), cand, scale, max_noise)
-        mp = mp.reshape(act.size, -1)
-        k = np.argmax(mp, axis=1)
-        better = mp[np.arange(act.size), k] > f[act]
+        zp, mp, _ = _margins(model, (polls * model.typical).reshape(-1, n), cand, scale, max_noise)
+        fp = np.where(mp >= -FEASIBILITY_TOL, zp, -10.0 + np.clip(mp, -1e6, 0)).reshape(act.size, -1)
+        k = np.argmax(fp, axis=1)
+        better = fp[np.arange(act.size), k] > f[act] + 1e-12
         x[act[better]] = polls[better, k[better]]
-        f[act[better]] = mp[better, k[better]]
+        f[act[better]] = fp[better, k[better]]
         h[act[~better]] /= 2
     r2 = rank(model, np.vstack([x * model.typical, r.thetas]), cand, scale, max_noise)
     say(
-        "global phase: margin search from the 5 best: "
+        "global phase: pattern search from the 5 best: "
         + (
-            f"feasible gains found (worst damping {r2.damping[0]:.4f})"
+            f"feasible gains (worst damping {r2.damping[0]:.4f})"
             if r2.feasible[0]
-            else f"best worst margin {r2.margin[0]:.3g}"
+            else f"none feasible, best worst margin {r2.margin[0]:.3g}"
         )
     )
     return r2

@@ -287,59 +287,17 @@ def tune(
     if seed_res is not None and model.pointwise is not None and model.from_pointwise is not None:
         bound = _bound(drive, model, settings, floor, scale, max_noise, [seed_res], say, seed_res.bound)
         extra.append(model.from_pointwise(bound.speeds, bound.theta))
-    ranked = search.global_phase(model, cand, scale, max_noise, extra, say)
-    if not ranked.feasible[0]:
-        raise nlp.TuningError(_infeasible(drive, model, settings, cand, ranked, scale, max_noise, say))
-    # a few parameters: several distinct starts (local optima are common); many: the best one (for
-    # the schedule the better on the grid of its seed's gains and the pointwise optima)
-    k = N_STARTS if model.n_theta <= search.MAX_PATTERN_PARAMETERS else 1
-    starts = ranked.starts(k, model.typical)
-    sols: list[nlp.Solution] = []
-    certified = False
-    if bound is not None:
-        # the certificate: no gain law exceeds the bound's worst on the dense grid; a start that is
-        # already within CERTIFIED of it leaves the NLP nothing to gain
-        f0 = figures(model, starts[0], Wd, Td)
-        gap = float(np.min(bound.damping)) - f0.worst_damping()
-        certified = gap <= CERTIFIED and float(np.min(f0.decay)) >= floor * (1 - 1e-6) - 1e-9
-        if certified:
-            say(f"the best start is {gap:.1e} below the pointwise bound on the dense grid: no NLP needed")
-    if not certified:
-        say(
-            "maximize the worst damping (IPOPT, sector conditions) from "
-            + (f"{len(starts)} starts of the global phase" if len(starts) > 1 else "the best start")
-        )
-    for i, th in enumerate([] if certified else starts):
-        # Damping alone would trade decay for damping (a pole creeping to the origin has damping 1):
-        # every NLP keeps at least its start's slowest decay on the grid.
-        d_start = float(np.min(figures(model, th, W, T).decay))
-        c_i = cand
-        if d_start > floor * (1 + 1e-6):
-            c_i = _candidates(
-                model, dataclasses.replace(settings, min_decay=d_start), W, T, wb, scale, max_noise
-            )
-        try:
-            sols.append(
-                nlp.solve(
-                    model,
-                    c_i,
-                    th,
-                    scale,
-                    smoothing=settings.smoothing,
-                    max_noise=max_noise,
-                    progress=lambda m, i=i: say(f"start {i + 1}: {m}"),
-                )
-            )
-        except nlp.TuningError as e:
-            say(f"start {i + 1}: the NLP failed ({e}); its start stays a candidate")
-    say(f"re-verifying on the {env.dense_factor}x denser grid")
-    pool = [("drive file's gains", theta0)]
-    if start is not None:
-        pool.append((model.start_label or "start", start))
-    pool += [(f"global-phase start {i + 1}", th) for i, th in enumerate(starts)]
-    theta, dense, note, best_sol = _select(model, sols, pool, Wd, Td, floor, max_noise, say)
-    if best_sol is None:  # a start was kept: report the best NLP run (if any) for its statistics
-        best_sol = max(sols, key=lambda s: s.t) if sols else nlp.Solution(theta, float("nan"), (), 0, 0, ())
+    pb = _Problem(model, settings, W, T, Wd, Td, wb, scale, theta0, start, floor, say)
+    opt = _optimize(drive, pb, cand, max_noise, extra, bound)
+    theta, dense, note, best_sol, ranked, starts = (
+        opt.theta,
+        opt.dense,
+        opt.note,
+        opt.solution,
+        opt.ranked,
+        opt.starts,
+    )
+    certified = opt.certified
     dense0 = figures(model, theta0, Wd, Td, noise=model.noise is not None)
     grid = figures(model, theta, W, T)
     if not np.isfinite(dense.damping).all():
@@ -353,7 +311,7 @@ def tune(
     ridge = _ridge(model, theta, dense, bound, wb, say)
     pareto = None
     if settings.pareto and model.noise is not None:
-        pareto = _pareto(drive, model, settings, cand, scale, theta, starts, max_noise, Wd, Td, say)
+        pareto = _pareto(drive, pb, cand, theta, max_noise)
     seconds = time.perf_counter() - t_start
     result = TuneResult(
         family=family,
@@ -382,6 +340,100 @@ def tune(
     )
     table = _table(drive, settings, result, scale)
     return dataclasses.replace(result, table=table)
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """What the optimization steps share: the model on its envelope, and the decay floor."""
+
+    model: TuningModel
+    settings: TuningSettings
+    W: np.ndarray
+    T: np.ndarray
+    Wd: np.ndarray
+    Td: np.ndarray
+    wb: float
+    scale: float
+    theta0: np.ndarray
+    start: np.ndarray | None
+    floor: float
+    say: Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class _Optimum:
+    theta: np.ndarray
+    dense: Figures
+    note: dict[str, Any]
+    solution: nlp.Solution
+    ranked: search.Ranked
+    starts: list[np.ndarray]
+    certified: bool
+
+
+def _optimize(
+    drive: Any,
+    pb: _Problem,
+    cand: nlp.Candidates,
+    max_noise: np.ndarray | None,
+    extra: list[np.ndarray],
+    bound: Bound | None = None,
+) -> _Optimum:
+    """Steps 1-3 of the module docstring: global phase, NLP from its best starts, dense selection."""
+    model, say = pb.model, pb.say
+    ranked = search.global_phase(model, cand, pb.scale, max_noise, extra, say)
+    if not ranked.feasible[0]:
+        raise nlp.TuningError(_infeasible(drive, model, pb.settings, cand, ranked, pb.scale, max_noise, say))
+    # a few parameters: several distinct starts (local optima are common); many: the best one (for
+    # the schedule the better on the grid of its seed's gains and the pointwise optima)
+    k = N_STARTS if model.n_theta <= search.MAX_PATTERN_PARAMETERS else 1
+    starts = ranked.starts(k, model.typical)
+    sols: list[nlp.Solution] = []
+    certified = False
+    if bound is not None and max_noise is None:
+        # the certificate: no gain law exceeds the bound's worst on the dense grid; a start that is
+        # already within CERTIFIED of it leaves the NLP nothing to gain
+        f0 = figures(model, starts[0], pb.Wd, pb.Td)
+        gap = float(np.min(bound.damping)) - f0.worst_damping()
+        certified = gap <= CERTIFIED and float(np.min(f0.decay)) >= pb.floor * (1 - 1e-6) - 1e-9
+        if certified:
+            say(f"the best start is {gap:.1e} below the pointwise bound on the dense grid: no NLP needed")
+    if not certified:
+        say(
+            "maximize the worst damping (IPOPT, sector conditions) from "
+            + (f"{len(starts)} starts of the global phase" if len(starts) > 1 else "the best start")
+        )
+    for i, th in enumerate([] if certified else starts):
+        # Damping alone would trade decay for damping (a pole creeping to the origin has damping 1):
+        # every NLP keeps at least its start's slowest decay on the grid.
+        d_start = float(np.min(figures(model, th, pb.W, pb.T).decay))
+        c_i = cand
+        if d_start > pb.floor * (1 + 1e-6):
+            st = dataclasses.replace(pb.settings, min_decay=d_start)
+            c_i = _candidates(model, st, pb.W, pb.T, pb.wb, pb.scale, max_noise)
+        try:
+            sols.append(
+                nlp.solve(
+                    model,
+                    c_i,
+                    th,
+                    pb.scale,
+                    smoothing=pb.settings.smoothing,
+                    max_noise=max_noise,
+                    progress=lambda m, i=i: say(f"start {i + 1}: {m}"),
+                )
+            )
+        except nlp.TuningError as e:
+            say(f"start {i + 1}: the NLP failed ({e}); its start stays a candidate")
+    say(f"re-verifying on the {pb.settings.envelope.dense_factor}x denser grid")
+    pool = [("drive file's gains", pb.theta0)]
+    if pb.start is not None:
+        pool.append((model.start_label or "start", pb.start))
+    pool += [(f"global-phase start {i + 1}", th) for i, th in enumerate(starts)]
+    theta, dense, note, best_sol = _select(model, sols, pool, pb.Wd, pb.Td, pb.floor, max_noise, say)
+    if best_sol is None:  # a start was kept: report the best NLP run (if any) for its statistics
+        best_sol = max(sols, key=lambda s: s.t) if sols else nlp.Solution(theta, float("nan"), (), 0, 0, ())
+    return _Optimum(theta, dense, note, best_sol, ranked, starts, certified)
 
 
 def _robust(model, settings, theta, Wd, Td, wb) -> list[dict[str, Any]]:
@@ -442,7 +494,7 @@ def _infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> 
     wb = drive.w_base
     env = settings.envelope
     worst = cand.labels[int(ranked.worst_point[0])]
-    what = f"decay >= {settings.min_decay:g} 1/s" if settings.min_decay > 0 else "stable"
+    what = f"stable with decay >= {settings.min_decay:g} 1/s" if settings.min_decay > 0 else "stable"
     if max_noise is not None:
         what += " within the noise limits"
     if model.pointwise is None:
@@ -585,78 +637,70 @@ def _ridge(model: TuningModel, theta: np.ndarray, dense: Figures, bound: Bound |
     return out
 
 
-def _pareto(drive, model, settings, cand, scale, theta_best, starts, max_noise, Wd, Td, say):
-    """The damping-versus-noise front: the max-min damping NLP with the noise output limited to a
-    sweep of values between the least-noise feasible candidate and the unconstrained optimum; each
-    point re-verified on the dense grid."""
+def _pareto(drive, pb: _Problem, cand, theta_best, max_noise):
+    """The damping-versus-noise front: the tuning (global phase, NLP, dense selection) repeated with the
+    noise output limited to a sweep of values from the unconstrained optimum's noise down to the
+    least noise of a feasible global candidate; every point re-verified on the dense grid."""
+    model, settings, say = pb.model, pb.settings, pb.say
     outs = model.noise_outputs
-    name = settings.pareto_output or next(
-        (
-            o
-            for o, v in zip(outs, max_noise if max_noise is not None else [np.inf] * len(outs), strict=True)
-            if np.isfinite(v)
-        ),
-        outs[0],
-    )
-    i = outs.index(name)
-    top = figures(model, theta_best, Wd, Td, noise=True)
-    n_hi = float(top.worst_noise()[i])
-    # the least noise among feasible global candidates (without the limit on this output)
-    lim0 = np.full(len(outs), np.inf) if max_noise is None else max_noise.copy()
-    lim0[i] = np.inf
-    ranked = (
-        search.rank(model, np.asarray(model.starts(), float), cand, scale, None) if model.starts else None
-    )
-    n_lo = n_hi
-    if ranked is not None and ranked.feasible.any():
-        W, T = settings.envelope.grid(drive.w_base, drive.T_N)
-        feas = ranked.thetas[ranked.feasible]
-        P = model.make_points(W, T, model.nominal_estimate)
-        e = evaluate(model, np.repeat(feas, W.size, axis=0).T, np.tile(P, (1, feas.shape[0])), noise=True)
-        nz = (
-            np.where(np.isnan(e.noise[:, i]), np.inf, e.noise[:, i])
-            .reshape(feas.shape[0], W.size)
-            .max(axis=1)
+    name = settings.pareto_output
+    if not name:
+        limited = (
+            [o for o, v in zip(outs, max_noise, strict=True) if np.isfinite(v)]
+            if max_noise is not None
+            else []
         )
-        n_lo = min(n_lo, float(np.min(nz)))
+        name = limited[0] if limited else outs[0]
+    i = outs.index(name)
+    top = figures(model, theta_best, pb.Wd, pb.Td, noise=True)
+    n_hi = float(top.worst_noise()[i])
+    lim0 = np.full(len(outs), np.inf) if max_noise is None else np.asarray(max_noise, float).copy()
+    lim0[i] = np.inf
+    pcand = _with_noise_points(cand)
+    # the least noise of a global candidate that meets the other constraints
+    n_lo = n_hi
+    if model.starts is not None:
+        ranked = search.rank(model, np.asarray(model.starts(), float), pcand, pb.scale, lim0)
+        feas = ranked.thetas[ranked.feasible]
+        if feas.size:
+            P = model.make_points(pb.W, pb.T, model.nominal_estimate)
+            N = pb.W.size
+            e = evaluate(model, np.repeat(feas, N, axis=0).T, np.tile(P, (1, feas.shape[0])), noise=True)
+            nz = np.where(np.isnan(e.noise[:, i]), np.inf, e.noise[:, i]).reshape(-1, N).max(axis=1)
+            n_lo = min(n_lo, float(np.min(nz)))
     say(f"damping-versus-noise front: {name} noise from {n_hi:.4g} down to {n_lo:.4g}")
-    pts = [
-        {
-            "noise": n_hi,
-            "worst_damping": top.worst_damping(),
-            "theta": theta_best.tolist(),
-            "min_decay_rate": float(np.min(top.decay)),
+
+    def point(th, f, lim=None):
+        return {
+            "noise": float(f.worst_noise()[i]),
+            **({"limit": float(lim)} if lim is not None else {}),
+            "worst_damping": f.worst_damping(),
+            "min_decay_rate": float(np.min(f.decay)),
+            "theta": [float(v) for v in th],
         }
-    ]
-    th = theta_best
-    pcand = _with_noise_points(cand, settings, model)
-    for lim in np.geomspace(n_hi, max(n_lo, 1e-12), settings.pareto)[1:]:
+
+    pts = [point(theta_best, top)]
+    prev = theta_best
+    quiet = dataclasses.replace(pb, say=lambda s: None)
+    for lim in np.geomspace(n_hi, max(n_lo, 1e-12) * 1.0001, settings.pareto)[1:]:
         ln = lim0.copy()
         ln[i] = lim
         try:
-            s = nlp.solve(model, pcand, th, scale, smoothing=settings.smoothing, max_noise=ln)
+            opt = _optimize(drive, quiet, pcand, ln, [prev])
         except nlp.TuningError as e:
-            say(f"  limit {lim:.4g}: {e}")
+            say(f"  {name} noise <= {lim:.4g}: {e}")
             continue
-        f = figures(model, s.theta, Wd, Td, noise=True)
-        th = s.theta
-        pts.append(
-            {
-                "noise": float(f.worst_noise()[i]),
-                "limit": float(lim),
-                "worst_damping": f.worst_damping(),
-                "theta": s.theta.tolist(),
-                "min_decay_rate": float(np.min(f.decay)),
-            }
-        )
-        say(
-            f"  {name} noise <= {lim:.4g}: worst damping {f.worst_damping():.4f} "
-            f"(dense, noise {pts[-1]['noise']:.4g})"
-        )
+        f = figures(model, opt.theta, pb.Wd, pb.Td, noise=True)
+        if f.worst_noise()[i] > lim * (1 + 1e-3):
+            say(f"  {name} noise <= {lim:.4g}: no admissible gains on the dense grid")
+            continue
+        prev = opt.theta
+        pts.append(point(opt.theta, f, lim))
+        say(f"  {name} noise <= {lim:.4g}: worst damping {f.worst_damping():.4f} (dense)")
     return {"output": name, "unit": model.noise_units[i], "points": pts}
 
 
-def _with_noise_points(cand: nlp.Candidates, settings: TuningSettings, model: TuningModel) -> nlp.Candidates:
+def _with_noise_points(cand: nlp.Candidates) -> nlp.Candidates:
     """The candidates with a noise point at every envelope point (if not there yet)."""
     if (cand.kind == nlp.NOISE).any():
         return cand

@@ -19,7 +19,7 @@ from sensorless.design.registry import family_of
 from sensorless.reports.cli.common import UsageError
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
-from sensorless.reports.gain_csv import table_csv
+from sensorless.reports.gain_csv import pareto_csv, speeds_csv, table_csv
 from sensorless.tuning.family import all_tunables, tunable_for
 from sensorless.tuning.nlp import TuningError
 
@@ -60,8 +60,13 @@ def run(args: argparse.Namespace) -> int:
     settings = h.tune_settings(drive, args, tunable) if h.tune_settings is not None else None
     out = OutputSet(args.out or f"tune-{drive.name}", force=args.force)
     json_name, csv_name = f"gains_{tunable.name}.json", f"gains_{tunable.name}.csv"
+    speeds_name, pareto_name = f"speeds_{tunable.name}.csv", f"pareto_{tunable.name}.csv"
     out.add_bytes(json_name, b"")  # reserve the names: refuse existing outputs before the work
     out.add_bytes(csv_name, b"")
+    if getattr(settings, "bound", False):
+        out.add_bytes(speeds_name, b"")
+    if getattr(settings, "pareto", 0):
+        out.add_bytes(pareto_name, b"")
     out.check_free()
     t0 = time.perf_counter()
 
@@ -80,6 +85,13 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(r.summary_lines(drive)))
     out.add_text(json_name, r.table.to_json())
     out.add_text(csv_name, table_csv(r.table, tunable.columns))
+    if "speeds" in r.table.summary:
+        out.add_text(speeds_name, speeds_csv(r.table))
+    if "pareto" in r.table.summary:
+        out.add_text(pareto_name, pareto_csv(r.table))
+    for name in (speeds_name, pareto_name):  # reserved, but this tuner did not produce it
+        if out.files.get(name) == b"":
+            del out.files[name]
     for p in out.commit():
         print(f"wrote {p}")
     return 0
