@@ -32,6 +32,7 @@ from sensorless.reports.document import (
     report_inputs,
     svg_uri,
 )
+from sensorless.reports.ipmsm_adaptive import tuning
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
 
 TIME_DOMAIN = ("fig9b", "fig10", "fig6b")  # built-in scenarios re-run with the gains under review
@@ -91,7 +92,7 @@ def compute(
         return [[f(a / wb), f(b / wb)] for a, b in out]
 
     # 1. pole maps over speed at +-T_N, each gain; then the gain under review with injection
-    steps = 5
+    steps = 6
     progress(f"[1/{steps}] pole maps over speed ({len(choices)} gains x 2 torques, {w.size} speeds)")
     pm: dict[str, Any] = {}
     for T in (T_N, -T_N):
@@ -194,6 +195,8 @@ def compute(
         drive, td_gains, TIME_DOMAIN, "tuned table" if table is not None else "paper gains", progress
     )
     data["time_domain"] = td
+    tuning_data, tuning_section = tuning.compute(drive, table, choices, review, progress)
+    data["tuning"] = tuning_data
     data["verdict"] = verdict(data, review, min_damping)
     sections = (
         drive_section(1, data["drive"]),
@@ -201,6 +204,7 @@ def compute(
         Section("3. Damping and decay rate over speed × torque", (plane_fig, _plane_table(maps))),
         Section("4. Robustness to parameter-estimate errors", (rob_fig, _robustness_table(rob))),
         time_domain.section(5, td, td_figs),
+        *([tuning_section] if tuning_section is not None else []),
     )
     return Report(drive.name, review, data, verdict_block(data["verdict"]), sections)
 
