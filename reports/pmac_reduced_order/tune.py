@@ -10,16 +10,26 @@ import argparse
 import dataclasses
 from typing import Any
 
-from sensorless.reports.cli.common import UsageError
+from sensorless.reports.cli.common import UsageError, parse_max_noise
 from sensorless.reports.family import Option
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.pmac_reduced_order.deangelo import DeAngeloSettings, default_settings
 
 OPTIONS = (
     Option(("--dense-factor",), {"type": int, "help": "re-verification refinement (>= 4)"}),
-    Option(("--g-max",), {"type": float, "help": "upper bound on g [1/s] (default 2x the drive's)"}),
     Option(
-        ("--Gamma-max",), {"type": float, "help": "upper bound on Gamma [A^2 s^2] (default 100x the drive's)"}
+        ("--g-max",), {"type": float, "help": "search box: upper bound on g [1/s] (default 100x the drive's)"}
+    ),
+    Option(
+        ("--Gamma-max",),
+        {"type": float, "help": "search box: upper bound on Gamma [A^2 s^2] (default 10^4 x the drive's)"},
+    ),
+    Option(
+        ("--max-noise",),
+        {
+            "help": "limit the RMS noise of the estimates from the drive's current-sensor noise, e.g. "
+            "position=0.05deg,speed=0.002pu (an angle alone limits the position, a speed the speed)"
+        },
     ),
     Option(("--min-damping",), {"type": float, "help": "worst damping required (default 0.707)"}),
 )
@@ -33,6 +43,8 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> DeAngeloSett
         v = getattr(args, key)
         if v is not None:
             out[key] = v
+    if args.max_noise:
+        out["max_noise"] = parse_max_noise(args.max_noise, drive.w_base)
     s = dataclasses.replace(s, **out)
     try:
         s.check("command line")
