@@ -59,8 +59,11 @@ SOLVER_OPTIONS = {
     "expand": True,
     "ipopt.print_level": 0,
     "print_time": False,
+    # near a degenerate optimum IPOPT can sit at a 1e-9-ish error and then jump away: accept a point
+    # that meets the acceptable tolerance instead of iterating on
     "ipopt.tol": 1e-9,
     "ipopt.acceptable_tol": 1e-7,
+    "ipopt.acceptable_iter": 1,
     "ipopt.max_iter": 150,  # a good round takes 10-40; a hopeless one is retried with a smaller radius
     "ipopt.mu_strategy": "adaptive",
     "ipopt.bound_push": 1e-6,

@@ -235,10 +235,11 @@ def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = 
         # speed) and any point on it is as good; the NLP is deterministic for given inputs
         regularizer=None,
         table_gains=table_gains,
-        # L-BFGS: the same optimum in as many iterations without the Hessian of the slots (default
-        # envelope: 45 -> 30 ms, benchmarks/bench_tune.py). Not for the schedule: with 50
-        # parameters it needs 10x the iterations and ends lower.
-        hessian="limited-memory",
+        # exact Hessian: with the equilibria as data (exact estimates) the slots' second derivatives
+        # are cheap, and IPOPT needs fewer iterations than with L-BFGS (benchmarks/bench_tune.py);
+        # 8 points in the first round: the binding ones of the default envelope in one round
+        hessian="exact",
+        n_initial_active=8,
         starts=starts,
     )
 
