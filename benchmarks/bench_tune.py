@@ -116,8 +116,8 @@ def main() -> None:
         f"dense worst damping: schedule {s['worst_damping']:.5f}, "
         f"law16 {s['seed']['worst_damping']:.5f}, "
         f"drive file {s['baseline_worst_damping']:.5f}; pointwise bound {b['worst_damping']:.5f} at "
-        f"{b['worst_at_w_m_pu']:+.3f} p.u. (decay >= {b['floor_1_s']:.4g} 1/s): schedule {b['gap']:.5f} below, "
-        f"law16 {b['gap_seed']:.5f} below"
+        f"{b['worst_at_w_m_pu']:+.3f} p.u. (decay >= {b['floor_1_s']:.4g} 1/s): "
+        f"schedule {b['gap']:.5f} below, law16 {b['gap_seed']:.5f} below"
     )
 
 
