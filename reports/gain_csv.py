@@ -62,7 +62,8 @@ def speeds_csv(table: GainTable) -> str:
     lines = [
         f"# sensorless: worst damping over the torques at each speed, family {table.family}, drive "
         f"{table.drive.get('name')}; bound = the best any gain reaches at that speed (decay >= "
-        f"{b.get('floor_1_s', float('nan')):.6g} 1/s); baseline = the drive file's gains",
+        f"{b.get('floor_1_s', float('nan')):.6g} 1/s); baseline = the drive file's gains (which the bound "
+        "does not bound where they decay slower than its floor)",
         ",".join(["w_m_pu", *(f"{names.get(k, k)}_damping" for k in keys)]),
     ]
     for r in rows:

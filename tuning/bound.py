@@ -75,7 +75,9 @@ def _score(
     d = np.where(np.isfinite(decay), decay, -1e3 * scale)
     margin = (d - floor) / scale if floor > 0 else np.where(d > 0, 0.0, d / scale)
     if noise is not None and limit is not None:
-        nm = np.min(np.where(np.isfinite(noise), 1.0 - noise / limit, -1e3), axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = np.where(np.isfinite(limit), 1.0 - noise / limit, np.inf)
+        nm = np.min(np.where(np.isnan(r), -1e3, r), axis=-1)
         margin = np.minimum(margin, nm)
     feas = (d >= floor) & (d > 0) & (margin >= 0)
     tie = TIE * np.maximum(d, 0) / (np.maximum(d, 0) + scale)
@@ -198,6 +200,8 @@ def pointwise_bound(
 
     def offer(th: np.ndarray, idx: np.ndarray) -> None:
         """Keep th (scaled) at speed idx where it scores better."""
+        if idx.size == 0:
+            return
         fs = score(th * typ, idx)
         for r in np.argsort(fs):
             if fs[r] > f[idx[r]]:

@@ -160,6 +160,13 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
     or one parameter vector per point (n_theta, N): many candidate gains in one batched call."""
     N = P.shape[1]
     theta = np.asarray(theta, float)
+    if N == 0:
+        n_out = len(model.noise_outputs)
+        return Evaluation(
+            np.zeros((0, model.n_x), complex),
+            np.zeros((model.n_x, 0)),
+            np.zeros((0, n_out)) if noise else None,
+        )
     x0 = model.equilibrium(theta, P)
     ok = np.isfinite(x0).all(axis=0)
     n = model.n_x
