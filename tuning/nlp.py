@@ -50,6 +50,7 @@ class TuningError(RuntimeError):
 
 
 T_MAX = 0.995  # upper bound of the damping variable (asin is singular at 1)
+CREEP = 5e-4  # a round at the trust-region edge that gains less than this ends the method
 # Each round starts from a good primal point (the previous round's gains, the factors of their
 # poles, the exact equilibria): a small bound push keeps IPOPT there instead of pushing the start
 # into the interior, and the adaptive barrier update converges in far fewer iterations than the
@@ -396,7 +397,7 @@ def solve(
             gain = t_now - best.t if best is not None else np.inf
             verified.append(theta)
             best = Solution(theta, t_now, tuple(active), rnd, total_it, tuple(verified))
-            if not at_edge or gain < 1e-4:
+            if not at_edge or gain < CREEP:  # creeping along a ridge: the worst damping barely moves
                 return best
         if bad.size:
             active = _pick(m, cand, active, max(2, min(bad.size, n0)))
