@@ -652,7 +652,8 @@ def _ridge(model: TuningModel, theta: np.ndarray, dense: Figures, bound: Bound |
 def _pareto(drive, pb: _Problem, cand, theta_best, max_noise):
     """The damping-versus-noise front: the tuning (global phase, NLP, dense selection) repeated with the
     noise output limited to a sweep of values from the unconstrained optimum's noise down to the
-    least noise of a feasible global candidate; every point re-verified on the dense grid."""
+    least noise of a feasible global candidate (half the optimum's for a family without a candidate
+    grid); every point re-verified on the dense grid."""
     model, settings, say = pb.model, pb.settings, pb.say
     outs = model.noise_outputs
     name = settings.pareto_output
@@ -680,6 +681,8 @@ def _pareto(drive, pb: _Problem, cand, theta_best, max_noise):
             e = evaluate(model, np.repeat(feas, N, axis=0).T, np.tile(P, (1, feas.shape[0])), noise=True)
             nz = np.where(np.isnan(e.noise[:, i]), np.inf, e.noise[:, i]).reshape(-1, N).max(axis=1)
             n_lo = min(n_lo, float(np.min(nz)))
+    if n_lo >= n_hi * 0.999:  # no candidate grid (the schedule), or none quieter: down to half
+        n_lo = 0.5 * n_hi
     say(f"damping-versus-noise front: {name} noise from {n_hi:.4g} down to {n_lo:.4g}")
 
     def point(th, f, lim=None):

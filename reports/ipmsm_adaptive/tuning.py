@@ -156,10 +156,15 @@ def _bound_figure(
 ) -> Any:
     import matplotlib.pyplot as plt
 
+    def gap(w: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A NaN between the directions: no line across standstill (outside the envelope)."""
+        k = np.flatnonzero(np.diff(np.sign(w)) != 0) + 1
+        return np.insert(w.astype(float), k, np.nan), np.insert(np.asarray(z, float), k, np.nan)
+
     fig, ax = plt.subplots(figsize=(8.5, 4.2), layout="constrained")
-    ax.plot(w_b, bound, color="k", lw=2.2, label="pointwise bound (any gain)")
+    ax.plot(*gap(w_b, bound), color="k", lw=2.2, label="pointwise bound (any gain)")
     for label, v in figs.items():
-        ax.plot(w_pu, v["per_speed"], lw=1.3, label=label)
+        ax.plot(*gap(w_pu, v["per_speed"]), lw=1.3, label=label)
     ax.set_xlabel("speed ω_m (p.u.)")
     ax.set_ylabel("worst damping over the torques")
     ax.set_ylim(min(0.0, float(np.nanmin([np.min(v["per_speed"]) for v in figs.values()]))) - 0.02, 1.02)
