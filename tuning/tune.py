@@ -583,8 +583,10 @@ def _select(
     name, theta, _, sol = cands[best]
     finals = {c[0]: c[2].worst_damping() for c in cands if c[0].endswith("NLP solution")}
     starts = {c[0]: c[2].worst_damping() for c in cands[: len(pool)]}
-    parts = ", ".join(f"{k} {v:.4f}" for k, v in {**starts, **finals}.items())
-    text = f"{name} (dense worst damping: {parts})"
+    bad = {c[0] for c in cands if not admissible(c[2])}
+    parts = ", ".join(f"{k} {v:.4f}{'*' if k in bad else ''}" for k, v in {**starts, **finals}.items())
+    text = f"{name} (dense worst damping: {parts}"
+    text += "; *: slower than the decay floor or noisier than the limit on the dense grid)" if bad else ")"
     if not rank(best)[0]:
         text += "; no candidate meets the constraints on the dense grid: use more --speeds"
     say(f"kept: {text}")
