@@ -2,8 +2,11 @@
 
 The drive's observer family offers tunable gain families (tuning/family.py; ``--family``, default its
 first); envelope and constraints come from the drive file and the family's options (reports/family.py).
-Progress goes to stderr; the summary and the written files to stdout. If the tuner fails or the
-constraints cannot be met, one line says so and the exit status is 2; nothing is written.
+Progress goes to stderr; the summary (with the pointwise bound on a line of its own) and the written
+files to stdout: ``gains_<family>.json``/``.csv``, ``speeds_<family>.csv`` (the bound beside the
+family, its seed and the drive file's gains at every dense speed) when the tuner computed the bound,
+``pareto_<family>.csv`` with ``--pareto``. If the tuner fails or the constraints cannot be met, one line
+says so (for an infeasible envelope, with its evidence) and the exit status is 2; nothing is written.
 """
 
 from __future__ import annotations
