@@ -23,6 +23,10 @@ import numpy as np
 from sensorless.design.units import DriveFileError, check_magnitude, parse_number, parse_quantity
 
 ESTIMATE_KEYS = ("R_s", "L_d", "L_q", "psi_pm")  # order of the estimate vector
+# noise outputs of the PMSM observers: the position estimate [rad, electrical] and the speed estimate
+# [rad/s, electrical] (design/noise.py)
+NOISE_OUTPUTS = ("position", "speed")
+NOISE_DIMS = {"position": "angle", "speed": "angular"}
 DIRECTIONS = ("both", "positive", "negative")
 
 
@@ -82,6 +86,18 @@ class TuningSettings:
     tune_alpha_fo: bool = False  # also tune the adaptation bandwidth alpha_fo (10)
     breakpoints: int = 11  # schedule family: breakpoints per direction (plus one at zero speed)
     smoothing: float = 1e-3  # weight of the family's regularizer (schedule roughness) against damping
+    # noise limits: (noise output, limit in SI) pairs, e.g. (("position", 0.001),) [rad]; () none
+    max_noise: tuple[tuple[str, float], ...] = ()
+    pareto: int = 0  # points of the damping-versus-noise front to compute (0: none)
+    pareto_output: str = ""  # noise output of the front ("": the first limited one, else the family's first)
+    bound: bool = True  # compute the pointwise bound (the certificate) on the dense grid
+
+    def noise_limits(self, outputs: tuple[str, ...]) -> np.ndarray | None:
+        """Limits per noise output (inf: none), in the order of ``outputs``; None if no limit is set."""
+        if not self.max_noise:
+            return None
+        lim = dict(self.max_noise)
+        return np.array([lim.get(o, np.inf) for o in outputs], float)
 
     def check(self, file: str, prefix: str = "tuning.") -> None:
         """Raise DriveFileError for inconsistent values (the key named with ``prefix``)."""
@@ -111,6 +127,15 @@ class TuningSettings:
             raise bad("breakpoints", f"need at least 2 breakpoints per direction, got {self.breakpoints}")
         if not 0 <= self.smoothing < 0.1:
             raise bad("smoothing", f"must be in [0, 0.1), got {self.smoothing:g}")
+        for name, v in self.max_noise:
+            if name not in NOISE_OUTPUTS:
+                raise bad(f"max_noise.{name}", f"unknown noise output (allowed: {', '.join(NOISE_OUTPUTS)})")
+            if not v > 0:
+                raise bad(f"max_noise.{name}", f"must be > 0, got {v:g}")
+        if self.pareto < 0 or self.pareto == 1:
+            raise bad("pareto", f"need 0 (none) or at least 2 points, got {self.pareto}")
+        if self.pareto_output and self.pareto_output not in NOISE_OUTPUTS:
+            raise bad("pareto_output", f"unknown noise output (allowed: {', '.join(NOISE_OUTPUTS)})")
 
 
 _KEYS = (
@@ -126,6 +151,7 @@ _KEYS = (
     "tune_alpha_fo",
     "breakpoints",
     "smoothing",
+    "max_noise",
 )
 
 
@@ -200,6 +226,20 @@ def load_tuning(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -
         out["breakpoints"] = _int(table["breakpoints"], file, "tuning.breakpoints")
     if "smoothing" in table:
         out["smoothing"] = parse_relative(table["smoothing"], "dimensionless", rel, file, "tuning.smoothing")
+    if "max_noise" in table:
+        mt = table["max_noise"]
+        if not isinstance(mt, dict):
+            raise DriveFileError(file, "tuning.max_noise", "expected a table {position = '0.1 deg', ...}")
+        lims = []
+        for k, v in mt.items():
+            if k not in NOISE_OUTPUTS:
+                raise DriveFileError(
+                    file,
+                    f"tuning.max_noise.{k}",
+                    f"unknown noise output (allowed: {', '.join(NOISE_OUTPUTS)})",
+                )
+            lims.append((k, parse_relative(v, NOISE_DIMS[k], rel, file, f"tuning.max_noise.{k}")))
+        out["max_noise"] = tuple(lims)
     settings = TuningSettings(envelope=dataclasses.replace(Envelope(), **env), **out)
     settings.check(file)
     return settings

@@ -17,7 +17,8 @@ UNITS: dict[str, dict[str, float]] = {
     "inductance": {"H": 1.0, "mH": 1e-3, "uH": 1e-6, "µH": 1e-6, "μH": 1e-6},
     "flux": {"Vs": 1.0, "V s": 1.0, "Wb": 1.0, "mVs": 1e-3, "mWb": 1e-3},
     "voltage": {"V": 1.0, "kV": 1e3},
-    "current": {"A": 1.0},
+    "current": {"A": 1.0, "mA": 1e-3},
+    "angle": {"rad": 1.0, "mrad": 1e-3, "deg": math.pi / 180},  # electrical angles
     "power": {"W": 1.0, "kW": 1e3},
     "torque": {"Nm": 1.0, "N m": 1.0, "N·m": 1.0},
     "inertia": {"kgm2": 1.0, "kg m^2": 1.0, "kgm^2": 1.0, "kg·m^2": 1.0},

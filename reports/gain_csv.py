@@ -18,6 +18,13 @@ def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
     for k in range(n):
         head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
     head += [f"baseline_{h}" for h, _ in base] + ["baseline_damping", "baseline_decay_rate_1_s"]
+    p0 = table.points[0] if table.points else {}
+    seed = p0.get("seed", {}).get("family")
+    if seed:
+        head += [f"{seed}_damping", f"{seed}_decay_rate_1_s"]
+    bound_keys = [k for k in p0.get("bound", {}) if k != "damping"]
+    if "bound" in p0:
+        head += ["bound_damping"] + [f"bound_{k}" for k in bound_keys]
     where = (
         f"speed base {env.get('speed_base_rad_s', float('nan')):.10g} rad/s (electrical)"
         if "speed_base_rad_s" in env
@@ -26,7 +33,8 @@ def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
     )
     lines = [
         f"# sensorless gain table, family {table.family}, drive {table.drive.get('name')}; "
-        f"{where}; baseline = the drive file's gains",
+        f"{where}; baseline = the drive file's gains"
+        + ("; bound = the best worst-case damping of any gain at the point's speed" if "bound" in p0 else ""),
         "# gains: " + json.dumps(clean(table.gains), sort_keys=True),
         ",".join(head),
     ]
@@ -36,5 +44,51 @@ def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
             row += [re, im]
         b = p["baseline"]
         row += [b[k] for _, k in base] + [b["damping"], b["decay_rate"]]
+        if seed:
+            row += [p["seed"]["damping"], p["seed"]["decay_rate"]]
+        if "bound" in p0:
+            row += [p["bound"]["damping"]] + [p["bound"][k] for k in bound_keys]
         lines.append(",".join("nan" if v is None or not math.isfinite(v) else f"{v:.10g}" for v in row))
+    return "\n".join(lines) + "\n"
+
+
+def speeds_csv(table: GainTable) -> str:
+    """Per speed of the dense grid: the pointwise bound beside this family, its seed and the drive
+    file's gains (worst damping over the torques at that speed); from ``summary.speeds``."""
+    rows = table.summary["speeds"]
+    keys = [k for k in ("bound", "tuned", "seed", "baseline") if k in rows[0]]
+    names = {"tuned": table.family, "seed": table.summary.get("seed", {}).get("family", "seed")}
+    b = table.summary.get("bound", {})
+    lines = [
+        f"# sensorless: worst damping over the torques at each speed, family {table.family}, drive "
+        f"{table.drive.get('name')}; bound = the best any gain reaches at that speed (decay >= "
+        f"{b.get('floor_1_s', float('nan')):.6g} 1/s); baseline = the drive file's gains (which the bound "
+        "does not bound where they decay slower than its floor)",
+        ",".join(["w_m_pu", *(f"{names.get(k, k)}_damping" for k in keys)]),
+    ]
+    for r in rows:
+        vals = [r["w_m_pu"], *(r[k] for k in keys)]
+        lines.append(",".join("nan" if v is None or not math.isfinite(v) else f"{v:.10g}" for v in vals))
+    return "\n".join(lines) + "\n"
+
+
+def pareto_csv(table: GainTable) -> str:
+    """The damping-versus-noise front of ``summary.pareto``: noise, worst damping, slowest decay and the
+    parameters of each point (dense re-verification)."""
+    pf = table.summary["pareto"]
+    names = list(table.summary.get("parameters", {}))
+    lines = [
+        f"# sensorless: damping-versus-noise front, family {table.family}, drive {table.drive.get('name')}; "
+        f"noise = worst RMS of the {pf['output']} estimate [{pf['unit']}] over the dense grid",
+        ",".join(["noise", "limit", "worst_damping", "min_decay_rate_1_s", *names]),
+    ]
+    for p in pf["points"]:
+        vals = [
+            p["noise"],
+            p.get("limit", float("inf")),
+            p["worst_damping"],
+            p["min_decay_rate"],
+            *p["theta"],
+        ]
+        lines.append(",".join("nan" if v is None or not math.isfinite(v) else f"{v:.10g}" for v in vals))
     return "\n".join(lines) + "\n"

@@ -7,16 +7,32 @@ and their slopes there), so that per-point derivatives do not grow with the size
 linearized closed loop as a CasADi Function of (phi, state, operating point) built from the analysis
 model in symbolic/ (never a second copy of the equations); numeric equilibria; and the gains to
 write into the table. A tunable's ``build`` returns one (tuning/family.py).
+
+Optional parts, each used by the shared pipeline where given:
+
+- ``noise``: the linearization's input from current-measurement noise and its noise outputs (the
+  estimates), for the noise figure (design/noise.py), ``--max-noise`` and the Pareto front;
+- ``starts``: candidate parameter vectors of the global phase (a log grid of the family's parameters,
+  tuning/search.py);
+- ``pointwise``: a model of the free gains at one operating point (theta = what ``local`` gives, e.g.
+  (lambda1, lambda2)), for the pointwise bound (tuning/bound.py), and ``from_pointwise`` to turn the
+  per-speed optima into a start of this family.
+
+Batched evaluation of many parameter vectors at once: :func:`evaluate`.
 """
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
 import numpy as np
+from sensorless.design.batch import evaluate_batch
+from sensorless.design.noise import noise_rms
+from sensorless.design.poles import eigvals_batched, max_real, worst_damping
 
 
 @dataclass(frozen=True, eq=False)  # identity-hashed: Functions are cached per model
@@ -50,6 +66,21 @@ class TuningModel:
     start: np.ndarray | None = None  # NLP start (e.g. the seed family's optimum); None: theta0
     start_label: str = ""  # what ``start`` is, for messages and the table's summary
     hessian: str = "exact"  # IPOPT hessian_approximation: "exact" or "limited-memory" (L-BFGS)
+    # noise: (phi, x, point) -> (B_n, C_n, D_n): current-noise input and noise outputs (names, units)
+    noise: ca.Function | None = None
+    noise_outputs: tuple[str, ...] = ()
+    noise_units: tuple[str, ...] = ()
+    noise_sigma: float = 0.0  # current-sensor noise [A rms per axis and sample]
+    T_s: float = 0.0  # sampling period of the noise convention [s]
+    starts: Callable[[], np.ndarray] | None = None  # global phase: candidates (K, n_theta)
+    pointwise: Callable[[], TuningModel] | None = None  # free gains at one point (the bound)
+    from_pointwise: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None  # (speeds, optima) -> theta
+    # (theta, speeds (S,)) -> (S, n) the free gains of the pointwise model that theta gives at each speed
+    pointwise_gains: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    fixed_equilibrium: Callable[[np.ndarray], np.ndarray] | None = (
+        None  # P -> (N,) bool: x0 not moved by theta
+    )
+    n_initial_active: int = 0  # exchange method: points in the first round (0: 3 n_theta, at least 4)
 
     @property
     def n_theta(self) -> int:
@@ -64,16 +95,96 @@ class TuningModel:
 
 def poles(model: TuningModel, theta: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(poles (N, n) complex, x0 (n_x, N)) of the linearized closed loop at the points P, by the same
-    Function the NLP differentiates; NaN rows where no equilibrium exists."""
+    Function the NLP differentiates; NaN rows where no equilibrium exists. ``theta`` is one parameter
+    vector (n_theta,) or one per point (n_theta, N)."""
+    e = evaluate(model, theta, P)
+    return e.poles, e.x0
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Figures of a model at N points (each with its own parameter vector or a common one)."""
+
+    poles: np.ndarray  # (N, n) complex [1/s]; NaN rows where no equilibrium
+    x0: np.ndarray  # (n_x, N)
+    noise: np.ndarray | None  # (N, n_out) RMS of the noise outputs; inf where unstable
+
+    @property
+    def damping(self) -> np.ndarray:
+        return worst_damping(self.poles)
+
+    @property
+    def decay(self) -> np.ndarray:
+        return -max_real(self.poles)
+
+
+@functools.cache
+def _dense(fn: ca.Function) -> ca.Function:
+    """``fn`` with dense outputs (what the batched evaluation needs)."""
+    if all(fn.sparsity_out(j).is_dense() for j in range(fn.n_out())):
+        return fn
+    sx = fn.sx_in()
+    return ca.Function(
+        fn.name() + "_dense", sx, [ca.densify(o) for o in fn.call(sx)], fn.name_in(), fn.name_out()
+    )
+
+
+def _bucket(n: int) -> int:
+    """Batch sizes rounded up to 1, 2 or 3 times a power of two (at most 50 % padding): a mapped
+    Function is built once per size, and searches evaluate batches of ever-changing sizes."""
+    p = 1
+    while 3 * p < n:
+        p *= 2
+    return min(c for c in (p, 2 * p, 3 * p, 4 * p) if c >= n)
+
+
+def _call(fn: ca.Function, n: int, args: list[np.ndarray]) -> list[np.ndarray]:
+    """Outputs of ``fn`` at n points as arrays (n, rows, cols): the batched path of design/batch.py
+    (numpy buffers, JIT for large batches), padded to a bucket size by repeating the last point."""
+    m = _bucket(n)
+    if m > n:
+        padded = []
+        for i, a in enumerate(args):
+            a = np.asarray(a, float)
+            rows = fn.size1_in(i)
+            if a.size != rows:  # one column per point: repeat the last
+                a = a.reshape(rows, n)
+                a = np.concatenate([a, np.repeat(a[:, -1:], m - n, axis=1)], axis=1)
+            padded.append(a)
+        args = padded
+    return [o[:n] for o in evaluate_batch(_dense(fn), m, args)]
+
+
+def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool = False) -> Evaluation:
+    """Poles (and, with ``noise``, the noise figure) at the points P (n_p, N) for ``theta`` (n_theta,)
+    or one parameter vector per point (n_theta, N): many candidate gains in one batched call."""
     N = P.shape[1]
+    theta = np.asarray(theta, float)
+    if N == 0:
+        n_out = len(model.noise_outputs)
+        return Evaluation(
+            np.zeros((0, model.n_x), complex),
+            np.zeros((model.n_x, 0)),
+            np.zeros((0, n_out)) if noise else None,
+        )
     x0 = model.equilibrium(theta, P)
     ok = np.isfinite(x0).all(axis=0)
     n = model.n_x
     out = np.full((N, n), np.nan + 0j)
+    nz = None
+    if noise:
+        if model.noise is None:
+            raise ValueError(f"gain family {model.family} has no noise model")
+        nz = np.full((N, len(model.noise_outputs)), np.nan)
     if ok.any():
         xs = np.where(ok, x0, 0.0)
-        phi = model.local.map(N)(theta, P)
-        A = np.asarray(model.linearization.map(N)(phi, xs, P)[0]).reshape(n, N, n).transpose(1, 0, 2)
+        th = theta if theta.ndim == 1 else np.ascontiguousarray(theta)
+        phi = _call(model.local, N, [th, P])[0][:, :, 0].T
+        A = _call(model.linearization, N, [phi, xs, P])[0]
         good = ok & np.isfinite(A).all(axis=(1, 2))
-        out[good] = np.linalg.eigvals(A[good])
-    return out, x0
+        if good.any():
+            out[good] = eigvals_batched(A[good])
+        if noise and good.any():
+            B, C, D = _call(model.noise, N, [phi, xs, P])
+            nz[good] = noise_rms(A[good], B[good], C[good], D[good], model.noise_sigma, model.T_s)
+    return Evaluation(out, x0, nz)

@@ -25,6 +25,7 @@ from sensorless.design.ipmsm_adaptive.operating_point import (
     solve_equilibrium,
 )
 from sensorless.design.linearization import Linearization
+from sensorless.design.noise import noise_rms
 from sensorless.design.poles import eigvals_batched, sort_poles
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
 from sensorless.symbolic.ipmsm_adaptive.observer import error_term
@@ -58,6 +59,31 @@ def linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
     name = f"linearize_{get_law(law).name}{'_inj' if injection else ''}"
     dense = ca.cse([ca.densify(v) for v in outs.values()])  # dense for batch evaluation
     return ca.Function(name, [s[k] for k in names], dense, names, list(outs))
+
+
+NOISE_OUTPUTS = ("theta_tilde", "w_hat")  # outputs of the noise gain: position error [rad], speed [rad/s]
+
+
+@functools.cache
+def noise_function(law: str | GainLaw, injection: bool) -> ca.Function:
+    """Function (x0, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (B_n, C_n, D_n).
+
+    The current-measurement noise n (2x1, A, estimated rotor frame) added to the current the observer
+    measures (symbolic/ipmsm_adaptive/closed_loop.py): B_n = d x_dot/d n, and the outputs
+    y = [theta_tilde, w_hat] (the position error, i.e. minus the position estimate's deviation, and
+    the speed estimate) with C_n = dy/dx, D_n = dy/dn, all at x0 and n = 0. Jacobians of the same
+    coupled system as :func:`linearization_function`; nothing is re-typed.
+    """
+    s = analysis_symbols(law, injection)
+    n = ca.SX.sym("i_noise", 2)
+    cl, _ = coupled_system(law, injection, s, i_noise=n)
+    x = s["x"]
+    y = ca.vertcat(x[2], cl.w_hat)
+    outs = [ca.jacobian(cl.x_dot, n), ca.jacobian(y, x), ca.jacobian(y, n)]
+    outs = [ca.densify(ca.substitute(o, n, ca.DM.zeros(2))) for o in outs]
+    names = ["x", *PARAM_NAMES]
+    name = f"noise_{get_law(law).name}{'_inj' if injection else ''}"
+    return ca.Function(name, [s[k] for k in names], ca.cse(outs), names, ["B_n", "C_n", "D_n"])
 
 
 @functools.cache
@@ -156,6 +182,17 @@ class PoleSweep(Linearization):
     B: np.ndarray  # (N, n, 1)
     C: np.ndarray  # (N, 1, n)
     D: np.ndarray  # (N, 1, 1)
+    noise_input: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (B_n, C_n, D_n), see noise_rms
+
+    def noise_rms(self, sigma: float, T_s: float) -> np.ndarray:
+        """(N, 2) RMS of the position error [rad] and the speed estimate [rad/s] for current-sensor
+        noise of ``sigma`` A rms per axis and sample at ``T_s`` (design/noise.py); needs
+        ``linearize(..., noise=True)``. inf where unstable."""
+        if self.noise_input is None:
+            raise ValueError("linearized without noise=True")
+        B, C, D = self.noise_input
+        n = B.shape[1]
+        return noise_rms(self.A[:, :n, :n], B, C, D, sigma, T_s)
 
     def statespace(self, k: int) -> control.StateSpace:
         """The closed loop at point k as a python-control StateSpace, input w_m, output w_hat."""
@@ -198,6 +235,7 @@ def linearize(
     estimate: Any = None,
     discretization: str | None = None,
     T_s: float | None = None,
+    noise: bool = False,
 ) -> PoleSweep:
     """Linearize the coupled system at the operating points (w_m [rad/s], T_e [N m]).
 
@@ -205,9 +243,11 @@ def linearize(
     (row-major). ``estimate`` optionally gives the observer's parameter estimates per point, an
     array (..., 4) of [R̂s, L̂d, L̂q, ψ̂pm] broadcasting with the operating points (default: the
     drive's ``[estimate]``), so robustness maps over parameter errors are one call. Points where no
-    equilibrium exists (possible with estimation errors) get NaN. With ``discretization`` (a scheme
-    of the runtime step) the result is a ``DiscretePoleSweep`` (discrete.py): also the discrete-time
-    observer that runs at ``T_s`` (default the drive's), its poles, steady errors and feedthrough.
+    equilibrium exists (possible with estimation errors) get NaN. ``noise`` also evaluates the input
+    from current-measurement noise (:func:`noise_function`, ``PoleSweep.noise_rms``). With
+    ``discretization`` (a scheme of the runtime step) the result is a ``DiscretePoleSweep``
+    (discrete.py): also the discrete-time observer that runs at ``T_s`` (default the drive's), its
+    poles, steady errors and feedthrough.
     """
     if estimate is not None:
         est = np.asarray(estimate, float)
@@ -245,7 +285,16 @@ def linearize(
     rest = ok & ~frozen
     if rest.any():
         poles[rest] = sort_poles(eigvals_batched(A[rest], charpoly[rest]))
+    noise_input = None
+    if noise:
+        nf = noise_function(law, injection)
+        xs = np.where(np.isfinite(x0), x0, 0.0).T
+        B_n, C_n, D_n = evaluate_batch(nf, n_pts, [xs, *[args[k] for k in PARAM_NAMES]])
+        bad = ~np.isfinite(x0).all(axis=1)
+        B_n[bad] = np.nan
+        noise_input = (B_n, C_n, D_n)
     sweep = PoleSweep(
+        noise_input=noise_input,
         law=law,
         injection=injection,
         w=w_flat,

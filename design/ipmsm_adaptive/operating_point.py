@@ -14,6 +14,7 @@ import functools
 
 import casadi as ca
 import numpy as np
+from sensorless.design.batch import evaluate_batch, mapped
 from sensorless.symbolic.ipmsm_adaptive.closed_loop import N_INJ, closed_loop
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current
@@ -40,8 +41,11 @@ def analysis_symbols(law: str | GainLaw, injection: bool) -> dict[str, ca.SX]:
 PARAM_NAMES = ("w_m", "T_e", "motor", "p", "estimate", "gain", "alpha_fo", "inj")
 
 
-def coupled_system(law: str | GainLaw, injection: bool, s: dict[str, ca.SX], w_hat_override=None):
-    """The coupled system of symbolic/ipmsm_adaptive/closed_loop.py at the MTPA current of (w_m, T_e)."""
+def coupled_system(
+    law: str | GainLaw, injection: bool, s: dict[str, ca.SX], w_hat_override=None, i_noise=None
+):
+    """The coupled system of symbolic/ipmsm_adaptive/closed_loop.py at the MTPA current of (w_m, T_e);
+    ``i_noise`` (2x1) is the current-measurement noise added to what the observer measures."""
     motor = PmsmParams.of(s["motor"])
     i_s0 = mtpa_current(s["T_e"], motor, s["p"])
     return closed_loop(
@@ -55,6 +59,7 @@ def coupled_system(law: str | GainLaw, injection: bool, s: dict[str, ca.SX], w_h
         s["gain"],
         s["inj"] if injection else None,
         w_hat_override,
+        i_noise,
     ), i_s0
 
 
@@ -124,12 +129,12 @@ def solve_equilibrium(
     Newton solve from theta_tilde = 0 misses it once the position error grows to tenths of a radian.
     Where the branch ends (a fold: the observer cannot hold the rotor position) the point is NaN.
     """
-    nominal = nominal_equilibrium_function(injection).map(n)
-    x = np.asarray(nominal(args["w_m"], args["T_e"], args["motor"], args["p"]))
+    ins = [np.asarray(args[k], float) for k in ("w_m", "T_e", "motor", "p")]
+    x = np.ascontiguousarray(evaluate_batch(nominal_equilibrium_function(injection), n, ins)[0][:, :, 0].T)
     if exact:
         return x
-    root = equilibrium_function(law, injection).map(n)
-    residual = residual_function(law, injection).map(n)
+    root = mapped(equilibrium_function(law, injection), n)
+    residual = mapped(residual_function(law, injection), n)
     true = np.broadcast_to(np.asarray(args["motor"], float).reshape(4, -1), (4, n))
     est = np.broadcast_to(np.asarray(args["estimate"], float).reshape(4, -1), (4, n))
     scale = 1.0 + np.abs(np.asarray(args["w_m"])).ravel() + np.abs(x).max(axis=0)

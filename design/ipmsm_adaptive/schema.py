@@ -16,7 +16,7 @@ from typing import Any
 
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.envelope import TuningSettings, load_tuning
-from sensorless.design.units import DriveFileError
+from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
 
@@ -90,6 +90,13 @@ class Control:
     alpha_s: float = q("angular", doc="speed-control bandwidth [rad/s]")
     T_max: float = q("torque", doc="electromagnetic torque limit [N m]")
     u_dc: float = q("voltage", doc="nominal DC-link voltage [V]")
+    # optional: the current sensor's noise, per axis, rms, in each sample at T_s (design/noise.py)
+    i_noise: float = field(
+        default=0.0, metadata={"dim": "current", "check": "positive", "doc": "current-sensor noise [A rms]"}
+    )
+
+
+I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the base (nominal peak) current
 
 
 @dataclass(frozen=True)
@@ -244,7 +251,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDri
         raise DriveFileError(file, "motor.p", f"non-physical value {motor.p}: must be >= 1")
     estimate = load_section(Estimate, table(data, "estimate", file), file, "estimate")
     rel = {"pu": base.w, "R_s_hat": estimate.R_s, "Rs_hat": estimate.R_s}
-    control = load_section(Control, table(data, "control", file), file, "control", rel)
+    control = _load_control(table(data, "control", file), file, rel, base)
     obs_t = table(data, "observer", file)
     observer = load_section(Observer, obs_t, file, "observer", rel, skip=("gains",))
     gains_t = table(obs_t, "gains", file, "observer.")
@@ -294,6 +301,18 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDri
         tuning=tuning,
         digest=digest,
     )
+
+
+def _load_control(t: Mapping[str, Any], file: str, rel: Mapping[str, float], base: Base) -> Control:
+    """[control]; ``i_noise`` (the current sensor's noise, A rms per axis and sample) is optional:
+    default I_NOISE_DEFAULT times the base current, e.g. 0.018 A for the paper's 6.08 A."""
+    c = load_section(Control, t, file, "control", rel, skip=("i_noise",))
+    if "i_noise" in t:
+        x, _ = parse_quantity(t["i_noise"], "current", file=file, key="control.i_noise")
+        if not x > 0:
+            raise DriveFileError(file, "control.i_noise", f"non-physical value {t['i_noise']!r}: must be > 0")
+        return dataclasses.replace(c, i_noise=x)
+    return dataclasses.replace(c, i_noise=I_NOISE_DEFAULT * base.i)
 
 
 def _load_runtime(data: Mapping[str, Any], file: str, rel: Mapping[str, float]) -> Runtime:

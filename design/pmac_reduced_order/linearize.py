@@ -36,6 +36,7 @@ import casadi as ca
 import numpy as np
 from sensorless.design.batch import mapped as _mapped
 from sensorless.design.linearization import Linearization
+from sensorless.design.noise import noise_rms_periodic
 from sensorless.design.poles import damping_ratio, sort_poles
 from sensorless.symbolic.frames import J, rot, wrap_angle
 from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
@@ -149,16 +150,20 @@ def _rotor_coordinates(x: Any, theta: Any, load_estimation: bool) -> Any:
     return ca.vertcat(*parts)
 
 
-def _coupled_step(s: dict[str, ca.SX], x: Any, method: str, orders_m, orders_o, load_estimation: bool):
-    """One observer step from angle theta (t_(k-1)) to theta + w T_s, fed by the motor's samples."""
+def _coupled_step(
+    s: dict[str, ca.SX], x: Any, method: str, orders_m, orders_o, load_estimation: bool, noise=None
+):
+    """One observer step from angle theta (t_(k-1)) to theta + w T_s, fed by the motor's samples;
+    ``noise`` = (n_prev, n_new) current-sensor noise added to the previous and the new current sample."""
     params = s["params"] if load_estimation else _no_load_estimation(s["params"])
     _, _, T_s = split_params(params, orders_o)
     th0 = s["theta"]
     th1 = th0 + s["w"] * T_s
     sig0, _ = _plant(s, th0, orders_m)
     sig1, T_e = _plant(s, th1, orders_m)
-    x_in = ca.vertcat(x[0:5], sig0.i, sig0.v)  # the previous samples are the motor's
-    st = step(x_in, sig1.i, sig1.v, params, orders_o, method)
+    n_prev, n_new = noise if noise is not None else (0, 0)
+    x_in = ca.vertcat(x[0:5], sig0.i + n_prev, sig0.v)  # the previous samples are the motor's
+    st = step(x_in, sig1.i + n_new, sig1.v, params, orders_o, method)
     return st, th1, T_e
 
 
@@ -188,6 +193,34 @@ def discrete_jacobian_function(
     Jy0, x_next = f(y_of_x, *s.values())
     name = f"pmac_reduced_order_jacobian_d_{method.replace('-', '_')}{'' if load_estimation else '_noTL'}"
     return ca.Function(name, [x_sym, *s.values()], [Jy0, x_next], ["x", *INPUT_NAMES], ["Jy", "x_next"])
+
+
+@functools.cache
+def discrete_noise_function(
+    method: str, orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool = True
+) -> ca.Function:
+    """(x, theta, w, T_L, motor, params) -> (G_new, G_prev): the one-step map's input from current-
+    sensor noise (stationary frame, A) added to the new sample and to the stored previous one, in the
+    rotor coordinates of :func:`discrete_jacobian_function` (Jacobians of the step that runs, at zero
+    noise). A sample's noise enters two steps (as the new sample, then as the previous one)."""
+    s = symbols(orders_m, orders_o)
+    ny = 5 if load_estimation else 4
+    y = ca.SX.sym("y", ny)
+    n_prev, n_new = ca.SX.sym("n_prev", 2), ca.SX.sym("n_new", 2)
+    th0 = s["theta"]
+    zeta = rot(th0) @ y[0:2]
+    tau = y[2] if load_estimation else 0
+    x = ca.vertcat(zeta, tau, y[ny - 2] + th0, y[ny - 1], ca.DM.zeros(4))
+    st, th1, _ = _coupled_step(s, x, method, orders_m, orders_o, load_estimation, (n_prev, n_new))
+    y1 = _rotor_coordinates(st.x_next, th1, load_estimation)
+    outs = [ca.jacobian(y1, n_new), ca.jacobian(y1, n_prev)]
+    outs = [ca.substitute(o, ca.vertcat(n_prev, n_new), ca.DM.zeros(4)) for o in outs]
+    x_sym = ca.SX.sym("x", N_STATE)
+    y_of_x = _rotor_coordinates(x_sym, th0, load_estimation)
+    f = ca.Function("f", [y, *s.values()], outs)
+    G1, G0 = f(y_of_x, *s.values())
+    name = f"pmac_reduced_order_noise_d_{method.replace('-', '_')}{'' if load_estimation else '_noTL'}"
+    return ca.Function(name, [x_sym, *s.values()], [G1, G0], ["x", *INPUT_NAMES], ["G_new", "G_prev"])
 
 
 @functools.cache
@@ -291,6 +324,9 @@ class ObserverPoles(Linearization):
     err_T: np.ndarray  # steady-state load error T_L + B omega - T_L_hat, mean [N m]
     ripple_w: np.ndarray  # peak-to-peak speed error over the window [rad/s]
     ripple_T: np.ndarray  # peak-to-peak load error over the window [N m]
+    # (N, 2) RMS of the position [rad] and speed [rad/s] estimates from the drive's current-sensor
+    # noise (``analyze(..., noise=True)``, design/noise.py); inf where unstable
+    noise: np.ndarray | None = None
 
     @property
     def T_L(self) -> np.ndarray:
@@ -374,6 +410,7 @@ def analyze(
     Gamma: float | None = None,
     settle_time: float | None = None,
     n_angles: int = 64,
+    noise: bool = False,
 ) -> ObserverPoles:
     """Continuous and discrete poles and the discrete steady-state errors at (w [rad/s], T_L [N m]).
 
@@ -381,6 +418,9 @@ def analyze(
     the exact state for ``settle_time`` (default: 8 time constants of the slowest continuous pole,
     0.02..3 s), then over a window of M steps covering whole periods of the rotor-frame dynamics: the
     errors are averaged over it and the one-step Jacobians along it multiply to the monodromy matrix.
+    ``noise``: also the RMS of the position and speed estimates from the drive's current-sensor noise
+    (``[control] i_noise`` per axis and sample): the periodic discrete Lyapunov equation over the same
+    window, with the noise of a sample entering two steps (design/noise.py).
     """
     method = method or drive.control.discretization
     T_s = drive.control.T_s if T_s is None else T_s
@@ -444,6 +484,33 @@ def analyze(
     Jy = np.where(keep[:, :, None, None], Jy, np.eye(nd))
     ok &= np.isfinite(Jy).all(axis=(1, 2, 3))
     Jy[~ok] = np.eye(nd)
+    noise_rms = None
+    if noise:
+        gfn = _mapped(discrete_noise_function(method, om, oo, load_estimation), n * mj)
+        G1, G0 = (
+            np.asarray(a).reshape(nd, n * mj, 2).transpose(1, 0, 2).reshape(n, mj, nd, 2)
+            for a in gfn(
+                xs,
+                ths[None],
+                np.repeat(w_f, mj)[None],
+                np.repeat(T_f, mj)[None],
+                motor[:, None],
+                params[:, None],
+            )
+        )
+        G1 = np.where(keep[:, :, None, None], G1, 0.0)
+        G0 = np.where(keep[:, :, None, None], G0, 0.0)
+        # augmented state [y; n_(k-1)]: y_k = F y_(k-1) + G_prev n_(k-1) + G_new n_k, then store n_k
+        Fa = np.zeros((n, mj, nd + 2, nd + 2))
+        Fa[:, :, :nd, :nd] = Jy
+        Fa[:, :, :nd, nd:] = G0
+        Ga = np.zeros((n, mj, nd + 2, 2))
+        Ga[:, :, :nd, :] = G1
+        Ga[:, :, nd:, :] = np.eye(2)
+        Ca = np.zeros((2, nd + 2))
+        Ca[0, nd - 2], Ca[1, nd - 1] = 1.0, 1.0  # position error, speed estimate
+        noise_rms = noise_rms_periodic(Fa, Ga, Ca, float(drive.control.i_noise))
+        noise_rms[~ok] = np.nan
     mu = np.linalg.eigvals(ordered_product(Jy)).astype(complex)
     order = np.argsort(-np.abs(mu), axis=-1, kind="stable")
     mu = np.take_along_axis(mu, order, axis=-1)
@@ -471,4 +538,5 @@ def analyze(
         err_T=mean[2],
         ripple_w=ptp[0],
         ripple_T=ptp[2],
+        noise=noise_rms,
     )

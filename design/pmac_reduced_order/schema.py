@@ -24,7 +24,7 @@ import casadi as ca
 import numpy as np
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.units import DriveFileError, parse_quantity
-from sensorless.symbolic.pmac import EmfSeries, flux_derivative
+from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS, param_names
 
 READINGS = {
@@ -91,6 +91,13 @@ class PmacControl:
     discretization: str = field(metadata={"dim": "choice", "doc": "observer discretization scheme"})
     alpha_s: float = q("angular", doc="speed-loop bandwidth [rad/s]")
     T_max: float = q("torque", doc="torque reference limit [N m]; bounds the runtime observer's load state")
+    # optional: the current sensor's noise, per axis, rms, in each sample at T_s (design/noise.py)
+    i_noise: float = field(
+        default=0.0, metadata={"dim": "current", "check": "positive", "doc": "current-sensor noise [A rms]"}
+    )
+
+
+I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N, base speed
 
 
 @dataclass(frozen=True)
@@ -209,6 +216,24 @@ def _harmonics(
     return orders, tuple(Phi)
 
 
+def nominal_current(drive: PmacDrive) -> float:
+    """Amplitude of the current vector at the nominal torque and base speed (the ripple-free current
+    (25) of the true motor, symbolic/pmac.py) [A]: the scale of the default current-sensor noise."""
+    m = drive.motor
+    f = _current_function(tuple(m.harmonics))
+    return float(f(0.0, drive.w_base, drive.T_N, m.vector()))
+
+
+@functools.cache
+def _current_function(orders: tuple[int, ...]) -> ca.Function:
+    """(theta, w, T_L, motor) -> |i| at that operating point."""
+    th, w, T = ca.SX.sym("theta"), ca.SX.sym("w"), ca.SX.sym("T_L")
+    mv = ca.SX.sym("motor", 5 + len(orders))
+    p = PmacParams(mv[0], mv[1], mv[2], mv[3], mv[4])
+    sig, _ = operating_point_signals(th, w, T, p, EmfSeries(orders, mv[5:]))
+    return ca.Function("nominal_current", [th, w, T, mv], [ca.norm_2(sig.i)])
+
+
 @functools.cache
 def _phi_magnitude(orders: tuple[int, ...]) -> ca.Function:
     """(theta, Phi) -> |phi(theta)| of eq. (4) (symbolic/pmac.py)."""
@@ -246,7 +271,8 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDriv
         )
     estimate = _with_harmonics(PmacEstimate, table(data, "estimate", file), file, "estimate")
     observer = load_section(PmacObserver, table(data, "observer", file), file, "observer")
-    control = load_section(PmacControl, table(data, "control", file), file, "control")
+    control_t = table(data, "control", file)
+    control = load_section(PmacControl, control_t, file, "control", skip=("i_noise",))
     if control.discretization not in DISCRETIZATIONS:
         raise DriveFileError(
             file,
@@ -277,6 +303,15 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDriv
         envelope=envelope,
         digest=digest,
     )
+    if "i_noise" in control_t:
+        x, _ = parse_quantity(control_t["i_noise"], "current", file=file, key="control.i_noise")
+        if not x > 0:
+            raise DriveFileError(
+                file, "control.i_noise", f"non-physical value {control_t['i_noise']!r}: must be > 0"
+            )
+    else:
+        x = I_NOISE_DEFAULT * nominal_current(drive)
+    drive = dataclasses.replace(drive, control=dataclasses.replace(control, i_noise=float(x)))
     # The speed sign (14) reads the angle step modulo pi: |w| T_s must stay below pi/2.
     w_max = float(np.max(np.abs(drive.rpm_to_w(envelope.speeds))))
     if w_max * control.T_s >= math.pi / 2:

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _version
 
+from sensorless.design.envelope import NOISE_DIMS, NOISE_OUTPUTS
 from sensorless.design.units import MAGNITUDE, DriveFileError, check_magnitude, parse_number, parse_quantity
 
 # The damping ratio a stability report requires by default (``sensorless report --min-damping``);
@@ -140,3 +141,46 @@ def quantities(
             raise option_error(option, f"{v} is out of range: {limit[1]}")
         out.append(x)
     return out
+
+
+def parse_max_noise(text: str, w_base: float) -> tuple[tuple[str, float], ...]:
+    """``position=0.05deg,speed=0.002pu`` (or a bare quantity: an angle limits the position, a speed
+    the speed) -> ((output, SI limit), ...)."""
+    out: dict[str, float] = {}
+    for item in (p.strip() for p in text.split(",") if p.strip()):
+        name, sep, val = item.partition("=")
+        if not sep:
+            val = name
+            for cand in NOISE_OUTPUTS:
+                try:
+                    parse_quantity(_spaced(val), NOISE_DIMS[cand], file="command line", key="--max-noise")
+                except DriveFileError:
+                    continue
+                name = cand
+                break
+            else:
+                raise UsageError(
+                    f"--max-noise: cannot read {item!r}: give an angle (e.g. 0.05deg: position) or a speed "
+                    "(e.g. 0.002pu, 1rad/s: speed), or NAME=VALUE with NAME in " + ", ".join(NOISE_OUTPUTS)
+                )
+        name = name.strip()
+        if name not in NOISE_OUTPUTS:
+            raise UsageError(
+                f"--max-noise: unknown noise output {name!r} (allowed: {', '.join(NOISE_OUTPUTS)})"
+            )
+        x, rel = parse_quantity(_spaced(val), NOISE_DIMS[name], file="command line", key="--max-noise")
+        out[name] = x * w_base if rel == "pu" else x
+    return tuple(out.items())
+
+
+def _spaced(v: str) -> str:
+    """'0.05deg' -> '0.05 deg' (a unit may follow the number without a space)."""
+    v = v.strip()
+    i = 0
+    while (
+        i < len(v)
+        and (v[i].isdigit() or v[i] in "+-.eE")
+        and not (v[i] in "eE" and i + 1 < len(v) and v[i + 1].isalpha())
+    ):
+        i += 1
+    return f"{v[:i]} {v[i:]}".strip()

@@ -2,10 +2,13 @@
 
 The drive's observer family offers tunable gain families (tuning/family.py; ``--family``, default its
 first); envelope and constraints come from the drive file and the family's options (reports/family.py).
-Progress goes to stderr; the summary and the written files to stdout. If the tuner fails or the
-constraints cannot be met, one line says so and the exit status is 2; nothing is written. If the best
-gains found are still below the damping a report requires by default (common.MIN_DAMPING), or their
-worst damping is not finite, the tables are written (they are the result) with a warning line, and
+Progress goes to stderr; the summary (with the pointwise bound on a line of its own) and the written
+files to stdout: ``gains_<family>.json``/``.csv``, ``speeds_<family>.csv`` (the bound beside the
+family, its seed and the drive file's gains at every dense speed) when the tuner computed the bound,
+``pareto_<family>.csv`` with ``--pareto``. If the tuner fails or the constraints cannot be met, one line
+says so (for an infeasible envelope, with its evidence) and the exit status is 2; nothing is written. If
+the best gains found are still below the damping a report requires by default (common.MIN_DAMPING), or
+their worst damping is not finite, the tables are written (they are the result) with a warning line, and
 the exit status is 3.
 """
 
@@ -23,7 +26,7 @@ from sensorless.design.registry import family_of
 from sensorless.reports.cli.common import MIN_DAMPING, UsageError
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
-from sensorless.reports.gain_csv import table_csv
+from sensorless.reports.gain_csv import pareto_csv, speeds_csv, table_csv
 from sensorless.tuning.family import all_tunables, tunable_for
 from sensorless.tuning.nlp import TuningError
 
@@ -63,7 +66,13 @@ def run(args: argparse.Namespace) -> int:
     refuse_foreign(args, fam, "tune")
     settings = h.tune_settings(drive, args, tunable) if h.tune_settings is not None else None
     json_name, csv_name = f"gains_{tunable.name}.json", f"gains_{tunable.name}.csv"
-    out = OutputSet(args.out or f"tune-{drive.name}", force=args.force, names=(json_name, csv_name))
+    speeds_name, pareto_name = f"speeds_{tunable.name}.csv", f"pareto_{tunable.name}.csv"
+    names = [json_name, csv_name]
+    if getattr(settings, "bound", False):
+        names.append(speeds_name)
+    if getattr(settings, "pareto", 0):
+        names.append(pareto_name)
+    out = OutputSet(args.out or f"tune-{drive.name}", force=args.force, names=names)
     out.check()  # refuse unwritable or existing outputs before the work
     t0 = time.perf_counter()
 
@@ -82,6 +91,10 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(r.summary_lines(drive)))
     out.add_text(json_name, r.table.to_json())
     out.add_text(csv_name, table_csv(r.table, tunable.columns))
+    if "speeds" in r.table.summary:
+        out.add_text(speeds_name, speeds_csv(r.table))
+    if "pareto" in r.table.summary:
+        out.add_text(pareto_name, pareto_csv(r.table))
     for p in out.commit():
         print(f"wrote {p}")
     worst = r.table.summary.get("worst_damping")

@@ -33,6 +33,7 @@ from sensorless.reports.document import (
     report_inputs,
     svg_uri,
 )
+from sensorless.reports.ipmsm_adaptive import tuning
 from sensorless.reports.ipmsm_adaptive.discrete import report_section as discrete_section
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
 
@@ -93,7 +94,7 @@ def compute(
         return [[f(a / wb), f(b / wb)] for a, b in out]
 
     # 1. pole maps over speed at +-T_N, each gain; then the gain under review with injection
-    steps = 6
+    steps = 7
     progress(f"[1/{steps}] pole maps over speed ({len(choices)} gains x 2 torques, {w.size} speeds)")
     pm: dict[str, Any] = {}
     for T in (T_N, -T_N):
@@ -198,6 +199,8 @@ def compute(
     data["time_domain"] = td
     progress(f"[6/{steps}] the discrete-time observer that runs ({drive.runtime.discretization})")
     data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
+    tuning_data, tuning_section = tuning.compute(drive, table, choices, review, progress)
+    data["tuning"] = tuning_data
     data["verdict"] = verdict(data, review, min_damping)
     sections = (
         drive_section(1, data["drive"]),
@@ -206,6 +209,7 @@ def compute(
         Section("4. Robustness to parameter-estimate errors", (rob_fig, _robustness_table(rob))),
         time_domain.section(5, td, td_figs),
         disc_section,
+        *([tuning_section] if tuning_section is not None else []),
     )
     return Report(drive.name, review, data, verdict_block(data["verdict"]), sections)
 

@@ -10,9 +10,9 @@ import argparse
 import dataclasses
 from typing import Any
 
-from sensorless.design.envelope import DIRECTIONS, ESTIMATE_KEYS, TuningSettings
+from sensorless.design.envelope import DIRECTIONS, ESTIMATE_KEYS, NOISE_OUTPUTS, TuningSettings
 from sensorless.design.units import DriveFileError, parse_quantity
-from sensorless.reports.cli.common import Number, UsageError, option_error, parse_torques
+from sensorless.reports.cli.common import Number, UsageError, option_error, parse_max_noise, parse_torques
 from sensorless.reports.family import Option
 
 SPEED = Number(0, 100, lo_open=True, unit="p.u.")
@@ -44,6 +44,30 @@ OPTIONS = (
     Option(
         ("--breakpoints",),
         {"type": Number(2, 200, integer=True), "help": "schedule: breakpoints per direction (2..200)"},
+    ),
+    Option(
+        ("--max-noise",),
+        {
+            "help": "limit the RMS noise of the estimates from the drive's current-sensor noise, e.g. "
+            "position=0.05deg,speed=0.002pu (an angle alone limits the position, a speed the speed)"
+        },
+    ),
+    Option(
+        ("--pareto",),
+        {
+            "type": Number(2, 100, integer=True),
+            "nargs": "?",
+            "const": 8,
+            "metavar": "N",
+            "help": "also compute the damping-versus-noise front at N noise limits (2..100; default 8)",
+        },
+    ),
+    Option(
+        ("--pareto-output",),
+        {
+            "choices": list(NOISE_OUTPUTS),
+            "help": "noise output of the front (default: the limited one, else position)",
+        },
     ),
 )
 
@@ -84,6 +108,12 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> TuningSettin
         out["tune_alpha_fo"] = True
     if args.breakpoints is not None:
         out["breakpoints"] = args.breakpoints
+    if args.max_noise:
+        out["max_noise"] = parse_max_noise(args.max_noise, drive.w_base)
+    if args.pareto is not None:
+        out["pareto"] = args.pareto
+    if args.pareto_output:
+        out["pareto_output"] = args.pareto_output
     result = dataclasses.replace(s, **out)
     try:
         result.check("", prefix="")

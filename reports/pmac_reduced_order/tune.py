@@ -10,7 +10,7 @@ import argparse
 import dataclasses
 from typing import Any
 
-from sensorless.reports.cli.common import Number, UsageError
+from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
 from sensorless.reports.family import Option
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.pmac_reduced_order.deangelo import DeAngeloSettings, default_settings
@@ -24,14 +24,21 @@ OPTIONS = (
         ("--g-max",),
         {
             "type": Number(0, 1e9, lo_open=True, unit="1/s"),
-            "help": "upper bound on g [1/s] (default 2x the drive's)",
+            "help": "search box: upper bound on g [1/s] (default 100x the drive's)",
         },
     ),
     Option(
         ("--Gamma-max",),
         {
             "type": Number(0, 1e12, lo_open=True, unit="A^2 s^2"),
-            "help": "upper bound on Gamma [A^2 s^2] (default 100x the drive's)",
+            "help": "search box: upper bound on Gamma [A^2 s^2] (default 10^4 x the drive's)",
+        },
+    ),
+    Option(
+        ("--max-noise",),
+        {
+            "help": "limit the RMS noise of the estimates from the drive's current-sensor noise, e.g. "
+            "position=0.05deg,speed=0.002pu (an angle alone limits the position, a speed the speed)"
         },
     ),
     Option(
@@ -49,6 +56,8 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> DeAngeloSett
         v = getattr(args, key)
         if v is not None:
             out[key] = v
+    if args.max_noise:
+        out["max_noise"] = parse_max_noise(args.max_noise, drive.w_base)
     s = dataclasses.replace(s, **out)
     try:
         s.check("command line")

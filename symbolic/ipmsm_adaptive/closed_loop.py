@@ -8,8 +8,11 @@ processes those measurements; the position error integrates w_m - w_hat. With th
 averaged error (19) drives the PI (21), which corrects the flux model as in (20).
 
 States x = [psi_hat_d, psi_hat_q, theta_tilde, w_i] (+ [x_eps] with injection); input w_m; output
-w_hat. The paper's error coordinates (i_tilde, theta_tilde) are an output map z(x) of this system, so
-the linearization can be expressed in either; nothing about the error dynamics is typed by hand.
+w_hat. An optional second input, the current-measurement noise n (A, in the estimated rotor frame),
+is added to the measured current the observer sees (not to the motor's): its Jacobians give the
+noise input of the linearization, from the same expressions. The paper's error coordinates
+(i_tilde, theta_tilde) are an output map z(x) of this system, so the linearization can be expressed in
+either; nothing about the error dynamics is typed by hand.
 """
 
 from __future__ import annotations
@@ -63,15 +66,20 @@ def closed_loop(
     gain_params: Sym,
     inj: Sym | None = None,
     w_hat_override: Sym | None = None,
+    i_noise: Sym | None = None,
 ) -> ClosedLoop:
     """The coupled system's right-hand side.
 
     ``inj`` = [w_c, u_c, alpha_i, w_Delta] enables the averaged HF-injection loop (x has 5 states).
     ``w_hat_override`` opens the speed-adaptation loop: the given w_hat replaces the PI output (9),
     which gives the open-loop system (12) with the speed error w_m - w_hat as its input.
+    ``i_noise`` (2x1, A) is added to the measured current (current-sensor noise seen in the estimated
+    frame; white isotropic noise has the same statistics in every frame).
     """
     psi_hat, theta_tilde, w_i = x[0:2], x[2], x[3]
     i_meas, u_meas, _ = operating_point_signals(theta_tilde, w_m, i_s0, motor)
+    if i_noise is not None:
+        i_meas = i_meas + i_noise
     w_hat = w_hat_override
     if w_hat is None:
         w_hat = speed_adaptation(psi_hat, w_i, i_meas, est, alpha_fo).w_hat  # eq. (9)

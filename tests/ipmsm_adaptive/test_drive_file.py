@@ -101,3 +101,26 @@ def test_file_and_preset_lookup(tmp_path):
     bad.write_text(edit('R_s = "3.59 ohm"', 'R_s = "3.59 H"'))
     with pytest.raises(DriveFileError, match=str(bad)):
         load_drive(bad)
+
+
+def test_current_sensor_noise_is_optional_with_a_default():
+    """[control] i_noise (A rms per axis and sample) is optional: 0.3 % of the base current by default
+    (existing drive files load unchanged); given, it is read in A or mA; checked like every key."""
+    d = load_drive_text(PRESET, "p.toml")
+    assert d.control.i_noise == pytest.approx(0.003 * d.base.i)
+    d = load_drive_text(edit('u_dc = "540 V"', 'u_dc = "540 V"\ni_noise = "20 mA"'), "p.toml")
+    assert d.control.i_noise == pytest.approx(0.02)
+    for bad, words in (('"-1 A"', "non-physical"), ('"1 V"', "not a current unit")):
+        with pytest.raises(DriveFileError, match=rf"key 'control\.i_noise'.*{words}"):
+            load_drive_text(edit('u_dc = "540 V"', f'u_dc = "540 V"\ni_noise = {bad}'), "p.toml")
+
+
+def test_noise_limits_in_the_tuning_section():
+    d = load_drive_text(
+        edit("breakpoints = 11", 'breakpoints = 11\nmax_noise = { position = "0.05 deg" }'), "p.toml"
+    )
+    assert d.tuning.max_noise == (("position", pytest.approx(0.05 * 3.141592653589793 / 180)),)
+    with pytest.raises(DriveFileError, match=r"tuning\.max_noise\.torque"):
+        load_drive_text(
+            edit("breakpoints = 11", 'breakpoints = 11\nmax_noise = { torque = "1 deg" }'), "p.toml"
+        )

@@ -126,3 +126,15 @@ def test_bad_input_names_file_and_key(text, key, words):
     assert msg.startswith("my002.toml: key '"), msg
     assert f"'{key}'" in msg, msg
     assert words in msg, msg
+
+
+def test_current_sensor_noise_is_optional_with_a_default():
+    """[control] i_noise is optional: 0.3 % of the current amplitude at the nominal torque and base speed
+    (the analysis's own operating point); given, read in A; checked like every key."""
+    d = load_drive_text(PRESET, "p.toml")
+    assert d.control.i_noise == pytest.approx(0.003 * d.T_N / d.motor.Phi[0], rel=0.05)
+    old = 'T_max = "143 Nm"'
+    d = load_drive_text(edit(old, old + '\ni_noise = "0.2 A"'), "p.toml")
+    assert d.control.i_noise == pytest.approx(0.2)
+    with pytest.raises(DriveFileError, match=r"key 'control\.i_noise'.*non-physical"):
+        load_drive_text(edit(old, old + '\ni_noise = "0 A"'), "p.toml")

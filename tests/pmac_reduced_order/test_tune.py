@@ -99,3 +99,41 @@ def test_cli_tune_deangelo_refuses_foreign_options(tmp_path, capsys):
     assert main(["tune", "deangelo2006", "--g-max", "1", "--out", str(out)]) == 2  # g_max < g_min
     assert "--g-max" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_noise_figure_matches_the_observer_run_with_noisy_currents(deangelo2006):
+    """The RMS of the position and speed estimates from current-sensor noise (the discrete observer's
+    linearization, a sample's noise entering two steps; design/noise.py) against the observer step that
+    runs, fed by the motor's samples plus white noise of i_noise per axis: within 15 %."""
+    import casadi as ca
+    from sensorless.design.pmac_reduced_order.linearize import (
+        _plant,
+        analysis_arguments,
+        exact_state_function,
+        symbols,
+    )
+    from sensorless.symbolic.frames import wrap_angle
+    from sensorless.symbolic.pmac_reduced_order.step import N_STATE, step
+
+    d, g, G = deangelo2006, 800.0, 4e5
+    w, T_L = d.rpm_to_w(250.0), 5.0
+    r = analyze(d, w, T_L, g=g, Gamma=G, noise=True)
+    om, oo, motor, params = analysis_arguments(d, g=g, Gamma=G)
+    s = symbols(om, oo)
+    x, nz = ca.SX.sym("x", N_STATE), ca.SX.sym("n", 2)
+    th0 = ca.SX.sym("theta")
+    th1 = th0 + s["w"] * d.T_s
+    sig1, _ = _plant(s, th1, om)
+    st = step(x, sig1.i + nz, sig1.v, s["params"], oo, d.control.discretization)
+    err = ca.vertcat(wrap_angle(th1 - st.est.theta_hat), s["w"] - st.est.w_hat)
+    f = ca.Function("f", [ca.vertcat(x, th0), nz, s["w"], s["T_L"], s["motor"], s["params"]],
+                    [ca.vertcat(st.x_next, wrap_angle(th1)), err])  # fmt: skip
+    N = 40_000
+    F = f.mapaccum(N)
+    x0 = np.asarray(exact_state_function(om, oo, True)(0.3, w, T_L, motor, params)).ravel()
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0.0, d.control.i_noise, size=(2, N))
+    _, e = F(np.append(x0, 0.3), noise, w, T_L, motor, params)
+    e = np.asarray(e)[:, N // 4 :]
+    sim = np.sqrt(np.mean((e - e.mean(axis=1, keepdims=True)) ** 2, axis=1))
+    np.testing.assert_allclose(sim, r.noise[0], rtol=0.15)

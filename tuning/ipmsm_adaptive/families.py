@@ -25,8 +25,8 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.envelope import TuningSettings
-from sensorless.design.ipmsm_adaptive.linearize import linearization_function
+from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
+from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
 from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law, schedule_law, taylor_law
 from sensorless.tuning.model import TuningModel
@@ -37,14 +37,16 @@ GAIN_BOX = 20.0  # default search box |lambda| <= 20 R̂s when no lambda_max is 
 LAMBDA1_MIN = -0.9  # lambda1 > -R̂s (Section IV-B): the box keeps lambda1 >= -0.9 R̂s
 
 
-def _closed_loop(drive: Any, law: GainLaw, tune_alpha: bool) -> tuple[ca.Function, ca.Function]:
-    """(local, linearization) Functions of the family.
+def _closed_loop(drive: Any, law: GainLaw, tune_alpha: bool) -> tuple[ca.Function, ca.Function, ca.Function]:
+    """(local, linearization, noise) Functions of the family.
 
     local(theta, point) -> phi = [lambda1, lambda2, dlambda1/dw_hat, dlambda2/dw_hat, w_m, alpha_fo]:
     the law (16) or schedule and its slope at the point's speed, by AD of the one law expression.
     linearization(phi, x, point) -> (A, x_dot): the analysis closed loop (ipmsm_adaptive/linearize.py)
     with the law replaced by its first-order expansion at w_m, which gives the same residual and Jacobian
-    at any equilibrium (w_hat = w_m there; see ``taylor_law``). Drive constants are inlined.
+    at any equilibrium (w_hat = w_m there; see ``taylor_law``). noise(phi, x, point) -> (B_n, C_n, D_n):
+    the input from current-measurement noise and the outputs [theta_tilde, w_hat]
+    (design/ipmsm_adaptive/linearize.py ``noise_function``). Drive constants are inlined.
     """
     nth = law.n_params + int(tune_alpha)
     th = ca.SX.sym("theta", nth)
@@ -63,21 +65,30 @@ def _closed_loop(drive: Any, law: GainLaw, tune_alpha: bool) -> tuple[ca.Functio
     phi = ca.SX.sym("phi", N_PHI)
     x = ca.SX.sym("x", 4)
     inj = drive.injection
-    out = lin(
-        x=x,
-        w_m=pt[0],
-        T_e=pt[1],
-        motor=ca.DM(drive.motor.vector()),
-        p=float(drive.motor.p),
-        estimate=pt[2:6],
-        gain=phi[:5],
-        alpha_fo=phi[5],
-        inj=ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
-    )
+    args = {
+        "x": x,
+        "w_m": pt[0],
+        "T_e": pt[1],
+        "motor": ca.DM(drive.motor.vector()),
+        "p": float(drive.motor.p),
+        "estimate": pt[2:6],
+        "gain": phi[:5],
+        "alpha_fo": phi[5],
+        "inj": ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
+    }
+    out = lin(**args)
     linear = ca.Function(
         "closed_loop_local", [phi, x, pt], [out["A"], out["x_dot"]], ["phi", "x", "point"], ["A", "x_dot"]
     )
-    return local, linear
+    nz = noise_function(taylor_law(), False)(**args)
+    noise = ca.Function(
+        "closed_loop_noise",
+        [phi, x, pt],
+        [ca.densify(nz["B_n"]), ca.densify(nz["C_n"]), ca.densify(nz["D_n"])],
+        ["phi", "x", "point"],
+        ["B_n", "C_n", "D_n"],
+    )
+    return local, linear, noise
 
 
 @functools.cache
@@ -102,9 +113,21 @@ def _common(drive: Any, law: GainLaw, settings: TuningSettings, theta0, lower, u
     inj = drive.injection
 
     def equilibrium(theta: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """Equilibria (4, N); theta (n_theta,) or one per point (n_theta, N)."""
         N = P.shape[1]
-        gain = np.zeros(law.width)
-        gain[: law.n_params] = theta[: law.n_params]
+        exact = bool(np.all(P[2:6] == motor[:, None]))
+        if exact:  # closed form, independent of the gains
+            return solve_equilibrium(
+                law,
+                False,
+                {"w_m": P[0:1], "T_e": P[1:2], "motor": motor, "p": np.array(float(drive.motor.p))},
+                N,
+                True,
+            )
+        theta = np.asarray(theta, float)
+        th = theta.reshape(theta.shape[0], -1)
+        gain = np.zeros((law.width, th.shape[1]))
+        gain[: law.n_params] = th[: law.n_params]
         args = {
             "w_m": P[0:1],
             "T_e": P[1:2],
@@ -112,11 +135,10 @@ def _common(drive: Any, law: GainLaw, settings: TuningSettings, theta0, lower, u
             "p": np.array(float(drive.motor.p)),
             "estimate": P[2:6],
             "gain": gain,
-            "alpha_fo": np.array(theta[law.n_params] if tune_alpha else a0),
+            "alpha_fo": th[law.n_params : law.n_params + 1] if tune_alpha else np.array(a0),
             "inj": np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
         }
-        exact = bool(np.all(P[2:6] == motor[:, None]))
-        return solve_equilibrium(law, False, args, N, exact)
+        return solve_equilibrium(law, False, args, N, False)
 
     def point_gains(theta: np.ndarray, w_hat: np.ndarray) -> dict[str, np.ndarray]:
         gain = np.zeros(law.width)
@@ -129,8 +151,15 @@ def _common(drive: Any, law: GainLaw, settings: TuningSettings, theta0, lower, u
         w_b, T_b = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))
         return np.vstack([w_b.ravel(), T_b.ravel(), np.repeat(np.asarray(est, float)[:, None], w_b.size, 1)])
 
+    def pointwise_gains(theta: np.ndarray, w: np.ndarray) -> np.ndarray:
+        g = point_gains(theta, np.asarray(w, float))
+        cols = [g["lambda1_ohm"], g["lambda2_ohm"]]
+        if tune_alpha:
+            cols.append(np.full(len(cols[0]), theta[law.n_params]))
+        return np.column_stack(cols)
+
     est = drive.estimate
-    local, linear = _closed_loop(drive, law, tune_alpha)
+    local, linear, noise = _closed_loop(drive, law, tune_alpha)
     R, wb = est.R_s, drive.base.w
     return TuningModel(
         names=tuple(names),
@@ -149,6 +178,15 @@ def _common(drive: Any, law: GainLaw, settings: TuningSettings, theta0, lower, u
         point_gains=point_gains,
         nominal_estimate=np.array(est.vector()),
         estimate_names=("R_s", "L_d", "L_q", "psi_pm"),
+        # exact estimates: x0 = [psi_s0; 0; w_m] whatever the gains (closed form)
+        fixed_equilibrium=lambda P: np.all(P[2:6] == motor[:, None], axis=0),
+        noise=noise,
+        noise_outputs=NOISE_OUTPUTS,
+        noise_units=("rad", "rad/s"),
+        noise_sigma=drive.control.i_noise,
+        T_s=drive.control.T_s,
+        pointwise=lambda: build_pointwise(drive, settings),
+        pointwise_gains=pointwise_gains,
         **kw,
     )
 
@@ -174,6 +212,16 @@ def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = 
             "alpha_fo": float(theta[2] if settings.tune_alpha_fo else a0),
         }
 
+    def starts() -> np.ndarray:
+        """Global phase: a log grid of lambda' (0.25 R̂s .. the bound) x omega_lambda (0.02 .. 5 p.u.)."""
+        lp = np.geomspace(0.25 * R, lam_max, 10)
+        wl = np.geomspace(0.02 * wb, 5.0 * wb, 10)
+        L, Wl = np.meshgrid(lp, wl)
+        out = np.column_stack([L.ravel(), Wl.ravel()])
+        if settings.tune_alpha_fo:
+            out = np.vstack([np.column_stack([out, np.full(len(out), k * a0)]) for k in (0.5, 1.0, 2.0)])
+        return out
+
     return _common(
         drive,
         law,
@@ -187,10 +235,12 @@ def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = 
         # speed) and any point on it is as good; the NLP is deterministic for given inputs
         regularizer=None,
         table_gains=table_gains,
-        # L-BFGS: the same optimum in as many iterations without the Hessian of the slots (default
-        # envelope: 45 -> 30 ms, benchmarks/bench_tune.py). Not for the schedule: with 50
-        # parameters it needs 10x the iterations and ends lower.
-        hessian="limited-memory",
+        # exact Hessian: with the equilibria as data (exact estimates) the slots' second derivatives
+        # are cheap, and IPOPT needs fewer iterations than with L-BFGS (benchmarks/bench_tune.py);
+        # 8 points in the first round: the binding ones of the default envelope in one round
+        hessian="exact",
+        n_initial_active=8,
+        starts=starts,
     )
 
 
@@ -257,6 +307,16 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
         start = _law16_at(grid, np.asarray(seed, float))
         if settings.tune_alpha_fo:
             start = np.append(start, seed[2])
+
+    def from_pointwise(speeds: np.ndarray, optima: np.ndarray) -> np.ndarray:
+        """The pointwise optima (per speed: lambda1, lambda2[, alpha_fo]) sampled at the breakpoints
+        (linear between speeds, held beyond; zero speed: the mean of the two directions' nearest)."""
+        out = [_sample(speeds, optima[:, c], w) for c in range(2)]
+        th = np.concatenate(out)
+        if settings.tune_alpha_fo:
+            th = np.append(th, float(np.median(optima[:, 2])) if optima.shape[1] > 2 else a0)
+        return th
+
     return _common(
         drive,
         law,
@@ -270,6 +330,78 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
         table_gains=table_gains,
         start=start,
         start_label="law16 optimum" if seed is not None else "",
+        from_pointwise=from_pointwise,
+        n_initial_active=16,
+    )
+
+
+def _running_median(speeds: np.ndarray, v: np.ndarray, k: int = 5) -> np.ndarray:
+    """Running median over k neighbours within each direction (speeds of one sign)."""
+    out = v.copy()
+    for sign in (-1, 1):
+        idx = np.flatnonzero(np.sign(speeds) == sign)
+        for j, i in enumerate(idx):
+            lo, hi = max(0, j - k // 2), min(idx.size, j + k // 2 + 1)
+            out[i] = np.median(v[idx[lo:hi]])
+    return out
+
+
+def _sample(speeds: np.ndarray, v: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """v(speeds) at the breakpoints ``at``: linear within each direction, held beyond its ends; at zero
+    (between the directions) the mean of the nearest values of both."""
+    out = np.empty(at.size)
+    neg, pos = speeds < 0, speeds > 0
+    for i, x in enumerate(at):
+        if x < 0 and neg.any():
+            out[i] = np.interp(x, speeds[neg], v[neg])
+        elif x > 0 and pos.any():
+            out[i] = np.interp(x, speeds[pos], v[pos])
+        else:
+            near = [v[m][np.argmin(np.abs(speeds[m]))] for m in (neg, pos) if m.any()]
+            out[i] = float(np.mean(near))
+    return out
+
+
+def _signed_log(lo: float, hi: float, R: float, n: int) -> np.ndarray:
+    """Gains from lo to hi [ohm]: zero, and geometric from 0.1 R̂s to the bound on each side."""
+    out = [0.0]
+    if hi > 0.1 * R:
+        out += list(np.geomspace(0.1 * R, hi, n))
+    if lo < -0.1 * R:
+        out += list(-np.geomspace(0.1 * R, -lo, n))
+    return np.unique(np.clip(out, lo, hi))
+
+
+def build_pointwise(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
+    """The free gains at one operating point: theta = [lambda1, lambda2] (constant law, eq. (7)), in the
+    box of the schedule; the model of the pointwise bound (tuning/bound.py)."""
+    law = get_law("constant")
+    R = drive.estimate.R_s
+    a0 = drive.observer.alpha_fo
+    lam_max = settings.lambda_max if settings.lambda_max is not None else GAIN_BOX * R
+    g = drive.gain("speed")
+
+    def starts() -> np.ndarray:
+        l1 = _signed_log(max(LAMBDA1_MIN * R, -lam_max), lam_max, R, 9)
+        l2 = _signed_log(-lam_max, lam_max, R, 8)
+        L1, L2 = np.meshgrid(l1, l2)
+        out = np.column_stack([L1.ravel(), L2.ravel()])
+        if settings.tune_alpha_fo:
+            out = np.vstack([np.column_stack([out, np.full(len(out), k * a0)]) for k in (0.5, 1.0, 2.0)])
+        return out
+
+    return _common(
+        drive,
+        law,
+        settings,
+        theta0=[g.lambda_p, g.lambda_p],
+        lower=[max(LAMBDA1_MIN * R, -lam_max), -lam_max],
+        upper=[lam_max, lam_max],
+        typical=[R, R],
+        family="pointwise",
+        regularizer=None,
+        table_gains=lambda theta: {"lambda1": float(theta[0]), "lambda2": float(theta[1])},
+        starts=starts,
     )
 
 

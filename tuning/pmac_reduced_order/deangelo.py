@@ -5,9 +5,14 @@ De Angelo, Bossio, Solsona, Garcia, Valla (2006), eqs. (9)-(10).
 Objective. The paper's gains already give damping 1 at every envelope point (all poles real), so
 maximizing the worst damping is degenerate here: the tuner maximizes the worst **decay rate**
 (slowest pole) of the observer's error dynamics over the envelope (speeds x load torques, the
-drive's ``[envelope]``), subject to a worst damping >= ``min_damping`` (default 1/sqrt(2)) and box
-bounds on g and Gamma (noise: e_hat carries the current noise times g L, T_L_hat the EMF noise
-times Gamma; defaults 2x the drive's g and 100x its Gamma, see docs/families/pmac_reduced_order.md).
+drive's ``[envelope]``), subject to a worst damping >= ``min_damping`` (default 1/sqrt(2)) and a
+limit on the noise of the estimates: the RMS of the position (and, if given, speed) estimate caused
+by the drive's current-sensor noise (``[control] i_noise``), from the same discrete linearization
+(design/pmac_reduced_order/linearize.py ``analyze(noise=True)``, design/noise.py); default: the
+position noise at most NOISE_FACTOR (2) times that of the drive file's gains, worst over the
+envelope grid (``--max-noise`` sets absolute limits instead). The noise grows with g (e_hat carries the
+current noise times g L): the limit sets g, and the damping floor then sets Gamma. The box
+(0.01x .. 100x the drive's g, 0.01x .. 10^4x its Gamma) only bounds the search.
 
 Formulation (a sound simpler one than the sector NLP of tuning/nlp.py, for two parameters):
 
@@ -46,8 +51,9 @@ from sensorless.design.gain_table import GainTable
 from sensorless.design.pmac_reduced_order.linearize import analyze
 from sensorless.tuning.nlp import TuningError
 
-G_MAX_FACTOR = 2.0  # default bound g <= 2 g (drive)
-GAMMA_MAX_FACTOR = 100.0  # default bound Gamma <= 100 Gamma (drive)
+G_MAX_FACTOR = 100.0  # search box g <= 100 g (drive): the noise limit decides, not this
+GAMMA_MAX_FACTOR = 1e4  # search box Gamma <= 10^4 Gamma (drive)
+NOISE_FACTOR = 2.0  # default noise limit: the position noise of the drive's gains times this
 MIN_FACTOR = 0.01  # default lower bounds: 1 % of the drive's gains
 DENSE_TRIES = 6  # candidates re-verified densely at most
 
@@ -64,6 +70,13 @@ class DeAngeloSettings:
     Gamma_max: float  # [A^2 s^2]
     min_damping: float = 1 / math.sqrt(2)
     dense_factor: int = 4
+    # (output, limit SI) pairs; None: NOISE_FACTOR x the drive's gains' position noise; (): no limit
+    max_noise: tuple[tuple[str, float], ...] | None = None
+
+    def noise_limits(self) -> np.ndarray:
+        """[position rad, speed rad/s] limits (inf: none); needs resolved ``max_noise``."""
+        lim = dict(self.max_noise or ())
+        return np.array([lim.get("position", np.inf), lim.get("speed", np.inf)], float)
 
     def check(self, file: str) -> None:
         """Clear errors naming the option."""
@@ -142,29 +155,38 @@ class Figures:
     poles_c: np.ndarray  # continuous poles (Floquet exponents) [1/s]
     damping: np.ndarray  # worst per point (discrete), -inf where not finite
     decay: np.ndarray  # -max Re per point (discrete) [1/s], -inf where not finite
+    noise: np.ndarray  # (N, 2) RMS of the position [rad] and speed [rad/s] estimates; inf: unstable
 
     def worst(self) -> tuple[float, float]:
         """(worst damping, slowest decay rate)."""
         return float(np.min(self.damping)), float(np.min(self.decay))
 
+    def worst_noise(self) -> np.ndarray:
+        """[position rad, speed rad/s]: the worst RMS over the grid."""
+        return np.where(np.isnan(self.noise), np.inf, self.noise).max(axis=0)
+
 
 def figures(drive: Any, g: float, Gamma: float, n_rpm: np.ndarray, T_L: np.ndarray) -> Figures:
     """Poles of the observer with gains (g, Gamma) at the points, by linearize.analyze."""
     w = drive.rpm_to_w(n_rpm)
-    r = analyze(drive, w, T_L, g=float(g), Gamma=float(Gamma))
+    r = analyze(drive, w, T_L, g=float(g), Gamma=float(Gamma), noise=True)
     ok = np.isfinite(r.poles_discrete).all(axis=1)
     with np.errstate(invalid="ignore"):
         zeta = np.where(ok, np.nanmin(np.where(ok[:, None], r.damping_discrete, 0.0), axis=1), -np.inf)
         decay = np.where(ok, -np.max(np.where(ok[:, None], r.poles_discrete.real, 0.0), axis=1), -np.inf)
     return Figures(
-        np.asarray(n_rpm, float), w, np.asarray(T_L, float), r.poles_discrete, r.poles, zeta, decay
+        np.asarray(n_rpm, float), w, np.asarray(T_L, float), r.poles_discrete, r.poles, zeta, decay, r.noise
     )
 
 
-def _rank(f: Figures, min_damping: float) -> tuple[bool, float, float]:
-    """Lexicographic: feasible (stable, damping >= min) first, then the slowest decay, then damping."""
+def _rank(f: Figures, min_damping: float, limits: np.ndarray | None = None) -> tuple[bool, float, float]:
+    """Lexicographic: feasible (stable, damping >= min, noise within the limits) first, then the
+    slowest decay, then damping."""
     zeta, decay = f.worst()
-    return (bool(zeta >= min_damping - 1e-9 and decay > 0), decay, zeta)
+    ok = zeta >= min_damping - 1e-9 and decay > 0
+    if limits is not None:
+        ok = ok and bool(np.all(f.worst_noise() <= limits * (1 + 1e-9)))
+    return (bool(ok), decay, zeta)
 
 
 def compass_search(
@@ -222,6 +244,7 @@ class DeAngeloResult:
         env = self.table.envelope
         z0, d0 = self.dense_baseline.worst()
         z1, d1 = self.dense.worst()
+        n0, n1 = self.dense_baseline.worst_noise(), self.dense.worst_noise()
         lines = [
             f"optimized over {env['optimization_points']} points ({self.evaluations} discrete-pole "
             f"evaluations); re-verified on {env['dense_points']} points ({env['dense_factor']}x denser) "
@@ -236,13 +259,28 @@ class DeAngeloResult:
             f"{s['slowest_decay_at']['T_L_Nm']:+g} N m "
             f"(drive gains: {s['baseline_slowest_decay_at']['n_rpm']:+g} r/min, "
             f"{s['baseline_slowest_decay_at']['T_L_Nm']:+g} N m)",
-            f"bounds: g in [{self.settings.g_min:g}, {self.settings.g_max:g}] 1/s, Gamma in "
-            f"[{self.settings.Gamma_min:g}, {self.settings.Gamma_max:g}] A^2 s^2; damping >= "
-            f"{self.settings.min_damping:.3f}; sinusoidal closed form: g = {self.closed_form[0]:.5g}, "
+            f"{'noise position [deg el.]':<26}{math.degrees(n0[0]):>16.4g}{math.degrees(n1[0]):>16.4g}",
+            f"{'noise speed [rad/s el.]':<26}{n0[1]:>16.4g}{n1[1]:>16.4g}",
+            f"  (worst RMS over the dense grid for {self.table.summary['noise']['sigma_A']:.4g} A rms "
+            "current noise per axis and sample)",
+            f"constraints: noise {_limits_text(self.settings)}; damping >= {self.settings.min_damping:.3f}; "
+            f"search box g in [{self.settings.g_min:g}, {self.settings.g_max:g}] 1/s, Gamma in "
+            f"[{self.settings.Gamma_min:g}, {self.settings.Gamma_max:g}] A^2 s^2; sinusoidal closed form "
+            f"(at the g the noise limit allows): g = {self.closed_form[0]:.5g}, "
             f"Gamma = {self.closed_form[1]:.5g}",
             f"kept: {self.note}",
         ]
         return lines
+
+
+def _limits_text(st: DeAngeloSettings) -> str:
+    """The noise limits for messages: 'position <= 0.1 deg el.'."""
+    parts = []
+    for name, v in st.max_noise:
+        parts.append(
+            f"{name} <= {math.degrees(v):.4g} deg el." if name == "position" else f"{name} <= {v:.4g} rad/s"
+        )
+    return ", ".join(parts) or "no limit"
 
 
 def _where(f: Figures, k: int) -> dict[str, float]:
@@ -261,7 +299,20 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     say = progress or (lambda s: None)
     g0, G0 = float(drive.observer.g), float(drive.observer.Gamma)
     n, T = grid(st)
-    gc, Gc = closed_form(drive, st.g_max, st.Gamma_max)
+    base_grid = figures(drive, g0, G0, n, T)
+    if st.max_noise is None:
+        p0 = float(base_grid.worst_noise()[0])
+        st = dataclasses.replace(st, max_noise=(("position", NOISE_FACTOR * p0),) if np.isfinite(p0) else ())
+        say(
+            f"noise limit: position <= {math.degrees(NOISE_FACTOR * p0):.4g} deg el. rms ({NOISE_FACTOR:g} x "
+            "the drive file's gains)"
+        )
+    lim = st.noise_limits()
+    # the noise grows about in proportion to g: the closed form starts at the g the limit allows
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.nanmin(np.where(np.isfinite(lim), lim / base_grid.worst_noise(), np.inf))
+    g_cap = st.g_max if not np.isfinite(ratio) or ratio <= 0 else min(st.g_max, g0 * ratio)
+    gc, Gc = closed_form(drive, g_cap, st.Gamma_max)
     lower = np.log([st.g_min, st.Gamma_min])
     upper = np.log([st.g_max, st.Gamma_max])
     say(
@@ -270,7 +321,7 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     )
 
     def evaluate(x: np.ndarray) -> tuple:
-        rank = _rank(figures(drive, math.exp(x[0]), math.exp(x[1]), n, T), st.min_damping)
+        rank = _rank(figures(drive, math.exp(x[0]), math.exp(x[1]), n, T), st.min_damping, lim)
         say(
             f"  g = {math.exp(x[0]):9.5g} 1/s, Gamma = {math.exp(x[1]):11.5g}: slowest decay "
             f"{rank[1]:9.4g} 1/s, worst damping {rank[2]:.4f}{'' if rank[0] else ' (infeasible)'}"
@@ -285,7 +336,7 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     if not rank[0]:
         raise TuningError(
             f"{drive.file}: the envelope is infeasible: no g, Gamma within the bounds give damping >= "
-            f"{st.min_damping:.3f} and stable discrete poles at every point"
+            f"{st.min_damping:.3f}, stable discrete poles and noise within {_limits_text(st)} at every point"
         )
     say(f"re-verifying on the {st.dense_factor}x denser grid")
     nd, Td = grid(st, st.dense_factor)
@@ -299,22 +350,40 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
             break
         f = figures(drive, math.exp(key[0]), math.exp(key[1]), nd, Td)
         tried.append((key, f))
-        if _rank(f, st.min_damping)[0]:
+        if _rank(f, st.min_damping, lim)[0]:
             chosen = (key, f)
             break
+        if _rank(f, st.min_damping)[0]:
+            # too noisy between the grid points only: the noise grows in proportion to g, so scale g
+            # to the limit and Gamma with g^2 (the same damping of the quadratic factor)
+            over = float(np.nanmax(np.where(np.isfinite(lim), f.worst_noise() / lim, 0.0)))
+            # (1 % margin: the discrete noise figure moves by ~0.2 % with the simulated settling)
+            k2 = (key[0] - math.log(over * 1.01), key[1] - 2 * math.log(over * 1.01))
+            f2 = figures(drive, math.exp(k2[0]), math.exp(k2[1]), nd, Td)
+            tried.append((k2, f2))
+            if _rank(f2, st.min_damping, lim)[0]:
+                say(
+                    f"  g = {math.exp(key[0]):.5g}: {100 * (over - 1):.2g} % too noisy between the grid "
+                    f"points; scaled to g = {math.exp(k2[0]):.5g}, Gamma = {math.exp(k2[1]):.5g}"
+                )
+                seen[k2] = _rank(f2, st.min_damping, lim)
+                ranked.insert(0, (k2, seen[k2]))
+                chosen = (k2, f2)
+                break
         say(
-            f"  g = {math.exp(key[0]):.5g}, Gamma = {math.exp(key[1]):.5g}: damping {f.worst()[0]:.4f} "
-            f"< {st.min_damping:.3f} or unstable between the grid points; next candidate"
+            f"  g = {math.exp(key[0]):.5g}, Gamma = {math.exp(key[1]):.5g}: damping {f.worst()[0]:.4f}, "
+            f"slowest decay {f.worst()[1]:.4g} 1/s on the dense grid: below the floor, unstable or too noisy "
+            "between the grid points; next candidate"
         )
     if chosen is None:
-        if not _rank(dense0, st.min_damping)[0]:
+        if not _rank(dense0, st.min_damping, lim)[0]:
             raise TuningError(
                 f"{drive.file}: neither the {len(tried)} best tuned gains nor the drive's meet damping >= "
                 f"{st.min_damping:.3f} on the dense grid"
             )
         note = (
-            f"kept the drive's gains: the {len(tried)} best tuned candidates violate the damping floor "
-            "between the optimization grid points"
+            f"kept the drive's gains: the {len(tried)} best tuned candidates violate the damping floor or "
+            "the noise limit between the optimization grid points"
         )
         chosen = ((math.log(g0), math.log(G0)), dense0)
     else:
@@ -366,6 +435,7 @@ def _table(drive: Any, r: DeAngeloResult) -> GainTable:
                 "Gamma": r.Gamma,
                 "poles": _pairs(d.poles[j]),
                 "poles_continuous": _pairs(d.poles_c[j]),
+                "noise": {"position": float(d.noise[j, 0]), "speed": float(d.noise[j, 1])},
                 "damping": float(d.damping[j]),
                 "decay_rate": float(d.decay[j]),
                 "baseline": {
@@ -396,6 +466,15 @@ def _table(drive: Any, r: DeAngeloResult) -> GainTable:
         "optimization_grid_slowest_decay_rate": float(np.min(r.grid.decay)),
         "optimization_grid_worst_damping": float(np.min(r.grid.damping)),
         "closed_form": {"g": r.closed_form[0], "Gamma": r.closed_form[1]},
+        "noise": {
+            "outputs": ["position", "speed"],
+            "units": ["rad", "rad/s"],
+            "sigma_A": float(drive.control.i_noise),
+            "T_s_s": float(drive.control.T_s),
+            "convention": "per-axis rms sigma in each sample at T_s, the discrete observer's own map",
+            "tuned": [float(v) for v in d.worst_noise()],
+            "baseline": [float(v) for v in d0.worst_noise()],
+        },
         "evaluations": r.evaluations,
         "selection": r.note,
         "parameters": {"g": r.g, "Gamma": r.Gamma},
@@ -411,7 +490,7 @@ def _table(drive: Any, r: DeAngeloResult) -> GainTable:
         "dense_points": int(nd.size),
         "T_s_s": float(drive.control.T_s),
         "discretization": drive.control.discretization,
-        "constraints": {"min_damping": st.min_damping},
+        "constraints": {"min_damping": st.min_damping, "max_noise": dict(st.max_noise)},
         "bounds": {"g": [st.g_min, st.g_max], "Gamma": [st.Gamma_min, st.Gamma_max]},
     }
     return GainTable(

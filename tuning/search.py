@@ -1,0 +1,173 @@
+"""The global phase of the shared pipeline: gains that meet the constraints everywhere, before the NLP.
+
+The max-min NLP (tuning/nlp.py) is local: IPOPT starts from one point, and where the drive file's gains
+are unstable it may find no feasible gains at all, or stop in a poor local optimum. The global phase
+evaluates many candidate parameter vectors at once (the family's ``starts``: a log grid of its
+parameters, plus the drive file's gains and any start of its own) on every envelope point, in one
+batched call of the compiled linearization (tuning/model.py ``evaluate``), and ranks them:
+
+1. candidates that meet every constraint (decay floor, stability, noise limit) first, by their worst
+   damping;
+2. the others by their worst constraint margin (the slowest decay against the floor, relative to
+   the problem's pole scale, or the noise against its limit).
+
+If no candidate is feasible, the worst margin is maximized from the best few by a batched pattern
+search in the scaled parameters (families with a few parameters); with a noise limit, the best
+feasible ones are also refined by the worst damping (the noise-constrained NLP is multimodal). The
+NLP then starts from the best distinct feasible candidates. If none is found, the caller reports the
+envelope as infeasible only with evidence: the envelope speeds where no gain at all (the pointwise
+model, tuning/bound.py) meets the constraints.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from sensorless.design.poles import max_real, worst_damping
+from sensorless.tuning.model import TuningModel, evaluate
+from sensorless.tuning.nlp import DAMPING, NOISE, Candidates, fixed_points, noise_margin
+
+MAX_PATTERN_PARAMETERS = 4  # the margin search runs for families with at most this many parameters
+FEASIBILITY_TOL = 1e-7  # margins (relative to the pole scale) down to -this count as met: the NLP's tolerance
+
+
+@dataclass(frozen=True)
+class Ranked:
+    """Candidates of the global phase, best first."""
+
+    thetas: np.ndarray  # (K, n_theta)
+    feasible: np.ndarray  # (K,) bool
+    damping: np.ndarray  # (K,) worst damping over the envelope's damping points
+    margin: np.ndarray  # (K,) worst constraint margin (>= 0: feasible)
+    worst_point: np.ndarray  # (K,) index of the candidate point with the worst margin
+    evaluated: int  # candidates evaluated
+
+    def starts(self, k: int, typical: np.ndarray, distinct: float = 0.25) -> list[np.ndarray]:
+        """Up to k feasible candidates, best first, at least ``distinct`` typical magnitudes apart."""
+        out: list[np.ndarray] = []
+        for th, ok in zip(self.thetas, self.feasible, strict=True):
+            if not ok:
+                break
+            if all(np.max(np.abs(th - o) / typical) > distinct for o in out):
+                out.append(th)
+            if len(out) == k:
+                break
+        return out
+
+
+def _margins(
+    model: TuningModel, thetas: np.ndarray, cand: Candidates, scale: float, max_noise: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each theta (K, n): worst damping (K,), worst constraint margin (K,), its point (K,).
+
+    Only the points whose equilibrium does not move with the gains are evaluated (the others, e.g.
+    estimate-error scenarios, are left to the NLP)."""
+    K = thetas.shape[0]
+    fixed = fixed_points(model, cand.P)
+    sel = np.flatnonzero(fixed)
+    cols = sel[cand.kind[sel] != NOISE]
+    # the damping and stability points share their point data: evaluate each distinct point once
+    Pu, inv = np.unique(cand.P[:, cols], axis=1, return_inverse=True)
+    N = Pu.shape[1]
+    e = evaluate(model, np.repeat(thetas, N, axis=0).T, np.tile(Pu, (1, K)))
+    p = e.poles.reshape(K, N, -1)
+    z = worst_damping(p.reshape(K * N, -1)).reshape(K, N)[:, inv]
+    mr = max_real(p.reshape(K * N, -1)).reshape(K, N)[:, inv]
+    kind, sigma = cand.kind[cols], cand.sigma[cols]
+    m = np.full((K, cand.size), np.inf)
+    damp = kind == DAMPING
+    # damping points: stable (Re < 0) required; stability points: Re <= -sigma
+    m[:, cols[damp]] = np.where(np.isfinite(mr[:, damp]), -mr[:, damp] / scale - 1e-9, -np.inf)
+    m[:, cols[~damp]] = np.where(np.isfinite(mr[:, ~damp]), (-mr[:, ~damp] - sigma[~damp]) / scale, -np.inf)
+    ncols = sel[cand.kind[sel] == NOISE]
+    if ncols.size and max_noise is not None:
+        Pn = cand.P[:, ncols]
+        en = evaluate(model, np.repeat(thetas, ncols.size, axis=0).T, np.tile(Pn, (1, K)), noise=True)
+        m[:, ncols] = noise_margin(en.noise, max_noise).reshape(K, ncols.size)
+    zd = np.where(np.isfinite(z[:, damp]), z[:, damp], -np.inf)
+    worst_z = zd.min(axis=1) if damp.any() else np.zeros(K)
+    k = np.argmin(m, axis=1)
+    return worst_z, m[np.arange(K), k], k
+
+
+def rank(
+    model: TuningModel,
+    thetas: np.ndarray,
+    cand: Candidates,
+    scale: float,
+    max_noise: np.ndarray | None = None,
+) -> Ranked:
+    """Evaluate and rank the candidates ``thetas`` (K, n_theta) on ``cand`` (module docstring)."""
+    thetas = np.clip(np.atleast_2d(np.asarray(thetas, float)), model.lower, model.upper)
+    z, m, k = _margins(model, thetas, cand, scale, max_noise)
+    feas = m >= -FEASIBILITY_TOL
+    key = np.where(feas, z, -10.0 + np.clip(m, -1e6, 0))
+    order = np.argsort(-key, kind="stable")
+    return Ranked(thetas[order], feas[order], z[order], m[order], k[order], thetas.shape[0])
+
+
+def global_phase(
+    model: TuningModel,
+    cand: Candidates,
+    scale: float,
+    max_noise: np.ndarray | None = None,
+    extra: list[np.ndarray] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Ranked:
+    """The family's candidates (``starts``), the drive file's gains and ``extra`` starts, ranked; if
+    none is feasible, the worst margin is maximized from the best few (module docstring)."""
+    say = progress or (lambda s: None)
+    pool = [model.theta0[None]]
+    if model.start is not None:
+        pool.append(np.asarray(model.start, float)[None])
+    if extra:
+        pool += [np.asarray(e, float)[None] for e in extra]
+    if model.starts is not None:
+        pool.append(np.asarray(model.starts(), float))
+    thetas = np.vstack(pool)
+    r = rank(model, thetas, cand, scale, max_noise)
+    nf = int(r.feasible.sum())
+    say(
+        f"global phase: {r.evaluated} candidate gains on {cand.size} conditions, {nf} meet them all"
+        + (f"; best worst damping {r.damping[0]:.4f}" if nf else f"; best worst margin {r.margin[0]:.3g}")
+    )
+    if model.n_theta > MAX_PATTERN_PARAMETERS or (nf and max_noise is None):
+        return r
+    # none feasible: maximize the worst margin from the best few; with a noise limit (a multimodal
+    # problem for the NLP): also refine the best feasible ones by the worst damping
+    x = r.thetas[:5] / model.typical
+    f = np.where(r.feasible[:5], r.damping[:5], -10.0 + np.clip(r.margin[:5], -1e6, 0))
+    lo, hi = model.lower / model.typical, model.upper / model.typical
+    n = model.n_theta
+    D = np.vstack([np.eye(n), -np.eye(n)])
+    for i in range(n):
+        for j in range(i + 1, n):
+            for a in (1, -1):
+                for b in (1, -1):
+                    D = np.vstack([D, (np.eye(n)[i] * a + np.eye(n)[j] * b) / np.sqrt(2)])
+    h = np.full(x.shape[0], 0.5)
+    step_min = 0.02 if nf else 1e-3
+    for _ in range(200):
+        act = np.flatnonzero(h >= step_min)
+        if act.size == 0:
+            break
+        polls = np.clip(x[act, None, :] + h[act, None, None] * D[None], lo, hi)
+        zp, mp, _ = _margins(model, (polls * model.typical).reshape(-1, n), cand, scale, max_noise)
+        fp = np.where(mp >= -FEASIBILITY_TOL, zp, -10.0 + np.clip(mp, -1e6, 0)).reshape(act.size, -1)
+        k = np.argmax(fp, axis=1)
+        better = fp[np.arange(act.size), k] > f[act] + 1e-12
+        x[act[better]] = polls[better, k[better]]
+        f[act[better]] = fp[better, k[better]]
+        h[act[~better]] /= 2
+    r2 = rank(model, np.vstack([x * model.typical, r.thetas]), cand, scale, max_noise)
+    say(
+        "global phase: pattern search from the 5 best: "
+        + (
+            f"feasible gains (worst damping {r2.damping[0]:.4f})"
+            if r2.feasible[0]
+            else f"none feasible, best worst margin {r2.margin[0]:.3g}"
+        )
+    )
+    return r2
