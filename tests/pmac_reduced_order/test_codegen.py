@@ -19,7 +19,7 @@ from sensorless.design.pmac_reduced_order import FAMILY
 from sensorless.design.runtime import run_trajectory
 from sensorless.reports.cli.main import main
 from sensorless.symbolic.pmac_reduced_order.step import OUTPUTS, STATE
-from sensorless.tuning.pmac_reduced_order.deangelo import closed_form, default_settings
+from sensorless.tuning.pmac_reduced_order.deangelo import closed_form
 
 CC = shutil.which("gcc") or shutil.which("cc")
 ARM = shutil.which("arm-none-eabi-gcc")
@@ -123,9 +123,10 @@ def negative_trajectory(deangelo2006):
 @pytest.fixture(scope="module")
 def tuned_table(tmp_path_factory, deangelo2006):
     """A `deangelo` gain table as `sensorless tune` writes it, with the closed-form optimum for the
-    default bounds (non-round numbers, far from the drive file's g = 400, Gamma = 10^4)."""
-    s = default_settings(deangelo2006)
-    g, Gamma = closed_form(deangelo2006, s.g_max, s.Gamma_max)
+    bounds g <= 2 g0, Gamma <= 100 Gamma0 (non-round numbers, far from the drive file's g0 = 400,
+    Gamma0 = 10^4; larger gains make the run more sensitive to rounding than this test is about)."""
+    o = deangelo2006.observer
+    g, Gamma = closed_form(deangelo2006, 2 * o.g, 100 * o.Gamma)
     assert (g, Gamma) != (deangelo2006.observer.g, deangelo2006.observer.Gamma)
     t = GainTable(
         family="deangelo",
