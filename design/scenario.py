@@ -339,3 +339,73 @@ def load_scenario(spec: str | Path, drive: Any) -> Scenario:
             f"written for {sc.kind!r} drives, but {drive.file} is a {drive.kind!r} drive",
         )
     return sc
+
+
+# --------------------------------------------------------------------------------------------------
+# Generic scenarios, scaled to a drive
+# --------------------------------------------------------------------------------------------------
+GENERIC = ("speed_steps", "load_steps", "reversal")
+
+
+def generic_times(drive: Any) -> dict[str, float]:
+    """The time scales of the generic scenarios [s]: ``t_seg`` = 1.5 t_acc + 6/alpha_s, where t_acc
+    changes the speed by 1 p.u. against the rated load at the torque limit and 6/alpha_s lets the speed
+    loop settle; ``t_ramp`` = 10 t_seg, the slow reversal's ramp over 1 p.u."""
+    sc = registry.family_of(drive).scales(drive)
+    t_seg = 1.5 * sc.t_acc + 6 / sc.alpha_s
+    return {"t_acc": sc.t_acc, "tau_m": sc.tau_m, "t_seg": t_seg, "t_ramp": 10 * t_seg}
+
+
+def generic_scenarios(drive: Any) -> list[Scenario]:
+    """The built-in generic scenarios of any drive whose family gives its scales, in per unit of its
+    own rating, with times scaled by :func:`generic_times` (docs/simulation.md, "Generic scenarios"):
+
+    - ``speed_steps``: from 0.5 p.u. unloaded, rated load applied, steps to 1, -0.5 and 0.5 p.u. (two
+      reversals through zero under load, motoring and regenerating);
+    - ``load_steps``: at 0.2 p.u., the load steps 0 -> T_N -> -T_N -> 0 (motoring, regenerating);
+    - ``reversal``: a slow ramp from 0.5 to -0.5 p.u. at rated load (Piippo et al. 2008 Fig. 10, scaled).
+    """
+    t = generic_times(drive)
+    seg, ramp = t["t_seg"], t["t_ramp"]
+    g = lambda x: f"{x:.6g}"  # noqa: E731
+    head = (
+        f'kind = "{drive.kind}"\nsource = "generic scenario, scaled to the drive: t_seg = {g(seg)} s '
+        f'(docs/simulation.md)"\n'
+    )
+    texts = {
+        "speed_steps": (
+            "Speed steps at rated load (0.5, 1, -0.5, 0.5 p.u.)",
+            5 * seg,
+            '["speed", "torque", "theta_error"]',
+            '[initial]\nw_m = "0.5 pu"\n'
+            f"[speed_reference]\nt = [0, {g(2 * seg)}, {g(3 * seg)}, {g(4 * seg)}]\n"
+            'value = ["0.5 pu", "1 pu", "-0.5 pu", "0.5 pu"]\n'
+            f'[load_torque]\nt = [0, {g(seg)}]\nvalue = ["0 Nm", "1 T_N"]\n',
+        ),
+        "load_steps": (
+            "Load steps at 0.2 p.u. (0, T_N, -T_N, 0)",
+            4 * seg,
+            '["speed", "torque", "theta_error"]',
+            '[initial]\nw_m = "0.2 pu"\n[speed_reference]\nt = [0]\nvalue = ["0.2 pu"]\n'
+            f"[load_torque]\nt = [0, {g(seg)}, {g(2 * seg)}, {g(3 * seg)}]\n"
+            'value = ["0 Nm", "1 T_N", "-1 T_N", "0 Nm"]\n',
+        ),
+        "reversal": (
+            "Slow reversal at rated load (0.5 to -0.5 p.u.)",
+            ramp + 2 * seg,
+            '["speed", "torque", "theta_error"]',
+            '[initial]\nw_m = "0.5 pu"\n'
+            f'[speed_reference]\ninterpolation = "linear"\nt = [0, {g(seg)}, {g(seg + ramp)}]\n'
+            'value = ["0.5 pu", "0.5 pu", "-0.5 pu"]\n'
+            f'[load_torque]\nt = [0, {g(seg / 2)}]\nvalue = ["0 Nm", "1 T_N"]\n',
+        ),
+    }
+    rel = drive_units(drive)
+    out = []
+    for name, (title, duration, figure, body) in texts.items():
+        text = (
+            f'[scenario]\nname = "{name}"\ntitle = "{title}"\n{head}duration = "{g(duration)} s"\n'
+            f"figure = {figure}\n{body}"
+        )
+        out.append(load_scenario_text(text, f"generic:{name}", rel))
+    return out

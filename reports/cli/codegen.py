@@ -11,12 +11,11 @@ import argparse
 import sys
 from typing import Any
 
-from sensorless.design.drive import load_drive
 from sensorless.design.family import CapabilityError
 from sensorless.design.gain_table import GainTableError, read_gain_table
 from sensorless.design.registry import family_of
 from sensorless.design.units import DriveFileError
-from sensorless.reports.cli.common import UsageError, version
+from sensorless.reports.cli.common import UsageError, load, version
 from sensorless.reports.codegen.generate import (
     PRECISIONS,
     Provenance,
@@ -59,7 +58,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Generate and write the files."""
-    drive = load_drive(args.drive)
+    drive: Any = load(args.drive, "codegen")
     fam = family_of(drive)
     table = read_gain_table(args.gains) if args.gains else None
     if table is not None and args.gain:

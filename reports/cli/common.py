@@ -88,6 +88,23 @@ def version() -> str:
         return "0+unknown"
 
 
+def print_warnings(command: str, drive: object) -> None:
+    """The drive's plausibility warnings (design/motor_data.py), one line each on stderr."""
+    import sys
+
+    for line in getattr(drive, "warnings", ()):
+        print(f"sensorless {command}: warning: {line}", file=sys.stderr)
+
+
+def load(spec: str, command: str) -> object:
+    """The drive of a preset name or drive file, its warnings printed (every command loads this way)."""
+    from sensorless.design.drive import load_drive
+
+    drive = load_drive(spec)
+    print_warnings(command, drive)
+    return drive
+
+
 def option_error(option: str, problem: str) -> UsageError:
     """The one-line error of a command-line value: 'argument --x: problem'."""
     return UsageError(f"argument {option}: {problem}")

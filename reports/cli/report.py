@@ -7,10 +7,9 @@ import sys
 import time
 from typing import Any
 
-from sensorless.design.drive import load_drive
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
-from sensorless.reports.cli.common import MIN_DAMPING, Number, version
+from sensorless.reports.cli.common import MIN_DAMPING, Number, load, version
 from sensorless.reports.document import report_json
 from sensorless.reports.family import hooks
 from sensorless.reports.files import OutputSet
@@ -43,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     """Compute the report, then write both files at once."""
     from sensorless.design.gain_table import read_gain_table
 
-    drive = load_drive(args.drive)
+    drive: Any = load(args.drive, "report")
     fam = family_of(drive)
     compute = hooks(fam).report
     if compute is None:

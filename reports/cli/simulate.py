@@ -16,11 +16,10 @@ import time
 from typing import Any
 
 import numpy as np
-from sensorless.design.drive import load_drive
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import builtin_names, load_scenario
 from sensorless.design.simulate import MAX_SAMPLES, check_length
-from sensorless.reports.cli.common import Number, ResultError, UsageError
+from sensorless.reports.cli.common import Number, ResultError, UsageError, load
 from sensorless.reports.files import OutputSet
 
 
@@ -91,7 +90,7 @@ class Progress:
 
 def run(args: argparse.Namespace) -> int:
     """Load drive and scenario, simulate, write outputs."""
-    drive = load_drive(args.drive)
+    drive: Any = load(args.drive, "simulate")
     fam = family_of(drive)
     if args.list:
         for name in builtin_names(drive.kind):
