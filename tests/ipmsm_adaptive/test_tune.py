@@ -13,8 +13,10 @@ from sensorless.reports.cli.main import main
 from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law
 from sensorless.tuning.ipmsm_adaptive.families import build_schedule, with_estimate
 from sensorless.tuning.nlp import Solution
+from sensorless.tuning.result import figures
 from sensorless.tuning.sector import factors_from_poles
-from sensorless.tuning.tune import _select, figures, tune
+from sensorless.tuning.selection import select
+from sensorless.tuning.tune import tune
 
 
 def small(drive, **kw):
@@ -182,7 +184,7 @@ def test_dense_reverification_rejects_between_grid_instability(drive, law16):
     np.testing.assert_allclose(on_grid, on_grid_ok, atol=1e-9)  # identical at the optimization grid
     sol = Solution(bad, 0.9, (), 1, 1, (bad,))
     floor = float(np.min(figures(m, m.start, W, T).decay))
-    theta, _, note, _ = _select(m, [sol], [(m.start_label, m.start)], Wd, Td, floor, None, lambda s: None)
+    theta, _, note, _ = select(m, [sol], [(m.start_label, m.start)], Wd, Td, floor, None, lambda s: None)
     assert note["nlp_solution_worst_damping"] < note["start_worst_damping"] - 0.02
     assert note["selected"] == m.start_label and np.array_equal(theta, m.start)
 

@@ -141,7 +141,8 @@ def test_default_discretization_keeps_continuous_poles_at_180us(deangelo2006):
 def test_slow_pole_is_the_simulated_decay_rate(deangelo2006, harmonics):
     """Linear analysis vs simulation: a T_L_hat error of 0.5 N m on the running observer decays at the
     rate of the slowest discrete pole (the Floquet exponent with harmonics), within 1 %."""
-    from sensorless.design.pmac_reduced_order.linearize import exact_state_function, orbit_function
+    from sensorless.design.pmac_reduced_order.one_step import orbit_function
+    from sensorless.design.pmac_reduced_order.operating_point import exact_state_function
 
     d = deangelo2006 if harmonics else sinusoidal(deangelo2006)
     w, T_L, T_s = float(d.rpm_to_w(250.0)), 5.0, d.control.T_s

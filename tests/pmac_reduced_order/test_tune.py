@@ -106,10 +106,10 @@ def test_noise_figure_matches_the_observer_run_with_noisy_currents(deangelo2006)
     linearization, a sample's noise entering two steps; design/noise.py) against the observer step that
     runs, fed by the motor's samples plus white noise of i_noise per axis: within 15 %."""
     import casadi as ca
-    from sensorless.design.pmac_reduced_order.linearize import (
-        _plant,
+    from sensorless.design.pmac_reduced_order.operating_point import (
         analysis_arguments,
         exact_state_function,
+        plant_signals,
         symbols,
     )
     from sensorless.symbolic.frames import wrap_angle
@@ -123,7 +123,7 @@ def test_noise_figure_matches_the_observer_run_with_noisy_currents(deangelo2006)
     x, nz = ca.SX.sym("x", N_STATE), ca.SX.sym("n", 2)
     th0 = ca.SX.sym("theta")
     th1 = th0 + s["w"] * d.T_s
-    sig1, _ = _plant(s, th1, om)
+    sig1, _ = plant_signals(s, th1, om)
     st = step(x, sig1.i + nz, sig1.v, s["params"], oo, d.control.discretization)
     err = ca.vertcat(wrap_angle(th1 - st.est.theta_hat), s["w"] - st.est.w_hat)
     f = ca.Function("f", [ca.vertcat(x, th0), nz, s["w"], s["T_L"], s["motor"], s["params"]],

@@ -1,0 +1,356 @@
+"""The tuner's result: figures of gains on a grid, the result of a tuning run, and its gain table.
+
+What ``sensorless tune`` prints (``TuneResult.summary_lines``) and writes (the gain table of
+design/gain_table.py, with the dense re-verification, the baseline, the bound, noise and the front) is
+assembled here from the pipeline's numbers (tuning/tune.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
+from sensorless.design.gain_table import GainTable
+from sensorless.tuning import nlp
+from sensorless.tuning.bound import Bound
+from sensorless.tuning.model import TuningModel, evaluate
+
+ROBUST_MARGIN = 1e-3  # under estimate errors require max Re(p) <= -ROBUST_MARGIN * scale (strictly stable)
+RIDGE_TOL = 1e-2  # |d damping / d theta_i| * typical_i below this at the worst point: a ridge (a 10 %
+# change of any parameter moves its damping by less than 1e-3)
+N_STARTS = 3  # NLP starts from the global phase (families with few parameters)
+CERTIFIED = 1e-4  # a start this close to the pointwise bound's worst (dense) needs no NLP
+TIE = 5e-4  # candidates within this of the best worst damping tie: the faster slowest decay wins
+
+
+@dataclass(frozen=True)
+class Figures:
+    """Closed-loop figures of one gain set on a grid."""
+
+    w_m: np.ndarray  # [rad/s]
+    T_e: np.ndarray  # [N m]
+    poles: np.ndarray  # (N, n) [1/s]
+    damping: np.ndarray  # worst damping per point
+    decay: np.ndarray  # -max Re per point [1/s]
+    gains: dict[str, np.ndarray]  # lambda1_ohm, lambda2_ohm per point
+    noise: np.ndarray | None = None  # (N, n_out) RMS of the noise outputs (design/noise.py)
+
+    def worst(self) -> int:
+        """Index of the worst-damped point (NaN counts as worst)."""
+        return int(np.argmin(np.where(np.isfinite(self.damping), self.damping, -np.inf)))
+
+    def worst_damping(self) -> float:
+        """Worst damping; -inf if any point has no equilibrium."""
+        return float(np.min(self.damping)) if np.isfinite(self.damping).all() else -np.inf
+
+    def worst_noise(self) -> np.ndarray | None:
+        """(n_out,) worst RMS of each noise output over the grid."""
+        if self.noise is None:
+            return None
+        return np.where(np.isnan(self.noise), np.inf, self.noise).max(axis=0)
+
+    def per_speed(self) -> tuple[np.ndarray, np.ndarray]:
+        """(speeds, worst damping over the torques at each speed)."""
+        w = np.unique(self.w_m)
+        z = np.array([np.min(np.where(np.isfinite(d := self.damping[self.w_m == v]), d, -np.inf)) for v in w])
+        return w, z
+
+    def decay_per_speed(self) -> np.ndarray:
+        """Slowest decay over the torques at each speed (of ``per_speed``)."""
+        w = np.unique(self.w_m)
+        return np.array(
+            [np.min(np.where(np.isfinite(d := self.decay[self.w_m == v]), d, -np.inf)) for v in w]
+        )
+
+
+@dataclass(frozen=True)
+class TuneResult:
+    """Everything ``sensorless tune`` reports."""
+
+    family: str
+    model: TuningModel
+    theta: np.ndarray
+    theta0: np.ndarray
+    solution: nlp.Solution  # the best NLP result (its t is the NLP's, not the verified value)
+    grid: Figures  # tuned gains on the optimization grid
+    dense: Figures  # tuned gains on the re-verification grid
+    dense_baseline: Figures  # the drive file's gains on the re-verification grid
+    robust: list[dict[str, Any]]  # per error scenario: worst max Re on the dense grid
+    table: GainTable
+    seconds: float
+    selection: dict[str, Any]  # which dense-verified candidate was kept and why
+    floor: float = 0.0  # the decay floor the family was tuned under [1/s]
+    bound: Bound | None = None  # the pointwise bound on the dense speeds
+    seed: TuneResult | None = None  # the seed family's result (schedule: law16)
+    ridge: dict[str, Any] | None = None  # the worst point, if no parameter of the family moves it
+    pareto: list[dict[str, Any]] | None = None  # damping-versus-noise front
+    global_phase: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def summary_lines(self, drive: Any) -> list[str]:
+        """The terminal summary: parameters and worst damping before -> after, and where."""
+        s = self.table.summary
+        wb = drive.w_base
+        env = self.table.envelope
+        g = s.get("global_phase", {})
+        nlp_from = (
+            "the best is within the certificate of the bound: no NLP"
+            if g.get("certified")
+            else f"NLP from {g.get('starts', 1)} of them"
+        )
+        out = [
+            f"global phase: {g.get('candidates', 0)} candidate gains, {g.get('feasible', 0)} meeting every "
+            f"constraint; {nlp_from}",
+            f"optimized over {env['optimization_points']} points in {s['exchange_rounds']} exchange rounds "
+            f"({s['ipopt_iterations']} IPOPT iterations); re-verified on {env['dense_points']} points "
+            f"({env['dense_factor']}x denser) in {self.seconds:.1f} s",
+        ]
+        seeded = self.seed is not None
+        head = (
+            f"{'':<22}{'drive file':>18}" + (f"{self.seed.family:>18}" if seeded else "") + f"{'tuned':>18}"
+        )
+        out.append(head)
+        for n, u, v0, v in zip(self.model.names, self.model.units, self.theta0, self.theta, strict=True):
+            if u == "rad/s":
+                out.append(f"{n + ' [p.u.]':<22}{v0 / wb:>18.4g}{'':>{18 * seeded}}{v / wb:>18.4g}")
+            elif self.model.n_theta <= 6:
+                out.append(f"{n + ' [' + u + ']':<22}{v0:>18.4g}{'':>{18 * seeded}}{v:>18.4g}")
+
+        def where(a: dict[str, Any]) -> str:
+            return f"at {a['w_m_pu']:+.3f} p.u., {a['T_e_Nm']:+.3g} N m"
+
+        sd = s.get("seed", {})
+        mid = f"{sd['worst_damping']:>18.4f}" if seeded else ""
+        out += [
+            f"{'worst damping':<22}{s['baseline_worst_damping']:>18.4f}{mid}{s['worst_damping']:>18.4f}",
+            f"{'  where':<22}{where(s['baseline_worst_damping_at']):>36}",
+        ]
+        if seeded:
+            out.append(f"{'':<22}{where(sd['worst_damping_at']):>36} ({self.seed.family})")
+        out.append(f"{'':<22}{where(s['worst_damping_at']):>36}")
+        mid = f"{sd['min_decay_rate']:>18.4g}" if seeded else ""
+        out.append(
+            f"{'slowest decay [1/s]':<22}{s['baseline_min_decay_rate']:>18.4g}{mid}"
+            f"{s['min_decay_rate']:>18.4g}"
+        )
+        nz = s.get("noise")
+        if nz:
+            for k, name in enumerate(nz["outputs"]):
+                u = nz["units"][k]
+                mid = f"{sd['worst_noise'][k]:>18.4g}" if seeded and sd.get("worst_noise") else ""
+                out.append(
+                    f"{'noise ' + name + ' [' + u + ']':<22}{nz['baseline'][k]:>18.4g}{mid}"
+                    f"{nz['tuned'][k]:>18.4g}"
+                )
+            out.append(
+                f"  (worst RMS over the dense grid for {nz['sigma_A']:.4g} A rms current noise per axis and "
+                f"sample at T_s = {nz['T_s_s'] * 1e6:g} us)"
+            )
+        nlp_t = s["nlp_worst_damping"]
+        out.append(
+            f"worst damping on the optimization grid {s['optimization_grid_worst_damping']:.4f} "
+            + (f"(NLP: {nlp_t:.4f})" if np.isfinite(nlp_t) else "(no NLP run)")
+            + "; the table reports the dense re-verification"
+        )
+        if s.get("selection"):
+            out.append(f"kept: {s['selection']['text']}")
+        b = s.get("bound")
+        if b:
+            out.append(
+                "bound (best worst-case damping of any gain at each speed, "
+                f"decay >= {b['floor_1_s']:.4g} 1/s): "
+                f"worst {b['worst_damping']:.4f} at {b['worst_at_w_m_pu']:+.3f} p.u.; tuned "
+                f"{s['worst_damping']:.4f}, {b['gap']:.4f} below it"
+                + (f"; {self.seed.family} {b['gap_seed']:.4f} below" if seeded and "gap_seed" in b else "")
+            )
+            if not b["feasible_everywhere"]:
+                out.append(f"  no gain meets the floor at {b['infeasible_speeds']} dense speeds")
+        r = s.get("ridge")
+        if r:
+            out.append(r["text"])
+        for rb in s["robust"]:
+            out.append(
+                f"estimates {rb['scenario']}: max Re(p) = {rb['max_real_1_s']:.4g} 1/s at "
+                f"{rb['at_w_m_pu']:+.3f} p.u., {rb['at_T_e_Nm']:+.3g} N m "
+                f"({'stable' if rb['stable'] else 'UNSTABLE'})"
+            )
+        pf = s.get("pareto")
+        if pf:
+            out.append(
+                f"damping-versus-noise front ({pf['output']}): {len(pf['points'])} points, noise "
+                f"{pf['points'][-1]['noise']:.4g} .. {pf['points'][0]['noise']:.4g} {pf['unit']}, "
+                "worst damping "
+                f"{pf['points'][-1]['worst_damping']:.4f} .. {pf['points'][0]['worst_damping']:.4f}"
+            )
+        return out
+
+
+def figures(
+    model: TuningModel, theta: np.ndarray, w: np.ndarray, T: np.ndarray, est=None, noise: bool = False
+) -> Figures:
+    """Poles, damping, decay rate, gains (and noise) of ``theta`` at the points (w, T)."""
+    est = model.nominal_estimate if est is None else est
+    e = evaluate(model, theta, model.make_points(w, T, est), noise=noise and model.noise is not None)
+    return Figures(w, T, e.poles, e.damping, e.decay, model.point_gains(theta, w), e.noise)
+
+
+def where(f: Figures, k: int, wb: float) -> dict[str, float]:
+    return {"w_m_pu": float(f.w_m[k] / wb), "w_m_rad_s": float(f.w_m[k]), "T_e_Nm": float(f.T_e[k])}
+
+
+def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float) -> GainTable:
+    wb = drive.w_base
+    env = settings.envelope
+    d, d0 = r.dense, r.dense_baseline
+    m = r.model
+    b = r.bound
+    sd = None
+    if r.seed is not None:  # the seed family's gains on the same dense grid
+        sd = figures(r.seed.model, r.seed.theta, d.w_m, d.T_e, noise=r.seed.model.noise is not None)
+    bj = None if b is None else np.searchsorted(b.speeds, d.w_m)
+    points = []
+    for j in range(d.w_m.size):
+        pt = {
+            "w_m_rad_s": float(d.w_m[j]),
+            "w_m_pu": float(d.w_m[j] / wb),
+            "T_e_Nm": float(d.T_e[j]),
+            "lambda1": float(d.gains["lambda1_ohm"][j]),
+            "lambda2": float(d.gains["lambda2_ohm"][j]),
+            "poles": [[float(p.real), float(p.imag)] for p in d.poles[j]],
+            "damping": float(d.damping[j]),
+            "decay_rate": float(d.decay[j]),
+            "baseline": {
+                "lambda1": float(d0.gains["lambda1_ohm"][j]),
+                "lambda2": float(d0.gains["lambda2_ohm"][j]),
+                "poles": [[float(p.real), float(p.imag)] for p in d0.poles[j]],
+                "damping": float(d0.damping[j]),
+                "decay_rate": float(d0.decay[j]),
+            },
+        }
+        if d.noise is not None:
+            pt["noise"] = {o: float(v) for o, v in zip(m.noise_outputs, d.noise[j], strict=True)}
+            pt["baseline"]["noise"] = {o: float(v) for o, v in zip(m.noise_outputs, d0.noise[j], strict=True)}
+        if sd is not None:
+            pt["seed"] = {
+                "family": r.seed.family,
+                "lambda1": float(sd.gains["lambda1_ohm"][j]),
+                "lambda2": float(sd.gains["lambda2_ohm"][j]),
+                "damping": float(sd.damping[j]),
+                "decay_rate": float(sd.decay[j]),
+            }
+        if b is not None:
+            k = int(bj[j])
+            pt["bound"] = {
+                "damping": float(b.damping[k]),
+                **{nm: float(v) for nm, v in zip(b.names, b.theta[k], strict=True)},
+            }
+        points.append(pt)
+    k, k0, kg = d.worst(), d0.worst(), r.grid.worst()
+    summary: dict[str, Any] = {
+        "worst_damping": float(d.damping[k]),
+        "worst_damping_at": where(d, k, wb),
+        "baseline_worst_damping": float(d0.damping[k0]),
+        "baseline_worst_damping_at": where(d0, k0, wb),
+        "min_decay_rate": float(np.min(d.decay)),
+        "baseline_min_decay_rate": float(np.min(d0.decay)),
+        "decay_floor_1_s": float(r.floor),
+        "optimization_grid_worst_damping": float(r.grid.damping[kg]),
+        "nlp_worst_damping": float(r.solution.t),
+        "ipopt_iterations": int(r.solution.iterations),
+        "exchange_rounds": int(r.solution.rounds),
+        "global_phase": r.global_phase,
+        "robust": r.robust,
+        "selection": r.selection,
+        "parameters": {n: float(v) for n, v in zip(m.names, r.theta, strict=True)},
+        "baseline_parameters": {n: float(v) for n, v in zip(m.names, r.theta0, strict=True)},
+        "sector_scale_1_s": scale,
+    }
+    if d.noise is not None:
+        summary["noise"] = {
+            "outputs": list(m.noise_outputs),
+            "units": list(m.noise_units),
+            "sigma_A": m.noise_sigma,
+            "T_s_s": m.T_s,
+            "convention": "per-axis rms sigma in each sample at T_s: white density sigma^2 T_s; "
+            "RMS = sqrt(C P C^T + sigma^2 D D^T)",
+            "tuned": [float(v) for v in d.worst_noise()],
+            "baseline": [float(v) for v in d0.worst_noise()],
+        }
+    if sd is not None:
+        ks = sd.worst()
+        summary["seed"] = {
+            "family": r.seed.family,
+            "parameters": {n: float(v) for n, v in zip(r.seed.model.names, r.seed.theta, strict=True)},
+            "worst_damping": float(sd.damping[ks]),
+            "worst_damping_at": where(sd, ks, wb),
+            "min_decay_rate": float(np.min(sd.decay)),
+            "worst_noise": None if sd.noise is None else [float(v) for v in sd.worst_noise()],
+        }
+    if b is not None:
+        kb = b.worst()
+        summary["bound"] = {
+            "floor_1_s": float(b.floor),
+            "worst_damping": float(b.damping[kb]),
+            "worst_at_w_m_pu": float(b.speeds[kb] / wb),
+            "gains_there": {nm: float(v) for nm, v in zip(b.names, b.theta[kb], strict=True)},
+            "gap": float(b.damping[kb] - d.damping[k]),
+            "feasible_everywhere": bool(b.feasible.all()),
+            "infeasible_speeds": int((~b.feasible).sum()),
+            "evaluations": int(b.evaluations),
+        }
+        if sd is not None:
+            summary["bound"]["gap_seed"] = float(b.damping[kb] - sd.damping[sd.worst()])
+        # per speed: the bound beside this family, its seed and the drive file's gains
+        ws, zt = d.per_speed()
+        _, z0 = d0.per_speed()
+        dz0 = d0.decay_per_speed()
+        zs = sd.per_speed()[1] if sd is not None else None
+        summary["speeds"] = [
+            {
+                "w_m_pu": float(ws[i] / wb),
+                "bound": float(b.damping[np.searchsorted(b.speeds, ws[i])]),
+                "tuned": float(zt[i]),
+                "baseline": float(z0[i]),
+                # the bound is for gains decaying at least at its floor: the drive file's may not
+                "baseline_meets_floor": bool(dz0[i] >= b.floor * (1 - 1e-6)),
+                **({"seed": float(zs[i])} if zs is not None else {}),
+            }
+            for i in range(ws.size)
+        ]
+    if r.ridge is not None:
+        summary["ridge"] = r.ridge
+    if r.pareto is not None:
+        summary["pareto"] = r.pareto
+    W, _ = env.grid(wb, drive.T_N)
+    Wd, _ = env.grid(wb, drive.T_N, env.dense_factor)
+    envelope = {
+        "speed_base_rad_s": wb,
+        "speed_min_pu": env.speed_min,
+        "speed_max_pu": env.speed_max,
+        "directions": env.directions,
+        "speeds_rad_s": env.speed_grid(wb),
+        "torques_Nm": env.torque_grid(drive.T_N),
+        "optimization_points": int(W.size),
+        "dense_factor": env.dense_factor,
+        "dense_speeds_rad_s": env.speed_grid(wb, env.dense_factor),
+        "dense_torques_Nm": env.torque_grid(drive.T_N, env.dense_factor),
+        "dense_points": int(Wd.size),
+        "constraints": {
+            "min_decay_1_s": settings.min_decay,
+            "lambda_max_ohm": settings.lambda_max,
+            "estimate_errors": dict(zip(ESTIMATE_KEYS, settings.errors, strict=True)),
+            "smoothing": settings.smoothing,
+            "max_noise": dict(settings.max_noise),
+        },
+        "bounds": {n: [float(lo), float(hi)] for n, lo, hi in zip(m.names, m.lower, m.upper, strict=True)},
+    }
+    return GainTable(
+        family=r.family,
+        drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
+        gains=m.table_gains(r.theta),
+        envelope=envelope,
+        points=points,
+        summary=summary,
+    )
