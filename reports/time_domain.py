@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import GainSet
+from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.scenario import Scenario, generic_scenarios, load_scenario
 from sensorless.design.simulate import simulate
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num, svg_uri
@@ -40,10 +40,14 @@ LIMITS = {
 def scenarios(drive: Any, paper: Sequence[str], user: Sequence[str] = ()) -> list[Scenario]:
     """The scenarios of a report: a preset's ``paper`` ones (its family's names), else the generic ones
     scaled to the drive; then the user's files (``--scenario``)."""
-    if drive.file.startswith("preset:"):
+    out: list[Scenario] = []
+    if not drive.file.startswith("preset:"):
+        try:
+            out = generic_scenarios(drive)
+        except CapabilityError:  # a family without scales: its own scenarios
+            pass
+    if not out:
         out = [load_scenario(name, drive) for name in paper]
-    else:
-        out = generic_scenarios(drive)
     return out + [load_scenario(path, drive) for path in user]
 
 
@@ -150,6 +154,16 @@ def findings(td: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 def lost(td: Sequence[dict[str, Any]]) -> bool:
     """Whether a check did not hold at all (diverged or lost the rotor position)."""
     return any(c["problems"] for c in td)
+
+
+STATUS_ORDER = ("pass", "warn", "fail")
+
+
+def status_with(status: str, td: Sequence[dict[str, Any]]) -> str:
+    """A verdict's status with the checks: a failed check makes it at best "warn"; a run that does not
+    hold (diverged, rotor position lost) makes it "fail"."""
+    worst = "fail" if lost(td) else "warn" if any(not c["passed"] for c in td) else "pass"
+    return max(status, worst, key=STATUS_ORDER.index)
 
 
 def section(number: int, td: Sequence[dict[str, Any]], figs: list[Figure]) -> Section:

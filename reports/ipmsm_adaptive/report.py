@@ -216,7 +216,7 @@ def compute(
     data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
     tuning_data, tuning_section = tuning.compute(drive, table, choices, review, progress)
     data["tuning"] = tuning_data
-    data["verdict"] = verdict(data, review, min_damping, envelope_check(drive, g_rev, min_damping))
+    data["verdict"] = verdict(data, review, min_damping)
     sections = (
         drive_section(1, data["drive"]),
         Section("2. Pole maps over speed", (_pole_table(pm), *pole_figs, inj_block)),
@@ -351,8 +351,10 @@ def verdict(data: dict[str, Any], label: str, min_damping: float) -> dict[str, A
         status = "warn"
     else:
         status = "fail"
+    td = data.get("time_domain") or []
+    findings += time_domain.findings(td)
     return {
-        "status": status,
+        "status": time_domain.status_with(status, td),
         "gains": label,
         "min_damping": min_damping,
         "envelope": envelope,
@@ -388,8 +390,10 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
         )
     lines += [Paragraph(r) for r in v["reasons"]]
     findings = tuple(
-        f"{x['issue']} in {x['mode']} for {x['speed_pu_min']:.3g} ≤ |ω| ≤ {x['speed_pu_max']:.3g} p.u. "
-        f"({x['points']} grid points)"
+        x["text"]
+        if "text" in x
+        else f"{x['issue']} in {x['mode']} for {x['speed_pu_min']:.3g} ≤ |ω| ≤ {x['speed_pu_max']:.3g} "
+        f"p.u. ({x['points']} grid points)"
         for x in v["findings"]
     )
     return Verdict(v["status"], tuple(lines), findings)
