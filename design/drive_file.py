@@ -103,13 +103,19 @@ def check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], file: str, pre
 
 
 def drive_header(data: Mapping[str, Any], file: str) -> Mapping[str, Any]:
-    """The [drive] table common to every kind: name, kind, source (strings)."""
+    """The [drive] table common to every kind: name, kind and, optionally, source (strings; where the
+    data come from, default :data:`DEFAULT_SOURCE`)."""
     head = table(data, "drive", file)
     check_keys(head, ("name", "kind", "source"), file, "drive.")
-    for k in ("name", "source"):
+    for k in ("name", "kind", "source"):
+        if k == "source" and k not in head:
+            continue
         if not isinstance(head.get(k), str):
             raise DriveFileError(file, f"drive.{k}", "missing key or not a string")
-    return head
+    return {**head, "source": head.get("source", DEFAULT_SOURCE)}
+
+
+DEFAULT_SOURCE = "the user's motor data"
 
 
 # --------------------------------------------------------------------------------------------------

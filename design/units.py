@@ -129,6 +129,11 @@ _QTY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$"
 MAGNITUDE = (1e-12, 1e12)
 
 
+class UnknownName(KeyError):
+    """A name the user gave (a drive kind, a gain choice) that does not exist: a one-line error. Other
+    KeyErrors are bugs and keep their traceback."""
+
+
 class DriveFileError(ValueError):
     """A drive description is malformed; the message names the file and the key."""
 

@@ -13,14 +13,18 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
 - ``[base]``: w = 2 pi f_N, u = sqrt(2/3) U_N, i = sqrt(2) I_N (peak-value scaling, as the paper).
 - ``[estimate]``: the motor's values (exact estimates).
 - ``[control]``: T_s = 1/f_s; bandwidths as fractions of the sampling rate, those of Piippo et al.
-  (2008) Table II at 5 kHz: alpha_c = f_s/12.5 (400 Hz), speed control alpha_s = f_s/1000 (5 Hz);
+  (2008) Table II at 5 kHz: alpha_c = f_s/12.5 (400 Hz); speed control
+  alpha_s = min(5/tau_m, alpha_fo/5), tau_m = J w_N / (p T_N) the mechanical time constant (the
+  paper: 5 Hz at tau_m = 0.168 s, 5.3/tau_m), slower than the speed estimate;
   T_max = 1.5 T_N (the paper 1.57 T_N).
-- ``[observer]``: alpha_fo = f_s/100 (50 Hz); the gains of the paper's Fig. 4 (zero, constant
-  lambda1 = -0.5 R_s_hat, speed-dependent (16) lambda' = 2 R_s_hat, omega_lambda = 1 p.u.) as the
-  baseline that ``sensorless tune`` starts from.
+- ``[observer]``: alpha_fo = max(f_s/100, 50/tau_m), at most f_s/20: the paper's 50 Hz at 5 kHz
+  (= 53/tau_m), and fast enough for a light rotor, whose speed changes by 2.5/tau_m p.u./s at the torque
+  limit against rated load: the speed estimate lags by about that over alpha_fo. The gains of the
+  paper's Fig. 4 (zero, constant lambda1 = -0.5 R_s_hat, speed-dependent (16) lambda' = 2 R_s_hat,
+  omega_lambda = 1 p.u.) are the baseline that ``sensorless tune`` starts from.
 - ``[injection]``: on only where the saliency gives a usable error signal (19): 2 |L_q - L_d| /
   (L_q + L_d) >= SALIENCY_MIN; carrier f_s/6 (833 Hz at 5 kHz), u_c = 0.13 p.u. of the base voltage
-  (40 V of 302 V), alpha_i = alpha_fo/10 (5 Hz), w_Delta = 0.13 p.u.; off (u_c = 0 V) otherwise.
+  (40 V of 302 V), alpha_i = f_s/1000 (5 Hz), w_Delta = 0.13 p.u.; off (u_c = 0 V) otherwise.
 - ``[runtime]`` and ``[tuning]``: the documented defaults (schema.RUNTIME_DEFAULTS, design/envelope.py).
 """
 
@@ -37,7 +41,10 @@ from sensorless.design.units import DriveFileError, parse_quantity
 
 # the rules (module docstring); fractions of the sampling frequency f_s
 ALPHA_C_FS = 1 / 12.5
-ALPHA_S_FS = 1 / 1000
+ALPHA_S_TAU = 5.0  # speed-loop bandwidth x mechanical time constant (Piippo et al.: 5 Hz x 0.168 s = 5.3)
+ALPHA_FO_S = 5.0  # the speed estimate (adaptation bandwidth alpha_fo) at least this much faster
+ALPHA_FO_TAU = 50.0  # alpha_fo x tau_m at least (Piippo et al.: 2 pi 50 Hz x 0.168 s = 53)
+ALPHA_FO_MAX_FS = 1 / 20  # alpha_fo at most f_s/20
 ALPHA_FO_FS = 1 / 100
 CARRIER_FS = 1 / 6
 U_C_PU = 0.13
@@ -126,8 +133,11 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
         "docs/motor_data.md). Review and edit them: this file is complete and loads as it is.",
     ]
     drive = doc.section("drive")
+    given_head = table(data, "drive", file)
     for k, v in head.items():
-        drive[k] = Entry(v, given=True)
+        drive[k] = (
+            Entry(v, given=True) if k in given_head else Entry(v, "default: say where the data come from")
+        )
 
     # ------------------------------------------------------------------ motor (datasheet terms)
     motor_t = table(data, "motor", file)
@@ -223,6 +233,11 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     _extra(sec, est_t, ("R_s", "L_d", "L_q", "psi_pm"))
 
     # ------------------------------------------------------------------ control
+    tau_m = m.J * w_N / m.p / T_N  # rated speed at rated torque: the mechanical time constant
+    alpha_fo = min(
+        max(2 * math.pi * ALPHA_FO_FS * f_s, ALPHA_FO_TAU / tau_m), 2 * math.pi * ALPHA_FO_MAX_FS * f_s
+    )
+    alpha_s = min(ALPHA_S_TAU / tau_m, alpha_fo / ALPHA_FO_S)
     sec = doc.section("control", "control system; bandwidths as fractions of the sampling rate f_s")
     derived_ctl = {
         "T_s": (f"{g6(1e6 / f_s)} us", f"1/f_s, f_s = {g6(f_s / 1e3)} kHz"),
@@ -230,7 +245,11 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             f"{g6(ALPHA_C_FS * f_s)} Hz",
             "current control f_s/12.5 (Piippo et al.: 400 Hz at 5 kHz)",
         ),
-        "alpha_s": (f"{g6(ALPHA_S_FS * f_s)} Hz", "speed control f_s/1000 (Piippo et al.: 5 Hz at 5 kHz)"),
+        "alpha_s": (
+            f"{g6(alpha_s / (2 * math.pi))} Hz",
+            f"speed control min({ALPHA_S_TAU:g}/tau_m, alpha_fo/{ALPHA_FO_S:g}), tau_m = J w_N/(p T_N) = "
+            f"{g6(tau_m)} s (Piippo et al.: 5 Hz, tau_m 0.17 s)",
+        ),
         "T_max": (f"{g6(T_MAX_TN * T_N)} Nm", "1.5 T_N (Piippo et al.: 1.57 T_N)"),
         "u_dc": (u_dc_raw, u_dc_rule),
     }
@@ -248,9 +267,12 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     # ------------------------------------------------------------------ observer and gains
     obs_t = r.table("observer") or {}
     sec = doc.section("observer", "speed-adaptive observer, eqs. (4)-(10)")
-    alpha_fo_hz = ALPHA_FO_FS * f_s
+    alpha_fo_hz = alpha_fo / (2 * math.pi)
     derived_obs = {
-        "alpha_fo": (f"{g6(alpha_fo_hz)} Hz", "f_s/100 (Piippo et al.: 50 Hz at 5 kHz), eq. (10)"),
+        "alpha_fo": (
+            f"{g6(alpha_fo_hz)} Hz",
+            f"max(f_s/100, {ALPHA_FO_TAU:g}/tau_m), at most f_s/20 (Piippo et al.: 50 Hz at 5 kHz), eq. (10)",
+        ),
         "gain": ("speed", "the speed-dependent gain (16)"),
     }
     for k, (v, rule) in derived_obs.items():
@@ -289,7 +311,10 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             if usable
             else ("0 V", "off: the motor's saliency is too small (u_c > 0 turns it on)")
         ),
-        "alpha_i": (f"{g6(ALPHA_I_FO * alpha_fo_hz)} Hz", "alpha_fo/10 (Piippo et al.: 5 Hz), eq. (22)"),
+        "alpha_i": (
+            f"{g6(ALPHA_I_FO * ALPHA_FO_FS * f_s)} Hz",
+            "f_s/1000 (Piippo et al.: 5 Hz at 5 kHz), eq. (22)",
+        ),
         "w_Delta": ("0.13 pu", "Piippo et al.: fades out at 0.13 p.u."),
     }
     for k, (v, rule) in derived_inj.items():

@@ -16,7 +16,7 @@ from typing import Any
 
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.envelope import TuningSettings, load_tuning
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import DriveFileError, UnknownName, parse_quantity
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
 
@@ -214,7 +214,7 @@ class IpmsmDrive:
             return self.observer.gains[name]
         except KeyError:
             have = ", ".join(self.observer.gains) or "none"
-            raise KeyError(f"{self.file}: no [observer.gains.{name}] (defined: {have})") from None
+            raise UnknownName(f"{self.file}: no [observer.gains.{name}] (defined: {have})") from None
 
     @property
     def T_N(self) -> float:

@@ -35,7 +35,7 @@ def user_errors() -> tuple[type[BaseException], ...]:
     from sensorless.design.family import CapabilityError
     from sensorless.design.gain_table import GainTableError
     from sensorless.design.simulate import SimulationError
-    from sensorless.design.units import DriveFileError
+    from sensorless.design.units import DriveFileError, UnknownName
     from sensorless.reports.cli.common import UsageError
     from sensorless.reports.files import OutputError
     from sensorless.tuning.nlp import TuningError
@@ -49,7 +49,7 @@ def user_errors() -> tuple[type[BaseException], ...]:
         CapabilityError,
         TuningError,
         SimulationError,
-        KeyError,
+        UnknownName,
     )
 
 
