@@ -38,7 +38,7 @@ EMF_CONVENTIONS = ("line-line peak", "line-line rms", "phase peak", "phase rms")
 TORQUE_CONVENTIONS = ("rms", "peak")
 CONNECTIONS = ("wye", "delta")
 # Largest relative difference between the PM fluxes that two flux keys imply (kE against kT: datasheets
-# agree within a few per cent; a mistaken convention is off by sqrt(2), sqrt(3), 2/sqrt(3) or 2).
+# agree within a few per cent; a mistaken convention is off by sqrt(3/2), sqrt(2), sqrt(3) or sqrt(6)).
 FLUX_TOLERANCE = 0.10
 FLUX_KEYS = ("psi_pm", "kE", "KV", "kT")  # in the order of preference: the first given is used
 
@@ -121,10 +121,6 @@ class MotorData:
     J: float
     source: Mapping[str, str] = field(default_factory=dict)
     rules: Mapping[str, str] = field(default_factory=dict)
-
-
-def _article(word: str) -> str:
-    return "an" if word[:1] in "aeiou" else "a"
 
 
 def read_motor(t: Mapping[str, Any], file: str, section: str = "motor") -> MotorData:

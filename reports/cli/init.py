@@ -58,8 +58,8 @@ def run(args: argparse.Namespace) -> int:
     out.check()
     doc = fam.document(data, file)
     written = doc.toml()
-    drive = load_drive_text(written, str(args.out))  # what is written loads (plausibility included)
-    load_drive_text(text, file)  # and so does the source, to the same drive
+    load_drive_text(text, file)  # the source loads (its errors name its own file and keys)
+    drive = load_drive_text(written, str(args.out))  # and so does what is written
     out.set_text(written)
     path = out.commit()
     print_warnings("init", drive)

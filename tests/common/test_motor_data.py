@@ -371,11 +371,6 @@ def test_init_refuses_a_flux_five_times_too_large(tmp_path, capsys):
     assert not out.exists()
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="reports/cli/init.py loads the derived text under the --out name before the source, so a "
-    "plausibility error names the unwritten output and its keys (control.u_dc), not the user's file",
-)
 def test_init_error_names_the_source_file_and_its_keys(tmp_path, capsys):
     src, out = tmp_path / "servo.toml", tmp_path / "servo-drive.toml"
     src.write_text(MINIMAL.format(flux='kE = "165 V/krpm"\nemf_convention = "line-line rms"'))
