@@ -352,14 +352,14 @@ GENERIC = ("speed_steps", "load_steps", "reversal")
 def generic_times(drive: Any) -> dict[str, float]:
     """The time scales of the generic scenarios [s]: ``t_seg`` = 1.5 t_acc + 6/alpha_s, where t_acc
     changes the speed by 1 p.u. against the rated load at the torque limit and 6/alpha_s lets the speed
-    loop settle; ``t_ramp`` = 10 t_seg, the slow reversal's ramp over 1 p.u.; ``t_rise``, the load's
+    loop settle; ``t_ramp`` = 3 t_seg, the slow reversal's ramp over 1 p.u.; ``t_rise``, the load's
     rise time: a load ramping to T_N in t_rise makes a speed loop of bandwidth alpha_s lag by about
     1/(tau_m alpha_s^2 t_rise) p.u., so t_rise = 10/(tau_m alpha_s^2) keeps the dip near 0.1 p.u. (at
     most t_seg/2): the checks test the observer, not the speed controller's stiffness."""
     sc = registry.family_of(drive).scales(drive)
     t_seg = 1.5 * sc.t_acc + 6 / sc.alpha_s
     t_rise = min(10 / (sc.tau_m * sc.alpha_s**2), t_seg / 2)
-    return {"t_acc": sc.t_acc, "tau_m": sc.tau_m, "t_seg": t_seg, "t_ramp": 10 * t_seg, "t_rise": t_rise}
+    return {"t_acc": sc.t_acc, "tau_m": sc.tau_m, "t_seg": t_seg, "t_ramp": 3 * t_seg, "t_rise": t_rise}
 
 
 def generic_scenarios(drive: Any) -> list[Scenario]:
