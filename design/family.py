@@ -122,7 +122,10 @@ class ObserverFamily:
         """The complete drive document (design/drive_file.DriveDocument) of a parsed drive TOML that may
         give only the minimal data (motor, rating, inverter): every other value derived by the family's
         documented rules, each with its rule (``sensorless init``)."""
-        raise CapabilityError(f"observer family {self.name!r} derives no drive files (no `init`)")
+        raise CapabilityError(
+            f"observer family {self.name!r} reads no minimal drive files (`sensorless init`): write its "
+            "drive file in full, starting from a copy of its preset"
+        )
 
     # --------------------------------------------------------------------------------------- gains
     def gains(
