@@ -426,7 +426,8 @@ def plausibility(
                 (keys["T_s"], keys["w_max"]),
                 f"{spp:.3g} samples per electrical period at the top speed {w_max / (2 * math.pi):.4g} Hz "
                 f"(warning below {SAMPLES_WARN:g}, error below {SAMPLES_ERROR:g}: a quarter turn per "
-                "sample is the runtime observer's limit): sample faster or lower the top speed",
+                "sample is the runtime observer's limit): sample faster or lower the top speed, or check "
+                "the pole pairs (p = poles/2)",
             )
         )
     # electrical time constant against the sampling period

@@ -73,7 +73,7 @@ class Scenario:
     feedback: str  # "observer" (sensorless) or "sensor"
     mode: str  # "speed" or "torque"
     stiff_load: bool  # the load machine prescribes the speed (w_ref profile)
-    speed_filter: float  # bandwidth of the low-pass on the controllers' speed feedback [rad/s]
+    speed_filter: float | None  # low-pass bandwidth on the speed feedback [rad/s]; None: speed_filter_of
     current_bandwidth: float | None  # current-control bandwidth [rad/s]; None: the drive's
     w_m0: float  # initial electrical speed [rad/s]
     theta_m0: float  # initial rotor angle [rad]
@@ -107,7 +107,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "feedback": ("str", "observer"),
         "mode": ("str", "speed"),
         "stiff_load": ("bool", False),
-        "speed_filter": ("angular", 2 * np.pi * 50),  # 10 x the paper's speed bandwidth
+        "speed_filter": ("angular", None),  # None: speed_filter_of (10 x the speed loop, >= 50 Hz)
         "current_bandwidth": ("angular", None),  # None: the drive's (reduced-order drive: 2 pi 400 rad/s)
     },
     "initial": {
@@ -277,7 +277,7 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         raise DriveFileError(file, "control.stiff_load", "a prescribed speed needs control.mode = 'torque'")
     if c["mode"] == "torque" and "torque_reference" not in data:
         raise DriveFileError(file, "torque_reference", "missing section (control.mode = 'torque')")
-    if c["speed_filter"] <= 0:
+    if c["speed_filter"] is not None and c["speed_filter"] <= 0:
         raise DriveFileError(file, "control.speed_filter", "must be > 0")
     head = s["scenario"]
     return Scenario(
@@ -341,6 +341,16 @@ def load_scenario(spec: str | Path, drive: Any) -> Scenario:
             f"written for {sc.kind!r} drives, but {drive.file} is a {drive.kind!r} drive",
         )
     return sc
+
+
+SPEED_FILTER_MIN = 2 * np.pi * 50  # the papers' drives: 10 x Piippo et al.'s 5-Hz speed loop
+
+
+def speed_filter_of(sc: Scenario, alpha_s: float) -> float:
+    """The speed-feedback low-pass bandwidth [rad/s] of ``sc`` in a speed loop of bandwidth ``alpha_s``:
+    the scenario's, else 10 alpha_s and at least 2 pi 50 rad/s (a filter near the loop's own bandwidth
+    makes a fast servo's speed loop limit-cycle)."""
+    return sc.speed_filter if sc.speed_filter is not None else max(SPEED_FILTER_MIN, 10 * alpha_s)
 
 
 # --------------------------------------------------------------------------------------------------

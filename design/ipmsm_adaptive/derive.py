@@ -52,6 +52,7 @@ ALPHA_I_FO = 1 / 10
 T_MAX_TN = 1.5
 SALIENCY_MIN = 0.1  # 2 |L_q - L_d| / (L_q + L_d) below which the injection is off
 I_NOISE_PU = 0.003  # schema.I_NOISE_DEFAULT
+W_MAX_PU, W_MAX_MIN_PU = 2.0, 1.2  # the runtime top speed [p.u.]: default, and least where the voltage limits
 
 SECTIONS = (
     "drive",
@@ -208,6 +209,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
         check_keys(inv_t, tuple(INVERTER), file, "inverter.")
     f_s = _sampling(r, inv_t, ctl_t, file)
     u_dc_raw, u_dc_rule = _dc_link(r, inv_t, ctl_t, file)
+    u_dc = parse_quantity(u_dc_raw, "voltage", file=file, key="inverter.u_dc")[0]
 
     # ------------------------------------------------------------------ base
     base_t = r.table("base") or {}
@@ -326,8 +328,20 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
 
     rt_t = r.table("runtime") or {}
     sec = doc.section("runtime", "the discrete-time observer that runs (docs/families/ipmsm_adaptive.md)")
-    for k, v in RUNTIME_DEFAULTS.items():
-        sec[k] = Entry(rt_t[k], given=True) if k in rt_t else Entry(v, RUNTIME_RULES[k])
+    # the top speed: 2 p.u., but not beyond what the inverter's voltage can reach (1.1 x the no-load
+    # speed u_dc/(sqrt(3) psi_pm)), and at least 1.2 p.u.
+    w_top = 1.1 * u_dc / math.sqrt(3) / m.psi_pm / w_N
+    w_max_pu = min(W_MAX_PU, max(W_MAX_MIN_PU, w_top))
+    derived_rt = dict(RUNTIME_DEFAULTS)
+    rules_rt = dict(RUNTIME_RULES)
+    if w_max_pu < W_MAX_PU:
+        derived_rt["w_max"] = f"{g6(w_max_pu)} pu"
+        rules_rt["w_max"] = (
+            f"top speed: 1.1 u_dc/(sqrt(3) psi_pm), the no-load speed the DC link reaches, in p.u. (at "
+            f"most {W_MAX_PU:g}, at least {W_MAX_MIN_PU:g} p.u.); the runtime state's speed bounds"
+        )
+    for k, v in derived_rt.items():
+        sec[k] = Entry(rt_t[k], given=True) if k in rt_t else Entry(v, rules_rt[k])
     _extra(sec, rt_t, RUNTIME_DEFAULTS)
     tu_t = r.table("tuning")
     sec = doc.section("tuning", "envelope and constraints of `sensorless tune` (design/envelope.py)")

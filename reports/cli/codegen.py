@@ -15,7 +15,7 @@ from sensorless.design.family import CapabilityError
 from sensorless.design.gain_table import GainTableError, read_gain_table
 from sensorless.design.registry import family_of
 from sensorless.design.units import DriveFileError
-from sensorless.reports.cli.common import UsageError, load, version
+from sensorless.reports.cli.common import UsageError, foreign_table, load, version
 from sensorless.reports.codegen.generate import (
     PRECISIONS,
     Provenance,
@@ -69,16 +69,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UsageError(f"argument --prefix: {e}") from None
     gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
-    if table is not None:
-        tuned_for = table.drive.get("name")
-        sha = table.drive.get("sha256")
-        if tuned_for != drive.name or (sha and sha != drive.digest):
-            print(
-                f"sensorless codegen: warning: {args.gains} was tuned for drive {tuned_for!r}"
-                f"{' (another version of its file)' if tuned_for == drive.name else ''}, "
-                f"generating for {drive.name!r}",
-                file=sys.stderr,
-            )
+    foreign = foreign_table(table, args.gains, drive) if table is not None else None
+    if foreign:
+        print(f"sensorless codegen: warning: {foreign}", file=sys.stderr)
     try:
         setup = fam.runtime(drive, gains, discretization=args.discretization)
     except (CapabilityError, DriveFileError, GainTableError):

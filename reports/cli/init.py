@@ -58,11 +58,11 @@ def run(args: argparse.Namespace) -> int:
     out.check()
     doc = fam.document(data, file)
     written = doc.toml()
-    load_drive_text(text, file)  # the source loads (its errors name its own file and keys)
+    source = load_drive_text(text, file)  # the source loads (errors and warnings name its keys)
     drive = load_drive_text(written, str(args.out))  # and so does what is written
     out.set_text(written)
     path = out.commit()
-    print_warnings("init", drive)
+    print_warnings("init", source)
     n = doc.derived()
     print(f"wrote {path}: {drive.name} ({fam.title}); {n} values derived, each with its rule as a comment")
     print(f"review them, then e.g.: sensorless tune {path}")

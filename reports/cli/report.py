@@ -9,7 +9,7 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
-from sensorless.reports.cli.common import MIN_DAMPING, Number, load, version
+from sensorless.reports.cli.common import MIN_DAMPING, Number, foreign_table, load, version
 from sensorless.reports.document import report_json
 from sensorless.reports.family import hooks
 from sensorless.reports.files import OutputSet
@@ -55,8 +55,12 @@ def run(args: argparse.Namespace) -> int:
     if compute is None:
         raise CapabilityError(f"observer family {fam.name!r} has no stability report")
     table = read_gain_table(args.gains) if args.gains else None
+    foreign = None
     if table is not None:
         fam.gains(drive, table=table, table_file=args.gains)  # the table suits the drive: one line if not
+        foreign = foreign_table(table, args.gains, drive)
+        if foreign:
+            print(f"sensorless report: warning: {foreign}", file=sys.stderr)
     from sensorless.design.scenario import load_scenario
 
     for path in args.scenario:  # each loads for this drive: one line naming the file if not
@@ -73,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         progress=lambda msg: print(msg, file=sys.stderr, flush=True),
         scenarios=tuple(args.scenario),
     )
+    if foreign:  # said in the report too: its numbers are for this drive, its gains from another
+        rep.data["inputs"]["gain_table_warning"] = foreign
     v = version()
     out.add_text("report.json", report_json(rep.data, v))
     out.add_text("report.html", render(rep, v))

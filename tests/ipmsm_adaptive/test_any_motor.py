@@ -119,3 +119,17 @@ def test_injection_on_a_non_salient_motor_is_a_one_line_error(capsys, tmp_path):
     code, _, err = run(["simulate", src, "--scenario", "fig9a", "--quiet", "--out", tmp_path / "s"], capsys)
     assert code == 2 and "sensorless simulate --injection off" in err, err
     assert not (tmp_path / "a").exists() and not (tmp_path / "s").exists()
+
+
+def test_a_table_tuned_for_another_drive_is_said_by_codegen_and_report(tmp_path):
+    from types import SimpleNamespace
+
+    from sensorless.reports.cli.common import foreign_table
+
+    servo = load_drive(str(DRIVES / MOTORS["servo"]))
+    mine = SimpleNamespace(drive={"name": servo.name, "sha256": servo.digest})
+    other = SimpleNamespace(drive={"name": "traction", "sha256": "0" * 64})
+    edited = SimpleNamespace(drive={"name": servo.name, "sha256": "1" * 64})
+    assert foreign_table(mine, "t.json", servo) is None
+    assert "tuned for drive 'traction', not for 'servo400'" in foreign_table(other, "t.json", servo)
+    assert "another version of its file" in foreign_table(edited, "t.json", servo)
