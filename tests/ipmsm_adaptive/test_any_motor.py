@@ -133,3 +133,11 @@ def test_a_table_tuned_for_another_drive_is_said_by_codegen_and_report(tmp_path)
     assert foreign_table(mine, "t.json", servo) is None
     assert "tuned for drive 'traction', not for 'servo400'" in foreign_table(other, "t.json", servo)
     assert "another version of its file" in foreign_table(edited, "t.json", servo)
+
+
+@pytest.mark.parametrize(
+    "path", sorted((Path(__file__).parents[2] / "docs" / "examples" / "motors").glob("*.toml")), ids=str
+)
+def test_the_example_motors_load_with_plausible_data(path):
+    d = load_drive(str(path))  # plausibility errors would raise; warnings are allowed
+    assert d.motor.psi_pm > 0 and d.observer.alpha_fo > d.control.alpha_s > 0
