@@ -141,3 +141,15 @@ def test_a_table_tuned_for_another_drive_is_said_by_codegen_and_report(tmp_path)
 def test_the_example_motors_load_with_plausible_data(path):
     d = load_drive(str(path))  # plausibility errors would raise; warnings are allowed
     assert d.motor.psi_pm > 0 and d.observer.alpha_fo > d.control.alpha_s > 0
+
+
+def test_the_report_page_shows_a_foreign_table_warning():
+    from sensorless.reports.document import Report, Verdict
+    from sensorless.reports.html import render
+
+    inputs = {"drive_sha256": "0" * 64, "gains_sha256": "1" * 64}
+    page = render(Report("servo400", "tuned law16", {"inputs": inputs}, Verdict("pass", ())), "0")
+    assert "Warning:" not in page
+    inputs["gain_table_warning"] = "t.json was tuned for drive 'traction', not for 'servo400'"
+    page = render(Report("servo400", "tuned law16", {"inputs": inputs}, Verdict("pass", ())), "0")
+    assert "Warning: t.json was tuned for drive &#39;traction&#39;" in page
