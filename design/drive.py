@@ -35,6 +35,12 @@ def preset_names() -> list[str]:
     return sorted(_preset_files())
 
 
+def preset_text(name: str) -> str | None:
+    """The TOML text of the built-in preset ``name`` (None if there is none)."""
+    res = _preset_files().get(name)
+    return None if res is None else res.read_text(encoding="utf-8")
+
+
 def load_drive_text(text: str, file: str) -> Any:
     """Parse and validate the TOML ``text``; ``file`` is the name used in error messages."""
     try:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
-from dataclasses import field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -103,10 +103,102 @@ def check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], file: str, pre
 
 
 def drive_header(data: Mapping[str, Any], file: str) -> Mapping[str, Any]:
-    """The [drive] table common to every kind: name, kind, source (strings)."""
+    """The [drive] table common to every kind: name, kind and, optionally, source (strings; where the
+    data come from, default :data:`DEFAULT_SOURCE`)."""
     head = table(data, "drive", file)
     check_keys(head, ("name", "kind", "source"), file, "drive.")
-    for k in ("name", "source"):
+    for k in ("name", "kind", "source"):
+        if k == "source" and k not in head:
+            continue
         if not isinstance(head.get(k), str):
             raise DriveFileError(file, f"drive.{k}", "missing key or not a string")
-    return head
+    return {**head, "source": head.get("source", DEFAULT_SOURCE)}
+
+
+DEFAULT_SOURCE = "the user's motor data"
+
+
+# --------------------------------------------------------------------------------------------------
+# Complete drive documents (``sensorless init``)
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Entry:
+    """One key of a complete drive document: its TOML value (a quantity string, number, boolean, list or
+    inline table) and, for a derived value, the rule it was derived by (written as its comment)."""
+
+    value: Any
+    rule: str = ""
+    given: bool = False
+
+
+@dataclass
+class DriveDocument:
+    """A complete drive file as data, derived by a family from a (possibly minimal) one: its sections
+    (dotted names such as ``observer.gains.speed``) of :class:`Entry`, comment lines above sections,
+    commented-out optional keys, and the plausibility warnings. :meth:`data` is what the family's
+    strict loader reads; :meth:`toml` is the text ``sensorless init`` writes, which loads to the same."""
+
+    header: list[str] = dataclasses.field(default_factory=list)
+    sections: dict[str, dict[str, Entry]] = dataclasses.field(default_factory=dict)
+    notes: dict[str, list[str]] = dataclasses.field(default_factory=dict)  # comment lines per section
+    optional: dict[str, list[str]] = dataclasses.field(default_factory=dict)  # commented-out keys
+    warnings: list[str] = dataclasses.field(default_factory=list)
+    context: dict[str, Any] = dataclasses.field(default_factory=dict)  # the family's own (e.g. motor data)
+
+    def section(self, name: str, note: str = "") -> dict[str, Entry]:
+        """The section ``name`` (created empty, with a comment line ``note``, if new)."""
+        if name not in self.sections:
+            self.sections[name] = {}
+            if note:
+                self.notes.setdefault(name, []).append(note)
+        return self.sections[name]
+
+    def data(self) -> dict[str, Any]:
+        """The nested TOML data of the document (what tomllib would read from :meth:`toml`)."""
+        out: dict[str, Any] = {}
+        for name, entries in self.sections.items():
+            t = out
+            for part in name.split("."):
+                t = t.setdefault(part, {})
+            t.update({k: e.value for k, e in entries.items()})
+        return out
+
+    def derived(self) -> int:
+        """How many values were derived (not given)."""
+        return sum(not e.given for entries in self.sections.values() for e in entries.values())
+
+    def toml(self) -> str:
+        """The document as TOML text, each derived value with its rule as a comment."""
+        lines = [f"# {h}" if h else "#" for h in self.header]
+        for name, entries in self.sections.items():
+            lines.append("")
+            lines += [f"# {n}" for n in self.notes.get(name, [])]
+            lines.append(f"[{name}]")
+            for k, e in entries.items():
+                text = f"{k} = {toml_value(e.value)}"
+                comment = ("# " + e.rule) if e.rule else ""
+                if not comment:
+                    lines.append(text)
+                elif len(text) + 2 + len(comment) <= 110:
+                    lines.append(f"{text}  {comment}")
+                else:
+                    lines += [comment, text]
+            lines += [f"# {o}" for o in self.optional.get(name, [])]
+        return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def toml_value(v: Any) -> str:
+    """A value as TOML text (strings quoted, lists and inline tables written out)."""
+    import json
+
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {v!r} as TOML")

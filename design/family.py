@@ -5,7 +5,9 @@ of De Angelo et al., a firmware's flux observer + PLL, ...) is one :class:`Obser
 registered in :mod:`sensorless.design.registry`, which is the only place that maps a drive file's
 ``[drive] kind`` to code. A family provides:
 
-- its drive-file schema (:meth:`ObserverFamily.load`), presets and built-in scenarios (packages);
+- its drive-file schema (:meth:`ObserverFamily.load`), presets and built-in scenarios (packages), and
+  optionally the derivation of a complete drive file from a minimal one (:meth:`document`,
+  ``sensorless init``);
 - its gains: which gain-table families it accepts and their keys, and the gains of a drive
   (:meth:`gains`, from the drive file or a tuned table);
 - its runtime observer: the discrete-time step of the one runtime contract (symbolic/runtime.py),
@@ -72,6 +74,29 @@ class GainSet:
     source: str = ""  # for headers and messages: the drive file's section or the table file
 
 
+@dataclass(frozen=True)
+class DriveScales:
+    """What scales a drive's generic time-domain scenarios (design/scenario.py ``generic_scenarios``):
+    its rated torque, torque limit, inertia, pole pairs, base speed and speed-loop bandwidth."""
+
+    T_N: float  # rated torque [N m]
+    T_max: float  # torque limit [N m]
+    J: float  # moment of inertia [kg m^2]
+    pole_pairs: int
+    w_base: float  # 1 p.u. speed [rad/s, electrical]
+    alpha_s: float  # speed-loop bandwidth [rad/s]
+
+    @property
+    def t_acc(self) -> float:
+        """Time [s] to change the speed by 1 p.u. against the rated load at the torque limit."""
+        return self.J * self.w_base / self.pole_pairs / max(self.T_max - self.T_N, 0.1 * self.T_N)
+
+    @property
+    def tau_m(self) -> float:
+        """Mechanical time constant [s]: 1 p.u. of speed at rated torque."""
+        return self.J * self.w_base / self.pole_pairs / self.T_N
+
+
 class ObserverFamily:
     """Base class of an observer family; subclasses override what they support (module docstring)."""
 
@@ -93,6 +118,15 @@ class ObserverFamily:
         """The drive of a parsed TOML document (strict; DriveFileError naming file and key)."""
         raise CapabilityError(f"observer family {self.name!r} cannot load drive files")
 
+    def document(self, data: Mapping[str, Any], file: str) -> Any:
+        """The complete drive document (design/drive_file.DriveDocument) of a parsed drive TOML that may
+        give only the minimal data (motor, rating, inverter): every other value derived by the family's
+        documented rules, each with its rule (``sensorless init``)."""
+        raise CapabilityError(
+            f"observer family {self.name!r} reads no minimal drive files (`sensorless init`): write its "
+            "drive file in full, starting from a copy of its preset"
+        )
+
     # --------------------------------------------------------------------------------------- gains
     def gains(
         self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
@@ -112,6 +146,10 @@ class ObserverFamily:
         raise CapabilityError(f"observer family {self.name!r} has no linearization")
 
     # ---------------------------------------------------------------------------------- simulation
+    def scales(self, drive: Any) -> DriveScales:
+        """The drive's torques, inertia and speed-loop bandwidth: the generic scenarios' scales."""
+        raise CapabilityError(f"observer family {self.name!r} gives no scales for generic scenarios")
+
     def simulation(self, drive: Any, scenario: Any, gains: GainSet) -> Any:
         """The loop set-up (design/simulate.LoopSetup) of ``scenario`` on ``drive``."""
         raise CapabilityError(f"observer family {self.name!r} has no time-domain simulation")

@@ -17,7 +17,7 @@ import numpy as np
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
-from sensorless.design.scenario import Scenario
+from sensorless.design.scenario import Scenario, speed_filter_of
 from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
 from sensorless.symbolic.pmsm_drive import (
     INPUTS,
@@ -76,7 +76,7 @@ def _params(d: PmsmDrive, sc: Scenario, carrier: bool) -> np.ndarray:
         "sensor": 1.0 if sc.feedback == "sensor" else 0.0,
         "speed_mode": 1.0 if sc.mode == "speed" else 0.0,
         "stiff": 1.0 if sc.stiff_load else 0.0,
-        "alpha_w": sc.speed_filter,
+        "alpha_w": speed_filter_of(sc, d.alpha_s),
         "notch": 1.0 if carrier and d.carrier > 0 else 0.0,
         "w_n": d.carrier if d.carrier > 0 else math.pi / d.T_s / 2,  # unused without the notch
         "B_n": d.carrier_band if d.carrier_band > 0 else 1.0,

@@ -17,6 +17,7 @@ from contextlib import contextmanager
 from importlib.metadata import entry_points
 
 from sensorless.design.family import ObserverFamily
+from sensorless.design.units import UnknownName
 
 ENTRY_POINTS = "sensorless.families"
 
@@ -89,7 +90,7 @@ def family(kind: str) -> ObserverFamily:
     try:
         return _FAMILIES[kind]
     except KeyError:
-        raise KeyError(f"unknown drive kind {kind!r} (known: {', '.join(kinds())})") from None
+        raise UnknownName(f"unknown drive kind {kind!r} (known: {', '.join(kinds())})") from None
 
 
 def family_of(drive: object) -> ObserverFamily:

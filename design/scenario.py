@@ -73,7 +73,7 @@ class Scenario:
     feedback: str  # "observer" (sensorless) or "sensor"
     mode: str  # "speed" or "torque"
     stiff_load: bool  # the load machine prescribes the speed (w_ref profile)
-    speed_filter: float  # bandwidth of the low-pass on the controllers' speed feedback [rad/s]
+    speed_filter: float | None  # low-pass bandwidth on the speed feedback [rad/s]; None: speed_filter_of
     current_bandwidth: float | None  # current-control bandwidth [rad/s]; None: the drive's
     w_m0: float  # initial electrical speed [rad/s]
     theta_m0: float  # initial rotor angle [rad]
@@ -107,7 +107,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "feedback": ("str", "observer"),
         "mode": ("str", "speed"),
         "stiff_load": ("bool", False),
-        "speed_filter": ("angular", 2 * np.pi * 50),  # 10 x the paper's speed bandwidth
+        "speed_filter": ("angular", None),  # None: speed_filter_of (10 x the speed loop, >= 50 Hz)
         "current_bandwidth": ("angular", None),  # None: the drive's (reduced-order drive: 2 pi 400 rad/s)
     },
     "initial": {
@@ -277,7 +277,7 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         raise DriveFileError(file, "control.stiff_load", "a prescribed speed needs control.mode = 'torque'")
     if c["mode"] == "torque" and "torque_reference" not in data:
         raise DriveFileError(file, "torque_reference", "missing section (control.mode = 'torque')")
-    if c["speed_filter"] <= 0:
+    if c["speed_filter"] is not None and c["speed_filter"] <= 0:
         raise DriveFileError(file, "control.speed_filter", "must be > 0")
     head = s["scenario"]
     return Scenario(
@@ -321,8 +321,10 @@ def load_scenario(spec: str | Path, drive: Any) -> Scenario:
     rel = drive_units(drive)
     if path.suffix != ".toml" and "/" not in spec_s:
         res = _builtin(drive.kind).get(spec_s)
+        if res is None and spec_s in GENERIC:
+            return {sc.name: sc for sc in generic_scenarios(drive)}[spec_s]
         if res is None:
-            have = ", ".join(builtin_names(drive.kind)) or "none"
+            have = ", ".join(builtin_names(drive.kind) + list(GENERIC)) or "none"
             raise FileNotFoundError(
                 f"{spec_s}: no such scenario file, and not a built-in one for "
                 f"{drive.kind} drives (built-in: {have})"
@@ -339,3 +341,92 @@ def load_scenario(spec: str | Path, drive: Any) -> Scenario:
             f"written for {sc.kind!r} drives, but {drive.file} is a {drive.kind!r} drive",
         )
     return sc
+
+
+SPEED_FILTER_MIN = 2 * np.pi * 50  # the papers' drives: 10 x Piippo et al.'s 5-Hz speed loop
+
+
+def speed_filter_of(sc: Scenario, alpha_s: float) -> float:
+    """The speed-feedback low-pass bandwidth [rad/s] of ``sc`` in a speed loop of bandwidth ``alpha_s``:
+    the scenario's, else 10 alpha_s and at least 2 pi 50 rad/s (a filter near the loop's own bandwidth
+    makes a fast servo's speed loop limit-cycle)."""
+    return sc.speed_filter if sc.speed_filter is not None else max(SPEED_FILTER_MIN, 10 * alpha_s)
+
+
+# --------------------------------------------------------------------------------------------------
+# Generic scenarios, scaled to a drive
+# --------------------------------------------------------------------------------------------------
+GENERIC = ("speed_steps", "load_steps", "reversal")
+
+
+def generic_times(drive: Any) -> dict[str, float]:
+    """The time scales of the generic scenarios [s]: ``t_seg`` = 1.5 t_acc + 6/alpha_s, where t_acc
+    changes the speed by 1 p.u. against the rated load at the torque limit and 6/alpha_s lets the speed
+    loop settle; ``t_ramp`` = 3 t_seg, the slow reversal's ramp over 1 p.u.; ``t_rise``, the load's
+    rise time: a load ramping to T_N in t_rise makes a speed loop of bandwidth alpha_s lag by about
+    1/(tau_m alpha_s^2 t_rise) p.u., so t_rise = 10/(tau_m alpha_s^2) keeps the dip near 0.1 p.u. (at
+    most t_seg/2): the checks test the observer, not the speed controller's stiffness."""
+    sc = registry.family_of(drive).scales(drive)
+    t_seg = 1.5 * sc.t_acc + 6 / sc.alpha_s
+    t_rise = min(10 / (sc.tau_m * sc.alpha_s**2), t_seg / 2)
+    return {"t_acc": sc.t_acc, "tau_m": sc.tau_m, "t_seg": t_seg, "t_ramp": 3 * t_seg, "t_rise": t_rise}
+
+
+def generic_scenarios(drive: Any) -> list[Scenario]:
+    """The built-in generic scenarios of any drive whose family gives its scales, in per unit of its
+    own rating, with times scaled by :func:`generic_times` (docs/simulation.md, "Generic scenarios"):
+
+    - ``speed_steps``: from 0.5 p.u. unloaded, rated load applied, steps to 1, -0.5 and 0.5 p.u. (two
+      reversals through zero under load, motoring and regenerating);
+    - ``load_steps``: at 0.2 p.u., the load changes 0 -> T_N -> -T_N -> 0 (motoring, regenerating);
+    every load change ramps in ``t_rise`` (:func:`generic_times`);
+    - ``reversal``: a slow ramp from 0.5 to -0.5 p.u. at rated load (Piippo et al. 2008 Fig. 10, scaled).
+    """
+    t = generic_times(drive)
+    seg, ramp, r = t["t_seg"], t["t_ramp"], t["t_rise"]
+    g = lambda x: f"{x:.6g}"  # noqa: E731
+    head = (
+        f'kind = "{drive.kind}"\nsource = "generic scenario, scaled to the drive: t_seg = {g(seg)} s '
+        f'(docs/simulation.md)"\n'
+    )
+    texts = {
+        "speed_steps": (
+            "Speed steps at rated load (0.5, 1, -0.5, 0.5 p.u.)",
+            5 * seg,
+            '["speed", "torque", "theta_error"]',
+            '[initial]\nw_m = "0.5 pu"\n'
+            f"[speed_reference]\nt = [0, {g(2 * seg)}, {g(3 * seg)}, {g(4 * seg)}]\n"
+            'value = ["0.5 pu", "1 pu", "-0.5 pu", "0.5 pu"]\n'
+            f'[load_torque]\ninterpolation = "linear"\nt = [0, {g(seg)}, {g(seg + r)}]\n'
+            'value = ["0 Nm", "0 Nm", "1 T_N"]\n',
+        ),
+        "load_steps": (
+            "Load steps at 0.2 p.u. (0, T_N, -T_N, 0)",
+            4 * seg,
+            '["speed", "torque", "theta_error"]',
+            '[initial]\nw_m = "0.2 pu"\n[speed_reference]\nt = [0]\nvalue = ["0.2 pu"]\n'
+            '[load_torque]\ninterpolation = "linear"\n'
+            f"t = [0, {g(seg)}, {g(seg + r)}, {g(2 * seg)}, {g(2 * seg + 2 * r)}, {g(3 * seg)}, "
+            f"{g(3 * seg + r)}]\n"
+            'value = ["0 Nm", "0 Nm", "1 T_N", "1 T_N", "-1 T_N", "-1 T_N", "0 Nm"]\n',
+        ),
+        "reversal": (
+            "Slow reversal at rated load (0.5 to -0.5 p.u.)",
+            ramp + 2 * seg,
+            '["speed", "torque", "theta_error"]',
+            '[initial]\nw_m = "0.5 pu"\n'
+            f'[speed_reference]\ninterpolation = "linear"\nt = [0, {g(seg)}, {g(seg + ramp)}]\n'
+            'value = ["0.5 pu", "0.5 pu", "-0.5 pu"]\n'
+            f'[load_torque]\ninterpolation = "linear"\nt = [0, {g(seg / 2)}, {g(seg / 2 + r)}]\n'
+            'value = ["0 Nm", "0 Nm", "1 T_N"]\n',
+        ),
+    }
+    rel = drive_units(drive)
+    out = []
+    for name, (title, duration, figure, body) in texts.items():
+        text = (
+            f'[scenario]\nname = "{name}"\ntitle = "{title}"\n{head}duration = "{g(duration)} s"\n'
+            f"figure = {figure}\n{body}"
+        )
+        out.append(load_scenario_text(text, f"generic:{name}", rel))
+    return out

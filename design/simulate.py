@@ -97,7 +97,14 @@ class Traces:
                 f"the simulation diverged: {bad[0]} is not finite from t = {bad[1]:.4g} s on (the motor "
                 "and controllers at T_s; check the drive's parameters, e.g. an inertia J too small)"
             )
-        elif "theta_err" in self.data:
+        if bad is None and "valid" in self.data:
+            rejected = int(np.sum(np.asarray(self["valid"]) < 0.5))
+            if rejected:
+                out.append(
+                    f"the observer rejected {rejected} of {self.t.size} samples (output valid = 0: its next "
+                    "state would have left its physical bounds or was not finite; it coasted meanwhile)"
+                )
+        if bad is None and "theta_err" in self.data:
             w_min = LOST_MIN_SPEED * self.meta.get("base_w", 0.0)
             moving = np.abs(self["w_m"]) >= w_min if "w_m" in self.data else None
             lost = position_lost(self.t, self["theta_err"], moving)

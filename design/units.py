@@ -21,7 +21,18 @@ UNITS: dict[str, dict[str, float]] = {
     "angle": {"rad": 1.0, "mrad": 1e-3, "deg": math.pi / 180},  # electrical angles
     "power": {"W": 1.0, "kW": 1e3},
     "torque": {"Nm": 1.0, "N m": 1.0, "N·m": 1.0},
-    "inertia": {"kgm2": 1.0, "kg m^2": 1.0, "kgm^2": 1.0, "kg·m^2": 1.0},
+    # moment of inertia: kg m2, kg cm2 (datasheets of servos), g cm2 (small motors); other spellings
+    # (kg m^2, kg·cm², kgcm2, ...) are found by :func:`normalized_unit`
+    "inertia": {
+        "kgm2": 1.0,
+        "kg m^2": 1.0,
+        "kgm^2": 1.0,
+        "kg·m^2": 1.0,
+        "kgcm2": 1e-4,
+        "gcm2": 1e-7,
+        "kgmm2": 1e-6,
+        "gmm2": 1e-9,
+    },
     "time": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "μs": 1e-6},
     "frequency": {"Hz": 1.0, "kHz": 1e3},
     # electrical angular speed or bandwidth
@@ -47,6 +58,31 @@ UNITS: dict[str, dict[str, float]] = {
         "mVs": 1e-3,
         "mWb": 1e-3,
     },
+    # back-EMF constant kE per mechanical speed (docs/motor_data.md): SI V s/rad = V/(rad/s)
+    "emf_constant": {
+        "Vs/rad": 1.0,
+        "V/(rad/s)": 1.0,
+        "mVs/rad": 1e-3,
+        "V/krpm": 60 / (2e3 * math.pi),
+        "V/kRPM": 60 / (2e3 * math.pi),
+        "V/1000rpm": 60 / (2e3 * math.pi),
+        "V/1000r/min": 60 / (2e3 * math.pi),
+        "V/kr/min": 60 / (2e3 * math.pi),
+        "V/rpm": 60 / (2 * math.pi),
+        "V/(r/min)": 60 / (2 * math.pi),
+        "mV/rpm": 60e-3 / (2 * math.pi),
+        "mV/(r/min)": 60e-3 / (2 * math.pi),
+        "mV/min-1": 60e-3 / (2 * math.pi),
+    },
+    # speed constant KV: mechanical speed per volt; SI (rad/s)/V
+    "speed_constant": {
+        "rpm/V": 2 * math.pi / 60,
+        "r/min/V": 2 * math.pi / 60,
+        "(rad/s)/V": 1.0,
+        "rad/s/V": 1.0,
+    },
+    # torque constant kT
+    "torque_constant": {"Nm/A": 1.0, "mNm/A": 1e-3},
     "rate": {"1/s": 1.0, "/s": 1.0, "s^-1": 1.0},  # observer gain g of De Angelo et al. (2006); decay rates
     # load-torque adaptation gain Gamma of De Angelo et al. (2006), eq. (10): N m kg m^2 / (V s)^2 = A^2 s^2
     "adaptation": {"A^2 s^2": 1.0, "A2s2": 1.0, "A²s²": 1.0},
@@ -62,6 +98,29 @@ RELATIVE_UNITS: dict[str, tuple[str, ...]] = {
     "flux_derivative": ("Phi_1",),  # a multiple of the fundamental, e.g. Phi_5 = "0.04 Phi_1"
 }
 
+
+def normalized_unit(unit: str) -> str:
+    """A unit's spelling without spaces, middle dots, '*' and '^', with superscripts as digits:
+    "kg cm^2", "kg·cm²" and "kgcm2" are one unit; "mV/min⁻¹" is "mV/min-1"."""
+    for a, b in (
+        (" ", ""),
+        ("·", ""),
+        ("*", ""),
+        ("^", ""),
+        ("²", "2"),
+        ("⁻¹", "-1"),
+        ("⁻", "-"),
+        ("¹", "1"),
+    ):
+        unit = unit.replace(a, b)
+    return unit
+
+
+def article(word: str) -> str:
+    """'a' or 'an' before ``word``."""
+    return "an" if word[:1] in "aeiou" else "a"
+
+
 _QTY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
 
 # The magnitudes a drive, scenario, gain table or command line may give, in SI (zero aside): wider than
@@ -70,12 +129,18 @@ _QTY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$"
 MAGNITUDE = (1e-12, 1e12)
 
 
+class UnknownName(KeyError):
+    """A name the user gave (a drive kind, a gain choice) that does not exist: a one-line error. Other
+    KeyErrors are bugs and keep their traceback."""
+
+
 class DriveFileError(ValueError):
     """A drive description is malformed; the message names the file and the key."""
 
     def __init__(self, file: str, key: str, problem: str) -> None:
         self.file, self.key, self.problem = file, key, problem
-        super().__init__(f"{file}: key '{key}': {problem}")
+        label = "keys" if ", " in key else "key"
+        super().__init__(f"{file}: {label} '{key}': {problem}")
 
 
 def check_magnitude(x: float, raw: object, *, file: str, key: str) -> float:
@@ -123,10 +188,16 @@ def parse_quantity(value: object, dim: str, *, file: str, key: str) -> tuple[flo
     table = UNITS[dim]
     if unit in table:
         return check_magnitude(x * table[unit], value, file=file, key=key), None
+    loose = {normalized_unit(u): v for u, v in table.items()}
+    if normalized_unit(unit) in loose:
+        return check_magnitude(x * loose[normalized_unit(unit)], value, file=file, key=key), None
     if unit in RELATIVE_UNITS.get(dim, ()):
         return x, unit
     allowed = list(table) + list(RELATIVE_UNITS.get(dim, ()))
-    other = [d for d, t in UNITS.items() if unit in t]
+    other = [d for d, t in UNITS.items() if normalized_unit(unit) in {normalized_unit(u) for u in t}]
     hint = f" ('{unit}' is a unit of {other[0]})" if other else ""
     accepted = ", ".join(allowed) if allowed else "a bare number"
-    raise DriveFileError(file, key, f"unit '{unit}' is not a {dim} unit{hint}; use one of: {accepted}")
+    what = dim.replace("_", " ")
+    raise DriveFileError(
+        file, key, f"unit '{unit}' is not {article(what)} {what} unit{hint}; use one of: {accepted}"
+    )

@@ -325,3 +325,58 @@ class OutputSet:
                 if stage is not None:
                     shutil.rmtree(stage, ignore_errors=True)
         return self.paths()
+
+
+class OutputFile:
+    """One output file (``sensorless init``'s drive file) that appears whole or not at all: checked
+    before anything is computed (:meth:`check`: not a directory, its directory exists and is writable,
+    absent unless ``force``), written beside itself and renamed into place (:meth:`commit`)."""
+
+    def __init__(self, path: str | Path, force: bool = False, option: str = "--out") -> None:
+        self.path = Path(path)
+        self.force = force
+        self.option = option
+        self.data: bytes | None = None
+
+    def _label(self) -> str:
+        return f"{self.option} {self.path}" if self.option else str(self.path)
+
+    def check(self) -> None:
+        """OutputError (one line naming the path) if the file cannot be written as asked."""
+        p, label = self.path, self._label()
+        if p.name in ("", ".", ".."):
+            raise OutputError(f"{label}: not a file name")
+        if os.path.lexists(p):
+            if os.path.isdir(p):
+                raise OutputError(f"{label}: is a directory; name the drive file to write")
+            if not self.force:
+                raise OutputExistsError(f"output exists: {p} (choose another --out or pass --force)")
+        parent = Path(os.path.abspath(p)).parent
+        if not parent.is_dir():
+            raise OutputError(f"{label}: '{parent}' is not a directory")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise OutputError(f"{label}: cannot create files in '{parent}': permission denied")
+
+    def set_text(self, text: str) -> None:
+        """The file's content (UTF-8, LF line ends)."""
+        self.data = text.encode("utf-8")
+
+    def commit(self) -> Path:
+        """Write the file beside its target and rename it into place; returns the path."""
+        interrupts.check()
+        self.check()
+        assert self.data is not None, "set_text first"
+        parent = Path(os.path.abspath(self.path)).parent
+        with interrupts.deferred():
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}{STAGE_TAG}{os.getpid()}-", dir=parent)
+            try:
+                with os.fdopen(fd, "wb") as f:
+                    f.write(self.data)
+                os.chmod(tmp, 0o666 & ~_umask())
+                os.replace(tmp, self.path)
+            except OSError as e:
+                raise OutputError(f"{self._label()}: cannot write: {e.strerror or e}") from None
+            finally:
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
+        return self.path

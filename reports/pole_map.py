@@ -99,7 +99,10 @@ def plot_pole_maps(
             ax.set_xlabel("Real axis (1/s)")
             ax.set_ylabel("Imaginary axis (1/s)")
             ax.grid(True, lw=0.3)
-            if c == 0:
+            if not keep.any():  # no finite pole to show (e.g. no equilibrium anywhere): say so
+                ax.text(0.5, 0.5, "no finite poles", transform=ax.transAxes, ha="center", va="center")
+                ax.set_title(f"{label}: no finite poles", fontsize=9)
+            elif c == 0:
                 re = p.real[keep]
                 im = p.imag[keep]
                 ax.set_xlim(min(re.min() * 1.05, -1.0), max(0.05 * abs(re.min()), re.max() * 1.1))

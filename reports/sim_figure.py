@@ -50,7 +50,10 @@ def _tracking_error(ax: Any, tr: Any) -> None:
 
 def _torque(ax: Any, tr: Any) -> None:
     T_N = tr.meta["T_N"]
-    ax.plot(tr.t, tr["T_e_hat"] / T_N, "k-", lw=1.0, label=r"$\hat T_\mathrm{e}$")
+    if "T_e_hat" in tr.data:  # the torque the controller sees (estimated frame)
+        ax.plot(tr.t, tr["T_e_hat"] / T_N, "k-", lw=1.0, label=r"$\hat T_\mathrm{e}$")
+    else:
+        ax.plot(tr.t, tr["T_e"] / T_N, "k-", lw=1.0, label=r"$T_\mathrm{e}$")
     ax.plot(tr.t, tr["T_L"] / T_N, "k:", lw=1.0, label=r"$T_\mathrm{L}$")
     ax.set_ylabel(r"$T$ (p.u.)")
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
+from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.ipmsm_adaptive import linearize as _linearize
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
@@ -36,6 +36,12 @@ class AdaptiveFluxObserver(ObserverFamily):
     def load(self, data: Any, file: str, digest: str) -> schema.IpmsmDrive:
         return schema.load(data, file, digest, self.kind)
 
+    def document(self, data: Any, file: str) -> Any:
+        """The complete drive document of a (minimal) drive file (derive.py; ``sensorless init``)."""
+        from sensorless.design.ipmsm_adaptive.derive import document
+
+        return document(data, file)
+
     def gains(
         self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
     ) -> GainSet:
@@ -57,12 +63,29 @@ class AdaptiveFluxObserver(ObserverFamily):
     def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
         """Closed-loop poles (design/ipmsm_adaptive/linearize.py); options: injection, estimate, and
         discretization (with T_s): also the discrete-time observer that runs (discrete.py)."""
+        if options.get("injection") and not drive.injection.enabled:
+            raise CapabilityError(injection_off(drive))
         return _linearize.linearize(
             with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
         )
 
+    def scales(self, drive: Any) -> DriveScales:
+        c = drive.control
+        return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s)
+
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
+
+
+def injection_off(drive: Any) -> str:
+    """Why the drive has no HF injection to analyse or simulate (one line)."""
+    from sensorless.design.ipmsm_adaptive.derive import saliency
+
+    xi = saliency(drive.estimate.L_d, drive.estimate.L_q)
+    return (
+        f"{drive.file}: the drive's HF injection is off ([injection] u_c = 0 V; saliency "
+        f"2|L_q - L_d|/(L_q + L_d) = {xi:.3g}{': L_d = L_q gives no error signal (19)' if xi == 0 else ''})"
+    )
 
 
 def with_alpha_fo(drive: Any, gains: GainSet) -> Any:

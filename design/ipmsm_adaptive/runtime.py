@@ -137,7 +137,7 @@ def runtime_params(drive: Any, alpha_fo: float | None = None) -> dict[str, float
         "psi_pm": e.psi_pm,
         "alpha_fo": drive.observer.alpha_fo if alpha_fo is None else float(alpha_fo),
         "T_s": drive.control.T_s,
-        "injection": 1.0,
+        "injection": 1.0 if inj.enabled else 0.0,
         "w_c": inj.w_c,
         "u_c": inj.u_c,
         "alpha_i": inj.alpha_i,

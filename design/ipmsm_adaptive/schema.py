@@ -16,7 +16,7 @@ from typing import Any
 
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.envelope import TuningSettings, load_tuning
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import DriveFileError, UnknownName, parse_quantity
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
 
@@ -137,9 +137,16 @@ class Injection:
     """HF signal injection, Section V: carrier (17), PI (21)-(22), linear fade to w_Delta."""
 
     w_c: float = q("angular", doc="carrier angular frequency [rad/s]")
-    u_c: float = q("voltage", doc="carrier amplitude at zero speed [V]")
+    u_c: float = q(
+        "voltage", check="nonnegative", doc="carrier amplitude at zero speed [V]; 0: injection off"
+    )
     alpha_i: float = q("angular", doc="PI (21) bandwidth at zero speed [rad/s], eq. (22)")
     w_Delta: float = q("angular", doc="transition speed where injection reaches zero [rad/s]")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the drive injects (u_c > 0); off for a motor without a usable saliency."""
+        return self.u_c > 0
 
 
 @dataclass(frozen=True)
@@ -169,6 +176,15 @@ RUNTIME_DEFAULTS: dict[str, Any] = {
     "carrier_delay": 1.0,
     "w_max": "2 pu",
 }
+# why each default (the comments of a derived drive file, derive.py)
+RUNTIME_RULES: dict[str, str] = {
+    "discretization": "default: the voltage held as the inverter holds it",
+    "w_bp": "default: band-pass bandwidth around w_c (envelope 100 Hz >> alpha_i)",
+    "w_lp": "default: low-pass after demodulation",
+    "x_eps_max": "default: bound on the integral of (21)",
+    "carrier_delay": "default: one sample of computation delay",
+    "w_max": "default: top speed, 2 p.u.; the runtime state's speed bounds",
+}
 
 
 @dataclass(frozen=True)
@@ -189,6 +205,7 @@ class IpmsmDrive:
     runtime: Runtime | None = None  # [runtime], defaults filled in by the loader
     tuning: TuningSettings = field(default_factory=TuningSettings)  # optional [tuning] of `tune`
     digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
+    warnings: tuple[str, ...] = ()  # plausibility warnings (design/motor_data.py), printed by every command
 
     def gain(self, name: str | None = None) -> Any:
         """The gain settings named ``name`` (default: ``[observer] gain``)."""
@@ -197,7 +214,7 @@ class IpmsmDrive:
             return self.observer.gains[name]
         except KeyError:
             have = ", ".join(self.observer.gains) or "none"
-            raise KeyError(f"{self.file}: no [observer.gains.{name}] (defined: {have})") from None
+            raise UnknownName(f"{self.file}: no [observer.gains.{name}] (defined: {have})") from None
 
     @property
     def T_N(self) -> float:
@@ -225,7 +242,57 @@ class IpmsmDrive:
 
 
 def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDrive:
-    """Validate a parsed drive TOML of this family."""
+    """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
+    the complete data is loaded strictly and checked for plausibility (design/motor_data.py)."""
+    from sensorless.design.ipmsm_adaptive.derive import document
+
+    doc = document(data, file)
+    drive = load_complete(doc.data(), file, digest, kind)
+    warnings = check_plausibility(drive, doc.context)
+    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive
+
+
+def check_plausibility(drive: IpmsmDrive, context: Mapping[str, Any]) -> list[str]:
+    """Warning lines of the plausibility checks; DriveFileError for the first error (naming its keys)."""
+    from sensorless.design.ipmsm_adaptive.derive import SALIENCY_MIN, saliency
+    from sensorless.design.motor_data import plausibility
+
+    m, keys, given, file = context["motor"], context["keys"], context["given"], drive.file
+    findings = plausibility(
+        m,
+        n_N=drive.rating.n_N,
+        T_N=drive.rating.T_N,
+        I_N=drive.rating.I_N if given["I_N"] else None,
+        f_N=drive.rating.f_N if given["f_N"] else None,
+        u_dc=drive.control.u_dc,
+        T_s=drive.control.T_s,
+        w_max=drive.runtime.w_max,
+        keys=keys,
+    )
+    for fd in findings:
+        if fd.level == "error":
+            raise DriveFileError(file, ", ".join(fd.keys), fd.text)
+    out = [fd.line(file) for fd in findings]
+    e = drive.estimate
+    if drive.injection.enabled:
+        xi = saliency(e.L_d, e.L_q)
+        if xi == 0:
+            raise DriveFileError(
+                file,
+                "injection.u_c",
+                f"HF injection needs a salient motor: [estimate] L_d = L_q gives no error signal (19) "
+                f'(K_eps = 0); set u_c = "0 V" (injection off), got {drive.injection.u_c:g} V',
+            )
+        if xi < SALIENCY_MIN:
+            out.append(
+                f"{file}: injection.u_c, estimate.L_d, estimate.L_q: HF injection on a motor of saliency "
+                f"2|L_q - L_d|/(L_q + L_d) = {xi:.3g} (< {SALIENCY_MIN:g}): its error signal (19) is weak"
+            )
+    return out
+
+
+def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDrive:
+    """Validate the complete data of a drive TOML of this family (every section present)."""
     check_keys(
         data,
         (
@@ -239,6 +306,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDri
             "injection",
             "runtime",
             "tuning",
+            "inverter",
         ),
         file,
         "",

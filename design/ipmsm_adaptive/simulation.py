@@ -15,13 +15,13 @@ from sensorless.design.ipmsm_adaptive.runtime import drive_gains, runtime_setup
 from sensorless.design.pmsm_drive import PmsmDrive, loop_setup
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
-from sensorless.design.simulate import LoopSetup
+from sensorless.design.simulate import LoopSetup, SimulationError
 
 # scenario keys this family adds (design/scenario.py): section -> key -> (dimension, default)
 SCENARIO_OPTIONS = {
     "observer": {
         "gain": ("str", None),  # [observer.gains.*] name; None: the drive's default
-        "injection": ("bool", True),  # HF injection (Section V)
+        "injection": ("bool", None),  # HF injection (Section V); None: the drive's ([injection] u_c > 0)
     }
 }
 
@@ -60,8 +60,25 @@ def pmsm_drive(drive: Any) -> PmsmDrive:
     )
 
 
+def with_injection(drive: Any, sc: Scenario) -> Scenario:
+    """The scenario with its injection switch resolved: not given, the drive's; on for a drive whose
+    injection is off, SimulationError naming the key (a non-salient motor gives no error signal)."""
+    inj = sc.options.get("injection")
+    if inj is None:
+        inj = drive.injection.enabled
+    elif inj and not drive.injection.enabled:
+        from sensorless.design.ipmsm_adaptive import injection_off
+
+        raise SimulationError(
+            f"{sc.file}: key 'observer.injection': true, but {injection_off(drive)}; "
+            "run it with the injection off (sensorless simulate --injection off)"
+        )
+    return dataclasses.replace(sc, options={**sc.options, "injection": bool(inj)})
+
+
 def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """Loop set-up of ``sc`` on ``drive``; ``gains`` None: the scenario's [observer] gain choice."""
+    sc = with_injection(drive, sc)
     gains = gains or drive_gains(drive, sc.options.get("gain"))
     setup = scaled_setup(runtime_setup(drive, gains, sc.discretization), sc)
     return loop_setup(

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
+from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.pmac_reduced_order import linearize as _linearize
 from sensorless.design.pmac_reduced_order import runtime as _runtime
@@ -62,6 +62,10 @@ class ReducedOrderObserver(ObserverFamily):
         Options: load_estimation, method, T_s, settle_time, n_angles."""
         g = gains.values
         return _linearize.analyze(drive, w, torque, g=g["g"], Gamma=g["Gamma"], **options)
+
+    def scales(self, drive: Any) -> DriveScales:
+        c = drive.control
+        return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.pole_pairs, drive.w_base, c.alpha_s)
 
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.pmac_reduced_order.runtime import drive_gains, runtime_setup
-from sensorless.design.scenario import Scenario
+from sensorless.design.scenario import Scenario, speed_filter_of
 from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmac_reduced_order import drive_loop
@@ -70,7 +70,7 @@ def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
         "u_max": u_max,
         "T_s": c.T_s,
         "sensor": 1.0 if sc.feedback == "sensor" else 0.0,
-        "alpha_w": sc.speed_filter,
+        "alpha_w": speed_filter_of(sc, c.alpha_s),
         "J_hat": params["J"],
         "alpha_s": c.alpha_s,
         "T_max": c.T_max,

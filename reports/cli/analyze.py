@@ -11,9 +11,9 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from sensorless.design.drive import load_drive
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
+from sensorless.reports.cli.common import load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 
@@ -37,7 +37,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Load the drive and run the analysis of its family."""
-    drive = load_drive(args.drive)
+    drive: Any = load(args.drive, "analyze")
     fam = family_of(drive)
     h = hooks(fam)
     if h.analyze is None:

@@ -11,12 +11,11 @@ import argparse
 import sys
 from typing import Any
 
-from sensorless.design.drive import load_drive
 from sensorless.design.family import CapabilityError
 from sensorless.design.gain_table import GainTableError, read_gain_table
 from sensorless.design.registry import family_of
 from sensorless.design.units import DriveFileError
-from sensorless.reports.cli.common import UsageError, version
+from sensorless.reports.cli.common import UsageError, foreign_table, load, version
 from sensorless.reports.codegen.generate import (
     PRECISIONS,
     Provenance,
@@ -59,7 +58,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Generate and write the files."""
-    drive = load_drive(args.drive)
+    drive: Any = load(args.drive, "codegen")
     fam = family_of(drive)
     table = read_gain_table(args.gains) if args.gains else None
     if table is not None and args.gain:
@@ -70,16 +69,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UsageError(f"argument --prefix: {e}") from None
     gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
-    if table is not None:
-        tuned_for = table.drive.get("name")
-        sha = table.drive.get("sha256")
-        if tuned_for != drive.name or (sha and sha != drive.digest):
-            print(
-                f"sensorless codegen: warning: {args.gains} was tuned for drive {tuned_for!r}"
-                f"{' (another version of its file)' if tuned_for == drive.name else ''}, "
-                f"generating for {drive.name!r}",
-                file=sys.stderr,
-            )
+    foreign = foreign_table(table, args.gains, drive) if table is not None else None
+    if foreign:
+        print(f"sensorless codegen: warning: {foreign}", file=sys.stderr)
     try:
         setup = fam.runtime(drive, gains, discretization=args.discretization)
     except (CapabilityError, DriveFileError, GainTableError):

@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _version
+from typing import Any
 
 from sensorless.design.envelope import NOISE_DIMS, NOISE_OUTPUTS
 from sensorless.design.units import MAGNITUDE, DriveFileError, check_magnitude, parse_number, parse_quantity
@@ -86,6 +87,23 @@ def version() -> str:
         return _version("sensorless")
     except PackageNotFoundError:  # running from a source tree without install
         return "0+unknown"
+
+
+def print_warnings(command: str, drive: object) -> None:
+    """The drive's plausibility warnings (design/motor_data.py), one line each on stderr."""
+    import sys
+
+    for line in getattr(drive, "warnings", ()):
+        print(f"sensorless {command}: warning: {line}", file=sys.stderr)
+
+
+def load(spec: str, command: str) -> object:
+    """The drive of a preset name or drive file, its warnings printed (every command loads this way)."""
+    from sensorless.design.drive import load_drive
+
+    drive = load_drive(spec)
+    print_warnings(command, drive)
+    return drive
 
 
 def option_error(option: str, problem: str) -> UsageError:
@@ -184,3 +202,14 @@ def _spaced(v: str) -> str:
     ):
         i += 1
     return f"{v[:i]} {v[i:]}".strip()
+
+
+def foreign_table(table: Any, table_file: str, drive: Any) -> str | None:
+    """Why a gain table does not belong to ``drive`` (tuned for another drive, or another version of its
+    file), or None: the gains may still be valid for it, so commands warn and go on."""
+    tuned_for = table.drive.get("name")
+    sha = table.drive.get("sha256")
+    if tuned_for != drive.name or (sha and sha != drive.digest):
+        again = " (another version of its file)" if tuned_for == drive.name else ""
+        return f"{table_file} was tuned for drive {tuned_for!r}{again}, not for {drive.name!r} ({drive.file})"
+    return None

@@ -26,7 +26,7 @@ from sensorless.reports import interrupts
 
 # The subcommands (each module's register(subparsers) sets ``func``); imported by main() once Ctrl-C
 # is handled, since importing CasADi and the families takes a moment.
-COMMAND_NAMES = ("analyze", "tune", "simulate", "codegen", "report")
+COMMAND_NAMES = ("init", "analyze", "tune", "simulate", "codegen", "report")
 EXIT_USAGE, EXIT_RESULT, EXIT_PIPE = 2, 3, 141
 
 
@@ -35,7 +35,7 @@ def user_errors() -> tuple[type[BaseException], ...]:
     from sensorless.design.family import CapabilityError
     from sensorless.design.gain_table import GainTableError
     from sensorless.design.simulate import SimulationError
-    from sensorless.design.units import DriveFileError
+    from sensorless.design.units import DriveFileError, UnknownName
     from sensorless.reports.cli.common import UsageError
     from sensorless.reports.files import OutputError
     from sensorless.tuning.nlp import TuningError
@@ -49,7 +49,7 @@ def user_errors() -> tuple[type[BaseException], ...]:
         CapabilityError,
         TuningError,
         SimulationError,
-        KeyError,
+        UnknownName,
     )
 
 

@@ -16,11 +16,11 @@ import time
 from typing import Any
 
 import numpy as np
-from sensorless.design.drive import load_drive
+from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
-from sensorless.design.scenario import builtin_names, load_scenario
+from sensorless.design.scenario import builtin_names, generic_scenarios, load_scenario
 from sensorless.design.simulate import MAX_SAMPLES, check_length
-from sensorless.reports.cli.common import Number, ResultError, UsageError
+from sensorless.reports.cli.common import Number, ResultError, UsageError, load
 from sensorless.reports.files import OutputSet
 
 
@@ -91,12 +91,18 @@ class Progress:
 
 def run(args: argparse.Namespace) -> int:
     """Load drive and scenario, simulate, write outputs."""
-    drive = load_drive(args.drive)
+    drive: Any = load(args.drive, "simulate")
     fam = family_of(drive)
     if args.list:
         for name in builtin_names(drive.kind):
             sc = load_scenario(name, drive)
-            print(f"{name:<8} {sc.title}")
+            print(f"{name:<12} {sc.title}")
+        try:
+            generic = generic_scenarios(drive)
+        except CapabilityError:  # a family without the scales of the generic scenarios
+            generic = []
+        for sc in generic:
+            print(f"{sc.name:<12} {sc.title}; generic, scaled to the drive ({sc.duration:.4g} s)")
         return 0
     if not args.scenario:
         raise UsageError("--scenario NAME_OR_TOML is required (see --list)")

@@ -20,10 +20,9 @@ import sys
 import time
 from typing import Any
 
-from sensorless.design.drive import load_drive
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
-from sensorless.reports.cli.common import MIN_DAMPING, UsageError
+from sensorless.reports.cli.common import MIN_DAMPING, UsageError, load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 from sensorless.reports.gain_csv import pareto_csv, speeds_csv, table_csv
@@ -59,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     """Tune, print the summary, write the tables."""
     from sensorless.tuning.tune import tune
 
-    drive = load_drive(args.drive)
+    drive: Any = load(args.drive, "tune")
     fam = family_of(drive)
     h = hooks(fam)
     tunable = tunable_for(drive, args.family)

@@ -15,7 +15,7 @@ import sys
 from typing import Any
 
 import numpy as np
-from sensorless.design.ipmsm_adaptive import FAMILY, with_alpha_fo
+from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
 from sensorless.design.ipmsm_adaptive.linearize import unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.reports.cli.common import Number, UsageError, parse_torques
@@ -66,8 +66,10 @@ def gain_choices(drive: Any, args: argparse.Namespace) -> dict[str, Any]:
 
 
 def check(drive: Any, args: argparse.Namespace) -> None:
-    """The options against the drive, before anything is computed: gains, table, torques."""
+    """The options against the drive, before anything is computed: gains, table, torques, injection."""
     gain_choices(drive, args)
+    if args.injection and not drive.injection.enabled:
+        raise UsageError(f"argument --injection: {injection_off(drive)}")
     parse_torques(args.torque, drive.T_N)
     discrete.scheme(drive, args)
 
@@ -90,7 +92,7 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
         f"{', HF injection (19)-(22)' if inj else ''}); {points} speeds in [-{speed_max:g}, {speed_max:g}] "
         f"p.u., 1 p.u. = {wb:.2f} rad/s electrical"
     )
-    print(f"{'gain':<14} {'T_e [N m]':>9}  {'unstable speed bands [p.u.]':<38} worst damping (stable pts)")
+    print(f"{'gain':<14} {'T_e [N m]':>9}  {'unstable speed bands [p.u.]':<38} worst damping where stable")
 
     import matplotlib.pyplot as plt
     from sensorless.reports.pole_map import plot_pole_maps, pole_csv
@@ -112,7 +114,7 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
             for edges in unstable_speed_bands(d, w, T, gain=law_of(g), injection=inj, sweep=s):
                 mode = "motoring" if np.sign(np.mean(edges)) == np.sign(T) else "regenerating"
                 text.append(f"{edges[0] / wb:+.4f}..{edges[1] / wb:+.4f} ({mode})")
-            stable = s.max_real <= tol
+            stable = s.max_real < -tol  # strictly: a pole on the axis (damping <= 0) is not stable
             wd = np.where(stable, s.worst_damping, np.inf)
             k = int(np.argmin(wd))
             worst = f"{wd[k]:.3f} at {w[k] / wb:+.3f} p.u." if np.isfinite(wd[k]) else "n/a"

@@ -9,12 +9,12 @@ under review meet the required damping and where not.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 from sensorless.design.family import GainSet
-from sensorless.design.ipmsm_adaptive import FAMILY, with_alpha_fo
+from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
 from sensorless.design.ipmsm_adaptive.linearize import PoleSweep, unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.reports import time_domain
@@ -40,11 +40,17 @@ from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_f
 TIME_DOMAIN = ("fig9b", "fig10", "fig6b")  # built-in scenarios re-run with the gains under review
 
 
+def drive_label(drive: Any, name: str) -> str:
+    """The label of the drive file's gain ``name``: "paper <name>" for a preset (its gains are the
+    paper's, Fig. 4), else "drive file's <name>" (a user's drive: the baseline, not the paper's)."""
+    return f"paper {name}" if drive.file.startswith("preset:") else f"drive file's {name}"
+
+
 def gain_choices(drive: Any, table: Any | None, table_file: str) -> tuple[dict[str, GainSet], str]:
     """Label -> gains: the drive file's gain choices, plus the table's; and the label under review."""
-    choices = {f"paper {name}": FAMILY.gains(drive, name=name) for name in drive.observer.gains}
+    choices = {drive_label(drive, name): FAMILY.gains(drive, name=name) for name in drive.observer.gains}
     if table is None:
-        return choices, f"paper {drive.observer.gain}"
+        return choices, drive_label(drive, drive.observer.gain)
     g = FAMILY.gains(drive, table=table, table_file=table_file)
     label = f"tuned {g.family}"
     choices[label] = g
@@ -71,8 +77,10 @@ def compute(
     min_damping: float = 0.2,
     resolution: str = "normal",
     progress: Callable[[str], None] = lambda s: None,
+    scenarios: Sequence[str] = (),
 ) -> Report:
-    """All numbers (JSON-ready), figures and sections of the report."""
+    """All numbers (JSON-ready), figures and sections of the report; ``scenarios``: the user's scenario
+    files, checked in the time domain besides the built-in ones (reports/time_domain.py)."""
     from sensorless.reports.pole_map import plot_pole_maps
 
     wb, T_N = drive.w_base, drive.T_N
@@ -117,35 +125,42 @@ def compute(
                 "low-speed sweep (right, Fig. 5 style). Crosses: right-half-plane poles; the RHP is shaded.",
             )
         )
-    progress(f"[2/{steps}] pole maps with HF injection ({review})")
     g_rev = choices[review]
-    inj_sweeps, inj_lows = {}, {}
-    for T in (T_N, -T_N):
-        s = FAMILY.linearize(drive, g_rev, w, T, injection=True)
-        key = f"T = {T:+g} N m"
-        inj_sweeps[key] = s
-        inj_lows[key] = FAMILY.linearize(drive, g_rev, w_low, T, injection=True)
-        pm.setdefault(f"{review} + injection", {})[f"{T:+g}"] = {
-            "T_Nm": f(T),
-            "rhp_bands_pu": bands(g_rev, T, s, True),
-            "worst": _worst_point(s, w_env, wb),
-        }
-    inj_fig = Figure(
-        svg_uri(
-            plot_pole_maps(
-                inj_sweeps, wb, f"{drive.name}: {review} with HF injection (averaged (19)-(22))", inj_lows
-            )
-        ),
-        "The gains under review with the averaged HF injection (19)-(22), at ±T_N: the low-speed RHP "
-        "pole is removed while the injection is active (|ω| < ω_Δ).",
-    )
+    if drive.injection.enabled:
+        progress(f"[2/{steps}] pole maps with HF injection ({review})")
+        inj_sweeps, inj_lows = {}, {}
+        for T in (T_N, -T_N):
+            s = FAMILY.linearize(drive, g_rev, w, T, injection=True)
+            key = f"T = {T:+g} N m"
+            inj_sweeps[key] = s
+            inj_lows[key] = FAMILY.linearize(drive, g_rev, w_low, T, injection=True)
+            pm.setdefault(f"{review} + injection", {})[f"{T:+g}"] = {
+                "T_Nm": f(T),
+                "rhp_bands_pu": bands(g_rev, T, s, True),
+                "worst": _worst_point(s, w_env, wb),
+            }
+        inj_block: Any = Figure(
+            svg_uri(
+                plot_pole_maps(
+                    inj_sweeps, wb, f"{drive.name}: {review} with HF injection (averaged (19)-(22))", inj_lows
+                )
+            ),
+            "The gains under review with the averaged HF injection (19)-(22), at ±T_N, active for "
+            "|ω| < ω_Δ: compare the right-half-plane bands with and without it in the table above.",
+        )
+    else:
+        progress(f"[2/{steps}] no HF injection: {injection_off(drive)}")
+        inj_block = Paragraph(
+            f"No pole maps with HF injection: {injection_off(drive)}. Without it, a right-half-plane band "
+            "at low speed (if the table above shows one) is where the drive cannot run sustained."
+        )
     data["pole_maps"] = pm
 
     # 3. worst damping / decay rate over speed x torque: the drive file's default gains vs the review
     progress(f"[3/{steps}] damping and decay-rate maps over speed x torque")
     w_map = np.linspace(-1, 1, 161 if fine else 41) * wb
     T_map = np.linspace(-1.5, 1.5, 31 if fine else 7) * T_N
-    default = f"paper {drive.observer.gain}"
+    default = drive_label(drive, drive.observer.gain)
     maps: dict[str, Any] = {}
     for label in dict.fromkeys([default, review]):
         s = FAMILY.linearize(drive, choices[label], w_map[:, None], T_map[None, :])
@@ -191,20 +206,20 @@ def compute(
         "hold the rotor).",
     )
 
-    progress(f"[5/{steps}] time-domain checks (paper experiments re-run)")
+    runs = time_domain.scenarios(drive, TIME_DOMAIN, scenarios)
+    what = "paper experiments" if drive.file.startswith("preset:") else "generic scenarios, per unit"
+    progress(f"[5/{steps}] time-domain checks ({what}{' and yours' if scenarios else ''})")
     td_gains = g_rev if table is not None else None
-    td, td_figs = time_domain.checks(
-        drive, td_gains, TIME_DOMAIN, "tuned table" if table is not None else "paper gains", progress
-    )
+    td, td_figs = time_domain.checks(drive, td_gains, runs, review, progress)
     data["time_domain"] = td
     progress(f"[6/{steps}] the discrete-time observer that runs ({drive.runtime.discretization})")
     data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
-    tuning_data, tuning_section = tuning.compute(drive, table, choices, review, progress)
+    tuning_data, tuning_section = tuning.compute(drive, table, choices, review, progress, default)
     data["tuning"] = tuning_data
     data["verdict"] = verdict(data, review, min_damping)
     sections = (
         drive_section(1, data["drive"]),
-        Section("2. Pole maps over speed", (_pole_table(pm), *pole_figs, inj_fig)),
+        Section("2. Pole maps over speed", (_pole_table(pm), *pole_figs, inj_block)),
         Section("3. Damping and decay rate over speed × torque", (plane_fig, _plane_table(maps))),
         Section("4. Robustness to parameter-estimate errors", (rob_fig, _robustness_table(rob))),
         time_domain.section(5, td, td_figs),
@@ -336,8 +351,10 @@ def verdict(data: dict[str, Any], label: str, min_damping: float) -> dict[str, A
         status = "warn"
     else:
         status = "fail"
+    td = data.get("time_domain") or []
+    findings += time_domain.findings(td)
     return {
-        "status": status,
+        "status": time_domain.status_with(status, td),
         "gains": label,
         "min_damping": min_damping,
         "envelope": envelope,
@@ -373,8 +390,10 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
         )
     lines += [Paragraph(r) for r in v["reasons"]]
     findings = tuple(
-        f"{x['issue']} in {x['mode']} for {x['speed_pu_min']:.3g} ≤ |ω| ≤ {x['speed_pu_max']:.3g} p.u. "
-        f"({x['points']} grid points)"
+        x["text"]
+        if "text" in x
+        else f"{x['issue']} in {x['mode']} for {x['speed_pu_min']:.3g} ≤ |ω| ≤ {x['speed_pu_max']:.3g} "
+        f"p.u. ({x['points']} grid points)"
         for x in v["findings"]
     )
     return Verdict(v["status"], tuple(lines), findings)

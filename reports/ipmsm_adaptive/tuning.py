@@ -29,8 +29,10 @@ def compute(
     choices: dict[str, GainSet],
     review: str,
     progress: Callable[[str], None],
+    default: str,
 ) -> tuple[dict[str, Any], Section | None]:
-    """Data and section (None if there is nothing to show: no envelope to bound)."""
+    """Data and section (None if there is nothing to show: no envelope to bound); ``default`` is the
+    label of the drive file's default gains in ``choices``."""
     from sensorless.tuning.bound import pointwise_bound
     from sensorless.tuning.ipmsm_adaptive.families import build_pointwise
 
@@ -43,9 +45,7 @@ def compute(
     sigma, T_s = drive.control.i_noise, drive.control.T_s
     summary = table.summary if table is not None else {}
     # the gain sets to show: the drive file's default, the table's (and its seed, law16)
-    sets: dict[str, GainSet] = {
-        f"drive file ({drive.observer.gain})": choices[f"paper {drive.observer.gain}"]
-    }
+    sets: dict[str, GainSet] = {f"drive file ({drive.observer.gain})": choices[default]}
     seed = summary.get("seed")
     if seed is not None and seed.get("family") == "law16":
         p = seed["parameters"]

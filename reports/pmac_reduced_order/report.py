@@ -7,7 +7,7 @@ steady errors; the paper's experiments re-run (Figs. 3 and 5(b)); and a verdict.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -42,8 +42,9 @@ def compute(
     min_damping: float = 0.2,
     resolution: str = "normal",
     progress: Callable[[str], None] = lambda s: None,
+    scenarios: Sequence[str] = (),
 ) -> Report:
-    """All numbers, figures and sections of the report."""
+    """All numbers, figures and sections of the report; ``scenarios``: the user's scenario files."""
     from sensorless.reports.pmac_reduced_order.figures import plot_poles
 
     env = drive.envelope
@@ -113,9 +114,10 @@ def compute(
             )
         )
     data["analysis"] = analysis
-    progress("[2/3] time-domain checks (paper experiments re-run)")
+    runs = time_domain.scenarios(drive, TIME_DOMAIN, scenarios)
+    progress(f"[2/3] time-domain checks ({len(runs)} scenarios)")
     td, td_figs = time_domain.checks(
-        drive, choices[review] if table is not None else None, TIME_DOMAIN, review, progress
+        drive, choices[review] if table is not None else None, runs, review, progress
     )
     data["time_domain"] = td
     progress("[3/3] verdict")
@@ -134,8 +136,11 @@ def compute(
             "sample faster there"
         )
     status = "fail" if not (stable and damped) else "warn" if biased else "pass"
+    td_findings = time_domain.findings(td)
+    reasons += [x["text"] for x in td_findings]
     data["verdict"] = {
-        "status": status,
+        "status": time_domain.status_with(status, td),
+        "findings": td_findings,
         "gains": key,
         "min_damping": min_damping,
         "stable": stable,

@@ -89,7 +89,7 @@ PARAMS = (
     Field("T_s", "s", "sampling period", "positive"),
     Field("injection", "1", "HF injection on (1) or off (0)", "flag"),
     Field("w_c", "rad/s", "carrier angular frequency, eq. (17)", "positive"),
-    Field("u_c", "V", "carrier amplitude at zero speed, eq. (17)", "positive"),
+    Field("u_c", "V", "carrier amplitude at zero speed, eq. (17) (0 with injection off)", "nonnegative"),
     Field("alpha_i", "rad/s", "PI (21) bandwidth at zero speed, eq. (22)", "positive"),
     Field("w_Delta", "rad/s", "speed where the injection has faded to zero (Section V)", "positive"),
     Field("x_eps_max", "rad/s", "bound on the integral part of (21)", "nonnegative"),

@@ -6,6 +6,7 @@ are far out of range are refused at load."""
 
 from __future__ import annotations
 
+import json
 from importlib import resources
 
 import numpy as np
@@ -51,10 +52,12 @@ def test_a_diverging_simulation_is_an_error_and_writes_nothing(tmp_path, capsys)
 
 
 def test_a_lost_rotor_is_a_warning_with_exit_3(tmp_path, capsys):
-    """L_d = L_q: the speed-adaptive observer of Fig. 9(a) loses the rotor position (it reaches 180
-    deg) and the drive the speed reference. Before: exit 0 and no word of it. The traces are the
-    result, so they are written."""
-    drive = edited(tmp_path, 'L_q = "0.051 H"', 'L_q = "0.036 H"')
+    """An R_s estimate of 1 ohm for the true 3.59 ohm: the speed-adaptive observer of Fig. 9(a) loses the
+    rotor position at zero speed under load (it reaches 180 deg). Before: exit 0 and no word of it. The
+    traces are the result, so they are written."""
+    i = PRESET.index("[estimate]")
+    drive = tmp_path / "drive.toml"
+    drive.write_text(PRESET[:i] + PRESET[i:].replace('R_s = "3.59 ohm"', 'R_s = "1 ohm"', 1))
     out = tmp_path / "o"
     code, _, err = run(["simulate", drive, "--scenario", "fig9a", "--quiet", "--out", out], capsys)
     assert code == 3 and err.count("\n") == 1, err
@@ -148,11 +151,19 @@ def test_a_report_says_when_a_time_domain_check_does_not_hold(tmp_path, capsys, 
     out = tmp_path / "r"
     code, _, err = run(["report", "deangelo2006", "--quick", "--out", out], capsys)
     lines = [ln for ln in err.splitlines() if "warning" in ln]
-    assert code == 3 and len(lines) == 2, err
-    assert all(ln.startswith("sensorless report: warning: time-domain check fig") for ln in lines)
-    assert all("the simulation diverged: w_m is not finite" in ln for ln in lines)
+    assert code == 3 and len(lines) == 3, err
+    # a run that does not hold makes the verdict "fail", whatever the poles say
+    assert lines[0] == (
+        "sensorless report: warning: the verdict is 'fail': see the verdict's findings in report.html"
+    )
+    checks = lines[1:]
+    assert all(ln.startswith("sensorless report: warning: time-domain check fig") for ln in checks)
+    assert all("failed: the simulation diverged: w_m is not finite" in ln for ln in checks)
+    data = json.loads((out / "report.json").read_text())
+    assert data["verdict"]["status"] == "fail"
+    assert [c["passed"] for c in data["time_domain"]] == [False, False]
     html = (out / "report.html").read_text()
-    assert html.count("The simulation diverged: w_m is not finite") >= 2
+    assert html.count("the simulation diverged: w_m is not finite") >= 2
 
 
 @pytest.mark.parametrize(

@@ -31,7 +31,7 @@ from sensorless.design.units import DriveFileError
 from sensorless.reports.cli import main as cli
 from sensorless.reports.cli.common import Number
 from sensorless.reports.family import all_options
-from sensorless.reports.files import OutputSet
+from sensorless.reports.files import OutputFile, OutputSet
 
 PLL_DRIVE = str(Path(__file__).resolve().parents[1] / "families" / "pll" / "presets" / "pll_servo.toml")
 BAD = ("nan", "inf", "-inf", "1e300", "-1e300", "0", "-1")
@@ -110,13 +110,14 @@ def pll_registered():
 @pytest.fixture
 def stop_at_output_check(monkeypatch):
     """Stop a command where it would start computing: right after its (real) output check."""
-    real = OutputSet.check
+    for cls in (OutputSet, OutputFile):
+        real = cls.check
 
-    def check(self):
-        real(self)
-        raise Reached
+        def check(self, real=real):
+            real(self)
+            raise Reached
 
-    monkeypatch.setattr(OutputSet, "check", check)
+        monkeypatch.setattr(cls, "check", check)
 
 
 @pytest.mark.parametrize(("command", "flag", "drive"), _cases())

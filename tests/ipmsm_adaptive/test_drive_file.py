@@ -45,7 +45,7 @@ def test_loading_twice_gives_equal_drives_and_an_edit_changes_the_digest():
     [
         (edit('R_s = "3.59 ohm"\nL_d', 'R_s = "3.59 ohm"\nR_x = 1\nL_d'), "motor.R_x", "unknown key"),
         (edit('psi_pm = "0.545 Vs"\nJ', "J"), "motor.psi_pm", "missing key"),
-        (edit('L_d = "0.036 H"', 'L_d = "0.036 ohm"'), "motor.L_d", "not a inductance unit"),
+        (edit('L_d = "0.036 H"', 'L_d = "0.036 ohm"'), "motor.L_d", "not an inductance unit"),
         (edit('L_d = "0.036 H"', "L_d = true"), "motor.L_d", "boolean"),
         (edit('L_d = "0.036 H"', "L_d = [1, 2]"), "motor.L_d", "expected a number"),
         (edit('R_s = "3.59 ohm"', 'R_s = "1e999 ohm"'), "motor.R_s", "not finite"),

@@ -55,7 +55,7 @@ def test_study_option(tmp_path, capsys, monkeypatch):
     ("extra", "words"),
     [
         (["--speed", "0rpm"], "--speed"),
-        (["--speed", "250 ohm"], "not a mech_speed unit"),
+        (["--speed", "250 ohm"], "not a mech speed unit"),
         (["--discretization", "rk4"], "unknown scheme"),
         (["--gain", "speed"], "it applies to: ipmsm_adaptive"),
         (["--injection"], "it applies to: ipmsm_adaptive"),

@@ -1,0 +1,396 @@
+"""The complete drive file of the speed-adaptive observer from a minimal one, each value with its rule.
+
+A minimal drive file gives ``[drive]`` (name, kind), ``[motor]`` in datasheet terms
+(design/motor_data.py), ``[rating]`` n_N and T_N or I_N, and ``[inverter]`` u_dc and f_s (the sampling
+frequency). :func:`document` fills in every other key of the schema (schema.py) by the rules below,
+scaled by the motor and the sampling rate, and keeps every key the file does give (a full drive file
+passes through unchanged). The loader reads the document's data, so a minimal file and the complete
+file ``sensorless init`` writes from it load to the same drive. The rules and their reasons:
+docs/families/ipmsm_adaptive.md ("Derived drive files").
+
+- ``[rating]``: f_N = n_N p / 60; I_N from T_N by MTPA (or T_N from I_N); U_N = the line-to-line rms
+  voltage of the rated point (MTPA current for T_N at n_N, steady state); P_N = T_N 2 pi n_N / 60.
+- ``[base]``: w = 2 pi f_N, u = sqrt(2/3) U_N, i = sqrt(2) I_N (peak-value scaling, as the paper).
+- ``[estimate]``: the motor's values (exact estimates).
+- ``[control]``: T_s = 1/f_s; bandwidths as fractions of the sampling rate, those of Piippo et al.
+  (2008) Table II at 5 kHz: alpha_c = f_s/12.5 (400 Hz); speed control
+  alpha_s = min(5/tau_m, alpha_fo/5), tau_m = J w_N / (p T_N) the mechanical time constant (the
+  paper: 5 Hz at tau_m = 0.168 s, 5.3/tau_m), slower than the speed estimate;
+  T_max = 1.5 T_N (the paper 1.57 T_N).
+- ``[observer]``: alpha_fo = max(f_s/100, 50/tau_m), at most f_s/20: the paper's 50 Hz at 5 kHz
+  (= 53/tau_m), and fast enough for a light rotor, whose speed changes by 2.5/tau_m p.u./s at the torque
+  limit against rated load: the speed estimate lags by about that over alpha_fo. The gains of the
+  paper's Fig. 4 (zero, constant lambda1 = -0.5 R_s_hat, speed-dependent (16) lambda' = 2 R_s_hat,
+  omega_lambda = 1 p.u.) are the baseline that ``sensorless tune`` starts from.
+- ``[injection]``: on only where the saliency gives a usable error signal (19): 2 |L_q - L_d| /
+  (L_q + L_d) >= SALIENCY_MIN; carrier f_s/6 (833 Hz at 5 kHz), u_c = 0.13 p.u. of the base voltage
+  (40 V of 302 V), alpha_i = f_s/1000 (5 Hz), w_Delta = 0.13 p.u.; off (u_c = 0 V) otherwise.
+- ``[runtime]`` and ``[tuning]``: the documented defaults (schema.RUNTIME_DEFAULTS, design/envelope.py).
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Mapping
+from typing import Any
+
+from sensorless.design.drive_file import DriveDocument, Entry, check_keys, drive_header, table, toml_value
+from sensorless.design.motor_data import mtpa_torque, mtpa_torque_current, read_motor, steady_voltage
+from sensorless.design.units import DriveFileError, parse_quantity
+
+# the rules (module docstring); fractions of the sampling frequency f_s
+ALPHA_C_FS = 1 / 12.5
+ALPHA_S_TAU = 5.0  # speed-loop bandwidth x mechanical time constant (Piippo et al.: 5 Hz x 0.168 s = 5.3)
+ALPHA_FO_S = 5.0  # the speed estimate (adaptation bandwidth alpha_fo) at least this much faster
+ALPHA_FO_TAU = 50.0  # alpha_fo x tau_m at least (Piippo et al.: 2 pi 50 Hz x 0.168 s = 53)
+ALPHA_FO_MAX_FS = 1 / 20  # alpha_fo at most f_s/20
+ALPHA_FO_FS = 1 / 100
+CARRIER_FS = 1 / 6
+U_C_PU = 0.13
+ALPHA_I_FO = 1 / 10
+T_MAX_TN = 1.5
+SALIENCY_MIN = 0.1  # 2 |L_q - L_d| / (L_q + L_d) below which the injection is off
+I_NOISE_PU = 0.003  # schema.I_NOISE_DEFAULT
+W_MAX_PU, W_MAX_MIN_PU = 2.0, 1.2  # the runtime top speed [p.u.]: default, and least where the voltage limits
+
+SECTIONS = (
+    "drive",
+    "rating",
+    "base",
+    "motor",
+    "estimate",
+    "control",
+    "observer",
+    "injection",
+    "runtime",
+    "tuning",
+    "inverter",
+)
+RATING = {
+    "P_N": "power",
+    "U_N": "voltage",
+    "I_N": "current",
+    "f_N": "frequency",
+    "n_N": "mech_speed",
+    "T_N": "torque",
+}
+INVERTER = {"u_dc": "voltage", "f_s": "frequency"}
+MOTOR_ORDER = ("p", "R_s", "L_d", "L_q", "psi_pm", "J")
+TUNING_DEFAULTS: dict[str, Any] = {
+    "speed_min": "0.05 pu",
+    "speed_max": "1 pu",
+    "speeds": 20,
+    "directions": "both",
+    "torques": ["-1 T_N", "0 T_N", "1 T_N"],
+    "dense_factor": 4,
+    "min_decay": "0 1/s",
+    "breakpoints": 11,
+}
+
+
+def g6(x: float) -> str:
+    """A number with 6 significant digits (the precision of derived values)."""
+    return f"{x:.6g}"
+
+
+def saliency(L_d: float, L_q: float) -> float:
+    """2 |L_q - L_d| / (L_q + L_d): 0 for a non-salient motor, 0.35 for the paper's IPMSM."""
+    return 2 * abs(L_q - L_d) / (L_q + L_d)
+
+
+class _Reader:
+    """Values of the given tables, parsed with their keys named in errors."""
+
+    def __init__(self, data: Mapping[str, Any], file: str) -> None:
+        self.data, self.file = data, file
+
+    def table(self, name: str) -> Mapping[str, Any] | None:
+        if name not in self.data:
+            return None
+        return table(self.data, name, self.file)
+
+    def value(self, section: str, key: str, dim: str) -> float:
+        x, rel = parse_quantity(self.data[section][key], dim, file=self.file, key=f"{section}.{key}")
+        if rel is not None:
+            raise DriveFileError(self.file, f"{section}.{key}", f"unit '{rel}' cannot be resolved here")
+        if not x > 0:
+            raise DriveFileError(
+                self.file, f"{section}.{key}", f"non-physical value {self.data[section][key]!r}: must be > 0"
+            )
+        return x
+
+
+def document(data: Mapping[str, Any], file: str) -> DriveDocument:
+    """The complete drive document of ``data`` (module docstring); DriveFileError naming the key for
+    what is missing or wrong. Each key given is kept as written; each derived one carries its rule."""
+    check_keys(data, SECTIONS, file, "")
+    head = drive_header(data, file)
+    r = _Reader(data, file)
+    doc = DriveDocument()
+    doc.header = [
+        f"Drive file of {head['name']} ({head.get('kind')}): every value the source file did not give is",
+        "derived by the rule in its comment (docs/families/ipmsm_adaptive.md, 'Derived drive files';",
+        "docs/motor_data.md). Review and edit them: this file is complete and loads as it is.",
+    ]
+    drive = doc.section("drive")
+    given_head = table(data, "drive", file)
+    for k, v in head.items():
+        drive[k] = (
+            Entry(v, given=True) if k in given_head else Entry(v, "default: say where the data come from")
+        )
+
+    # ------------------------------------------------------------------ motor (datasheet terms)
+    motor_t = table(data, "motor", file)
+    m = read_motor(motor_t, file)
+    sec = doc.section("motor", "the true motor, per phase of the equivalent wye (docs/motor_data.md)")
+    if any(k not in MOTOR_ORDER for k in motor_t):
+        given = "given as: " + ", ".join(f"{k} = {toml_value(v)}" for k, v in motor_t.items())
+        doc.notes["motor"] += textwrap.wrap(given, 100)
+    units = {"R_s": "ohm", "L_d": "H", "L_q": "H", "psi_pm": "Vs", "J": "kgm2"}
+    for k in MOTOR_ORDER:
+        if k in motor_t:
+            sec[k] = Entry(motor_t[k], given=True)
+        elif k == "p":
+            sec[k] = Entry(m.p, m.rules.get("p", ""))
+        else:
+            sec[k] = Entry(f"{g6(getattr(m, k))} {units[k]}", m.rules.get(k, f"from {m.source[k]}"))
+
+    # ------------------------------------------------------------------ rating
+    rating_t = table(data, "rating", file)
+    check_keys(rating_t, tuple(RATING), file, "rating.")
+    if "n_N" not in rating_t:
+        raise DriveFileError(file, "rating.n_N", "missing key (rated mechanical speed, e.g. '3000 rpm')")
+    if "T_N" not in rating_t and "I_N" not in rating_t:
+        raise DriveFileError(
+            file, "rating.T_N", "missing key (rated torque T_N, or the rated current I_N in A rms)"
+        )
+    n_N = r.value("rating", "n_N", "mech_speed")
+    f_N = n_N * m.p / 60
+    if "T_N" in rating_t:
+        T_N = r.value("rating", "T_N", "torque")
+        rule_T = ""
+    else:
+        I_given = r.value("rating", "I_N", "current")
+        T_N = float(g6(mtpa_torque(math.sqrt(2) * I_given, m)))
+        rule_T = "MTPA torque at sqrt(2) I_N"
+    i_d, i_q = mtpa_torque_current(T_N, m)
+    w_N = 2 * math.pi * f_N
+    U_N = math.sqrt(1.5) * steady_voltage(m, w_N, i_d, i_q)
+    derived_rating = {
+        "P_N": (f"{g6(T_N * 2 * math.pi * n_N / 60)} W", "T_N 2 pi n_N / 60"),
+        "U_N": (
+            f"{g6(U_N)} V",
+            "line-to-line rms voltage at T_N (MTPA) and n_N in steady state",
+        ),
+        "I_N": (f"{g6(math.hypot(i_d, i_q) / math.sqrt(2))} A", "rms of the MTPA current for T_N"),
+        "f_N": (f"{g6(f_N)} Hz", "n_N p / 60"),
+        "T_N": (f"{g6(T_N)} Nm", rule_T),
+    }
+    sec = doc.section("rating", "rated values; 1 p.u. speed = the rated speed")
+    for k in RATING:
+        if k in rating_t:
+            sec[k] = Entry(rating_t[k], given=True)
+        else:
+            sec[k] = Entry(*derived_rating[k])
+
+    def rated(k: str, dim: str) -> float:
+        if k in rating_t:
+            return r.value("rating", k, dim)
+        x, _ = parse_quantity(sec[k].value, dim, file=file, key=f"rating.{k}")
+        return x
+
+    U_N, I_N, f_N_used = rated("U_N", "voltage"), rated("I_N", "current"), rated("f_N", "frequency")
+
+    # ------------------------------------------------------------------ inverter and control
+    inv_t = r.table("inverter")
+    ctl_t = r.table("control") or {}
+    if inv_t is not None:
+        check_keys(inv_t, tuple(INVERTER), file, "inverter.")
+    f_s = _sampling(r, inv_t, ctl_t, file)
+    u_dc_raw, u_dc_rule = _dc_link(r, inv_t, ctl_t, file)
+    u_dc = parse_quantity(u_dc_raw, "voltage", file=file, key="inverter.u_dc")[0]
+
+    # ------------------------------------------------------------------ base
+    base_t = r.table("base") or {}
+    sec = doc.section("base", "per-unit bases, peak-value scaling")
+    derived_base = {
+        "w": (f"{g6(f_N_used)} Hz", "2 pi f_N: 1 p.u. speed"),
+        "u": (f"{g6(math.sqrt(2 / 3) * U_N)} V", "sqrt(2/3) U_N, peak phase voltage"),
+        "i": (f"{g6(math.sqrt(2) * I_N)} A", "sqrt(2) I_N, peak current"),
+    }
+    for k, (v, rule) in derived_base.items():
+        sec[k] = Entry(base_t[k], given=True) if k in base_t else Entry(v, rule)
+    _extra(sec, base_t, derived_base)
+    u_base = math.sqrt(2 / 3) * U_N if "u" not in base_t else r.value("base", "u", "voltage")
+    i_base = math.sqrt(2) * I_N if "i" not in base_t else r.value("base", "i", "current")
+
+    # ------------------------------------------------------------------ estimate
+    est_t = r.table("estimate") or {}
+    sec = doc.section("estimate", "the observer's parameter estimates (kept apart from the motor)")
+    for k in ("R_s", "L_d", "L_q", "psi_pm"):
+        sec[k] = (
+            Entry(est_t[k], given=True) if k in est_t else Entry(doc.sections["motor"][k].value, "= [motor]")
+        )
+    _extra(sec, est_t, ("R_s", "L_d", "L_q", "psi_pm"))
+
+    # ------------------------------------------------------------------ control
+    tau_m = m.J * w_N / m.p / T_N  # rated speed at rated torque: the mechanical time constant
+    alpha_fo = min(
+        max(2 * math.pi * ALPHA_FO_FS * f_s, ALPHA_FO_TAU / tau_m), 2 * math.pi * ALPHA_FO_MAX_FS * f_s
+    )
+    alpha_s = min(ALPHA_S_TAU / tau_m, alpha_fo / ALPHA_FO_S)
+    sec = doc.section("control", "control system; bandwidths as fractions of the sampling rate f_s")
+    derived_ctl = {
+        "T_s": (f"{g6(1e6 / f_s)} us", f"1/f_s, f_s = {g6(f_s / 1e3)} kHz"),
+        "alpha_c": (
+            f"{g6(ALPHA_C_FS * f_s)} Hz",
+            "current control f_s/12.5 (Piippo et al.: 400 Hz at 5 kHz)",
+        ),
+        "alpha_s": (
+            f"{g6(alpha_s / (2 * math.pi))} Hz",
+            f"speed control min({ALPHA_S_TAU:g}/tau_m, alpha_fo/{ALPHA_FO_S:g}), tau_m = J w_N/(p T_N) = "
+            f"{g6(tau_m)} s (Piippo et al.: 5 Hz, tau_m 0.17 s)",
+        ),
+        "T_max": (f"{g6(T_MAX_TN * T_N)} Nm", "1.5 T_N (Piippo et al.: 1.57 T_N)"),
+        "u_dc": (u_dc_raw, u_dc_rule),
+    }
+    for k, (v, rule) in derived_ctl.items():
+        sec[k] = Entry(ctl_t[k], given=True) if k in ctl_t else Entry(v, rule)
+    if "i_noise" in ctl_t:
+        sec["i_noise"] = Entry(ctl_t["i_noise"], given=True)
+    else:
+        doc.optional.setdefault("control", []).append(
+            f'i_noise = "{g6(I_NOISE_PU * i_base)} A"  # optional: current-sensor noise, rms per axis and '
+            "sample (default 0.3 % of base i)"
+        )
+    _extra(sec, ctl_t, (*derived_ctl, "i_noise"))
+
+    # ------------------------------------------------------------------ observer and gains
+    obs_t = r.table("observer") or {}
+    sec = doc.section("observer", "speed-adaptive observer, eqs. (4)-(10)")
+    alpha_fo_hz = alpha_fo / (2 * math.pi)
+    derived_obs = {
+        "alpha_fo": (
+            f"{g6(alpha_fo_hz)} Hz",
+            f"max(f_s/100, {ALPHA_FO_TAU:g}/tau_m), at most f_s/20 (Piippo et al.: 50 Hz at 5 kHz), eq. (10)",
+        ),
+        "gain": ("speed", "the speed-dependent gain (16)"),
+    }
+    for k, (v, rule) in derived_obs.items():
+        sec[k] = Entry(obs_t[k], given=True) if k in obs_t else Entry(v, rule)
+    _extra(sec, obs_t, (*derived_obs, "gains"))
+    if "gains" in obs_t:
+        gains_t = table(obs_t, "gains", file, "observer.")
+        for name, g in gains_t.items():
+            sec = doc.section(f"observer.gains.{name}")
+            if isinstance(g, dict):
+                sec.update({k: Entry(v, given=True) for k, v in g.items()})
+            else:
+                raise DriveFileError(file, f"observer.gains.{name}", "expected a table")
+    else:
+        doc.section("observer.gains.zero", "baseline gains: Piippo et al. (2008) Fig. 4; `sensorless tune`")
+        doc.section("observer.gains.constant").update(
+            lambda1=Entry("-0.5 R_s_hat", "Fig. 4(b)"), lambda2=Entry("0 ohm", "Fig. 4(b)")
+        )
+        doc.section("observer.gains.speed").update(
+            lambda_p=Entry("2 R_s_hat", "Fig. 4(c), eq. (16)"), w_lambda=Entry("1 pu", "Fig. 4(c)")
+        )
+
+    # ------------------------------------------------------------------ injection
+    inj_t = r.table("injection") or {}
+    xi = saliency(m.L_d, m.L_q)
+    usable = xi >= SALIENCY_MIN
+    f_c = CARRIER_FS * f_s
+    note = f"HF injection, Section V: saliency 2|L_q - L_d|/(L_q + L_d) = {xi:.3g} " + (
+        f">= {SALIENCY_MIN:g}: on" if usable else f"< {SALIENCY_MIN:g}: no usable error signal (19), off"
+    )
+    sec = doc.section("injection", note)
+    derived_inj = {
+        "w_c": (f"{g6(f_c)} Hz", "carrier f_s/6 (Piippo et al.: 833 Hz at 5 kHz)"),
+        "u_c": (
+            (f"{g6(U_C_PU * u_base)} V", "0.13 p.u. of the base voltage (Piippo et al.: 40 V of 302 V)")
+            if usable
+            else ("0 V", "off: the motor's saliency is too small (u_c > 0 turns it on)")
+        ),
+        "alpha_i": (
+            f"{g6(ALPHA_I_FO * ALPHA_FO_FS * f_s)} Hz",
+            "f_s/1000 (Piippo et al.: 5 Hz at 5 kHz), eq. (22)",
+        ),
+        "w_Delta": ("0.13 pu", "Piippo et al.: fades out at 0.13 p.u."),
+    }
+    for k, (v, rule) in derived_inj.items():
+        sec[k] = Entry(inj_t[k], given=True) if k in inj_t else Entry(v, rule)
+    _extra(sec, inj_t, derived_inj)
+
+    # ------------------------------------------------------------------ runtime, tuning
+    from sensorless.design.ipmsm_adaptive.schema import RUNTIME_DEFAULTS, RUNTIME_RULES
+
+    rt_t = r.table("runtime") or {}
+    sec = doc.section("runtime", "the discrete-time observer that runs (docs/families/ipmsm_adaptive.md)")
+    # the top speed: 2 p.u., but not beyond what the inverter's voltage can reach (1.1 x the no-load
+    # speed u_dc/(sqrt(3) psi_pm)), and at least 1.2 p.u.
+    w_top = 1.1 * u_dc / math.sqrt(3) / m.psi_pm / w_N
+    w_max_pu = min(W_MAX_PU, max(W_MAX_MIN_PU, w_top))
+    derived_rt = dict(RUNTIME_DEFAULTS)
+    rules_rt = dict(RUNTIME_RULES)
+    if w_max_pu < W_MAX_PU:
+        derived_rt["w_max"] = f"{g6(w_max_pu)} pu"
+        rules_rt["w_max"] = (
+            f"top speed: 1.1 u_dc/(sqrt(3) psi_pm), the no-load speed the DC link reaches, in p.u. (at "
+            f"most {W_MAX_PU:g}, at least {W_MAX_MIN_PU:g} p.u.); the runtime state's speed bounds"
+        )
+    for k, v in derived_rt.items():
+        sec[k] = Entry(rt_t[k], given=True) if k in rt_t else Entry(v, rules_rt[k])
+    _extra(sec, rt_t, RUNTIME_DEFAULTS)
+    tu_t = r.table("tuning")
+    sec = doc.section("tuning", "envelope and constraints of `sensorless tune` (design/envelope.py)")
+    if tu_t is None:
+        for k, v in TUNING_DEFAULTS.items():
+            sec[k] = Entry(v, "default")
+    else:
+        sec.update({k: Entry(v, given=True) for k, v in tu_t.items()})
+    doc.context["motor"] = m
+    doc.context["keys"] = {
+        "n_N": "rating.n_N",
+        "T_N": "rating.T_N" if "T_N" in rating_t else "rating.I_N",
+        "I_N": "rating.I_N",
+        "f_N": "rating.f_N",
+        "u_dc": "inverter.u_dc" if inv_t is not None and "u_dc" in inv_t else "control.u_dc",
+        "T_s": "inverter.f_s" if inv_t is not None and "f_s" in inv_t else "control.T_s",
+        "w_max": "runtime.w_max",
+    }
+    doc.context["given"] = {"I_N": "I_N" in rating_t and "T_N" in rating_t, "f_N": "f_N" in rating_t}
+    return doc
+
+
+def _extra(sec: dict[str, Entry], given: Mapping[str, Any], known: Any) -> None:
+    """Keys given beyond the known ones, kept (the strict loader names them as unknown)."""
+    for k, v in given.items():
+        if k not in known and k not in sec:
+            sec[k] = Entry(v, given=True)
+
+
+def _sampling(r: _Reader, inv: Mapping[str, Any] | None, ctl: Mapping[str, Any], file: str) -> float:
+    """The sampling frequency [Hz]: [inverter] f_s or [control] T_s (both: they must agree)."""
+    f_inv = r.value("inverter", "f_s", "frequency") if inv is not None and "f_s" in inv else None
+    f_ctl = 1 / r.value("control", "T_s", "time") if "T_s" in ctl else None
+    if f_inv is None and f_ctl is None:
+        raise DriveFileError(file, "inverter.f_s", "missing key (sampling frequency, e.g. '10 kHz')")
+    if f_inv is not None and f_ctl is not None and abs(f_inv * (1 / f_ctl) - 1) > 1e-9:
+        raise DriveFileError(
+            file, "inverter.f_s", f"{f_inv:g} Hz, but control.T_s is 1/{f_ctl:g} Hz: give one of them"
+        )
+    return f_inv if f_inv is not None else f_ctl  # type: ignore[return-value]
+
+
+def _dc_link(r: _Reader, inv: Mapping[str, Any] | None, ctl: Mapping[str, Any], file: str) -> tuple[Any, str]:
+    """The DC-link voltage as written and its rule: [inverter] u_dc or [control] u_dc."""
+    if inv is not None and "u_dc" in inv:
+        v = r.value("inverter", "u_dc", "voltage")
+        if "u_dc" in ctl and abs(r.value("control", "u_dc", "voltage") / v - 1) > 1e-9:
+            raise DriveFileError(file, "inverter.u_dc", "differs from control.u_dc: give one of them")
+        return inv["u_dc"], "from [inverter] u_dc"
+    if "u_dc" in ctl:
+        return ctl["u_dc"], ""
+    raise DriveFileError(file, "inverter.u_dc", "missing key (DC-link voltage, e.g. '310 V')")

@@ -1,0 +1,446 @@
+"""Motor data as datasheets give it: the conversions to the per-phase model of a PMSM, and plausibility.
+
+Any PMSM family reads its drive file's ``[motor]`` table with :func:`read_motor`, which accepts each
+quantity in the forms datasheets use and converts it to the per-phase quantities of the equivalent
+wye-connected motor the models use (docs/motor_data.md gives every conversion and a worked example):
+
+- pole pairs: ``p``, or ``poles`` (magnets, = 2 p); both given must agree;
+- PM flux linkage ``psi_pm`` (peak phase flux, V s), or one of
+  ``KV`` (``"270 rpm/V"``: no-load r/min per volt of line-to-line peak back-EMF),
+  ``kE`` (``"39 V/krpm"``, ``"mV/rpm"``, ``"V s/rad"``: back-EMF per mechanical speed) with
+  ``emf_convention`` = "line-line peak" | "line-line rms" | "phase peak" | "phase rms",
+  ``kT`` (``"0.64 Nm/A"``, at i_d = 0) with ``torque_convention`` = "rms" | "peak" (per ampere of
+  phase current, rms or amplitude). Several may be given: each must imply a flux within
+  :data:`FLUX_TOLERANCE` of the first in the order psi_pm, kE, KV, kT, which is the one used;
+- resistance: ``R_s`` (per phase) or ``R_ll`` (between two terminals) with ``connection``;
+- inductance: ``L_s`` (per phase, non-salient), ``L_d`` and ``L_q``, or ``L_ll`` with ``connection``;
+- ``J`` in kg m2, kg cm2 or g cm2 (any usual spelling: kgm2, kg m^2, kg·cm², gcm2, ...).
+
+Line-to-line R and L measured between two terminals are twice the equivalent wye's per-phase values
+for either connection (``connection`` states which the motor has; a delta winding's own phase values
+are 3 times the equivalent wye's, docs/motor_data.md). A missing convention key is an error naming it.
+
+:func:`plausibility` checks a drive's data against each other (back-EMF at rated speed against the
+inverter's voltage, rated torque against current and flux, samples per electrical period, L/R against
+the sampling period, f_N against n_N and p) and returns warnings; what cannot be right is an error.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from sensorless.design.units import DriveFileError, parse_quantity
+
+EMF_CONVENTIONS = ("line-line peak", "line-line rms", "phase peak", "phase rms")
+TORQUE_CONVENTIONS = ("rms", "peak")
+CONNECTIONS = ("wye", "delta")
+# Largest relative difference between the PM fluxes that two flux keys imply (kE against kT: datasheets
+# agree within a few per cent; a mistaken convention is off by sqrt(3/2), sqrt(2), sqrt(3) or sqrt(6)).
+FLUX_TOLERANCE = 0.10
+FLUX_KEYS = ("psi_pm", "kE", "KV", "kT")  # in the order of preference: the first given is used
+
+MOTOR_KEYS = (
+    "p",
+    "poles",
+    "R_s",
+    "R_ll",
+    "L_s",
+    "L_d",
+    "L_q",
+    "L_ll",
+    "connection",
+    "psi_pm",
+    "KV",
+    "kE",
+    "emf_convention",
+    "kT",
+    "torque_convention",
+    "J",
+)
+
+# phase peak back-EMF per line-to-line/phase, rms/peak back-EMF
+_EMF_TO_PHASE_PEAK = {
+    "line-line peak": 1 / math.sqrt(3),
+    "line-line rms": math.sqrt(2) / math.sqrt(3),
+    "phase peak": 1.0,
+    "phase rms": math.sqrt(2),
+}
+
+
+_EMF_RULE = {
+    "line-line peak": "kE/(sqrt(3) p)",
+    "line-line rms": "kE sqrt(2/3)/p",
+    "phase peak": "kE/p",
+    "phase rms": "kE sqrt(2)/p",
+}
+
+
+def emf_to_psi(kE: float, convention: str, p: int) -> float:
+    """PM flux [V s] from the back-EMF constant ``kE`` [V per mechanical rad/s] in ``convention``:
+    psi_pm = kE_phase_peak / p (the phase peak back-EMF is p psi_pm per mechanical rad/s)."""
+    return kE * _EMF_TO_PHASE_PEAK[convention] / p
+
+
+def psi_to_emf(psi_pm: float, convention: str, p: int) -> float:
+    """The inverse of :func:`emf_to_psi`: kE [V per mechanical rad/s] in ``convention``."""
+    return psi_pm * p / _EMF_TO_PHASE_PEAK[convention]
+
+
+def kv_to_psi(KV: float, p: int) -> float:
+    """PM flux [V s] from the speed constant ``KV`` [mechanical rad/s per volt of line-to-line peak
+    back-EMF]: kE (line-line peak) = 1/KV."""
+    return emf_to_psi(1 / KV, "line-line peak", p)
+
+
+def kt_to_psi(kT: float, convention: str, p: int) -> float:
+    """PM flux [V s] from the torque constant ``kT`` [N m/A] per ampere rms or peak of phase current at
+    i_d = 0: T = 1.5 p psi_pm i_peak, i_peak = sqrt(2) i_rms."""
+    per_peak = kT / math.sqrt(2) if convention == "rms" else kT
+    return per_peak / (1.5 * p)
+
+
+def psi_to_kt(psi_pm: float, convention: str, p: int) -> float:
+    """The inverse of :func:`kt_to_psi`: kT [N m/A] per ampere rms or peak."""
+    per_peak = 1.5 * p * psi_pm
+    return per_peak * math.sqrt(2) if convention == "rms" else per_peak
+
+
+@dataclass(frozen=True)
+class MotorData:
+    """The per-phase model quantities (SI, equivalent wye) of a ``[motor]`` table and where each came
+    from: ``source`` maps each to the key the user wrote, ``rules`` to the conversion in words."""
+
+    p: int
+    R_s: float
+    L_d: float
+    L_q: float
+    psi_pm: float
+    J: float
+    source: Mapping[str, str] = field(default_factory=dict)
+    rules: Mapping[str, str] = field(default_factory=dict)
+
+
+def read_motor(t: Mapping[str, Any], file: str, section: str = "motor") -> MotorData:
+    """The per-phase motor of a ``[motor]`` table in datasheet terms (module docstring); strict:
+    unknown keys, keys that exclude each other, missing conventions and disagreeing flux constants are
+    DriveFileErrors naming the keys."""
+
+    def key(k: str) -> str:
+        return f"{section}.{k}"
+
+    def err(k: str, why: str) -> DriveFileError:
+        return DriveFileError(file, key(k), why)
+
+    for k in t:
+        if k not in MOTOR_KEYS:
+            raise err(k, f"unknown key (allowed: {', '.join(MOTOR_KEYS)}; docs/motor_data.md)")
+
+    def qty(k: str, dim: str) -> float:
+        x, rel = parse_quantity(t[k], dim, file=file, key=key(k))
+        if rel is not None:
+            raise err(k, f"unit '{rel}' cannot be resolved here")
+        if not x > 0:
+            raise err(k, f"non-physical value {t[k]!r}: must be > 0")
+        return x
+
+    def choice(k: str, allowed: tuple[str, ...]) -> str:
+        v = t[k]
+        if not isinstance(v, str) or v.strip().lower() not in allowed:
+            raise err(k, f"{v!r} is not one of: {', '.join(repr(a) for a in allowed)}")
+        return v.strip().lower()
+
+    rules: dict[str, str] = {}
+    source: dict[str, str] = {}
+
+    # pole pairs
+    if "p" not in t and "poles" not in t:
+        raise err("p", "missing key (pole pairs p, or poles = the number of magnet poles, 2 p)")
+    p = None
+    if "p" in t:
+        p = _integer(t["p"], file, key("p"))
+        source["p"] = key("p")
+    if "poles" in t:
+        poles = _integer(t["poles"], file, key("poles"))
+        if poles % 2:
+            raise err("poles", f"{poles} poles: the number of magnet poles is even (pole pairs p = poles/2)")
+        if p is not None and p != poles // 2:
+            raise err("poles", f"{poles} poles are {poles // 2} pole pairs, but {key('p')} = {p}")
+        if p is None:
+            p = poles // 2
+            source["p"] = key("poles")
+            rules["p"] = f"poles/2 from poles = {poles}"
+    assert p is not None
+
+    # windings
+    connection = choice("connection", CONNECTIONS) if "connection" in t else None
+
+    def line_line(k: str) -> float:
+        if connection is None:
+            raise err(
+                "connection",
+                f"missing key: {key(k)} (between two terminals) needs connection = 'wye' or 'delta'",
+            )
+        return qty(k, "resistance" if k == "R_ll" else "inductance")
+
+    if "R_s" in t and "R_ll" in t:
+        raise err("R_ll", f"give one of {key('R_s')} (per phase) and {key('R_ll')} (line to line), not both")
+    if "R_s" in t:
+        R_s = qty("R_s", "resistance")
+        source["R_s"] = key("R_s")
+    elif "R_ll" in t:
+        R_s = line_line("R_ll") / 2
+        source["R_s"] = key("R_ll")
+        rules["R_s"] = f"R_ll/2 = {t['R_ll']}/2 (equivalent wye, {connection} connection)"
+    else:
+        raise err("R_s", "missing key (stator resistance: R_s per phase, or R_ll line to line)")
+
+    given_L = [k for k in ("L_s", "L_d", "L_ll") if k in t]
+    if len(given_L) > 1 or ("L_q" in t and ("L_s" in t or "L_ll" in t)):
+        raise err(
+            given_L[-1] if len(given_L) > 1 else "L_q",
+            f"give one of {key('L_s')}, {key('L_d')} with {key('L_q')}, or {key('L_ll')}",
+        )
+    if "L_d" in t or "L_q" in t:
+        for k in ("L_d", "L_q"):
+            if k not in t:
+                raise err(k, f"missing key ({key('L_d')} and {key('L_q')} go together; L_s if equal)")
+        L_d, L_q = qty("L_d", "inductance"), qty("L_q", "inductance")
+        source.update(L_d=key("L_d"), L_q=key("L_q"))
+    elif "L_s" in t:
+        L_d = L_q = qty("L_s", "inductance")
+        source.update(L_d=key("L_s"), L_q=key("L_s"))
+        rules["L_d"] = rules["L_q"] = f"L_d = L_q = L_s = {t['L_s']} (non-salient)"
+    elif "L_ll" in t:
+        L_d = L_q = line_line("L_ll") / 2
+        source.update(L_d=key("L_ll"), L_q=key("L_ll"))
+        rules["L_d"] = rules["L_q"] = f"L_ll/2 = {t['L_ll']}/2 (equivalent wye, {connection}; non-salient)"
+    else:
+        raise err("L_d", "missing key (inductance: L_s per phase, L_d and L_q, or L_ll line to line)")
+
+    # PM flux: every form given, checked against the first
+    for k, conv in (("kE", "emf_convention"), ("kT", "torque_convention")):
+        if conv in t and k not in t:
+            raise err(conv, f"{key(conv)} without {key(k)}: it states the convention of {k}")
+    fluxes: list[tuple[str, float, str]] = []  # (key, psi_pm, rule)
+    if "psi_pm" in t:
+        fluxes.append(("psi_pm", qty("psi_pm", "flux"), ""))
+    if "kE" in t:
+        if "emf_convention" not in t:
+            raise err(
+                "emf_convention",
+                f"missing key: {key('kE')} needs its convention, one of "
+                f"{', '.join(repr(c) for c in EMF_CONVENTIONS)} (docs/motor_data.md)",
+            )
+        conv = choice("emf_convention", EMF_CONVENTIONS)
+        psi = emf_to_psi(qty("kE", "emf_constant"), conv, p)
+        fluxes.append(("kE", psi, f"{_EMF_RULE[conv]}, kE = {t['kE']} ({conv}, per mechanical speed)"))
+    if "KV" in t:
+        psi = kv_to_psi(qty("KV", "speed_constant"), p)
+        fluxes.append(("KV", psi, f"1/(KV sqrt(3) p), KV = {t['KV']} (line-line peak back-EMF)"))
+    if "kT" in t:
+        if "torque_convention" not in t:
+            raise err(
+                "torque_convention",
+                f"missing key: {key('kT')} needs its convention: 'rms' (N m per A rms) or 'peak' "
+                "(N m per A amplitude)",
+            )
+        conv = choice("torque_convention", TORQUE_CONVENTIONS)
+        psi = kt_to_psi(qty("kT", "torque_constant"), conv, p)
+        div = "1.5 sqrt(2) p" if conv == "rms" else "1.5 p"
+        fluxes.append(("kT", psi, f"kT/({div}), kT = {t['kT']} per A {conv}"))
+    if not fluxes:
+        raise err(
+            "psi_pm",
+            "missing key (PM flux: psi_pm, or kE with emf_convention, KV, or kT with torque_convention)",
+        )
+    k0, psi_pm, rule0 = fluxes[0]
+    for k, psi, _ in fluxes[1:]:
+        if abs(psi / psi_pm - 1) > FLUX_TOLERANCE:
+            raise err(
+                k,
+                f"implies psi_pm = {psi:.5g} Vs, but {key(k0)} implies {psi_pm:.5g} Vs: they differ by "
+                f"{100 * abs(psi / psi_pm - 1):.0f} % (tolerance {100 * FLUX_TOLERANCE:.0f} %); check the "
+                "conventions (line-line or phase, rms or peak, poles or pole pairs; docs/motor_data.md)",
+            )
+    source["psi_pm"] = key(k0)
+    if rule0:
+        rules["psi_pm"] = rule0
+    if len(fluxes) > 1:
+        others = ", ".join(f"{k} {psi:.5g} Vs" for k, psi, _ in fluxes[1:])
+        rules["psi_pm"] = (rule0 + "; " if rule0 else "") + f"agrees with {others}"
+
+    if "J" not in t:
+        raise err("J", "missing key (moment of inertia: kg m2, kg cm2 or g cm2)")
+    J = qty("J", "inertia")
+    source["J"] = key("J")
+    return MotorData(p, R_s, L_d, L_q, psi_pm, J, source, rules)
+
+
+def _integer(v: Any, file: str, key: str) -> int:
+    x, _ = parse_quantity(v, "integer", file=file, key=key)
+    if x < 1:
+        raise DriveFileError(file, key, f"non-physical value {v}: must be >= 1")
+    return int(x)
+
+
+# --------------------------------------------------------------------------------------------------
+# Plausibility
+# --------------------------------------------------------------------------------------------------
+# the thresholds of :func:`plausibility` (docs/motor_data.md, "Plausibility checks")
+EMF_ERROR = 1.05  # no-load back-EMF at n_N beyond this times the available voltage: error
+TORQUE_WARN, TORQUE_ERROR = 0.10, 0.30  # |T_N / T(I_N) - 1| beyond: warning, error
+SAMPLES_WARN, SAMPLES_ERROR = 10.0, 4.0  # samples per electrical period at the top speed
+LR_WARN, LR_ERROR = 5.0, 1.0  # electrical time constant L/R in sampling periods
+F_N_TOLERANCE = 0.01  # f_N against n_N p / 60
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One plausibility finding: ``level`` "warning" or "error", the keys it concerns, the text."""
+
+    level: str
+    keys: tuple[str, ...]
+    text: str
+
+    def line(self, file: str) -> str:
+        return f"{file}: {', '.join(self.keys)}: {self.text}"
+
+
+def mtpa_torque_current(T: float, motor: MotorData) -> tuple[float, float]:
+    """(i_d, i_q) [A, peak] of the MTPA current for torque ``T`` [N m] (symbolic/pmsm.py, evaluated)."""
+    import casadi as ca
+    from sensorless.symbolic.pmsm import PmsmParams, mtpa_current
+
+    i = mtpa_current(ca.DM(T), PmsmParams(motor.R_s, motor.L_d, motor.L_q, motor.psi_pm), motor.p)
+    return float(i[0]), float(i[1])
+
+
+def mtpa_torque(i_peak: float, motor: MotorData) -> float:
+    """MTPA torque [N m] at the current amplitude ``i_peak`` [A] (bisection on the torque)."""
+    hi = 1.5 * motor.p * motor.psi_pm * i_peak * 4 + 1e-12
+    if abs(motor.L_q - motor.L_d) > 0:
+        hi += 1.5 * motor.p * abs(motor.L_q - motor.L_d) * i_peak**2
+    lo = 0.0
+    for _ in range(80):
+        mid = (lo + hi) / 2
+        i_d, i_q = mtpa_torque_current(mid, motor)
+        if math.hypot(i_d, i_q) > i_peak:
+            hi = mid
+        else:
+            lo = mid
+    return lo
+
+
+def steady_voltage(motor: MotorData, w: float, i_d: float, i_q: float) -> float:
+    """Peak phase voltage [V] of the motor in steady state at electrical speed ``w`` and current
+    (i_d, i_q) [A peak]: u = R i + w J psi, psi = (L_d i_d + psi_pm, L_q i_q)."""
+    u_d = motor.R_s * i_d - w * motor.L_q * i_q
+    u_q = motor.R_s * i_q + w * (motor.L_d * i_d + motor.psi_pm)
+    return math.hypot(u_d, u_q)
+
+
+def plausibility(
+    motor: MotorData,
+    *,
+    n_N: float,
+    T_N: float,
+    I_N: float | None,
+    f_N: float | None,
+    u_dc: float,
+    T_s: float,
+    w_max: float,
+    keys: Mapping[str, str],
+) -> list[Finding]:
+    """The plausibility findings of a drive's data (module docstring; thresholds above, documented in
+    docs/motor_data.md). ``n_N`` [r/min], ``T_N`` [N m], ``I_N`` [A rms] (None: not given), ``f_N``
+    [Hz] (None: not given), ``u_dc`` [V], ``T_s`` [s], ``w_max`` [electrical rad/s, top speed];
+    ``keys`` names the keys: n_N, T_N, I_N, f_N, u_dc, T_s, w_max (the motor's come from its source)."""
+    out: list[Finding] = []
+    src = motor.source
+    w_N = 2 * math.pi * n_N / 60 * motor.p
+    u_avail = u_dc / math.sqrt(3)  # peak phase voltage in the linear range of space-vector modulation
+    # n_N against f_N and p
+    if f_N is not None:
+        f_exp = n_N * motor.p / 60
+        if abs(f_N / f_exp - 1) > F_N_TOLERANCE:
+            out.append(
+                Finding(
+                    "error",
+                    (keys["f_N"], keys["n_N"], src["p"]),
+                    f"f_N = {f_N:g} Hz, but n_N p / 60 = {n_N:g} x {motor.p} / 60 = {f_exp:.5g} Hz "
+                    f"(tolerance {100 * F_N_TOLERANCE:g} %): check n_N (mechanical r/min) and the pole "
+                    "pairs (p = poles/2)",
+                )
+            )
+    # back-EMF at rated speed against the available voltage
+    emf = w_N * motor.psi_pm
+    if emf > EMF_ERROR * u_avail:
+        out.append(
+            Finding(
+                "error",
+                (src["psi_pm"], keys["n_N"], keys["u_dc"]),
+                f"the no-load back-EMF at n_N = {n_N:g} r/min is {emf:.4g} V (peak phase), more than the "
+                f"{u_avail:.4g} V the inverter can apply (u_dc/sqrt(3)): the flux or its convention "
+                "(line-line or phase, rms or peak), the pole pairs, or n_N (the rated speed without "
+                "field weakening) is wrong",
+            )
+        )
+    # rated torque against current and flux
+    i_d, i_q = mtpa_torque_current(T_N, motor)
+    if I_N is not None:
+        T_I = mtpa_torque(math.sqrt(2) * I_N, motor)
+        dev = T_N / T_I - 1
+        if abs(dev) > TORQUE_WARN:
+            level = "error" if abs(dev) > TORQUE_ERROR else "warning"
+            out.append(
+                Finding(
+                    level,
+                    (keys["T_N"], keys["I_N"], src["psi_pm"]),
+                    f"T_N = {T_N:.4g} N m, but I_N = {I_N:.4g} A rms gives {T_I:.4g} N m with this flux "
+                    f"(MTPA, {100 * dev:+.0f} %; warning beyond {100 * TORQUE_WARN:g} %, error beyond "
+                    f"{100 * TORQUE_ERROR:g} %): check that I_N is rms and the flux's convention",
+                )
+            )
+    # the voltage the rated point needs
+    u_N = steady_voltage(motor, w_N, i_d, i_q)
+    if emf <= EMF_ERROR * u_avail and u_N > u_avail:
+        out.append(
+            Finding(
+                "warning",
+                (keys["T_N"], keys["n_N"], keys["u_dc"]),
+                f"rated torque at rated speed needs {u_N:.4g} V (peak phase, MTPA), more than the "
+                f"{u_avail:.4g} V available (u_dc/sqrt(3)): the drive needs field weakening there, which "
+                "the analysis (MTPA, no voltage limit) does not model",
+            )
+        )
+    # samples per electrical period at the top speed
+    spp = 2 * math.pi / (w_max * T_s)
+    if spp < SAMPLES_WARN:
+        level = "error" if spp < SAMPLES_ERROR else "warning"
+        out.append(
+            Finding(
+                level,
+                (keys["T_s"], keys["w_max"]),
+                f"{spp:.3g} samples per electrical period at the top speed {w_max / (2 * math.pi):.4g} Hz "
+                f"(warning below {SAMPLES_WARN:g}, error below {SAMPLES_ERROR:g}: a quarter turn per "
+                "sample is the runtime observer's limit): sample faster or lower the top speed, or check "
+                "the pole pairs (p = poles/2)",
+            )
+        )
+    # electrical time constant against the sampling period
+    tau = min(motor.L_d, motor.L_q) / motor.R_s
+    if tau < LR_WARN * T_s:
+        level = "error" if tau < LR_ERROR * T_s else "warning"
+        out.append(
+            Finding(
+                level,
+                (src["L_d"], src["R_s"], keys["T_s"]),
+                f"L/R = {tau * 1e6:.4g} us is {tau / T_s:.3g} sampling periods (warning below "
+                f"{LR_WARN:g}, error below {LR_ERROR:g}): the current changes too much within a sample; "
+                "check R and L (per phase = line-to-line/2; mH or uH)",
+            )
+        )
+    return out

@@ -1,0 +1,155 @@
+"""Two motors that are not presets, from minimal drive files, through every command: a non-salient
+400-W servo (L_d = L_q, no injection possible) and a strongly salient traction IPMSM. Each: init ->
+tune -> codegen (float; it builds and the example initializes) -> report, no traceback, gains found,
+a verdict that agrees with its own checks; and the derivation rules checked against values typed from
+their documented formulas (design/ipmsm_adaptive/derive.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+from sensorless.design.drive import load_drive
+from sensorless.reports.cli.main import main
+
+DRIVES = Path(__file__).parent / "drives"
+MOTORS = {"servo": "servo_minimal.toml", "traction": "traction_minimal.toml"}
+CC = shutil.which("gcc") or shutil.which("cc")
+
+
+def run(argv, capsys):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.fixture(scope="module", params=sorted(MOTORS))
+def flow(request, tmp_path_factory):
+    """init, tune, codegen and report of one motor (module scope: the steps are the slow part)."""
+    name = request.param
+    d = tmp_path_factory.mktemp(name)
+    src = DRIVES / MOTORS[name]
+    drive = d / "drive.toml"
+    codes = {
+        "init": main(["init", str(src), "--out", str(drive)]),
+        "tune": main(["tune", str(drive), "--out", str(d / "tune"), "--quiet"]),
+    }
+    table = d / "tune" / "gains_law16.json"
+    codes["codegen"] = main(
+        ["codegen", str(drive), "--gains", str(table), "--precision", "float", "--out", str(d / "c")]
+    )
+    codes["report"] = main(["report", str(drive), "--gains", str(table), "--quick", "--out", str(d / "r")])
+    return name, src, drive, d, codes
+
+
+def test_every_command_succeeds_and_finds_gains(flow):
+    _, _, _, d, codes = flow
+    assert codes["init"] == codes["tune"] == codes["codegen"] == 0, codes
+    assert codes["report"] in (0, 3), codes  # 3: a check failed; the report says so (below)
+    table = json.loads((d / "tune" / "gains_law16.json").read_text())
+    # stable gains with the damping a report requires, found on the motor's own envelope
+    assert table["summary"]["worst_damping"] > 0.2, table["summary"]
+
+
+def test_the_minimal_file_and_the_written_one_are_the_same_drive(flow):
+    _, src, drive, _, _ = flow
+    a, b = load_drive(str(src)), load_drive(str(drive))
+    for section in ("motor", "estimate", "control", "observer", "injection", "runtime"):
+        assert getattr(a, section) == getattr(b, section), section
+    assert a.w_base == b.w_base and a.T_N == b.T_N
+
+
+def test_derived_values_follow_their_documented_rules(flow):
+    name, src, _, _, _ = flow
+    d = load_drive(str(src))
+    m, c = d.motor, d.control
+    f_s = 10e3
+    w_N = 2 * math.pi * d.rating.n_N / 60 * m.p  # n_N in r/min
+    tau_m = m.J * w_N / m.p / d.T_N
+    alpha_fo = min(max(2 * math.pi * f_s / 100, 50 / tau_m), 2 * math.pi * f_s / 20)
+    assert c.T_s == pytest.approx(1 / f_s)
+    assert d.observer.alpha_fo == pytest.approx(alpha_fo, rel=1e-5)
+    assert c.alpha_s == pytest.approx(min(5 / tau_m, alpha_fo / 5), rel=1e-5)
+    assert c.alpha_c == pytest.approx(2 * math.pi * f_s / 12.5, rel=1e-5)
+    assert c.T_max == pytest.approx(1.5 * d.T_N, rel=1e-5)
+    assert d.w_base == pytest.approx(w_N, rel=1e-5)
+    # injection only where the saliency gives an error signal: off for L_d = L_q
+    salient = 2 * abs(m.L_q - m.L_d) / (m.L_q + m.L_d) >= 0.1
+    assert d.injection.enabled is salient is (name == "traction")
+
+
+def test_the_verdict_agrees_with_its_checks(flow):
+    _, _, _, d, codes = flow
+    data = json.loads((d / "r" / "report.json").read_text())
+    v, td = data["verdict"], data["time_domain"]
+    assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal"]  # generic, scaled
+    failed = [c for c in td if not c["passed"]]
+    assert all(c["failed"] for c in failed) and not any(c["failed"] for c in td if c["passed"])
+    if failed:
+        assert v["status"] in ("warn", "fail") and codes["report"] == 3
+        assert {f.get("check") for f in v["findings"]} >= {c["name"] for c in failed}
+    for c in td:  # each check's verdict follows from its numbers and stated limits
+        lim, met = c["limits"], c["metrics"]
+        if met["max_abs_theta_err_deg"] > lim["max_abs_theta_err_deg"]:
+            assert not c["passed"]
+    html = (d / "r" / "report.html").read_text()
+    assert f"verdict-{v['status']}" in html or v["status"].upper() in html.upper()
+    assert "paper speed" not in html  # a user's gains are not the paper's
+
+
+@pytest.mark.skipif(CC is None, reason="no C compiler")
+def test_the_generated_float_c_builds_and_its_example_initializes(flow):
+    _, _, _, d, _ = flow
+    c = d / "c"
+    subprocess.run(["make", "-s", "-C", str(c)], check=True, capture_output=True, timeout=120)
+    exe = next(p for p in c.iterdir() if p.is_file() and p.suffix == "" and p.name != "Makefile")
+    out = subprocess.run([str(exe)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and "init failed" not in out.stdout + out.stderr, out.stdout[-500:]
+    assert "valid=1" in out.stdout
+
+
+def test_injection_on_a_non_salient_motor_is_a_one_line_error(capsys, tmp_path):
+    src = DRIVES / MOTORS["servo"]
+    code, _, err = run(["analyze", src, "--injection", "--out", tmp_path / "a"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "injection is off" in err, err
+    code, _, err = run(["simulate", src, "--scenario", "fig9a", "--quiet", "--out", tmp_path / "s"], capsys)
+    assert code == 2 and "sensorless simulate --injection off" in err, err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "s").exists()
+
+
+def test_a_table_tuned_for_another_drive_is_said_by_codegen_and_report(tmp_path):
+    from types import SimpleNamespace
+
+    from sensorless.reports.cli.common import foreign_table
+
+    servo = load_drive(str(DRIVES / MOTORS["servo"]))
+    mine = SimpleNamespace(drive={"name": servo.name, "sha256": servo.digest})
+    other = SimpleNamespace(drive={"name": "traction", "sha256": "0" * 64})
+    edited = SimpleNamespace(drive={"name": servo.name, "sha256": "1" * 64})
+    assert foreign_table(mine, "t.json", servo) is None
+    assert "tuned for drive 'traction', not for 'servo400'" in foreign_table(other, "t.json", servo)
+    assert "another version of its file" in foreign_table(edited, "t.json", servo)
+
+
+@pytest.mark.parametrize(
+    "path", sorted((Path(__file__).parents[2] / "docs" / "examples" / "motors").glob("*.toml")), ids=str
+)
+def test_the_example_motors_load_with_plausible_data(path):
+    d = load_drive(str(path))  # plausibility errors would raise; warnings are allowed
+    assert d.motor.psi_pm > 0 and d.observer.alpha_fo > d.control.alpha_s > 0
+
+
+def test_the_report_page_shows_a_foreign_table_warning():
+    from sensorless.reports.document import Report, Verdict
+    from sensorless.reports.html import render
+
+    inputs = {"drive_sha256": "0" * 64, "gains_sha256": "1" * 64}
+    page = render(Report("servo400", "tuned law16", {"inputs": inputs}, Verdict("pass", ())), "0")
+    assert "Warning:" not in page
+    inputs["gain_table_warning"] = "t.json was tuned for drive 'traction', not for 'servo400'"
+    page = render(Report("servo400", "tuned law16", {"inputs": inputs}, Verdict("pass", ())), "0")
+    assert "Warning: t.json was tuned for drive &#39;traction&#39;" in page
