@@ -36,6 +36,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from sensorless.design.drive_file import DriveDocument, Entry, check_keys, drive_header, table, toml_value
+from sensorless.design.ipmsm_adaptive.schema import SECTIONS
 from sensorless.design.motor_data import mtpa_torque, mtpa_torque_current, read_motor, steady_voltage
 from sensorless.design.units import DriveFileError, parse_quantity
 
@@ -54,19 +55,6 @@ SALIENCY_MIN = 0.1  # 2 |L_q - L_d| / (L_q + L_d) below which the injection is o
 I_NOISE_PU = 0.003  # schema.I_NOISE_DEFAULT
 W_MAX_PU, W_MAX_MIN_PU = 2.0, 1.2  # the runtime top speed [p.u.]: default, and least where the voltage limits
 
-SECTIONS = (
-    "drive",
-    "rating",
-    "base",
-    "motor",
-    "estimate",
-    "control",
-    "observer",
-    "injection",
-    "runtime",
-    "tuning",
-    "inverter",
-)
 RATING = {
     "P_N": "power",
     "U_N": "voltage",
@@ -209,7 +197,8 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
         check_keys(inv_t, tuple(INVERTER), file, "inverter.")
     f_s = _sampling(r, inv_t, ctl_t, file)
     u_dc_raw, u_dc_rule = _dc_link(r, inv_t, ctl_t, file)
-    u_dc = parse_quantity(u_dc_raw, "voltage", file=file, key="inverter.u_dc")[0]
+    u_dc_key = "inverter.u_dc" if inv_t is not None and "u_dc" in inv_t else "control.u_dc"
+    u_dc = parse_quantity(u_dc_raw, "voltage", file=file, key=u_dc_key)[0]
 
     # ------------------------------------------------------------------ base
     base_t = r.table("base") or {}

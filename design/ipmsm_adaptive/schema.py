@@ -168,6 +168,21 @@ class Runtime:
     w_max: float = q("angular", doc="highest speed of the drive [rad/s]: the runtime state's speed bounds")
 
 
+# the sections of a drive file of this family (a minimal one gives [inverter] instead of [control]'s
+# u_dc and T_s; derive.py)
+SECTIONS = (
+    "drive",
+    "rating",
+    "base",
+    "motor",
+    "estimate",
+    "control",
+    "observer",
+    "injection",
+    "runtime",
+    "tuning",
+    "inverter",
+)
 RUNTIME_DEFAULTS: dict[str, Any] = {
     "discretization": DISCRETIZATIONS[0],
     "w_bp": "200 Hz",
@@ -295,19 +310,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     """Validate the complete data of a drive TOML of this family (every section present)."""
     check_keys(
         data,
-        (
-            "drive",
-            "rating",
-            "base",
-            "motor",
-            "estimate",
-            "control",
-            "observer",
-            "injection",
-            "runtime",
-            "tuning",
-            "inverter",
-        ),
+        SECTIONS,
         file,
         "",
     )
