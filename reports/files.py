@@ -199,6 +199,11 @@ class OutputSet:
         fig.savefig(buf, format=fmt, metadata=meta, **kwargs)
         self.add_bytes(name, buf.getvalue())
 
+    def add_figures(self, stem: str, fig: Any) -> None:
+        """Stage ``fig`` as ``stem.png`` (110 dpi, to look at) and ``stem.svg`` (to zoom and print)."""
+        self.add_figure(f"{stem}.png", fig, dpi=110)
+        self.add_figure(f"{stem}.svg", fig)
+
     def paths(self) -> list[Path]:
         """Destination paths of the staged files."""
         return [self.directory / n for n in self.files]

@@ -159,8 +159,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         out.add_bytes(name, npz_bytes(tr, args.every))
     fig = plot_traces(tr, sc.figure, f"{drive.name}: {sc.title}")
-    out.add_figure(f"{sc.name}.png", fig, dpi=110)
-    out.add_figure(f"{sc.name}.svg", fig)
+    out.add_figures(sc.name, fig)
     import matplotlib.pyplot as plt
 
     plt.close(fig)

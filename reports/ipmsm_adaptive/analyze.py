@@ -127,8 +127,7 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
             f"{' with HF injection (averaged)' if inj else ''}",
             low,
         )
-        out.add_figure(f"pole_map{suffix}_T{T:+g}Nm.png", fig, dpi=110)
-        out.add_figure(f"pole_map{suffix}_T{T:+g}Nm.svg", fig)
+        out.add_figures(f"pole_map{suffix}_T{T:+g}Nm", fig)
         plt.close(fig)
     if discrete_sweeps:
         discrete.analyze_output(drive, discrete_sweeps, out)

@@ -148,8 +148,7 @@ def analyze_output(drive: Any, sweeps: list[tuple[str, float, Any, Any]], out: A
             f"ln(z)/T_s at T_e = {T:g} N m",
             lows,
         )
-        out.add_figure(f"pole_map_discrete_T{T:+g}Nm.png", fig, dpi=110)
-        out.add_figure(f"pole_map_discrete_T{T:+g}Nm.svg", fig)
+        out.add_figures(f"pole_map_discrete_T{T:+g}Nm", fig)
         plt.close(fig)
 
 

@@ -167,8 +167,7 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
     fig = plot_poles(
         results, drive, f"{drive.name}: observer error-dynamics poles ({method}, {c.T_s * 1e6:g} us)"
     )
-    out.add_figure("poles.png", fig, dpi=110)
-    out.add_figure("poles.svg", fig)
+    out.add_figures("poles", fig)
     import matplotlib.pyplot as plt
 
     plt.close(fig)

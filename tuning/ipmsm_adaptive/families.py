@@ -218,9 +218,7 @@ def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = 
         wl = np.geomspace(0.02 * wb, 5.0 * wb, 10)
         L, Wl = np.meshgrid(lp, wl)
         out = np.column_stack([L.ravel(), Wl.ravel()])
-        if settings.tune_alpha_fo:
-            out = np.vstack([np.column_stack([out, np.full(len(out), k * a0)]) for k in (0.5, 1.0, 2.0)])
-        return out
+        return with_alpha_fo_starts(out, settings, a0)
 
     return _common(
         drive,
@@ -362,6 +360,13 @@ def _sample(speeds: np.ndarray, v: np.ndarray, at: np.ndarray) -> np.ndarray:
     return out
 
 
+def with_alpha_fo_starts(starts: np.ndarray, settings: Any, a0: float) -> np.ndarray:
+    """The global phase's starts, each at 0.5, 1 and 2 x the drive's alpha_fo when it is tuned too."""
+    if not settings.tune_alpha_fo:
+        return starts
+    return np.vstack([np.column_stack([starts, np.full(len(starts), k * a0)]) for k in (0.5, 1.0, 2.0)])
+
+
 def _signed_log(lo: float, hi: float, R: float, n: int) -> np.ndarray:
     """Gains from lo to hi [ohm]: zero, and geometric from 0.1 R̂s to the bound on each side."""
     out = [0.0]
@@ -386,9 +391,7 @@ def build_pointwise(drive: Any, settings: TuningSettings, seed: np.ndarray | Non
         l2 = _signed_log(-lam_max, lam_max, R, 8)
         L1, L2 = np.meshgrid(l1, l2)
         out = np.column_stack([L1.ravel(), L2.ravel()])
-        if settings.tune_alpha_fo:
-            out = np.vstack([np.column_stack([out, np.full(len(out), k * a0)]) for k in (0.5, 1.0, 2.0)])
-        return out
+        return with_alpha_fo_starts(out, settings, a0)
 
     return _common(
         drive,

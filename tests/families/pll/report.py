@@ -124,8 +124,7 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
     )
     out.add_text("poles.csv", poles_csv(lin, drive))
     fig = poles_figure(lin, drive, f"{drive.name}: PLL observer poles (o continuous, x sampled)")
-    out.add_figure("poles.png", fig, dpi=110)
-    out.add_figure("poles.svg", fig)
+    out.add_figures("poles", fig)
     import matplotlib.pyplot as plt
 
     plt.close(fig)
