@@ -11,10 +11,9 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
-import control
 import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.ipmsm_adaptive.operating_point import (
@@ -30,6 +29,9 @@ from sensorless.design.poles import eigvals_batched, sort_poles
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
 from sensorless.symbolic.ipmsm_adaptive.observer import error_term
 from sensorless.symbolic.linalg import charpoly
+
+if TYPE_CHECKING:  # python-control imports scipy.signal and matplotlib (~3 s): only where used
+    import control
 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
 
@@ -196,6 +198,8 @@ class PoleSweep(Linearization):
 
     def statespace(self, k: int) -> control.StateSpace:
         """The closed loop at point k as a python-control StateSpace, input w_m, output w_hat."""
+        import control
+
         n = self.A.shape[1]
         return control.ss(
             self.A[k],
@@ -209,6 +213,8 @@ class PoleSweep(Linearization):
 
     def transfer_function(self, k: int) -> control.TransferFunction:
         """G_c(s) = w_hat(s)/w_m(s) at point k, eq. (15)."""
+        import control
+
         return control.ss2tf(self.statespace(k))
 
     @property
