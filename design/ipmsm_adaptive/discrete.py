@@ -42,8 +42,8 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from scipy.linalg import expm
 from sensorless.design.batch import evaluate_batch
+from sensorless.design.expm import expm_batched
 from sensorless.design.ipmsm_adaptive.linearize import PoleSweep
 from sensorless.design.ipmsm_adaptive.runtime import runtime_params
 from sensorless.design.poles import sort_poles
@@ -77,7 +77,7 @@ def zoh_voltage(motor: Sequence[float], w_m: np.ndarray, i_s0: np.ndarray, T_s: 
     Ma[:, 0:2, 2:4] = np.eye(2)
     Ma[:, 0:2, 4] = R * Linv @ np.array([psi_pm, 0.0])
     Ma[:, 2:4, 2:4] = -w[:, None, None] * Jm
-    E = expm(Ma * T_s)
+    E = expm_batched(Ma * T_s)
     psi0 = np.asarray(i_s0, float) * np.array([Ld, Lq]) + np.array([psi_pm, 0.0])
     rhs = psi0 - np.einsum("nij,nj->ni", E[:, 0:2, 0:2], psi0) - E[:, 0:2, 4]
     return np.linalg.solve(E[:, 0:2, 2:4], rhs[:, :, None])[:, :, 0]
