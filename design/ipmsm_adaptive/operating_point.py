@@ -111,6 +111,16 @@ def equilibrium_function(law: str | GainLaw, injection: bool) -> ca.Function:
     )
 
 
+def _columns(fn: ca.Function, args: dict[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
+    """``args`` (one instance or one column per point, as evaluate_batch takes them) as (rows, n) views."""
+    out = {}
+    for k in PARAM_NAMES:
+        rows = fn.size1_in(fn.index_in(k))
+        a = np.asarray(args[k], float)
+        out[k] = np.broadcast_to(a.reshape(rows, 1), (rows, n)) if a.size == rows else a.reshape(rows, n)
+    return out
+
+
 def solve_equilibrium(
     law: str | GainLaw,
     injection: bool,
@@ -124,40 +134,42 @@ def solve_equilibrium(
     With estimation errors, Newton's method is continued along the estimates
     est(tau) = true + tau (est - true) from tau = 0 (exact estimates, closed-form equilibrium with
     theta_tilde = 0) to tau = 1, each point with its own adaptive step (halved after a failed Newton
-    solve, enlarged after a success), all points advanced together in one mapped call per round.
-    This follows the equilibrium branch that starts at the exact-estimate equilibrium; a single
-    Newton solve from theta_tilde = 0 misses it once the position error grows to tenths of a radian.
-    Where the branch ends (a fold: the observer cannot hold the rotor position) the point is NaN.
+    solve, enlarged after a success), the points still under way advanced together in one mapped call
+    per round (most points finish in three rounds, a few near a fold take dozens). This follows the
+    equilibrium branch that starts at the exact-estimate equilibrium; a single Newton solve from
+    theta_tilde = 0 misses it once the position error grows to tenths of a radian. Where the branch
+    ends (a fold: the observer cannot hold the rotor position) the point is NaN.
     """
     ins = [np.asarray(args[k], float) for k in ("w_m", "T_e", "motor", "p")]
     x = np.ascontiguousarray(evaluate_batch(nominal_equilibrium_function(injection), n, ins)[0][:, :, 0].T)
     if exact:
         return x
-    root = mapped(equilibrium_function(law, injection), n)
-    residual = mapped(residual_function(law, injection), n)
+    root, residual = equilibrium_function(law, injection), residual_function(law, injection)
+    cols = _columns(residual, args, n)
     true = np.broadcast_to(np.asarray(args["motor"], float).reshape(4, -1), (4, n))
-    est = np.broadcast_to(np.asarray(args["estimate"], float).reshape(4, -1), (4, n))
-    scale = 1.0 + np.abs(np.asarray(args["w_m"])).ravel() + np.abs(x).max(axis=0)
+    est = cols["estimate"]
+    scale = 1.0 + np.abs(cols["w_m"][0]) + np.abs(x).max(axis=0)
     tau = np.zeros(n)
     h = np.full(n, 0.25)
     lost = np.zeros(n, bool)
     for _ in range(max_rounds):
-        active = (tau < 1) & ~lost
-        if not active.any():
+        act = np.flatnonzero((tau < 1) & ~lost)  # not the points done: the late rounds are a few points
+        if act.size == 0:
             break
-        t_try = np.where(active, np.minimum(1.0, tau + h), tau)
-        a = dict(args, estimate=true + t_try * (est - true))
-        x_try = np.asarray(root(x, *[a[key] for key in PARAM_NAMES]))
+        t_try = np.minimum(1.0, tau[act] + h[act])
+        a = {k: v[:, act] for k, v in cols.items()}
+        a["estimate"] = true[:, act] + t_try * (est[:, act] - true[:, act])
+        ins = [a[k] for k in PARAM_NAMES]
+        x_try = np.asarray(mapped(root, act.size)(x[:, act], *ins))
         # The rootfinder does not raise on failure (error_on_fail=False): verify the residual.
-        res = np.asarray(residual(x_try, *[a[key] for key in PARAM_NAMES]))
+        res = np.asarray(mapped(residual, act.size)(x_try, *ins))
         # x_dot is in V (flux rates) and rad/s^2; 1e-6 of the operating point's size is "at rest"
-        ok = np.isfinite(res).all(axis=0) & (np.abs(res).max(axis=0) <= 1e-6 * scale)
+        ok = np.isfinite(res).all(axis=0) & (np.abs(res).max(axis=0) <= 1e-6 * scale[act])
         # a solve that jumps far in position is another branch, not a continuation step
-        ok &= np.abs(x_try[2] - x[2]) < 0.3
-        step_ok = active & ok
-        x[:, step_ok] = x_try[:, step_ok]
-        tau[step_ok] = t_try[step_ok]
-        h = np.where(step_ok, np.minimum(2 * h, 0.5), np.where(active, h / 2, h))
-        lost |= active & ~ok & (h < 1e-3)
+        ok &= np.abs(x_try[2] - x[2, act]) < 0.3
+        x[:, act[ok]] = x_try[:, ok]
+        tau[act[ok]] = t_try[ok]
+        h[act] = np.where(ok, np.minimum(2 * h[act], 0.5), h[act] / 2)
+        lost[act] |= ~ok & (h[act] < 1e-3)
     x[:, lost | (tau < 1)] = np.nan
     return x
