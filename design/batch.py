@@ -3,7 +3,7 @@
 ``Function.map(n)`` evaluates a Function at n points in one call, but converting its inputs and
 outputs through casadi.DM costs as much as the evaluation itself for small Functions. This module
 evaluates mapped Functions through CasADi's buffer interface straight into numpy memory, and, for
-large batches, JIT-compiles the Function with the system C compiler (CasADi's "shell" compiler);
+large batches, compiles the Function with the system C compiler (design/compiled.py, cached on disk);
 without a working compiler it falls back to CasADi's virtual machine with identical results.
 Set SENSORLESS_NO_JIT=1 to disable compilation.
 """
@@ -17,26 +17,32 @@ from collections.abc import Sequence
 
 import casadi as ca
 import numpy as np
+from sensorless.design.compiled import compiled
 
 JIT_MIN_POINTS = 4096  # below this the ~0.3 s compile does not pay off
 
 
 @functools.cache
 def _compiled(fn: ca.Function) -> ca.Function:
-    """JIT-compiled copy of an SX Function (common subexpressions eliminated), or ``fn`` itself."""
+    """Compiled copy of an SX Function (common subexpressions eliminated), or ``fn`` itself.
+
+    Compiled through design/compiled.py, whose libraries are cached on disk by the hash of their C
+    source: a process pays the compiler (~0.3 s per Function) only the first time a Function is
+    ever seen, not once per process as CasADi's own ``jit`` option would."""
     if os.environ.get("SENSORLESS_NO_JIT"):
         return fn
     try:
         sx_in = fn.sx_in()
         sx_out = ca.cse([ca.densify(o) for o in fn.call(sx_in)])
-        opts = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"], "verbose": False}}
-        return ca.Function(f"{fn.name()}_jit", sx_in, sx_out, fn.name_in(), fn.name_out(), opts)
-    except Exception as e:  # no compiler on this machine: stay on the virtual machine
+        flat = ca.Function(f"{fn.name()}_jit", sx_in, sx_out, fn.name_in(), fn.name_out())
+    except Exception as e:  # not an SX Function: stay on the virtual machine
         warnings.warn(f"JIT compilation unavailable ({e}); using CasADi's VM", stacklevel=3)
         return fn
+    return compiled(flat)  # the VM (and a warning) where no compiler works
 
 
-@functools.lru_cache(maxsize=64)
+# a search (tuning/bound.py) evaluates ~150 distinct batch sizes; building a map costs ~2 ms
+@functools.lru_cache(maxsize=512)
 def _mapped(fn: ca.Function, n: int, threads: int) -> ca.Function:
     return fn.map(n, "thread", threads) if threads > 1 else fn.map(n)
 
