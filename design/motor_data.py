@@ -27,6 +27,7 @@ the sampling period, f_N against n_N and p) and returns warnings; what cannot be
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -309,12 +310,22 @@ class Finding:
         return f"{file}: {', '.join(self.keys)}: {self.text}"
 
 
-def mtpa_torque_current(T: float, motor: MotorData) -> tuple[float, float]:
-    """(i_d, i_q) [A, peak] of the MTPA current for torque ``T`` [N m] (symbolic/pmsm.py, evaluated)."""
+@functools.cache
+def _mtpa_function() -> Any:
+    """casadi.Function (T [N m], [R_s, L_d, L_q, psi_pm], p) -> MTPA current [i_d, i_q] (symbolic/pmsm.py).
+
+    Built once: evaluating the expression in DM arithmetic costs milliseconds per call, and
+    :func:`mtpa_torque` calls it 80 times on every load of a drive file."""
     import casadi as ca
     from sensorless.symbolic.pmsm import PmsmParams, mtpa_current
 
-    i = mtpa_current(ca.DM(T), PmsmParams(motor.R_s, motor.L_d, motor.L_q, motor.psi_pm), motor.p)
+    T, m, p = ca.SX.sym("T"), ca.SX.sym("motor", 4), ca.SX.sym("p")
+    return ca.Function("mtpa", [T, m, p], [mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), p)])
+
+
+def mtpa_torque_current(T: float, motor: MotorData) -> tuple[float, float]:
+    """(i_d, i_q) [A, peak] of the MTPA current for torque ``T`` [N m] (symbolic/pmsm.py, evaluated)."""
+    i = _mtpa_function()(T, [motor.R_s, motor.L_d, motor.L_q, motor.psi_pm], motor.p)
     return float(i[0]), float(i[1])
 
 
