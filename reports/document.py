@@ -111,6 +111,12 @@ def svg_uri(fig: Any) -> str:
     import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
+    engine = fig.get_layout_engine()
+    if engine is not None:
+        # savefig with a layout engine draws the figure twice, once only to lay it out; laying it out
+        # here and keeping the positions saves that draw
+        engine.execute(fig)
+        fig.set_layout_engine(None)
     fig.savefig(buf, format="svg", metadata={"Date": None})
     plt.close(fig)
     return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")

@@ -77,12 +77,22 @@ def plot_pole_maps(
     rows = len(sweeps)
     fig, axes = plt.subplots(rows, 2, figsize=(11, 4.2 * rows), squeeze=False, layout="constrained")
     cmap = plt.get_cmap("turbo")  # no white at zero speed: low-speed poles stay visible
+
+    def shown(label: str, c: int) -> Linearization:
+        return low_speed[label] if (c == 1 and low_speed) else sweeps[label]
+
+    def speed_max(s: Linearization) -> float:
+        return float(np.abs(s.w).max() / w_base) or 1.0
+
+    # One colorbar per column where every row's speed range is the same (the usual case): the same
+    # information as one per panel, and each colorbar is an axes that layout and drawing pay for.
+    shared = [len({speed_max(shown(label, c)) for label in sweeps}) == 1 for c in range(2)]
     for r, (label, full) in enumerate(sweeps.items()):
         zoom = _zoom_window(full, w_base)
         for c, ax in enumerate(axes[r]):
-            s = low_speed[label] if (c == 1 and low_speed) else full
+            s = shown(label, c)
             w_pu = np.repeat(s.w / w_base, s.poles.shape[1])
-            w_max = float(np.abs(s.w).max() / w_base) or 1.0
+            w_max = speed_max(s)
             norm = matplotlib.colors.Normalize(-w_max, w_max)
             p = s.poles.reshape(-1)
             keep = np.isfinite(p) & (p.imag >= -1e-9)
@@ -117,6 +127,9 @@ def plot_pole_maps(
             xl = ax.get_xlim()
             ax.axvspan(0, xl[1], color="tab:red", alpha=0.06, lw=0)
             ax.set_xlim(xl)
-            fig.colorbar(sc, ax=ax, label="rotor speed ω_m0 (p.u.)")
+            if not shared[c]:
+                fig.colorbar(sc, ax=ax, label="rotor speed ω_m0 (p.u.)")
+            elif r == 0:
+                fig.colorbar(sc, ax=axes[:, c], label="rotor speed ω_m0 (p.u.)", aspect=20 * rows)
     fig.suptitle(title, fontsize=10)
     return fig

@@ -55,11 +55,12 @@ def robustness_figure(rob: dict[str, Any], w_pu: np.ndarray, label: str) -> Any:
 
     names = list(rob["params"])
     fig, axes = plt.subplots(2, 2, figsize=(11, 7.4), squeeze=False, layout="constrained")
+    cm = plt.get_cmap("RdYlGn").with_extremes(bad="0.6")  # no equilibrium: grey
+    pc = None
     for ax, name in zip(axes.ravel(), names, strict=False):
         p = rob["params"][name]
         err = np.array(p["error_pct"], float)
         Z = np.array(p["damping"], float)
-        cm = plt.get_cmap("RdYlGn").with_extremes(bad="0.6")  # no equilibrium: grey
         pc = ax.pcolormesh(w_pu, err, Z, cmap=cm, vmin=-0.2, vmax=1.0, shading="nearest", rasterized=True)
         uns = np.nan_to_num(Z, nan=1.0) < 0
         if uns.any():
@@ -68,5 +69,6 @@ def robustness_figure(rob: dict[str, Any], w_pu: np.ndarray, label: str) -> Any:
         ax.set_xlabel("speed ω_m (p.u.)")
         ax.set_ylabel(f"error of estimate {name} (%)")
         ax.set_title(f"{label}: worst damping, {name} misestimated", fontsize=9)
-        fig.colorbar(pc, ax=ax, label="ζ (grey: no equilibrium)")
+    if pc is not None:  # one colorbar: every panel has the same colour scale
+        fig.colorbar(pc, ax=axes, label="ζ (grey: no equilibrium)", aspect=40)
     return fig
