@@ -214,6 +214,7 @@ def compute(
     data["time_domain"] = td
     progress(f"[6/{steps}] the discrete-time observer that runs ({drive.runtime.discretization})")
     data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
+    progress(f"[7/{steps}] tuning: the pointwise bound and noise over the envelope")
     tuning_data, tuning_section = tuning.compute(drive, table, choices, review, progress, default)
     data["tuning"] = tuning_data
     data["verdict"] = verdict(data, review, min_damping)

@@ -78,7 +78,7 @@ def compute(
         floor = figs[next(iter(figs))]["min_decay_rate"]
         if not floor > 0:
             floor = float(settings.min_decay)
-        progress(f"[7/7] pointwise bound on {speeds.size} speeds x {torques.size} torques")
+        progress(f"      pointwise bound on {speeds.size} speeds x {torques.size} torques")
         pw = build_pointwise(drive, settings)
         base = FAMILY.linearize(drive, sets[next(iter(sets))], W.ravel(), T.ravel())
         scale = float(np.nanmax(np.abs(base.poles)))
