@@ -17,9 +17,12 @@ import io
 import json
 import re
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from sensorless.reports.svg_render import PendingSvg
 
 
 # --------------------------------------------------------------------------------------------------
@@ -46,9 +49,10 @@ class Table:
 
 @dataclass(frozen=True)
 class Figure:
-    """A figure as a data URI (SVG) with its caption."""
+    """A figure as a data URI (SVG) with its caption; ``uri`` may be an object whose ``str()`` is the
+    URI, still being rendered (reports/svg_render.py)."""
 
-    uri: str
+    uri: str | PendingSvg
     caption: str
 
 

@@ -28,7 +28,8 @@ import numpy as np
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.scenario import Scenario, generic_scenarios, load_scenario
 from sensorless.design.simulate import simulate
-from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num, svg_uri
+from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
+from sensorless.reports.svg_render import svg_later
 
 LIMITS = {
     "max_abs_theta_err_deg": 30.0,
@@ -134,7 +135,7 @@ def checks(
                 "caption": cap,
             }
         )
-        figs.append(Figure(svg_uri(plot_traces(tr, sc.figure, f"{drive.name}: {sc.title}")), cap))
+        figs.append(Figure(svg_later(plot_traces(tr, sc.figure, f"{drive.name}: {sc.title}")), cap))
     return out, figs
 
 

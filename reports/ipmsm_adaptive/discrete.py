@@ -24,8 +24,9 @@ from sensorless.design.ipmsm_adaptive.discrete import (
 )
 from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.reports.cli.common import UsageError
-from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num, svg_uri
+from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.family import Option
+from sensorless.reports.svg_render import svg_later
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
 OPTIONS = (
@@ -304,7 +305,7 @@ def report_section(
         ],
     }
     fig = Figure(
-        svg_uri(angle_error_figure(drive, choices[review], w)),
+        svg_later(angle_error_figure(drive, choices[review], w)),
         f"Steady position error at the sampling instants that each discretization of the runtime step "
         f"leaves ({review}, injection off): the fixed point of its one-step map on the motor sampled "
         "under zero-order hold. Dotted: 0.1 electrical degree.",

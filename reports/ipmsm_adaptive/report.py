@@ -31,11 +31,11 @@ from sensorless.reports.document import (
     f,
     num,
     report_inputs,
-    svg_uri,
 )
 from sensorless.reports.ipmsm_adaptive import tuning
 from sensorless.reports.ipmsm_adaptive.discrete import report_section as discrete_section
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
+from sensorless.reports.svg_render import svg_later
 
 TIME_DOMAIN = ("fig9b", "fig10", "fig6b")  # built-in scenarios re-run with the gains under review
 
@@ -118,7 +118,7 @@ def compute(
         fig = plot_pole_maps(sweeps, wb, f"{drive.name}: closed-loop poles at T_e = {T:g} N m", lows)
         pole_figs.append(
             Figure(
-                svg_uri(fig),
+                svg_later(fig),
                 f"Closed-loop poles of G_c(s), eq. (15), at T_e = {T:+g} N m while the speed sweeps "
                 "-1…1 p.u. "
                 "(left, Fig. 4 style; upper half-plane), and magnified near the origin with a dense "
@@ -140,7 +140,7 @@ def compute(
                 "worst": _worst_point(s, w_env, wb),
             }
         inj_block: Any = Figure(
-            svg_uri(
+            svg_later(
                 plot_pole_maps(
                     inj_sweeps, wb, f"{drive.name}: {review} with HF injection (averaged (19)-(22))", inj_lows
                 )
@@ -172,7 +172,7 @@ def compute(
         }
     data["plane"] = {"w_pu": arr(w_map / wb), "T_Nm": arr(T_map), "maps": maps}
     plane_fig = Figure(
-        svg_uri(plane_figure(maps, w_map / wb, T_map, T_N)),
+        svg_later(plane_figure(maps, w_map / wb, T_map, T_N)),
         "Worst damping ratio (top) and decay rate (bottom) of the linearized closed loop over the speed × "
         "torque plane; hatched with a black outline: unstable; star: least-damped point with |ω| ≥ 0.05 p.u.",
     )
@@ -199,7 +199,7 @@ def compute(
         }
     data["robustness"] = rob
     rob_fig = Figure(
-        svg_uri(robustness_figure(rob, w_rob / wb, review)),
+        svg_later(robustness_figure(rob, w_rob / wb, review)),
         f"Worst damping of the gains under review at T_e = {num(rob['T_Nm'])} N m when one estimate "
         "(R̂s, L̂d, L̂q, ψ̂pm) is off by the given percentage; the equilibrium is followed from the exact "
         "estimates by continuation. Black outline: unstable; grey: no equilibrium (the observer cannot "

@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive import FAMILY
-from sensorless.reports.document import Figure, Paragraph, Section, Table, arr, f, num, svg_uri
+from sensorless.reports.document import Figure, Paragraph, Section, Table, arr, f, num
+from sensorless.reports.svg_render import svg_later
 
 
 def compute(
@@ -97,7 +98,7 @@ def compute(
         "pareto": summary.get("pareto"),
     }
     fig1 = Figure(
-        svg_uri(_bound_figure(w_b / wb, bound, speeds / wb, figs, floor)),
+        svg_later(_bound_figure(w_b / wb, bound, speeds / wb, figs, floor)),
         "Worst damping over the envelope's torques at each speed: the pointwise bound (the best any gain "
         f"(λ1, λ2) reaches at that speed with decay ≥ {floor:.4g} 1/s; {where}) beside the gains. No gain "
         "law exceeds the bound's lowest value anywhere on the envelope.",
@@ -132,7 +133,7 @@ def compute(
     if pf:
         blocks.append(
             Figure(
-                svg_uri(_pareto_figure(pf, figs)),
+                svg_later(_pareto_figure(pf, figs)),
                 f"Damping-versus-noise front of the {table.family} family (sensorless tune --pareto): the "
                 f"best worst damping for a limit on the {pf['output']} noise, each point re-verified on the "
                 "dense grid; the gain sets of the table above marked.",

@@ -1,0 +1,70 @@
+"""Figures rendered in forked children (reports/svg_render.py): the same bytes as rendered here, a failed
+child falls back to rendering here, an abandoned child is killed and reaped, and the switch works."""
+
+from __future__ import annotations
+
+import gc
+import os
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+from sensorless.reports import svg_render
+from sensorless.reports.document import svg_uri
+
+pytestmark = pytest.mark.skipif(not svg_render.forking(), reason="figures are rendered in-process here")
+
+
+@pytest.fixture(autouse=True)
+def _deterministic_ids():
+    with matplotlib.rc_context({"svg.hashsalt": "sensorless"}):  # as the report modules set it
+        yield
+
+
+def figure(k: int = 0):
+    fig, axes = plt.subplots(1, 2, figsize=(6, 3), layout="constrained")
+    x = np.linspace(0, 1, 50)
+    for ax in axes:
+        sc = ax.scatter(x, np.sin(6 * x + k), c=x, s=4, rasterized=True)
+        ax.set_title(f"panel {k}")
+    fig.colorbar(sc, ax=axes)
+    return fig
+
+
+def test_a_child_renders_the_bytes_rendered_here():
+    here = svg_uri(figure(1))
+    pending = [svg_render.svg_later(figure(1)) for _ in range(3)]  # more than one child per CPU too
+    assert all(isinstance(p, svg_render.PendingSvg) for p in pending)
+    assert [str(p) for p in pending] == [here] * 3
+    assert here.startswith("data:image/svg+xml;base64,")
+
+
+def test_a_failed_child_is_rendered_here_instead():
+    fig = figure(2)
+    expected = svg_uri(figure(2))
+    pid = os.fork()
+    if pid == 0:
+        os._exit(3)  # a child that writes nothing and fails
+    read_end, write_end = os.pipe()
+    os.close(write_end)
+    p = svg_render.PendingSvg(fig)
+    p._child = (pid, read_end)
+    assert str(p) == expected
+
+
+def test_an_abandoned_child_is_killed_and_reaped():
+    p = svg_render.svg_later(figure(3))
+    pid = p._child[0]
+    del p
+    gc.collect()
+    with pytest.raises(ChildProcessError):  # already reaped: no zombie left behind
+        os.waitpid(pid, os.WNOHANG)
+
+
+def test_no_fork_renders_here(monkeypatch):
+    monkeypatch.setenv("SENSORLESS_NO_FORK", "1")
+    out = svg_render.svg_later(figure(4))
+    assert isinstance(out, str) and out == svg_uri(figure(4))
