@@ -351,16 +351,23 @@ def unstable_speed_bands(
     def unstable(ws: np.ndarray) -> np.ndarray:
         return linearize(drive, ws, T_e, gain=gain, injection=injection).max_real > tol
 
-    out = []
-    for lo_w, hi_w in unstable_bands(w, s.max_real, tol):
+    bands = [list(b) for b in unstable_bands(w, s.max_real, tol)]
+    # every edge inside the grid, bisected together: one linearization per step for all of them
+    where, lo, hi = [], [], []
+    for k, (lo_w, hi_w) in enumerate(bands):
         i_lo, i_hi = int(np.searchsorted(w, lo_w)), int(np.searchsorted(w, hi_w))
-        edges = [lo_w, hi_w]
         if i_lo > 0:
-            edges[0] = float(refine_band_edges(unstable, w[[i_lo - 1]], w[[i_lo]])[0])
+            where.append((k, 0))
+            lo.append(w[i_lo - 1])
+            hi.append(w[i_lo])
         if i_hi < w.size - 1:
-            edges[1] = float(refine_band_edges(unstable, w[[i_hi + 1]], w[[i_hi]])[0])
-        out.append((edges[0], edges[1]))
-    return out
+            where.append((k, 1))
+            lo.append(w[i_hi + 1])
+            hi.append(w[i_hi])
+    if where:
+        for (k, side), x in zip(where, refine_band_edges(unstable, np.array(lo), np.array(hi)), strict=True):
+            bands[k][side] = float(x)
+    return [(a, b) for a, b in bands]
 
 
 def unstable_bands(w: np.ndarray, max_real: np.ndarray, tol: float = 1e-9) -> list[tuple[float, float]]:
