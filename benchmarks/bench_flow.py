@@ -1,0 +1,204 @@
+"""Benchmark: wall time of the user flow init + tune + codegen + report on a non-preset motor, per stage.
+
+Run:  python benchmarks/bench_flow.py [--repeat 3] [--cold-cache] [--in-process] [--keep DIR]
+
+The flow a user runs on their own motor (README "Your own motor"), on a minimal drive file written to a
+temporary directory: a 400 W servo from its datasheet (10 poles, kE 33 V/krpm line-line rms, R_ll
+3.6 ohm and L_ll 10 mH wye, J 0.6 kg cm2, 3000 rpm, 1.27 N m, 310 V, 10 kHz). The four commands run in
+one Python process through ``sensorless.reports.cli.main.main([...])``, exactly as the command line
+parses them:
+
+    sensorless init servo.toml --out servo-drive.toml
+    sensorless tune servo-drive.toml --out tune-servo
+    sensorless codegen servo-drive.toml --gains tune-servo/gains_law16.json --precision float --out c-servo
+    sensorless report servo-drive.toml --gains tune-servo/gains_law16.json --out rep-servo
+
+Each round is a fresh process (the default): the CasADi Functions and caches a process builds on its
+first call are part of what a user waits for, and a second round in the same process would not pay
+them (``--in-process`` runs the rounds here, to see that difference). Compiled code is cached on disk
+($SENSORLESS_CACHE, design/compiled.py) and reused by later processes, as it is for a user after the
+first run; ``--cold-cache`` gives each round an empty cache (the first run on a machine). The imports
+are timed as their own row. Inside ``tune`` and ``report`` each progress line (stderr; for report also
+stdout) is time-stamped; the time from one line to the next is that stage's. The report's figures are
+rendered by child processes while it computes on (reports/svg_render.py): its stage times are those
+of the main process, and the wait for the last figures falls in the last stage. Prints median stage
+times over the rounds, the total against the 15 s target, and the stages of report and tune.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import itertools
+import json
+import os
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+TARGET_S = 15.0  # init + tune + codegen + report, one process, imports included
+
+SERVO = """\
+# A 400 W servo motor as its datasheet gives it (docs/motor_data.md)
+[drive]
+name = "servo400"
+kind = "ipmsm-adaptive"
+
+[motor]
+poles = 10
+kE = "33 V/krpm"
+emf_convention = "line-line rms"
+R_ll = "3.6 ohm"
+L_ll = "10 mH"
+connection = "wye"
+J = "0.6 kg cm2"
+
+[rating]
+n_N = "3000 rpm"
+T_N = "1.27 Nm"
+
+[inverter]
+u_dc = "310 V"
+f_s = "10 kHz"
+"""
+
+GAINS = "tune-servo/gains_law16.json"
+COMMANDS = (
+    ("init", ["init", "servo.toml", "--out", "servo-drive.toml"]),
+    ("tune", ["tune", "servo-drive.toml", "--out", "tune-servo"]),
+    (
+        "codegen",
+        ["codegen", "servo-drive.toml", "--gains", GAINS, "--precision", "float", "--out", "c-servo"],
+    ),
+    ("report", ["report", "servo-drive.toml", "--gains", GAINS, "--out", "rep-servo"]),
+)
+
+
+class Stamped(io.TextIOBase):
+    """A text stream that keeps each line with the time it was written."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[float, str]] = []
+        self._part = ""
+
+    def write(self, s: str) -> int:
+        self._part += s
+        *done, self._part = self._part.split("\n")
+        now = time.perf_counter()
+        self.lines += [(now, ln) for ln in done if ln.strip()]
+        return len(s)
+
+
+def stage_times(lines: list[tuple[float, str]], t0: float, t_end: float) -> list[tuple[str, float]]:
+    """(progress line, seconds until the next line or the end) of a command's progress lines."""
+    out = []
+    marks = [*lines, (t_end, "")]
+    out.append(("(start: load, check inputs)", marks[0][0] - t0))
+    for (t, text), (t_next, _) in itertools.pairwise(marks):
+        text = re.sub(r"^\[\s*[\d.]+ s\]\s*", "", text.strip())  # tune's own time stamp
+        out.append((text, t_next - t))
+    return out
+
+
+def one_round(work: Path) -> dict:
+    """Write the minimal drive file and run the four commands in this process; times in seconds."""
+    t = time.perf_counter()
+    from sensorless.reports.cli.main import build_parser, main
+
+    build_parser()  # imports every subcommand (CasADi, the families) as the first command would
+    res: dict = {"stages": {"imports": time.perf_counter() - t}, "inner": {}}
+    work.mkdir(parents=True, exist_ok=True)
+    (work / "servo.toml").write_text(SERVO)
+    cwd = os.getcwd()
+    os.chdir(work)
+    try:
+        for name, argv in COMMANDS:
+            # report: stdout too (its "wrote" lines mark where computing ends and writing the files starts)
+            err = Stamped()
+            out = err if name == "report" else io.StringIO()
+            t0 = time.perf_counter()
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+                code = main([*argv, "--force"])
+            t1 = time.perf_counter()
+            if code != 0:
+                lines = "\n".join(s for _, s in err.lines)
+                raise SystemExit(f"sensorless {name} exited with {code}:\n{lines}")
+            res["stages"][name] = t1 - t0
+            if name in ("tune", "report"):
+                res["inner"][name] = stage_times(err.lines, t0, t1)
+    finally:
+        os.chdir(cwd)
+    return res
+
+
+def median_inner(rounds: list[dict], name: str) -> list[tuple[str, float]]:
+    """Median time of each progress line of ``name`` over rounds (lines matched by position)."""
+    runs = [r["inner"][name] for r in rounds]
+    n = min(len(r) for r in runs)
+    return [(runs[0][k][0], statistics.median(r[k][1] for r in runs)) for k in range(n)]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3, help="rounds (default 3); medians are printed")
+    ap.add_argument("--in-process", action="store_true", help="all rounds in this process (warm caches)")
+    ap.add_argument("--cold-cache", action="store_true", help="an empty compiled-code cache for each round")
+    ap.add_argument("--keep", default=None, metavar="DIR", help="work in DIR and keep the files")
+    ap.add_argument("--one-round", default=None, metavar="DIR", help=argparse.SUPPRESS)  # a child's round
+    a = ap.parse_args()
+    if a.cold_cache and a.in_process:
+        ap.error("--cold-cache needs fresh processes (not --in-process)")
+    if a.one_round:
+        print(json.dumps(one_round(Path(a.one_round))))
+        return
+    base = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="bench_flow_"))
+    rounds = []
+    try:
+        for k in range(a.repeat):
+            work = base / f"round{k}"
+            env = dict(os.environ)
+            if a.cold_cache:  # what the first run on a machine pays: every library compiled
+                env["SENSORLESS_CACHE"] = str(base / f"cache{k}")
+            if a.in_process:
+                rounds.append(one_round(work))
+            else:
+                p = subprocess.run(
+                    [sys.executable, __file__, "--one-round", str(work)],
+                    capture_output=True,
+                    text=True,
+                    env=env,
+                )
+                if p.returncode != 0:
+                    raise SystemExit(p.stdout + p.stderr)
+                rounds.append(json.loads(p.stdout.splitlines()[-1]))
+            total = sum(rounds[-1]["stages"].values())
+            print(f"round {k + 1}/{a.repeat}: {total:.1f} s", file=sys.stderr, flush=True)
+    finally:
+        if not a.keep:
+            shutil.rmtree(base, ignore_errors=True)
+    how = "all in this process" if a.in_process else "each in a fresh process"
+    how += ", empty compiled-code cache" if a.cold_cache else ""
+    print(f"user flow on a minimal non-preset drive (servo400), {a.repeat} rounds ({how}); medians")
+    print(f"{'stage':<10} {'median (s)':>10}   {'min':>6} {'max':>6}")
+    for name in rounds[0]["stages"]:
+        ts = [r["stages"][name] for r in rounds]
+        print(f"{name:<10} {statistics.median(ts):10.2f}   {min(ts):6.2f} {max(ts):6.2f}")
+    totals = [sum(r["stages"].values()) for r in rounds]
+    med = statistics.median(totals)
+    print(f"{'total':<10} {med:10.2f}   {min(totals):6.2f} {max(totals):6.2f}")
+    verdict = "met" if med <= TARGET_S else "NOT met"
+    print(f"target: init + tune + codegen + report <= {TARGET_S:g} s, one process with imports: {verdict}")
+    for name in ("report", "tune"):
+        print(f"\nwhere {name} spends its time (median per progress line, until the next line):")
+        for text, t in median_inner(rounds, name):
+            print(f"  {t:7.2f} s  {text[:100]}")
+
+
+if __name__ == "__main__":
+    main()
