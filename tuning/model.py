@@ -167,6 +167,18 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
             np.zeros((model.n_x, 0)),
             np.zeros((0, n_out)) if noise else None,
         )
+    # Every batched call below (equilibrium, local data, linearization, characteristic polynomials)
+    # builds a mapped Function per batch size, ~2-20 ms each: padded to a bucket size (repeating the
+    # last point, results cut back to N), the searches' ever-changing sizes reuse a few of them. Not
+    # where an equilibrium must be solved for (estimate errors): padding would add Newton solves.
+    M = _bucket(N)
+    closed = model.fixed_equilibrium is not None and bool(np.all(model.fixed_equilibrium(P)))
+    if M > N and closed:
+        P = np.concatenate([P, np.repeat(P[:, -1:], M - N, axis=1)], axis=1)
+        if theta.ndim == 2:
+            theta = np.concatenate([theta, np.repeat(theta[:, -1:], M - N, axis=1)], axis=1)
+        e = evaluate(model, theta, P, noise)
+        return Evaluation(e.poles[:N], e.x0[:, :N], None if e.noise is None else e.noise[:N])
     x0 = model.equilibrium(theta, P)
     ok = np.isfinite(x0).all(axis=0)
     n = model.n_x
