@@ -2,10 +2,11 @@
 
 matplotlib takes longer to lay out and draw a report's figures than the report takes for its numbers,
 and all of it runs in Python on one core. :func:`svg_later` forks: the child, a copy of this process
-with the finished figure in it, renders the data URI of :func:`~sensorless.reports.document.svg_uri`
-into a pipe and exits; the parent goes on computing, and ``str()`` of the returned object (what the
-HTML template does with a figure's ``uri``) waits for the bytes. They are the bytes the parent would
-have rendered: the same figure in the same matplotlib state (SVG ids are hashes of the content).
+with the figure (or the function and data that make it) in it, builds and renders the data URI of
+:func:`~sensorless.reports.document.svg_uri` into a pipe and exits; the parent goes on computing, and
+``str()`` of the returned object (what the HTML template does with a figure's ``uri``) waits for the
+bytes. They are the bytes the parent would have rendered: the same figure in the same matplotlib
+state (SVG ids are hashes of the content).
 
 At most one child per CPU (of those this process may run on) runs at a time. The child only renders
 (numpy and matplotlib, no CasADi, no threads of its own), leaves by ``os._exit`` (no atexit handlers,
@@ -53,7 +54,7 @@ class PendingSvg:
                 if self._finalizer is not None:
                     self._finalizer.detach()
                 data = _collect(pid, fd)
-            self._value = data.decode("ascii") if data.startswith(PREFIX) else svg_uri(self._fig)
+            self._value = data.decode("ascii") if data.startswith(PREFIX) else svg_uri(_made(self._fig))
             self._fig = None
         return self._value
 
@@ -108,7 +109,7 @@ def _child(fig: Any, read_end: int, write_end: int, siblings: list[int]) -> None
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, 1)
         os.dup2(devnull, 2)
-        view = memoryview(svg_uri(fig).encode("ascii"))
+        view = memoryview(svg_uri(_made(fig)).encode("ascii"))
         while view:
             view = view[os.write(write_end, view) :]
         code = 0
@@ -116,11 +117,18 @@ def _child(fig: Any, read_end: int, write_end: int, siblings: list[int]) -> None
         os._exit(code)
 
 
+def _made(fig: Any) -> Any:
+    return fig() if callable(fig) else fig
+
+
 def svg_later(fig: Any) -> PendingSvg | str:
     """The figure's SVG data URI as :func:`svg_uri` gives it, rendered by a child process (module
-    docstring); ``str()`` of the result is the URI. Closes the figure."""
+    docstring); ``str()`` of the result is the URI. ``fig`` is a matplotlib figure (closed here) or a
+    function without arguments that makes one: the child calls it, so building the figure leaves
+    this process too (bind its arguments now, e.g. with functools.partial: it may also be called
+    later, here, if the child fails)."""
     if not forking():
-        return svg_uri(fig)
+        return svg_uri(_made(fig))
     limit = len(os.sched_getaffinity(0)) or 1  # the CPUs this process may use
     while True:  # at most ``limit`` children at a time: wait for the oldest
         live = [p for p in (r() for r in _running) if p is not None and p._child is not None]
@@ -132,20 +140,21 @@ def svg_later(fig: Any) -> PendingSvg | str:
     try:
         read_end, write_end = os.pipe()
     except OSError:
-        return svg_uri(fig)
+        return svg_uri(_made(fig))
     try:
         pid = os.fork()
     except OSError:
         os.close(read_end)
         os.close(write_end)
-        return svg_uri(fig)
+        return svg_uri(_made(fig))
     if pid == 0:
         _child(fig, read_end, write_end, [q._child[1] for q in live if q._child is not None])
     os.close(write_end)
     pending._child = (pid, read_end)
     pending._finalizer = weakref.finalize(pending, _reap, os.getpid(), pid, read_end)
     _running.append(weakref.ref(pending))
-    import matplotlib.pyplot as plt
+    if not callable(fig):
+        import matplotlib.pyplot as plt
 
-    plt.close(fig)  # pyplot forgets it; it can still be rendered here if the child fails
+        plt.close(fig)  # pyplot forgets it; it can still be rendered here if the child fails
     return pending

@@ -21,6 +21,7 @@ then at best "warn") and by ``sensorless report`` (a warning line, exit status 3
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -135,7 +136,8 @@ def checks(
                 "caption": cap,
             }
         )
-        figs.append(Figure(svg_later(plot_traces(tr, sc.figure, f"{drive.name}: {sc.title}")), cap))
+        make = functools.partial(plot_traces, tr, sc.figure, f"{drive.name}: {sc.title}")
+        figs.append(Figure(svg_later(make), cap))
     return out, figs
 
 

@@ -9,6 +9,7 @@ analysis, the study of every discretization over the sampling period, and the re
 from __future__ import annotations
 
 import argparse
+import functools
 import io
 from collections.abc import Callable
 from typing import Any
@@ -305,7 +306,7 @@ def report_section(
         ],
     }
     fig = Figure(
-        svg_later(angle_error_figure(drive, choices[review], w)),
+        svg_later(functools.partial(angle_error_figure, drive, choices[review], w)),
         f"Steady position error at the sampling instants that each discretization of the runtime step "
         f"leaves ({review}, injection off): the fixed point of its one-step map on the motor sampled "
         "under zero-order hold. Dotted: 0.1 electrical degree.",

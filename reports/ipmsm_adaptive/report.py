@@ -9,6 +9,7 @@ under review meet the required damping and where not.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -115,10 +116,10 @@ def compute(
                 "rhp_bands_pu": bands(g, T, s, False),
                 "worst": _worst_point(s, w_env, wb),
             }
-        fig = plot_pole_maps(sweeps, wb, f"{drive.name}: closed-loop poles at T_e = {T:g} N m", lows)
+        title = f"{drive.name}: closed-loop poles at T_e = {T:g} N m"
         pole_figs.append(
             Figure(
-                svg_later(fig),
+                svg_later(functools.partial(plot_pole_maps, sweeps, wb, title, lows)),
                 f"Closed-loop poles of G_c(s), eq. (15), at T_e = {T:+g} N m while the speed sweeps "
                 "-1…1 p.u. "
                 "(left, Fig. 4 style; upper half-plane), and magnified near the origin with a dense "
@@ -141,8 +142,12 @@ def compute(
             }
         inj_block: Any = Figure(
             svg_later(
-                plot_pole_maps(
-                    inj_sweeps, wb, f"{drive.name}: {review} with HF injection (averaged (19)-(22))", inj_lows
+                functools.partial(
+                    plot_pole_maps,
+                    inj_sweeps,
+                    wb,
+                    f"{drive.name}: {review} with HF injection (averaged (19)-(22))",
+                    inj_lows,
                 )
             ),
             "The gains under review with the averaged HF injection (19)-(22), at ±T_N, active for "
@@ -172,7 +177,7 @@ def compute(
         }
     data["plane"] = {"w_pu": arr(w_map / wb), "T_Nm": arr(T_map), "maps": maps}
     plane_fig = Figure(
-        svg_later(plane_figure(maps, w_map / wb, T_map, T_N)),
+        svg_later(functools.partial(plane_figure, maps, w_map / wb, T_map, T_N)),
         "Worst damping ratio (top) and decay rate (bottom) of the linearized closed loop over the speed × "
         "torque plane; hatched with a black outline: unstable; star: least-damped point with |ω| ≥ 0.05 p.u.",
     )
@@ -199,7 +204,7 @@ def compute(
         }
     data["robustness"] = rob
     rob_fig = Figure(
-        svg_later(robustness_figure(rob, w_rob / wb, review)),
+        svg_later(functools.partial(robustness_figure, rob, w_rob / wb, review)),
         f"Worst damping of the gains under review at T_e = {num(rob['T_Nm'])} N m when one estimate "
         "(R̂s, L̂d, L̂q, ψ̂pm) is off by the given percentage; the equilibrium is followed from the exact "
         "estimates by continuation. Black outline: unstable; grey: no equilibrium (the observer cannot "

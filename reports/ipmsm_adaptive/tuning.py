@@ -14,6 +14,7 @@ least as fast), and there is no front.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -98,7 +99,7 @@ def compute(
         "pareto": summary.get("pareto"),
     }
     fig1 = Figure(
-        svg_later(_bound_figure(w_b / wb, bound, speeds / wb, figs, floor)),
+        svg_later(functools.partial(_bound_figure, w_b / wb, bound, speeds / wb, figs, floor)),
         "Worst damping over the envelope's torques at each speed: the pointwise bound (the best any gain "
         f"(λ1, λ2) reaches at that speed with decay ≥ {floor:.4g} 1/s; {where}) beside the gains. No gain "
         "law exceeds the bound's lowest value anywhere on the envelope.",
@@ -133,7 +134,7 @@ def compute(
     if pf:
         blocks.append(
             Figure(
-                svg_later(_pareto_figure(pf, figs)),
+                svg_later(functools.partial(_pareto_figure, pf, figs)),
                 f"Damping-versus-noise front of the {table.family} family (sensorless tune --pareto): the "
                 f"best worst damping for a limit on the {pf['output']} noise, each point re-verified on the "
                 "dense grid; the gain sets of the table above marked.",

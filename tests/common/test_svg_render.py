@@ -3,6 +3,7 @@ child falls back to rendering here, an abandoned child is killed and reaped, and
 
 from __future__ import annotations
 
+import functools
 import gc
 import os
 
@@ -40,6 +41,10 @@ def test_a_child_renders_the_bytes_rendered_here():
     assert all(isinstance(p, svg_render.PendingSvg) for p in pending)
     assert [str(p) for p in pending] == [here] * 3
     assert here.startswith("data:image/svg+xml;base64,")
+
+
+def test_a_figure_made_by_the_child_is_the_figure_made_here():
+    assert str(svg_render.svg_later(functools.partial(figure, 5))) == svg_uri(figure(5))
 
 
 def test_a_failed_child_is_rendered_here_instead():
