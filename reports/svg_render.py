@@ -18,6 +18,7 @@ child fails, the figure is rendered here.
 
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import sys
@@ -102,6 +103,9 @@ def _child(fig: Any, read_end: int, write_end: int, siblings: list[int]) -> None
     then gets a broken pipe instead of waiting for a reader)."""
     code = 1
     try:
+        # a short life: no garbage collection, whose passes over the whole inherited heap would copy
+        # every page of it (copy-on-write) for nothing
+        gc.disable()
         for fd in (read_end, *siblings):
             os.close(fd)
         for s in (signal.SIGINT, signal.SIGTERM):
