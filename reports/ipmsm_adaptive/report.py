@@ -140,16 +140,9 @@ def compute(
                 "rhp_bands_pu": bands(g_rev, T, s, True),
                 "worst": _worst_point(s, w_env, wb),
             }
+        inj_title = f"{drive.name}: {review} with HF injection (averaged (19)-(22))"
         inj_block: Any = Figure(
-            svg_later(
-                functools.partial(
-                    plot_pole_maps,
-                    inj_sweeps,
-                    wb,
-                    f"{drive.name}: {review} with HF injection (averaged (19)-(22))",
-                    inj_lows,
-                )
-            ),
+            svg_later(functools.partial(plot_pole_maps, inj_sweeps, wb, inj_title, inj_lows)),
             "The gains under review with the averaged HF injection (19)-(22), at ±T_N, active for "
             "|ω| < ω_Δ: compare the right-half-plane bands with and without it in the table above.",
         )
