@@ -20,8 +20,10 @@ from __future__ import annotations
 
 import gc
 import os
+import select
 import signal
 import sys
+import time
 import weakref
 from typing import Any
 
@@ -29,6 +31,7 @@ from sensorless.reports.document import svg_uri
 
 PREFIX = b"data:image/svg+xml;base64,"
 _running: list[weakref.ref[PendingSvg]] = []  # children not yet collected, oldest first
+TIMEOUT_S = 120.0  # far above any figure's ~1 s; past it the child is killed and the figure drawn here
 
 
 def forking() -> bool:
@@ -64,18 +67,23 @@ class PendingSvg:
 
 
 def _collect(pid: int, fd: int) -> bytes:
-    """Everything the child wrote, once it has exited; b"" if it failed."""
+    """Everything the child wrote, once it has exited; b"" if it failed or outlived TIMEOUT_S (a
+    child forked from a process with threads could, in principle, wait on a lock that no thread of
+    its own will release: then the figure is rendered here instead of the report hanging)."""
     chunks, whole = [], False
+    deadline = time.monotonic() + TIMEOUT_S
     try:
-        while chunk := os.read(fd, 1 << 20):
+        while (left := deadline - time.monotonic()) > 0 and select.select([fd], [], [], left)[0]:
+            if not (chunk := os.read(fd, 1 << 20)):
+                whole = True
+                break
             chunks.append(chunk)
-        whole = True
     finally:
-        if not whole:  # interrupted while waiting: the child's work is not wanted
+        if not whole:  # interrupted or too slow: the child's work is not wanted
             _kill(pid)
         os.close(fd)
         _, status = os.waitpid(pid, 0)
-    return b"".join(chunks) if os.waitstatus_to_exitcode(status) == 0 else b""
+    return b"".join(chunks) if whole and os.waitstatus_to_exitcode(status) == 0 else b""
 
 
 def _kill(pid: int) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import gc
 import os
+import time
 
 import matplotlib
 
@@ -73,3 +74,23 @@ def test_no_fork_renders_here(monkeypatch):
     monkeypatch.setenv("SENSORLESS_NO_FORK", "1")
     out = svg_render.svg_later(figure(4))
     assert isinstance(out, str) and out == svg_uri(figure(4))
+
+
+def test_a_hung_child_is_killed_and_rendered_here(monkeypatch):
+    monkeypatch.setattr(svg_render, "TIMEOUT_S", 0.5)
+    fig = figure(6)
+    expected = svg_uri(figure(6))
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # a child that holds its pipe open and never writes (a deadlock after fork)
+        try:
+            os.close(read_end)
+            time.sleep(3600)
+        finally:
+            os._exit(0)
+    os.close(write_end)
+    p = svg_render.PendingSvg(fig)
+    p._child = (pid, read_end)
+    assert str(p) == expected
+    with pytest.raises(ChildProcessError):  # killed and reaped
+        os.waitpid(pid, os.WNOHANG)
