@@ -49,6 +49,7 @@ from sensorless.symbolic.ipmsm_adaptive.injection import (
 )
 from sensorless.symbolic.ipmsm_adaptive.observer import ObserverRates, observer_rates, speed_adaptation
 from sensorless.symbolic.pmsm import PmsmParams, current_from_flux, flux_from_current
+from sensorless.symbolic.pmsm_drive import MEAS_FIELDS
 from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, guarded
 
 NAME = "ipmsm_adaptive"
@@ -73,12 +74,7 @@ STATE = (
     REJECTS,
 )
 
-MEAS = (
-    Field("i_alpha", "A", "stator current at t_k, stationary frame"),
-    Field("i_beta", "A", "stator current at t_k, stationary frame"),
-    Field("u_alpha", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
-    Field("u_beta", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
-)
+MEAS = MEAS_FIELDS  # what the shared PMSM drive loop feeds the step (symbolic/pmsm_drive.py)
 
 PARAMS = (
     Field("R_s", "ohm", "stator resistance estimate", "positive"),

@@ -48,6 +48,7 @@ from typing import NamedTuple
 
 import casadi as ca
 from sensorless.symbolic.frames import J, Sym, rot, wrap_angle
+from sensorless.symbolic.pmsm_drive import MEAS_FIELDS
 from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, guarded
 
 NAME = "pmsm_pll"
@@ -67,12 +68,7 @@ STATE = (
 )
 N_OBS = len(STATE) - 1  # the observer's own states
 
-MEAS = (
-    Field("i_alpha", "A", "stator current at t_k, stationary frame"),
-    Field("i_beta", "A", "stator current at t_k, stationary frame"),
-    Field("u_alpha", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
-    Field("u_beta", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
-)
+MEAS = MEAS_FIELDS  # what the shared PMSM drive loop feeds the step (symbolic/pmsm_drive.py)
 
 PARAMS = (
     Field("R_s", "ohm", "stator resistance estimate", "positive"),
