@@ -53,6 +53,30 @@ class PmsmDrive:
     carrier_band: float = 0.0  # its band-stop bandwidth [rad/s]
 
 
+def from_sections(motor: Any, estimate: Any, control: Any, **carrier: float) -> PmsmDrive:
+    """The numbers of the loop from a drive's sections: ``motor`` (R_s, L_d, L_q, psi_pm, p, J),
+    ``estimate`` (R_s, L_d, L_q, psi_pm) and ``control`` (design/pmsm_schema.py's PmsmControl);
+    ``carrier``: the ``carrier`` and ``carrier_band`` of an observer that injects one."""
+    return PmsmDrive(
+        R_s=motor.R_s,
+        L_d=motor.L_d,
+        L_q=motor.L_q,
+        psi_pm=motor.psi_pm,
+        p=motor.p,
+        J=motor.J,
+        R_s_hat=estimate.R_s,
+        L_d_hat=estimate.L_d,
+        L_q_hat=estimate.L_q,
+        psi_pm_hat=estimate.psi_pm,
+        alpha_c=control.alpha_c,
+        alpha_s=control.alpha_s,
+        T_max=control.T_max,
+        u_dc=control.u_dc,
+        T_s=control.T_s,
+        **carrier,
+    )
+
+
 def _params(d: PmsmDrive, sc: Scenario, carrier: bool) -> np.ndarray:
     k = sc.estimate_scale
     q = {

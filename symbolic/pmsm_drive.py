@@ -241,8 +241,15 @@ def loop_function(
     )
 
 
-# what the loop feeds the observer's step as ``meas``, in this order (the runtime contract's MEAS fields)
-MEAS = ("i_alpha", "i_beta", "u_alpha", "u_beta")
+# what the loop feeds the observer's step as ``meas``, in this order: the runtime contract's MEAS fields
+# of every observer that runs in it (the current sampled at t_k, the voltage held over the period)
+MEAS_FIELDS = (
+    Field("i_alpha", "A", "stator current at t_k, stationary frame"),
+    Field("i_beta", "A", "stator current at t_k, stationary frame"),
+    Field("u_alpha", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
+    Field("u_beta", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
+)
+MEAS = tuple(f.name for f in MEAS_FIELDS)
 
 # the operating point a PMSM observer's ``steady_state`` Function takes (RuntimeObserver.steady_state)
 OPERATING_POINT = (

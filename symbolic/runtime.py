@@ -149,6 +149,26 @@ class RuntimeObserver:
         return {f.name: v[k] for k, f in enumerate(getattr(self, vector))}
 
 
+def core_function(
+    name: str,
+    step: Callable[..., tuple[Sym, Sym]],
+    state: tuple[Field, ...],
+    meas: tuple[Field, ...],
+    params: tuple[Field, ...],
+    lam: tuple[Field, ...] = (),
+) -> ca.Function:
+    """A family's step as the contract's Function ``name``: (x, meas, p, lam) -> (x_next, y) (module
+    docstring), from ``step(x, meas, p) -> (x_next, y)`` on symbols of the vectors' sizes, or
+    ``step(x, meas, p, lam)`` where the observer has scheduled gains (``lam`` fields). x_next and y
+    are one graph, so that the outputs share the step's work (what ``RuntimeObserver.core`` returns)."""
+    x = ca.SX.sym("x", len(state))
+    m = ca.SX.sym("meas", len(meas))
+    p = ca.SX.sym("p", len(params))
+    g = ca.SX.sym("lam", len(lam))
+    x_next, y = step(x, m, p, g) if lam else step(x, m, p)
+    return ca.Function(name, [x, m, p, g], ca.cse([x_next, y]), ["x", "meas", "p", "lam"], ["x_next", "y"])
+
+
 @functools.cache
 def _bounds_function(name: str, state: tuple[Field, ...], params: tuple[Field, ...]) -> ca.Function:
     p = ca.SX.sym("p", len(params))

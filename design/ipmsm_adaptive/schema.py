@@ -16,6 +16,7 @@ from typing import Any
 
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.envelope import TuningSettings, load_tuning
+from sensorless.design.pmsm_schema import PmsmControl, load_motor
 from sensorless.design.units import DriveFileError, UnknownName, parse_quantity
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
@@ -82,14 +83,9 @@ class Estimate:
 
 
 @dataclass(frozen=True)
-class Control:
-    """Control-system settings (Table II and Section VI)."""
+class Control(PmsmControl):
+    """Control-system settings (Table II and Section VI): the shared drive loop's, and the sensor noise."""
 
-    T_s: float = q("time", doc="sampling period [s]")
-    alpha_c: float = q("angular", doc="current-control bandwidth [rad/s]")
-    alpha_s: float = q("angular", doc="speed-control bandwidth [rad/s]")
-    T_max: float = q("torque", doc="electromagnetic torque limit [N m]")
-    u_dc: float = q("voltage", doc="nominal DC-link voltage [V]")
     # optional: the current sensor's noise, per axis, rms, in each sample at T_s (design/noise.py)
     i_noise: float = field(
         default=0.0, metadata={"dim": "current", "check": "positive", "doc": "current-sensor noise [A rms]"}
@@ -317,9 +313,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     head = drive_header(data, file)
     rating = load_section(Rating, table(data, "rating", file), file, "rating")
     base = load_section(Base, table(data, "base", file), file, "base")
-    motor = load_section(Motor, table(data, "motor", file), file, "motor")
-    if motor.p < 1:
-        raise DriveFileError(file, "motor.p", f"non-physical value {motor.p}: must be >= 1")
+    motor = load_motor(Motor, data, file)
     estimate = load_section(Estimate, table(data, "estimate", file), file, "estimate")
     rel = {"pu": base.w, "R_s_hat": estimate.R_s, "Rs_hat": estimate.R_s}
     control = _load_control(table(data, "control", file), file, rel, base)

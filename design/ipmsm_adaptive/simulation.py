@@ -12,7 +12,7 @@ from typing import Any
 
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive.runtime import drive_gains, runtime_setup
-from sensorless.design.pmsm_drive import PmsmDrive, loop_setup
+from sensorless.design.pmsm_drive import PmsmDrive, from_sections, loop_setup
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup, SimulationError
@@ -38,23 +38,10 @@ def scaled_setup(setup: RuntimeSetup, sc: Scenario) -> RuntimeSetup:
 
 def pmsm_drive(drive: Any) -> PmsmDrive:
     """The numbers of the drive loop from a drive of this family."""
-    m, e, c = drive.motor, drive.estimate, drive.control
-    return PmsmDrive(
-        R_s=m.R_s,
-        L_d=m.L_d,
-        L_q=m.L_q,
-        psi_pm=m.psi_pm,
-        p=m.p,
-        J=m.J,
-        R_s_hat=e.R_s,
-        L_d_hat=e.L_d,
-        L_q_hat=e.L_q,
-        psi_pm_hat=e.psi_pm,
-        alpha_c=c.alpha_c,
-        alpha_s=c.alpha_s,
-        T_max=c.T_max,
-        u_dc=c.u_dc,
-        T_s=c.T_s,
+    return from_sections(
+        drive.motor,
+        drive.estimate,
+        drive.control,
         carrier=drive.injection.w_c,
         carrier_band=drive.runtime.w_bp,
     )

@@ -49,7 +49,8 @@ from sensorless.symbolic.ipmsm_adaptive.injection import (
 )
 from sensorless.symbolic.ipmsm_adaptive.observer import ObserverRates, observer_rates, speed_adaptation
 from sensorless.symbolic.pmsm import PmsmParams, current_from_flux, flux_from_current
-from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, guarded
+from sensorless.symbolic.pmsm_drive import MEAS_FIELDS
+from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, core_function, guarded
 
 NAME = "ipmsm_adaptive"
 DISCRETIZATIONS = ("zoh", "heun", "euler", "heun-model")  # the first is the default (module docstring)
@@ -73,12 +74,7 @@ STATE = (
     REJECTS,
 )
 
-MEAS = (
-    Field("i_alpha", "A", "stator current at t_k, stationary frame"),
-    Field("i_beta", "A", "stator current at t_k, stationary frame"),
-    Field("u_alpha", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
-    Field("u_beta", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
-)
+MEAS = MEAS_FIELDS  # what the shared PMSM drive loop feeds the step (symbolic/pmsm_drive.py)
 
 PARAMS = (
     Field("R_s", "ohm", "stator resistance estimate", "positive"),
@@ -233,12 +229,11 @@ def _step(discretization: str, x: Sym, meas: Sym, p: Sym, lam: Sym) -> tuple[Sym
     return guarded(x, p, STATE, PARAMS, cand=cand, coast=coast, reset=x0)
 
 
-def _symbols(n_lam: int = 2) -> dict[str, ca.SX]:
+def _symbols() -> dict[str, ca.SX]:
     return {
         "x": ca.SX.sym("x", len(STATE)),
         "meas": ca.SX.sym("meas", len(MEAS)),
         "p": ca.SX.sym("p", len(PARAMS)),
-        "lam": ca.SX.sym("lam", n_lam),
     }
 
 
@@ -249,15 +244,8 @@ def observer_step_core(discretization: str = DISCRETIZATIONS[0]) -> ca.Function:
     This is what the C generator emits; the gain schedule becomes a C function of its own that the
     generated ``*_step`` calls with the state ``w_hat``.
     """
-    s = _symbols()
-    x_next, y = _step(discretization, s["x"], s["meas"], s["p"], s["lam"])
-    return ca.Function(
-        f"{NAME}_core_{discretization.replace('-', '_')}",
-        [s["x"], s["meas"], s["p"], s["lam"]],
-        ca.cse([x_next, y]),  # one graph: y shares the step's work
-        ["x", "meas", "p", "lam"],
-        ["x_next", "y"],
-    )
+    step = functools.partial(_step, discretization)
+    return core_function(f"{NAME}_core_{discretization.replace('-', '_')}", step, STATE, MEAS, PARAMS, LAM)
 
 
 @functools.cache

@@ -63,7 +63,16 @@ from sensorless.symbolic.pmac_reduced_order.observer import (
     observer_rhs,
     speed_sign,
 )
-from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, all_within, guarded
+from sensorless.symbolic.runtime import (
+    REJECTS,
+    RESET,
+    VALID,
+    Field,
+    RuntimeObserver,
+    all_within,
+    core_function,
+    guarded,
+)
 
 DISCRETIZATIONS: dict[str, str] = {
     "euler": "forward Euler at the interval start",
@@ -268,18 +277,9 @@ def runtime_observer(orders: tuple[int, ...] = (1,)) -> RuntimeObserver:
         if discretization not in DISCRETIZATIONS:
             known = ", ".join(DISCRETIZATIONS)
             raise ValueError(f"unknown discretization {discretization!r} (known: {known})")
-        x = ca.SX.sym("x", len(STATE))
-        meas = ca.SX.sym("meas", len(MEAS))
-        p = ca.SX.sym("p", len(fields))
-        lam = ca.SX.sym("lam", 0)
-        x_next, y = _runtime_step(discretization, orders, x, meas, p)
-        return ca.Function(
-            f"pmac_reduced_order_{tag}_core_{discretization.replace('-', '_')}",
-            [x, meas, p, lam],
-            ca.cse([x_next, y]),
-            ["x", "meas", "p", "lam"],
-            ["x_next", "y"],
-        )
+        step = functools.partial(_runtime_step, discretization, orders)
+        name = f"pmac_reduced_order_{tag}_core_{discretization.replace('-', '_')}"
+        return core_function(name, step, STATE, MEAS, fields)
 
     @functools.cache
     def initial_state() -> ca.Function:

@@ -23,7 +23,7 @@ import pytest
 from families.pll import design
 from families.pll.design import FAMILY
 from families.pll.symbolic import OUTPUTS, STATE
-from helpers.fuzz import fuzz, pmsm_steady_segments
+from helpers.fuzz import fuzz, pmsm_steady_segments, steady_rows
 from sensorless.design.drive import load_drive, preset_names
 from sensorless.design.family import ObserverFamily
 from sensorless.design.gain_table import read_gain_table
@@ -240,11 +240,7 @@ def test_generated_c_keeps_its_promises_under_hostile_input_and_recovers(drive, 
     instead, e.g. at 0.3 p.u. from w_i slightly below 0 (its speed sign resolves the 180-degree
     ambiguity of (2) wrongly): a property of this family's PLL, which the fuzzing found, not of the
     runtime contract."""
-    rng = np.random.default_rng(2000)
-    rows = [
-        (rng.choice([-1, 1]) * rng.uniform(0.5, 1.0) * drive.w_base, rng.uniform(-1, 1) * drive.T_N, th)
-        for th in rng.uniform(-np.pi, np.pi, 20)
-    ]
+    rows = steady_rows(np.random.default_rng(2000), 20, (0.5, 1.0), drive.w_base, drive.T_N)
     m = drive.motor
     segments = pmsm_steady_segments((m.R_s, m.L, m.L, m.psi_pm, m.p), drive.T_s, rows, PLL_RECOVER + 1000)
     r = fuzz(

@@ -296,6 +296,31 @@ def fuzz(
     return {k: float(v) for k, v in (item.split("=") for item in r.stdout.split())}
 
 
+def fuzz_and_check(setup, segments: np.ndarray, *, recover: int, **options) -> dict[str, float]:
+    """:func:`fuzz` (``options``: its keyword arguments) held to what every built-in family's fuzz test
+    requires: at least 10^6 steps and 200 clean segments, the guard and the self-reset exercised (more
+    than 10 % of the samples rejected, more than 100 resets), every required recovery within
+    ``recover`` samples. Returns the harness's counts for the family's own checks."""
+    r = fuzz(setup, segments, recover=recover, **options)
+    assert r["steps"] >= 1_000_000 and r["segments"] >= 200
+    assert r["rejected"] > 0.1 * r["steps"] and r["resets"] > 100  # the guard and the reset were exercised
+    assert r["recovery_max"] <= recover
+    return r
+
+
+def steady_rows(
+    rng: np.random.Generator, n: int, speeds: tuple[float, float], w_base: float, T_N: float
+) -> list[tuple[float, float, float]]:
+    """``n`` random operating points (w, T_e, theta_0) for :func:`pmsm_steady_segments`: |w| uniform in
+    ``speeds`` (p.u. of ``w_base``) in either direction, T_e uniform in -T_N..T_N (motoring and
+    generating), theta_0 uniform in [-pi, pi). Drawn from ``rng`` in that order (the angles first), so
+    that a test's seed fixes its segments."""
+    return [
+        (rng.choice([-1, 1]) * rng.uniform(*speeds) * w_base, rng.uniform(-1, 1) * T_N, th)
+        for th in rng.uniform(-np.pi, np.pi, n)
+    ]
+
+
 def pmsm_steady_segments(
     motor, T_s: float, rows: list[tuple[float, float, float]], length: int
 ) -> np.ndarray:

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from helpers.fuzz import CC, fuzz, pmsm_steady_segments
+from helpers.fuzz import CC, fuzz_and_check, pmsm_steady_segments, steady_rows
 from sensorless.design.ipmsm_adaptive import FAMILY
 
 pytestmark = pytest.mark.skipif(CC is None, reason="no host C compiler (gcc/cc) on PATH")
@@ -22,11 +22,7 @@ X_EPS_HELD = 10.0  # rad/s: the injection integral that only the injection corre
 def segments(drive):
     """40 clean segments of the true motor in steady state: |w| 0.3-1 p.u. in both directions, torque
     -T_N..T_N (motoring and generating), random angle; RECOVER + 1000 samples each."""
-    rng = np.random.default_rng(20080201)
-    rows = [
-        (rng.choice([-1, 1]) * rng.uniform(0.3, 1.0) * drive.base.w, rng.uniform(-1, 1) * drive.T_N, th)
-        for th in rng.uniform(-np.pi, np.pi, 40)
-    ]
+    rows = steady_rows(np.random.default_rng(20080201), 40, (0.3, 1.0), drive.base.w, drive.T_N)
     m = drive.motor
     return pmsm_steady_segments((m.R_s, m.L_d, m.L_q, m.psi_pm, m.p), drive.control.T_s, rows, RECOVER + 1000)
 
@@ -44,7 +40,7 @@ def test_hostile_samples_keep_every_range_and_bound_and_the_observer_recovers(
     minority; with the injection off every segment is."""
     setup = FAMILY.runtime(drive, FAMILY.gains(drive))
     setup = dataclasses.replace(setup, params={**setup.params, "injection": injection})
-    r = fuzz(
+    r = fuzz_and_check(
         setup,
         segments,
         precision=precision,
@@ -55,7 +51,4 @@ def test_hostile_samples_keep_every_range_and_bound_and_the_observer_recovers(
         work=tmp_path,
         held={"x_eps": X_EPS_HELD} if injection else None,
     )
-    assert r["steps"] >= 1_000_000 and r["segments"] >= 200
-    assert r["rejected"] > 0.1 * r["steps"] and r["resets"] > 100  # the guard and the reset were exercised
-    assert r["recovery_max"] <= RECOVER
     assert r["held_segments"] <= (0.3 * r["segments"] if injection else 0)

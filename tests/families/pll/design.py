@@ -32,7 +32,8 @@ from sensorless.design.drive_file import check_keys, drive_header, load_section,
 from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTable, GainTableError
 from sensorless.design.linearization import Linearization
-from sensorless.design.pmsm_drive import PmsmDrive, loop_setup
+from sensorless.design.pmsm_drive import PmsmDrive, from_sections, loop_setup
+from sensorless.design.pmsm_schema import PmsmControl, load_motor
 from sensorless.design.poles import eigvals_batched
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
@@ -67,6 +68,13 @@ class Motor:
     psi_pm: float = q("flux", doc="PM flux [V s]")
     J: float = q("inertia", doc="total inertia [kg m^2]")
 
+    @property
+    def L_d(self) -> float:
+        """L: the d- and q-axis inductances of a non-salient motor (what the shared drive loop reads)."""
+        return self.L
+
+    L_q = L_d
+
 
 @dataclass(frozen=True)
 class Estimate:
@@ -76,16 +84,7 @@ class Estimate:
     L: float = q("inductance", doc="inductance estimate [H]")
     psi_pm: float = q("flux", doc="PM flux estimate [V s]")
 
-
-@dataclass(frozen=True)
-class Control:
-    """Sampling and the controllers of the shared PMSM drive loop."""
-
-    T_s: float = q("time", doc="sampling period [s]")
-    alpha_c: float = q("angular", doc="current-control bandwidth [rad/s]")
-    alpha_s: float = q("angular", doc="speed-control bandwidth [rad/s]")
-    T_max: float = q("torque", doc="torque limit [N m]")
-    u_dc: float = q("voltage", doc="DC-link voltage [V]")
+    L_d = L_q = Motor.L_d  # one L for both axes, as in the true motor
 
 
 @dataclass(frozen=True)
@@ -118,7 +117,7 @@ class PllDrive:
     rating: Rating
     motor: Motor
     estimate: Estimate
-    control: Control
+    control: PmsmControl
     observer: Observer
     envelope: Envelope
     digest: str = ""
@@ -153,9 +152,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive
     check_keys(data, sections, file, "")
     head = drive_header(data, file)
     rating = load_section(Rating, table(data, "rating", file), file, "rating")
-    motor = load_section(Motor, table(data, "motor", file), file, "motor")
-    if motor.p < 1:
-        raise DriveFileError(file, "motor.p", f"non-physical value {motor.p}: must be >= 1")
+    motor = load_motor(Motor, data, file)
     w_base = rating.n_N * math.pi / 30 * motor.p
     rel = {"pu": w_base}
     env_t = table(data, "envelope", file)
@@ -180,7 +177,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive
         rating=rating,
         motor=motor,
         estimate=load_section(Estimate, table(data, "estimate", file), file, "estimate"),
-        control=load_section(Control, table(data, "control", file), file, "control"),
+        control=load_section(PmsmControl, table(data, "control", file), file, "control"),
         observer=load_section(Observer, table(data, "observer", file), file, "observer", rel),
         envelope=envelope,
         digest=digest,
@@ -338,24 +335,7 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
 # --------------------------------------------------------------------------------------------------
 def pmsm_drive(drive: PllDrive) -> PmsmDrive:
     """The numbers of the shared PMSM drive loop (L_d = L_q = L)."""
-    m, e, c = drive.motor, drive.estimate, drive.control
-    return PmsmDrive(
-        R_s=m.R_s,
-        L_d=m.L,
-        L_q=m.L,
-        psi_pm=m.psi_pm,
-        p=m.p,
-        J=m.J,
-        R_s_hat=e.R_s,
-        L_d_hat=e.L,
-        L_q_hat=e.L,
-        psi_pm_hat=e.psi_pm,
-        alpha_c=c.alpha_c,
-        alpha_s=c.alpha_s,
-        T_max=c.T_max,
-        u_dc=c.u_dc,
-        T_s=c.T_s,
-    )
+    return from_sections(drive.motor, drive.estimate, drive.control)
 
 
 def simulation(drive: PllDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:

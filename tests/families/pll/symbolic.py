@@ -48,7 +48,8 @@ from typing import NamedTuple
 
 import casadi as ca
 from sensorless.symbolic.frames import J, Sym, rot, wrap_angle
-from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, guarded
+from sensorless.symbolic.pmsm_drive import MEAS_FIELDS
+from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, core_function, guarded
 
 NAME = "pmsm_pll"
 DISCRETIZATIONS = ("euler",)
@@ -67,12 +68,7 @@ STATE = (
 )
 N_OBS = len(STATE) - 1  # the observer's own states
 
-MEAS = (
-    Field("i_alpha", "A", "stator current at t_k, stationary frame"),
-    Field("i_beta", "A", "stator current at t_k, stationary frame"),
-    Field("u_alpha", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
-    Field("u_beta", "V", "stator voltage applied over [t_k, t_k + T_s], stationary frame"),
-)
+MEAS = MEAS_FIELDS  # what the shared PMSM drive loop feeds the step (symbolic/pmsm_drive.py)
 
 PARAMS = (
     Field("R_s", "ohm", "stator resistance estimate", "positive"),
@@ -184,18 +180,8 @@ def _step(discretization: str, x: Sym, meas: Sym, p_vec: Sym) -> tuple[Sym, Sym]
 @functools.cache
 def observer_step_core(discretization: str = "euler") -> ca.Function:
     """(x, meas, p, lam) -> (x_next, y); nothing is scheduled (lam is empty)."""
-    x = ca.SX.sym("x", len(STATE))
-    meas = ca.SX.sym("meas", len(MEAS))
-    p = ca.SX.sym("p", len(PARAMS))
-    lam = ca.SX.sym("lam", 0)
-    x_next, y = _step(discretization, x, meas, p)
-    return ca.Function(
-        f"{NAME}_core_{discretization}",
-        [x, meas, p, lam],
-        ca.cse([x_next, y]),
-        ["x", "meas", "p", "lam"],
-        ["x_next", "y"],
-    )
+    step = functools.partial(_step, discretization)
+    return core_function(f"{NAME}_core_{discretization}", step, STATE, MEAS, PARAMS)
 
 
 @functools.cache
