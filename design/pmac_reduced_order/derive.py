@@ -1,30 +1,33 @@
 """The complete drive file of the reduced-order observer from a minimal one, each value with its rule.
 
-A minimal drive file gives ``[drive]`` (name, kind), ``[motor]`` in datasheet terms (design/motor_data.py;
-the EMF is sinusoidal unless the file gives ``harmonics`` and ``Phi``), ``[rating]`` n_N and T_N or I_N,
-and ``[inverter]`` u_dc and f_s (the sampling frequency). :func:`document` fills in every other key of
-the schema (schema.py) by the rules below, scaled by the motor and the sampling rate, and keeps every
-key the file does give (a full drive file passes through unchanged). The loader reads the document's
-data, so a minimal file and the complete file ``sensorless init`` writes from it load to the same
-drive. Rules, reasons and the paper's numbers: docs/families/pmac_reduced_order.md ("Derived drive
-files"); the family's conventions (mechanical reading of eq. (2), power-invariant alpha-beta) there too.
+A minimal drive file gives ``[drive]`` (name, kind), ``[motor]`` in datasheet terms (motor.py,
+design/motor_data.py; the EMF is sinusoidal unless the file gives ``harmonics`` and ``Phi``),
+``[rating]`` n_N and T_N or I_N, and ``[inverter]`` u_dc and f_s (the sampling frequency).
+:func:`document` fills in every other key of the schema (schema.py) by the rules below, scaled by the
+motor and the sampling rate, and keeps every key the file does give (a full drive file passes through
+unchanged). The loader reads the document's data, so a minimal file and the complete file ``sensorless
+init`` writes from it load to the same drive. Rules, reasons and the paper's numbers:
+docs/families/pmac_reduced_order.md ("Derived drive files"); speeds there are mechanical r/min, eq. (2)
+in the mechanical reading, Phi_1 in V s per mechanical radian (motor.py).
 
-- ``[motor]``: R = R_s, L = L_s (per phase of the equivalent wye: the alpha-beta model (1) has the same
-  R and L); reading "mechanical"; Phi_1 = sqrt(3/2) p psi_pm, V s per mechanical radian (the EMF (3)
-  of the power-invariant alpha-beta frame, whose amplitude is sqrt(3/2) times the phase peak; T_e =
-  phi . i then is 1.5 p psi_pm i_peak); harmonics [1]; B = 0 (viscosity is part of the load the observer
-  estimates, Section II).
+- ``[motor]``: R = R_s, L = L_s (per phase, equivalent wye); reading "mechanical"; Phi_1 = sqrt(3/2) p
+  psi_pm; harmonics [1]; B = 0 (viscosity is part of the load the observer estimates, Section II).
 - ``[rating]``: P_N = T_N 2 pi n_N / 60; T_N from I_N: 1.5 p psi_pm sqrt(2) I_N (the fundamental).
 - ``[estimate]``: the motor's values (exact estimates).
-- ``[observer]``: the error dynamics (9)-(10) linearized have the poles -g and the roots of
-  s^2 + g s + Gamma (Phi_1/J)^2 (the family's hand derivation). g = G_TS / T_s: the paper's g T_s
-  (400 1/s x 180 us = 0.072), which sets the noise the estimates carry (it grows with g T_s) and the
-  discrete step's accuracy. The slow (load-torque) pole s_T = min(S_TAU / tau_m, g/4), tau_m = J w_N /
-  T_N: the paper's s_T tau_m (10.64 1/s x 4.56 s = 48.55), at most g/4 (both roots real, well apart);
-  Gamma = s_T (g - s_T) (J / Phi_1)^2 puts that root there. On the paper's motor: 400 1/s, 1.000e4.
+- ``[observer]``: linearized, the error dynamics (9)-(10) have the poles -g and the roots of
+  s^2 + g s + Gamma (Phi_1/J)^2 (hand derivation, docs). tau_m = J w_N / T_N (mechanical time
+  constant, rated speed at rated torque).
+  g = max(0.072/T_s, 50/tau_m), at most 0.2/T_s: the paper's g T_s (400 1/s x 180 us), which sets the
+  noise the estimates carry; but at least 50/tau_m, because before the load estimate catches up a load
+  step dT moves the speed estimate by dT/(J g), 1/(g tau_m) p.u. for a rated one (eq. (36): g above
+  gamma L_phi, with gamma = T_L/J and L_phi ~ 1/omega: that error must stay below the speed).
+  The slow (load-torque) root s_T = min(48.55/tau_m, g/4): the paper's s_T tau_m (10.64 1/s x 4.56 s),
+  at most g/4 (both roots real and apart, at g/4 and 3g/4); Gamma = s_T (g - s_T) (J/Phi_1)^2 puts it
+  there. On the paper's motor: g = 400 1/s, Gamma = 9999.9 A^2 s^2 (the paper: 400 and 10000).
 - ``[control]``: T_s = 1/f_s; discretization "rk2-model" (the family's default); speed loop alpha_s =
-  min(5/tau_m, s_T/5): fast enough that a rated load change does not swing the speed through zero, and
-  slower than the load estimate its feedforward relies on; T_max = 2 T_N (the preset's choice).
+  min(5/tau_m, g/10): fast enough that a rated load change does not swing the speed through zero (the
+  observer loses the rotor there), slower than the speed estimate it closes on; T_max = 2 T_N (as the
+  preset); u_dc kept for the plausibility checks.
 - ``[envelope]``: speeds -0.25, 0.025, 0.1, 0.25 and 1 p.u. of n_N (both directions, down to the
   paper's lowest test speed 0.025 p.u.), loads 0, T_N and -T_N.
 """
