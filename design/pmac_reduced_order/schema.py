@@ -284,7 +284,9 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDriv
     return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive
 
 
-def _optional(t: Mapping[str, Any], keys: tuple[str, ...], dim_of: Any, file: str, section: str) -> dict:
+def _optional(
+    t: Mapping[str, Any], keys: tuple[str, ...], dim_of: Any, file: str, section: str
+) -> dict[str, float]:
     """The optional positive quantities ``keys`` of ``t`` that are given, in SI."""
     out = {}
     for k in keys:
