@@ -2,7 +2,8 @@
 
 This module registers the family (design/registry.py finds ``FAMILY``); the drive kind string of its
 drive files is written here and nowhere else in the code. Its pieces: schema.py (drive files),
-runtime.py (gains, runtime set-up), linearize.py (continuous and discrete error dynamics),
+derive.py (complete drive files from minimal ones, ``sensorless init``), runtime.py (gains, runtime
+set-up), linearize.py (continuous and discrete error dynamics),
 discretization.py (the sampling study), simulation.py (Fig. 1 for a scenario), presets/ and scenarios/.
 Equations: symbolic/pmac_reduced_order/. Theory and choices: docs/families/pmac_reduced_order.md.
 """
@@ -34,6 +35,12 @@ class ReducedOrderObserver(ObserverFamily):
 
     def load(self, data: Any, file: str, digest: str) -> schema.PmacDrive:
         return schema.load(data, file, digest, self.kind)
+
+    def document(self, data: Any, file: str) -> Any:
+        """The complete drive document of a (minimal) drive file (derive.py; ``sensorless init``)."""
+        from sensorless.design.pmac_reduced_order.derive import document
+
+        return document(data, file)
 
     def gains(
         self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""

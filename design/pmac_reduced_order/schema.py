@@ -35,10 +35,19 @@ READINGS = {
 
 @dataclass(frozen=True)
 class PmacRating:
-    """Nameplate data (Section IV); informational, and the per-unit speed base (1 p.u. = n_N)."""
+    """Nameplate data (Section IV); informational, and the per-unit speed base (1 p.u. = n_N). T_N, I_N
+    and f_N are optional (0: not given): a minimal drive file's rating (derive.py), checked against
+    P_N and n_N (T_N within 1 %) and by the plausibility checks (design/motor_data.py)."""
 
     P_N: float = q("power", doc="nominal power [W]")
     n_N: float = q("mech_speed", doc="nominal mechanical speed [r/min]")
+    T_N: float = field(default=0.0, metadata={"dim": "torque", "doc": "rated torque [N m]"})
+    I_N: float = field(default=0.0, metadata={"dim": "current", "doc": "rated current [A rms]"})
+    f_N: float = field(default=0.0, metadata={"dim": "frequency", "doc": "rated frequency [Hz]"})
+
+
+RATING_OPTIONAL = ("T_N", "I_N", "f_N")
+T_N_TOLERANCE = 0.01  # a given T_N against P_N / (2 pi n_N / 60)
 
 
 @dataclass(frozen=True)
@@ -95,6 +104,9 @@ class PmacControl:
     i_noise: float = field(
         default=0.0, metadata={"dim": "current", "check": "positive", "doc": "current-sensor noise [A rms]"}
     )
+    # optional: the DC-link voltage (0: not given); the plausibility checks only (the simulated inverter's
+    # limit stays twice the EMF at n_N, simulation.py)
+    u_dc: float = field(default=0.0, metadata={"dim": "voltage", "doc": "DC-link voltage [V]"})
 
 
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N, base speed
@@ -123,6 +135,7 @@ class PmacDrive:
     control: PmacControl
     envelope: Envelope
     digest: str = ""
+    warnings: tuple[str, ...] = ()  # plausibility warnings (design/motor_data.py), printed by every command
 
     @property
     def T_N(self) -> float:
@@ -176,7 +189,7 @@ def _list(table: Mapping[str, Any], key: str, file: str, section: str) -> list[A
     return v
 
 
-def _harmonics(
+def harmonic_series(
     table: Mapping[str, Any], file: str, section: str
 ) -> tuple[tuple[int, ...], tuple[float, ...]]:
     """Orders and amplitudes of eq. (4), validated: odd, distinct, fundamental first and positive."""
@@ -243,7 +256,7 @@ def _phi_magnitude(orders: tuple[int, ...]) -> ca.Function:
 
 def _with_harmonics(cls: type, table: Mapping[str, Any], file: str, section: str) -> Any:
     obj = load_section(cls, table, file, section, skip=("harmonics", "Phi"))
-    orders, Phi = _harmonics(table, file, section)
+    orders, Phi = harmonic_series(table, file, section)
     return dataclasses.replace(obj, harmonics=orders, Phi=Phi)
 
 
@@ -257,11 +270,52 @@ def _quantities(table: Mapping[str, Any], key: str, dim: str, file: str, section
     return tuple(out)
 
 
+SECTIONS = ("drive", "rating", "motor", "estimate", "observer", "control", "envelope")
+
+
 def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
-    """Validate a parsed drive TOML of this family."""
-    check_keys(data, ("drive", "rating", "motor", "estimate", "observer", "control", "envelope"), file, "")
+    """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
+    the complete data is loaded strictly and checked for plausibility (design/motor_data.py)."""
+    from sensorless.design.pmac_reduced_order.derive import check_plausibility, document
+
+    doc = document(data, file)
+    drive = load_complete(doc.data(), file, digest, kind)
+    warnings = check_plausibility(drive, doc.context)
+    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive
+
+
+def _optional(
+    t: Mapping[str, Any], keys: tuple[str, ...], dim_of: Any, file: str, section: str
+) -> dict[str, float]:
+    """The optional positive quantities ``keys`` of ``t`` that are given, in SI."""
+    out = {}
+    for k in keys:
+        if k in t:
+            x, rel = parse_quantity(t[k], dim_of(k), file=file, key=f"{section}.{k}")
+            if rel is not None:
+                raise DriveFileError(file, f"{section}.{k}", f"unit '{rel}' cannot be resolved here")
+            if not x > 0:
+                raise DriveFileError(file, f"{section}.{k}", f"non-physical value {t[k]!r}: must be > 0")
+            out[k] = x
+    return out
+
+
+def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
+    """Validate the complete data of a drive TOML of this family (every section present)."""
+    check_keys(data, SECTIONS, file, "")
     head = drive_header(data, file)
-    rating = load_section(PmacRating, table(data, "rating", file), file, "rating")
+    rating_t = table(data, "rating", file)
+    rating = load_section(PmacRating, rating_t, file, "rating", skip=RATING_OPTIONAL)
+    dims = {f.name: f.metadata["dim"] for f in dataclasses.fields(PmacRating)}
+    rating = dataclasses.replace(rating, **_optional(rating_t, RATING_OPTIONAL, dims.get, file, "rating"))
+    T_P = rating.P_N / (rating.n_N * math.pi / 30)
+    if rating.T_N and abs(rating.T_N / T_P - 1) > T_N_TOLERANCE:
+        raise DriveFileError(
+            file,
+            "rating.T_N",
+            f"{rating.T_N:g} N m, but P_N / (2 pi n_N / 60) = {T_P:.5g} N m (tolerance "
+            f"{100 * T_N_TOLERANCE:g} %): give P_N or T_N",
+        )
     motor = _with_harmonics(PmacMotor, table(data, "motor", file), file, "motor")
     if motor.p < 1:
         raise DriveFileError(file, "motor.p", f"non-physical value {motor.p}: must be >= 1")
@@ -272,7 +326,10 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDriv
     estimate = _with_harmonics(PmacEstimate, table(data, "estimate", file), file, "estimate")
     observer = load_section(PmacObserver, table(data, "observer", file), file, "observer")
     control_t = table(data, "control", file)
-    control = load_section(PmacControl, control_t, file, "control", skip=("i_noise",))
+    control = load_section(PmacControl, control_t, file, "control", skip=("i_noise", "u_dc"))
+    control = dataclasses.replace(
+        control, **_optional(control_t, ("u_dc",), lambda k: "voltage", file, "control")
+    )
     if control.discretization not in DISCRETIZATIONS:
         raise DriveFileError(
             file,
