@@ -77,7 +77,8 @@ class GainSet:
 @dataclass(frozen=True)
 class DriveScales:
     """What scales a drive's generic time-domain scenarios (design/scenario.py ``generic_scenarios``):
-    its rated torque, torque limit, inertia, pole pairs, base speed and speed-loop bandwidth."""
+    its rated torque, torque limit, inertia, pole pairs, base speed and speed-loop bandwidth, and
+    whether its observer may be taken through zero speed."""
 
     T_N: float  # rated torque [N m]
     T_max: float  # torque limit [N m]
@@ -85,6 +86,9 @@ class DriveScales:
     pole_pairs: int
     w_base: float  # 1 p.u. speed [rad/s, electrical]
     alpha_s: float  # speed-loop bandwidth [rad/s]
+    # "" where the observer runs through zero speed in closed loop; else why it does not (cited): the
+    # generic speed steps then stay above zero and the report does not hold it to a reversal
+    zero_speed: str = ""
 
     @property
     def t_acc(self) -> float:

@@ -26,8 +26,9 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from sensorless.design import registry
 from sensorless.design.family import CapabilityError, GainSet
-from sensorless.design.scenario import Scenario, generic_scenarios, load_scenario
+from sensorless.design.scenario import Scenario, crosses_zero, generic_scenarios, load_scenario
 from sensorless.design.simulate import simulate
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.svg_render import svg_later
@@ -39,18 +40,42 @@ LIMITS = {
 }
 
 
+def _zero_speed(drive: Any) -> str:
+    """Why the drive's observer does not run through zero speed ("" where it does, or unknown)."""
+    try:
+        return registry.family_of(drive).scales(drive).zero_speed
+    except CapabilityError:
+        return ""
+
+
 def scenarios(drive: Any, paper: Sequence[str], user: Sequence[str] = ()) -> list[Scenario]:
     """The scenarios of a report: a preset's ``paper`` ones (its family's names), else the generic ones
-    scaled to the drive; then the user's files (``--scenario``)."""
+    scaled to the drive (without those through zero speed where the observer does not run there:
+    :func:`limitations`); then the user's files (``--scenario``), as given."""
     out: list[Scenario] = []
     if not drive.file.startswith("preset:"):
         try:
             out = generic_scenarios(drive)
         except CapabilityError:  # a family without scales: its own scenarios
             pass
+        if _zero_speed(drive):
+            out = [sc for sc in out if not crosses_zero(sc)]
     if not out:
         out = [load_scenario(name, drive) for name in paper]
     return out + [load_scenario(path, drive) for path in user]
+
+
+def limitations(drive: Any) -> list[str]:
+    """What the report's generic checks leave out for this drive, and why (the verdict and the
+    section say it): zero speed, where the family says its observer does not run through it."""
+    why = "" if drive.file.startswith("preset:") else _zero_speed(drive)
+    if not why:
+        return []
+    return [
+        "Not checked: running through zero speed (no generic reversal; the speed steps go down to 0.25 "
+        f"p.u. only). {why} A reversal can still be simulated (sensorless simulate DRIVE --scenario "
+        "reversal) or checked with --scenario FILE."
+    ]
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -169,11 +194,15 @@ def status_with(status: str, td: Sequence[dict[str, Any]]) -> str:
     return max(status, worst, key=STATUS_ORDER.index)
 
 
-def section(number: int, td: Sequence[dict[str, Any]], figs: list[Figure]) -> Section:
-    """The report section of the checks."""
+def section(
+    number: int, td: Sequence[dict[str, Any]], figs: list[Figure], left_out: Sequence[str] = ()
+) -> Section:
+    """The report section of the checks; ``left_out``: what they do not check (:func:`limitations`)."""
     title = f"{number}. Time-domain checks"
+    notes = tuple(Paragraph(x) for x in left_out)
     if not td:
-        return Section(title, (Paragraph("No time-domain simulation results are included in this report."),))
+        none = Paragraph("No time-domain simulation results are included in this report.")
+        return Section(title, (none, *notes))
     rows = []
     for item in td:
         m = item["metrics"]
@@ -203,6 +232,7 @@ def section(number: int, td: Sequence[dict[str, Any]], figs: list[Figure]) -> Se
         f"error within {LIMITS['final_speed_err_pu']:g} p.u. and, in speed control, the final speed within "
         f"{LIMITS['final_tracking_err_pu']:g} p.u. of its reference."
     )
-    blocks: list[Any] = [Paragraph(limits), Table(header, tuple(rows), numeric=frozenset({2, 3, 4, 5, 6}))]
+    table = Table(header, tuple(rows), numeric=frozenset({2, 3, 4, 5, 6}))
+    blocks: list[Any] = [Paragraph(limits), *notes, table]
     blocks += [Paragraph(f"{c['name']}: " + "; ".join(c["failed"]) + ".", "bad") for c in td if c["failed"]]
     return Section(title, (*blocks, *figs))

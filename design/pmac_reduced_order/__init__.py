@@ -72,10 +72,18 @@ class ReducedOrderObserver(ObserverFamily):
 
     def scales(self, drive: Any) -> DriveScales:
         c = drive.control
-        return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.pole_pairs, drive.w_base, c.alpha_s)
+        m = drive.motor
+        return DriveScales(drive.T_N, c.T_max, m.J, drive.pole_pairs, drive.w_base, c.alpha_s, ZERO_SPEED)
 
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
 
+
+# De Angelo et al. (2006), Sec. V (Fig. 10): like other EMF-based observers it "cannot be used at very
+# low or zero speed"; the paper reverses through zero with an open-loop procedure, not modelled here
+ZERO_SPEED = (
+    "The reduced-order EMF observer does not run through zero speed in closed loop: De Angelo et al. "
+    "(2006), Sec. V, reverse with an open-loop procedure that this family does not model."
+)
 
 FAMILY = ReducedOrderObserver()

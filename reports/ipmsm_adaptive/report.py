@@ -215,13 +215,14 @@ def compute(
     progress(f"[7/{steps}] tuning: the pointwise bound and noise over the envelope")
     tuning_data, tuning_section = tuning.compute(drive, table, choices, review, progress, default)
     data["tuning"] = tuning_data
-    data["verdict"] = verdict(data, review, min_damping)
+    limits = time_domain.limitations(drive)  # what the generic checks leave out, said in the verdict
+    data["verdict"] = {**verdict(data, review, min_damping), "limitations": limits}
     sections = (
         drive_section(1, data["drive"]),
         Section("2. Pole maps over speed", (_pole_table(pm), *pole_figs, inj_block)),
         Section("3. Damping and decay rate over speed × torque", (plane_fig, _plane_table(maps))),
         Section("4. Robustness to parameter-estimate errors", (rob_fig, _robustness_table(rob))),
-        time_domain.section(5, td, td_figs),
+        time_domain.section(5, td, td_figs, limits),
         disc_section,
         *([tuning_section] if tuning_section is not None else []),
     )
@@ -387,7 +388,7 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
                 "bad",
             )
         )
-    lines += [Paragraph(r) for r in v["reasons"]]
+    lines += [Paragraph(r) for r in (*v["reasons"], *v.get("limitations", ()))]
     findings = tuple(
         x["text"]
         if "text" in x

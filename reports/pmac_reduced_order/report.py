@@ -148,6 +148,7 @@ def compute(
         "worst_discrete": a["worst_discrete"],
         "reasons": reasons,
         "biased_points": [[p["speed_rpm"], p["T_L_Nm"]] for p in biased],
+        "limitations": time_domain.limitations(drive),  # what the generic checks leave out
     }
     rows = []
     for k_, a_ in analysis.items():
@@ -176,7 +177,7 @@ def compute(
             "2. Observer poles over speed × load (g, Gamma)",
             (*figs, Table(header, tuple(rows), numeric=frozenset({1, 2, 3, 4, 5}))),
         ),
-        time_domain.section(3, td, td_figs),
+        time_domain.section(3, td, td_figs, data["verdict"]["limitations"]),
     )
     return Report(drive.name, review, data, _verdict(data), sections)
 
@@ -192,5 +193,5 @@ def _verdict(data: dict[str, Any]) -> Verdict:
         f"decay {num(wd['decay_rate'], 4)} 1/s at {num(wd['speed_rpm'])} r/min, {num(wd['T_L_Nm'])} N m."
     )
     lines = [Paragraph(text, "ok" if v["status"] == "pass" else "bad" if v["status"] == "fail" else "")]
-    lines += [Paragraph(r, "bad") for r in v["reasons"]]
+    lines += [Paragraph(r, "bad") for r in v["reasons"]] + [Paragraph(r) for r in v["limitations"]]
     return Verdict(v["status"], tuple(lines))

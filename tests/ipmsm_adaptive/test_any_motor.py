@@ -87,6 +87,7 @@ def test_the_verdict_agrees_with_its_checks(flow):
     data = json.loads((d / "r" / "report.json").read_text())
     v, td = data["verdict"], data["time_domain"]
     assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal"]  # generic, scaled
+    assert v["limitations"] == []  # this observer runs through zero speed: nothing left out
     failed = [c for c in td if not c["passed"]]
     assert all(c["failed"] for c in failed) and not any(c["failed"] for c in td if c["passed"])
     if failed:
