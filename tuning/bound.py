@@ -27,6 +27,7 @@ raise); tests compare it with an independent brute-force search.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -268,6 +269,40 @@ def pointwise_bound(
         floor=floor,
         noise=nz,
         evaluations=evals,
+    )
+
+
+def with_witness(
+    bound: Bound, model: TuningModel, gains: np.ndarray, scale: float, max_noise: np.ndarray | None = None
+) -> Bound:
+    """The bound raised, speed by speed, to what ``gains`` (S, n: e.g. a tuned law's free gains at each
+    of the bound's speeds) reach there where they score better (meeting the floor first, then the
+    worst damping). A bound computed before a family was tuned (the seed's, reused by the schedule)
+    did not have the tuned gains among its starts; they are found gains too, so the bound is never
+    below them."""
+    use_noise = max_noise is not None and model.noise is not None and bool(np.isfinite(max_noise).any())
+    limit = np.asarray(max_noise, float) if use_noise else None
+    S, NT = bound.speeds.size, bound.torques.size
+    th = np.clip(np.asarray(gains, float), model.lower, model.upper)
+    P = model.make_points(np.repeat(bound.speeds, NT), np.tile(bound.torques, S), model.nominal_estimate)
+    e = evaluate(model, np.repeat(th, NT, axis=0).T, P, noise=use_noise)
+    z = np.where(np.isfinite(e.damping), e.damping, -np.inf).reshape(S, NT).min(axis=1)
+    d = np.where(np.isfinite(e.decay), e.decay, -np.inf).reshape(S, NT).min(axis=1)
+    nz = np.where(np.isnan(e.noise), np.inf, e.noise).reshape(S, NT, -1).max(axis=1) if use_noise else None
+    fl = bound.floor * (1 - 1e-6) - 1e-9 * scale
+    new, feas = _score(z, d, nz, fl, limit, scale)
+    old, _ = _score(bound.damping, bound.decay, bound.noise if use_noise else None, fl, limit, scale)
+    up = new > old
+    if not up.any():
+        return bound
+    pick = up[:, None]
+    return dataclasses.replace(
+        bound,
+        damping=np.where(up, z, bound.damping),
+        decay=np.where(up, d, bound.decay),
+        feasible=np.where(up, feas, bound.feasible),
+        theta=np.where(pick, th, bound.theta),
+        noise=None if bound.noise is None or nz is None else np.where(pick, nz, bound.noise),
     )
 
 

@@ -16,7 +16,9 @@ Optional parts, each used by the shared pipeline where given:
   tuning/search.py);
 - ``pointwise``: a model of the free gains at one operating point (theta = what ``local`` gives, e.g.
   (lambda1, lambda2)), for the pointwise bound (tuning/bound.py), and ``from_pointwise`` to turn the
-  per-speed optima into a start of this family.
+  per-speed optima into a start of this family;
+- ``gain_size``: a dimensionless size of the gains theta gives over the speed range, for the
+  tie-break among equally damped gains (tuning/tiebreak.py).
 
 Batched evaluation of many parameter vectors at once: :func:`evaluate`.
 """
@@ -81,6 +83,8 @@ class TuningModel:
         None  # P -> (N,) bool: x0 not moved by theta
     )
     n_initial_active: int = 0  # exchange method: points in the first round (0: 3 n_theta, at least 4)
+    # (K, n_theta) -> (K,): how large the gains are over the speed range (smaller wins a tie)
+    gain_size: Callable[[np.ndarray], np.ndarray] | None = None
 
     @property
     def n_theta(self) -> int:

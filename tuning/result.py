@@ -135,6 +135,10 @@ class TuneResult:
             f"{'slowest decay [1/s]':<22}{s['baseline_min_decay_rate']:>18.4g}{mid}"
             f"{s['min_decay_rate']:>18.4g}"
         )
+        gs = s.get("gain_size")
+        if gs:
+            mid = f"{'':>18}" if seeded else ""
+            out.append(f"{'gain size [R_s_hat]':<22}{gs['baseline']:>18.4g}{mid}{gs['tuned']:>18.4g}")
         nz = s.get("noise")
         if nz:
             for k, name in enumerate(nz["outputs"]):
@@ -156,6 +160,8 @@ class TuneResult:
         )
         if s.get("selection"):
             out.append(f"kept: {s['selection']['text']}")
+            if s["selection"].get("tie_break"):
+                out.append(s["selection"]["tie_break"]["text"])
         b = s.get("bound")
         if b:
             out.append(
@@ -267,6 +273,9 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
         "baseline_parameters": {n: float(v) for n, v in zip(m.names, r.theta0, strict=True)},
         "sector_scale_1_s": scale,
     }
+    if m.gain_size is not None:  # tuning/tiebreak.py: smaller wins among equally damped gains
+        g0, g1 = m.gain_size(np.vstack([r.theta0, r.theta]))
+        summary["gain_size"] = {"baseline": float(g0), "tuned": float(g1)}
     if d.noise is not None:
         summary["noise"] = {
             "outputs": list(m.noise_outputs),

@@ -96,7 +96,8 @@ def select(
         return (admissible(f), f.worst_damping(), i)
 
     top = max(range(len(cands)), key=rank)
-    # ties (within TIE in damping, e.g. along a ridge of law16): the faster slowest decay
+    # ties (within TIE in damping, e.g. along a ridge of law16): the faster slowest decay; families
+    # with a gain size then go through the tie-break of tuning/tiebreak.py (the smallest gains win)
     best = max(
         (i for i in range(len(cands)) if rank(i)[0] == rank(top)[0] and rank(i)[1] >= rank(top)[1] - TIE),
         key=lambda i: (float(np.min(cands[i][2].decay)), i),
@@ -120,6 +121,8 @@ def select(
             "start": model.start_label,
             "start_worst_damping": seed_start[0] if model.start is not None else starts["drive file's gains"],
             "nlp_solution_worst_damping": max(finals.values()) if finals else float("nan"),
+            "best_worst_damping": rank(top)[1],
+            "admissible": rank(best)[0],
             "candidates": {k: v for k, v in {**starts, **finals}.items()},
             "text": text,
         },

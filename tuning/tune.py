@@ -15,6 +15,8 @@ builds:
 4. the pointwise bound (tuning/bound.py) on the dense speeds, with the same decay floor: at each
    speed the best worst-case damping any gain reaches; the certificate is the gap between the tuned
    worst damping and the bound's worst;
+   then the tie-break (tuning/tiebreak.py): of the gains within TIE_TOL of that best worst damping,
+   the smallest (families of a few parameters with a gain size);
 5. ridges: where the worst point's damping does not move with any of the family's parameters, the
    summary says which point it is and that the family cannot improve it;
 6. optionally the damping-versus-noise front (``pareto``).
@@ -26,46 +28,28 @@ own value of the worst damping is kept in the summary only for comparison.
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
-from sensorless.tuning import nlp, search
-from sensorless.tuning.bound import Bound, pointwise_bound
+from sensorless.design.envelope import TuningSettings
+from sensorless.tuning import nlp, search, tiebreak
+from sensorless.tuning.bound import Bound, pointwise_bound, with_witness
+from sensorless.tuning.conditions import ROBUST_MARGIN, check_error_equilibria, error_scenarios, label, robust
+from sensorless.tuning.conditions import candidates as _candidates
 from sensorless.tuning.family import tunable_for
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, TuneResult, figures, gain_table
 from sensorless.tuning.selection import infeasible, ridge_of, select
 
-ROBUST_MARGIN = 1e-3  # under estimate errors require max Re(p) <= -ROBUST_MARGIN * scale (strictly stable)
 RIDGE_TOL = 1e-2  # |d damping / d theta_i| * typical_i below this at the worst point: a ridge (a 10 %
 # change of any parameter moves its damping by less than 1e-3)
 N_STARTS = 3  # NLP starts from the global phase (families with few parameters)
 CERTIFIED = 1e-4  # a start this close to the pointwise bound's worst (dense) needs no NLP
-TIE = 5e-4  # candidates within this of the best worst damping tie: the faster slowest decay wins
-
-
-def error_scenarios(settings: TuningSettings, nominal: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    """Corners of the stated estimate-error box: every combination of +-error on each parameter
-    with a nonzero error (2^m scenarios). Labelled like 'R_s+30%,L_q-10%'."""
-    keys = [(k, e) for k, e in zip(range(4), settings.errors, strict=True) if e > 0]
-    out = []
-    for signs in itertools.product((1, -1), repeat=len(keys)):
-        est = nominal.copy()
-        parts = []
-        for (k, e), s in zip(keys, signs, strict=True):
-            est[k] = nominal[k] * (1 + s * e)
-            parts.append(f"{ESTIMATE_KEYS[k]}{'+' if s > 0 else '-'}{100 * e:g}%")
-        out.append((",".join(parts), est))
-    return out if keys else []
-
-
-def _label(w: float, T: float, w_base: float, extra: str = "") -> str:
-    return f"w_m = {w / w_base:+.3f} p.u., T_e = {T:+.3g} N m{extra}"
+TIE = 5e-4  # candidates within this of the best worst damping tie: the faster slowest decay wins (families
+# without the tie-break of tuning/tiebreak.py)
 
 
 def tune(
@@ -115,7 +99,7 @@ def tune(
             say(f"keeping the start's decay rate: >= {start_decay:.4g} 1/s at every point")
             floor = start_decay
     settings = dataclasses.replace(settings, min_decay=floor)
-    _check_error_equilibria(model, settings, start if start is not None else theta0, W, T, wb)
+    check_error_equilibria(model, settings, start if start is not None else theta0, W, T, wb)
     cand = _candidates(model, settings, W, T, wb, scale, max_noise)
     say(
         f"{family}: {model.n_theta} parameters, {W.size} envelope points"
@@ -143,8 +127,12 @@ def tune(
     grid = figures(model, theta, W, T)
     if not np.isfinite(dense.damping).all():
         k = int(np.flatnonzero(~np.isfinite(dense.damping))[0])
-        raise nlp.TuningError(f"tuned gains: no closed-loop equilibrium at {_label(Wd[k], Td[k], wb)}")
-    robust = _robust(model, settings, theta, Wd, Td, wb)
+        raise nlp.TuningError(f"tuned gains: no closed-loop equilibrium at {label(Wd[k], Td[k], wb)}")
+    rb = robust(model, settings, theta, Wd, Td, wb)
+    if bound is not None and model.pointwise_gains is not None:
+        # computed before this family was tuned: its tuned gains are found gains too
+        gains = model.pointwise_gains(theta, bound.speeds)
+        bound = with_witness(bound, model.pointwise(), gains, scale, max_noise)
     if bound is None and settings.bound and model.pointwise is not None:
         # the same decay floor: the configured one, or else the tuned gains' own slowest decay
         fb = floor if floor > 0 else float(np.min(grid.decay))
@@ -163,7 +151,7 @@ def tune(
         grid=grid,
         dense=dense,
         dense_baseline=dense0,
-        robust=robust,
+        robust=rb,
         table=None,  # type: ignore[arg-type]  (filled below from the result itself)
         seconds=seconds,
         selection=note,
@@ -220,7 +208,8 @@ def _optimize(
     extra: list[np.ndarray],
     bound: Bound | None = None,
 ) -> _Optimum:
-    """Steps 1-3 of the module docstring: global phase, NLP from its best starts, dense selection."""
+    """Steps 1-4 of the module docstring: global phase, NLP from its best starts, dense selection and
+    the tie-break."""
     model, say = pb.model, pb.say
     ranked = search.global_phase(model, cand, pb.scale, max_noise, extra, say)
     if not ranked.feasible[0]:
@@ -274,34 +263,28 @@ def _optimize(
     theta, dense, note, best_sol = select(model, sols, pool, pb.Wd, pb.Td, pb.floor, max_noise, say)
     if best_sol is None:  # a start was kept: report the best NLP run (if any) for its statistics
         best_sol = max(sols, key=lambda s: s.t) if sols else nlp.Solution(theta, float("nan"), (), 0, 0, ())
+    if note["admissible"] and model.gain_size is not None and model.n_theta <= search.MAX_PATTERN_PARAMETERS:
+        grids = tiebreak.Grids(
+            pb.W,
+            pb.T,
+            pb.Wd,
+            pb.Td,
+            [est for _, est in error_scenarios(pb.settings, model.nominal_estimate)],
+            pb.scale,
+            max_noise,
+            ROBUST_MARGIN,
+        )
+        others = [th for _, th in pool] + [th for s in sols for th in s.verified]
+
+        def conditions(floor: float, W: np.ndarray, T: np.ndarray) -> nlp.Candidates:
+            st = dataclasses.replace(pb.settings, min_decay=floor)
+            return _candidates(model, st, W, T, pb.wb, pb.scale, max_noise)
+
+        tb = tiebreak.smallest_tie(
+            model, theta, dense, note["best_worst_damping"], others, grids, pb.floor, conditions, say, pb.wb
+        )
+        theta, dense, note = tb.theta, tb.dense, {**note, "tie_break": tb.note}
     return _Optimum(theta, dense, note, best_sol, ranked, starts, certified)
-
-
-def _robust(model, settings, theta, Wd, Td, wb) -> list[dict[str, Any]]:
-    robust = []
-    for name, est in error_scenarios(settings, model.nominal_estimate):
-        f = figures(model, theta, Wd, Td, est)
-        mr = np.where(np.isfinite(f.decay), -f.decay, np.inf)
-        k = int(np.argmax(mr))
-        robust.append(
-            {
-                "scenario": name,
-                "estimate": est,
-                "max_real_1_s": float(mr[k]),
-                "at_w_m_pu": float(Wd[k] / wb),
-                "at_T_e_Nm": float(Td[k]),
-                "stable": bool(mr[k] < 0),
-            }
-        )
-    unstable = [r for r in robust if not r["stable"]]
-    if unstable:
-        r = unstable[0]
-        raise nlp.TuningError(
-            f"tuned gains are not stable under estimate errors {r['scenario']} at "
-            f"w_m = {r['at_w_m_pu']:+.3f} p.u., T_e = {r['at_T_e_Nm']:+.3g} N m on the dense grid "
-            f"(max Re = {r['max_real_1_s']:.3g} 1/s): use more --speeds"
-        )
-    return robust
 
 
 def _bound(drive, model, settings, floor, scale, max_noise, others, say, reuse=None, *thetas) -> Bound:
@@ -328,59 +311,6 @@ def _bound(drive, model, settings, floor, scale, max_noise, others, say, reuse=N
         coarse=env.dense_factor,
         progress=say,
     )
-
-
-def _check_error_equilibria(
-    model: TuningModel, settings: TuningSettings, theta: np.ndarray, W: np.ndarray, T: np.ndarray, wb: float
-) -> None:
-    """Under estimate errors the equilibrium branch of exact estimates can end in a fold (the observer
-    cannot hold the rotor position: at 0.05 p.u. and full torque already with R̂s 0.75 % off and the
-    drive file's gains). Then "stable under these errors" has no meaning there: say so before the NLP."""
-    for name, est in error_scenarios(settings, model.nominal_estimate):
-        x0 = model.equilibrium(theta, model.make_points(W, T, est))
-        bad = np.flatnonzero(~np.isfinite(x0).all(axis=0))
-        if bad.size:
-            where = "; ".join(_label(W[k], T[k], wb) for k in bad[:4])
-            raise nlp.TuningError(
-                f"the envelope is infeasible under estimate errors {name}: with the start gains the "
-                f"observer has no equilibrium (it cannot hold the rotor position) at {where}"
-                f"{' and more' if bad.size > 4 else ''}; use smaller --errors or a larger --speed-min"
-            )
-
-
-def _candidates(
-    model: TuningModel,
-    settings: TuningSettings,
-    W: np.ndarray,
-    T: np.ndarray,
-    wb: float,
-    scale: float,
-    max_noise: np.ndarray | None = None,
-) -> nlp.Candidates:
-    """Damping points of the envelope, decay-rate points, noise points (with a limit), and stability
-    points per error scenario."""
-    P = [model.make_points(W, T, model.nominal_estimate)]
-    kind = [np.ones(W.size)]
-    sigma = [np.zeros(W.size)]
-    labels = [_label(w, t, wb) for w, t in zip(W, T, strict=True)]
-    if settings.min_decay > 0:
-        P.append(P[0])
-        kind.append(np.zeros(W.size))
-        sigma.append(np.full(W.size, settings.min_decay))
-        labels += [
-            _label(w, t, wb, f", decay >= {settings.min_decay:g} 1/s") for w, t in zip(W, T, strict=True)
-        ]
-    if max_noise is not None:
-        P.append(P[0])
-        kind.append(np.full(W.size, nlp.NOISE))
-        sigma.append(np.zeros(W.size))
-        labels += [_label(w, t, wb, ", noise") for w, t in zip(W, T, strict=True)]
-    for name, est in error_scenarios(settings, model.nominal_estimate):
-        P.append(model.make_points(W, T, est))
-        kind.append(np.zeros(W.size))
-        sigma.append(np.full(W.size, max(settings.min_decay, ROBUST_MARGIN * scale)))
-        labels += [_label(w, t, wb, f", estimates {name}") for w, t in zip(W, T, strict=True)]
-    return nlp.Candidates(np.hstack(P), np.concatenate(kind), np.concatenate(sigma), tuple(labels))
 
 
 def damping_noise_front(drive, pb: _Problem, cand, theta_best, max_noise):

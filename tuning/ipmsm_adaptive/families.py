@@ -29,6 +29,7 @@ from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
 from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
 from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law, schedule_law, taylor_law
+from sensorless.tuning.ipmsm_adaptive.size import gain_size_function
 from sensorless.tuning.model import TuningModel
 
 POINT_NAMES = ("w_m", "T_e", "R_s_hat", "L_d_hat", "L_q_hat", "psi_pm_hat")
@@ -187,6 +188,7 @@ def _common(drive: Any, law: GainLaw, settings: TuningSettings, theta0, lower, u
         T_s=drive.control.T_s,
         pointwise=lambda: build_pointwise(drive, settings),
         pointwise_gains=pointwise_gains,
+        gain_size=gain_size_function(law, R, wb, settings.envelope.speed_max * wb),
         **kw,
     )
 

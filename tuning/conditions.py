@@ -1,0 +1,117 @@
+"""The conditions the shared pipeline tunes under: estimate-error scenarios, the points of the NLP and
+the global phase (damping, decay floor, noise, stability under errors), and the checks that the tuned
+gains hold under the stated estimate errors (tuning/tune.py)."""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+import numpy as np
+from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
+from sensorless.tuning import nlp
+from sensorless.tuning.model import TuningModel
+from sensorless.tuning.result import figures
+
+ROBUST_MARGIN = 1e-3  # under estimate errors require max Re(p) <= -ROBUST_MARGIN * scale (strictly stable)
+
+
+def error_scenarios(settings: TuningSettings, nominal: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """Corners of the stated estimate-error box: every combination of +-error on each parameter
+    with a nonzero error (2^m scenarios). Labelled like 'R_s+30%,L_q-10%'."""
+    keys = [(k, e) for k, e in zip(range(4), settings.errors, strict=True) if e > 0]
+    out = []
+    for signs in itertools.product((1, -1), repeat=len(keys)):
+        est = nominal.copy()
+        parts = []
+        for (k, e), s in zip(keys, signs, strict=True):
+            est[k] = nominal[k] * (1 + s * e)
+            parts.append(f"{ESTIMATE_KEYS[k]}{'+' if s > 0 else '-'}{100 * e:g}%")
+        out.append((",".join(parts), est))
+    return out if keys else []
+
+
+def label(w: float, T: float, w_base: float, extra: str = "") -> str:
+    return f"w_m = {w / w_base:+.3f} p.u., T_e = {T:+.3g} N m{extra}"
+
+
+def robust(model, settings, theta, Wd, Td, wb) -> list[dict[str, Any]]:
+    """Per estimate-error scenario the worst max Re of the poles on the dense grid, and where; raises
+    TuningError if the gains are unstable under one."""
+    out = []
+    for name, est in error_scenarios(settings, model.nominal_estimate):
+        f = figures(model, theta, Wd, Td, est)
+        mr = np.where(np.isfinite(f.decay), -f.decay, np.inf)
+        k = int(np.argmax(mr))
+        out.append(
+            {
+                "scenario": name,
+                "estimate": est,
+                "max_real_1_s": float(mr[k]),
+                "at_w_m_pu": float(Wd[k] / wb),
+                "at_T_e_Nm": float(Td[k]),
+                "stable": bool(mr[k] < 0),
+            }
+        )
+    unstable = [r for r in out if not r["stable"]]
+    if unstable:
+        r = unstable[0]
+        raise nlp.TuningError(
+            f"tuned gains are not stable under estimate errors {r['scenario']} at "
+            f"w_m = {r['at_w_m_pu']:+.3f} p.u., T_e = {r['at_T_e_Nm']:+.3g} N m on the dense grid "
+            f"(max Re = {r['max_real_1_s']:.3g} 1/s): use more --speeds"
+        )
+    return out
+
+
+def check_error_equilibria(
+    model: TuningModel, settings: TuningSettings, theta: np.ndarray, W: np.ndarray, T: np.ndarray, wb: float
+) -> None:
+    """Under estimate errors the equilibrium branch of exact estimates can end in a fold (the observer
+    cannot hold the rotor position: at 0.05 p.u. and full torque already with R̂s 0.75 % off and the
+    drive file's gains). Then "stable under these errors" has no meaning there: say so before the NLP."""
+    for name, est in error_scenarios(settings, model.nominal_estimate):
+        x0 = model.equilibrium(theta, model.make_points(W, T, est))
+        bad = np.flatnonzero(~np.isfinite(x0).all(axis=0))
+        if bad.size:
+            where = "; ".join(label(W[k], T[k], wb) for k in bad[:4])
+            raise nlp.TuningError(
+                f"the envelope is infeasible under estimate errors {name}: with the start gains the "
+                f"observer has no equilibrium (it cannot hold the rotor position) at {where}"
+                f"{' and more' if bad.size > 4 else ''}; use smaller --errors or a larger --speed-min"
+            )
+
+
+def candidates(
+    model: TuningModel,
+    settings: TuningSettings,
+    W: np.ndarray,
+    T: np.ndarray,
+    wb: float,
+    scale: float,
+    max_noise: np.ndarray | None = None,
+) -> nlp.Candidates:
+    """Damping points of the envelope, decay-rate points, noise points (with a limit), and stability
+    points per error scenario."""
+    P = [model.make_points(W, T, model.nominal_estimate)]
+    kind = [np.ones(W.size)]
+    sigma = [np.zeros(W.size)]
+    labels = [label(w, t, wb) for w, t in zip(W, T, strict=True)]
+    if settings.min_decay > 0:
+        P.append(P[0])
+        kind.append(np.zeros(W.size))
+        sigma.append(np.full(W.size, settings.min_decay))
+        labels += [
+            label(w, t, wb, f", decay >= {settings.min_decay:g} 1/s") for w, t in zip(W, T, strict=True)
+        ]
+    if max_noise is not None:
+        P.append(P[0])
+        kind.append(np.full(W.size, nlp.NOISE))
+        sigma.append(np.zeros(W.size))
+        labels += [label(w, t, wb, ", noise") for w, t in zip(W, T, strict=True)]
+    for name, est in error_scenarios(settings, model.nominal_estimate):
+        P.append(model.make_points(W, T, est))
+        kind.append(np.zeros(W.size))
+        sigma.append(np.full(W.size, max(settings.min_decay, ROBUST_MARGIN * scale)))
+        labels += [label(w, t, wb, f", estimates {name}") for w, t in zip(W, T, strict=True)]
+    return nlp.Candidates(np.hstack(P), np.concatenate(kind), np.concatenate(sigma), tuple(labels))
