@@ -202,3 +202,20 @@ def toml_value(v: Any) -> str:
     if isinstance(v, dict):
         return "{ " + ", ".join(f"{k} = {toml_value(x)}" for k, x in v.items()) + " }"
     raise TypeError(f"cannot write {v!r} as TOML")
+
+
+def derived_document(data: Mapping[str, Any], file: str, page: str) -> DriveDocument:
+    """A complete drive document begun: the header every derived drive file starts with (``page``: the
+    family's doc that gives the rules) and its [drive] section, each key given kept as written."""
+    head = drive_header(data, file)
+    doc = DriveDocument()
+    doc.header = [
+        f"Drive file of {head['name']} ({head.get('kind')}): every value the source file did not give is",
+        f"derived by the rule in its comment ({page}, 'Derived drive files';",
+        "docs/motor_data.md). Review and edit them: this file is complete and loads as it is.",
+    ]
+    given = table(data, "drive", file)
+    sec = doc.section("drive")
+    for k, v in head.items():
+        sec[k] = Entry(v, given=True) if k in given else Entry(v, "default: say where the data come from")
+    return doc

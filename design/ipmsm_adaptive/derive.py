@@ -35,7 +35,7 @@ import textwrap
 from collections.abc import Mapping
 from typing import Any
 
-from sensorless.design.drive_file import DriveDocument, Entry, check_keys, drive_header, table, toml_value
+from sensorless.design.drive_file import DriveDocument, Entry, check_keys, derived_document, table, toml_value
 from sensorless.design.ipmsm_adaptive.schema import SECTIONS
 from sensorless.design.motor_data import mtpa_torque, mtpa_torque_current, read_motor, steady_voltage
 from sensorless.design.units import DriveFileError, parse_quantity
@@ -113,20 +113,8 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     """The complete drive document of ``data`` (module docstring); DriveFileError naming the key for
     what is missing or wrong. Each key given is kept as written; each derived one carries its rule."""
     check_keys(data, SECTIONS, file, "")
-    head = drive_header(data, file)
+    doc = derived_document(data, file, "docs/families/ipmsm_adaptive.md")
     r = _Reader(data, file)
-    doc = DriveDocument()
-    doc.header = [
-        f"Drive file of {head['name']} ({head.get('kind')}): every value the source file did not give is",
-        "derived by the rule in its comment (docs/families/ipmsm_adaptive.md, 'Derived drive files';",
-        "docs/motor_data.md). Review and edit them: this file is complete and loads as it is.",
-    ]
-    drive = doc.section("drive")
-    given_head = table(data, "drive", file)
-    for k, v in head.items():
-        drive[k] = (
-            Entry(v, given=True) if k in given_head else Entry(v, "default: say where the data come from")
-        )
 
     # ------------------------------------------------------------------ motor (datasheet terms)
     motor_t = table(data, "motor", file)

@@ -39,7 +39,7 @@ import textwrap
 from collections.abc import Mapping
 from typing import Any
 
-from sensorless.design.drive_file import DriveDocument, Entry, check_keys, drive_header, table, toml_value
+from sensorless.design.drive_file import DriveDocument, Entry, check_keys, derived_document, table, toml_value
 from sensorless.design.motor_data import mtpa_torque
 from sensorless.design.pmac_reduced_order.motor import g6, positive, read_pmac_motor
 from sensorless.design.pmac_reduced_order.schema import SECTIONS, harmonic_series
@@ -72,19 +72,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     """The complete drive document of ``data`` (module docstring); DriveFileError naming the key for
     what is missing or wrong. Each key given is kept as written; each derived one carries its rule."""
     check_keys(data, (*SECTIONS, "inverter"), file, "")
-    head = drive_header(data, file)
-    doc = DriveDocument()
-    doc.header = [
-        f"Drive file of {head['name']} ({head.get('kind')}): every value the source file did not give is",
-        "derived by the rule in its comment (docs/families/pmac_reduced_order.md, 'Derived drive files';",
-        "docs/motor_data.md). Review and edit them: this file is complete and loads as it is.",
-    ]
-    given_head = table(data, "drive", file)
-    sec = doc.section("drive")
-    for k, v in head.items():
-        sec[k] = (
-            Entry(v, given=True) if k in given_head else Entry(v, "default: say where the data come from")
-        )
+    doc = derived_document(data, file, "docs/families/pmac_reduced_order.md")
 
     # ------------------------------------------------------------------ motor
     motor_t = table(data, "motor", file)
