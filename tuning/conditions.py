@@ -13,7 +13,10 @@ from sensorless.tuning import nlp
 from sensorless.tuning.model import TuningModel
 from sensorless.tuning.result import figures
 
-ROBUST_MARGIN = 1e-3  # under estimate errors require max Re(p) <= -ROBUST_MARGIN * scale (strictly stable)
+# Under estimate errors the gains must be strictly stable: max Re(p) <= -ROBUST_MARGIN * scale (the pole
+# scale), a margin far above the NLP's tolerance (search.FEASIBILITY_TOL = 1e-7) so that "stable" is not
+# met by rounding; the tie-break checks its candidates with the same margin (tuning/tiebreak.py).
+ROBUST_MARGIN = 1e-3
 
 
 def error_scenarios(settings: TuningSettings, nominal: np.ndarray) -> list[tuple[str, np.ndarray]]:

@@ -18,13 +18,6 @@ from sensorless.tuning import nlp
 from sensorless.tuning.bound import Bound
 from sensorless.tuning.model import TuningModel, evaluate
 
-ROBUST_MARGIN = 1e-3  # under estimate errors require max Re(p) <= -ROBUST_MARGIN * scale (strictly stable)
-RIDGE_TOL = 1e-2  # |d damping / d theta_i| * typical_i below this at the worst point: a ridge (a 10 %
-# change of any parameter moves its damping by less than 1e-3)
-N_STARTS = 3  # NLP starts from the global phase (families with few parameters)
-CERTIFIED = 1e-4  # a start this close to the pointwise bound's worst (dense) needs no NLP
-TIE = 5e-4  # candidates within this of the best worst damping tie: the faster slowest decay wins
-
 
 @dataclass(frozen=True)
 class Figures:

@@ -44,12 +44,12 @@ from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, TuneResult, figures, gain_table
 from sensorless.tuning.selection import infeasible, ridge_of, select
 
-RIDGE_TOL = 1e-2  # |d damping / d theta_i| * typical_i below this at the worst point: a ridge (a 10 %
-# change of any parameter moves its damping by less than 1e-3)
-N_STARTS = 3  # NLP starts from the global phase (families with few parameters)
-CERTIFIED = 1e-4  # a start this close to the pointwise bound's worst (dense) needs no NLP
-TIE = 5e-4  # candidates within this of the best worst damping tie: the faster slowest decay wins (families
-# without the tie-break of tuning/tiebreak.py)
+# A family of a few parameters has several local optima: the NLP runs from this many distinct feasible
+# starts of the global phase (one NLP each); a rich one (the schedule) from the best start only.
+N_STARTS = 3
+# A start this close (in damping ratio) to the pointwise bound's worst on the dense grid needs no NLP: no
+# gain law exceeds the bound, so the NLP could gain at most this, well inside the selection's TIE (5e-4).
+CERTIFIED = 1e-4
 
 
 def tune(
