@@ -321,11 +321,13 @@ def _polish(model, speeds, torques, idx, x, f, floor, scale, limit, typ, figures
     from the current gains, where the damping is below T_MAX; at a speed where the search found no
     gains meeting the constraints, IPOPT's own feasibility restoration may still find some."""
     from sensorless.tuning import nlp
+    from sensorless.tuning.candidates import Candidates
+    from sensorless.tuning.slots import T_MAX
 
     NT = torques.size
     est = model.nominal_estimate
     for j in idx:
-        if f[j] >= nlp.T_MAX or f[j] < -10.0 - NEAR_FEASIBLE:  # plateau of damping 1, or far from feasible
+        if f[j] >= T_MAX or f[j] < -10.0 - NEAR_FEASIBLE:  # plateau of damping 1, or far from feasible
             continue
         P = model.make_points(np.full(NT, speeds[j]), torques, est)
         parts = [(P, np.ones(NT), np.zeros(NT))]
@@ -333,7 +335,7 @@ def _polish(model, speeds, torques, idx, x, f, floor, scale, limit, typ, figures
             parts.append((P, np.zeros(NT), np.full(NT, floor)))
         if limit is not None:
             parts.append((P, np.full(NT, 2.0), np.zeros(NT)))
-        cand = nlp.Candidates(
+        cand = Candidates(
             np.hstack([q[0] for q in parts]),
             np.concatenate([q[1] for q in parts]),
             np.concatenate([q[2] for q in parts]),

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
 from sensorless.tuning import nlp
+from sensorless.tuning.candidates import NOISE, Candidates
 from sensorless.tuning.model import TuningModel
 from sensorless.tuning.result import figures
 
@@ -93,7 +94,7 @@ def candidates(
     wb: float,
     scale: float,
     max_noise: np.ndarray | None = None,
-) -> nlp.Candidates:
+) -> Candidates:
     """Damping points of the envelope, decay-rate points, noise points (with a limit), and stability
     points per error scenario."""
     P = [model.make_points(W, T, model.nominal_estimate)]
@@ -109,7 +110,7 @@ def candidates(
         ]
     if max_noise is not None:
         P.append(P[0])
-        kind.append(np.full(W.size, nlp.NOISE))
+        kind.append(np.full(W.size, NOISE))
         sigma.append(np.zeros(W.size))
         labels += [label(w, t, wb, ", noise") for w, t in zip(W, T, strict=True)]
     for name, est in error_scenarios(settings, model.nominal_estimate):
@@ -117,4 +118,4 @@ def candidates(
         kind.append(np.zeros(W.size))
         sigma.append(np.full(W.size, max(settings.min_decay, ROBUST_MARGIN * scale)))
         labels += [label(w, t, wb, f", estimates {name}") for w, t in zip(W, T, strict=True)]
-    return nlp.Candidates(np.hstack(P), np.concatenate(kind), np.concatenate(sigma), tuple(labels))
+    return Candidates(np.hstack(P), np.concatenate(kind), np.concatenate(sigma), tuple(labels))

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from sensorless.design.poles import max_real, worst_damping
+from sensorless.tuning.candidates import DAMPING, NOISE, Candidates, fixed_points, noise_margin
 from sensorless.tuning.model import TuningModel, evaluate
-from sensorless.tuning.nlp import DAMPING, NOISE, Candidates, fixed_points, noise_margin
 
 MAX_PATTERN_PARAMETERS = 4  # the margin search runs for families with at most this many parameters
 FEASIBILITY_TOL = 1e-7  # margins (relative to the pole scale) down to -this count as met: the NLP's tolerance
@@ -55,6 +55,17 @@ class Ranked:
             if len(out) == k:
                 break
         return out
+
+
+def poll_directions(n: int) -> np.ndarray:
+    """Poll directions of the batched pattern searches (here and tuning/tiebreak.py), unit length: the
+    axes (all +, then all -), then for each pair of axes its four diagonals."""
+    eye = np.eye(n)
+    D = [eye, -eye]
+    for i in range(n):
+        for j in range(i + 1, n):
+            D += [np.array([(eye[i] * a + eye[j] * b) / np.sqrt(2) for a in (1, -1) for b in (1, -1)])]
+    return np.vstack(D)
 
 
 def _margins(
@@ -141,12 +152,7 @@ def global_phase(
     f = np.where(r.feasible[:5], r.damping[:5], -10.0 + np.clip(r.margin[:5], -1e6, 0))
     lo, hi = model.lower / model.typical, model.upper / model.typical
     n = model.n_theta
-    D = np.vstack([np.eye(n), -np.eye(n)])
-    for i in range(n):
-        for j in range(i + 1, n):
-            for a in (1, -1):
-                for b in (1, -1):
-                    D = np.vstack([D, (np.eye(n)[i] * a + np.eye(n)[j] * b) / np.sqrt(2)])
+    D = poll_directions(n)
     h = np.full(x.shape[0], 0.5)
     step_min = 0.02 if nf else 1e-3
     for _ in range(200):

@@ -11,6 +11,7 @@ from sensorless.tuning import nlp
 from sensorless.tuning.bound import Bound, pointwise_bound
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, figures
+from sensorless.tuning.slots import T_MAX
 
 # The worst point is a ridge when no parameter moves its damping: |d damping / d theta_i| * typical_i
 # below this for every i, i.e. a 10 % change of any parameter moves the damping by less than 1e-3.
@@ -136,7 +137,7 @@ def ridge_of(model: TuningModel, theta: np.ndarray, dense: Figures, bound: Bound
     differences of its worst damping in each parameter (scaled by its typical magnitude). If none
     exceeds RIDGE_TOL, the family cannot improve that point: its optimum is a ridge there."""
     k = dense.worst()
-    if dense.damping[k] >= nlp.T_MAX:  # damping 1 everywhere: nothing to improve
+    if dense.damping[k] >= T_MAX:  # damping 1 everywhere: nothing to improve
         return None
     w, T = dense.w_m[k], dense.T_e[k]
     n = model.n_theta

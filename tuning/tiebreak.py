@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 from sensorless.tuning import search
+from sensorless.tuning.candidates import Candidates, noise_margin
 from sensorless.tuning.model import TuningModel, evaluate
-from sensorless.tuning.nlp import Candidates
 from sensorless.tuning.result import Figures, figures
 from sensorless.tuning.selection import TIE
 
@@ -141,12 +141,7 @@ def _pattern(model, seeds, cand, grids, target) -> np.ndarray:
     n = model.n_theta
     lo = np.log(np.maximum(model.lower, 1e-9 * model.typical))
     hi = np.log(model.upper)
-    eye = np.eye(n)
-    D = [eye, -eye]
-    for i in range(n):
-        for j in range(i + 1, n):
-            D += [np.array([(eye[i] * a + eye[j] * b) / np.sqrt(2) for a in (1, -1) for b in (1, -1)])]
-    D = np.vstack(D)
+    D = search.poll_directions(n)
     u = np.clip(np.log(np.maximum(seeds, 1e-9 * model.typical)), lo, hi)
     f = model.gain_size(np.exp(u))
     h = np.full(u.shape[0], STEP0)
@@ -179,10 +174,7 @@ def _dense_ok(model, thetas, grids, target, floor2) -> tuple[np.ndarray, np.ndar
     floor_ok = floor2 * (1 - 1e-6) - 1e-9
     margin = np.minimum(z - target, (dec - floor_ok) / grids.scale)
     if grids.max_noise is not None:
-        lim = np.asarray(grids.max_noise, float)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            r = np.where(np.isfinite(lim), 1.0 - e.noise.reshape(K, N, -1) / lim, np.inf)
-        margin = np.minimum(margin, np.where(np.isnan(r), -np.inf, r).min(axis=2))
+        margin = np.minimum(margin, noise_margin(e.noise.reshape(K, N, -1), grids.max_noise))
     ok = margin.min(axis=1) >= 0
     bad = np.argsort(margin[0], kind="stable")
     bad = bad[margin[0, bad] < 0][:N_ADD]

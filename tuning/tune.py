@@ -37,6 +37,7 @@ import numpy as np
 from sensorless.design.envelope import TuningSettings
 from sensorless.tuning import nlp, search, tiebreak
 from sensorless.tuning.bound import Bound, pointwise_bound, with_witness
+from sensorless.tuning.candidates import DAMPING, NOISE, Candidates
 from sensorless.tuning.conditions import ROBUST_MARGIN, check_error_equilibria, error_scenarios, label, robust
 from sensorless.tuning.conditions import candidates as _candidates
 from sensorless.tuning.family import tunable_for
@@ -203,7 +204,7 @@ class _Optimum:
 def _optimize(
     drive: Any,
     pb: _Problem,
-    cand: nlp.Candidates,
+    cand: Candidates,
     max_noise: np.ndarray | None,
     extra: list[np.ndarray],
     bound: Bound | None = None,
@@ -276,7 +277,7 @@ def _optimize(
         )
         others = [th for _, th in pool] + [th for s in sols for th in s.verified]
 
-        def conditions(floor: float, W: np.ndarray, T: np.ndarray) -> nlp.Candidates:
+        def conditions(floor: float, W: np.ndarray, T: np.ndarray) -> Candidates:
             st = dataclasses.replace(pb.settings, min_decay=floor)
             return _candidates(model, st, W, T, pb.wb, pb.scale, max_noise)
 
@@ -379,14 +380,14 @@ def damping_noise_front(drive, pb: _Problem, cand, theta_best, max_noise):
     return {"output": name, "unit": model.noise_units[i], "points": pts}
 
 
-def with_noise_points(cand: nlp.Candidates) -> nlp.Candidates:
+def with_noise_points(cand: Candidates) -> Candidates:
     """The candidates with a noise point at every envelope point (if not there yet)."""
-    if (cand.kind == nlp.NOISE).any():
+    if (cand.kind == NOISE).any():
         return cand
-    dmp = np.flatnonzero(cand.kind == nlp.DAMPING)
-    return nlp.Candidates(
+    dmp = np.flatnonzero(cand.kind == DAMPING)
+    return Candidates(
         np.hstack([cand.P, cand.P[:, dmp]]),
-        np.concatenate([cand.kind, np.full(dmp.size, nlp.NOISE)]),
+        np.concatenate([cand.kind, np.full(dmp.size, NOISE)]),
         np.concatenate([cand.sigma, np.zeros(dmp.size)]),
         (*cand.labels, *(cand.labels[j] + ", noise" for j in dmp)),
     )
