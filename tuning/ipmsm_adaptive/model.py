@@ -1,0 +1,182 @@
+"""The TuningModel of one gain law of the adaptive observer: its closed loop (local gain data,
+linearization, noise), equilibria and gains, and the fields every family of tuning/ipmsm_adaptive/
+families.py shares (which laws, boxes and starts: there).
+
+The law is plugged into the analysis closed loop of design/ipmsm_adaptive/linearize.py
+(``linearization_function``): the NLP differentiates exactly the Jacobian that ``sensorless analyze``
+evaluates. theta is the law's parameter vector, plus alpha_fo (10) when ``tune_alpha_fo`` is set.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
+from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
+from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
+from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, taylor_law
+from sensorless.tuning.ipmsm_adaptive.size import gain_size_function
+from sensorless.tuning.model import TuningModel
+
+POINT_NAMES = ("w_m", "T_e", "R_s_hat", "L_d_hat", "L_q_hat", "psi_pm_hat")
+N_PHI = 6  # local gain data: lambda1, lambda2, their slopes in w_hat, w_m, alpha_fo
+
+
+def _closed_loop(drive: Any, law: GainLaw, tune_alpha: bool) -> tuple[ca.Function, ca.Function, ca.Function]:
+    """(local, linearization, noise) Functions of the family.
+
+    local(theta, point) -> phi = [lambda1, lambda2, dlambda1/dw_hat, dlambda2/dw_hat, w_m, alpha_fo]:
+    the law (16) or schedule and its slope at the point's speed, by AD of the one law expression.
+    linearization(phi, x, point) -> (A, x_dot): the analysis closed loop (ipmsm_adaptive/linearize.py)
+    with the law replaced by its first-order expansion at w_m, which gives the same residual and Jacobian
+    at any equilibrium (w_hat = w_m there; see ``taylor_law``). noise(phi, x, point) -> (B_n, C_n, D_n):
+    the input from current-measurement noise and the outputs [theta_tilde, w_hat]
+    (design/ipmsm_adaptive/linearize.py ``noise_function``). Drive constants are inlined.
+    """
+    nth = law.n_params + int(tune_alpha)
+    th = ca.SX.sym("theta", nth)
+    pt = ca.SX.sym("point", len(POINT_NAMES))
+    w_hat = ca.SX.sym("w_hat")
+    params = ca.vertcat(th[: law.n_params], ca.SX.zeros(law.width - law.n_params))
+    l1, l2 = law.expr(w_hat, params)
+    dl = ca.jacobian(ca.vertcat(l1, l2), w_hat)
+    alpha_fo = th[law.n_params] if tune_alpha else ca.SX(drive.observer.alpha_fo)
+    at = ca.substitute(ca.vertcat(l1, l2, dl), w_hat, pt[0])
+    local = ca.Function(
+        f"local_{law.name}", [th, pt], [ca.vertcat(at, pt[0], alpha_fo)], ["theta", "point"], ["phi"]
+    )
+
+    lin = linearization_function(taylor_law(), False)
+    phi = ca.SX.sym("phi", N_PHI)
+    x = ca.SX.sym("x", 4)
+    inj = drive.injection
+    args = {
+        "x": x,
+        "w_m": pt[0],
+        "T_e": pt[1],
+        "motor": ca.DM(drive.motor.vector()),
+        "p": float(drive.motor.p),
+        "estimate": pt[2:6],
+        "gain": phi[:5],
+        "alpha_fo": phi[5],
+        "inj": ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
+    }
+    out = lin(**args)
+    linear = ca.Function(
+        "closed_loop_local", [phi, x, pt], [out["A"], out["x_dot"]], ["phi", "x", "point"], ["A", "x_dot"]
+    )
+    nz = noise_function(taylor_law(), False)(**args)
+    noise = ca.Function(
+        "closed_loop_noise",
+        [phi, x, pt],
+        [ca.densify(nz["B_n"]), ca.densify(nz["C_n"]), ca.densify(nz["D_n"])],
+        ["phi", "x", "point"],
+        ["B_n", "C_n", "D_n"],
+    )
+    return local, linear, noise
+
+
+@functools.cache
+def law_values(law: GainLaw) -> ca.Function:
+    """(w_hat, params) -> (lambda1, lambda2) of a law, numerically."""
+    w, p = ca.SX.sym("w_hat"), ca.SX.sym("params", law.width)
+    l1, l2 = law.expr(w, p)
+    return ca.Function(f"gains_{law.name}", [w, p], [l1, l2], ["w_hat", "params"], ["lambda1", "lambda2"])
+
+
+def law_model(
+    drive: Any, law: GainLaw, settings: TuningSettings, theta0, lower, upper, typical, **kw
+) -> TuningModel:
+    """The TuningModel of ``law`` on ``drive`` with the box (lower, upper), baseline theta0 and typical
+    magnitudes of its parameters (alpha_fo appended when tuned); ``kw``: the family's own fields."""
+    tune_alpha = settings.tune_alpha_fo
+    a0 = drive.observer.alpha_fo
+    names, units = law.param_names, law.param_units
+    if tune_alpha:
+        names, units = (*names, "alpha_fo"), (*units, "rad/s")
+        theta0 = np.append(theta0, a0)
+        lower, upper = np.append(lower, 0.2 * a0), np.append(upper, 4.0 * a0)
+        typical = np.append(typical, a0)
+    motor = np.array(drive.motor.vector())
+    inj = drive.injection
+
+    def equilibrium(theta: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """Equilibria (4, N); theta (n_theta,) or one per point (n_theta, N)."""
+        N = P.shape[1]
+        exact = bool(np.all(P[2:6] == motor[:, None]))
+        if exact:  # closed form, independent of the gains
+            return solve_equilibrium(
+                law,
+                False,
+                {"w_m": P[0:1], "T_e": P[1:2], "motor": motor, "p": np.array(float(drive.motor.p))},
+                N,
+                True,
+            )
+        theta = np.asarray(theta, float)
+        th = theta.reshape(theta.shape[0], -1)
+        gain = np.zeros((law.width, th.shape[1]))
+        gain[: law.n_params] = th[: law.n_params]
+        args = {
+            "w_m": P[0:1],
+            "T_e": P[1:2],
+            "motor": motor,
+            "p": np.array(float(drive.motor.p)),
+            "estimate": P[2:6],
+            "gain": gain,
+            "alpha_fo": th[law.n_params : law.n_params + 1] if tune_alpha else np.array(a0),
+            "inj": np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
+        }
+        return solve_equilibrium(law, False, args, N, False)
+
+    def point_gains(theta: np.ndarray, w_hat: np.ndarray) -> dict[str, np.ndarray]:
+        gain = np.zeros(law.width)
+        gain[: law.n_params] = theta[: law.n_params]
+        f = law_values(law).map(w_hat.size)
+        l1, l2 = f(w_hat[None, :], gain)
+        return {"lambda1_ohm": np.asarray(l1).ravel(), "lambda2_ohm": np.asarray(l2).ravel()}
+
+    def make_points(w: np.ndarray, T: np.ndarray, est: np.ndarray) -> np.ndarray:
+        w_b, T_b = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))
+        return np.vstack([w_b.ravel(), T_b.ravel(), np.repeat(np.asarray(est, float)[:, None], w_b.size, 1)])
+
+    def pointwise_gains(theta: np.ndarray, w: np.ndarray) -> np.ndarray:
+        g = point_gains(theta, np.asarray(w, float))
+        cols = [g["lambda1_ohm"], g["lambda2_ohm"]]
+        if tune_alpha:
+            cols.append(np.full(len(cols[0]), theta[law.n_params]))
+        return np.column_stack(cols)
+
+    est = drive.estimate
+    local, linear, noise = _closed_loop(drive, law, tune_alpha)
+    R, wb = est.R_s, drive.base.w
+    return TuningModel(
+        names=tuple(names),
+        units=tuple(units),
+        theta0=np.asarray(theta0, float),
+        lower=np.asarray(lower, float),
+        upper=np.asarray(upper, float),
+        typical=np.asarray(typical, float),
+        local=local,
+        phi_typical=np.array([R, R, R / wb, R / wb, wb, a0]),
+        linearization=linear,
+        x_typical=np.array([est.psi_pm, est.psi_pm, 1.0, drive.base.w]),
+        point_names=POINT_NAMES,
+        make_points=make_points,
+        equilibrium=equilibrium,
+        point_gains=point_gains,
+        nominal_estimate=np.array(est.vector()),
+        estimate_names=("R_s", "L_d", "L_q", "psi_pm"),
+        # exact estimates: x0 = [psi_s0; 0; w_m] whatever the gains (closed form)
+        fixed_equilibrium=lambda P: np.all(P[2:6] == motor[:, None], axis=0),
+        noise=noise,
+        noise_outputs=NOISE_OUTPUTS,
+        noise_units=("rad", "rad/s"),
+        noise_sigma=drive.control.i_noise,
+        T_s=drive.control.T_s,
+        pointwise_gains=pointwise_gains,
+        gain_size=gain_size_function(law, R, wb, settings.envelope.speed_max * wb),
+        **kw,
+    )
