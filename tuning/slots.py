@@ -145,6 +145,7 @@ class Layout:
 
 
 def sizes(model: TuningModel) -> tuple[int, int, int, int]:
+    """(n_x, local data, point, covariance upper triangle) sizes of the model's slots."""
     n = model.n_x
     nphi = model.phi_typical.size
     return n, nphi, len(model.point_names), n * (n + 1) // 2

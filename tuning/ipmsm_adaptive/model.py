@@ -14,6 +14,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
 from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
 from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
@@ -88,7 +89,14 @@ def law_values(law: GainLaw) -> ca.Function:
 
 
 def law_model(
-    drive: Any, law: GainLaw, settings: TuningSettings, theta0, lower, upper, typical, **kw
+    drive: Any,
+    law: GainLaw,
+    settings: TuningSettings,
+    theta0: ArrayLike,
+    lower: ArrayLike,
+    upper: ArrayLike,
+    typical: ArrayLike,
+    **kw: Any,
 ) -> TuningModel:
     """The TuningModel of ``law`` on ``drive`` with the box (lower, upper), baseline theta0 and typical
     magnitudes of its parameters (alpha_fo appended when tuned); ``kw``: the family's own fields."""
