@@ -1,4 +1,4 @@
-"""Motor data as datasheets give it: the conversions to the per-phase model of a PMSM, and plausibility.
+"""Motor data as datasheets give it: the conversions to the per-phase model of a PMSM.
 
 Any PMSM family reads its drive file's ``[motor]`` table with :func:`read_motor`, which accepts each
 quantity in the forms datasheets use and converts it to the per-phase quantities of the equivalent
@@ -20,9 +20,7 @@ Line-to-line R and L measured between two terminals are twice the equivalent wye
 for either connection (``connection`` states which the motor has; a delta winding's own phase values
 are 3 times the equivalent wye's, docs/motor_data.md). A missing convention key is an error naming it.
 
-:func:`plausibility` checks a drive's data against each other (back-EMF at rated speed against the
-inverter's voltage, rated torque against current and flux, samples per electrical period, L/R against
-the sampling period, f_N against n_N and p) and returns warnings; what cannot be right is an error.
+design/plausibility.py checks a drive's data against each other with the rated-point helpers here.
 """
 
 from __future__ import annotations
@@ -288,28 +286,8 @@ def _integer(v: Any, file: str, key: str) -> int:
 
 
 # --------------------------------------------------------------------------------------------------
-# Plausibility
+# The rated point (MTPA current and steady voltage), for the plausibility checks and derived drives
 # --------------------------------------------------------------------------------------------------
-# the thresholds of :func:`plausibility` (docs/motor_data.md, "Plausibility checks")
-EMF_ERROR = 1.05  # no-load back-EMF at n_N beyond this times the available voltage: error
-TORQUE_WARN, TORQUE_ERROR = 0.10, 0.30  # |T_N / T(I_N) - 1| beyond: warning, error
-SAMPLES_WARN, SAMPLES_ERROR = 10.0, 4.0  # samples per electrical period at the top speed
-LR_WARN, LR_ERROR = 5.0, 1.0  # electrical time constant L/R in sampling periods
-F_N_TOLERANCE = 0.01  # f_N against n_N p / 60
-
-
-@dataclass(frozen=True)
-class Finding:
-    """One plausibility finding: ``level`` "warning" or "error", the keys it concerns, the text."""
-
-    level: str
-    keys: tuple[str, ...]
-    text: str
-
-    def line(self, file: str) -> str:
-        return f"{file}: {', '.join(self.keys)}: {self.text}"
-
-
 @functools.cache
 def _mtpa_function() -> Any:
     """casadi.Function (T [N m], [R_s, L_d, L_q, psi_pm], p) -> MTPA current [i_d, i_q] (symbolic/pmsm.py).
@@ -351,107 +329,3 @@ def steady_voltage(motor: MotorData, w: float, i_d: float, i_q: float) -> float:
     u_d = motor.R_s * i_d - w * motor.L_q * i_q
     u_q = motor.R_s * i_q + w * (motor.L_d * i_d + motor.psi_pm)
     return math.hypot(u_d, u_q)
-
-
-def plausibility(
-    motor: MotorData,
-    *,
-    n_N: float,
-    T_N: float,
-    I_N: float | None,
-    f_N: float | None,
-    u_dc: float,
-    T_s: float,
-    w_max: float,
-    keys: Mapping[str, str],
-) -> list[Finding]:
-    """The plausibility findings of a drive's data (module docstring; thresholds above, documented in
-    docs/motor_data.md). ``n_N`` [r/min], ``T_N`` [N m], ``I_N`` [A rms] (None: not given), ``f_N``
-    [Hz] (None: not given), ``u_dc`` [V], ``T_s`` [s], ``w_max`` [electrical rad/s, top speed];
-    ``keys`` names the keys: n_N, T_N, I_N, f_N, u_dc, T_s, w_max (the motor's come from its source)."""
-    out: list[Finding] = []
-    src = motor.source
-    w_N = 2 * math.pi * n_N / 60 * motor.p
-    u_avail = u_dc / math.sqrt(3)  # peak phase voltage in the linear range of space-vector modulation
-    # n_N against f_N and p
-    if f_N is not None:
-        f_exp = n_N * motor.p / 60
-        if abs(f_N / f_exp - 1) > F_N_TOLERANCE:
-            out.append(
-                Finding(
-                    "error",
-                    (keys["f_N"], keys["n_N"], src["p"]),
-                    f"f_N = {f_N:g} Hz, but n_N p / 60 = {n_N:g} x {motor.p} / 60 = {f_exp:.5g} Hz "
-                    f"(tolerance {100 * F_N_TOLERANCE:g} %): check n_N (mechanical r/min) and the pole "
-                    "pairs (p = poles/2)",
-                )
-            )
-    # back-EMF at rated speed against the available voltage
-    emf = w_N * motor.psi_pm
-    if emf > EMF_ERROR * u_avail:
-        out.append(
-            Finding(
-                "error",
-                (src["psi_pm"], keys["n_N"], keys["u_dc"]),
-                f"the no-load back-EMF at n_N = {n_N:g} r/min is {emf:.4g} V (peak phase), more than the "
-                f"{u_avail:.4g} V the inverter can apply (u_dc/sqrt(3)): the flux or its convention "
-                "(line-line or phase, rms or peak), the pole pairs, or n_N (the rated speed without "
-                "field weakening) is wrong",
-            )
-        )
-    # rated torque against current and flux
-    i_d, i_q = mtpa_torque_current(T_N, motor)
-    if I_N is not None:
-        T_I = mtpa_torque(math.sqrt(2) * I_N, motor)
-        dev = T_N / T_I - 1
-        if abs(dev) > TORQUE_WARN:
-            level = "error" if abs(dev) > TORQUE_ERROR else "warning"
-            out.append(
-                Finding(
-                    level,
-                    (keys["T_N"], keys["I_N"], src["psi_pm"]),
-                    f"T_N = {T_N:.4g} N m, but I_N = {I_N:.4g} A rms gives {T_I:.4g} N m with this flux "
-                    f"(MTPA, {100 * dev:+.0f} %; warning beyond {100 * TORQUE_WARN:g} %, error beyond "
-                    f"{100 * TORQUE_ERROR:g} %): check that I_N is rms and the flux's convention",
-                )
-            )
-    # the voltage the rated point needs
-    u_N = steady_voltage(motor, w_N, i_d, i_q)
-    if emf <= EMF_ERROR * u_avail and u_N > u_avail:
-        out.append(
-            Finding(
-                "warning",
-                (keys["T_N"], keys["n_N"], keys["u_dc"]),
-                f"rated torque at rated speed needs {u_N:.4g} V (peak phase, MTPA), more than the "
-                f"{u_avail:.4g} V available (u_dc/sqrt(3)): the drive needs field weakening there, which "
-                "the analysis (MTPA, no voltage limit) does not model",
-            )
-        )
-    # samples per electrical period at the top speed
-    spp = 2 * math.pi / (w_max * T_s)
-    if spp < SAMPLES_WARN:
-        level = "error" if spp < SAMPLES_ERROR else "warning"
-        out.append(
-            Finding(
-                level,
-                (keys["T_s"], keys["w_max"]),
-                f"{spp:.3g} samples per electrical period at the top speed {w_max / (2 * math.pi):.4g} Hz "
-                f"(warning below {SAMPLES_WARN:g}, error below {SAMPLES_ERROR:g}: a quarter turn per "
-                "sample is the runtime observer's limit): sample faster or lower the top speed, or check "
-                "the pole pairs (p = poles/2)",
-            )
-        )
-    # electrical time constant against the sampling period
-    tau = min(motor.L_d, motor.L_q) / motor.R_s
-    if tau < LR_WARN * T_s:
-        level = "error" if tau < LR_ERROR * T_s else "warning"
-        out.append(
-            Finding(
-                level,
-                (src["L_d"], src["R_s"], keys["T_s"]),
-                f"L/R = {tau * 1e6:.4g} us is {tau / T_s:.3g} sampling periods (warning below "
-                f"{LR_WARN:g}, error below {LR_ERROR:g}): the current changes too much within a sample; "
-                "check R and L (per phase = line-to-line/2; mH or uH)",
-            )
-        )
-    return out

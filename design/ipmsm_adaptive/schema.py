@@ -216,7 +216,7 @@ class IpmsmDrive:
     runtime: Runtime | None = None  # [runtime], defaults filled in by the loader
     tuning: TuningSettings = field(default_factory=TuningSettings)  # optional [tuning] of `tune`
     digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
-    warnings: tuple[str, ...] = ()  # plausibility warnings (design/motor_data.py), printed by every command
+    warnings: tuple[str, ...] = ()  # plausibility warnings (design/plausibility.py), printed by every command
 
     def gain(self, name: str | None = None) -> Any:
         """The gain settings named ``name`` (default: ``[observer] gain``)."""
@@ -254,7 +254,7 @@ class IpmsmDrive:
 
 def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDrive:
     """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
-    the complete data is loaded strictly and checked for plausibility (design/motor_data.py)."""
+    the complete data is loaded strictly and checked for plausibility (design/plausibility.py)."""
     from sensorless.design.ipmsm_adaptive.derive import document
 
     doc = document(data, file)
@@ -266,7 +266,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDri
 def check_plausibility(drive: IpmsmDrive, context: Mapping[str, Any]) -> list[str]:
     """Warning lines of the plausibility checks; DriveFileError for the first error (naming its keys)."""
     from sensorless.design.ipmsm_adaptive.derive import SALIENCY_MIN, saliency
-    from sensorless.design.motor_data import plausibility
+    from sensorless.design.plausibility import plausibility
 
     m, keys, given, file = context["motor"], context["keys"], context["given"], drive.file
     findings = plausibility(

@@ -265,9 +265,9 @@ def _dc_link(inv: Mapping[str, Any], ctl: Mapping[str, Any], file: str) -> tuple
 
 
 def check_plausibility(drive: Any, context: Mapping[str, Any]) -> list[str]:
-    """Warning lines of the plausibility checks (design/motor_data.py) of a loaded drive; DriveFileError
+    """Warning lines of the plausibility checks (design/plausibility.py) of a loaded drive; DriveFileError
     for the first error (naming its keys). Without a DC-link voltage the voltage checks are skipped."""
-    from sensorless.design.motor_data import plausibility
+    from sensorless.design.plausibility import plausibility
 
     r, c, keys, given = drive.rating, drive.control, context["keys"], context["given"]
     findings = plausibility(

@@ -37,7 +37,7 @@ READINGS = {
 class PmacRating:
     """Nameplate data (Section IV); informational, and the per-unit speed base (1 p.u. = n_N). T_N, I_N
     and f_N are optional (0: not given): a minimal drive file's rating (derive.py), checked against
-    P_N and n_N (T_N within 1 %) and by the plausibility checks (design/motor_data.py)."""
+    P_N and n_N (T_N within 1 %) and by the plausibility checks (design/plausibility.py)."""
 
     P_N: float = q("power", doc="nominal power [W]")
     n_N: float = q("mech_speed", doc="nominal mechanical speed [r/min]")
@@ -135,7 +135,7 @@ class PmacDrive:
     control: PmacControl
     envelope: Envelope
     digest: str = ""
-    warnings: tuple[str, ...] = ()  # plausibility warnings (design/motor_data.py), printed by every command
+    warnings: tuple[str, ...] = ()  # plausibility warnings (design/plausibility.py), printed by every command
 
     @property
     def T_N(self) -> float:
@@ -275,7 +275,7 @@ SECTIONS = ("drive", "rating", "motor", "estimate", "observer", "control", "enve
 
 def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
     """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
-    the complete data is loaded strictly and checked for plausibility (design/motor_data.py)."""
+    the complete data is loaded strictly and checked for plausibility (design/plausibility.py)."""
     from sensorless.design.pmac_reduced_order.derive import check_plausibility, document
 
     doc = document(data, file)

@@ -90,7 +90,7 @@ def version() -> str:
 
 
 def print_warnings(command: str, drive: object) -> None:
-    """The drive's plausibility warnings (design/motor_data.py), one line each on stderr."""
+    """The drive's plausibility warnings (design/plausibility.py), one line each on stderr."""
     import sys
 
     for line in getattr(drive, "warnings", ()):

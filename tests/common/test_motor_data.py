@@ -1,4 +1,4 @@
-"""design/motor_data.py: datasheet motor terms to the per-phase model, and the plausibility checks.
+"""design/motor_data.py and design/plausibility.py: datasheet terms to the per-phase model; plausibility.
 
 Every expected value is a closed form typed here from the physics, not the code's output:
 - the phase peak back-EMF is p psi_pm per mechanical rad/s; line-to-line = sqrt(3) x phase (sinusoidal,
@@ -14,7 +14,8 @@ import math
 
 import pytest
 from sensorless.design.drive import load_drive
-from sensorless.design.motor_data import plausibility, read_motor
+from sensorless.design.motor_data import read_motor
+from sensorless.design.plausibility import plausibility
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.main import main
 
