@@ -19,7 +19,7 @@ instruction), in the style of CasADi's own code generator but targeted at an emb
   is computed only there (the coasting state only for a rejected sample), the selects on ``c``
   vanish, and the condition's value simplifies the logic inside (``!c``, ``c && d``, ...). A branch is
   taken only where it shortens the longer path and duplicates no more than it saves; each side may
-  branch again (nesting at most ``_MAX_DEPTH``). The values are the same as with the selects;
+  branch again (nesting at most c_graph ``MAX_DEPTH``). The values are the same as with the selects;
 - **truth values**: a comparison or logical operation of the step is an ``int`` temporary (what C's
   operators give), converted to the precision only where arithmetic or an output reads it, so that
   the guard's tests and selects cost no float conversions;
@@ -36,6 +36,18 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
+from sensorless.reports.codegen.c_graph import (
+    LOGIC_OPS,
+    MAX_DEPTH,
+    Node,
+    best_branch,
+    fold_parameter_products,
+    forward_trivial_selects,
+    fuse_selects,
+    live_nodes,
+    runtime_nodes,
+    strength_reduce,
+)
 
 _OPS = {getattr(ca, n): n[3:] for n in dir(ca) if n.startswith("OP_")}
 
@@ -85,6 +97,7 @@ _LOGIC = {  # the same operations as truth values (int), for the step's temporar
     "OR": "({a} || {b})",
     "NOT": "(!{a})",
 }
+assert set(_LOGIC) == LOGIC_OPS  # c_graph decides what is a truth value; this prints them
 _LIBM = {
     "FMIN": "fmin",
     "FMAX": "fmax",
@@ -134,15 +147,6 @@ class Precision:
 
 
 @dataclass
-class _Node:
-    op: str
-    args: tuple[int, ...] = ()
-    const: float = 0.0
-    source: tuple[int, int] | None = None  # (input index, nonzero) of an INPUT node
-    param: bool = False  # depends on the parameters (and constants) only
-
-
-@dataclass
 class Emitted:
     """C text of one Function: coefficient code for ``*_init`` and the step body."""
 
@@ -175,7 +179,7 @@ def emit(
         if (i in runtime_in) == (i in param_in):
             raise ValueError(f"{f.name()}: input {f.name_in(i)} must be either runtime or parameter")
 
-    nodes: list[_Node] = []
+    nodes: list[Node] = []
     work: dict[int, int] = {}
     outputs: list[tuple[tuple[int, int], int]] = []
     for k in range(f.n_instructions()):
@@ -185,21 +189,21 @@ def emit(
             outputs.append(((outs[0], outs[1]), work[ins[0]]))
             continue
         if op == "CONST":
-            node = _Node("CONST", const=float(f.instruction_constant(k)), param=True)
+            node = Node("CONST", const=float(f.instruction_constant(k)), param=True)
         elif op == "INPUT":
-            node = _Node("INPUT", source=(ins[0], ins[1]), param=ins[0] in param_in)
+            node = Node("INPUT", source=(ins[0], ins[1]), param=ins[0] in param_in)
         elif op in _BINARY or op in _UNARY:
             args = tuple(work[j] for j in ins[: 2 if op in _BINARY else 1])
-            node = _Node(op, args, param=all(nodes[a].param for a in args))
+            node = Node(op, args, param=all(nodes[a].param for a in args))
         else:
             raise NotImplementedError(f"{f.name()}: CasADi operation OP_{op} has no C spelling here")
         nodes.append(node)
         work[outs[0]] = len(nodes) - 1
 
-    _strength_reduce(nodes)
-    _fold_parameter_products(nodes)
-    _fuse_selects(nodes)
-    alias = _forward_trivial_selects(nodes)
+    strength_reduce(nodes)
+    fold_parameter_products(nodes)
+    fuse_selects(nodes)
+    alias = forward_trivial_selects(nodes)
     outputs = [(o, alias.get(n, n)) for o, n in outputs]
 
     # coefficients: parameter-only, non-constant values that runtime values or outputs read
@@ -211,7 +215,7 @@ def emit(
             seen.add(a)
             used_by_runtime.append(a)
 
-    live = _live(nodes, [n for _, n in outputs])
+    live = live_nodes(nodes, [n for _, n in outputs])
     for idx in sorted(live):
         if not nodes[idx].param:
             for a in nodes[idx].args:
@@ -260,7 +264,7 @@ def emit(
         return "int" if truth(idx, in_init) else r
 
     res = Emitted(n_coef=len(coef_of))
-    init_live = _live(nodes, list(coef_of))
+    init_live = live_nodes(nodes, list(coef_of))
     for idx in sorted(init_live):
         if nodes[idx].op != "CONST":
             res.init.append(f"const {r} {prefix}{idx} = {expr(idx, True)};")
@@ -273,8 +277,8 @@ def emit(
     def block(outs: list[tuple[str, int]], available: set[int], depth: int, indent: str) -> list[str]:
         """Lines computing ``outs`` (lvalue, node) from the ``available`` temporaries: the nodes they
         need, then the assignments, or a branch on a select condition (the module docstring)."""
-        need = _runtime(nodes, [n for _, n in outs]) - available
-        split = _best_branch(nodes, [n for _, n in outs], need, available) if depth < _MAX_DEPTH else None
+        need = runtime_nodes(nodes, [n for _, n in outs]) - available
+        split = best_branch(nodes, [n for _, n in outs], need, available) if depth < MAX_DEPTH else None
         if split is None:
             return compute(need, indent) + [f"{indent}{lv} = {ref(n, False)};" for lv, n in outs]
         c, common, sides = split
@@ -292,188 +296,3 @@ def emit(
     inputs = {i for i in live if nodes[i].op == "INPUT" and not nodes[i].param}
     res.body = compute(inputs, "") + block([(out[i][nz], n) for (i, nz), n in outputs], inputs, 0, "")
     return res
-
-
-def _live(nodes: list[_Node], roots: list[int]) -> set[int]:
-    """Indices of the nodes the roots depend on (roots included)."""
-    live: set[int] = set()
-    stack = list(roots)
-    while stack:
-        n = stack.pop()
-        if n in live:
-            continue
-        live.add(n)
-        stack.extend(nodes[n].args)
-    return live
-
-
-def _strength_reduce(nodes: list[_Node]) -> None:
-    """runtime / parameter-only  ->  runtime * (1 / parameter-only), the reciprocal hoisted;
-    x / 2^n  ->  x * 2^-n (exact)."""
-    recip: dict[int, int] = {}
-    for idx, nd in enumerate(list(nodes)):
-        if nd.op == "DIV" and nodes[nd.args[1]].op == "CONST":
-            c = nodes[nd.args[1]].const
-            m, _ = math.frexp(c)
-            if c != 0 and abs(m) == 0.5:  # a power of two: the reciprocal is exact
-                nodes.append(_Node("CONST", const=1.0 / c, param=True))
-                nodes[idx] = _Node("MUL", (nd.args[0], len(nodes) - 1), param=nd.param)
-        elif nd.op == "DIV" and not nd.param:
-            a, b = nd.args
-            if nodes[b].param and nodes[b].op != "CONST":
-                if b not in recip:
-                    nodes.append(_Node("INV", (b,), param=True))
-                    recip[b] = len(nodes) - 1
-                nodes[idx] = _Node("MUL", (a, recip[b]), param=False)
-
-
-def _fold_parameter_products(nodes: list[_Node]) -> None:
-    """MUL(p, MUL(q, x)) -> MUL(MUL(p, q), x) for parameter-only p, q and a runtime x (either order).
-
-    In instruction order, so a chain p * (q * (r * x)) folds into one product of the three; a folded
-    inner product that nothing else reads is no longer printed. One product node per pair (p, q)."""
-    products: dict[tuple[int, int], int] = {}
-
-    def split(nd: _Node) -> tuple[int, int] | None:
-        """(parameter-only factor, runtime factor) of a runtime MUL with exactly one of each."""
-        if nd.op != "MUL" or nd.param:
-            return None
-        a, b = nd.args
-        if nodes[a].param != nodes[b].param:
-            return (a, b) if nodes[a].param else (b, a)
-        return None
-
-    for idx in range(len(nodes)):
-        outer = split(nodes[idx])
-        inner = split(nodes[outer[1]]) if outer else None
-        if outer is None or inner is None:
-            continue
-        key = (min(outer[0], inner[0]), max(outer[0], inner[0]))
-        if key not in products:
-            p, q = (nodes[k] for k in key)
-            if p.op == "CONST" and q.op == "CONST":
-                nodes.append(_Node("CONST", const=p.const * q.const, param=True))
-            else:
-                nodes.append(_Node("MUL", key, param=True))
-            products[key] = len(nodes) - 1
-        nodes[idx] = _Node("MUL", (products[key], inner[1]), param=False)
-
-
-def _fuse_selects(nodes: list[_Node]) -> None:
-    """ADD(IF_ELSE_ZERO(c, a), IF_ELSE_ZERO(NOT(c), b))  ->  SELECT(c, a, b)."""
-    for idx, nd in enumerate(nodes):
-        if nd.op != "ADD" or nd.param:
-            continue
-        p, q = (nodes[a] for a in nd.args)
-        if p.op == "IF_ELSE_ZERO" and q.op == "IF_ELSE_ZERO":
-            c = p.args[0]
-            nq = nodes[q.args[0]]
-            if nq.op == "NOT" and nq.args[0] == c:
-                nodes[idx] = _Node("SELECT", (c, p.args[1], q.args[1]), param=False)
-
-
-def _forward_trivial_selects(nodes: list[_Node]) -> dict[int, int]:
-    """SELECT(c, a, a) -> a: users are rewired to ``a``; returns the map for the outputs."""
-    alias: dict[int, int] = {}
-    for idx, nd in enumerate(nodes):
-        nd.args = tuple(alias.get(a, a) for a in nd.args)
-        if nd.op == "SELECT" and nd.args[1] == nd.args[2]:
-            alias[idx] = nd.args[1]
-    return alias
-
-
-_MAX_DEPTH = 3  # nesting of the step's branches
-_CHOICE = ("SELECT", "IF_ELSE_ZERO")  # operations that read one of their operands by a condition
-
-
-def _runtime(nodes: list[_Node], roots: list[int]) -> set[int]:
-    """The runtime (not parameter-only) nodes the roots depend on."""
-    return {i for i in _live(nodes, roots) if not nodes[i].param}
-
-
-def _weight(nodes: list[_Node], idxs: set[int]) -> int:
-    """Work of computing ``idxs``: one per operation (reading an input or a constant is free)."""
-    return sum(nodes[i].op not in ("INPUT", "CONST") for i in idxs)
-
-
-def _truth_of(nd: _Node) -> bool | None:
-    """The truth value of a constant node, None for any other."""
-    return nd.const != 0 if nd.op == "CONST" else None
-
-
-def _specialize(nodes: list[_Node], roots: list[int], available: set[int], c: int, value: bool) -> list[int]:
-    """``roots`` with condition node ``c`` known to be ``value``: the replacement of each root.
-
-    A select or ``IF_ELSE_ZERO`` on a known condition becomes the operand it reads; ``NOT``, ``AND``,
-    ``OR`` of known values become constants (``c && d`` with ``c`` true: ``d``); a node whose operands
-    changed becomes a copy (appended to ``nodes``) reading the replacements, unless it is ``available``
-    (computed already: its value holds). Runtime nodes are in topological order of their indices
-    (parameter-only ones do not depend on ``c``)."""
-    consts: dict[float, int] = {}
-
-    def const(v: float) -> int:
-        if v not in consts:
-            nodes.append(_Node("CONST", const=v, param=True))
-            consts[v] = len(nodes) - 1
-        return consts[v]
-
-    sub = {c: const(float(value))}
-    for idx in sorted(_runtime(nodes, roots) - {c}):
-        nd = nodes[idx]
-        args = tuple(sub.get(a, a) for a in nd.args)
-        known = [_truth_of(nodes[a]) for a in args]
-        new: int | None = None
-        if nd.op == "NOT" and known[0] is not None:
-            new = const(float(not known[0]))
-        elif nd.op in ("AND", "OR"):
-            decisive = nd.op == "OR"  # the operand value that decides the result alone
-            if decisive in known:
-                new = const(float(decisive))
-            elif None not in known:
-                new = const(float(not decisive))
-            elif known != [None, None]:
-                other = args[1] if known[0] is not None else args[0]
-                if nodes[other].op in _LOGIC:  # a truth value already: the result itself
-                    new = other
-        elif nd.op == "SELECT" and known[0] is not None:
-            new = args[1] if known[0] else args[2]
-        elif nd.op == "IF_ELSE_ZERO" and known[0] is not None:
-            new = args[1] if known[0] else const(0.0)
-        if new is None and args != nd.args and idx not in available:
-            nodes.append(_Node(nd.op, args, nd.const, nd.source, param=False))
-            new = len(nodes) - 1
-        if new is not None:
-            sub[idx] = new
-    return [sub.get(n, n) for n in roots]
-
-
-def _best_branch(
-    nodes: list[_Node], roots: list[int], need: set[int], available: set[int]
-) -> tuple[int, set[int], tuple[list[int], list[int]]] | None:
-    """The condition to branch on for computing ``roots`` (``need``: the nodes still to compute), or None.
-
-    Candidates are the runtime conditions of the selects in ``need``. For each, the two sides are
-    specialized (:func:`_specialize`); the work common to both (and the condition) comes first. The
-    choice shortens the longer path the most, by at least 4 operations, and duplicates no more work
-    than it saves. Returns (condition, common nodes, (roots if true, roots if false))."""
-    conds: set[int] = set()
-    for i in need:
-        if nodes[i].op in _CHOICE and not nodes[nodes[i].args[0]].param:
-            c = nodes[i].args[0]
-            while nodes[c].op == "NOT":  # !c ? a : b reads c
-                c = nodes[c].args[0]
-            conds.add(c)
-    total = _weight(nodes, need)
-    best, best_gain = None, 3
-    for c in sorted(conds):
-        n_before = len(nodes)
-        sides = tuple(_specialize(nodes, roots, available, c, v) for v in (True, False))
-        live = [_runtime(nodes, side) - available for side in sides]
-        common = (live[0] & live[1]) | (_runtime(nodes, [c]) - available)
-        w_common, w_sides = _weight(nodes, common), [_weight(nodes, s - common) for s in live]
-        gain = total - w_common - max(w_sides)
-        if gain > best_gain and w_common + sum(w_sides) - total <= gain:
-            best, best_gain = (c, common, sides), gain
-        else:
-            del nodes[n_before:]  # the copies of a candidate not chosen
-    return best
