@@ -21,6 +21,10 @@ TORQUE_WARN, TORQUE_ERROR = 0.10, 0.30  # |T_N / T(I_N) - 1| beyond: warning, er
 SAMPLES_WARN, SAMPLES_ERROR = 10.0, 4.0  # samples per electrical period at the top speed
 LR_WARN, LR_ERROR = 5.0, 1.0  # electrical time constant L/R in sampling periods
 F_N_TOLERANCE = 0.01  # f_N against n_N p / 60
+# w_N L_q |i_q| at the rated point beyond this times the available voltage: error. Field weakening
+# (i_d) cannot lower the q-axis inductive drop, and 3x leaves room for a salient motor's smaller i_q
+# there; an inductance in H instead of mH (a bare number is SI) is 1000x
+U_L_ERROR = 3.0
 
 
 @dataclass(frozen=True)
@@ -97,6 +101,20 @@ def plausibility(
                     f"{100 * TORQUE_ERROR:g} %): check that I_N is rms and the flux's convention",
                 )
             )
+    # the q-axis inductive voltage of the rated point, which no field weakening removes
+    u_L = w_N * motor.L_q * abs(i_q)
+    if u_L > U_L_ERROR * u_avail:
+        out.append(
+            Finding(
+                "error",
+                (src["L_q"], keys["T_N"], keys["n_N"], keys["u_dc"]),
+                f"rated torque at rated speed needs w L_q i_q = {u_L:.4g} V (peak phase) across the "
+                f"inductance alone, {u_L / u_avail:.3g} times the {u_avail:.4g} V available (error beyond "
+                f"{U_L_ERROR:g}x; field weakening cannot lower it): check the inductance's unit (a bare "
+                "number is in henries), that L is per phase (= line-to-line/2), and T_N and n_N",
+            )
+        )
+        return out  # the rated point is not reachable: the remaining voltage findings would only repeat it
     # the voltage the rated point needs
     u_N = steady_voltage(motor, w_N, i_d, i_q)
     if emf <= EMF_ERROR * u_avail and u_N > u_avail:

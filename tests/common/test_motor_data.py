@@ -278,6 +278,23 @@ def test_rated_point_voltage_warning():
     assert findings(u_dc=S3 * U_RATED * 1.01) == []
 
 
+def test_inductive_voltage_of_the_rated_point_against_the_inverter():
+    # w_N L i_q across the inductance alone: 3x the available voltage is an error (no field weakening
+    # removes it); an inductance given as a bare number (henries) where mH was meant is 1000x
+    u_avail = 310.0 / S3
+    ratio = W_N * L * I_Q / u_avail
+    assert ratio < 1  # the servo itself is fine (and no finding above)
+    keys = ("motor.L_ll", "rating.T_N", "rating.n_N", "inverter.u_dc")
+    bare = plausibility(read_motor({**SERVO, "L_ll": 10.0}, F), keys=KEYS, **OK)  # 10 H, not 10 mH
+    text = only(bare, "error", keys)
+    assert f"{1000 * ratio:.3g} times" in text and "henries" in text
+    # just below and above the threshold: scale the inductance (the back-EMF stays as it is)
+    for f, level in ((2.9, "warning"), (3.1, "error")):
+        mh = 10 * f / ratio
+        fs = plausibility(read_motor({**SERVO, "L_ll": f"{mh} mH"}, F), keys=KEYS, **OK)
+        assert [x.level for x in fs] == [level], [x.line(F) for x in fs]
+
+
 @pytest.mark.parametrize(
     ("I_N", "level"),
     [(I_RMS / 1.05, None), (I_RMS / 1.2, "warning"), (I_RMS * 1.25, "warning"), (I_RMS / 1.4, "error")],
