@@ -25,6 +25,10 @@ F_N_TOLERANCE = 0.01  # f_N against n_N p / 60
 # (i_d) cannot lower the q-axis inductive drop, and 3x leaves room for a salient motor's smaller i_q
 # there; an inductance in H instead of mH (a bare number is SI) is 1000x
 U_L_ERROR = 3.0
+# the mechanical time constant J w_N / (p T_N) (1 p.u. of speed at rated torque) outside this range
+# [s]: warning. Measured motors span ~10 ms (a drone motor, a small servo) to ~5 s (the 30-kW
+# axial-flux preset); kg cm2 read as kg m2 is 10^4 x, g cm2 as kg cm2 10^3 x
+TAU_M_RANGE = (1e-3, 60.0)
 
 
 @dataclass(frozen=True)
@@ -125,6 +129,18 @@ def plausibility(
                 f"rated torque at rated speed needs {u_N:.4g} V (peak phase, MTPA), more than the "
                 f"{u_avail:.4g} V available (u_dc/sqrt(3)): the drive needs field weakening there, which "
                 "the analysis (MTPA, no voltage limit) does not model",
+            )
+        )
+    # mechanical time constant: an inertia off by a unit
+    tau_m = motor.J * w_N / motor.p / T_N
+    if not TAU_M_RANGE[0] <= tau_m <= TAU_M_RANGE[1]:
+        out.append(
+            Finding(
+                "warning",
+                (src["J"], keys["T_N"], keys["n_N"]),
+                f"the mechanical time constant J w_N / (p T_N) = {tau_m:.3g} s (rated torque takes the rotor "
+                f"to n_N in that time) is outside {TAU_M_RANGE[0]:g}-{TAU_M_RANGE[1]:g} s: check J's unit "
+                "(kg m2, kg cm2 = 1e-4 kg m2, g cm2 = 1e-7 kg m2; a bare number is kg m2)",
             )
         )
     # samples per electrical period at the top speed

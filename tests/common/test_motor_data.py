@@ -278,6 +278,15 @@ def test_rated_point_voltage_warning():
     assert findings(u_dc=S3 * U_RATED * 1.01) == []
 
 
+def test_mechanical_time_constant_catches_an_inertia_unit():
+    tau_m = 6e-5 * W_N / PS / 1.27  # J w_N / (p T_N) of the servo: 15 ms
+    assert 1e-3 < tau_m < 60
+    keys = ("motor.J", "rating.T_N", "rating.n_N")
+    for J in (0.6, 6e-9):  # "0.6" meant kg cm2 but read as kg m2; g cm2 read as ... 1e-4 of it
+        fs = plausibility(read_motor({**SERVO, "J": J}, F), keys=KEYS, **OK)
+        assert f"{J * W_N / PS / 1.27:.3g} s" in only(fs, "warning", keys)
+
+
 def test_inductive_voltage_of_the_rated_point_against_the_inverter():
     # w_N L i_q across the inductance alone: 3x the available voltage is an error (no field weakening
     # removes it); an inductance given as a bare number (henries) where mH was meant is 1000x
