@@ -12,7 +12,8 @@ by the drive's current-sensor noise (``[control] i_noise``), from the same discr
 position noise at most NOISE_FACTOR (2) times that of the drive file's gains, worst over the
 envelope grid (``--max-noise`` sets absolute limits instead). The noise grows with g (e_hat carries the
 current noise times g L): the limit sets g, and the damping floor then sets Gamma. The box
-(0.01x .. 100x the drive's g, 0.01x .. 10^4x its Gamma) only bounds the search.
+(0.01x .. 100x the drive's g; Gamma from critical damping at the least g to c = g^2 at the largest,
+:func:`gamma_box`) only bounds the search.
 
 Formulation (a sound simpler one than the sector NLP of tuning/nlp.py, for two parameters):
 
@@ -52,9 +53,8 @@ from sensorless.design.pmac_reduced_order.linearize import analyze
 from sensorless.tuning.nlp import TuningError
 
 G_MAX_FACTOR = 100.0  # search box g <= 100 g (drive): the noise limit decides, not this
-GAMMA_MAX_FACTOR = 1e4  # search box Gamma <= 10^4 Gamma (drive)
 NOISE_FACTOR = 2.0  # default noise limit: the position noise of the drive's gains times this
-MIN_FACTOR = 0.01  # default lower bounds: 1 % of the drive's gains
+MIN_FACTOR = 0.01  # default lower bounds: 1 % of the drive's g (and of its Gamma, see gamma_box)
 DENSE_TRIES = 6  # candidates re-verified densely at most
 
 
@@ -97,16 +97,37 @@ class DeAngeloSettings:
             raise TuningError(f"{file}: [envelope]: need nonzero speeds and at least one load")
 
 
+def critical_gamma(drive: Any, g: float) -> float:
+    """Gamma that makes s^2 + g s + Gamma (Phi_1/J)^2 critically damped: (g J / (2 Phi_1))^2."""
+    return (g * drive.estimate.J / (2 * drive.estimate.Phi[0])) ** 2
+
+
+def gamma_box(drive: Any, g_min: float, g_max: float, Gamma0: float) -> tuple[float, float]:
+    """Default Gamma bounds for g in [g_min, g_max] (docs/families/pmac_reduced_order.md, "Tuning").
+
+    Gamma acts through c = Gamma (Phi_1/J)^2 against g^2 (the quadratic s^2 + g s + c), so its
+    scale is (J/Phi_1)^2 g^2, not the drive's Gamma (which may sit anywhere on 0 < c <= g^2/4):
+    upper bound c = g_max^2 (the quadratic's damping 1/2 at g_max), lower bound critical damping at
+    g_min (c = g_min^2/4); both widened to keep the drive's Gamma (1 % of it) inside.
+    """
+    lo = critical_gamma(drive, g_min)
+    if Gamma0 > 0:
+        lo = min(lo, MIN_FACTOR * Gamma0)
+    return lo, max(4 * critical_gamma(drive, g_max), Gamma0)
+
+
 def default_settings(drive: Any) -> DeAngeloSettings:
-    """The drive's [envelope], bounds around its [observer] gains."""
+    """The drive's [envelope], bounds around its [observer] gains (g) and their scale (Gamma)."""
     o = drive.observer
+    g_min, g_max = MIN_FACTOR * o.g, G_MAX_FACTOR * o.g
+    Gamma_min, Gamma_max = gamma_box(drive, g_min, g_max, float(o.Gamma))
     return DeAngeloSettings(
         speeds_rpm=tuple(float(s) for s in drive.envelope.speeds),
         loads_Nm=tuple(float(t) for t in drive.envelope.loads),
-        g_min=MIN_FACTOR * o.g,
-        g_max=G_MAX_FACTOR * o.g,
-        Gamma_min=MIN_FACTOR * max(o.Gamma, 1.0),
-        Gamma_max=GAMMA_MAX_FACTOR * max(o.Gamma, 1.0),
+        g_min=g_min,
+        g_max=g_max,
+        Gamma_min=Gamma_min,
+        Gamma_max=Gamma_max,
     )
 
 
@@ -169,7 +190,7 @@ class Figures:
 def figures(drive: Any, g: float, Gamma: float, n_rpm: np.ndarray, T_L: np.ndarray) -> Figures:
     """Poles of the observer with gains (g, Gamma) at the points, by linearize.analyze."""
     w = drive.rpm_to_w(n_rpm)
-    r = analyze(drive, w, T_L, g=float(g), Gamma=float(Gamma), noise=True)
+    r = analyze(drive, w, T_L, g=float(g), Gamma=float(Gamma), noise=True, errors=False)
     ok = np.isfinite(r.poles_discrete).all(axis=1)
     with np.errstate(invalid="ignore"):
         zeta = np.where(ok, np.nanmin(np.where(ok[:, None], r.damping_discrete, 0.0), axis=1), -np.inf)
