@@ -36,6 +36,7 @@ import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.batch import mapped as _mapped
+from sensorless.design.expm import expm_batched
 from sensorless.design.linearization import Linearization
 from sensorless.design.noise import noise_rms_periodic
 from sensorless.design.pmac_reduced_order.one_step import (
@@ -147,28 +148,6 @@ def floquet_exponents(monodromy: np.ndarray, duration: np.ndarray) -> np.ndarray
     return sort_poles(s)
 
 
-def expm_batched(A: np.ndarray, order: int = 18) -> np.ndarray:
-    """exp(A) of each (..., n, n) matrix at once: Taylor series of ``order`` after scaling each matrix
-    by 2^-s to 1-norm <= 1/2, then s squarings (masked per matrix: a uniform s would overscale).
-
-    The truncation error is below 0.5^19 / 19! ~ 2e-23 relative; scipy's expm loops over the batch in
-    Python, which cost ~1 ms per 3 x 3 matrix: 64 x points matrices per Floquet monodromy.
-    """
-    A = np.asarray(A, float)
-    norm = np.nan_to_num(np.abs(A).sum(axis=-2).max(axis=-1), nan=0.0, posinf=0.0)
-    s = np.maximum(0, np.ceil(np.log2(np.maximum(norm, 1e-300) / 0.5))).astype(int)
-    X = A * np.exp2(-s)[..., None, None]
-    E = np.broadcast_to(np.eye(A.shape[-1]), A.shape).copy()
-    term = E.copy()
-    for k in range(1, order + 1):
-        term = term @ X / k
-        E += term
-    with np.errstate(over="ignore", invalid="ignore"):  # the finished matrices are squared and dropped
-        for j in range(int(s.max(initial=0))):
-            E = np.where((j < s)[..., None, None], E @ E, E)
-    return E
-
-
 def continuous_poles(
     drive: Any, w: Any, T_L: Any, load_estimation: bool = True, n_angles: int = 64, **over: Any
 ) -> np.ndarray:
@@ -202,7 +181,9 @@ def continuous_poles(
     if K == 1:
         return sort_poles(np.linalg.eigvals(A[:, 0]))
     T_p = period / np.abs(w_f)  # [s]
-    M = ordered_product(expm_batched(A * (T_p / K)[:, None, None, None]))
+    # every sub-interval's exponential at once (scipy's expm loops over a batch in Python)
+    E = expm_batched((A * (T_p / K)[:, None, None, None]).reshape(n * K, ny, ny))
+    M = ordered_product(E.reshape(n, K, ny, ny))
     return floquet_exponents(M, T_p)
 
 

@@ -31,7 +31,8 @@ OPTIONS = (
         ("--Gamma-max",),
         {
             "type": Number(0, 1e12, lo_open=True, unit="A^2 s^2"),
-            "help": "search box: upper bound on Gamma [A^2 s^2] (default 10^4 x the drive's)",
+            "help": "search box: upper bound on Gamma [A^2 s^2] (default (g_max J / Phi_1)^2, where "
+            "Gamma (Phi_1/J)^2 = g_max^2, and at least the drive's Gamma)",
         },
     ),
     Option(

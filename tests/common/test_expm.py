@@ -50,3 +50,14 @@ def test_zero_order_hold_keeps_small_entries_accurate():
 @pytest.mark.parametrize("n", [1, 3])
 def test_zero_matrix_is_identity(n):
     np.testing.assert_array_equal(expm_batched(np.zeros((4, n, n))), np.broadcast_to(np.eye(n), (4, n, n)))
+
+
+def test_stable_matrices_and_a_jordan_block_match_scipy():
+    # the reduced-order observer's Floquet sub-intervals: decaying 3 x 3 matrices over ten decades
+    rng = np.random.default_rng(1)
+    scale = np.geomspace(1e-8, 30, 200)[:, None, None]
+    A = rng.normal(size=(200, 3, 3)) * scale - 2 * scale * np.eye(3)
+    A[0] = [[-5, 1, 0], [0, -5, 1], [0, 0, -5]]  # a Jordan block (critical damping)
+    ref = np.stack([expm(a) for a in A])
+    err = np.abs(expm_batched(A) - ref).max(axis=(1, 2)) / np.abs(ref).max(axis=(1, 2))
+    assert err.max() < 1e-12

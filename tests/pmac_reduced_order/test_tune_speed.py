@@ -7,9 +7,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from scipy.linalg import expm
 from sensorless.design.drive import load_drive
-from sensorless.design.pmac_reduced_order.linearize import analyze, expm_batched
+from sensorless.design.pmac_reduced_order.linearize import analyze
 from sensorless.tuning.pmac_reduced_order.deangelo import closed_form, default_settings
 
 
@@ -61,16 +60,6 @@ def test_gamma_box_of_the_servo_is_not_an_absolute_clamp(servo_drive):
     k = (servo_drive.estimate.J / servo_drive.estimate.Phi[0]) ** 2
     assert st.Gamma_min == pytest.approx(min((st.g_min / 2) ** 2 * k, 0.01 * servo_drive.observer.Gamma))
     assert st.Gamma_max == pytest.approx(st.g_max**2 * k)
-
-
-def test_expm_batched_matches_scipy():
-    rng = np.random.default_rng(1)
-    scale = np.geomspace(1e-8, 30, 200)[:, None, None]
-    A = rng.normal(size=(200, 3, 3)) * scale - 2 * scale * np.eye(3)
-    A[0] = [[-5, 1, 0], [0, -5, 1], [0, 0, -5]]  # a Jordan block (critical damping)
-    ref = np.stack([expm(a) for a in A])
-    err = np.abs(expm_batched(A) - ref).max(axis=(1, 2)) / np.abs(ref).max(axis=(1, 2))
-    assert err.max() < 1e-12
 
 
 def test_poles_do_not_depend_on_the_error_window(servo_drive):
