@@ -88,6 +88,16 @@ def read_pmac_motor(t: Mapping[str, Any], file: str) -> PmacMotorData:
     if "L" in t:
         md["L_s"] = positive(t, "L", "inductance", file, "motor")
     flux_keys = [k for k in ("psi_pm", "kE", "KV", "kT") if k in t]
+    if reading == "electrical" and flux_keys:
+        # datasheet terms describe the physical motor (J in kg m2 as measured); in the electrical
+        # reading J and Phi of eq. (2) are per electrical radian (J/p^2): one key, two meanings
+        raise DriveFileError(
+            file,
+            "motor.reading",
+            "the electrical reading of eq. (2) takes J and Phi per electrical radian, but "
+            f'motor.{flux_keys[0]} gives the physical motor: leave reading at "mechanical" with '
+            "datasheet terms, or give the family's own R, L, J and Phi (docs/families/pmac_reduced_order.md)",
+        )
     if not flux_keys and "Phi" not in t:
         raise DriveFileError(
             file,

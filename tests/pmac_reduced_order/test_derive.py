@@ -209,6 +209,8 @@ def edit(old: str, new: str) -> str:
         (edit('u_dc = "560 V"', 'u_dc = "380 V"'), "motor.kE, rating.n_N, inverter.u_dc", "back-EMF"),
         (edit("[inverter]", "[inverter]\nf_pwm = 1"), "inverter.f_pwm", "unknown key"),
         (edit('connection = "wye"\n', ""), "motor.connection", "missing key"),
+        # datasheet terms are the physical motor; the electrical reading's J would be J/p^2
+        (edit('J = "12 kg cm2"', 'J = "12 kg cm2"\nreading = "electrical"'), "motor.reading", "physical"),
     ],
     ids=lambda v: v if isinstance(v, str) and len(v) < 40 else "",
 )
