@@ -1,7 +1,7 @@
 """``sensorless tune`` options of the reduced-order observer: bounds and damping floor of the deangelo tuner.
 
 The drive's ``[envelope]`` with default bounds around its ``[observer]`` gains
-(tuning/pmac_reduced_order/deangelo.py), and the command-line overrides, checked.
+(tuning/pmac_reduced_order/settings.py), and the command-line overrides, checked.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Any
 from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
 from sensorless.reports.family import Option
 from sensorless.tuning.nlp import TuningError
-from sensorless.tuning.pmac_reduced_order.deangelo import DeAngeloSettings, default_settings
+from sensorless.tuning.pmac_reduced_order.settings import DeAngeloSettings, default_settings
 
 OPTIONS = (
     Option(

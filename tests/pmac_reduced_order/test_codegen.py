@@ -19,7 +19,7 @@ from sensorless.design.pmac_reduced_order import FAMILY
 from sensorless.design.runtime import run_trajectory
 from sensorless.reports.cli.main import main
 from sensorless.symbolic.pmac_reduced_order.step import OUTPUTS, STATE
-from sensorless.tuning.pmac_reduced_order.deangelo import closed_form
+from sensorless.tuning.pmac_reduced_order.settings import closed_form
 
 CC = shutil.which("gcc") or shutil.which("cc")
 ARM = shutil.which("arm-none-eabi-gcc")

@@ -13,13 +13,8 @@ from sensorless.design.pmac_reduced_order.linearize import analyze
 from sensorless.reports.cli.main import main
 from sensorless.reports.gain_csv import table_csv
 from sensorless.tuning.family import tunable_for
-from sensorless.tuning.pmac_reduced_order.deangelo import (
-    closed_form,
-    default_settings,
-    grid,
-    speed_grid,
-    tune_deangelo,
-)
+from sensorless.tuning.pmac_reduced_order.settings import closed_form, default_settings, grid, speed_grid
+from sensorless.tuning.pmac_reduced_order.tuner import tune_deangelo
 
 
 def hand_poles(g, Gamma, Phi1, J):

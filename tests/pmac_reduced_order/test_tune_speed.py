@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from sensorless.design.drive import load_drive
 from sensorless.design.pmac_reduced_order.linearize import analyze
-from sensorless.tuning.pmac_reduced_order.deangelo import closed_form, default_settings
+from sensorless.tuning.pmac_reduced_order.settings import closed_form, default_settings
 
 
 @pytest.fixture(scope="module")

@@ -1,13 +1,14 @@
 """Tuning hooks of the reduced-order observer: the gain family deangelo (g, Gamma), by a tuner of its own.
 
 De Angelo et al. (2006). Its poles are Floquet exponents of the sampled observer, so it does not go
-through the shared NLP: deangelo.py has a closed form and a compass search on the discrete poles.
+through the shared NLP: tuner.py has a closed form and a compass search on the discrete poles.
 """
 
 from __future__ import annotations
 
 from sensorless.tuning.family import Tunable, TuningHooks
-from sensorless.tuning.pmac_reduced_order.deangelo import default_settings, tune_deangelo
+from sensorless.tuning.pmac_reduced_order.settings import default_settings
+from sensorless.tuning.pmac_reduced_order.tuner import tune_deangelo
 
 HOOKS = TuningHooks(
     tunables=(
