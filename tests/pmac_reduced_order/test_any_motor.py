@@ -92,7 +92,6 @@ def test_the_verdict_agrees_with_its_checks(flow):
     assert f"verdict-{v['status']}" in html or v["status"].upper() in html.upper()
 
 
-@pytest.mark.skipif(CC is None, reason="no C compiler")
 def test_the_report_does_not_take_the_observer_through_zero_speed_and_says_so(flow):
     # De Angelo et al. (2006), Sec. V: the observer "cannot be used at very low or zero speed"; the
     # paper reverses open loop. So the generic checks stay above zero speed, and the report says what
@@ -112,6 +111,7 @@ def test_the_report_does_not_take_the_observer_through_zero_speed_and_says_so(fl
     assert min(by_name["speed_steps"].speed_reference.value) == pytest.approx(0.25 * drive.w_base)
 
 
+@pytest.mark.skipif(CC is None, reason="no C compiler")
 def test_the_generated_float_c_builds_and_its_example_initializes(flow):
     _, d, _ = flow
     c = d / "c"
