@@ -118,6 +118,31 @@ def drive_header(data: Mapping[str, Any], file: str) -> Mapping[str, Any]:
 DEFAULT_SOURCE = "the user's motor data"
 
 
+def positive(t: Mapping[str, Any], k: str, dim: str, file: str, section: str) -> float:
+    """A positive SI quantity of ``t[k]`` (a number in SI or a string with a unit of ``dim``);
+    DriveFileError naming ``section.k``."""
+    x, rel = parse_quantity(t[k], dim, file=file, key=f"{section}.{k}")
+    if rel is not None:
+        raise DriveFileError(file, f"{section}.{k}", f"unit '{rel}' cannot be resolved here")
+    if not x > 0:
+        raise DriveFileError(file, f"{section}.{k}", f"non-physical value {t[k]!r}: must be > 0")
+    return x
+
+
+def sampling_frequency(inv: Mapping[str, Any], ctl: Mapping[str, Any], file: str) -> tuple[float, str]:
+    """(sampling frequency [Hz], the key it came from) of a drive file: [inverter] f_s or [control] T_s
+    (both given: they must agree)."""
+    f_inv = positive(inv, "f_s", "frequency", file, "inverter") if "f_s" in inv else None
+    f_ctl = 1 / positive(ctl, "T_s", "time", file, "control") if "T_s" in ctl else None
+    if f_inv is None and f_ctl is None:
+        raise DriveFileError(file, "inverter.f_s", "missing key (sampling frequency, e.g. '10 kHz')")
+    if f_inv is not None and f_ctl is not None and abs(f_inv / f_ctl - 1) > 1e-9:
+        raise DriveFileError(
+            file, "inverter.f_s", f"{f_inv:g} Hz, but control.T_s is 1/{f_ctl:g} Hz: give one of them"
+        )
+    return (f_inv, "inverter.f_s") if f_inv is not None else (f_ctl, "control.T_s")  # type: ignore[return-value]
+
+
 # --------------------------------------------------------------------------------------------------
 # Complete drive documents (``sensorless init``)
 # --------------------------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from sensorless.design.motor_data import MotorData, mtpa_torque, mtpa_torque_current, steady_voltage
+from sensorless.design.units import DriveFileError
 
 # the thresholds of :func:`plausibility` (docs/motor_data.md, "Plausibility checks")
 EMF_ERROR = 1.05  # no-load back-EMF at n_N beyond this times the available voltage: error
@@ -171,3 +172,11 @@ def plausibility(
             )
         )
     return out
+
+
+def warning_lines(findings: list[Finding], file: str) -> list[str]:
+    """The warning lines of ``findings`` (``file: keys: text``); DriveFileError for the first error."""
+    for fd in findings:
+        if fd.level == "error":
+            raise DriveFileError(file, ", ".join(fd.keys), fd.text)
+    return [fd.line(file) for fd in findings]

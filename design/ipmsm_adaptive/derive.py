@@ -35,7 +35,16 @@ import textwrap
 from collections.abc import Mapping
 from typing import Any
 
-from sensorless.design.drive_file import DriveDocument, Entry, check_keys, derived_document, table, toml_value
+from sensorless.design.drive_file import (
+    DriveDocument,
+    Entry,
+    check_keys,
+    derived_document,
+    positive,
+    sampling_frequency,
+    table,
+    toml_value,
+)
 from sensorless.design.ipmsm_adaptive.schema import SECTIONS
 from sensorless.design.motor_data import mtpa_torque, mtpa_torque_current, read_motor, steady_voltage
 from sensorless.design.units import DriveFileError, parse_quantity
@@ -99,14 +108,7 @@ class _Reader:
         return table(self.data, name, self.file)
 
     def value(self, section: str, key: str, dim: str) -> float:
-        x, rel = parse_quantity(self.data[section][key], dim, file=self.file, key=f"{section}.{key}")
-        if rel is not None:
-            raise DriveFileError(self.file, f"{section}.{key}", f"unit '{rel}' cannot be resolved here")
-        if not x > 0:
-            raise DriveFileError(
-                self.file, f"{section}.{key}", f"non-physical value {self.data[section][key]!r}: must be > 0"
-            )
-        return x
+        return positive(self.data[section], key, dim, self.file, section)
 
 
 def document(data: Mapping[str, Any], file: str) -> DriveDocument:
@@ -183,7 +185,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     ctl_t = r.table("control") or {}
     if inv_t is not None:
         check_keys(inv_t, tuple(INVERTER), file, "inverter.")
-    f_s = _sampling(r, inv_t, ctl_t, file)
+    f_s = sampling_frequency(inv_t or {}, ctl_t, file)[0]
     u_dc_raw, u_dc_rule = _dc_link(r, inv_t, ctl_t, file)
     u_dc_key = "inverter.u_dc" if inv_t is not None and "u_dc" in inv_t else "control.u_dc"
     u_dc = parse_quantity(u_dc_raw, "voltage", file=file, key=u_dc_key)[0]
@@ -346,19 +348,6 @@ def _extra(sec: dict[str, Entry], given: Mapping[str, Any], known: Any) -> None:
     for k, v in given.items():
         if k not in known and k not in sec:
             sec[k] = Entry(v, given=True)
-
-
-def _sampling(r: _Reader, inv: Mapping[str, Any] | None, ctl: Mapping[str, Any], file: str) -> float:
-    """The sampling frequency [Hz]: [inverter] f_s or [control] T_s (both: they must agree)."""
-    f_inv = r.value("inverter", "f_s", "frequency") if inv is not None and "f_s" in inv else None
-    f_ctl = 1 / r.value("control", "T_s", "time") if "T_s" in ctl else None
-    if f_inv is None and f_ctl is None:
-        raise DriveFileError(file, "inverter.f_s", "missing key (sampling frequency, e.g. '10 kHz')")
-    if f_inv is not None and f_ctl is not None and abs(f_inv * (1 / f_ctl) - 1) > 1e-9:
-        raise DriveFileError(
-            file, "inverter.f_s", f"{f_inv:g} Hz, but control.T_s is 1/{f_ctl:g} Hz: give one of them"
-        )
-    return f_inv if f_inv is not None else f_ctl  # type: ignore[return-value]
 
 
 def _dc_link(r: _Reader, inv: Mapping[str, Any] | None, ctl: Mapping[str, Any], file: str) -> tuple[Any, str]:

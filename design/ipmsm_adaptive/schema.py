@@ -266,7 +266,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDri
 def check_plausibility(drive: IpmsmDrive, context: Mapping[str, Any]) -> list[str]:
     """Warning lines of the plausibility checks; DriveFileError for the first error (naming its keys)."""
     from sensorless.design.ipmsm_adaptive.derive import SALIENCY_MIN, saliency
-    from sensorless.design.plausibility import plausibility
+    from sensorless.design.plausibility import plausibility, warning_lines
 
     m, keys, given, file = context["motor"], context["keys"], context["given"], drive.file
     findings = plausibility(
@@ -280,10 +280,7 @@ def check_plausibility(drive: IpmsmDrive, context: Mapping[str, Any]) -> list[st
         w_max=drive.runtime.w_max,
         keys=keys,
     )
-    for fd in findings:
-        if fd.level == "error":
-            raise DriveFileError(file, ", ".join(fd.keys), fd.text)
-    out = [fd.line(file) for fd in findings]
+    out = warning_lines(findings, file)
     e = drive.estimate
     if drive.injection.enabled:
         xi = saliency(e.L_d, e.L_q)

@@ -39,9 +39,18 @@ import textwrap
 from collections.abc import Mapping
 from typing import Any
 
-from sensorless.design.drive_file import DriveDocument, Entry, check_keys, derived_document, table, toml_value
+from sensorless.design.drive_file import (
+    DriveDocument,
+    Entry,
+    check_keys,
+    derived_document,
+    positive,
+    sampling_frequency,
+    table,
+    toml_value,
+)
 from sensorless.design.motor_data import mtpa_torque
-from sensorless.design.pmac_reduced_order.motor import g6, positive, read_pmac_motor
+from sensorless.design.pmac_reduced_order.motor import g6, read_pmac_motor
 from sensorless.design.pmac_reduced_order.schema import SECTIONS, harmonic_series
 from sensorless.design.units import DriveFileError
 
@@ -128,7 +137,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     inv_t = table(data, "inverter", file) if "inverter" in data else {}
     check_keys(inv_t, INVERTER, file, "inverter.")
     ctl_t = table(data, "control", file) if "control" in data else {}
-    f_s, T_s_key = _sampling(inv_t, ctl_t, file)
+    f_s, T_s_key = sampling_frequency(inv_t, ctl_t, file)
     u_dc, u_dc_key = _dc_link(inv_t, ctl_t, file)
 
     # ------------------------------------------------------------------ estimate
@@ -241,20 +250,6 @@ def _extra(sec: dict[str, Entry], given: Mapping[str, Any]) -> None:
             sec[k] = Entry(v, given=True)
 
 
-def _sampling(inv: Mapping[str, Any], ctl: Mapping[str, Any], file: str) -> tuple[float, str]:
-    """(sampling frequency [Hz], the key it came from): [inverter] f_s or [control] T_s (both: they
-    must agree)."""
-    f_inv = positive(inv, "f_s", "frequency", file, "inverter") if "f_s" in inv else None
-    f_ctl = 1 / positive(ctl, "T_s", "time", file, "control") if "T_s" in ctl else None
-    if f_inv is None and f_ctl is None:
-        raise DriveFileError(file, "inverter.f_s", "missing key (sampling frequency, e.g. '10 kHz')")
-    if f_inv is not None and f_ctl is not None and abs(f_inv / f_ctl - 1) > 1e-9:
-        raise DriveFileError(
-            file, "inverter.f_s", f"{f_inv:g} Hz, but control.T_s is 1/{f_ctl:g} Hz: give one of them"
-        )
-    return (f_inv, "inverter.f_s") if f_inv is not None else (f_ctl, "control.T_s")  # type: ignore[return-value]
-
-
 def _dc_link(inv: Mapping[str, Any], ctl: Mapping[str, Any], file: str) -> tuple[float | None, str]:
     """(DC-link voltage [V] or None, the key it came from): [inverter] u_dc or [control] u_dc."""
     v_inv = positive(inv, "u_dc", "voltage", file, "inverter") if "u_dc" in inv else None
@@ -267,7 +262,7 @@ def _dc_link(inv: Mapping[str, Any], ctl: Mapping[str, Any], file: str) -> tuple
 def check_plausibility(drive: Any, context: Mapping[str, Any]) -> list[str]:
     """Warning lines of the plausibility checks (design/plausibility.py) of a loaded drive; DriveFileError
     for the first error (naming its keys). Without a DC-link voltage the voltage checks are skipped."""
-    from sensorless.design.plausibility import plausibility
+    from sensorless.design.plausibility import plausibility, warning_lines
 
     r, c, keys, given = drive.rating, drive.control, context["keys"], context["given"]
     findings = plausibility(
@@ -281,7 +276,4 @@ def check_plausibility(drive: Any, context: Mapping[str, Any]) -> list[str]:
         w_max=float(max(abs(drive.rpm_to_w(n)) for n in drive.envelope.speeds)),
         keys=keys,
     )
-    for fd in findings:
-        if fd.level == "error":
-            raise DriveFileError(drive.file, ", ".join(fd.keys), fd.text)
-    return [fd.line(drive.file) for fd in findings]
+    return warning_lines(findings, drive.file)

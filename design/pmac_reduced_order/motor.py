@@ -19,10 +19,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from sensorless.design.drive_file import check_keys
+from sensorless.design.drive_file import check_keys, positive
 from sensorless.design.motor_data import FLUX_TOLERANCE, MOTOR_KEYS, MotorData, read_motor
 from sensorless.design.pmac_reduced_order.schema import READINGS, harmonic_series
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import DriveFileError
 
 NATIVE = ("reading", "R", "L", "B", "harmonics", "Phi")  # the family's own [motor] keys
 SALIENCY_MAX = 0.1  # 2 |L_q - L_d| / (L_q + L_d) beyond which model (2) (one L) does not fit
@@ -32,16 +32,6 @@ EMF_SCALE = math.sqrt(1.5)  # |e| power-invariant alpha-beta / phase peak
 def g6(x: float) -> str:
     """A number with 6 significant digits (the precision of derived values)."""
     return f"{x:.6g}"
-
-
-def positive(t: Mapping[str, Any], k: str, dim: str, file: str, section: str) -> float:
-    """A positive SI quantity of ``t[k]``; DriveFileError naming ``section.k``."""
-    x, rel = parse_quantity(t[k], dim, file=file, key=f"{section}.{k}")
-    if rel is not None:
-        raise DriveFileError(file, f"{section}.{k}", f"unit '{rel}' cannot be resolved here")
-    if not x > 0:
-        raise DriveFileError(file, f"{section}.{k}", f"non-physical value {t[k]!r}: must be > 0")
-    return x
 
 
 @dataclass(frozen=True)

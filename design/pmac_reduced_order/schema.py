@@ -22,7 +22,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
+from sensorless.design.drive_file import check_keys, drive_header, load_section, positive, q, table
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS, param_names
@@ -288,16 +288,7 @@ def _optional(
     t: Mapping[str, Any], keys: tuple[str, ...], dim_of: Any, file: str, section: str
 ) -> dict[str, float]:
     """The optional positive quantities ``keys`` of ``t`` that are given, in SI."""
-    out = {}
-    for k in keys:
-        if k in t:
-            x, rel = parse_quantity(t[k], dim_of(k), file=file, key=f"{section}.{k}")
-            if rel is not None:
-                raise DriveFileError(file, f"{section}.{k}", f"unit '{rel}' cannot be resolved here")
-            if not x > 0:
-                raise DriveFileError(file, f"{section}.{k}", f"non-physical value {t[k]!r}: must be > 0")
-            out[k] = x
-    return out
+    return {k: positive(t, k, dim_of(k), file, section) for k in keys if k in t}
 
 
 def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
