@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from sensorless.design import registry
 from sensorless.design.drive_file import read_text
+from sensorless.design.family import CapabilityError, DriveScales
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 
 INTERPOLATIONS = ("step", "linear")
@@ -359,17 +360,28 @@ def speed_filter_of(sc: Scenario, alpha_s: float) -> float:
 GENERIC = ("speed_steps", "load_steps", "reversal")
 
 
-def generic_times(drive: Any) -> dict[str, float]:
+def generic_times(sc: DriveScales) -> dict[str, float]:
     """The time scales of the generic scenarios [s]: ``t_seg`` = 1.5 t_acc + 6/alpha_s, where t_acc
     changes the speed by 1 p.u. against the rated load at the torque limit and 6/alpha_s lets the speed
     loop settle; ``t_ramp`` = 3 t_seg, the slow reversal's ramp over 1 p.u.; ``t_rise``, the load's
     rise time: a load ramping to T_N in t_rise makes a speed loop of bandwidth alpha_s lag by about
     1/(tau_m alpha_s^2 t_rise) p.u., so t_rise = 10/(tau_m alpha_s^2) keeps the dip near 0.1 p.u. (at
     most t_seg/2): the checks test the observer, not the speed controller's stiffness."""
-    sc = registry.family_of(drive).scales(drive)
     t_seg = 1.5 * sc.t_acc + 6 / sc.alpha_s
     t_rise = min(10 / (sc.tau_m * sc.alpha_s**2), t_seg / 2)
     return {"t_acc": sc.t_acc, "tau_m": sc.tau_m, "t_seg": t_seg, "t_ramp": 3 * t_seg, "t_rise": t_rise}
+
+
+ZERO_SPEED_LOW_PU = 0.25  # speed_steps' low step where the observer does not run through zero speed
+
+
+def zero_speed_limit(drive: Any) -> str:
+    """Why the drive's observer does not run through zero speed in closed loop (its family's
+    ``DriveScales.zero_speed``); "" where it does, or where its family gives no scales."""
+    try:
+        return registry.family_of(drive).scales(drive).zero_speed
+    except CapabilityError:
+        return ""
 
 
 def crosses_zero(sc: Scenario) -> bool:
@@ -384,17 +396,18 @@ def generic_scenarios(drive: Any) -> list[Scenario]:
 
     - ``speed_steps``: from 0.5 p.u. unloaded, rated load applied, steps to 1, -0.5 and 0.5 p.u. (two
       reversals through zero under load, motoring and regenerating); to 1, 0.25 and 0.5 p.u. where the
-      family says its observer does not run through zero speed (``DriveScales.zero_speed``);
+      family says its observer does not run through zero speed (:func:`zero_speed_limit`);
     - ``load_steps``: at 0.2 p.u., the load changes 0 -> T_N -> -T_N -> 0 (motoring, regenerating);
     every load change ramps in ``t_rise`` (:func:`generic_times`);
     - ``reversal``: a slow ramp from 0.5 to -0.5 p.u. at rated load (Piippo et al. 2008 Fig. 10, scaled;
       simulate-able for every drive, but not one of the report's checks where the observer does not
       run through zero speed: reports/time_domain.py).
     """
-    t = generic_times(drive)
+    scales = registry.family_of(drive).scales(drive)
+    t = generic_times(scales)
     seg, ramp, r = t["t_seg"], t["t_ramp"], t["t_rise"]
-    # an observer that does not run through zero speed steps down to 0.25 p.u. instead of -0.5 p.u.
-    low = "0.25" if registry.family_of(drive).scales(drive).zero_speed else "-0.5"
+    # an observer that does not run through zero speed steps down to ZERO_SPEED_LOW_PU, not -0.5 p.u.
+    low = f"{ZERO_SPEED_LOW_PU:g}" if scales.zero_speed else "-0.5"
     g = lambda x: f"{x:.6g}"  # noqa: E731
     head = (
         f'kind = "{drive.kind}"\nsource = "generic scenario, scaled to the drive: t_seg = {g(seg)} s '

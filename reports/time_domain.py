@@ -26,9 +26,15 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-from sensorless.design import registry
 from sensorless.design.family import CapabilityError, GainSet
-from sensorless.design.scenario import Scenario, crosses_zero, generic_scenarios, load_scenario
+from sensorless.design.scenario import (
+    ZERO_SPEED_LOW_PU,
+    Scenario,
+    crosses_zero,
+    generic_scenarios,
+    load_scenario,
+    zero_speed_limit,
+)
 from sensorless.design.simulate import simulate
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.svg_render import svg_later
@@ -38,14 +44,6 @@ LIMITS = {
     "final_speed_err_pu": 0.02,
     "final_tracking_err_pu": 0.05,
 }
-
-
-def _zero_speed(drive: Any) -> str:
-    """Why the drive's observer does not run through zero speed ("" where it does, or unknown)."""
-    try:
-        return registry.family_of(drive).scales(drive).zero_speed
-    except CapabilityError:
-        return ""
 
 
 def scenarios(drive: Any, paper: Sequence[str], user: Sequence[str] = ()) -> list[Scenario]:
@@ -58,7 +56,7 @@ def scenarios(drive: Any, paper: Sequence[str], user: Sequence[str] = ()) -> lis
             out = generic_scenarios(drive)
         except CapabilityError:  # a family without scales: its own scenarios
             pass
-        if _zero_speed(drive):
+        if zero_speed_limit(drive):
             out = [sc for sc in out if not crosses_zero(sc)]
     if not out:
         out = [load_scenario(name, drive) for name in paper]
@@ -68,13 +66,13 @@ def scenarios(drive: Any, paper: Sequence[str], user: Sequence[str] = ()) -> lis
 def limitations(drive: Any) -> list[str]:
     """What the report's generic checks leave out for this drive, and why (the verdict and the
     section say it): zero speed, where the family says its observer does not run through it."""
-    why = "" if drive.file.startswith("preset:") else _zero_speed(drive)
+    why = "" if drive.file.startswith("preset:") else zero_speed_limit(drive)
     if not why:
         return []
     return [
-        "Not checked: running through zero speed (no generic reversal; the speed steps go down to 0.25 "
-        f"p.u. only). {why} A reversal can still be simulated (sensorless simulate DRIVE --scenario "
-        "reversal) or checked with --scenario FILE."
+        "Not checked: running through zero speed (no generic reversal; the speed steps go down to "
+        f"{ZERO_SPEED_LOW_PU:g} p.u. only). {why} A reversal can still be simulated (sensorless simulate "
+        "DRIVE --scenario reversal) or checked with --scenario FILE."
     ]
 
 

@@ -388,7 +388,7 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
                 "bad",
             )
         )
-    lines += [Paragraph(r) for r in (*v["reasons"], *v.get("limitations", ()))]
+    lines += [Paragraph(r) for r in (*v["reasons"], *v["limitations"])]
     findings = tuple(
         x["text"]
         if "text" in x
