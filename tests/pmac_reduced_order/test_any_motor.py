@@ -9,10 +9,10 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import subprocess
 from pathlib import Path
 
 import pytest
+from helpers.report_checks import c_example_initializes, verdict_agrees_with_checks
 from sensorless.design.drive import load_drive
 from sensorless.reports.cli.main import main
 
@@ -71,25 +71,12 @@ def test_the_minimal_file_and_the_written_one_are_the_same_drive(flow, tmp_path)
 
 def test_the_verdict_agrees_with_its_checks(flow):
     _, d, codes = flow
-    data = json.loads((d / "r" / "report.json").read_text())
+    data = verdict_agrees_with_checks(d / "r", codes["report"])
     v, td = data["verdict"], data["time_domain"]
     assert [c["name"] for c in td] == ["speed_steps", "load_steps"]  # generic, scaled, above zero speed
     assert v["stable"] and v["damped"]  # the tuned gains' poles over the envelope
-    failed = [c for c in td if not c["passed"]]
-    assert all(c["failed"] for c in failed) and not any(c["failed"] for c in td if c["passed"])
-    if failed:
-        assert v["status"] in ("warn", "fail") and codes["report"] == 3
-        assert {f.get("check") for f in v["findings"]} >= {c["name"] for c in failed}
-        if any(c["problems"] for c in failed):
-            assert v["status"] == "fail"
-    else:
+    if all(c["passed"] for c in td):
         assert v["status"] in ("pass", "warn")
-    for c in td:  # each check's verdict follows from its numbers and stated limits
-        lim, met = c["limits"], c["metrics"]
-        if met["max_abs_theta_err_deg"] > lim["max_abs_theta_err_deg"]:
-            assert not c["passed"]
-    html = (d / "r" / "report.html").read_text()
-    assert f"verdict-{v['status']}" in html or v["status"].upper() in html.upper()
 
 
 def test_the_report_does_not_take_the_observer_through_zero_speed_and_says_so(flow):
@@ -114,12 +101,7 @@ def test_the_report_does_not_take_the_observer_through_zero_speed_and_says_so(fl
 @pytest.mark.skipif(CC is None, reason="no C compiler")
 def test_the_generated_float_c_builds_and_its_example_initializes(flow):
     _, d, _ = flow
-    c = d / "c"
-    subprocess.run(["make", "-s", "-C", str(c)], check=True, capture_output=True, timeout=120)
-    exe = next(p for p in c.iterdir() if p.is_file() and p.suffix == "" and p.name != "Makefile")
-    out = subprocess.run([str(exe)], capture_output=True, text=True, timeout=60)
-    assert out.returncode == 0 and "init failed" not in out.stdout + out.stderr, out.stdout[-500:]
-    assert "valid=1" in out.stdout
+    c_example_initializes(d / "c")
 
 
 @pytest.mark.parametrize(
