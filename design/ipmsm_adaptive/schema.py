@@ -16,7 +16,8 @@ from typing import Any
 
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.envelope import TuningSettings, load_tuning
-from sensorless.design.pmsm_schema import PmsmControl, load_motor
+from sensorless.design.plausibility import plausibility, warning_lines
+from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, load_estimate, load_motor
 from sensorless.design.units import DriveFileError, UnknownName, parse_quantity
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
@@ -53,36 +54,6 @@ class Base:
 
 
 @dataclass(frozen=True)
-class Motor:
-    """True motor parameters, eqs. (1)-(3) and Table I."""
-
-    p: int = q("integer", doc="pole pairs")
-    R_s: float = q("resistance", doc="stator resistance [ohm]")
-    L_d: float = q("inductance", doc="d-axis inductance [H]")
-    L_q: float = q("inductance", doc="q-axis inductance [H]")
-    psi_pm: float = q("flux", doc="permanent-magnet flux linkage [V s]")
-    J: float = q("inertia", doc="total moment of inertia [kg m^2]")
-
-    def vector(self) -> list[float]:
-        """[R_s, L_d, L_q, psi_pm]: the electrical parameter vector the CasADi functions take."""
-        return [self.R_s, self.L_d, self.L_q, self.psi_pm]
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """The observer's parameter estimates (R̂s, L̂d, L̂q, ψ̂pm); kept apart from the true motor."""
-
-    R_s: float = q("resistance", doc="estimated stator resistance [ohm]")
-    L_d: float = q("inductance", doc="estimated d-axis inductance [H]")
-    L_q: float = q("inductance", doc="estimated q-axis inductance [H]")
-    psi_pm: float = q("flux", doc="estimated PM flux linkage [V s]")
-
-    def vector(self) -> list[float]:
-        """[R̂s, L̂d, L̂q, ψ̂pm]."""
-        return [self.R_s, self.L_d, self.L_q, self.psi_pm]
-
-
-@dataclass(frozen=True)
 class Control(PmsmControl):
     """Control-system settings (Table II and Section VI): the shared drive loop's, and the sensor noise."""
 
@@ -93,6 +64,12 @@ class Control(PmsmControl):
 
 
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the base (nominal peak) current
+SALIENCY_MIN = 0.1  # 2 |L_q - L_d| / (L_q + L_d) below which the HF injection is off (derive.py)
+
+
+def saliency(L_d: float, L_q: float) -> float:
+    """2 |L_q - L_d| / (L_q + L_d): 0 for a non-salient motor, 0.35 for the paper's IPMSM."""
+    return 2 * abs(L_q - L_d) / (L_q + L_d)
 
 
 @dataclass(frozen=True)
@@ -208,8 +185,8 @@ class IpmsmDrive:
     file: str
     rating: Rating
     base: Base
-    motor: Motor
-    estimate: Estimate
+    motor: PmsmMotor
+    estimate: PmsmEstimate
     control: Control
     observer: Observer
     injection: Injection
@@ -252,22 +229,8 @@ class IpmsmDrive:
         return w / self.base.w
 
 
-def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDrive:
-    """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
-    the complete data is loaded strictly and checked for plausibility (design/plausibility.py)."""
-    from sensorless.design.ipmsm_adaptive.derive import document
-
-    doc = document(data, file)
-    drive = load_complete(doc.data(), file, digest, kind)
-    warnings = check_plausibility(drive, doc.context)
-    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive
-
-
 def check_plausibility(drive: IpmsmDrive, context: Mapping[str, Any]) -> list[str]:
     """Warning lines of the plausibility checks; DriveFileError for the first error (naming its keys)."""
-    from sensorless.design.ipmsm_adaptive.derive import SALIENCY_MIN, saliency
-    from sensorless.design.plausibility import plausibility, warning_lines
-
     m, keys, given, file = context["motor"], context["keys"], context["given"], drive.file
     findings = plausibility(
         m,
@@ -310,8 +273,8 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     head = drive_header(data, file)
     rating = load_section(Rating, table(data, "rating", file), file, "rating")
     base = load_section(Base, table(data, "base", file), file, "base")
-    motor = load_motor(Motor, data, file)
-    estimate = load_section(Estimate, table(data, "estimate", file), file, "estimate")
+    motor = load_motor(data, file)
+    estimate = load_estimate(data, file)
     rel = {"pu": base.w, "R_s_hat": estimate.R_s, "Rs_hat": estimate.R_s}
     control = _load_control(table(data, "control", file), file, rel, base)
     obs_t = table(data, "observer", file)

@@ -273,17 +273,6 @@ def _quantities(table: Mapping[str, Any], key: str, dim: str, file: str, section
 SECTIONS = ("drive", "rating", "motor", "estimate", "observer", "control", "envelope")
 
 
-def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
-    """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
-    the complete data is loaded strictly and checked for plausibility (design/plausibility.py)."""
-    from sensorless.design.pmac_reduced_order.derive import check_plausibility, document
-
-    doc = document(data, file)
-    drive = load_complete(doc.data(), file, digest, kind)
-    warnings = check_plausibility(drive, doc.context)
-    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive
-
-
 def _optional(
     t: Mapping[str, Any], keys: tuple[str, ...], dim_of: Any, file: str, section: str
 ) -> dict[str, float]:

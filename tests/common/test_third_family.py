@@ -113,7 +113,7 @@ def test_linearization_is_the_sampled_observer_that_runs(drive):
     w, T_e = 0.6 * drive.w_base, drive.T_N
     lin = FAMILY.linearize(drive, gains, w, T_e)
     i_r = np.array([0.0, T_e / (1.5 * m.p * m.psi_pm)])
-    u_r = m.R_s * i_r + w * np.array([-m.L * i_r[1], m.L * i_r[0] + m.psi_pm])
+    u_r = m.R_s * i_r + w * np.array([-m.L_q * i_r[1], m.L_d * i_r[0] + m.psi_pm])
 
     def meas(th):  # current at t_k, voltage held over the period (the steady one at mid-period)
         return np.concatenate([rot(th) @ i_r, rot(th + w * T_s / 2) @ u_r])
@@ -171,7 +171,7 @@ def _trajectory(drive, n=12000, seed=3):
     w = np.interp(t, [0, 0.2, 0.5, 0.8, 1.2], [0.3, 1.0, 1.0, 0.2, 0.25]) * wb
     th = 0.4 + np.concatenate([[0.0], np.cumsum(w[:-1]) * T_s])
     i_q = np.interp(t, [0, 0.4, 0.6, 1.2], [0.5, 1.0, -1.0, 0.3]) * drive.T_N / (1.5 * m.p * m.psi_pm)
-    u_d, u_q = -w * m.L * i_q, m.R_s * i_q + w * m.psi_pm
+    u_d, u_q = -w * m.L_q * i_q, m.R_s * i_q + w * m.psi_pm
     c, s = np.cos(th), np.sin(th)
     cm, sm = np.cos(th + w * T_s / 2), np.sin(th + w * T_s / 2)
     rng = np.random.default_rng(seed)
@@ -242,7 +242,7 @@ def test_generated_c_keeps_its_promises_under_hostile_input_and_recovers(drive, 
     runtime contract."""
     rows = steady_rows(np.random.default_rng(2000), 20, (0.5, 1.0), drive.w_base, drive.T_N)
     m = drive.motor
-    segments = pmsm_steady_segments((m.R_s, m.L, m.L, m.psi_pm, m.p), drive.T_s, rows, PLL_RECOVER + 1000)
+    segments = pmsm_steady_segments((m.R_s, m.L_d, m.L_q, m.psi_pm, m.p), drive.T_s, rows, PLL_RECOVER + 1000)
     r = fuzz(
         FAMILY.runtime(drive, FAMILY.gains(drive)),
         segments,
@@ -342,7 +342,7 @@ class NoSteadyState(GainsOnly):
 
     def simulation(self, drive, scenario, gains):
         setup = self.runtime(drive, gains or self.gains(drive))
-        return design.loop_setup(drive, design.pmsm_drive(drive), scenario, setup, carrier=False, meta={})
+        return design.loop_setup(drive, scenario, setup, meta={})
 
 
 def _files_of(family, tmp_path):

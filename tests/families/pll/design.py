@@ -32,14 +32,15 @@ from sensorless.design.drive_file import check_keys, drive_header, load_section,
 from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTable, GainTableError
 from sensorless.design.linearization import Linearization
-from sensorless.design.pmsm_drive import PmsmDrive, from_sections, loop_setup
-from sensorless.design.pmsm_schema import PmsmControl, load_motor
+from sensorless.design.pmsm_drive import loop_setup
+from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, load_estimate, load_motor
 from sensorless.design.poles import eigvals_batched
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.frames import J, rot, wrap_angle
+from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
 
 from families.pll.symbolic import DISCRETIZATIONS, N_OBS, OBSERVER, PARAMS, rhs_function
 
@@ -56,35 +57,6 @@ class Rating:
 
     n_N: float = q("mech_speed", doc="nominal mechanical speed [r/min]")
     T_N: float = q("torque", doc="nominal torque [N m]")
-
-
-@dataclass(frozen=True)
-class Motor:
-    """The true non-salient motor."""
-
-    p: int = q("integer", doc="pole pairs")
-    R_s: float = q("resistance", doc="stator resistance [ohm]")
-    L: float = q("inductance", doc="stator inductance [H]")
-    psi_pm: float = q("flux", doc="PM flux [V s]")
-    J: float = q("inertia", doc="total inertia [kg m^2]")
-
-    @property
-    def L_d(self) -> float:
-        """L: the d- and q-axis inductances of a non-salient motor (what the shared drive loop reads)."""
-        return self.L
-
-    L_q = L_d
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """The observer's and the controllers' model of the motor."""
-
-    R_s: float = q("resistance", doc="stator resistance estimate [ohm]")
-    L: float = q("inductance", doc="inductance estimate [H]")
-    psi_pm: float = q("flux", doc="PM flux estimate [V s]")
-
-    L_d = L_q = Motor.L_d  # one L for both axes, as in the true motor
 
 
 @dataclass(frozen=True)
@@ -115,8 +87,8 @@ class PllDrive:
     source: str
     file: str
     rating: Rating
-    motor: Motor
-    estimate: Estimate
+    motor: PmsmMotor
+    estimate: PmsmEstimate
     control: PmsmControl
     observer: Observer
     envelope: Envelope
@@ -152,7 +124,10 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive
     check_keys(data, sections, file, "")
     head = drive_header(data, file)
     rating = load_section(Rating, table(data, "rating", file), file, "rating")
-    motor = load_motor(Motor, data, file)
+    motor, estimate = load_motor(data, file), load_estimate(data, file)
+    for section, m in (("motor", motor), ("estimate", estimate)):
+        if m.L_q != m.L_d:  # the observer's model (1) has one inductance
+            raise DriveFileError(file, f"{section}.L_q", "a non-salient motor: L_q must equal L_d")
     w_base = rating.n_N * math.pi / 30 * motor.p
     rel = {"pu": w_base}
     env_t = table(data, "envelope", file)
@@ -176,7 +151,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive
         file=file,
         rating=rating,
         motor=motor,
-        estimate=load_section(Estimate, table(data, "estimate", file), file, "estimate"),
+        estimate=estimate,
         control=load_section(PmsmControl, table(data, "control", file), file, "control"),
         observer=load_section(Observer, table(data, "observer", file), file, "observer", rel),
         envelope=envelope,
@@ -210,7 +185,7 @@ def runtime_params(drive: PllDrive, gains: GainSet) -> dict[str, float]:
     e, o = drive.estimate, drive.observer
     return {
         "R_s": e.R_s,
-        "L": e.L,
+        "L": e.L_d,
         "psi_pm": e.psi_pm,
         "g": o.g,
         "w_pll": float(gains.values["w_pll"]),
@@ -246,10 +221,11 @@ _IX_TS = [f.name for f in PARAMS].index("T_s")
 
 
 def _steady_motor(w: ca.SX, T_e: ca.SX, m: ca.SX) -> tuple[ca.SX, ca.SX]:
-    """(i_r, u_r) of the true non-salient motor m = [R_s, L, psi_pm, p] at speed w, torque T_e."""
-    i_r = ca.vertcat(0, T_e / (1.5 * m[3] * m[2]))  # MTPA of a non-salient motor: i_d = 0
-    u_r = m[0] * i_r + w * (J @ (m[1] * i_r + ca.vertcat(m[2], 0)))
-    return i_r, u_r
+    """(i_r, u_r) of the true non-salient motor m = [R_s, L, psi_pm, p] at speed w, torque T_e: the
+    MTPA current (i_d = 0) and the steady voltage of the shared PMSM model (symbolic/pmsm.py)."""
+    motor = PmsmParams(m[0], m[1], m[1], m[2])
+    i_r = mtpa_current(T_e, motor, m[3])
+    return i_r, stator_voltage(i_r, 0, flux_from_current(i_r, motor), w, motor.R_s)
 
 
 def _to_stationary(x_r: ca.SX) -> ca.SX:
@@ -304,7 +280,7 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
     n = W.size
     setup = runtime_setup(drive, gains)
     mt = drive.motor
-    motor = np.array([mt.R_s, mt.L, mt.psi_pm, float(mt.p)])
+    motor = np.array([mt.R_s, mt.L_d, mt.psi_pm, float(mt.p)])
     out = {}
     for discrete in (False, True):
         fn = _equilibrium_function(discrete, setup.discretization)
@@ -333,11 +309,6 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
 # --------------------------------------------------------------------------------------------------
 # Simulation: the shared PMSM drive loop around the runtime observer
 # --------------------------------------------------------------------------------------------------
-def pmsm_drive(drive: PllDrive) -> PmsmDrive:
-    """The numbers of the shared PMSM drive loop (L_d = L_q = L)."""
-    return from_sections(drive.motor, drive.estimate, drive.control)
-
-
 def simulation(drive: PllDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """Loop set-up of ``sc`` on ``drive``; the scenario's estimate errors scale the observer's model."""
     k = sc.estimate_scale
@@ -351,7 +322,7 @@ def simulation(drive: PllDrive, sc: Scenario, gains: GainSet | None) -> LoopSetu
     OBSERVER.check_params(params)
     setup = dataclasses.replace(setup, params=params)
     meta = {"gain": f"{setup.gain_source}: w_pll = {params['w_pll']:.6g} rad/s"}
-    return loop_setup(drive, pmsm_drive(drive), sc, setup, carrier=False, meta=meta)
+    return loop_setup(drive, sc, setup, meta=meta)
 
 
 # --------------------------------------------------------------------------------------------------
