@@ -30,9 +30,10 @@ def read_text(path: Path) -> str:
         raise DriveFileError(str(path), "(file)", f"cannot read: {e.strerror}") from None
 
 
-def q(dim: str, check: str | None = "positive", doc: str = "") -> Any:
-    """A dataclass field holding a quantity of dimension ``dim`` (SI), validated by ``check``."""
-    return field(metadata={"dim": dim, "check": check, "doc": doc})
+def q(dim: str, check: str | None = "positive", doc: str = "", default: Any = dataclasses.MISSING) -> Any:
+    """A dataclass field holding a quantity of dimension ``dim`` (SI), validated by ``check``;
+    ``default`` for a key that may be left out (``load_section(optional=...)``)."""
+    return field(default=default, metadata={"dim": dim, "check": check, "doc": doc})
 
 
 _CHECKS: dict[str, tuple[Callable[[float], bool], str]] = {
@@ -60,8 +61,12 @@ def load_section(
     section: str,
     relative: Mapping[str, float] | None = None,
     skip: tuple[str, ...] = (),
+    optional: tuple[str, ...] = (),
 ) -> Any:
-    """Build dataclass ``cls`` from a TOML table, strictly; ``relative`` maps relative units to SI."""
+    """Build dataclass ``cls`` from a TOML table, strictly; ``relative`` maps relative units to SI.
+
+    Keys in ``skip`` are accepted and left to the caller; keys in ``optional`` are read like the
+    others when given and keep the field's default otherwise."""
     relative = relative or {}
     names = [f.name for f in dataclasses.fields(cls) if f.name not in skip]
     for k in table:
@@ -75,6 +80,8 @@ def load_section(
         key = f"{section}.{f.name}"
         dim = f.metadata.get("dim")
         if f.name not in table:
+            if f.name in optional:
+                continue
             raise DriveFileError(file, key, f"missing key ({f.metadata.get('doc', dim)})")
         raw = table[f.name]
         if dim == "choice":

@@ -18,7 +18,7 @@ from sensorless.design.drive_file import check_keys, drive_header, load_section,
 from sensorless.design.envelope import TuningSettings, load_tuning
 from sensorless.design.plausibility import plausibility, warning_lines
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, load_estimate, load_motor
-from sensorless.design.units import DriveFileError, UnknownName, parse_quantity
+from sensorless.design.units import DriveFileError, UnknownName
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
 
@@ -58,9 +58,7 @@ class Control(PmsmControl):
     """Control-system settings (Table II and Section VI): the shared drive loop's, and the sensor noise."""
 
     # optional: the current sensor's noise, per axis, rms, in each sample at T_s (design/noise.py)
-    i_noise: float = field(
-        default=0.0, metadata={"dim": "current", "check": "positive", "doc": "current-sensor noise [A rms]"}
-    )
+    i_noise: float = q("current", doc="current-sensor noise [A rms]", default=0.0)
 
 
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the base (nominal peak) current
@@ -331,12 +329,9 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
 def _load_control(t: Mapping[str, Any], file: str, rel: Mapping[str, float], base: Base) -> Control:
     """[control]; ``i_noise`` (the current sensor's noise, A rms per axis and sample) is optional:
     default I_NOISE_DEFAULT times the base current, e.g. 0.018 A for the paper's 6.08 A."""
-    c = load_section(Control, t, file, "control", rel, skip=("i_noise",))
+    c = load_section(Control, t, file, "control", rel, optional=("i_noise",))
     if "i_noise" in t:
-        x, _ = parse_quantity(t["i_noise"], "current", file=file, key="control.i_noise")
-        if not x > 0:
-            raise DriveFileError(file, "control.i_noise", f"non-physical value {t['i_noise']!r}: must be > 0")
-        return dataclasses.replace(c, i_noise=x)
+        return c
     return dataclasses.replace(c, i_noise=I_NOISE_DEFAULT * base.i)
 
 

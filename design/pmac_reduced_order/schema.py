@@ -22,7 +22,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.drive_file import check_keys, drive_header, load_section, positive, q, table
+from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS, param_names
@@ -41,9 +41,9 @@ class PmacRating:
 
     P_N: float = q("power", doc="nominal power [W]")
     n_N: float = q("mech_speed", doc="nominal mechanical speed [r/min]")
-    T_N: float = field(default=0.0, metadata={"dim": "torque", "doc": "rated torque [N m]"})
-    I_N: float = field(default=0.0, metadata={"dim": "current", "doc": "rated current [A rms]"})
-    f_N: float = field(default=0.0, metadata={"dim": "frequency", "doc": "rated frequency [Hz]"})
+    T_N: float = q("torque", doc="rated torque [N m]", default=0.0)
+    I_N: float = q("current", doc="rated current [A rms]", default=0.0)
+    f_N: float = q("frequency", doc="rated frequency [Hz]", default=0.0)
 
 
 RATING_OPTIONAL = ("T_N", "I_N", "f_N")
@@ -101,12 +101,10 @@ class PmacControl:
     alpha_s: float = q("angular", doc="speed-loop bandwidth [rad/s]")
     T_max: float = q("torque", doc="torque reference limit [N m]; bounds the runtime observer's load state")
     # optional: the current sensor's noise, per axis, rms, in each sample at T_s (design/noise.py)
-    i_noise: float = field(
-        default=0.0, metadata={"dim": "current", "check": "positive", "doc": "current-sensor noise [A rms]"}
-    )
+    i_noise: float = q("current", doc="current-sensor noise [A rms]", default=0.0)
     # optional: the DC-link voltage (0: not given); the plausibility checks only (the simulated inverter's
     # limit stays twice the EMF at n_N, simulation.py)
-    u_dc: float = field(default=0.0, metadata={"dim": "voltage", "doc": "DC-link voltage [V]"})
+    u_dc: float = q("voltage", doc="DC-link voltage [V]", default=0.0)
 
 
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N, base speed
@@ -273,21 +271,12 @@ def _quantities(table: Mapping[str, Any], key: str, dim: str, file: str, section
 SECTIONS = ("drive", "rating", "motor", "estimate", "observer", "control", "envelope")
 
 
-def _optional(
-    t: Mapping[str, Any], keys: tuple[str, ...], dim_of: Any, file: str, section: str
-) -> dict[str, float]:
-    """The optional positive quantities ``keys`` of ``t`` that are given, in SI."""
-    return {k: positive(t, k, dim_of(k), file, section) for k in keys if k in t}
-
-
 def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
     """Validate the complete data of a drive TOML of this family (every section present)."""
     check_keys(data, SECTIONS, file, "")
     head = drive_header(data, file)
     rating_t = table(data, "rating", file)
-    rating = load_section(PmacRating, rating_t, file, "rating", skip=RATING_OPTIONAL)
-    dims = {f.name: f.metadata["dim"] for f in dataclasses.fields(PmacRating)}
-    rating = dataclasses.replace(rating, **_optional(rating_t, RATING_OPTIONAL, dims.get, file, "rating"))
+    rating = load_section(PmacRating, rating_t, file, "rating", optional=RATING_OPTIONAL)
     T_P = rating.P_N / (rating.n_N * math.pi / 30)
     if rating.T_N and abs(rating.T_N / T_P - 1) > T_N_TOLERANCE:
         raise DriveFileError(
@@ -306,10 +295,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     estimate = _with_harmonics(PmacEstimate, table(data, "estimate", file), file, "estimate")
     observer = load_section(PmacObserver, table(data, "observer", file), file, "observer")
     control_t = table(data, "control", file)
-    control = load_section(PmacControl, control_t, file, "control", skip=("i_noise", "u_dc"))
-    control = dataclasses.replace(
-        control, **_optional(control_t, ("u_dc",), lambda k: "voltage", file, "control")
-    )
+    control = load_section(PmacControl, control_t, file, "control", optional=("i_noise", "u_dc"))
     if control.discretization not in DISCRETIZATIONS:
         raise DriveFileError(
             file,
@@ -340,15 +326,9 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
         envelope=envelope,
         digest=digest,
     )
-    if "i_noise" in control_t:
-        x, _ = parse_quantity(control_t["i_noise"], "current", file=file, key="control.i_noise")
-        if not x > 0:
-            raise DriveFileError(
-                file, "control.i_noise", f"non-physical value {control_t['i_noise']!r}: must be > 0"
-            )
-    else:
+    if "i_noise" not in control_t:
         x = I_NOISE_DEFAULT * nominal_current(drive)
-    drive = dataclasses.replace(drive, control=dataclasses.replace(control, i_noise=float(x)))
+        drive = dataclasses.replace(drive, control=dataclasses.replace(control, i_noise=float(x)))
     # The speed sign (14) reads the angle step modulo pi: |w| T_s must stay below pi/2.
     w_max = float(np.max(np.abs(drive.rpm_to_w(envelope.speeds))))
     if w_max * control.T_s >= math.pi / 2:
