@@ -136,6 +136,29 @@ def positive(t: Mapping[str, Any], k: str, dim: str, file: str, section: str) ->
     return x
 
 
+def nonempty_list(table: Mapping[str, Any], key: str, file: str, section: str) -> list[Any]:
+    """The non-empty list ``table[key]``; DriveFileError naming ``section.key`` otherwise."""
+    full = f"{section}.{key}"
+    if key not in table:
+        raise DriveFileError(file, full, "missing key")
+    v = table[key]
+    if not isinstance(v, list) or not v:
+        raise DriveFileError(file, full, f"expected a non-empty list, got {v!r}")
+    return v
+
+
+def quantities(table: Mapping[str, Any], key: str, dim: str, file: str, section: str) -> tuple[float, ...]:
+    """The non-empty list ``table[key]`` of quantities of dimension ``dim``, in SI; each is named
+    ``section.key[k]`` in errors."""
+    out = []
+    for k, v in enumerate(nonempty_list(table, key, file, section)):
+        x, rel = parse_quantity(v, dim, file=file, key=f"{section}.{key}[{k}]")
+        if rel is not None:
+            raise DriveFileError(file, f"{section}.{key}[{k}]", f"unit '{rel}' cannot be resolved here")
+        out.append(x)
+    return tuple(out)
+
+
 def sampling_frequency(inv: Mapping[str, Any], ctl: Mapping[str, Any], file: str) -> tuple[float, str]:
     """(sampling frequency [Hz], the key it came from) of a drive file: [inverter] f_s or [control] T_s
     (both given: they must agree)."""

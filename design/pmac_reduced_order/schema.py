@@ -22,7 +22,15 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
+from sensorless.design.drive_file import (
+    check_keys,
+    drive_header,
+    load_section,
+    nonempty_list,
+    q,
+    quantities,
+    table,
+)
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS, param_names
@@ -177,21 +185,11 @@ class PmacDrive:
 # --------------------------------------------------------------------------------------------------
 # Loading
 # --------------------------------------------------------------------------------------------------
-def _list(table: Mapping[str, Any], key: str, file: str, section: str) -> list[Any]:
-    full = f"{section}.{key}"
-    if key not in table:
-        raise DriveFileError(file, full, "missing key")
-    v = table[key]
-    if not isinstance(v, list) or not v:
-        raise DriveFileError(file, full, f"expected a non-empty list, got {v!r}")
-    return v
-
-
 def harmonic_series(
     table: Mapping[str, Any], file: str, section: str
 ) -> tuple[tuple[int, ...], tuple[float, ...]]:
     """Orders and amplitudes of eq. (4), validated: odd, distinct, fundamental first and positive."""
-    raw = _list(table, "harmonics", file, section)
+    raw = nonempty_list(table, "harmonics", file, section)
     key = f"{section}.harmonics"
     for n in raw:
         if isinstance(n, bool) or not isinstance(n, int) or n % 2 == 0:
@@ -201,7 +199,7 @@ def harmonic_series(
     if raw[0] != 1:
         raise DriveFileError(file, key, "the first order must be the fundamental 1 (eq. (18) needs it)")
     orders = tuple(raw)
-    amps = _list(table, "Phi", file, section)
+    amps = nonempty_list(table, "Phi", file, section)
     key = f"{section}.Phi"
     if len(amps) != len(orders):
         raise DriveFileError(file, key, f"{len(amps)} amplitudes for {len(orders)} harmonic orders")
@@ -258,16 +256,6 @@ def _with_harmonics(cls: type, table: Mapping[str, Any], file: str, section: str
     return dataclasses.replace(obj, harmonics=orders, Phi=Phi)
 
 
-def _quantities(table: Mapping[str, Any], key: str, dim: str, file: str, section: str) -> tuple[float, ...]:
-    out = []
-    for k, v in enumerate(_list(table, key, file, section)):
-        x, rel = parse_quantity(v, dim, file=file, key=f"{section}.{key}[{k}]")
-        if rel is not None:
-            raise DriveFileError(file, f"{section}.{key}[{k}]", f"unit '{rel}' cannot be resolved here")
-        out.append(x)
-    return tuple(out)
-
-
 SECTIONS = ("drive", "rating", "motor", "estimate", "observer", "control", "envelope")
 
 
@@ -305,8 +293,8 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     env_t = table(data, "envelope", file)
     check_keys(env_t, ("speeds", "loads"), file, "envelope.")
     envelope = Envelope(
-        speeds=_quantities(env_t, "speeds", "mech_speed", file, "envelope"),
-        loads=_quantities(env_t, "loads", "torque", file, "envelope"),
+        speeds=quantities(env_t, "speeds", "mech_speed", file, "envelope"),
+        loads=quantities(env_t, "loads", "torque", file, "envelope"),
     )
     for k, n in enumerate(envelope.speeds):
         if n == 0:

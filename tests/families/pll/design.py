@@ -28,7 +28,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
-from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
+from sensorless.design.drive_file import check_keys, drive_header, load_section, q, quantities, table
 from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTable, GainTableError
 from sensorless.design.linearization import Linearization
@@ -38,7 +38,7 @@ from sensorless.design.poles import eigvals_batched
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import DriveFileError
 from sensorless.symbolic.frames import J, rot, wrap_angle
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
 
@@ -132,16 +132,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive
     rel = {"pu": w_base}
     env_t = table(data, "envelope", file)
     envelope = load_section(Envelope, env_t, file, "envelope", rel, skip=("torques",))
-    raw = env_t.get("torques")
-    if not isinstance(raw, list) or not raw:
-        raise DriveFileError(file, "envelope.torques", "expected a non-empty list of torques")
-    torques = []
-    for k, v in enumerate(raw):
-        x, unit = parse_quantity(v, "torque", file=file, key=f"envelope.torques[{k}]")
-        if unit is not None:
-            raise DriveFileError(file, f"envelope.torques[{k}]", f"unit '{unit}' cannot be resolved here")
-        torques.append(x)
-    envelope = dataclasses.replace(envelope, torques=tuple(torques))
+    envelope = dataclasses.replace(envelope, torques=quantities(env_t, "torques", "torque", file, "envelope"))
     if envelope.speeds < 2 or not envelope.speed_min < envelope.speed_max:
         raise DriveFileError(file, "envelope", "need speeds >= 2 and 0 < speed_min < speed_max")
     return PllDrive(
