@@ -242,6 +242,11 @@ class DriveDocument:
         return "\n".join(lines).lstrip("\n") + "\n"
 
 
+def g6(x: float) -> str:
+    """A number with 6 significant digits (the precision of derived values)."""
+    return f"{x:.6g}"
+
+
 def toml_value(v: Any) -> str:
     """A value as TOML text (strings quoted, lists and inline tables written out)."""
     import json

@@ -40,6 +40,7 @@ CONNECTIONS = ("wye", "delta")
 # Largest relative difference between the PM fluxes that two flux keys imply (kE against kT: datasheets
 # agree within a few per cent; a mistaken convention is off by sqrt(3/2), sqrt(2), sqrt(3) or sqrt(6)).
 FLUX_TOLERANCE = 0.10
+FLUX_KEYS = ("psi_pm", "kE", "KV", "kT")  # in the order of preference: the first given is used
 
 MOTOR_KEYS = (
     "p",

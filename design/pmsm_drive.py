@@ -34,10 +34,20 @@ from sensorless.symbolic.pmsm_drive import (
 class OnPmsm(Protocol):
     """What the loop reads of a drive whose observer runs on a PMSM (design/pmsm_schema.py)."""
 
-    file: str
-    motor: PmsmMotor  # the true motor
-    estimate: PmsmEstimate  # the controllers' model of it
-    control: PmsmControl  # sampling, current and speed control, torque limit, DC link
+    @property
+    def file(self) -> str: ...
+
+    @property
+    def motor(self) -> PmsmMotor:
+        """The true motor."""
+
+    @property
+    def estimate(self) -> PmsmEstimate:
+        """The controllers' (and the observer's) model of it."""
+
+    @property
+    def control(self) -> PmsmControl:
+        """Sampling, current and speed control, torque limit, DC link."""
 
     @property
     def T_N(self) -> float: ...

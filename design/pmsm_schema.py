@@ -55,6 +55,11 @@ class PmsmEstimate:
         return [self.R_s, self.L_d, self.L_q, self.psi_pm]
 
 
+def saliency(L_d: float, L_q: float) -> float:
+    """2 |L_q - L_d| / (L_q + L_d): 0 for a non-salient motor, 0.35 for the IPMSM of Piippo et al. (2008)."""
+    return 2 * abs(L_q - L_d) / (L_q + L_d)
+
+
 @dataclass(frozen=True)
 class PmsmControl:
     """Sampling and the controllers of the shared PMSM drive loop (design/pmsm_drive.py)."""

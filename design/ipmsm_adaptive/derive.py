@@ -41,6 +41,7 @@ from sensorless.design.drive_file import (
     Entry,
     check_keys,
     derived_document,
+    g6,
     positive,
     sampling_frequency,
     table,
@@ -55,9 +56,9 @@ from sensorless.design.ipmsm_adaptive.schema import (
     IpmsmDrive,
     check_plausibility,
     load_complete,
-    saliency,
 )
 from sensorless.design.motor_data import mtpa_torque, mtpa_torque_current, read_motor, steady_voltage
+from sensorless.design.pmsm_schema import saliency
 from sensorless.design.units import DriveFileError, parse_quantity
 
 # the rules (module docstring); fractions of the sampling frequency f_s
@@ -93,11 +94,6 @@ TUNING_DEFAULTS: dict[str, Any] = {
     "min_decay": "0 1/s",
     "breakpoints": 11,
 }
-
-
-def g6(x: float) -> str:
-    """A number with 6 significant digits (the precision of derived values)."""
-    return f"{x:.6g}"
 
 
 class _Reader:

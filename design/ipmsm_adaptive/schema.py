@@ -4,7 +4,9 @@ The sections of Piippo, Hinkkanen, Luomi (2008) Tables I-II and Sections IV-VI: 
 (per-unit bases), ``[motor]`` (the true motor), ``[estimate]`` (the observer's parameter estimates, kept
 apart so parameter errors can be studied), ``[control]``, ``[observer]`` with ``[observer.gains.*]``,
 ``[injection]``, and the optional ``[runtime]`` (discrete-time settings) and ``[tuning]`` (envelope of
-``sensorless tune``). Strict like every drive file (design/drive_file.py).
+``sensorless tune``). ``[motor]``, ``[estimate]`` and the loop's part of ``[control]`` are the records
+every PMSM family shares (design/pmsm_schema.py). Strict like every drive file (design/drive_file.py);
+:func:`load_complete` reads a complete file (derive.py ``load`` completes a minimal one first).
 """
 
 from __future__ import annotations
@@ -17,7 +19,14 @@ from typing import Any
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.envelope import TuningSettings, load_tuning
 from sensorless.design.plausibility import plausibility, warning_lines
-from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, load_estimate, load_motor
+from sensorless.design.pmsm_schema import (
+    PmsmControl,
+    PmsmEstimate,
+    PmsmMotor,
+    load_estimate,
+    load_motor,
+    saliency,
+)
 from sensorless.design.units import DriveFileError, UnknownName
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
@@ -63,11 +72,6 @@ class Control(PmsmControl):
 
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the base (nominal peak) current
 SALIENCY_MIN = 0.1  # 2 |L_q - L_d| / (L_q + L_d) below which the HF injection is off (derive.py)
-
-
-def saliency(L_d: float, L_q: float) -> float:
-    """2 |L_q - L_d| / (L_q + L_d): 0 for a non-salient motor, 0.35 for the paper's IPMSM."""
-    return 2 * abs(L_q - L_d) / (L_q + L_d)
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,8 @@ from typing import Any
 
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive.runtime import drive_gains, runtime_setup
-from sensorless.design.ipmsm_adaptive.schema import saliency
 from sensorless.design.pmsm_drive import loop_setup
+from sensorless.design.pmsm_schema import saliency
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup, SimulationError

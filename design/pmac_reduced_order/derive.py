@@ -45,6 +45,7 @@ from sensorless.design.drive_file import (
     Entry,
     check_keys,
     derived_document,
+    g6,
     positive,
     sampling_frequency,
     table,
@@ -52,7 +53,7 @@ from sensorless.design.drive_file import (
 )
 from sensorless.design.motor_data import mtpa_torque
 from sensorless.design.plausibility import plausibility, warning_lines
-from sensorless.design.pmac_reduced_order.motor import g6, read_pmac_motor
+from sensorless.design.pmac_reduced_order.motor import read_pmac_motor
 from sensorless.design.pmac_reduced_order.schema import SECTIONS, PmacDrive, harmonic_series, load_complete
 from sensorless.design.units import DriveFileError
 
