@@ -92,6 +92,20 @@ def test_registers_from_the_test_tree_and_nothing_else_names_it(drive):
         assert not any(n in (ROOT / name).read_text() for n in needles)
 
 
+def test_reads_the_shared_pmsm_records_and_refuses_a_salient_motor(drive, tmp_path, capsys):
+    from sensorless.design.pmsm_schema import PmsmEstimate, PmsmMotor
+
+    assert type(drive.motor) is PmsmMotor and type(drive.estimate) is PmsmEstimate
+    assert drive.motor.L_d == drive.motor.L_q == pytest.approx(5e-3)
+    for section in ("motor", "estimate"):
+        text = Path(DRIVE).read_text()
+        head, _, tail = text.partition(f"[{section}]")
+        bad = tmp_path / f"salient_{section}.toml"
+        bad.write_text(head + f"[{section}]" + tail.replace('L_q = "5 mH"', 'L_q = "6 mH"', 1))
+        code, _, err = run(["analyze", bad, "--out", tmp_path / "out"], capsys)
+        assert code == 2 and f"key '{section}.L_q'" in err and "non-salient" in err and err.count("\n") == 1
+
+
 # --------------------------------------------------------------------------------------- analyze
 def test_analyze_writes_poles_from_the_casadi_jacobians(drive, tmp_path, capsys):
     code, stdout, err = run(["analyze", DRIVE, "--out", tmp_path], capsys)
