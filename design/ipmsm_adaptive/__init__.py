@@ -20,8 +20,6 @@ from sensorless.design.ipmsm_adaptive import linearize as _linearize
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
 from sensorless.design.ipmsm_adaptive.simulation import injection_off
 
-__all__ = ["FAMILY", "AdaptiveFluxObserver", "injection_off", "with_alpha_fo"]
-
 
 class AdaptiveFluxObserver(ObserverFamily):
     """The speed-adaptive stator-flux observer with gain (7)/(16), PI adaptation and HF injection."""
