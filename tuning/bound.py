@@ -124,16 +124,6 @@ def _pattern_search(
     return x, f
 
 
-def _best_per_speed(x, f, idx, S):
-    """The best row per speed index."""
-    best_f = np.full(S, -np.inf)
-    best_x = np.zeros((S, x.shape[1]))
-    for r in np.argsort(f):  # ascending: later (better) rows overwrite
-        best_f[idx[r]] = f[r]
-        best_x[idx[r]] = x[r]
-    return best_x, best_f
-
-
 def pointwise_bound(
     model: TuningModel,
     speeds: np.ndarray,
