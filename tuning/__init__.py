@@ -1,1 +1,4 @@
-"""Tuning: observer gains optimized over an operating envelope (the shared global phase, max-min damping NLP and pointwise bound, and the families' tuning hooks)."""
+"""Tuning: observer gains optimized over an operating envelope.
+
+The shared global phase, max-min damping NLP and pointwise bound, and the families' tuning hooks.
+"""
