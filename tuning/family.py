@@ -32,6 +32,21 @@ class TuneOutcome(Protocol):
         ...
 
 
+class TuneSettings(Protocol):
+    """What shared code reads of any tunable's settings (the rest is the tunable's own): which tables
+    the run writes beside the gain table."""
+
+    @property
+    def bound(self) -> bool:
+        """Whether the run computes the pointwise bound per speed (``speeds_<name>.csv``)."""
+        ...
+
+    @property
+    def pareto(self) -> int:
+        """Points of the damping-versus-noise front the run computes (``pareto_<name>.csv``); 0: none."""
+        ...
+
+
 @dataclass(frozen=True)
 class Tunable:
     """A tunable gain family: its name (the gain table's ``family``) and how it is tuned.
@@ -45,7 +60,7 @@ class Tunable:
 
     name: str
     description: str
-    settings: Callable[[Any], Any]
+    settings: Callable[[Any], TuneSettings]
     build: Callable[[Any, Any, Any], Any] | None = None
     tuner: Callable[[Any, Any, Progress | None], TuneOutcome] | None = None
     seed: str | None = None

@@ -85,6 +85,8 @@ class TuningModel:
     n_initial_active: int = 0  # exchange method: points in the first round (0: 3 n_theta, at least 4)
     # (K, n_theta) -> (K,): how large the gains are over the speed range (smaller wins a tie)
     gain_size: Callable[[np.ndarray], np.ndarray] | None = None
+    gain_size_unit: str = ""  # its unit, for the summary's row heading
+    gain_size_meaning: str = ""  # what it measures, in a few words (the tie-break's line)
 
     @property
     def n_theta(self) -> int:

@@ -210,8 +210,7 @@ def _note(model, theta1, dense1, s1, theta2, dense2, s2, best, floor2, w_base, m
     d1, d2 = float(np.min(dense1.decay)), float(np.min(dense2.decay))
     head = (
         f"tie-break (of the gains within {TIE_TOL:g} of the best worst damping {best:.4f}, decaying at "
-        f">= {floor2:.4g} 1/s, the smallest; gain size = RMS over the speed range of the gain and its "
-        "slope per p.u., in R̂s): "
+        f">= {floor2:.4g} 1/s, the smallest; gain size = {model.gain_size_meaning}): "
     )
     if moved:
         a, b = _fmt(model, theta1, w_base), _fmt(model, theta2, w_base)
