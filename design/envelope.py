@@ -185,7 +185,7 @@ _KEYS = (
 
 
 def parse_relative(value: Any, dim: str, rel: Mapping[str, float], file: str, key: str) -> float:
-    """A quantity that may carry a relative unit (``pu``, ``R_s_hat``, ``T_N``); returns SI."""
+    """A quantity that may carry a relative unit (``T_N``, or a unit of ``rel``: ``pu``, ...); returns SI."""
     if dim == "torque" and isinstance(value, str) and value.strip().endswith("T_N"):
         num = value.strip()[:-3].strip() or "1"
         return check_magnitude(parse_number(num, file=file, key=key) * rel["T_N"], value, file=file, key=key)
@@ -207,7 +207,7 @@ def load_tuning(
     table: Mapping[str, Any], file: str, rel: Mapping[str, float], law: LawKeys | None = None
 ) -> TuningSettings:
     """Strictly load a ``[tuning]`` table; absent keys keep their defaults. ``rel`` resolves the
-    relative units: ``pu`` (base speed, rad/s), ``R_s_hat`` (ohm), ``T_N`` (N m). ``law``: the keys
+    relative units: ``pu`` (base speed, rad/s), ``T_N`` (N m) and any the family adds. ``law``: the keys
     the family's gain laws add and their reader (None: none)."""
     allowed = _KEYS + (law.keys if law is not None else ())
     for k in table:

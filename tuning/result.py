@@ -77,7 +77,7 @@ class TuneResult:
     selection: dict[str, Any]  # which dense-verified candidate was kept and why
     floor: float = 0.0  # the decay floor the family was tuned under [1/s]
     bound: Bound | None = None  # the pointwise bound on the dense speeds
-    seed: TuneResult | None = None  # the seed family's result (schedule: law16)
+    seed: TuneResult | None = None  # the seed law's result (Tunable.seed)
     ridge: dict[str, Any] | None = None  # the worst point, if no parameter of the family moves it
     pareto: list[dict[str, Any]] | None = None  # damping-versus-noise front
     global_phase: dict[str, Any] = dataclasses.field(default_factory=dict)

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from sensorless.design.envelope import LawKeys, parse_relative, read_int
+from sensorless.design.envelope import LawKeys, NoLawSettings, TuningSettings, parse_relative, read_int
 from sensorless.design.units import DriveFileError
 
 
@@ -56,3 +56,13 @@ def load(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -> Adapt
 
 
 LAW_KEYS = LawKeys(("lambda_max", "tune_alpha_fo", "breakpoints"), load)
+
+
+def law_settings(settings: TuningSettings) -> AdaptiveLawSettings:
+    """This observer's part of ``settings`` (its defaults where the settings carry none)."""
+    law = settings.law
+    if isinstance(law, NoLawSettings):
+        return AdaptiveLawSettings()
+    if not isinstance(law, AdaptiveLawSettings):
+        raise TypeError(f"tuning settings of another observer family: {type(law).__name__}")
+    return law

@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
+from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
 from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, taylor_law
@@ -100,7 +101,7 @@ def law_model(
 ) -> TuningModel:
     """The TuningModel of ``law`` on ``drive`` with the box (lower, upper), baseline theta0 and typical
     magnitudes of its parameters (alpha_fo appended when tuned); ``kw``: the family's own fields."""
-    tune_alpha = settings.law.tune_alpha_fo
+    tune_alpha = law_settings(settings).tune_alpha_fo
     a0 = drive.observer.alpha_fo
     names, units = law.param_names, law.param_units
     if tune_alpha:
