@@ -18,6 +18,7 @@ from typing import Any
 
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.envelope import TuningSettings, load_tuning
+from sensorless.design.ipmsm_adaptive.law_settings import LAW_KEYS, AdaptiveLawSettings
 from sensorless.design.plausibility import plausibility, warning_lines
 from sensorless.design.pmsm_schema import (
     PmsmControl,
@@ -193,7 +194,9 @@ class IpmsmDrive:
     observer: Observer
     injection: Injection
     runtime: Runtime | None = None  # [runtime], defaults filled in by the loader
-    tuning: TuningSettings = field(default_factory=TuningSettings)  # optional [tuning] of `tune`
+    tuning: TuningSettings = field(  # optional [tuning] of `tune`
+        default_factory=lambda: TuningSettings(law=AdaptiveLawSettings())
+    )
     digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
     warnings: tuple[str, ...] = ()  # plausibility warnings (design/plausibility.py), printed by every command
 
@@ -309,9 +312,9 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     observer = dataclasses.replace(observer, gains=gains)
     injection = load_section(Injection, table(data, "injection", file), file, "injection", rel)
     runtime = _load_runtime(data, file, rel)
-    tuning = TuningSettings()
+    tuning = TuningSettings(law=AdaptiveLawSettings())
     if "tuning" in data:
-        tuning = load_tuning(table(data, "tuning", file), file, {**rel, "T_N": rating.T_N})
+        tuning = load_tuning(table(data, "tuning", file), file, {**rel, "T_N": rating.T_N}, LAW_KEYS)
     return IpmsmDrive(
         name=head["name"],
         kind=kind,

@@ -111,6 +111,11 @@ class PllDrive:
     def T_s(self) -> float:
         return self.control.T_s
 
+    def grid(self, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Flat (speed [rad/s], torque [N m]) of the envelope's speeds x torques."""
+        W, T = np.meshgrid(self.speed_grid(factor), np.asarray(self.envelope.torques, float))
+        return W.ravel(), T.ravel()
+
     def speed_grid(self, factor: int = 1) -> np.ndarray:
         """Envelope speeds [rad/s], both directions; ``factor`` refines each interval."""
         e = self.envelope
@@ -225,7 +230,29 @@ def _to_stationary(x_r: ca.SX) -> ca.SX:
 
 
 @functools.cache
-def _equilibrium_function(discrete: bool, discretization: str) -> ca.Function:
+def rotor_frame_rates() -> ca.Function:
+    """(x_r, w, T_e, motor[4], p) -> f_r: the continuous observer (1)-(3) on the true motor in steady
+    state at speed w, torque T_e, written in the rotor frame (x_r = [z_r (2), delta, w_i]); its
+    equilibria are its zeros, and its Jacobian in x_r is the linearized observer there."""
+    x_r = ca.SX.sym("x_r", _N_X)
+    w, T_e = ca.SX.sym("w"), ca.SX.sym("T_e")
+    m, p = ca.SX.sym("motor", 4), ca.SX.sym("p", len(PARAMS))
+    i_r, u_r = _steady_motor(w, T_e, m)  # at theta = 0: stationary = rotor frame
+    dx = rhs_function()(_to_stationary(x_r), i_r, u_r, p)
+    G = ca.vertcat(dx[0:2] - w * (J @ x_r[0:2]), w - dx[2], dx[3])
+    return ca.Function(
+        "pmsm_pll_rotor_rates", [x_r, w, T_e, m, p], [G], ["x_r", "w", "T_e", "motor", "p"], ["f_r"]
+    )
+
+
+def motor_vector(drive: PllDrive) -> np.ndarray:
+    """[R_s, L, psi_pm, p] of the true motor (the ``motor`` input of the equilibrium Functions)."""
+    mt = drive.motor
+    return np.array([mt.R_s, mt.L_d, mt.psi_pm, float(mt.p)])
+
+
+@functools.cache
+def equilibrium_function(discrete: bool, discretization: str) -> ca.Function:
     """(w, T_e, motor[4], p) -> (x_r*, A, residual): Newton on the SX equations, then the Jacobian.
 
     Continuous: f_r(x_r) = 0 with f_r the observer (1)-(3) in the rotor frame. Discrete: x_r = F(x_r)
@@ -244,8 +271,7 @@ def _equilibrium_function(discrete: bool, discretization: str) -> ca.Function:
         F = ca.vertcat(rot(-th1) @ x1[0:2], wrap_angle(th1 - x1[2]), x1[3])
         G = F - x_r
     else:
-        dx = rhs_function()(x, i_r, u_r, p)
-        G = ca.vertcat(dx[0:2] - w * (J @ x_r[0:2]), w - dx[2], dx[3])
+        G = rotor_frame_rates()(x_r, w, T_e, m, p)
         F = G
     g_fn = ca.Function("G", [x_r, w, T_e, m, p], [G, ca.jacobian(G, x_r)])
     # start: the exact EMF of the true motor, no angle error, w_i = w
@@ -270,11 +296,10 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
     W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
     n = W.size
     setup = runtime_setup(drive, gains)
-    mt = drive.motor
-    motor = np.array([mt.R_s, mt.L_d, mt.psi_pm, float(mt.p)])
+    motor = motor_vector(drive)
     out = {}
     for discrete in (False, True):
-        fn = _equilibrium_function(discrete, setup.discretization)
+        fn = equilibrium_function(discrete, setup.discretization)
         x, A, res = evaluate_batch(fn, n, [W, T, motor, setup.p])
         scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
         ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
