@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError
+from sensorless.design.family import CapabilityError, Panel, TraceLine
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario, speed_filter_of
@@ -27,6 +27,21 @@ from sensorless.symbolic.pmsm_drive import (
     initial_loop_state_function,
     loop_function,
     observer_record,
+)
+
+# the parameter-error factors of a scenario's [estimate_scale] that the loop applies to the
+# controllers' estimates (a family on this loop declares them in ObserverFamily.estimate_keys, with
+# the observer's own, which it applies itself); a factor not declared is 1
+ESTIMATE_KEYS = ("R_s", "L_d", "L_q", "psi_pm", "J")
+
+# the trace panel of this loop's stator currents (symbolic/pmsm_drive.py records i_d, i_q), for the
+# families on this loop to list among their panels (ObserverFamily.panels)
+CURRENT_PANEL = Panel(
+    "current",
+    "A",
+    "stator current components in the true rotor frame",
+    "current (A)",
+    (TraceLine(("i_d",), "k-", r"$i_d$"), TraceLine(("i_q",), "k--", r"$i_q$")),
 )
 
 
@@ -78,7 +93,7 @@ def from_sections(motor: Any, estimate: Any, control: Any, **carrier: float) -> 
 
 
 def _params(d: PmsmDrive, sc: Scenario, carrier: bool) -> np.ndarray:
-    k = sc.estimate_scale
+    k = {key: sc.estimate_scale.get(key, 1.0) for key in ESTIMATE_KEYS}
     q = {
         "R_s": d.R_s,
         "L_d": d.L_d,

@@ -29,17 +29,9 @@ from sensorless.design.units import DriveFileError, check_magnitude, parse_quant
 INTERPOLATIONS = ("step", "linear")
 FEEDBACK = ("observer", "sensor")
 MODES = ("speed", "torque")
-PANELS = (
-    "speed",
-    "speed_error",
-    "tracking_error",
-    "torque",
-    "theta_error",
-    "current",
-    "load_torque",
-    "emf_error",
-    "w_eps",
-)
+# the trace panels of every drive's simulation (reports/sim_figure.py draws them from the traces every
+# loop records: speeds, torques, position error); a family adds its own (ObserverFamily.panels)
+GENERIC_PANELS = ("speed", "speed_error", "tracking_error", "torque", "theta_error")
 
 
 @dataclass(frozen=True)
@@ -99,7 +91,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "source": ("str", ""),
         "kind": ("str", REQUIRED),
         "duration": ("time", REQUIRED),
-        "figure": ("panels", ("speed", "torque", "theta_error")),
+        "figure": ("panels", ("speed", "torque", "theta_error")),  # dim completed by _schema
     },
     "observer": {
         "discretization": ("str", None),
@@ -118,7 +110,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
     },
     "noise": {"i_std": ("current", 0.0), "seed": ("int", 0)},
     "mechanics": {"B": ("viscous", 0.0)},
-    "estimate_scale": {k: ("factor", 1.0) for k in ("R_s", "L_d", "L_q", "psi_pm", "J", "Phi")},
+    "estimate_scale": {},  # the family's keys (ObserverFamily.estimate_keys), factors of default 1
 }
 _PROFILES = {"speed_reference": "angular_any", "load_torque": "torque", "torque_reference": "torque"}
 
@@ -136,12 +128,22 @@ def builtin_names(kind: str) -> list[str]:
     return sorted(_builtin(kind))
 
 
+def panel_names(kind: str | None) -> tuple[str, ...]:
+    """The trace panels a scenario of drive kind ``kind`` may show: the shared ones and its family's."""
+    own = registry.family(kind).panels if kind is not None else ()
+    return GENERIC_PANELS + tuple(p.name for p in own)
+
+
 def _schema(kind: str | None) -> dict[str, dict[str, tuple[str, Any]]]:
     """The common schema plus the keys of the family of ``kind`` (if known)."""
     schema = {k: dict(v) for k, v in _SCHEMA.items()}
     if kind is not None:
-        for section, keys in registry.family(kind).scenario_options.items():
+        fam = registry.family(kind)
+        for section, keys in fam.scenario_options.items():
             schema.setdefault(section, {}).update(keys)
+        schema["estimate_scale"].update({k: ("factor", 1.0) for k in fam.estimate_keys})
+    dim, default = schema["scenario"]["figure"]
+    schema["scenario"]["figure"] = (f"{dim}:{','.join(panel_names(kind))}", default)
     return schema
 
 
@@ -158,9 +160,10 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
         if not isinstance(raw, int) or isinstance(raw, bool) or raw < 0:
             raise DriveFileError(file, key, f"expected a non-negative integer, got {raw!r}")
         return raw
-    if dim == "panels":
-        if not isinstance(raw, list) or not raw or any(p not in PANELS for p in raw):
-            raise DriveFileError(file, key, f"expected a list of panels from: {', '.join(PANELS)}")
+    if dim.startswith("panels"):  # "panels:<name>,<name>,...": the names the scenario's family allows
+        allowed = dim.partition(":")[2].split(",")
+        if not isinstance(raw, list) or not raw or any(p not in allowed for p in raw):
+            raise DriveFileError(file, key, f"expected a list of panels from: {', '.join(allowed)}")
         return tuple(raw)
     if dim == "factor":
         x, _ = parse_quantity(raw, "dimensionless", file=file, key=key)
@@ -305,7 +308,13 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         i_noise=s["noise"]["i_std"],
         seed=s["noise"]["seed"],
         estimate_scale=s["estimate_scale"],
-        options={k: s[sec][k] for sec, keys in schema.items() for k in keys if k not in _SCHEMA.get(sec, {})},
+        options={
+            k: s[sec][k]
+            for sec, keys in schema.items()
+            if sec != "estimate_scale"
+            for k in keys
+            if k not in _SCHEMA.get(sec, {})
+        },
     )
 
 

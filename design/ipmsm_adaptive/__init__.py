@@ -32,6 +32,8 @@ class AdaptiveFluxObserver(ObserverFamily):
     report = "sensorless.reports.ipmsm_adaptive"
     gain_families = _runtime.GAIN_FAMILIES
     scenario_options = simulation.SCENARIO_OPTIONS
+    estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
+    panels = simulation.PANELS
 
     def load(self, data: Any, file: str, digest: str) -> schema.IpmsmDrive:
         return schema.load(data, file, digest, self.kind)

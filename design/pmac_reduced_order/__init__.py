@@ -32,6 +32,8 @@ class ReducedOrderObserver(ObserverFamily):
     report = "sensorless.reports.pmac_reduced_order"
     gain_families = _runtime.GAIN_FAMILIES
     scenario_options = simulation.SCENARIO_OPTIONS
+    estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
+    panels = simulation.PANELS
 
     def load(self, data: Any, file: str, digest: str) -> schema.PmacDrive:
         return schema.load(data, file, digest, self.kind)
