@@ -106,6 +106,15 @@ class Panel:
 
 
 @dataclass(frozen=True)
+class PerUnitBases:
+    """A drive's per-unit bases by dimension (the drive-file field metadata ``dim``: angular, voltage,
+    current, resistance, inductance, flux) and one line saying what they are, for reports."""
+
+    values: Mapping[str, float]
+    note: str
+
+
+@dataclass(frozen=True)
 class DriveScales:
     """What scales a drive's generic time-domain scenarios (design/scenario.py ``generic_scenarios``):
     its rated torque, torque limit, inertia, pole pairs, base speed and speed-loop bandwidth, and
@@ -186,6 +195,11 @@ class ObserverFamily:
         raise CapabilityError(f"observer family {self.name!r} has no linearization")
 
     # ---------------------------------------------------------------------------------- simulation
+    def bases(self, drive: Drive) -> PerUnitBases | None:
+        """The drive's per-unit bases (the report's drive-data tables show values in them); None where
+        its drive files define none."""
+        return None
+
     def scales(self, drive: Drive) -> DriveScales:
         """The drive's torques, inertia and speed-loop bandwidth: the generic scenarios' scales."""
         raise CapabilityError(f"observer family {self.name!r} gives no scales for generic scenarios")

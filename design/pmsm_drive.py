@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, Panel, TraceLine
+from sensorless.design.family import CapabilityError, Drive, Panel, TraceLine
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario, speed_filter_of
@@ -135,7 +135,7 @@ def inputs(sc: Scenario, T_s: float) -> np.ndarray:
 
 
 def loop_setup(
-    drive: Any, data: PmsmDrive, sc: Scenario, setup: RuntimeSetup, carrier: bool, meta: dict[str, Any]
+    drive: Drive, data: PmsmDrive, sc: Scenario, setup: RuntimeSetup, carrier: bool, meta: dict[str, Any]
 ) -> LoopSetup:
     """The loop set-up of ``sc`` on a PMSM drive with the runtime observer ``setup``.
 

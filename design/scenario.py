@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from sensorless.design import registry
 from sensorless.design.drive_file import read_text
-from sensorless.design.family import CapabilityError, DriveScales
+from sensorless.design.family import CapabilityError, Drive, DriveScales
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 
 INTERPOLATIONS = ("step", "linear")
@@ -318,13 +318,13 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
     )
 
 
-def drive_units(drive: Any) -> dict[str, float]:
+def drive_units(drive: Drive) -> dict[str, float]:
     """Drive-relative units a scenario may use: 'pu' (base speed), 'rpm' (mechanical r/min, converted
     to electrical rad/s with the pole pairs) and 'T_N' (nominal torque)."""
     return {"pu": drive.w_base, "T_N": drive.T_N, "rpm": np.pi / 30 * drive.pole_pairs}
 
 
-def load_scenario(spec: str | Path, drive: Any) -> Scenario:
+def load_scenario(spec: str | Path, drive: Drive) -> Scenario:
     """A built-in scenario by name (e.g. ``"fig9b"``) or a scenario TOML file, checked against ``drive``."""
     spec_s = str(spec)
     path = Path(spec_s)
@@ -384,7 +384,7 @@ def generic_times(sc: DriveScales) -> dict[str, float]:
 ZERO_SPEED_LOW_PU = 0.25  # speed_steps' low step where the observer does not run through zero speed
 
 
-def zero_speed_limit(drive: Any) -> str:
+def zero_speed_limit(drive: Drive) -> str:
     """Why the drive's observer does not run through zero speed in closed loop (its family's
     ``DriveScales.zero_speed``); "" where it does, or where its family gives no scales."""
     try:
@@ -399,7 +399,7 @@ def crosses_zero(sc: Scenario) -> bool:
     return bool(w.min() < 0 < w.max())
 
 
-def generic_scenarios(drive: Any) -> list[Scenario]:
+def generic_scenarios(drive: Drive) -> list[Scenario]:
     """The built-in generic scenarios of any drive whose family gives its scales, in per unit of its
     own rating, with times scaled by :func:`generic_times` (docs/simulation.md, "Generic scenarios"):
 

@@ -59,6 +59,9 @@ class ReportHooks:
     simulate_scenario: Callable[[Drive, argparse.Namespace, Scenario], Scenario] | None = None
     # sensorless report: (drive, table or None, table file, min_damping, resolution, progress) -> Report
     report: Callable[..., Any] | None = None
+    # drive sections that hold settings of other commands, not drive data: left out of the report's
+    # drive-data tables (reports/review.py opening)
+    settings_sections: tuple[str, ...] = ()
 
 
 def hooks(family: ObserverFamily) -> ReportHooks:

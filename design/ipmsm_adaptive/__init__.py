@@ -12,11 +12,14 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
+from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily, PerUnitBases
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.ipmsm_adaptive import linearize as _linearize
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
 from sensorless.design.ipmsm_adaptive import schema, simulation
+from sensorless.design.ipmsm_adaptive.simulation import injection_off
+
+__all__ = ["FAMILY", "AdaptiveFluxObserver", "injection_off", "with_alpha_fo"]
 
 
 class AdaptiveFluxObserver(ObserverFamily):
@@ -71,23 +74,29 @@ class AdaptiveFluxObserver(ObserverFamily):
             with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
         )
 
+    def bases(self, drive: Any) -> PerUnitBases:
+        """The [base] section: speed w, voltage u, current i, impedance Z = u/i, flux psi = u/w."""
+        b = drive.base
+        values = {
+            "angular": b.w,
+            "voltage": b.u,
+            "current": b.i,
+            "resistance": b.Z,
+            "inductance": b.Z / b.w,
+            "flux": b.psi,
+        }
+        note = (
+            "Per-unit bases: speed = [base] w, voltage = [base] u, current = [base] i, impedance = u/i, "
+            "flux = u/w."
+        )
+        return PerUnitBases(values, note)
+
     def scales(self, drive: Any) -> DriveScales:
         c = drive.control
         return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s)
 
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
-
-
-def injection_off(drive: Any) -> str:
-    """Why the drive has no HF injection to analyse or simulate (one line)."""
-    from sensorless.design.ipmsm_adaptive.derive import saliency
-
-    xi = saliency(drive.estimate.L_d, drive.estimate.L_q)
-    return (
-        f"{drive.file}: the drive's HF injection is off ([injection] u_c = 0 V; saliency "
-        f"2|L_q - L_d|/(L_q + L_d) = {xi:.3g}{': L_d = L_q gives no error signal (19)' if xi == 0 else ''})"
-    )
 
 
 def with_alpha_fo(drive: Any, gains: GainSet) -> Any:

@@ -87,7 +87,7 @@ class Progress:
 
 def run(args: argparse.Namespace) -> int:
     """Load drive and scenario, simulate, write outputs."""
-    drive: Any = load(args.drive, "simulate")
+    drive = load(args.drive, "simulate")
     fam = family_of(drive)
     if args.list:
         for name in builtin_names(drive.kind):

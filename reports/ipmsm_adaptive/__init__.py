@@ -20,4 +20,5 @@ HOOKS = ReportHooks(
     simulate_options=simulate.OPTIONS,
     simulate_scenario=simulate.scenario,
     report=report.compute,
+    settings_sections=("runtime", "tuning"),  # [runtime], [tuning]: settings, in their own sections
 )
