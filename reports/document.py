@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from sensorless.design.family import Drive, PerUnitBases
+from sensorless.design.gain_table import GainTable
 
 
 # --------------------------------------------------------------------------------------------------
@@ -138,7 +139,7 @@ def report_json(data: dict[str, Any], version: str) -> str:
     return json.dumps(doc, indent=1, sort_keys=True, allow_nan=False) + "\n"
 
 
-def report_inputs(drive: Drive, table: Any | None, min_damping: float) -> dict[str, Any]:
+def report_inputs(drive: Drive, table: GainTable | None, min_damping: float) -> dict[str, Any]:
     """What a report describes: the drive, the hashes of its inputs, the required damping."""
     return {
         "drive": drive.name,
@@ -148,7 +149,7 @@ def report_inputs(drive: Drive, table: Any | None, min_damping: float) -> dict[s
     }
 
 
-def table_digest(table: Any | None) -> str | None:
+def table_digest(table: GainTable | None) -> str | None:
     """sha256 of a gain table's canonical JSON, or None."""
     return None if table is None else hashlib.sha256(table.to_json().encode()).hexdigest()
 

@@ -23,6 +23,8 @@ from sensorless.design.family import CapabilityError, Drive, ObserverFamily
 from sensorless.design.registry import families
 from sensorless.design.scenario import Scenario
 from sensorless.reports.cli.common import COUNT, FINITE
+from sensorless.reports.document import Report
+from sensorless.reports.files import OutputSet
 
 
 @dataclass(frozen=True)
@@ -47,18 +49,18 @@ class ReportHooks:
     # analyze_check (drive, args) -> None checks the options against the drive before anything is
     # computed or written (one-line errors; analyze may then trust them)
     analyze_options: tuple[Option, ...] = ()
-    analyze: Callable[[Any, argparse.Namespace, Any], None] | None = None
-    analyze_check: Callable[[Any, argparse.Namespace], None] | None = None
+    analyze: Callable[[Drive, argparse.Namespace, OutputSet], None] | None = None
+    analyze_check: Callable[[Drive, argparse.Namespace], None] | None = None
     # sensorless tune: options, (drive, args, tunable) -> settings, (drive, settings) -> one line
     tune_options: tuple[Option, ...] = ()
-    tune_settings: Callable[[Any, argparse.Namespace, Any], Any] | None = None
-    describe_envelope: Callable[[Any, Any], str] | None = None
+    tune_settings: Callable[[Drive, argparse.Namespace, Any], Any] | None = None  # tunable -> settings
+    describe_envelope: Callable[[Drive, Any], str] | None = None
     # sensorless simulate: options, and (drive, args, scenario) -> the scenario with them applied
     # (one-line errors naming the option or the drive file)
     simulate_options: tuple[Option, ...] = ()
     simulate_scenario: Callable[[Drive, argparse.Namespace, Scenario], Scenario] | None = None
     # sensorless report: (drive, table or None, table file, min_damping, resolution, progress) -> Report
-    report: Callable[..., Any] | None = None
+    report: Callable[..., Report] | None = None
     # drive sections that hold settings of other commands, not drive data: left out of the report's
     # drive-data tables (reports/review.py opening)
     settings_sections: tuple[str, ...] = ()

@@ -23,14 +23,17 @@ drives, design/pmsm_drive.py; mechanical r/min for the reduced-order-observer dr
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design import registry
 from sensorless.design.family import Panel
 
+if TYPE_CHECKING:
+    from sensorless.design.simulate import Traces
 
-def _speed(ax: Any, tr: Any) -> None:
+
+def _speed(ax: Any, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     ax.plot(tr.t, tr["w_m"] * k, "k-", lw=1.0, label=r"$\omega_\mathrm{m}$")
     ax.plot(tr.t, tr["w_hat"] * k, "k--", lw=1.0, label=r"$\hat\omega_\mathrm{m}$")
@@ -38,19 +41,19 @@ def _speed(ax: Any, tr: Any) -> None:
     ax.set_ylabel(rf"$\omega_\mathrm{{m}}$ ({unit})")
 
 
-def _speed_error(ax: Any, tr: Any) -> None:
+def _speed_error(ax: Any, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     ax.plot(tr.t, (tr["w_m"] - tr["w_hat"]) * k, "k-", lw=1.0, label=r"$\omega - \hat\omega$")
     ax.set_ylabel(rf"speed est. error ({unit})")
 
 
-def _tracking_error(ax: Any, tr: Any) -> None:
+def _tracking_error(ax: Any, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     ax.plot(tr.t, (tr["w_ref"] - tr["w_m"]) * k, "k-", lw=1.0, label=r"$\omega_\mathrm{ref} - \omega$")
     ax.set_ylabel(rf"tracking error ({unit})")
 
 
-def _torque(ax: Any, tr: Any) -> None:
+def _torque(ax: Any, tr: Traces) -> None:
     T_N = tr.meta["T_N"]
     if "T_e_hat" in tr.data:  # the torque the controller sees (estimated frame)
         ax.plot(tr.t, tr["T_e_hat"] / T_N, "k-", lw=1.0, label=r"$\hat T_\mathrm{e}$")
@@ -60,7 +63,7 @@ def _torque(ax: Any, tr: Any) -> None:
     ax.set_ylabel(r"$T$ (p.u.)")
 
 
-def _theta_error(ax: Any, tr: Any) -> None:
+def _theta_error(ax: Any, tr: Traces) -> None:
     ax.plot(tr.t, np.degrees(tr["theta_err"]), "k-", lw=1.0, label=r"$\tilde\theta_\mathrm{m}$")
     ax.set_ylabel(r"$\tilde\theta_\mathrm{m}$ (deg)")
 
@@ -77,7 +80,7 @@ PANELS: dict[str, Callable[[Any, Any], None]] = {  # design/scenario.py GENERIC_
 def _declared(panel: Panel) -> Callable[[Any, Any], None]:
     """The drawing of a family's declared panel: each line from the first of its traces the run has."""
 
-    def draw(ax: Any, tr: Any) -> None:
+    def draw(ax: Any, tr: Traces) -> None:
         for line in panel.lines:
             name = next((n for n in line.traces if n in tr.data), line.traces[-1])
             ax.plot(tr.t, tr[name], line.style, lw=1.0, label=line.label)
@@ -86,7 +89,7 @@ def _declared(panel: Panel) -> Callable[[Any, Any], None]:
     return draw
 
 
-def panels_of(traces: Any) -> dict[str, Callable[[Any, Any], None]]:
+def panels_of(traces: Traces) -> dict[str, Callable[[Any, Any], None]]:
     """Panel name -> drawing, for the traces of a run: the shared panels and its family's."""
     kind = traces.meta.get("kind")
     own = registry.family(kind).panels if kind in registry.kinds() else ()
@@ -96,7 +99,7 @@ def panels_of(traces: Any) -> dict[str, Callable[[Any, Any], None]]:
 MAX_POINTS = 20000  # per line: more is invisible at figure resolution and bloats the SVG
 
 
-def plot_traces(traces: Any, panels: tuple[str, ...], title: str) -> Any:
+def plot_traces(traces: Traces, panels: tuple[str, ...], title: str) -> Any:
     """A matplotlib Figure with the given panels stacked over a shared time axis.
 
     Long runs are thinned to at most MAX_POINTS samples per line (every k-th sample).

@@ -19,7 +19,7 @@ import numpy as np
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import builtin_names, generic_scenarios, load_scenario
-from sensorless.design.simulate import MAX_SAMPLES, check_length
+from sensorless.design.simulate import MAX_SAMPLES, Traces, check_length
 from sensorless.reports.cli.common import Number, ResultError, UsageError, load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
@@ -158,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     return 3 if problems else 0
 
 
-def print_summary(tr: Any) -> None:
+def print_summary(tr: Traces) -> None:
     """RMS and peak estimation errors over the run."""
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     e_th = np.degrees(tr["theta_err"])
