@@ -91,7 +91,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "source": ("str", ""),
         "kind": ("str", REQUIRED),
         "duration": ("time", REQUIRED),
-        "figure": ("panels", ("speed", "torque", "theta_error")),  # dim completed by _schema
+        "figure": ("panels", ("speed", "torque", "theta_error")),  # of panel_names(kind)
     },
     "observer": {
         "discretization": ("str", None),
@@ -142,8 +142,6 @@ def _schema(kind: str | None) -> dict[str, dict[str, tuple[str, Any]]]:
         for section, keys in fam.scenario_options.items():
             schema.setdefault(section, {}).update(keys)
         schema["estimate_scale"].update({k: ("factor", 1.0) for k in fam.estimate_keys})
-    dim, default = schema["scenario"]["figure"]
-    schema["scenario"]["figure"] = (f"{dim}:{','.join(panel_names(kind))}", default)
     return schema
 
 
@@ -160,11 +158,6 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
         if not isinstance(raw, int) or isinstance(raw, bool) or raw < 0:
             raise DriveFileError(file, key, f"expected a non-negative integer, got {raw!r}")
         return raw
-    if dim.startswith("panels"):  # "panels:<name>,<name>,...": the names the scenario's family allows
-        allowed = dim.partition(":")[2].split(",")
-        if not isinstance(raw, list) or not raw or any(p not in allowed for p in raw):
-            raise DriveFileError(file, key, f"expected a list of panels from: {', '.join(allowed)}")
-        return tuple(raw)
     if dim == "factor":
         x, _ = parse_quantity(raw, "dimensionless", file=file, key=key)
         if x <= 0:
@@ -204,8 +197,20 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
     return x
 
 
+def _panels(raw: Any, allowed: tuple[str, ...], file: str, key: str) -> tuple[str, ...]:
+    """A figure's list of panels, each one of ``allowed`` (``panel_names`` of the scenario's kind)."""
+    if not isinstance(raw, list) or not raw or any(p not in allowed for p in raw):
+        raise DriveFileError(file, key, f"expected a list of panels from: {', '.join(allowed)}")
+    return tuple(raw)
+
+
 def _section(
-    data: Mapping[str, Any], name: str, file: str, rel: Mapping[str, float], schema_all: Mapping[str, Any]
+    data: Mapping[str, Any],
+    name: str,
+    file: str,
+    rel: Mapping[str, float],
+    schema_all: Mapping[str, Any],
+    panels: tuple[str, ...],
 ) -> dict[str, Any]:
     schema = schema_all[name]
     table = data.get(name, {})
@@ -222,7 +227,9 @@ def _section(
                 raise DriveFileError(file, key, "missing key")
             out[k] = default
             continue
-        out[k] = _value(table[k], dim, file, key, rel)
+        out[k] = (
+            _panels(table[k], panels, file, key) if dim == "panels" else _value(table[k], dim, file, key, rel)
+        )
     return out
 
 
@@ -269,7 +276,8 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
     for k in data:
         if k not in allowed:
             raise DriveFileError(file, k, f"unknown section (allowed: {', '.join(allowed)})")
-    s = {name: _section(data, name, file, rel, schema) for name in schema}
+    panels = panel_names(kind if isinstance(kind, str) else None)
+    s = {name: _section(data, name, file, rel, schema, panels) for name in schema}
     c, o = s["control"], s["observer"]
     for key, val, allowed_vals in (
         ("control.feedback", c["feedback"], FEEDBACK),

@@ -2,11 +2,11 @@
 time-domain checks and its verdict box.
 
 A family's report hook (reports/family.py ``ReportHooks.report``) computes its own analysis; the frame
-around it is here, once: which gains it compares and which one it reviews (:class:`Review`, a gain
-table's when one is given), the data every report.json opens with (:func:`opening`: inputs and their
-hashes, the drive-data tables, the label under review), the time-domain checks of the gains under
-review (:func:`time_domain_checks`, reports/time_domain.py) and the verdict's status with those checks
-and its box (:func:`settle`, :func:`verdict_box`).
+around it is here, once: which gains it compares and which one it reviews (:class:`Review`,
+:func:`gains_under_review`: a gain table's when one is given), the data every report.json opens with
+(:func:`opening`: inputs and their hashes, the drive-data tables, the label under review), the
+time-domain checks of the gains under review (:func:`time_domain_checks`, reports/time_domain.py) and
+the verdict's status with those checks and its box (:func:`settle`, :func:`verdict_box`).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ class Review:
         return self.gains if self.tuned else None
 
 
-def review(
+def gains_under_review(
     family: ObserverFamily,
     drive: Drive,
     table: Any | None,

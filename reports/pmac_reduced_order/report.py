@@ -25,8 +25,14 @@ from sensorless.reports.document import (
     num,
     svg_uri,
 )
-from sensorless.reports.review import opening, settle, status_class, time_domain_checks, verdict_box
-from sensorless.reports.review import review as review_of
+from sensorless.reports.review import (
+    gains_under_review,
+    opening,
+    settle,
+    status_class,
+    time_domain_checks,
+    verdict_box,
+)
 
 TIME_DOMAIN = ("fig3", "fig5b")
 
@@ -51,7 +57,7 @@ def compute(
     rpm = np.array(env.speeds, float)
     loads = np.array(env.loads, float)
     w = drive.rpm_to_w(rpm)
-    rev = review_of(FAMILY, drive, table, table_file, "paper gains")
+    rev = gains_under_review(FAMILY, drive, table, table_file, "paper gains")
     choices, review = rev.choices, rev.label
     data: dict[str, Any] = {
         **opening(FAMILY, drive, table, min_damping, review),

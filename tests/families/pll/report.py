@@ -32,8 +32,14 @@ from sensorless.reports.document import (
 )
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
-from sensorless.reports.review import opening, settle, status_class, time_domain_checks, verdict_box
-from sensorless.reports.review import review as review_of
+from sensorless.reports.review import (
+    gains_under_review,
+    opening,
+    settle,
+    status_class,
+    time_domain_checks,
+    verdict_box,
+)
 from sensorless.tuning.nlp import TuningError
 
 from families.pll.design import FAMILY, PllLinearization
@@ -174,7 +180,7 @@ def compute(
     scenarios: Sequence[str] = (),
 ) -> Report:
     """The report's numbers, sections and verdict."""
-    rev = review_of(FAMILY, drive, table, table_file)
+    rev = gains_under_review(FAMILY, drive, table, table_file)
     choices, review = rev.choices, rev.label
     W, T = grid(drive, 1 if resolution == "quick" else 4)
     progress(f"[1/3] poles over the envelope ({W.size} points)")
