@@ -208,5 +208,10 @@ class ObserverFamily:
         """The loop set-up (design/simulate.LoopSetup) of ``scenario`` on ``drive``."""
         raise CapabilityError(f"observer family {self.name!r} has no time-domain simulation")
 
+    def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
+        """What the header of a run's traces says of the family's own settings of the run (its loop
+        set-up's ``meta``), one clause each (reports/traces.py); none here."""
+        return ()
+
     def __repr__(self) -> str:
         return f"<observer family {self.name} (kind {self.kind!r})>"

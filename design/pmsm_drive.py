@@ -140,7 +140,7 @@ def loop_setup(
     """The loop set-up of ``sc`` on a PMSM drive with the runtime observer ``setup``.
 
     ``carrier``: the observer injects a carrier (its output ``u_c_d``) that the current control must
-    not see. ``meta`` adds the family's own lines (gains, injection, ...) to the provenance.
+    not see. ``meta`` adds the family's own entries (its gains, its switches) to the provenance.
     """
     obs = setup.observer
     meas = tuple(f.name for f in obs.meas)
@@ -183,7 +183,6 @@ def loop_setup(
             "pole_pairs": data.p,
             "speed_unit": "p.u.",
             "speed_scale": 1 / drive.w_base,  # rad/s (electrical) -> speed_unit
-            "injection": False,
             **meta,
         },
     )

@@ -15,6 +15,7 @@ import zipfile
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from sensorless.design import registry
 
 if TYPE_CHECKING:
     from sensorless.design.simulate import Traces
@@ -33,12 +34,13 @@ def columns(traces: Traces, every: int = 1) -> tuple[list[str], list[str], np.nd
 def header_lines(traces: Traces) -> list[str]:
     """Provenance and conventions, one line each."""
     m = traces.meta
+    notes = "".join(f"{n}; " for n in registry.family(m["kind"]).trace_notes(m))
     return [
         f"sensorless simulate: scenario {m['scenario']} ({m['scenario_title']})",
         f"scenario source: {m['scenario_source']}",
         f"drive: {m['drive']} ({m['drive_file']}, sha256 {m['drive_sha256'][:16]}...), kind {m['kind']}",
         f"observer gains: {m['gain']} (law {m['gain_law']}); discretization {m['discretization']}; "
-        f"HF injection {'on' if m['injection'] else 'off'}; controller feedback: {m['feedback']}",
+        f"{notes}controller feedback: {m['feedback']}",
         f"sampling period T_s = {m['T_s']:g} s; {m['samples']} samples at t = k T_s (values at the "
         "sampling instants)",
         f"units: SI; speeds in electrical rad/s, angles in electrical rad; per-unit bases: speed "

@@ -98,6 +98,10 @@ class AdaptiveFluxObserver(ObserverFamily):
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
 
+    def trace_notes(self, meta: Any) -> tuple[str, ...]:
+        """The run's HF-injection switch (simulation.build puts it in the provenance)."""
+        return (f"HF injection {'on' if meta['injection'] else 'off'}",)
+
 
 def with_alpha_fo(drive: Any, gains: GainSet) -> Any:
     """The drive with the adaptation bandwidth (10) of ``gains`` (a tuned table may carry its own)."""

@@ -80,6 +80,10 @@ class ReducedOrderObserver(ObserverFamily):
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
 
+    def trace_notes(self, meta: Any) -> tuple[str, ...]:
+        """No HF injection: said as the traces' header has always said it (the same trace files)."""
+        return ("HF injection off",)
+
 
 # De Angelo et al. (2006), Sec. V (Fig. 10): like other EMF-based observers it "cannot be used at very
 # low or zero speed"; the paper reverses through zero with an open-loop procedure, not modelled here

@@ -201,11 +201,6 @@ PENDING: dict[str, set[str]] = {
     "reports/cli/tune.py": {"pareto", "speeds"},
     "reports/gain_csv.py": {"pareto", "speeds"},
     "reports/cli/common.py": {"max_noise"},
-    # the traces header says "HF injection on/off" for every family, and the PMSM loop defaults the
-    # provenance's "injection" to False: taking it out changes every preset's trace files (CSV header,
-    # NPZ meta), which this branch keeps byte-identical; a decision for the merge
-    "design/pmsm_drive.py": {"injection"},
-    "reports/traces.py": {"injection"},
 }
 
 
