@@ -15,6 +15,7 @@ from typing import Any
 
 from sensorless.design import registry
 from sensorless.design.drive_file import read_text, table
+from sensorless.design.family import Drive
 from sensorless.design.units import DriveFileError
 
 
@@ -41,7 +42,7 @@ def preset_text(name: str) -> str | None:
     return None if res is None else res.read_text(encoding="utf-8")
 
 
-def load_drive_text(text: str, file: str) -> Any:
+def load_drive_text(text: str, file: str) -> Drive:
     """Parse and validate the TOML ``text``; ``file`` is the name used in error messages."""
     try:
         data = tomllib.loads(text)
@@ -60,7 +61,7 @@ def load_drive_text(text: str, file: str) -> Any:
     return fam.load(data, file, digest)
 
 
-def load_drive(spec: str | Path) -> Any:
+def load_drive(spec: str | Path) -> Drive:
     """Load a built-in preset by name (e.g. ``"piippo2008"``) or a drive TOML file by path."""
     spec_s = str(spec)
     path = Path(spec_s)

@@ -14,7 +14,9 @@ registered in :mod:`sensorless.design.registry`, which is the only place that ma
   with its parameters from a drive (:meth:`runtime`), which simulation runs and codegen prints as C;
 - its linearization (:meth:`linearize`), returning the common result type
   :class:`~sensorless.design.linearization.Linearization`;
-- its simulation set-up for a scenario (:meth:`simulation`) and the scenario keys it adds;
+- its simulation set-up for a scenario (:meth:`simulation`), the scenario keys it adds, the
+  parameter-error factors a scenario may give (``estimate_keys``) and the trace panels of its own
+  (``panels``: :class:`Panel`, drawn by the shared figure code);
 - the names of the modules that hold its higher-layer hooks: tuning (tunable gain families, tuners;
   imported by ``sensorless.tuning``) and reports (analysis output, report sections; imported by
   ``sensorless.reports``). The design layer never imports them, so no layer reaches up
@@ -28,7 +30,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+
+if TYPE_CHECKING:  # the result types below import this module: typed by name only where no cycle
+    from sensorless.design.linearization import Linearization
 
 
 class CapabilityError(ValueError):
@@ -43,6 +48,9 @@ class Drive(Protocol):
     source: str
     file: str  # the file it was loaded from (or "preset:<name>"), for messages
     digest: str  # sha256 of the TOML text
+    # plausibility findings of its drive file (design/plausibility.py), one line each: every command
+    # prints them (reports/cli/common.py); () where there are none
+    warnings: tuple[str, ...]
 
     @property
     def T_N(self) -> float:
@@ -72,6 +80,38 @@ class GainSet:
     family: str  # gain family: e.g. "law16", "schedule", "constant", "zero", "deangelo"
     values: Mapping[str, Any] = field(default_factory=dict)  # SI; lists for tables
     source: str = ""  # for headers and messages: the drive file's section or the table file
+
+
+@dataclass(frozen=True)
+class TraceLine:
+    """One line of a trace panel: the first of ``traces`` (recorded trace names) that the run has,
+    drawn with the matplotlib format ``style`` and the legend entry ``label``."""
+
+    traces: tuple[str, ...]
+    style: str  # e.g. "k-", "k--", "k:"
+    label: str  # legend entry (TeX)
+
+
+@dataclass(frozen=True)
+class Panel:
+    """A trace panel of a family's own (a scenario's ``figure`` names it): what it shows, in which unit,
+    and its lines over time, drawn by the shared figure code (reports/sim_figure.py). The panels every
+    drive has (speed, torque, position error) are the shared ones of design/scenario.py."""
+
+    name: str  # the name in a scenario's figure list
+    unit: str  # SI unit of the values drawn
+    meaning: str  # one line: what it shows (cited where it is a paper's figure)
+    ylabel: str  # axis label
+    lines: tuple[TraceLine, ...]
+
+
+@dataclass(frozen=True)
+class PerUnitBases:
+    """A drive's per-unit bases by dimension (the drive-file field metadata ``dim``: angular, voltage,
+    current, resistance, inductance, flux) and one line saying what they are, for reports."""
+
+    values: Mapping[str, float]
+    note: str
 
 
 @dataclass(frozen=True)
@@ -116,9 +156,14 @@ class ObserverFamily:
     gain_families: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     # extra scenario keys: section -> key -> (dimension, default); see design/scenario.py
     scenario_options: ClassVar[Mapping[str, Mapping[str, tuple[str, Any]]]] = {}
+    # the keys of a scenario's [estimate_scale]: factors (default 1) on the drive's parameter
+    # estimates that its simulation applies (docs/simulation.md)
+    estimate_keys: ClassVar[tuple[str, ...]] = ()
+    # the trace panels of its own, beyond the shared ones (design/scenario.py GENERIC_PANELS)
+    panels: ClassVar[tuple[Panel, ...]] = ()
 
     # ---------------------------------------------------------------------------------- drive file
-    def load(self, data: Mapping[str, Any], file: str, digest: str) -> Any:
+    def load(self, data: Mapping[str, Any], file: str, digest: str) -> Drive:
         """The drive of a parsed TOML document (strict; DriveFileError naming file and key)."""
         raise CapabilityError(f"observer family {self.name!r} cannot load drive files")
 
@@ -133,30 +178,40 @@ class ObserverFamily:
 
     # --------------------------------------------------------------------------------------- gains
     def gains(
-        self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
+        self, drive: Drive, *, name: str | None = None, table: Any = None, table_file: str = ""
     ) -> GainSet:
         """The gains of ``drive``: from the gain table ``table`` if given, else the drive file's
         (``name`` chooses among several gain sections where the family has them)."""
         raise CapabilityError(f"observer family {self.name!r} has no gains to choose")
 
     # ------------------------------------------------------------------------------------- runtime
-    def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
+    def runtime(self, drive: Drive, gains: GainSet, *, discretization: str | None = None) -> Any:
         """The runtime set-up (design/runtime.RuntimeSetup): observer step, parameters, schedule."""
         raise CapabilityError(f"observer family {self.name!r} has no runtime observer")
 
     # ------------------------------------------------------------------------------- linearization
-    def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
+    def linearize(self, drive: Drive, gains: GainSet, w: Any, torque: Any, **options: Any) -> Linearization:
         """Linearization (design/linearization.Linearization) at speeds ``w`` [rad/s] x ``torque``."""
         raise CapabilityError(f"observer family {self.name!r} has no linearization")
 
     # ---------------------------------------------------------------------------------- simulation
-    def scales(self, drive: Any) -> DriveScales:
+    def bases(self, drive: Drive) -> PerUnitBases | None:
+        """The drive's per-unit bases (the report's drive-data tables show values in them); None where
+        its drive files define none."""
+        return None
+
+    def scales(self, drive: Drive) -> DriveScales:
         """The drive's torques, inertia and speed-loop bandwidth: the generic scenarios' scales."""
         raise CapabilityError(f"observer family {self.name!r} gives no scales for generic scenarios")
 
-    def simulation(self, drive: Any, scenario: Any, gains: GainSet) -> Any:
+    def simulation(self, drive: Drive, scenario: Any, gains: GainSet | None) -> Any:
         """The loop set-up (design/simulate.LoopSetup) of ``scenario`` on ``drive``."""
         raise CapabilityError(f"observer family {self.name!r} has no time-domain simulation")
+
+    def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
+        """What the header of a run's traces says of the family's own settings of the run (its loop
+        set-up's ``meta``), one clause each (reports/traces.py); none here."""
+        return ()
 
     def __repr__(self) -> str:
         return f"<observer family {self.name} (kind {self.kind!r})>"

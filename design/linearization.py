@@ -6,7 +6,9 @@ the continuous-time poles of the observer's linearized (closed-loop) error dynam
 analyses the sampled observer that runs also gives ``poles_discrete`` = ln(z)/T_s of the eigenvalues z
 of its one-step map. A point where no equilibrium exists has a NaN row. Families return subclasses
 with their own extra data (state-space matrices, steady-state errors, ...); commands, tuning and
-reports read only what is defined here.
+reports read only what is defined here, a subclass's own data included only as it declares it here:
+per-point columns (:meth:`Linearization.point_columns`) and header notes (:meth:`Linearization.notes`)
+of the pole tables (reports/pole_map.py).
 """
 
 from __future__ import annotations
@@ -27,6 +29,15 @@ class Linearization:
     poles_discrete: np.ndarray | None = None  # (N, n) ln(z)/T_s of the sampled observer [1/s]
     T_s: float | None = None  # sampling period of poles_discrete [s]
     torque_name: str = "T_e"  # "T_e" (electromagnetic) or "T_L" (load)
+
+    def point_columns(self) -> dict[str, np.ndarray]:
+        """A family's own per-point columns of the pole tables: heading (``name_unit``) -> (N,) values,
+        in order, written after the operating point's speed and torque; none here."""
+        return {}
+
+    def notes(self) -> tuple[str, ...]:
+        """A family's own header notes of the pole tables ("what: value", e.g. its gain law); none here."""
+        return ()
 
     @property
     def equilibrium(self) -> np.ndarray:

@@ -14,7 +14,7 @@ import math
 from typing import Any, Protocol
 
 import numpy as np
-from sensorless.design.family import CapabilityError
+from sensorless.design.family import CapabilityError, Panel, TraceLine
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
@@ -28,6 +28,21 @@ from sensorless.symbolic.pmsm_drive import (
     initial_loop_state_function,
     loop_function,
     observer_record,
+)
+
+# the parameter-error factors of a scenario's [estimate_scale] that the loop applies to the
+# controllers' estimates (a family on this loop declares them in ObserverFamily.estimate_keys, with
+# the observer's own, which it applies itself); a factor not declared is 1
+ESTIMATE_KEYS = ("R_s", "L_d", "L_q", "psi_pm", "J")
+
+# the trace panel of this loop's stator currents (symbolic/pmsm_drive.py records i_d, i_q), for the
+# families on this loop to list among their panels (ObserverFamily.panels)
+CURRENT_PANEL = Panel(
+    "current",
+    "A",
+    "stator current components in the true rotor frame",
+    "current (A)",
+    (TraceLine(("i_d",), "k-", r"$i_d$"), TraceLine(("i_q",), "k--", r"$i_q$")),
 )
 
 
@@ -57,7 +72,8 @@ class OnPmsm(Protocol):
 
 
 def _params(drive: OnPmsm, sc: Scenario, carrier: tuple[float, float], notch: bool) -> np.ndarray:
-    m, e, c, k = drive.motor, drive.estimate, drive.control, sc.estimate_scale
+    m, e, c = drive.motor, drive.estimate, drive.control
+    k = {key: sc.estimate_scale.get(key, 1.0) for key in ESTIMATE_KEYS}
     w_c, band = carrier
     q = {
         "R_s": m.R_s,
@@ -155,7 +171,6 @@ def loop_setup(
             "pole_pairs": drive.motor.p,
             "speed_unit": "p.u.",
             "speed_scale": 1 / drive.w_base,  # rad/s (electrical) -> speed_unit
-            "injection": False,
             **meta,
         },
     )

@@ -23,23 +23,15 @@ from typing import Any
 import numpy as np
 from sensorless.design import registry
 from sensorless.design.drive_file import read_text
-from sensorless.design.family import CapabilityError, DriveScales
+from sensorless.design.family import CapabilityError, Drive, DriveScales
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 
 INTERPOLATIONS = ("step", "linear")
 FEEDBACK = ("observer", "sensor")
 MODES = ("speed", "torque")
-PANELS = (
-    "speed",
-    "speed_error",
-    "tracking_error",
-    "torque",
-    "theta_error",
-    "current",
-    "load_torque",
-    "emf_error",
-    "w_eps",
-)
+# the trace panels of every drive's simulation (reports/sim_figure.py draws them from the traces every
+# loop records: speeds, torques, position error); a family adds its own (ObserverFamily.panels)
+GENERIC_PANELS = ("speed", "speed_error", "tracking_error", "torque", "theta_error")
 
 
 @dataclass(frozen=True)
@@ -99,7 +91,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "source": ("str", ""),
         "kind": ("str", REQUIRED),
         "duration": ("time", REQUIRED),
-        "figure": ("panels", ("speed", "torque", "theta_error")),
+        "figure": ("panels", ("speed", "torque", "theta_error")),  # of panel_names(kind)
     },
     "observer": {
         "discretization": ("str", None),
@@ -118,7 +110,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
     },
     "noise": {"i_std": ("current", 0.0), "seed": ("int", 0)},
     "mechanics": {"B": ("viscous", 0.0)},
-    "estimate_scale": {k: ("factor", 1.0) for k in ("R_s", "L_d", "L_q", "psi_pm", "J", "Phi")},
+    "estimate_scale": {},  # the family's keys (ObserverFamily.estimate_keys), factors of default 1
 }
 _PROFILES = {"speed_reference": "angular_any", "load_torque": "torque", "torque_reference": "torque"}
 
@@ -136,12 +128,20 @@ def builtin_names(kind: str) -> list[str]:
     return sorted(_builtin(kind))
 
 
+def panel_names(kind: str | None) -> tuple[str, ...]:
+    """The trace panels a scenario of drive kind ``kind`` may show: the shared ones and its family's."""
+    own = registry.family(kind).panels if kind is not None else ()
+    return GENERIC_PANELS + tuple(p.name for p in own)
+
+
 def _schema(kind: str | None) -> dict[str, dict[str, tuple[str, Any]]]:
     """The common schema plus the keys of the family of ``kind`` (if known)."""
     schema = {k: dict(v) for k, v in _SCHEMA.items()}
     if kind is not None:
-        for section, keys in registry.family(kind).scenario_options.items():
+        fam = registry.family(kind)
+        for section, keys in fam.scenario_options.items():
             schema.setdefault(section, {}).update(keys)
+        schema["estimate_scale"].update({k: ("factor", 1.0) for k in fam.estimate_keys})
     return schema
 
 
@@ -158,10 +158,6 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
         if not isinstance(raw, int) or isinstance(raw, bool) or raw < 0:
             raise DriveFileError(file, key, f"expected a non-negative integer, got {raw!r}")
         return raw
-    if dim == "panels":
-        if not isinstance(raw, list) or not raw or any(p not in PANELS for p in raw):
-            raise DriveFileError(file, key, f"expected a list of panels from: {', '.join(PANELS)}")
-        return tuple(raw)
     if dim == "factor":
         x, _ = parse_quantity(raw, "dimensionless", file=file, key=key)
         if x <= 0:
@@ -201,8 +197,20 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
     return x
 
 
+def _panels(raw: Any, allowed: tuple[str, ...], file: str, key: str) -> tuple[str, ...]:
+    """A figure's list of panels, each one of ``allowed`` (``panel_names`` of the scenario's kind)."""
+    if not isinstance(raw, list) or not raw or any(p not in allowed for p in raw):
+        raise DriveFileError(file, key, f"expected a list of panels from: {', '.join(allowed)}")
+    return tuple(raw)
+
+
 def _section(
-    data: Mapping[str, Any], name: str, file: str, rel: Mapping[str, float], schema_all: Mapping[str, Any]
+    data: Mapping[str, Any],
+    name: str,
+    file: str,
+    rel: Mapping[str, float],
+    schema_all: Mapping[str, Any],
+    panels: tuple[str, ...],
 ) -> dict[str, Any]:
     schema = schema_all[name]
     table = data.get(name, {})
@@ -219,7 +227,9 @@ def _section(
                 raise DriveFileError(file, key, "missing key")
             out[k] = default
             continue
-        out[k] = _value(table[k], dim, file, key, rel)
+        out[k] = (
+            _panels(table[k], panels, file, key) if dim == "panels" else _value(table[k], dim, file, key, rel)
+        )
     return out
 
 
@@ -266,7 +276,8 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
     for k in data:
         if k not in allowed:
             raise DriveFileError(file, k, f"unknown section (allowed: {', '.join(allowed)})")
-    s = {name: _section(data, name, file, rel, schema) for name in schema}
+    panels = panel_names(kind if isinstance(kind, str) else None)
+    s = {name: _section(data, name, file, rel, schema, panels) for name in schema}
     c, o = s["control"], s["observer"]
     for key, val, allowed_vals in (
         ("control.feedback", c["feedback"], FEEDBACK),
@@ -305,17 +316,23 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         i_noise=s["noise"]["i_std"],
         seed=s["noise"]["seed"],
         estimate_scale=s["estimate_scale"],
-        options={k: s[sec][k] for sec, keys in schema.items() for k in keys if k not in _SCHEMA.get(sec, {})},
+        options={
+            k: s[sec][k]
+            for sec, keys in schema.items()
+            if sec != "estimate_scale"
+            for k in keys
+            if k not in _SCHEMA.get(sec, {})
+        },
     )
 
 
-def drive_units(drive: Any) -> dict[str, float]:
+def drive_units(drive: Drive) -> dict[str, float]:
     """Drive-relative units a scenario may use: 'pu' (base speed), 'rpm' (mechanical r/min, converted
     to electrical rad/s with the pole pairs) and 'T_N' (nominal torque)."""
     return {"pu": drive.w_base, "T_N": drive.T_N, "rpm": np.pi / 30 * drive.pole_pairs}
 
 
-def load_scenario(spec: str | Path, drive: Any) -> Scenario:
+def load_scenario(spec: str | Path, drive: Drive) -> Scenario:
     """A built-in scenario by name (e.g. ``"fig9b"``) or a scenario TOML file, checked against ``drive``."""
     spec_s = str(spec)
     path = Path(spec_s)
@@ -375,7 +392,7 @@ def generic_times(sc: DriveScales) -> dict[str, float]:
 ZERO_SPEED_LOW_PU = 0.25  # speed_steps' low step where the observer does not run through zero speed
 
 
-def zero_speed_limit(drive: Any) -> str:
+def zero_speed_limit(drive: Drive) -> str:
     """Why the drive's observer does not run through zero speed in closed loop (its family's
     ``DriveScales.zero_speed``); "" where it does, or where its family gives no scales."""
     try:
@@ -390,7 +407,7 @@ def crosses_zero(sc: Scenario) -> bool:
     return bool(w.min() < 0 < w.max())
 
 
-def generic_scenarios(drive: Any) -> list[Scenario]:
+def generic_scenarios(drive: Drive) -> list[Scenario]:
     """The built-in generic scenarios of any drive whose family gives its scales, in per unit of its
     own rating, with times scaled by :func:`generic_times` (docs/simulation.md, "Generic scenarios"):
 

@@ -23,7 +23,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from sensorless.design.compiled import compiled
-from sensorless.design.family import GainSet
+from sensorless.design.family import Drive, GainSet
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario
 from sensorless.symbolic.runtime import Field
@@ -153,7 +153,7 @@ def check_length(scenario: Scenario, T_s: float, source: str = "") -> int:
     return samples(scenario, T_s)
 
 
-def provenance(drive: Any, sc: Scenario) -> dict[str, Any]:
+def provenance(drive: Drive, sc: Scenario) -> dict[str, Any]:
     """What a run describes: the drive (and its TOML hash) and the scenario; shared by every kind."""
     return {
         "drive": drive.name,
@@ -230,7 +230,7 @@ def run_loop(
 
 
 def simulate(
-    drive: Any,
+    drive: Drive,
     scenario: Scenario,
     gains: GainSet | None = None,
     progress: Callable[[int, int], None] | None = None,

@@ -16,13 +16,13 @@ import hashlib
 import io
 import json
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from sensorless.reports.svg_render import PendingSvg
+from sensorless.design.family import Drive, PerUnitBases
+from sensorless.design.gain_table import GainTable
 
 
 # --------------------------------------------------------------------------------------------------
@@ -47,12 +47,19 @@ class Table:
     code: frozenset[int] = frozenset()  # columns shown as code (names of keys)
 
 
+class PendingUri(Protocol):
+    """A figure's data URI still being rendered (reports/svg_render.py ``PendingSvg``): ``str()`` waits
+    for it. A protocol here, so that this module needs nothing of the renderer, which needs it."""
+
+    def __str__(self) -> str: ...
+
+
 @dataclass(frozen=True)
 class Figure:
     """A figure as a data URI (SVG) with its caption; ``uri`` may be an object whose ``str()`` is the
     URI, still being rendered (reports/svg_render.py)."""
 
-    uri: str | PendingSvg
+    uri: str | PendingUri
     caption: str
 
 
@@ -132,7 +139,7 @@ def report_json(data: dict[str, Any], version: str) -> str:
     return json.dumps(doc, indent=1, sort_keys=True, allow_nan=False) + "\n"
 
 
-def report_inputs(drive: Any, table: Any | None, min_damping: float) -> dict[str, Any]:
+def report_inputs(drive: Drive, table: GainTable | None, min_damping: float) -> dict[str, Any]:
     """What a report describes: the drive, the hashes of its inputs, the required damping."""
     return {
         "drive": drive.name,
@@ -142,7 +149,7 @@ def report_inputs(drive: Any, table: Any | None, min_damping: float) -> dict[str
     }
 
 
-def table_digest(table: Any | None) -> str | None:
+def table_digest(table: GainTable | None) -> str | None:
     """sha256 of a gain table's canonical JSON, or None."""
     return None if table is None else hashlib.sha256(table.to_json().encode()).hexdigest()
 
@@ -192,29 +199,20 @@ def _rows(obj: Any, pu: dict[str, float]) -> list[dict[str, Any]]:
     return rows
 
 
-def drive_tables(drive: Any) -> dict[str, list[dict[str, Any]]]:
-    """Drive and observer data as rows (name, value, unit, per-unit where the drive has bases).
+def drive_tables(
+    drive: Drive, skip: Sequence[str] = (), bases: PerUnitBases | None = None
+) -> dict[str, list[dict[str, Any]]]:
+    """Drive and observer data as rows (name, value, unit, per-unit in ``bases``, its family's).
 
-    Every dataclass section of the drive; gain tables nested in a section (a mapping of dataclasses)
-    become rows named ``<gain>.<key>``.
+    Every dataclass section of the drive but those named in ``skip`` (its family's settings of other
+    commands: ``ReportHooks.settings_sections``); gain tables nested in a section (a mapping of
+    dataclasses) become rows named ``<gain>.<key>``.
     """
-    b = getattr(drive, "base", None)
-    pu = (
-        {
-            "angular": b.w,
-            "voltage": b.u,
-            "current": b.i,
-            "resistance": b.Z,
-            "inductance": b.Z / b.w,
-            "flux": b.psi,
-        }
-        if b is not None
-        else {}
-    )
+    pu = dict(bases.values) if bases is not None else {}
     tables: dict[str, list[dict[str, Any]]] = {}
     for sf in dataclasses.fields(drive):
         obj = getattr(drive, sf.name)
-        if not dataclasses.is_dataclass(obj) or sf.name in ("runtime", "tuning"):
+        if not dataclasses.is_dataclass(obj) or sf.name in skip:
             continue
         rows = _rows(obj, pu)
         for fd in dataclasses.fields(obj):
@@ -236,8 +234,9 @@ def drive_tables(drive: Any) -> dict[str, list[dict[str, Any]]]:
     return tables
 
 
-def drive_section(number: int, data: dict[str, Any]) -> Section:
-    """The section "Drive and observer data" from ``drive_tables`` data."""
+def drive_section(number: int, data: dict[str, Any], bases: PerUnitBases | None = None) -> Section:
+    """The section "Drive and observer data" from ``drive_tables`` data, with the drive's per-unit
+    ``bases`` (its family's ``bases``) said."""
     tables = []
     for name, rows in data.items():
         cells = tuple(
@@ -260,9 +259,6 @@ def drive_section(number: int, data: dict[str, Any]) -> Section:
             )
         )
     note = "SI units; speeds are electrical rad/s unless marked r/min (mechanical). " + (
-        "Per-unit bases: speed = [base] w, voltage = [base] u, current = [base] i, impedance = u/i, "
-        "flux = u/w."
-        if "base" in data
-        else "This drive description defines no per-unit bases."
+        bases.note if bases is not None else "This drive description defines no per-unit bases."
     )
     return Section(f"{number}. Drive and observer data", (Row(tuple(tables)), Paragraph(note, "meta")))

@@ -3,7 +3,8 @@
 An observer family names the module of its report hooks (``ObserverFamily.report``); that module
 defines ``HOOKS``, a :class:`ReportHooks`. The shared commands (reports/cli/) reach a family only
 through it and through the family record: ``analyze`` asks it to analyse and stage its files,
-``tune`` to turn its command-line options into a tunable's settings, ``report`` for the report's
+``tune`` to turn its command-line options into a tunable's settings, ``simulate`` to apply its
+options to a scenario, ``report`` for the report's
 content (data and sections, reports/document.py), which the shared renderer turns into HTML.
 
 Options are data (:class:`Option`), declared per family and registered once per flag by the CLI; a
@@ -18,9 +19,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from sensorless.design.family import CapabilityError, ObserverFamily
+from sensorless.design.family import CapabilityError, Drive, ObserverFamily
 from sensorless.design.registry import families
+from sensorless.design.scenario import Scenario
 from sensorless.reports.cli.common import COUNT, FINITE
+from sensorless.reports.document import Report
+from sensorless.reports.files import OutputSet
 from sensorless.tuning.family import TuneSettings
 
 
@@ -46,14 +50,21 @@ class ReportHooks:
     # analyze_check (drive, args) -> None checks the options against the drive before anything is
     # computed or written (one-line errors; analyze may then trust them)
     analyze_options: tuple[Option, ...] = ()
-    analyze: Callable[[Any, argparse.Namespace, Any], None] | None = None
-    analyze_check: Callable[[Any, argparse.Namespace], None] | None = None
+    analyze: Callable[[Drive, argparse.Namespace, OutputSet], None] | None = None
+    analyze_check: Callable[[Drive, argparse.Namespace], None] | None = None
     # sensorless tune: options, (drive, args, tunable) -> settings, (drive, settings) -> one line
     tune_options: tuple[Option, ...] = ()
-    tune_settings: Callable[[Any, argparse.Namespace, Any], TuneSettings] | None = None
-    describe_envelope: Callable[[Any, Any], str] | None = None
+    tune_settings: Callable[[Drive, argparse.Namespace, Any], TuneSettings] | None = None
+    describe_envelope: Callable[[Drive, Any], str] | None = None
+    # sensorless simulate: options, and (drive, args, scenario) -> the scenario with them applied
+    # (one-line errors naming the option or the drive file)
+    simulate_options: tuple[Option, ...] = ()
+    simulate_scenario: Callable[[Drive, argparse.Namespace, Scenario], Scenario] | None = None
     # sensorless report: (drive, table or None, table file, min_damping, resolution, progress) -> Report
-    report: Callable[..., Any] | None = None
+    report: Callable[..., Report] | None = None
+    # drive sections that hold settings of other commands, not drive data: left out of the report's
+    # drive-data tables (reports/review.py opening)
+    settings_sections: tuple[str, ...] = ()
 
 
 def hooks(family: ObserverFamily) -> ReportHooks:
@@ -67,7 +78,8 @@ def hooks(family: ObserverFamily) -> ReportHooks:
 
 
 def all_options(kind: str) -> dict[str, tuple[Option, list[str]]]:
-    """Every family's options of command ``kind`` ("analyze" or "tune"): dest -> (option, families)."""
+    """Every family's options of command ``kind`` ("analyze", "tune" or "simulate"): dest -> (option,
+    families)."""
     out: dict[str, tuple[Option, list[str]]] = {}
     for fam in families():
         for opt in getattr(hooks(fam), f"{kind}_options"):

@@ -22,28 +22,20 @@ plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
 def pole_csv(sweep: Linearization, w_base: float) -> str:
     """CSV text: one row per operating point; poles as re/im pairs [1/s]; units in the header.
 
-    The operating point's current (``i_s0``, rotor frame) is a column where the family gives it."""
+    The family's own columns and notes (``Linearization.point_columns``, ``notes``: e.g. the operating
+    point's current, the gain law) follow the operating point and open the header."""
     n = sweep.poles.shape[1]
-    i_s0 = getattr(sweep, "i_s0", None)
-    head = [
-        "w_m_pu",
-        "w_m_rad_s",
-        f"{sweep.torque_name}_Nm",
-        *(["i_d_A", "i_q_A"] if i_s0 is not None else []),
-    ]
+    extra = sweep.point_columns()
+    head = ["w_m_pu", "w_m_rad_s", f"{sweep.torque_name}_Nm", *extra]
     for k in range(n):
         head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
     head += ["worst_damping", "max_real_1_s"]
     buf = io.StringIO()
-    law, inj = getattr(sweep, "law", None), getattr(sweep, "injection", None)
-    if law is not None:
-        buf.write(f"# gain law: {law.name}; injection: {'on' if inj else 'off'}; ")
-    else:
-        buf.write("# ")
+    buf.write("# " + "".join(f"{note}; " for note in sweep.notes()))
     buf.write(f"speed base {w_base:.10g} rad/s (electrical)\n")
     buf.write(",".join(head) + "\n")
     for j in range(sweep.w.size):
-        row = [sweep.w[j] / w_base, sweep.w[j], sweep.torque[j], *(i_s0[j] if i_s0 is not None else [])]
+        row = [sweep.w[j] / w_base, sweep.w[j], sweep.torque[j], *(col[j] for col in extra.values())]
         for p in sweep.poles[j]:
             row += [p.real, p.imag]
         row += [sweep.worst_damping[j], sweep.max_real[j]]

@@ -1,6 +1,7 @@
 """Figures of simulated traces in the style of the papers' figures: stacked panels over time, black lines.
 
-Panels (names used by a scenario's ``figure`` list):
+Panels (names used by a scenario's ``figure`` list): the shared ones of every drive
+(design/scenario.py ``GENERIC_PANELS``), drawn here from the traces every loop records,
 
 - ``speed``: rotor speed (solid), its estimate (dashed), its reference (dotted) (Piippo et al. 2008
   Fig. 9)
@@ -11,10 +12,9 @@ Panels (names used by a scenario's ``figure`` list):
   et al. 2008 Fig. 9)
 - ``theta_error``: position estimation error, electrical degrees (Piippo et al. 2008 Figs. 6, 9, 10,
   last subplot)
-- ``current``: stator current components in the true rotor frame, A
-- ``load_torque``: load torque (dashed) and its estimate (solid), N m (De Angelo et al. 2006 Figs. 3-4)
-- ``emf_error``: norm of the EMF estimation error, V (De Angelo et al. 2006 Figs. 2-3)
-- ``w_eps``: HF-injection correction omega_eps (21), rad/s
+
+and the panels the drive's family declares (``ObserverFamily.panels``: design/family.py ``Panel``, its
+lines over time), drawn from their declaration.
 
 Speeds are shown in the drive's display unit (the simulation set-up's ``speed_unit``: p.u. for PMSM
 drives, design/pmsm_drive.py; mechanical r/min for the reduced-order-observer drive).
@@ -23,12 +23,17 @@ drives, design/pmsm_drive.py; mechanical r/min for the reduced-order-observer dr
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from sensorless.design import registry
+from sensorless.design.family import Panel
+
+if TYPE_CHECKING:
+    from sensorless.design.simulate import Traces
 
 
-def _speed(ax: Any, tr: Any) -> None:
+def _speed(ax: Any, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     ax.plot(tr.t, tr["w_m"] * k, "k-", lw=1.0, label=r"$\omega_\mathrm{m}$")
     ax.plot(tr.t, tr["w_hat"] * k, "k--", lw=1.0, label=r"$\hat\omega_\mathrm{m}$")
@@ -36,19 +41,19 @@ def _speed(ax: Any, tr: Any) -> None:
     ax.set_ylabel(rf"$\omega_\mathrm{{m}}$ ({unit})")
 
 
-def _speed_error(ax: Any, tr: Any) -> None:
+def _speed_error(ax: Any, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     ax.plot(tr.t, (tr["w_m"] - tr["w_hat"]) * k, "k-", lw=1.0, label=r"$\omega - \hat\omega$")
     ax.set_ylabel(rf"speed est. error ({unit})")
 
 
-def _tracking_error(ax: Any, tr: Any) -> None:
+def _tracking_error(ax: Any, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     ax.plot(tr.t, (tr["w_ref"] - tr["w_m"]) * k, "k-", lw=1.0, label=r"$\omega_\mathrm{ref} - \omega$")
     ax.set_ylabel(rf"tracking error ({unit})")
 
 
-def _torque(ax: Any, tr: Any) -> None:
+def _torque(ax: Any, tr: Traces) -> None:
     T_N = tr.meta["T_N"]
     if "T_e_hat" in tr.data:  # the torque the controller sees (estimated frame)
         ax.plot(tr.t, tr["T_e_hat"] / T_N, "k-", lw=1.0, label=r"$\hat T_\mathrm{e}$")
@@ -58,52 +63,43 @@ def _torque(ax: Any, tr: Any) -> None:
     ax.set_ylabel(r"$T$ (p.u.)")
 
 
-def _theta_error(ax: Any, tr: Any) -> None:
+def _theta_error(ax: Any, tr: Traces) -> None:
     ax.plot(tr.t, np.degrees(tr["theta_err"]), "k-", lw=1.0, label=r"$\tilde\theta_\mathrm{m}$")
     ax.set_ylabel(r"$\tilde\theta_\mathrm{m}$ (deg)")
 
 
-def _current(ax: Any, tr: Any) -> None:
-    ax.plot(tr.t, tr["i_d"], "k-", lw=1.0, label=r"$i_d$")
-    ax.plot(tr.t, tr["i_q"], "k--", lw=1.0, label=r"$i_q$")
-    ax.set_ylabel("current (A)")
-
-
-def _load_torque(ax: Any, tr: Any) -> None:
-    ax.plot(
-        tr.t, tr["T_L_total"] if "T_L_total" in tr.data else tr["T_L"], "k--", lw=1.0, label=r"$T_\mathrm{L}$"
-    )
-    ax.plot(tr.t, tr["T_L_hat"], "k-", lw=1.0, label=r"$\hat T_\mathrm{L}$")
-    ax.set_ylabel(r"$T_\mathrm{L}$ (N m)")
-
-
-def _emf_error(ax: Any, tr: Any) -> None:
-    ax.plot(tr.t, tr["emf_err"], "k-", lw=1.0, label=r"$\|\varepsilon_e\|$")
-    ax.set_ylabel(r"$\|\varepsilon_e\|$ (V)")
-
-
-def _w_eps(ax: Any, tr: Any) -> None:
-    ax.plot(tr.t, tr["w_eps"], "k-", lw=1.0, label=r"$\omega_\varepsilon$")
-    ax.set_ylabel(r"$\omega_\varepsilon$ (rad/s)")
-
-
-PANELS: dict[str, Callable[[Any, Any], None]] = {
+PANELS: dict[str, Callable[[Any, Any], None]] = {  # design/scenario.py GENERIC_PANELS
     "speed": _speed,
     "speed_error": _speed_error,
     "tracking_error": _tracking_error,
     "torque": _torque,
     "theta_error": _theta_error,
-    "current": _current,
-    "load_torque": _load_torque,
-    "emf_error": _emf_error,
-    "w_eps": _w_eps,
 }
+
+
+def _declared(panel: Panel) -> Callable[[Any, Any], None]:
+    """The drawing of a family's declared panel: each line from the first of its traces the run has."""
+
+    def draw(ax: Any, tr: Traces) -> None:
+        for line in panel.lines:
+            name = next((n for n in line.traces if n in tr.data), line.traces[-1])
+            ax.plot(tr.t, tr[name], line.style, lw=1.0, label=line.label)
+        ax.set_ylabel(panel.ylabel)
+
+    return draw
+
+
+def panels_of(traces: Traces) -> dict[str, Callable[[Any, Any], None]]:
+    """Panel name -> drawing, for the traces of a run: the shared panels and its family's."""
+    kind = traces.meta.get("kind")
+    own = registry.family(kind).panels if kind in registry.kinds() else ()
+    return {**PANELS, **{p.name: _declared(p) for p in own}}
 
 
 MAX_POINTS = 20000  # per line: more is invisible at figure resolution and bloats the SVG
 
 
-def plot_traces(traces: Any, panels: tuple[str, ...], title: str) -> Any:
+def plot_traces(traces: Traces, panels: tuple[str, ...], title: str) -> Any:
     """A matplotlib Figure with the given panels stacked over a shared time axis.
 
     Long runs are thinned to at most MAX_POINTS samples per line (every k-th sample).
@@ -124,8 +120,9 @@ def plot_traces(traces: Any, panels: tuple[str, ...], title: str) -> Any:
         )
     fig, axes = plt.subplots(len(panels), 1, sharex=True, figsize=(6.4, 1.9 * len(panels) + 0.8))
     axes = np.atleast_1d(axes)
+    draw = panels_of(traces)
     for ax, name in zip(axes, panels, strict=True):
-        PANELS[name](ax, traces)
+        draw[name](ax, traces)
         ax.grid(True, lw=0.3, color="0.8")
         if len(ax.get_lines()) > 1:
             ax.legend(loc="best", fontsize=8, frameon=False, ncol=len(ax.get_lines()))

@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, GainSet
+from sensorless.design.family import CapabilityError, Drive, GainSet
 from sensorless.design.scenario import (
     ZERO_SPEED_LOW_PU,
     Scenario,
@@ -46,7 +46,7 @@ LIMITS = {
 }
 
 
-def scenarios(drive: Any, paper: Sequence[str], user: Sequence[str] = ()) -> list[Scenario]:
+def scenarios(drive: Drive, paper: Sequence[str], user: Sequence[str] = ()) -> list[Scenario]:
     """The scenarios of a report: a preset's ``paper`` ones (its family's names), else the generic ones
     scaled to the drive (without those through zero speed where the observer does not run there:
     :func:`limitations`); then the user's files (``--scenario``), as given."""
@@ -63,7 +63,7 @@ def scenarios(drive: Any, paper: Sequence[str], user: Sequence[str] = ()) -> lis
     return out + [load_scenario(path, drive) for path in user]
 
 
-def limitations(drive: Any) -> list[str]:
+def limitations(drive: Drive) -> list[str]:
     """What the report's generic checks leave out for this drive, and why (the verdict and the
     section say it): zero speed, where the family says its observer does not run through it."""
     why = "" if drive.file.startswith("preset:") else zero_speed_limit(drive)
@@ -126,7 +126,7 @@ def judge(tr: Any, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[st
 
 
 def checks(
-    drive: Any,
+    drive: Drive,
     gains: GainSet | None,
     runs: Sequence[Scenario | str],
     label: str,

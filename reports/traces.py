@@ -12,14 +12,18 @@ from __future__ import annotations
 import io
 import json
 import zipfile
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from sensorless.design import registry
+
+if TYPE_CHECKING:
+    from sensorless.design.simulate import Traces
 
 FMT = "%.10g"
 
 
-def columns(traces: Any, every: int = 1) -> tuple[list[str], list[str], np.ndarray]:
+def columns(traces: Traces, every: int = 1) -> tuple[list[str], list[str], np.ndarray]:
     """(names, units, matrix (N, n_cols)) of the traces, keeping every ``every``-th sample."""
     names = ["t", *traces.data]
     units = ["s", *(traces.units[n] for n in traces.data)]
@@ -27,15 +31,16 @@ def columns(traces: Any, every: int = 1) -> tuple[list[str], list[str], np.ndarr
     return names, units, mat
 
 
-def header_lines(traces: Any) -> list[str]:
+def header_lines(traces: Traces) -> list[str]:
     """Provenance and conventions, one line each."""
     m = traces.meta
+    notes = "".join(f"{n}; " for n in registry.family(m["kind"]).trace_notes(m))
     return [
         f"sensorless simulate: scenario {m['scenario']} ({m['scenario_title']})",
         f"scenario source: {m['scenario_source']}",
         f"drive: {m['drive']} ({m['drive_file']}, sha256 {m['drive_sha256'][:16]}...), kind {m['kind']}",
         f"observer gains: {m['gain']} (law {m['gain_law']}); discretization {m['discretization']}; "
-        f"HF injection {'on' if m['injection'] else 'off'}; controller feedback: {m['feedback']}",
+        f"{notes}controller feedback: {m['feedback']}",
         f"sampling period T_s = {m['T_s']:g} s; {m['samples']} samples at t = k T_s (values at the "
         "sampling instants)",
         f"units: SI; speeds in electrical rad/s, angles in electrical rad; per-unit bases: speed "
@@ -43,7 +48,7 @@ def header_lines(traces: Any) -> list[str]:
     ]
 
 
-def csv_text(traces: Any, every: int = 1) -> str:
+def csv_text(traces: Traces, every: int = 1) -> str:
     """The traces as CSV text with a '#' header."""
     names, units, mat = columns(traces, every)
     buf = io.StringIO()
@@ -54,7 +59,7 @@ def csv_text(traces: Any, every: int = 1) -> str:
     return buf.getvalue()
 
 
-def npz_bytes(traces: Any, every: int = 1) -> bytes:
+def npz_bytes(traces: Traces, every: int = 1) -> bytes:
     """The traces as a NumPy .npz archive (uncompressed, fixed timestamps: deterministic bytes)."""
     names, units, mat = columns(traces, every)
     arrays = {n: np.ascontiguousarray(mat[:, k]) for k, n in enumerate(names)}

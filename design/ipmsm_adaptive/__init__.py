@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
+from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily, PerUnitBases
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.ipmsm_adaptive import derive, schema, simulation
 from sensorless.design.ipmsm_adaptive import linearize as _linearize
@@ -34,6 +34,8 @@ class AdaptiveFluxObserver(ObserverFamily):
     report = "sensorless.reports.ipmsm_adaptive"
     gain_families = _runtime.GAIN_FAMILIES
     scenario_options = simulation.SCENARIO_OPTIONS
+    estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
+    panels = simulation.PANELS
 
     def load(self, data: Any, file: str, digest: str) -> schema.IpmsmDrive:
         return derive.load(data, file, digest, self.kind)
@@ -69,12 +71,33 @@ class AdaptiveFluxObserver(ObserverFamily):
             with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
         )
 
+    def bases(self, drive: Any) -> PerUnitBases:
+        """The [base] section: speed w, voltage u, current i, impedance Z = u/i, flux psi = u/w."""
+        b = drive.base
+        values = {
+            "angular": b.w,
+            "voltage": b.u,
+            "current": b.i,
+            "resistance": b.Z,
+            "inductance": b.Z / b.w,
+            "flux": b.psi,
+        }
+        note = (
+            "Per-unit bases: speed = [base] w, voltage = [base] u, current = [base] i, impedance = u/i, "
+            "flux = u/w."
+        )
+        return PerUnitBases(values, note)
+
     def scales(self, drive: Any) -> DriveScales:
         c = drive.control
         return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s)
 
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
+
+    def trace_notes(self, meta: Any) -> tuple[str, ...]:
+        """The run's HF-injection switch (simulation.build puts it in the provenance)."""
+        return (f"HF injection {'on' if meta['injection'] else 'off'}",)
 
 
 def with_alpha_fo(drive: Any, gains: GainSet) -> Any:

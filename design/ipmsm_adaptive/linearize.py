@@ -186,6 +186,14 @@ class PoleSweep(Linearization):
     D: np.ndarray  # (N, 1, 1)
     noise_input: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (B_n, C_n, D_n), see noise_rms
 
+    def point_columns(self) -> dict[str, np.ndarray]:
+        """The operating point's MTPA current (rotor frame) [A]."""
+        return {"i_d_A": self.i_s0[:, 0], "i_q_A": self.i_s0[:, 1]}
+
+    def notes(self) -> tuple[str, ...]:
+        """The gain law and the HF-injection switch of the sweep."""
+        return (f"gain law: {self.law.name}", f"injection: {'on' if self.injection else 'off'}")
+
     def noise_rms(self, sigma: float, T_s: float) -> np.ndarray:
         """(N, 2) RMS of the position error [rad] and the speed estimate [rad/s] for current-sensor
         noise of ``sigma`` A rms per axis and sample at ``T_s`` (design/noise.py); needs

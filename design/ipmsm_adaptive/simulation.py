@@ -10,9 +10,9 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from sensorless.design.family import GainSet
+from sensorless.design.family import GainSet, Panel, TraceLine
 from sensorless.design.ipmsm_adaptive.runtime import drive_gains, runtime_setup
-from sensorless.design.pmsm_drive import loop_setup
+from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_schema import saliency
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
@@ -25,6 +25,22 @@ SCENARIO_OPTIONS = {
         "injection": ("bool", None),  # HF injection (Section V); None: the drive's ([injection] u_c > 0)
     }
 }
+
+# [estimate_scale] keys: the shared loop's (the controllers' estimates); R_s, L_d, L_q, psi_pm also
+# scale the observer's (scaled_setup)
+SCENARIO_ESTIMATE_KEYS = ESTIMATE_KEYS
+
+# trace panels of its own (a scenario's figure list): the loop's currents and the HF-injection signal
+PANELS = (
+    CURRENT_PANEL,
+    Panel(
+        "w_eps",
+        "rad/s",
+        "HF-injection correction omega_eps (21)",
+        r"$\omega_\varepsilon$ (rad/s)",
+        (TraceLine(("w_eps",), "k-", r"$\omega_\varepsilon$"),),
+    ),
+)
 
 
 def scaled_setup(setup: RuntimeSetup, sc: Scenario) -> RuntimeSetup:

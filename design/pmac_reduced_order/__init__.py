@@ -33,6 +33,8 @@ class ReducedOrderObserver(ObserverFamily):
     report = "sensorless.reports.pmac_reduced_order"
     gain_families = _runtime.GAIN_FAMILIES
     scenario_options = simulation.SCENARIO_OPTIONS
+    estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
+    panels = simulation.PANELS
 
     def load(self, data: Any, file: str, digest: str) -> schema.PmacDrive:
         return derive.load(data, file, digest, self.kind)
@@ -76,6 +78,10 @@ class ReducedOrderObserver(ObserverFamily):
 
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
+
+    def trace_notes(self, meta: Any) -> tuple[str, ...]:
+        """No HF injection: said as the traces' header has always said it (the same trace files)."""
+        return ("HF injection off",)
 
 
 # De Angelo et al. (2006), Sec. V (Fig. 10): like other EMF-based observers it "cannot be used at very

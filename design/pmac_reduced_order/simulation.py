@@ -12,7 +12,7 @@ import math
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import GainSet
+from sensorless.design.family import GainSet, Panel, TraceLine
 from sensorless.design.pmac_reduced_order.runtime import drive_gains, runtime_setup
 from sensorless.design.scenario import Scenario, speed_filter_of
 from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
@@ -26,6 +26,30 @@ SCENARIO_OPTIONS = {
     "observer": {"load_torque_estimation": ("bool", True)},  # estimate T_L (Fig. 3) or not (Fig. 2)
     "control": {"feedforward": ("bool", False)},  # add T_L_hat to the torque reference (Fig. 5(b))
 }
+
+# [estimate_scale] keys: factors on the observer's estimates R, L (named L_d, as on a PMSM), J, Phi
+SCENARIO_ESTIMATE_KEYS = ("R_s", "L_d", "J", "Phi")
+
+# trace panels of its own (a scenario's figure list), De Angelo et al. (2006) Figs. 2-4
+PANELS = (
+    Panel(
+        "load_torque",
+        "N m",
+        "load torque (dashed) and its estimate (solid) (De Angelo et al. 2006 Figs. 3-4)",
+        r"$T_\mathrm{L}$ (N m)",
+        (
+            TraceLine(("T_L_total", "T_L"), "k--", r"$T_\mathrm{L}$"),
+            TraceLine(("T_L_hat",), "k-", r"$\hat T_\mathrm{L}$"),
+        ),
+    ),
+    Panel(
+        "emf_error",
+        "V",
+        "norm of the EMF estimation error (De Angelo et al. 2006 Figs. 2-3)",
+        r"$\|\varepsilon_e\|$ (V)",
+        (TraceLine(("emf_err",), "k-", r"$\|\varepsilon_e\|$"),),
+    ),
+)
 
 
 def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:

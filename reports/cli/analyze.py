@@ -1,9 +1,8 @@
 """``sensorless analyze``: the linearized observer of a drive over speed (and torque), as its family sees it.
 
-The adaptive observer prints unstable speed bands and worst damping of its closed loop with pole maps
-(Piippo et al. 2008, Figs. 4-5); the reduced-order observer the continuous and discrete poles and the
-steady errors over its envelope (De Angelo et al. 2006). Each family's output comes from its report
-hooks (reports/family.py); options of another family are refused, never ignored.
+What a family prints and writes (unstable speed bands, worst damping, poles, steady errors, pole
+maps) and its options come from its report hooks (reports/family.py); options of another family are
+refused, never ignored.
 """
 
 from __future__ import annotations
@@ -37,7 +36,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Load the drive and run the analysis of its family."""
-    drive: Any = load(args.drive, "analyze")
+    drive = load(args.drive, "analyze")
     fam = family_of(drive)
     h = hooks(fam)
     if h.analyze is None:

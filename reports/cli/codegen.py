@@ -41,8 +41,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--gain",
         default=None,
-        help="without --gains: which [observer.gains.*] of the drive, where the drive file has several "
-        "(adaptive observer: zero, constant, speed; default: the drive's [observer] gain)",
+        help="without --gains: which of the drive file's named gain sets, where its observer family has "
+        "several (default: the drive file's choice)",
     )
     p.add_argument("--precision", choices=PRECISIONS, default="float", help="C floating type (default float)")
     p.add_argument(
@@ -58,7 +58,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Generate and write the files."""
-    drive: Any = load(args.drive, "codegen")
+    drive = load(args.drive, "codegen")
     fam = family_of(drive)
     table = read_gain_table(args.gains) if args.gains else None
     if table is not None and args.gain:

@@ -21,6 +21,7 @@ from importlib.metadata import version as _version
 from typing import Any
 
 from sensorless.design.envelope import NOISE_DIMS, NOISE_OUTPUTS
+from sensorless.design.family import Drive
 from sensorless.design.poles import MIN_DAMPING  # noqa: F401  (re-exported: the commands read it here)
 from sensorless.design.units import MAGNITUDE, DriveFileError, check_magnitude, parse_number, parse_quantity
 
@@ -87,15 +88,15 @@ def version() -> str:
         return "0+unknown"
 
 
-def print_warnings(command: str, drive: object) -> None:
+def print_warnings(command: str, drive: Drive) -> None:
     """The drive's plausibility warnings (design/plausibility.py), one line each on stderr."""
     import sys
 
-    for line in getattr(drive, "warnings", ()):
+    for line in drive.warnings:
         print(f"sensorless {command}: warning: {line}", file=sys.stderr)
 
 
-def load(spec: str, command: str) -> object:
+def load(spec: str, command: str) -> Drive:
     """The drive of a preset name or drive file, its warnings printed (every command loads this way)."""
     from sensorless.design.drive import load_drive
 
@@ -202,7 +203,7 @@ def _spaced(v: str) -> str:
     return f"{v[:i]} {v[i:]}".strip()
 
 
-def foreign_table(table: Any, table_file: str, drive: Any) -> str | None:
+def foreign_table(table: Any, table_file: str, drive: Drive) -> str | None:
     """Why a gain table does not belong to ``drive`` (tuned for another drive, or another version of its
     file), or None: the gains may still be valid for it, so commands warn and go on."""
     tuned_for = table.drive.get("name")

@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     """Compute the report, then write both files at once."""
     from sensorless.design.gain_table import read_gain_table
 
-    drive: Any = load(args.drive, "report")
+    drive = load(args.drive, "report")
     fam = family_of(drive)
     compute = hooks(fam).report
     if compute is None:

@@ -19,8 +19,9 @@ import numpy as np
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import builtin_names, generic_scenarios, load_scenario
-from sensorless.design.simulate import MAX_SAMPLES, check_length
+from sensorless.design.simulate import MAX_SAMPLES, Traces, check_length
 from sensorless.reports.cli.common import Number, ResultError, UsageError, load
+from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 
 
@@ -38,12 +39,6 @@ def register(sub: Any) -> None:
     p.add_argument("--list", action="store_true", help="list the built-in scenarios for this drive and exit")
     p.add_argument("--gains", metavar="TABLE", help="tuned gain table (JSON, docs/gain_tables.md)")
     p.add_argument(
-        "--gain", help="override the scenario's [observer] gain: a drive file's [observer.gains.*] name"
-    )
-    p.add_argument(
-        "--injection", choices=("on", "off"), help="override the scenario's [observer] injection switch"
-    )
-    p.add_argument(
         "--duration",
         type=Number(0, 1e6, lo_open=True, unit="s"),
         help=f"override the scenario's duration [s] (at most {MAX_SAMPLES} control periods)",
@@ -58,6 +53,7 @@ def register(sub: Any) -> None:
     p.add_argument("--out", help="output directory (default: simulation-<drive>-<scenario>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    add_family_options(p, "simulate")
     p.set_defaults(func=run)
 
 
@@ -91,7 +87,7 @@ class Progress:
 
 def run(args: argparse.Namespace) -> int:
     """Load drive and scenario, simulate, write outputs."""
-    drive: Any = load(args.drive, "simulate")
+    drive = load(args.drive, "simulate")
     fam = family_of(drive)
     if args.list:
         for name in builtin_names(drive.kind):
@@ -107,20 +103,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.scenario:
         raise UsageError("--scenario NAME_OR_TOML is required (see --list)")
     sc = load_scenario(args.scenario, drive)
-    changes: dict[str, Any] = {}
-    options = dict(sc.options)
-    for key, value in (("gain", args.gain), ("injection", args.injection)):
-        if value is None:
-            continue
-        if key not in options:
-            raise UsageError(f"--{key}: not an option of {fam.title} scenarios")
-        options[key] = value == "on" if key == "injection" else value
-    if args.gain:
-        fam.gains(drive, name=args.gain)  # clear error naming the drive file if absent
-    changes["options"] = options
+    refuse_foreign(args, fam, "simulate")
+    h = hooks(fam)
+    if h.simulate_scenario is not None:
+        sc = h.simulate_scenario(drive, args, sc)  # the family's options, checked against the drive
     if args.duration is not None:
-        changes["duration"] = args.duration
-    sc = dataclasses.replace(sc, **changes)
+        sc = dataclasses.replace(sc, duration=args.duration)
     check_length(sc, drive.T_s, "argument --duration" if args.duration is not None else "")
     gains = None
     if args.gains:
@@ -170,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     return 3 if problems else 0
 
 
-def print_summary(tr: Any) -> None:
+def print_summary(tr: Traces) -> None:
     """RMS and peak estimation errors over the run."""
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     e_th = np.degrees(tr["theta_err"])

@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     """Tune, print the summary, write the tables."""
     from sensorless.tuning.tune import tune
 
-    drive: Any = load(args.drive, "tune")
+    drive = load(args.drive, "tune")
     fam = family_of(drive)
     h = hooks(fam)
     tunable = tunable_for(drive, args.family)

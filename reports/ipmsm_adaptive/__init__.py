@@ -1,13 +1,14 @@
 """Report hooks of the adaptive observer: its ``analyze`` output, ``tune`` options and stability report.
 
 Piippo, Hinkkanen, Luomi (2008). analyze.py (pole maps, unstable bands), tune.py (envelope options of
-the shared NLP), report.py and figures.py (the stability report).
+the shared NLP), simulate.py (the scenario options of ``simulate``), report.py and figures.py (the
+stability report).
 """
 
 from __future__ import annotations
 
 from sensorless.reports.family import ReportHooks
-from sensorless.reports.ipmsm_adaptive import analyze, report, tune
+from sensorless.reports.ipmsm_adaptive import analyze, report, simulate, tune
 
 HOOKS = ReportHooks(
     analyze_options=analyze.OPTIONS,
@@ -16,5 +17,8 @@ HOOKS = ReportHooks(
     tune_options=tune.OPTIONS,
     tune_settings=tune.settings,
     describe_envelope=tune.describe,
+    simulate_options=simulate.OPTIONS,
+    simulate_scenario=simulate.scenario,
     report=report.compute,
+    settings_sections=("runtime", "tuning"),  # [runtime], [tuning]: settings, in their own sections
 )

@@ -29,14 +29,13 @@ from sensorless.reports.document import (
     Verdict,
     arr,
     drive_section,
-    drive_tables,
     f,
     num,
-    report_inputs,
 )
 from sensorless.reports.ipmsm_adaptive import tuning
 from sensorless.reports.ipmsm_adaptive.discrete import report_section as discrete_section
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
+from sensorless.reports.review import Review, opening, settle, time_domain_checks, verdict_box
 from sensorless.reports.svg_render import svg_later
 
 TIME_DOMAIN = ("fig9b", "fig10", "fig6b")  # built-in scenarios re-run with the gains under review
@@ -91,11 +90,8 @@ def compute(
     w_low = np.linspace(-0.05, 0.05, 401 if fine else 101) * wb
     w_env = 0.05 * wb  # where the tuning envelope starts by default
     choices, review = gain_choices(drive, table, table_file)
-    data: dict[str, Any] = {
-        "inputs": report_inputs(drive, table, min_damping),
-        "drive": drive_tables(drive),
-        "review": review,
-    }
+    rev = Review(choices, review, table is not None)
+    data: dict[str, Any] = opening(FAMILY, drive, table, min_damping, review)
     pole_figs: list[Figure] = []
 
     def bands(g: GainSet, T: float, s: PoleSweep, injection: bool) -> list[list[Any]]:
@@ -208,8 +204,7 @@ def compute(
     runs = time_domain.scenarios(drive, TIME_DOMAIN, scenarios)
     what = "paper experiments" if drive.file.startswith("preset:") else "generic scenarios, per unit"
     progress(f"[5/{steps}] time-domain checks ({what}{' and yours' if scenarios else ''})")
-    td_gains = g_rev if table is not None else None
-    td, td_figs = time_domain.checks(drive, td_gains, runs, review, progress)
+    td, td_figs = time_domain_checks(drive, rev, runs, progress)
     data["time_domain"] = td
     progress(f"[6/{steps}] the discrete-time observer that runs ({drive.runtime.discretization})")
     data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
@@ -219,7 +214,7 @@ def compute(
     limits = time_domain.limitations(drive)  # what the generic checks leave out, said in the verdict
     data["verdict"] = {**verdict(data, review, min_damping), "limitations": limits}
     sections = (
-        drive_section(1, data["drive"]),
+        drive_section(1, data["drive"], FAMILY.bases(drive)),
         Section("2. Pole maps over speed", (_pole_table(pm), *pole_figs, inj_block)),
         Section("3. Damping and decay rate over speed × torque", (plane_fig, _plane_table(maps))),
         Section("4. Robustness to parameter-estimate errors", (rob_fig, _robustness_table(rob))),
@@ -352,10 +347,10 @@ def verdict(data: dict[str, Any], label: str, min_damping: float) -> dict[str, A
         status = "warn"
     else:
         status = "fail"
-    td = data.get("time_domain") or []
-    findings += time_domain.findings(td)
+    status, td_findings = settle(status, data.get("time_domain") or [])
+    findings += td_findings
     return {
-        "status": time_domain.status_with(status, td),
+        "status": status,
         "gains": label,
         "min_damping": min_damping,
         "envelope": envelope,
@@ -370,26 +365,20 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
     """The verdict box of the HTML from the verdict data."""
     env = v["envelope"]
     frm = env["abs_speed_pu_from"]
-    lines = []
     if frm is not None:
-        lines.append(
-            Paragraph(
-                f"Gains {v['gains']}: stable with damping ≥ {v['min_damping']:g} for |ω| ≥ {frm:.3g} p.u. "
-                "at all "
-                f"analysed torques (±1.5 T_N); {100 * env['fraction_ok']:.1f} % of the speed × torque grid "
-                "meets it.",
-                "ok" if v["status"] == "pass" else "",
-            )
+        summary = Paragraph(
+            f"Gains {v['gains']}: stable with damping ≥ {v['min_damping']:g} for |ω| ≥ {frm:.3g} p.u. "
+            "at all "
+            f"analysed torques (±1.5 T_N); {100 * env['fraction_ok']:.1f} % of the speed × torque grid "
+            "meets it.",
+            "ok" if v["status"] == "pass" else "",
         )
     else:
-        lines.append(
-            Paragraph(
-                f"Gains {v['gains']}: the required damping {v['min_damping']:g} is not met at high speed "
-                "for some torque.",
-                "bad",
-            )
+        summary = Paragraph(
+            f"Gains {v['gains']}: the required damping {v['min_damping']:g} is not met at high speed "
+            "for some torque.",
+            "bad",
         )
-    lines += [Paragraph(r) for r in (*v["reasons"], *v["limitations"])]
     findings = tuple(
         x["text"]
         if "text" in x
@@ -397,4 +386,4 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
         f"p.u. ({x['points']} grid points)"
         for x in v["findings"]
     )
-    return Verdict(v["status"], tuple(lines), findings)
+    return verdict_box(v["status"], summary, v["reasons"], v["limitations"], findings)

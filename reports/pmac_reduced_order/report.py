@@ -22,11 +22,17 @@ from sensorless.reports.document import (
     Table,
     Verdict,
     drive_section,
-    drive_tables,
     f,
     num,
-    report_inputs,
     svg_uri,
+)
+from sensorless.reports.review import (
+    gains_under_review,
+    opening,
+    settle,
+    status_class,
+    time_domain_checks,
+    verdict_box,
 )
 
 TIME_DOMAIN = ("fig3", "fig5b")
@@ -52,14 +58,10 @@ def compute(
     rpm = np.array(env.speeds, float)
     loads = np.array(env.loads, float)
     w = drive.rpm_to_w(rpm)
-    choices = {"paper gains": FAMILY.gains(drive)}
-    if table is not None:
-        choices["tuned"] = FAMILY.gains(drive, table=table, table_file=table_file)
-    review = list(choices)[-1]
+    rev = gains_under_review(FAMILY, drive, table, table_file, "paper gains")
+    choices, review = rev.choices, rev.label
     data: dict[str, Any] = {
-        "inputs": report_inputs(drive, table, min_damping),
-        "drive": drive_tables(drive),
-        "review": review,
+        **opening(FAMILY, drive, table, min_damping, review),
         "sampling_period_s": f(drive.control.T_s),
         "discretization": drive.control.discretization,
     }
@@ -117,9 +119,7 @@ def compute(
     data["analysis"] = analysis
     runs = time_domain.scenarios(drive, TIME_DOMAIN, scenarios)
     progress(f"[2/3] time-domain checks ({len(runs)} scenarios)")
-    td, td_figs = time_domain.checks(
-        drive, choices[review] if table is not None else None, runs, review, progress
-    )
+    td, td_figs = time_domain_checks(drive, rev, runs, progress)
     data["time_domain"] = td
     progress("[3/3] verdict")
     key = f"{review}, with T_L estimation"
@@ -136,11 +136,10 @@ def compute(
             f"frequency of T_s = {drive.control.T_s * 1e6:g} us (docs/families/pmac_reduced_order.md); "
             "sample faster there"
         )
-    status = "fail" if not (stable and damped) else "warn" if biased else "pass"
-    td_findings = time_domain.findings(td)
+    status, td_findings = settle("fail" if not (stable and damped) else "warn" if biased else "pass", td)
     reasons += [x["text"] for x in td_findings]
     data["verdict"] = {
-        "status": time_domain.status_with(status, td),
+        "status": status,
         "findings": td_findings,
         "gains": key,
         "min_damping": min_damping,
@@ -193,6 +192,5 @@ def _verdict(data: dict[str, Any]) -> Verdict:
         "Slowest discrete mode: "
         f"decay {num(wd['decay_rate'], 4)} 1/s at {num(wd['speed_rpm'])} r/min, {num(wd['T_L_Nm'])} N m."
     )
-    lines = [Paragraph(text, "ok" if v["status"] == "pass" else "bad" if v["status"] == "fail" else "")]
-    lines += [Paragraph(r, "bad") for r in v["reasons"]] + [Paragraph(r) for r in v["limitations"]]
-    return Verdict(v["status"], tuple(lines))
+    summary = Paragraph(text, status_class(v["status"]))
+    return verdict_box(v["status"], summary, v["reasons"], v["limitations"], reason_class="bad")

@@ -32,7 +32,7 @@ from sensorless.design.drive_file import check_keys, drive_header, load_section,
 from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTable, GainTableError
 from sensorless.design.linearization import Linearization
-from sensorless.design.pmsm_drive import loop_setup
+from sensorless.design.pmsm_drive import CURRENT_PANEL, loop_setup
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, load_estimate, load_motor
 from sensorless.design.poles import eigvals_batched
 from sensorless.design.runtime import RuntimeSetup
@@ -93,6 +93,7 @@ class PllDrive:
     observer: Observer
     envelope: Envelope
     digest: str = ""
+    warnings: tuple[str, ...] = ()  # no plausibility checks of its own
 
     @property
     def T_N(self) -> float:
@@ -328,16 +329,15 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
 def simulation(drive: PllDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """Loop set-up of ``sc`` on ``drive``; the scenario's estimate errors scale the observer's model."""
     k = sc.estimate_scale
-    if k["L_d"] != k["L_q"]:
-        raise DriveFileError(sc.file, "estimate_scale.L_q", "a non-salient motor: scale L_d and L_q alike")
     setup = runtime_setup(drive, gains or drive_gains(drive), sc.discretization)
     params = dict(setup.params)
-    params.update(
-        R_s=params["R_s"] * k["R_s"], L=params["L"] * k["L_d"], psi_pm=params["psi_pm"] * k["psi_pm"]
-    )
+    params.update(R_s=params["R_s"] * k["R_s"], L=params["L"] * k["L"], psi_pm=params["psi_pm"] * k["psi_pm"])
     OBSERVER.check_params(params)
     setup = dataclasses.replace(setup, params=params)
     meta = {"gain": f"{setup.gain_source}: w_pll = {params['w_pll']:.6g} rad/s"}
+    # the shared loop's controllers see the same errors, their one inductance as L_d = L_q
+    loop_k = {"R_s": k["R_s"], "L_d": k["L"], "L_q": k["L"], "psi_pm": k["psi_pm"], "J": k["J"]}
+    sc = dataclasses.replace(sc, estimate_scale=loop_k)
     return loop_setup(drive, sc, setup, meta=meta)
 
 
@@ -356,6 +356,8 @@ class PllObserverFamily(ObserverFamily):
     tuning = "families.pll.tuning"
     report = "families.pll.report"
     gain_families = GAIN_FAMILIES
+    estimate_keys = ("R_s", "L", "psi_pm", "J")  # [estimate_scale]: one inductance
+    panels = (CURRENT_PANEL,)
 
     def load(self, data: Any, file: str, digest: str) -> PllDrive:
         return load(data, file, digest, self.kind)

@@ -28,16 +28,21 @@ from sensorless.reports.document import (
     Report,
     Section,
     Table,
-    Verdict,
     drive_section,
-    drive_tables,
     f,
     num,
-    report_inputs,
     svg_uri,
 )
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
+from sensorless.reports.review import (
+    gains_under_review,
+    opening,
+    settle,
+    status_class,
+    time_domain_checks,
+    verdict_box,
+)
 
 from families.pll.design import FAMILY, PllLinearization
 from families.pll.tuning import default_settings
@@ -180,10 +185,8 @@ def compute(
     scenarios: Sequence[str] = (),
 ) -> Report:
     """The report's numbers, sections and verdict."""
-    choices = {"drive file": FAMILY.gains(drive)}
-    if table is not None:
-        choices["tuned"] = _gains(drive, table, table_file)
-    review = list(choices)[-1]
+    rev = gains_under_review(FAMILY, drive, table, table_file)
+    choices, review = rev.choices, rev.label
     W, T = drive.grid(1 if resolution == "quick" else 4)
     progress(f"[1/3] poles over the envelope ({W.size} points)")
     analysis: dict[str, Any] = {}
@@ -204,25 +207,20 @@ def compute(
         }
     progress("[2/3] time-domain check (the built-in scenario re-run)")
     runs = time_domain.scenarios(drive, TIME_DOMAIN, scenarios)
-    td, td_figs = time_domain.checks(
-        drive, choices[review] if table is not None else None, runs, review, progress
-    )
+    td, td_figs = time_domain_checks(drive, rev, runs, progress)
     progress("[3/3] verdict")
     a = analysis[review]
     damped = a["worst_damping"] is not None and a["worst_damping"] >= min_damping
     tracks = all(item["metrics"]["rms_theta_err_deg"] < MAX_RMS_THETA_DEG for item in td)
-    status = "fail" if not a["stable"] else "pass" if damped and tracks else "warn"
-    status = time_domain.status_with(status, td)
+    status, td_findings = settle("fail" if not a["stable"] else "pass" if damped and tracks else "warn", td)
     findings = []
     if not damped:
         findings.append(f"worst damping {num(a['worst_damping'])} < required {min_damping:g}")
     if not tracks:
         findings.append(f"a time-domain check exceeds {MAX_RMS_THETA_DEG:g} deg RMS position error")
-    findings += [x["text"] for x in time_domain.findings(td)]
+    findings += [x["text"] for x in td_findings]
     data = {
-        "inputs": report_inputs(drive, table, min_damping),
-        "drive": drive_tables(drive),
-        "review": review,
+        **opening(FAMILY, drive, table, min_damping, review),
         "sampling_period_s": f(drive.T_s),
         "analysis": analysis,
         "time_domain": td,
@@ -268,10 +266,8 @@ def compute(
         f"(required {min_damping:g}), slowest decay {num(a['min_decay_rate'])} 1/s; time-domain check "
         f"{'within' if tracks else 'beyond'} {MAX_RMS_THETA_DEG:g} deg RMS position error."
     )
-    cls = "ok" if status == "pass" else "bad" if status == "fail" else ""
-    return Report(
-        drive.name, review, data, Verdict(status, (Paragraph(text, cls),), tuple(findings)), sections
-    )
+    verdict = verdict_box(status, Paragraph(text, status_class(status)), findings=findings)
+    return Report(drive.name, review, data, verdict, sections)
 
 
 HOOKS = ReportHooks(
