@@ -39,7 +39,7 @@ def flow(request, tmp_path_factory):
         "init": main(["init", str(src), "--out", str(drive)]),
         "tune": main(["tune", str(drive), "--out", str(d / "tune"), "--quiet"]),
     }
-    table = d / "tune" / "gains_law16.json"
+    table = d / "tune" / "gains_speed-dependent.json"
     codes["codegen"] = main(
         ["codegen", str(drive), "--gains", str(table), "--precision", "float", "--out", str(d / "c")]
     )
@@ -51,7 +51,7 @@ def test_every_command_succeeds_and_finds_gains(flow):
     _, _, _, d, codes = flow
     assert codes["init"] == codes["tune"] == codes["codegen"] == 0, codes
     assert codes["report"] in (0, 3), codes  # 3: a check failed; the report says so (below)
-    table = json.loads((d / "tune" / "gains_law16.json").read_text())
+    table = json.loads((d / "tune" / "gains_speed-dependent.json").read_text())
     # stable gains with the damping a report requires, found on the motor's own envelope
     assert table["summary"]["worst_damping"] > MIN_DAMPING, table["summary"]
 
@@ -134,8 +134,8 @@ def test_the_report_page_shows_a_foreign_table_warning():
     from sensorless.reports.html import render
 
     inputs = {"drive_sha256": "0" * 64, "gains_sha256": "1" * 64}
-    page = render(Report("servo400", "tuned law16", {"inputs": inputs}, Verdict("pass", ())), "0")
+    page = render(Report("servo400", "tuned speed-dependent", {"inputs": inputs}, Verdict("pass", ())), "0")
     assert "Warning:" not in page
     inputs["gain_table_warning"] = "t.json was tuned for drive 'traction', not for 'servo400'"
-    page = render(Report("servo400", "tuned law16", {"inputs": inputs}, Verdict("pass", ())), "0")
+    page = render(Report("servo400", "tuned speed-dependent", {"inputs": inputs}, Verdict("pass", ())), "0")
     assert "Warning: t.json was tuned for drive &#39;traction&#39;" in page

@@ -11,7 +11,7 @@ from sensorless.design.envelope import Envelope
 from sensorless.design.ipmsm_adaptive.linearize import linearize
 from sensorless.reports.cli.main import main
 from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law
-from sensorless.tuning.ipmsm_adaptive.families import build_schedule, with_estimate
+from sensorless.tuning.ipmsm_adaptive.laws import build_schedule, with_estimate
 from sensorless.tuning.nlp import Solution
 from sensorless.tuning.result import figures
 from sensorless.tuning.sector import factors_from_poles
@@ -80,7 +80,7 @@ def closed_form_damping(drive, w, t, l1, l2):
 
 @pytest.fixture(scope="module")
 def law16(drive):
-    return tune(drive, "law16", small(drive))
+    return tune(drive, "speed-dependent", small(drive))
 
 
 def test_law16_at_least_as_good_as_brute_force(drive, law16):
@@ -115,7 +115,7 @@ def test_table_reports_dense_reverification(drive, law16):
     k = int(np.nanargmin(ref.worst_damping))
     assert s["worst_damping_at"]["w_m_rad_s"] == pytest.approx(Wd[k])
     doc = json.loads(law16.table.to_json())
-    assert doc["format"] == "sensorless-gain-table/1" and doc["family"] == "law16"
+    assert doc["format"] == "sensorless-gain-table/2" and doc["law"] == "speed-dependent"
     assert set(doc["gains"]) == {"lambda_p", "w_lambda", "alpha_fo"}
 
 
@@ -196,7 +196,7 @@ def test_stable_under_stated_estimate_errors(drive):
     lower, the equilibrium itself is lost, see the next test.)"""
     env = Envelope(speed_min=0.3, speed_max=1.0, speeds=8, torques_TN=(-1.0, 1.0))
     st = dataclasses.replace(drive.tuning, envelope=env, errors=(0.2, 0.0, 0.1, 0.0))
-    r = tune(drive, "law16", st)
+    r = tune(drive, "speed-dependent", st)
     assert len(r.robust) == 4 and all(x["stable"] for x in r.robust)
     env = st.envelope
     Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
@@ -214,7 +214,7 @@ def test_estimate_errors_without_equilibrium_are_reported(drive):
     from sensorless.tuning.nlp import TuningError
 
     with pytest.raises(TuningError, match=r"infeasible under estimate errors R_s\+20%.*no equilibrium"):
-        tune(drive, "law16", small(drive, errors=(0.2, 0.0, 0.0, 0.0)))
+        tune(drive, "speed-dependent", small(drive, errors=(0.2, 0.0, 0.0, 0.0)))
 
 
 def test_cli_errors_leave_no_files(tmp_path, capsys):
@@ -224,10 +224,30 @@ def test_cli_errors_leave_no_files(tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1, err  # one line, no traceback
     assert err.startswith("sensorless tune: error: the envelope is infeasible") and "decay >= 5000 1/s" in err
     assert not out.exists()
-    code = main(["tune", "piippo2008", "--family", "deangelo", "--out", str(out)])
+    code = main(["tune", "piippo2008", "--law", "constant", "--out", str(out)])
     err = capsys.readouterr().err
-    assert code == 2 and "deangelo" in err and "cannot be tuned" in err and "kind 'ipmsm-adaptive'" in err
+    assert code == 2 and "constant" in err and "cannot be tuned" in err and "kind 'ipmsm-adaptive'" in err
     assert not out.exists()
+
+
+def test_former_flag_and_law_names_still_work_and_say_their_new_names(tmp_path, capsys):
+    """`--family law16` (the names before "law"): accepted for one release, each with one note line
+    naming its new name; the outputs are named after the new law name (here: refused as existing)."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "gains_speed-dependent.json").write_text("{}")
+    code = main(["tune", "piippo2008", "--family", "law16", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "sensorless tune: note: --family is now called --law", err
+    assert err[1] == "sensorless tune: note: law 'law16' is now called 'speed-dependent'", err
+    assert code == 2 and len(err) == 3 and "gains_speed-dependent.json" in err[2], err
+    (out / "gains_constant.json").write_text("{}")
+    code = main(["tune", "deangelo2006", "--law", "deangelo", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "sensorless tune: note: law 'deangelo' is now called 'constant'", err
+    assert code == 2 and len(err) == 2 and "gains_constant.json" in err[1], err
+    with pytest.raises(SystemExit):  # an unknown law is still refused by the parser
+        main(["tune", "piippo2008", "--law", "law17", "--out", str(tmp_path / "y")])
 
 
 def test_cli_tune_writes_tables_deterministically(tmp_path, capsys):
@@ -236,6 +256,6 @@ def test_cli_tune_writes_tables_deterministically(tmp_path, capsys):
     stdout = capsys.readouterr().out
     assert "worst damping" in stdout and "wrote" in stdout
     assert main([*args, "--out", str(tmp_path / "b")]) == 0
-    for name in ("gains_law16.json", "gains_law16.csv"):
+    for name in ("gains_speed-dependent.json", "gains_speed-dependent.csv"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     assert main([*args, "--out", str(tmp_path / "a")]) == 2  # refuses to overwrite

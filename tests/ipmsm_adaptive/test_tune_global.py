@@ -20,7 +20,7 @@ from sensorless.design.ipmsm_adaptive.operating_point import PARAM_NAMES
 from sensorless.reports.cli.main import main
 from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law
 from sensorless.tuning.bound import pointwise_bound
-from sensorless.tuning.ipmsm_adaptive.families import build_pointwise
+from sensorless.tuning.ipmsm_adaptive.laws import build_pointwise
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.tune import tune
 
@@ -51,7 +51,7 @@ def test_salient_motor_unstable_drive_gains_tuned_to_stable():
     z0, d0 = dense_worst(drive, env, "speed")
     assert z0 < 0 and d0 < 0  # the drive file's gains: unstable
     st = dataclasses.replace(drive.tuning, min_decay=5.0, bound=False)
-    r = tune(drive, "law16", st)
+    r = tune(drive, "speed-dependent", st)
     z, d = dense_worst(drive, env, ("speed", r.theta))
     assert z == pytest.approx(r.table.summary["worst_damping"], abs=1e-9)
     assert z > 0.45 and d >= 5.0 * (1 - 1e-6)
@@ -70,7 +70,7 @@ def test_infeasible_envelope_reports_its_evidence():
         min_decay=5000.0,
     )
     with pytest.raises(TuningError) as e:
-        tune(drive, "law16", st)
+        tune(drive, "speed-dependent", st)
     msg = str(e.value)
     assert "the envelope is infeasible" in msg and "no gain (lambda1, lambda2" in msg
     assert "at 6 of 6 envelope speeds" in msg and "best slowest decay" in msg
@@ -162,9 +162,9 @@ def test_cli_prints_the_bound_and_writes_the_speeds_table(tmp_path, capsys):
     stdout = capsys.readouterr().out
     line = next(ln for ln in stdout.splitlines() if "bound" in ln and "worst" in ln)
     assert "p.u." in line and "below it" in line
-    rows = (out / "speeds_law16.csv").read_text().splitlines()
-    assert rows[1] == "w_m_pu,bound_damping,law16_damping,baseline_damping"
-    head = (out / "gains_law16.csv").read_text().splitlines()[2]
+    rows = (out / "speeds_speed-dependent.csv").read_text().splitlines()
+    assert rows[1] == "w_m_pu,bound_damping,speed-dependent_damping,baseline_damping"
+    head = (out / "gains_speed-dependent.csv").read_text().splitlines()[2]
     assert head.endswith("bound_damping,bound_lambda1,bound_lambda2")
 
 
@@ -172,7 +172,7 @@ def test_cli_prints_the_bound_and_writes_the_speeds_table(tmp_path, capsys):
 def test_law16_ridge_is_explained(drive):
     """law16's worst point does not move with lambda' or omega_lambda (a ridge): the summary says which
     point it is, that law16 cannot improve it, and what other gains reach there."""
-    r = tune(drive, "law16", small(drive))
+    r = tune(drive, "speed-dependent", small(drive))
     ridge = r.table.summary["ridge"]
     assert "cannot improve it" in ridge["text"] and "the pointwise bound" in ridge["text"]
     assert max(abs(v) for v in ridge["gradient"].values()) < 1e-2
@@ -237,7 +237,7 @@ def test_max_noise_limit_holds_on_the_dense_grid_and_the_front(drive, tmp_path, 
     capsys.readouterr()
     import json
 
-    doc = json.loads((out / "gains_law16.json").read_text())
+    doc = json.loads((out / "gains_speed-dependent.json").read_text())
     g = doc["gains"]
     env = Envelope(speed_min=0.05, speed_max=1.0, speeds=5, torques_TN=(-1.0, 1.0))
     Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
@@ -245,7 +245,7 @@ def test_max_noise_limit_holds_on_the_dense_grid_and_the_front(drive, tmp_path, 
     nz = s.noise_rms(drive.control.i_noise, drive.control.T_s)
     assert np.degrees(np.max(nz[:, 0])) <= lim_deg * (1 + 1e-6)
     assert doc["summary"]["noise"]["tuned"][0] == pytest.approx(np.max(nz[:, 0]), rel=1e-9)
-    front = (out / "pareto_law16.csv").read_text().splitlines()
+    front = (out / "pareto_speed-dependent.csv").read_text().splitlines()
     assert front[1].startswith("noise,limit,worst_damping")
     pts = [[float(v) for v in ln.split(",")[:3]] for ln in front[2:]]
     assert len(pts) >= 2

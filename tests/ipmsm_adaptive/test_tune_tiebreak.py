@@ -34,7 +34,7 @@ def case():
     drive = load_drive(str(IND5K5))
     env = Envelope(speed_min=0.05, speed_max=1.0, speeds=4, torques_TN=(-1.0, 1.0))
     st = dataclasses.replace(drive.tuning, envelope=env, bound=False)
-    r = tune(drive, "law16", st)
+    r = tune(drive, "speed-dependent", st)
     R, wb = drive.estimate.R_s, drive.base.w
     Wd, Td = env.grid(wb, drive.T_N, env.dense_factor)
     # the brute force: worst damping and slowest decay on the dense grid, through the analysis path

@@ -76,7 +76,7 @@ def test_tuned_beat_the_papers_gains_on_the_dense_grid(deangelo2006, deangelo):
 
 def test_deangelo_table_round_trip(tmp_path, deangelo):
     doc = json.loads(deangelo.table.to_json())
-    assert doc["family"] == "deangelo" and set(doc["gains"]) == {"g", "Gamma"}
+    assert doc["law"] == "constant" and set(doc["gains"]) == {"g", "Gamma"}
     f = tmp_path / "t.json"
     f.write_text(deangelo.table.to_json())
     assert read_gain_table(f).gains == doc["gains"]

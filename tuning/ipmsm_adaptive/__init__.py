@@ -1,6 +1,6 @@
-"""Tuning hooks of the adaptive observer: the gain families law16 (eq. (16)) and schedule, by the shared NLP.
+"""Tuning hooks of the adaptive observer: the laws speed-dependent (eq. (16)) and schedule, by the shared NLP.
 
-Piippo, Hinkkanen, Luomi (2008). Builders of the TuningModels: families.py. Settings: the drive's
+Piippo, Hinkkanen, Luomi (2008). Builders of the TuningModels: laws.py. Settings: the drive's
 ``[tuning]`` section (design/envelope.py; the laws' own keys in design/ipmsm_adaptive/law_settings.py).
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any
 
 from sensorless.tuning.family import Tunable, TuningHooks
-from sensorless.tuning.ipmsm_adaptive.families import build_law16, build_schedule
+from sensorless.tuning.ipmsm_adaptive.laws import build_schedule, build_speed_dependent
 
 _POINTS = (
     ("w_m_pu", "w_m_pu"),
@@ -29,10 +29,11 @@ def _settings(drive: Any) -> Any:
 HOOKS = TuningHooks(
     tunables=(
         Tunable(
-            "law16",
-            "eq. (16): lambda', omega_lambda (optionally alpha_fo)",
+            "speed-dependent",
+            "the speed-dependent gain, eq. (16) of Piippo, Hinkkanen, Luomi (2008): lambda', "
+            "omega_lambda (optionally alpha_fo)",
             _settings,
-            build=build_law16,
+            build=build_speed_dependent,
             columns=(_POINTS, _BASELINE),
         ),
         Tunable(
@@ -40,7 +41,7 @@ HOOKS = TuningHooks(
             "free speed schedule: (lambda1, lambda2) at speed breakpoints, linear in between",
             _settings,
             build=build_schedule,
-            seed="law16",
+            seed="speed-dependent",
             columns=(_POINTS, _BASELINE),
         ),
     )
