@@ -153,13 +153,15 @@ def read_gain_table(path: str | Path) -> GainTable:
     law = doc.get(key)
     known = gain_keys()
     old = law_aliases()
+    notes = [f"format {FORMAT_1} read (tables are now {FORMAT}, key 'law')"] if key == "family" else []
     if isinstance(law, str) and law in old and law not in known:
-        print(f"{p}: note: law {law!r} is now called {old[law]!r}", file=sys.stderr)
+        notes.append(f"law {law!r} is now called {old[law]!r}")
         law = old[law]
     if not isinstance(law, str) or law not in known:
         raise GainTableError(f"{p}: key '{key}': unknown law {law!r} (known: {', '.join(known)})")
+    if notes:  # one line, for one release
+        print(f"{p}: note: {'; '.join(notes)}", file=sys.stderr)
     if key == "family":
-        print(f"{p}: note: format {FORMAT_1} read; tables are now {FORMAT} (key 'law')", file=sys.stderr)
         _upgrade_seeds(doc, old)
     gains = doc.get("gains")
     if not isinstance(gains, dict):

@@ -1,5 +1,5 @@
 """Tuning you can trust: the global phase, infeasibility with evidence, the pointwise bound against an
-independent brute force, schedule >= law16 >= drive file within reach of the bound, the noise figure
+independent brute force, schedule >= speed-dependent >= drive file within reach of the bound, the noise figure
 against a simulation of the linearized loop, noise limits and the damping-versus-noise front, ridges."""
 
 import dataclasses
@@ -42,7 +42,7 @@ def dense_worst(drive, env, gain):
 # ------------------------------------------------------------------------------------ global phase
 def test_salient_motor_unstable_drive_gains_tuned_to_stable():
     """On a salient traction IPMSM the drive file's speed-dependent gain (lambda' = 2 R_s_hat, omega_lambda
-    = 1 p.u.) is unstable; law16 tuning starts from the global phase, not from those gains, and returns
+    = 1 p.u.) is unstable; tuning the law starts from the global phase, not from those gains, and returns
     gains stable on the dense grid (checked through the analysis path), better than the reference
     lambda' = 4 R_s_hat, omega_lambda = 0.1 p.u."""
     drive = load_drive(SALIENT)
@@ -125,13 +125,13 @@ def test_bound_at_a_speed_equals_a_brute_force_search(drive, w_pu):
 
 @pytest.fixture(scope="module")
 def schedule_default(drive):
-    """The schedule on the default envelope with its default decay floor (its law16 seed's)."""
+    """The schedule on the default envelope with its default decay floor (its speed-dependent seed's)."""
     return tune(drive, "schedule", drive.tuning)
 
 
-def test_schedule_reaches_the_bound_and_law16_beats_the_drive_file(drive, schedule_default):
-    """Default envelope, dense grid, analysis path: schedule >= law16 >= drive file, and the schedule
-    within 0.01 of the pointwise bound's worst (no gain law does better than that bound)."""
+def test_schedule_reaches_the_bound_and_speed_dependent_beats_the_drive_file(drive, schedule_default):
+    """Default envelope, dense grid, analysis path: schedule >= speed-dependent >= drive file, and the
+    schedule within 0.01 of the pointwise bound's worst (no gain law does better than that bound)."""
     r = schedule_default
     s = r.table.summary
     env = drive.tuning.envelope
@@ -169,9 +169,9 @@ def test_cli_prints_the_bound_and_writes_the_speeds_table(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------------------- ridges
-def test_law16_ridge_is_explained(drive):
-    """law16's worst point does not move with lambda' or omega_lambda (a ridge): the summary says which
-    point it is, that law16 cannot improve it, and what other gains reach there."""
+def test_speed_dependent_ridge_is_explained(drive):
+    """The speed-dependent law's worst point does not move with lambda' or omega_lambda (a ridge): the
+    summary says which point it is, that the law cannot improve it, and what other gains reach there."""
     r = tune(drive, "speed-dependent", small(drive))
     ridge = r.table.summary["ridge"]
     assert "cannot improve it" in ridge["text"] and "the pointwise bound" in ridge["text"]
