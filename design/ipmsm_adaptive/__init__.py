@@ -3,6 +3,7 @@
 This module registers the family (design/registry.py finds ``FAMILY``); the drive kind string of its
 drive files is written here and nowhere else in the code. Its pieces: schema.py (drive files),
 runtime.py (gains, runtime set-up), operating_point.py and linearize.py (the closed loop of Section IV),
+discrete.py (the step that runs, by the shared discrete-time analysis of design/discrete.py),
 simulation.py (Fig. 7 for a scenario), presets/ and scenarios/ (the paper's drive and experiments).
 Equations: symbolic/ipmsm_adaptive/. Theory and choices: docs/families/ipmsm_adaptive.md.
 """
@@ -14,9 +15,11 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTableError
-from sensorless.design.ipmsm_adaptive import linearize as _linearize
+from sensorless.design.ipmsm_adaptive import discrete, schema, simulation
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
-from sensorless.design.ipmsm_adaptive import schema, simulation
+from sensorless.design.ipmsm_adaptive.simulation import injection_off
+
+__all__ = ["FAMILY", "AdaptiveFluxObserver", "injection_off", "with_alpha_fo"]
 
 
 class AdaptiveFluxObserver(ObserverFamily):
@@ -65,7 +68,7 @@ class AdaptiveFluxObserver(ObserverFamily):
         discretization (with T_s): also the discrete-time observer that runs (discrete.py)."""
         if options.get("injection") and not drive.injection.enabled:
             raise CapabilityError(injection_off(drive))
-        return _linearize.linearize(
+        return discrete.linearize(
             with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
         )
 
@@ -75,17 +78,6 @@ class AdaptiveFluxObserver(ObserverFamily):
 
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
-
-
-def injection_off(drive: Any) -> str:
-    """Why the drive has no HF injection to analyse or simulate (one line)."""
-    from sensorless.design.ipmsm_adaptive.derive import saliency
-
-    xi = saliency(drive.estimate.L_d, drive.estimate.L_q)
-    return (
-        f"{drive.file}: the drive's HF injection is off ([injection] u_c = 0 V; saliency "
-        f"2|L_q - L_d|/(L_q + L_d) = {xi:.3g}{': L_d = L_q gives no error signal (19)' if xi == 0 else ''})"
-    )
 
 
 def with_alpha_fo(drive: Any, gains: GainSet) -> Any:

@@ -47,6 +47,17 @@ def pmsm_drive(drive: Any) -> PmsmDrive:
     )
 
 
+def injection_off(drive: Any) -> str:
+    """Why the drive has no HF injection to analyse or simulate (one line)."""
+    from sensorless.design.ipmsm_adaptive.derive import saliency
+
+    xi = saliency(drive.estimate.L_d, drive.estimate.L_q)
+    return (
+        f"{drive.file}: the drive's HF injection is off ([injection] u_c = 0 V; saliency "
+        f"2|L_q - L_d|/(L_q + L_d) = {xi:.3g}{': L_d = L_q gives no error signal (19)' if xi == 0 else ''})"
+    )
+
+
 def with_injection(drive: Any, sc: Scenario) -> Scenario:
     """The scenario with its injection switch resolved: not given, the drive's; on for a drive whose
     injection is off, SimulationError naming the key (a non-salient motor gives no error signal)."""
@@ -54,8 +65,6 @@ def with_injection(drive: Any, sc: Scenario) -> Scenario:
     if inj is None:
         inj = drive.injection.enabled
     elif inj and not drive.injection.enabled:
-        from sensorless.design.ipmsm_adaptive import injection_off
-
         raise SimulationError(
             f"{sc.file}: key 'observer.injection': true, but {injection_off(drive)}; "
             "run it with the injection off (sensorless simulate --injection off)"

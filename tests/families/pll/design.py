@@ -28,6 +28,13 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
+from sensorless.design.discrete import (
+    SampledLoop,
+    discrete_poles,
+    fixed_points,
+    pmsm_zoh_plant,
+    pmsm_zoh_sample,
+)
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTable, GainTableError
@@ -242,12 +249,17 @@ class PllLinearization(Linearization):
 
 NEWTON_STEPS = 12
 _N_X = N_OBS  # the observer's states (the runtime state adds the contract's counter)
-_IX_TS = [f.name for f in PARAMS].index("T_s")
+STATE_NAMES = ("z_d", "z_q", "delta", "w_i")  # rotor frame: z rotated by -theta, theta - theta_hat, w_i
+
+
+def _steady_current(T_e: Any, m: Any) -> Any:
+    """i_r of the true non-salient motor m = [R_s, L, psi_pm, p] at torque T_e: MTPA, i_d = 0."""
+    return ca.vertcat(0, T_e / (1.5 * m[3] * m[2]))
 
 
 def _steady_motor(w: ca.SX, T_e: ca.SX, m: ca.SX) -> tuple[ca.SX, ca.SX]:
     """(i_r, u_r) of the true non-salient motor m = [R_s, L, psi_pm, p] at speed w, torque T_e."""
-    i_r = ca.vertcat(0, T_e / (1.5 * m[3] * m[2]))  # MTPA of a non-salient motor: i_d = 0
+    i_r = _steady_current(T_e, m)
     u_r = m[0] * i_r + w * (J @ (m[1] * i_r + ca.vertcat(m[2], 0)))
     return i_r, u_r
 
@@ -257,45 +269,57 @@ def _to_stationary(x_r: ca.SX) -> ca.SX:
     return ca.vertcat(x_r[0:2], -x_r[2], x_r[3])
 
 
-@functools.cache
-def _equilibrium_function(discrete: bool, discretization: str) -> ca.Function:
-    """(w, T_e, motor[4], p) -> (x_r*, A, residual): Newton on the SX equations, then the Jacobian.
+def _state(y: Any, theta: Any, w: Any, plant: Any, p: Any) -> Any:
+    """The runtime state of the rotor-frame state y with the motor at theta."""
+    return ca.vertcat(rot(theta) @ y[0:2], theta - y[2], y[3])
 
-    Continuous: f_r(x_r) = 0 with f_r the observer (1)-(3) in the rotor frame. Discrete: x_r = F(x_r)
-    with F the runtime step from theta = 0 to theta = w T_s, in the rotor frame.
-    """
+
+def _rotor(x: Any, theta: Any) -> Any:
+    """The rotor-frame state of a runtime state with the motor at theta."""
+    return ca.vertcat(rot(theta).T @ x[0:2], wrap_angle(theta - x[2]), x[3])
+
+
+@functools.cache
+def sampled_loop(discretization: str) -> SampledLoop:
+    """The runtime step on the motor sampled under zero-order hold (design/discrete.py)."""
+    return SampledLoop(OBSERVER, discretization, None, STATE_NAMES, 4, pmsm_zoh_sample, _state, _rotor, (2,))
+
+
+@functools.cache
+def _equilibrium_function() -> ca.Function:
+    """(w, T_e, motor[4], p) -> (x_r*, A, residual): Newton on the SX equations, then the Jacobian of
+    the continuous observer (1)-(3) in the rotor frame, f_r(x_r) = 0."""
     x_r = ca.SX.sym("x_r", _N_X)
     w, T_e = ca.SX.sym("w"), ca.SX.sym("T_e")
     m, p = ca.SX.sym("motor", 4), ca.SX.sym("p", len(PARAMS))
     i_r, u_r = _steady_motor(w, T_e, m)  # at theta = 0: stationary = rotor frame
-    x = _to_stationary(x_r)
-    if discrete:
-        core = OBSERVER.core(discretization)
-        th1 = w * p[_IX_TS]
-        # the voltage held over the period (ZOH, stationary frame): the steady one at mid-period
-        x1, _ = core(ca.vertcat(x, 0), ca.vertcat(i_r, rot(th1 / 2) @ u_r), p, ca.SX(0, 1))  # 0 rejected
-        F = ca.vertcat(rot(-th1) @ x1[0:2], wrap_angle(th1 - x1[2]), x1[3])
-        G = F - x_r
-    else:
-        dx = rhs_function()(x, i_r, u_r, p)
-        G = ca.vertcat(dx[0:2] - w * (J @ x_r[0:2]), w - dx[2], dx[3])
-        F = G
+    dx = rhs_function()(_to_stationary(x_r), i_r, u_r, p)
+    G = ca.vertcat(dx[0:2] - w * (J @ x_r[0:2]), w - dx[2], dx[3])
     g_fn = ca.Function("G", [x_r, w, T_e, m, p], [G, ca.jacobian(G, x_r)])
-    # start: the exact EMF of the true motor, no angle error, w_i = w
-    e_r = w * ca.vertcat(0, m[2])
-    xk = ca.vertcat(e_r + p[3] * p[1] * i_r, 0, w)
+    xk = _start(w, T_e, m, p)
     for _ in range(NEWTON_STEPS):
         Gk, Jk = g_fn(xk, w, T_e, m, p)
         xk = xk - ca.solve(Jk, Gk)
     Gk, _ = g_fn(xk, w, T_e, m, p)
-    A = ca.substitute(ca.jacobian(F, x_r), x_r, xk)
+    A = ca.substitute(ca.jacobian(G, x_r), x_r, xk)
     return ca.Function(
-        f"pmsm_pll_equilibrium_{'d' if discrete else 'c'}",
+        "pmsm_pll_equilibrium_c",
         [w, T_e, m, p],
         [xk, ca.densify(A), ca.norm_inf(Gk)],
         ["w", "T_e", "motor", "p"],
         ["x", "A", "res"],
     )
+
+
+def _start(w: Any, T_e: Any, m: Any, p: Any) -> Any:
+    """Newton's start: the exact EMF of the true motor, no angle error, w_i = w."""
+    return ca.vertcat(w * ca.vertcat(0, m[2]) + p[3] * p[1] * _steady_current(T_e, m), 0, w)
+
+
+@functools.cache
+def _start_function() -> ca.Function:
+    w, T_e, m, p = ca.SX.sym("w"), ca.SX.sym("T_e"), ca.SX.sym("motor", 4), ca.SX.sym("p", len(PARAMS))
+    return ca.Function("pmsm_pll_start", [w, T_e, m, p], [_start(w, T_e, m, p)])
 
 
 def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinearization:
@@ -305,28 +329,25 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
     setup = runtime_setup(drive, gains)
     mt = drive.motor
     motor = np.array([mt.R_s, mt.L, mt.psi_pm, float(mt.p)])
-    out = {}
-    for discrete in (False, True):
-        fn = _equilibrium_function(discrete, setup.discretization)
-        x, A, res = evaluate_batch(fn, n, [W, T, motor, setup.p])
-        scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
-        ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
-        ev = np.full((n, _N_X), np.nan + 0j)
-        if ok.any():
-            ev[ok] = eigvals_batched(A[ok])
-        if discrete:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ev = np.log(ev.astype(complex)) / drive.control.T_s
-            theta_err = np.where(ok, x[:, 2, 0], np.nan)
-        out[discrete] = ev
+    x, A, res = evaluate_batch(_equilibrium_function(), n, [W, T, motor, setup.p])
+    scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
+    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
+    poles = np.full((n, _N_X), np.nan + 0j)
+    if ok.any():
+        poles[ok] = eigvals_batched(A[ok])
+    # the sampled observer that runs: the shared discrete-time analysis
+    i_r = np.column_stack([np.zeros(n), T / (1.5 * mt.p * mt.psi_pm)])
+    plant = pmsm_zoh_plant([mt.R_s, mt.L, mt.L, mt.psi_pm], W, i_r, drive.control.T_s)
+    y0 = evaluate_batch(_start_function(), n, [W, T, motor, setup.p])[0][:, :, 0]
+    y, Jd = fixed_points(sampled_loop(setup.discretization), y0, W, plant, setup.p)
     return PllLinearization(
         w=W,
         torque=T,
-        poles=out[False],
-        poles_discrete=out[True],
+        poles=poles,
+        poles_discrete=discrete_poles(Jd, drive.control.T_s, _N_X)[0],
         T_s=drive.control.T_s,
         torque_name="T_e",
-        theta_err=theta_err,
+        theta_err=y[:, 2],
     )
 
 
