@@ -180,13 +180,14 @@ def fixed_points(
     plant: np.ndarray,
     p: np.ndarray,
     gain: Sequence[float] = (),
-    theta: float = 0.0,
+    theta: float | np.ndarray = 0.0,
     scale: np.ndarray | None = None,
     iterations: int = 12,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Newton's method on y_next(y) = y from ``y0`` (N, n_y): (fixed points y, Jacobians J there).
 
-    ``plant`` is (N, n_plant) or one vector, ``p`` (n_p,) or (n_p, N), ``scale`` (N, n_y) the size of
+    ``plant`` is (N, n_plant) or one vector, ``p`` (n_p,) or (n_p, N), ``theta`` the motor angle (one or
+    (N,)), ``scale`` (N, n_y) the size of
     each coordinate (default 1 + |y0|). A point whose iteration does not settle (a residual above
     1e-9 of its scale), or that starts from NaN, gets NaN.
     """

@@ -38,9 +38,11 @@ from sensorless.design.batch import evaluate_batch
 from sensorless.design.batch import mapped as _mapped
 from sensorless.design.discrete import (
     discrete_poles,
+    fixed_points,
     map_function,
     orbit_function,
     rotor_function,
+    sensitivities,
     sensitivity_function,
 )
 from sensorless.design.expm import expm_batched
@@ -294,6 +296,24 @@ def analyze(
     th_w = ths[rows, 0, cols].reshape(n * mj)
     ctx_w = [np.repeat(w_f, mj)[None], np.repeat(plant, mj, axis=1), p_run, np.zeros(0)]
     y_w = evaluate_batch(rotor_function(loop), n * mj, [x_w, th_w])[0][:, :, 0].T
+    if math.isinf(period):
+        # sinusoidal EMF: in rotor coordinates the orbit is a fixed point of the one-step map, found by
+        # Newton's method from the settled state (design/discrete.py); the errors are its own, no ripple
+        y_fp = fixed_points(loop, np.where(ok[:, None], y_w.T, np.nan), w_f, plant.T, p_run, theta=th_w)[0]
+        ok &= np.isfinite(y_fp).all(axis=1)
+        y_w = np.nan_to_num(y_fp).T
+        if errors:
+            out = sensitivities(loop, y_fp, w_f, plant.T, p_run, theta=th_w)["out"]
+            th1 = th_w + w_f * T_s  # the motor's angle at the samples
+            mean = np.stack(
+                [
+                    w_f - out[:, out_of["w_hat"]],
+                    np.angle(np.exp(1j * (th1 - out[:, out_of["theta_hat"]]))),
+                    T_e - out[:, out_of["T_L_hat"]],
+                ]
+            )
+            mean[:, ~ok] = np.nan
+            ptp = np.where(ok, 0.0, np.nan) * np.ones((3, 1))
     Jy = evaluate_batch(map_function(loop), n * mj, [y_w, th_w, *ctx_w])[1]
     nd = Jy.shape[1]
     Jy = Jy.reshape(n, mj, nd, nd)
