@@ -249,17 +249,11 @@ class PllLinearization(Linearization):
 
 NEWTON_STEPS = 12
 _N_X = N_OBS  # the observer's states (the runtime state adds the contract's counter)
-STATE_NAMES = ("z_d", "z_q", "delta", "w_i")  # rotor frame: z rotated by -theta, theta - theta_hat, w_i
-
-
-def _steady_current(T_e: Any, m: Any) -> Any:
-    """i_r of the true non-salient motor m = [R_s, L, psi_pm, p] at torque T_e: MTPA, i_d = 0."""
-    return ca.vertcat(0, T_e / (1.5 * m[3] * m[2]))
 
 
 def _steady_motor(w: ca.SX, T_e: ca.SX, m: ca.SX) -> tuple[ca.SX, ca.SX]:
     """(i_r, u_r) of the true non-salient motor m = [R_s, L, psi_pm, p] at speed w, torque T_e."""
-    i_r = _steady_current(T_e, m)
+    i_r = ca.vertcat(0, T_e / (1.5 * m[3] * m[2]))  # MTPA of a non-salient motor: i_d = 0
     u_r = m[0] * i_r + w * (J @ (m[1] * i_r + ca.vertcat(m[2], 0)))
     return i_r, u_r
 
@@ -269,20 +263,19 @@ def _to_stationary(x_r: ca.SX) -> ca.SX:
     return ca.vertcat(x_r[0:2], -x_r[2], x_r[3])
 
 
-def _state(y: Any, theta: Any, w: Any, plant: Any, p: Any) -> Any:
-    """The runtime state of the rotor-frame state y with the motor at theta."""
-    return ca.vertcat(rot(theta) @ y[0:2], theta - y[2], y[3])
-
-
-def _rotor(x: Any, theta: Any) -> Any:
-    """The rotor-frame state of a runtime state with the motor at theta."""
-    return ca.vertcat(rot(theta).T @ x[0:2], wrap_angle(theta - x[2]), x[3])
-
-
 @functools.cache
 def sampled_loop(discretization: str) -> SampledLoop:
-    """The runtime step on the motor sampled under zero-order hold (design/discrete.py)."""
-    return SampledLoop(OBSERVER, discretization, None, STATE_NAMES, 4, pmsm_zoh_sample, _state, _rotor, (2,))
+    """The runtime step on the motor sampled under zero-order hold (design/discrete.py), in the rotor
+    frame y = [z rotated by -theta, delta = theta - theta_hat, w_i]."""
+
+    def state(y: Any, theta: Any, w: Any, plant: Any, p: Any) -> Any:
+        return ca.vertcat(rot(theta) @ y[0:2], theta - y[2], y[3])
+
+    def rotor(x: Any, theta: Any) -> Any:
+        return ca.vertcat(rot(theta).T @ x[0:2], wrap_angle(theta - x[2]), x[3])
+
+    names = ("z_d", "z_q", "delta", "w_i")
+    return SampledLoop(OBSERVER, discretization, None, names, 4, pmsm_zoh_sample, state, rotor, (2,))
 
 
 @functools.cache
@@ -296,7 +289,9 @@ def _equilibrium_function() -> ca.Function:
     dx = rhs_function()(_to_stationary(x_r), i_r, u_r, p)
     G = ca.vertcat(dx[0:2] - w * (J @ x_r[0:2]), w - dx[2], dx[3])
     g_fn = ca.Function("G", [x_r, w, T_e, m, p], [G, ca.jacobian(G, x_r)])
-    xk = _start(w, T_e, m, p)
+    # start: the exact EMF of the true motor, no angle error, w_i = w
+    e_r = w * ca.vertcat(0, m[2])
+    xk = ca.vertcat(e_r + p[3] * p[1] * i_r, 0, w)
     for _ in range(NEWTON_STEPS):
         Gk, Jk = g_fn(xk, w, T_e, m, p)
         xk = xk - ca.solve(Jk, Gk)
@@ -309,17 +304,6 @@ def _equilibrium_function() -> ca.Function:
         ["w", "T_e", "motor", "p"],
         ["x", "A", "res"],
     )
-
-
-def _start(w: Any, T_e: Any, m: Any, p: Any) -> Any:
-    """Newton's start: the exact EMF of the true motor, no angle error, w_i = w."""
-    return ca.vertcat(w * ca.vertcat(0, m[2]) + p[3] * p[1] * _steady_current(T_e, m), 0, w)
-
-
-@functools.cache
-def _start_function() -> ca.Function:
-    w, T_e, m, p = ca.SX.sym("w"), ca.SX.sym("T_e"), ca.SX.sym("motor", 4), ca.SX.sym("p", len(PARAMS))
-    return ca.Function("pmsm_pll_start", [w, T_e, m, p], [_start(w, T_e, m, p)])
 
 
 def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinearization:
@@ -335,10 +319,10 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
     poles = np.full((n, _N_X), np.nan + 0j)
     if ok.any():
         poles[ok] = eigvals_batched(A[ok])
-    # the sampled observer that runs: the shared discrete-time analysis
+    # the sampled observer that runs (the shared analysis), from the continuous equilibrium
     i_r = np.column_stack([np.zeros(n), T / (1.5 * mt.p * mt.psi_pm)])
     plant = pmsm_zoh_plant([mt.R_s, mt.L, mt.L, mt.psi_pm], W, i_r, drive.control.T_s)
-    y0 = evaluate_batch(_start_function(), n, [W, T, motor, setup.p])[0][:, :, 0]
+    y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
     y, Jd = fixed_points(sampled_loop(setup.discretization), y0, W, plant, setup.p)
     return PllLinearization(
         w=W,
