@@ -83,8 +83,9 @@ class SampledLoop:
         }
 
 
-def _period(loop: SampledLoop, s: dict[str, Sym], noise: bool = False) -> dict[str, Sym]:
-    """One period from motor angle theta: the map y -> y_next with its derivatives (dense SX)."""
+def _period(loop: SampledLoop, s: dict[str, Sym], derivatives: bool = False) -> dict[str, Sym]:
+    """One period from motor angle theta: the map y -> y_next (SX of the symbols ``s``) and, with
+    ``derivatives``, the step's outputs and the derivatives of :func:`sensitivity_function`."""
     obs = loop.observer
     n_x = len(obs.state) - 1
     x = ca.SX.sym("x", n_x)
@@ -94,7 +95,7 @@ def _period(loop: SampledLoop, s: dict[str, Sym], noise: bool = False) -> dict[s
     x_next, out = loop.step()(ca.vertcat(x, 0), m, p, gain)
     y_next = loop.rotor(x_next[:n_x], theta + w * T_s)
     per = {"y_next": y_next}
-    if noise:
+    if derivatives:
         per |= {"out": out, "Jx": ca.jacobian(y_next, x), "Jm": ca.jacobian(y_next, m)}
         per["Dm"] = ca.jacobian(out, m)
     f = ca.Function("period", [x, m, *s.values()], list(per.values()))
@@ -119,7 +120,7 @@ def sensitivity_function(loop: SampledLoop) -> ca.Function:
     y_next with respect to the runtime state (without the counter) and the samples ``meas``, and of
     the outputs with respect to ``meas``: where a perturbation of either enters the map."""
     s = loop.symbols()
-    per = _period(loop, s, noise=True)
+    per = _period(loop, s, derivatives=True)
     names = ["out", "Jx", "Jm", "Dm"]
     outs = ca.cse([ca.densify(per[k]) for k in names])
     name = f"{loop.observer.name}_one_step_sens_{loop.discretization.replace('-', '_')}"
