@@ -72,8 +72,3 @@ def load_drive(spec: str | Path) -> Any:
             f"{spec_s}: no such drive file, and not a preset (presets: {', '.join(sorted(presets))})"
         )
     return load_drive_text(read_text(path), str(path))
-
-
-def per_unit_speed_text(drive: Any, w: float) -> str:
-    """'0.0200 p.u. (9.42 rad/s)' for messages."""
-    return f"{w / drive.w_base:.4f} p.u. ({w:.4g} rad/s)"

@@ -30,9 +30,10 @@ def read_text(path: Path) -> str:
         raise DriveFileError(str(path), "(file)", f"cannot read: {e.strerror}") from None
 
 
-def q(dim: str, check: str | None = "positive", doc: str = "") -> Any:
-    """A dataclass field holding a quantity of dimension ``dim`` (SI), validated by ``check``."""
-    return field(metadata={"dim": dim, "check": check, "doc": doc})
+def q(dim: str, check: str | None = "positive", doc: str = "", default: Any = dataclasses.MISSING) -> Any:
+    """A dataclass field holding a quantity of dimension ``dim`` (SI), validated by ``check``;
+    ``default`` for a key that may be left out (``load_section(optional=...)``)."""
+    return field(default=default, metadata={"dim": dim, "check": check, "doc": doc})
 
 
 _CHECKS: dict[str, tuple[Callable[[float], bool], str]] = {
@@ -60,8 +61,12 @@ def load_section(
     section: str,
     relative: Mapping[str, float] | None = None,
     skip: tuple[str, ...] = (),
+    optional: tuple[str, ...] = (),
 ) -> Any:
-    """Build dataclass ``cls`` from a TOML table, strictly; ``relative`` maps relative units to SI."""
+    """Build dataclass ``cls`` from a TOML table, strictly; ``relative`` maps relative units to SI.
+
+    Keys in ``skip`` are accepted and left to the caller; keys in ``optional`` are read like the
+    others when given and keep the field's default otherwise."""
     relative = relative or {}
     names = [f.name for f in dataclasses.fields(cls) if f.name not in skip]
     for k in table:
@@ -75,6 +80,8 @@ def load_section(
         key = f"{section}.{f.name}"
         dim = f.metadata.get("dim")
         if f.name not in table:
+            if f.name in optional:
+                continue
             raise DriveFileError(file, key, f"missing key ({f.metadata.get('doc', dim)})")
         raw = table[f.name]
         if dim == "choice":
@@ -127,6 +134,29 @@ def positive(t: Mapping[str, Any], k: str, dim: str, file: str, section: str) ->
     if not x > 0:
         raise DriveFileError(file, f"{section}.{k}", f"non-physical value {t[k]!r}: must be > 0")
     return x
+
+
+def nonempty_list(table: Mapping[str, Any], key: str, file: str, section: str) -> list[Any]:
+    """The non-empty list ``table[key]``; DriveFileError naming ``section.key`` otherwise."""
+    full = f"{section}.{key}"
+    if key not in table:
+        raise DriveFileError(file, full, "missing key")
+    v = table[key]
+    if not isinstance(v, list) or not v:
+        raise DriveFileError(file, full, f"expected a non-empty list, got {v!r}")
+    return v
+
+
+def quantities(table: Mapping[str, Any], key: str, dim: str, file: str, section: str) -> tuple[float, ...]:
+    """The non-empty list ``table[key]`` of quantities of dimension ``dim``, in SI; each is named
+    ``section.key[k]`` in errors."""
+    out = []
+    for k, v in enumerate(nonempty_list(table, key, file, section)):
+        x, rel = parse_quantity(v, dim, file=file, key=f"{section}.{key}[{k}]")
+        if rel is not None:
+            raise DriveFileError(file, f"{section}.{key}[{k}]", f"unit '{rel}' cannot be resolved here")
+        out.append(x)
+    return tuple(out)
 
 
 def sampling_frequency(inv: Mapping[str, Any], ctl: Mapping[str, Any], file: str) -> tuple[float, str]:
@@ -210,6 +240,11 @@ class DriveDocument:
                     lines += [comment, text]
             lines += [f"# {o}" for o in self.optional.get(name, [])]
         return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def g6(x: float) -> str:
+    """A number with 6 significant digits (the precision of derived values)."""
+    return f"{x:.6g}"
 
 
 def toml_value(v: Any) -> str:

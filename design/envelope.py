@@ -5,19 +5,23 @@ speeds (p.u. of the drive's base, per direction) x torques (multiples of T_N), c
 of the PMSM estimates (R̂s, L̂d, L̂q, ψ̂pm) to stay stable under.
 
 Defaults: |w_m| in [0.05, 1] p.u. in both directions x T_e in
-{-T_N, 0, T_N}, no decay-rate or gain-magnitude constraint, no parameter-error scenarios. Loading is
+{-T_N, 0, T_N}, no decay-rate constraint, no parameter-error scenarios, no noise limit. Loading is
 strict like the rest of the drive file: unknown keys, wrong units or types and inconsistent values
 raise DriveFileError naming the file and the key. Speeds are stored in p.u. of the drive's base
 speed (the edge unit of the command line and the tables) and converted by :meth:`Envelope.speeds`.
+
+What a family's gain laws add (bounds of their own gains, options of their parameterization) is not
+here: the family declares those ``[tuning]`` keys and their reader (:class:`LawKeys`), and the loaded
+values ride along as ``TuningSettings.law`` (:class:`LawSettings`), read only by the family's own code.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from sensorless.design.units import DriveFileError, check_magnitude, parse_number, parse_quantity
@@ -75,22 +79,53 @@ class Envelope:
         )
 
 
+class LawSettings(Protocol):
+    """The settings a family's gain laws add to the shared ones (its own ``[tuning]`` keys)."""
+
+    def check(self, file: str, prefix: str = "tuning.") -> None:
+        """Raise DriveFileError for an inconsistent value (the key named with ``prefix``)."""
+        ...
+
+    def constraints(self) -> dict[str, Any]:
+        """Entries of the gain table's ``envelope.constraints`` (SI values, keys with their unit)."""
+        ...
+
+
+@dataclass(frozen=True)
+class NoLawSettings:
+    """The law settings of a family whose laws add none."""
+
+    def check(self, file: str, prefix: str = "tuning.") -> None:
+        """Nothing to check."""
+
+    def constraints(self) -> dict[str, Any]:
+        """No entries."""
+        return {}
+
+
+@dataclass(frozen=True)
+class LawKeys:
+    """The ``[tuning]`` keys a family's gain laws add, and their reader (``load_tuning``)."""
+
+    keys: tuple[str, ...]
+    # (the [tuning] table, file, relative units as in load_tuning) -> the law's settings; reads only ``keys``
+    load: Callable[[Mapping[str, Any], str, Mapping[str, float]], LawSettings]
+
+
 @dataclass(frozen=True)
 class TuningSettings:
     """Envelope, constraints and options of ``sensorless tune`` (drive TOML ``[tuning]``)."""
 
     envelope: Envelope = Envelope()
     min_decay: float = 0.0  # required decay rate -max Re(p) at every envelope point [1/s]; 0: off
-    lambda_max: float | None = None  # bound on |lambda1|, |lambda2| [ohm]; None: family's box
     errors: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # relative errors of the estimates
-    tune_alpha_fo: bool = False  # also tune the adaptation bandwidth alpha_fo (10)
-    breakpoints: int = 11  # schedule family: breakpoints per direction (plus one at zero speed)
-    smoothing: float = 1e-3  # weight of the family's regularizer (schedule roughness) against damping
+    smoothing: float = 1e-3  # weight of the law's regularizer (if it has one) against damping
     # noise limits: (noise output, limit in SI) pairs, e.g. (("position", 0.001),) [rad]; () none
     max_noise: tuple[tuple[str, float], ...] = ()
     pareto: int = 0  # points of the damping-versus-noise front to compute (0: none)
     pareto_output: str = ""  # noise output of the front ("": the first limited one, else the family's first)
     bound: bool = True  # compute the pointwise bound (the certificate) on the dense grid
+    law: LawSettings = NoLawSettings()  # what the family's gain laws add (LawKeys)
 
     def noise_limits(self, outputs: tuple[str, ...]) -> np.ndarray | None:
         """Limits per noise output (inf: none), in the order of ``outputs``; None if no limit is set."""
@@ -118,13 +153,9 @@ class TuningSettings:
             raise bad("dense_factor", f"the re-verification grid must be >= 4x denser, got {e.dense_factor}")
         if self.min_decay < 0:
             raise bad("min_decay", f"must be >= 0, got {self.min_decay:g}")
-        if self.lambda_max is not None and self.lambda_max <= 0:
-            raise bad("lambda_max", f"must be > 0, got {self.lambda_max:g}")
         for k, v in zip(ESTIMATE_KEYS, self.errors, strict=True):
             if not 0 <= v < 0.9:
                 raise bad(f"errors.{k}", f"must be in [0 %, 90 %), got {100 * v:g} %")
-        if self.breakpoints < 2:
-            raise bad("breakpoints", f"need at least 2 breakpoints per direction, got {self.breakpoints}")
         if not 0 <= self.smoothing < 0.1:
             raise bad("smoothing", f"must be in [0, 0.1), got {self.smoothing:g}")
         for name, v in self.max_noise:
@@ -136,6 +167,7 @@ class TuningSettings:
             raise bad("pareto", f"need 0 (none) or at least 2 points, got {self.pareto}")
         if self.pareto_output and self.pareto_output not in NOISE_OUTPUTS:
             raise bad("pareto_output", f"unknown noise output (allowed: {', '.join(NOISE_OUTPUTS)})")
+        self.law.check(file, prefix)
 
 
 _KEYS = (
@@ -146,17 +178,14 @@ _KEYS = (
     "torques",
     "dense_factor",
     "min_decay",
-    "lambda_max",
     "errors",
-    "tune_alpha_fo",
-    "breakpoints",
     "smoothing",
     "max_noise",
 )
 
 
 def parse_relative(value: Any, dim: str, rel: Mapping[str, float], file: str, key: str) -> float:
-    """A quantity that may carry a relative unit (``pu``, ``R_s_hat``, ``T_N``); returns SI."""
+    """A quantity that may carry a relative unit (``T_N``, or a unit of ``rel``: ``pu``, ...); returns SI."""
     if dim == "torque" and isinstance(value, str) and value.strip().endswith("T_N"):
         num = value.strip()[:-3].strip() or "1"
         return check_magnitude(parse_number(num, file=file, key=key) * rel["T_N"], value, file=file, key=key)
@@ -168,18 +197,22 @@ def parse_relative(value: Any, dim: str, rel: Mapping[str, float], file: str, ke
     return x
 
 
-def _int(value: Any, file: str, key: str) -> int:
+def read_int(value: Any, file: str, key: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise DriveFileError(file, key, f"expected an integer, got {value!r}")
     return value
 
 
-def load_tuning(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -> TuningSettings:
+def load_tuning(
+    table: Mapping[str, Any], file: str, rel: Mapping[str, float], law: LawKeys | None = None
+) -> TuningSettings:
     """Strictly load a ``[tuning]`` table; absent keys keep their defaults. ``rel`` resolves the
-    relative units: ``pu`` (base speed, rad/s), ``R_s_hat`` (ohm), ``T_N`` (N m)."""
+    relative units: ``pu`` (base speed, rad/s), ``T_N`` (N m) and any the family adds. ``law``: the keys
+    the family's gain laws add and their reader (None: none)."""
+    allowed = _KEYS + (law.keys if law is not None else ())
     for k in table:
-        if k not in _KEYS:
-            raise DriveFileError(file, f"tuning.{k}", f"unknown key (allowed: {', '.join(_KEYS)})")
+        if k not in allowed:
+            raise DriveFileError(file, f"tuning.{k}", f"unknown key (allowed: {', '.join(allowed)})")
     env: dict[str, Any] = {}
     out: dict[str, Any] = {}
     w_base, T_N = rel["pu"], rel["T_N"]
@@ -188,7 +221,7 @@ def load_tuning(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -
             env[k] = parse_relative(table[k], "angular", rel, file, f"tuning.{k}") / w_base
     for k in ("speeds", "dense_factor"):
         if k in table:
-            env[k] = _int(table[k], file, f"tuning.{k}")
+            env[k] = read_int(table[k], file, f"tuning.{k}")
     if "directions" in table:
         if not isinstance(table["directions"], str):
             raise DriveFileError(file, "tuning.directions", f"expected a string, got {table['directions']!r}")
@@ -204,8 +237,6 @@ def load_tuning(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -
         )
     if "min_decay" in table:
         out["min_decay"] = parse_relative(table["min_decay"], "rate", rel, file, "tuning.min_decay")
-    if "lambda_max" in table:
-        out["lambda_max"] = parse_relative(table["lambda_max"], "resistance", rel, file, "tuning.lambda_max")
     if "errors" in table:
         et = table["errors"]
         if not isinstance(et, dict):
@@ -218,12 +249,6 @@ def load_tuning(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -
                 )
             errs[ESTIMATE_KEYS.index(k)] = parse_relative(v, "fraction", rel, file, f"tuning.errors.{k}")
         out["errors"] = tuple(errs)
-    if "tune_alpha_fo" in table:
-        if not isinstance(table["tune_alpha_fo"], bool):
-            raise DriveFileError(file, "tuning.tune_alpha_fo", "expected true or false")
-        out["tune_alpha_fo"] = table["tune_alpha_fo"]
-    if "breakpoints" in table:
-        out["breakpoints"] = _int(table["breakpoints"], file, "tuning.breakpoints")
     if "smoothing" in table:
         out["smoothing"] = parse_relative(table["smoothing"], "dimensionless", rel, file, "tuning.smoothing")
     if "max_noise" in table:
@@ -240,6 +265,8 @@ def load_tuning(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -
                 )
             lims.append((k, parse_relative(v, NOISE_DIMS[k], rel, file, f"tuning.max_noise.{k}")))
         out["max_noise"] = tuple(lims)
+    if law is not None:
+        out["law"] = law.load(table, file, rel)
     settings = TuningSettings(envelope=dataclasses.replace(Envelope(), **env), **out)
     settings.check(file)
     return settings

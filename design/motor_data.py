@@ -31,6 +31,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from sensorless.design.pmsm_schema import PmsmMotor
 from sensorless.design.units import DriveFileError, parse_quantity
 
 EMF_CONVENTIONS = ("line-line peak", "line-line rms", "phase peak", "phase rms")
@@ -83,11 +84,6 @@ def emf_to_psi(kE: float, convention: str, p: int) -> float:
     return kE * _EMF_TO_PHASE_PEAK[convention] / p
 
 
-def psi_to_emf(psi_pm: float, convention: str, p: int) -> float:
-    """The inverse of :func:`emf_to_psi`: kE [V per mechanical rad/s] in ``convention``."""
-    return psi_pm * p / _EMF_TO_PHASE_PEAK[convention]
-
-
 def kv_to_psi(KV: float, p: int) -> float:
     """PM flux [V s] from the speed constant ``KV`` [mechanical rad/s per volt of line-to-line peak
     back-EMF]: kE (line-line peak) = 1/KV."""
@@ -101,23 +97,12 @@ def kt_to_psi(kT: float, convention: str, p: int) -> float:
     return per_peak / (1.5 * p)
 
 
-def psi_to_kt(psi_pm: float, convention: str, p: int) -> float:
-    """The inverse of :func:`kt_to_psi`: kT [N m/A] per ampere rms or peak."""
-    per_peak = 1.5 * p * psi_pm
-    return per_peak * math.sqrt(2) if convention == "rms" else per_peak
-
-
 @dataclass(frozen=True)
-class MotorData:
-    """The per-phase model quantities (SI, equivalent wye) of a ``[motor]`` table and where each came
-    from: ``source`` maps each to the key the user wrote, ``rules`` to the conversion in words."""
+class MotorData(PmsmMotor):
+    """The motor record (design/pmsm_schema.py) of a ``[motor]`` table in datasheet terms, with where
+    each value came from: ``source`` maps each to the key the user wrote, ``rules`` to the conversion in
+    words (the comments of the complete drive file ``sensorless init`` writes)."""
 
-    p: int
-    R_s: float
-    L_d: float
-    L_q: float
-    psi_pm: float
-    J: float
     source: Mapping[str, str] = field(default_factory=dict)
     rules: Mapping[str, str] = field(default_factory=dict)
 
@@ -301,13 +286,13 @@ def _mtpa_function() -> Any:
     return ca.Function("mtpa", [T, m, p], [mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), p)])
 
 
-def mtpa_torque_current(T: float, motor: MotorData) -> tuple[float, float]:
+def mtpa_torque_current(T: float, motor: PmsmMotor) -> tuple[float, float]:
     """(i_d, i_q) [A, peak] of the MTPA current for torque ``T`` [N m] (symbolic/pmsm.py, evaluated)."""
-    i = _mtpa_function()(T, [motor.R_s, motor.L_d, motor.L_q, motor.psi_pm], motor.p)
+    i = _mtpa_function()(T, motor.vector(), motor.p)
     return float(i[0]), float(i[1])
 
 
-def mtpa_torque(i_peak: float, motor: MotorData) -> float:
+def mtpa_torque(i_peak: float, motor: PmsmMotor) -> float:
     """MTPA torque [N m] at the current amplitude ``i_peak`` [A] (bisection on the torque)."""
     hi = 1.5 * motor.p * motor.psi_pm * i_peak * 4 + 1e-12
     if abs(motor.L_q - motor.L_d) > 0:
@@ -323,9 +308,20 @@ def mtpa_torque(i_peak: float, motor: MotorData) -> float:
     return lo
 
 
-def steady_voltage(motor: MotorData, w: float, i_d: float, i_q: float) -> float:
+@functools.cache
+def _voltage_function() -> Any:
+    """casadi.Function (w, [i_d, i_q], [R_s, L_d, L_q, psi_pm]) -> |u_s|: the steady stator voltage,
+    eq. (1) with dpsi/dt = 0 in rotor coordinates and the flux of (2) (symbolic/pmsm.py)."""
+    import casadi as ca
+    from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, stator_voltage
+
+    w, i, m = ca.SX.sym("w"), ca.SX.sym("i", 2), ca.SX.sym("motor", 4)
+    par = PmsmParams.of(m)
+    u = stator_voltage(i, 0, flux_from_current(i, par), w, par.R_s)
+    return ca.Function("steady_voltage", [w, i, m], [ca.norm_2(u)])
+
+
+def steady_voltage(motor: PmsmMotor, w: float, i_d: float, i_q: float) -> float:
     """Peak phase voltage [V] of the motor in steady state at electrical speed ``w`` and current
-    (i_d, i_q) [A peak]: u = R i + w J psi, psi = (L_d i_d + psi_pm, L_q i_q)."""
-    u_d = motor.R_s * i_d - w * motor.L_q * i_q
-    u_q = motor.R_s * i_q + w * (motor.L_d * i_d + motor.psi_pm)
-    return math.hypot(u_d, u_q)
+    (i_d, i_q) [A peak] (symbolic/pmsm.py ``stator_voltage``, evaluated)."""
+    return float(_voltage_function()(w, [i_d, i_q], motor.vector()))

@@ -1,11 +1,16 @@
-"""Drive-file sections that are the same for every PMSM drive, whatever its observer: one definition.
+"""The PMSM motor record and the drive-file sections every PMSM drive shares, whatever its observer.
 
-A family whose observer runs on a PMSM in the shared drive loop (design/pmsm_drive.py) reads these
-from here instead of writing them again: the ``[control]`` section of that loop (:class:`PmsmControl`,
-which a family may extend with keys of its own) and the ``[motor]`` section's pole pairs
-(:func:`load_motor`). What depends on the family's motor model stays in the family: its ``[motor]``
-and ``[estimate]`` keys (L_d and L_q of a salient motor, or one L), its ``[rating]`` and its own
-sections. Loading is the strict loading of every drive file (design/drive_file.py).
+A PMSM in the models (symbolic/pmsm.py; Piippo, Hinkkanen, Luomi (2008) eqs. (1)-(3)) is the
+per-phase equivalent wye in the amplitude-invariant dq frame: :class:`PmsmMotor` (``[motor]`` of a
+complete drive file: pole pairs, R_s, L_d, L_q, psi_pm, J) and the observer's and controllers'
+model of it, :class:`PmsmEstimate` (``[estimate]``). A drive file may give ``[motor]`` in datasheet
+terms instead (design/motor_data.py ``read_motor``, which returns the same record with where each
+value came from), and :class:`PmsmControl` is the ``[control]`` of the shared drive loop
+(design/pmsm_drive.py; a family may extend it with keys of its own). Loading is the strict loading
+of every drive file (design/drive_file.py). What is a family's own stays in its folder: its
+``[rating]`` (which nameplate keys it takes and derives), its observer's sections, and a motor model
+of its own (the EMF series of design/pmac_reduced_order/, read from datasheet terms with the same
+``read_motor``).
 """
 
 from __future__ import annotations
@@ -19,6 +24,43 @@ from sensorless.design.units import DriveFileError
 
 
 @dataclass(frozen=True)
+class PmsmMotor:
+    """The true motor, per phase of the equivalent wye, SI: eqs. (1)-(3) of the PMSM model."""
+
+    p: int = q("integer", doc="pole pairs")
+    R_s: float = q("resistance", doc="stator resistance [ohm]")
+    L_d: float = q("inductance", doc="d-axis inductance [H]")
+    L_q: float = q("inductance", doc="q-axis inductance [H]")
+    psi_pm: float = q("flux", doc="permanent-magnet flux linkage [V s]")
+    J: float = q("inertia", doc="total moment of inertia [kg m^2]")
+
+    def vector(self) -> list[float]:
+        """[R_s, L_d, L_q, psi_pm]: the electrical parameter vector the CasADi functions take
+        (symbolic/pmsm.py ``PmsmParams.of``)."""
+        return [self.R_s, self.L_d, self.L_q, self.psi_pm]
+
+
+@dataclass(frozen=True)
+class PmsmEstimate:
+    """The observer's and the controllers' model of the motor (R̂s, L̂d, L̂q, ψ̂pm), kept apart from the
+    true motor so that parameter errors can be studied."""
+
+    R_s: float = q("resistance", doc="estimated stator resistance [ohm]")
+    L_d: float = q("inductance", doc="estimated d-axis inductance [H]")
+    L_q: float = q("inductance", doc="estimated q-axis inductance [H]")
+    psi_pm: float = q("flux", doc="estimated PM flux linkage [V s]")
+
+    def vector(self) -> list[float]:
+        """[R̂s, L̂d, L̂q, ψ̂pm]."""
+        return [self.R_s, self.L_d, self.L_q, self.psi_pm]
+
+
+def saliency(L_d: float, L_q: float) -> float:
+    """2 |L_q - L_d| / (L_q + L_d): 0 for a non-salient motor, 0.35 for the IPMSM of Piippo et al. (2008)."""
+    return 2 * abs(L_q - L_d) / (L_q + L_d)
+
+
+@dataclass(frozen=True)
 class PmsmControl:
     """Sampling and the controllers of the shared PMSM drive loop (design/pmsm_drive.py)."""
 
@@ -29,10 +71,15 @@ class PmsmControl:
     u_dc: float = q("voltage", doc="nominal DC-link voltage [V]")
 
 
-def load_motor(cls: type, data: Mapping[str, Any], file: str) -> Any:
-    """The ``[motor]`` section of ``data`` as the family's dataclass ``cls``, whose field ``p`` (the
-    pole pairs) must be at least 1; DriveFileError naming the file and the key otherwise."""
-    motor = load_section(cls, table(data, "motor", file), file, "motor")
+def load_motor(data: Mapping[str, Any], file: str) -> PmsmMotor:
+    """The ``[motor]`` section of a complete drive file (pole pairs at least 1); DriveFileError naming
+    the file and the key otherwise."""
+    motor = load_section(PmsmMotor, table(data, "motor", file), file, "motor")
     if motor.p < 1:
         raise DriveFileError(file, "motor.p", f"non-physical value {motor.p}: must be >= 1")
     return motor
+
+
+def load_estimate(data: Mapping[str, Any], file: str) -> PmsmEstimate:
+    """The ``[estimate]`` section of a complete drive file."""
+    return load_section(PmsmEstimate, table(data, "estimate", file), file, "estimate")

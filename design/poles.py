@@ -24,6 +24,10 @@ import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.symbolic.linalg import charpoly as charpoly_sx
 
+# The damping ratio a stability report requires by default (``sensorless report --min-damping``, every
+# family's report); ``sensorless tune`` warns (exit status 3) when the best gains it finds stay below it.
+MIN_DAMPING = 0.2
+
 
 # --------------------------------------------------------------------------------------------------
 # Metrics

@@ -21,6 +21,7 @@ from typing import Any
 from sensorless.design.family import CapabilityError, ObserverFamily
 from sensorless.design.registry import families
 from sensorless.reports.cli.common import COUNT, FINITE
+from sensorless.tuning.family import TuneSettings
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ class ReportHooks:
     analyze_check: Callable[[Any, argparse.Namespace], None] | None = None
     # sensorless tune: options, (drive, args, tunable) -> settings, (drive, settings) -> one line
     tune_options: tuple[Option, ...] = ()
-    tune_settings: Callable[[Any, argparse.Namespace, Any], Any] | None = None
+    tune_settings: Callable[[Any, argparse.Namespace, Any], TuneSettings] | None = None
     describe_envelope: Callable[[Any, Any], str] | None = None
     # sensorless report: (drive, table or None, table file, min_damping, resolution, progress) -> Report
     report: Callable[..., Any] | None = None

@@ -56,12 +56,6 @@ def current_from_flux(psi_s: Sym, p: PmsmParams) -> Sym:
     return ca.vertcat((psi_s[0] - p.psi_pm) / p.L_d, psi_s[1] / p.L_q)
 
 
-def current_in_frame(psi_f: Sym, theta_tilde: Sym, p: PmsmParams) -> Sym:
-    """Current in a frame at angle theta_m - theta_tilde from the flux in that frame, eqs. (2), (24)."""
-    T = rot(theta_tilde)
-    return T @ current_from_flux(T.T @ psi_f, p)
-
-
 def stator_voltage(i_s: Sym, dpsi_s: Sym, psi_s: Sym, w_f: Sym, R_s: Sym) -> Sym:
     """u_s = R_s i_s + dpsi_s/dt + w_f J psi_s, eq. (1) in a frame rotating at w_f (rad/s).
 

@@ -1,1 +1,4 @@
-"""Tuning: observer gain optimization and gain tables, and the ``sensorless`` command line."""
+"""Tuning: observer gains optimized over an operating envelope.
+
+The shared global phase, max-min damping NLP and pointwise bound, and the families' tuning hooks.
+"""

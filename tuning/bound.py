@@ -1,7 +1,7 @@
 """The pointwise bound: at each envelope speed, the best worst-case damping that *any* gain reaches there.
 
-A gain law (law (16), a schedule, ...) gives at each speed some value of the free gains of the
-observer at that speed (the adaptive observer: lambda1, lambda2). At an operating point the closed
+A gain law gives at each speed some value of the observer's free gains at that speed (the parameters
+of the law's pointwise model, ``TuningModel.pointwise``). At an operating point the closed
 loop depends on the law only through that value (and its slope, which does not enter the
 linearization at an equilibrium of exact estimates: tuning/model.py). So at each speed w no law does
 better than
@@ -10,7 +10,7 @@ better than
                subject to decay(w, T, g) >= the decay floor (and the noise limit) at every T,
 
 and no law's worst damping over the envelope exceeds min_w bound(w): the certificate that a tuned
-law is (near) optimal, and the measure of how far each family is from the best any schedule can do.
+law is (near) optimal, and the measure of how far each law is from the best any law can do.
 Where no gain meets the floor at some speed, the envelope is infeasible for every law, and those
 speeds are the evidence.
 
@@ -122,16 +122,6 @@ def _pattern_search(
         f[ia] = fp[better, k[better]]
         h[act[~better]] /= 2
     return x, f
-
-
-def _best_per_speed(x, f, idx, S):
-    """The best row per speed index."""
-    best_f = np.full(S, -np.inf)
-    best_x = np.zeros((S, x.shape[1]))
-    for r in np.argsort(f):  # ascending: later (better) rows overwrite
-        best_f[idx[r]] = f[r]
-        best_x[idx[r]] = x[r]
-    return best_x, best_f
 
 
 def pointwise_bound(
@@ -277,7 +267,7 @@ def with_witness(
 ) -> Bound:
     """The bound raised, speed by speed, to what ``gains`` (S, n: e.g. a tuned law's free gains at each
     of the bound's speeds) reach there where they score better (meeting the floor first, then the
-    worst damping). A bound computed before a family was tuned (the seed's, reused by the schedule)
+    worst damping). A bound computed before a law was tuned (its seed's, reused by a seeded law)
     did not have the tuned gains among its starts; they are found gains too, so the bound is never
     below them."""
     use_noise = max_noise is not None and model.noise is not None and bool(np.isfinite(max_noise).any())

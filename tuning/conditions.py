@@ -20,17 +20,26 @@ from sensorless.tuning.result import figures
 ROBUST_MARGIN = 1e-3
 
 
-def error_scenarios(settings: TuningSettings, nominal: np.ndarray) -> list[tuple[str, np.ndarray]]:
-    """Corners of the stated estimate-error box: every combination of +-error on each parameter
-    with a nonzero error (2^m scenarios). Labelled like 'R_s+30%,L_q-10%'."""
-    keys = [(k, e) for k, e in zip(range(4), settings.errors, strict=True) if e > 0]
+def error_scenarios(settings: TuningSettings, model: TuningModel) -> list[tuple[str, np.ndarray]]:
+    """Corners of the stated estimate-error box: every combination of +-error on each estimate with a
+    nonzero error (2^m scenarios), on the law's nominal estimates (``TuningModel.estimate_names``).
+    Labelled like '<name>+30%,<name>-10%'. TuningError if the law's points carry no such estimate."""
+    nominal = model.nominal_estimate
+    keys = []
+    for name, e in zip(ESTIMATE_KEYS, settings.errors, strict=True):
+        if e > 0:
+            if name not in model.estimate_names:
+                raise nlp.TuningError(
+                    f"gain family {model.family} has no estimate {name}: an error of it does not apply"
+                )
+            keys.append((model.estimate_names.index(name), name, e))
     out = []
     for signs in itertools.product((1, -1), repeat=len(keys)):
         est = nominal.copy()
         parts = []
-        for (k, e), s in zip(keys, signs, strict=True):
+        for (k, name, e), s in zip(keys, signs, strict=True):
             est[k] = nominal[k] * (1 + s * e)
-            parts.append(f"{ESTIMATE_KEYS[k]}{'+' if s > 0 else '-'}{100 * e:g}%")
+            parts.append(f"{name}{'+' if s > 0 else '-'}{100 * e:g}%")
         out.append((",".join(parts), est))
     return out if keys else []
 
@@ -43,7 +52,7 @@ def robust(model, settings, theta, Wd, Td, wb) -> list[dict[str, Any]]:
     """Per estimate-error scenario the worst max Re of the poles on the dense grid, and where; raises
     TuningError if the gains are unstable under one."""
     out = []
-    for name, est in error_scenarios(settings, model.nominal_estimate):
+    for name, est in error_scenarios(settings, model):
         f = figures(model, theta, Wd, Td, est)
         mr = np.where(np.isfinite(f.decay), -f.decay, np.inf)
         k = int(np.argmax(mr))
@@ -72,9 +81,10 @@ def check_error_equilibria(
     model: TuningModel, settings: TuningSettings, theta: np.ndarray, W: np.ndarray, T: np.ndarray, wb: float
 ) -> None:
     """Under estimate errors the equilibrium branch of exact estimates can end in a fold (the observer
-    cannot hold the rotor position: at 0.05 p.u. and full torque already with R̂s 0.75 % off and the
-    drive file's gains). Then "stable under these errors" has no meaning there: say so before the NLP."""
-    for name, est in error_scenarios(settings, model.nominal_estimate):
+    cannot hold the rotor position: seen at 0.05 p.u. and full torque with one estimate 0.75 % off
+    and a drive file's gains). Then "stable under these errors" has no meaning there: say so before
+    the NLP."""
+    for name, est in error_scenarios(settings, model):
         x0 = model.equilibrium(theta, model.make_points(W, T, est))
         bad = np.flatnonzero(~np.isfinite(x0).all(axis=0))
         if bad.size:
@@ -113,7 +123,7 @@ def candidates(
         kind.append(np.full(W.size, NOISE))
         sigma.append(np.zeros(W.size))
         labels += [label(w, t, wb, ", noise") for w, t in zip(W, T, strict=True)]
-    for name, est in error_scenarios(settings, model.nominal_estimate):
+    for name, est in error_scenarios(settings, model):
         P.append(model.make_points(W, T, est))
         kind.append(np.zeros(W.size))
         sigma.append(np.full(W.size, max(settings.min_decay, ROBUST_MARGIN * scale)))

@@ -1,8 +1,8 @@
 """Tuning hooks of the observer families: the tunable gain families each offers, and how each is tuned.
 
 An observer family names the module of its tuning hooks (``ObserverFamily.tuning``); that module
-defines ``HOOKS``, a :class:`TuningHooks` listing its :class:`Tunable` gain families (law16 and schedule
-of the adaptive observer, deangelo of the reduced-order observer, ...). A tunable is tuned either by
+defines ``HOOKS``, a :class:`TuningHooks` listing its :class:`Tunable` gain laws (the family's own
+names, written in its folder only). A tunable is tuned either by
 the shared max-min damping NLP (tuning/nlp.py, through a :class:`~sensorless.tuning.model.TuningModel`
 its ``build`` returns) or by a tuner of its own (``tuner``: a few parameters, a search of its own).
 Either way the result has a gain table (design/gain_table.py) and a terminal summary.
@@ -32,20 +32,36 @@ class TuneOutcome(Protocol):
         ...
 
 
+class TuneSettings(Protocol):
+    """What shared code reads of any tunable's settings (the rest is the tunable's own): which tables
+    the run writes beside the gain table."""
+
+    @property
+    def bound(self) -> bool:
+        """Whether the run computes the pointwise bound per speed (``speeds_<name>.csv``)."""
+        ...
+
+    @property
+    def pareto(self) -> int:
+        """Points of the damping-versus-noise front the run computes (``pareto_<name>.csv``); 0: none."""
+        ...
+
+
 @dataclass(frozen=True)
 class Tunable:
     """A tunable gain family: its name (the gain table's ``family``) and how it is tuned.
 
     Exactly one of ``build`` (drive, settings, seed) -> TuningModel for the shared NLP, and ``tuner``
     (drive, settings, progress) -> TuneOutcome, is given. ``seed`` names a tunable tuned first whose
-    parameters start this one (the schedule starts from the tuned law (16)). ``settings`` (drive) ->
-    the default settings (envelope, bounds) of this tunable. ``columns`` are the leading per-point
-    columns of its CSV table, (heading, point key), and those of the baseline.
+    parameters start this one (a rich law started from a tuned simpler one). ``settings`` (drive) ->
+    the default settings (envelope, constraints; the law's own part in ``law``) of this tunable.
+    ``columns`` are the leading per-point columns of its CSV table, (heading, point key), and those
+    of the baseline.
     """
 
     name: str
     description: str
-    settings: Callable[[Any], Any]
+    settings: Callable[[Any], TuneSettings]
     build: Callable[[Any, Any, Any], Any] | None = None
     tuner: Callable[[Any, Any, Progress | None], TuneOutcome] | None = None
     seed: str | None = None

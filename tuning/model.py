@@ -1,6 +1,6 @@
 """What the shared NLP needs from a tunable gain family on a drive: the TuningModel contract.
 
-A tunable (law16, schedule, ...; tuning/family.py) on a drive supplies one :class:`TuningModel`. The
+A tunable gain law (tuning/family.py) on a drive supplies one :class:`TuningModel`. The
 generic NLP (tuning/nlp.py) and the verification only see this: a parameter vector theta with
 bounds; ``local``, what the closed loop at one operating point needs of theta (phi: e.g. the gains
 and their slopes there), so that per-point derivatives do not grow with the size of theta; the
@@ -14,8 +14,8 @@ Optional parts, each used by the shared pipeline where given:
   estimates), for the noise figure (design/noise.py), ``--max-noise`` and the Pareto front;
 - ``starts``: candidate parameter vectors of the global phase (a log grid of the family's parameters,
   tuning/search.py);
-- ``pointwise``: a model of the free gains at one operating point (theta = what ``local`` gives, e.g.
-  (lambda1, lambda2)), for the pointwise bound (tuning/bound.py), and ``from_pointwise`` to turn the
+- ``pointwise``: a model of the free gains at one operating point (theta = what ``local`` gives, less
+  the slopes), for the pointwise bound (tuning/bound.py), and ``from_pointwise`` to turn the
   per-speed optima into a start of this family;
 - ``gain_size``: a dimensionless size of the gains theta gives over the speed range, for the
   tie-break among equally damped gains (tuning/tiebreak.py).
@@ -85,6 +85,8 @@ class TuningModel:
     n_initial_active: int = 0  # exchange method: points in the first round (0: 3 n_theta, at least 4)
     # (K, n_theta) -> (K,): how large the gains are over the speed range (smaller wins a tie)
     gain_size: Callable[[np.ndarray], np.ndarray] | None = None
+    gain_size_unit: str = ""  # its unit, for the summary's row heading
+    gain_size_meaning: str = ""  # what it measures, in a few words (the tie-break's line)
 
     @property
     def n_theta(self) -> int:

@@ -28,7 +28,7 @@ class Figures:
     poles: np.ndarray  # (N, n) [1/s]
     damping: np.ndarray  # worst damping per point
     decay: np.ndarray  # -max Re per point [1/s]
-    gains: dict[str, np.ndarray]  # lambda1_ohm, lambda2_ohm per point
+    gains: dict[str, np.ndarray]  # the law's gains per point, keyed as in the gain table's points
     noise: np.ndarray | None = None  # (N, n_out) RMS of the noise outputs (design/noise.py)
 
     def worst(self) -> int:
@@ -77,7 +77,7 @@ class TuneResult:
     selection: dict[str, Any]  # which dense-verified candidate was kept and why
     floor: float = 0.0  # the decay floor the family was tuned under [1/s]
     bound: Bound | None = None  # the pointwise bound on the dense speeds
-    seed: TuneResult | None = None  # the seed family's result (schedule: law16)
+    seed: TuneResult | None = None  # the seed law's result (Tunable.seed)
     ridge: dict[str, Any] | None = None  # the worst point, if no parameter of the family moves it
     pareto: list[dict[str, Any]] | None = None  # damping-versus-noise front
     global_phase: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -131,7 +131,8 @@ class TuneResult:
         gs = s.get("gain_size")
         if gs:
             mid = f"{'':>18}" if seeded else ""
-            out.append(f"{'gain size [R_s_hat]':<22}{gs['baseline']:>18.4g}{mid}{gs['tuned']:>18.4g}")
+            head = f"gain size [{self.model.gain_size_unit}]"
+            out.append(f"{head:<22}{gs['baseline']:>18.4g}{mid}{gs['tuned']:>18.4g}")
         nz = s.get("noise")
         if nz:
             for k, name in enumerate(nz["outputs"]):
@@ -215,14 +216,12 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
             "w_m_rad_s": float(d.w_m[j]),
             "w_m_pu": float(d.w_m[j] / wb),
             "T_e_Nm": float(d.T_e[j]),
-            "lambda1": float(d.gains["lambda1_ohm"][j]),
-            "lambda2": float(d.gains["lambda2_ohm"][j]),
+            **{k: float(v[j]) for k, v in d.gains.items()},
             "poles": [[float(p.real), float(p.imag)] for p in d.poles[j]],
             "damping": float(d.damping[j]),
             "decay_rate": float(d.decay[j]),
             "baseline": {
-                "lambda1": float(d0.gains["lambda1_ohm"][j]),
-                "lambda2": float(d0.gains["lambda2_ohm"][j]),
+                **{k: float(v[j]) for k, v in d0.gains.items()},
                 "poles": [[float(p.real), float(p.imag)] for p in d0.poles[j]],
                 "damping": float(d0.damping[j]),
                 "decay_rate": float(d0.decay[j]),
@@ -234,8 +233,7 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
         if sd is not None:
             pt["seed"] = {
                 "family": r.seed.family,
-                "lambda1": float(sd.gains["lambda1_ohm"][j]),
-                "lambda2": float(sd.gains["lambda2_ohm"][j]),
+                **{k: float(v[j]) for k, v in sd.gains.items()},
                 "damping": float(sd.damping[j]),
                 "decay_rate": float(sd.decay[j]),
             }
@@ -341,10 +339,10 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
         "dense_points": int(Wd.size),
         "constraints": {
             "min_decay_1_s": settings.min_decay,
-            "lambda_max_ohm": settings.lambda_max,
             "estimate_errors": dict(zip(ESTIMATE_KEYS, settings.errors, strict=True)),
             "smoothing": settings.smoothing,
             "max_noise": dict(settings.max_noise),
+            **settings.law.constraints(),
         },
         "bounds": {n: [float(lo), float(hi)] for n, lo, hi in zip(m.names, m.lower, m.upper, strict=True)},
     }

@@ -70,7 +70,7 @@ def select(
     """The best on the dense grid among the starts (``pool``: the drive file's gains, a seed's, the
     global phase's) and every round each NLP verified on its grid.
 
-    The NLP only checks its grid; between those points a free schedule may be worse (even
+    The NLP only checks its grid; between those points a law of many parameters may be worse (even
     unstable), which only the dense grid shows. Admissible: decay >= the floor (with the NLP's
     tolerance) and noise within its limits on the dense grid; among those, the best worst damping.
     So the reported gains are never worse than the drive file's or a seed's when those are
@@ -98,7 +98,7 @@ def select(
         return (admissible(f), f.worst_damping(), i)
 
     top = max(range(len(cands)), key=rank)
-    # ties (within TIE in damping, e.g. along a ridge of law16): the faster slowest decay; families
+    # ties (within TIE in damping, e.g. along a ridge): the faster slowest decay; families
     # with a gain size then go through the tie-break of tuning/tiebreak.py (the smallest gains win)
     best = max(
         (i for i in range(len(cands)) if rank(i)[0] == rank(top)[0] and rank(i)[1] >= rank(top)[1] - TIE),

@@ -14,15 +14,15 @@ polynomial factored into quadratics with a, b >= 0 and a^2 >= 4 t^2 b, the facto
 being unknowns of the NLP), so IPOPT sees only smooth functions. Points with
 parameter errors have an equilibrium that moves with the gains: there the equilibrium x_j is an
 unknown of the NLP with the equality x_dot(x_j, theta) = 0, from the same closed-loop Function;
-where the equilibrium does not move with the gains (``TuningModel.fixed_equilibrium``: the adaptive
-observer with exact estimates) it is data, which makes the slots' derivatives several times cheaper.
+where the equilibrium does not move with the gains (``TuningModel.fixed_equilibrium``, e.g. with exact
+estimates) it is data, which makes the slots' derivatives several times cheaper.
 The noise figure (design/noise.py) is constrained through the Lyapunov equation: the state
 covariance is an unknown of the slot, tied to A and the noise input by the Lyapunov equalities, with
 the slot's closed loop kept stable by the same sector factors (t = 0).
 
 The solver has a fixed number of slots per kind; tuning/nlp.py fills them with the active points of
-each exchange round. The regularizer (a schedule's roughness and gain size; none for law16) is
-weighted by the ``smoothing`` setting.
+each exchange round. The law's regularizer (``TuningModel.regularizer``, if it has one) is weighted
+by the ``smoothing`` setting.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ T_MAX = 0.995  # upper bound of the damping variable (asin is singular at 1)
 # Each round starts from a good primal point (the previous round's gains, the factors of their
 # poles, the exact equilibria): a small bound push keeps IPOPT there instead of pushing the start
 # into the interior, and the adaptive barrier update converges in far fewer iterations than the
-# monotone one (law16 on the default envelope: 26 instead of 212 iterations, benchmarks/bench_tune.py).
+# monotone one (26 instead of 212 iterations on a two-parameter law, benchmarks/bench_tune.py).
 # expand: the MX graph becomes SX, faster to evaluate for these small slots.
 SOLVER_OPTIONS = {
     "expand": True,

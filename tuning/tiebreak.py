@@ -4,15 +4,14 @@ the smallest.
 Maximizing the worst damping leaves directions the objective does not see: on a ridge (the worst point
 does not move with a parameter) and wherever the worst damping saturates, gains far larger than
 needed are exactly as good, and a tie-break by the faster slowest decay (the selection's) pushes
-them to the box: law16 ended with lambda' on its cap (20 R̂s) and omega_lambda at the bottom of the
-global grid on three motors, and on one of them those gains lost the rotor position in a speed-step
-run the drive file's gains rode through (docs/tuning.md "Tie-break"). So the pipeline is
+them to the box, where on one motor they lost the rotor position in a speed-step run the drive
+file's gains rode through (docs/tuning.md "Tie-break"). So the pipeline is
 lexicographic:
 
 1. the best worst damping d* on the dense grid (global phase, NLP, dense selection: tuning/tune.py);
 2. among gains that meet the same constraints and have dense worst damping >= d* - TIE_TOL, the
-   smallest ``TuningModel.gain_size`` (for the adaptive observer: the RMS over the speed range of the
-   gain and its slope per p.u. speed, in R̂s; tuning/ipmsm_adaptive/size.py).
+   smallest ``TuningModel.gain_size`` (the law's measure of its gains over the speed range, with
+   ``gain_size_unit`` and ``gain_size_meaning`` for the summary).
 
 A smaller gain generally decays slower, and a real pole creeping to the origin has damping 1: the
 damping bound alone would not stop it. Stage 2 keeps the slowest decay at least KEEP_DECAY times
@@ -210,8 +209,7 @@ def _note(model, theta1, dense1, s1, theta2, dense2, s2, best, floor2, w_base, m
     d1, d2 = float(np.min(dense1.decay)), float(np.min(dense2.decay))
     head = (
         f"tie-break (of the gains within {TIE_TOL:g} of the best worst damping {best:.4f}, decaying at "
-        f">= {floor2:.4g} 1/s, the smallest; gain size = RMS over the speed range of the gain and its "
-        "slope per p.u., in R̂s): "
+        f">= {floor2:.4g} 1/s, the smallest; gain size = {model.gain_size_meaning}): "
     )
     if moved:
         a, b = _fmt(model, theta1, w_base), _fmt(model, theta2, w_base)

@@ -45,8 +45,8 @@ from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, TuneResult, figures, gain_table
 from sensorless.tuning.selection import infeasible, ridge_of, select
 
-# A family of a few parameters has several local optima: the NLP runs from this many distinct feasible
-# starts of the global phase (one NLP each); a rich one (the schedule) from the best start only.
+# A law of a few parameters has several local optima: the NLP runs from this many distinct feasible
+# starts of the global phase (one NLP each); a rich one from the best start only.
 N_STARTS = 3
 # A start this close (in damping ratio) to the pointwise bound's worst on the dense grid needs no NLP: no
 # gain law exceeds the bound, so the NLP could gain at most this, well inside the selection's TIE (5e-4).
@@ -66,7 +66,7 @@ def tune(
     tunable = tunable_for(drive, family)
     family = tunable.name
     settings = settings if settings is not None else tunable.settings(drive)
-    if tunable.tuner is not None:  # e.g. the reduced-order observer's deangelo family
+    if tunable.tuner is not None:  # a law with a tuner of its own
         return tunable.tuner(drive, settings, progress)
     t_start = time.perf_counter()
     say = progress or (lambda s: None)
@@ -107,7 +107,7 @@ def tune(
         f"{f', {cand.size - W.size} constraint points' if cand.size > W.size else ''}; "
         f"drive file's gains: worst damping {base.damping.min():.4f}"
     )
-    # the pointwise bound first when it starts the family (the schedule), else after the NLP
+    # the pointwise bound first when its optima start the law (a seeded law), else after the NLP
     bound = None
     extra: list[np.ndarray] = []
     if seed_res is not None and model.pointwise is not None and model.from_pointwise is not None:
@@ -216,7 +216,7 @@ def _optimize(
     if not ranked.feasible[0]:
         raise nlp.TuningError(infeasible(drive, model, pb.settings, cand, ranked, pb.scale, max_noise, say))
     # a few parameters: several distinct starts (local optima are common); many: the best one (for
-    # the schedule the better on the grid of its seed's gains and the pointwise optima)
+    # a seeded law the better on the grid of its seed's gains and the pointwise optima)
     k = N_STARTS if model.n_theta <= search.MAX_PATTERN_PARAMETERS else 1
     starts = ranked.starts(k, model.typical)
     sols: list[nlp.Solution] = []
@@ -270,7 +270,7 @@ def _optimize(
             pb.T,
             pb.Wd,
             pb.Td,
-            [est for _, est in error_scenarios(pb.settings, model.nominal_estimate)],
+            [est for _, est in error_scenarios(pb.settings, model)],
             pb.scale,
             max_noise,
             ROBUST_MARGIN,
@@ -346,7 +346,7 @@ def damping_noise_front(drive, pb: _Problem, cand, theta_best, max_noise):
             e = evaluate(model, np.repeat(feas, N, axis=0).T, np.tile(P, (1, feas.shape[0])), noise=True)
             nz = np.where(np.isnan(e.noise[:, i]), np.inf, e.noise[:, i]).reshape(-1, N).max(axis=1)
             n_lo = min(n_lo, float(np.min(nz)))
-    if n_lo >= n_hi * 0.999:  # no candidate grid (the schedule), or none quieter: down to half
+    if n_lo >= n_hi * 0.999:  # no candidate grid, or none quieter: down to half
         n_lo = 0.5 * n_hi
     say(f"damping-versus-noise front: {name} noise from {n_hi:.4g} down to {n_lo:.4g}")
 

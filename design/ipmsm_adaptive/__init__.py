@@ -1,10 +1,11 @@
 """Speed-adaptive stator-flux observer for interior PMSMs (Piippo, Hinkkanen, Luomi 2008): the family.
 
 This module registers the family (design/registry.py finds ``FAMILY``); the drive kind string of its
-drive files is written here and nowhere else in the code. Its pieces: schema.py (drive files),
-runtime.py (gains, runtime set-up), operating_point.py and linearize.py (the closed loop of Section IV),
-discrete.py (the step that runs, by the shared discrete-time analysis of design/discrete.py),
-simulation.py (Fig. 7 for a scenario), presets/ and scenarios/ (the paper's drive and experiments).
+drive files is written here and nowhere else in the code. Its pieces: schema.py (the drive file's
+sections), derive.py (a minimal drive file completed, and loading), runtime.py (gains, runtime
+set-up), operating_point.py and linearize.py (the closed loop of Section IV), discrete.py (the step
+that runs, by the shared discrete-time analysis of design/discrete.py), simulation.py (Fig. 7 for a
+scenario), presets/ and scenarios/ (the paper's drive and experiments).
 Equations: symbolic/ipmsm_adaptive/. Theory and choices: docs/families/ipmsm_adaptive.md.
 """
 
@@ -15,11 +16,9 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTableError
-from sensorless.design.ipmsm_adaptive import discrete, schema, simulation
+from sensorless.design.ipmsm_adaptive import derive, discrete, schema, simulation
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
 from sensorless.design.ipmsm_adaptive.simulation import injection_off
-
-__all__ = ["FAMILY", "AdaptiveFluxObserver", "injection_off", "with_alpha_fo"]
 
 
 class AdaptiveFluxObserver(ObserverFamily):
@@ -37,13 +36,11 @@ class AdaptiveFluxObserver(ObserverFamily):
     scenario_options = simulation.SCENARIO_OPTIONS
 
     def load(self, data: Any, file: str, digest: str) -> schema.IpmsmDrive:
-        return schema.load(data, file, digest, self.kind)
+        return derive.load(data, file, digest, self.kind)
 
     def document(self, data: Any, file: str) -> Any:
         """The complete drive document of a (minimal) drive file (derive.py; ``sensorless init``)."""
-        from sensorless.design.ipmsm_adaptive.derive import document
-
-        return document(data, file)
+        return derive.document(data, file)
 
     def gains(
         self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""

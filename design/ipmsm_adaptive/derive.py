@@ -4,8 +4,8 @@ A minimal drive file gives ``[drive]`` (name, kind), ``[motor]`` in datasheet te
 (design/motor_data.py), ``[rating]`` n_N and T_N or I_N, and ``[inverter]`` u_dc and f_s (the sampling
 frequency). :func:`document` fills in every other key of the schema (schema.py) by the rules below,
 scaled by the motor and the sampling rate, and keeps every key the file does give (a full drive file
-passes through unchanged). The loader reads the document's data, so a minimal file and the complete
-file ``sensorless init`` writes from it load to the same drive. The rules and their reasons:
+passes through unchanged). The loader (:func:`load`) reads the document's data, so a minimal file and
+the complete file ``sensorless init`` writes from it load to the same drive. The rules and their reasons:
 docs/families/ipmsm_adaptive.md ("Derived drive files").
 
 - ``[rating]``: f_N = n_N p / 60; I_N from T_N by MTPA (or T_N from I_N); U_N = the line-to-line rms
@@ -30,6 +30,7 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import textwrap
 from collections.abc import Mapping
@@ -40,13 +41,24 @@ from sensorless.design.drive_file import (
     Entry,
     check_keys,
     derived_document,
+    g6,
     positive,
     sampling_frequency,
     table,
     toml_value,
 )
-from sensorless.design.ipmsm_adaptive.schema import SECTIONS
+from sensorless.design.ipmsm_adaptive.schema import (
+    I_NOISE_DEFAULT,
+    RUNTIME_DEFAULTS,
+    RUNTIME_RULES,
+    SALIENCY_MIN,
+    SECTIONS,
+    IpmsmDrive,
+    check_plausibility,
+    load_complete,
+)
 from sensorless.design.motor_data import mtpa_torque, mtpa_torque_current, read_motor, steady_voltage
+from sensorless.design.pmsm_schema import saliency
 from sensorless.design.units import DriveFileError, parse_quantity
 
 # the rules (module docstring); fractions of the sampling frequency f_s
@@ -60,8 +72,6 @@ CARRIER_FS = 1 / 6
 U_C_PU = 0.13
 ALPHA_I_FO = 1 / 10
 T_MAX_TN = 1.5
-SALIENCY_MIN = 0.1  # 2 |L_q - L_d| / (L_q + L_d) below which the injection is off
-I_NOISE_PU = 0.003  # schema.I_NOISE_DEFAULT
 W_MAX_PU, W_MAX_MIN_PU = 2.0, 1.2  # the runtime top speed [p.u.]: default, and least where the voltage limits
 
 RATING = {
@@ -84,16 +94,6 @@ TUNING_DEFAULTS: dict[str, Any] = {
     "min_decay": "0 1/s",
     "breakpoints": 11,
 }
-
-
-def g6(x: float) -> str:
-    """A number with 6 significant digits (the precision of derived values)."""
-    return f"{x:.6g}"
-
-
-def saliency(L_d: float, L_q: float) -> float:
-    """2 |L_q - L_d| / (L_q + L_d): 0 for a non-salient motor, 0.35 for the paper's IPMSM."""
-    return 2 * abs(L_q - L_d) / (L_q + L_d)
 
 
 class _Reader:
@@ -240,8 +240,8 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
         sec["i_noise"] = Entry(ctl_t["i_noise"], given=True)
     else:
         doc.optional.setdefault("control", []).append(
-            f'i_noise = "{g6(I_NOISE_PU * i_base)} A"  # optional: current-sensor noise, rms per axis and '
-            "sample (default 0.3 % of base i)"
+            f'i_noise = "{g6(I_NOISE_DEFAULT * i_base)} A"  # optional: current-sensor noise, rms per axis '
+            "and sample (default 0.3 % of base i)"
         )
     _extra(sec, ctl_t, (*derived_ctl, "i_noise"))
 
@@ -303,8 +303,6 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     _extra(sec, inj_t, derived_inj)
 
     # ------------------------------------------------------------------ runtime, tuning
-    from sensorless.design.ipmsm_adaptive.schema import RUNTIME_DEFAULTS, RUNTIME_RULES
-
     rt_t = r.table("runtime") or {}
     sec = doc.section("runtime", "the discrete-time observer that runs (docs/families/ipmsm_adaptive.md)")
     # the top speed: 2 p.u., but not beyond what the inverter's voltage can reach (1.1 x the no-load
@@ -360,3 +358,12 @@ def _dc_link(r: _Reader, inv: Mapping[str, Any] | None, ctl: Mapping[str, Any], 
     if "u_dc" in ctl:
         return ctl["u_dc"], ""
     raise DriveFileError(file, "inverter.u_dc", "missing key (DC-link voltage, e.g. '310 V')")
+
+
+def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDrive:
+    """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
+    the complete data is loaded strictly and checked for plausibility (design/plausibility.py)."""
+    doc = document(data, file)
+    drive = load_complete(doc.data(), file, digest, kind)
+    warnings = check_plausibility(drive, doc.context)
+    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive

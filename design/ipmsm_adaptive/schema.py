@@ -4,7 +4,9 @@ The sections of Piippo, Hinkkanen, Luomi (2008) Tables I-II and Sections IV-VI: 
 (per-unit bases), ``[motor]`` (the true motor), ``[estimate]`` (the observer's parameter estimates, kept
 apart so parameter errors can be studied), ``[control]``, ``[observer]`` with ``[observer.gains.*]``,
 ``[injection]``, and the optional ``[runtime]`` (discrete-time settings) and ``[tuning]`` (envelope of
-``sensorless tune``). Strict like every drive file (design/drive_file.py).
+``sensorless tune``). ``[motor]``, ``[estimate]`` and the loop's part of ``[control]`` are the records
+every PMSM family shares (design/pmsm_schema.py). Strict like every drive file (design/drive_file.py);
+:func:`load_complete` reads a complete file (derive.py ``load`` completes a minimal one first).
 """
 
 from __future__ import annotations
@@ -16,8 +18,17 @@ from typing import Any
 
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.envelope import TuningSettings, load_tuning
-from sensorless.design.pmsm_schema import PmsmControl, load_motor
-from sensorless.design.units import DriveFileError, UnknownName, parse_quantity
+from sensorless.design.ipmsm_adaptive.law_settings import LAW_KEYS, AdaptiveLawSettings
+from sensorless.design.plausibility import plausibility, warning_lines
+from sensorless.design.pmsm_schema import (
+    PmsmControl,
+    PmsmEstimate,
+    PmsmMotor,
+    load_estimate,
+    load_motor,
+    saliency,
+)
+from sensorless.design.units import DriveFileError, UnknownName
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
 
@@ -53,46 +64,15 @@ class Base:
 
 
 @dataclass(frozen=True)
-class Motor:
-    """True motor parameters, eqs. (1)-(3) and Table I."""
-
-    p: int = q("integer", doc="pole pairs")
-    R_s: float = q("resistance", doc="stator resistance [ohm]")
-    L_d: float = q("inductance", doc="d-axis inductance [H]")
-    L_q: float = q("inductance", doc="q-axis inductance [H]")
-    psi_pm: float = q("flux", doc="permanent-magnet flux linkage [V s]")
-    J: float = q("inertia", doc="total moment of inertia [kg m^2]")
-
-    def vector(self) -> list[float]:
-        """[R_s, L_d, L_q, psi_pm]: the electrical parameter vector the CasADi functions take."""
-        return [self.R_s, self.L_d, self.L_q, self.psi_pm]
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """The observer's parameter estimates (R̂s, L̂d, L̂q, ψ̂pm); kept apart from the true motor."""
-
-    R_s: float = q("resistance", doc="estimated stator resistance [ohm]")
-    L_d: float = q("inductance", doc="estimated d-axis inductance [H]")
-    L_q: float = q("inductance", doc="estimated q-axis inductance [H]")
-    psi_pm: float = q("flux", doc="estimated PM flux linkage [V s]")
-
-    def vector(self) -> list[float]:
-        """[R̂s, L̂d, L̂q, ψ̂pm]."""
-        return [self.R_s, self.L_d, self.L_q, self.psi_pm]
-
-
-@dataclass(frozen=True)
 class Control(PmsmControl):
     """Control-system settings (Table II and Section VI): the shared drive loop's, and the sensor noise."""
 
     # optional: the current sensor's noise, per axis, rms, in each sample at T_s (design/noise.py)
-    i_noise: float = field(
-        default=0.0, metadata={"dim": "current", "check": "positive", "doc": "current-sensor noise [A rms]"}
-    )
+    i_noise: float = q("current", doc="current-sensor noise [A rms]", default=0.0)
 
 
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the base (nominal peak) current
+SALIENCY_MIN = 0.1  # 2 |L_q - L_d| / (L_q + L_d) below which the HF injection is off (derive.py)
 
 
 @dataclass(frozen=True)
@@ -208,13 +188,15 @@ class IpmsmDrive:
     file: str
     rating: Rating
     base: Base
-    motor: Motor
-    estimate: Estimate
+    motor: PmsmMotor
+    estimate: PmsmEstimate
     control: Control
     observer: Observer
     injection: Injection
     runtime: Runtime | None = None  # [runtime], defaults filled in by the loader
-    tuning: TuningSettings = field(default_factory=TuningSettings)  # optional [tuning] of `tune`
+    tuning: TuningSettings = field(  # optional [tuning] of `tune`
+        default_factory=lambda: TuningSettings(law=AdaptiveLawSettings())
+    )
     digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
     warnings: tuple[str, ...] = ()  # plausibility warnings (design/plausibility.py), printed by every command
 
@@ -252,22 +234,8 @@ class IpmsmDrive:
         return w / self.base.w
 
 
-def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDrive:
-    """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
-    the complete data is loaded strictly and checked for plausibility (design/plausibility.py)."""
-    from sensorless.design.ipmsm_adaptive.derive import document
-
-    doc = document(data, file)
-    drive = load_complete(doc.data(), file, digest, kind)
-    warnings = check_plausibility(drive, doc.context)
-    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive
-
-
 def check_plausibility(drive: IpmsmDrive, context: Mapping[str, Any]) -> list[str]:
     """Warning lines of the plausibility checks; DriveFileError for the first error (naming its keys)."""
-    from sensorless.design.ipmsm_adaptive.derive import SALIENCY_MIN, saliency
-    from sensorless.design.plausibility import plausibility, warning_lines
-
     m, keys, given, file = context["motor"], context["keys"], context["given"], drive.file
     findings = plausibility(
         m,
@@ -310,8 +278,8 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     head = drive_header(data, file)
     rating = load_section(Rating, table(data, "rating", file), file, "rating")
     base = load_section(Base, table(data, "base", file), file, "base")
-    motor = load_motor(Motor, data, file)
-    estimate = load_section(Estimate, table(data, "estimate", file), file, "estimate")
+    motor = load_motor(data, file)
+    estimate = load_estimate(data, file)
     rel = {"pu": base.w, "R_s_hat": estimate.R_s, "Rs_hat": estimate.R_s}
     control = _load_control(table(data, "control", file), file, rel, base)
     obs_t = table(data, "observer", file)
@@ -344,9 +312,9 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     observer = dataclasses.replace(observer, gains=gains)
     injection = load_section(Injection, table(data, "injection", file), file, "injection", rel)
     runtime = _load_runtime(data, file, rel)
-    tuning = TuningSettings()
+    tuning = TuningSettings(law=AdaptiveLawSettings())
     if "tuning" in data:
-        tuning = load_tuning(table(data, "tuning", file), file, {**rel, "T_N": rating.T_N})
+        tuning = load_tuning(table(data, "tuning", file), file, {**rel, "T_N": rating.T_N}, LAW_KEYS)
     return IpmsmDrive(
         name=head["name"],
         kind=kind,
@@ -368,12 +336,9 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
 def _load_control(t: Mapping[str, Any], file: str, rel: Mapping[str, float], base: Base) -> Control:
     """[control]; ``i_noise`` (the current sensor's noise, A rms per axis and sample) is optional:
     default I_NOISE_DEFAULT times the base current, e.g. 0.018 A for the paper's 6.08 A."""
-    c = load_section(Control, t, file, "control", rel, skip=("i_noise",))
+    c = load_section(Control, t, file, "control", rel, optional=("i_noise",))
     if "i_noise" in t:
-        x, _ = parse_quantity(t["i_noise"], "current", file=file, key="control.i_noise")
-        if not x > 0:
-            raise DriveFileError(file, "control.i_noise", f"non-physical value {t['i_noise']!r}: must be > 0")
-        return dataclasses.replace(c, i_noise=x)
+        return c
     return dataclasses.replace(c, i_noise=I_NOISE_DEFAULT * base.i)
 
 

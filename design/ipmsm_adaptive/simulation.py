@@ -12,7 +12,8 @@ from typing import Any
 
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive.runtime import drive_gains, runtime_setup
-from sensorless.design.pmsm_drive import PmsmDrive, from_sections, loop_setup
+from sensorless.design.pmsm_drive import loop_setup
+from sensorless.design.pmsm_schema import saliency
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup, SimulationError
@@ -36,21 +37,8 @@ def scaled_setup(setup: RuntimeSetup, sc: Scenario) -> RuntimeSetup:
     return dataclasses.replace(setup, params=params)
 
 
-def pmsm_drive(drive: Any) -> PmsmDrive:
-    """The numbers of the drive loop from a drive of this family."""
-    return from_sections(
-        drive.motor,
-        drive.estimate,
-        drive.control,
-        carrier=drive.injection.w_c,
-        carrier_band=drive.runtime.w_bp,
-    )
-
-
 def injection_off(drive: Any) -> str:
     """Why the drive has no HF injection to analyse or simulate (one line)."""
-    from sensorless.design.ipmsm_adaptive.derive import saliency
-
     xi = saliency(drive.estimate.L_d, drive.estimate.L_q)
     return (
         f"{drive.file}: the drive's HF injection is off ([injection] u_c = 0 V; saliency "
@@ -79,9 +67,9 @@ def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     setup = scaled_setup(runtime_setup(drive, gains, sc.discretization), sc)
     return loop_setup(
         drive,
-        pmsm_drive(drive),
         sc,
         setup,
-        carrier=bool(sc.options["injection"]),
         meta={"injection": bool(sc.options["injection"])},
+        carrier=(drive.injection.w_c, drive.runtime.w_bp),
+        notch=bool(sc.options["injection"]),
     )

@@ -2,9 +2,10 @@
 
 This module registers the family (design/registry.py finds ``FAMILY``); the drive kind string of its
 drive files is written here and nowhere else in the code. Its pieces: schema.py (drive files),
-derive.py (complete drive files from minimal ones, ``sensorless init``), runtime.py (gains, runtime
-set-up), linearize.py (continuous and discrete error dynamics),
-discretization.py (the sampling study), simulation.py (Fig. 1 for a scenario), presets/ and scenarios/.
+motor.py (its [motor] in datasheet terms), derive.py (complete drive files from minimal ones,
+``sensorless init``, and loading), runtime.py (gains, runtime set-up), linearize.py (continuous and
+discrete error dynamics), discretization.py (the sampling study), simulation.py (Fig. 1 for a
+scenario), presets/ and scenarios/.
 Equations: symbolic/pmac_reduced_order/. Theory and choices: docs/families/pmac_reduced_order.md.
 """
 
@@ -14,9 +15,9 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTableError
+from sensorless.design.pmac_reduced_order import derive, schema, simulation
 from sensorless.design.pmac_reduced_order import linearize as _linearize
 from sensorless.design.pmac_reduced_order import runtime as _runtime
-from sensorless.design.pmac_reduced_order import schema, simulation
 
 
 class ReducedOrderObserver(ObserverFamily):
@@ -34,13 +35,11 @@ class ReducedOrderObserver(ObserverFamily):
     scenario_options = simulation.SCENARIO_OPTIONS
 
     def load(self, data: Any, file: str, digest: str) -> schema.PmacDrive:
-        return schema.load(data, file, digest, self.kind)
+        return derive.load(data, file, digest, self.kind)
 
     def document(self, data: Any, file: str) -> Any:
         """The complete drive document of a (minimal) drive file (derive.py; ``sensorless init``)."""
-        from sensorless.design.pmac_reduced_order.derive import document
-
-        return document(data, file)
+        return derive.document(data, file)
 
     def gains(
         self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""

@@ -34,6 +34,7 @@ in the mechanical reading, Phi_1 in V s per mechanical radian (motor.py).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import textwrap
 from collections.abc import Mapping
@@ -44,14 +45,16 @@ from sensorless.design.drive_file import (
     Entry,
     check_keys,
     derived_document,
+    g6,
     positive,
     sampling_frequency,
     table,
     toml_value,
 )
 from sensorless.design.motor_data import mtpa_torque
-from sensorless.design.pmac_reduced_order.motor import g6, read_pmac_motor
-from sensorless.design.pmac_reduced_order.schema import SECTIONS, harmonic_series
+from sensorless.design.plausibility import plausibility, warning_lines
+from sensorless.design.pmac_reduced_order.motor import read_pmac_motor
+from sensorless.design.pmac_reduced_order.schema import SECTIONS, PmacDrive, harmonic_series, load_complete
 from sensorless.design.units import DriveFileError
 
 # the rules (module docstring)
@@ -259,11 +262,9 @@ def _dc_link(inv: Mapping[str, Any], ctl: Mapping[str, Any], file: str) -> tuple
     return (v_inv, "inverter.u_dc") if v_inv is not None else (v_ctl, "control.u_dc")
 
 
-def check_plausibility(drive: Any, context: Mapping[str, Any]) -> list[str]:
+def check_plausibility(drive: PmacDrive, context: Mapping[str, Any]) -> list[str]:
     """Warning lines of the plausibility checks (design/plausibility.py) of a loaded drive; DriveFileError
     for the first error (naming its keys). Without a DC-link voltage the voltage checks are skipped."""
-    from sensorless.design.plausibility import plausibility, warning_lines
-
     r, c, keys, given = drive.rating, drive.control, context["keys"], context["given"]
     findings = plausibility(
         context["motor"],
@@ -277,3 +278,12 @@ def check_plausibility(drive: Any, context: Mapping[str, Any]) -> list[str]:
         keys=keys,
     )
     return warning_lines(findings, drive.file)
+
+
+def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
+    """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
+    the complete data is loaded strictly and checked for plausibility (design/plausibility.py)."""
+    doc = document(data, file)
+    drive = load_complete(doc.data(), file, digest, kind)
+    warnings = check_plausibility(drive, doc.context)
+    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive

@@ -19,19 +19,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from sensorless.design.drive_file import check_keys, positive
-from sensorless.design.motor_data import FLUX_TOLERANCE, MOTOR_KEYS, MotorData, read_motor
+from sensorless.design.drive_file import check_keys, g6, positive
+from sensorless.design.motor_data import FLUX_KEYS, FLUX_TOLERANCE, MOTOR_KEYS, MotorData, read_motor
 from sensorless.design.pmac_reduced_order.schema import READINGS, harmonic_series
+from sensorless.design.pmsm_schema import saliency
 from sensorless.design.units import DriveFileError
 
 NATIVE = ("reading", "R", "L", "B", "harmonics", "Phi")  # the family's own [motor] keys
 SALIENCY_MAX = 0.1  # 2 |L_q - L_d| / (L_q + L_d) beyond which model (2) (one L) does not fit
 EMF_SCALE = math.sqrt(1.5)  # |e| power-invariant alpha-beta / phase peak
-
-
-def g6(x: float) -> str:
-    """A number with 6 significant digits (the precision of derived values)."""
-    return f"{x:.6g}"
 
 
 @dataclass(frozen=True)
@@ -77,7 +73,7 @@ def read_pmac_motor(t: Mapping[str, Any], file: str) -> PmacMotorData:
         md["R_s"] = positive(t, "R", "resistance", file, "motor")
     if "L" in t:
         md["L_s"] = positive(t, "L", "inductance", file, "motor")
-    flux_keys = [k for k in ("psi_pm", "kE", "KV", "kT") if k in t]
+    flux_keys = [k for k in FLUX_KEYS if k in t]
     if reading == "electrical" and flux_keys:
         # datasheet terms describe the physical motor (J in kg m2 as measured); in the electrical
         # reading J and Phi of eq. (2) are per electrical radian (J/p^2): one key, two meanings
@@ -105,7 +101,7 @@ def read_pmac_motor(t: Mapping[str, Any], file: str) -> PmacMotorData:
     for own, k in (("R", "R_s"), ("L", "L_d"), ("L", "L_q")):
         if own in t:
             source[k] = f"motor.{own}"
-    xi = 2 * abs(m.L_q - m.L_d) / (m.L_q + m.L_d)
+    xi = saliency(m.L_d, m.L_q)
     if xi > SALIENCY_MAX:
         raise DriveFileError(
             file,

@@ -22,7 +22,15 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.drive_file import check_keys, drive_header, load_section, positive, q, table
+from sensorless.design.drive_file import (
+    check_keys,
+    drive_header,
+    load_section,
+    nonempty_list,
+    q,
+    quantities,
+    table,
+)
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS, param_names
@@ -41,9 +49,9 @@ class PmacRating:
 
     P_N: float = q("power", doc="nominal power [W]")
     n_N: float = q("mech_speed", doc="nominal mechanical speed [r/min]")
-    T_N: float = field(default=0.0, metadata={"dim": "torque", "doc": "rated torque [N m]"})
-    I_N: float = field(default=0.0, metadata={"dim": "current", "doc": "rated current [A rms]"})
-    f_N: float = field(default=0.0, metadata={"dim": "frequency", "doc": "rated frequency [Hz]"})
+    T_N: float = q("torque", doc="rated torque [N m]", default=0.0)
+    I_N: float = q("current", doc="rated current [A rms]", default=0.0)
+    f_N: float = q("frequency", doc="rated frequency [Hz]", default=0.0)
 
 
 RATING_OPTIONAL = ("T_N", "I_N", "f_N")
@@ -101,12 +109,10 @@ class PmacControl:
     alpha_s: float = q("angular", doc="speed-loop bandwidth [rad/s]")
     T_max: float = q("torque", doc="torque reference limit [N m]; bounds the runtime observer's load state")
     # optional: the current sensor's noise, per axis, rms, in each sample at T_s (design/noise.py)
-    i_noise: float = field(
-        default=0.0, metadata={"dim": "current", "check": "positive", "doc": "current-sensor noise [A rms]"}
-    )
+    i_noise: float = q("current", doc="current-sensor noise [A rms]", default=0.0)
     # optional: the DC-link voltage (0: not given); the plausibility checks only (the simulated inverter's
     # limit stays twice the EMF at n_N, simulation.py)
-    u_dc: float = field(default=0.0, metadata={"dim": "voltage", "doc": "DC-link voltage [V]"})
+    u_dc: float = q("voltage", doc="DC-link voltage [V]", default=0.0)
 
 
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N, base speed
@@ -179,21 +185,11 @@ class PmacDrive:
 # --------------------------------------------------------------------------------------------------
 # Loading
 # --------------------------------------------------------------------------------------------------
-def _list(table: Mapping[str, Any], key: str, file: str, section: str) -> list[Any]:
-    full = f"{section}.{key}"
-    if key not in table:
-        raise DriveFileError(file, full, "missing key")
-    v = table[key]
-    if not isinstance(v, list) or not v:
-        raise DriveFileError(file, full, f"expected a non-empty list, got {v!r}")
-    return v
-
-
 def harmonic_series(
     table: Mapping[str, Any], file: str, section: str
 ) -> tuple[tuple[int, ...], tuple[float, ...]]:
     """Orders and amplitudes of eq. (4), validated: odd, distinct, fundamental first and positive."""
-    raw = _list(table, "harmonics", file, section)
+    raw = nonempty_list(table, "harmonics", file, section)
     key = f"{section}.harmonics"
     for n in raw:
         if isinstance(n, bool) or not isinstance(n, int) or n % 2 == 0:
@@ -203,7 +199,7 @@ def harmonic_series(
     if raw[0] != 1:
         raise DriveFileError(file, key, "the first order must be the fundamental 1 (eq. (18) needs it)")
     orders = tuple(raw)
-    amps = _list(table, "Phi", file, section)
+    amps = nonempty_list(table, "Phi", file, section)
     key = f"{section}.Phi"
     if len(amps) != len(orders):
         raise DriveFileError(file, key, f"{len(amps)} amplitudes for {len(orders)} harmonic orders")
@@ -260,35 +256,7 @@ def _with_harmonics(cls: type, table: Mapping[str, Any], file: str, section: str
     return dataclasses.replace(obj, harmonics=orders, Phi=Phi)
 
 
-def _quantities(table: Mapping[str, Any], key: str, dim: str, file: str, section: str) -> tuple[float, ...]:
-    out = []
-    for k, v in enumerate(_list(table, key, file, section)):
-        x, rel = parse_quantity(v, dim, file=file, key=f"{section}.{key}[{k}]")
-        if rel is not None:
-            raise DriveFileError(file, f"{section}.{key}[{k}]", f"unit '{rel}' cannot be resolved here")
-        out.append(x)
-    return tuple(out)
-
-
 SECTIONS = ("drive", "rating", "motor", "estimate", "observer", "control", "envelope")
-
-
-def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
-    """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
-    the complete data is loaded strictly and checked for plausibility (design/plausibility.py)."""
-    from sensorless.design.pmac_reduced_order.derive import check_plausibility, document
-
-    doc = document(data, file)
-    drive = load_complete(doc.data(), file, digest, kind)
-    warnings = check_plausibility(drive, doc.context)
-    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive
-
-
-def _optional(
-    t: Mapping[str, Any], keys: tuple[str, ...], dim_of: Any, file: str, section: str
-) -> dict[str, float]:
-    """The optional positive quantities ``keys`` of ``t`` that are given, in SI."""
-    return {k: positive(t, k, dim_of(k), file, section) for k in keys if k in t}
 
 
 def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PmacDrive:
@@ -296,9 +264,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     check_keys(data, SECTIONS, file, "")
     head = drive_header(data, file)
     rating_t = table(data, "rating", file)
-    rating = load_section(PmacRating, rating_t, file, "rating", skip=RATING_OPTIONAL)
-    dims = {f.name: f.metadata["dim"] for f in dataclasses.fields(PmacRating)}
-    rating = dataclasses.replace(rating, **_optional(rating_t, RATING_OPTIONAL, dims.get, file, "rating"))
+    rating = load_section(PmacRating, rating_t, file, "rating", optional=RATING_OPTIONAL)
     T_P = rating.P_N / (rating.n_N * math.pi / 30)
     if rating.T_N and abs(rating.T_N / T_P - 1) > T_N_TOLERANCE:
         raise DriveFileError(
@@ -317,10 +283,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     estimate = _with_harmonics(PmacEstimate, table(data, "estimate", file), file, "estimate")
     observer = load_section(PmacObserver, table(data, "observer", file), file, "observer")
     control_t = table(data, "control", file)
-    control = load_section(PmacControl, control_t, file, "control", skip=("i_noise", "u_dc"))
-    control = dataclasses.replace(
-        control, **_optional(control_t, ("u_dc",), lambda k: "voltage", file, "control")
-    )
+    control = load_section(PmacControl, control_t, file, "control", optional=("i_noise", "u_dc"))
     if control.discretization not in DISCRETIZATIONS:
         raise DriveFileError(
             file,
@@ -330,8 +293,8 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     env_t = table(data, "envelope", file)
     check_keys(env_t, ("speeds", "loads"), file, "envelope.")
     envelope = Envelope(
-        speeds=_quantities(env_t, "speeds", "mech_speed", file, "envelope"),
-        loads=_quantities(env_t, "loads", "torque", file, "envelope"),
+        speeds=quantities(env_t, "speeds", "mech_speed", file, "envelope"),
+        loads=quantities(env_t, "loads", "torque", file, "envelope"),
     )
     for k, n in enumerate(envelope.speeds):
         if n == 0:
@@ -351,15 +314,9 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
         envelope=envelope,
         digest=digest,
     )
-    if "i_noise" in control_t:
-        x, _ = parse_quantity(control_t["i_noise"], "current", file=file, key="control.i_noise")
-        if not x > 0:
-            raise DriveFileError(
-                file, "control.i_noise", f"non-physical value {control_t['i_noise']!r}: must be > 0"
-            )
-    else:
+    if "i_noise" not in control_t:
         x = I_NOISE_DEFAULT * nominal_current(drive)
-    drive = dataclasses.replace(drive, control=dataclasses.replace(control, i_noise=float(x)))
+        drive = dataclasses.replace(drive, control=dataclasses.replace(control, i_noise=float(x)))
     # The speed sign (14) reads the angle step modulo pi: |w| T_s must stay below pi/2.
     w_max = float(np.max(np.abs(drive.rpm_to_w(envelope.speeds))))
     if w_max * control.T_s >= math.pi / 2:

@@ -21,11 +21,9 @@ from importlib.metadata import version as _version
 from typing import Any
 
 from sensorless.design.envelope import NOISE_DIMS, NOISE_OUTPUTS
+from sensorless.design.poles import MIN_DAMPING  # noqa: F401  (re-exported: the commands read it here)
 from sensorless.design.units import MAGNITUDE, DriveFileError, check_magnitude, parse_number, parse_quantity
 
-# The damping ratio a stability report requires by default (``sensorless report --min-damping``);
-# ``sensorless tune`` warns (exit status 3) when the best gains it finds stay below it.
-MIN_DAMPING = 0.2
 # Drive-relative bounds of command-line operating points: |torque| <= RELATIVE_LIMIT T_N and
 # |speed| <= RELATIVE_LIMIT times the drive's base speed (far beyond any drive, short of overflow).
 RELATIVE_LIMIT = 100.0

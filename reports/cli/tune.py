@@ -63,13 +63,14 @@ def run(args: argparse.Namespace) -> int:
     h = hooks(fam)
     tunable = tunable_for(drive, args.family)
     refuse_foreign(args, fam, "tune")
-    settings = h.tune_settings(drive, args, tunable) if h.tune_settings is not None else None
+    own = h.tune_settings
+    settings = own(drive, args, tunable) if own is not None else tunable.settings(drive)
     json_name, csv_name = f"gains_{tunable.name}.json", f"gains_{tunable.name}.csv"
     speeds_name, pareto_name = f"speeds_{tunable.name}.csv", f"pareto_{tunable.name}.csv"
     names = [json_name, csv_name]
-    if getattr(settings, "bound", False):
+    if settings.bound:
         names.append(speeds_name)
-    if getattr(settings, "pareto", 0):
+    if settings.pareto:
         names.append(pareto_name)
     out = OutputSet(args.out or f"tune-{drive.name}", force=args.force, names=names)
     out.check()  # refuse unwritable or existing outputs before the work
@@ -81,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
 
     print(f"{drive.name}: {drive.source}")
     print(f"family {tunable.name}: {tunable.description}")
-    if h.describe_envelope is not None and settings is not None:
+    if h.describe_envelope is not None:
         print(h.describe_envelope(drive, settings))
     try:
         r = tune(drive, tunable.name, settings, progress=progress)

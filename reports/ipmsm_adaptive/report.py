@@ -18,6 +18,7 @@ from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
 from sensorless.design.ipmsm_adaptive.linearize import PoleSweep, unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
+from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
 from sensorless.reports.document import (
     Figure,
@@ -75,7 +76,7 @@ def compute(
     drive: Any,
     table: Any | None = None,
     table_file: str = "",
-    min_damping: float = 0.2,
+    min_damping: float = MIN_DAMPING,
     resolution: str = "normal",
     progress: Callable[[str], None] = lambda s: None,
     scenarios: Sequence[str] = (),

@@ -83,6 +83,7 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> TuningSettin
     if args.torque:
         env["torques_TN"] = tuple(t / drive.T_N for t in parse_torques(args.torque, drive.T_N))
     out: dict[str, Any] = {"envelope": dataclasses.replace(s.envelope, **env)}
+    law: dict[str, Any] = {}  # the gain laws' own settings (design/ipmsm_adaptive/law_settings.py)
     if args.min_decay is not None:
         out["min_decay"] = args.min_decay
     if args.lambda_max is not None:
@@ -91,7 +92,7 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> TuningSettin
             x, rel = parse_quantity(txt, "resistance", file="", key="--lambda-max")
         except DriveFileError as e:
             raise option_error("--lambda-max", e.problem) from None
-        out["lambda_max"] = x * drive.estimate.R_s if rel else x
+        law["lambda_max"] = x * drive.estimate.R_s if rel else x
     if args.errors:
         errs = [0.0] * 4
         for item in args.errors.split(","):
@@ -105,16 +106,16 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> TuningSettin
             errs[ESTIMATE_KEYS.index(k.strip())] = x
         out["errors"] = tuple(errs)
     if args.tune_alpha_fo:
-        out["tune_alpha_fo"] = True
+        law["tune_alpha_fo"] = True
     if args.breakpoints is not None:
-        out["breakpoints"] = args.breakpoints
+        law["breakpoints"] = args.breakpoints
     if args.max_noise:
         out["max_noise"] = parse_max_noise(args.max_noise, drive.w_base)
     if args.pareto is not None:
         out["pareto"] = args.pareto
     if args.pareto_output:
         out["pareto_output"] = args.pareto_output
-    result = dataclasses.replace(s, **out)
+    result = dataclasses.replace(s, law=dataclasses.replace(s.law, **law), **out)
     try:
         result.check("", prefix="")
     except DriveFileError as e:  # name the option, not the drive file's key

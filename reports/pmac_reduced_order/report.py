@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.pmac_reduced_order import FAMILY
+from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
 from sensorless.reports.document import (
     Figure,
@@ -39,7 +40,7 @@ def compute(
     drive: Any,
     table: Any | None = None,
     table_file: str = "",
-    min_damping: float = 0.2,
+    min_damping: float = MIN_DAMPING,
     resolution: str = "normal",
     progress: Callable[[str], None] = lambda s: None,
     scenarios: Sequence[str] = (),

@@ -349,6 +349,17 @@ def test_mtpa_torque_of_a_salient_motor():
     assert mtpa_torque(i, m) == pytest.approx(1.5 * 3 * (0.1 - a * i_d) * i_q, rel=1e-6)
 
 
+def test_steady_voltage_is_the_dq_model_at_rest():
+    from sensorless.design.motor_data import steady_voltage
+
+    m = read_motor({"p": 3, "R_s": 0.5, "L_d": "4 mH", "L_q": "8 mH", "psi_pm": "0.1 Vs", "J": 1e-4}, F)
+    for w, i_d, i_q in ((300.0, -5.0, 12.0), (-800.0, 0.0, -3.0), (0.0, -2.0, 7.0)):
+        # u = R i + w J psi with psi = (L_d i_d + psi_pm, L_q i_q), typed here from the model
+        u_d = 0.5 * i_d - w * 8e-3 * i_q
+        u_q = 0.5 * i_q + w * (4e-3 * i_d + 0.1)
+        assert steady_voltage(m, w, i_d, i_q) == pytest.approx(math.hypot(u_d, u_q), rel=1e-12)
+
+
 # ---------------------------------------------------------------------------- end to end: init
 MINIMAL = """[drive]
 name = "servo400"

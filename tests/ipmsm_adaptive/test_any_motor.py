@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from helpers.report_checks import c_example_initializes, verdict_agrees_with_checks
 from sensorless.design.drive import load_drive
+from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports.cli.main import main
 
 DRIVES = Path(__file__).parent / "drives"
@@ -52,7 +53,7 @@ def test_every_command_succeeds_and_finds_gains(flow):
     assert codes["report"] in (0, 3), codes  # 3: a check failed; the report says so (below)
     table = json.loads((d / "tune" / "gains_law16.json").read_text())
     # stable gains with the damping a report requires, found on the motor's own envelope
-    assert table["summary"]["worst_damping"] > 0.2, table["summary"]
+    assert table["summary"]["worst_damping"] > MIN_DAMPING, table["summary"]
 
 
 def test_the_minimal_file_and_the_written_one_are_the_same_drive(flow):

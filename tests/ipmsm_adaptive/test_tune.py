@@ -133,7 +133,7 @@ def test_paper_defaults_reproduce(drive, law16):
 
 @pytest.fixture(scope="module")
 def schedule(drive):
-    return tune(drive, "schedule", small(drive, breakpoints=6))
+    return tune(drive, "schedule", small(drive, law=dataclasses.replace(drive.tuning.law, breakpoints=6)))
 
 
 def test_schedule_at_least_as_good_as_law16(drive, law16, schedule):
@@ -165,7 +165,8 @@ def test_dense_reverification_rejects_between_grid_instability(drive, law16):
     """Gains that equal the start at every speed of the optimization grid but differ between them
     are judged by the dense grid: a schedule perturbed in the null space of grid interpolation is
     identical on the grid (checked with the closed form), worse between, and not selected."""
-    st = small(drive, breakpoints=11)  # more breakpoints than grid speeds: such perturbations exist
+    # more breakpoints than grid speeds: such perturbations exist
+    st = small(drive, law=dataclasses.replace(drive.tuning.law, breakpoints=11))
     m = build_schedule(drive, st, law16.theta)
     env = st.envelope
     wb, TN = drive.base.w, drive.T_N

@@ -1,7 +1,7 @@
 """Tuning hooks of the adaptive observer: the gain families law16 (eq. (16)) and schedule, by the shared NLP.
 
 Piippo, Hinkkanen, Luomi (2008). Builders of the TuningModels: families.py. Settings: the drive's
-``[tuning]`` section (design/envelope.py).
+``[tuning]`` section (design/envelope.py; the laws' own keys in design/ipmsm_adaptive/law_settings.py).
 """
 
 from __future__ import annotations

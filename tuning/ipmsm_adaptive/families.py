@@ -25,6 +25,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from sensorless.design.envelope import TuningSettings
+from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law, schedule_law
 from sensorless.tuning.ipmsm_adaptive.model import law_model, law_values
 from sensorless.tuning.model import TuningModel
@@ -40,7 +41,8 @@ def _model(drive: Any, law: GainLaw, settings: TuningSettings, **kw: Any) -> Tun
 
 def _lambda_max(settings: TuningSettings, R: float) -> float:
     """The bound on |lambda1|, |lambda2| [ohm]: the configured one, else GAIN_BOX R̂s."""
-    return settings.lambda_max if settings.lambda_max is not None else GAIN_BOX * R
+    lam = law_settings(settings).lambda_max
+    return lam if lam is not None else GAIN_BOX * R
 
 
 def _grid_starts(a: np.ndarray, b: np.ndarray, settings: TuningSettings, a0: float) -> np.ndarray:
@@ -52,7 +54,7 @@ def _grid_starts(a: np.ndarray, b: np.ndarray, settings: TuningSettings, a0: flo
 
 def _alpha_reg(th: ca.SX, law: GainLaw, settings: TuningSettings, a0: float) -> ca.SX:
     """Keep a tuned alpha_fo near the drive's value unless damping needs otherwise."""
-    return (th[law.n_params] / a0 - 1) ** 2 if settings.tune_alpha_fo else 0
+    return (th[law.n_params] / a0 - 1) ** 2 if law_settings(settings).tune_alpha_fo else 0
 
 
 def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
@@ -68,7 +70,7 @@ def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = 
         return {
             "lambda_p": float(theta[0]),
             "w_lambda": float(theta[1]),
-            "alpha_fo": float(theta[2] if settings.tune_alpha_fo else a0),
+            "alpha_fo": float(theta[2] if law_settings(settings).tune_alpha_fo else a0),
         }
 
     def starts() -> np.ndarray:
@@ -106,7 +108,7 @@ def schedule_breakpoints(
     of ``kinks`` [rad/s] that lies inside the envelope and not within 1e-3 p.u. of another."""
     e = settings.envelope
     wb = drive.base.w
-    mag = list(np.linspace(e.speed_min, e.speed_max, settings.breakpoints) * wb)
+    mag = list(np.linspace(e.speed_min, e.speed_max, law_settings(settings).breakpoints) * wb)
     for k in kinks:
         k = abs(float(k))
         if e.speed_min * wb < k < e.speed_max * wb and min(abs(k - m) for m in mag) > 1e-3 * wb:
@@ -154,13 +156,13 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
             "w_hat": list(grid),
             "lambda1": [float(v) for v in theta[:K]],
             "lambda2": [float(v) for v in theta[K : 2 * K]],
-            "alpha_fo": float(theta[2 * K] if settings.tune_alpha_fo else a0),
+            "alpha_fo": float(theta[2 * K] if law_settings(settings).tune_alpha_fo else a0),
         }
 
     start = None
     if seed is not None:
         start = _law16_at(grid, np.asarray(seed, float))
-        if settings.tune_alpha_fo:
+        if law_settings(settings).tune_alpha_fo:
             start = np.append(start, seed[2])
 
     def from_pointwise(speeds: np.ndarray, optima: np.ndarray) -> np.ndarray:
@@ -168,7 +170,7 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
         (linear between speeds, held beyond; zero speed: the mean of the two directions' nearest)."""
         out = [_sample(speeds, optima[:, c], w) for c in range(2)]
         th = np.concatenate(out)
-        if settings.tune_alpha_fo:
+        if law_settings(settings).tune_alpha_fo:
             th = np.append(th, float(np.median(optima[:, 2])) if optima.shape[1] > 2 else a0)
         return th
 
@@ -208,7 +210,7 @@ def _sample(speeds: np.ndarray, v: np.ndarray, at: np.ndarray) -> np.ndarray:
 
 def with_alpha_fo_starts(starts: np.ndarray, settings: Any, a0: float) -> np.ndarray:
     """The global phase's starts, each at 0.5, 1 and 2 x the drive's alpha_fo when it is tuned too."""
-    if not settings.tune_alpha_fo:
+    if not law_settings(settings).tune_alpha_fo:
         return starts
     return np.vstack([np.column_stack([starts, np.full(len(starts), k * a0)]) for k in (0.5, 1.0, 2.0)])
 

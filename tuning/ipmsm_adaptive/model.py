@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
+from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
 from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, taylor_law
@@ -100,7 +101,7 @@ def law_model(
 ) -> TuningModel:
     """The TuningModel of ``law`` on ``drive`` with the box (lower, upper), baseline theta0 and typical
     magnitudes of its parameters (alpha_fo appended when tuned); ``kw``: the family's own fields."""
-    tune_alpha = settings.tune_alpha_fo
+    tune_alpha = law_settings(settings).tune_alpha_fo
     a0 = drive.observer.alpha_fo
     names, units = law.param_names, law.param_units
     if tune_alpha:
@@ -144,7 +145,8 @@ def law_model(
         gain[: law.n_params] = theta[: law.n_params]
         f = law_values(law).map(w_hat.size)
         l1, l2 = f(w_hat[None, :], gain)
-        return {"lambda1_ohm": np.asarray(l1).ravel(), "lambda2_ohm": np.asarray(l2).ravel()}
+        # keyed as the gain table's points (and the CSV columns of tuning/ipmsm_adaptive/__init__.py)
+        return {"lambda1": np.asarray(l1).ravel(), "lambda2": np.asarray(l2).ravel()}
 
     def make_points(w: np.ndarray, T: np.ndarray, est: np.ndarray) -> np.ndarray:
         w_b, T_b = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))
@@ -152,7 +154,7 @@ def law_model(
 
     def pointwise_gains(theta: np.ndarray, w: np.ndarray) -> np.ndarray:
         g = point_gains(theta, np.asarray(w, float))
-        cols = [g["lambda1_ohm"], g["lambda2_ohm"]]
+        cols = [g["lambda1"], g["lambda2"]]
         if tune_alpha:
             cols.append(np.full(len(cols[0]), theta[law.n_params]))
         return np.column_stack(cols)
@@ -186,5 +188,7 @@ def law_model(
         T_s=drive.control.T_s,
         pointwise_gains=pointwise_gains,
         gain_size=gain_size_function(law, R, wb, settings.envelope.speed_max * wb),
+        gain_size_unit="R_s_hat",
+        gain_size_meaning="RMS over the speed range of the gain and its slope per p.u., in R̂s",
         **kw,
     )

@@ -9,7 +9,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from sensorless.tuning.nlp import TuningError
@@ -33,6 +33,9 @@ class DeAngeloSettings:
     dense_factor: int = 4
     # (output, limit SI) pairs; None: NOISE_FACTOR x the drive's gains' position noise; (): no limit
     max_noise: tuple[tuple[str, float], ...] | None = None
+    # the tuner of its own computes neither a pointwise bound nor a damping-versus-noise front
+    bound: ClassVar[bool] = False
+    pareto: ClassVar[int] = 0
 
     def noise_limits(self) -> np.ndarray:
         """[position rad, speed rad/s] limits (inf: none); needs resolved ``max_noise``."""

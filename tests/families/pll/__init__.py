@@ -7,7 +7,7 @@ family has, one module per layer, mirroring the folders of the built-in families
   (the one runtime contract, symbolic/runtime.py);
 - design.py: drive-file schema, gains, runtime set-up, linearization (CasADi Jacobians of the
   equations of symbolic.py), simulation on the shared PMSM drive loop, and the family record FAMILY;
-- tuning.py: the tunable gain family ``pll`` (the PLL bandwidth), tuned by a search of its own;
+- tuning.py: its gain law ``pll`` (one PLL bandwidth), a TuningModel for the shared tuning pipeline;
 - report.py: ``analyze`` output, ``tune`` options and the stability report;
 - presets/ and scenarios/: its drive TOML and its one built-in scenario.
 

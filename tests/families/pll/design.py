@@ -35,18 +35,19 @@ from sensorless.design.discrete import (
     pmsm_zoh_plant,
     pmsm_zoh_sample,
 )
-from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
+from sensorless.design.drive_file import check_keys, drive_header, load_section, q, quantities, table
 from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTable, GainTableError
 from sensorless.design.linearization import Linearization
-from sensorless.design.pmsm_drive import PmsmDrive, from_sections, loop_setup
-from sensorless.design.pmsm_schema import PmsmControl, load_motor
+from sensorless.design.pmsm_drive import loop_setup
+from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, load_estimate, load_motor
 from sensorless.design.poles import eigvals_batched
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import DriveFileError
 from sensorless.symbolic.frames import J, rot, wrap_angle
+from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
 
 from families.pll.symbolic import DISCRETIZATIONS, N_OBS, OBSERVER, PARAMS, rhs_function
 
@@ -63,35 +64,6 @@ class Rating:
 
     n_N: float = q("mech_speed", doc="nominal mechanical speed [r/min]")
     T_N: float = q("torque", doc="nominal torque [N m]")
-
-
-@dataclass(frozen=True)
-class Motor:
-    """The true non-salient motor."""
-
-    p: int = q("integer", doc="pole pairs")
-    R_s: float = q("resistance", doc="stator resistance [ohm]")
-    L: float = q("inductance", doc="stator inductance [H]")
-    psi_pm: float = q("flux", doc="PM flux [V s]")
-    J: float = q("inertia", doc="total inertia [kg m^2]")
-
-    @property
-    def L_d(self) -> float:
-        """L: the d- and q-axis inductances of a non-salient motor (what the shared drive loop reads)."""
-        return self.L
-
-    L_q = L_d
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """The observer's and the controllers' model of the motor."""
-
-    R_s: float = q("resistance", doc="stator resistance estimate [ohm]")
-    L: float = q("inductance", doc="inductance estimate [H]")
-    psi_pm: float = q("flux", doc="PM flux estimate [V s]")
-
-    L_d = L_q = Motor.L_d  # one L for both axes, as in the true motor
 
 
 @dataclass(frozen=True)
@@ -122,8 +94,8 @@ class PllDrive:
     source: str
     file: str
     rating: Rating
-    motor: Motor
-    estimate: Estimate
+    motor: PmsmMotor
+    estimate: PmsmEstimate
     control: PmsmControl
     observer: Observer
     envelope: Envelope
@@ -146,6 +118,11 @@ class PllDrive:
     def T_s(self) -> float:
         return self.control.T_s
 
+    def grid(self, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Flat (speed [rad/s], torque [N m]) of the envelope's speeds x torques."""
+        W, T = np.meshgrid(self.speed_grid(factor), np.asarray(self.envelope.torques, float))
+        return W.ravel(), T.ravel()
+
     def speed_grid(self, factor: int = 1) -> np.ndarray:
         """Envelope speeds [rad/s], both directions; ``factor`` refines each interval."""
         e = self.envelope
@@ -159,21 +136,15 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive
     check_keys(data, sections, file, "")
     head = drive_header(data, file)
     rating = load_section(Rating, table(data, "rating", file), file, "rating")
-    motor = load_motor(Motor, data, file)
+    motor, estimate = load_motor(data, file), load_estimate(data, file)
+    for section, m in (("motor", motor), ("estimate", estimate)):
+        if m.L_q != m.L_d:  # the observer's model (1) has one inductance
+            raise DriveFileError(file, f"{section}.L_q", "a non-salient motor: L_q must equal L_d")
     w_base = rating.n_N * math.pi / 30 * motor.p
     rel = {"pu": w_base}
     env_t = table(data, "envelope", file)
     envelope = load_section(Envelope, env_t, file, "envelope", rel, skip=("torques",))
-    raw = env_t.get("torques")
-    if not isinstance(raw, list) or not raw:
-        raise DriveFileError(file, "envelope.torques", "expected a non-empty list of torques")
-    torques = []
-    for k, v in enumerate(raw):
-        x, unit = parse_quantity(v, "torque", file=file, key=f"envelope.torques[{k}]")
-        if unit is not None:
-            raise DriveFileError(file, f"envelope.torques[{k}]", f"unit '{unit}' cannot be resolved here")
-        torques.append(x)
-    envelope = dataclasses.replace(envelope, torques=tuple(torques))
+    envelope = dataclasses.replace(envelope, torques=quantities(env_t, "torques", "torque", file, "envelope"))
     if envelope.speeds < 2 or not envelope.speed_min < envelope.speed_max:
         raise DriveFileError(file, "envelope", "need speeds >= 2 and 0 < speed_min < speed_max")
     return PllDrive(
@@ -183,7 +154,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive
         file=file,
         rating=rating,
         motor=motor,
-        estimate=load_section(Estimate, table(data, "estimate", file), file, "estimate"),
+        estimate=estimate,
         control=load_section(PmsmControl, table(data, "control", file), file, "control"),
         observer=load_section(Observer, table(data, "observer", file), file, "observer", rel),
         envelope=envelope,
@@ -217,7 +188,7 @@ def runtime_params(drive: PllDrive, gains: GainSet) -> dict[str, float]:
     e, o = drive.estimate, drive.observer
     return {
         "R_s": e.R_s,
-        "L": e.L,
+        "L": e.L_d,
         "psi_pm": e.psi_pm,
         "g": o.g,
         "w_pll": float(gains.values["w_pll"]),
@@ -252,15 +223,38 @@ _N_X = N_OBS  # the observer's states (the runtime state adds the contract's cou
 
 
 def _steady_motor(w: ca.SX, T_e: ca.SX, m: ca.SX) -> tuple[ca.SX, ca.SX]:
-    """(i_r, u_r) of the true non-salient motor m = [R_s, L, psi_pm, p] at speed w, torque T_e."""
-    i_r = ca.vertcat(0, T_e / (1.5 * m[3] * m[2]))  # MTPA of a non-salient motor: i_d = 0
-    u_r = m[0] * i_r + w * (J @ (m[1] * i_r + ca.vertcat(m[2], 0)))
-    return i_r, u_r
+    """(i_r, u_r) of the true non-salient motor m = [R_s, L, psi_pm, p] at speed w, torque T_e: the
+    MTPA current (i_d = 0) and the steady voltage of the shared PMSM model (symbolic/pmsm.py)."""
+    motor = PmsmParams(m[0], m[1], m[1], m[2])
+    i_r = mtpa_current(T_e, motor, m[3])
+    return i_r, stator_voltage(i_r, 0, flux_from_current(i_r, motor), w, motor.R_s)
 
 
 def _to_stationary(x_r: ca.SX) -> ca.SX:
     """Observer state at theta = 0 from the rotor-frame state [z_r (2), delta, w_i]."""
     return ca.vertcat(x_r[0:2], -x_r[2], x_r[3])
+
+
+@functools.cache
+def rotor_frame_rates() -> ca.Function:
+    """(x_r, w, T_e, motor[4], p) -> f_r: the continuous observer (1)-(3) on the true motor in steady
+    state at speed w, torque T_e, written in the rotor frame (x_r = [z_r (2), delta, w_i]); its
+    equilibria are its zeros, and its Jacobian in x_r is the linearized observer there."""
+    x_r = ca.SX.sym("x_r", _N_X)
+    w, T_e = ca.SX.sym("w"), ca.SX.sym("T_e")
+    m, p = ca.SX.sym("motor", 4), ca.SX.sym("p", len(PARAMS))
+    i_r, u_r = _steady_motor(w, T_e, m)  # at theta = 0: stationary = rotor frame
+    dx = rhs_function()(_to_stationary(x_r), i_r, u_r, p)
+    G = ca.vertcat(dx[0:2] - w * (J @ x_r[0:2]), w - dx[2], dx[3])
+    return ca.Function(
+        "pmsm_pll_rotor_rates", [x_r, w, T_e, m, p], [G], ["x_r", "w", "T_e", "motor", "p"], ["f_r"]
+    )
+
+
+def motor_vector(drive: PllDrive) -> np.ndarray:
+    """[R_s, L, psi_pm, p] of the true motor (the ``motor`` input of the equilibrium Functions)."""
+    mt = drive.motor
+    return np.array([mt.R_s, mt.L_d, mt.psi_pm, float(mt.p)])
 
 
 @functools.cache
@@ -279,15 +273,14 @@ def sampled_loop(discretization: str) -> SampledLoop:
 
 
 @functools.cache
-def _equilibrium_function() -> ca.Function:
-    """(w, T_e, motor[4], p) -> (x_r*, A, residual): Newton on the SX equations, then the Jacobian of
-    the continuous observer (1)-(3) in the rotor frame, f_r(x_r) = 0."""
+def equilibrium_function() -> ca.Function:
+    """(w, T_e, motor[4], p) -> (x_r*, A, residual): Newton on the SX equations f_r(x_r) = 0 of the
+    continuous observer in the rotor frame (:func:`rotor_frame_rates`), then its Jacobian there."""
     x_r = ca.SX.sym("x_r", _N_X)
     w, T_e = ca.SX.sym("w"), ca.SX.sym("T_e")
     m, p = ca.SX.sym("motor", 4), ca.SX.sym("p", len(PARAMS))
-    i_r, u_r = _steady_motor(w, T_e, m)  # at theta = 0: stationary = rotor frame
-    dx = rhs_function()(_to_stationary(x_r), i_r, u_r, p)
-    G = ca.vertcat(dx[0:2] - w * (J @ x_r[0:2]), w - dx[2], dx[3])
+    i_r, _ = _steady_motor(w, T_e, m)
+    G = rotor_frame_rates()(x_r, w, T_e, m, p)
     g_fn = ca.Function("G", [x_r, w, T_e, m, p], [G, ca.jacobian(G, x_r)])
     # start: the exact EMF of the true motor, no angle error, w_i = w
     e_r = w * ca.vertcat(0, m[2])
@@ -311,17 +304,17 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
     W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
     n = W.size
     setup = runtime_setup(drive, gains)
-    mt = drive.motor
-    motor = np.array([mt.R_s, mt.L, mt.psi_pm, float(mt.p)])
-    x, A, res = evaluate_batch(_equilibrium_function(), n, [W, T, motor, setup.p])
+    motor = motor_vector(drive)
+    x, A, res = evaluate_batch(equilibrium_function(), n, [W, T, motor, setup.p])
     scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
     ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
     poles = np.full((n, _N_X), np.nan + 0j)
     if ok.any():
         poles[ok] = eigvals_batched(A[ok])
     # the sampled observer that runs (the shared analysis), from the continuous equilibrium
-    i_r = np.column_stack([np.zeros(n), T / (1.5 * mt.p * mt.psi_pm)])
-    plant = pmsm_zoh_plant([mt.R_s, mt.L, mt.L, mt.psi_pm], W, i_r, drive.control.T_s)
+    R, L, psi_pm, p = motor
+    i_r = np.column_stack([np.zeros(n), T / (1.5 * p * psi_pm)])  # MTPA of a non-salient motor
+    plant = pmsm_zoh_plant([R, L, L, psi_pm], W, i_r, drive.control.T_s)
     y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
     y, Jd = fixed_points(sampled_loop(setup.discretization), y0, W, plant, setup.p)
     return PllLinearization(
@@ -338,11 +331,6 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
 # --------------------------------------------------------------------------------------------------
 # Simulation: the shared PMSM drive loop around the runtime observer
 # --------------------------------------------------------------------------------------------------
-def pmsm_drive(drive: PllDrive) -> PmsmDrive:
-    """The numbers of the shared PMSM drive loop (L_d = L_q = L)."""
-    return from_sections(drive.motor, drive.estimate, drive.control)
-
-
 def simulation(drive: PllDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """Loop set-up of ``sc`` on ``drive``; the scenario's estimate errors scale the observer's model."""
     k = sc.estimate_scale
@@ -356,7 +344,7 @@ def simulation(drive: PllDrive, sc: Scenario, gains: GainSet | None) -> LoopSetu
     OBSERVER.check_params(params)
     setup = dataclasses.replace(setup, params=params)
     meta = {"gain": f"{setup.gain_source}: w_pll = {params['w_pll']:.6g} rad/s"}
-    return loop_setup(drive, pmsm_drive(drive), sc, setup, carrier=False, meta=meta)
+    return loop_setup(drive, sc, setup, meta=meta)
 
 
 # --------------------------------------------------------------------------------------------------

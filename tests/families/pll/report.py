@@ -16,9 +16,12 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from sensorless.design.envelope import TuningSettings
 from sensorless.design.gain_table import read_gain_table
+from sensorless.design.poles import MIN_DAMPING
+from sensorless.design.units import DriveFileError
 from sensorless.reports import time_domain
-from sensorless.reports.cli.common import UsageError
+from sensorless.reports.cli.common import option_error
 from sensorless.reports.document import (
     Figure,
     Paragraph,
@@ -35,10 +38,9 @@ from sensorless.reports.document import (
 )
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
-from sensorless.tuning.nlp import TuningError
 
 from families.pll.design import FAMILY, PllLinearization
-from families.pll.tuning import PllSettings, default_settings, grid
+from families.pll.tuning import default_settings
 
 TIME_DOMAIN = ("speed_steps",)
 MAX_RMS_THETA_DEG = 10.0  # a time-domain check passes below this RMS position error
@@ -98,7 +100,7 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
     """Poles over the envelope (4x refined in speed); stage poles.csv and the figure."""
     table = read_gain_table(args.gains) if args.gains else None
     gains = _gains(drive, table, args.gains or "")
-    W, T = grid(drive, 4)
+    W, T = drive.grid(4)
     lin = FAMILY.linearize(drive, gains, W, T)
     print(f"{drive.name}: {drive.source}")
     print(f"{FAMILY.title} ({FAMILY.citation}); gains: {gains.source}")
@@ -135,30 +137,33 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
 # --------------------------------------------------------------------------------------------------
 TUNE_OPTIONS = (
     Option(("--bandwidth-max",), {"type": float, "help": "upper bound on the PLL bandwidth [rad/s]"}),
-    Option(("--min-damping",), {"type": float, "help": "worst damping required"}),
+    Option(("--min-decay",), {"type": float, "help": "minimum decay rate -max Re(p) [1/s]"}),
     Option(("--dense-factor",), {"type": int, "help": "re-verification refinement (>= 4)"}),
 )
 
 
-def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> PllSettings:
+def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> TuningSettings:
+    """The shared settings of the drive's envelope with the command-line overrides, checked."""
     s = default_settings(drive)
-    keys = {"bandwidth_max": "w_max", "min_damping": "min_damping", "dense_factor": "dense_factor"}
-    s = dataclasses.replace(
-        s, **{v: getattr(args, k) for k, v in keys.items() if getattr(args, k) is not None}
-    )
+    if args.bandwidth_max is not None:
+        s = dataclasses.replace(s, law=dataclasses.replace(s.law, w_max=args.bandwidth_max))
+    if args.min_decay is not None:
+        s = dataclasses.replace(s, min_decay=args.min_decay)
+    if args.dense_factor is not None:
+        s = dataclasses.replace(s, envelope=dataclasses.replace(s.envelope, dense_factor=args.dense_factor))
     try:
-        s.check("command line")
-    except TuningError as e:
-        raise UsageError(str(e)) from None
+        s.check("", prefix="")
+    except DriveFileError as e:  # name the option
+        raise option_error(f"--{e.key.replace('_', '-')}", e.problem) from None
     return s
 
 
-def describe(drive: Any, settings: PllSettings) -> str:
-    e = drive.envelope
+def describe(drive: Any, settings: TuningSettings) -> str:
+    e, law = drive.envelope, settings.law
     return (
         f"envelope: |speed| {e.speed_min / drive.w_base:g}..{e.speed_max / drive.w_base:g} p.u. "
         f"({e.speeds} per direction) x torques {', '.join(f'{t:g}' for t in e.torques)} N m; "
-        f"w_pll in [{settings.w_min:.4g}, {settings.w_max:.4g}] rad/s, damping >= {settings.min_damping:g}"
+        f"w_pll in [{law.w_min:.4g}, {law.w_max:.4g}] rad/s"
     )
 
 
@@ -169,7 +174,7 @@ def compute(
     drive: Any,
     table: Any | None = None,
     table_file: str = "",
-    min_damping: float = 0.2,
+    min_damping: float = MIN_DAMPING,
     resolution: str = "normal",
     progress: Callable[[str], None] = lambda s: None,
     scenarios: Sequence[str] = (),
@@ -179,7 +184,7 @@ def compute(
     if table is not None:
         choices["tuned"] = _gains(drive, table, table_file)
     review = list(choices)[-1]
-    W, T = grid(drive, 1 if resolution == "quick" else 4)
+    W, T = drive.grid(1 if resolution == "quick" else 4)
     progress(f"[1/3] poles over the envelope ({W.size} points)")
     analysis: dict[str, Any] = {}
     lins = {}

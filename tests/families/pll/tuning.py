@@ -1,246 +1,166 @@
-"""Tuning hooks of the PLL test family: the gain family ``pll`` (the PLL bandwidth), by a search of its own.
+"""Tuning hooks of the PLL test family: its gain law ``pll``, one PLL bandwidth at every speed, tuned by
+the shared pipeline (tuning/tune.py: global phase, max-min damping NLP, dense re-verification,
+tie-break, pointwise bound).
 
-One parameter needs no NLP: the tuner evaluates the poles of the sampled observer (design.linearize:
-discrete poles ln(z)/T_s at the drive's sampling period) over the envelope (speeds x torques of the
-drive's ``[envelope]``) for bandwidths on a logarithmic grid between the bounds, refines around the
-best, and keeps the bandwidth with the fastest slowest decay among those whose worst damping is at
-least ``min_damping`` (ties: the smaller bandwidth, less noise). The best candidates are re-verified
-on a grid ``dense_factor`` times denser in speed, in rank order; the first that passes is kept.
+What is the family's own is only its :class:`~sensorless.tuning.model.TuningModel` (``build``) and the
+bandwidth box it adds to the shared settings (:class:`PllLawSettings`); the envelope is the drive's
+``[envelope]``. The model's closed loop is the continuous observer (1)-(3) of symbolic.py on the
+motor in steady state, in the rotor frame (design.rotor_frame_rates: the SX the analysis linearizes);
+an operating point carries the speed, the torque and the observer's estimates R_s, L, psi_pm. With
+exact estimates the equilibrium (the exact EMF, no angle error, w_i = w) does not move with w_pll.
+The law is the same at every speed, so its model of the free gain at one operating point (the
+pointwise bound's) is the model itself: the bound at a speed is the best worst damping over the
+torques that any bandwidth reaches there.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import casadi as ca
 import numpy as np
-from sensorless.design.family import GainSet
-from sensorless.design.gain_table import GainTable
+from sensorless.design.batch import evaluate_batch
+from sensorless.design.envelope import Envelope, TuningSettings
+from sensorless.design.units import DriveFileError
 from sensorless.tuning.family import Tunable, TuningHooks
-from sensorless.tuning.nlp import TuningError
+from sensorless.tuning.model import TuningModel
 
-from families.pll.design import linearize
+from families.pll.design import (
+    drive_gains,
+    equilibrium_function,
+    motor_vector,
+    rotor_frame_rates,
+    runtime_params,
+)
+from families.pll.symbolic import N_OBS, PARAMS
 
-DENSE_TRIES = 6
+ESTIMATES = ("R_s", "L", "psi_pm")  # the estimates an operating point carries (PARAMS names)
+BOX = (0.1, 20.0)  # default bandwidth box, in units of the drive file's w_pll
+# Default decay floor, in units of the drive file's w_pll [1/s]: as fast as the drive file's PLL alone
+# (its double pole at -w_pll). Without a floor the worst damping saturates at 1 (all poles real) for
+# every bandwidth below about half the drive's and the tie-break takes the smallest, slowest of them,
+# which loses the rotor position in the test scenario's load step; with it the tuned law is the best
+# damped bandwidth that settles at least this fast.
+FLOOR = 1.0
+GRID = 41  # bandwidths of the global phase (log grid over the box)
 
 
 @dataclass(frozen=True)
-class PllSettings:
-    """Envelope, bounds and constraint of the ``pll`` tunable."""
+class PllLawSettings:
+    """The bandwidth box of the ``pll`` law (``TuningSettings.law``)."""
 
-    w_min: float  # bandwidth bounds [rad/s]
-    w_max: float
-    min_damping: float = 0.5  # the PLL's own double pole (damping 1) is split by the EMF observer
-    candidates: int = 41
-    dense_factor: int = 4
+    w_min: float  # [rad/s]
+    w_max: float  # [rad/s]
 
-    def check(self, where: str) -> None:
-        """TuningError naming the option."""
+    def check(self, file: str, prefix: str = "tuning.") -> None:
+        """DriveFileError naming the bound."""
         if not 0 < self.w_min < self.w_max:
-            raise TuningError(f"{where}: --bandwidth-max: need 0 < {self.w_min:g} < {self.w_max:g} rad/s")
-        if not 0 <= self.min_damping < 1:
-            raise TuningError(f"{where}: --min-damping: must be in [0, 1), got {self.min_damping:g}")
-        if self.dense_factor < 4:
-            raise TuningError(f"{where}: --dense-factor: must be >= 4, got {self.dense_factor}")
-
-
-def default_settings(drive: Any) -> PllSettings:
-    """Bounds 0.1x .. 20x the drive's bandwidth."""
-    w = drive.observer.w_pll
-    return PllSettings(w_min=0.1 * w, w_max=20 * w)
-
-
-@dataclass(frozen=True)
-class Figures:
-    """Discrete poles of one bandwidth on a grid, and their worst figures."""
-
-    w: np.ndarray
-    T: np.ndarray
-    poles: np.ndarray
-    damping: np.ndarray  # worst per point; -inf where undefined
-    decay: np.ndarray  # -max Re per point [1/s]; -inf where undefined
-
-    def rank(self, min_damping: float) -> tuple[bool, float, float]:
-        z, d = float(np.min(self.damping)), float(np.min(self.decay))
-        return (z >= min_damping - 1e-9 and d > 0, d, z)
-
-
-def grid(drive: Any, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Flat (speed [rad/s], torque [N m]) of the envelope."""
-    W, T = np.meshgrid(drive.speed_grid(factor), np.asarray(drive.envelope.torques, float))
-    return W.ravel(), T.ravel()
-
-
-def figures(drive: Any, w_pll: float, W: np.ndarray, T: np.ndarray) -> Figures:
-    lin = linearize(drive, GainSet("pll", {"w_pll": float(w_pll)}), W, T)
-    ok = np.isfinite(lin.poles_discrete).all(axis=1)
-    z = np.where(ok, lin.worst_damping_discrete, -np.inf)
-    d = np.where(ok, lin.decay_rate_discrete, -np.inf)
-    return Figures(W, T, lin.poles_discrete, z, d)
-
-
-@dataclass(frozen=True)
-class PllTuneResult:
-    """What ``sensorless tune`` reports for the ``pll`` tunable."""
-
-    family: str
-    w_pll: float
-    w_pll0: float
-    dense: Figures
-    dense_baseline: Figures
-    evaluations: int
-    note: str
-    settings: PllSettings
-    table: GainTable
-    seconds: float
-
-    def summary_lines(self, drive: Any = None) -> list[str]:
-        z0, d0 = float(np.min(self.dense_baseline.damping)), float(np.min(self.dense_baseline.decay))
-        z1, d1 = float(np.min(self.dense.damping)), float(np.min(self.dense.decay))
-        return [
-            f"searched {self.evaluations} bandwidths in "
-            f"[{self.settings.w_min:.4g}, {self.settings.w_max:.4g}] rad/s; "
-            f"re-verified on {self.dense.w.size} points in {self.seconds:.1f} s",
-            f"{'':<24}{'drive file':>14}{'tuned':>14}",
-            f"{'w_pll [rad/s]':<24}{self.w_pll0:>14.5g}{self.w_pll:>14.5g}",
-            f"{'slowest decay [1/s]':<24}{d0:>14.4g}{d1:>14.4g}",
-            f"{'worst damping':<24}{z0:>14.4f}{z1:>14.4f}",
-            f"kept: {self.note}",
-        ]
-
-
-def tune_pll(drive: Any, settings: Any, progress: Callable[[str], None] | None = None) -> PllTuneResult:
-    """The bandwidth search of the module docstring."""
-    t0 = time.perf_counter()
-    st: PllSettings = settings or default_settings(drive)
-    st.check(drive.file)
-    say = progress or (lambda s: None)
-    W, T = grid(drive)
-    seen: dict[float, tuple] = {}
-
-    def rank(w: float) -> tuple:
-        if w not in seen:
-            seen[w] = figures(drive, w, W, T).rank(st.min_damping)
-        return seen[w]
-
-    cands = np.geomspace(st.w_min, st.w_max, st.candidates)
-    say(f"pll: {cands.size} bandwidths over {W.size} envelope points")
-
-    def key(w: float) -> tuple:
-        return (*rank(w), -w)  # feasible, slowest decay, worst damping; ties: the smaller bandwidth
-
-    best = max(cands, key=key)
-    k = int(np.flatnonzero(cands == best)[0])
-    lo, hi = cands[max(k - 1, 0)], cands[min(k + 1, cands.size - 1)]
-    say(f"refining between {lo:.4g} and {hi:.4g} rad/s")
-    for w in np.geomspace(lo, hi, 21):
-        rank(float(w))
-    ranked = sorted(seen, key=key, reverse=True)
-    if not seen[ranked[0]][0]:
-        raise TuningError(
-            f"{drive.file}: no PLL bandwidth in [{st.w_min:g}, {st.w_max:g}] rad/s gives stable discrete "
-            f"poles with damping >= {st.min_damping:.3f} over the envelope"
-        )
-    Wd, Td = grid(drive, st.dense_factor)
-    w0 = float(drive.observer.w_pll)
-    base = figures(drive, w0, Wd, Td)
-    chosen = None
-    for i, w in enumerate(ranked[:DENSE_TRIES]):
-        f = figures(drive, w, Wd, Td)
-        if f.rank(st.min_damping)[0]:
-            chosen, note = (w, f), f"candidate {i + 1} by grid rank, verified on the dense grid"
-            break
-        say(f"  w_pll = {w:.5g} rad/s fails between the grid points; next candidate")
-    if chosen is None:
-        if not base.rank(st.min_damping)[0]:
-            raise TuningError(
-                f"{drive.file}: neither the best bandwidths nor the drive's pass the dense grid"
+            raise DriveFileError(
+                file, f"{prefix}bandwidth_max", f"need 0 < {self.w_min:g} < {self.w_max:g} rad/s"
             )
-        chosen, note = (w0, base), "the drive's bandwidth (no tuned candidate passes the dense grid)"
-    w_pll, dense = chosen
-    say(note)
-    result = PllTuneResult(
-        family="pll",
-        w_pll=float(w_pll),
-        w_pll0=w0,
-        dense=dense,
-        dense_baseline=base,
-        evaluations=len(seen),
-        note=note,
-        settings=st,
-        table=None,  # type: ignore[arg-type]
-        seconds=time.perf_counter() - t0,
+
+    def constraints(self) -> dict[str, Any]:
+        return {"w_pll_min_rad_s": self.w_min, "w_pll_max_rad_s": self.w_max}
+
+
+def default_settings(drive: Any) -> TuningSettings:
+    """The drive's [envelope] as the shared envelope (p.u. speeds, torques in T_N), the decay floor
+    FLOOR and the box BOX."""
+    e, wb, w = drive.envelope, drive.w_base, drive.observer.w_pll
+    env = Envelope(
+        speed_min=e.speed_min / wb,
+        speed_max=e.speed_max / wb,
+        speeds=e.speeds,
+        torques_TN=tuple(t / drive.T_N for t in e.torques),
     )
-    return dataclasses.replace(result, table=_table(drive, result))
+    return TuningSettings(envelope=env, min_decay=FLOOR * w, law=PllLawSettings(BOX[0] * w, BOX[1] * w))
 
 
-def _pairs(p: np.ndarray) -> list[list[float]]:
-    return [[float(z.real), float(z.imag)] for z in p]
+def build(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
+    """The TuningModel of the ``pll`` law on ``drive`` (module docstring)."""
+    law = settings.law
+    assert isinstance(law, PllLawSettings)
+    w0, wb, psi = float(drive.observer.w_pll), drive.w_base, drive.estimate.psi_pm
+    fixed = runtime_params(drive, drive_gains(drive))  # every parameter but the gain and the estimates
+    names = [f.name for f in PARAMS]
+    motor = motor_vector(drive)
+    nominal = np.array([fixed[k] for k in ESTIMATES])  # the runtime names of the estimates
 
+    def params(w_pll: Any, est: Any) -> list[Any]:
+        """The runtime parameters in PARAMS order, w_pll and the estimates given."""
+        given = {"w_pll": w_pll, **{k: est[i] for i, k in enumerate(ESTIMATES)}}
+        return [given[n] if n in given else fixed[n] for n in names]
 
-def _table(drive: Any, r: PllTuneResult) -> GainTable:
-    d, d0 = r.dense, r.dense_baseline
-    wb = drive.w_base
-    points = [
-        {
-            "w_rad_s": float(d.w[j]),
-            "w_pu": float(d.w[j] / wb),
-            "T_e_Nm": float(d.T[j]),
-            "w_pll": r.w_pll,
-            "poles": _pairs(d.poles[j]),
-            "damping": float(d.damping[j]),
-            "decay_rate": float(d.decay[j]),
-            "baseline": {
-                "w_pll": r.w_pll0,
-                "poles": _pairs(d0.poles[j]),
-                "damping": float(d0.damping[j]),
-                "decay_rate": float(d0.decay[j]),
-            },
-        }
-        for j in range(d.w.size)
-    ]
-    st = r.settings
-    return GainTable(
-        family="pll",
-        drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
-        gains={"w_pll": r.w_pll},
-        envelope={
-            "speed_base_rad_s": wb,
-            "speeds_rad_s": drive.speed_grid().tolist(),
-            "torques_Nm": list(drive.envelope.torques),
-            "dense_factor": st.dense_factor,
-            "dense_points": int(d.w.size),
-            "T_s_s": drive.control.T_s,
-            "bounds": {"w_pll": [st.w_min, st.w_max]},
-            "constraints": {"min_damping": st.min_damping},
-        },
-        points=points,
-        summary={
-            "objective": "maximize the slowest decay rate of the discrete poles, damping >= min_damping",
-            "min_decay_rate": float(np.min(d.decay)),
-            "worst_damping": float(np.min(d.damping)),
-            "baseline_min_decay_rate": float(np.min(d0.decay)),
-            "baseline_worst_damping": float(np.min(d0.damping)),
-            "evaluations": r.evaluations,
-            "selection": r.note,
-            "parameters": {"w_pll": r.w_pll},
-            "baseline_parameters": {"w_pll": r.w_pll0},
-        },
+    theta, phi = ca.SX.sym("theta", 1), ca.SX.sym("phi", 1)
+    x, pt = ca.SX.sym("x", N_OBS), ca.SX.sym("point", 2 + len(ESTIMATES))
+    f_r = rotor_frame_rates()(x, pt[0], pt[1], motor, ca.vertcat(*params(phi[0], pt[2:])))
+    local = ca.Function("pll_local", [theta, pt], [theta], ["theta", "point"], ["phi"])
+    linear = ca.Function(
+        "pll_closed_loop", [phi, x, pt], [ca.jacobian(f_r, x), f_r], ["phi", "x", "point"], ["A", "x_dot"]
     )
+    newton = equilibrium_function()
+
+    def equilibrium(th: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """Equilibria (n_x, N) by Newton's method on the SX equations; NaN where it does not converge."""
+        N = P.shape[1]
+        w_pll = np.asarray(th, float)[0]  # theta (1,) or one per point (1, N)
+        p = np.vstack([np.broadcast_to(np.asarray(r, float), (N,)) for r in params(w_pll, P[2:])])
+        xs, _, res = evaluate_batch(newton, N, [P[0], P[1], motor, p])
+        x0 = xs[:, :, 0].T
+        ok = res[:, 0, 0] <= 1e-9 * np.maximum(np.abs(x0).max(axis=0), 1.0)
+        return np.where(ok, x0, np.nan)
+
+    def make_points(w: np.ndarray, T: np.ndarray, est: np.ndarray) -> np.ndarray:
+        w_b, T_b = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))
+        return np.vstack([w_b.ravel(), T_b.ravel(), np.repeat(np.asarray(est, float)[:, None], w_b.size, 1)])
+
+    model: TuningModel | None = None
+
+    def itself() -> TuningModel:
+        assert model is not None
+        return model
+
+    model = TuningModel(
+        family="pll",
+        names=("w_pll",),
+        units=("rad/s",),
+        theta0=np.array([w0]),
+        lower=np.array([law.w_min]),
+        upper=np.array([law.w_max]),
+        typical=np.array([w0]),
+        local=local,
+        phi_typical=np.array([w0]),
+        linearization=linear,
+        x_typical=np.array([wb * psi, wb * psi, 1.0, wb]),
+        point_names=("w", "T_e", *ESTIMATES),
+        make_points=make_points,
+        equilibrium=equilibrium,
+        regularizer=None,
+        table_gains=lambda th: {"w_pll": float(th[0])},
+        point_gains=lambda th, w: {"w_pll": np.full(np.size(w), float(th[0]))},
+        nominal_estimate=nominal,
+        estimate_names=ESTIMATES,
+        fixed_equilibrium=lambda P: np.all(P[2:] == nominal[:, None], axis=0),
+        starts=lambda: np.geomspace(law.w_min, law.w_max, GRID)[:, None],
+        pointwise=itself,
+        pointwise_gains=lambda th, w: np.full((np.size(w), 1), float(th[0])),
+        gain_size=lambda th: np.atleast_2d(np.asarray(th, float))[:, 0] / w0,
+        gain_size_unit="drive w_pll",
+        gain_size_meaning="the PLL bandwidth in units of the drive file's",
+    )
+    return model
 
 
-_LEAD = (("w_m_pu", "w_pu"), ("w_m_rad_s", "w_rad_s"), ("T_e_Nm", "T_e_Nm"), ("w_pll_rad_s", "w_pll"))
+_LEAD = (("w_m_pu", "w_m_pu"), ("w_m_rad_s", "w_m_rad_s"), ("T_e_Nm", "T_e_Nm"), ("w_pll_rad_s", "w_pll"))
 
 HOOKS = TuningHooks(
     tunables=(
         Tunable(
             "pll",
-            "back-EMF PLL observer: the PLL bandwidth w_pll",
+            "back-EMF PLL observer: one PLL bandwidth w_pll at every speed",
             default_settings,
-            tuner=tune_pll,
+            build=build,
             columns=(_LEAD, (("w_pll_rad_s", "w_pll"),)),
         ),
     )
