@@ -135,7 +135,7 @@ def test_bad_tables_are_one_line_naming_the_file(tmp_path, capsys, name, content
     ],
 )
 def test_report_refuses_bad_tables_before_computing(tmp_path, capsys, content, drive):
-    """The audited cases that broke `sensorless report` (a NaN gain, lambda' = 1e308, a law16 table
+    """The audited cases that broke `sensorless report` (a NaN gain, lambda' = 1e308, a speed-dependent table
     for the reduced-order drive, w_hat not a list): one line, at once."""
     table = write(tmp_path, "t", content)
     code = main(["report", drive, "--gains", str(table), "--quick", "--out", str(tmp_path / "r")])
