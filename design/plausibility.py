@@ -97,13 +97,19 @@ def plausibility(
         dev = T_N / T_I - 1
         if abs(dev) > TORQUE_WARN:
             level = "error" if abs(dev) > TORQUE_ERROR else "warning"
+            # a salient motor's MTPA torque has a reluctance part (L_d - L_q) i_d i_q: its inductances
+            # set T(I_N) as much as the flux does
+            salient = motor.L_d != motor.L_q
+            L_keys = tuple(dict.fromkeys((src["L_d"], src["L_q"]))) if salient else ()
             out.append(
                 Finding(
                     level,
-                    (keys["T_N"], keys["I_N"], src["psi_pm"]),
-                    f"T_N = {T_N:.4g} N m, but I_N = {I_N:.4g} A rms gives {T_I:.4g} N m with this flux "
-                    f"(MTPA, {100 * dev:+.0f} %; warning beyond {100 * TORQUE_WARN:g} %, error beyond "
-                    f"{100 * TORQUE_ERROR:g} %): check that I_N is rms and the flux's convention",
+                    (keys["T_N"], keys["I_N"], src["psi_pm"], *L_keys),
+                    f"T_N = {T_N:.4g} N m, but I_N = {I_N:.4g} A rms gives {T_I:.4g} N m with this flux"
+                    + (f" and L_d = {motor.L_d:.4g} H, L_q = {motor.L_q:.4g} H" if salient else "")
+                    + f" (MTPA, {100 * dev:+.0f} %; warning beyond {100 * TORQUE_WARN:g} %, error beyond "
+                    f"{100 * TORQUE_ERROR:g} %): check that I_N is rms and the flux's convention"
+                    + (", and the inductances' unit (a bare number is in henries)" if salient else ""),
                 )
             )
     # the q-axis inductive voltage of the rated point, which no field weakening removes
