@@ -26,6 +26,9 @@ F_N_TOLERANCE = 0.01  # f_N against n_N p / 60
 # (i_d) cannot lower the q-axis inductive drop, and 3x leaves room for a salient motor's smaller i_q
 # there; an inductance in H instead of mH (a bare number is SI) is 1000x
 U_L_ERROR = 3.0
+# the available voltage u_dc/sqrt(3) beyond these multiples of the rated point's voltage: warning, error.
+# Drives leave 1.1-3x of headroom; a DC link in V for mV, kV for V, or of another drive is 1000x
+UDC_WARN, UDC_ERROR = 10.0, 100.0
 # the mechanical time constant J w_N / (p T_N) (1 p.u. of speed at rated torque) outside this range
 # [s]: warning. Measured motors span ~10 ms (a drone motor, a small servo) to ~5 s (the 30-kW
 # axial-flux preset); kg cm2 read as kg m2 is 10^4 x, g cm2 as kg cm2 10^3 x
@@ -136,6 +139,17 @@ def plausibility(
                 f"rated torque at rated speed needs {u_N:.4g} V (peak phase, MTPA), more than the "
                 f"{u_avail:.4g} V available (u_dc/sqrt(3)): the drive needs field weakening there, which "
                 "the analysis (MTPA, no voltage limit) does not model",
+            )
+        )
+    # the DC link far above what the rated point needs: a unit or another drive's inverter
+    if u_N > 0 and math.isfinite(u_avail) and u_avail > UDC_WARN * u_N:  # inf: no DC link given
+        out.append(
+            Finding(
+                "error" if u_avail > UDC_ERROR * u_N else "warning",
+                (keys["u_dc"], keys["T_N"], keys["n_N"]),
+                f"the inverter can apply {u_avail:.4g} V (peak phase, u_dc/sqrt(3)), {u_avail / u_N:.3g} "
+                f"times the {u_N:.4g} V the rated point needs (warning beyond {UDC_WARN:g}x, error beyond "
+                f"{UDC_ERROR:g}x): check u_dc's unit and that it is this drive's DC link",
             )
         )
     # mechanical time constant: an inertia off by a unit

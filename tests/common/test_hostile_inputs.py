@@ -25,10 +25,11 @@ def write(tmp_path, text, name="mine.toml"):
     return str(f)
 
 
-def edited_preset(tmp_path, preset, pattern, repl):
-    """The preset's text with the line matching ``pattern`` replaced, as a drive file of the user's."""
-    text, n = re.subn(pattern, repl, preset_text(preset), count=1, flags=re.M)
-    assert n == 1, pattern
+def edited_preset(tmp_path, preset, pattern, repl, count=1):
+    """The preset's text with the line matching ``pattern`` replaced (the first ``count``; 0: all), as a
+    drive file of the user's."""
+    text, n = re.subn(pattern, repl, preset_text(preset), count=count, flags=re.M)
+    assert n >= 1, pattern
     return write(tmp_path, text)
 
 
@@ -95,7 +96,129 @@ def test_a_derived_value_out_of_range_names_the_users_key(tmp_path):
     assert msg.split(": ")[1].startswith("keys 'motor.J") and "observer.Gamma" in msg, msg
 
 
+def test_a_dc_link_of_another_drive_is_refused_naming_it(tmp_path):
+    # 1e6 V for a 400-W servo (rated point ~91 V peak phase): 6000x; 10x warns, 100x is refused
+    msg = load_error(write(tmp_path, SERVO.replace('u_dc = "310 V"', 'u_dc = "1e6 V"')))
+    assert "keys 'inverter.u_dc" in msg, msg
+    warned = load_drive(write(tmp_path, SERVO.replace('u_dc = "310 V"', 'u_dc = "5000 V"')))
+    assert any("inverter.u_dc" in w for w in warned.warnings), warned.warnings
+    assert not load_drive(write(tmp_path, SERVO)).warnings
+
+
 def test_the_rated_point_mismatch_of_a_salient_motor_names_its_inductance(tmp_path):
     f = edited_preset(tmp_path, "piippo2008", r'^L_d = "0.036 H"', 'L_d = "36 H"')
     msg = load_error(f)
     assert "motor.L_d" in msg and "rating.I_N" in msg, msg
+
+
+# ----------------------------------------------------------------- command-line values and paths
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["analyze", "piippo2008", "--out", ""], "--out"),
+        (["codegen", "piippo2008", "--prefix", "", "--out", "{d}/c"], "--prefix"),
+        (["codegen", "piippo2008", "--prefix", "a" * 300, "--out", "{d}/c"], "--prefix"),
+        (
+            ["simulate", "piippo2008", "--scenario", "fig10", "--duration", "1e-6", "--out", "{d}/s"],
+            "--duration",
+        ),
+        (["tune", "deangelo2006", "--max-noise=position=0deg", "--out", "{d}/t"], "--max-noise"),
+        (["tune", "piippo2008", "--max-noise=speed=0pu", "--out", "{d}/t"], "--max-noise"),
+    ],
+)
+def test_an_option_given_empty_or_meaningless_is_refused_naming_it(
+    tmp_path, capsys, monkeypatch, argv, option
+):
+    monkeypatch.chdir(tmp_path)
+    err = refused([a.replace("{d}", str(tmp_path)) for a in argv], capsys, option)
+    assert "--out" not in err or option == "--out", err  # --prefix is not blamed on --out
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_init_out_with_a_trailing_slash_writes_no_file_named_like_the_directory(tmp_path, capsys):
+    src = write(tmp_path, SERVO, "servo.toml")
+    refused(["init", src, "--out", f"{tmp_path}/newdir/"], capsys, "--out")
+    assert not (tmp_path / "newdir").exists()
+
+
+# ----------------------------------------------------------------------------------- gain tables
+def _table(tmp_path, capsys, drive, name):
+    assert (
+        main(
+            [
+                "tune",
+                drive,
+                "--quiet",
+                "--out",
+                str(tmp_path / "t"),
+                *(["--speeds", "3"] if "law" in name else []),
+            ]
+        )
+        == 0
+    )
+    capsys.readouterr()
+    return tmp_path / "t" / name
+
+
+def test_gain_table_errors_name_the_file_and_the_key(tmp_path, capsys):
+    import json
+
+    src = Path(_table(tmp_path, capsys, "deangelo2006", "gains_deangelo.json"))
+    doc = json.loads(src.read_text())
+    for key, bad in (("g", -5), ("Gamma", [1, 2])):
+        f = tmp_path / f"bad_{key}.json"
+        f.write_text(json.dumps({**doc, "gains": {**doc["gains"], key: bad}}))
+        refused(
+            ["analyze", "deangelo2006", "--gains", f, "--out", tmp_path / "a"], capsys, str(f), f"gains.{key}"
+        )
+
+
+def test_analyze_warns_about_a_table_tuned_for_another_drive(tmp_path, capsys):
+    table = _table(tmp_path, capsys, "piippo2008", "gains_law16.json")
+    servo = write(tmp_path, SERVO, "servo.toml")
+    assert (
+        main(["analyze", servo, "--gains", str(table), "--points", "11", "--out", str(tmp_path / "a")]) == 0
+    )
+    err = capsys.readouterr().err
+    assert "warning" in err and "piippo2008" in err and "servo400" in err, err
+
+
+# ------------------------------------------------------ values that break a later stage; NaN in CSVs
+def test_an_overflowing_linearization_gives_nan_poles_not_a_traceback():
+    import numpy as np
+    from sensorless.design.pmac_reduced_order.linearize import floquet_exponents
+
+    M = np.stack([np.eye(3), np.full((3, 3), np.inf)])
+    s = floquet_exponents(M, np.array([1.0, 1.0]))
+    assert np.all(np.isfinite(s[0])) and np.all(np.isnan(s[1]))
+
+
+def test_analyze_says_why_it_writes_numbers_that_are_not_finite(tmp_path, capsys):
+    # a reduced-order drive with its inductance in H where uH was meant (100 H for 100 uH)
+    f = edited_preset(tmp_path, "deangelo2006", r'^L = "100 uH"', 'L = "100 H"', count=0)  # motor, estimate
+    code = main(["analyze", f, "--speed", "100,250", "--load", "0", "--out", str(tmp_path / "a")])
+    err = capsys.readouterr().err
+    assert code == 3, err
+    assert "RuntimeWarning" not in err and "Traceback" not in err, err
+    lines = err.strip().splitlines()
+    assert lines and all("warning" in x and "no finite poles" in x and ".csv" in x for x in lines), err
+
+
+# ----------------------------------------------------------------------------------------- Ctrl-C
+def test_casadis_own_report_of_a_caught_interrupt_is_silenced(capsys):
+    import sys
+
+    from sensorless.reports import interrupts
+
+    with interrupts.handled():
+        # as IPOPT's callback prints it, in pieces; other CasADi lines and other text pass
+        for piece in (
+            "CasADi - 2026-01-01 00:00:00 WARNING(",
+            '"KeyboardInterruptException")',
+            " [ipopt_nlp.cpp:95]\n",
+        ):
+            sys.stderr.write(piece)
+        sys.stderr.write('CasADi - 2026-01-01 00:00:00 WARNING("something else") [x.cpp:1]\n')
+        sys.stderr.write("progress\n")
+    err = capsys.readouterr().err
+    assert err == 'CasADi - 2026-01-01 00:00:00 WARNING("something else") [x.cpp:1]\nprogress\n', err
