@@ -21,6 +21,9 @@ EMF_ERROR = 1.05  # no-load back-EMF at n_N beyond this times the available volt
 TORQUE_WARN, TORQUE_ERROR = 0.10, 0.30  # |T_N / T(I_N) - 1| beyond: warning, error
 SAMPLES_WARN, SAMPLES_ERROR = 10.0, 4.0  # samples per electrical period at the top speed
 LR_WARN, LR_ERROR = 5.0, 1.0  # electrical time constant L/R in sampling periods
+# electrical time constant L/R [s] beyond: warning, error. PM motors span ~0.1 ms (a drone motor) to
+# ~50 ms (large machines); a resistance in ohm for mohm is 1000x, 1e-11 ohm makes the analyses overflow
+LR_MAX_WARN, LR_MAX_ERROR = 1.0, 100.0
 F_N_TOLERANCE = 0.01  # f_N against n_N p / 60
 # w_N L_q |i_q| at the rated point beyond this times the available voltage: error. Field weakening
 # (i_d) cannot lower the q-axis inductive drop, and 3x leaves room for a salient motor's smaller i_q
@@ -180,6 +183,15 @@ def plausibility(
         )
     # electrical time constant against the sampling period
     tau = min(motor.L_d, motor.L_q) / motor.R_s
+    if tau > LR_MAX_WARN:
+        out.append(
+            Finding(
+                "error" if tau > LR_MAX_ERROR else "warning",
+                (src["R_s"], src["L_d"]),
+                f"L/R = {tau:.3g} s (warning beyond {LR_MAX_WARN:g} s, error beyond {LR_MAX_ERROR:g} s; PM "
+                "motors have milliseconds): check R's unit (ohm, mohm) and L's (H, mH, uH)",
+            )
+        )
     if tau < LR_WARN * T_s:
         level = "error" if tau < LR_ERROR * T_s else "warning"
         out.append(

@@ -105,6 +105,15 @@ def test_a_dc_link_of_another_drive_is_refused_naming_it(tmp_path):
     assert not load_drive(write(tmp_path, SERVO)).warnings
 
 
+@pytest.mark.parametrize("R", ["1e-11 ohm", "0.001 mohm"])
+def test_a_resistance_far_too_small_is_refused_before_any_analysis(tmp_path, R):
+    # the report's pointwise bound never ended, and its figures got NaN axis limits, on R = 1e-11 ohm
+    msg = load_error(write(tmp_path, SERVO.replace('R_s = "1.8 ohm"', f'R_s = "{R}"')))
+    assert "keys 'motor.R_s, motor.L_s'" in msg and "L/R" in msg, msg
+    full = edited_preset(tmp_path, "piippo2008", r'^R_s = "3.59 ohm"', f'R_s = "{R}"', count=0)
+    assert "motor.R_s" in load_error(full)
+
+
 def test_the_rated_point_mismatch_of_a_salient_motor_names_its_inductance(tmp_path):
     f = edited_preset(tmp_path, "piippo2008", r'^L_d = "0.036 H"', 'L_d = "36 H"')
     msg = load_error(f)
