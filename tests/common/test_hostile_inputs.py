@@ -169,11 +169,21 @@ def _table(tmp_path, capsys, drive, name):
     return tmp_path / "t" / name
 
 
-def test_gain_table_errors_name_the_file_and_the_key(tmp_path, capsys):
+@pytest.fixture(scope="module")
+def deangelo_table(tmp_path_factory):
+    """A tuned gain table of the reduced-order preset (the document, for edited copies)."""
     import json
 
-    src = Path(_table(tmp_path, capsys, "deangelo2006", "gains_deangelo.json"))
-    doc = json.loads(src.read_text())
+    d = tmp_path_factory.mktemp("tune")
+    assert main(["tune", "deangelo2006", "--quiet", "--out", str(d / "t")]) == 0
+    return json.loads((d / "t" / "gains_deangelo.json").read_text())
+
+
+def test_gain_table_errors_name_the_file_and_the_key(tmp_path, capsys, deangelo_table):
+    import json
+
+    doc = deangelo_table
+    capsys.readouterr()
     for key, bad in (("g", -5), ("Gamma", [1, 2])):
         f = tmp_path / f"bad_{key}.json"
         f.write_text(json.dumps({**doc, "gains": {**doc["gains"], key: bad}}))
@@ -202,15 +212,24 @@ def test_an_overflowing_linearization_gives_nan_poles_not_a_traceback():
     assert np.all(np.isfinite(s[0])) and np.all(np.isnan(s[1]))
 
 
-def test_analyze_says_why_it_writes_numbers_that_are_not_finite(tmp_path, capsys):
-    # a reduced-order drive with its inductance in H where uH was meant (100 H for 100 uH)
-    f = edited_preset(tmp_path, "deangelo2006", r'^L = "100 uH"', 'L = "100 H"', count=0)  # motor, estimate
-    code = main(["analyze", f, "--speed", "100,250", "--load", "0", "--out", str(tmp_path / "a")])
+def test_analyze_says_why_it_writes_numbers_that_are_not_finite(tmp_path, capsys, deangelo_table):
+    import json
+
+    # a reduced-order gain table with g = 1e9 1/s (within --g-max's range): the observer overflows
+    f = tmp_path / "g1e9.json"
+    f.write_text(json.dumps({**deangelo_table, "gains": {**deangelo_table["gains"], "g": 1e9}}))
+    capsys.readouterr()
+    code = main(
+        ["analyze", "deangelo2006", "--gains", str(f), "--speed", "100,250", "--out", str(tmp_path / "a")]
+    )
     err = capsys.readouterr().err
     assert code == 3, err
     assert "RuntimeWarning" not in err and "Traceback" not in err, err
     lines = err.strip().splitlines()
     assert lines and all("warning" in x and "no finite poles" in x and ".csv" in x for x in lines), err
+    # the reduced-order drive with its inductance in H where uH was meant is refused at load (L/R)
+    h = edited_preset(tmp_path, "deangelo2006", r'^L = "100 uH"', 'L = "100 H"', count=0)  # motor, estimate
+    assert "motor.L" in load_error(h)
 
 
 # ----------------------------------------------------------------------------------------- Ctrl-C
