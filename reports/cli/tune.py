@@ -1,7 +1,8 @@
 """``sensorless tune``: tuned observer gains over an operating envelope, written as gain tables.
 
 The drive's observer family offers tunable gain laws (tuning/family.py; ``--law``, default its
-first); envelope and constraints come from the drive file and the family's options (reports/family.py).
+first on a built-in preset, the family's best on a drive of the user's own); envelope and constraints
+come from the drive file and the family's options (reports/family.py).
 Progress goes to stderr; the summary (with the pointwise bound on a line of its own) and the written
 files to stdout: ``gains_<law>.json``/``.csv``, ``speeds_<law>.csv`` (the bound beside the
 law, its seed and the drive file's gains at every dense speed) when the tuner computed the bound,
@@ -55,7 +56,8 @@ def register(sub: Any) -> None:
         default=None,
         choices=[*laws, *old],
         metavar="{" + ",".join(laws) + "}",
-        help="gain law to tune (default: the first of the drive's observer family); former names, "
+        help="gain law to tune (default: on a built-in preset the first of its observer family, the "
+        "paper's law; on a drive file of your own the best the family declares); former names, "
         "accepted for one release: " + ", ".join(f"{o} = {n}" for o, n in old.items()),
     )
     p.add_argument(

@@ -1,5 +1,7 @@
 """Tuning hooks of the adaptive observer: the laws speed-dependent (eq. (16)) and schedule, by the shared NLP.
 
+The speed-dependent law is the default on the preset (the paper's law), schedule on a drive of the user's own.
+
 Piippo, Hinkkanen, Luomi (2008). Builders of the TuningModels: laws.py. Settings: the drive's
 ``[tuning]`` section (design/envelope.py; the laws' own keys in design/ipmsm_adaptive/law_settings.py).
 """
@@ -44,5 +46,9 @@ HOOKS = TuningHooks(
             seed="speed-dependent",
             columns=(_POINTS, _BASELINE),
         ),
-    )
+    ),
+    # on a drive of the user's own the schedule is the default: never worse than the speed-dependent
+    # law on the dense grid, it reaches the pointwise bound where that law leaves damping
+    # (docs/tuning.md); the preset keeps the speed-dependent law, the paper's
+    own_default="schedule",
 )
