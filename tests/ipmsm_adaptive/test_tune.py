@@ -217,15 +217,15 @@ def test_estimate_errors_without_equilibrium_are_reported(drive):
         tune(drive, "speed-dependent", small(drive, errors=(0.2, 0.0, 0.0, 0.0)))
 
 
-def test_default_gain_family_is_the_papers_on_the_preset_and_the_best_on_a_users_drive(tmp_path):
+def test_default_law_is_the_papers_on_the_preset_and_the_best_on_a_users_drive(tmp_path):
     from sensorless.design.drive import load_drive, preset_text
     from sensorless.tuning.family import tunable_for
 
-    assert tunable_for(load_drive("piippo2008")).name == "law16"  # reproduces the paper
+    assert tunable_for(load_drive("piippo2008")).name == "speed-dependent"  # reproduces the paper
     own = tmp_path / "mine.toml"
     own.write_text(preset_text("piippo2008"))
     assert tunable_for(load_drive(str(own))).name == "schedule"
-    assert tunable_for(load_drive(str(own)), "law16").name == "law16"
+    assert tunable_for(load_drive(str(own)), "speed-dependent").name == "speed-dependent"
 
 
 def test_cli_errors_leave_no_files(tmp_path, capsys):
