@@ -46,7 +46,7 @@ class FluxObserverFamily(ObserverFamily):
     citation = "Lee, Hong, Nam, Ortega, Praly, Astolfi (2010); Ortega et al. (2011)"
     presets = "sensorless.design.pmsm_flux_observer.presets"
     scenarios = "sensorless.design.pmsm_flux_observer.scenarios"
-    tuning = None  # tuning hooks: not yet (docs/families/pmsm_flux_observer.md)
+    tuning = "sensorless.tuning.pmsm_flux_observer"
     report = None
     gain_families = _gains.GAIN_FAMILIES
     estimate_keys = ESTIMATE_KEYS
