@@ -47,7 +47,7 @@ class FluxObserverFamily(ObserverFamily):
     presets = "sensorless.design.pmsm_flux_observer.presets"
     scenarios = "sensorless.design.pmsm_flux_observer.scenarios"
     tuning = "sensorless.tuning.pmsm_flux_observer"
-    report = None
+    report = "sensorless.reports.pmsm_flux_observer"
     gain_families = _gains.GAIN_FAMILIES
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
