@@ -36,8 +36,9 @@ PLL (a PI tracking loop on the observer angle, as all three firmwares' speed est
 Discretization (the firmwares'): forward Euler at the observer period T. At sample k the step has the
 current i_k and the voltage u_{k-1} applied over the previous period (stored in the state: the loop
 gives the voltage of the coming period); it predicts ``x' = x + T (u_{k-1} - R i_k)``, then corrects
-``x_k = x' + T corr(eta(x'))`` (ODrive's order), and the PLL takes ``theta_obs`` of x_k. The outputs
-are the raw observer angle (the firmwares commutate on it) and the PLL speed.
+``x_k = x' + T corr(eta(x'))`` (ODrive's order), and the PLL takes ``theta_obs`` of x_k as ODrive
+does: ``th' = th + T w``, ``e = wrap(theta_obs - th')``, ``th_k = th' + T k_p e``, ``w_k = w + T k_i e``.
+The outputs are the raw observer angle (the firmwares commutate on it) and the PLL speed w_k.
 """
 
 from __future__ import annotations
@@ -216,10 +217,13 @@ def _step(kind: str, rule: str, x: Sym, meas: Sym, p_vec: Sym, lam_in: Sym) -> t
     lam_new = lam + T * flux_rate(kind, lam, eta_pred, k, p)
     lam_new = ca.fmin(ca.fmax(lam_new, LAMBDA_RANGE[0] * p.psi_pm), LAMBDA_RANGE[1] * p.psi_pm)
     theta_obs = ca.atan2(eta[1], eta[0])
-    dth, dw = pll_rates(theta_obs, th, w, p)
-    th_new, w_new = wrap_angle(th + T * dth), w + T * dw
+    # the PLL as ODrive steps it: its angle predicted with its speed, then corrected by the error to
+    # the observer's angle (at t_k), and its speed integrated
+    th_pred = th + T * w
+    e = wrap_angle(theta_obs - th_pred)
+    th_new, w_new = wrap_angle(th_pred + T * p.k_p * e), w + T * p.k_i * e
     x_cand = ca.vertcat(x_new, lam_new, u, th_new, w_new)
-    y_cand = ca.vertcat(w, theta_obs, th, eta, k)
+    y_cand = ca.vertcat(w_new, theta_obs, th_new, eta, k)
     # coasting (nothing of the rejected sample used): the flux state turns at the PLL speed, the PLL
     # runs on, the voltage is held; the flux output is the turned state (no current to subtract)
     x_c = rot(w * T) @ x[0:2]
