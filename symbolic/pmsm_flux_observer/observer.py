@@ -66,8 +66,8 @@ STATE = (
     Field("x_alpha", "V s", "stator flux estimate x, alpha axis, eq. (8)", bound=_X_BOUND),
     Field("x_beta", "V s", "stator flux estimate x, beta axis", bound=_X_BOUND),
     Field("lambda_hat", "V s", "PM flux the observer uses (adapted online or held)", bound="2.5 * psi_pm"),
-    Field("u_prev_alpha", "V", "voltage applied over the previous period, alpha axis"),
-    Field("u_prev_beta", "V", "voltage applied over the previous period, beta axis"),
+    Field("u_prev_alpha", "V", "voltage applied over the previous period, alpha axis", bound="u_max"),
+    Field("u_prev_beta", "V", "voltage applied over the previous period, beta axis", bound="u_max"),
     Field("theta_pll", "rad", "PLL angle, in (-pi, pi]", bound="pi"),
     Field("w_pll", "rad/s", "PLL speed (integrator), electrical", bound=_W_BOUND),
     REJECTS,
@@ -88,6 +88,7 @@ PARAMS = (
     Field("k_i", "1/s^2", "PLL integral gain", "positive"),
     Field("T_s", "s", "observer period T", "positive"),
     Field("w_max", "rad/s", "highest speed of the drive (electrical): the PLL speed's bound", "positive"),
+    Field("u_max", "V", "largest voltage per axis the inverter applies (the DC-link voltage)", "positive"),
 )
 LAM = (Field("k_0", "1/s", "observer gain gamma lambda^2 before VESC's voltage factor"),)
 
@@ -118,6 +119,7 @@ class Params(NamedTuple):
     k_i: Sym
     T_s: Sym
     w_max: Sym
+    u_max: Sym
 
     @classmethod
     def of(cls, p: Sym) -> Params:
@@ -141,7 +143,7 @@ def inductance(rule: str, i: Sym, theta: Sym, p: Params) -> Sym:
 def observer_gain(k_0: Sym, u: Sym, p: Params) -> Sym:
     """k = gamma lambda^2 [1/s]: k_0, times VESC's voltage factor where scheduled."""
     factor = ca.fmax(p.k_slow, ca.norm_2(u) / p.u_ref)
-    return k_0 * (p.scheduled * factor + (1 - p.scheduled))
+    return ca.if_else(p.scheduled > 0.5, k_0 * factor, k_0)
 
 
 def correction(kind: str, eta: Sym, lam: Sym, k: Sym, psi: Sym) -> Sym:
