@@ -56,7 +56,7 @@ from sensorless.tuning.pmsm_flux_observer import (
     vesc_gains,
 )
 
-TIME_DOMAIN = ("speed_steps",)
+TIME_DOMAIN = ("torque_steps",)
 MAX_RMS_THETA_DEG = 10.0
 
 

@@ -64,7 +64,7 @@ def test_a_non_finite_sample_is_rejected_and_the_observer_coasts():
 @pytest.mark.parametrize("preset", ["outrunner270", "hubmotor48"])
 def test_simulation_converges_on_the_presets(preset):
     d = load_drive(preset)
-    tr = simulate(d, load_scenario("speed_steps", d))
+    tr = simulate(d, load_scenario("torque_steps", d))
     err = np.degrees(np.asarray(tr.data["theta_err"]))
     t = np.asarray(tr.t)
     assert abs(err[0]) > 10  # it starts 20 degrees off
