@@ -20,6 +20,7 @@ Rules (the constants below; reasons in the family doc):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ from sensorless.design.drive_file import (
     table,
 )
 from sensorless.design.motor_data import mtpa_torque, read_motor
+from sensorless.design.plausibility import plausibility, warning_lines
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_flux_observer.observer import CORRECTIONS, INDUCTANCES
@@ -377,4 +379,27 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
     from sensorless.design.pmsm_flux_observer.gains import drive_gains
 
     drive_gains(drive)  # the [gains] section checked at load time
-    return drive
+    r_t = table(data, "rating", file) if "rating" in data else {}
+    keys = {
+        "n_N": "rating.n_N" if "n_N" in r_t else "inverter.u_dc",
+        "T_N": "rating.T_N" if "T_N" in r_t else ("rating.I_N" if "I_N" in r_t else "motor.R_s"),
+        "I_N": "rating.I_N",
+        "f_N": "rating.f_N",
+        "u_dc": "inverter.u_dc",
+        "T_s": "observer.T_obs" if "T_obs" in d["observer"] and "observer" in data else "inverter.f_s",
+        "w_max": "envelope.speed_max",
+    }
+    I_N = positive(r_t, "I_N", "current", file, "rating") if "I_N" in r_t and "T_N" in r_t else None
+    findings = plausibility(
+        m,
+        n_N=rating.n_N,
+        T_N=rating.T_N,
+        I_N=I_N,
+        f_N=None,
+        u_dc=control.u_dc,
+        T_s=observer.T_obs,
+        w_max=env.speed_max,
+        keys=keys,
+    )
+    warnings = warning_lines(findings, file)
+    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive
