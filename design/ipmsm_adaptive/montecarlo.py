@@ -11,9 +11,11 @@ Equilibria: with estimation errors the observer's equilibrium is found by Newton
 along the estimates from the exact-estimate closed form, as operating_point.solve_equilibrium does,
 but with every point's Newton iteration done together in numpy on the compiled Jacobian (batched
 4x4 solves) instead of a rootfinder per point: at 10^6 points that is the difference between minutes
-and seconds. The continuation starts with the whole step (most draws converge in 4-6 iterations) and
-halves it where a step fails; the acceptance rules (residual, a position jump under 0.3 rad) are
-those of solve_equilibrium, so both follow the same equilibrium branch.
+and seconds. The continuation's
+steps, acceptance rules (residual, a position jump under 0.3 rad) and step control (start 0.25,
+doubled to at most 0.5 after a success, halved after a failure, lost below 1e-3) are those of
+solve_equilibrium, so both follow the same equilibrium branch: a whole step at once can land on
+another equilibrium within the position rule (an unstable one, where the branch is stable).
 """
 
 from __future__ import annotations
@@ -107,7 +109,7 @@ def _equilibria(
     step = _newton_function(law, injection)
     true, est = cols["motor"], cols["estimate"]
     scale = 1.0 + np.abs(cols["w_m"][0]) + np.abs(x).max(axis=1)
-    tau, h = np.zeros(n), np.ones(n)
+    tau, h = np.zeros(n), np.full(n, 0.25)
     lost = np.zeros(n, bool)
     for _ in range(MAX_ROUNDS):
         act = np.flatnonzero((tau < 1) & ~lost)
@@ -144,7 +146,7 @@ def _equilibria(
         ok &= np.abs(xa[:, 2] - x[act, 2]) < 0.3
         x[act[ok]] = xa[ok]
         tau[act[ok]] = t_try[ok]
-        h[act] = np.where(ok, np.minimum(2 * h[act], 1.0), h[act] / 2)
+        h[act] = np.where(ok, np.minimum(2 * h[act], 0.5), h[act] / 2)
         lost[act] |= ~ok & (h[act] < 1e-3)
         if group is not None and lost.any():
             failed = np.zeros(int(group.max()) + 1, bool)
