@@ -142,11 +142,13 @@ def draw(
         rng = np.random.default_rng(child)
         s = slice(c * CHUNK, min(n, (c + 1) * CHUNK))
         m = s.stop - s.start
+        # a whole chunk's values always (the last chunk's unused ones dropped): a draw's values do not
+        # depend on how many draws follow it
         for j, p in enumerate(params):
-            P[s, j] = p.plant * (1 + _column(rng, m, plant.get(p.name)))
+            P[s, j] = p.plant * (1 + _column(rng, CHUNK, plant.get(p.name))[:m])
         for j, p in enumerate(params):
             nominal = p.estimate if p.estimate is not None else p.plant
-            E[s, j] = nominal * (1 + _column(rng, m, estimate.get(p.name)))
+            E[s, j] = nominal * (1 + _column(rng, CHUNK, estimate.get(p.name))[:m])
     clipped: dict[str, int] = {}
     for which, arr in (("plant", P), ("estimate", E)):
         for j, p in enumerate(params):
