@@ -47,6 +47,8 @@ class Uncertain:
     estimate: float | None  # the observer's estimate of it, SI; None: the observer has none
     unit: str
     linear: bool  # enters the linearized closed loop (else: the time domain only)
+    # the plant's spread a report assumes when given none (``report --montecarlo``): relative, 1 sigma
+    typical: float = 0.0
 
 
 @dataclass(frozen=True)

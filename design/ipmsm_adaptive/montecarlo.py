@@ -41,6 +41,9 @@ from sensorless.design.poles import eigvals_batched, sort_poles
 ELECTRICAL = ("R_s", "L_d", "L_q", "psi_pm")  # the motor and estimate vectors' order
 NEWTON_ITERATIONS = 10  # per continuation step; a converging step takes 3-6
 MAX_ROUNDS = 40
+# a report's default spread of the true motor (1 sigma): winding resistance with its temperature rise,
+# inductance tolerance and saturation, magnet flux, the load's inertia (``report --montecarlo``)
+TYPICAL = {"R_s": 0.10, "L_d": 0.10, "L_q": 0.10, "psi_pm": 0.05, "J": 0.30}
 BLOCK = 2048  # points per compiled call: below batch.JIT_MIN_POINTS, where evaluate_batch takes fn as given
 
 
@@ -48,8 +51,8 @@ def parameters(drive: Any) -> tuple[Uncertain, ...]:
     """The spreadable parameters of ``drive``: the four electrical ones (plant and estimate) and J."""
     m, e = drive.motor, drive.estimate
     units = {"R_s": "ohm", "L_d": "H", "L_q": "H", "psi_pm": "V s"}
-    out = [Uncertain(k, getattr(m, k), getattr(e, k), units[k], True) for k in ELECTRICAL]
-    out.append(Uncertain("J", m.J, None, "kg m^2", False))
+    out = [Uncertain(k, getattr(m, k), getattr(e, k), units[k], True, TYPICAL[k]) for k in ELECTRICAL]
+    out.append(Uncertain("J", m.J, None, "kg m^2", False, TYPICAL["J"]))
     return tuple(out)
 
 

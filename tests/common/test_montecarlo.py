@@ -134,3 +134,10 @@ def test_runs_on_an_example_motor_with_deterministic_outputs(servo, tmp_path, ca
     assert code2 == code
     for f in sorted((tmp_path / "a").iterdir()):
         assert f.read_bytes() == (tmp_path / "b" / f.name).read_bytes(), f.name
+
+
+def test_report_montecarlo_on_a_family_without_it_is_one_line_before_computing(tmp_path, capsys):
+    code = main(["report", "deangelo2006", "--montecarlo", "5", "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "declares no parameters to spread" in err
+    assert not (tmp_path / "r").exists()

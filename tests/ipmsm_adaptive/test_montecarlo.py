@@ -113,3 +113,20 @@ def test_two_worker_local_cluster_equals_the_synchronous_engine(small):
     assert sync.summary == dist.summary  # the yield (key "yield") and everything else
     np.testing.assert_array_equal(sync.worst, dist.worst)
     assert 0 < sync.summary["yield"]["damping"]["value"] < 1
+
+
+def test_report_section_states_the_yield_of_the_typical_spreads(small):
+    from sensorless.reports.document import Section, Table
+
+    d, fam, g = small
+    params = fam.montecarlo_parameters(d)
+    spreads = rmc.typical_spreads(params)
+    assert set(spreads) == {p.name for p in params}  # the family declares a typical spread for each
+    with Engine(SYNCHRONOUS, quiet=True) as engine:
+        res = rmc.run(d, g, params, spreads, {}, 60, 0, 0, 0.2, engine)
+    sec = rmc.report_section(7, res, params, 0.2)
+    assert isinstance(sec, Section) and sec.title.startswith("7. Monte-Carlo")
+    y = res.summary["yield"]["damping"]["value"]
+    assert f"Yield: {y:.4g}" in sec.blocks[0].text
+    tables = [b for b in sec.blocks if isinstance(b, Table)]
+    assert [r[0] for r in tables[0].rows] == [r["parameter"] for r in res.summary["sensitivity"]]
