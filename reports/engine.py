@@ -54,7 +54,11 @@ class Engine:
             if self.scheduler is None:
                 n = self.workers or os.cpu_count() or 1
                 self.cluster = LocalCluster(
-                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,  # the workers' cancellation warnings on Ctrl-C
                 )
                 self.client = Client(self.cluster)
             else:
