@@ -119,24 +119,27 @@ def _equilibria(
         if act.size == 0:
             break
         t_try = np.minimum(1.0, tau[act] + h[act])
-        a = {k: v[:, act] for k, v in cols.items()}
+        a = {k: v[:, act] if v.shape[1] == n else v for k, v in cols.items()}  # (rows, 1): the same
         a["estimate"] = true[:, act] + t_try * (est[:, act] - true[:, act])
         ins = [a[k] for k in PARAM_NAMES]
         xa = x[act].copy()
         ok = np.zeros(act.size, bool)
         live = np.arange(act.size)
         for _ in range(NEWTON_ITERATIONS):
-            sub = [v[:, live] for v in ins]
+            sub = ins if live.size == act.size else [v[:, live] if v.shape[1] > 1 else v for v in ins]
             J, r = _evaluate(step, live.size, [np.ascontiguousarray(xa[live].T), *sub])
             r = r[:, :, 0]
             # at rest: x_dot in V (flux rates) and rad/s^2 within 1e-6 of the point's size, as
             # solve_equilibrium accepts; the Newton step that follows takes it to rounding level
             ok[live] = np.isfinite(r).all(axis=1) & (np.abs(r).max(axis=1) <= 1e-6 * scale[act[live]])
             go = np.isfinite(J).all(axis=(1, 2)) & np.isfinite(r).all(axis=1)
-            go[go] = np.abs(np.linalg.det(J[go])) > 0
+            try:
+                dx = np.linalg.solve(J[go], r[go][:, :, None])[:, :, 0]
+            except np.linalg.LinAlgError:  # a singular Jacobian somewhere: those points stop here
+                go[go] = np.abs(np.linalg.det(J[go])) > 0
+                dx = np.linalg.solve(J[go], r[go][:, :, None])[:, :, 0]
             ok[live[~go]] = False
             idx = live[go]
-            dx = np.linalg.solve(J[go], r[go][:, :, None])[:, :, 0]
             xa[idx] -= dx
             small = np.abs(dx).max(axis=1) <= 1e-13 * (1 + np.abs(xa[idx]).max(axis=1))
             # a point whose position left the step's reach is rejected below whatever Newton does next
@@ -176,10 +179,8 @@ def linearize_draws(
     n_d, n_p = plant.shape[0], w.size
     n = n_d * n_p
     k = len(ELECTRICAL)
-    cols: dict[str, np.ndarray] = {}
-    for name in PARAM_NAMES:
-        a = np.asarray(args.get(name, 0.0), float).reshape(-1, 1)
-        cols[name] = np.broadcast_to(a, (a.shape[0], n))
+    # inputs the same at every point stay one column (evaluate_batch broadcasts them)
+    cols = {name: np.asarray(args.get(name, 0.0), float).reshape(-1, 1) for name in PARAM_NAMES}
     cols["w_m"], cols["T_e"] = np.tile(w, n_d)[None, :], np.tile(torque, n_d)[None, :]
     cols["motor"] = np.ascontiguousarray(np.repeat(plant[:, :k], n_p, axis=0).T)
     cols["estimate"] = np.ascontiguousarray(np.repeat(estimate[:, :k], n_p, axis=0).T)
