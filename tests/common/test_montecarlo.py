@@ -121,21 +121,21 @@ def test_a_family_without_montecarlo_is_one_capability_line(tmp_path, capsys):
 
 
 def test_runs_on_an_example_motor_with_deterministic_outputs(servo, tmp_path, capsys):
-    argv = [servo, "--samples", "200", "--spread", "R_s=10%,L_d=10%u,psi_pm=5%,J=30%"]
+    argv = [servo, "--samples", "120", "--spread", "R_s=10%,L_d=10%u,psi_pm=5%,J=30%"]
     argv += ["--estimate-error", "R_s=20%", "--time-domain", "1", "--seed", "3", "--scheduler", "synchronous"]
     code, cap = _run([*argv, "--out", str(tmp_path / "a"), "--quiet"], capsys)
     assert code in (0, 3), cap.err
     s = json.loads((tmp_path / "a" / "summary.json").read_text())
     y = s["yield"]
-    assert 0 <= y["damping"]["value"] <= 1 and y["damping"]["draws"] == 200
+    assert 0 <= y["damping"]["value"] <= 1 and y["damping"]["draws"] == 120
     assert y["time_domain"]["draws"] == 1 and s["envelope_points"] == 36
     assert {r["parameter"] for r in s["sensitivity"]} == {
         "plant R_s", "plant L_d", "plant psi_pm", "plant J", "estimate R_s"
     }  # fmt: skip
     rows = (tmp_path / "a" / "draws.csv").read_text().splitlines()
-    assert len(rows) == 201 and rows[0].startswith("draw,plant_R_s,")
+    assert len(rows) == 121 and rows[0].startswith("draw,plant_R_s,")
     passes = sum(int(r.split(",")[-2]) for r in rows[1:])
-    assert passes == round(200 * y["damping"]["value"])
+    assert passes == round(120 * y["damping"]["value"])
     code2, _ = _run([*argv, "--out", str(tmp_path / "b"), "--quiet"], capsys)
     assert code2 == code
     for f in sorted((tmp_path / "a").iterdir()):
@@ -147,3 +147,18 @@ def test_report_montecarlo_on_a_family_without_it_is_one_line_before_computing(t
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "declares no parameters to spread" in err
     assert not (tmp_path / "r").exists()
+
+
+def test_the_test_family_without_montecarlo_is_one_capability_line(tmp_path, capsys):
+    from families.pll.design import FAMILY as PLL
+    from sensorless.design.registry import kinds, registered
+
+    drive = Path(__file__).resolve().parents[1] / "families" / "pll" / "presets" / "pll_servo.toml"
+    if PLL.kind in kinds():
+        code, cap = _run([str(drive), "--spread", "R_s=5%", "--out", str(tmp_path / "mc")], capsys)
+    else:
+        with registered(PLL):
+            code, cap = _run([str(drive), "--spread", "R_s=5%", "--out", str(tmp_path / "mc")], capsys)
+    assert code == 2 and cap.err.count("\n") == 1, cap.err
+    assert f"observer family {PLL.name!r} declares no parameters to spread" in cap.err
+    assert not (tmp_path / "mc").exists()
