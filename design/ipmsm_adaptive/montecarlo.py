@@ -141,7 +141,11 @@ def _equilibria(
             ok[live[~go]] = False
             idx = live[go]
             xa[idx] -= dx
-            small = np.abs(dx).max(axis=1) <= 1e-13 * (1 + np.abs(xa[idx]).max(axis=1))
+            # done: at rest before this step, and the step small enough (1e-8 relative) that, Newton
+            # converging quadratically, it leaves the error at rounding level; no evaluation is spent
+            # only to see the next step vanish
+            small = np.abs(dx).max(axis=1) <= 1e-8 * (1 + np.abs(xa[idx]).max(axis=1))
+            small &= ok[idx]
             # a point whose position left the step's reach is rejected below whatever Newton does next
             far = np.abs(xa[idx, 2] - x[act[idx], 2]) >= 0.3
             ok[idx[far]] = False
