@@ -42,8 +42,8 @@ def register(sub: Any) -> None:
         "domain (generic scenarios), and write the yield (summary.json), the worst draws, a sensitivity "
         "ranking (Spearman rank correlation with the worst damping), CSV data and figures. Runs on "
         "Dask: a local cluster, one worker process per core, unless --scheduler names one. "
-        "A normal spread of 50%% or more, or a uniform one of 100%% or more, is refused (it draws "
-        "non-physical values); the few draws <= 0 of a smaller spread are clipped to 5%% of the "
+        "A normal spread of 50% or more, or a uniform one of 100% or more, is refused (it draws "
+        "non-physical values); the few draws <= 0 of a smaller spread are clipped to 5% of the "
         "nominal value, with a warning line.",
     )
     p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
