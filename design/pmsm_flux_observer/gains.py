@@ -102,9 +102,7 @@ def table_gains(table: GainTable, where: str) -> GainSet:
         values = parse_law(table.law, {"law": table.law, **table.gains}, where, "gains")
     except DriveFileError as e:
         raise GainTableError(f"{where}: key '{e.key}': {e.problem}") from None
-    return GainSet(
-        table.law, values, f"{table.law} table {where} (tuned for {table.drive.get('name')})"
-    )
+    return GainSet(table.law, values, f"{table.law} table {where} (tuned for {table.drive.get('name')})")
 
 
 def pll_gains(gains: GainSet) -> tuple[float, float]:
@@ -157,9 +155,7 @@ def schedule_of(gains: GainSet, psi_hat: float) -> GainSchedule:
         )
     k_0 = base_gain(gains, psi_hat)
     text = "constant gamma lambda^2" if gains.law == "odrive" else "4 gain lambda^2 (x VESC's factor)"
-    return GainSchedule(
-        gains.law, constant_law(), (k_0,), (Field("k_0", "1/s", "observer gain"),), (), text
-    )
+    return GainSchedule(gains.law, constant_law(), (k_0,), (Field("k_0", "1/s", "observer gain"),), (), text)
 
 
 def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:
