@@ -141,3 +141,62 @@ def test_export_to_a_firmware_the_family_lacks(tmp_path, capsys):
     code, _, err = run(["export", "piippo2008", "--target", "vesc", "--out", tmp_path / "e"], capsys)
     assert code == 2 and err.count("\n") == 1 and "--target vesc" in err and "export to: none" in err
     assert not (tmp_path / "e").exists()
+
+
+family_registered = pytest.mark.skipif(KIND not in registry.kinds(), reason="the family is not registered")
+
+
+@family_registered
+def test_round_trip_through_the_commands(tmp_path, capsys):
+    """import -> export -> import with the family's drive files: the same motor values and gains."""
+    from sensorless.design.drive import load_drive
+
+    first, again = tmp_path / "a.toml", tmp_path / "b.toml"
+    cfg = EXAMPLES / "outrunner_odrive.json"
+    assert run(["init", "--from", "odrive", cfg, "--u-dc", "24", "--out", first], capsys)[0] == 0
+    code, _, err = run(["export", first, "--target", "odrive", "--out", tmp_path / "e"], capsys)
+    assert code == 0, err
+    code, _, err = run(
+        ["init", "--from", "odrive", tmp_path / "e" / "odrive.json", "--u-dc", "24", "--out", again], capsys
+    )
+    assert code == 0, err
+    a, b = load_drive(first), load_drive(again)
+    for k in ("R_s", "L_d", "L_q", "psi_pm", "p"):
+        assert getattr(b.motor, k) == pytest.approx(getattr(a.motor, k), rel=1e-11), k
+    assert b.observer.T_obs == pytest.approx(a.observer.T_obs, rel=1e-11)
+    assert b.gains_table == a.gains_table
+
+
+@family_registered
+def test_tuned_table_exported_and_refused_where_it_breaks_a_limit(tmp_path, capsys):
+    """The tuned gain table's values are what odrive.json holds; a table whose PLL breaks ODrive's
+    T kp < 1 is refused with one line, nothing written."""
+    import json
+
+    drive = tmp_path / "o.toml"
+    assert (
+        run(
+            ["init", "--from", "odrive", EXAMPLES / "outrunner_odrive.json", "--u-dc", "24", "--out", drive],
+            capsys,
+        )[0]
+        == 0
+    )
+    assert run(["tune", drive, "--family", "odrive", "--quiet", "--out", tmp_path / "t"], capsys)[0] in (0, 3)
+    table = tmp_path / "t" / "gains_odrive.json"
+    gains = json.loads(table.read_text())["gains"]
+    code, _, err = run(
+        ["export", drive, "--gains", table, "--target", "odrive", "--out", tmp_path / "e"], capsys
+    )
+    assert code == 0, err
+    written = json.loads((tmp_path / "e" / "odrive.json").read_text())
+    assert written["axis0.sensorless_estimator.config.observer_gain"] == pytest.approx(gains["observer_gain"])
+    assert written["axis0.sensorless_estimator.config.pll_bandwidth"] == pytest.approx(gains["pll_bandwidth"])
+    doc = json.loads(table.read_text())
+    doc["gains"]["pll_bandwidth"] = 4000.0  # T kp = 125 us x 8000 1/s = 1
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    code, _, err = run(
+        ["export", drive, "--gains", bad, "--target", "odrive", "--out", tmp_path / "f"], capsys
+    )
+    assert code == 2 and err.count("\n") == 1 and "pll_bandwidth" in err and "T kp = 1 >= 1" in err
+    assert not (tmp_path / "f").exists()

@@ -1,0 +1,64 @@
+"""The tuning laws of the flux observer: the gains they pick meet their own criterion against every
+other candidate of the grid, ODrive's and VESC's limits hold, and the gain table loads back."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from sensorless.design.drive import load_drive
+from sensorless.design.registry import family_of
+from sensorless.tuning.pmsm_flux_observer import (
+    FluxTuneSettings,
+    assess,
+    figures,
+    k_grid,
+    odrive_candidate,
+    tune_odrive,
+)
+
+
+@pytest.fixture(scope="module")
+def drive():
+    return load_drive("outrunner270")
+
+
+@pytest.fixture(scope="module")
+def tuned(drive):
+    return tune_odrive(drive, FluxTuneSettings())
+
+
+def test_odrive_law_limits_and_table(drive, tuned):
+    g = tuned.table.gains
+    T = drive.observer.T_obs
+    assert T * g["observer_gain"] < 2  # the Euler bound
+    assert T * 2 * g["pll_bandwidth"] < 1  # ODrive's T k_p < 1
+    # the table is the family's: it loads through the contract
+    gs = family_of(drive).gains(drive, table=tuned.table, table_file="t.json")
+    assert gs.values["observer_gain"] == pytest.approx(g["observer_gain"])
+
+
+def test_no_candidate_that_holds_as_low_is_better_damped(drive, tuned):
+    """Brute force over the grid: no gain holds down to the hold speed with a better worst damping."""
+    s = tuned.table.summary
+    w_hold = s["hold_speed_rad_s"]
+    cands = [odrive_candidate(drive, float(k)) for k in k_grid(drive)]
+    a = assess(drive, cands, FluxTuneSettings())
+    k_tuned = tuned.table.gains["observer_gain"]
+    me = int(np.argmin([abs(c.values["observer_gain"] - k_tuned) for c in cands]))
+    mine = figures(drive, a, me, w_hold)
+    for c in range(len(cands)):
+        f = figures(drive, a, c, w_hold)
+        if f["low_speed_limit_rad_s"] <= w_hold * (1 + 1e-12):
+            assert f["worst_damping"] <= mine["worst_damping"] + 1e-12
+    assert s["low_speed_limit_rad_s"] <= w_hold * (1 + 1e-12)
+    assert math.isfinite(s["worst_damping"])
+
+
+def test_baselines_are_the_firmware_defaults(tuned, drive):
+    b = tuned.table.summary["baselines"]
+    assert b["ODrive defaults"]["gains"] == {"observer_gain": 1000.0, "pll_bandwidth": 1000.0}
+    v = b["VESC detection"]["gains"]
+    assert v["foc_observer_gain"] == pytest.approx(1e3 / drive.estimate.psi_pm**2)  # 1e-3/lambda^2 x1e6
+    assert (v["foc_pll_kp"], v["foc_pll_ki"]) == (2000.0, 30000.0)
