@@ -72,6 +72,7 @@ def test_vesc_fields_values_and_display_comment():
     assert v["foc_motor_ld_lq_diff"] == pytest.approx(1.6e-6)  # L_q - L_d
     assert v["foc_motor_flux_linkage"] == 4.014e-3
     assert v["foc_f_zv"] == pytest.approx(40e3)  # T = 2 / f_zv = 50 us
+    assert v["foc_sample_v0_v7"] == 0  # one step per PWM period, which T = 2 / f_zv assumes
     assert v["foc_observer_type"] == 0  # ORTEGA_ORIGINAL: the clamped gradient
     assert v["foc_observer_gain"] == 62064786.2
     assert (v["foc_observer_gain_slow"], v["foc_pll_kp"], v["foc_pll_ki"]) == (0.05, 2000, 30000)

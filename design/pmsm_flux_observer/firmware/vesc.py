@@ -300,6 +300,7 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
         _element("foc_motor_ld_lq_diff", repr(d.L_q - d.L_d), "H, L_q - L_d"),
         _element("foc_motor_flux_linkage", repr(d.psi_pm), "Wb"),
         _element("foc_f_zv", repr(2 / d.T_obs), f"Hz: observer period 2/f_zv = {d.T_obs * 1e6:.6g} us"),
+        _element("foc_sample_v0_v7", 0, "one observer step per PWM period, as T assumes"),
         _element("foc_observer_type", code, f"{name}: the observer the gains were tuned for"),
         _element("foc_observer_gain", repr(raw), f"VESC Tool shows {raw * GAIN_DISPLAY:.4g} (x1M)"),
         _element("foc_observer_gain_slow", repr(slow)),
