@@ -1,7 +1,7 @@
 """Matrix exponentials of many small matrices at once (scaling and squaring with Padé approximants).
 
 For a stack (N, n, n) of small matrices, e.g. the zero-order-hold sampling of a motor at every
-operating point of a sweep (design/ipmsm_adaptive/discrete.py). The degree and scaling of each
+operating point of a sweep (design/discrete.py). The degree and scaling of each
 matrix follow the rules of scipy.linalg.expm (Al-Mohy and Higham 2009), so the results agree with it
 to rounding; but each step is one numpy operation on the whole stack, where scipy.linalg.expm goes
 matrix by matrix through BLAS calls on n x n blocks: with threaded OpenBLAS each such call waits for

@@ -3,8 +3,9 @@
 This module registers the family (design/registry.py finds ``FAMILY``); the drive kind string of its
 drive files is written here and nowhere else in the code. Its pieces: schema.py (the drive file's
 sections), derive.py (a minimal drive file completed, and loading), runtime.py (gains, runtime
-set-up), operating_point.py and linearize.py (the closed loop of Section IV), simulation.py (Fig. 7
-for a scenario), presets/ and scenarios/ (the paper's drive and experiments).
+set-up), operating_point.py and linearize.py (the closed loop of Section IV), discrete.py (the step
+that runs, by the shared discrete-time analysis of design/discrete.py), simulation.py (Fig. 7 for a
+scenario), presets/ and scenarios/ (the paper's drive and experiments).
 Equations: symbolic/ipmsm_adaptive/. Theory and choices: docs/families/ipmsm_adaptive.md.
 """
 
@@ -15,8 +16,7 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily, PerUnitBases
 from sensorless.design.gain_table import GainTableError
-from sensorless.design.ipmsm_adaptive import derive, schema, simulation
-from sensorless.design.ipmsm_adaptive import linearize as _linearize
+from sensorless.design.ipmsm_adaptive import derive, discrete, schema, simulation
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
 from sensorless.design.ipmsm_adaptive.simulation import injection_off
 
@@ -67,7 +67,7 @@ class AdaptiveFluxObserver(ObserverFamily):
         discretization (with T_s): also the discrete-time observer that runs (discrete.py)."""
         if options.get("injection") and not drive.injection.enabled:
             raise CapabilityError(injection_off(drive))
-        return _linearize.linearize(
+        return discrete.linearize(
             with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
         )
 

@@ -240,6 +240,17 @@ class PoleSweep(Linearization):
         return out
 
 
+def operating_points(w_m: Any, T_e: Any, estimate: Any = None) -> tuple[np.ndarray, np.ndarray, Any]:
+    """(w, T_e) broadcast and flattened (row-major), and the estimates (4, N) broadcast with them (None
+    if ``estimate`` is None): the points of :func:`linearize`."""
+    if estimate is None:
+        w_b, T_b = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float))
+        return w_b.ravel(), T_b.ravel(), None
+    est = np.asarray(estimate, float)
+    w_b, T_b, _ = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float), est[..., 0])
+    return w_b.ravel(), T_b.ravel(), np.broadcast_to(est, (*w_b.shape, 4)).reshape(-1, 4).T
+
+
 def linearize(
     drive: Any,
     w_m: Any,
@@ -247,8 +258,6 @@ def linearize(
     gain: str | tuple | None = None,
     injection: bool = False,
     estimate: Any = None,
-    discretization: str | None = None,
-    T_s: float | None = None,
     noise: bool = False,
 ) -> PoleSweep:
     """Linearize the coupled system at the operating points (w_m [rad/s], T_e [N m]).
@@ -258,18 +267,11 @@ def linearize(
     array (..., 4) of [R̂s, L̂d, L̂q, ψ̂pm] broadcasting with the operating points (default: the
     drive's ``[estimate]``), so robustness maps over parameter errors are one call. Points where no
     equilibrium exists (possible with estimation errors) get NaN. ``noise`` also evaluates the input
-    from current-measurement noise (:func:`noise_function`, ``PoleSweep.noise_rms``). With
-    ``discretization`` (a scheme of the runtime step) the result is a ``DiscretePoleSweep``
-    (discrete.py): also the discrete-time observer that runs at ``T_s`` (default the drive's), its
-    poles, steady errors and feedthrough.
+    from current-measurement noise (:func:`noise_function`, ``PoleSweep.noise_rms``). The discrete-time
+    observer that runs is analysed beside this by discrete.py (its ``linearize`` takes a
+    ``discretization``).
     """
-    if estimate is not None:
-        est = np.asarray(estimate, float)
-        w_b, T_b, _ = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float), est[..., 0])
-        est = np.broadcast_to(est, (*w_b.shape, 4)).reshape(-1, 4).T
-    else:
-        w_b, T_b = np.broadcast_arrays(np.asarray(w_m, float), np.asarray(T_e, float))
-    w_flat, T_flat = w_b.ravel(), T_b.ravel()
+    w_flat, T_flat, est = operating_points(w_m, T_e, estimate)
     n_pts = w_flat.size
     law, args = drive_arguments(drive, gain)
     args["w_m"], args["T_e"] = w_flat[None, :], T_flat[None, :]
@@ -307,7 +309,7 @@ def linearize(
         bad = ~np.isfinite(x0).all(axis=1)
         B_n[bad] = np.nan
         noise_input = (B_n, C_n, D_n)
-    sweep = PoleSweep(
+    return PoleSweep(
         noise_input=noise_input,
         law=law,
         injection=injection,
@@ -321,11 +323,6 @@ def linearize(
         D=out[3],
         poles=poles,
     )
-    if discretization is None:
-        return sweep
-    from sensorless.design.ipmsm_adaptive.discrete import discrete_sweep  # builds on this module
-
-    return discrete_sweep(drive, sweep, args["gain"], discretization, T_s, args["estimate"])
 
 
 def refine_band_edges(f_unstable: Any, lo: np.ndarray, hi: np.ndarray, iters: int = 40) -> np.ndarray:

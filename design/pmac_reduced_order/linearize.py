@@ -36,16 +36,24 @@ import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.batch import mapped as _mapped
+from sensorless.design.discrete import (
+    discrete_poles,
+    fixed_points,
+    map_function,
+    orbit_function,
+    rotor_function,
+    sensitivities,
+    sensitivity_function,
+)
 from sensorless.design.expm import expm_batched
 from sensorless.design.linearization import Linearization
 from sensorless.design.noise import noise_rms_periodic
 from sensorless.design.pmac_reduced_order.one_step import (
     angle_period,
-    discrete_jacobian_function,
-    discrete_noise_function,
-    orbit_function,
     ordered_product,
     period_steps,
+    sampled_loop,
+    torque_function,
 )
 from sensorless.design.pmac_reduced_order.operating_point import (
     INPUT_NAMES,
@@ -65,7 +73,7 @@ from sensorless.symbolic.pmac_reduced_order.observer import (
     rates,
     speed_from_emf,
 )
-from sensorless.symbolic.pmac_reduced_order.step import N_STATE, split_params
+from sensorless.symbolic.pmac_reduced_order.step import split_params
 
 
 @functools.cache
@@ -245,15 +253,25 @@ def analyze(
             theta0[None], w_f[None], T_f[None], motor[:, None], params[:, None]
         )
     )
-    par = np.vstack([w_f[None], T_f[None], np.repeat(motor[:, None], n, 1), np.repeat(params[:, None], n, 1)])
-    # (through the buffer interface: converting a long orbit through casadi.DM costs more than running it)
-    xc, err = evaluate_batch(
-        orbit_function(method, om, oo, load_estimation, n_steps), n, [np.vstack([x0, theta0[None]]), par]
-    )
-    xc = xc.transpose(1, 0, 2)  # (N_STATE + 1, n, n_steps)
-    err = err.transpose(1, 0, 2)  # (3, n, n_steps)
+    loop = sampled_loop(method, om, oo, load_estimation)
+    p_run = params if load_estimation else np.asarray(no_load_estimation(params)).ravel()  # Gamma = 0
+    plant = np.vstack([T_f[None], np.repeat(motor[:, None], n, 1)])  # [T_L; motor] per point
+    ctx = [w_f[None], plant, p_run, np.zeros(0)]  # the inputs after x (or y) and theta
+    # the runtime step on the sampled motor (through the buffer interface: converting a long orbit
+    # through casadi.DM costs more than running it)
+    x0 = np.vstack([x0, np.zeros((1, n))])  # the contract's counter of rejected samples: 0
+    xs, ths, outs = evaluate_batch(orbit_function(loop, n_steps), n, [x0, theta0, *ctx])
+    out_of = {f.name: k for k, f in enumerate(loop.observer.outputs)}
+    T_e = evaluate_batch(torque_function(om), n, [w_f, T_f, motor])[0][:, 0, 0]  # T_L + B omega
+    err = np.stack(
+        [
+            w_f[:, None] - outs[:, out_of["w_hat"]],  # speed error [rad/s]
+            np.angle(np.exp(1j * (ths[:, 0] - outs[:, out_of["theta_hat"]]))),  # position error [rad]
+            T_e[:, None] - outs[:, out_of["T_L_hat"]],  # load-torque error (viscosity included) [N m]
+        ]
+    )  # (3, n, n_steps)
     # a scheme can diverge at a point (too long T_s for its speed): NaN results there, not an exception
-    ok = np.isfinite(xc).all(axis=(0, 2))
+    ok = (outs[:, out_of["valid"]] == 1).all(axis=1) & np.isfinite(xs).all(axis=(1, 2))
     if errors:
         k_idx = np.arange(n_steps)[None, :]
         win = (k_idx >= (end - M)[:, None]) & (k_idx < end[:, None])  # (n, n_steps): each point's window
@@ -274,33 +292,40 @@ def analyze(
     rows = np.arange(n)[:, None]
     cols = np.maximum(end_jac[:, None] - 1 - mj + np.arange(mj)[None, :], 0)  # (n, mj)
     keep = np.arange(mj)[None, :] >= (mj - M_jac)[:, None]
-    xs = xc[:N_STATE][:, rows, cols].reshape(N_STATE, n * mj)
-    ths = xc[N_STATE][rows, cols].reshape(n * mj)
-    jac = _mapped(discrete_jacobian_function(method, om, oo, load_estimation), n * mj)
-    Jy = np.asarray(
-        jac(
-            xs, ths[None], np.repeat(w_f, mj)[None], np.repeat(T_f, mj)[None], motor[:, None], params[:, None]
-        )[0]
-    )
-    nd = Jy.shape[0]
-    Jy = Jy.reshape(nd, n * mj, nd).transpose(1, 0, 2).reshape(n, mj, nd, nd)
+    x_w = xs[rows, :, cols].reshape(n * mj, -1).T
+    th_w = ths[rows, 0, cols].reshape(n * mj)
+    ctx_w = [np.repeat(w_f, mj)[None], np.repeat(plant, mj, axis=1), p_run, np.zeros(0)]
+    y_w = evaluate_batch(rotor_function(loop), n * mj, [x_w, th_w])[0][:, :, 0].T
+    if math.isinf(period):
+        # sinusoidal EMF: in rotor coordinates the orbit is a fixed point of the one-step map, found by
+        # Newton's method from the settled state (design/discrete.py); the errors are its own, no ripple
+        y_fp = fixed_points(loop, np.where(ok[:, None], y_w.T, np.nan), w_f, plant.T, p_run, theta=th_w)[0]
+        ok &= np.isfinite(y_fp).all(axis=1)
+        y_w = np.nan_to_num(y_fp).T
+        if errors:
+            out = sensitivities(loop, y_fp, w_f, plant.T, p_run, theta=th_w)["out"]
+            th1 = th_w + w_f * T_s  # the motor's angle at the samples
+            mean = np.stack(
+                [
+                    w_f - out[:, out_of["w_hat"]],
+                    np.angle(np.exp(1j * (th1 - out[:, out_of["theta_hat"]]))),
+                    T_e - out[:, out_of["T_L_hat"]],
+                ]
+            )
+            mean[:, ~ok] = np.nan
+            ptp = np.where(ok, 0.0, np.nan) * np.ones((3, 1))
+    Jy = evaluate_batch(map_function(loop), n * mj, [y_w, th_w, *ctx_w])[1]
+    nd = Jy.shape[1]
+    Jy = Jy.reshape(n, mj, nd, nd)
     Jy = np.where(keep[:, :, None, None], Jy, np.eye(nd))
     ok &= np.isfinite(Jy).all(axis=(1, 2, 3))
     Jy[~ok] = np.eye(nd)
     noise_rms = None
     if noise:
-        gfn = _mapped(discrete_noise_function(method, om, oo, load_estimation), n * mj)
-        G1, G0 = (
-            np.asarray(a).reshape(nd, n * mj, 2).transpose(1, 0, 2).reshape(n, mj, nd, 2)
-            for a in gfn(
-                xs,
-                ths[None],
-                np.repeat(w_f, mj)[None],
-                np.repeat(T_f, mj)[None],
-                motor[:, None],
-                params[:, None],
-            )
-        )
+        sens = evaluate_batch(sensitivity_function(loop), n * mj, [y_w, th_w, *ctx_w])
+        # noise on the new current sample (meas) and on the stored previous one (state i_prev)
+        G1 = sens[2][:, :, 0:2].reshape(n, mj, nd, 2)
+        G0 = sens[1][:, :, 5:7].reshape(n, mj, nd, 2)
         G1 = np.where(keep[:, :, None, None], G1, 0.0)
         G0 = np.where(keep[:, :, None, None], G0, 0.0)
         # augmented state [y; n_(k-1)]: y_k = F y_(k-1) + G_prev n_(k-1) + G_new n_k, then store n_k
@@ -314,11 +339,9 @@ def analyze(
         Ca[0, nd - 2], Ca[1, nd - 1] = 1.0, 1.0  # position error, speed estimate
         noise_rms = noise_rms_periodic(Fa, Ga, Ca, float(drive.control.i_noise))
         noise_rms[~ok] = np.nan
-    mu = np.linalg.eigvals(ordered_product(Jy)).astype(complex)
-    order = np.argsort(-np.abs(mu), axis=-1, kind="stable")
-    mu = np.take_along_axis(mu, order, axis=-1)
-    with np.errstate(divide="ignore"):
-        s_d = np.log(mu[:, :n_c]) / (M_jac * T_s)[:, None]
+    # the monodromy over the window: its eigenvalues are the Floquet multipliers, z of one step for a
+    # sinusoidal EMF (M_jac = 1)
+    s_d = discrete_poles(ordered_product(Jy), M_jac * T_s, n_c)[0]
     s_d[~ok] = np.nan
     # the fast "memory" modes (previous position/speed of (19)-(21)) vanish in the product; their
     # size per step comes from the single-step eigenvalues, largest along the window
@@ -333,7 +356,7 @@ def analyze(
         method=method,
         T_s=T_s,
         poles=poles_c,
-        poles_discrete=sort_poles(s_d),
+        poles_discrete=s_d,
         memory_z=memory_z,
         steps=M_jac,
         err_w=mean[0],

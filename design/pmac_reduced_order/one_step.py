@@ -1,9 +1,15 @@
-"""The one-step map of the sampled reduced-order observer fed by the motor, in rotor coordinates.
+"""The sampled reduced-order observer fed by the motor, in rotor coordinates: what the shared discrete-time
+analysis (design/discrete.py) needs from this family, and the Floquet extension on top of it.
 
-The step that runs (symbolic/pmac_reduced_order/step.py) takes the motor from angle theta to
-theta + w T_s; its Jacobian in rotor coordinates y = [R(-theta) zeta, tau, theta_hat - theta, w_hat] on
-the observer's own orbit gives the discrete-time poles (linearize.analyze), the orbit Function the
-steady errors, and the products of one-step Jacobians over whole periods the Floquet multipliers.
+The step that runs (the runtime observer of symbolic/pmac_reduced_order/step.py, as generated) takes the
+motor from angle theta to theta + w T_s; the motor's current and voltage are sampled from the
+continuous signals of the operating point (the paper measures the voltage; nothing is held). In rotor
+coordinates y = [R(-theta) zeta, tau, theta_hat - theta, w_hat] (:func:`sampled_loop`) its one-step map
+and Jacobian are the shared ones. With a sinusoidal EMF the map does not depend on theta; with EMF
+harmonics it is periodic in theta and the observer runs on a periodic orbit, not at a fixed point: the
+Floquet multipliers are eigenvalues of the product of the one-step Jacobians along the simulated orbit
+over whole periods (:func:`angle_period`, :func:`period_steps`, :func:`ordered_product`; used by
+linearize.analyze).
 """
 
 from __future__ import annotations
@@ -14,127 +20,63 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.pmac_reduced_order.operating_point import (
-    INPUT_NAMES,
-    no_load_estimation,
-    plant_signals,
-    symbols,
-)
+from sensorless.design.discrete import SampledLoop
+from sensorless.design.pmac_reduced_order.operating_point import motor_names, plant_signals
 from sensorless.symbolic.frames import rot, wrap_angle
-from sensorless.symbolic.pmac_reduced_order.step import N_STATE, split_params, step
+from sensorless.symbolic.pmac_reduced_order.step import runtime_observer, split_params
+
+_N = {"zeta": slice(0, 2), "tau": 2, "theta": 3, "w_hat": 4, "i": slice(5, 7), "u": slice(7, 9)}
 
 
-def _rotor_coordinates(x: Any, theta: Any, load_estimation: bool) -> Any:
-    """y = [R(-theta) zeta, tau, wrap(theta_hat - theta), w_hat] from the step state x."""
-    parts = [
-        rot(theta).T @ x[0:2],
-        *([x[2]] if load_estimation else []),
-        wrap_angle(x[3] - theta),
-        x[4],
-    ]
-    return ca.vertcat(*parts)
-
-
-def _coupled_step(
-    s: dict[str, ca.SX], x: Any, method: str, orders_m, orders_o, load_estimation: bool, noise=None
-):
-    """One observer step from angle theta (t_(k-1)) to theta + w T_s, fed by the motor's samples;
-    ``noise`` = (n_prev, n_new) current-sensor noise added to the previous and the new current sample."""
-    params = s["params"] if load_estimation else no_load_estimation(s["params"])
-    _, _, T_s = split_params(params, orders_o)
-    th0 = s["theta"]
-    th1 = th0 + s["w"] * T_s
-    sig0, _ = plant_signals(s, th0, orders_m)
-    sig1, T_e = plant_signals(s, th1, orders_m)
-    n_prev, n_new = noise if noise is not None else (0, 0)
-    x_in = ca.vertcat(x[0:5], sig0.i + n_prev, sig0.v)  # the previous samples are the motor's
-    st = step(x_in, sig1.i + n_new, sig1.v, params, orders_o, method)
-    return st, th1, T_e
+def coordinate_names(load_estimation: bool) -> tuple[str, ...]:
+    """Names of the rotor coordinates y (tau left out without load estimation)."""
+    return ("zeta_d", "zeta_q", *(["tau"] if load_estimation else []), "theta_err_hat", "w_hat")
 
 
 @functools.cache
-def discrete_jacobian_function(
+def sampled_loop(
     method: str, orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool = True
-) -> ca.Function:
-    """(x, theta, w, T_L, motor, params) -> Jy: the one-step map's Jacobian in rotor coordinates.
+) -> SampledLoop:
+    """The runtime step of scheme ``method`` on the motor at an operating point (plant = [T_L, motor])."""
+    obs = runtime_observer(tuple(orders_o))
 
-    ``x`` is the observer state at t_(k-1) (its stored samples are replaced by the motor's at theta);
-    the step takes the motor from theta to theta + w T_s. Jy = d y_k / d y_(k-1) with y of
-    :func:`_rotor_coordinates` (5 states; 4 without load estimation, tau held at 0).
-    """
-    s = symbols(orders_m, orders_o)
-    ny = 5 if load_estimation else 4
-    y = ca.SX.sym("y", ny)
-    th0 = s["theta"]
-    zeta = rot(th0) @ y[0:2]
-    tau = y[2] if load_estimation else 0
-    x = ca.vertcat(zeta, tau, y[ny - 2] + th0, y[ny - 1], ca.DM.zeros(4))
-    st, th1, _ = _coupled_step(s, x, method, orders_m, orders_o, load_estimation)
-    y1 = _rotor_coordinates(st.x_next, th1, load_estimation)
-    Jy = ca.jacobian(y1, y)
-    x_sym = ca.SX.sym("x", N_STATE)
-    y_of_x = _rotor_coordinates(x_sym, th0, load_estimation)
-    f = ca.Function("f", [y, *s.values()], [Jy, st.x_next])
-    Jy0, x_next = f(y_of_x, *s.values())
-    name = f"pmac_reduced_order_jacobian_d_{method.replace('-', '_')}{'' if load_estimation else '_noTL'}"
-    return ca.Function(name, [x_sym, *s.values()], [Jy0, x_next], ["x", *INPUT_NAMES], ["Jy", "x_next"])
+    def signals(theta: Any, w: Any, plant: Any) -> Any:
+        s = {"w": w, "T_L": plant[0], "motor": plant[1:]}
+        return plant_signals(s, theta, orders_m)[0]
 
+    def sample(theta: Any, w: Any, plant: Any, p: Any) -> Any:
+        # the samples at the end of the period [t_(k-1), t_k] the step integrates over
+        sig = signals(theta + w * split_params(p, orders_o)[2], w, plant)
+        return ca.vertcat(sig.i, sig.v)
 
-@functools.cache
-def discrete_noise_function(
-    method: str, orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool = True
-) -> ca.Function:
-    """(x, theta, w, T_L, motor, params) -> (G_new, G_prev): the one-step map's input from current-
-    sensor noise (stationary frame, A) added to the new sample and to the stored previous one, in the
-    rotor coordinates of :func:`discrete_jacobian_function` (Jacobians of the step that runs, at zero
-    noise). A sample's noise enters two steps (as the new sample, then as the previous one)."""
-    s = symbols(orders_m, orders_o)
-    ny = 5 if load_estimation else 4
-    y = ca.SX.sym("y", ny)
-    n_prev, n_new = ca.SX.sym("n_prev", 2), ca.SX.sym("n_new", 2)
-    th0 = s["theta"]
-    zeta = rot(th0) @ y[0:2]
-    tau = y[2] if load_estimation else 0
-    x = ca.vertcat(zeta, tau, y[ny - 2] + th0, y[ny - 1], ca.DM.zeros(4))
-    st, th1, _ = _coupled_step(s, x, method, orders_m, orders_o, load_estimation, (n_prev, n_new))
-    y1 = _rotor_coordinates(st.x_next, th1, load_estimation)
-    outs = [ca.jacobian(y1, n_new), ca.jacobian(y1, n_prev)]
-    outs = [ca.substitute(o, ca.vertcat(n_prev, n_new), ca.DM.zeros(4)) for o in outs]
-    x_sym = ca.SX.sym("x", N_STATE)
-    y_of_x = _rotor_coordinates(x_sym, th0, load_estimation)
-    f = ca.Function("f", [y, *s.values()], outs)
-    G1, G0 = f(y_of_x, *s.values())
-    name = f"pmac_reduced_order_noise_d_{method.replace('-', '_')}{'' if load_estimation else '_noTL'}"
-    return ca.Function(name, [x_sym, *s.values()], [G1, G0], ["x", *INPUT_NAMES], ["G_new", "G_prev"])
+    def state(y: Any, theta: Any, w: Any, plant: Any, p: Any) -> Any:
+        # the stored previous samples are the motor's at theta
+        sig = signals(theta, w, plant)
+        ny = len(y.nz)
+        tau = y[2] if load_estimation else 0
+        return ca.vertcat(rot(theta) @ y[0:2], tau, y[ny - 2] + theta, y[ny - 1], sig.i, sig.v)
 
+    def rotor(x: Any, theta: Any) -> Any:
+        return ca.vertcat(
+            rot(theta).T @ x[_N["zeta"]],
+            *([x[_N["tau"]]] if load_estimation else []),
+            wrap_angle(x[_N["theta"]] - theta),
+            x[_N["w_hat"]],
+        )
 
-@functools.cache
-def _coupled_step_function(method: str, orders_m, orders_o, load_estimation: bool) -> ca.Function:
-    """(xc = [x; theta], par = [w; T_L; motor; params]) -> (xc_next, errors at t_k)."""
-    s = symbols(orders_m, orders_o)
-    x = ca.SX.sym("x", N_STATE)
-    st, th1, T_e = _coupled_step(s, x, method, orders_m, orders_o, load_estimation)
-    err = ca.vertcat(
-        s["w"] - st.est.w_hat,  # speed error [rad/s]
-        wrap_angle(th1 - st.est.theta_hat),  # position error [rad]
-        T_e - st.est.T_L_hat,  # load-torque error (viscosity included) [N m]
+    names = coordinate_names(load_estimation)
+    return SampledLoop(
+        obs, method, None, names, 1 + len(motor_names(orders_m)), sample, state, rotor, (len(names) - 2,)
     )
-    par = ca.vertcat(s["w"], s["T_L"], s["motor"], s["params"])
-    xc = ca.vertcat(x, s["theta"])
-    # keep the angle bounded so long runs do not lose precision
-    return ca.Function("coupled", [xc, par], [ca.vertcat(st.x_next, wrap_angle(th1)), err])
 
 
 @functools.cache
-def orbit_function(
-    method: str, orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool, n_steps: int
-) -> ca.Function:
-    """(xc0 [10], par) -> (xc [10 x n], err [3 x n]): n steps of the observer fed by the motor."""
-    F = _coupled_step_function(method, orders_m, orders_o, load_estimation).mapaccum(n_steps)
-    xc0 = ca.MX.sym("xc0", N_STATE + 1)
-    par = ca.MX.sym("par", F.size1_in(1))
-    xc, err = F(xc0, ca.repmat(par, 1, n_steps))
-    return ca.Function(f"orbit{n_steps}", [xc0, par], [xc, err], ["xc0", "par"], ["xc", "err"])
+def torque_function(orders_m: tuple[int, ...]) -> ca.Function:
+    """(w, T_L, motor) -> T_e = T_L + B omega: the motor's torque at an operating point."""
+    n_motor = len(motor_names(orders_m))
+    s = {"w": ca.SX.sym("w"), "T_L": ca.SX.sym("T_L"), "motor": ca.SX.sym("motor", n_motor)}
+    T_e = plant_signals(s, 0, orders_m)[1]
+    return ca.Function("pmac_torque", list(s.values()), [T_e], list(s), ["T_e"])
 
 
 def angle_period(orders_m: tuple[int, ...], orders_o: tuple[int, ...]) -> float:

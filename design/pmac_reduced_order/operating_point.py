@@ -3,7 +3,7 @@ the observer state that agrees with it exactly (De Angelo et al. 2006).
 
 An operating point is an electrical speed w and a load torque T_L: the motor turns at w carrying the
 ripple-free current (25) of T_e = T_L + B omega, with the voltage (2) that holds it. The analysis
-Functions of linearize.py and one_step.py share the named inputs of :func:`symbols`.
+Functions of linearize.py share the named inputs of :func:`symbols`; one_step.py samples the same signals.
 """
 
 from __future__ import annotations

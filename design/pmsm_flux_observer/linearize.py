@@ -4,12 +4,13 @@ The observer's equilibrium on a motor in steady state (electrical speed w, torqu
 motor's MTPA current) rotates in the stationary frame; in the rotor frame (flux state rotated by
 -theta, the PLL's angle error delta = theta - theta_pll, the PLL speed, and lambda_hat where it is
 adapted) it is a fixed point. Both the continuous observer (symbolic ``rhs_function``) and the sampled
-one that runs (its runtime step, the Function the C prints) are written in that frame by composing
-their own SX Functions with rotations; Newton's method on the SX expressions finds the equilibrium
-and the poles are the eigenvalues of their CasADi Jacobians there (discrete: ln(z)/T_obs). The
-previous period's voltage the step stores is an input here (the steady voltage at the middle of that
-period), not a state of the error dynamics. The PLL does not feed back into the observer, so the poles
-are the observer's with the PLL's; the observer's steady angle error is reported per point.
+one that runs (its runtime step, the Function the C prints: the shared design/discrete.py analysis of
+a :class:`SampledLoop`, on the motor sampled under zero-order hold) are written in that frame; Newton's
+method finds the equilibrium (the continuous one starts the discrete one) and the poles are the
+eigenvalues of the CasADi Jacobians there (discrete: ln(z)/T_obs). The previous period's voltage the
+step stores is the plant's, not a state of the error dynamics. The PLL does not feed back into the
+observer, so the poles are the observer's with the PLL's; the observer's steady angle error is
+reported per point.
 
 ``clamped-gradient`` is linearized on its active side (|eta| > lambda, where it is the gradient
 observer); inside, its correction is off. ``box-clamp`` has no linearization (CapabilityError): it is
@@ -25,15 +26,24 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
+from sensorless.design.discrete import (
+    SampledLoop,
+    discrete_poles,
+    eigenvalues_by_size,
+    fixed_points,
+    pmsm_zoh_plant,
+    pmsm_zoh_sample,
+    sensitivities,
+)
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.linearization import Linearization
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.poles import eigvals_batched
 from sensorless.symbolic.frames import J, rot, wrap_angle
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
-from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS, observer_step_core, rhs_function
+from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS, rhs_function, runtime_observer
 
-NEWTON_STEPS = 24
+NEWTON_STEPS = 12
 _IX = {f.name: k for k, f in enumerate(PARAMS)}
 
 
@@ -66,8 +76,9 @@ def motor_vector(drive: Any) -> np.ndarray:
 
 
 @functools.cache
-def equilibrium_function(kind: str, rule: str, adapt: bool, discrete: bool, law: ca.Function) -> ca.Function:
-    """(w, T_e, motor[5], p, gain) -> (x_r*, A, residual) with x_r = [x_r (2), (lambda_hat), delta, w_pll]."""
+def equilibrium_function(kind: str, rule: str, adapt: bool, law: ca.Function) -> ca.Function:
+    """(w, T_e, motor[5], p, gain) -> (x_r*, A, residual, theta_err): Newton on the continuous
+    observer in the rotor frame, x_r = [x_r (2), (lambda_hat), delta, w_pll], then its Jacobian."""
     n = 5 if adapt else 4
     x_r = ca.SX.sym("x_r", n)
     w, T_e = ca.SX.sym("w"), ca.SX.sym("T_e")
@@ -75,19 +86,8 @@ def equilibrium_function(kind: str, rule: str, adapt: bool, discrete: bool, law:
     i_r, u_r = steady_motor(w, T_e, m)
     lam = x_r[2] if adapt else p[_IX["psi_pm"]]
     delta, w_p = x_r[n - 2], x_r[n - 1]
-    k_0 = law(w_p, gain)
-    if discrete:
-        T = p[_IX["T_s"]]
-        x = ca.vertcat(x_r[0:2], lam, rot(w * T / 2) @ u_r, -delta, w_p, 0)
-        meas = ca.vertcat(rot(w * T) @ i_r, rot(3 * w * T / 2) @ u_r)
-        x1, _ = observer_step_core(kind, rule)(x, meas, p, k_0)
-        F = [rot(-w * T) @ x1[0:2]] + ([x1[2]] if adapt else []) + [wrap_angle(w * T - x1[5]), x1[6]]
-        F = ca.vertcat(*F)
-        G = F - x_r
-    else:
-        dx = rhs_function(kind, rule)(ca.vertcat(x_r[0:2], lam, -delta, w_p), i_r, u_r, p, k_0)
-        G = ca.vertcat(*([dx[0:2] - w * (J @ x_r[0:2])] + ([dx[2]] if adapt else []) + [w - dx[3], dx[4]]))
-        F = G
+    dx = rhs_function(kind, rule)(ca.vertcat(x_r[0:2], lam, -delta, w_p), i_r, u_r, p, law(w_p, gain))
+    G = ca.vertcat(*([dx[0:2] - w * (J @ x_r[0:2])] + ([dx[2]] if adapt else []) + [w - dx[3], dx[4]]))
     g_fn = ca.Function("G", [x_r, w, T_e, m, p, gain], [G, ca.jacobian(G, x_r)])
     psi_r = flux_from_current(i_r, PmsmParams(m[0], m[1], m[2], m[3]))
     xk = ca.vertcat(*([psi_r] + ([p[_IX["psi_pm"]]] if adapt else []) + [0, w]))
@@ -95,20 +95,70 @@ def equilibrium_function(kind: str, rule: str, adapt: bool, discrete: bool, law:
         Gk, Jk = g_fn(xk, w, T_e, m, p, gain)
         xk = xk - ca.solve(Jk, Gk)
     Gk, _ = g_fn(xk, w, T_e, m, p, gain)
-    A = ca.substitute(ca.jacobian(F, x_r), x_r, xk)
-    # the observer's angle error theta - atan2(eta) at the equilibrium (rotor frame: theta = 0, or
-    # theta = w T after the step)
-    L = _inductance_at(rule, i_r, p)
-    eta = xk[0:2] - L * i_r
-    err = -ca.atan2(eta[1], eta[0])
-    tag = "d" if discrete else "c"
+    A = ca.substitute(ca.jacobian(G, x_r), x_r, xk)
+    # the observer's angle error theta - atan2(eta) at the equilibrium (rotor frame: theta = 0)
+    eta = xk[0:2] - _inductance_at(rule, i_r, p) * i_r
     return ca.Function(
-        f"pmsm_flux_observer_equilibrium_{tag}",
+        "pmsm_flux_observer_equilibrium_c",
         [w, T_e, m, p, gain],
-        [xk, ca.densify(A), ca.norm_inf(Gk), err],
+        [xk, ca.densify(A), ca.norm_inf(Gk), -ca.atan2(eta[1], eta[0])],
         ["w", "T_e", "motor", "p", "gain"],
         ["x", "A", "res", "theta_err"],
     )
+
+
+@functools.cache
+def sampled_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> SampledLoop:
+    """The runtime step on the motor sampled under zero-order hold (design/discrete.py), in rotor
+    coordinates y = [flux state rotated by -theta (2), (lambda_hat), delta = theta - theta_pll, w_pll];
+    the stored voltage of the previous period is the plant's (held over the period before theta)."""
+    ix_T = _IX["T_s"]
+    ix_psi = _IX["psi_pm"]
+    n = 5 if adapt else 4
+
+    def state(y: Any, theta: Any, w: Any, plant: Any, p: Any) -> Any:
+        lam = y[2] if adapt else p[ix_psi]
+        u_prev = rot(theta - w * p[ix_T]) @ plant[2:4]
+        return ca.vertcat(rot(theta) @ y[0:2], lam, u_prev, theta - y[n - 2], y[n - 1])
+
+    def rotor(x: Any, theta: Any) -> Any:
+        return ca.vertcat(
+            *([rot(theta).T @ x[0:2]] + ([x[2]] if adapt else []) + [wrap_angle(theta - x[5]), x[6]])
+        )
+
+    names = ("x_d", "x_q", *(("lambda_hat",) if adapt else ()), "delta", "w_pll")
+    obs = runtime_observer(kind, rule)
+    return SampledLoop(obs, "euler", law, names, 4, pmsm_zoh_sample, state, rotor, (n - 2,))
+
+
+def discrete_analysis(
+    drive: Any, loop: SampledLoop, y0: np.ndarray, W: np.ndarray, T: np.ndarray, p: np.ndarray, gain: Any
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(poles ln(z)/T_obs, |z| largest, angle error theta - theta_hat) of the sampled observer from the
+    start points y0 (the continuous equilibria); p (n_p,) or (n_p, N), gain one or per point."""
+    m = drive.motor
+    i_r = np.column_stack(mtpa_currents(drive, T))
+    plant = pmsm_zoh_plant(m.vector(), W, i_r, drive.observer.T_obs)
+    y, Jd = fixed_points(loop, y0, W, plant, p, gain)
+    poles = discrete_poles(Jd, drive.observer.T_obs, loop.n_y)[0]
+    out = sensitivities(loop, y, W, plant, p, gain)["out"]
+    err = wrap(-out[:, loop.observer.index("outputs", "theta_hat")])
+    z = np.abs(eigenvalues_by_size(Jd)[:, 0])
+    return poles, z, err
+
+
+def mtpa_currents(drive: Any, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(i_d, i_q) [A] of the true motor's MTPA current at each torque (symbolic/pmsm.py, evaluated)."""
+    fn = _mtpa()
+    u = np.unique(T)
+    vals = {t: np.asarray(fn(t, drive.motor.vector(), drive.motor.p)).ravel() for t in u}
+    return np.array([vals[t][0] for t in T]), np.array([vals[t][1] for t in T])
+
+
+@functools.cache
+def _mtpa() -> ca.Function:
+    T, m, pp = ca.SX.sym("T"), ca.SX.sym("m", 4), ca.SX.sym("p")
+    return ca.Function("mtpa", [T, m, pp], [mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), pp)])
 
 
 def _inductance_at(rule: str, i_r: Any, p: Any) -> Any:
@@ -142,29 +192,29 @@ def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = N
         params.update(estimate)
     p = setup.observer.pack_params(params)
     motor = motor_vector(drive)
-    out, errs = {}, {}
-    for discrete in (False, True):
-        fn = equilibrium_function(kind, o.inductance_rule, o.lambda_adaptation, discrete, setup.schedule.law)
-        x, A, res, err = evaluate_batch(fn, n, [W, T, motor, p, setup.gain])
-        scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
-        ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
-        ev = np.full((n, A.shape[1]), np.nan + 0j)
-        if ok.any():
-            ev[ok] = eigvals_batched(A[ok])
-        if discrete:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ev = np.log(ev.astype(complex)) / o.T_obs
-        out[discrete] = ev
-        errs[discrete] = np.where(ok, np.asarray(wrap(err[:, 0, 0])), np.nan)
+    law = setup.schedule.law
+    rule, adapt = o.inductance_rule, o.lambda_adaptation
+    x, A, res, err = evaluate_batch(
+        equilibrium_function(kind, rule, adapt, law), n, [W, T, motor, p, setup.gain]
+    )
+    scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
+    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
+    poles = np.full((n, A.shape[1]), np.nan + 0j)
+    if ok.any():
+        poles[ok] = eigvals_batched(A[ok])
+    y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
+    poles_d, _, err_d = discrete_analysis(
+        drive, sampled_loop(kind, rule, adapt, law), y0, W, T, p, setup.gain
+    )
     return FluxLinearization(
         w=W,
         torque=T,
-        poles=out[False],
-        poles_discrete=out[True],
+        poles=poles,
+        poles_discrete=poles_d,
         T_s=o.T_obs,
         torque_name="T_e",
-        theta_err=errs[False],
-        theta_err_discrete=errs[True],
+        theta_err=np.where(ok, wrap(err[:, 0, 0]), np.nan),
+        theta_err_discrete=err_d,
         law=gains.family,
     )
 

@@ -220,11 +220,12 @@ def _step(kind: str, rule: str, x: Sym, meas: Sym, p_vec: Sym, lam_in: Sym) -> t
     th_new, w_new = wrap_angle(th + T * dth), w + T * dw
     x_cand = ca.vertcat(x_new, lam_new, u, th_new, w_new)
     y_cand = ca.vertcat(w, theta_obs, th, eta, k)
-    # coasting: the flux turns at the PLL speed, the PLL runs on, the voltage is held
-    eta_old = x[0:2] - L * i
-    eta_c = rot(w * T) @ eta_old
-    x_coast = ca.vertcat(eta_c + L * i, lam, u_prev, wrap_angle(th + T * w), w)
-    y_coast = ca.vertcat(w, wrap_angle(th + T * w), wrap_angle(th + T * w), eta_c, k)
+    # coasting (nothing of the rejected sample used): the flux state turns at the PLL speed, the PLL
+    # runs on, the voltage is held; the flux output is the turned state (no current to subtract)
+    x_c = rot(w * T) @ x[0:2]
+    th_c = wrap_angle(th + T * w)
+    x_coast = ca.vertcat(x_c, lam, u_prev, th_c, w)
+    y_coast = ca.vertcat(w, th_c, th_c, x_c, k)
     x0 = initial_state_function()(p_vec)
     return guarded(x, p_vec, STATE, PARAMS, cand=(x_cand, y_cand), coast=(x_coast, y_coast), reset=x0)
 

@@ -157,10 +157,6 @@ SHARED_WORDS = {
     "gain",  # the shared LoopSetup.gain / RuntimeSetup.gain and the traces' provenance line "gain"
 }
 
-# Shared modules that still name a family's vocabulary, with the names, while the work that makes them
-# generic is under way on other branches (tighten at merge: each entry is a module to fix, not a rule).
-PENDING: dict[str, set[str]] = {}
-
 
 def _module_path(module: str) -> Path:
     parts = module.split(".")[1:]
@@ -349,16 +345,9 @@ def _offences() -> dict[str, dict[str, set[str]]]:
 def test_shared_modules_name_no_family_vocabulary():
     """No shared module names a family's gain laws, gains, scenario options, [estimate_scale] keys,
     trace panels or drive fields (string constants, attribute and keyword names; whole words), for
-    every registered family and the test family; PENDING lists what other branches still make generic."""
+    every registered family and the test family."""
     found = _offences()
-    new = {
-        p: {w: sorted(f) for w, f in names.items() if w not in PENDING.get(p, set())}
-        for p, names in found.items()
-    }
-    new = {p: names for p, names in new.items() if names}
-    assert not new, new
-    stale = {p: sorted(words - set(found.get(p, {}))) for p, words in PENDING.items()}
-    assert not any(stale.values()), f"PENDING names no longer there (remove them): {stale}"
+    assert not found, {p: {w: sorted(f) for w, f in names.items()} for p, names in found.items()}
 
 
 def test_the_vocabulary_check_can_fail(tmp_path):
@@ -372,16 +361,6 @@ def test_the_vocabulary_check_can_fail(tmp_path):
     with _with_test_family():
         vocab = {w for fam in families() for w in _vocabulary(fam)}
     assert {"injection", "w_eps", "law16", "load_torque_estimation", "alpha_fo", "w_pll"} <= vocab
-
-
-# --------------------------------------------------------------------------------------------------
-# No import cycle between the package's files
-# --------------------------------------------------------------------------------------------------
-# Cycles inside family folders that other branches are taking apart (tighten at merge):
-PENDING_CYCLES = {
-    # the shared discrete-time analysis (discrete branch, issue 20 item 3)
-    frozenset({"sensorless.design.ipmsm_adaptive.discrete", "sensorless.design.ipmsm_adaptive.linearize"}),
-}
 
 
 def _import_graph(root: Path) -> dict[str, set[str]]:
@@ -448,11 +427,8 @@ def _cycles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
 
 
 def test_no_import_cycle_between_files():
-    """No module imports, directly or through others, a module that imports it (PENDING_CYCLES: being
-    taken apart on other branches)."""
-    cycles = _cycles(_import_graph(ROOT))
-    assert not [sorted(c) for c in cycles if c not in PENDING_CYCLES]
-    assert not [sorted(c) for c in PENDING_CYCLES if c not in cycles], "PENDING_CYCLES no longer there"
+    """No module imports, directly or through others, a module that imports it."""
+    assert not [sorted(c) for c in _cycles(_import_graph(ROOT))]
 
 
 def test_the_cycle_check_can_fail(tmp_path):

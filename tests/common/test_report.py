@@ -9,7 +9,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
-from sensorless.design.ipmsm_adaptive.linearize import linearize
+from sensorless.design.ipmsm_adaptive.discrete import linearize
 from sensorless.reports.cli.common import version
 from sensorless.reports.cli.main import main
 

@@ -128,10 +128,19 @@ def test_linearization_is_the_sampled_observer_that_runs(drive):
     w, T_e = 0.6 * drive.w_base, drive.T_N
     lin = FAMILY.linearize(drive, gains, w, T_e)
     i_r = np.array([0.0, T_e / (1.5 * m.p * m.psi_pm)])
-    u_r = m.R_s * i_r + w * np.array([-m.L_q * i_r[1], m.L_d * i_r[0] + m.psi_pm])
+    # the voltage an inverter holds over the period (constant in the stationary frame) that brings the
+    # current back to i_r: in the rotor frame, complex, d psi/dt = a psi + (R/L) psi_pm + u e^(-j w t)
+    # with a = -R/L - j w, solved in closed form over one period (non-salient: psi = L i + psi_pm)
+    L = m.L_d
+    assert m.L_q == L
+    r, a = m.R_s / L, -m.R_s / L - 1j * w
+    psi0 = L * complex(*i_r) + m.psi_pm
+    E = np.exp(a * T_s)
+    u = (psi0 * (1 - E) - r * m.psi_pm * (E - 1) / a) / (E * (np.exp(r * T_s) - 1) / r)
+    u_z = np.array([u.real, u.imag])
 
-    def meas(th):  # current at t_k, voltage held over the period (the steady one at mid-period)
-        return np.concatenate([rot(th) @ i_r, rot(th + w * T_s / 2) @ u_r])
+    def meas(th):  # current at t_k, voltage held over the period
+        return np.concatenate([rot(th) @ i_r, rot(th) @ u_z])
 
     n = 4000
     th = w * T_s * np.arange(n)

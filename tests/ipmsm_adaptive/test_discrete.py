@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from helpers.simulation import matrix_pencil
 from scipy.integrate import solve_ivp
+from sensorless.design.discrete import zoh_voltage
 from sensorless.design.ipmsm_adaptive import FAMILY
-from sensorless.design.ipmsm_adaptive.discrete import STATE_NAMES, zoh_voltage
+from sensorless.design.ipmsm_adaptive.discrete import STATE_NAMES
 from sensorless.design.ipmsm_adaptive.linearize import linearize
 from sensorless.design.runtime import run_trajectory
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS, OUTPUTS, STATE

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from helpers.simulation import matrix_pencil, piippo2008, run, run_text
 from scipy.integrate import solve_ivp
-from sensorless.design.ipmsm_adaptive.linearize import linearize
+from sensorless.design.ipmsm_adaptive.discrete import linearize
 from sensorless.symbolic.pmsm import Mechanics, PmsmParams, plant_period
 
 DEG = np.pi / 180

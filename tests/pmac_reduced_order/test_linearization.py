@@ -141,7 +141,8 @@ def test_default_discretization_keeps_continuous_poles_at_180us(deangelo2006):
 def test_slow_pole_is_the_simulated_decay_rate(deangelo2006, harmonics):
     """Linear analysis vs simulation: a T_L_hat error of 0.5 N m on the running observer decays at the
     rate of the slowest discrete pole (the Floquet exponent with harmonics), within 1 %."""
-    from sensorless.design.pmac_reduced_order.one_step import orbit_function
+    from sensorless.design.discrete import orbit_function
+    from sensorless.design.pmac_reduced_order.one_step import sampled_loop
     from sensorless.design.pmac_reduced_order.operating_point import exact_state_function
 
     d = deangelo2006 if harmonics else sinusoidal(deangelo2006)
@@ -151,13 +152,14 @@ def test_slow_pole_is_the_simulated_decay_rate(deangelo2006, harmonics):
     params = d.observer_params()
     x0 = np.asarray(exact_state_function(om, oo, True)(0.3, w, T_L, d.motor.vector(), params)).ravel()
     n = 2500  # 0.45 s
-    par = np.r_[w, T_L, d.motor.vector(), params]
-    orbit = orbit_function(d.control.discretization, om, oo, True, n)
-    ref = np.asarray(orbit(np.r_[x0, 0.3], par)[1])[2]
+    plant = np.r_[T_L, d.motor.vector()]
+    # the runtime step on the sampled motor (its state with the contract's counter at 0)
+    orbit = orbit_function(sampled_loop(d.control.discretization, om, oo, True), n)
+    ref = np.asarray(orbit(np.r_[x0, 0], 0.3, w, plant, params, [])[2])[2]  # T_L_hat
     x0[2] += 0.5  # tau, hence T_L_hat, 0.5 N m too high
     # the response to the perturbation: the difference to the unperturbed run (which carries the
     # scheme's small steady bias and, with harmonics, a ripple)
-    e_T = np.abs(np.asarray(orbit(np.r_[x0, 0.3], par)[1])[2] - ref)
+    e_T = np.abs(np.asarray(orbit(np.r_[x0, 0], 0.3, w, plant, params, [])[2])[2] - ref)
     t = T_s * np.arange(1, n + 1)
     # the fast poles (-400, -389) are gone after 0.1 s; fit ln|e_T| on 0.15..0.45 s
     sel = t > 0.15

@@ -35,7 +35,12 @@ from sensorless.design.batch import evaluate_batch
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTable
 from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF, constant_law, runtime_params
-from sensorless.design.pmsm_flux_observer.linearize import equilibrium_function, motor_vector, wrap
+from sensorless.design.pmsm_flux_observer.linearize import (
+    discrete_analysis,
+    equilibrium_function,
+    motor_vector,
+    sampled_loop,
+)
 from sensorless.design.poles import MIN_DAMPING, worst_damping
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 from sensorless.tuning.family import Tunable, TuningHooks
@@ -43,8 +48,7 @@ from sensorless.tuning.family import Tunable, TuningHooks
 KP_T = 0.5  # T k_p at most (ODrive flags T k_p >= 1 as unstable; half of it leaves a margin)
 K_GRID = 24  # candidate observer gains (log grid: 1.33 apart on the outrunner)
 # points per batched evaluation: below design/batch.py's JIT threshold, so a tune never waits for the
-# compiler (~17 s for the unrolled Newton Function on a cold cache; CasADi's VM evaluates a batch
-# of the odrive grid in about 2 s)
+# compiler on a cold cache (~17 s for an unrolled Newton Function)
 CHUNK = 4000
 K_MIN = 20.0  # [1/s] smallest candidate
 K_T_MAX = 1.9  # T k at most (the Euler bound is 2)
@@ -126,23 +130,24 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
     G = np.repeat(np.asarray(gains)[None, :], npt, axis=1)
     Wn, Tn = np.tile(W, len(cands) * nc), np.tile(T, len(cands) * nc)
     o = drive.observer
-    fn = equilibrium_function("gradient", o.inductance_rule, o.lambda_adaptation, True, constant_law())
-    outs = []
+    law = constant_law()
+    fn = equilibrium_function("gradient", o.inductance_rule, o.lambda_adaptation, law)
+    loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
     m = motor_vector(drive)
+    s = np.full((n, loop.n_y), np.nan + 0j)
+    zmax, err = np.full(n, np.nan), np.full(n, np.nan)
     for j in range(0, n, CHUNK):
         sl = slice(j, min(j + CHUNK, n))
-        outs.append(evaluate_batch(fn, sl.stop - sl.start, [Wn[sl], Tn[sl], m, P[:, sl], G[:, sl]]))
-    x, A, res, err = (np.concatenate([o[k] for o in outs]) for k in range(4))
-    scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
-    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
-    ev = np.full((n, A.shape[1]), np.nan + 0j)
-    if ok.any():
-        ev[ok] = np.linalg.eigvals(A[ok])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.log(ev.astype(complex)) / o.T_obs
+        k = sl.stop - sl.start
+        x, A, res, _ = evaluate_batch(fn, k, [Wn[sl], Tn[sl], m, P[:, sl], G[:, sl]])
+        scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
+        ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
+        y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
+        s[sl], zmax[sl], err[sl] = discrete_analysis(drive, loop, y0, Wn[sl], Tn[sl], P[:, sl], G[:, sl])
+    ok = np.isfinite(zmax)
     zeta = worst_damping(s).reshape(len(cands), nc, npt)
-    bias = np.abs(np.where(ok, wrap(err[:, 0, 0]), np.nan)).reshape(len(cands), nc, npt)
-    stable = (np.abs(ev) < 1).all(axis=1).reshape(len(cands), nc, npt) & ok.reshape(len(cands), nc, npt)
+    bias = np.abs(np.where(ok, err, np.nan)).reshape(len(cands), nc, npt)
+    stable = (ok & (zmax < 1)).reshape(len(cands), nc, npt)
     good = stable & (bias <= math.radians(settings.bias_max_deg))
     good_pt = good.all(axis=1)  # (C, P)
     holds = np.stack([good_pt[:, np.abs(W) == sp].all(axis=1) for sp in speeds], axis=1)

@@ -28,6 +28,13 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
+from sensorless.design.discrete import (
+    SampledLoop,
+    discrete_poles,
+    fixed_points,
+    pmsm_zoh_plant,
+    pmsm_zoh_sample,
+)
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, quantities, table
 from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTable, GainTableError
@@ -214,7 +221,6 @@ class PllLinearization(Linearization):
 
 NEWTON_STEPS = 12
 _N_X = N_OBS  # the observer's states (the runtime state adds the contract's counter)
-_IX_TS = [f.name for f in PARAMS].index("T_s")
 
 
 def _steady_motor(w: ca.SX, T_e: ca.SX, m: ca.SX) -> tuple[ca.SX, ca.SX]:
@@ -253,27 +259,29 @@ def motor_vector(drive: PllDrive) -> np.ndarray:
 
 
 @functools.cache
-def equilibrium_function(discrete: bool, discretization: str) -> ca.Function:
-    """(w, T_e, motor[4], p) -> (x_r*, A, residual): Newton on the SX equations, then the Jacobian.
+def sampled_loop(discretization: str) -> SampledLoop:
+    """The runtime step on the motor sampled under zero-order hold (design/discrete.py), in the rotor
+    frame y = [z rotated by -theta, delta = theta - theta_hat, w_i]."""
 
-    Continuous: f_r(x_r) = 0 with f_r the observer (1)-(3) in the rotor frame. Discrete: x_r = F(x_r)
-    with F the runtime step from theta = 0 to theta = w T_s, in the rotor frame.
-    """
+    def state(y: Any, theta: Any, w: Any, plant: Any, p: Any) -> Any:
+        return ca.vertcat(rot(theta) @ y[0:2], theta - y[2], y[3])
+
+    def rotor(x: Any, theta: Any) -> Any:
+        return ca.vertcat(rot(theta).T @ x[0:2], wrap_angle(theta - x[2]), x[3])
+
+    names = ("z_d", "z_q", "delta", "w_i")
+    return SampledLoop(OBSERVER, discretization, None, names, 4, pmsm_zoh_sample, state, rotor, (2,))
+
+
+@functools.cache
+def equilibrium_function() -> ca.Function:
+    """(w, T_e, motor[4], p) -> (x_r*, A, residual): Newton on the SX equations f_r(x_r) = 0 of the
+    continuous observer in the rotor frame (:func:`rotor_frame_rates`), then its Jacobian there."""
     x_r = ca.SX.sym("x_r", _N_X)
     w, T_e = ca.SX.sym("w"), ca.SX.sym("T_e")
     m, p = ca.SX.sym("motor", 4), ca.SX.sym("p", len(PARAMS))
-    i_r, u_r = _steady_motor(w, T_e, m)  # at theta = 0: stationary = rotor frame
-    x = _to_stationary(x_r)
-    if discrete:
-        core = OBSERVER.core(discretization)
-        th1 = w * p[_IX_TS]
-        # the voltage held over the period (ZOH, stationary frame): the steady one at mid-period
-        x1, _ = core(ca.vertcat(x, 0), ca.vertcat(i_r, rot(th1 / 2) @ u_r), p, ca.SX(0, 1))  # 0 rejected
-        F = ca.vertcat(rot(-th1) @ x1[0:2], wrap_angle(th1 - x1[2]), x1[3])
-        G = F - x_r
-    else:
-        G = rotor_frame_rates()(x_r, w, T_e, m, p)
-        F = G
+    i_r, _ = _steady_motor(w, T_e, m)
+    G = rotor_frame_rates()(x_r, w, T_e, m, p)
     g_fn = ca.Function("G", [x_r, w, T_e, m, p], [G, ca.jacobian(G, x_r)])
     # start: the exact EMF of the true motor, no angle error, w_i = w
     e_r = w * ca.vertcat(0, m[2])
@@ -282,9 +290,9 @@ def equilibrium_function(discrete: bool, discretization: str) -> ca.Function:
         Gk, Jk = g_fn(xk, w, T_e, m, p)
         xk = xk - ca.solve(Jk, Gk)
     Gk, _ = g_fn(xk, w, T_e, m, p)
-    A = ca.substitute(ca.jacobian(F, x_r), x_r, xk)
+    A = ca.substitute(ca.jacobian(G, x_r), x_r, xk)
     return ca.Function(
-        f"pmsm_pll_equilibrium_{'d' if discrete else 'c'}",
+        "pmsm_pll_equilibrium_c",
         [w, T_e, m, p],
         [xk, ca.densify(A), ca.norm_inf(Gk)],
         ["w", "T_e", "motor", "p"],
@@ -298,28 +306,26 @@ def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinear
     n = W.size
     setup = runtime_setup(drive, gains)
     motor = motor_vector(drive)
-    out = {}
-    for discrete in (False, True):
-        fn = equilibrium_function(discrete, setup.discretization)
-        x, A, res = evaluate_batch(fn, n, [W, T, motor, setup.p])
-        scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
-        ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
-        ev = np.full((n, _N_X), np.nan + 0j)
-        if ok.any():
-            ev[ok] = eigvals_batched(A[ok])
-        if discrete:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ev = np.log(ev.astype(complex)) / drive.control.T_s
-            theta_err = np.where(ok, x[:, 2, 0], np.nan)
-        out[discrete] = ev
+    x, A, res = evaluate_batch(equilibrium_function(), n, [W, T, motor, setup.p])
+    scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
+    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
+    poles = np.full((n, _N_X), np.nan + 0j)
+    if ok.any():
+        poles[ok] = eigvals_batched(A[ok])
+    # the sampled observer that runs (the shared analysis), from the continuous equilibrium
+    R, L, psi_pm, p = motor
+    i_r = np.column_stack([np.zeros(n), T / (1.5 * p * psi_pm)])  # MTPA of a non-salient motor
+    plant = pmsm_zoh_plant([R, L, L, psi_pm], W, i_r, drive.control.T_s)
+    y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
+    y, Jd = fixed_points(sampled_loop(setup.discretization), y0, W, plant, setup.p)
     return PllLinearization(
         w=W,
         torque=T,
-        poles=out[False],
-        poles_discrete=out[True],
+        poles=poles,
+        poles_discrete=discrete_poles(Jd, drive.control.T_s, _N_X)[0],
         T_s=drive.control.T_s,
         torque_name="T_e",
-        theta_err=theta_err,
+        theta_err=y[:, 2],
     )
 
 

@@ -33,7 +33,7 @@ from families.pll.design import (
     rotor_frame_rates,
     runtime_params,
 )
-from families.pll.symbolic import DISCRETIZATIONS, N_OBS, PARAMS
+from families.pll.symbolic import N_OBS, PARAMS
 
 ESTIMATES = ("R_s", "L", "psi_pm")  # the estimates an operating point carries (PARAMS names)
 BOX = (0.1, 20.0)  # default bandwidth box, in units of the drive file's w_pll
@@ -99,7 +99,7 @@ def build(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) 
     linear = ca.Function(
         "pll_closed_loop", [phi, x, pt], [ca.jacobian(f_r, x), f_r], ["phi", "x", "point"], ["A", "x_dot"]
     )
-    newton = equilibrium_function(False, DISCRETIZATIONS[0])
+    newton = equilibrium_function()
 
     def equilibrium(th: np.ndarray, P: np.ndarray) -> np.ndarray:
         """Equilibria (n_x, N) by Newton's method on the SX equations; NaN where it does not converge."""

@@ -1,0 +1,318 @@
+"""The discrete-time analysis of every family: its runtime step on the sampled plant, fixed point, poles.
+
+What runs on a drive is a family's runtime step (symbolic/runtime.py) at the sampling period T_s, not
+the continuous observer of its paper. This module linearizes that step, the same CasADi graph that
+simulation runs and ``sensorless codegen`` prints (``RuntimeSetup.step_function``: the core with its
+gain schedule), on the plant it is sampled from. A family declares a :class:`SampledLoop`:
+
+- **the plant's samples** (``sample``): what the step takes in the period that starts with the motor
+  at the electrical angle theta, at speed w, from a per-point vector ``plant`` of the family's choice.
+  For a PMSM under ideal current control fed by an inverter (the voltage held constant in the
+  stationary frame over each period) the hold is sampled exactly by :func:`zoh_voltage` and
+  :func:`pmsm_zoh_sample`;
+- **rotor coordinates** (``rotor``: a runtime state at motor angle theta -> y, and ``state``: y ->
+  the runtime state, with what y leaves out filled in, e.g. stored samples of the plant). The
+  contract's counter ``rejects`` (the state's last field) is not a coordinate: it is 0 in steady
+  state and the guard accepts every sample there.
+
+The one-step map is y_k -> y_k+1 = rotor(step(state(y_k, theta), sample(theta)), theta + w T_s). Where
+the plant and the step are invariant under a common rotation it does not depend on theta (evaluated
+at theta = 0); a family whose plant is not (EMF harmonics) evaluates it along its own orbit. Its
+**fixed point** is found by Newton's method on the SX map (:func:`fixed_points`), its Jacobian there is
+``casadi.jacobian`` of the same graph, and its eigenvalues z give the **poles** ln(z)/T_s
+(:func:`discrete_poles`). :func:`sensitivity_function` gives the step's outputs and the map's
+derivatives with respect to the runtime state and the samples (feedthrough, measurement noise).
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+from sensorless.design.batch import evaluate_batch
+from sensorless.design.expm import expm_batched
+from sensorless.design.poles import sort_poles
+from sensorless.design.runtime import scheduled_step
+from sensorless.symbolic.frames import rot, wrap_angle
+from sensorless.symbolic.runtime import RuntimeObserver
+
+Sym = ca.SX
+INPUTS = ("y", "theta", "w", "plant", "p", "gain")
+
+
+@dataclass(frozen=True, eq=False)
+class SampledLoop:
+    """What a family declares to get its discrete-time analysis (the module docstring).
+
+    Compared and hashed by identity: a family builds one per (discretization, schedule, ...) and caches
+    it, so that the Functions built from it are cached too.
+    """
+
+    observer: RuntimeObserver
+    discretization: str
+    law: ca.Function | None  # the gain schedule's law (RuntimeSetup.schedule.law); None: no schedule
+    names: tuple[str, ...]  # of the rotor coordinates y
+    n_plant: int  # size of the per-point plant vector
+    sample: Callable[[Sym, Sym, Sym, Sym], Sym]  # (theta, w, plant, p) -> meas of the period
+    state: Callable[[Sym, Sym, Sym, Sym, Sym], Sym]  # (y, theta, w, plant, p) -> x (without the counter)
+    rotor: Callable[[Sym, Sym], Sym]  # (x without the counter, theta) -> y
+    angles: tuple[int, ...] = ()  # entries of y that are angles (residuals taken modulo 2 pi)
+
+    @property
+    def n_y(self) -> int:
+        return len(self.names)
+
+    def step(self) -> ca.Function:
+        """The runtime step as generated: (x, meas, p, gain) -> (x_next, out)."""
+        return scheduled_step(self.observer, self.discretization, self.law)
+
+    def symbols(self) -> dict[str, Sym]:
+        """The inputs of the analysis Functions (:data:`INPUTS`)."""
+        law = self.law
+        return {
+            "y": ca.SX.sym("y", self.n_y),
+            "theta": ca.SX.sym("theta"),
+            "w": ca.SX.sym("w"),
+            "plant": ca.SX.sym("plant", self.n_plant),
+            "p": ca.SX.sym("p", len(self.observer.params)),
+            "gain": ca.SX.sym("gain", law.size1_in(1) if law is not None else 0),
+        }
+
+
+def _period(loop: SampledLoop, s: dict[str, Sym], derivatives: bool = False) -> dict[str, Sym]:
+    """One period from motor angle theta: the map y -> y_next (SX of the symbols ``s``) and, with
+    ``derivatives``, the step's outputs and the derivatives of :func:`sensitivity_function`."""
+    obs = loop.observer
+    n_x = len(obs.state) - 1
+    x = ca.SX.sym("x", n_x)
+    m = ca.SX.sym("meas", len(obs.meas))
+    theta, w, plant, p, gain = (s[k] for k in INPUTS[1:])
+    T_s = p[obs.index("params", "T_s")]
+    x_next, out = loop.step()(ca.vertcat(x, 0), m, p, gain)
+    y_next = loop.rotor(x_next[:n_x], theta + w * T_s)
+    per = {"y_next": y_next}
+    if derivatives:
+        per |= {"out": out, "Jx": ca.jacobian(y_next, x), "Jm": ca.jacobian(y_next, m)}
+        per["Dm"] = ca.jacobian(out, m)
+    f = ca.Function("period", [x, m, *s.values()], list(per.values()))
+    x0 = loop.state(s["y"], theta, w, plant, p)
+    m0 = loop.sample(theta, w, plant, p)
+    return dict(zip(per, f.call([x0, m0, *s.values()]), strict=True))
+
+
+@functools.cache
+def map_function(loop: SampledLoop) -> ca.Function:
+    """(y, theta, w, plant, p, gain) -> (y_next, Jy): the one-step map and its Jacobian d y_next / d y."""
+    s = loop.symbols()
+    y_next = _period(loop, s)["y_next"]
+    outs = ca.cse([ca.densify(v) for v in (y_next, ca.jacobian(y_next, s["y"]))])
+    name = f"{loop.observer.name}_one_step_{loop.discretization.replace('-', '_')}"
+    return ca.Function(name, list(s.values()), outs, list(INPUTS), ["y_next", "Jy"])
+
+
+@functools.cache
+def sensitivity_function(loop: SampledLoop) -> ca.Function:
+    """(y, theta, w, plant, p, gain) -> (out, Jx, Jm, Dm): the step's outputs, and the derivatives of
+    y_next with respect to the runtime state (without the counter) and the samples ``meas``, and of
+    the outputs with respect to ``meas``: where a perturbation of either enters the map."""
+    s = loop.symbols()
+    per = _period(loop, s, derivatives=True)
+    names = ["out", "Jx", "Jm", "Dm"]
+    outs = ca.cse([ca.densify(per[k]) for k in names])
+    name = f"{loop.observer.name}_one_step_sens_{loop.discretization.replace('-', '_')}"
+    return ca.Function(name, list(s.values()), outs, list(INPUTS), names)
+
+
+@functools.cache
+def rotor_function(loop: SampledLoop) -> ca.Function:
+    """(x, theta) -> y: the rotor coordinates of a runtime state (with its counter) at motor angle theta."""
+    x, theta = ca.SX.sym("x", len(loop.observer.state)), ca.SX.sym("theta")
+    y = ca.densify(loop.rotor(x[:-1], theta))
+    return ca.Function(f"{loop.observer.name}_rotor", [x, theta], [y], ["x", "theta"], ["y"])
+
+
+@functools.cache
+def orbit_function(loop: SampledLoop, n_steps: int) -> ca.Function:
+    """(x0, theta, w, plant, p, gain) -> (x, theta_k, out): ``n_steps`` periods of the runtime step on
+    the sampled plant from the runtime state x0 (counter included) with the motor at theta; column k
+    is the state after step k, the motor angle then (wrapped) and the step's outputs."""
+    s = loop.symbols()
+    x, theta = ca.SX.sym("x", len(loop.observer.state)), s["theta"]
+    w, plant, p, gain = s["w"], s["plant"], s["p"], s["gain"]
+    T_s = p[loop.observer.index("params", "T_s")]
+    x_next, out = loop.step()(x, loop.sample(theta, w, plant, p), p, gain)
+    par = ca.vertcat(w, plant, p, gain)
+    xc_next = ca.vertcat(x_next, wrap_angle(theta + w * T_s))  # the angle wrapped: long runs stay exact
+    one = ca.Function("period", [ca.vertcat(x, theta), par], [xc_next, out])
+    F = one.mapaccum(n_steps)
+    ins = [ca.MX.sym(k, v.size1()) for k, v in [("x0", x), *((k, s[k]) for k in INPUTS[1:])]]
+    xc, outs = F(ca.vertcat(ins[0], ins[1]), ca.repmat(ca.vertcat(*ins[2:]), 1, n_steps))
+    n_x = x.size1()
+    return ca.Function(
+        f"{loop.observer.name}_orbit{n_steps}",
+        ins,
+        [xc[:n_x, :], xc[n_x, :], outs],
+        ["x0", *INPUTS[1:]],
+        ["x", "theta_k", "out"],
+    )
+
+
+def _args(loop: SampledLoop, theta, w, plant, p, gain) -> list[np.ndarray]:
+    """The map's inputs after y for evaluate_batch (each one instance or one column per point)."""
+    w = np.asarray(w, float).ravel()
+    plant = np.asarray(plant, float)
+    return [
+        np.asarray(theta, float).ravel(),
+        w[None, :],
+        plant.T if plant.ndim == 2 else plant,
+        np.asarray(p, float),
+        np.asarray(gain, float).ravel(),
+    ]
+
+
+def fixed_points(
+    loop: SampledLoop,
+    y0: np.ndarray,
+    w: np.ndarray,
+    plant: np.ndarray,
+    p: np.ndarray,
+    gain: Sequence[float] = (),
+    theta: float | np.ndarray = 0.0,
+    scale: np.ndarray | None = None,
+    iterations: int = 12,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Newton's method on y_next(y) = y from ``y0`` (N, n_y): (fixed points y, Jacobians J there).
+
+    ``plant`` is (N, n_plant) or one vector, ``p`` (n_p,) or (n_p, N), ``theta`` the motor angle (one or
+    (N,)), ``scale`` (N, n_y) the size of
+    each coordinate (default 1 + |y0|). A point whose iteration does not settle (a residual above
+    1e-9 of its scale), or that starts from NaN, gets NaN.
+    """
+    fn = map_function(loop)
+    n = y0.shape[0]
+    args = _args(loop, theta, w, plant, p, gain)
+    bad = ~np.isfinite(y0).all(axis=1)
+    y = np.where(bad[:, None], 0.0, y0)
+    scale = 1.0 + np.abs(y) if scale is None else scale
+    eye = np.eye(loop.n_y)
+
+    def residual(y_next: np.ndarray) -> np.ndarray:
+        r = y_next[:, :, 0] - y
+        for j in loop.angles:
+            r[:, j] = np.angle(np.exp(1j * r[:, j]))
+        return r
+
+    for _ in range(iterations):
+        y_next, Jy = evaluate_batch(fn, n, [y.T, *args])
+        r = residual(y_next)
+        todo = ~(np.abs(r) <= 1e-13 * scale).all(axis=1) & np.isfinite(Jy).all(axis=(1, 2))
+        if not todo.any():
+            break
+        A = Jy[todo] - eye
+        ok = np.abs(np.linalg.det(A)) > 1e-300
+        idx = np.flatnonzero(todo)[ok]
+        y[idx] -= np.linalg.solve(A[ok], r[idx][:, :, None])[:, :, 0]
+    y_next, Jy = evaluate_batch(fn, n, [y.T, *args])
+    bad |= ~(np.abs(residual(y_next)) <= 1e-9 * scale).all(axis=1)
+    y[bad] = np.nan
+    return y, np.where(bad[:, None, None], np.nan, Jy)
+
+
+def sensitivities(
+    loop: SampledLoop,
+    y: np.ndarray,
+    w: np.ndarray,
+    plant: np.ndarray,
+    p: np.ndarray,
+    gain: Sequence[float] = (),
+    theta: float | np.ndarray = 0.0,
+) -> dict[str, np.ndarray]:
+    """:func:`sensitivity_function` at the points y (N, n_y) (NaN rows stay NaN): out (N, n_out),
+    Jx (N, n_y, n_x), Jm (N, n_y, n_meas), Dm (N, n_out, n_meas)."""
+    n = y.shape[0]
+    bad = ~np.isfinite(y).all(axis=1)
+    ys = np.where(bad[:, None], 0.0, y)
+    out, Jx, Jm, Dm = evaluate_batch(
+        sensitivity_function(loop), n, [ys.T, *_args(loop, theta, w, plant, p, gain)]
+    )
+    res = {"out": out[:, :, 0], "Jx": Jx, "Jm": Jm, "Dm": Dm}
+    return {k: np.where(bad.reshape(-1, *([1] * (v.ndim - 1))), np.nan, v) for k, v in res.items()}
+
+
+def eigenvalues_by_size(J: np.ndarray) -> np.ndarray:
+    """(N, n) eigenvalues of each (n, n) matrix, largest |z| first (NaN rows for non-finite matrices)."""
+    n = J.shape[0]
+    z = np.full((n, J.shape[1]), np.nan + 0j)
+    ok = np.isfinite(J).all(axis=(1, 2))
+    if ok.any():
+        z[ok] = np.linalg.eigvals(J[ok]).astype(complex)
+    order = np.argsort(-np.abs(np.where(np.isnan(z), 0, z)), axis=1, kind="stable")
+    return np.take_along_axis(z, order, axis=1)
+
+
+def discrete_poles(J: np.ndarray, T_s: float | np.ndarray, n_poles: int) -> tuple[np.ndarray, np.ndarray]:
+    """(ln(z)/T_s of the ``n_poles`` largest |z|, sorted like sort_poles; |z| of the others) of each
+    one-step Jacobian (N, n, n). ``T_s`` may be per point (N,), e.g. the length of a window of steps."""
+    z = eigenvalues_by_size(J)
+    T = np.asarray(T_s, float).reshape(-1, 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.log(z[:, :n_poles]) / T
+    return sort_poles(s), np.abs(z[:, n_poles:])
+
+
+def pole_distance(poles_c: np.ndarray, poles_d: np.ndarray) -> np.ndarray:
+    """(N,) max |s_d - s_c| [1/s] over the best one-to-one matching of each row's poles (NaN stays)."""
+    n = poles_c.shape[1]
+    best = np.full(poles_c.shape[0], np.inf)
+    for perm in itertools.permutations(range(n)):
+        best = np.minimum(best, np.abs(poles_d[:, list(perm)] - poles_c).max(axis=1))
+    bad = np.isnan(poles_c).any(axis=1) | np.isnan(poles_d).any(axis=1)
+    return np.where(bad, np.nan, best)
+
+
+# --------------------------------------------------------------------------------------------------
+# The PMSM under ideal current control, fed through an inverter's zero-order hold
+# --------------------------------------------------------------------------------------------------
+def zoh_voltage(motor: Sequence[float], w_m: np.ndarray, i_s0: np.ndarray, T_s: float) -> np.ndarray:
+    """(N, 2) rotor-frame voltage u_z at the start of a period that keeps the sampled current at i_s0.
+
+    ``motor`` = [R_s, L_d, L_q, psi_pm] (the true motor), ``w_m`` (N,) [rad/s], ``i_s0`` (N, 2) [A]. The
+    stationary-frame voltage T(theta_m(t_k)) u_z is held over [t_k, t_k + T_s]; in the rotor frame it
+    is T(-w_m tau) u_z. The flux equation of the PMSM (symbolic/pmsm.py; Piippo et al. (2008) eqs.
+    (1)-(2)) in the rotor frame, d psi/dt = M psi + c + v with M = -R_s L^-1 - w_m J, c = R_s L^-1
+    psi_pm, and dv/dt = -w_m J v: one 5x5 matrix exponential per point gives psi(T_s) = E11 psi(0) +
+    E12 u_z + E13, and psi(T_s) = psi(0) = L i_s0 + psi_pm fixes u_z.
+    """
+    R, Ld, Lq, psi_pm = (float(v) for v in motor)
+    w = np.asarray(w_m, float).ravel()
+    n = w.size
+    Jm = np.array([[0.0, -1.0], [1.0, 0.0]])
+    Linv = np.diag([1 / Ld, 1 / Lq])
+    Ma = np.zeros((n, 5, 5))
+    Ma[:, 0:2, 0:2] = -R * Linv - w[:, None, None] * Jm
+    Ma[:, 0:2, 2:4] = np.eye(2)
+    Ma[:, 0:2, 4] = R * Linv @ np.array([psi_pm, 0.0])
+    Ma[:, 2:4, 2:4] = -w[:, None, None] * Jm
+    E = expm_batched(Ma * T_s)
+    psi0 = np.asarray(i_s0, float) * np.array([Ld, Lq]) + np.array([psi_pm, 0.0])
+    rhs = psi0 - np.einsum("nij,nj->ni", E[:, 0:2, 0:2], psi0) - E[:, 0:2, 4]
+    return np.linalg.solve(E[:, 0:2, 2:4], rhs[:, :, None])[:, :, 0]
+
+
+def pmsm_zoh_sample(theta: Sym, w: Sym, plant: Sym, p: Sym) -> Sym:
+    """meas = [i_ab, u_ab] of a PMSM (symbolic/pmsm_drive.MEAS_FIELDS) at motor angle theta: the
+    current i_s0 = plant[0:2] sampled at the start of the period and the rotor-frame voltage u_z =
+    plant[2:4] of :func:`zoh_voltage` held over it, both in the stationary frame."""
+    T = rot(theta)
+    return ca.vertcat(T @ plant[0:2], T @ plant[2:4])
+
+
+def pmsm_zoh_plant(motor: Sequence[float], w: np.ndarray, i_s0: np.ndarray, T_s: float) -> np.ndarray:
+    """(N, 4) plant vectors [i_s0, u_z] of :func:`pmsm_zoh_sample` at speeds ``w`` with currents
+    ``i_s0`` (N, 2) in the rotor frame."""
+    i_s0 = np.asarray(i_s0, float).reshape(-1, 2)
+    return np.hstack([i_s0, zoh_voltage(motor, w, i_s0, T_s)])
