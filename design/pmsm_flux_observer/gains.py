@@ -180,6 +180,7 @@ def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:
         "k_i": k_i,
         "T_s": drive.observer.T_obs,
         "w_max": 2 * max(drive.envelope.speed_max, drive.w_base),
+        "u_max": drive.control.u_dc,
     }
 
 

@@ -13,12 +13,14 @@ Rules (the constants below; reasons in the family doc):
 - J = TAU_M p T_N / w_N: a mechanical time constant of TAU_M (firmware configurations carry no inertia);
 - n_N = N_SPEED x the no-load speed u_dc / (sqrt(3) psi_pm p) (the voltage the inverter has);
 - I_N = I_DROP u_dc / R_s (the current whose resistive drop is I_DROP of the DC link), T_N its MTPA torque;
-- T_obs = 1/f_s; control: alpha_c = ALPHA_C/T_obs, alpha_s = alpha_c/ALPHA_S_DIV, T_max = 2 T_N;
+- T_obs = 1/f_s; control: alpha_c = ALPHA_C/T_obs, alpha_s = min(alpha_c/ALPHA_S_DIV, the PLL's slowest
+  pole / 4) (the speed loop closes on the PLL's speed), T_max = 2 T_N;
 - envelope: |speed| ENV_SPEEDS p.u. of n_N, torques 0 and T_N.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -36,8 +38,9 @@ from sensorless.design.drive_file import (
     quantities,
     table,
 )
-from sensorless.design.motor_data import MotorData, mtpa_torque, read_motor
-from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate
+from sensorless.design.motor_data import mtpa_torque, read_motor
+from sensorless.design.plausibility import plausibility, warning_lines
+from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_flux_observer.observer import CORRECTIONS, INDUCTANCES
 
@@ -95,7 +98,7 @@ class FluxObserverDrive:
     source: str
     file: str
     rating: Rating
-    motor: MotorData
+    motor: PmsmMotor
     estimate: PmsmEstimate
     control: PmsmControl
     observer: ObserverSettings
@@ -241,7 +244,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     psi_hat = positive(est_t, "psi_pm", "flux", file, "estimate") if "psi_pm" in est_t else m.psi_pm
 
     gains_t = table(data, "gains", file) if "gains" in data else {}
-    sec = doc.section("gains", "the observer's gains in the firmware's terms (law odrive | vesc | schedule)")
+    sec = doc.section("gains", "the observer's gains in the firmware's terms (odrive | vesc | flux_schedule)")
     if "law" in gains_t:
         _keep(sec, gains_t, {})
     else:
@@ -255,13 +258,18 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     alpha_c = (
         positive(ctl_t, "alpha_c", "angular", file, "control") if "alpha_c" in ctl_t else ALPHA_C / T_obs
     )
+    pll_slow = slowest_pll_pole(doc.sections["gains"], file)
     sec = doc.section("control", "the shared drive loop's controllers (simulation only)")
     _keep(
         sec,
         ctl_t,
         {
             "alpha_c": (f"{g6(ALPHA_C / T_obs)} rad/s", f"{ALPHA_C:g}/T_obs"),
-            "alpha_s": (f"{g6(alpha_c / ALPHA_S_DIV)} rad/s", f"alpha_c/{ALPHA_S_DIV:g}"),
+            "alpha_s": (
+                f"{g6(min(alpha_c / ALPHA_S_DIV, pll_slow / 4))} rad/s",
+                f"min(alpha_c/{ALPHA_S_DIV:g}, the PLL's slowest pole {g6(pll_slow)} 1/s / 4): the speed "
+                "loop closes on the PLL's speed",
+            ),
             "T_max": (f"{g6(T_MAX_TN * T_N)} Nm", f"{T_MAX_TN:g} T_N"),
         },
     )
@@ -279,6 +287,23 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
         },
     )
     return doc
+
+
+def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
+    """-(the PLL's slowest pole) [1/s] of a [gains] section: bw (odrive, flux_schedule) or the slow root
+    of s^2 + k_p s + k_i (vesc; k_p/2 where the roots are complex)."""
+    from sensorless.design.pmsm_flux_observer.gains import parse_law
+
+    t = {k: e.value for k, e in gains.items()}
+    law = t.get("law")
+    if not isinstance(law, str):
+        raise DriveFileError(file, "gains.law", "missing key or not a string (odrive | vesc | flux_schedule)")
+    v = parse_law(law, t, file, "gains")
+    if law != "vesc":
+        return float(v["pll_bandwidth"])
+    kp, ki = v["foc_pll_kp"], v["foc_pll_ki"]
+    disc = kp**2 - 4 * ki
+    return (kp - math.sqrt(disc)) / 2 if disc > 0 else kp / 2
 
 
 def default_gains(law: str, psi: float) -> dict[str, tuple[Any, str]]:
@@ -302,7 +327,8 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
     """The drive of a (minimal or complete) drive file: completed by :func:`document`, read strictly."""
     d = document(data, file).data()
     head = d["drive"]
-    motor = read_motor(d["motor"], file)
+    m = read_motor(d["motor"], file)  # datasheet terms; the drive keeps the shared record
+    motor = PmsmMotor(m.p, m.R_s, m.L_d, m.L_q, m.psi_pm, m.J)
     rating = load_section(Rating, d["rating"], file, "rating", skip=("I_N",))
     obs_t = d["observer"]
     adapt = obs_t["lambda_adaptation"]
@@ -353,4 +379,27 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
     from sensorless.design.pmsm_flux_observer.gains import drive_gains
 
     drive_gains(drive)  # the [gains] section checked at load time
-    return drive
+    r_t = table(data, "rating", file) if "rating" in data else {}
+    keys = {
+        "n_N": "rating.n_N" if "n_N" in r_t else "inverter.u_dc",
+        "T_N": "rating.T_N" if "T_N" in r_t else ("rating.I_N" if "I_N" in r_t else "motor.R_s"),
+        "I_N": "rating.I_N",
+        "f_N": "rating.f_N",
+        "u_dc": "inverter.u_dc",
+        "T_s": "observer.T_obs" if "T_obs" in d["observer"] and "observer" in data else "inverter.f_s",
+        "w_max": "envelope.speed_max",
+    }
+    I_N = positive(r_t, "I_N", "current", file, "rating") if "I_N" in r_t and "T_N" in r_t else None
+    findings = plausibility(
+        m,
+        n_N=rating.n_N,
+        T_N=rating.T_N,
+        I_N=I_N,
+        f_N=None,
+        u_dc=control.u_dc,
+        T_s=observer.T_obs,
+        w_max=env.speed_max,
+        keys=keys,
+    )
+    warnings = warning_lines(findings, file)
+    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive

@@ -2,7 +2,8 @@
 commands find them (reports/family.py ``Importer``, ``Exporter``; the family's ``HOOKS`` names them).
 
 The formats themselves are design/pmsm_flux_observer/firmware/; here are their command-line options and
-the adapters between the commands and them.
+the adapters between the commands and them: :data:`IMPORTERS` and :data:`EXPORTERS` are what the
+family's ``HOOKS`` declares.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from sensorless.design.family import Drive, GainSet
+from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.pmsm_flux_observer.firmware import FirmwareDrive, odrive, simplefoc, vesc
 from sensorless.reports.cli.common import Number
 from sensorless.reports.family import Exporter, Importer, Option
@@ -94,3 +96,27 @@ def exporters(record: Callable[[Drive, GainSet], FirmwareDrive]) -> dict[str, Ex
         ),
         "simplefoc": Exporter("SimpleFOC motor fields (C++)", ("simplefoc.cpp",), writer(simplefoc.export)),
     }
+
+
+def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
+    """What an export writes: the drive's estimates (what the firmware is given), loop and gains."""
+    e, obs = drive.estimate, drive.observer
+    return FirmwareDrive(
+        name=drive.name,
+        p=drive.motor.p,
+        R_s=e.R_s,
+        L_d=e.L_d,
+        L_q=e.L_q,
+        psi_pm=e.psi_pm,
+        u_dc=drive.control.u_dc,
+        T_obs=obs.T_obs,
+        correction=obs.correction,
+        lambda_adaptation=obs.lambda_adaptation,
+        law=gains.family,
+        gains=dict(gains.values),
+        source=gains.source,
+    )
+
+
+IMPORTERS = importers(FAMILY.kind)
+EXPORTERS = exporters(firmware_record)

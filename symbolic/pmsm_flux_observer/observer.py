@@ -36,8 +36,9 @@ PLL (a PI tracking loop on the observer angle, as all three firmwares' speed est
 Discretization (the firmwares'): forward Euler at the observer period T. At sample k the step has the
 current i_k and the voltage u_{k-1} applied over the previous period (stored in the state: the loop
 gives the voltage of the coming period); it predicts ``x' = x + T (u_{k-1} - R i_k)``, then corrects
-``x_k = x' + T corr(eta(x'))`` (ODrive's order), and the PLL takes ``theta_obs`` of x_k. The outputs
-are the raw observer angle (the firmwares commutate on it) and the PLL speed.
+``x_k = x' + T corr(eta(x'))`` (ODrive's order), and the PLL takes ``theta_obs`` of x_k as ODrive
+does: ``th' = th + T w``, ``e = wrap(theta_obs - th')``, ``th_k = th' + T k_p e``, ``w_k = w + T k_i e``.
+The outputs are the raw observer angle (the firmwares commutate on it) and the PLL speed w_k.
 """
 
 from __future__ import annotations
@@ -65,8 +66,8 @@ STATE = (
     Field("x_alpha", "V s", "stator flux estimate x, alpha axis, eq. (8)", bound=_X_BOUND),
     Field("x_beta", "V s", "stator flux estimate x, beta axis", bound=_X_BOUND),
     Field("lambda_hat", "V s", "PM flux the observer uses (adapted online or held)", bound="2.5 * psi_pm"),
-    Field("u_prev_alpha", "V", "voltage applied over the previous period, alpha axis"),
-    Field("u_prev_beta", "V", "voltage applied over the previous period, beta axis"),
+    Field("u_prev_alpha", "V", "voltage applied over the previous period, alpha axis", bound="u_max"),
+    Field("u_prev_beta", "V", "voltage applied over the previous period, beta axis", bound="u_max"),
     Field("theta_pll", "rad", "PLL angle, in (-pi, pi]", bound="pi"),
     Field("w_pll", "rad/s", "PLL speed (integrator), electrical", bound=_W_BOUND),
     REJECTS,
@@ -87,6 +88,7 @@ PARAMS = (
     Field("k_i", "1/s^2", "PLL integral gain", "positive"),
     Field("T_s", "s", "observer period T", "positive"),
     Field("w_max", "rad/s", "highest speed of the drive (electrical): the PLL speed's bound", "positive"),
+    Field("u_max", "V", "largest voltage per axis the inverter applies (the DC-link voltage)", "positive"),
 )
 LAM = (Field("k_0", "1/s", "observer gain gamma lambda^2 before VESC's voltage factor"),)
 
@@ -117,6 +119,7 @@ class Params(NamedTuple):
     k_i: Sym
     T_s: Sym
     w_max: Sym
+    u_max: Sym
 
     @classmethod
     def of(cls, p: Sym) -> Params:
@@ -140,7 +143,7 @@ def inductance(rule: str, i: Sym, theta: Sym, p: Params) -> Sym:
 def observer_gain(k_0: Sym, u: Sym, p: Params) -> Sym:
     """k = gamma lambda^2 [1/s]: k_0, times VESC's voltage factor where scheduled."""
     factor = ca.fmax(p.k_slow, ca.norm_2(u) / p.u_ref)
-    return k_0 * (p.scheduled * factor + (1 - p.scheduled))
+    return ca.if_else(p.scheduled > 0.5, k_0 * factor, k_0)
 
 
 def correction(kind: str, eta: Sym, lam: Sym, k: Sym, psi: Sym) -> Sym:
@@ -216,10 +219,13 @@ def _step(kind: str, rule: str, x: Sym, meas: Sym, p_vec: Sym, lam_in: Sym) -> t
     lam_new = lam + T * flux_rate(kind, lam, eta_pred, k, p)
     lam_new = ca.fmin(ca.fmax(lam_new, LAMBDA_RANGE[0] * p.psi_pm), LAMBDA_RANGE[1] * p.psi_pm)
     theta_obs = ca.atan2(eta[1], eta[0])
-    dth, dw = pll_rates(theta_obs, th, w, p)
-    th_new, w_new = wrap_angle(th + T * dth), w + T * dw
+    # the PLL as ODrive steps it: its angle predicted with its speed, then corrected by the error to
+    # the observer's angle (at t_k), and its speed integrated
+    th_pred = th + T * w
+    e = wrap_angle(theta_obs - th_pred)
+    th_new, w_new = wrap_angle(th_pred + T * p.k_p * e), w + T * p.k_i * e
     x_cand = ca.vertcat(x_new, lam_new, u, th_new, w_new)
-    y_cand = ca.vertcat(w, theta_obs, th, eta, k)
+    y_cand = ca.vertcat(w_new, theta_obs, th_new, eta, k)
     # coasting (nothing of the rejected sample used): the flux state turns at the PLL speed, the PLL
     # runs on, the voltage is held; the flux output is the turned state (no current to subtract)
     x_c = rot(w * T) @ x[0:2]

@@ -54,7 +54,7 @@ def test_import_writes_the_drive_file_and_says_what_was_assumed(firmware, tmp_pa
     assert code == 0, err
     d = tomllib.loads(out.read_text())
     assert d["drive"]["kind"] == KIND and d["motor"]["p"] == 20
-    notes = err.splitlines()
+    notes = [n for n in err.splitlines() if not n.startswith("sensorless init: warning: ")]  # plausibility
     assert notes and all(n.startswith("sensorless init: note: ") for n in notes)
     assert any("--u-dc" in n for n in notes)
     assert f"wrote {out}" in stdout
@@ -198,5 +198,6 @@ def test_tuned_table_exported_and_refused_where_it_breaks_a_limit(tmp_path, caps
     code, _, err = run(
         ["export", drive, "--gains", bad, "--target", "odrive", "--out", tmp_path / "f"], capsys
     )
-    assert code == 2 and err.count("\n") == 1 and "pll_bandwidth" in err and "T kp = 1 >= 1" in err
+    err = [line for line in err.splitlines() if not line.startswith("sensorless export: warning: ")]
+    assert code == 2 and len(err) == 1 and "pll_bandwidth" in err[0] and "T kp = 1 >= 1" in err[0]
     assert not (tmp_path / "f").exists()

@@ -4,7 +4,6 @@ under hostile input (tests/helpers/fuzz.py): every range and bound held, recover
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 
 import numpy as np
@@ -19,8 +18,8 @@ pytestmark = pytest.mark.skipif(CC is None, reason="no host C compiler (gcc/cc) 
 STRICT = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 # the documented recovery (docs/families/pmsm_flux_observer.md "Bounds and recovery"): after any
 # hostile burst, clean samples of the outrunner at 0.3..1 p.u. bring the angle within 0.1 rad and the
-# PLL speed within 2 % of the base speed within this many periods (0.25 s at 125 us)
-RECOVER = 2000
+# PLL speed within 2 % of the base speed within this many periods (25 ms at 125 us; measured: 64)
+RECOVER = 200
 VARIANTS = {
     "outrunner270": ("gradient", "fixed"),
     "hubmotor48": ("clamped-gradient", "interpolated"),
@@ -86,8 +85,8 @@ def test_c_replays_like_the_python_step(tmp_path, name, precision):
     assert rel.max() < (1e-9 if precision == "double" else 1e-3), rel
 
 
-@pytest.mark.skipif(shutil.which("gcc") is None and shutil.which("cc") is None, reason="no C compiler")
-def test_hostile_samples_keep_every_bound_and_the_observer_recovers(tmp_path):
+@pytest.mark.parametrize("precision", ["double", "float"])
+def test_hostile_samples_keep_every_bound_and_the_observer_recovers(tmp_path, precision):
     d = load_drive("outrunner270")
     fam = family_of(d)
     setup = fam.runtime(d, fam.gains(d))
@@ -97,11 +96,11 @@ def test_hostile_samples_keep_every_bound_and_the_observer_recovers(tmp_path):
     r = fuzz_and_check(
         setup,
         seg,
-        precision="double",
+        precision=precision,
         recover=RECOVER,
         tol_theta=0.1,
         tol_w=0.02 * d.w_base,
-        seed=7,
+        seed=7 + (precision == "float"),
         work=tmp_path,
     )
     assert r["held_segments"] == 0

@@ -14,7 +14,8 @@ from sensorless.design.simulate import simulate
 
 
 def numpy_step(x, i, u, P, k_obs):
-    """One period of Lee et al. (2010) eq. (8) as the firmware runs it, with its PI PLL."""
+    """One period of Lee et al. (2010) eq. (8) as ODrive's sensorless_estimator.cpp runs it (prediction
+    with the stored voltage, gradient correction, PLL predicted then corrected)."""
     T, R, L, lam = P["T_s"], P["R_s"], (P["L_d"] + P["L_q"]) / 2, P["psi_pm"]
     flux, u_prev, th, w = x[0:2], x[3:5], x[5], x[6]
     flux = flux + T * (u_prev - R * i)
@@ -23,10 +24,11 @@ def numpy_step(x, i, u, P, k_obs):
     flux = flux + T * (gamma / 2) * eta * (lam**2 - eta @ eta)
     eta = flux - L * i
     th_obs = np.arctan2(eta[1], eta[0])
+    th = th + T * w  # ODrive: predict the PLL angle, then correct it
     e = (th_obs - th + np.pi) % (2 * np.pi) - np.pi
-    th_new = (th + T * (w + P["k_p"] * e) + np.pi) % (2 * np.pi) - np.pi
+    th_new = (th + T * P["k_p"] * e + np.pi) % (2 * np.pi) - np.pi
     w_new = w + T * P["k_i"] * e
-    return np.array([*flux, lam, *u, th_new, w_new, 0.0]), (w, th_obs)
+    return np.array([*flux, lam, *u, th_new, w_new, 0.0]), (w_new, th_obs)
 
 
 def test_step_matches_a_numpy_euler_of_the_same_equations():
@@ -62,7 +64,7 @@ def test_a_non_finite_sample_is_rejected_and_the_observer_coasts():
 @pytest.mark.parametrize("preset", ["outrunner270", "hubmotor48"])
 def test_simulation_converges_on_the_presets(preset):
     d = load_drive(preset)
-    tr = simulate(d, load_scenario("speed_steps", d))
+    tr = simulate(d, load_scenario("torque_steps", d))
     err = np.degrees(np.asarray(tr.data["theta_err"]))
     t = np.asarray(tr.t)
     assert abs(err[0]) > 10  # it starts 20 degrees off

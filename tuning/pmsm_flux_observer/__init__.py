@@ -50,6 +50,7 @@ K_GRID = 24  # candidate observer gains (log grid: 1.33 apart on the outrunner)
 # points per batched evaluation: below design/batch.py's JIT threshold, so a tune never waits for the
 # compiler on a cold cache (~17 s for an unrolled Newton Function)
 CHUNK = 4000
+REFINE = 9  # candidates between the best grid point's neighbours
 K_MIN = 20.0  # [1/s] smallest candidate
 K_T_MAX = 1.9  # T k at most (the Euler bound is 2)
 SLOW_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0)  # foc_observer_gain_slow candidates
@@ -246,6 +247,12 @@ def _baselines(drive: Any, settings: FluxTuneSettings) -> tuple[list[str], dict[
     return lines, out
 
 
+def _same_law(drive: Any, law: str) -> list[GainSet]:
+    """The drive file's gains where they are of ``law``."""
+    g = drive_gains_or_none(drive)
+    return [g] if g is not None and g.family == law else []
+
+
 def drive_gains_or_none(drive: Any) -> GainSet | None:
     from sensorless.design.pmsm_flux_observer.gains import drive_gains
 
@@ -300,6 +307,13 @@ def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) ->
     base_lines, base = _baselines(drive, settings)
     w_hold = hold_speed(drive, settings, base)
     c = best(drive, a, w_hold)
+    # refined between the grid's neighbours of the best, with the firmware's default and the drive
+    # file's gains of this law as candidates too (the tuned gains are never worse than either)
+    lo, hi = ks[max(c - 1, 0)], ks[min(c + 1, len(ks) - 1)]
+    cands = [cands[c], *(odrive_candidate(drive, float(k)) for k in np.geomspace(lo, hi, REFINE))]
+    cands += [odrive_gains(), *_same_law(drive, "odrive")]
+    a = assess(drive, cands, settings)
+    c = best(drive, a, w_hold)
     g = dict(cands[c].values)
     f = figures(drive, a, c)
     lines = [
@@ -349,6 +363,19 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
     a = assess(drive, cands, settings)
     base_lines, base = _baselines(drive, settings)
     w_hold = hold_speed(drive, settings, base)
+    c = best(drive, a, w_hold)
+    # refined in the gain at the best slow gain, with VESC Tool's detection and the drive file's gains
+    # of this law as candidates too (the tuned gains are never worse than either)
+    raw0, slow0 = cands[c].values["foc_observer_gain"], cands[c].values["foc_observer_gain_slow"]
+    step = (K_T_MAX / T / K_MIN) ** (1 / 15)
+    fine = []
+    for raw in np.geomspace(raw0 / step, raw0 * step, REFINE):
+        g0 = dict(cands[c].values)
+        g0["foc_observer_gain"] = float(raw)
+        fine.append(GainSet("vesc", g0, "candidate"))
+    cands = [cands[c], *fine, vesc_gains(drive), *_same_law(drive, "vesc")]
+    del slow0
+    a = assess(drive, cands, settings)
     c = best(drive, a, w_hold)
     g = dict(cands[c].values)
     f = figures(drive, a, c)
