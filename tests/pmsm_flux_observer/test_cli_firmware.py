@@ -201,3 +201,24 @@ def test_tuned_table_exported_and_refused_where_it_breaks_a_limit(tmp_path, caps
     err = [line for line in err.splitlines() if not line.startswith("sensorless export: warning: ")]
     assert code == 2 and len(err) == 1 and "pll_bandwidth" in err[0] and "T kp = 1 >= 1" in err[0]
     assert not (tmp_path / "f").exists()
+
+
+@family_registered
+def test_vesc_round_trip_through_the_commands(tmp_path, capsys):
+    """VESC: import (values as typed: --l-scale 1) -> export the drive file's gains -> import again."""
+    from sensorless.design.drive import load_drive
+
+    first, again = tmp_path / "a.toml", tmp_path / "b.toml"
+    opts = ["--u-dc", "36", "--l-scale", "1"]
+    cfg = EXAMPLES / "hub_motor_mcconf.xml"
+    assert run(["init", "--from", "vesc", cfg, *opts, "--out", first], capsys)[0] == 0
+    code, _, err = run(["export", first, "--target", "vesc", "--out", tmp_path / "e"], capsys)
+    assert code == 0, err
+    code, _, err = run(["init", "--from", "vesc", tmp_path / "e" / "vesc.xml", *opts, "--out", again], capsys)
+    assert code == 0, err
+    a, b = load_drive(first), load_drive(again)
+    for k in ("R_s", "L_d", "L_q", "psi_pm", "p"):
+        assert getattr(b.motor, k) == pytest.approx(getattr(a.motor, k), rel=1e-11), k
+    assert (b.observer.correction, b.observer.lambda_adaptation) == ("box-clamp", True)
+    assert b.observer.T_obs == pytest.approx(a.observer.T_obs, rel=1e-11)
+    assert b.gains_table == a.gains_table
