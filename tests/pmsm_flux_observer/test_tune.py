@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from sensorless.design.drive import load_drive
 from sensorless.design.registry import family_of
@@ -64,3 +65,19 @@ def test_baselines_are_the_firmware_defaults(tuned, drive):
     v = b["VESC detection"]["gains"]
     assert v["foc_observer_gain"] == pytest.approx(1e3 / drive.estimate.psi_pm**2)  # 1e-3/lambda^2 x1e6
     assert (v["foc_pll_kp"], v["foc_pll_ki"]) == (2000.0, 30000.0)
+
+
+def test_flux_schedule_table_runs_as_a_schedule_over_the_pll_speed(drive):
+    from sensorless.tuning.pmsm_flux_observer import tune_schedule
+
+    out = tune_schedule(drive, FluxTuneSettings())
+    fam = family_of(drive)
+    gains = fam.gains(drive, table=out.table, table_file="s.json")
+    setup = fam.runtime(drive, gains)
+    speeds, ks = gains.values["speeds"], gains.values["observer_gain"]
+    law = setup.schedule.law
+    for w, k in zip(speeds, ks, strict=True):  # the law reproduces the table at its breakpoints, both signs
+        assert float(law(w, setup.gain)) == pytest.approx(k)
+        assert float(law(-w, setup.gain)) == pytest.approx(k)
+    lin = fam.linearize(drive, gains, np.array([speeds[-1]]), np.zeros(1))
+    assert lin.decay_rate_discrete[0] > 0

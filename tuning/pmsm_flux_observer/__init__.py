@@ -422,14 +422,51 @@ def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) 
     # one PLL at every speed: its double pole at the geometric mean of the scheduled gains
     bw = min(float(np.exp(np.mean(np.log(chosen)))), KP_T / (2 * T))
     g = {"speeds": [float(s) for s in speeds], "observer_gain": chosen, "pll_bandwidth": bw}
-    c0 = best(drive, a, hold_speed(drive, settings, _baselines(drive, settings)[1]))
-    f = figures(drive, a, c0)
+    gs = GainSet("flux_schedule", g, "tuned")
+    a_s = assess_linearized(drive, gs, settings)  # the schedule itself, its law's derivative included
+    f = figures(drive, a_s, 0)
+    base_lines, base = _baselines(drive, settings)
     lines = [
         "tuned flux_schedule: observer_gain over |speed| "
         + ", ".join(f"{s / drive.w_base:.3g} pu: {k:.4g}" for s, k in zip(speeds, chosen, strict=True))
         + f"; pll_bandwidth = {bw:.6g} rad/s",
+        _line("tuned", f),
+        "baselines (the firmwares' defaults on this motor, same criterion):",
+        *base_lines,
     ]
-    return FluxOutcome("flux_schedule", _table(drive, "flux_schedule", g, a, c0, {**f}), lines)
+    summary = {**f, "baselines": base, "errors": settings.errors, "bias_max_deg": settings.bias_max_deg}
+    return FluxOutcome("flux_schedule", _table(drive, "flux_schedule", g, a_s, 0, summary), lines)
+
+
+def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Assessment:
+    """:func:`assess` of one gain set of any law through the family's linearization (a scheduled
+    gain with its derivative in the PLL speed), one call per estimate corner."""
+    from sensorless.design.registry import family_of
+
+    fam = family_of(drive)
+    W, T = drive.grid()
+    speeds = np.unique(np.abs(W))
+    e = drive.estimate
+    zs, bs, st, poles = [], [], [], None
+    for c in corners(settings.errors):
+        est = {
+            "R_s": e.R_s * c["R_s"],
+            "psi_pm": e.psi_pm * c["psi_pm"],
+            "L_d": e.L_d * c["L"],
+            "L_q": e.L_q * c["L"],
+        }
+        lin = fam.linearize(drive, gains, W, T, estimate=est)
+        if poles is None:
+            poles = lin.poles_discrete
+        ok = np.isfinite(lin.poles_discrete).all(axis=1)
+        zs.append(np.where(ok, lin.worst_damping_discrete, -1.0))
+        bs.append(np.where(ok, np.abs(lin.theta_err_discrete), np.inf))
+        st.append(ok & (lin.decay_rate_discrete > 0))
+    zeta, bias, stable = np.array(zs), np.array(bs), np.array(st)
+    good = (stable & (bias <= math.radians(settings.bias_max_deg))).all(axis=0)
+    holds = np.array([[good[np.abs(W) == sp].all() for sp in speeds]])
+    worst = np.where(stable.all(axis=0), zeta.min(axis=0), -1.0)
+    return Assessment(worst[None], bias.max(axis=0)[None], holds, poles[None])
 
 
 _LEAD = (("w_m_pu", "w_m_pu"), ("T_e_Nm", "T_e_Nm"))
