@@ -74,6 +74,10 @@ def test_vesc_hub_motor_example_converts_each_value():
     assert si(d["rating"]["I_N"], "current") == pytest.approx(42.4264, rel=1e-5)
     said = "\n".join(notes)
     assert "--u-dc" in said and "--J" in said and "0.9" in said and "--l-scale 1" in said
+    # 1000 / 0.0306^2 = 1067965.3: the stored gain is still the detection value, and the note says so
+    assert "detection value 1000/lambda^2" in said
+    _, notes = imported(vesc, vesc_xml(**{**HUB, "foc_observer_gain": 500000}))
+    assert not any("detection value" in n for n in notes)
 
 
 def test_vesc_detection_gain_and_its_display():

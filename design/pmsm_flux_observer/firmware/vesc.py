@@ -216,6 +216,8 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         notes.append(
             f"foc_observer_gain missing: assumed VESC Tool's detection rule 1000/lambda^2 = {raw:.6g}"
         )
+    elif abs(raw / observer_gain_detection(psi) - 1) < 1e-3:
+        notes.append("foc_observer_gain is VESC Tool's detection value 1000/lambda^2 for this flux linkage")
     gains["foc_observer_gain"] = Entry(raw, f"raw; VESC Tool shows {raw * GAIN_DISPLAY:.4g} (x1M)")
     for key, unit in (("foc_observer_gain_slow", ""), ("foc_pll_kp", "1/s"), ("foc_pll_ki", "")):
         x = f.number(key)
