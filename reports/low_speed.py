@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import CapabilityError, Drive, GainSet
 from sensorless.design.low_speed import QUICK, LowSpeed, headline, minimum_speed
+from sensorless.design.registry import family_of
+from sensorless.design.startup import ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
 from sensorless.reports.svg_render import svg_later
 
@@ -71,13 +73,21 @@ def add_to_report(
     except CapabilityError:
         return rep
     line = headline(ls)
-    data = {**rep.data, "low_speed": {**ls.data(), "headline": line}}
+    fam = family_of(drive)
+    start = ""
+    if ls.w_min_rated > 0 and not fam.holds_zero_speed(drive):
+        why = fam.low_speed_reason(drive) or "the observer does not hold zero speed under rated load"
+        start = (
+            f"{why[0].upper() + why[1:]}; a start or a reversal under load passes through the open-loop I-f "
+            f"start, 0 to {ON_FACTOR * ls.w_min_rated / ls.w_base:.3g} p.u. (handover; back below "
+            f"{ls.w_min_rated / ls.w_base:.3g} p.u.: design/startup.py)"
+        )
+    data = {**rep.data, "low_speed": {**ls.data(), "headline": line, "startup": start}}
     if isinstance(data.get("verdict"), dict):
         data["verdict"] = {**data["verdict"], "low_speed": line}
     lines = rep.verdict.lines
-    verdict = dataclasses.replace(
-        rep.verdict, lines=(*lines[:1], Paragraph(line[0].upper() + line[1:] + "."), *lines[1:])
-    )
+    extra = (Paragraph(line[0].upper() + line[1:] + "."), *((Paragraph(start + "."),) if start else ()))
+    verdict = dataclasses.replace(rep.verdict, lines=(*lines[:1], *extra, *lines[1:]))
     sec = section(len(rep.sections) + 1, ls, drive, rep.review)
     return dataclasses.replace(rep, data=data, verdict=verdict, sections=(*rep.sections, sec))
 

@@ -81,6 +81,10 @@ class ReducedOrderObserver(ObserverFamily):
         # exact, the analysis starts on the observer's steady orbit: a short settling will do
         return {"noise": True, "errors": not exact, **({"settle_time": 0.05} if exact else {})}
 
+    def low_speed_reason(self, drive: Any) -> str:
+        """An EMF observer: the position is unobservable where the EMF vanishes."""
+        return "an EMF observer: the rotor position is unobservable at zero frequency, where the EMF vanishes"
+
     def with_estimate_errors(self, drive: Any, factors: Any) -> Any:
         """[estimate] R, L (key L_d, as on a PMSM), J and the EMF harmonics Phi scaled."""
         e = drive.estimate
