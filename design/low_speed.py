@@ -65,6 +65,7 @@ class LowSpeed:
     max_bias: float  # [rad]
     max_noise: float  # [rad rms]
     applied: tuple[str, ...]  # the criteria the family's linearization gives
+    holds_zero: bool = False  # the family says its observer holds zero speed by itself (HF injection)
 
     @property
     def rated(self) -> int:
@@ -204,6 +205,7 @@ def minimum_speed(
         max_bias=max_bias,
         max_noise=max_bias / 3,
         applied=tuple(applied),
+        holds_zero=fam.holds_zero_speed(drive),
     )
 
 
@@ -224,9 +226,15 @@ def headline(ls: LowSpeed) -> str:
             "holds there: the linearization finds no lower limit)"
         )
     why = ls.rated_limited_by
+    todo = WHAT_TO_DO[why]
+    if ls.holds_zero:  # no open-loop start: the family's own means (injection) carry it below
+        todo = todo.replace("run the open-loop start (I-f) below it, or ", "") + (
+            " (the observer's own zero-speed means, e.g. HF injection, carry it below: see the time-domain "
+            "checks)"
+        )
     return (
         f"sensorless down to {w / ls.w_base:.3g} p.u. ({ls.rpm(w):.4g} rpm) at rated load, limited by "
-        f"{_CRITERION_TEXT[why](ls)}; below: {WHAT_TO_DO[why]}"
+        f"{_CRITERION_TEXT[why](ls)}; below: {todo}"
     )
 
 

@@ -121,7 +121,7 @@ def startup_setup(drive: OnPmsm, setup: RuntimeSetup) -> tuple[RuntimeSetup, str
     """``setup`` wrapped in the I-f start (design/startup.py) where the design has a minimum sensorless
     speed at rated load (design/low_speed.py, at the gains of ``setup``), and one line saying so;
     unchanged where it holds zero speed. CapabilityError for a drive without a PMSM's data."""
-    from sensorless.design.low_speed import minimum_speed
+    from sensorless.design.low_speed import QUICK, minimum_speed
     from sensorless.design.poles import MIN_DAMPING
     from sensorless.design.startup import if_values, with_if_start
 
@@ -137,7 +137,7 @@ def startup_setup(drive: OnPmsm, setup: RuntimeSetup) -> tuple[RuntimeSetup, str
         raise CapabilityError(
             f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
         ) from None
-    ls = minimum_speed(drive, setup.gains, min_damping=MIN_DAMPING)  # type: ignore[arg-type]
+    ls = minimum_speed(drive, setup.gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
     if ls.w_min_rated <= 0:
         return setup, "no I-f start: the design holds zero speed"
     values = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, ls.w_min_rated)

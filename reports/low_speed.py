@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.family import CapabilityError, Drive, GainSet
-from sensorless.design.low_speed import QUICK, LowSpeed, headline, minimum_speed
+from sensorless.design.low_speed import MAX_BIAS_DEG, QUICK, LowSpeed, headline, minimum_speed
 from sensorless.design.registry import family_of
 from sensorless.design.startup import ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
@@ -93,8 +93,10 @@ def add_to_report(
 
 
 def tune_line(drive: Drive, gains: GainSet, min_damping: float) -> str:
-    """The tune summary's line (the tuned gains), or "" where the family has no linearization."""
+    """The tune summary's line (the tuned gains, the grid of ``report --quick``), or "" where the family
+    has no linearization."""
     try:
-        return headline(minimum_speed(drive, gains, min_damping=min_damping, max_bias=np.radians(30.0)))
+        ls = minimum_speed(drive, gains, min_damping=min_damping, max_bias=np.radians(MAX_BIAS_DEG), **QUICK)
+        return headline(ls)
     except CapabilityError:
         return ""
