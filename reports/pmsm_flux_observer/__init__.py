@@ -1,4 +1,5 @@
-"""Report hooks of the flux-observer family: ``analyze`` output, ``tune`` options, and the stability report.
+"""Report hooks of the flux-observer family: ``analyze`` output, ``tune`` options, the stability report,
+and its firmware formats (``init --from``, ``export``: firmware_io.py).
 
 - analyze: poles of the continuous observer and of the sampled one at the firmware's period
   (ln(z)/T_obs), damping and the observer's steady angle error over the envelope; poles.csv and a
@@ -38,6 +39,7 @@ from sensorless.reports.document import (
 )
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
+from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
 from sensorless.reports.review import (
     gains_under_review,
     opening,
@@ -368,4 +370,6 @@ HOOKS = ReportHooks(
     describe_envelope=describe,
     report=compute,
     settings_sections=("gains", "envelope", "control"),
+    importers=IMPORTERS,
+    exporters=EXPORTERS,
 )
