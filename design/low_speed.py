@@ -13,20 +13,22 @@ estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over t
   ``errors`` (factors on its ``estimate_keys``, ``ObserverFamily.with_estimate_errors``);
 - per point, four criteria, each a limit the caller states: worst damping >= ``min_damping``;
   decay rate >= ``min_decay`` (default: a tenth of the speed-loop bandwidth of ``DriveScales``: an
-  observer much slower than the speed loop it feeds drives that loop on a lagging estimate); |angle bias| <=
-  ``max_bias`` (default 30 deg electrical: the torque still has cos 30 deg = 87 % of its command);
+  observer much slower than the speed loop it feeds drives that loop on a lagging estimate);
+  |angle bias| <= ``max_bias`` (default 30 deg electrical: the torque still has cos 30 deg = 87 % of
+  its command);
   RMS angle noise from the current-sensor noise <= ``max_bias / 3`` (three standard deviations within
   the same limit). A criterion the family's linearization does not give (``Linearization.angle_bias``
   or ``angle_noise`` None) is not applied, and the result says which were;
 - w_min(T) = the lowest speed from which every speed up to the highest one that meets all four (at
-  most 1 p.u.) meets all four (w_min = 1 p.u. where no speed does): a dense logarithmic
-  grid (one batched linearization over speeds x torques), then bisection of the highest failing grid
-  interval (one batched call per step over all torques). Speeds are positive; the torques take both
-  signs, so motoring (T > 0) and regenerating (T < 0) are both covered, as an observer of a PMSM is
-  symmetric under (w, T) -> (-w, -T).
+  most 1 p.u.) meets all four (w_min = 1 p.u. where no speed does): a dense logarithmic grid
+  (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds), then bisection
+  of the highest failing grid interval (one batched call per step over all torques). Speeds are
+  positive; the torques take both signs, so motoring (T > 0) and regenerating (T < 0) are both
+  covered, as an observer of a PMSM is symmetric under (w, T) -> (-w, -T).
 
-The rated-load value (``w_min_rated``) is the larger of the two at +T_N and -T_N. A design whose
-criteria hold down to the grid's floor (:data:`FLOOR_PU`) holds zero speed: w_min = 0.
+The rated-load value (``w_min_rated``) is the larger of the two at +T_N and -T_N. Where the criteria
+hold down to the grid's floor (:data:`FLOOR_PU`), w_min = 0: no lower limit found (the headline says
+"down to the analysis' floor", not that the observer holds zero speed).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the de
 N_SPEEDS = 40  # logarithmic grid FLOOR_PU .. 1 p.u.
 N_TORQUES = 9  # -T_N .. T_N
 SPEED_BLOCKS = 8  # the grid in this many batched linearizations (see minimum_speed)
-BISECTIONS = 8  # each halves the bracket in log speed: 1/40 of a decade / 2^8 (0.02 %)
+BISECTIONS = 8  # each halves the bracket in log speed: 3/39 decade (19 %) / 2^8, about 0.07 %
 QUICK = {"n_speeds": 16, "n_torques": 5, "bisections": 6}  # `sensorless report --quick`
 CRITERIA = ("damping", "decay", "bias", "noise")
 DECAY_SHARE = 0.1  # default required decay: this share of the speed-loop bandwidth
