@@ -84,7 +84,10 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             dw = P["if_acc"] * T_s
             w_ramp = w + ca.fmin(ca.fmax(target - w, -dw), dw)
             th_ramp = wrap_angle(th + w * T_s)
-            handover = ca.fabs(w) >= P["if_w_on"] * (1 - 1e-9)
+            # ... and the observer's angle within 90 deg of the current vector's, where an I-f start that
+            # holds the rotor keeps it (an observer off by half a turn is not handed the drive)
+            agree = ca.fabs(wrap_angle(theta_obs - th)) < ca.pi / 2
+            handover = ca.logic_and(ca.fabs(w) >= P["if_w_on"] * (1 - 1e-9), agree)
             # closed loop: back to open loop below w_off, from the observer's angle and speed
             drop = ca.fabs(w_obs) < P["if_w_off"]
             open_now = mode > 0.5
