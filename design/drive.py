@@ -7,6 +7,7 @@ Errors raise :class:`~sensorless.design.units.DriveFileError` naming the file an
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import tomllib
 from importlib import resources
@@ -58,7 +59,21 @@ def load_drive_text(text: str, file: str) -> Drive:
         known = ", ".join(registry.kinds())
         raise DriveFileError(file, "drive.kind", f"unknown drive kind {kind!r} (known: {known})")
     digest = hashlib.sha256(text.encode()).hexdigest()
-    return fam.load(data, file, digest)
+    return with_startup_section(fam, data, file, digest)
+
+
+def with_startup_section(fam: Any, data: dict[str, Any], file: str, digest: str) -> Drive:
+    """``fam``'s drive of ``data``, its optional ``[startup]`` section (design/startup.py) read here for
+    every family that declares the open-loop start (``ObserverFamily.open_loop_start``)."""
+    from sensorless.design.startup import SECTION, load_startup
+
+    if SECTION not in data:
+        return fam.load(data, file, digest)
+    if not fam.open_loop_start:
+        raise DriveFileError(file, SECTION, f"observer family {fam.name!r} has no open-loop start")
+    rest = {k: v for k, v in data.items() if k != SECTION}
+    drive = fam.load(rest, file, digest)
+    return dataclasses.replace(drive, startup=load_startup(data, file, drive.w_base))  # type: ignore[type-var]
 
 
 def load_drive(spec: str | Path) -> Drive:

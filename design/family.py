@@ -163,6 +163,10 @@ class ObserverFamily:
     estimate_keys: ClassVar[tuple[str, ...]] = ()
     # the trace panels of its own, beyond the shared ones (design/scenario.py GENERIC_PANELS)
     panels: ClassVar[tuple[Panel, ...]] = ()
+    # whether its drives start open loop (the I-f start, design/startup.py) below their minimum
+    # sensorless speed where the observer does not hold zero speed: their files take a [startup]
+    # section, which `sensorless init` writes (its drive class then has a ``startup`` field)
+    open_loop_start: ClassVar[bool] = False
 
     # ---------------------------------------------------------------------------------- drive file
     def load(self, data: Mapping[str, Any], file: str, digest: str) -> Drive:

@@ -117,36 +117,52 @@ def inputs(sc: Scenario, T_s: float) -> np.ndarray:
     return v
 
 
-def startup_setup(drive: OnPmsm, setup: RuntimeSetup) -> tuple[RuntimeSetup, str]:
-    """``setup`` wrapped in the I-f start (design/startup.py) where the design has a minimum sensorless
-    speed at rated load (design/low_speed.py, at the gains of ``setup``), and one line saying so;
-    unchanged where it holds zero speed. CapabilityError for a drive without a PMSM's data."""
+def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, str, float]:
+    """The I-f start's parameters of ``drive`` (design/startup.py): its ``[startup]`` section where the
+    file gives one, else the rules from the minimum sensorless speed at rated load (design/low_speed.py,
+    at ``gains``); None where the observer holds zero speed. With one line saying which, and w_min
+    [rad/s] (0 where not analysed). CapabilityError for a drive without a PMSM's data."""
     from sensorless.design.low_speed import QUICK, minimum_speed
     from sensorless.design.poles import MIN_DAMPING
-    from sensorless.design.startup import if_values, with_if_start
+    from sensorless.design.startup import if_values
 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
-        return setup, "no I-f start: the observer holds zero speed (its family: HF injection)"
-    try:
-        m, c = drive.motor, drive.control
-        inertia, pole_pairs, T_max = m.J, m.p, c.T_max
-        i_d, i_q = mtpa_torque_current(T_max, m)
-        k_t = T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
-    except AttributeError:
-        raise CapabilityError(
-            f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
-        ) from None
-    ls = minimum_speed(drive, setup.gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
-    if ls.w_min_rated <= 0:
-        return setup, "no I-f start: the design holds zero speed"
-    values = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, ls.w_min_rated)
+        return None, "no I-f start: the observer holds zero speed (its family: HF injection)", 0.0
+    given = getattr(drive, "startup", None)
+    if given is not None:
+        values, w_min = given.values(), 0.0
+    else:
+        try:
+            m, c = drive.motor, drive.control
+            inertia, pole_pairs, T_max = m.J, m.p, c.T_max
+            i_d, i_q = mtpa_torque_current(T_max, m)
+            k_t = T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
+        except AttributeError:
+            raise CapabilityError(
+                f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
+            ) from None
+        ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
+        w_min = ls.w_min_rated
+        if w_min <= 0:
+            return None, "no I-f start: the design holds zero speed", 0.0
+        values = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min)
     line = (
-        f"I-f start: {values['if_i']:.4g} A, {values['if_acc']:.4g} rad/s^2, handover at "
+        f"I-f start{' ([startup] of the drive file)' if given is not None else ''}: "
+        f"{values['if_i']:.4g} A, {values['if_acc']:.4g} rad/s^2, handover at "
         f"{values['if_w_on'] / drive.w_base:.3g} p.u., back below "
         f"{values['if_w_off'] / drive.w_base:.3g} p.u."
     )
-    return with_if_start(setup, values), line
+    return values, line, w_min
+
+
+def startup_setup(drive: OnPmsm, setup: RuntimeSetup) -> tuple[RuntimeSetup, str]:
+    """``setup`` wrapped in the I-f start (design/startup.py; :func:`startup_values` at the gains of
+    ``setup``), and one line saying so; unchanged where the observer holds zero speed."""
+    from sensorless.design.startup import with_if_start
+
+    values, line, _ = startup_values(drive, setup.gains)
+    return (setup, line) if values is None else (with_if_start(setup, values), line)
 
 
 def loop_setup(

@@ -15,9 +15,12 @@ The rules (each with its reason; :func:`if_values`):
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import Any
 
+from sensorless.design.drive_file import Entry, load_section, q, table
 from sensorless.design.runtime import RuntimeSetup
+from sensorless.design.units import DriveFileError
 from sensorless.symbolic.startup import with_startup
 
 ACC_SHARE = 0.5
@@ -31,6 +34,60 @@ def if_values(T_N: float, T_max: float, J: float, p: int, k_t: float, w_min: flo
         "if_acc": ACC_SHARE * p * (T_max - T_N) / J,
         "if_w_on": ON_FACTOR * w_min,
         "if_w_off": w_min,
+    }
+
+
+SECTION = "startup"
+
+
+@dataclasses.dataclass(frozen=True)
+class StartupSettings:
+    """The ``[startup]`` section of a drive file: the I-f start's parameters (SI, speeds electrical)."""
+
+    current: float = q("current", doc="I-f current amplitude (peak)")
+    acceleration: float = q("rate_squared", doc="I-f acceleration, electrical [rad/s^2]")
+    w_on: float = q("angular", doc="handover speed to the observer, electrical (or p.u.)")
+    w_off: float = q("angular", doc="back to open loop below this speed, electrical (or p.u.)")
+
+    def values(self) -> dict[str, float]:
+        """As :func:`if_values` gives them (the runtime's parameter names)."""
+        return {
+            "if_i": self.current,
+            "if_acc": self.acceleration,
+            "if_w_on": self.w_on,
+            "if_w_off": self.w_off,
+        }
+
+
+def load_startup(data: Mapping[str, Any], file: str, w_base: float) -> StartupSettings:
+    """The ``[startup]`` section of a drive file's data, strictly (speeds in rad/s, Hz or p.u. of
+    ``w_base``); DriveFileError naming the key."""
+    t = table(data, SECTION, file)
+    s = load_section(StartupSettings, t, file, SECTION, {"pu": w_base})
+    if s.w_off >= s.w_on:
+        raise DriveFileError(
+            file, f"{SECTION}.w_off", f"must be below {SECTION}.w_on (the hysteresis band lies between)"
+        )
+    return s
+
+
+def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -> dict[str, Entry]:
+    """The ``[startup]`` entries of ``sensorless init`` for the values of :func:`if_values`, each with its
+    rule as the comment (module docstring)."""
+    return {
+        "current": Entry(f"{values['if_i']:.6g} A", "T_max / k_t: the torque limit's current (MTPA, peak)"),
+        "acceleration": Entry(
+            f"{values['if_acc']:.6g} rad/s2",
+            f"{ACC_SHARE:g} p (T_max - T_N) / J: that share of the torque margin over rated load",
+        ),
+        "w_on": Entry(
+            f"{values['if_w_on'] / w_base:.6g} pu",
+            f"{ON_FACTOR:g} w_min: handover with margin; w_min = {w_min / w_base:.4g} p.u. at rated load",
+        ),
+        "w_off": Entry(
+            f"{values['if_w_off'] / w_base:.6g} pu",
+            "w_min (design/low_speed.py, rated load): back to open loop below it",
+        ),
     }
 
 

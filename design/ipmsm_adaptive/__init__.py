@@ -37,6 +37,7 @@ class AdaptiveFluxObserver(ObserverFamily):
     scenario_options = simulation.SCENARIO_OPTIONS
     estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
     panels = simulation.PANELS
+    open_loop_start = True
 
     def load(self, data: Any, file: str, digest: str) -> schema.IpmsmDrive:
         return derive.load(data, file, digest, self.kind)

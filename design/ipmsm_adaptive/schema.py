@@ -201,6 +201,7 @@ class IpmsmDrive:
     )
     digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
     warnings: tuple[str, ...] = ()  # plausibility warnings (design/plausibility.py), printed by every command
+    startup: Any = None  # [startup] of the file (design/startup.StartupSettings) or None: the rules
 
     def gain(self, name: str | None = None) -> Any:
         """The gain settings named ``name`` (default: ``[observer] gain``)."""

@@ -51,6 +51,7 @@ class FluxObserverFamily(ObserverFamily):
     laws = _gains.TABLE_LAWS
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
+    open_loop_start = True
 
     def load(self, data: Any, file: str, digest: str) -> schema.FluxObserverDrive:
         return schema.load(data, file, digest, self.kind)

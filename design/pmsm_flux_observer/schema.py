@@ -106,6 +106,7 @@ class FluxObserverDrive:
     envelope: Envelope
     digest: str = ""
     warnings: tuple[str, ...] = ()
+    startup: Any = None  # [startup] of the file (design/startup.StartupSettings) or None: the rules
 
     @property
     def T_N(self) -> float:

@@ -22,8 +22,9 @@ from typing import Any
 
 from sensorless.design import registry
 from sensorless.design.drive import load_drive_text, preset_text
-from sensorless.design.drive_file import read_text, table
+from sensorless.design.drive_file import Entry, read_text, table
 from sensorless.design.family import CapabilityError
+from sensorless.design.startup import SECTION, document_entries
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.common import UsageError, print_warnings
 from sensorless.reports.family import Importer, add_options, import_options, importers
@@ -90,10 +91,14 @@ def run(args: argparse.Namespace) -> int:
         )
     out = OutputFile(args.out, force=args.force)
     out.check()
+    given_start = data.pop(SECTION, None)  # [startup] is read by design/drive.py for every family
     doc = fam.document(data, file)
     written = doc.toml()
     source = load_drive_text(text, file)  # the source loads (errors and warnings name its keys)
     drive = load_drive_text(written, str(args.out))  # and so does what is written
+    if fam.open_loop_start and _startup_section(doc, fam, drive, given_start):
+        written = doc.toml()
+        drive = load_drive_text(written, str(args.out))
     out.set_text(written)
     path = out.commit()
     print_warnings("init", source)
@@ -101,6 +106,22 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {path}: {drive.name} ({fam.title}); {n} values derived, each with its rule as a comment")
     print(f"review them, then e.g.: sensorless tune {path}")
     return 0
+
+
+def _startup_section(doc: Any, fam: Any, drive: Any, given: Any) -> bool:
+    """Add the ``[startup]`` section (design/startup.py) to ``doc``: the one given, else the I-f start's
+    values by their rules at the drive's own gains; False where the observer needs no start."""
+    from sensorless.design.pmsm_drive import startup_values
+
+    note = "the open-loop I-f start below the minimum sensorless speed (design/startup.py)"
+    if given is not None:
+        doc.section(SECTION, note).update({k: Entry(v, given=True) for k, v in given.items()})
+        return True
+    values, _, w_min = startup_values(drive, fam.gains(drive))
+    if values is None:
+        return False
+    doc.section(SECTION, note).update(document_entries(values, drive.w_base, w_min))
+    return True
 
 
 def _source(spec: str) -> tuple[str, str]:

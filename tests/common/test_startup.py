@@ -14,6 +14,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 from sensorless.design.drive import load_drive
 from sensorless.design.registry import family_of
 from sensorless.design.startup import if_values, with_if_start
@@ -91,3 +92,40 @@ def test_a_non_salient_motor_starts_from_standstill_against_rated_load_through_t
     m, failed, problems = judge(tr, sc, drive.w_base)
     assert m["handovers"] >= 1 and m["handover_theta_err_deg"] < 30
     assert not failed and not problems
+
+
+def test_init_writes_the_start_with_its_rules_and_every_command_reads_it_back(tmp_path, capsys):
+    from sensorless.design.pmsm_drive import mtpa_torque_current, startup_values
+    from sensorless.reports.cli.main import main
+
+    out = tmp_path / "drone.toml"
+    assert main(["init", str(MOTORS / "drone.toml"), "--out", str(out)]) == 0
+    text = out.read_text(encoding="utf-8")
+    section = text[text.index("[startup]") :]
+    for rule in ("T_max / k_t", "(T_max - T_N) / J", "2 w_min", "w_min (design/low_speed.py"):
+        assert rule in section
+    drive = load_drive(out)
+    m, c = drive.motor, drive.control
+    i_if = math.hypot(*mtpa_torque_current(c.T_max, m))  # the torque limit's current, by hand
+    assert drive.startup.current == pytest.approx(i_if, rel=1e-5)
+    assert drive.startup.acceleration == pytest.approx(0.5 * m.p * (c.T_max - drive.T_N) / m.J, rel=1e-5)
+    assert drive.startup.w_on == pytest.approx(2 * drive.startup.w_off, rel=1e-5)
+    # an edited value is what the commands use, in p.u. or rad/s
+    edited = text.replace(section.splitlines()[3], f'w_on = "{0.05 * drive.w_base} rad/s"')
+    out.write_text(edited, encoding="utf-8")
+    values, line, _ = startup_values(load_drive(out), None)
+    assert values["if_w_on"] == pytest.approx(0.05 * drive.w_base) and "[startup] of the drive file" in line
+    # the adaptive observer on the salient traction motor holds zero speed on injection: no section
+    prius = tmp_path / "prius.toml"
+    assert main(["init", str(MOTORS / "prius.toml"), "--out", str(prius)]) == 0
+    assert "[startup]" not in prius.read_text(encoding="utf-8")
+    # bad values: one line naming the key, exit 2
+    capsys.readouterr()
+    out.write_text(edited.replace('w_off = "', 'w_off = "9'), encoding="utf-8")
+    assert main(["codegen", str(out), "--startup", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "startup.w_off" in err and len(err.splitlines()) == 1
+    out.write_text(edited.replace("current = ", "current_x = "), encoding="utf-8")
+    assert main(["tune", str(out), "--out", str(tmp_path / "g.json")]) == 2
+    assert "startup.current_x" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
