@@ -21,6 +21,7 @@ from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario, speed_filter_of
 from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
+from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_drive import (
     INPUTS,
     MEAS,
@@ -129,10 +130,10 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
         return None, "no I-f start: the observer holds zero speed (its family: HF injection)", 0.0
-    given = getattr(drive, "startup", None)
-    if given is not None:
-        values, w_min = given.values(), 0.0
-    else:
+    startup = getattr(drive, "startup", None)
+    given = startup.values() if startup is not None else {}
+    values, w_min = given, 0.0
+    if len(given) < 4:  # a key the file does not give keeps its rule
         try:
             m, c = drive.motor, drive.control
             inertia, pole_pairs, T_max = m.J, m.p, c.T_max
@@ -146,9 +147,13 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
         w_min = ls.w_min_rated
         if w_min <= 0:
             return None, "no I-f start: the design holds zero speed", 0.0
-        values = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min)
+        values = {**if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min), **given}
+        if values["if_w_off"] >= values["if_w_on"]:
+            raise DriveFileError(
+                drive.file, "startup", "w_off by its rule (w_min) is not below the w_on given: give both"
+            )
     line = (
-        f"I-f start{' ([startup] of the drive file)' if given is not None else ''}: "
+        f"I-f start{' ([startup] of the drive file)' if given else ''}: "
         f"{values['if_i']:.4g} A, {values['if_acc']:.4g} rad/s^2, handover at "
         f"{values['if_w_on'] / drive.w_base:.3g} p.u., back below "
         f"{values['if_w_off'] / drive.w_base:.3g} p.u."

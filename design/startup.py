@@ -44,27 +44,31 @@ SECTION = "startup"
 class StartupSettings:
     """The ``[startup]`` section of a drive file: the I-f start's parameters (SI, speeds electrical)."""
 
-    current: float = q("current", doc="I-f current amplitude (peak)")
-    acceleration: float = q("rate_squared", doc="I-f acceleration, electrical [rad/s^2]")
-    w_on: float = q("angular", doc="handover speed to the observer, electrical (or p.u.)")
-    w_off: float = q("angular", doc="back to open loop below this speed, electrical (or p.u.)")
+    current: float | None = q("current", doc="I-f current amplitude (peak)", default=None)
+    acceleration: float | None = q("rate_squared", doc="I-f acceleration, electrical", default=None)
+    w_on: float | None = q(
+        "angular", doc="handover speed to the observer, electrical (or p.u.)", default=None
+    )
+    w_off: float | None = q("angular", doc="back to open loop below it, electrical (or p.u.)", default=None)
 
     def values(self) -> dict[str, float]:
-        """As :func:`if_values` gives them (the runtime's parameter names)."""
-        return {
+        """The keys given, as :func:`if_values` names them (a key not given keeps its rule)."""
+        given = {
             "if_i": self.current,
             "if_acc": self.acceleration,
             "if_w_on": self.w_on,
             "if_w_off": self.w_off,
         }
+        return {k: v for k, v in given.items() if v is not None}
 
 
 def load_startup(data: Mapping[str, Any], file: str, w_base: float) -> StartupSettings:
     """The ``[startup]`` section of a drive file's data, strictly (speeds in rad/s, Hz or p.u. of
-    ``w_base``); DriveFileError naming the key."""
+    ``w_base``; each key optional, a missing one keeps its rule); DriveFileError naming the key."""
     t = table(data, SECTION, file)
-    s = load_section(StartupSettings, t, file, SECTION, {"pu": w_base})
-    if s.w_off >= s.w_on:
+    keys = tuple(f.name for f in dataclasses.fields(StartupSettings))
+    s = load_section(StartupSettings, t, file, SECTION, {"pu": w_base}, optional=keys)
+    if s.w_off is not None and s.w_on is not None and s.w_off >= s.w_on:
         raise DriveFileError(
             file, f"{SECTION}.w_off", f"must be below {SECTION}.w_on (the hysteresis band lies between)"
         )

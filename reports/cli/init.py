@@ -109,18 +109,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _startup_section(doc: Any, fam: Any, drive: Any, given: Any) -> bool:
-    """Add the ``[startup]`` section (design/startup.py) to ``doc``: the one given, else the I-f start's
-    values by their rules at the drive's own gains; False where the observer needs no start."""
+    """Add the ``[startup]`` section (design/startup.py) to ``doc``: the keys given as written, the
+    others by their rules at the drive's own gains; False where the observer needs no start."""
     from sensorless.design.pmsm_drive import startup_values
 
     note = "the open-loop I-f start below the minimum sensorless speed (design/startup.py)"
-    if given is not None:
-        doc.section(SECTION, note).update({k: Entry(v, given=True) for k, v in given.items()})
-        return True
-    values, _, w_min = startup_values(drive, fam.gains(drive))
-    if values is None:
+    values, _, w_min = startup_values(drive, fam.gains(drive))  # ``drive`` has no [startup] yet
+    if values is None and given is None:
         return False
-    doc.section(SECTION, note).update(document_entries(values, drive.w_base, w_min))
+    sec = doc.section(SECTION, note)
+    if values is not None:
+        sec.update(document_entries(values, drive.w_base, w_min))
+    sec.update({k: Entry(v, given=True) for k, v in (given or {}).items()})
     return True
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from sensorless.design.family import Drive, GainSet
+from sensorless.design.family import CapabilityError, Drive, GainSet
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.pmsm_flux_observer.firmware import FirmwareDrive, odrive, simplefoc, vesc
 from sensorless.reports.cli.common import Number
@@ -100,7 +100,13 @@ def exporters(record: Callable[[Drive, GainSet], FirmwareDrive]) -> dict[str, Ex
 
 def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
     """What an export writes: the drive's estimates (what the firmware is given), loop and gains."""
+    from sensorless.design.pmsm_drive import startup_values
+
     e, obs = drive.estimate, drive.observer
+    try:  # its [startup], else by the rules from w_min
+        startup, _, _ = startup_values(drive, gains)
+    except CapabilityError:  # no minimum-speed analysis (e.g. the box clamp is not linearizable)
+        startup = None if drive.startup is None or len(drive.startup.values()) < 4 else drive.startup.values()
     return FirmwareDrive(
         name=drive.name,
         p=drive.motor.p,
@@ -115,6 +121,7 @@ def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
         law=gains.law,
         gains=dict(gains.values),
         source=gains.source,
+        startup=startup,
     )
 
 

@@ -210,3 +210,46 @@ def test_simplefoc_fields():
 def test_exports_are_deterministic():
     assert vesc.export(SKATE) == vesc.export(dataclasses.replace(SKATE))
     assert odrive.export(OUTRUNNER) == odrive.export(dataclasses.replace(OUTRUNNER))
+
+
+# ------------------------------------------------------------------------------ the open-loop I-f start
+# typed by hand: 3000 ERPM = 50 electrical rev/s = 100 pi rad/s; back below half of it; 1000 rad/s^2
+START = {
+    "if_i": 12.0,
+    "if_acc": 1000.0,
+    "if_w_on": 100 * 3.141592653589793,
+    "if_w_off": 50 * 3.141592653589793,
+}
+
+
+def test_vesc_open_loop_fields_by_hand_and_back():
+    files, _ = vesc.export(dataclasses.replace(SKATE, startup=START))
+    root = ET.fromstring(files["vesc.xml"].split("\n", 1)[1])
+    assert float(root.findtext("foc_openloop_rpm")) == pytest.approx(3000.0, rel=1e-12)
+    assert float(root.findtext("foc_sl_erpm")) == pytest.approx(3000.0, rel=1e-12)
+    # the ramp to 100 pi rad/s at 1000 rad/s^2 lasts 0.1 pi s; the band (50 pi rad/s) half of it
+    assert float(root.findtext("foc_sl_openloop_time")) == pytest.approx(0.1 * 3.141592653589793, rel=1e-12)
+    assert float(root.findtext("foc_sl_openloop_hyst")) == pytest.approx(0.05 * 3.141592653589793, rel=1e-12)
+    d = tomllib.loads(vesc.read(files["vesc.xml"], "vesc.xml", {"u_dc": 36.0}, KIND).text)["startup"]
+    assert "current" not in d  # VESC sets its open-loop current by its own fields
+    assert si(d["acceleration"], "rate_squared") == pytest.approx(1000.0, rel=REL)
+    assert si(d["w_on"], "angular") == pytest.approx(START["if_w_on"], rel=REL)
+    assert si(d["w_off"], "angular") == pytest.approx(START["if_w_off"], rel=REL)
+    # no start: no fields, no section
+    plain, _ = vesc.export(SKATE)
+    assert "openloop" not in plain["vesc.xml"]
+    assert "startup" not in tomllib.loads(vesc.read(plain["vesc.xml"], "v.xml", {"u_dc": 36.0}, KIND).text)
+
+
+def test_odrive_sensorless_ramp_and_back():
+    files, notes = odrive.export(dataclasses.replace(OUTRUNNER, startup=START))
+    v = json.loads(files["odrive.json"])
+    ramp = "axis0.config.sensorless_ramp."
+    assert (v[ramp + "current"], v[ramp + "accel"], v[ramp + "vel"]) == (12.0, 1000.0, START["if_w_on"])
+    assert f"odrv0.{ramp}vel = {START['if_w_on']!r}" in files["odrivetool.txt"]
+    assert any("does not fall back to open loop" in n for n in notes)  # w_off has no field
+    d = tomllib.loads(odrive.read(files["odrive.json"], "o.json", {"u_dc": 24.0, "f_s": 8000.0}, KIND).text)
+    s = d["startup"]
+    assert si(s["current"], "current") == pytest.approx(12.0, rel=REL) and "w_off" not in s
+    assert si(s["acceleration"], "rate_squared") == pytest.approx(1000.0, rel=REL)
+    assert si(s["w_on"], "angular") == pytest.approx(START["if_w_on"], rel=REL)

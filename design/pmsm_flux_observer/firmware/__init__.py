@@ -13,7 +13,8 @@ shared/references/firmware_flux_observer.md). This module holds what they share:
   and the field);
 - :func:`choose_flux`: the cross-check of redundant flux values (flux linkage, KV, torque constant).
 
-Units are SI; the firmware's own units are converted where read or written, nowhere else.
+Units are SI; the firmware's own units are converted where read or written, nowhere else
+(:func:`erpm`: electrical rad/s to the firmwares' electrical rpm).
 """
 
 from __future__ import annotations
@@ -54,6 +55,9 @@ class FirmwareDrive:
     law: str  # the gain law: "odrive" | "vesc" | "schedule"
     gains: Mapping[str, float] = field(default_factory=dict)  # the law's gains, SI or firmware-raw
     source: str = ""  # where the gains come from (the drive file's [gains] or a gain table), for messages
+    # the open-loop I-f start (design/startup.py): if_i [A], if_acc [rad/s^2], if_w_on, if_w_off [rad/s],
+    # electrical; None where the drive has none
+    startup: Mapping[str, float] | None = None
 
 
 class Fields:
@@ -153,6 +157,29 @@ def quantity(x: float, unit: str) -> str:
     """``x`` [SI] as a drive-file quantity string, to 12 significant digits (an export read back gives
     the exported values to 5e-12 relative; the firmwares store float32, good to 1e-7)."""
     return f"{x:.12g} {unit}"
+
+
+def erpm(w: float) -> float:
+    """Electrical speed ``w`` [rad/s] in ERPM (electrical revolutions per minute, VESC's unit)."""
+    return w * 60 / (2 * math.pi)
+
+
+def startup_entries(
+    current: float | None,
+    acc: float | None,
+    w_on: float | None,
+    w_off: float | None,
+    rules: Mapping[str, str],
+) -> dict[str, Entry]:
+    """The ``[startup]`` entries (design/startup.py) of the firmware values found (SI), each with its
+    rule (``rules``: key -> the firmware fields it comes from)."""
+    found = {
+        "current": (current, "A"),
+        "acceleration": (acc, "rad/s2"),
+        "w_on": (w_on, "rad/s"),
+        "w_off": (w_off, "rad/s"),
+    }
+    return {k: Entry(quantity(x, unit), rules[k]) for k, (x, unit) in found.items() if x is not None}
 
 
 def check_limit(ok: bool, source: str, key: str, why: Callable[[], str]) -> None:

@@ -14,7 +14,11 @@ The conventions converted here (firmware_flux_observer.md, ODrive v3):
 - ``observer_gain`` = gamma lambda^2 [1/s] and ``pll_bandwidth`` [rad/s] (kp = 2 bw,
   ki = kp^2/4), default 1000 each; the firmware refuses T kp >= 1 (ERROR_UNSTABLE_GAIN), and its
   forward Euler step is unstable for T observer_gain >= 2;
-- the loop runs at 8 kHz on v3 boards (the backup does not hold it: --f-s).
+- the loop runs at 8 kHz on v3 boards (the backup does not hold it: --f-s);
+- the open-loop start ``config.sensorless_ramp`` (``[startup]``, design/startup.py): ``current`` [A],
+  ``accel`` [rad/s^2] and ``vel`` [rad/s], electrical: the I-f start's current, acceleration and
+  handover speed w_on. ODrive does not return to open loop (sensorless "does not support stopping or
+  changing direction"): w_off has no field.
 """
 
 from __future__ import annotations
@@ -35,11 +39,13 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     choose_flux,
     drive_document,
     quantity,
+    startup_entries,
 )
 from sensorless.design.units import DriveFileError
 
 MOTOR = "axis0.motor.config."
 ESTIMATOR = "axis0.sensorless_estimator.config."
+RAMP = "axis0.config.sensorless_ramp."
 FACTORY = {  # firmware defaults: a value still at its default was never set
     ESTIMATOR + "pm_flux_linkage": 1.58e-3,
     MOTOR + "torque_constant": 0.04,
@@ -170,6 +176,16 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         f"imported from {Path(file).name} (odrivetool configuration backup) by sensorless init --from odrive",
         "each converted value has its rule as a comment (docs/families/pmsm_flux_observer_firmware.md)",
     ]
+    startup = startup_entries(
+        f.number(RAMP + "current"),
+        f.number(RAMP + "accel"),
+        f.number(RAMP + "vel"),
+        None,
+        {
+            k: f"config.sensorless_ramp.{v}"
+            for k, v in (("current", "current"), ("acceleration", "accel"), ("w_on", "vel"))
+        },
+    )
     sections = {
         "drive": {
             "name": Entry(str(given.get("name") or Path(file).stem)),
@@ -181,6 +197,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         "inverter": inverter,
         "observer": observer,
         "gains": gains,
+        "startup": startup,
     }
     return Imported(drive_document(header, sections), tuple(notes))
 
@@ -228,6 +245,15 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
         ESTIMATOR + "observer_gain": gain,
         ESTIMATOR + "pll_bandwidth": bw,
     }
+    if d.startup is not None:  # the I-f start (module docstring); ODrive has no w_off
+        values[RAMP + "current"] = d.startup["if_i"]
+        values[RAMP + "accel"] = d.startup["if_acc"]
+        values[RAMP + "vel"] = d.startup["if_w_on"]
+        notes.append(
+            f"sensorless_ramp: the I-f start to w_on = {d.startup['if_w_on']:.6g} rad/s; ODrive does not "
+            f"fall back to open loop below w_off = {d.startup['if_w_off']:.6g} rad/s (w_min): do not stop "
+            "or reverse in sensorless mode"
+        )
     js = json.dumps(values, indent=2, sort_keys=True) + "\n"
     lines = [f"# sensorless export for odrivetool: drive {d.name}; paste into odrivetool, then save"]
     lines += [f"odrv0.{k} = {v!r}" for k, v in sorted(values.items())]

@@ -16,7 +16,13 @@ The file is ``<MCConfiguration>`` with one element per configuration field, valu
   or T = 1 / f_zv when ``foc_sample_v0_v7`` samples at both;
 - ``foc_observer_type``: 0 ORTEGA_ORIGINAL (clamped gradient), 1 MXLEMMING (box clamp),
   2 ORTEGA_LAMBDA_COMP, 3 MXLEMMING_LAMBDA_COMP (with online flux adaptation), 4 MXV and
-  5 MXV_LAMBDA_COMP (circular clamp, not modelled: read as the box clamp, with a note).
+  5 MXV_LAMBDA_COMP (circular clamp, not modelled: read as the box clamp, with a note);
+- the open-loop start (``[startup]``, design/startup.py): ``foc_openloop_rpm`` [ERPM] is the speed the
+  open loop drives the motor to and below which it returns to it: the handover speed w_on;
+  ``foc_sl_openloop_time`` [s] its duration: w_on / acceleration; VESC's hysteresis is a time,
+  ``foc_sl_openloop_hyst`` [s]: the time the I-f ramp takes across the band w_off..w_on, (w_on - w_off) /
+  acceleration; ``foc_sl_erpm`` [ERPM] (the observer's lower speed in the hybrid sensor modes): w_on.
+  VESC sets the open loop's current by its own (``foc_sl_openloop_boost_q``, ...): not written.
 """
 
 from __future__ import annotations
@@ -36,7 +42,9 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     check_limit,
     choose_flux,
     drive_document,
+    erpm,
     quantity,
+    startup_entries,
 )
 from sensorless.design.units import DriveFileError
 
@@ -237,6 +245,23 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         f"imported from {Path(file).name} (VESC Tool motor configuration XML) by sensorless init --from vesc",
         "each converted value has its rule as a comment (docs/families/pmsm_flux_observer_firmware.md)",
     ]
+    w_on, t_ol, hyst = (
+        f.number(k) for k in ("foc_openloop_rpm", "foc_sl_openloop_time", "foc_sl_openloop_hyst")
+    )
+    w_on = None if w_on is None else w_on * 2 * math.pi / 60
+    acc = None if w_on is None or t_ol is None else w_on / t_ol
+    w_off = None if acc is None or hyst is None or hyst * acc >= w_on else w_on - hyst * acc  # type: ignore[operator]
+    startup = startup_entries(
+        None,
+        acc,
+        w_on,
+        w_off,
+        {
+            "acceleration": "foc_openloop_rpm / foc_sl_openloop_time",
+            "w_on": "foc_openloop_rpm x 2 pi/60 (ERPM)",
+            "w_off": "foc_openloop_rpm - foc_sl_openloop_hyst x acceleration",
+        },
+    )
     sections = {
         "drive": {
             "name": Entry(str(given.get("name") or stem)),
@@ -249,6 +274,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         "observer": observer,
         "estimate": estimate,
         "gains": gains,
+        "startup": startup,
     }
     return Imported(drive_document(header, sections), tuple(notes))
 
@@ -256,6 +282,23 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
 def _element(name: str, value: Any, comment: str = "") -> str:
     text = f"    <{name}>{value}</{name}>"
     return f"{text}  <!-- {comment.replace('--', '-')} -->" if comment else text
+
+
+def _startup_elements(d: FirmwareDrive) -> list[str]:
+    """The open-loop start's fields (module docstring) of the drive's I-f start; none without one."""
+    if d.startup is None:
+        return []
+    w_on, w_off, acc = d.startup["if_w_on"], d.startup["if_w_off"], d.startup["if_acc"]
+    return [
+        _element("foc_openloop_rpm", repr(erpm(w_on)), f"ERPM: the handover speed w_on = {w_on:.6g} rad/s"),
+        _element("foc_sl_openloop_time", repr(w_on / acc), f"s: w_on / acceleration ({acc:.6g} rad/s^2)"),
+        _element(
+            "foc_sl_openloop_hyst",
+            repr((w_on - w_off) / acc),
+            f"s: (w_on - w_off) / acceleration, w_off = {w_off:.6g} rad/s (w_min)",
+        ),
+        _element("foc_sl_erpm", repr(erpm(w_on)), "ERPM: the observer's lower speed in the hybrid modes"),
+    ]
 
 
 def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
@@ -308,6 +351,7 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
         _element("foc_observer_gain_slow", repr(slow)),
         _element("foc_pll_kp", repr(kp), "1/s"),
         _element("foc_pll_ki", repr(ki), "1/s^2"),
+        *_startup_elements(d),
         f"</{ROOT}>",
     ]
     notes = [
