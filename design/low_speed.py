@@ -18,7 +18,8 @@ estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over t
   its command);
   RMS angle noise from the current-sensor noise <= ``max_bias / 3`` (three standard deviations within
   the same limit). A criterion the family's linearization does not give (``Linearization.angle_bias``
-  or ``angle_noise`` None) is not applied, and the result says which were;
+  or ``angle_noise`` None, or NaN at every point: e.g. the reduced-order family's bias, computed only
+  where the estimates differ from the motor) is not applied, and the result says which were;
 - w_min(T) = the lowest speed from which every speed up to the highest one that meets all four (at
   most 1 p.u.) meets all four (w_min = 1 p.u. where no speed does): a dense logarithmic grid
   (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds), then bisection
@@ -28,7 +29,10 @@ estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over t
 
 The rated-load value (``w_min_rated``) is the larger of the two at +T_N and -T_N. Where the criteria
 hold down to the grid's floor (:data:`FLOOR_PU`), w_min = 0: no lower limit found (the headline says
-"down to the analysis' floor", not that the observer holds zero speed).
+"down to the analysis' floor", not that the observer holds zero speed). Where the family declares
+that its observer does not run through zero speed (``DriveScales.zero_speed``, e.g. an EMF observer at
+exact estimates: no bias, and the noise criterion met down to the floor), the headline says that the
+floor is no verified minimum speed and quotes the family (``LowSpeed.declared``).
 """
 
 from __future__ import annotations
@@ -68,6 +72,7 @@ class LowSpeed:
     max_noise: float  # [rad rms]
     applied: tuple[str, ...]  # the criteria the family's linearization gives
     holds_zero: bool = False  # the family says its observer holds zero speed by itself (HF injection)
+    declared: str = ""  # the family's DriveScales.zero_speed: why it does not run through zero speed
 
     @property
     def rated(self) -> int:
@@ -111,6 +116,7 @@ class LowSpeed:
                 "applied": list(self.applied),
             },
             "floor_pu": FLOOR_PU,
+            "declared_limit": self.declared,
         }
 
 
@@ -123,7 +129,7 @@ def _failing(lin: Any, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]
     applied = ["damping", "decay"]
     bias, noise = lin.angle_bias(), lin.angle_noise()
     for name, val in (("bias", bias), ("noise", noise)):
-        if val is None:
+        if val is None or np.isnan(np.asarray(val, float)).all():  # not given here
             tests.append(np.zeros(zeta.shape, bool))
         else:
             applied.append(name)
@@ -152,11 +158,12 @@ def minimum_speed(
     fam = family_of(drive)
     if errors:
         drive = fam.with_estimate_errors(drive, errors)
+    try:
+        scales = fam.scales(drive)
+    except CapabilityError:
+        scales = None
     if min_decay is None:
-        try:
-            min_decay = DECAY_SHARE * float(fam.scales(drive).alpha_s)
-        except CapabilityError:
-            min_decay = 0.0
+        min_decay = DECAY_SHARE * float(scales.alpha_s) if scales is not None else 0.0
     crit = {"damping": min_damping, "decay": min_decay, "bias": max_bias, "noise": max_bias / 3}
     opts = fam.low_speed_options(drive)
     wb, TN = drive.w_base, drive.T_N
@@ -165,10 +172,11 @@ def minimum_speed(
     # one batched call per block of speeds: a family that simulates its discrete observer over a
     # window growing as 1/w (the reduced-order family's steady errors) runs every point of a call as
     # long as its slowest one
-    rows = []
+    rows, given = [], set()
     for blk in np.array_split(np.arange(n_speeds), SPEED_BLOCKS):
         first, applied = _failing(fam.linearize(drive, gains, w[blk, None], T[None, :], **opts), crit)
         rows.append(first.reshape(blk.size, n_torques))
+        given.update(applied)
     first = np.vstack(rows)
     bad = first >= 0
     # per torque: the highest passing grid speed (a failure above it is no low-speed limit: the
@@ -206,8 +214,9 @@ def minimum_speed(
         min_decay=min_decay,
         max_bias=max_bias,
         max_noise=max_bias / 3,
-        applied=tuple(applied),
+        applied=tuple(c for c in CRITERIA if c in given),
         holds_zero=fam.holds_zero_speed(drive),
+        declared=scales.zero_speed if scales is not None else "",
     )
 
 
@@ -222,6 +231,16 @@ WHAT_TO_DO = {
 def headline(ls: LowSpeed) -> str:
     """One line: "sensorless down to X p.u. (Y rpm) at rated load; below: <what to do>"."""
     w = ls.w_min_rated
+    if w <= 0 and ls.declared:  # the criteria it gives find no limit; the family states one
+        missing = [c for c in CRITERIA if c not in ls.applied]
+        return (
+            f"no limit found by the linearization down to {FLOOR_PU:g} p.u., the analysis' floor, at rated "
+            f"load (criteria it gives: {', '.join(ls.applied)}"
+            + (f"; not {', '.join(missing)}" if missing else "")
+            + "), which is no verified minimum speed: "
+            + ls.declared[0].lower()
+            + ls.declared[1:].rstrip(".")
+        )
     if w <= 0:
         return (
             f"sensorless down to {FLOOR_PU:g} p.u., the analysis' floor, at rated load (every criterion "
