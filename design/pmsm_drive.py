@@ -133,7 +133,7 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     startup = getattr(drive, "startup", None)
     given = startup.values() if startup is not None else {}
     values, w_min = given, 0.0
-    if len(given) < 4:  # a key the file does not give keeps its rule
+    if startup is None or startup.needs_w_min:  # a key the file does not give keeps its rule
         try:
             m, c = drive.motor, drive.control
             inertia, pole_pairs, T_max = m.J, m.p, c.T_max
@@ -147,10 +147,11 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
         w_min = ls.w_min_rated
         if w_min <= 0:
             return None, "no I-f start: the design holds zero speed", 0.0
+        given = startup.values(w_min) if startup is not None else {}
         values = {**if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min), **given}
         if values["if_w_off"] >= values["if_w_on"]:
             raise DriveFileError(
-                drive.file, "startup", "w_off by its rule (w_min) is not below the w_on given: give both"
+                drive.file, "startup.w_off", "not below startup.w_on (by the keys given and the rules)"
             )
     line = (
         f"I-f start{' ([startup] of the drive file)' if given else ''}: "

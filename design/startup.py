@@ -20,7 +20,7 @@ from typing import Any
 
 from sensorless.design.drive_file import Entry, load_section, q, table
 from sensorless.design.runtime import RuntimeSetup
-from sensorless.design.units import DriveFileError
+from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 from sensorless.symbolic.startup import with_startup
 
 ACC_SHARE = 0.5
@@ -38,37 +38,65 @@ def if_values(T_N: float, T_max: float, J: float, p: int, k_t: float, w_min: flo
 
 
 SECTION = "startup"
+SPEEDS = ("w_on", "w_off")  # in rad/s, Hz, p.u. or as multiples of w_min ("2 w_min")
 
 
 @dataclasses.dataclass(frozen=True)
 class StartupSettings:
-    """The ``[startup]`` section of a drive file: the I-f start's parameters (SI, speeds electrical)."""
+    """The ``[startup]`` section of a drive file: the I-f start's parameters (SI, speeds electrical);
+    every key optional (a missing one keeps its rule); a speed given in w_min (``w_on = "2 w_min"``) is
+    that multiple of the minimum sensorless speed at the gains under review."""
 
     current: float | None = q("current", doc="I-f current amplitude (peak)", default=None)
     acceleration: float | None = q("rate_squared", doc="I-f acceleration, electrical", default=None)
-    w_on: float | None = q(
-        "angular", doc="handover speed to the observer, electrical (or p.u.)", default=None
-    )
-    w_off: float | None = q("angular", doc="back to open loop below it, electrical (or p.u.)", default=None)
+    w_on: float | None = q("angular", doc="handover speed to the observer, electrical", default=None)
+    w_off: float | None = q("angular", doc="back to open loop below it, electrical", default=None)
+    w_on_per_w_min: float | None = None  # w_on given as this multiple of w_min
+    w_off_per_w_min: float | None = None
 
-    def values(self) -> dict[str, float]:
-        """The keys given, as :func:`if_values` names them (a key not given keeps its rule)."""
-        given = {
-            "if_i": self.current,
-            "if_acc": self.acceleration,
-            "if_w_on": self.w_on,
-            "if_w_off": self.w_off,
-        }
+    @property
+    def needs_w_min(self) -> bool:
+        """Whether a value is to come from w_min (its rule, or a multiple of it)."""
+        return None in (self.current, self.acceleration) or any(getattr(self, k) is None for k in SPEEDS)
+
+    def values(self, w_min: float | None = None) -> dict[str, float]:
+        """The keys given, as :func:`if_values` names them, speeds in w_min resolved at ``w_min`` (left
+        out without it)."""
+        k = (self.w_on_per_w_min, self.w_off_per_w_min)
+        on = self.w_on if k[0] is None else (None if w_min is None else k[0] * w_min)
+        off = self.w_off if k[1] is None else (None if w_min is None else k[1] * w_min)
+        given = {"if_i": self.current, "if_acc": self.acceleration, "if_w_on": on, "if_w_off": off}
         return {k: v for k, v in given.items() if v is not None}
 
 
 def load_startup(data: Mapping[str, Any], file: str, w_base: float) -> StartupSettings:
-    """The ``[startup]`` section of a drive file's data, strictly (speeds in rad/s, Hz or p.u. of
-    ``w_base``; each key optional, a missing one keeps its rule); DriveFileError naming the key."""
+    """The ``[startup]`` section of a drive file's data, strictly (speeds in rad/s, Hz, p.u. of
+    ``w_base`` or w_min; each key optional, a missing one keeps its rule); DriveFileError naming the
+    key."""
     t = table(data, SECTION, file)
-    keys = tuple(f.name for f in dataclasses.fields(StartupSettings))
-    s = load_section(StartupSettings, t, file, SECTION, {"pu": w_base}, optional=keys)
-    if s.w_off is not None and s.w_on is not None and s.w_off >= s.w_on:
+    keys = ("current", "acceleration", *SPEEDS)
+    s = load_section(
+        StartupSettings, t, file, SECTION, skip=(*SPEEDS, "w_on_per_w_min", "w_off_per_w_min"), optional=keys
+    )
+    for k in ("w_on_per_w_min", "w_off_per_w_min"):
+        if k in t:
+            raise DriveFileError(file, f"{SECTION}.{k}", f"unknown key (allowed: {', '.join(keys)})")
+    speeds: dict[str, Any] = {}
+    for k in SPEEDS:
+        if k not in t:
+            continue
+        x, rel = parse_quantity(t[k], "angular", file=file, key=f"{SECTION}.{k}")
+        if not x > 0:
+            raise DriveFileError(file, f"{SECTION}.{k}", f"non-physical value {t[k]!r}: must be > 0")
+        if rel == "w_min":
+            speeds[f"{k}_per_w_min"] = x
+        else:
+            speeds[k] = (
+                check_magnitude(x * w_base, t[k], file=file, key=f"{SECTION}.{k}") if rel == "pu" else x
+            )
+    s = dataclasses.replace(s, **speeds)
+    on, off = (s.w_on, s.w_off) if s.w_on_per_w_min is None else (s.w_on_per_w_min, s.w_off_per_w_min)
+    if (s.w_on is None) == (s.w_off is None) and on is not None and off is not None and off >= on:
         raise DriveFileError(
             file, f"{SECTION}.w_off", f"must be below {SECTION}.w_on (the hysteresis band lies between)"
         )
@@ -77,20 +105,19 @@ def load_startup(data: Mapping[str, Any], file: str, w_base: float) -> StartupSe
 
 def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -> dict[str, Entry]:
     """The ``[startup]`` entries of ``sensorless init`` for the values of :func:`if_values`, each with its
-    rule as the comment (module docstring)."""
+    rule as the comment (module docstring); the speeds as multiples of w_min, so that they follow the
+    gains under review (a tuned gain table moves w_min)."""
     return {
         "current": Entry(f"{values['if_i']:.6g} A", "T_max / k_t: the torque limit's current (MTPA, peak)"),
         "acceleration": Entry(
             f"{values['if_acc']:.6g} rad/s2",
             f"{ACC_SHARE:g} p (T_max - T_N) / J: that share of the torque margin over rated load",
         ),
-        "w_on": Entry(
-            f"{values['if_w_on'] / w_base:.6g} pu",
-            f"{ON_FACTOR:g} w_min: handover with margin; w_min = {w_min / w_base:.4g} p.u. at rated load",
-        ),
+        "w_on": Entry(f"{ON_FACTOR:g} w_min", "the handover, with margin (rad/s or p.u. to fix it)"),
         "w_off": Entry(
-            f"{values['if_w_off'] / w_base:.6g} pu",
-            "w_min (design/low_speed.py, rated load): back to open loop below it",
+            "1 w_min",
+            f"w_min at rated load, the gains under review (design/low_speed.py): {w_min / w_base:.4g} p.u. "
+            "at this file's",
         ),
     }
 

@@ -98,7 +98,7 @@ UNITS: dict[str, dict[str, float]] = {
 
 # Units that scale with a property of the drive: resolved after the base/estimates are known.
 RELATIVE_UNITS: dict[str, tuple[str, ...]] = {
-    "angular": ("pu",),
+    "angular": ("pu", "w_min"),  # w_min: the design's minimum sensorless speed ([startup], design/startup.py)
     "resistance": ("R_s_hat", "Rs_hat"),
     "flux_derivative": ("Phi_1",),  # a multiple of the fundamental, e.g. Phi_5 = "0.04 Phi_1"
 }

@@ -102,18 +102,21 @@ def test_init_writes_the_start_with_its_rules_and_every_command_reads_it_back(tm
     assert main(["init", str(MOTORS / "drone.toml"), "--out", str(out)]) == 0
     text = out.read_text(encoding="utf-8")
     section = text[text.index("[startup]") :]
-    for rule in ("T_max / k_t", "(T_max - T_N) / J", "2 w_min", "w_min (design/low_speed.py"):
+    for rule in ("T_max / k_t", "(T_max - T_N) / J", '"2 w_min"', '"1 w_min"', "gains under review"):
         assert rule in section
     drive = load_drive(out)
     m, c = drive.motor, drive.control
     i_if = math.hypot(*mtpa_torque_current(c.T_max, m))  # the torque limit's current, by hand
     assert drive.startup.current == pytest.approx(i_if, rel=1e-5)
     assert drive.startup.acceleration == pytest.approx(0.5 * m.p * (c.T_max - drive.T_N) / m.J, rel=1e-5)
-    assert drive.startup.w_on == pytest.approx(2 * drive.startup.w_off, rel=1e-5)
+    assert (drive.startup.w_on_per_w_min, drive.startup.w_off_per_w_min) == (2.0, 1.0)
+    # the speeds follow the gains under review: w_min of the analysis at those gains, twice it
+    values, _, w_min = startup_values(drive, family_of(drive).gains(drive))
+    assert w_min > 0 and (values["if_w_on"], values["if_w_off"]) == (2 * w_min, w_min)
     # an edited value is what the commands use, in p.u. or rad/s
     edited = text.replace(section.splitlines()[3], f'w_on = "{0.05 * drive.w_base} rad/s"')
     out.write_text(edited, encoding="utf-8")
-    values, line, _ = startup_values(load_drive(out), None)
+    values, line, _ = startup_values(load_drive(out), family_of(drive).gains(drive))
     assert values["if_w_on"] == pytest.approx(0.05 * drive.w_base) and "[startup] of the drive file" in line
     # the adaptive observer on the salient traction motor holds zero speed on injection: no section
     prius = tmp_path / "prius.toml"
@@ -121,7 +124,7 @@ def test_init_writes_the_start_with_its_rules_and_every_command_reads_it_back(tm
     assert "[startup]" not in prius.read_text(encoding="utf-8")
     # bad values: one line naming the key, exit 2
     capsys.readouterr()
-    out.write_text(edited.replace('w_off = "', 'w_off = "9'), encoding="utf-8")
+    out.write_text(edited.replace('w_off = "1 w_min"', 'w_off = "0.5 pu"'), encoding="utf-8")
     assert main(["codegen", str(out), "--startup", "--out", str(tmp_path / "c")]) == 2
     err = capsys.readouterr().err.strip()
     assert "startup.w_off" in err and len(err.splitlines()) == 1
