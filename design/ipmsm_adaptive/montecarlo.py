@@ -4,7 +4,7 @@ and estimates at once, and a perturbed drive for the time domain (design/monteca
 The parameters that can be spread are the true motor's R_s, L_d, L_q, psi_pm and J (the plant) and the
 observer's estimates of the first four. The linearization of Piippo, Hinkkanen, Luomi (2008), eqs.
 (11)-(15), is the same Jacobian Function as design/ipmsm_adaptive/linearize.py, evaluated over draws x
-operating points in one mapped call per Newton step; J does not enter it (the loop is driven by the
+operating points in compiled mapped calls (below); J does not enter it (the loop is driven by the
 true speed) and is spread for the time domain only.
 
 Equilibria: with estimation errors the observer's equilibrium is the end of the branch that
@@ -17,14 +17,16 @@ to rounding level at ~95 % of the points of a 10 % spread. A point is accepted w
 (the continuation's residual rule), its last step was at rounding level (so Newton converged, on
 the branch the nominal start lies on) and its position moved less than the continuation's step
 reach (0.3 rad) from the start. Every other point (mostly points without equilibrium) goes through
-the continuation: every point's Newton iteration done together in numpy on the compiled Jacobian
-(batched 4x4 solves), with solve_equilibrium's steps, acceptance rules (residual, a position jump
-under 0.3 rad) and step control (start 0.25, doubled to at most 0.5 after a success, halved after a
-failure, lost below 1e-3), so both follow the same equilibrium branch: a whole step at once can land
-on another equilibrium within the position rule (an unstable one, where the branch is stable). On
-500 draws of the preset's typical spreads and 300 of wider estimate errors both paths give the same equilibria (1e-11) and the
-same points without one; the damping differs only at |w_hat| = w_lambda, the gain law's kink,
-where rounding picks the side (as it does between the continuation and the rootfinder).
+the continuation, with solve_equilibrium's steps, acceptance rules (residual, a position jump under
+0.3 rad) and step control (start 0.25, doubled to at most 0.5 after a success, halved after a
+failure, lost below 1e-3), so both follow the same equilibrium branch (a whole step at once can land
+on another equilibrium within the position rule: an unstable one, where the branch is stable). Each
+round's Newton iterations are one compiled call for all its points (the iterations unrolled; each
+point then stops where solve_equilibrium's Newton would), not a rootfinder per point. On 500 draws
+of the preset's typical spreads and 300 of wider estimate errors, both paths give the same
+equilibria (1e-11) and the same points without one as the previous all-continuation code; the
+damping differs only at |w_hat| = w_lambda, the gain law's kink, where rounding picks the side (as
+it does between the continuation and the rootfinder).
 """
 
 from __future__ import annotations
@@ -111,6 +113,55 @@ def _flat(fn: ca.Function) -> ca.Function:
     return ca.Function(f"{fn.name()}_mc", ins, ca.cse(fn.call(ins)), fn.name_in(), fn.name_out())
 
 
+@functools.cache
+def _round_function(law: Any, injection: bool) -> ca.Function:
+    """(x, params...) -> (X, R, DX), columns i = 0..NEWTON_ITERATIONS-1: the residual r_i at x_i, the
+    Newton step dx_i = J_i^-1 r_i and x_{i+1} = x_i - dx_i; one compiled call per continuation round."""
+    step = _newton_function(law, injection)
+    ins = step.sx_in()
+    x, rest = ins[0], ins[1:]
+    X, R, D = [], [], []
+    for _ in range(NEWTON_ITERATIONS):
+        J, r = step.call([x, *rest])
+        dx = ca.solve(J, r)
+        x = x - dx
+        X.append(x)
+        R.append(r)
+        D.append(dx)
+    outs = [ca.horzcat(*v) for v in (X, R, D)]
+    return ca.Function(f"mc_round_{get_law(law).name}", ins, outs, step.name_in(), ["X", "R", "DX"])
+
+
+def _newton(
+    step: ca.Function, x: np.ndarray, ins: list[np.ndarray], scale: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """One continuation round's Newton solves from ``x`` (m, n_x): (end points, accepted). All
+    iterations are computed at once; each point stops at the first iteration where solve_equilibrium's
+    Newton would: a non-finite residual or step (rejected), a step at rounding level after a residual
+    at rest (accepted), or a position beyond the step's reach (rejected)."""
+    m = x.shape[0]
+    X, R, DX = _evaluate(step, m, [np.ascontiguousarray(x.T), *ins])  # (m, n_x, K)
+    K = X.shape[2]
+    with np.errstate(invalid="ignore"):
+        # at rest: x_dot in V (flux rates) and rad/s^2 within 1e-6 of the point's size, as
+        # solve_equilibrium accepts; the Newton step that follows takes it to rounding level
+        rest = np.isfinite(R).all(axis=1) & (np.abs(R).max(axis=1) <= 1e-6 * scale[:, None])
+        go = np.isfinite(R).all(axis=1) & np.isfinite(DX).all(axis=1)
+        # done: at rest before the step, and the step small enough (1e-8 relative) that, Newton
+        # converging quadratically, it leaves the error at rounding level
+        small = rest & (np.abs(DX).max(axis=1) <= 1e-8 * (1 + np.abs(X).max(axis=1)))
+        # a point whose position left the step's reach is rejected whatever Newton does next
+        far = np.abs(X[:, 2, :] - x[:, 2, None]) >= 0.3
+    stop = ~go | small | far
+    stop[:, -1] = True
+    i = np.argmax(stop, axis=1)
+    at = np.arange(m)
+    ok = go[at, i] & (small[at, i] | ((i == K - 1) & rest[:, -1])) & ~far[at, i]
+    # a rejected non-finite step leaves the point where it was (its end is not used)
+    end = np.where(go[at, i][:, None], X[at, :, i], x)
+    return end, ok
+
+
 def _equilibria(
     law: Any, injection: bool, cols: dict[str, np.ndarray], n: int, group: np.ndarray | None = None
 ) -> np.ndarray:
@@ -120,7 +171,7 @@ def _equilibria(
     (NaN too: the draw has failed, and the lost points are the costly ones)."""
     nominal = nominal_equilibrium_function(injection)
     x = _evaluate(nominal, n, [cols[k] for k in ("w_m", "T_e", "motor", "p")])[0][:, :, 0]
-    step = _newton_function(law, injection)
+    step = _round_function(law, injection)
     true, est = cols["motor"], cols["estimate"]
     scale = 1.0 + np.abs(cols["w_m"][0]) + np.abs(x).max(axis=1)
     tau, h = np.zeros(n), np.full(n, 0.25)
@@ -133,36 +184,7 @@ def _equilibria(
         a = {k: v[:, act] if v.shape[1] == n else v for k, v in cols.items()}  # (rows, 1): the same
         a["estimate"] = true[:, act] + t_try * (est[:, act] - true[:, act])
         ins = [a[k] for k in PARAM_NAMES]
-        xa = x[act].copy()
-        ok = np.zeros(act.size, bool)
-        live = np.arange(act.size)
-        for _ in range(NEWTON_ITERATIONS):
-            sub = ins if live.size == act.size else [v[:, live] if v.shape[1] > 1 else v for v in ins]
-            J, r = _evaluate(step, live.size, [np.ascontiguousarray(xa[live].T), *sub])
-            r = r[:, :, 0]
-            # at rest: x_dot in V (flux rates) and rad/s^2 within 1e-6 of the point's size, as
-            # solve_equilibrium accepts; the Newton step that follows takes it to rounding level
-            ok[live] = np.isfinite(r).all(axis=1) & (np.abs(r).max(axis=1) <= 1e-6 * scale[act[live]])
-            go = np.isfinite(J).all(axis=(1, 2)) & np.isfinite(r).all(axis=1)
-            try:
-                dx = np.linalg.solve(J[go], r[go][:, :, None])[:, :, 0]
-            except np.linalg.LinAlgError:  # a singular Jacobian somewhere: those points stop here
-                go[go] = np.abs(np.linalg.det(J[go])) > 0
-                dx = np.linalg.solve(J[go], r[go][:, :, None])[:, :, 0]
-            ok[live[~go]] = False
-            idx = live[go]
-            xa[idx] -= dx
-            # done: at rest before this step, and the step small enough (1e-8 relative) that, Newton
-            # converging quadratically, it leaves the error at rounding level; no evaluation is spent
-            # only to see the next step vanish
-            small = np.abs(dx).max(axis=1) <= 1e-8 * (1 + np.abs(xa[idx]).max(axis=1))
-            small &= ok[idx]
-            # a point whose position left the step's reach is rejected below whatever Newton does next
-            far = np.abs(xa[idx, 2] - x[act[idx], 2]) >= 0.3
-            ok[idx[far]] = False
-            live = idx[~small & ~far]
-            if live.size == 0:
-                break
+        xa, ok = _newton(step, x[act], ins, scale[act])
         # a solve that jumps far in position is another branch, not a continuation step
         ok &= np.abs(xa[:, 2] - x[act, 2]) < 0.3
         x[act[ok]] = xa[ok]
