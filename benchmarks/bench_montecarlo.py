@@ -53,6 +53,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--draws", type=int, default=10000)
     ap.add_argument("--skip-linear", action="store_true", help="only the time-domain part")
+    ap.add_argument("--skip-time", action="store_true", help="only the linear part")
     ap.add_argument("--loop-draws", type=int, default=200)
     ap.add_argument("--time-draws", type=int, default=24)
     ap.add_argument("--repeats", type=int, default=1)
@@ -116,6 +117,8 @@ def main() -> None:
         print(f"  worst damping equal to the loop's on {same.sum()} of {m} draws")
         print(f"  yield {res.summary['yield']['damping']['value']:.4f}")
 
+    if args.skip_time:
+        return
     k = args.time_draws
     times, cpus = {}, {}
     for workers in (1, 2):
