@@ -23,6 +23,7 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
+from sensorless.reports.cli import many
 from sensorless.reports.cli.common import MIN_DAMPING, UsageError, load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
@@ -41,7 +42,12 @@ def register(sub: Any) -> None:
         "re-verify on a denser grid, and write the gain table. Families: "
         + "; ".join(f"{k}: {v}" for k, v in fams.items()),
     )
-    p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
+    p.add_argument(
+        "drive",
+        metavar="PRESET_OR_TOML",
+        help="built-in preset name or drive TOML file; or a directory or a quoted glob of drive files: "
+        "each drive run on Dask into --out DIR/<drive name>/, with DIR/summary.csv",
+    )
     p.add_argument(
         "--family",
         default=None,
@@ -53,6 +59,7 @@ def register(sub: Any) -> None:
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_family_options(p, "tune")
+    many.add_engine_options(p)
     p.set_defaults(func=run)
 
 
@@ -60,6 +67,10 @@ def run(args: argparse.Namespace) -> int:
     """Tune, print the summary, write the tables."""
     from sensorless.tuning.tune import tune
 
+    files = many.drive_files(args.drive)
+    if files is not None:
+        return many.run("tune", args, files)
+    many.refuse_engine_options(args)
     drive = load(args.drive, "tune")
     fam = family_of(drive)
     h = hooks(fam)
