@@ -104,12 +104,12 @@ def hooks(family: ObserverFamily) -> ReportHooks:
     return h
 
 
-def all_options(kind: str) -> dict[str, tuple[Option, list[str]]]:
-    """Every family's options of command ``kind`` ("analyze", "tune" or "simulate"): dest -> (option,
+def all_options(command: str) -> dict[str, tuple[Option, list[str]]]:
+    """Every family's options of command ``command`` ("analyze", "tune" or "simulate"): dest -> (option,
     families)."""
     out: dict[str, tuple[Option, list[str]]] = {}
     for fam in families():
-        for opt in getattr(hooks(fam), f"{kind}_options"):
+        for opt in getattr(hooks(fam), f"{command}_options"):
             if opt.dest in out:
                 out[opt.dest][1].append(fam.name)
             else:
@@ -117,13 +117,13 @@ def all_options(kind: str) -> dict[str, tuple[Option, list[str]]]:
     return out
 
 
-def add_family_options(parser: argparse.ArgumentParser, kind: str) -> None:
-    """Register every family's options of command ``kind``, each flag once, under one group.
+def add_family_options(parser: argparse.ArgumentParser, command: str) -> None:
+    """Register every family's options of command ``command``, each flag once, under one group.
 
     A numeric option declared with a bare ``float`` or ``int`` is parsed by the shared checked number
     (reports/cli/common.py: finite, of a magnitude drive files accept); families state ranges with
     ``common.Number`` themselves."""
-    add_options(parser, all_options(kind), "options of some observer families (refused by the others)")
+    add_options(parser, all_options(command), "options of some observer families (refused by the others)")
 
 
 def add_options(
@@ -144,10 +144,10 @@ def add_options(
         group.add_argument(*opt.flags, **kw)
 
 
-def refuse_foreign(args: argparse.Namespace, family: ObserverFamily, kind: str) -> None:
-    """CapabilityError naming the first option given that ``family`` does not declare for ``kind``."""
-    mine = {o.dest for o in getattr(hooks(family), f"{kind}_options")}
-    for dest, (opt, fams) in all_options(kind).items():
+def refuse_foreign(args: argparse.Namespace, family: ObserverFamily, command: str) -> None:
+    """CapabilityError naming the first option given that ``family`` does not declare for ``command``."""
+    mine = {o.dest for o in getattr(hooks(family), f"{command}_options")}
+    for dest, (opt, fams) in all_options(command).items():
         if dest not in mine and getattr(args, dest, None) not in (None, False):
             raise CapabilityError(
                 f"{opt.flags[0]}: not an option for {family.title} drives (kind '{family.kind}'); "

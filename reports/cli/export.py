@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     for name in sorted(files):
         out.add_text(name, files[name])
     written = out.commit()
-    print(f"{drive.name}: {exporter.title}; gains: {gains.source or gains.family}")
+    print(f"{drive.name}: {exporter.title}; gains: {gains.source or gains.law}")
     for note in notes:
         print(f"note: {note}")
     for p in written:

@@ -214,7 +214,7 @@ def compute(
             fg = figures(drive, a, j)
             analysis[k] = {
                 "gains": {n: f(v) for n, v in rev.choices[k].values.items() if not isinstance(v, list)},
-                "law": rev.choices[k].family,
+                "law": rev.choices[k].law,
                 "worst_damping": f(fg["worst_damping"]),
                 "worst_bias_deg": f(fg["worst_bias_deg"]),
                 "low_speed_limit_pu": f(fg["low_speed_limit_pu"])

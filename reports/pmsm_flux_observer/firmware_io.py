@@ -112,7 +112,7 @@ def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
         T_obs=obs.T_obs,
         correction=obs.correction,
         lambda_adaptation=obs.lambda_adaptation,
-        law=gains.family,
+        law=gains.law,
         gains=dict(gains.values),
         source=gains.source,
     )

@@ -48,7 +48,7 @@ def test_directory_and_glob_select_drive_files(drives, tmp_path):
 
 def test_tune_over_a_directory_equals_one_drive_runs(drives, tmp_path, capsys):
     out = tmp_path / "out"
-    args = ["--family", "law16", "--quiet"]
+    args = ["--law", "speed-dependent", "--quiet"]
     assert main(["tune", str(drives), "--out", str(out), "--scheduler", "synchronous", *args]) == 0
     printed = capsys.readouterr().out
     assert "summary of 2 drives:" in printed
@@ -63,7 +63,7 @@ def test_tune_over_a_directory_equals_one_drive_runs(drives, tmp_path, capsys):
     for n in names:
         assert (single / n).read_bytes() == (out / "beta" / n).read_bytes(), n
     # the two drives differ (R_s): their tables too, so the sets are not one copied twice
-    j = "gains_law16.json"
+    j = "gains_speed-dependent.json"
     assert (out / "alpha" / j).read_bytes() != (out / "beta" / j).read_bytes()
     # run again without --force: refused before any work, nothing changed
     before = (out / "summary.csv").read_bytes()

@@ -181,7 +181,7 @@ def test_tuned_table_exported_and_refused_where_it_breaks_a_limit(tmp_path, caps
         )[0]
         == 0
     )
-    assert run(["tune", drive, "--family", "odrive", "--quiet", "--out", tmp_path / "t"], capsys)[0] in (0, 3)
+    assert run(["tune", drive, "--law", "odrive", "--quiet", "--out", tmp_path / "t"], capsys)[0] in (0, 3)
     table = tmp_path / "t" / "gains_odrive.json"
     gains = json.loads(table.read_text())["gains"]
     code, _, err = run(

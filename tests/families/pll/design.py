@@ -52,7 +52,7 @@ from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current
 from families.pll.symbolic import DISCRETIZATIONS, N_OBS, OBSERVER, PARAMS, rhs_function
 
 KIND = "pmsm-pll"
-GAIN_FAMILIES: dict[str, tuple[str, ...]] = {"pll": ("w_pll",)}  # PLL bandwidth [rad/s]
+TABLE_LAWS: dict[str, tuple[str, ...]] = {"pll": ("w_pll",)}  # PLL bandwidth [rad/s]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -173,8 +173,8 @@ def drive_gains(drive: PllDrive) -> GainSet:
 
 def table_gains(table: GainTable, where: str) -> GainSet:
     """The gains of a ``pll`` table."""
-    if table.family not in GAIN_FAMILIES:
-        raise GainTableError(f"{where}: key 'family': {table.family!r} gains are not for the PLL observer")
+    if table.law not in TABLE_LAWS:
+        raise GainTableError(f"{where}: key 'law': {table.law!r} gains are not for the PLL observer")
     try:
         w = float(table.gains["w_pll"])
     except (TypeError, ValueError) as e:
@@ -361,7 +361,7 @@ class PllObserverFamily(ObserverFamily):
     scenarios = "families.pll.scenarios"
     tuning = "families.pll.tuning"
     report = "families.pll.report"
-    gain_families = GAIN_FAMILIES
+    laws = TABLE_LAWS
     estimate_keys = ("R_s", "L", "psi_pm", "J")  # [estimate_scale]: one inductance
     panels = (CURRENT_PANEL,)
 

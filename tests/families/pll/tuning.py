@@ -122,7 +122,7 @@ def build(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) 
         return model
 
     model = TuningModel(
-        family="pll",
+        law="pll",
         names=("w_pll",),
         units=("rad/s",),
         theta0=np.array([w0]),
