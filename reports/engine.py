@@ -70,7 +70,7 @@ class Engine:
                         n_workers=n,
                         threads_per_worker=1,
                         processes=True,
-                        dashboard_address=None,
+                        dashboard_address=":0",  # no dashboard wanted; its HTTP server on any free port
                         silence_logs=logging.ERROR,  # the workers' cancellation warnings on Ctrl-C
                     )
                 self.client = Client(self.cluster)

@@ -29,6 +29,7 @@ import json
 import os
 import sys
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -137,7 +138,8 @@ def one(command: str, base: dict[str, Any], file: str, out: str) -> dict[str, An
     if "quiet" in base:
         ns.quiet = True  # progress lines would only interleave
     stdout, stderr = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # as main() does: the command says what is not finite
         try:
             code = int(ns.func(ns) or 0)
         except (KeyboardInterrupt, SystemExit):
