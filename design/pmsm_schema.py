@@ -85,6 +85,31 @@ class PmsmControl:
     u_dc: float = q("voltage", doc="nominal DC-link voltage [V]")
 
 
+class PmsmDriveProperties:
+    """The ``Drive`` properties (design/family.py) of a drive record with fields ``rating``
+    (:class:`PmsmRating`), ``motor`` and ``control``: a mixin of a family's frozen drive dataclass."""
+
+    rating: PmsmRating
+    motor: PmsmMotor
+    control: PmsmControl
+
+    @property
+    def T_N(self) -> float:
+        return self.rating.T_N
+
+    @property
+    def w_base(self) -> float:
+        return self.rating.w_base(self.motor.p)
+
+    @property
+    def pole_pairs(self) -> int:
+        return self.motor.p
+
+    @property
+    def T_s(self) -> float:
+        return self.control.T_s
+
+
 def load_motor(data: Mapping[str, Any], file: str) -> PmsmMotor:
     """The ``[motor]`` section of a complete drive file (pole pairs at least 1); DriveFileError naming
     the file and the key otherwise."""

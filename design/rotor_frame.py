@@ -10,6 +10,12 @@ operating points at once (``Function.map`` through design/batch.py, :func:`equil
 the eigenvalues of the Jacobians (:func:`continuous_poles`). Nothing is re-typed: the family's SX
 rates are differentiated by CasADi. ``plant`` is one vector for all points (e.g. the true motor's
 parameters); ``p`` the observer's parameters, one vector or one column per point.
+
+For an observer on a PMSM the plant is the motor in steady state at the operating point under ideal
+current control: :func:`pmsm_steady` gives its MTPA current and steady voltage in rotor coordinates
+from the shared PMSM model (symbolic/pmsm.py) for the plant vector :func:`pmsm_plant`, and
+:func:`pmsm_steady_current` the current numerically (the samples of design/discrete.py
+``pmsm_zoh_plant``).
 """
 
 from __future__ import annotations
@@ -21,7 +27,9 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
+from sensorless.design.pmsm_schema import PmsmMotor
 from sensorless.design.poles import eigvals_batched
+from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
 
 NEWTON_STEPS = 12
 RESIDUAL = 1e-9  # converged: |f_r|_inf at most this times max(|x_r|_inf, 1)
@@ -87,3 +95,28 @@ def continuous_poles(
     if ok.any():
         poles[ok] = eigvals_batched(A[ok])
     return poles, x
+
+
+def pmsm_plant(motor: PmsmMotor) -> np.ndarray:
+    """[R_s, L_d, L_q, psi_pm, p] of the true motor: the ``plant`` of :func:`pmsm_steady`."""
+    return np.array([*motor.vector(), float(motor.p)])
+
+
+def pmsm_steady(w: ca.SX, T_e: ca.SX, plant: ca.SX) -> tuple[ca.SX, ca.SX]:
+    """(i_r, u_r): the rotor-frame MTPA current for torque T_e and the steady stator voltage at speed w
+    of the motor ``plant`` = [R_s, L_d, L_q, psi_pm, p] (symbolic/pmsm.py)."""
+    motor = PmsmParams(plant[0], plant[1], plant[2], plant[3])
+    i_r = mtpa_current(T_e, motor, plant[4])
+    return i_r, stator_voltage(i_r, 0, flux_from_current(i_r, motor), w, motor.R_s)
+
+
+@functools.cache
+def _steady_current() -> ca.Function:
+    T_e, plant = ca.SX.sym("T_e"), ca.SX.sym("plant", 5)
+    return ca.Function("pmsm_steady_current", [T_e, plant], [pmsm_steady(0, T_e, plant)[0]])
+
+
+def pmsm_steady_current(torque: np.ndarray, plant: np.ndarray) -> np.ndarray:
+    """(N, 2) rotor-frame MTPA currents for the torques (N,) [N m] of the motor ``plant``."""
+    T = np.ravel(torque).astype(float)
+    return evaluate_batch(_steady_current(), T.size, [T, plant])[0][:, :, 0]

@@ -415,7 +415,7 @@ class NoSteadyState(GainsOnly):
     name = "pmsm_nss"
 
     def runtime(self, drive, gains, *, discretization=None):
-        setup = design.runtime_setup(drive, gains, discretization)
+        setup = FAMILY.runtime(drive, gains, discretization=discretization)
         return dataclasses.replace(setup, observer=dataclasses.replace(setup.observer, steady_state=None))
 
     def simulation(self, drive, scenario, gains):

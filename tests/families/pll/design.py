@@ -38,19 +38,25 @@ from sensorless.design.linearization import Linearization
 from sensorless.design.pmsm_drive import CURRENT_PANEL, loop_setup
 from sensorless.design.pmsm_schema import (
     PmsmControl,
+    PmsmDriveProperties,
     PmsmEstimate,
     PmsmMotor,
     PmsmRating,
     load_estimate,
     load_motor,
 )
-from sensorless.design.rotor_frame import RotorFrameLoop, continuous_poles
+from sensorless.design.rotor_frame import (
+    RotorFrameLoop,
+    continuous_poles,
+    pmsm_plant,
+    pmsm_steady,
+    pmsm_steady_current,
+)
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.frames import J, rot, wrap_angle
-from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
 
 from families.pll.symbolic import DISCRETIZATIONS, N_OBS, OBSERVER, PARAMS, rhs_function
 
@@ -68,7 +74,7 @@ class Observer:
 
 
 @dataclass(frozen=True)
-class PllDrive:
+class PllDrive(PmsmDriveProperties):
     """A drive of the PLL family (SI; speeds electrical); [tuning] is the shared envelope."""
 
     name: str
@@ -83,22 +89,6 @@ class PllDrive:
     tuning: TuningSettings
     digest: str = ""
     warnings: tuple[str, ...] = ()  # no plausibility checks of its own
-
-    @property
-    def T_N(self) -> float:
-        return self.rating.T_N
-
-    @property
-    def w_base(self) -> float:
-        return self.rating.w_base(self.motor.p)
-
-    @property
-    def pole_pairs(self) -> int:
-        return self.motor.p
-
-    @property
-    def T_s(self) -> float:
-        return self.control.T_s
 
 
 def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive:
@@ -126,9 +116,6 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive
     )
 
 
-# --------------------------------------------------------------------------------------------------
-# Gains and runtime
-# --------------------------------------------------------------------------------------------------
 def drive_gains(drive: PllDrive) -> GainSet:
     """The drive file's [observer] w_pll."""
     return section_gains("pll", LAWS["pll"], drive.observer, f"{drive.file} [observer]")
@@ -149,19 +136,6 @@ def runtime_params(drive: PllDrive, gains: GainSet) -> dict[str, float]:
     }
 
 
-def runtime_setup(drive: PllDrive, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
-    """The runtime observer of ``drive`` with ``gains``."""
-    disc = discretization or DISCRETIZATIONS[0]
-    if disc not in DISCRETIZATIONS:
-        raise ValueError(f"unknown discretization {disc!r} (known: {', '.join(DISCRETIZATIONS)})")
-    params = runtime_params(drive, gains)
-    OBSERVER.check_params(params)
-    return RuntimeSetup(OBSERVER, disc, params, gains)
-
-
-# --------------------------------------------------------------------------------------------------
-# Linearization (module docstring)
-# --------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class PllLinearization(Linearization):
     """The common result plus the sampled observer's steady angle error at each point."""
@@ -172,22 +146,14 @@ class PllLinearization(Linearization):
         return {} if self.theta_err is None else {"theta_err_rad": self.theta_err}
 
 
-def _steady_motor(w: ca.SX, T_e: ca.SX, m: ca.SX) -> tuple[ca.SX, ca.SX]:
-    """(i_r, u_r) of the true non-salient motor m = [R_s, L, psi_pm, p] at speed w, torque T_e: the
-    MTPA current (i_d = 0) and the steady voltage of the shared PMSM model (symbolic/pmsm.py)."""
-    motor = PmsmParams(m[0], m[1], m[1], m[2])
-    i_r = mtpa_current(T_e, motor, m[3])
-    return i_r, stator_voltage(i_r, 0, flux_from_current(i_r, motor), w, motor.R_s)
-
-
 @functools.cache
 def rotor_frame_rates() -> ca.Function:
-    """(x_r, w, T_e, motor[4], p) -> f_r: the continuous observer (1)-(3) on the true motor in steady
-    state at speed w, torque T_e, written in the rotor frame (x_r = [z_r (2), delta, w_i]); its
-    equilibria are its zeros, and its Jacobian in x_r is the linearized observer there."""
+    """(x_r, w, T_e, motor[5], p) -> f_r: the continuous observer (1)-(3) on the true motor in steady
+    state at speed w, torque T_e (the shared ``pmsm_steady``), written in the rotor frame (x_r = [z_r
+    (2), delta, w_i]); its equilibria are its zeros, its Jacobian in x_r the linearized observer."""
     x_r, w, T_e = ca.SX.sym("x_r", N_OBS), ca.SX.sym("w"), ca.SX.sym("T_e")
-    m, p = ca.SX.sym("motor", 4), ca.SX.sym("p", len(PARAMS))
-    i_r, u_r = _steady_motor(w, T_e, m)  # at theta = 0: stationary = rotor frame
+    m, p = ca.SX.sym("motor", 5), ca.SX.sym("p", len(PARAMS))
+    i_r, u_r = pmsm_steady(w, T_e, m)  # at theta = 0: stationary = rotor frame
     dx = rhs_function()(ca.vertcat(x_r[0:2], -x_r[2], x_r[3]), i_r, u_r, p)
     G = ca.vertcat(dx[0:2] - w * (J @ x_r[0:2]), w - dx[2], dx[3])
     return ca.Function("pmsm_pll_rotor_rates", [x_r, w, T_e, m, p], [G])
@@ -197,18 +163,12 @@ def rotor_frame_rates() -> ca.Function:
 def rotor_loop() -> RotorFrameLoop:
     """The continuous observer for the shared design/rotor_frame.py; Newton starts at the exact EMF of
     the true motor (z = e + g L i), no angle error, w_i = w."""
-    w, T_e, m, p = ca.SX.sym("w"), ca.SX.sym("T_e"), ca.SX.sym("motor", 4), ca.SX.sym("p", len(PARAMS))
-    i_r, _ = _steady_motor(w, T_e, m)
-    x0 = ca.vertcat(w * ca.vertcat(0, m[2]) + p[3] * p[1] * i_r, 0, w)
+    w, T_e, m, p = ca.SX.sym("w"), ca.SX.sym("T_e"), ca.SX.sym("motor", 5), ca.SX.sym("p", len(PARAMS))
+    i_r, _ = pmsm_steady(w, T_e, m)
+    x0 = ca.vertcat(w * ca.vertcat(0, m[3]) + p[3] * p[1] * i_r, 0, w)
     return RotorFrameLoop(
         "pmsm_pll", rotor_frame_rates(), ca.Function("pmsm_pll_start", [w, T_e, m, p], [x0])
     )
-
-
-def motor_vector(drive: PllDrive) -> np.ndarray:
-    """[R_s, L, psi_pm, p] of the true motor (the ``plant`` of the rotor-frame Functions)."""
-    mt = drive.motor
-    return np.array([mt.R_s, mt.L_d, mt.psi_pm, float(mt.p)])
 
 
 @functools.cache
@@ -226,41 +186,6 @@ def sampled_loop(discretization: str) -> SampledLoop:
     return SampledLoop(OBSERVER, discretization, None, names, 4, pmsm_zoh_sample, state, rotor, (2,))
 
 
-def linearize(drive: PllDrive, gains: GainSet, w: Any, torque: Any) -> PllLinearization:
-    """Continuous and discrete poles at speeds ``w`` [rad/s] x torques [N m] (broadcast together)."""
-    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
-    setup, motor, T_s = runtime_setup(drive, gains), motor_vector(drive), drive.T_s
-    poles, x = continuous_poles(rotor_loop(), W, T, motor, setup.p)
-    # the sampled observer that runs (the shared analysis), from the continuous equilibrium
-    R, L, psi_pm, p = motor
-    i_r = np.column_stack([np.zeros(W.size), T / (1.5 * p * psi_pm)])  # MTPA of a non-salient motor
-    plant = pmsm_zoh_plant([R, L, L, psi_pm], W, i_r, T_s)
-    y, Jd = fixed_points(sampled_loop(setup.discretization), x, W, plant, setup.p)
-    poles_d = discrete_poles(Jd, T_s, N_OBS)[0]
-    return PllLinearization(W, T, poles, poles_d, T_s, "T_e", theta_err=y[:, 2])
-
-
-# --------------------------------------------------------------------------------------------------
-# Simulation: the shared PMSM drive loop around the runtime observer
-# --------------------------------------------------------------------------------------------------
-def simulation(drive: PllDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
-    """Loop set-up of ``sc`` on ``drive``; the scenario's estimate errors scale the observer's model."""
-    k = sc.estimate_scale
-    setup = runtime_setup(drive, gains or drive_gains(drive), sc.discretization)
-    params = dict(setup.params)
-    params.update(R_s=params["R_s"] * k["R_s"], L=params["L"] * k["L"], psi_pm=params["psi_pm"] * k["psi_pm"])
-    OBSERVER.check_params(params)
-    setup = dataclasses.replace(setup, params=params)
-    meta = {"gain": f"{setup.gain_source}: w_pll = {params['w_pll']:.6g} rad/s"}
-    # the shared loop's controllers see the same errors, their one inductance as L_d = L_q
-    loop_k = {"R_s": k["R_s"], "L_d": k["L"], "L_q": k["L"], "psi_pm": k["psi_pm"], "J": k["J"]}
-    sc = dataclasses.replace(sc, estimate_scale=loop_k)
-    return loop_setup(drive, sc, setup, meta=meta)
-
-
-# --------------------------------------------------------------------------------------------------
-# The family record
-# --------------------------------------------------------------------------------------------------
 class PllObserverFamily(ObserverFamily):
     """Back-EMF observer + PLL for non-salient PMSMs (symbolic.py)."""
 
@@ -287,17 +212,41 @@ class PllObserverFamily(ObserverFamily):
         return drive_gains(drive) if table is None else table_gains(self, drive, table, table_file)
 
     def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> RuntimeSetup:
-        return runtime_setup(drive, gains, discretization)
+        disc = discretization or DISCRETIZATIONS[0]
+        if disc not in DISCRETIZATIONS:
+            raise ValueError(f"unknown discretization {disc!r} (known: {', '.join(DISCRETIZATIONS)})")
+        params = runtime_params(drive, gains)
+        OBSERVER.check_params(params)
+        return RuntimeSetup(OBSERVER, disc, params, gains)
 
     def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> PllLinearization:
-        if options:
-            raise CapabilityError(
-                f"observer family {self.name!r}: no linearization options ({', '.join(options)})"
-            )
-        return linearize(drive, gains, w, torque)
+        """Continuous and discrete poles at speeds ``w`` [rad/s] x torques [N m] (module docstring)."""
+        if options:  # it has none
+            raise CapabilityError(f"{self.name}: no linearization options ({', '.join(options)})")
+        W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
+        setup, motor, T_s = self.runtime(drive, gains), pmsm_plant(drive.motor), drive.T_s
+        poles, x = continuous_poles(rotor_loop(), W, T, motor, setup.p)
+        # the sampled observer that runs (the shared analysis), from the continuous equilibrium
+        plant = pmsm_zoh_plant(motor[:4], W, pmsm_steady_current(T, motor), T_s)
+        y, Jd = fixed_points(sampled_loop(setup.discretization), x, W, plant, setup.p)
+        poles_d = discrete_poles(Jd, T_s, N_OBS)[0]
+        return PllLinearization(W, T, poles, poles_d, T_s, "T_e", theta_err=y[:, 2])
 
-    def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> LoopSetup:
-        return simulation(drive, scenario, gains)
+    def simulation(self, drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
+        """Loop set-up of ``sc``; the scenario's estimate errors scale the observer's model."""
+        k = sc.estimate_scale
+        setup = self.runtime(drive, gains or drive_gains(drive), discretization=sc.discretization)
+        params = dict(setup.params)
+        params.update(
+            R_s=params["R_s"] * k["R_s"], L=params["L"] * k["L"], psi_pm=params["psi_pm"] * k["psi_pm"]
+        )
+        OBSERVER.check_params(params)
+        setup = dataclasses.replace(setup, params=params)
+        meta = {"gain": f"{setup.gain_source}: w_pll = {params['w_pll']:.6g} rad/s"}
+        # the shared loop's controllers see the same errors, their one inductance as L_d = L_q
+        loop_k = {"R_s": k["R_s"], "L_d": k["L"], "L_q": k["L"], "psi_pm": k["psi_pm"], "J": k["J"]}
+        sc = dataclasses.replace(sc, estimate_scale=loop_k)
+        return loop_setup(drive, sc, setup, meta=meta)
 
 
 FAMILY = PllObserverFamily()

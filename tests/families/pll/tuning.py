@@ -16,11 +16,12 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.envelope import TuningSettings
+from sensorless.design.rotor_frame import pmsm_plant
 from sensorless.tuning.constant_law import GainBox, constant_law_model
 from sensorless.tuning.family import Tunable, TuningHooks
 from sensorless.tuning.model import TuningModel
 
-from families.pll.design import drive_gains, motor_vector, rotor_loop, runtime_params
+from families.pll.design import drive_gains, rotor_loop, runtime_params
 
 ESTIMATES = ("R_s", "L", "psi_pm")  # the estimates an operating point carries (PARAMS names)
 BOX = (0.1, 20.0)  # default bandwidth box, in units of the drive file's w_pll
@@ -45,7 +46,7 @@ def build(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) 
     params = runtime_params(drive, drive_gains(drive))
     x_typical = np.array([wb * psi, wb * psi, 1.0, wb])
     return constant_law_model(
-        "pll", rotor_loop(), motor_vector(drive), params, settings.law, ESTIMATES, x_typical, True
+        "pll", rotor_loop(), pmsm_plant(drive.motor), params, settings.law, ESTIMATES, x_typical, True
     )
 
 
