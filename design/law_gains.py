@@ -32,8 +32,8 @@ def table_gains(family: ObserverFamily, drive: Drive, table: GainTable, table_fi
     keys = family.gain_families.get(table.family)
     if keys is None:
         raise GainTableError(
-            f"{where}: key 'family': {table.family!r} gains are not for the {family.title} "
-            f"(its laws: {', '.join(family.gain_families)})"
+            f"{where}: key 'family': {table.family!r} gains are not for {family.title} drives "
+            f"(kind '{family.kind}'); its laws: {', '.join(family.gain_families)}"
         )
     values = {}
     for k in keys:
