@@ -10,8 +10,8 @@ exactly as the command line parses them:
 
     sensorless init servo.toml --out servo-drive.toml
     sensorless tune servo-drive.toml --out tune-servo
-    sensorless codegen servo-drive.toml --gains tune-servo/gains_law16.json --precision float --out c-servo
-    sensorless report servo-drive.toml --gains tune-servo/gains_law16.json --out rep-servo
+    sensorless codegen servo-drive.toml --gains tune-servo/gains_schedule.json --precision float --out c-servo
+    sensorless report servo-drive.toml --gains tune-servo/gains_schedule.json --out rep-servo
 
 Each round is a fresh process (the default): the CasADi Functions and caches a process builds on its
 first call are part of what a user waits for, and a second round in the same process would not pay
@@ -56,7 +56,7 @@ def readme_servo() -> str:
     raise SystemExit(f"{README}: no toml block starting with '# servo.toml'")
 
 
-GAINS = "tune-servo/gains_law16.json"
+GAINS = "tune-servo/gains_schedule.json"
 COMMANDS = (
     ("init", ["init", "servo.toml", "--out", "servo-drive.toml"]),
     ("tune", ["tune", "servo-drive.toml", "--out", "tune-servo"]),

@@ -11,8 +11,10 @@ values and other relative units ("0.13 pu", "2 R_s_hat") are resolved by the cal
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from collections.abc import Callable, Mapping
+import re
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -221,6 +223,33 @@ class DriveDocument:
     def derived(self) -> int:
         """How many values were derived (not given)."""
         return sum(not e.given for entries in self.sections.values() for e in entries.values())
+
+    @contextlib.contextmanager
+    def blaming_given_keys(self, given: Mapping[str, Any], file: str) -> Iterator[None]:
+        """Re-raise a DriveFileError on a value the file did not give (a derived one) naming the keys of
+        ``given`` (the file's data) that its rule uses: the user's keys, not one they never wrote."""
+        try:
+            yield
+        except DriveFileError as e:
+            raise self._blame(e, given, file) from None
+
+    def _blame(self, e: DriveFileError, given: Mapping[str, Any], file: str) -> DriveFileError:
+        section, _, key = e.key.rpartition(".")
+        entry = self.sections.get(section, {}).get(key)
+        if entry is None or entry.given or not entry.rule:
+            return e
+        words = set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", entry.rule))
+        users = [
+            f"{s}.{k}"
+            for s, t in given.items()
+            if isinstance(t, Mapping) and s != "drive"
+            for k in t
+            if k in words
+        ]
+        if not users:
+            return e
+        why = f"{e.problem} (in {e.key} = {toml_value(entry.value)}, derived as {entry.rule})"
+        return DriveFileError(file, ", ".join(users), why)
 
     def toml(self) -> str:
         """The document as TOML text, each derived value with its rule as a comment."""

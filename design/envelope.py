@@ -32,6 +32,16 @@ ESTIMATE_KEYS = ("R_s", "L_d", "L_q", "psi_pm")  # order of the estimate vector
 NOISE_OUTPUTS = ("position", "speed")
 NOISE_DIMS = {"position": "angle", "speed": "angular"}
 DIRECTIONS = ("both", "positive", "negative")
+# the ranges of the [tuning] keys, the same for the drive file and the command-line option of the same
+# name (reports/ipmsm_adaptive/tune.py): (lowest, highest); speeds in p.u., min_decay in 1/s (a law's own
+# keys have theirs beside it, e.g. design/ipmsm_adaptive/law_settings.py BREAKPOINTS)
+RANGES = {
+    "speed": (0.0, 100.0),  # speed_min, speed_max: (0, 100] p.u.
+    "speeds": (2, 1000),
+    "dense_factor": (4, 64),
+    "min_decay": (0.0, 1e6),
+    "pareto": (2, 100),
+}
 
 
 @dataclass(frozen=True)
@@ -143,6 +153,25 @@ class TuningSettings:
 
         if not 0 < e.speed_min < e.speed_max:
             raise bad("speed_min", f"need 0 < speed_min < speed_max, got {e.speed_min:g}, {e.speed_max:g}")
+        if e.speed_max > RANGES["speed"][1]:
+            raise bad(
+                "speed_max", f"must be <= {RANGES['speed'][1]:g} p.u. (as --speed-max), got {e.speed_max:g}"
+            )
+        for key, v in (("speeds", e.speeds), ("dense_factor", e.dense_factor)):
+            lo, hi = RANGES[key]
+            if not lo <= v <= hi:
+                opt = "--" + key.replace("_", "-")
+                raise bad(key, f"must be an integer in {lo}..{hi} (as {opt}), got {v}")
+        if not RANGES["min_decay"][0] <= self.min_decay <= RANGES["min_decay"][1]:
+            raise bad(
+                "min_decay",
+                f"must be in [0, {RANGES['min_decay'][1]:g}] 1/s (as --min-decay), got {self.min_decay:g}",
+            )
+        if self.pareto and not RANGES["pareto"][0] <= self.pareto <= RANGES["pareto"][1]:
+            raise bad(
+                "pareto",
+                f"need 0 (none) or {RANGES['pareto'][0]}..{RANGES['pareto'][1]} points, got {self.pareto}",
+            )
         if e.speeds < 2:
             raise bad("speeds", f"need at least 2 speed points per direction, got {e.speeds}")
         if e.directions not in DIRECTIONS:

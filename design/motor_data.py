@@ -6,9 +6,11 @@ wye-connected motor the models use (docs/motor_data.md gives every conversion an
 
 - pole pairs: ``p``, or ``poles`` (magnets, = 2 p); both given must agree;
 - PM flux linkage ``psi_pm`` (peak phase flux, V s), or one of
-  ``KV`` (``"270 rpm/V"``: no-load r/min per volt of line-to-line peak back-EMF),
+  ``KV`` (``"270 rpm/V"``: no-load r/min per volt of back-EMF, line-to-line peak unless
+  ``emf_convention`` says otherwise),
   ``kE`` (``"39 V/krpm"``, ``"mV/rpm"``, ``"V s/rad"``: back-EMF per mechanical speed) with
-  ``emf_convention`` = "line-line peak" | "line-line rms" | "phase peak" | "phase rms",
+  ``emf_convention`` = "line-line peak" | "line-line rms" | "phase peak" | "phase rms" (the measure
+  of the back-EMF that kE, and KV beside it, are stated in),
   ``kT`` (``"0.64 Nm/A"``, at i_d = 0) with ``torque_convention`` = "rms" | "peak" (per ampere of
   phase current, rms or amplitude). Several may be given: each must imply a flux within
   :data:`FLUX_TOLERANCE` of the first in the order psi_pm, kE, KV, kT, which is the one used;
@@ -78,16 +80,24 @@ _EMF_RULE = {
 }
 
 
+_KV_RULE = {
+    "line-line peak": "1/(KV sqrt(3) p)",
+    "line-line rms": "sqrt(2/3)/(KV p)",
+    "phase peak": "1/(KV p)",
+    "phase rms": "sqrt(2)/(KV p)",
+}
+
+
 def emf_to_psi(kE: float, convention: str, p: int) -> float:
     """PM flux [V s] from the back-EMF constant ``kE`` [V per mechanical rad/s] in ``convention``:
     psi_pm = kE_phase_peak / p (the phase peak back-EMF is p psi_pm per mechanical rad/s)."""
     return kE * _EMF_TO_PHASE_PEAK[convention] / p
 
 
-def kv_to_psi(KV: float, p: int) -> float:
-    """PM flux [V s] from the speed constant ``KV`` [mechanical rad/s per volt of line-to-line peak
-    back-EMF]: kE (line-line peak) = 1/KV."""
-    return emf_to_psi(1 / KV, "line-line peak", p)
+def kv_to_psi(KV: float, p: int, convention: str = "line-line peak") -> float:
+    """PM flux [V s] from the speed constant ``KV`` [mechanical rad/s per volt of back-EMF in
+    ``convention``, line-to-line peak by default]: kE (in the same convention) = 1/KV."""
+    return emf_to_psi(1 / KV, convention, p)
 
 
 def kt_to_psi(kT: float, convention: str, p: int) -> float:
@@ -205,9 +215,16 @@ def read_motor(t: Mapping[str, Any], file: str, section: str = "motor") -> Motor
         raise err("L_d", "missing key (inductance: L_s per phase, L_d and L_q, or L_ll line to line)")
 
     # PM flux: every form given, checked against the first
-    for k, conv in (("kE", "emf_convention"), ("kT", "torque_convention")):
-        if conv in t and k not in t:
-            raise err(conv, f"{key(conv)} without {key(k)}: it states the convention of {k}")
+    if "emf_convention" in t and "kE" not in t and "KV" not in t:
+        raise err(
+            "emf_convention",
+            f"{key('emf_convention')} without {key('kE')} or {key('KV')}: it states their convention",
+        )
+    if "torque_convention" in t and "kT" not in t:
+        raise err(
+            "torque_convention",
+            f"{key('torque_convention')} without {key('kT')}: it states the convention of kT",
+        )
     fluxes: list[tuple[str, float, str]] = []  # (key, psi_pm, rule)
     if "psi_pm" in t:
         fluxes.append(("psi_pm", qty("psi_pm", "flux"), ""))
@@ -222,8 +239,10 @@ def read_motor(t: Mapping[str, Any], file: str, section: str = "motor") -> Motor
         psi = emf_to_psi(qty("kE", "emf_constant"), conv, p)
         fluxes.append(("kE", psi, f"{_EMF_RULE[conv]}, kE = {t['kE']} ({conv}, per mechanical speed)"))
     if "KV" in t:
-        psi = kv_to_psi(qty("KV", "speed_constant"), p)
-        fluxes.append(("KV", psi, f"1/(KV sqrt(3) p), KV = {t['KV']} (line-line peak back-EMF)"))
+        # KV is r/min per volt of the back-EMF measure emf_convention states (line-line peak if none)
+        conv = choice("emf_convention", EMF_CONVENTIONS) if "emf_convention" in t else "line-line peak"
+        psi = kv_to_psi(qty("KV", "speed_constant"), p, conv)
+        fluxes.append(("KV", psi, f"{_KV_RULE[conv]}, KV = {t['KV']} ({conv} back-EMF)"))
     if "kT" in t:
         if "torque_convention" not in t:
             raise err(

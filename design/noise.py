@@ -18,6 +18,7 @@ exactly, ``P_(k+1) = F_k P_k F_k^T + sigma^2 G_k G_k^T`` (periodic steady state 
 from __future__ import annotations
 
 import numpy as np
+from sensorless.design.poles import eigvals_finite
 
 
 def lyapunov(A: np.ndarray, Q: np.ndarray) -> np.ndarray:
@@ -71,7 +72,8 @@ def noise_rms_periodic(F: np.ndarray, G: np.ndarray, C: np.ndarray, sigma: float
     for k in range(M):
         Phi = f[:, k] @ Phi
         W = f[:, k] @ W @ f[:, k].transpose(0, 2, 1) + sigma**2 * g[:, k] @ g[:, k].transpose(0, 2, 1)
-    rho = np.abs(np.linalg.eigvals(Phi)).max(axis=1)
+    rho = np.abs(eigvals_finite(Phi)).max(axis=1)
+    ok &= np.isfinite(rho)  # the product overflowed: no noise figure
     stable = ok & (rho < 1)
     out[ok & ~stable] = np.inf
     if not stable.any():

@@ -21,11 +21,17 @@ EMF_ERROR = 1.05  # no-load back-EMF at n_N beyond this times the available volt
 TORQUE_WARN, TORQUE_ERROR = 0.10, 0.30  # |T_N / T(I_N) - 1| beyond: warning, error
 SAMPLES_WARN, SAMPLES_ERROR = 10.0, 4.0  # samples per electrical period at the top speed
 LR_WARN, LR_ERROR = 5.0, 1.0  # electrical time constant L/R in sampling periods
+# electrical time constant L/R [s] beyond: warning, error. PM motors span ~0.1 ms (a drone motor) to
+# ~50 ms (large machines); a resistance in ohm for mohm is 1000x, 1e-11 ohm makes the analyses overflow
+LR_MAX_WARN, LR_MAX_ERROR = 1.0, 100.0
 F_N_TOLERANCE = 0.01  # f_N against n_N p / 60
 # w_N L_q |i_q| at the rated point beyond this times the available voltage: error. Field weakening
 # (i_d) cannot lower the q-axis inductive drop, and 3x leaves room for a salient motor's smaller i_q
 # there; an inductance in H instead of mH (a bare number is SI) is 1000x
 U_L_ERROR = 3.0
+# the available voltage u_dc/sqrt(3) beyond these multiples of the rated point's voltage: warning, error.
+# Drives leave 1.1-3x of headroom; a DC link in V for mV, kV for V, or of another drive is 1000x
+UDC_WARN, UDC_ERROR = 10.0, 100.0
 # the mechanical time constant J w_N / (p T_N) (1 p.u. of speed at rated torque) outside this range
 # [s]: warning. Measured motors span ~10 ms (a drone motor, a small servo) to ~5 s (the 30-kW
 # axial-flux preset); kg cm2 read as kg m2 is 10^4 x, g cm2 as kg cm2 10^3 x
@@ -97,13 +103,19 @@ def plausibility(
         dev = T_N / T_I - 1
         if abs(dev) > TORQUE_WARN:
             level = "error" if abs(dev) > TORQUE_ERROR else "warning"
+            # a salient motor's MTPA torque has a reluctance part (L_d - L_q) i_d i_q: its inductances
+            # set T(I_N) as much as the flux does
+            salient = motor.L_d != motor.L_q
+            L_keys = tuple(dict.fromkeys((src["L_d"], src["L_q"]))) if salient else ()
             out.append(
                 Finding(
                     level,
-                    (keys["T_N"], keys["I_N"], src["psi_pm"]),
-                    f"T_N = {T_N:.4g} N m, but I_N = {I_N:.4g} A rms gives {T_I:.4g} N m with this flux "
-                    f"(MTPA, {100 * dev:+.0f} %; warning beyond {100 * TORQUE_WARN:g} %, error beyond "
-                    f"{100 * TORQUE_ERROR:g} %): check that I_N is rms and the flux's convention",
+                    (keys["T_N"], keys["I_N"], src["psi_pm"], *L_keys),
+                    f"T_N = {T_N:.4g} N m, but I_N = {I_N:.4g} A rms gives {T_I:.4g} N m with this flux"
+                    + (f" and L_d = {motor.L_d:.4g} H, L_q = {motor.L_q:.4g} H" if salient else "")
+                    + f" (MTPA, {100 * dev:+.0f} %; warning beyond {100 * TORQUE_WARN:g} %, error beyond "
+                    f"{100 * TORQUE_ERROR:g} %): check that I_N is rms and the flux's convention"
+                    + (", and the inductances' unit (a bare number is in henries)" if salient else ""),
                 )
             )
     # the q-axis inductive voltage of the rated point, which no field weakening removes
@@ -130,6 +142,17 @@ def plausibility(
                 f"rated torque at rated speed needs {u_N:.4g} V (peak phase, MTPA), more than the "
                 f"{u_avail:.4g} V available (u_dc/sqrt(3)): the drive needs field weakening there, which "
                 "the analysis (MTPA, no voltage limit) does not model",
+            )
+        )
+    # the DC link far above what the rated point needs: a unit or another drive's inverter
+    if u_N > 0 and math.isfinite(u_avail) and u_avail > UDC_WARN * u_N:  # inf: no DC link given
+        out.append(
+            Finding(
+                "error" if u_avail > UDC_ERROR * u_N else "warning",
+                (keys["u_dc"], keys["T_N"], keys["n_N"]),
+                f"the inverter can apply {u_avail:.4g} V (peak phase, u_dc/sqrt(3)), {u_avail / u_N:.3g} "
+                f"times the {u_N:.4g} V the rated point needs (warning beyond {UDC_WARN:g}x, error beyond "
+                f"{UDC_ERROR:g}x): check u_dc's unit and that it is this drive's DC link",
             )
         )
     # mechanical time constant: an inertia off by a unit
@@ -160,6 +183,15 @@ def plausibility(
         )
     # electrical time constant against the sampling period
     tau = min(motor.L_d, motor.L_q) / motor.R_s
+    if tau > LR_MAX_WARN:
+        out.append(
+            Finding(
+                "error" if tau > LR_MAX_ERROR else "warning",
+                (src["R_s"], src["L_d"]),
+                f"L/R = {tau:.3g} s (warning beyond {LR_MAX_WARN:g} s, error beyond {LR_MAX_ERROR:g} s; PM "
+                "motors have milliseconds): check R's unit (ohm, mohm) and L's (H, mH, uH)",
+            )
+        )
     if tau < LR_WARN * T_s:
         level = "error" if tau < LR_ERROR * T_s else "warning"
         out.append(

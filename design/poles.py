@@ -158,6 +158,17 @@ def _threads() -> int:
     return min(4, os.cpu_count() or 1)
 
 
+def eigvals_finite(A: np.ndarray) -> np.ndarray:
+    """Eigenvalues of each matrix in (..., n, n), complex; NaN for a matrix that is not finite (a
+    linearization or a product of exponentials that overflowed: numpy would raise LinAlgError)."""
+    A = np.asarray(A)
+    ok = np.isfinite(A).all(axis=(-2, -1))
+    out = np.full(A.shape[:-1], np.nan, complex)
+    if ok.any():
+        out[ok] = np.linalg.eigvals(A[ok])
+    return out
+
+
 def eigvals_batched(A: np.ndarray, c: np.ndarray | None = None, tol: float = 1e-12) -> np.ndarray:
     """Eigenvalues of each matrix in (N, n, n); unsorted, shape (N, n) complex.
 

@@ -142,10 +142,15 @@ def samples(scenario: Scenario, T_s: float) -> int:
 
 def check_length(scenario: Scenario, T_s: float, source: str = "") -> int:
     """The number of samples, or SimulationError naming ``source`` (default: the scenario file's key)
-    if it is more than :data:`MAX_SAMPLES`."""
+    if it is more than :data:`MAX_SAMPLES` or the duration is shorter than one sampling period."""
     n = scenario.duration / T_s + 1
+    where = source or f"{scenario.file}: key 'scenario.duration'"
+    if scenario.duration < T_s:
+        raise SimulationError(
+            f"{where}: {scenario.duration:g} s is shorter than one control period (T_s = {T_s * 1e6:g} us): "
+            "nothing would be simulated"
+        )
     if n > MAX_SAMPLES:
-        where = source or f"{scenario.file}: key 'scenario.duration'"
         raise SimulationError(
             f"{where}: {scenario.duration:g} s at T_s = {T_s * 1e6:g} us is {n:.3g} control periods, more "
             f"than the limit of {MAX_SAMPLES} ({MAX_SAMPLES * T_s:g} s; docs/simulation.md)"

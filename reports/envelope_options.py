@@ -13,28 +13,32 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
-from sensorless.design.envelope import DIRECTIONS, ESTIMATE_KEYS, NOISE_OUTPUTS, TuningSettings
+from sensorless.design.envelope import DIRECTIONS, ESTIMATE_KEYS, NOISE_OUTPUTS, RANGES, TuningSettings
 from sensorless.design.family import Drive
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.reports.cli.common import Number, UsageError, option_error, parse_max_noise, parse_torques
 from sensorless.reports.family import Option
 
-SPEED = Number(0, 100, lo_open=True, unit="p.u.")
-DENSE_FACTOR = Number(4, 64, integer=True)
+# the same ranges as the drive file's [tuning] keys (design/envelope.py RANGES)
+SPEED = Number(*RANGES["speed"], lo_open=True, unit="p.u.")
+DENSE_FACTOR = Number(*RANGES["dense_factor"], integer=True)
 
 ENVELOPE_OPTIONS = (
     Option(("--speed-min",), {"type": SPEED, "help": "smallest |w_m| of the envelope [p.u.]"}),
     Option(("--speed-max",), {"type": SPEED, "help": "largest |w_m| of the envelope [p.u.]"}),
     Option(
         ("--speeds",),
-        {"type": Number(2, 1000, integer=True), "help": "optimization grid: speeds per direction (2..1000)"},
+        {
+            "type": Number(*RANGES["speeds"], integer=True),
+            "help": "optimization grid: speeds per direction ({}..{})".format(*RANGES["speeds"]),
+        },
     ),
     Option(("--directions",), {"choices": list(DIRECTIONS), "help": "envelope directions"}),
     Option(("--torque",), {"action": "append", "help": "envelope torques, N m or e.g. -1T_N,0,1T_N"}),
     Option(("--dense-factor",), {"type": DENSE_FACTOR, "help": "re-verification refinement (4..64)"}),
     Option(
         ("--min-decay",),
-        {"type": Number(0, 1e6, unit="1/s"), "help": "minimum decay rate -max Re(p) [1/s]"},
+        {"type": Number(*RANGES["min_decay"], unit="1/s"), "help": "minimum decay rate -max Re(p) [1/s]"},
     ),
 )
 NOISE_OPTIONS = (
@@ -55,7 +59,7 @@ NOISE_OPTIONS = (
     Option(
         ("--pareto",),
         {
-            "type": Number(2, 100, integer=True),
+            "type": Number(*RANGES["pareto"], integer=True),
             "nargs": "?",
             "const": 8,
             "metavar": "N",

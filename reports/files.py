@@ -160,6 +160,8 @@ class OutputSet:
         option: str = "--out",
     ) -> None:
         self.directory = Path(directory)
+        # results that do not hold, staged with the files: the command prints each and exits 3
+        self.warnings: list[str] = []
         self.force = force
         self.names = None if names is None else list(names)
         self.option = option
@@ -339,6 +341,7 @@ class OutputFile:
 
     def __init__(self, path: str | Path, force: bool = False, option: str = "--out") -> None:
         self.path = Path(path)
+        self._raw = str(path)  # Path drops a trailing '/', which says the user meant a directory
         self.force = force
         self.option = option
         self.data: bytes | None = None
@@ -349,8 +352,8 @@ class OutputFile:
     def check(self) -> None:
         """OutputError (one line naming the path) if the file cannot be written as asked."""
         p, label = self.path, self._label()
-        if p.name in ("", ".", ".."):
-            raise OutputError(f"{label}: not a file name")
+        if p.name in ("", ".", "..") or self._raw.endswith(("/", os.sep)):
+            raise OutputError(f"{label}: not a file name (a directory?); name the file to write")
         if os.path.lexists(p):
             if os.path.isdir(p):
                 raise OutputError(f"{label}: is a directory; name the drive file to write")

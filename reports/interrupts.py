@@ -18,6 +18,7 @@ completes: the old set or the new one, never a mix.
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -48,15 +49,44 @@ def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
+class _CasadiInterruptFilter:
+    """sys.stderr without CasADi's own report of an interrupt it caught (IPOPT's callback prints
+    ``CasADi - <date> WARNING("KeyboardInterruptException") [...]``): the command prints its one line."""
+
+    def __init__(self, stream: Any) -> None:
+        self._stream = stream
+        self._held = ""  # a CasADi line being written in pieces, until its end shows what it is
+
+    def write(self, text: str) -> int:
+        if self._held or text.startswith("CasADi"):
+            self._held += text
+            if "\n" not in self._held:
+                return len(text)
+            line, self._held = self._held, ""
+            if "KeyboardInterruptException" not in line:
+                self._stream.write(line)
+            return len(text)
+        return self._stream.write(text)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
 @contextmanager
 def handled() -> Iterator[None]:
     """Record SIGINT and SIGTERM for the length of the block (the command line's whole run)."""
     global _received
     _received = None
     old = {s: signal.signal(s, _handler) for s in SIGNALS} if _main_thread() else {}
+    stderr = sys.stderr
+    filtered = _CasadiInterruptFilter(stderr)
+    sys.stderr = filtered  # type: ignore[assignment]
     try:
         yield
     finally:
+        sys.stderr = stderr
+        if filtered._held and "KeyboardInterruptException" not in filtered._held:
+            stderr.write(filtered._held)  # a CasADi line without its end: as it was
         for s, h in old.items():
             signal.signal(s, h)
 

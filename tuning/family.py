@@ -74,12 +74,18 @@ class Tunable:
 
 @dataclass(frozen=True)
 class TuningHooks:
-    """A family's tunables; the first is the default of ``sensorless tune``."""
+    """A family's tunables; the first is the default of ``sensorless tune`` on a built-in preset (the
+    paper's law, to reproduce the paper), ``own_default`` (the family's best law; None: the first) the
+    default on a drive of the user's own."""
 
     tunables: tuple[Tunable, ...]
+    own_default: str | None = None
 
-    def tunable(self, name: str | None, family: ObserverFamily) -> Tunable:
-        """The tunable called ``name`` (None: the default); CapabilityError naming what exists."""
+    def tunable(self, name: str | None, family: ObserverFamily, preset: bool = True) -> Tunable:
+        """The tunable called ``name`` (None: the default for a preset or a drive of the user's own);
+        CapabilityError naming what exists."""
+        if name is None:
+            name = None if preset else self.own_default
         if name is None:
             return self.tunables[0]
         for t in self.tunables:
@@ -103,9 +109,10 @@ def hooks(family: ObserverFamily) -> TuningHooks:
 
 
 def tunable_for(drive: Any, name: str | None = None) -> Tunable:
-    """The tunable ``name`` (None: the default) of the drive's family."""
+    """The tunable ``name`` (None: the default, which differs between a built-in preset and a drive of
+    the user's own: :class:`TuningHooks`) of the drive's family."""
     fam = family_of(drive)
-    return hooks(fam).tunable(name, fam)
+    return hooks(fam).tunable(name, fam, preset=str(getattr(drive, "file", "")).startswith("preset:"))
 
 
 def all_tunables() -> dict[str, str]:

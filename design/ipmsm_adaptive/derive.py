@@ -364,6 +364,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDri
     """Validate a parsed drive TOML of this family: a minimal one is completed first (derive.py), then
     the complete data is loaded strictly and checked for plausibility (design/plausibility.py)."""
     doc = document(data, file)
-    drive = load_complete(doc.data(), file, digest, kind)
+    with doc.blaming_given_keys(data, file):
+        drive = load_complete(doc.data(), file, digest, kind)
     warnings = check_plausibility(drive, doc.context)
     return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive

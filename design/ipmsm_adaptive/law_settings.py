@@ -16,6 +16,8 @@ from typing import Any
 from sensorless.design.envelope import LawKeys, NoLawSettings, TuningSettings, parse_relative, read_int
 from sensorless.design.units import DriveFileError
 
+BREAKPOINTS = (2, 200)  # the range of [tuning] breakpoints, the same as the option --breakpoints
+
 
 @dataclass(frozen=True)
 class AdaptiveLawSettings:
@@ -29,11 +31,13 @@ class AdaptiveLawSettings:
         """Raise DriveFileError for an inconsistent value (the key named with ``prefix``)."""
         if self.lambda_max is not None and self.lambda_max <= 0:
             raise DriveFileError(file, f"{prefix}lambda_max", f"must be > 0, got {self.lambda_max:g}")
-        if self.breakpoints < 2:
+        if not BREAKPOINTS[0] <= self.breakpoints <= BREAKPOINTS[1]:
             raise DriveFileError(
                 file,
                 f"{prefix}breakpoints",
-                f"need at least 2 breakpoints per direction, got {self.breakpoints}",
+                "must be an integer in {}..{} (as --breakpoints), got {}".format(
+                    *BREAKPOINTS, self.breakpoints
+                ),
             )
 
     def constraints(self) -> dict[str, Any]:

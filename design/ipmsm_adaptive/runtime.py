@@ -83,7 +83,10 @@ def table_gains(table: GainTable, where: str) -> GainSet:
                 "lambda2": [float(v) for v in g["lambda2"]],
                 "alpha_fo": float(g["alpha_fo"]),
             }
-            schedule_law(tuple(values["w_hat"]))  # validates the breakpoints
+            try:
+                schedule_law(tuple(values["w_hat"]))  # validates the breakpoints
+            except ValueError as e:
+                raise GainTableError(f"{where}: key 'gains.w_hat': {e}") from None
     except GainTableError:
         raise
     except (TypeError, ValueError) as e:

@@ -342,6 +342,11 @@ def _load_control(t: Mapping[str, Any], file: str, rel: Mapping[str, float], bas
     return dataclasses.replace(c, i_noise=I_NOISE_DEFAULT * base.i)
 
 
+# the largest carrier delay [samples]: a computation delay is one sample, two with a slow PWM update;
+# beyond a few the demodulation phase (delay + 1/2) w_c T_s is a wrong number, not a delay
+CARRIER_DELAY_MAX = 10.0
+
+
 def _load_runtime(data: Mapping[str, Any], file: str, rel: Mapping[str, float]) -> Runtime:
     """The optional [runtime] section; omitted keys take RUNTIME_DEFAULTS."""
     given = data.get("runtime", {})
@@ -354,5 +359,12 @@ def _load_runtime(data: Mapping[str, Any], file: str, rel: Mapping[str, float]) 
             file,
             "runtime.discretization",
             f"unknown discretization {rt.discretization!r} (known: {', '.join(DISCRETIZATIONS)})",
+        )
+    if rt.carrier_delay > CARRIER_DELAY_MAX:
+        raise DriveFileError(
+            file,
+            "runtime.carrier_delay",
+            f"{rt.carrier_delay:g} samples: must be in [0, {CARRIER_DELAY_MAX:g}] (the delay from the "
+            "carrier command to the applied voltage, one sample of computation delay by default)",
         )
     return rt

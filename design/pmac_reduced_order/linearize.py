@@ -64,7 +64,7 @@ from sensorless.design.pmac_reduced_order.operating_point import (
     plant_signals,
     symbols,
 )
-from sensorless.design.poles import damping_ratio, sort_poles
+from sensorless.design.poles import damping_ratio, eigvals_finite, sort_poles
 from sensorless.symbolic.frames import J, rot
 from sensorless.symbolic.pmac import flux_derivative
 from sensorless.symbolic.pmac_reduced_order.observer import (
@@ -150,8 +150,8 @@ class ObserverPoles(Linearization):
 
 def floquet_exponents(monodromy: np.ndarray, duration: np.ndarray) -> np.ndarray:
     """ln(eig(monodromy)) / duration, principal branch, sorted like sort_poles (imag, then real)."""
-    mu = np.linalg.eigvals(monodromy).astype(complex)
-    with np.errstate(divide="ignore"):
+    mu = eigvals_finite(monodromy)
+    with np.errstate(divide="ignore", invalid="ignore"):
         s = np.log(mu) / np.asarray(duration)[:, None]
     return sort_poles(s)
 
@@ -187,7 +187,7 @@ def continuous_poles(
     ny = A.shape[0]
     A = A.reshape(ny, n * K, ny).transpose(1, 0, 2).reshape(n, K, ny, ny)
     if K == 1:
-        return sort_poles(np.linalg.eigvals(A[:, 0]))
+        return sort_poles(eigvals_finite(A[:, 0]))
     T_p = period / np.abs(w_f)  # [s]
     # every sub-interval's exponential at once (scipy's expm loops over a batch in Python)
     E = expm_batched((A * (T_p / K)[:, None, None, None]).reshape(n * K, ny, ny))
@@ -345,7 +345,7 @@ def analyze(
     s_d[~ok] = np.nan
     # the fast "memory" modes (previous position/speed of (19)-(21)) vanish in the product; their
     # size per step comes from the single-step eigenvalues, largest along the window
-    z1 = -np.sort(-np.abs(np.linalg.eigvals(Jy)), axis=-1)[..., n_c:]  # (n, mj, nd - n_c)
+    z1 = -np.sort(-np.abs(eigvals_finite(Jy)), axis=-1)[..., n_c:]  # (n, mj, nd - n_c)
     memory_z = np.where(keep[:, :, None], z1, 0.0).max(axis=1)
     memory_z[~ok] = np.nan
     return ObserverPoles(

@@ -34,12 +34,14 @@ def table_gains(table: GainTable, where: str) -> GainSet:
             f"{where}: key 'family': {table.family!r} gains are not for the reduced-order observer "
             "(use a deangelo table)"
         )
-    try:
-        g, Gamma = float(table.gains["g"]), float(table.gains["Gamma"])
-    except (TypeError, ValueError) as e:
-        raise GainTableError(f"{where}: key 'gains': {e}") from None
-    if not (math.isfinite(g) and math.isfinite(Gamma) and g > 0 and Gamma >= 0):
-        raise GainTableError(f"{where}: key 'gains': need finite g > 0 and Gamma >= 0")
+    values = {}
+    for k, need in (("g", "a finite number > 0"), ("Gamma", "a finite number >= 0")):
+        v = table.gains[k]
+        x = float(v) if isinstance(v, int | float) and not isinstance(v, bool) else math.nan
+        if not (math.isfinite(x) and (x > 0 if k == "g" else x >= 0)):
+            raise GainTableError(f"{where}: key 'gains.{k}': expected {need}, got {v!r}")
+        values[k] = x
+    g, Gamma = values["g"], values["Gamma"]
     return GainSet(
         "deangelo", {"g": g, "Gamma": Gamma}, f"deangelo table {where} (tuned for {table.drive.get('name')})"
     )

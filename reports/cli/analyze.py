@@ -8,11 +8,12 @@ refused, never ignored.
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import family_of
-from sensorless.reports.cli.common import load
+from sensorless.reports.cli.common import foreign_table, load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 
@@ -44,6 +45,14 @@ def run(args: argparse.Namespace) -> int:
     refuse_foreign(args, fam, "analyze")
     if h.analyze_check is not None:
         h.analyze_check(drive, args)  # the family's options against the drive, before any computation
+    if (
+        args.gains
+    ):  # a table tuned for another drive may still be analysed, with the warning of codegen/report
+        from sensorless.design.gain_table import read_gain_table
+
+        foreign = foreign_table(read_gain_table(args.gains), args.gains, drive)
+        if foreign:
+            print(f"sensorless analyze: warning: {foreign}", file=sys.stderr)
     # the file names depend on the options and come with the results: an existing directory must be
     # empty (or --force)
     out = OutputSet(args.out or f"analysis-{drive.name}", force=args.force)
@@ -51,4 +60,6 @@ def run(args: argparse.Namespace) -> int:
     h.analyze(drive, args, out)
     for p in out.commit():
         print(f"wrote {p}")
-    return 0
+    for line in out.warnings:  # written (the rest is the result), but said: exit status 3
+        print(f"sensorless analyze: warning: {line}", file=sys.stderr)
+    return 3 if out.warnings else 0  # 3: a result that does not hold (reports/cli/main.py EXIT_RESULT)

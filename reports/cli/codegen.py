@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     table = read_gain_table(args.gains) if args.gains else None
     if table is not None and args.gain:
         raise UsageError("--gain and --gains exclude each other (the table holds the gains)")
-    prefix = args.prefix or c_identifier(drive.name)
+    prefix = c_identifier(drive.name) if args.prefix is None else args.prefix
     try:
         check_prefix(prefix)
     except ValueError as e:

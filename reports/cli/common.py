@@ -186,6 +186,8 @@ def parse_max_noise(text: str, w_base: float) -> tuple[tuple[str, float], ...]:
                 f"--max-noise: unknown noise output {name!r} (allowed: {', '.join(NOISE_OUTPUTS)})"
             )
         x, rel = parse_quantity(_spaced(val), NOISE_DIMS[name], file="command line", key="--max-noise")
+        if not x > 0:  # no estimate is free of noise: a zero limit is infeasible for any family
+            raise UsageError(f"--max-noise: the {name} limit must be > 0, got {val.strip()!r}")
         out[name] = x * w_base if rel == "pu" else x
     return tuple(out.items())
 

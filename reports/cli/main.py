@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from collections.abc import Sequence
 from typing import NoReturn
 
@@ -97,7 +98,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         with interrupts.handled():
             try:
                 args = build_parser().parse_args(argv)
-                code = int(args.func(args) or 0)
+                _refuse_empty(args)
+                with warnings.catch_warnings():
+                    # numpy's warnings on NaN or overflow name no input and would leak to stderr: the
+                    # commands check what they write and say why a number is not finite
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    code = int(args.func(args) or 0)
                 interrupts.check()  # an interrupt the computation swallowed (CasADi may)
                 sys.stdout.flush()  # a closed pipe shows here, not at exit
                 return code
@@ -106,6 +112,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if argv is None:
             interrupts.ignore()
+
+
+def _refuse_empty(args: argparse.Namespace) -> None:
+    """UsageError for an option given as an empty string (``--out ""``, ``--prefix ""``): a command
+    must not fall back to its default for a value the user did give."""
+    from sensorless.reports.cli.common import UsageError
+
+    for dest, v in vars(args).items():
+        if isinstance(v, str) and not v.strip():
+            name = "PRESET_OR_TOML" if dest == "drive" else "--" + dest.replace("_", "-")
+            raise UsageError(f"argument {name}: empty; give a value or leave the option out")
 
 
 def _exit_status(e: BaseException, prefix: str) -> int:

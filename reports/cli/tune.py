@@ -1,7 +1,8 @@
 """``sensorless tune``: tuned observer gains over an operating envelope, written as gain tables.
 
 The drive's observer family offers tunable gain families (tuning/family.py; ``--family``, default its
-first); envelope and constraints come from the drive file and the family's options (reports/family.py).
+first on a built-in preset, the family's best on a drive of the user's own); envelope and constraints
+come from the drive file and the family's options (reports/family.py).
 Progress goes to stderr; the summary (with the pointwise bound on a line of its own) and the written
 files to stdout: ``gains_<family>.json``/``.csv``, ``speeds_<family>.csv`` (the bound beside the
 family, its seed and the drive file's gains at every dense speed) when the tuner computed the bound,
@@ -45,7 +46,8 @@ def register(sub: Any) -> None:
         "--family",
         default=None,
         choices=list(fams),
-        help="gain family to tune (default: the first of the drive's observer family)",
+        help="gain family to tune (default: on a built-in preset the first of its observer family, the "
+        "paper's law; on a drive file of your own the best the family declares)",
     )
     p.add_argument("--out", default=None, help="output directory (default: tune-<drive name>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")

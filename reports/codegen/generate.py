@@ -51,10 +51,18 @@ def output_names(prefix: str) -> tuple[str, ...]:
     return (f"{prefix}.h", f"{prefix}.c", *EXAMPLE_FILES)
 
 
+PREFIX_MAX = 53  # the longest prefix: 63 significant characters of a C99 identifier, less its suffixes
+
+
 def check_prefix(prefix: str) -> None:
     """ValueError unless ``prefix`` is a C identifier whose files do not collide with the example's."""
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix):
         raise ValueError(f"prefix {prefix!r} is not a C identifier")
+    if len(prefix) > PREFIX_MAX:
+        raise ValueError(
+            f"prefix of {len(prefix)} characters: at most {PREFIX_MAX} (C99 guarantees {PREFIX_MAX + 10} "
+            "significant characters of an identifier, and the prefix gets suffixes such as _params)"
+        )
     clash = sorted(set(output_names(prefix)[:2]) & set(EXAMPLE_FILES))
     if clash:
         raise ValueError(f"prefix {prefix!r}: {clash[0]} is also the example program's file; choose another")

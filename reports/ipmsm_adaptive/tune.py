@@ -11,6 +11,7 @@ import argparse
 import dataclasses
 from typing import Any
 
+from sensorless.design.ipmsm_adaptive.law_settings import BREAKPOINTS
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.reports import envelope_options
 from sensorless.reports.cli.common import Number, option_error
@@ -24,7 +25,10 @@ OPTIONS = (
     Option(("--tune-alpha-fo",), {"action": "store_true", "help": "also tune alpha_fo of eq. (10)"}),
     Option(
         ("--breakpoints",),
-        {"type": Number(2, 200, integer=True), "help": "schedule: breakpoints per direction (2..200)"},
+        {
+            "type": Number(*BREAKPOINTS, integer=True),
+            "help": "schedule: breakpoints per direction ({}..{})".format(*BREAKPOINTS),
+        },
     ),
     *NOISE_OPTIONS[1:],
 )

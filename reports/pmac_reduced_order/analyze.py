@@ -140,6 +140,13 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
         from sensorless.reports.pmac_reduced_order.figures import poles_csv
 
         out.add_text(f"poles_{key}.csv", poles_csv(r, drive))
+        lost = ~(np.isfinite(r.poles).all(axis=1) & np.isfinite(r.poles_discrete).all(axis=1))
+        if lost.any():  # an overflow (units, gains), not a result: every written number finite or said
+            out.warnings.append(
+                f"poles_{key}.csv: no finite poles at {int(lost.sum())} of {lost.size} operating points "
+                "(nan in their rows): the linearized observer overflows there; check the drive's units "
+                "(e.g. an inductance in H for uH) and the gains"
+            )
     if args.study:
         from sensorless.reports.pmac_reduced_order.figures import study_csv
 

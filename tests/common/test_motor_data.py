@@ -93,6 +93,40 @@ def test_KV_is_rpm_per_volt_of_line_line_peak_back_emf():
     assert motor(p=7, psi_pm=None, KV="270 rpm/V").psi_pm == pytest.approx(60 / (S3 * 2 * math.pi * 270 * 7))
 
 
+@pytest.mark.parametrize("conv", list(KE_SI))
+def test_KV_with_its_emf_convention_is_rpm_per_volt_of_that_measure(conv):
+    # KV = w_m / e, e the back-EMF in the stated measure: per volt of it, 1/KE_SI mechanical rad/s
+    kv_rpm = 1 / KE_SI[conv] / RPM
+    m = motor(psi_pm=None, KV=f"{kv_rpm:.12g} rpm/V", emf_convention=conv)
+    assert m.psi_pm == pytest.approx(PSI, rel=1e-9)
+    assert m.source["psi_pm"] == "motor.KV"
+    assert conv in m.rules["psi_pm"]
+    # the stated default: line-line peak, 270 rpm/V and 7 pole pairs as in docs/motor_data.md
+    explicit = motor(p=7, psi_pm=None, KV="270 rpm/V", emf_convention="line-line peak").psi_pm
+    assert explicit == motor(p=7, psi_pm=None, KV="270 rpm/V").psi_pm
+    # kE and KV given together share the convention; a KV of the other measure disagrees
+    kE = f"{KE_SI[conv]:.12g} V s/rad"
+    assert motor(psi_pm=None, kE=kE, KV=f"{kv_rpm:.12g} rpm/V", emf_convention=conv).psi_pm == pytest.approx(
+        PSI
+    )
+
+
+@pytest.mark.parametrize("conv", list(KE_SI))
+def test_minimal_drive_file_with_KV_and_its_convention_loads(tmp_path, conv):
+    # the datasheet motor of the issue: 270 rpm/V, 14 poles; psi = phase peak EMF per mechanical rad/s / p
+    f = tmp_path / "kv.toml"
+    f.write_text(
+        MINIMAL.format(flux=f'KV = "270 rpm/V"\nemf_convention = "{conv}"')
+        .replace("poles = 10", "poles = 14")
+        .replace("1.27 Nm", "0.1 Nm")
+    )
+    e_per_rad_s = 1 / (270 * RPM)  # V of the stated measure per mechanical rad/s
+    phase_peak = {"line-line peak": 1 / S3, "line-line rms": S2 / S3, "phase peak": 1.0, "phase rms": S2}[
+        conv
+    ]
+    assert load_drive(f).motor.psi_pm == pytest.approx(e_per_rad_s * phase_peak / 7, rel=1e-5)  # 6 digits
+
+
 @pytest.mark.parametrize(
     ("conv", "kT"), [("rms", 1.5 * P * PSI * S2), ("peak", 1.5 * P * PSI)]
 )  # T = 1.5 p psi i_peak, per A rms: i_peak = sqrt(2) i_rms
@@ -149,7 +183,8 @@ def test_missing_conventions_are_errors_naming_the_missing_key():
     refused("motor.connection", "motor.R_ll", R_s=None, R_ll="3.6 ohm")
     refused("motor.connection", "motor.L_ll", L_s=None, L_ll="10 mH")
     # a convention without its constant, and a convention that is none of the allowed
-    refused("motor.emf_convention", "motor.kE", emf_convention="line-line rms")
+    refused("motor.emf_convention", "motor.kE", "motor.KV", emf_convention="line-line rms")
+    refused("motor.emf_convention", "'line-line rms'", psi_pm=None, KV="270 rpm/V", emf_convention="ll rms")
     refused("motor.emf_convention", "'line-line rms'", psi_pm=None, kE="30 V/krpm", emf_convention="line rms")
     refused("motor.torque_convention", "'rms'", psi_pm=None, kT="0.5 Nm/A", torque_convention="amplitude")
 

@@ -217,6 +217,17 @@ def test_estimate_errors_without_equilibrium_are_reported(drive):
         tune(drive, "law16", small(drive, errors=(0.2, 0.0, 0.0, 0.0)))
 
 
+def test_default_gain_family_is_the_papers_on_the_preset_and_the_best_on_a_users_drive(tmp_path):
+    from sensorless.design.drive import load_drive, preset_text
+    from sensorless.tuning.family import tunable_for
+
+    assert tunable_for(load_drive("piippo2008")).name == "law16"  # reproduces the paper
+    own = tmp_path / "mine.toml"
+    own.write_text(preset_text("piippo2008"))
+    assert tunable_for(load_drive(str(own))).name == "schedule"
+    assert tunable_for(load_drive(str(own)), "law16").name == "law16"
+
+
 def test_cli_errors_leave_no_files(tmp_path, capsys):
     out = tmp_path / "o"
     code = main(["tune", "piippo2008", "--speeds", "4", "--min-decay", "5000", "--out", str(out), "--quiet"])
