@@ -131,6 +131,15 @@ def analyze(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
     worst = f"damping {np.nanmin(z):.4f}, slowest decay {np.nanmin(d):.4g} 1/s"
     print(f"worst over {lin.w.size} points: {worst} ({kind})")
     out.add_text("poles.csv", pole_csv(lin, drive.w_base))
+    lost = ~np.isfinite(lin.poles).all(axis=1)
+    if sampled:
+        lost |= ~np.isfinite(lin.poles_discrete).all(axis=1)
+    if lost.any():  # not a result: every written number finite or said (exit status 3)
+        out.warnings.append(
+            f"poles.csv: no finite poles at {int(lost.sum())} of {lost.size} operating points (nan in "
+            "their rows): no equilibrium found there, or the linearized observer overflows; check the "
+            "drive's units and the gains"
+        )
     if sampled:
         out.add_text(
             "poles_discrete.csv", pole_csv(dataclasses.replace(lin, poles=lin.poles_discrete), drive.w_base)
