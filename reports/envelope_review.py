@@ -123,10 +123,13 @@ def analyze(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
     print("; ".join(f"{k} = {v:.6g}" for k, v in gains.values.items() if np.ndim(v) == 0))
     z, d = figures(lin)
     kind = f"sampled observer at T_s = {lin.T_s:g} s" if sampled else "continuous observer"
-    for T_e in np.unique(T):
+    own = np.isclose(lin.w[:, None], envelope(drive).speed_grid(drive.w_base)[None, :], rtol=1e-12).any(
+        axis=1
+    )
+    for T_e in np.unique(T):  # at the envelope's own speeds
         print(f"{lin.torque_name} = {T_e:g} N m:")
         print(f"  {'speed [pu]':>10} {'worst damping':>14} {'slowest decay [1/s]':>20}")
-        for k in np.flatnonzero(lin.torque == T_e)[::ANALYZE_REFINE]:  # the envelope's own speeds
+        for k in np.flatnonzero((lin.torque == T_e) & own):
             print(f"  {lin.w[k] / drive.w_base:>10.3f} {z[k]:>14.4f} {d[k]:>20.5g}")
     worst = f"damping {np.nanmin(z):.4f}, slowest decay {np.nanmin(d):.4g} 1/s"
     print(f"worst over {lin.w.size} points: {worst} ({kind})")

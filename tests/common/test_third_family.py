@@ -115,6 +115,13 @@ def test_analyze_writes_poles_from_the_casadi_jacobians(drive, tmp_path, capsys)
     names = ["poles.csv", "poles.png", "poles.svg", "poles_discrete.csv"]
     assert sorted(p.name for p in tmp_path.iterdir()) == names  # the shared analyze output
     assert "worst over 148 points" in stdout and "T_e = 1.3 N m" in stdout
+    # the terminal shows the envelope's own speeds (10 per direction) of each torque, not the refined grid
+    shown = [
+        float(ln.split()[0])
+        for ln in stdout.splitlines()
+        if ln.startswith("  ") and ln.split()[0][-1].isdigit()
+    ]
+    assert shown == 2 * [round(x, 3) for x in (*np.linspace(-1, -0.1, 10), *np.linspace(0.1, 1, 10))]
     for name in ("poles.csv", "poles_discrete.csv"):
         rows = [ln for ln in (tmp_path / name).read_text().splitlines() if not ln.startswith("#")]
         # the family's own column (the steady angle error) after the operating point
