@@ -215,3 +215,30 @@ class ObserverFamily:
 
     def __repr__(self) -> str:
         return f"<observer family {self.name} (kind {self.kind!r})>"
+
+    # --------------------------------------------------------- Monte-Carlo (design/montecarlo.py)
+    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
+        """The parameters a Monte-Carlo run may spread (design/montecarlo.Uncertain, in the column
+        order of :meth:`linearize_draws` and :meth:`perturbed`): plant value, estimate, unit."""
+        raise CapabilityError(f"observer family {self.name!r} declares no parameters to spread (montecarlo)")
+
+    def linearize_draws(
+        self,
+        drive: Any,
+        gains: GainSet,
+        plant: Any,
+        estimate: Any,
+        w: Any,
+        torque: Any,
+        complete: bool = True,
+    ) -> Any:
+        """The Linearization of every draw (rows of ``plant`` and ``estimate``, (n_draws, k)) at every
+        operating point (``w`` [rad/s] x ``torque``, N points), draw-major: n_draws x N results in one
+        batched evaluation, no loop over draws. ``complete`` False: a draw with a point without
+        equilibrium may be NaN at all its points (its evaluation stops there)."""
+        raise CapabilityError(f"observer family {self.name!r} has no batched linearization of draws")
+
+    def perturbed(self, drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
+        """``drive`` with the true motor's (``plant``) and the observer's (``estimate``) parameters
+        replaced by the given SI values (the time domain of a Monte-Carlo draw)."""
+        raise CapabilityError(f"observer family {self.name!r} cannot perturb a drive (montecarlo)")

@@ -99,6 +99,32 @@ class AdaptiveFluxObserver(ObserverFamily):
         """The run's HF-injection switch (simulation.build puts it in the provenance)."""
         return (f"HF injection {'on' if meta['injection'] else 'off'}",)
 
+    # Monte-Carlo (montecarlo.py): the electrical parameters and J, spread in one batched linearization
+    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
+        from sensorless.design.ipmsm_adaptive.montecarlo import parameters
+
+        return parameters(drive)
+
+    def linearize_draws(
+        self,
+        drive: Any,
+        gains: GainSet,
+        plant: Any,
+        estimate: Any,
+        w: Any,
+        torque: Any,
+        complete: bool = True,
+    ) -> Any:
+        from sensorless.design.ipmsm_adaptive.montecarlo import linearize_draws
+
+        drive = with_alpha_fo(drive, gains)
+        return linearize_draws(drive, _runtime.law_of(gains), plant, estimate, w, torque, complete)
+
+    def perturbed(self, drive: Any, plant: Any, estimate: Any) -> Any:
+        from sensorless.design.ipmsm_adaptive.montecarlo import perturbed
+
+        return perturbed(drive, plant, estimate)
+
 
 def with_alpha_fo(drive: Any, gains: GainSet) -> Any:
     """The drive with the adaptation bandwidth (10) of ``gains`` (a tuned table may carry its own)."""

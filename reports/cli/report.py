@@ -40,6 +40,14 @@ def register(sub: Any) -> None:
         metavar="FILE",
         help="a scenario TOML to check in the time domain besides the built-in ones (repeatable)",
     )
+    p.add_argument(
+        "--montecarlo",
+        type=Number(0, 1e6, integer=True),
+        default=0,
+        metavar="N",
+        help="add a Monte-Carlo section: N motors drawn with the family's typical spreads, seed 0, "
+        "linearized over the envelope (sensorless montecarlo for more); default 0: none",
+    )
     p.add_argument("--quick", action="store_true", help="coarser grids (for previews and tests)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=run)
@@ -65,6 +73,8 @@ def run(args: argparse.Namespace) -> int:
 
     for path in args.scenario:  # each loads for this drive: one line naming the file if not
         load_scenario(path, drive)
+    if args.montecarlo:
+        fam.montecarlo_parameters(drive)  # one line now if the family has no Monte-Carlo
     out = OutputSet(args.out, force=args.force, names=("report.html", "report.json"))
     out.check()  # before minutes of work
     t0 = time.perf_counter()
@@ -79,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
     )
     if foreign:  # said in the report too: its numbers are for this drive, its gains from another
         rep.data["inputs"]["gain_table_warning"] = foreign
+    if args.montecarlo:
+        rep = _with_montecarlo(rep, drive, fam, table, args)
     v = version()
     out.add_text("report.json", report_json(rep.data, v))
     out.add_text("report.html", render(rep, v))
@@ -95,3 +107,23 @@ def run(args: argparse.Namespace) -> int:
     for line in failed:
         print(f"sensorless report: warning: {line}", file=sys.stderr)
     return 3 if failed else 0
+
+
+def _with_montecarlo(rep: Any, drive: Any, fam: Any, table: Any, args: argparse.Namespace) -> Any:
+    """The report with a Monte-Carlo section at the end (reports/montecarlo.py), in this process."""
+    import dataclasses
+
+    from sensorless.reports import montecarlo as rmc
+    from sensorless.reports.engine import SYNCHRONOUS, Engine
+
+    print(f"      Monte-Carlo: {args.montecarlo} draws", file=sys.stderr, flush=True)
+    gains = fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
+    params = fam.montecarlo_parameters(drive)
+    with Engine(SYNCHRONOUS, quiet=True) as engine:
+        res = rmc.run(
+            drive, gains, params, rmc.typical_spreads(params), {}, args.montecarlo, 0, 0,
+            args.min_damping, engine,
+        )  # fmt: skip
+    section = rmc.report_section(len(rep.sections) + 1, res, params, args.min_damping)
+    rep.data["montecarlo"] = res.summary
+    return dataclasses.replace(rep, sections=(*rep.sections, section))

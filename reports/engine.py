@@ -1,0 +1,133 @@
+"""The engine that runs many independent tasks (Monte-Carlo chunks, time-domain draws): Dask.
+
+Why Dask (dask.distributed) rather than a pool of our own: it is a maintained engine that runs the
+same code on this machine (a ``LocalCluster`` of worker processes) or on an existing cluster
+(``--scheduler tcp://HOST:PORT``), cancels tasks, reports worker deaths and serialises the arguments,
+none of which a home-made pool would do as well.
+
+- ``Engine(None)``: a local cluster, one single-threaded worker process per core (the tasks are
+  CPU-bound numpy/CasADi work; threads would fight for the GIL between calls).
+- ``Engine("tcp://HOST:PORT")``: connect to that scheduler (its workers need sensorless installed).
+- ``Engine("synchronous")``: no cluster; tasks run one after another in this process (tests,
+  profiling, one-core machines).
+
+:meth:`Engine.map` returns the results in the order of the items whatever order they finish in, so a
+result never depends on the number of workers as long as each task is deterministic. While it waits
+it prints progress on stderr; on Ctrl-C (reports/interrupts.py raises ``Interrupted`` in the main
+thread) it cancels every task and re-raises, so the command writes nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+SYNCHRONOUS = "synchronous"
+
+
+class EngineError(ValueError):
+    """The engine cannot be started or reached; one line naming the option."""
+
+
+class Engine:
+    """Runs tasks locally, on a cluster, or synchronously (module docstring); a context manager."""
+
+    def __init__(self, scheduler: str | None = None, workers: int | None = None, quiet: bool = False) -> None:
+        self.scheduler = scheduler
+        self.workers = workers
+        self.quiet = quiet
+        self.client: Any = None
+        self.cluster: Any = None
+
+    def __enter__(self) -> Engine:
+        if self.scheduler == SYNCHRONOUS:
+            return self
+        import logging
+
+        from dask.distributed import Client, LocalCluster
+
+        logging.getLogger("distributed").setLevel(logging.ERROR)  # its info lines are not ours to print
+        try:
+            if self.scheduler is None:
+                n = self.workers or os.cpu_count() or 1
+                self.cluster = LocalCluster(
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,  # the workers' cancellation warnings on Ctrl-C
+                )
+                self.client = Client(self.cluster)
+            else:
+                self.client = Client(self.scheduler, timeout="10s")
+        except OSError as e:
+            self.__exit__(None, None, None)
+            raise EngineError(f"--scheduler {self.scheduler}: cannot connect ({e})") from None
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for thing in (self.client, self.cluster):
+            if thing is not None:
+                try:
+                    thing.close()
+                except Exception:  # closing after an interrupt: nothing more to save
+                    pass
+        self.client = self.cluster = None
+
+    @property
+    def size(self) -> int:
+        """Number of workers (1 when synchronous)."""
+        if self.client is None:
+            return 1
+        return max(1, len(self.client.scheduler_info().get("workers", {})))
+
+    def map(self, fn: Callable[..., Any], items: Sequence[Any], label: str = "") -> list[Any]:
+        """``[fn(*item) for item in items]`` on the engine, in the items' order (module docstring)."""
+        progress = Progress(label, len(items), quiet=self.quiet)
+        if self.client is None:
+            out = []
+            for item in items:
+                out.append(fn(*item))
+                progress.step()
+            return out
+        from dask.distributed import as_completed
+
+        futures = [self.client.submit(fn, *item, pure=False) for item in items]
+        index = {f.key: i for i, f in enumerate(futures)}
+        results: list[Any] = [None] * len(items)
+        try:
+            for fut in as_completed(futures):
+                results[index[fut.key]] = fut.result()
+                progress.step()
+        except BaseException:
+            self.client.cancel(futures, force=True)
+            raise
+        return results
+
+
+class Progress:
+    """Progress on stderr: a bar on a terminal, a line per 10 % otherwise; silent for one item."""
+
+    def __init__(self, label: str, total: int, quiet: bool = False, stream: Any = None) -> None:
+        self.label, self.total, self.done = label, total, 0
+        self.stream = stream or sys.stderr
+        self.quiet = quiet or total <= 1 or not label
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.t0 = time.perf_counter()
+        self.last = 0
+
+    def step(self) -> None:
+        self.done += 1
+        if self.quiet:
+            return
+        frac = self.done / self.total
+        text = f"{self.label}: {self.done}/{self.total} ({time.perf_counter() - self.t0:.1f} s)"
+        if self.tty:
+            self.stream.write(f"\r[{'#' * int(30 * frac):<30}] {text}" + ("\n" if frac >= 1 else ""))
+        elif int(10 * frac) > self.last:
+            self.last = int(10 * frac)
+            self.stream.write(text + "\n")
+        self.stream.flush()
