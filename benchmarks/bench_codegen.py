@@ -1,6 +1,6 @@
 """Benchmark of the generated C steps against hand-written C references of the same discrete equations.
 
-    python benchmarks/bench_codegen.py [--passes 21] [--observer ipmsm_adaptive|pmac_reduced_order]
+    python benchmarks/bench_codegen.py [--passes 21] [--observer ipmsm_adaptive|pmac_reduced_order|...]
 
 For each observer family with a runtime observer:
 - the speed-adaptive observer of Piippo et al. (2008), preset piippo2008 (zoh, law (16), HF
@@ -9,6 +9,9 @@ For each observer family with a runtime observer:
 - the reduced-order EMF and load-torque observer of De Angelo et al. (2006), preset deangelo2006
   (rk2-model, EMF harmonics 1 and 5), against benchmarks/ref_step_pmac_reduced_order.c, on 14444 samples
   of the independent plant (tests/helpers/plant_pmac.py: load steps, speed ramps through zero);
+- the flux observer + PLL of Lee et al. (2010) as ODrive runs it, preset outrunner270 (gradient, fixed
+  inductance, constant gain), against benchmarks/ref_step_pmsm_flux_observer.c, on 12000 samples of
+  8 steady operating points (tests/helpers/fuzz.py pmsm_steady_segments);
 
 it generates the double step, compiles it with the yardstick (written by hand from the equations with
 every parameter-only quantity precomputed, and the runtime contract's guard, state bounds, coasting and
@@ -64,6 +67,15 @@ def reduced_order_trajectory(setup: Any, drive: Any) -> np.ndarray:
     return codegen_trajectory(drive)["meas"]
 
 
+def flux_observer_trajectory(setup: Any, drive: Any) -> np.ndarray:
+    from helpers.fuzz import pmsm_steady_segments, steady_rows
+
+    m = drive.motor
+    rows = steady_rows(np.random.default_rng(2010), 8, (0.3, 1.0), drive.w_base, drive.T_N)
+    seg = pmsm_steady_segments((m.R_s, m.L_d, m.L_q, m.psi_pm, m.p), drive.T_s, rows, 1500)
+    return seg.reshape(-1, 6)[:, :4]
+
+
 def with_rejected_samples(meas: np.ndarray) -> np.ndarray:
     """The trajectory with samples the guard must reject: a short NaN burst (coasting), absurd but finite
     currents, a long burst of infinite voltage (a reset at RESET_AFTER), then 2 rejected samples of every
@@ -106,6 +118,14 @@ CASES = (
         "ref_pmac_step",
         reduced_order_trajectory,
         "reduced-order EMF + load-torque observer (De Angelo et al. 2006): EMF harmonics 1, 5",
+    ),
+    Case(
+        "pmsm_flux_observer",
+        "outrunner270",
+        "ref_step_pmsm_flux_observer",
+        "ref_flux_step",
+        flux_observer_trajectory,
+        "flux observer + PLL (Lee et al. 2010) as ODrive runs it: gradient, fixed L, constant gain",
     ),
 )
 

@@ -2,6 +2,7 @@
  * recorded trajectory, in one process. Built once per observer:
  *   -DBENCH_IPMSM_ADAPTIVE      piippo2008_step      vs ref_step      (ref_step_ipmsm_adaptive.c)
  *   -DBENCH_PMAC_REDUCED_ORDER  deangelo2006_step    vs ref_pmac_step (ref_step_pmac_reduced_order.c)
+ *   -DBENCH_PMSM_FLUX_OBSERVER  outrunner270_step    vs ref_flux_step (ref_step_pmsm_flux_observer.c)
  *   bench MODE samples.bin [passes]
  * MODE: check (max relative difference of the outputs and of the states; the rejected samples and the
  *       resets of the generated step), time (median ns/step of each, interleaved),
@@ -52,8 +53,28 @@ static void ref_params(double p[N_PARAM])
                                d->carrier_delay, d->w_max, d->lambda_p, d->w_lambda};
     memcpy(p, v, sizeof v);
 }
+#elif defined(BENCH_PMSM_FLUX_OBSERVER)
+#include "outrunner270.h"
+#include "ref_step_pmsm_flux_observer.h"
+#define GEN(name) outrunner270_##name
+#define N_OUT 8
+#define N_STATE 8
+#define X_ANGLE2 5 /* the state's angles: theta_pll (5); (3) is a voltage, compared modulo 2 pi harmlessly */
+#define N_PARAM 14
+#define REF_INIT ref_flux_init
+#define REF_STEP ref_flux_step
+typedef ref_flux_observer ref_obs;
+
+static void ref_params(double p[N_PARAM])
+{
+    /* the generated parameter struct: R_s L_d L_q psi_pm k_slow u_ref scheduled adapt k_p k_i T_s w_max
+     * u_max k_0, all double */
+    typedef char same_layout[sizeof(outrunner270_params) == N_PARAM * sizeof(double) ? 1 : -1];
+    (void)sizeof(same_layout);
+    memcpy(p, &outrunner270_default_params, sizeof(outrunner270_params));
+}
 #else
-#error "define BENCH_IPMSM_ADAPTIVE or BENCH_PMAC_REDUCED_ORDER"
+#error "define BENCH_IPMSM_ADAPTIVE, BENCH_PMAC_REDUCED_ORDER or BENCH_PMSM_FLUX_OBSERVER"
 #endif
 
 static double now(void)

@@ -83,7 +83,12 @@ UNITS: dict[str, dict[str, float]] = {
     },
     # torque constant kT
     "torque_constant": {"Nm/A": 1.0, "mNm/A": 1e-3},
-    "rate": {"1/s": 1.0, "/s": 1.0, "s^-1": 1.0},  # observer gain g of De Angelo et al. (2006); decay rates
+    "rate": {"1/s": 1.0, "/s": 1.0, "s^-1": 1.0},
+    "rate_squared": {
+        "1/s2": 1.0,
+        "/s2": 1.0,
+        "rad/s2": 1.0,
+    },  # PLL integral gains  # observer gain g of De Angelo et al. (2006); decay rates
     # load-torque adaptation gain Gamma of De Angelo et al. (2006), eq. (10): N m kg m^2 / (V s)^2 = A^2 s^2
     "adaptation": {"A^2 s^2": 1.0, "A2s2": 1.0, "A²s²": 1.0},
     "fraction": {"%": 0.01},  # bare numbers are fractions (0.2 = 20 %)

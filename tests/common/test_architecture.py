@@ -233,6 +233,7 @@ def _shared_vocabulary() -> set[str]:
         envelope,
         family,
         linearization,
+        motor_data,
         plausibility,
         pmsm_drive,
         pmsm_schema,
@@ -249,6 +250,7 @@ def _shared_vocabulary() -> set[str]:
     out |= {n for n in vars(family.ObserverFamily) if not n.startswith("_")}
     shared_records = (
         pmsm_schema.PmsmMotor,
+        motor_data.MotorData,  # the shared motor record read from datasheet terms
         pmsm_schema.PmsmEstimate,
         pmsm_schema.PmsmControl,
         envelope.Envelope,

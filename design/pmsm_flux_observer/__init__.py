@@ -1,0 +1,96 @@
+"""The nonlinear flux observer + PLL that VESC, ODrive and SimpleFOC run (Lee et al. 2010): the family.
+
+This module registers the family; the drive kind string is written here and nowhere else. Its pieces:
+schema.py (drive files: a minimal file completed by rules), gains.py (the laws odrive, vesc, schedule
+and the runtime set-up), linearize.py (continuous and discrete poles), simulation on the shared PMSM
+drive loop (below), presets/ and scenarios/. Equations: symbolic/pmsm_flux_observer/. Theory and
+choices: docs/families/pmsm_flux_observer.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
+from sensorless.design.gain_table import GainTableError
+from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
+from sensorless.design.pmsm_flux_observer import gains as _gains
+from sensorless.design.pmsm_flux_observer import linearize as _linearize
+from sensorless.design.pmsm_flux_observer import schema
+
+
+def simulation(drive: Any, sc: Any, gains: GainSet | None) -> Any:
+    """The loop set-up of ``sc``: the scenario's estimate errors scale the observer's model as the
+    controllers'."""
+    k = sc.estimate_scale
+    setup = _gains.runtime_setup(drive, gains or _gains.drive_gains(drive), sc.discretization)
+    params = dict(setup.params)
+    for key in ("R_s", "L_d", "L_q", "psi_pm"):
+        params[key] = params[key] * k.get(key, 1.0)
+    setup.observer.check_params(params)
+    setup = dataclasses.replace(setup, params=params)
+    meta = {
+        "gain": f"{setup.gain_source}: law {setup.gains.family}, {drive.observer.correction}, "
+        f"{drive.observer.inductance_rule} inductance, T_obs = {drive.observer.T_obs * 1e6:.6g} us"
+    }
+    return loop_setup(drive, sc, setup, meta=meta)
+
+
+class FluxObserverFamily(ObserverFamily):
+    """Lee et al. (2010) gradient flux observer with a PI PLL, in the firmwares' variants."""
+
+    kind = "pmsm-flux-observer"
+    name = "pmsm_flux_observer"
+    title = "nonlinear flux observer with PLL, as VESC, ODrive and SimpleFOC run it"
+    citation = "Lee, Hong, Nam, Ortega, Praly, Astolfi (2010); Ortega et al. (2011)"
+    presets = "sensorless.design.pmsm_flux_observer.presets"
+    scenarios = "sensorless.design.pmsm_flux_observer.scenarios"
+    tuning = "sensorless.tuning.pmsm_flux_observer"
+    report = "sensorless.reports.pmsm_flux_observer"
+    gain_families = _gains.GAIN_FAMILIES
+    estimate_keys = ESTIMATE_KEYS
+    panels = (CURRENT_PANEL,)
+
+    def load(self, data: Any, file: str, digest: str) -> schema.FluxObserverDrive:
+        return schema.load(data, file, digest, self.kind)
+
+    def document(self, data: Any, file: str) -> Any:
+        return schema.document(data, file)
+
+    def gains(
+        self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
+    ) -> GainSet:
+        if name is not None:
+            raise CapabilityError(f"{drive.file}: one [gains] section; there is no [gains.{name}] to choose")
+        if table is None:
+            return _gains.drive_gains(drive)
+        kind = table.drive.get("kind")
+        if kind is not None and kind != drive.kind:
+            raise GainTableError(
+                f"{table.where(table_file)}: key 'drive.kind': {kind!r} does not match the drive "
+                f"({drive.kind})"
+            )
+        return _gains.table_gains(table, table.where(table_file))
+
+    def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
+        return _gains.runtime_setup(drive, gains, discretization)
+
+    def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
+        unknown = set(options) - {"estimate"}
+        if unknown:
+            raise CapabilityError(
+                f"observer family {self.name!r}: no linearization options {sorted(unknown)}"
+            )
+        return _linearize.linearize(drive, gains, w, torque, **options)
+
+    def scales(self, drive: Any) -> DriveScales:
+        c = drive.control
+        why = "the flux observer loses the angle at standstill (Henwood, Malaize, Praly 2012)"
+        return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s, why)
+
+    def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+        return simulation(drive, scenario, gains)
+
+
+FAMILY = FluxObserverFamily()

@@ -1,0 +1,199 @@
+"""Gains of the flux-observer family in each firmware's terms, and the runtime set-up they give.
+
+Laws (docs/families/pmsm_flux_observer.md "Gains"):
+- ``odrive``: observer_gain = gamma lambda^2 [1/s] and pll_bandwidth [rad/s], k_p = 2 bw, k_i = bw^2
+  (ODrive's sensorless_estimator: gamma = observer_gain / lambda^2, k_i = k_p^2 / 4);
+- ``vesc``: foc_observer_gain (raw as VESC stores it), foc_observer_gain_slow, foc_pll_kp, foc_pll_ki;
+  run-time k = gamma lambda^2 = 4 foc_observer_gain lambda^2 max(foc_observer_gain_slow, |duty| V_bus /
+  40 V), |duty| V_bus = sqrt(3) |u| (so u_ref = 40 V / sqrt(3));
+- ``flux_schedule`` (the issue's ``schedule``: that name is another family's law): observer_gain
+  (gamma lambda^2) a table over |PLL speed| (``speeds``, linear in between,
+  held beyond the ends), and pll_bandwidth.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import casadi as ca
+from sensorless.design.family import GainSet
+from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.runtime import GainSchedule, RuntimeSetup
+from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.symbolic.pmsm_flux_observer.observer import runtime_observer
+from sensorless.symbolic.runtime import Field
+
+VESC_GAIN_FACTOR = 4.0  # gamma = 4 foc_observer_gain max(slow, |duty| V_bus / 40 V) (factor 5 before 2020)
+VESC_U_REF = 40.0 / math.sqrt(3)  # [V]: |duty| V_bus / 40 V = |u| / this
+LAW_KEYS: dict[str, dict[str, str]] = {
+    "odrive": {"observer_gain": "rate", "pll_bandwidth": "angular"},
+    "vesc": {
+        "foc_observer_gain": "dimensionless",
+        "foc_observer_gain_slow": "dimensionless",
+        "foc_pll_kp": "rate",
+        "foc_pll_ki": "rate_squared",
+    },
+    "flux_schedule": {"pll_bandwidth": "angular"},  # plus the lists speeds [rad/s], observer_gain [1/s]
+}
+GAIN_FAMILIES: dict[str, tuple[str, ...]] = {
+    "odrive": ("observer_gain", "pll_bandwidth"),
+    "vesc": ("foc_observer_gain", "foc_observer_gain_slow", "foc_pll_kp", "foc_pll_ki"),
+    "flux_schedule": ("speeds", "observer_gain", "pll_bandwidth"),
+}
+
+
+def _number(
+    t: Mapping[str, Any], k: str, dim: str, file: str, section: str, allow_zero: bool = False
+) -> float:
+    if k not in t:
+        raise DriveFileError(file, f"{section}.{k}", "missing key")
+    x, rel = parse_quantity(t[k], dim, file=file, key=f"{section}.{k}")
+    if rel is not None or not math.isfinite(x) or not (x > 0 or (allow_zero and x == 0)):
+        raise DriveFileError(file, f"{section}.{k}", f"non-physical value {t[k]!r}: must be > 0")
+    return x
+
+
+def parse_law(law: str, t: Mapping[str, Any], file: str, section: str) -> dict[str, Any]:
+    """The SI gains of ``law`` from a table of quantities; DriveFileError naming the key."""
+    if law not in LAW_KEYS:
+        raise DriveFileError(file, f"{section}.law", f"{law!r} is not one of: {', '.join(LAW_KEYS)}")
+    for k in t:
+        if k != "law" and k not in GAIN_FAMILIES[law]:
+            raise DriveFileError(
+                file, f"{section}.{k}", f"unknown key (law {law}: {', '.join(GAIN_FAMILIES[law])})"
+            )
+    out = {
+        k: _number(t, k, dim, file, section, k == "foc_observer_gain_slow")
+        for k, dim in LAW_KEYS[law].items()
+    }
+    if law == "flux_schedule":
+        for k, dim in (("speeds", "angular"), ("observer_gain", "rate")):
+            v = t.get(k)
+            if not isinstance(v, list) or len(v) < 2:
+                raise DriveFileError(file, f"{section}.{k}", "expected a list of at least two values")
+            out[k] = [_number({k: x}, k, dim, file, section) for x in v]
+        if len(out["speeds"]) != len(out["observer_gain"]):
+            raise DriveFileError(file, f"{section}.observer_gain", "one value per speed")
+        if any(b <= a for a, b in itertools.pairwise(out["speeds"])):
+            raise DriveFileError(file, f"{section}.speeds", "must increase strictly")
+    return out
+
+
+def drive_gains(drive: Any) -> GainSet:
+    """The drive file's [gains]."""
+    t = drive.gains_table
+    law = t.get("law")
+    if not isinstance(law, str):
+        raise DriveFileError(
+            drive.file, "gains.law", "missing key or not a string (odrive | vesc | flux_schedule)"
+        )
+    return GainSet(law, parse_law(law, t, drive.file, "gains"), f"{drive.file} [gains]")
+
+
+def table_gains(table: GainTable, where: str) -> GainSet:
+    """The gains of a gain table of one of the family's laws."""
+    if table.family not in GAIN_FAMILIES:
+        raise GainTableError(f"{where}: key 'family': {table.family!r} is not a law of the flux observer")
+    try:
+        values = parse_law(table.family, {"law": table.family, **table.gains}, where, "gains")
+    except DriveFileError as e:
+        raise GainTableError(f"{where}: key '{e.key}': {e.problem}") from None
+    return GainSet(
+        table.family, values, f"{table.family} table {where} (tuned for {table.drive.get('name')})"
+    )
+
+
+def pll_gains(gains: GainSet) -> tuple[float, float]:
+    """(k_p [1/s], k_i [1/s^2]) of a gain set."""
+    v = gains.values
+    if gains.family == "vesc":
+        return float(v["foc_pll_kp"]), float(v["foc_pll_ki"])
+    bw = float(v["pll_bandwidth"])
+    return 2 * bw, bw**2
+
+
+def base_gain(gains: GainSet, psi_hat: float) -> float:
+    """k_0 [1/s]: gamma lambda^2 before VESC's voltage factor (odrive: observer_gain; vesc: 4 raw
+    lambda^2)."""
+    v = gains.values
+    if gains.family == "vesc":
+        return VESC_GAIN_FACTOR * float(v["foc_observer_gain"]) * psi_hat**2
+    return float(v["observer_gain"])
+
+
+@functools.cache
+def table_law(grid: tuple[float, ...]) -> ca.Function:
+    """(w_pll, values[K]) -> k_0: piecewise linear over |w_pll| on ``grid``, held beyond the ends."""
+    w, v = ca.SX.sym("w_pll"), ca.SX.sym("k", len(grid))
+    x = ca.fmin(ca.fmax(ca.fabs(w), grid[0]), grid[-1])
+    out = 0 * w
+    for k in range(len(grid)):
+        up = (x - grid[k - 1]) / (grid[k] - grid[k - 1]) if k > 0 else 1
+        down = (grid[k + 1] - x) / (grid[k + 1] - grid[k]) if k < len(grid) - 1 else 1
+        out = out + v[k] * ca.fmax(0, ca.fmin(up, down))
+    return ca.Function(f"k_schedule{len(grid)}", [w, v], [out], ["w_pll", "gain"], ["lam"])
+
+
+@functools.cache
+def constant_law() -> ca.Function:
+    w, v = ca.SX.sym("w_pll"), ca.SX.sym("k", 1)
+    return ca.Function("k_constant", [w, v], [v[0] + 0 * w], ["w_pll", "gain"], ["lam"])
+
+
+def schedule_of(gains: GainSet, psi_hat: float) -> GainSchedule:
+    """The runtime schedule of k_0: a constant, or the table over |w_pll|."""
+    if gains.family == "flux_schedule":
+        grid = tuple(float(w) for w in gains.values["speeds"])
+        vals = tuple(float(k) for k in gains.values["observer_gain"])
+        fields = tuple(
+            Field(f"k_0_{j}", "1/s", f"observer gain at |w_pll| = {w:.6g} rad/s") for j, w in enumerate(grid)
+        )
+        return GainSchedule(
+            "flux_schedule", table_law(grid), vals, fields, grid, "gamma lambda^2 over |w_pll|"
+        )
+    k_0 = base_gain(gains, psi_hat)
+    text = "constant gamma lambda^2" if gains.family == "odrive" else "4 gain lambda^2 (x VESC's factor)"
+    return GainSchedule(
+        gains.family, constant_law(), (k_0,), (Field("k_0", "1/s", "observer gain"),), (), text
+    )
+
+
+def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:
+    """The parameters of the runtime step (symbolic PARAMS)."""
+    e = drive.estimate
+    k_p, k_i = pll_gains(gains)
+    v = gains.values
+    return {
+        "R_s": e.R_s,
+        "L_d": e.L_d,
+        "L_q": e.L_q,
+        "psi_pm": e.psi_pm,
+        "k_slow": float(v.get("foc_observer_gain_slow", 1.0)),
+        "u_ref": VESC_U_REF,
+        "scheduled": 1.0 if gains.family == "vesc" else 0.0,
+        "adapt": 1.0 if drive.observer.lambda_adaptation else 0.0,
+        "k_p": k_p,
+        "k_i": k_i,
+        "T_s": drive.observer.T_obs,
+        "w_max": 2 * max(drive.envelope.speed_max, drive.w_base),
+        "u_max": drive.control.u_dc,
+    }
+
+
+def runtime_setup(drive: Any, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
+    """The runtime observer of ``drive`` (its variant) with ``gains``."""
+    o = drive.observer
+    obs = runtime_observer(o.correction, o.inductance_rule)
+    disc = discretization or obs.discretizations[0]
+    if disc not in obs.discretizations:
+        raise ValueError(f"unknown discretization {disc!r} (known: {', '.join(obs.discretizations)})")
+    params = runtime_params(drive, gains)
+    obs.check_params(params)
+    notes = ()
+    if o.correction == "box-clamp":
+        notes = ("box-clamp: the observer gain is unused (pure integration, each axis clamped to +-lambda)",)
+    return RuntimeSetup(obs, disc, params, gains, schedule_of(gains, drive.estimate.psi_pm), notes)

@@ -1,0 +1,223 @@
+"""Linearization of the flux observer + PLL at an operating point: continuous and at the firmware's period.
+
+The observer's equilibrium on a motor in steady state (electrical speed w, torque T_e at the true
+motor's MTPA current) rotates in the stationary frame; in the rotor frame (flux state rotated by
+-theta, the PLL's angle error delta = theta - theta_pll, the PLL speed, and lambda_hat where it is
+adapted) it is a fixed point. Both the continuous observer (symbolic ``rhs_function``) and the sampled
+one that runs (its runtime step, the Function the C prints: the shared design/discrete.py analysis of
+a :class:`SampledLoop`, on the motor sampled under zero-order hold) are written in that frame; Newton's
+method finds the equilibrium (the continuous one starts the discrete one) and the poles are the
+eigenvalues of the CasADi Jacobians there (discrete: ln(z)/T_obs). The previous period's voltage the
+step stores is the plant's, not a state of the error dynamics. The PLL does not feed back into the
+observer, so the poles are the observer's with the PLL's; the observer's steady angle error is
+reported per point.
+
+``clamped-gradient`` is linearized on its active side (|eta| > lambda, where it is the gradient
+observer); inside, its correction is off. ``box-clamp`` has no linearization (CapabilityError): it is
+judged by simulation.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from sensorless.design.batch import evaluate_batch
+from sensorless.design.discrete import (
+    SampledLoop,
+    discrete_poles,
+    eigenvalues_by_size,
+    fixed_points,
+    pmsm_zoh_plant,
+    pmsm_zoh_sample,
+    sensitivities,
+)
+from sensorless.design.family import CapabilityError, GainSet
+from sensorless.design.linearization import Linearization
+from sensorless.design.pmsm_flux_observer.gains import runtime_setup
+from sensorless.design.poles import eigvals_batched
+from sensorless.symbolic.frames import J, rot, wrap_angle
+from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
+from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS, rhs_function, runtime_observer
+
+NEWTON_STEPS = 12
+_IX = {f.name: k for k, f in enumerate(PARAMS)}
+
+
+@dataclass(frozen=True)
+class FluxLinearization(Linearization):
+    """The common result plus the observer's steady angle error (theta - theta_obs) per point."""
+
+    theta_err: np.ndarray | None = None  # (N,) [rad], continuous observer
+    theta_err_discrete: np.ndarray | None = None  # (N,) [rad], the sampled observer
+    law: str = ""
+
+    def point_columns(self) -> dict[str, np.ndarray]:
+        return {"theta_err_deg": np.degrees(self.theta_err_discrete)}
+
+    def notes(self) -> tuple[str, ...]:
+        return (f"gain law: {self.law}",)
+
+
+def steady_motor(w: Any, T_e: Any, m: Any) -> tuple[Any, Any]:
+    """(i_r, u_r) of the true motor m = [R_s, L_d, L_q, psi_pm, p] at speed w, torque T_e (MTPA, the
+    steady voltage of the shared PMSM model)."""
+    motor = PmsmParams(m[0], m[1], m[2], m[3])
+    i_r = mtpa_current(T_e, motor, m[4])
+    return i_r, stator_voltage(i_r, 0, flux_from_current(i_r, motor), w, motor.R_s)
+
+
+def motor_vector(drive: Any) -> np.ndarray:
+    mt = drive.motor
+    return np.array([mt.R_s, mt.L_d, mt.L_q, mt.psi_pm, float(mt.p)])
+
+
+@functools.cache
+def equilibrium_function(kind: str, rule: str, adapt: bool, law: ca.Function) -> ca.Function:
+    """(w, T_e, motor[5], p, gain) -> (x_r*, A, residual, theta_err): Newton on the continuous
+    observer in the rotor frame, x_r = [x_r (2), (lambda_hat), delta, w_pll], then its Jacobian."""
+    n = 5 if adapt else 4
+    x_r = ca.SX.sym("x_r", n)
+    w, T_e = ca.SX.sym("w"), ca.SX.sym("T_e")
+    m, p, gain = ca.SX.sym("motor", 5), ca.SX.sym("p", len(PARAMS)), ca.SX.sym("gain", law.size1_in(1))
+    i_r, u_r = steady_motor(w, T_e, m)
+    lam = x_r[2] if adapt else p[_IX["psi_pm"]]
+    delta, w_p = x_r[n - 2], x_r[n - 1]
+    dx = rhs_function(kind, rule)(ca.vertcat(x_r[0:2], lam, -delta, w_p), i_r, u_r, p, law(w_p, gain))
+    G = ca.vertcat(*([dx[0:2] - w * (J @ x_r[0:2])] + ([dx[2]] if adapt else []) + [w - dx[3], dx[4]]))
+    g_fn = ca.Function("G", [x_r, w, T_e, m, p, gain], [G, ca.jacobian(G, x_r)])
+    psi_r = flux_from_current(i_r, PmsmParams(m[0], m[1], m[2], m[3]))
+    xk = ca.vertcat(*([psi_r] + ([p[_IX["psi_pm"]]] if adapt else []) + [0, w]))
+    for _ in range(NEWTON_STEPS):
+        Gk, Jk = g_fn(xk, w, T_e, m, p, gain)
+        xk = xk - ca.solve(Jk, Gk)
+    Gk, _ = g_fn(xk, w, T_e, m, p, gain)
+    A = ca.substitute(ca.jacobian(G, x_r), x_r, xk)
+    # the observer's angle error theta - atan2(eta) at the equilibrium (rotor frame: theta = 0)
+    eta = xk[0:2] - _inductance_at(rule, i_r, p) * i_r
+    return ca.Function(
+        "pmsm_flux_observer_equilibrium_c",
+        [w, T_e, m, p, gain],
+        [xk, ca.densify(A), ca.norm_inf(Gk), -ca.atan2(eta[1], eta[0])],
+        ["w", "T_e", "motor", "p", "gain"],
+        ["x", "A", "res", "theta_err"],
+    )
+
+
+@functools.cache
+def sampled_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> SampledLoop:
+    """The runtime step on the motor sampled under zero-order hold (design/discrete.py), in rotor
+    coordinates y = [flux state rotated by -theta (2), (lambda_hat), delta = theta - theta_pll, w_pll];
+    the stored voltage of the previous period is the plant's (held over the period before theta)."""
+    ix_T = _IX["T_s"]
+    ix_psi = _IX["psi_pm"]
+    n = 5 if adapt else 4
+
+    def state(y: Any, theta: Any, w: Any, plant: Any, p: Any) -> Any:
+        lam = y[2] if adapt else p[ix_psi]
+        u_prev = rot(theta - w * p[ix_T]) @ plant[2:4]
+        return ca.vertcat(rot(theta) @ y[0:2], lam, u_prev, theta - y[n - 2], y[n - 1])
+
+    def rotor(x: Any, theta: Any) -> Any:
+        return ca.vertcat(
+            *([rot(theta).T @ x[0:2]] + ([x[2]] if adapt else []) + [wrap_angle(theta - x[5]), x[6]])
+        )
+
+    names = ("x_d", "x_q", *(("lambda_hat",) if adapt else ()), "delta", "w_pll")
+    obs = runtime_observer(kind, rule)
+    return SampledLoop(obs, "euler", law, names, 4, pmsm_zoh_sample, state, rotor, (n - 2,))
+
+
+def discrete_analysis(
+    drive: Any, loop: SampledLoop, y0: np.ndarray, W: np.ndarray, T: np.ndarray, p: np.ndarray, gain: Any
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(poles ln(z)/T_obs, |z| largest, angle error theta - theta_hat) of the sampled observer from the
+    start points y0 (the continuous equilibria); p (n_p,) or (n_p, N), gain one or per point."""
+    m = drive.motor
+    i_r = np.column_stack(mtpa_currents(drive, T))
+    plant = pmsm_zoh_plant(m.vector(), W, i_r, drive.observer.T_obs)
+    y, Jd = fixed_points(loop, y0, W, plant, p, gain)
+    poles = discrete_poles(Jd, drive.observer.T_obs, loop.n_y)[0]
+    out = sensitivities(loop, y, W, plant, p, gain)["out"]
+    err = wrap(-out[:, loop.observer.index("outputs", "theta_hat")])
+    z = np.abs(eigenvalues_by_size(Jd)[:, 0])
+    return poles, z, err
+
+
+def mtpa_currents(drive: Any, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(i_d, i_q) [A] of the true motor's MTPA current at each torque (symbolic/pmsm.py, evaluated)."""
+    fn = _mtpa()
+    u = np.unique(T)
+    vals = {t: np.asarray(fn(t, drive.motor.vector(), drive.motor.p)).ravel() for t in u}
+    return np.array([vals[t][0] for t in T]), np.array([vals[t][1] for t in T])
+
+
+@functools.cache
+def _mtpa() -> ca.Function:
+    T, m, pp = ca.SX.sym("T"), ca.SX.sym("m", 4), ca.SX.sym("p")
+    return ca.Function("mtpa", [T, m, pp], [mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), pp)])
+
+
+def _inductance_at(rule: str, i_r: Any, p: Any) -> Any:
+    """The rule's inductance in the rotor frame (the interpolated rule at the true frame: an
+    approximation of the steady error that the exact Newton state does not need)."""
+    L_d, L_q = p[_IX["L_d"]], p[_IX["L_q"]]
+    if rule == "fixed":
+        return (L_d + L_q) / 2
+    if rule == "q-axis":
+        return L_q
+    return L_d + (L_q - L_d) * i_r[1] ** 2 / (ca.sumsqr(i_r) + 1e-9)
+
+
+def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = None) -> FluxLinearization:
+    """Continuous and discrete poles at speeds ``w`` [rad/s] x torques [N m] (broadcast together).
+
+    ``estimate``: an optional dict of runtime parameter overrides (R_s, L_d, L_q, psi_pm) to study
+    estimate errors; the true motor is the drive's."""
+    o = drive.observer
+    if o.correction == "box-clamp":
+        raise CapabilityError(
+            "the box-clamp observer (MXLEMMING) is not linearizable: its clamp is the whole correction "
+            "and has no smooth equilibrium; it is judged by simulation (sensorless simulate, report)"
+        )
+    kind = "gradient"  # the clamped observer on its active side (module docstring)
+    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
+    n = W.size
+    setup = runtime_setup(drive, gains)
+    params = dict(setup.params)
+    if estimate:
+        params.update(estimate)
+    p = setup.observer.pack_params(params)
+    motor = motor_vector(drive)
+    law = setup.schedule.law
+    rule, adapt = o.inductance_rule, o.lambda_adaptation
+    x, A, res, err = evaluate_batch(
+        equilibrium_function(kind, rule, adapt, law), n, [W, T, motor, p, setup.gain]
+    )
+    scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
+    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
+    poles = np.full((n, A.shape[1]), np.nan + 0j)
+    if ok.any():
+        poles[ok] = eigvals_batched(A[ok])
+    y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
+    poles_d, _, err_d = discrete_analysis(
+        drive, sampled_loop(kind, rule, adapt, law), y0, W, T, p, setup.gain
+    )
+    return FluxLinearization(
+        w=W,
+        torque=T,
+        poles=poles,
+        poles_discrete=poles_d,
+        T_s=o.T_obs,
+        torque_name="T_e",
+        theta_err=np.where(ok, wrap(err[:, 0, 0]), np.nan),
+        theta_err_discrete=err_d,
+        law=gains.family,
+    )
+
+
+def wrap(a: np.ndarray) -> np.ndarray:
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi

@@ -1,0 +1,405 @@
+"""The drive file of the flux-observer family: a minimal file completed by rules, then loaded strictly.
+
+The format (agreed with the firmware import/export, docs/families/pmsm_flux_observer.md "Drive files"):
+``[drive]``; ``[motor]`` in the shared datasheet terms (design/motor_data.py ``read_motor``; J may be
+left out); ``[rating]`` n_N and T_N or I_N (optional); ``[inverter]`` u_dc and f_s; ``[observer]``
+firmware, correction, inductance, lambda_adaptation, T_obs; ``[estimate]`` (optional, the shared keys
+R_s, L_d, L_q, psi_pm: what the firmware was given; default the motor's); ``[gains]`` (the law and its
+gains, in the firmware's terms; default the firmware's defaults); ``[control]`` and ``[envelope]``
+(optional: the shared drive loop's controllers, the analysed speeds and torques). :func:`document`
+derives every missing value with its rule; :func:`load` reads the complete document.
+
+Rules (the constants below; reasons in the family doc):
+- J = TAU_M p T_N / w_N: a mechanical time constant of TAU_M (firmware configurations carry no inertia);
+- n_N = N_SPEED x the no-load speed u_dc / (sqrt(3) psi_pm p) (the voltage the inverter has);
+- I_N = I_DROP u_dc / R_s (the current whose resistive drop is I_DROP of the DC link), T_N its MTPA torque;
+- T_obs = 1/f_s; control: alpha_c = ALPHA_C/T_obs, alpha_s = min(alpha_c/ALPHA_S_DIV, the PLL's slowest
+  pole / 4) (the speed loop closes on the PLL's speed), T_max = 2 T_N;
+- envelope: |speed| ENV_SPEEDS p.u. of n_N, torques 0 and T_N.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from sensorless.design.drive_file import (
+    DriveDocument,
+    Entry,
+    check_keys,
+    derived_document,
+    g6,
+    load_section,
+    positive,
+    q,
+    quantities,
+    table,
+)
+from sensorless.design.motor_data import mtpa_torque, read_motor
+from sensorless.design.plausibility import plausibility, warning_lines
+from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
+from sensorless.design.units import DriveFileError
+from sensorless.symbolic.pmsm_flux_observer.observer import CORRECTIONS, INDUCTANCES
+
+PAGE = "docs/families/pmsm_flux_observer.md"
+SECTIONS = ("drive", "motor", "rating", "inverter", "observer", "estimate", "gains", "control", "envelope")
+FIRMWARES = ("odrive", "vesc", "simplefoc", "generic")
+# each firmware's observer: (correction, inductance rule, lambda adaptation, law)
+FIRMWARE_DEFAULTS = {
+    "odrive": ("gradient", "fixed", False, "odrive"),
+    "vesc": ("box-clamp", "interpolated", True, "vesc"),
+    "simplefoc": ("box-clamp", "q-axis", False, "odrive"),
+    "generic": ("gradient", "fixed", False, "odrive"),
+}
+TAU_M = 0.1  # [s] mechanical time constant of the J rule
+N_SPEED = 0.8  # rated speed / no-load speed at the DC link
+I_DROP = 0.05  # R_s I_N / u_dc
+ALPHA_C = 0.2  # alpha_c T_obs
+ALPHA_S_DIV = 16.0
+T_MAX_TN = 2.0
+ENV_SPEEDS = (0.05, 1.0, 12)  # speed_min, speed_max [p.u.], speeds per direction
+
+
+@dataclass(frozen=True)
+class Rating:
+    n_N: float = q("mech_speed", doc="rated mechanical speed [r/min]")
+    T_N: float = q("torque", doc="rated torque [N m]")
+
+
+@dataclass(frozen=True)
+class ObserverSettings:
+    """[observer]: whose variant, and its period."""
+
+    firmware: str = q("choice", doc="odrive | vesc | simplefoc | generic")
+    correction: str = q("choice", doc="gradient | clamped-gradient | box-clamp")
+    # the [observer] key ``inductance`` (the shared word "inductance" is a dimension's name)
+    inductance_rule: str = q("choice", doc="fixed | q-axis | interpolated")
+    T_obs: float = q("time", doc="observer and PLL period [s]")
+    lambda_adaptation: bool = field(default=False, metadata={"dim": "bool"})
+
+
+@dataclass(frozen=True)
+class Envelope:
+    speed_min: float = q("angular", doc="smallest |speed| [rad/s]")
+    speed_max: float = q("angular", doc="largest |speed| [rad/s]")
+    speeds: int = q("integer", doc="speeds per direction")
+    torques: tuple[float, ...] = field(default=(), metadata={"dim": "torque"})
+
+
+@dataclass(frozen=True)
+class FluxObserverDrive:
+    """A drive of the flux-observer family (SI; speeds electrical)."""
+
+    name: str
+    kind: str
+    source: str
+    file: str
+    rating: Rating
+    motor: PmsmMotor
+    estimate: PmsmEstimate
+    control: PmsmControl
+    observer: ObserverSettings
+    gains_table: Mapping[str, Any]  # the [gains] section as written (read by gains.py)
+    envelope: Envelope
+    digest: str = ""
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def T_N(self) -> float:
+        return self.rating.T_N
+
+    @property
+    def w_base(self) -> float:
+        return self.rating.n_N * math.pi / 30 * self.motor.p
+
+    @property
+    def pole_pairs(self) -> int:
+        return self.motor.p
+
+    @property
+    def T_s(self) -> float:
+        return self.control.T_s
+
+    def speed_grid(self, factor: int = 1) -> Any:
+        import numpy as np
+
+        e = self.envelope
+        s = np.linspace(e.speed_min, e.speed_max, (e.speeds - 1) * factor + 1)
+        return np.concatenate([-s[::-1], s])
+
+    def grid(self, factor: int = 1) -> tuple[Any, Any]:
+        import numpy as np
+
+        W, T = np.meshgrid(self.speed_grid(factor), np.asarray(self.envelope.torques, float))
+        return W.ravel(), T.ravel()
+
+
+def _choice(t: Mapping[str, Any], k: str, allowed: tuple[str, ...], default: str, file: str) -> str:
+    v = t.get(k, default)
+    if not isinstance(v, str) or v not in allowed:
+        raise DriveFileError(file, f"observer.{k}", f"{v!r} is not one of: {', '.join(allowed)}")
+    return v
+
+
+def _keep(sec: dict[str, Entry], given: Mapping[str, Any], derived: Mapping[str, tuple[Any, str]]) -> None:
+    for k, (v, rule) in derived.items():
+        sec[k] = Entry(given[k], given=True) if k in given else Entry(v, rule)
+    for k, v in given.items():
+        if k not in sec:
+            sec[k] = Entry(v, given=True)
+
+
+def document(data: Mapping[str, Any], file: str) -> DriveDocument:
+    """The complete drive document of a (minimal) drive file (module docstring)."""
+    check_keys(data, SECTIONS, file, "")
+    doc = derived_document(data, file, PAGE)
+    motor_t = dict(table(data, "motor", file))
+    inv_t = table(data, "inverter", file) if "inverter" in data else {}
+    check_keys(inv_t, ("u_dc", "f_s"), file, "inverter.")
+    for k, ex in (("u_dc", "24 V"), ("f_s", "8 kHz")):
+        if k not in inv_t:
+            raise DriveFileError(file, f"inverter.{k}", f"missing key (e.g. '{ex}')")
+    u_dc = positive(inv_t, "u_dc", "voltage", file, "inverter")
+    f_s = positive(inv_t, "f_s", "frequency", file, "inverter")
+    # the motor without its inertia first (the J rule needs the rating)
+    m = read_motor({**motor_t, "J": motor_t.get("J", "1 kgm2")}, file)
+
+    rating_t = table(data, "rating", file) if "rating" in data else {}
+    check_keys(rating_t, ("n_N", "T_N", "I_N"), file, "rating.")
+    w0 = u_dc / (math.sqrt(3) * m.psi_pm * m.p)  # no-load mechanical speed [rad/s]
+    n_N = (
+        positive(rating_t, "n_N", "mech_speed", file, "rating")
+        if "n_N" in rating_t
+        else N_SPEED * w0 * 30 / math.pi
+    )
+    if "T_N" in rating_t:
+        T_N, t_rule = positive(rating_t, "T_N", "torque", file, "rating"), ""
+    else:
+        I_N = (
+            positive(rating_t, "I_N", "current", file, "rating")
+            if "I_N" in rating_t
+            else I_DROP * u_dc / m.R_s
+        )
+        T_N = mtpa_torque(math.sqrt(2) * I_N, m)
+        t_rule = f"MTPA torque at I_N = {g6(I_N)} A rms" + (
+            "" if "I_N" in rating_t else f" = {I_DROP:g} u_dc / R_s (rule)"
+        )
+    sec = doc.section("rating", "rated values; 1 p.u. speed = n_N")
+    _keep(
+        sec,
+        rating_t,
+        {
+            "n_N": (f"{g6(n_N)} rpm", f"{N_SPEED:g} x the no-load speed u_dc/(sqrt(3) psi_pm p)"),
+            "T_N": (f"{g6(T_N)} Nm", t_rule),
+        },
+    )
+    w_N = n_N * math.pi / 30
+    sec = doc.section("motor", "the true motor (shared PMSM datasheet keys, docs/motor_data.md)")
+    _keep(sec, motor_t, {})
+    if "J" not in motor_t:
+        J = TAU_M * T_N / w_N
+        sec["J"] = Entry(f"{g6(J)} kgm2", f"tau_m T_N / w_N with tau_m = {TAU_M:g} s (no inertia given)")
+
+    doc.section("inverter", "DC link and the firmware's control sampling frequency").update(
+        {k: Entry(v, given=True) for k, v in inv_t.items()}
+    )
+
+    obs_t = table(data, "observer", file) if "observer" in data else {}
+    check_keys(
+        obs_t, ("firmware", "correction", "inductance", "lambda_adaptation", "T_obs"), file, "observer."
+    )
+    fw = _choice(obs_t, "firmware", FIRMWARES, "generic", file)
+    corr, rule, adapt, law = FIRMWARE_DEFAULTS[fw]
+    sec = doc.section("observer", "the firmware's observer variant (docs/families/pmsm_flux_observer.md)")
+    _keep(
+        sec,
+        obs_t,
+        {
+            "firmware": ("generic", "default"),
+            "correction": (corr, f"{fw}'s observer"),
+            "inductance": (rule, f"{fw}'s inductance rule"),
+            "lambda_adaptation": (adapt, f"{fw}'s default"),
+            "T_obs": (f"{g6(1e6 / f_s)} us", "1/f_s"),
+        },
+    )
+    T_obs = positive(obs_t, "T_obs", "time", file, "observer") if "T_obs" in obs_t else 1 / f_s
+
+    est_t = table(data, "estimate", file) if "estimate" in data else {}
+    check_keys(est_t, ("R_s", "L_d", "L_q", "psi_pm"), file, "estimate.")
+    sec = doc.section("estimate", "what the firmware was given (the observer's model)")
+    _keep(
+        sec,
+        est_t,
+        {
+            # SI numbers in full precision: exact estimates are the motor's values to the last bit
+            "R_s": (m.R_s, "= motor [ohm]"),
+            "L_d": (m.L_d, "= motor [H]"),
+            "L_q": (m.L_q, "= motor [H]"),
+            "psi_pm": (m.psi_pm, "= motor [V s]"),
+        },
+    )
+    psi_hat = positive(est_t, "psi_pm", "flux", file, "estimate") if "psi_pm" in est_t else m.psi_pm
+
+    gains_t = table(data, "gains", file) if "gains" in data else {}
+    sec = doc.section("gains", "the observer's gains in the firmware's terms (odrive | vesc | flux_schedule)")
+    if "law" in gains_t:
+        _keep(sec, gains_t, {})
+    else:
+        if gains_t:
+            raise DriveFileError(file, "gains.law", "missing key (odrive | vesc | flux_schedule)")
+        for k, (v, r) in default_gains(law, psi_hat).items():
+            sec[k] = Entry(v, r)
+
+    ctl_t = table(data, "control", file) if "control" in data else {}
+    check_keys(ctl_t, ("alpha_c", "alpha_s", "T_max"), file, "control.")
+    alpha_c = (
+        positive(ctl_t, "alpha_c", "angular", file, "control") if "alpha_c" in ctl_t else ALPHA_C / T_obs
+    )
+    pll_slow = slowest_pll_pole(doc.sections["gains"], file)
+    sec = doc.section("control", "the shared drive loop's controllers (simulation only)")
+    _keep(
+        sec,
+        ctl_t,
+        {
+            "alpha_c": (f"{g6(ALPHA_C / T_obs)} rad/s", f"{ALPHA_C:g}/T_obs"),
+            "alpha_s": (
+                f"{g6(min(alpha_c / ALPHA_S_DIV, pll_slow / 4))} rad/s",
+                f"min(alpha_c/{ALPHA_S_DIV:g}, the PLL's slowest pole {g6(pll_slow)} 1/s / 4): the speed "
+                "loop closes on the PLL's speed",
+            ),
+            "T_max": (f"{g6(T_MAX_TN * T_N)} Nm", f"{T_MAX_TN:g} T_N"),
+        },
+    )
+    env_t = table(data, "envelope", file) if "envelope" in data else {}
+    check_keys(env_t, ("speed_min", "speed_max", "speeds", "torques"), file, "envelope.")
+    sec = doc.section("envelope", "operating points of analysis and tuning (both directions)")
+    _keep(
+        sec,
+        env_t,
+        {
+            "speed_min": (f"{ENV_SPEEDS[0]:g} pu", "rule"),
+            "speed_max": (f"{ENV_SPEEDS[1]:g} pu", "rule"),
+            "speeds": (ENV_SPEEDS[2], "rule"),
+            "torques": (["0 Nm", f"{g6(T_N)} Nm"], "0 and T_N"),
+        },
+    )
+    return doc
+
+
+def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
+    """-(the PLL's slowest pole) [1/s] of a [gains] section: bw (odrive, flux_schedule) or the slow root
+    of s^2 + k_p s + k_i (vesc; k_p/2 where the roots are complex)."""
+    from sensorless.design.pmsm_flux_observer.gains import parse_law
+
+    t = {k: e.value for k, e in gains.items()}
+    law = t.get("law")
+    if not isinstance(law, str):
+        raise DriveFileError(file, "gains.law", "missing key or not a string (odrive | vesc | flux_schedule)")
+    v = parse_law(law, t, file, "gains")
+    if law != "vesc":
+        return float(v["pll_bandwidth"])
+    kp, ki = v["foc_pll_kp"], v["foc_pll_ki"]
+    disc = kp**2 - 4 * ki
+    return (kp - math.sqrt(disc)) / 2 if disc > 0 else kp / 2
+
+
+def default_gains(law: str, psi: float) -> dict[str, tuple[Any, str]]:
+    """The firmware's default gains of ``law`` (fact sheet; docs/families/pmsm_flux_observer.md)."""
+    if law == "vesc":
+        return {
+            "law": ("vesc", "VESC Tool's detection"),
+            "foc_observer_gain": (float(g6(1e3 / psi**2)), "detection: 1e-3/lambda^2, stored x1e6"),
+            "foc_observer_gain_slow": (0.05, "VESC default"),
+            "foc_pll_kp": ("2000 1/s", "VESC default"),
+            "foc_pll_ki": ("30000 1/s2", "VESC default"),
+        }
+    return {
+        "law": ("odrive", "ODrive's defaults"),
+        "observer_gain": ("1000 1/s", "ODrive default (gamma lambda^2)"),
+        "pll_bandwidth": ("1000 rad/s", "ODrive default"),
+    }
+
+
+def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObserverDrive:
+    """The drive of a (minimal or complete) drive file: completed by :func:`document`, read strictly."""
+    d = document(data, file).data()
+    head = d["drive"]
+    m = read_motor(d["motor"], file)  # datasheet terms; the drive keeps the shared record
+    motor = PmsmMotor(m.p, m.R_s, m.L_d, m.L_q, m.psi_pm, m.J)
+    rating = load_section(Rating, d["rating"], file, "rating", skip=("I_N",))
+    obs_t = d["observer"]
+    adapt = obs_t["lambda_adaptation"]
+    if not isinstance(adapt, bool):
+        raise DriveFileError(file, "observer.lambda_adaptation", f"expected true or false, got {adapt!r}")
+    observer = ObserverSettings(
+        firmware=_choice(obs_t, "firmware", FIRMWARES, "generic", file),
+        correction=_choice(obs_t, "correction", CORRECTIONS, "", file),
+        inductance_rule=_choice(obs_t, "inductance", INDUCTANCES, "", file),
+        lambda_adaptation=adapt,
+        T_obs=positive(obs_t, "T_obs", "time", file, "observer"),
+    )
+    estimate = load_section(PmsmEstimate, d["estimate"], file, "estimate")
+    ctl = d["control"]
+    control = PmsmControl(
+        T_s=observer.T_obs,
+        alpha_c=positive(ctl, "alpha_c", "angular", file, "control"),
+        alpha_s=positive(ctl, "alpha_s", "angular", file, "control"),
+        T_max=positive(ctl, "T_max", "torque", file, "control"),
+        u_dc=positive(d["inverter"], "u_dc", "voltage", file, "inverter"),
+    )
+    w_base = rating.n_N * math.pi / 30 * motor.p
+    env_t = d["envelope"]
+    env = load_section(Envelope, env_t, file, "envelope", {"pu": w_base}, skip=("torques",))
+    env = Envelope(
+        env.speed_min, env.speed_max, env.speeds, quantities(env_t, "torques", "torque", file, "envelope")
+    )
+    if env.speeds < 2 or not env.speed_min < env.speed_max:
+        raise DriveFileError(file, "envelope", "need speeds >= 2 and 0 < speed_min < speed_max")
+    if env.speed_max * observer.T_obs >= math.pi / 2:
+        raise DriveFileError(
+            file, "envelope.speed_max", "fewer than 4 observer periods per electrical period"
+        )
+    drive = FluxObserverDrive(
+        name=head["name"],
+        kind=kind,
+        source=head.get("source", ""),
+        file=file,
+        rating=rating,
+        motor=motor,
+        estimate=estimate,
+        control=control,
+        observer=observer,
+        gains_table=dict(d["gains"]),
+        envelope=env,
+        digest=digest,
+    )
+    from sensorless.design.pmsm_flux_observer.gains import drive_gains
+
+    drive_gains(drive)  # the [gains] section checked at load time
+    r_t = table(data, "rating", file) if "rating" in data else {}
+    keys = {
+        "n_N": "rating.n_N" if "n_N" in r_t else "inverter.u_dc",
+        "T_N": "rating.T_N" if "T_N" in r_t else ("rating.I_N" if "I_N" in r_t else "motor.R_s"),
+        "I_N": "rating.I_N",
+        "f_N": "rating.f_N",
+        "u_dc": "inverter.u_dc",
+        "T_s": "observer.T_obs" if "T_obs" in d["observer"] and "observer" in data else "inverter.f_s",
+        "w_max": "envelope.speed_max",
+    }
+    I_N = positive(r_t, "I_N", "current", file, "rating") if "I_N" in r_t and "T_N" in r_t else None
+    findings = plausibility(
+        m,
+        n_N=rating.n_N,
+        T_N=rating.T_N,
+        I_N=I_N,
+        f_N=None,
+        u_dc=control.u_dc,
+        T_s=observer.T_obs,
+        w_max=env.speed_max,
+        keys=keys,
+    )
+    warnings = warning_lines(findings, file)
+    return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive

@@ -1,0 +1,371 @@
+"""Report hooks of the flux-observer family: ``analyze`` output, ``tune`` options, and the stability report.
+
+- analyze: poles of the continuous observer and of the sampled one at the firmware's period
+  (ln(z)/T_obs), damping and the observer's steady angle error over the envelope; poles.csv and a
+  figure. The box clamp has no linearization: analyze says so in one line (judged by simulation);
+- tune: the estimate errors, the bias limit and the hold speed of the laws' criterion (tuning/);
+- report: the gains under review beside the firmwares' defaults on this motor (ODrive's, VESC Tool's
+  detection), each judged by the tuning criterion (damping, angle bias, the speed below which it
+  loses the motor), pole and damping maps over speed, the angle bias under each estimate error, and
+  the built-in scenario re-run (reports/time_domain.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from sensorless.design.family import GainSet
+from sensorless.design.gain_table import read_gain_table
+from sensorless.design.pmsm_flux_observer import FAMILY
+from sensorless.design.poles import MIN_DAMPING
+from sensorless.reports import time_domain
+from sensorless.reports.cli.common import Number
+from sensorless.reports.document import (
+    Figure,
+    Paragraph,
+    Report,
+    Section,
+    Table,
+    drive_section,
+    f,
+    num,
+    svg_uri,
+)
+from sensorless.reports.family import Option, ReportHooks
+from sensorless.reports.files import OutputSet
+from sensorless.reports.review import (
+    gains_under_review,
+    opening,
+    settle,
+    status_class,
+    time_domain_checks,
+    verdict_box,
+)
+from sensorless.tuning.pmsm_flux_observer import (
+    FluxTuneSettings,
+    assess,
+    corners,
+    figures,
+    hold_speed,
+    odrive_gains,
+    vesc_gains,
+)
+
+TIME_DOMAIN = ("torque_steps",)
+MAX_RMS_THETA_DEG = 10.0
+
+
+def poles_figure(lin: Any, drive: Any, title: str) -> Any:
+    """Damping of the sampled observer (x) and the continuous one (o), and the steady angle error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams["svg.hashsalt"] = "sensorless"
+    fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(6.4, 5.0))
+    for j, T in enumerate(np.unique(lin.torque)):
+        m = lin.torque == T
+        w = lin.w[m] / drive.w_base
+        c = f"C{j}"
+        a1.plot(w, lin.worst_damping[m], "o", ms=3, mfc="none", color=c)
+        a1.plot(w, lin.worst_damping_discrete[m], "x-", ms=3, color=c, label=f"T_e = {T:.3g} N m")
+        a2.plot(w, np.degrees(lin.theta_err_discrete[m]), "-", color=c)
+    a1.set_ylabel("worst damping")
+    a1.legend(fontsize=8, frameon=False)
+    a2.set_ylabel("angle error (deg)")
+    a2.set_xlabel("speed (p.u.)")
+    for a in (a1, a2):
+        a.grid(True, lw=0.3, color="0.8")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def poles_csv(lin: Any, drive: Any) -> str:
+    lines = [
+        f"# {drive.name}: flux observer + PLL poles; discrete at T_obs = {lin.T_s:g} s; speeds electrical",
+        "w_rad_s,w_pu,T_e_Nm,damping_c,decay_c_1_s,damping_d,decay_d_1_s,theta_err_c_rad,theta_err_d_rad",
+    ]
+    cols = (lin.w, lin.w / drive.w_base, lin.torque, lin.worst_damping, lin.decay_rate)
+    cols += (lin.worst_damping_discrete, lin.decay_rate_discrete, lin.theta_err, lin.theta_err_discrete)
+    for row in zip(*cols, strict=True):
+        lines.append(",".join(f"{v:.10g}" for v in row))
+    return "\n".join(lines) + "\n"
+
+
+def _close(fig: Any) -> None:
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------------------ analyze
+def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
+    table = read_gain_table(args.gains) if args.gains else None
+    gains = FAMILY.gains(drive, table=table, table_file=args.gains or "")
+    W, T = drive.grid(2)
+    lin = FAMILY.linearize(drive, gains, W, T)
+    o = drive.observer
+    print(f"{drive.name}: {drive.source}")
+    print(f"{FAMILY.title} ({FAMILY.citation}); gains: {gains.source}")
+    print(f"{o.firmware}: {o.correction}, {o.inductance_rule} inductance; T_obs = {o.T_obs * 1e6:g} us")
+    head = f"{'speed [pu]':>10} {'worst damping c/d':>18} {'slowest decay c/d [1/s]':>24} "
+    head += f"{'angle err [deg]':>16}"
+    for T_e in drive.envelope.torques:
+        print(f"T_e = {T_e:.4g} N m:\n  {head}")
+        for k in np.flatnonzero(lin.torque == T_e)[::2]:
+            print(
+                f"  {lin.w[k] / drive.w_base:>10.3f} {lin.worst_damping[k]:>8.3f}/"
+                f"{lin.worst_damping_discrete[k]:<9.3f} "
+                f"{lin.decay_rate[k]:>11.4g}/{lin.decay_rate_discrete[k]:<12.4g} "
+                f"{np.degrees(lin.theta_err_discrete[k]):>16.4f}"
+            )
+    print(
+        f"worst over {lin.w.size} points: damping {np.nanmin(lin.worst_damping_discrete):.4f}, slowest decay "
+        f"{np.nanmin(lin.decay_rate_discrete):.4g} 1/s (sampled observer)"
+    )
+    out.add_text("poles.csv", poles_csv(lin, drive))
+    fig = poles_figure(lin, drive, f"{drive.name}: damping (o continuous, x sampled) and angle error")
+    out.add_figures("poles", fig)
+    _close(fig)
+
+
+def analyze_check(drive: Any, args: argparse.Namespace) -> None:
+    """The box clamp has no linearization: its CapabilityError, before anything is written."""
+    if drive.observer.correction == "box-clamp":
+        FAMILY.linearize(drive, FAMILY.gains(drive), np.array([drive.w_base]), np.zeros(1))
+
+
+# --------------------------------------------------------------------------------------------- tune
+TUNE_OPTIONS = (
+    Option(("--bias-max",), {"type": Number(0.1, 90.0), "help": "largest angle bias that holds [deg]"}),
+    Option(("--hold-speed",), {"type": Number(1e-3, 10.0), "help": "speed to hold down to [p.u.]"}),
+    Option(("--r-error",), {"type": Number(0.0, 0.9), "help": "stator resistance error (fraction)"}),
+    Option(("--flux-error",), {"type": Number(0.0, 0.9), "help": "PM flux estimate error (fraction)"}),
+    Option(("--l-error",), {"type": Number(0.0, 0.9), "help": "inductance estimate error (fraction)"}),
+)
+
+
+def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> FluxTuneSettings:
+    s = tunable.settings(drive)
+    errors = dict(s.errors)
+    for opt, key in (("r_error", "R_s"), ("flux_error", "psi_pm"), ("l_error", "L")):
+        if getattr(args, opt, None) is not None:
+            errors[key] = float(getattr(args, opt))
+    s = dataclasses.replace(s, errors=errors)
+    if args.bias_max is not None:
+        s = dataclasses.replace(s, bias_max_deg=float(args.bias_max))
+    if args.hold_speed is not None:
+        s = dataclasses.replace(s, hold_speed=float(args.hold_speed) * drive.w_base)
+    return s
+
+
+def describe(drive: Any, settings: FluxTuneSettings) -> str:
+    e = drive.envelope
+    err = settings.errors
+    return (
+        f"envelope: |speed| {e.speed_min / drive.w_base:.3g}..{e.speed_max / drive.w_base:.3g} p.u. "
+        f"({e.speeds} per direction) x torques {', '.join(f'{t:.4g}' for t in e.torques)} N m; "
+        "estimate errors "
+        f"R_s +-{100 * err['R_s']:g} %, psi_pm +-{100 * err['psi_pm']:g} %, L +-{100 * err['L']:g} %; "
+        f"angle bias at most {settings.bias_max_deg:g} deg"
+    )
+
+
+# ------------------------------------------------------------------------------------------- report
+def compute(
+    drive: Any,
+    table: Any | None = None,
+    table_file: str = "",
+    min_damping: float = MIN_DAMPING,
+    resolution: str = "normal",
+    progress: Callable[[str], None] = lambda s: None,
+    scenarios: Sequence[str] = (),
+) -> Report:
+    """The report's numbers, sections and verdict."""
+    choices: dict[str, GainSet] = {"ODrive defaults": odrive_gains(), "VESC detection": vesc_gains(drive)}
+    choices["drive file"] = FAMILY.gains(drive)
+    rev = gains_under_review(FAMILY, drive, table, table_file, choices=choices)
+    review = rev.label
+    linearizable = drive.observer.correction != "box-clamp"
+    settings = FluxTuneSettings()
+    analysis: dict[str, Any] = {}
+    sections: list[Any] = []
+    figs: list[Any] = []
+    if linearizable:
+        progress("[1/3] the gains judged over the envelope under the estimate errors")
+        labels = list(rev.choices)
+        a = assess(drive, [rev.choices[k] for k in labels], settings)
+        base = {
+            k: figures(drive, a, j)
+            for j, k in enumerate(labels)
+            if k in ("ODrive defaults", "VESC detection")
+        }
+        w_hold = hold_speed(drive, settings, base)
+        for j, k in enumerate(labels):
+            fg = figures(drive, a, j)
+            analysis[k] = {
+                "gains": {n: f(v) for n, v in rev.choices[k].values.items() if not isinstance(v, list)},
+                "law": rev.choices[k].family,
+                "worst_damping": f(fg["worst_damping"]),
+                "worst_bias_deg": f(fg["worst_bias_deg"]),
+                "low_speed_limit_pu": f(fg["low_speed_limit_pu"])
+                if math.isfinite(fg["low_speed_limit_pu"])
+                else None,
+                "stable_at_top": bool(a.holds[j, -1]),
+            }
+        rows = tuple(
+            (
+                k,
+                x["law"],
+                num(x["worst_damping"]),
+                num(x["worst_bias_deg"]),
+                num(x["low_speed_limit_pu"]) if x["low_speed_limit_pu"] is not None else "none holds",
+            )
+            for k, x in analysis.items()
+        )
+        head = ("gains", "law", "worst damping", "worst angle bias (deg)", "holds down to (p.u.)")
+        cmp_table = Table(
+            head, rows, "each gain set under every estimate error (sampled observer)", frozenset({2, 3, 4})
+        )
+        W, T = drive.grid(1 if resolution == "quick" else 2)
+        lin = FAMILY.linearize(drive, rev.gains, W, T)
+        fig = Figure(
+            svg_uri(poles_figure(lin, drive, f"{drive.name}: gains {review}")),
+            "Worst damping of the continuous observer (o) and the sampled one at T_obs (x), and the sampled "
+            "observer's steady angle error, over speed; colours: torque. Exact estimates.",
+        )
+        bias_fig = Figure(svg_uri(bias_figure(drive, rev.gains, settings)), bias_caption(settings))
+        text = (
+            "Judged as the tuner judges (tuning/pmsm_flux_observer): a speed holds when the sampled "
+            "observer "
+            f"is stable with an angle bias of at most {settings.bias_max_deg:g} deg under every estimate "
+            f"error; the firmwares' defaults on this motor hold down to the speeds shown (hold speed "
+            f"{w_hold / drive.w_base:.3g} p.u.)."
+        )
+        sections.append(Section("2. The gains and the firmwares' defaults", (Paragraph(text), cmp_table)))
+        sections.append(Section("3. Damping and angle error over speed", (fig, bias_fig)))
+        figs = []
+    else:
+        sections.append(
+            Section(
+                "2. No linearization",
+                (
+                    Paragraph(
+                        "The box-clamp observer (MXLEMMING) is not linearizable: it is judged by simulation."
+                    ),
+                ),
+            )
+        )
+    progress("[2/3] time-domain check (the built-in scenario re-run)")
+    runs = time_domain.scenarios(drive, TIME_DOMAIN, scenarios)
+    td, td_figs = time_domain_checks(drive, rev, runs, progress)
+    progress("[3/3] verdict")
+    tracks = all(item["metrics"]["rms_theta_err_deg"] < MAX_RMS_THETA_DEG for item in td)
+    mine = analysis.get(review, {})
+    damped = not linearizable or (
+        mine.get("worst_damping") is not None and mine["worst_damping"] >= min_damping
+    )
+    stable = not linearizable or mine.get("low_speed_limit_pu") is not None
+    status, td_findings = settle("fail" if not stable else "pass" if damped and tracks else "warn", td)
+    findings = []
+    if linearizable and not stable:
+        findings.append("the gains under review hold at no envelope speed under the estimate errors")
+    if not damped:
+        findings.append(f"worst damping {num(mine.get('worst_damping'))} < required {min_damping:g}")
+    if not tracks:
+        findings.append(f"a time-domain check exceeds {MAX_RMS_THETA_DEG:g} deg RMS position error")
+    findings += [x["text"] for x in td_findings]
+    data = {
+        **opening(FAMILY, drive, table, min_damping, review),
+        "observer_period_s": f(drive.observer.T_obs),
+        "analysis": analysis,
+        "time_domain": td,
+        "verdict": {"status": status, "damped": damped, "tracks": tracks, "findings": findings},
+    }
+    n = len(sections) + 2
+    all_sections = (drive_section(1, data["drive"]), *sections, time_domain.section(n, td, td_figs))
+    summary = (
+        f"Gains {review}: "
+        + (
+            f"worst damping {num(mine.get('worst_damping'))}, worst angle bias "
+            f"{num(mine.get('worst_bias_deg'))} deg, "
+            f"holds down to {num(mine.get('low_speed_limit_pu'))} p.u.; "
+            if linearizable
+            else "box clamp (not linearizable); "
+        )
+        + f"time-domain check {'within' if tracks else 'beyond'} {MAX_RMS_THETA_DEG:g} deg RMS "
+        "position error."
+    )
+    verdict = verdict_box(status, Paragraph(summary, status_class(status)), findings=findings)
+    del figs
+    return Report(drive.name, review, data, verdict, all_sections)
+
+
+def bias_caption(settings: FluxTuneSettings) -> str:
+    e = settings.errors
+    return (
+        "Steady angle bias of the sampled observer at rated torque over speed, for each estimate error "
+        f"alone (R_s +-{100 * e['R_s']:g} %, psi_pm +-{100 * e['psi_pm']:g} %, L +-{100 * e['L']:g} %) "
+        "and the worst "
+        "corner of all three; gains under review."
+    )
+
+
+def bias_figure(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams["svg.hashsalt"] = "sensorless"
+    s = drive.speed_grid(2)
+    s = s[s > 0]
+    T = np.full(s.size, drive.T_N)
+    e = drive.estimate
+    cases = {}
+    for key, rel in (("R_s", settings.errors["R_s"]), ("psi_pm", settings.errors["psi_pm"])):
+        for sign in (-1, 1):
+            cases[f"{key} {sign * 100 * rel:+g} %"] = {key: getattr(e, key) * (1 + sign * rel)}
+    for sign in (-1, 1):
+        r = 1 + sign * settings.errors["L"]
+        cases[f"L {sign * 100 * settings.errors['L']:+g} %"] = {"L_d": e.L_d * r, "L_q": e.L_q * r}
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    for label, est in cases.items():
+        lin = FAMILY.linearize(drive, gains, s, T, estimate=est)
+        ax.plot(s / drive.w_base, np.degrees(lin.theta_err_discrete), label=label)
+    worst = np.zeros(s.size)
+    for c in corners(settings.errors)[1:]:
+        est = {
+            "R_s": e.R_s * c["R_s"],
+            "psi_pm": e.psi_pm * c["psi_pm"],
+            "L_d": e.L_d * c["L"],
+            "L_q": e.L_q * c["L"],
+        }
+        lin = FAMILY.linearize(drive, gains, s, T, estimate=est)
+        worst = np.fmax(worst, np.abs(np.degrees(lin.theta_err_discrete)))
+    ax.plot(s / drive.w_base, worst, "k--", label="worst corner |bias|")
+    ax.set_ylim(-45, 45)
+    ax.set_xlabel("speed (p.u.)")
+    ax.set_ylabel("angle bias (deg)")
+    ax.grid(True, lw=0.3, color="0.8")
+    ax.legend(fontsize=7, frameon=False, ncol=2)
+    fig.tight_layout()
+    return fig
+
+
+HOOKS = ReportHooks(
+    analyze=analyze,
+    analyze_check=analyze_check,
+    tune_options=TUNE_OPTIONS,
+    tune_settings=tune_settings,
+    describe_envelope=describe,
+    report=compute,
+    settings_sections=("gains", "envelope", "control"),
+)

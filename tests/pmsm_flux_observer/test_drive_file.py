@@ -1,0 +1,102 @@
+"""Drive files of the flux observer: a minimal file in datasheet terms completed by the documented rules
+(J, the rating, the firmware's variant and defaults), errors naming file and key, and the commands
+end to end on a motor that is not a preset."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+from sensorless.design.drive import load_drive
+from sensorless.reports.cli.main import main
+
+MINIMAL = """
+[drive]
+name = "mymotor"
+kind = "pmsm-flux-observer"
+
+[motor]
+poles = 12
+KV = "180 rpm/V"
+R_ll = "0.14 ohm"
+connection = "wye"
+L_ll = "90 uH"
+
+[inverter]
+u_dc = "36 V"
+f_s = "10 kHz"
+
+[observer]
+firmware = "vesc"
+"""
+
+
+@pytest.fixture
+def minimal(tmp_path):
+    p = tmp_path / "mymotor.toml"
+    p.write_text(MINIMAL)
+    return p
+
+
+def test_rules_of_a_minimal_file(minimal):
+    d = load_drive(str(minimal))
+    p = 6
+    psi = 1 / (180 * 2 * math.pi / 60 * math.sqrt(3) * p)  # KV: line-line peak back-EMF per r/min
+    assert d.motor.psi_pm == pytest.approx(psi)
+    assert d.motor.R_s == pytest.approx(0.07) and d.motor.L_d == pytest.approx(45e-6)
+    n0 = 36 / (math.sqrt(3) * psi * p) * 30 / math.pi  # no-load speed at the DC link [r/min]
+    assert d.rating.n_N == pytest.approx(0.8 * n0)
+    I_N = 0.05 * 36 / 0.07
+    assert d.T_N == pytest.approx(1.5 * p * psi * math.sqrt(2) * I_N, rel=1e-6)
+    assert d.motor.J == pytest.approx(0.1 * d.T_N / (d.rating.n_N * math.pi / 30), rel=1e-5)
+    o = d.observer
+    assert (o.correction, o.inductance_rule, o.lambda_adaptation) == ("box-clamp", "interpolated", True)
+    assert o.T_obs == pytest.approx(1e-4)
+    g = d.gains_table
+    assert g["law"] == "vesc" and g["foc_observer_gain"] == pytest.approx(1e3 / psi**2, rel=1e-5)
+
+
+@pytest.mark.parametrize(
+    "edit, key",
+    [
+        (('firmware = "vesc"', 'firmware = "vesc"\ncorrection = "ortega"'), "observer.correction"),
+        (('f_s = "10 kHz"', 'f_s = "10 kHz"\nbogus = 1'), "inverter.bogus"),
+        (('f_s = "10 kHz"\n', ""), "inverter.f_s"),
+        (
+            ('firmware = "vesc"', 'firmware = "vesc"\n[gains]\nlaw = "odrive"\nobserver_gain = "-3 1/s"'),
+            "gains",
+        ),
+    ],
+)
+def test_errors_name_file_and_key(tmp_path, capsys, edit, key):
+    p = tmp_path / "bad.toml"
+    p.write_text(MINIMAL.replace(*edit))
+    assert main(["analyze", str(p), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.toml" in err[0] and key in err[0] and "Traceback" not in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys):
+    text = MINIMAL.replace('firmware = "vesc"', 'firmware = "odrive"')
+    minimal.write_text(text)
+    full = tmp_path / "full.toml"
+    assert main(["init", str(minimal), "--out", str(full)]) == 0
+    assert load_drive(str(full)).T_N == pytest.approx(load_drive(str(minimal)).T_N)
+    assert main(["tune", str(full), "--family", "odrive", "--out", str(tmp_path / "t"), "--quiet"]) in (0, 3)
+    out = capsys.readouterr().out
+    assert "ODrive defaults" in out and "VESC detection" in out
+    table = tmp_path / "t" / "gains_odrive.json"
+    assert main(["codegen", str(full), "--gains", str(table), "--out", str(tmp_path / "c")]) == 0
+    assert main(["report", str(full), "--gains", str(table), "--out", str(tmp_path / "r")]) in (
+        0,
+        3,
+    )
+    rep = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert {"ODrive defaults", "VESC detection", "drive file", "tuned"} <= set(rep["analysis"])
+    # box clamp: analysis refused in one line, simulation runs
+    box = tmp_path / "box.toml"
+    box.write_text(MINIMAL)  # VESC's default: box clamp
+    assert main(["analyze", str(box), "--out", str(tmp_path / "a")]) == 2
+    assert "not linearizable" in capsys.readouterr().err
