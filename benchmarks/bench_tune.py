@@ -6,8 +6,8 @@ the worst damping. The grid search is the fastest brute force the toolbox offers
 envelope points linearized in one Function.map call, eigenvalues in one batched numpy call; the NLP
 starts from the drive file's gains. Prints median times of repeated runs in this process, both
 optima (worst damping on the envelope grid, by eigenvalues) and the time ratio. Then
-``tune(drive, "schedule")`` end to end (its law16 seed included), first call (solver builds, JIT)
-and warm, with the schedule's dense worst damping against the pointwise bound's and law16's.
+``tune(drive, "schedule")`` end to end (its speed-dependent seed included), first call (solver builds, JIT)
+and warm, with the schedule's dense worst damping against the pointwise bound's and the speed-dependent law's.
 
     python benchmarks/bench_tune.py [--pairs 30] [--repeat 5] [--no-schedule]
 """
@@ -55,7 +55,7 @@ def main() -> None:
     settings = drive.tuning
     wb, R = drive.base.w, drive.estimate.R_s
     W, T = settings.envelope.grid(wb, drive.T_N)
-    model = tunable_for(drive, "law16").build(drive, settings, None)
+    model = tunable_for(drive, "speed-dependent").build(drive, settings, None)
     lp = np.linspace(model.lower[0], model.upper[0], a.pairs)
     wl = np.linspace(model.lower[1], 3 * wb, a.pairs)
     law, _ = drive_arguments(drive, "speed")
@@ -109,15 +109,15 @@ def main() -> None:
     s = r.table.summary
     b = s["bound"]
     print(
-        f"schedule (tune end to end, law16 seed, global phase, bound): first call {times[0]:.1f} s, "
+        f"schedule (tune end to end, its seed, global phase, bound): first call {times[0]:.1f} s, "
         f"warm {times[1]:.1f} s"
     )
     print(
         f"dense worst damping: schedule {s['worst_damping']:.5f}, "
-        f"law16 {s['seed']['worst_damping']:.5f}, "
+        f"speed-dependent {s['seed']['worst_damping']:.5f}, "
         f"drive file {s['baseline_worst_damping']:.5f}; pointwise bound {b['worst_damping']:.5f} at "
         f"{b['worst_at_w_m_pu']:+.3f} p.u. (decay >= {b['floor_1_s']:.4g} 1/s): "
-        f"schedule {b['gap']:.5f} below, law16 {b['gap_seed']:.5f} below"
+        f"schedule {b['gap']:.5f} below, speed-dependent {b['gap_seed']:.5f} below"
     )
 
 

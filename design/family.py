@@ -8,7 +8,7 @@ registered in :mod:`sensorless.design.registry`, which is the only place that ma
 - its drive-file schema (:meth:`ObserverFamily.load`), presets and built-in scenarios (packages), and
   optionally the derivation of a complete drive file from a minimal one (:meth:`document`,
   ``sensorless init``);
-- its gains: which gain-table families it accepts and their keys, and the gains of a drive
+- its gains: which gain laws (gain-table ``law``) it accepts and their keys, and the gains of a drive
   (:meth:`gains`, from the drive file or a tuned table);
 - its runtime observer: the discrete-time step of the one runtime contract (symbolic/runtime.py),
   with its parameters from a drive (:meth:`runtime`), which simulation runs and codegen prints as C;
@@ -17,7 +17,7 @@ registered in :mod:`sensorless.design.registry`, which is the only place that ma
 - its simulation set-up for a scenario (:meth:`simulation`), the scenario keys it adds, the
   parameter-error factors a scenario may give (``estimate_keys``) and the trace panels of its own
   (``panels``: :class:`Panel`, drawn by the shared figure code);
-- the names of the modules that hold its higher-layer hooks: tuning (tunable gain families, tuners;
+- the names of the modules that hold its higher-layer hooks: tuning (tunable gain laws, tuners;
   imported by ``sensorless.tuning``) and reports (analysis output, report sections; imported by
   ``sensorless.reports``). The design layer never imports them, so no layer reaches up
   (docs/architecture.md).
@@ -75,9 +75,9 @@ class Drive(Protocol):
 
 @dataclass(frozen=True)
 class GainSet:
-    """The gains an observer runs with: which gain family, the values (SI), and where they come from."""
+    """The gains an observer runs with: which gain law, the values (SI), and where they come from."""
 
-    family: str  # gain family: e.g. "law16", "schedule", "constant", "zero", "deangelo"
+    law: str  # gain law: e.g. "speed-dependent", "schedule", "constant", "zero"
     values: Mapping[str, Any] = field(default_factory=dict)  # SI; lists for tables
     source: str = ""  # for headers and messages: the drive file's section or the table file
 
@@ -152,8 +152,10 @@ class ObserverFamily:
     scenarios: ClassVar[str | None] = None  # package holding built-in scenario TOMLs
     tuning: ClassVar[str | None] = None  # module of its tuning hooks (sensorless.tuning.family)
     report: ClassVar[str | None] = None  # module of its report hooks (sensorless.reports.family)
-    # gain-table family -> required keys of the table's "gains" (docs/gain_tables.md)
-    gain_families: ClassVar[Mapping[str, tuple[str, ...]]] = {}
+    # gain law (a gain table's "law") -> required keys of the table's "gains" (docs/gain_tables.md)
+    laws: ClassVar[Mapping[str, tuple[str, ...]]] = {}
+    # former law name -> its name now: still read from gain tables and the command line, with a note
+    law_aliases: ClassVar[Mapping[str, str]] = {}
     # extra scenario keys: section -> key -> (dimension, default); see design/scenario.py
     scenario_options: ClassVar[Mapping[str, Mapping[str, tuple[str, Any]]]] = {}
     # the keys of a scenario's [estimate_scale]: factors (default 1) on the drive's parameter

@@ -1,11 +1,11 @@
 """Gain tables: tuned observer gains as data (JSON), shared by tuning, simulation, C generation and reports.
 
-Format ``sensorless-gain-table/1`` (see docs/gain_tables.md)::
+Format ``sensorless-gain-table/2`` (see docs/gain_tables.md)::
 
-    {"format": "sensorless-gain-table/1",
+    {"format": "sensorless-gain-table/2",
      "drive": {"name": ..., "kind": ..., "sha256": ...},
-     "family": "law16" | "schedule" | "deangelo" | ...,  # a gain family of an observer family
-     "gains": {...},          # family-specific, SI units: the keys its observer family declares
+     "law": "speed-dependent" | "schedule" | "constant" | ...,  # a gain law of an observer family
+     "gains": {...},          # law-specific, SI units: the keys its observer family declares
      "envelope": {...},       # what was optimized over (free form, documented by the writer)
      "points": [{...}, ...],  # per operating point: gains, poles, damping, decay rate, baseline
      "summary": {...}}
@@ -14,14 +14,18 @@ Writing is deterministic (sorted keys, floats as repr) so equal inputs give byte
 Reading is strict like drive files: the text must be UTF-8 JSON without NaN or infinite numbers, every
 section must have its type, and every gain must be a finite number (or a non-empty list of them) of a
 magnitude the drive files accept (design/units.py); each error is a :class:`GainTableError` naming the
-file and the key. Whether the gains suit a drive (its kind, its observer's gain families, the
+file and the key. Whether the gains suit a drive (its kind, its observer's gain laws, the
 family's own checks) is the observer family's part (``ObserverFamily.gains``).
+
+Format ``sensorless-gain-table/1`` (its ``family`` key, and ``family`` in the seed records, for the
+law; the laws' former names) is still read, for one release, with a note on stderr.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,12 +33,18 @@ from typing import Any
 from sensorless.design.registry import families
 from sensorless.design.units import MAGNITUDE
 
-FORMAT = "sensorless-gain-table/1"
+FORMAT = "sensorless-gain-table/2"
+FORMAT_1 = "sensorless-gain-table/1"  # read for one release: "family" for "law", the laws' old names
 
 
 def gain_keys() -> dict[str, tuple[str, ...]]:
-    """Gain family -> required keys of "gains", over every registered observer family."""
-    return {g: keys for f in families() for g, keys in f.gain_families.items()}
+    """Gain law -> required keys of "gains", over every registered observer family."""
+    return {g: keys for f in families() for g, keys in f.laws.items()}
+
+
+def law_aliases() -> dict[str, str]:
+    """Former law name -> its name now, over every registered observer family."""
+    return {old: new for f in families() for old, new in f.law_aliases.items()}
 
 
 class GainTableError(ValueError):
@@ -45,7 +55,7 @@ class GainTableError(ValueError):
 class GainTable:
     """A tuned gain table."""
 
-    family: str
+    law: str
     drive: dict[str, str]
     gains: dict[str, Any]
     envelope: dict[str, Any] = field(default_factory=dict)
@@ -62,7 +72,7 @@ class GainTable:
         doc = {
             "format": FORMAT,
             "drive": self.drive,
-            "family": self.family,
+            "law": self.law,
             "gains": self.gains,
             "envelope": self.envelope,
             "points": self.points,
@@ -137,22 +147,32 @@ def read_gain_table(path: str | Path) -> GainTable:
         raise GainTableError(f"{p}: not a gain table: {e} (gains and figures must be finite)") from None
     except RecursionError:
         raise GainTableError(f"{p}: not a gain table: nested too deeply") from None
-    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+    if not isinstance(doc, dict) or doc.get("format") not in (FORMAT, FORMAT_1):
         raise GainTableError(f"{p}: key 'format': expected {FORMAT!r}")
-    fam = doc.get("family")
+    key = "law" if doc["format"] == FORMAT else "family"
+    law = doc.get(key)
     known = gain_keys()
-    if not isinstance(fam, str) or fam not in known:
-        raise GainTableError(f"{p}: key 'family': unknown family {fam!r} (known: {', '.join(known)})")
+    old = law_aliases()
+    notes = [f"format {FORMAT_1} read (tables are now {FORMAT}, key 'law')"] if key == "family" else []
+    if isinstance(law, str) and law in old and law not in known:
+        notes.append(f"law {law!r} is now called {old[law]!r}")
+        law = old[law]
+    if not isinstance(law, str) or law not in known:
+        raise GainTableError(f"{p}: key '{key}': unknown law {law!r} (known: {', '.join(known)})")
+    if notes:  # one line, for one release
+        print(f"{p}: note: {'; '.join(notes)}", file=sys.stderr)
+    if key == "family":
+        _upgrade_seeds(doc, old)
     gains = doc.get("gains")
     if not isinstance(gains, dict):
         raise GainTableError(f"{p}: key 'gains': missing or not an object")
-    for k in known[fam]:
+    for k in known[law]:
         if k not in gains:
-            raise GainTableError(f"{p}: key 'gains.{k}': missing for family {fam}")
+            raise GainTableError(f"{p}: key 'gains.{k}': missing for law {law}")
     for k in gains:
-        if k not in known[fam]:
+        if k not in known[law]:
             raise GainTableError(
-                f"{p}: key 'gains.{k}': unknown key for family {fam} (known: {', '.join(known[fam])})"
+                f"{p}: key 'gains.{k}': unknown key for law {law} (known: {', '.join(known[law])})"
             )
         _gain_value(gains[k], str(p), k)
     drive = doc.get("drive")
@@ -171,7 +191,7 @@ def read_gain_table(path: str | Path) -> GainTable:
     if any(not isinstance(pt, dict) for pt in doc.get("points", [])):
         raise GainTableError(f"{p}: key 'points': expected a list of objects")
     return GainTable(
-        family=fam,
+        law=law,
         drive=drive,
         gains=gains,
         envelope=doc.get("envelope", {}),
@@ -179,3 +199,15 @@ def read_gain_table(path: str | Path) -> GainTable:
         summary=doc.get("summary", {}),
         file=str(p),
     )
+
+
+def _upgrade_seeds(doc: dict[str, Any], old: dict[str, str]) -> None:
+    """A /1 table's seed records (``summary.seed``, ``points[].seed``) with ``law`` for ``family``."""
+    summary = doc.get("summary")
+    points = doc.get("points")
+    seeds = [summary.get("seed")] if isinstance(summary, dict) else []
+    seeds += [pt.get("seed") for pt in points if isinstance(pt, dict)] if isinstance(points, list) else []
+    for seed in seeds:
+        if isinstance(seed, dict) and "family" in seed:
+            name = seed.pop("family")
+            seed["law"] = old.get(name, name) if isinstance(name, str) else name

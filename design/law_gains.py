@@ -1,6 +1,6 @@
 """A family's gains from its drive file or a gain table, built from its laws' declared keys alone.
 
-For a family whose gains are plain numbers named by its laws (``ObserverFamily.gain_families``: law ->
+For a family whose gains are plain numbers named by its laws (``ObserverFamily.laws``: law ->
 keys): :func:`section_gains` reads them from a drive-file section (a dataclass or mapping holding the
 keys) and :func:`table_gains` from a gain table (design/gain_table.py), checking that the table is for
 the drive's kind, that its law is one the family declares and that every key of that law is a finite
@@ -29,11 +29,11 @@ def table_gains(family: ObserverFamily, drive: Drive, table: GainTable, table_fi
     kind = table.drive.get("kind")
     if kind is not None and kind != drive.kind:
         raise GainTableError(f"{where}: key 'drive.kind': {kind!r} does not match the drive ({drive.kind})")
-    keys = family.gain_families.get(table.family)
+    keys = family.laws.get(table.law)
     if keys is None:
         raise GainTableError(
-            f"{where}: key 'family': {table.family!r} gains are not for {family.title} drives "
-            f"(kind '{family.kind}'); its laws: {', '.join(family.gain_families)}"
+            f"{where}: key 'law': {table.law!r} gains are not for {family.title} drives "
+            f"(kind '{family.kind}'); its laws: {', '.join(family.laws)}"
         )
     values = {}
     for k in keys:
@@ -44,4 +44,4 @@ def table_gains(family: ObserverFamily, drive: Drive, table: GainTable, table_fi
         if not math.isfinite(values[k]):
             raise GainTableError(f"{where}: key 'gains.{k}': need a finite number")
     tuned_for = table.drive.get("name")
-    return GainSet(table.family, values, f"{table.family} table {where} (tuned for {tuned_for})")
+    return GainSet(table.law, values, f"{table.law} table {where} (tuned for {tuned_for})")

@@ -162,7 +162,7 @@ def loop_setup(
         meta={
             **provenance(drive, sc),
             "gain": setup.gain_source,
-            "gain_law": setup.gains.family,
+            "gain_law": setup.gains.law,
             "discretization": setup.discretization,
             "feedback": sc.feedback,
             "T_s": T_s,

@@ -31,9 +31,9 @@ def register(family: ObserverFamily) -> ObserverFamily:
     for other in _FAMILIES.values():
         if other is family:
             continue
-        shared = set(other.gain_families) & set(family.gain_families)
+        shared = ({*other.laws, *other.law_aliases}) & ({*family.laws, *family.law_aliases})
         if other.kind == family.kind or other.name == family.name or shared:
-            what = f"gain families {sorted(shared)}" if shared else "kind or name"
+            what = f"gain laws {sorted(shared)}" if shared else "kind or name"
             raise ValueError(f"{family!r} clashes with the registered {other!r}: {what}")
     _FAMILIES[family.kind] = family
     return family

@@ -31,7 +31,7 @@ class GainSchedule:
     between, held beyond the ends; C gets it as a const table.
     """
 
-    label: str  # "law16", "schedule", "constant", "zero", ...
+    label: str  # the gain law: "speed-dependent", "schedule", "constant", "zero", ...
     law: ca.Function  # (value, params) -> lam
     params: tuple[float, ...]
     fields: tuple[Field, ...]

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from sensorless.design.family import CapabilityError, Drive, ObserverFamily
+from sensorless.design.family import CapabilityError, Drive, GainSet, ObserverFamily
 from sensorless.design.registry import families
 from sensorless.design.scenario import Scenario
 from sensorless.reports.cli.common import COUNT, FINITE
@@ -40,6 +40,30 @@ class Option:
     def dest(self) -> str:
         """The attribute name on the parsed arguments."""
         return self.flags[0].lstrip("-").replace("-", "_")
+
+
+@dataclass(frozen=True)
+class Importer:
+    """A firmware configuration format that ``sensorless init --from NAME FILE`` reads into a minimal
+    drive file of the declaring family: ``read(text, file, given)`` -> (drive-file TOML, notes), where
+    ``given`` maps the dest of each of its ``options`` that was given to its value; a bad file is a
+    DriveFileError naming the file and the field; the notes (missing values, assumptions, which of two
+    redundant values was used) go to stderr."""
+
+    title: str  # e.g. the firmware tool's name for the file
+    read: Callable[[str, str, Mapping[str, Any]], tuple[str, Sequence[str]]]
+    options: tuple[Option, ...] = ()
+
+
+@dataclass(frozen=True)
+class Exporter:
+    """A firmware's configuration written by ``sensorless export --target NAME``: ``export(drive,
+    gains)`` -> ({file name: text}, notes), the names among ``files``; a DriveFileError (one line naming
+    the gain or drive key) where the gains break the firmware's own limits."""
+
+    title: str
+    files: tuple[str, ...]
+    export: Callable[[Drive, GainSet], tuple[Mapping[str, str], Sequence[str]]]
 
 
 @dataclass(frozen=True)
@@ -65,6 +89,9 @@ class ReportHooks:
     # drive sections that hold settings of other commands, not drive data: left out of the report's
     # drive-data tables (reports/review.py opening)
     settings_sections: tuple[str, ...] = ()
+    # sensorless init --from NAME FILE and sensorless export --target NAME: firmware formats by name
+    importers: Mapping[str, Importer] = field(default_factory=dict)
+    exporters: Mapping[str, Exporter] = field(default_factory=dict)
 
 
 def hooks(family: ObserverFamily) -> ReportHooks:
@@ -77,12 +104,12 @@ def hooks(family: ObserverFamily) -> ReportHooks:
     return h
 
 
-def all_options(kind: str) -> dict[str, tuple[Option, list[str]]]:
-    """Every family's options of command ``kind`` ("analyze", "tune" or "simulate"): dest -> (option,
+def all_options(command: str) -> dict[str, tuple[Option, list[str]]]:
+    """Every family's options of command ``command`` ("analyze", "tune" or "simulate"): dest -> (option,
     families)."""
     out: dict[str, tuple[Option, list[str]]] = {}
     for fam in families():
-        for opt in getattr(hooks(fam), f"{kind}_options"):
+        for opt in getattr(hooks(fam), f"{command}_options"):
             if opt.dest in out:
                 out[opt.dest][1].append(fam.name)
             else:
@@ -90,28 +117,63 @@ def all_options(kind: str) -> dict[str, tuple[Option, list[str]]]:
     return out
 
 
-def add_family_options(parser: argparse.ArgumentParser, kind: str) -> None:
-    """Register every family's options of command ``kind``, each flag once, under one group.
+def add_family_options(parser: argparse.ArgumentParser, command: str) -> None:
+    """Register every family's options of command ``command``, each flag once, under one group.
 
     A numeric option declared with a bare ``float`` or ``int`` is parsed by the shared checked number
     (reports/cli/common.py: finite, of a magnitude drive files accept); families state ranges with
     ``common.Number`` themselves."""
-    group = parser.add_argument_group("options of some observer families (refused by the others)")
-    for opt, fams in all_options(kind).values():
+    add_options(parser, all_options(command), "options of some observer families (refused by the others)")
+
+
+def add_options(
+    parser: argparse.ArgumentParser,
+    options: Mapping[str, tuple[Option, list[str]]],
+    title: str,
+    tag: str = "",
+) -> None:
+    """Register ``options`` (dest -> (option, its owners)) under one group ``title``, each help ending
+    with its owners (after ``tag``); bare ``float`` and ``int`` types become the shared checked numbers."""
+    group = parser.add_argument_group(title)
+    for opt, owners in options.values():
         kw = {**opt.kwargs, "default": None}
         kw["type"] = {float: FINITE, int: COUNT}.get(kw.get("type"), kw.get("type"))
         if kw["type"] is None:
             del kw["type"]
-        kw["help"] = f"{kw.get('help', '')} [{', '.join(fams)}]".strip()
+        kw["help"] = f"{kw.get('help', '')} [{tag}{', '.join(owners)}]".strip()
         group.add_argument(*opt.flags, **kw)
 
 
-def refuse_foreign(args: argparse.Namespace, family: ObserverFamily, kind: str) -> None:
-    """CapabilityError naming the first option given that ``family`` does not declare for ``kind``."""
-    mine = {o.dest for o in getattr(hooks(family), f"{kind}_options")}
-    for dest, (opt, fams) in all_options(kind).items():
+def refuse_foreign(args: argparse.Namespace, family: ObserverFamily, command: str) -> None:
+    """CapabilityError naming the first option given that ``family`` does not declare for ``command``."""
+    mine = {o.dest for o in getattr(hooks(family), f"{command}_options")}
+    for dest, (opt, fams) in all_options(command).items():
         if dest not in mine and getattr(args, dest, None) not in (None, False):
             raise CapabilityError(
                 f"{opt.flags[0]}: not an option for {family.title} drives (kind '{family.kind}'); "
                 f"it applies to: {', '.join(fams)}"
             )
+
+
+def importers() -> dict[str, list[tuple[ObserverFamily, Importer]]]:
+    """Every family's firmware importers by name (``sensorless init --from``), with their families."""
+    out: dict[str, list[tuple[ObserverFamily, Importer]]] = {}
+    for fam in families():
+        for name, imp in hooks(fam).importers.items():
+            out.setdefault(name, []).append((fam, imp))
+    return out
+
+
+def import_options() -> dict[str, tuple[Option, list[str]]]:
+    """Every importer's options: dest -> (option, the firmware names that declare it)."""
+    out: dict[str, tuple[Option, list[str]]] = {}
+    for name, found in sorted(importers().items()):
+        for _, imp in found:
+            for opt in imp.options:
+                out.setdefault(opt.dest, (opt, []))[1].append(name)
+    return out
+
+
+def exporter_names() -> list[str]:
+    """The firmware names any family exports to (``sensorless export --target``)."""
+    return sorted({name for fam in families() for name in hooks(fam).exporters})

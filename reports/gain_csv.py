@@ -19,7 +19,7 @@ def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
         head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
     head += [f"baseline_{h}" for h, _ in base] + ["baseline_damping", "baseline_decay_rate_1_s"]
     p0 = table.points[0] if table.points else {}
-    seed = p0.get("seed", {}).get("family")
+    seed = p0.get("seed", {}).get("law")
     if seed:
         head += [f"{seed}_damping", f"{seed}_decay_rate_1_s"]
     bound_keys = [k for k in p0.get("bound", {}) if k != "damping"]
@@ -32,7 +32,7 @@ def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
         f"T_s = {env.get('T_s_s', float('nan')):.6g} s"
     )
     lines = [
-        f"# sensorless gain table, family {table.family}, drive {table.drive.get('name')}; "
+        f"# sensorless gain table, law {table.law}, drive {table.drive.get('name')}; "
         f"{where}; baseline = the drive file's gains"
         + ("; bound = the best worst-case damping of any gain at the point's speed" if "bound" in p0 else ""),
         "# gains: " + json.dumps(clean(table.gains), sort_keys=True),
@@ -53,14 +53,14 @@ def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
 
 
 def speeds_csv(table: GainTable) -> str:
-    """Per speed of the dense grid: the pointwise bound beside this family, its seed and the drive
+    """Per speed of the dense grid: the pointwise bound beside this law, its seed and the drive
     file's gains (worst damping over the torques at that speed); from ``summary.speeds``."""
     rows = table.summary["speeds"]
     keys = [k for k in ("bound", "tuned", "seed", "baseline") if k in rows[0]]
-    names = {"tuned": table.family, "seed": table.summary.get("seed", {}).get("family", "seed")}
+    names = {"tuned": table.law, "seed": table.summary.get("seed", {}).get("law", "seed")}
     b = table.summary.get("bound", {})
     lines = [
-        f"# sensorless: worst damping over the torques at each speed, family {table.family}, drive "
+        f"# sensorless: worst damping over the torques at each speed, law {table.law}, drive "
         f"{table.drive.get('name')}; bound = the best any gain reaches at that speed (decay >= "
         f"{b.get('floor_1_s', float('nan')):.6g} 1/s); baseline = the drive file's gains (which the bound "
         "does not bound where they decay slower than its floor)",
@@ -78,7 +78,7 @@ def pareto_csv(table: GainTable) -> str:
     pf = table.summary["pareto"]
     names = list(table.summary.get("parameters", {}))
     lines = [
-        f"# sensorless: damping-versus-noise front, family {table.family}, drive {table.drive.get('name')}; "
+        f"# sensorless: damping-versus-noise front, law {table.law}, drive {table.drive.get('name')}; "
         f"noise = worst RMS of the {pf['output']} estimate [{pf['unit']}] over the dense grid",
         ",".join(["noise", "limit", "worst_damping", "min_decay_rate_1_s", *names]),
     ]

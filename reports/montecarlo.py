@@ -174,7 +174,7 @@ def summarise(
         "kind": drive.kind,
         "drive_file": drive.file,
         "drive_sha256": drive.digest,
-        "gains": {"family": gains.family, "source": gains.source},
+        "gains": {"law": gains.law, "source": gains.source},
         "samples": int(worst.size),
         "seed": int(seed),
         "spread": {n: s.text() for n, s in plant.items()},

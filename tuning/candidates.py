@@ -10,16 +10,16 @@ import numpy as np
 from sensorless.design.poles import max_real, worst_damping
 from sensorless.tuning.model import TuningModel, evaluate
 
-DAMPING, STABILITY, NOISE = 1, 0, 2  # candidate kinds
+DAMPING, STABILITY, NOISE = 1, 0, 2  # a candidate's condition
 
 
 @dataclass(frozen=True)
 class Candidates:
-    """The finite set of conditions: point data (n_p, N), kind (1: damping >= t, 0: Re <= -sigma,
+    """The finite set of conditions: point data (n_p, N), condition (1: damping >= t, 0: Re <= -sigma,
     2: noise figure <= the limit), shift sigma [1/s], and a label per point for messages."""
 
     P: np.ndarray
-    kind: np.ndarray
+    condition: np.ndarray
     sigma: np.ndarray
     labels: tuple[str, ...]
 
@@ -46,12 +46,12 @@ def margins(
     """Numeric margin of every candidate at theta by eigenvalues (>= 0: satisfied): damping - t for
     damping points, (-max Re - sigma)/scale for stability points, min over the limited outputs of
     1 - noise/limit for noise points; -inf where no equilibrium."""
-    nonoise = cand.kind != NOISE
+    nonoise = cand.condition != NOISE
     m = np.full(cand.size, -np.inf)
     e = evaluate(model, theta, cand.P[:, nonoise])
     p = e.poles
     m[nonoise] = np.where(
-        cand.kind[nonoise] == DAMPING, worst_damping(p) - t, (-max_real(p) - cand.sigma[nonoise]) / scale
+        cand.condition[nonoise] == DAMPING, worst_damping(p) - t, (-max_real(p) - cand.sigma[nonoise]) / scale
     )
     if (~nonoise).any():
         en = evaluate(model, theta, cand.P[:, ~nonoise], noise=True)

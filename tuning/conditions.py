@@ -30,7 +30,7 @@ def error_scenarios(settings: TuningSettings, model: TuningModel) -> list[tuple[
         if e > 0:
             if name not in model.estimate_names:
                 raise nlp.TuningError(
-                    f"gain family {model.family} has no estimate {name}: an error of it does not apply"
+                    f"gain law {model.law} has no estimate {name}: an error of it does not apply"
                 )
             keys.append((model.estimate_names.index(name), name, e))
     out = []
@@ -108,24 +108,24 @@ def candidates(
     """Damping points of the envelope, decay-rate points, noise points (with a limit), and stability
     points per error scenario."""
     P = [model.make_points(W, T, model.nominal_estimate)]
-    kind = [np.ones(W.size)]
+    condition = [np.ones(W.size)]
     sigma = [np.zeros(W.size)]
     labels = [label(w, t, wb) for w, t in zip(W, T, strict=True)]
     if settings.min_decay > 0:
         P.append(P[0])
-        kind.append(np.zeros(W.size))
+        condition.append(np.zeros(W.size))
         sigma.append(np.full(W.size, settings.min_decay))
         labels += [
             label(w, t, wb, f", decay >= {settings.min_decay:g} 1/s") for w, t in zip(W, T, strict=True)
         ]
     if max_noise is not None:
         P.append(P[0])
-        kind.append(np.full(W.size, NOISE))
+        condition.append(np.full(W.size, NOISE))
         sigma.append(np.zeros(W.size))
         labels += [label(w, t, wb, ", noise") for w, t in zip(W, T, strict=True)]
     for name, est in error_scenarios(settings, model):
         P.append(model.make_points(W, T, est))
-        kind.append(np.zeros(W.size))
+        condition.append(np.zeros(W.size))
         sigma.append(np.full(W.size, max(settings.min_decay, ROBUST_MARGIN * scale)))
         labels += [label(w, t, wb, f", estimates {name}") for w, t in zip(W, T, strict=True)]
-    return Candidates(np.hstack(P), np.concatenate(kind), np.concatenate(sigma), tuple(labels))
+    return Candidates(np.hstack(P), np.concatenate(condition), np.concatenate(sigma), tuple(labels))

@@ -107,7 +107,7 @@ def constant_law_model(
         return model
 
     model = TuningModel(
-        family=law,
+        law=law,
         names=gains,
         units=box.units,
         theta0=theta0,

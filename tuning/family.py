@@ -1,4 +1,4 @@
-"""Tuning hooks of the observer families: the tunable gain families each offers, and how each is tuned.
+"""Tuning hooks of the observer families: the tunable gain laws each offers, and how each is tuned.
 
 An observer family names the module of its tuning hooks (``ObserverFamily.tuning``); that module
 defines ``HOOKS``, a :class:`TuningHooks` listing its :class:`Tunable` gain laws (the family's own
@@ -24,7 +24,7 @@ Progress = Callable[[str], None]
 class TuneOutcome(Protocol):
     """What a tuner returns: the gain table and the lines of its terminal summary."""
 
-    family: str
+    law: str
     table: Any  # design.gain_table.GainTable
 
     def summary_lines(self, drive: Any) -> list[str]:
@@ -49,7 +49,7 @@ class TuneSettings(Protocol):
 
 @dataclass(frozen=True)
 class Tunable:
-    """A tunable gain family: its name (the gain table's ``family``) and how it is tuned.
+    """A tunable gain law: its name (the gain table's ``law``) and how it is tuned.
 
     Exactly one of ``build`` (drive, settings, seed) -> TuningModel for the shared NLP, and ``tuner``
     (drive, settings, progress) -> TuneOutcome, is given. ``seed`` names a tunable tuned first whose
@@ -93,7 +93,7 @@ class TuningHooks:
                 return t
         have = ", ".join(t.name for t in self.tunables)
         raise CapabilityError(
-            f"gain family {name!r} cannot be tuned for {family.title} drives (kind '{family.kind}'); "
+            f"gain law {name!r} cannot be tuned for {family.title} drives (kind '{family.kind}'); "
             f"it has: {have}"
         )
 

@@ -1,4 +1,4 @@
-"""What the shared NLP needs from a tunable gain family on a drive: the TuningModel contract.
+"""What the shared NLP needs from a tunable gain law on a drive: the TuningModel contract.
 
 A tunable gain law (tuning/family.py) on a drive supplies one :class:`TuningModel`. The
 generic NLP (tuning/nlp.py) and the verification only see this: a parameter vector theta with
@@ -12,11 +12,11 @@ Optional parts, each used by the shared pipeline where given:
 
 - ``noise``: the linearization's input from current-measurement noise and its noise outputs (the
   estimates), for the noise figure (design/noise.py), ``--max-noise`` and the Pareto front;
-- ``starts``: candidate parameter vectors of the global phase (a log grid of the family's parameters,
+- ``starts``: candidate parameter vectors of the global phase (a log grid of the law's parameters,
   tuning/search.py);
 - ``pointwise``: a model of the free gains at one operating point (theta = what ``local`` gives, less
   the slopes), for the pointwise bound (tuning/bound.py), and ``from_pointwise`` to turn the
-  per-speed optima into a start of this family;
+  per-speed optima into a start of this law;
 - ``gain_size``: a dimensionless size of the gains theta gives over the speed range, for the
   tie-break among equally damped gains (tuning/tiebreak.py).
 
@@ -39,14 +39,14 @@ from sensorless.design.poles import eigvals_batched, max_real, worst_damping
 
 @dataclass(frozen=True, eq=False)  # identity-hashed: Functions are cached per model
 class TuningModel:
-    """A tunable family on one drive.
+    """A tunable law on one drive.
 
     Operating points are columns of a point matrix (rows: ``point_names``); each point carries the
     true speed and torque and the *estimated* parameters the observer uses there, so parameter-error
     scenarios are just more points.
     """
 
-    family: str
+    law: str
     names: tuple[str, ...]  # tunable parameters, in theta order
     units: tuple[str, ...]
     theta0: np.ndarray  # the drive file's gains: the baseline (and the NLP's start if no ``start``)
@@ -65,7 +65,7 @@ class TuningModel:
     point_gains: Callable[[np.ndarray, np.ndarray], dict[str, np.ndarray]]  # (theta, w_hat) -> columns
     nominal_estimate: np.ndarray  # the drive's own estimates (no error)
     estimate_names: tuple[str, ...]  # names of the estimate entries of a point, for error scenarios
-    start: np.ndarray | None = None  # NLP start (e.g. the seed family's optimum); None: theta0
+    start: np.ndarray | None = None  # NLP start (e.g. the seed law's optimum); None: theta0
     start_label: str = ""  # what ``start`` is, for messages and the table's summary
     hessian: str = "exact"  # IPOPT hessian_approximation: "exact" or "limited-memory" (L-BFGS)
     # noise: (phi, x, point) -> (B_n, C_n, D_n): current-noise input and noise outputs (names, units)
@@ -192,7 +192,7 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
     nz = None
     if noise:
         if model.noise is None:
-            raise ValueError(f"gain family {model.family} has no noise model")
+            raise ValueError(f"gain law {model.law} has no noise model")
         nz = np.full((N, len(model.noise_outputs)), np.nan)
     if ok.any():
         xs = np.where(ok, x0, 0.0)

@@ -61,14 +61,14 @@ def solve(
     min_radius: float = 0.05,
     progress: Callable[[str], None] | None = None,
 ) -> Solution:
-    """Maximize the worst damping t over ``cand`` (minus ``smoothing`` times the family's
+    """Maximize the worst damping t over ``cand`` (minus ``smoothing`` times the law's
     regularizer) by the exchange method above, inside a trust region.
 
     Each round's NLP keeps theta within ``radius`` typical magnitudes of the round's start (the
     sector conditions are polynomial: far from the start the Newton model of IPOPT is poor). A
     round whose solution touches the trust region is followed by another from there; a round
     that IPOPT cannot solve is retried with half the radius. The method ends when a round's
-    solution is interior to the trust region and no grid point violates. Noise points (kind 2) need
+    solution is interior to the trust region and no grid point violates. Noise points (condition 2) need
     ``max_noise`` (per noise output of the model; inf: not limited). A failing round is retried with
     half the radius until it falls below ``min_radius``.
     """
@@ -78,7 +78,7 @@ def solve(
     n0 = n_initial or model.n_initial_active or max(4, 3 * nth)  # a rich parametrization binds at many
     m = margins(model, theta, cand, 0.0, scale, max_noise)
     t_now = _start_t(m, cand)
-    m = m - np.where(cand.kind == DAMPING, t_now, 0.0)
+    m = m - np.where(cand.condition == DAMPING, t_now, 0.0)
     active = _pick(m, cand, (), n0)
     total_it = 0
     best: Solution | None = None  # last round with no violated grid point
@@ -86,7 +86,7 @@ def solve(
     fixed = fixed_points(model, cand.P)
     for rnd in range(1, 100):
         # start each round feasible: below the worst damping of the active points at theta
-        damp_act = [m[i] + t_now for i in active if cand.kind[i] == DAMPING and np.isfinite(m[i])]
+        damp_act = [m[i] + t_now for i in active if cand.condition[i] == DAMPING and np.isfinite(m[i])]
         t_now = float(np.clip(min([t_now, *damp_act]) - 1e-3, 0.0, T_MAX - 0.01))
         while True:
             lo = np.maximum(model.lower, theta - radius * model.typical)
@@ -133,17 +133,17 @@ def solve(
 
 def _start_t(m: np.ndarray, cand: Candidates) -> float:
     """A feasible-as-possible start for t: just below the worst damping of the damping points."""
-    d = m[cand.kind == DAMPING]
+    d = m[cand.condition == DAMPING]
     d = d[np.isfinite(d)]
     return float(np.clip(d.min() - 1e-3, 0.0, T_MAX - 0.01)) if d.size else 0.0
 
 
 def _pick(m: np.ndarray, cand: Candidates, active: tuple[int, ...] | list[int], k: int) -> list[int]:
-    """Add the k most violated (smallest-margin) candidates not yet active; at least one of each kind."""
+    """Add the k most violated (smallest-margin) candidates not yet active; at least one of each condition."""
     out = list(active)
     order = [int(i) for i in np.argsort(m, kind="stable") if int(i) not in out]
-    for kind in (DAMPING, STABILITY, NOISE):
-        first = next((i for i in order if cand.kind[i] == kind), None)
+    for condition in (DAMPING, STABILITY, NOISE):
+        first = next((i for i in order if cand.condition[i] == condition), None)
         if first is not None and first not in out and (m[first] < 0 or not active):
             out.append(first)
     for i in order:
@@ -167,9 +167,9 @@ def _slots(n: int, least: int = 4) -> int:
 def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothing, max_noise):
     n, nphi, _, nP = sizes(model)
     groups = {
-        "free": [i for i in active if cand.kind[i] != NOISE and not fixed[i]],
-        "fixed": [i for i in active if cand.kind[i] != NOISE and fixed[i]],
-        "noise": [i for i in active if cand.kind[i] == NOISE],
+        "free": [i for i in active if cand.condition[i] != NOISE and not fixed[i]],
+        "fixed": [i for i in active if cand.condition[i] != NOISE and fixed[i]],
+        "noise": [i for i in active if cand.condition[i] == NOISE],
     }
     L = Layout(_slots(len(groups["free"])), _slots(len(groups["fixed"]), 8), _slots(len(groups["noise"])))
     par, z0, lbx, ubx, lbg, ubg = [[1.0, smoothing]], [theta / model.typical, [t_now]], [], [], [], []
@@ -194,7 +194,7 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
             continue
         act = groups[name]
         idx, P, x0, pl, phi0 = slot_data(act, M)
-        kind, sigma = cand.kind[idx], cand.sigma[idx]
+        condition, sigma = cand.condition[idx], cand.sigma[idx]
         gm = _pole_scale(pl + sigma[:, None], scale)
         xs = x0 / model.x_typical[:, None]
         for s in range(M):
@@ -202,14 +202,14 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
             f0 = factors_from_poles((pl[s] + sigma[s]) / gm[s])  # start: the factors of the start poles
             flo = np.full(n, 0.0 if on else -np.inf)
             if name == "free":
-                par.append(np.concatenate([P[:, s], [kind[s], sigma[s], gm[s]]]))
+                par.append(np.concatenate([P[:, s], [condition[s], sigma[s], gm[s]]]))
                 z0.append(np.concatenate([phi0[:, s] / model.phi_typical, xs[:, s], f0]))
                 # Equilibria within half a typical magnitude of the start (the equilibrium set is
                 # periodic in the position error: stay on the branch the analysis follows).
                 lbx.append(np.concatenate([np.full(nphi, -np.inf), xs[:, s] - 0.5, flo]))
                 ubx.append(np.concatenate([np.full(nphi, np.inf), xs[:, s] + 0.5, np.full(n, np.inf)]))
             else:
-                par.append(np.concatenate([P[:, s], [kind[s], sigma[s], gm[s]], x0[:, s]]))
+                par.append(np.concatenate([P[:, s], [condition[s], sigma[s], gm[s]], x0[:, s]]))
                 z0.append(np.concatenate([phi0[:, s] / model.phi_typical, f0]))
                 lbx.append(np.concatenate([np.full(nphi, -np.inf), flo]))
                 ubx.append(np.full(nphi + n, np.inf))

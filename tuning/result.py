@@ -63,7 +63,7 @@ class Figures:
 class TuneResult:
     """Everything ``sensorless tune`` reports."""
 
-    family: str
+    law: str
     model: TuningModel
     theta: np.ndarray
     theta0: np.ndarray
@@ -75,10 +75,10 @@ class TuneResult:
     table: GainTable
     seconds: float
     selection: dict[str, Any]  # which dense-verified candidate was kept and why
-    floor: float = 0.0  # the decay floor the family was tuned under [1/s]
+    floor: float = 0.0  # the decay floor the law was tuned under [1/s]
     bound: Bound | None = None  # the pointwise bound on the dense speeds
     seed: TuneResult | None = None  # the seed law's result (Tunable.seed)
-    ridge: dict[str, Any] | None = None  # the worst point, if no parameter of the family moves it
+    ridge: dict[str, Any] | None = None  # the worst point, if no parameter of the law moves it
     pareto: list[dict[str, Any]] | None = None  # damping-versus-noise front
     global_phase: dict[str, Any] = dataclasses.field(default_factory=dict)
 
@@ -101,9 +101,7 @@ class TuneResult:
             f"({env['dense_factor']}x denser) in {self.seconds:.1f} s",
         ]
         seeded = self.seed is not None
-        head = (
-            f"{'':<22}{'drive file':>18}" + (f"{self.seed.family:>18}" if seeded else "") + f"{'tuned':>18}"
-        )
+        head = f"{'':<22}{'drive file':>18}" + (f"{self.seed.law:>18}" if seeded else "") + f"{'tuned':>18}"
         out.append(head)
         for n, u, v0, v in zip(self.model.names, self.model.units, self.theta0, self.theta, strict=True):
             if u == "rad/s":
@@ -121,7 +119,7 @@ class TuneResult:
             f"{'  where':<22}{where(s['baseline_worst_damping_at']):>36}",
         ]
         if seeded:
-            out.append(f"{'':<22}{where(sd['worst_damping_at']):>36} ({self.seed.family})")
+            out.append(f"{'':<22}{where(sd['worst_damping_at']):>36} ({self.seed.law})")
         out.append(f"{'':<22}{where(s['worst_damping_at']):>36}")
         mid = f"{sd['min_decay_rate']:>18.4g}" if seeded else ""
         out.append(
@@ -163,7 +161,7 @@ class TuneResult:
                 f"decay >= {b['floor_1_s']:.4g} 1/s): "
                 f"worst {b['worst_damping']:.4f} at {b['worst_at_w_m_pu']:+.3f} p.u.; tuned "
                 f"{s['worst_damping']:.4f}, {b['gap']:.4f} below it"
-                + (f"; {self.seed.family} {b['gap_seed']:.4f} below" if seeded and "gap_seed" in b else "")
+                + (f"; {self.seed.law} {b['gap_seed']:.4f} below" if seeded and "gap_seed" in b else "")
             )
             if not b["feasible_everywhere"]:
                 out.append(f"  no gain meets the floor at {b['infeasible_speeds']} dense speeds")
@@ -207,7 +205,7 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
     m = r.model
     b = r.bound
     sd = None
-    if r.seed is not None:  # the seed family's gains on the same dense grid
+    if r.seed is not None:  # the seed law's gains on the same dense grid
         sd = figures(r.seed.model, r.seed.theta, d.w_m, d.T_e, noise=r.seed.model.noise is not None)
     bj = None if b is None else np.searchsorted(b.speeds, d.w_m)
     points = []
@@ -232,7 +230,7 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
             pt["baseline"]["noise"] = {o: float(v) for o, v in zip(m.noise_outputs, d0.noise[j], strict=True)}
         if sd is not None:
             pt["seed"] = {
-                "family": r.seed.family,
+                "law": r.seed.law,
                 **{k: float(v[j]) for k, v in sd.gains.items()},
                 "damping": float(sd.damping[j]),
                 "decay_rate": float(sd.decay[j]),
@@ -281,7 +279,7 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
     if sd is not None:
         ks = sd.worst()
         summary["seed"] = {
-            "family": r.seed.family,
+            "law": r.seed.law,
             "parameters": {n: float(v) for n, v in zip(r.seed.model.names, r.seed.theta, strict=True)},
             "worst_damping": float(sd.damping[ks]),
             "worst_damping_at": where(sd, ks, wb),
@@ -302,7 +300,7 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
         }
         if sd is not None:
             summary["bound"]["gap_seed"] = float(b.damping[kb] - sd.damping[sd.worst()])
-        # per speed: the bound beside this family, its seed and the drive file's gains
+        # per speed: the bound beside this law, its seed and the drive file's gains
         ws, zt = d.per_speed()
         _, z0 = d0.per_speed()
         dz0 = d0.decay_per_speed()
@@ -347,7 +345,7 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
         "bounds": {n: [float(lo), float(hi)] for n, lo, hi in zip(m.names, m.lower, m.upper, strict=True)},
     }
     return GainTable(
-        family=r.family,
+        law=r.law,
         drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
         gains=m.table_gains(r.theta),
         envelope=envelope,

@@ -2,7 +2,7 @@
 
 The max-min NLP (tuning/nlp.py) is local: IPOPT starts from one point, and where the drive file's gains
 are unstable it may find no feasible gains at all, or stop in a poor local optimum. The global phase
-evaluates many candidate parameter vectors at once (the family's ``starts``: a log grid of its
+evaluates many candidate parameter vectors at once (the law's ``starts``: a log grid of its
 parameters, plus the drive file's gains and any start of its own) on every envelope point, in one
 batched call of the compiled linearization (tuning/model.py ``evaluate``), and ranks them:
 
@@ -12,7 +12,7 @@ batched call of the compiled linearization (tuning/model.py ``evaluate``), and r
    the problem's pole scale, or the noise against its limit).
 
 If no candidate is feasible, the worst margin is maximized from the best few by a batched pattern
-search in the scaled parameters (families with a few parameters); with a noise limit, the best
+search in the scaled parameters (laws with a few parameters); with a noise limit, the best
 feasible ones are also refined by the worst damping (the noise-constrained NLP is multimodal). The
 NLP then starts from the best distinct feasible candidates. If none is found, the caller reports the
 envelope as infeasible only with evidence: the envelope speeds where no gain at all (the pointwise
@@ -29,7 +29,7 @@ from sensorless.design.poles import max_real, worst_damping
 from sensorless.tuning.candidates import DAMPING, NOISE, Candidates, fixed_points, noise_margin
 from sensorless.tuning.model import TuningModel, evaluate
 
-MAX_PATTERN_PARAMETERS = 4  # the margin search runs for families with at most this many parameters
+MAX_PATTERN_PARAMETERS = 4  # the margin search runs for laws with at most this many parameters
 FEASIBILITY_TOL = 1e-7  # margins (relative to the pole scale) down to -this count as met: the NLP's tolerance
 
 
@@ -78,7 +78,7 @@ def _margins(
     K = thetas.shape[0]
     fixed = fixed_points(model, cand.P)
     sel = np.flatnonzero(fixed)
-    cols = sel[cand.kind[sel] != NOISE]
+    cols = sel[cand.condition[sel] != NOISE]
     # the damping and stability points share their point data: evaluate each distinct point once
     Pu, inv = np.unique(cand.P[:, cols], axis=1, return_inverse=True)
     N = Pu.shape[1]
@@ -86,13 +86,13 @@ def _margins(
     p = e.poles.reshape(K, N, -1)
     z = worst_damping(p.reshape(K * N, -1)).reshape(K, N)[:, inv]
     mr = max_real(p.reshape(K * N, -1)).reshape(K, N)[:, inv]
-    kind, sigma = cand.kind[cols], cand.sigma[cols]
+    condition, sigma = cand.condition[cols], cand.sigma[cols]
     m = np.full((K, cand.size), np.inf)
-    damp = kind == DAMPING
+    damp = condition == DAMPING
     # damping points: stable (Re < 0) required; stability points: Re <= -sigma
     m[:, cols[damp]] = np.where(np.isfinite(mr[:, damp]), -mr[:, damp] / scale - 1e-9, -np.inf)
     m[:, cols[~damp]] = np.where(np.isfinite(mr[:, ~damp]), (-mr[:, ~damp] - sigma[~damp]) / scale, -np.inf)
-    ncols = sel[cand.kind[sel] == NOISE]
+    ncols = sel[cand.condition[sel] == NOISE]
     if ncols.size and max_noise is not None:
         Pn = cand.P[:, ncols]
         en = evaluate(model, np.repeat(thetas, ncols.size, axis=0).T, np.tile(Pn, (1, K)), noise=True)
@@ -127,7 +127,7 @@ def global_phase(
     extra: list[np.ndarray] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> Ranked:
-    """The family's candidates (``starts``), the drive file's gains and ``extra`` starts, ranked; if
+    """The law's candidates (``starts``), the drive file's gains and ``extra`` starts, ranked; if
     none is feasible, the worst margin is maximized from the best few (module docstring)."""
     say = progress or (lambda s: None)
     pool = [model.theta0[None]]

@@ -1,5 +1,5 @@
-"""Which verified candidate the tuner keeps, and what the result says about the family: selection among
-the dense-verified candidates, ridges (a worst point no parameter of the family moves), and the
+"""Which verified candidate the tuner keeps, and what the result says about the law: selection among
+the dense-verified candidates, ridges (a worst point no parameter of the law moves), and the
 evidence of an infeasible envelope."""
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> s
         what += " within the noise limits"
     if model.pointwise is None:
         return (
-            f"no {model.family} gains found that are {what} at every envelope point: the best of "
+            f"no {model.law} gains found that are {what} at every envelope point: the best of "
             f"{ranked.evaluated} candidates fails at {worst} (margin {ranked.margin[0]:.3g})"
         )
     speeds = env.speed_grid(wb)
@@ -50,10 +50,10 @@ def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> s
             f"{pts}{' and more' if bad.size > 6 else ''}"
         )
     return (
-        f"no {model.family} gains found that are {what} at every envelope point (best of "
+        f"no {model.law} gains found that are {what} at every envelope point (best of "
         f"{ranked.evaluated} candidates and a margin search: fails at {worst}, margin "
         f"{ranked.margin[0]:.3g}); at every envelope speed some gain ({', '.join(b.names)}) is, so the "
-        f"limit is the {model.family} law's shape: try another family"
+        f"limit is the {model.law} law's shape: try another law"
     )
 
 
@@ -98,7 +98,7 @@ def select(
         return (admissible(f), f.worst_damping(), i)
 
     top = max(range(len(cands)), key=rank)
-    # ties (within TIE in damping, e.g. along a ridge): the faster slowest decay; families
+    # ties (within TIE in damping, e.g. along a ridge): the faster slowest decay; laws
     # with a gain size then go through the tie-break of tuning/tiebreak.py (the smallest gains win)
     best = max(
         (i for i in range(len(cands)) if rank(i)[0] == rank(top)[0] and rank(i)[1] >= rank(top)[1] - TIE),
@@ -133,9 +133,9 @@ def select(
 
 
 def ridge_of(model: TuningModel, theta: np.ndarray, dense: Figures, bound: Bound | None, wb: float, say):
-    """The worst point, and whether any parameter of the family moves its damping: central
+    """The worst point, and whether any parameter of the law moves its damping: central
     differences of its worst damping in each parameter (scaled by its typical magnitude). If none
-    exceeds RIDGE_TOL, the family cannot improve that point: its optimum is a ridge there."""
+    exceeds RIDGE_TOL, the law cannot improve that point: its optimum is a ridge there."""
     k = dense.worst()
     if dense.damping[k] >= T_MAX:  # damping 1 everywhere: nothing to improve
         return None
@@ -158,8 +158,8 @@ def ridge_of(model: TuningModel, theta: np.ndarray, dense: Figures, bound: Bound
     where = f"w_m = {w / wb:+.3f} p.u., T_e = {T:+.3g} N m"
     text = (
         f"ridge: the worst point ({where}, damping {dense.damping[k]:.4f}) does not move with any "
-        f"{model.family} parameter (|d damping/d theta| <= {np.max(np.abs(g)):.1e} per typical magnitude): "
-        f"the {model.family} family cannot improve it"
+        f"{model.law} parameter (|d damping/d theta| <= {np.max(np.abs(g)):.1e} per typical magnitude): "
+        f"the {model.law} law cannot improve it"
     )
     out: dict[str, Any] = {
         "w_m_pu": float(w / wb),

@@ -20,9 +20,9 @@ The noise figure (design/noise.py) is constrained through the Lyapunov equation:
 covariance is an unknown of the slot, tied to A and the noise input by the Lyapunov equalities, with
 the slot's closed loop kept stable by the same sector factors (t = 0).
 
-The solver has a fixed number of slots per kind; tuning/nlp.py fills them with the active points of
-each exchange round. The law's regularizer (``TuningModel.regularizer``, if it has one) is weighted
-by the ``smoothing`` setting.
+The solver has a fixed number of slots of each type (free, fixed, noise); tuning/nlp.py fills them
+with the active points of each exchange round. The law's regularizer (``TuningModel.regularizer``, if
+it has one) is weighted by the ``smoothing`` setting.
 """
 
 from __future__ import annotations
@@ -76,16 +76,16 @@ def _upper(M: ca.SX) -> ca.SX:
 
 @functools.cache
 def _slot_function(model: TuningModel, free_x: bool) -> ca.Function:
-    """One damping/stability slot: (phi, t, x, point, kind, sigma, scale, f) -> (g_eq, g_damp).
+    """One damping/stability slot: (phi, t, x, point, condition, sigma, scale, f) -> (g_eq, g_damp).
 
     g_eq = [charpoly(A/scale + sigma/scale I) - product of factors f] (+ [x_dot / (scale x_typical)]
-    where the equilibrium x is an unknown, ``free_x``), g_damp = [a_i^2 - 4 (kind t)^2 b_i] (>= 0),
+    where the equilibrium x is an unknown, ``free_x``), g_damp = [a_i^2 - 4 (condition t)^2 b_i] (>= 0),
     with f >= 0 by bounds: the exact sector conditions of tuning/sector.py. With ``free_x`` False the
     equilibrium is data (it does not move with the gains): fewer unknowns and far cheaper derivatives.
     """
     n, npt = model.n_x, len(model.point_names)
     th = ca.SX.sym("phi", model.phi_typical.size)
-    t, kind, sigma, scale = (ca.SX.sym(k) for k in ("t", "kind", "sigma", "scale"))
+    t, condition, sigma, scale = (ca.SX.sym(k) for k in ("t", "kind", "sigma", "scale"))
     x = ca.SX.sym("x", n)
     pt = ca.SX.sym("point", npt)
     f = ca.SX.sym("f", n)
@@ -93,9 +93,11 @@ def _slot_function(model: TuningModel, free_x: bool) -> ca.Function:
     eq = factor_equalities(A / scale, f, sigma / scale)
     if free_x:
         eq = ca.vertcat(xdot / (scale * ca.DM(model.x_typical)), eq)
-    damp = damping_inequalities(f, n, kind * t)
+    damp = damping_inequalities(f, n, condition * t)
     names = ["phi", "t", "x", "point", "kind", "sigma", "scale", "f"]
-    return ca.Function("slot", [th, t, x, pt, kind, sigma, scale, f], [eq, damp], names, ["g_eq", "g_damp"])
+    return ca.Function(
+        "slot", [th, t, x, pt, condition, sigma, scale, f], [eq, damp], names, ["g_eq", "g_damp"]
+    )
 
 
 @functools.cache
@@ -155,7 +157,7 @@ def sizes(model: TuningModel) -> tuple[int, int, int, int]:
 def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
     """IPOPT solver for the slot layout L. Variables z = [theta/typical, t, free slots (phi/phi_typ,
     x/x_typ, f), fixed slots (phi/phi_typ, f), noise slots (phi/phi_typ, f, P~)]; parameters
-    p = [w_t, w_reg, free (point, kind, sigma, scale), fixed (point, kind, sigma, scale, x), noise
+    p = [w_t, w_reg, free (point, condition, sigma, scale), fixed (point, condition, sigma, scale, x), noise
     (point, scale, s, x, c1, c2)]. Each slot's local data phi is a variable tied to theta by
     phi = local(theta, point): the slots' derivatives stay small and block-diagonal whatever the
     number of parameters."""
@@ -220,7 +222,7 @@ def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
     f = -w_t * t + w_reg * reg(theta)
     g = ca.vertcat(*g_phi, *g_eq, *g_ineq)
     return ca.nlpsol(
-        f"tune_{model.family}_{L.free}_{L.fixed}_{L.noise}",
+        f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",
         "ipopt",
         {"x": z, "p": p, "f": f, "g": g},
         {**SOLVER_OPTIONS, "ipopt.hessian_approximation": model.hessian},

@@ -17,8 +17,8 @@ A smaller gain generally decays slower, and a real pole creeping to the origin h
 damping bound alone would not stop it. Stage 2 keeps the slowest decay at least KEEP_DECAY times
 that of the gains stage 1 kept (and at least the tuning's floor).
 
-Search (families of up to search.MAX_PATTERN_PARAMETERS parameters): the stage-1 candidates and the
-family's global grid that meet the stage-2 constraints on the optimization grid seed a batched
+Search (laws of up to search.MAX_PATTERN_PARAMETERS parameters): the stage-1 candidates and the
+law's global grid that meet the stage-2 constraints on the optimization grid seed a batched
 pattern search in the logarithms of the parameters that lowers the size while they keep meeting them;
 its ends are checked on the dense grid (with the estimate-error scenarios). Where the smallest end
 fails there, those dense points join the search's grid and it runs again (an exchange method, as the

@@ -1,24 +1,24 @@
 """Gain tuning end to end: envelope -> global phase -> NLP -> dense re-verification -> bound -> gain table.
 
-``tune(drive, name)`` tunes the tunable gain family ``name`` of the drive's observer family (tuning/
+``tune(drive, name)`` tunes the tunable gain law ``name`` of the drive's observer family (tuning/
 family.py): with its own tuner if it has one, else by the shared pipeline below on the TuningModel it
 builds:
 
 1. global phase (tuning/search.py): many candidate gains evaluated in batch on the whole envelope;
    the NLP starts from the best distinct ones that meet every constraint. None: the envelope is
    reported infeasible with its evidence (the speeds where no gain at all meets the constraints,
-   from the pointwise model), or, if every speed has such gains, as a limit of the family;
+   from the pointwise model), or, if every speed has such gains, as a limit of the law;
 2. the max-min NLP (tuning/nlp.py) from each start;
 3. re-verification on a grid ``dense_factor`` (>= 4) times denser in speed and in torque of every
    start and every verified NLP round; the best admissible one is kept (never worse than the drive
-   file's gains or, for a seeded family, its seed);
+   file's gains or, for a seeded law, its seed);
 4. the pointwise bound (tuning/bound.py) on the dense speeds, with the same decay floor: at each
    speed the best worst-case damping any gain reaches; the certificate is the gap between the tuned
    worst damping and the bound's worst;
    then the tie-break (tuning/tiebreak.py): of the gains within TIE_TOL of that best worst damping,
-   the smallest (families of a few parameters with a gain size);
-5. ridges: where the worst point's damping does not move with any of the family's parameters, the
-   summary says which point it is and that the family cannot improve it;
+   the smallest (laws of a few parameters with a gain size);
+5. ridges: where the worst point's damping does not move with any of the law's parameters, the
+   summary says which point it is and that the law cannot improve it;
 6. optionally the damping-versus-noise front (``pareto``).
 
 The numbers a user sees (terminal summary, CSV, JSON) are all from the re-verification; the NLP's
@@ -55,16 +55,16 @@ CERTIFIED = 1e-4
 
 def tune(
     drive: Any,
-    family: str | None = None,
+    law: str | None = None,
     settings: Any = None,
     progress: Callable[[str], None] | None = None,
 ) -> Any:
-    """Tune the gain family ``family`` (None: the default of the drive's observer family) on ``drive``
+    """Tune the gain law ``law`` (None: the default of the drive's observer family) on ``drive``
     over the envelope of ``settings`` (default: the tunable's, e.g. the drive's ``[tuning]``). Returns a
     TuneResult (or the own tuner's result). Raises nlp.TuningError if the constraints cannot be met
-    (with the evidence), CapabilityError if the family cannot be tuned."""
-    tunable = tunable_for(drive, family)
-    family = tunable.name
+    (with the evidence), CapabilityError if the law cannot be tuned."""
+    tunable = tunable_for(drive, law)
+    law = tunable.name
     settings = settings if settings is not None else tunable.settings(drive)
     if tunable.tuner is not None:  # a law with a tuner of its own
         return tunable.tuner(drive, settings, progress)
@@ -73,7 +73,7 @@ def tune(
     seed_res: TuneResult | None = None
     if tunable.seed is not None:
         seed_name = tunable.seed
-        say(f"{family}: tuning its start, the {seed_name} family, first")
+        say(f"{law}: tuning its start, the {seed_name} law, first")
         seed_set = dataclasses.replace(settings, pareto=0)
         seed_res = tune(drive, seed_name, seed_set, progress=lambda m: say(f"  [{seed_name}] {m}"))
     model = tunable.build(drive, settings, None if seed_res is None else seed_res.theta)
@@ -89,11 +89,11 @@ def tune(
     scale = float(np.abs(base.poles).max())
     max_noise = settings.noise_limits(model.noise_outputs) if model.noise is not None else None
     if settings.max_noise and model.noise is None:
-        raise nlp.TuningError(f"gain family {family} has no noise model: --max-noise does not apply")
+        raise nlp.TuningError(f"gain law {law} has no noise model: --max-noise does not apply")
 
     floor = settings.min_decay
     if start is not None:
-        # a seeded family keeps at least its seed's decay rate on the grid (here, in the global
+        # a seeded law keeps at least its seed's decay rate on the grid (here, in the global
         # phase and in the bound: the floor of the whole tuning)
         start_decay = float(np.min(figures(model, start, W, T).decay))
         if start_decay > floor:
@@ -103,7 +103,7 @@ def tune(
     check_error_equilibria(model, settings, start if start is not None else theta0, W, T, wb)
     cand = _candidates(model, settings, W, T, wb, scale, max_noise)
     say(
-        f"{family}: {model.n_theta} parameters, {W.size} envelope points"
+        f"{law}: {model.n_theta} parameters, {W.size} envelope points"
         f"{f', {cand.size - W.size} constraint points' if cand.size > W.size else ''}; "
         f"drive file's gains: worst damping {base.damping.min():.4f}"
     )
@@ -131,7 +131,7 @@ def tune(
         raise nlp.TuningError(f"tuned gains: no closed-loop equilibrium at {label(Wd[k], Td[k], wb)}")
     rb = robust(model, settings, theta, Wd, Td, wb)
     if bound is not None and model.pointwise_gains is not None:
-        # computed before this family was tuned: its tuned gains are found gains too
+        # computed before this law was tuned: its tuned gains are found gains too
         gains = model.pointwise_gains(theta, bound.speeds)
         bound = with_witness(bound, model.pointwise(), gains, scale, max_noise)
     if bound is None and settings.bound and model.pointwise is not None:
@@ -144,7 +144,7 @@ def tune(
         pareto = damping_noise_front(drive, pb, cand, theta, max_noise)
     seconds = time.perf_counter() - t_start
     result = TuneResult(
-        family=family,
+        law=law,
         model=model,
         theta=theta,
         theta0=theta0,
@@ -290,7 +290,7 @@ def _optimize(
 
 def _bound(drive, model, settings, floor, scale, max_noise, others, say, reuse=None, *thetas) -> Bound:
     """The pointwise bound on the dense speeds x torques with decay floor ``floor``; the gains of
-    ``thetas`` (this family's) and of the results ``others`` start it at every speed."""
+    ``thetas`` (this law's) and of the results ``others`` start it at every speed."""
     env = settings.envelope
     if reuse is not None and abs(reuse.floor - floor) <= 1e-9 * max(1.0, floor):
         say("pointwise bound: the seed's (same decay floor)")
@@ -317,7 +317,7 @@ def _bound(drive, model, settings, floor, scale, max_noise, others, say, reuse=N
 def damping_noise_front(drive, pb: _Problem, cand, theta_best, max_noise):
     """The damping-versus-noise front: the tuning (global phase, NLP, dense selection) repeated with the
     noise output limited to a sweep of values from the unconstrained optimum's noise down to the
-    least noise of a feasible global candidate (half the optimum's for a family without a candidate
+    least noise of a feasible global candidate (half the optimum's for a law without a candidate
     grid); every point re-verified on the dense grid."""
     model, settings, say = pb.model, pb.settings, pb.say
     outs = model.noise_outputs
@@ -382,12 +382,12 @@ def damping_noise_front(drive, pb: _Problem, cand, theta_best, max_noise):
 
 def with_noise_points(cand: Candidates) -> Candidates:
     """The candidates with a noise point at every envelope point (if not there yet)."""
-    if (cand.kind == NOISE).any():
+    if (cand.condition == NOISE).any():
         return cand
-    dmp = np.flatnonzero(cand.kind == DAMPING)
+    dmp = np.flatnonzero(cand.condition == DAMPING)
     return Candidates(
         np.hstack([cand.P, cand.P[:, dmp]]),
-        np.concatenate([cand.kind, np.full(dmp.size, NOISE)]),
+        np.concatenate([cand.condition, np.full(dmp.size, NOISE)]),
         np.concatenate([cand.sigma, np.zeros(dmp.size)]),
         (*cand.labels, *(cand.labels[j] + ", noise" for j in dmp)),
     )

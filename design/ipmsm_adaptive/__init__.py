@@ -32,7 +32,8 @@ class AdaptiveFluxObserver(ObserverFamily):
     scenarios = "sensorless.design.ipmsm_adaptive.scenarios"
     tuning = "sensorless.tuning.ipmsm_adaptive"
     report = "sensorless.reports.ipmsm_adaptive"
-    gain_families = _runtime.GAIN_FAMILIES
+    laws = _runtime.TABLE_LAWS
+    law_aliases = _runtime.LAW_ALIASES
     scenario_options = simulation.SCENARIO_OPTIONS
     estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
     panels = simulation.PANELS

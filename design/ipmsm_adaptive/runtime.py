@@ -1,8 +1,8 @@
 """The adaptive observer's gains and runtime set-up from a drive file or a tuned gain table.
 
 Gains (:class:`~sensorless.design.family.GainSet`) come from the drive's ``[observer.gains.*]`` (gain
-families ``zero``, ``constant``, ``law16`` = the ``speed`` table, eq. (16)) or from a gain table of
-family ``law16`` or ``schedule`` (docs/gain_tables.md); either way with the adaptation bandwidth
+laws ``zero``, ``constant``, ``speed-dependent`` = the ``speed`` table, eq. (16)) or from a gain table
+of law ``speed-dependent`` or ``schedule`` (docs/gain_tables.md); either way with the adaptation bandwidth
 alpha_fo (10). The runtime parameters (estimates, sampling period, injection and filter settings)
 come from the drive file; the gain law (7)/(16) is scheduled at the stored speed estimate.
 """
@@ -23,14 +23,17 @@ from sensorless.symbolic.ipmsm_adaptive.gains import LAWS, GainLaw, schedule_law
 from sensorless.symbolic.ipmsm_adaptive.step import OBSERVER
 from sensorless.symbolic.runtime import Field
 
-# gain-table family -> keys of its "gains" (all SI)
-GAIN_FAMILIES: dict[str, tuple[str, ...]] = {
-    "law16": ("lambda_p", "w_lambda", "alpha_fo"),  # eq. (16) [ohm, rad/s], eq. (10) [rad/s]
+# gain-table law -> keys of its "gains" (all SI)
+TABLE_LAWS: dict[str, tuple[str, ...]] = {
+    # the speed-dependent gain, eq. (16) of Piippo, Hinkkanen, Luomi (2008) [ohm, rad/s], eq. (10) [rad/s]
+    "speed-dependent": ("lambda_p", "w_lambda", "alpha_fo"),
     "schedule": ("w_hat", "lambda1", "lambda2", "alpha_fo"),  # breakpoints [rad/s], gains [ohm]
 }
-# the drive file's [observer.gains.<name>] -> gain family
-DRIVE_GAINS = {"zero": "zero", "constant": "constant", "speed": "law16"}
-LAW_OF = {"zero": "zero", "constant": "constant", "law16": "speed"}
+# former law names, still read (gain tables, `sensorless tune --law`) for one release
+LAW_ALIASES = {"law16": "speed-dependent"}
+# the drive file's [observer.gains.<name>] -> gain law
+DRIVE_GAINS = {"zero": "zero", "constant": "constant", "speed": "speed-dependent"}
+LAW_OF = {"zero": "zero", "constant": "constant", "speed-dependent": "speed"}
 
 _DOCS = {
     "lambda_p": "lambda' of the speed-dependent gain, eq. (16)",
@@ -39,7 +42,7 @@ _DOCS = {
     "lambda2": "constant gain lambda2, eq. (7)",
 }
 _TEXT = {
-    "law16": "speed-dependent gain, eq. (16), closed form",
+    "speed-dependent": "speed-dependent gain, eq. (16), closed form",
     "schedule": "tuned gain schedule, const table with linear interpolation",
     "constant": "constant gain, eq. (7)",
     "zero": "zero gain",
@@ -50,28 +53,28 @@ def drive_gains(drive: Any, name: str | None = None) -> GainSet:
     """The drive file's ``[observer.gains.<name>]`` (default: ``[observer] gain``) with its alpha_fo."""
     name = name or drive.observer.gain
     g = drive.gain(name)  # KeyError naming the file if absent
-    fam = DRIVE_GAINS[name]
-    values: dict[str, Any] = {n: float(getattr(g, n)) for n in LAWS[LAW_OF[fam]].param_names}
+    law = DRIVE_GAINS[name]
+    values: dict[str, Any] = {n: float(getattr(g, n)) for n in LAWS[LAW_OF[law]].param_names}
     values["alpha_fo"] = float(drive.observer.alpha_fo)
-    return GainSet(fam, values, f"{drive.file} [observer.gains.{name}]")
+    return GainSet(law, values, f"{drive.file} [observer.gains.{name}]")
 
 
 def table_gains(table: GainTable, where: str) -> GainSet:
-    """The gains of a ``law16`` or ``schedule`` table; ``where`` names the table in errors."""
-    if table.family not in GAIN_FAMILIES:
+    """The gains of a ``speed-dependent`` or ``schedule`` table; ``where`` names the table in errors."""
+    if table.law not in TABLE_LAWS:
         raise GainTableError(
-            f"{where}: key 'family': {table.family!r} gains are not for the speed-adaptive observer "
-            f"(use a {' or '.join(GAIN_FAMILIES)} table)"
+            f"{where}: key 'law': {table.law!r} gains are not for the speed-adaptive observer "
+            f"(use a {' or '.join(TABLE_LAWS)} table)"
         )
     g = table.gains
-    scalars = GAIN_FAMILIES["law16"] if table.family == "law16" else ("alpha_fo",)
-    for k in GAIN_FAMILIES[table.family]:
+    scalars = TABLE_LAWS["speed-dependent"] if table.law == "speed-dependent" else ("alpha_fo",)
+    for k in TABLE_LAWS[table.law]:
         if isinstance(g[k], list) == (k in scalars):
             what = "a number" if k in scalars else "a list of numbers, one per breakpoint"
             raise GainTableError(f"{where}: key 'gains.{k}': expected {what}, got {g[k]!r}")
     try:
-        if table.family == "law16":
-            values: dict[str, Any] = {k: float(g[k]) for k in GAIN_FAMILIES["law16"]}
+        if table.law == "speed-dependent":
+            values: dict[str, Any] = {k: float(g[k]) for k in TABLE_LAWS["speed-dependent"]}
         else:
             n = len(g["w_hat"])
             for k in ("lambda1", "lambda2"):
@@ -97,18 +100,16 @@ def table_gains(table: GainTable, where: str) -> GainSet:
     for k in ("lambda_p", "w_lambda", "alpha_fo"):  # as in the drive file: eq. (16) and (10) need them > 0
         if k in values and not values[k] > 0:
             raise GainTableError(f"{where}: key 'gains.{k}': non-physical value {values[k]!r}: must be > 0")
-    return GainSet(
-        table.family, values, f"{table.family} table {where} (tuned for {table.drive.get('name')})"
-    )
+    return GainSet(table.law, values, f"{table.law} table {where} (tuned for {table.drive.get('name')})")
 
 
 def law_of(gains: GainSet) -> tuple[GainLaw, tuple[float, ...]]:
     """(gain law of symbolic/ipmsm_adaptive/gains.py, its parameter vector) of a gain set."""
     v = gains.values
-    if gains.family == "schedule":
+    if gains.law == "schedule":
         law = schedule_law(tuple(float(w) for w in v["w_hat"]))
         return law, tuple(float(x) for x in [*v["lambda1"], *v["lambda2"]])
-    law = LAWS[LAW_OF[gains.family]]
+    law = LAWS[LAW_OF[gains.law]]
     return law, tuple(float(v[n]) for n in law.param_names)
 
 
@@ -127,7 +128,7 @@ def schedule_of(gains: GainSet) -> GainSchedule:
         Field(n, u, _DOCS.get(n, "gain law parameter"))
         for n, u in zip(law.param_names, law.param_units, strict=True)
     )
-    return GainSchedule(gains.family, law_function(law), values, fields, law.grid, _TEXT[gains.family])
+    return GainSchedule(gains.law, law_function(law), values, fields, law.grid, _TEXT[gains.law])
 
 
 def runtime_params(drive: Any, alpha_fo: float | None = None) -> dict[str, float]:

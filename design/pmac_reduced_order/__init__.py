@@ -31,7 +31,8 @@ class ReducedOrderObserver(ObserverFamily):
     scenarios = "sensorless.design.pmac_reduced_order.scenarios"
     tuning = "sensorless.tuning.pmac_reduced_order"
     report = "sensorless.reports.pmac_reduced_order"
-    gain_families = _runtime.GAIN_FAMILIES
+    laws = _runtime.TABLE_LAWS
+    law_aliases = _runtime.LAW_ALIASES
     scenario_options = simulation.SCENARIO_OPTIONS
     estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
     panels = simulation.PANELS

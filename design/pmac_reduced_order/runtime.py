@@ -1,6 +1,6 @@
 """The reduced-order observer's gains and runtime set-up from a drive file or a tuned gain table.
 
-Gains g (9) and Gamma (10) come from the drive's ``[observer]`` or a gain table of family ``deangelo``
+Gains g (9) and Gamma (10) come from the drive's ``[observer]`` or a gain table of law ``constant``
 (docs/gain_tables.md). Every parameter of the runtime step (symbolic/pmac_reduced_order/step.py), the
 gains and the EMF series of the observer's model included, is a runtime parameter; nothing is
 scheduled outside the step.
@@ -16,23 +16,26 @@ from sensorless.design.gain_table import GainTable, GainTableError
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.symbolic.pmac_reduced_order.step import runtime_observer
 
-GAIN_FAMILIES: dict[str, tuple[str, ...]] = {
-    "deangelo": ("g", "Gamma"),  # observer gains [1/s], [A^2 s^2], eqs. (9)-(10)
+# gain-table law -> keys of its "gains": the constant gains g, Gamma of De Angelo et al. (2006)
+TABLE_LAWS: dict[str, tuple[str, ...]] = {
+    "constant": ("g", "Gamma"),  # observer gains [1/s], [A^2 s^2], eqs. (9)-(10)
 }
+# former law names, still read (gain tables, `sensorless tune --law`) for one release
+LAW_ALIASES = {"deangelo": "constant"}
 
 
 def drive_gains(drive: Any) -> GainSet:
     """The drive file's ``[observer]`` g and Gamma."""
     o = drive.observer
-    return GainSet("deangelo", {"g": float(o.g), "Gamma": float(o.Gamma)}, f"{drive.file} [observer]")
+    return GainSet("constant", {"g": float(o.g), "Gamma": float(o.Gamma)}, f"{drive.file} [observer]")
 
 
 def table_gains(table: GainTable, where: str) -> GainSet:
-    """The gains of a ``deangelo`` table; ``where`` names the table in errors."""
-    if table.family not in GAIN_FAMILIES:
+    """The gains of a ``constant`` table; ``where`` names the table in errors."""
+    if table.law not in TABLE_LAWS:
         raise GainTableError(
-            f"{where}: key 'family': {table.family!r} gains are not for the reduced-order observer "
-            "(use a deangelo table)"
+            f"{where}: key 'law': {table.law!r} gains are not for the reduced-order observer "
+            "(use a constant table)"
         )
     values = {}
     for k, need in (("g", "a finite number > 0"), ("Gamma", "a finite number >= 0")):
@@ -43,7 +46,7 @@ def table_gains(table: GainTable, where: str) -> GainSet:
         values[k] = x
     g, Gamma = values["g"], values["Gamma"]
     return GainSet(
-        "deangelo", {"g": g, "Gamma": Gamma}, f"deangelo table {where} (tuned for {table.drive.get('name')})"
+        "constant", {"g": g, "Gamma": Gamma}, f"constant table {where} (tuned for {table.drive.get('name')})"
     )
 
 

@@ -113,7 +113,7 @@ def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     meta = {
         **provenance(drive, sc),
         "gain": f"{setup.gain_source}: g = {g['g']:g} 1/s, Gamma = {g['Gamma']:g}",
-        "gain_law": "deangelo",
+        "gain_law": setup.gains.law,
         "discretization": setup.discretization,
         "injection": False,
         "feedback": sc.feedback,

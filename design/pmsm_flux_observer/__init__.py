@@ -31,7 +31,7 @@ def simulation(drive: Any, sc: Any, gains: GainSet | None) -> Any:
     setup.observer.check_params(params)
     setup = dataclasses.replace(setup, params=params)
     meta = {
-        "gain": f"{setup.gain_source}: law {setup.gains.family}, {drive.observer.correction}, "
+        "gain": f"{setup.gain_source}: law {setup.gains.law}, {drive.observer.correction}, "
         f"{drive.observer.inductance_rule} inductance, T_obs = {drive.observer.T_obs * 1e6:.6g} us"
     }
     return loop_setup(drive, sc, setup, meta=meta)
@@ -48,7 +48,7 @@ class FluxObserverFamily(ObserverFamily):
     scenarios = "sensorless.design.pmsm_flux_observer.scenarios"
     tuning = "sensorless.tuning.pmsm_flux_observer"
     report = "sensorless.reports.pmsm_flux_observer"
-    gain_families = _gains.GAIN_FAMILIES
+    laws = _gains.TABLE_LAWS
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
 

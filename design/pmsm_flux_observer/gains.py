@@ -39,7 +39,7 @@ LAW_KEYS: dict[str, dict[str, str]] = {
     },
     "flux_schedule": {"pll_bandwidth": "angular"},  # plus the lists speeds [rad/s], observer_gain [1/s]
 }
-GAIN_FAMILIES: dict[str, tuple[str, ...]] = {
+TABLE_LAWS: dict[str, tuple[str, ...]] = {
     "odrive": ("observer_gain", "pll_bandwidth"),
     "vesc": ("foc_observer_gain", "foc_observer_gain_slow", "foc_pll_kp", "foc_pll_ki"),
     "flux_schedule": ("speeds", "observer_gain", "pll_bandwidth"),
@@ -62,9 +62,9 @@ def parse_law(law: str, t: Mapping[str, Any], file: str, section: str) -> dict[s
     if law not in LAW_KEYS:
         raise DriveFileError(file, f"{section}.law", f"{law!r} is not one of: {', '.join(LAW_KEYS)}")
     for k in t:
-        if k != "law" and k not in GAIN_FAMILIES[law]:
+        if k != "law" and k not in TABLE_LAWS[law]:
             raise DriveFileError(
-                file, f"{section}.{k}", f"unknown key (law {law}: {', '.join(GAIN_FAMILIES[law])})"
+                file, f"{section}.{k}", f"unknown key (law {law}: {', '.join(TABLE_LAWS[law])})"
             )
     out = {
         k: _number(t, k, dim, file, section, k == "foc_observer_gain_slow")
@@ -96,21 +96,19 @@ def drive_gains(drive: Any) -> GainSet:
 
 def table_gains(table: GainTable, where: str) -> GainSet:
     """The gains of a gain table of one of the family's laws."""
-    if table.family not in GAIN_FAMILIES:
-        raise GainTableError(f"{where}: key 'family': {table.family!r} is not a law of the flux observer")
+    if table.law not in TABLE_LAWS:
+        raise GainTableError(f"{where}: key 'law': {table.law!r} is not a law of the flux observer")
     try:
-        values = parse_law(table.family, {"law": table.family, **table.gains}, where, "gains")
+        values = parse_law(table.law, {"law": table.law, **table.gains}, where, "gains")
     except DriveFileError as e:
         raise GainTableError(f"{where}: key '{e.key}': {e.problem}") from None
-    return GainSet(
-        table.family, values, f"{table.family} table {where} (tuned for {table.drive.get('name')})"
-    )
+    return GainSet(table.law, values, f"{table.law} table {where} (tuned for {table.drive.get('name')})")
 
 
 def pll_gains(gains: GainSet) -> tuple[float, float]:
     """(k_p [1/s], k_i [1/s^2]) of a gain set."""
     v = gains.values
-    if gains.family == "vesc":
+    if gains.law == "vesc":
         return float(v["foc_pll_kp"]), float(v["foc_pll_ki"])
     bw = float(v["pll_bandwidth"])
     return 2 * bw, bw**2
@@ -120,7 +118,7 @@ def base_gain(gains: GainSet, psi_hat: float) -> float:
     """k_0 [1/s]: gamma lambda^2 before VESC's voltage factor (odrive: observer_gain; vesc: 4 raw
     lambda^2)."""
     v = gains.values
-    if gains.family == "vesc":
+    if gains.law == "vesc":
         return VESC_GAIN_FACTOR * float(v["foc_observer_gain"]) * psi_hat**2
     return float(v["observer_gain"])
 
@@ -146,7 +144,7 @@ def constant_law() -> ca.Function:
 
 def schedule_of(gains: GainSet, psi_hat: float) -> GainSchedule:
     """The runtime schedule of k_0: a constant, or the table over |w_pll|."""
-    if gains.family == "flux_schedule":
+    if gains.law == "flux_schedule":
         grid = tuple(float(w) for w in gains.values["speeds"])
         vals = tuple(float(k) for k in gains.values["observer_gain"])
         fields = tuple(
@@ -156,10 +154,8 @@ def schedule_of(gains: GainSet, psi_hat: float) -> GainSchedule:
             "flux_schedule", table_law(grid), vals, fields, grid, "gamma lambda^2 over |w_pll|"
         )
     k_0 = base_gain(gains, psi_hat)
-    text = "constant gamma lambda^2" if gains.family == "odrive" else "4 gain lambda^2 (x VESC's factor)"
-    return GainSchedule(
-        gains.family, constant_law(), (k_0,), (Field("k_0", "1/s", "observer gain"),), (), text
-    )
+    text = "constant gamma lambda^2" if gains.law == "odrive" else "4 gain lambda^2 (x VESC's factor)"
+    return GainSchedule(gains.law, constant_law(), (k_0,), (Field("k_0", "1/s", "observer gain"),), (), text)
 
 
 def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:
@@ -174,7 +170,7 @@ def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:
         "psi_pm": e.psi_pm,
         "k_slow": float(v.get("foc_observer_gain_slow", 1.0)),
         "u_ref": VESC_U_REF,
-        "scheduled": 1.0 if gains.family == "vesc" else 0.0,
+        "scheduled": 1.0 if gains.law == "vesc" else 0.0,
         "adapt": 1.0 if drive.observer.lambda_adaptation else 0.0,
         "k_p": k_p,
         "k_i": k_i,

@@ -215,7 +215,7 @@ def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = N
         torque_name="T_e",
         theta_err=np.where(ok, wrap(err[:, 0, 0]), np.nan),
         theta_err_discrete=err_d,
-        law=gains.family,
+        law=gains.law,
     )
 
 

@@ -5,11 +5,17 @@ README "Your own motor"); its observer family derives everything else by documen
 (``ObserverFamily.document``, e.g. design/ipmsm_adaptive/derive.py) and this command writes the result
 as a drive file to review and edit. The written file is loaded back before it is moved into place, so
 what is written loads; every command also accepts the minimal file itself, with the same result.
+
+``--from NAME FILE`` reads a firmware's configuration file instead (VESC Tool's XML, an odrivetool
+backup, ...): the observer families declare the formats they read (reports/family.py ``Importer``) and
+each format's options; the minimal drive file it gives is written after it loads, and the notes of the
+conversion (missing values, assumptions, which of two redundant values was used) go to stderr.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -17,8 +23,10 @@ from typing import Any
 from sensorless.design import registry
 from sensorless.design.drive import load_drive_text, preset_text
 from sensorless.design.drive_file import read_text, table
+from sensorless.design.family import CapabilityError
 from sensorless.design.units import DriveFileError
-from sensorless.reports.cli.common import print_warnings
+from sensorless.reports.cli.common import UsageError, print_warnings
+from sensorless.reports.family import Importer, add_options, import_options, importers
 from sensorless.reports.files import OutputFile
 
 
@@ -32,14 +40,40 @@ def register(sub: Any) -> None:
         "family's documented rules, and write the complete drive file, each derived value with its rule as "
         "a comment (docs/motor_data.md).",
     )
-    p.add_argument("drive", metavar="MINIMAL_TOML_OR_PRESET", help="minimal drive TOML (or a preset name)")
+    p.add_argument(
+        "drive", nargs="?", metavar="MINIMAL_TOML_OR_PRESET", help="minimal drive TOML (or a preset name)"
+    )
+    formats = importers()
+    p.add_argument(
+        "--from",
+        dest="from_firmware",
+        nargs=2,
+        metavar=("FIRMWARE", "FILE"),
+        help="instead of a drive file, read a firmware's configuration file and write the minimal drive "
+        f"file it gives (firmware: {', '.join(sorted(formats)) or 'none declared'})",
+    )
     p.add_argument("--out", required=True, metavar="DRIVE.toml", help="the drive file to write")
     p.add_argument("--force", action="store_true", help="overwrite an existing file")
+    add_options(
+        p,
+        import_options(),
+        "options of --from (each firmware declares its own; refused by the others)",
+        "--from ",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Derive, check by loading, write."""
+    if args.from_firmware is not None:
+        if args.drive is not None:
+            raise UsageError(f"--from reads {args.from_firmware[1]}: give no drive file beside it")
+        return run_import(args)
+    if args.drive is None:
+        raise UsageError("give a minimal drive file (or a preset), or --from FIRMWARE FILE")
+    for opt, _ in import_options().values():
+        if getattr(args, opt.dest, None) is not None:
+            raise UsageError(f"{opt.flags[0]}: an option of --from FIRMWARE FILE only")
     text, file = _source(args.drive)
     try:
         data = tomllib.loads(text)
@@ -79,3 +113,43 @@ def _source(spec: str) -> tuple[str, str]:
     if not path.is_file():
         raise FileNotFoundError(f"{spec}: no such drive file, and not a preset")
     return read_text(path), str(path)
+
+
+def _importer(name: str) -> Importer:
+    """The importer of firmware ``name``: one line naming the firmwares there are if none or several."""
+    found = importers().get(name, [])
+    if not found:
+        known = ", ".join(sorted(importers())) or "none: no observer family declares one"
+        raise UsageError(f"argument --from: no importer for {name!r} (known: {known})")
+    if len(found) > 1:
+        fams = ", ".join(f.name for f, _ in found)
+        raise CapabilityError(f"--from {name}: declared by several observer families ({fams})")
+    return found[0][1]
+
+
+def run_import(args: argparse.Namespace) -> int:
+    """Read a firmware's configuration, check the drive file it gives by loading it, write it."""
+    name, spec = args.from_firmware
+    imp = _importer(name)
+    mine = {opt.dest for opt in imp.options}
+    for dest, (opt, owners) in import_options().items():
+        if dest not in mine and getattr(args, dest, None) is not None:
+            raise UsageError(
+                f"{opt.flags[0]}: not an option of --from {name} (it is of --from {', '.join(owners)})"
+            )
+    out = OutputFile(args.out, force=args.force)
+    out.check()
+    path = Path(spec)
+    if not path.is_file():
+        raise FileNotFoundError(f"{spec}: no such file")
+    given = {d: getattr(args, d) for d in sorted(mine) if getattr(args, d, None) is not None}
+    written, notes = imp.read(read_text(path), spec, given)
+    drive = load_drive_text(written, str(args.out))  # what is written loads (errors name its keys)
+    out.set_text(written)
+    target = out.commit()
+    for note in notes:
+        print(f"sensorless init: note: {note}", file=sys.stderr)
+    print_warnings("init", drive)
+    print(f"wrote {target}: {drive.name} from {spec} ({imp.title}); the conversions are its comments")
+    print(f"review it, then e.g.: sensorless tune {target}")
+    return 0

@@ -27,7 +27,7 @@ from sensorless.reports import interrupts
 
 # The subcommands (each module's register(subparsers) sets ``func``); imported by main() once Ctrl-C
 # is handled, since importing CasADi and the families takes a moment.
-COMMAND_NAMES = ("init", "analyze", "tune", "simulate", "codegen", "report", "montecarlo")
+COMMAND_NAMES = ("init", "analyze", "tune", "simulate", "codegen", "export", "report", "montecarlo")
 EXIT_USAGE, EXIT_RESULT, EXIT_PIPE = 2, 3, 141
 
 

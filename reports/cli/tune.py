@@ -1,12 +1,12 @@
 """``sensorless tune``: tuned observer gains over an operating envelope, written as gain tables.
 
-The drive's observer family offers tunable gain families (tuning/family.py; ``--family``, default its
+The drive's observer family offers tunable gain laws (tuning/family.py; ``--law``, default its
 first on a built-in preset, the family's best on a drive of the user's own); envelope and constraints
 come from the drive file and the family's options (reports/family.py).
 Progress goes to stderr; the summary (with the pointwise bound on a line of its own) and the written
-files to stdout: ``gains_<family>.json``/``.csv``, ``speeds_<family>.csv`` (the bound beside the
-family, its seed and the drive file's gains at every dense speed) when the tuner computed the bound,
-``pareto_<family>.csv`` with ``--pareto``. If the tuner fails or the constraints cannot be met, one line
+files to stdout: ``gains_<law>.json``/``.csv``, ``speeds_<law>.csv`` (the bound beside the
+law, its seed and the drive file's gains at every dense speed) when the tuner computed the bound,
+``pareto_<law>.csv`` with ``--pareto``. If the tuner fails or the constraints cannot be met, one line
 says so (for an infeasible envelope, with its evidence) and the exit status is 2; nothing is written. If
 the best gains found are still below the damping a report requires by default (common.MIN_DAMPING), or
 their worst damping is not finite, the tables are written (they are the result) with a warning line, and
@@ -22,7 +22,7 @@ import time
 from typing import Any
 
 from sensorless.design.family import CapabilityError
-from sensorless.design.registry import family_of
+from sensorless.design.registry import families, family_of
 from sensorless.reports.cli.common import MIN_DAMPING, UsageError, load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
@@ -31,23 +31,42 @@ from sensorless.tuning.family import all_tunables, tunable_for
 from sensorless.tuning.nlp import TuningError
 
 
+class _OldFlag(argparse.Action):
+    """``--family``, the former name of ``--law``: works, and says its new name (for one release)."""
+
+    def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
+        print("sensorless tune: note: --family is now called --law", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
 def register(sub: Any) -> None:
     """Add the ``tune`` subcommand."""
-    fams = all_tunables()
+    laws = all_tunables()
+    old = {o: n for fam in families() for o, n in fam.law_aliases.items()}
     p = sub.add_parser(
         "tune",
         help="optimal observer gains over an operating envelope (gain tables CSV + JSON)",
-        description="Tune a gain family of the drive's observer over an envelope of operating points, "
-        "re-verify on a denser grid, and write the gain table. Families: "
-        + "; ".join(f"{k}: {v}" for k, v in fams.items()),
+        description="Tune a gain law of the drive's observer over an envelope of operating points, "
+        "re-verify on a denser grid, and write the gain table. Laws: "
+        + "; ".join(f"{k}: {v}" for k, v in laws.items()),
     )
     p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
     p.add_argument(
-        "--family",
+        "--law",
         default=None,
-        choices=list(fams),
-        help="gain family to tune (default: on a built-in preset the first of its observer family, the "
-        "paper's law; on a drive file of your own the best the family declares)",
+        choices=[*laws, *old],
+        metavar="{" + ",".join(laws) + "}",
+        help="gain law to tune (default: on a built-in preset the first of its observer family, the "
+        "paper's law; on a drive file of your own the best the family declares); former names, "
+        "accepted for one release: " + ", ".join(f"{o} = {n}" for o, n in old.items()),
+    )
+    p.add_argument(
+        "--family",
+        dest="law",
+        action=_OldFlag,
+        choices=[*laws, *old],
+        metavar="LAW",
+        help="former name of --law, accepted for one release",
     )
     p.add_argument("--out", default=None, help="output directory (default: tune-<drive name>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -63,7 +82,11 @@ def run(args: argparse.Namespace) -> int:
     drive = load(args.drive, "tune")
     fam = family_of(drive)
     h = hooks(fam)
-    tunable = tunable_for(drive, args.family)
+    law = args.law
+    if law in fam.law_aliases:
+        print(f"sensorless tune: note: law {law!r} is now called {fam.law_aliases[law]!r}", file=sys.stderr)
+        law = fam.law_aliases[law]
+    tunable = tunable_for(drive, law)
     refuse_foreign(args, fam, "tune")
     own = h.tune_settings
     settings = own(drive, args, tunable) if own is not None else tunable.settings(drive)
@@ -83,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
     print(f"{drive.name}: {drive.source}")
-    print(f"family {tunable.name}: {tunable.description}")
+    print(f"law {tunable.name}: {tunable.description}")
     if h.describe_envelope is not None:
         print(h.describe_envelope(drive, settings))
     try:

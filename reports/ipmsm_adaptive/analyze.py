@@ -60,7 +60,7 @@ def gain_choices(drive: Any, args: argparse.Namespace) -> dict[str, Any]:
         if args.gain:
             raise UsageError("--gain and --gains exclude each other (the table holds the gains)")
         g = FAMILY.gains(drive, table=read_gain_table(args.gains), table_file=args.gains)
-        return {f"tuned {g.family}": g}
+        return {f"tuned {g.law}": g}
     names = list(drive.observer.gains) if args.gain == "all" else [args.gain or drive.observer.gain]
     return {n: FAMILY.gains(drive, name=n) for n in names}
 

@@ -101,9 +101,9 @@ def discrete_csv(a: DiscretePoleSweep, w_base: float) -> str:
     """CSV text: per operating point the continuous and discrete poles, steady errors, feedthrough."""
     n = a.poles.shape[1]
     head = ["w_m_pu", "w_m_rad_s", "T_e_Nm"]
-    for kind in ("pole", "dpole"):
+    for prefix in ("pole", "dpole"):
         for k in range(n):
-            head += [f"{kind}{k}_re_1_s", f"{kind}{k}_im_1_s"]
+            head += [f"{prefix}{k}_re_1_s", f"{prefix}{k}_im_1_s"]
     head += ["err_theta_deg", "err_w_rad_s", "dw_hat_du_d_rad_s_V", "dw_hat_du_q_rad_s_V", "memory_abs_z"]
     buf = io.StringIO()
     buf.write(

@@ -53,7 +53,7 @@ def gain_choices(drive: Any, table: Any | None, table_file: str) -> tuple[dict[s
     if table is None:
         return choices, drive_label(drive, drive.observer.gain)
     g = FAMILY.gains(drive, table=table, table_file=table_file)
-    label = f"tuned {g.family}"
+    label = f"tuned {g.law}"
     choices[label] = g
     return choices, label
 

@@ -36,7 +36,7 @@ def compute(
     """Data and section (None if there is nothing to show: no envelope to bound); ``default`` is the
     label of the drive file's default gains in ``choices``."""
     from sensorless.tuning.bound import pointwise_bound
-    from sensorless.tuning.ipmsm_adaptive.families import build_pointwise
+    from sensorless.tuning.ipmsm_adaptive.laws import build_pointwise
 
     settings = drive.tuning
     env = settings.envelope
@@ -46,13 +46,13 @@ def compute(
     W, T = np.meshgrid(speeds, torques)
     sigma, T_s = drive.control.i_noise, drive.control.T_s
     summary = table.summary if table is not None else {}
-    # the gain sets to show: the drive file's default, the table's (and its seed, law16)
+    # the gain sets to show: the drive file's default, the table's (and its seed, the speed-dependent law)
     sets: dict[str, GainSet] = {f"drive file ({drive.observer.gain})": choices[default]}
     seed = summary.get("seed")
-    if seed is not None and seed.get("family") == "law16":
+    if seed is not None and seed.get("law") == "speed-dependent":
         p = seed["parameters"]
         vals = {"lambda_p": p["lambda_p"], "w_lambda": p["w_lambda"], "alpha_fo": drive.observer.alpha_fo}
-        sets["law16 (seed)"] = GainSet("law16", vals, "the table's seed")
+        sets["speed-dependent (seed)"] = GainSet("speed-dependent", vals, "the table's seed")
     if table is not None:
         sets[review] = choices[review]
     figs: dict[str, dict[str, Any]] = {}
@@ -135,7 +135,7 @@ def compute(
         blocks.append(
             Figure(
                 svg_later(functools.partial(_pareto_figure, pf, figs)),
-                f"Damping-versus-noise front of the {table.family} family (sensorless tune --pareto): the "
+                f"Damping-versus-noise front of the {table.law} law (sensorless tune --pareto): the "
                 f"best worst damping for a limit on the {pf['output']} noise, each point re-verified on the "
                 "dense grid; the gain sets of the table above marked.",
             )

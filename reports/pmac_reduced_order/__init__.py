@@ -1,7 +1,7 @@
 """Report hooks of the reduced-order observer: its ``analyze`` output, ``tune`` options and stability report.
 
 De Angelo et al. (2006). analyze.py (poles continuous and discrete, steady errors, the discretization
-study), tune.py (bounds of the deangelo tuner), report.py and figures.py (the stability report).
+study), tune.py (bounds of the constant-gain tuner), report.py and figures.py (the stability report).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``sensorless tune`` options of the reduced-order observer: bounds and damping floor of the deangelo tuner.
+"""``sensorless tune`` options of the reduced-order observer: bounds and damping floor of its tuner.
 
 The drive's ``[envelope]`` with default bounds around its ``[observer]`` gains
 (tuning/pmac_reduced_order/settings.py), and the command-line overrides, checked.
@@ -44,7 +44,7 @@ OPTIONS = (
 
 
 def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> DeAngeloSettings:
-    """deangelo settings: the drive's [envelope] and default bounds, with the overrides."""
+    """Constant-gain settings: the drive's [envelope] and default bounds, with the overrides."""
     s = default_settings(drive)
     out: dict[str, Any] = {}
     for key in ("g_max", "Gamma_max", "min_damping", "dense_factor"):

@@ -1,4 +1,5 @@
-"""Report hooks of the flux-observer family: ``analyze`` output, ``tune`` options, and the stability report.
+"""Report hooks of the flux-observer family: ``analyze`` output, ``tune`` options, the stability report,
+and its firmware formats (``init --from``, ``export``: firmware_io.py).
 
 - analyze: poles of the continuous observer and of the sampled one at the firmware's period
   (ln(z)/T_obs), damping and the observer's steady angle error over the envelope; poles.csv and a
@@ -38,6 +39,7 @@ from sensorless.reports.document import (
 )
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
+from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
 from sensorless.reports.review import (
     gains_under_review,
     opening,
@@ -212,7 +214,7 @@ def compute(
             fg = figures(drive, a, j)
             analysis[k] = {
                 "gains": {n: f(v) for n, v in rev.choices[k].values.items() if not isinstance(v, list)},
-                "law": rev.choices[k].family,
+                "law": rev.choices[k].law,
                 "worst_damping": f(fg["worst_damping"]),
                 "worst_bias_deg": f(fg["worst_bias_deg"]),
                 "low_speed_limit_pu": f(fg["low_speed_limit_pu"])
@@ -368,4 +370,6 @@ HOOKS = ReportHooks(
     describe_envelope=describe,
     report=compute,
     settings_sections=("gains", "envelope", "control"),
+    importers=IMPORTERS,
+    exporters=EXPORTERS,
 )

@@ -299,9 +299,10 @@ def _family_drive(fam) -> object:
 def _vocabulary(fam) -> dict[str, str]:
     """What ``fam`` declares (name -> what it is), without the shared contract's own words."""
     out: dict[str, str] = {}
-    for law, keys in fam.gain_families.items():
-        out[law] = "gain law"
+    for law, keys in fam.laws.items():
+        out[law.replace("-", "_")] = "gain law"  # as _names_used reads a string: "-" as "_"
         out.update({k: f"gain of law {law}" for k in keys})
+    out.update({old.replace("-", "_"): "former law name" for old in fam.law_aliases})
     for section, keys in fam.scenario_options.items():
         out.update({k: f"scenario option [{section}]" for k in keys})
     out.update({k: "[estimate_scale] key" for k in fam.estimate_keys})

@@ -75,9 +75,9 @@ def test_gain_table_gives_the_same_run_as_the_same_gains_from_the_drive(tmp_path
     d = piippo2008()
     g = d.gain("speed")
     table = {
-        "format": "sensorless-gain-table/1",
+        "format": "sensorless-gain-table/2",
         "drive": {"name": d.name, "kind": d.kind, "sha256": d.digest},
-        "family": "law16",
+        "law": "speed-dependent",
         "gains": {"lambda_p": g.lambda_p, "w_lambda": g.w_lambda, "alpha_fo": d.observer.alpha_fo},
     }
     path = tmp_path / "table.json"
@@ -85,7 +85,7 @@ def test_gain_table_gives_the_same_run_as_the_same_gains_from_the_drive(tmp_path
     base = ["simulate", "piippo2008", "--scenario", "fig9b", "--duration", "1.2", "--quiet"]
     assert run([*base, "--out", str(tmp_path / "drive")], capsys)[0] == 0
     code, stdout, _ = run([*base, "--gains", str(path), "--out", str(tmp_path / "table")], capsys)
-    assert code == 0 and "law16 table" in stdout
+    assert code == 0 and "speed-dependent table" in stdout
     a = read_csv(tmp_path / "drive" / "traces.csv")
     b = read_csv(tmp_path / "table" / "traces.csv")
     assert np.array_equal(a["w_hat"], b["w_hat"]) and np.array_equal(a["theta_err"], b["theta_err"])
@@ -112,7 +112,7 @@ def test_list_and_clear_errors(tmp_path, capsys):
     assert code == 2 and str(bad) in err and "noise.i_std" in err and "'V'" in err
     assert not (tmp_path / "o").exists()
     table = tmp_path / "t.json"
-    table.write_text('{"format": "sensorless-gain-table/1", "family": "law16", "gains": {}}')
+    table.write_text('{"format": "sensorless-gain-table/2", "law": "speed-dependent", "gains": {}}')
     code, _, err = run(["simulate", "piippo2008", "--scenario", "fig6b", "--gains", str(table)], capsys)
     assert code == 2 and "gains.lambda_p" in err
 
@@ -186,9 +186,9 @@ def test_reduced_order_drive_lists_and_runs_its_scenarios(tmp_path, capsys):
     table.write_text(
         json.dumps(
             {
-                "format": "sensorless-gain-table/1",
+                "format": "sensorless-gain-table/2",
                 "drive": {"name": "x"},
-                "family": "deangelo",
+                "law": "constant",
                 "gains": {"g": 300, "Gamma": 5000},
             }
         )

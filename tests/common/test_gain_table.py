@@ -12,14 +12,14 @@ from sensorless.design.registry import family_of
 from sensorless.reports.cli.main import main
 
 LAW16 = {
-    "format": "sensorless-gain-table/1",
+    "format": "sensorless-gain-table/2",
     "drive": {"name": "piippo2008", "kind": "ipmsm-adaptive"},
-    "family": "law16",
+    "law": "speed-dependent",
     "gains": {"lambda_p": 7.18, "w_lambda": 471.2, "alpha_fo": 314.16},
 }
 SCHEDULE = {
     **LAW16,
-    "family": "schedule",
+    "law": "schedule",
     "gains": {
         "w_hat": [-400.0, 0.0, 400.0],
         "lambda1": [1.0, 2.0, 1.0],
@@ -83,20 +83,25 @@ CASES = [
     ("missing-key", {**LAW16, "gains": {"lambda_p": 1.0}}, "piippo2008", "key 'gains.w_lambda': missing"),
     ("no-name", {**LAW16, "drive": {"kind": "ipmsm-adaptive"}}, "piippo2008", "key 'drive'"),
     ("points", {**LAW16, "points": {"a": 1}}, "piippo2008", "key 'points': expected a list"),
-    ("law16-to-reduced-order", LAW16, "deangelo2006", "key 'drive.kind': 'ipmsm-adaptive' does not match"),
     (
-        "law16-no-kind-to-reduced-order",
+        "speed-dependent-to-reduced-order",
+        LAW16,
+        "deangelo2006",
+        "key 'drive.kind': 'ipmsm-adaptive' does not match",
+    ),
+    (
+        "speed-dependent-no-kind-to-reduced-order",
         {**LAW16, "drive": {"name": "piippo2008"}},
         "deangelo2006",
-        "key 'family': 'law16' gains are not for the reduced-order observer",
+        "key 'law': 'speed-dependent' gains are not for the reduced-order observer",
     ),
     (
-        "deangelo-to-adaptive",
-        {**LAW16, "family": "deangelo", "drive": {"name": "x"}, "gains": {"g": 1, "Gamma": 1}},
+        "constant-to-adaptive",
+        {**LAW16, "law": "constant", "drive": {"name": "x"}, "gains": {"g": 1, "Gamma": 1}},
         "piippo2008",
-        "key 'family': 'deangelo' gains are not for",
+        "key 'law': 'constant' gains are not for",
     ),
-    ("unknown-family", {**LAW16, "family": "pid"}, "piippo2008", "key 'family': unknown family 'pid'"),
+    ("unknown-law", {**LAW16, "law": "pid"}, "piippo2008", "key 'law': unknown law 'pid'"),
 ]
 
 
@@ -130,7 +135,7 @@ def test_bad_tables_are_one_line_naming_the_file(tmp_path, capsys, name, content
     ],
 )
 def test_report_refuses_bad_tables_before_computing(tmp_path, capsys, content, drive):
-    """The audited cases that broke `sensorless report` (a NaN gain, lambda' = 1e308, a law16 table
+    """The audited cases that broke `sensorless report` (a NaN gain, lambda' = 1e308, a speed-dependent table
     for the reduced-order drive, w_hat not a list): one line, at once."""
     table = write(tmp_path, "t", content)
     code = main(["report", drive, "--gains", str(table), "--quick", "--out", str(tmp_path / "r")])
@@ -154,6 +159,40 @@ def test_a_good_table_reads_and_names_its_file(tmp_path):
     d = load_drive("piippo2008")
     g = family_of(d).gains(d, table=t)  # no table_file given: messages and the source still name it
     assert str(p) in g.source
-    mem = GainTable("law16", {"name": "x", "kind": "pmac-reduced-order"}, LAW16["gains"])
+    mem = GainTable("speed-dependent", {"name": "x", "kind": "pmac-reduced-order"}, LAW16["gains"])
     with pytest.raises(GainTableError, match=r"^gain table \(in memory\): key 'drive.kind'"):
         family_of(d).gains(d, table=mem)
+
+
+def test_format_1_tables_and_former_law_names_still_read(tmp_path, capsys):
+    """A `sensorless-gain-table/1` table (key "family", the laws' former names law16 and deangelo, and
+    "family" in its seed records) reads for one release as the same table in format /2, with a note
+    on stderr (one line) naming the new names; the gains are the same gains."""
+    seed = {"family": "law16", "damping": 0.5}
+    old = {
+        **LAW16,
+        "format": "sensorless-gain-table/1",
+        "summary": {"seed": {**seed, "parameters": {}}},
+        "points": [{"seed": dict(seed)}],
+    }
+    del old["law"]
+    old["family"] = "law16"
+    t = read_gain_table(write(tmp_path, "old", old))
+    new = read_gain_table(write(tmp_path, "new", LAW16))
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"{tmp_path / 'old.json'}: note: "), err
+    assert "sensorless-gain-table/1 read" in err[0] and "key 'law'" in err[0], err
+    assert "law 'law16' is now called 'speed-dependent'" in err[0], err
+    assert t.law == new.law == "speed-dependent" and t.gains == new.gains
+    assert t.summary["seed"]["law"] == t.points[0]["seed"]["law"] == "speed-dependent"
+    assert "family" not in t.summary["seed"] and "family" not in t.points[0]["seed"]
+    d = load_drive("piippo2008")
+    assert family_of(d).gains(d, table=t).values == family_of(d).gains(d, table=new).values
+    dean = {"format": "sensorless-gain-table/1", "drive": {"name": "x"}, "family": "deangelo"}
+    t = read_gain_table(write(tmp_path, "dean", {**dean, "gains": {"g": 400.0, "Gamma": 1e4}}))
+    assert t.law == "constant" and "'deangelo' is now called 'constant'" in capsys.readouterr().err
+    # the new format has no "family" key: a /2 table that names its law there is refused
+    bad = {k: v for k, v in LAW16.items() if k != "law"} | {"family": "speed-dependent"}
+    with pytest.raises(GainTableError, match="key 'law': unknown law None"):
+        read_gain_table(write(tmp_path, "bad", bad))
+    assert json.loads(new.to_json())["format"] == "sensorless-gain-table/2"

@@ -176,7 +176,7 @@ def deangelo_table(tmp_path_factory):
 
     d = tmp_path_factory.mktemp("tune")
     assert main(["tune", "deangelo2006", "--quiet", "--out", str(d / "t")]) == 0
-    return json.loads((d / "t" / "gains_deangelo.json").read_text())
+    return json.loads((d / "t" / "gains_constant.json").read_text())
 
 
 def test_gain_table_errors_name_the_file_and_the_key(tmp_path, capsys, deangelo_table):
@@ -193,7 +193,7 @@ def test_gain_table_errors_name_the_file_and_the_key(tmp_path, capsys, deangelo_
 
 
 def test_analyze_warns_about_a_table_tuned_for_another_drive(tmp_path, capsys):
-    table = _table(tmp_path, capsys, "piippo2008", "gains_law16.json")
+    table = _table(tmp_path, capsys, "piippo2008", "gains_speed-dependent.json")
     servo = write(tmp_path, SERVO, "servo.toml")
     assert (
         main(["analyze", servo, "--gains", str(table), "--points", "11", "--out", str(tmp_path / "a")]) == 0

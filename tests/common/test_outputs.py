@@ -145,7 +145,7 @@ def test_existing_outputs_are_refused_before_computing_by_every_command(tmp_path
     """Each command checks its outputs first: refused at once (nothing printed, nothing computed)."""
     cases = {
         "report": (["report", "deangelo2006", "--quick"], "report.json"),
-        "tune": (["tune", "deangelo2006", "--quiet"], "gains_deangelo.csv"),
+        "tune": (["tune", "deangelo2006", "--quiet"], "gains_constant.csv"),
         "simulate": (["simulate", "deangelo2006", "--scenario", "fig3", "--quiet"], "fig3.svg"),
         "analyze": (["analyze", "deangelo2006"], "anything.txt"),  # names known only when computed
         "codegen": (["codegen", "deangelo2006"], "Makefile"),

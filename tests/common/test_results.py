@@ -129,9 +129,9 @@ def test_tuned_gains_below_the_report_threshold_warn_with_exit_3(tmp_path, capsy
     assert err.startswith("sensorless tune: warning: the tuned gains' worst damping (0.1")
     assert f"is below {MIN_DAMPING:g}" in err
     assert sorted(p.name for p in out.iterdir()) == [
-        "gains_law16.csv",
-        "gains_law16.json",
-        "speeds_law16.csv",
+        "gains_speed-dependent.csv",
+        "gains_speed-dependent.json",
+        "speeds_speed-dependent.csv",
     ]
     assert "wrote" in stdout
 

@@ -86,18 +86,18 @@ def test_gains_from_a_section_and_from_tables_with_one_line_errors():
 
     class Fam(ObserverFamily):
         kind, name, title, citation = "k-test", "k_test", "a test observer", ""
-        gain_families: ClassVar = {"two": ("a", "b")}
+        laws: ClassVar = {"two": ("a", "b")}
 
     fam, drive = Fam(), SimpleNamespace(kind="k-test")
     g = section_gains("two", ("a", "b"), SimpleNamespace(a=1, b=2.5, c=9), "drive.toml [observer]")
-    assert (g.family, dict(g.values), g.source) == ("two", {"a": 1.0, "b": 2.5}, "drive.toml [observer]")
+    assert (g.law, dict(g.values), g.source) == ("two", {"a": 1.0, "b": 2.5}, "drive.toml [observer]")
     ok = GainTable("two", {"name": "d", "kind": "k-test"}, {"a": 3, "b": -1.5})
     assert dict(table_gains(fam, drive, ok, "t.json").values) == {"a": 3.0, "b": -1.5}
     bad = (
         (GainTable("two", {"kind": "other"}, {"a": 1, "b": 1}), "key 'drive.kind'"),
         (
             GainTable("three", {}, {"a": 1, "b": 1}),
-            "key 'family': 'three' gains are not for a test observer drives (kind 'k-test'); its laws: two",
+            "key 'law': 'three' gains are not for a test observer drives (kind 'k-test'); its laws: two",
         ),
         (GainTable("two", {}, {"a": 1}), "key 'gains.b'"),
         (GainTable("two", {}, {"a": "x", "b": 1}), "key 'gains.a'"),

@@ -191,7 +191,7 @@ def test_tune_goes_through_the_shared_pipeline_and_the_analysis_confirms_its_tab
     """The family's law ``pll`` is tuned by the shared global phase, NLP, tie-break and pointwise bound
     (families/pll/tuning.py gives only its TuningModel); the analysis path confirms the table."""
     table = read_gain_table(tuned)
-    assert table.family == "pll" and table.drive["kind"] == "pmsm-pll"
+    assert table.law == "pll" and table.drive["kind"] == "pmsm-pll"
     w_pll = table.gains["w_pll"]
     assert w_pll != pytest.approx(drive.observer.w_pll, rel=1e-3)
     s = table.summary
@@ -378,12 +378,12 @@ def test_report_has_a_verdict_a_figure_and_a_time_domain_check(tuned, tmp_path, 
 
 def test_foreign_options_and_wrong_gains_are_one_line_errors(tmp_path, capsys):
     bad = tmp_path / "t.json"
-    table = {"format": "sensorless-gain-table/1", "drive": {"name": "x"}, "family": "deangelo"}
+    table = {"format": "sensorless-gain-table/2", "drive": {"name": "x"}, "law": "constant"}
     bad.write_text(json.dumps({**table, "gains": {"g": 1, "Gamma": 1}}))
     for args, words in (
         (["analyze", DRIVE, "--study"], "--study: not an option"),
         (["tune", DRIVE, "--g-max", "3"], "--g-max: not an option"),
-        (["tune", DRIVE, "--family", "law16"], "cannot be tuned"),
+        (["tune", DRIVE, "--law", "law16"], "cannot be tuned"),
         (["codegen", DRIVE, "--gain", "speed", "--out", tmp_path / "c"], "one gain"),
         (["simulate", DRIVE, "--scenario", "speed_steps", "--injection", "on"], "--injection"),
         (["simulate", DRIVE, "--scenario", "speed_steps", "--gains", bad], "its laws: pll"),

@@ -56,7 +56,7 @@ def test_every_command_succeeds_and_finds_gains(flow):
     assert table["summary"]["worst_damping"] > MIN_DAMPING, table["summary"]
     # on a drive of the user's own the default is the family's best law (the schedule), which gets
     # closer to the pointwise bound than the paper's law (16) it starts from (issue 24)
-    assert table["family"] == "schedule"
+    assert table["law"] == "schedule"
     bound = table["summary"]["bound"]
     assert bound["gap"] <= bound["gap_seed"] + 1e-9, bound
 
@@ -139,8 +139,8 @@ def test_the_report_page_shows_a_foreign_table_warning():
     from sensorless.reports.html import render
 
     inputs = {"drive_sha256": "0" * 64, "gains_sha256": "1" * 64}
-    page = render(Report("servo400", "tuned law16", {"inputs": inputs}, Verdict("pass", ())), "0")
+    page = render(Report("servo400", "tuned speed-dependent", {"inputs": inputs}, Verdict("pass", ())), "0")
     assert "Warning:" not in page
     inputs["gain_table_warning"] = "t.json was tuned for drive 'traction', not for 'servo400'"
-    page = render(Report("servo400", "tuned law16", {"inputs": inputs}, Verdict("pass", ())), "0")
+    page = render(Report("servo400", "tuned speed-dependent", {"inputs": inputs}, Verdict("pass", ())), "0")
     assert "Warning: t.json was tuned for drive &#39;traction&#39;" in page

@@ -117,7 +117,7 @@ def test_transfer_function_dc_gain_is_one(drive, law):
     assert abs(s.statespace(0)(1e-9) - 1) < 1e-6
 
 
-def test_schedule_law_reproduces_law16_at_breakpoints_and_interpolates(drive):
+def test_schedule_law_reproduces_speed_dependent_at_breakpoints_and_interpolates(drive):
     """A schedule sampled from (16) on a grid equals (16) at the breakpoints, is linear between them
     and is held beyond the ends; linearization with it matches the law-(16) poles at breakpoints."""
     from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law

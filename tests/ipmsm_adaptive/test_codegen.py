@@ -89,7 +89,7 @@ def schedule_table(tmp_path_factory, drive):
     l1 = lp * np.minimum(np.abs(w) / wl, 1) + 0.3 * np.cos(w / wl)
     l2 = lp * np.clip(w / wl, -1, 1) - 0.2 * np.sin(w / wl)
     t = GainTable(
-        family="schedule",
+        law="schedule",
         drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
         gains={"w_hat": w, "lambda1": l1, "lambda2": l2, "alpha_fo": 2 * math.pi * 40},
     )
@@ -231,7 +231,7 @@ int main(void)
 
 
 @pytest.mark.parametrize("precision", ["double", "float"])
-@pytest.mark.parametrize("gains", ["law16", "schedule"])
+@pytest.mark.parametrize("gains", ["speed-dependent", "schedule"])
 def test_sanitized_hostile_inputs_params_instances_and_gains(tmp_path, schedule_table, precision, gains):
     """Under -fsanitize=address,undefined (all checks fatal): NaN/Inf/huge/subnormal samples leave a
     finite state (valid = 0), invalid parameters are refused naming the field, two instances share
@@ -340,9 +340,9 @@ def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys, schedule_table):
     assert "none.json" in capsys.readouterr().err
     bad = tmp_path / "dean.json"
     doc = json.loads(schedule_table.read_text())
-    bad.write_text(json.dumps({**doc, "family": "deangelo", "gains": {"g": 400, "Gamma": 1e4}}))
+    bad.write_text(json.dumps({**doc, "law": "constant", "gains": {"g": 400, "Gamma": 1e4}}))
     assert main(["codegen", "piippo2008", "--gains", str(bad), "--out", str(out)]) == 2
-    assert "dean.json: key 'family'" in capsys.readouterr().err
+    assert "dean.json: key 'law'" in capsys.readouterr().err
     assert main(["codegen", "piippo2008", "--gain", "nope", "--out", str(out)]) == 2
     assert main(["codegen", "piippo2008", "--prefix", "9x-y", "--out", str(out)]) == 2
     assert not out.exists()
@@ -426,11 +426,11 @@ def test_a_second_observer_is_a_registration(tmp_path):
     assert abs(c[-1, 1] - 50) < 1e-3  # and it locked on
 
 
-def test_law16_table_fills_the_parameter_struct(tmp_path, drive):
+def test_speed_dependent_table_fills_the_parameter_struct(tmp_path, drive):
     """A tuned law-(16) table: its lambda', omega_lambda and alpha_fo become the default parameters;
     the law stays closed form in C."""
     t = GainTable(
-        family="law16",
+        law="speed-dependent",
         drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
         gains={"lambda_p": 5.5, "w_lambda": 300.0, "alpha_fo": 250.0},
     )
@@ -440,5 +440,5 @@ def test_law16_table_fills_the_parameter_struct(tmp_path, drive):
     text = (src / "piippo2008.c").read_text()
     for line in (".lambda_p = 5.5,", ".w_lambda = 300.0,", ".alpha_fo = 250.0,"):
         assert line in text
-    assert "law16 table" in text and "_gain_w[" not in text
+    assert "speed-dependent table" in text and "_gain_w[" not in text
     build(src, tmp_path / "ex")

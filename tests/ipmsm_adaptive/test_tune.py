@@ -11,7 +11,7 @@ from sensorless.design.envelope import Envelope
 from sensorless.design.ipmsm_adaptive.linearize import linearize
 from sensorless.reports.cli.main import main
 from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law
-from sensorless.tuning.ipmsm_adaptive.families import build_schedule, with_estimate
+from sensorless.tuning.ipmsm_adaptive.laws import build_schedule, with_estimate
 from sensorless.tuning.nlp import Solution
 from sensorless.tuning.result import figures
 from sensorless.tuning.sector import factors_from_poles
@@ -79,11 +79,11 @@ def closed_form_damping(drive, w, t, l1, l2):
 
 
 @pytest.fixture(scope="module")
-def law16(drive):
-    return tune(drive, "law16", small(drive))
+def speed_dependent(drive):
+    return tune(drive, "speed-dependent", small(drive))
 
 
-def test_law16_at_least_as_good_as_brute_force(drive, law16):
+def test_speed_dependent_at_least_as_good_as_brute_force(drive, speed_dependent):
     """The NLP optimum beats (within 0.002) a coarse independent grid search on the same envelope."""
     W, T = small(drive).envelope.grid(drive.base.w, drive.T_N)
     R, wb = drive.estimate.R_s, drive.base.w
@@ -92,13 +92,13 @@ def test_law16_at_least_as_good_as_brute_force(drive, law16):
         for lp in np.linspace(0.5, 20, 12)
         for wl in np.linspace(0.1, 3, 12)
     )
-    nlp_grid = closed_form_worst_damping(drive, W, T, law16.theta[0], law16.theta[1])
+    nlp_grid = closed_form_worst_damping(drive, W, T, speed_dependent.theta[0], speed_dependent.theta[1])
     assert nlp_grid >= best - 0.002, (nlp_grid, best)
     assert nlp_grid > closed_form_worst_damping(drive, W, T, 2 * R, wb) + 0.1  # and beats the paper
 
 
-def test_table_reports_dense_reverification(drive, law16):
-    s = law16.table.summary
+def test_table_reports_dense_reverification(drive, speed_dependent):
+    s = speed_dependent.table.summary
     env = small(drive).envelope
     Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
     wb, TN = drive.base.w, drive.T_N
@@ -107,26 +107,26 @@ def test_table_reports_dense_reverification(drive, law16):
     assert (
         np.diff(env.torque_grid(TN, env.dense_factor)).max() <= np.diff(env.torque_grid(TN)).max() / 4 + 1e-9
     )
-    pts = law16.table.points
+    pts = speed_dependent.table.points
     assert len(pts) == Wd.size
     assert s["worst_damping"] == min(p["damping"] for p in pts)
-    ref = linearize(drive, Wd, Td, gain=("speed", law16.theta))  # the analysis path, independently
+    ref = linearize(drive, Wd, Td, gain=("speed", speed_dependent.theta))  # the analysis path, independently
     assert s["worst_damping"] == pytest.approx(np.nanmin(ref.worst_damping), abs=1e-9)
     k = int(np.nanargmin(ref.worst_damping))
     assert s["worst_damping_at"]["w_m_rad_s"] == pytest.approx(Wd[k])
-    doc = json.loads(law16.table.to_json())
-    assert doc["format"] == "sensorless-gain-table/1" and doc["family"] == "law16"
+    doc = json.loads(speed_dependent.table.to_json())
+    assert doc["format"] == "sensorless-gain-table/2" and doc["law"] == "speed-dependent"
     assert set(doc["gains"]) == {"lambda_p", "w_lambda", "alpha_fo"}
 
 
-def test_paper_defaults_reproduce(drive, law16):
-    b = law16.table.summary["baseline_parameters"]
+def test_paper_defaults_reproduce(drive, speed_dependent):
+    b = speed_dependent.table.summary["baseline_parameters"]
     assert b["lambda_p"] == pytest.approx(2 * drive.estimate.R_s)
     assert b["w_lambda"] == pytest.approx(drive.base.w)
     env = small(drive).envelope
     Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
     ref = linearize(drive, Wd, Td, gain="speed")
-    assert law16.table.summary["baseline_worst_damping"] == pytest.approx(
+    assert speed_dependent.table.summary["baseline_worst_damping"] == pytest.approx(
         np.nanmin(ref.worst_damping), abs=1e-9
     )
 
@@ -136,7 +136,7 @@ def schedule(drive):
     return tune(drive, "schedule", small(drive, law=dataclasses.replace(drive.tuning.law, breakpoints=6)))
 
 
-def test_schedule_at_least_as_good_as_law16(drive, law16, schedule):
+def test_schedule_at_least_as_good_as_speed_dependent(drive, speed_dependent, schedule):
     """The free schedule's dense-verified worst damping is >= law (16)'s, checked by the analysis
     path; its start reproduces the tuned law (16) exactly (a kink breakpoint at omega_lambda)."""
     s = schedule.table.summary
@@ -147,27 +147,27 @@ def test_schedule_at_least_as_good_as_law16(drive, law16, schedule):
     ref = linearize(drive, Wd, Td, gain=(law, np.concatenate([g["lambda1"], g["lambda2"]])))
     assert np.isfinite(ref.worst_damping).all()
     assert s["worst_damping"] == pytest.approx(np.min(ref.worst_damping), abs=1e-9)
-    assert s["worst_damping"] >= law16.table.summary["worst_damping"] - 1e-9
+    assert s["worst_damping"] >= speed_dependent.table.summary["worst_damping"] - 1e-9
     assert s["selection"]["start_worst_damping"] == pytest.approx(
-        law16.table.summary["worst_damping"], abs=1e-6
+        speed_dependent.table.summary["worst_damping"], abs=1e-6
     )
     # +-omega_lambda are breakpoints where they lie inside the envelope (outside it law (16) is linear
     # over each direction of the envelope and the schedule reproduces it anyway)
     e = small(drive).envelope
-    inside = e.speed_min * drive.base.w < law16.theta[1] < e.speed_max * drive.base.w
-    assert np.isclose(np.abs(g["w_hat"]), law16.theta[1]).sum() == (2 if inside else 0)
-    assert s["worst_damping"] > law16.table.summary["worst_damping"] + 0.03  # and it does improve
+    inside = e.speed_min * drive.base.w < speed_dependent.theta[1] < e.speed_max * drive.base.w
+    assert np.isclose(np.abs(g["w_hat"]), speed_dependent.theta[1]).sum() == (2 if inside else 0)
+    assert s["worst_damping"] > speed_dependent.table.summary["worst_damping"] + 0.03  # and it does improve
     # without giving up decay rate (a pole creeping to the origin has damping 1)
-    assert np.min(-ref.max_real) >= law16.table.summary["min_decay_rate"] * (1 - 1e-6)
+    assert np.min(-ref.max_real) >= speed_dependent.table.summary["min_decay_rate"] * (1 - 1e-6)
 
 
-def test_dense_reverification_rejects_between_grid_instability(drive, law16):
+def test_dense_reverification_rejects_between_grid_instability(drive, speed_dependent):
     """Gains that equal the start at every speed of the optimization grid but differ between them
     are judged by the dense grid: a schedule perturbed in the null space of grid interpolation is
     identical on the grid (checked with the closed form), worse between, and not selected."""
     # more breakpoints than grid speeds: such perturbations exist
     st = small(drive, law=dataclasses.replace(drive.tuning.law, breakpoints=11))
-    m = build_schedule(drive, st, law16.theta)
+    m = build_schedule(drive, st, speed_dependent.theta)
     env = st.envelope
     wb, TN = drive.base.w, drive.T_N
     W, T = env.grid(wb, TN)
@@ -196,7 +196,7 @@ def test_stable_under_stated_estimate_errors(drive):
     lower, the equilibrium itself is lost, see the next test.)"""
     env = Envelope(speed_min=0.3, speed_max=1.0, speeds=8, torques_TN=(-1.0, 1.0))
     st = dataclasses.replace(drive.tuning, envelope=env, errors=(0.2, 0.0, 0.1, 0.0))
-    r = tune(drive, "law16", st)
+    r = tune(drive, "speed-dependent", st)
     assert len(r.robust) == 4 and all(x["stable"] for x in r.robust)
     env = st.envelope
     Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
@@ -214,18 +214,18 @@ def test_estimate_errors_without_equilibrium_are_reported(drive):
     from sensorless.tuning.nlp import TuningError
 
     with pytest.raises(TuningError, match=r"infeasible under estimate errors R_s\+20%.*no equilibrium"):
-        tune(drive, "law16", small(drive, errors=(0.2, 0.0, 0.0, 0.0)))
+        tune(drive, "speed-dependent", small(drive, errors=(0.2, 0.0, 0.0, 0.0)))
 
 
-def test_default_gain_family_is_the_papers_on_the_preset_and_the_best_on_a_users_drive(tmp_path):
+def test_default_law_is_the_papers_on_the_preset_and_the_best_on_a_users_drive(tmp_path):
     from sensorless.design.drive import load_drive, preset_text
     from sensorless.tuning.family import tunable_for
 
-    assert tunable_for(load_drive("piippo2008")).name == "law16"  # reproduces the paper
+    assert tunable_for(load_drive("piippo2008")).name == "speed-dependent"  # reproduces the paper
     own = tmp_path / "mine.toml"
     own.write_text(preset_text("piippo2008"))
     assert tunable_for(load_drive(str(own))).name == "schedule"
-    assert tunable_for(load_drive(str(own)), "law16").name == "law16"
+    assert tunable_for(load_drive(str(own)), "speed-dependent").name == "speed-dependent"
 
 
 def test_cli_errors_leave_no_files(tmp_path, capsys):
@@ -235,10 +235,30 @@ def test_cli_errors_leave_no_files(tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1, err  # one line, no traceback
     assert err.startswith("sensorless tune: error: the envelope is infeasible") and "decay >= 5000 1/s" in err
     assert not out.exists()
-    code = main(["tune", "piippo2008", "--family", "deangelo", "--out", str(out)])
+    code = main(["tune", "piippo2008", "--law", "constant", "--out", str(out)])
     err = capsys.readouterr().err
-    assert code == 2 and "deangelo" in err and "cannot be tuned" in err and "kind 'ipmsm-adaptive'" in err
+    assert code == 2 and "constant" in err and "cannot be tuned" in err and "kind 'ipmsm-adaptive'" in err
     assert not out.exists()
+
+
+def test_former_flag_and_law_names_still_work_and_say_their_new_names(tmp_path, capsys):
+    """`--family law16` (the names before "law"): accepted for one release, each with one note line
+    naming its new name; the outputs are named after the new law name (here: refused as existing)."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "gains_speed-dependent.json").write_text("{}")
+    code = main(["tune", "piippo2008", "--family", "law16", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "sensorless tune: note: --family is now called --law", err
+    assert err[1] == "sensorless tune: note: law 'law16' is now called 'speed-dependent'", err
+    assert code == 2 and len(err) == 3 and "gains_speed-dependent.json" in err[2], err
+    (out / "gains_constant.json").write_text("{}")
+    code = main(["tune", "deangelo2006", "--law", "deangelo", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "sensorless tune: note: law 'deangelo' is now called 'constant'", err
+    assert code == 2 and len(err) == 2 and "gains_constant.json" in err[1], err
+    with pytest.raises(SystemExit):  # an unknown law is still refused by the parser
+        main(["tune", "piippo2008", "--law", "law17", "--out", str(tmp_path / "y")])
 
 
 def test_cli_tune_writes_tables_deterministically(tmp_path, capsys):
@@ -247,6 +267,6 @@ def test_cli_tune_writes_tables_deterministically(tmp_path, capsys):
     stdout = capsys.readouterr().out
     assert "worst damping" in stdout and "wrote" in stdout
     assert main([*args, "--out", str(tmp_path / "b")]) == 0
-    for name in ("gains_law16.json", "gains_law16.csv"):
+    for name in ("gains_speed-dependent.json", "gains_speed-dependent.csv"):
         assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     assert main([*args, "--out", str(tmp_path / "a")]) == 2  # refuses to overwrite

@@ -1,5 +1,5 @@
 """Tuning you can trust: the global phase, infeasibility with evidence, the pointwise bound against an
-independent brute force, schedule >= law16 >= drive file within reach of the bound, the noise figure
+independent brute force, schedule >= speed-dependent >= drive file within reach of the bound, the noise figure
 against a simulation of the linearized loop, noise limits and the damping-versus-noise front, ridges."""
 
 import dataclasses
@@ -20,7 +20,7 @@ from sensorless.design.ipmsm_adaptive.operating_point import PARAM_NAMES
 from sensorless.reports.cli.main import main
 from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law
 from sensorless.tuning.bound import pointwise_bound
-from sensorless.tuning.ipmsm_adaptive.families import build_pointwise
+from sensorless.tuning.ipmsm_adaptive.laws import build_pointwise
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.tune import tune
 
@@ -42,7 +42,7 @@ def dense_worst(drive, env, gain):
 # ------------------------------------------------------------------------------------ global phase
 def test_salient_motor_unstable_drive_gains_tuned_to_stable():
     """On a salient traction IPMSM the drive file's speed-dependent gain (lambda' = 2 R_s_hat, omega_lambda
-    = 1 p.u.) is unstable; law16 tuning starts from the global phase, not from those gains, and returns
+    = 1 p.u.) is unstable; tuning the law starts from the global phase, not from those gains, and returns
     gains stable on the dense grid (checked through the analysis path), better than the reference
     lambda' = 4 R_s_hat, omega_lambda = 0.1 p.u."""
     drive = load_drive(SALIENT)
@@ -51,7 +51,7 @@ def test_salient_motor_unstable_drive_gains_tuned_to_stable():
     z0, d0 = dense_worst(drive, env, "speed")
     assert z0 < 0 and d0 < 0  # the drive file's gains: unstable
     st = dataclasses.replace(drive.tuning, min_decay=5.0, bound=False)
-    r = tune(drive, "law16", st)
+    r = tune(drive, "speed-dependent", st)
     z, d = dense_worst(drive, env, ("speed", r.theta))
     assert z == pytest.approx(r.table.summary["worst_damping"], abs=1e-9)
     assert z > 0.45 and d >= 5.0 * (1 - 1e-6)
@@ -70,7 +70,7 @@ def test_infeasible_envelope_reports_its_evidence():
         min_decay=5000.0,
     )
     with pytest.raises(TuningError) as e:
-        tune(drive, "law16", st)
+        tune(drive, "speed-dependent", st)
     msg = str(e.value)
     assert "the envelope is infeasible" in msg and "no gain (lambda1, lambda2" in msg
     assert "at 6 of 6 envelope speeds" in msg and "best slowest decay" in msg
@@ -125,13 +125,13 @@ def test_bound_at_a_speed_equals_a_brute_force_search(drive, w_pu):
 
 @pytest.fixture(scope="module")
 def schedule_default(drive):
-    """The schedule on the default envelope with its default decay floor (its law16 seed's)."""
+    """The schedule on the default envelope with its default decay floor (its speed-dependent seed's)."""
     return tune(drive, "schedule", drive.tuning)
 
 
-def test_schedule_reaches_the_bound_and_law16_beats_the_drive_file(drive, schedule_default):
-    """Default envelope, dense grid, analysis path: schedule >= law16 >= drive file, and the schedule
-    within 0.01 of the pointwise bound's worst (no gain law does better than that bound)."""
+def test_schedule_reaches_the_bound_and_speed_dependent_beats_the_drive_file(drive, schedule_default):
+    """Default envelope, dense grid, analysis path: schedule >= speed-dependent >= drive file, and the
+    schedule within 0.01 of the pointwise bound's worst (no gain law does better than that bound)."""
     r = schedule_default
     s = r.table.summary
     env = drive.tuning.envelope
@@ -162,17 +162,17 @@ def test_cli_prints_the_bound_and_writes_the_speeds_table(tmp_path, capsys):
     stdout = capsys.readouterr().out
     line = next(ln for ln in stdout.splitlines() if "bound" in ln and "worst" in ln)
     assert "p.u." in line and "below it" in line
-    rows = (out / "speeds_law16.csv").read_text().splitlines()
-    assert rows[1] == "w_m_pu,bound_damping,law16_damping,baseline_damping"
-    head = (out / "gains_law16.csv").read_text().splitlines()[2]
+    rows = (out / "speeds_speed-dependent.csv").read_text().splitlines()
+    assert rows[1] == "w_m_pu,bound_damping,speed-dependent_damping,baseline_damping"
+    head = (out / "gains_speed-dependent.csv").read_text().splitlines()[2]
     assert head.endswith("bound_damping,bound_lambda1,bound_lambda2")
 
 
 # ------------------------------------------------------------------------------------------- ridges
-def test_law16_ridge_is_explained(drive):
-    """law16's worst point does not move with lambda' or omega_lambda (a ridge): the summary says which
-    point it is, that law16 cannot improve it, and what other gains reach there."""
-    r = tune(drive, "law16", small(drive))
+def test_speed_dependent_ridge_is_explained(drive):
+    """The speed-dependent law's worst point does not move with lambda' or omega_lambda (a ridge): the
+    summary says which point it is, that the law cannot improve it, and what other gains reach there."""
+    r = tune(drive, "speed-dependent", small(drive))
     ridge = r.table.summary["ridge"]
     assert "cannot improve it" in ridge["text"] and "the pointwise bound" in ridge["text"]
     assert max(abs(v) for v in ridge["gradient"].values()) < 1e-2
@@ -237,7 +237,7 @@ def test_max_noise_limit_holds_on_the_dense_grid_and_the_front(drive, tmp_path, 
     capsys.readouterr()
     import json
 
-    doc = json.loads((out / "gains_law16.json").read_text())
+    doc = json.loads((out / "gains_speed-dependent.json").read_text())
     g = doc["gains"]
     env = Envelope(speed_min=0.05, speed_max=1.0, speeds=5, torques_TN=(-1.0, 1.0))
     Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
@@ -245,7 +245,7 @@ def test_max_noise_limit_holds_on_the_dense_grid_and_the_front(drive, tmp_path, 
     nz = s.noise_rms(drive.control.i_noise, drive.control.T_s)
     assert np.degrees(np.max(nz[:, 0])) <= lim_deg * (1 + 1e-6)
     assert doc["summary"]["noise"]["tuned"][0] == pytest.approx(np.max(nz[:, 0]), rel=1e-9)
-    front = (out / "pareto_law16.csv").read_text().splitlines()
+    front = (out / "pareto_speed-dependent.csv").read_text().splitlines()
     assert front[1].startswith("noise,limit,worst_damping")
     pts = [[float(v) for v in ln.split(",")[:3]] for ln in front[2:]]
     assert len(pts) >= 2

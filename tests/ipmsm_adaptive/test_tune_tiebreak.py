@@ -1,5 +1,5 @@
-"""The tuner's tie-break (tuning/tiebreak.py): of the law16 gains as well damped as the best (within the
-tie tolerance), the smallest. On a 5.5 kW industrial IPMSM the worst damping saturates in lambda' and
+"""The tuner's tie-break (tuning/tiebreak.py): of the speed-dependent gains as well damped as the best (within
+the tie tolerance), the smallest. On a 5.5 kW industrial IPMSM the worst damping saturates in lambda' and
 does not move with omega_lambda below about 0.24 p.u.: damping alone put lambda' on its cap and
 omega_lambda at the bottom of the global grid (a steep ramp that lost the rotor position in a
 speed-step run). Checked against an independent brute force over (lambda', omega_lambda) through the
@@ -19,7 +19,7 @@ from sensorless.tuning.tune import tune
 IND5K5 = Path(__file__).parent / "drives" / "ind5k5_minimal.toml"
 
 
-def law16_size(lp, wl, R, wb, w_max):
+def speed_dependent_size(lp, wl, R, wb, w_max):
     """RMS over w_hat in [-w_max, w_max] of sqrt(lambda1^2 + lambda2^2 + wb^2 (lambda1'^2 + lambda2'^2))/R
     for eq. (16): lambda1 = lp min(|w|/wl, 1), lambda2 = lp sat(w/wl), so |lambda|^2 = 2 lp^2 min(|w|/wl,
     1)^2 and the slope^2 = 2 (lp/wl)^2 below wl, 0 above (the integrals in closed form)."""
@@ -34,7 +34,7 @@ def case():
     drive = load_drive(str(IND5K5))
     env = Envelope(speed_min=0.05, speed_max=1.0, speeds=4, torques_TN=(-1.0, 1.0))
     st = dataclasses.replace(drive.tuning, envelope=env, bound=False)
-    r = tune(drive, "law16", st)
+    r = tune(drive, "speed-dependent", st)
     R, wb = drive.estimate.R_s, drive.base.w
     Wd, Td = env.grid(wb, drive.T_N, env.dense_factor)
     # the brute force: worst damping and slowest decay on the dense grid, through the analysis path
@@ -65,12 +65,12 @@ def test_tie_break_keeps_the_smallest_gains_within_the_tolerance(case):
     assert tb["best_worst_damping"] >= D.max() - 1e-4  # the best is at least the brute force's best
     # the size the tuner minimizes is eq. (16)'s (closed form here; the tuner samples 201 speeds)
     w_max = 1.0 * wb
-    s = law16_size(lp, wl, R, wb, w_max)
+    s = speed_dependent_size(lp, wl, R, wb, w_max)
     assert tb["after"]["gain_size"] == pytest.approx(s, rel=0.02)
     # no brute-force pair that is as well damped and decays as fast is smaller (2 %: the sampling)
     ok = (D >= tb["best_worst_damping"] - TIE_TOL) & (C >= tb["floor_1_s"])
-    sizes = np.array([[law16_size(a, b, R, wb, w_max) for b in wls] for a in lps])
+    sizes = np.array([[speed_dependent_size(a, b, R, wb, w_max) for b in wls] for a in lps])
     assert ok.any() and s <= sizes[ok].min() * 1.02
-    assert s < 0.5 * law16_size(*tb["before"]["parameters"].values(), R, wb, w_max)
+    assert s < 0.5 * speed_dependent_size(*tb["before"]["parameters"].values(), R, wb, w_max)
     # and the summary says it
     assert "tie-break" in " ".join(r.summary_lines(drive)) and "moved the gains" in tb["text"]

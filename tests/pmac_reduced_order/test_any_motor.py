@@ -27,7 +27,7 @@ KRPM = 1000 * 2 * math.pi / 60  # rad/s per 1000 r/min
 def flow(tmp_path_factory):
     """init, analyze, tune, codegen and report of the servo (module scope: the steps are the slow part)."""
     d = tmp_path_factory.mktemp("servo5kw")
-    drive, table = d / "drive.toml", d / "tune" / "gains_deangelo.json"
+    drive, table = d / "drive.toml", d / "tune" / "gains_constant.json"
     codes = {
         "init": main(["init", str(SERVO), "--out", str(drive)]),
         "analyze": main(
@@ -47,7 +47,7 @@ def test_every_command_succeeds_and_tuning_improves_the_derived_gains(flow):
     assert codes["init"] == codes["analyze"] == codes["tune"] == codes["codegen"] == 0, codes
     assert codes["report"] in (0, 3), codes  # 3: a check failed; the report says so (below)
     assert (d / "a" / "poles_TL.csv").read_text().count("\n") == 2 + 2 * 2
-    s = json.loads((d / "tune" / "gains_deangelo.json").read_text())["summary"]
+    s = json.loads((d / "tune" / "gains_constant.json").read_text())["summary"]
     assert s["worst_damping"] >= 0.707 and s["slowest_decay_rate"] >= s["baseline_slowest_decay_rate"], s
     # the derived gains themselves: all poles real (damping 1), the slowest at the rule's g/4
     assert s["baseline_worst_damping"] == pytest.approx(1.0, abs=1e-6)

@@ -129,7 +129,7 @@ def tuned_table(tmp_path_factory, deangelo2006):
     g, Gamma = closed_form(deangelo2006, 2 * o.g, 100 * o.Gamma)
     assert (g, Gamma) != (deangelo2006.observer.g, deangelo2006.observer.Gamma)
     t = GainTable(
-        family="deangelo",
+        law="constant",
         drive={"name": deangelo2006.name, "kind": deangelo2006.kind, "sha256": deangelo2006.digest},
         gains={"g": g, "Gamma": Gamma},
     )
@@ -538,10 +538,12 @@ def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys, tuned_table):
     law16 = tmp_path / "law16.json"
     doc = read_gain_table(tuned_table)
     law16.write_text(
-        GainTable("law16", doc.drive, {"lambda_p": 5.0, "w_lambda": 300.0, "alpha_fo": 1.0}).to_json()
+        GainTable(
+            "speed-dependent", doc.drive, {"lambda_p": 5.0, "w_lambda": 300.0, "alpha_fo": 1.0}
+        ).to_json()
     )
     assert main(["codegen", P, "--gains", str(law16), "--out", str(out)]) == 2
-    assert "law16.json: key 'family'" in capsys.readouterr().err
+    assert "law16.json: key 'law'" in capsys.readouterr().err
     assert main(["codegen", P, "--discretization", "rk4", "--out", str(out)]) == 2
     assert "rk4" in capsys.readouterr().err
     assert not out.exists()

@@ -1,5 +1,5 @@
-"""deangelo family (De Angelo et al. 2006: g, Gamma): the closed form against an independent scan of the hand-
-derived characteristic polynomial, the tuned gains against the paper's on the dense discrete-time
+"""The constant law (De Angelo et al. 2006: g, Gamma): the closed form against an independent scan of the
+hand-derived characteristic polynomial, the tuned gains against the paper's on the dense discrete-time
 grid (through the analysis path), the gain table, and the CLI."""
 
 import dataclasses
@@ -74,13 +74,13 @@ def test_tuned_beat_the_papers_gains_on_the_dense_grid(deangelo2006, deangelo):
     assert deangelo.g <= st.g_max and deangelo.Gamma <= st.Gamma_max
 
 
-def test_deangelo_table_round_trip(tmp_path, deangelo):
+def test_constant_table_round_trip(tmp_path, deangelo):
     doc = json.loads(deangelo.table.to_json())
-    assert doc["family"] == "deangelo" and set(doc["gains"]) == {"g", "Gamma"}
+    assert doc["law"] == "constant" and set(doc["gains"]) == {"g", "Gamma"}
     f = tmp_path / "t.json"
     f.write_text(deangelo.table.to_json())
     assert read_gain_table(f).gains == doc["gains"]
-    csv = table_csv(deangelo.table, tunable_for(load_drive("deangelo2006"), "deangelo").columns).splitlines()
+    csv = table_csv(deangelo.table, tunable_for(load_drive("deangelo2006"), "constant").columns).splitlines()
     assert csv[2].startswith("n_rpm,w_rad_s,T_L_Nm,g_1_s,Gamma_A2s2,damping,decay_rate_1_s")
     assert len(csv) == 3 + len(deangelo.table.points)
 

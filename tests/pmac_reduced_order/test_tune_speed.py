@@ -1,4 +1,4 @@
-"""deangelo tuner (De Angelo et al. 2006) on any motor: the default Gamma search box scales with
+"""The constant-gain tuner (De Angelo et al. 2006) on any motor: the default Gamma search box scales with
 (J/Phi_1)^2 and contains the hand-derived critical curve over the g box; the fast paths of the analysis
 (no error window, batched matrix exponential) give the same poles as the full one."""
 

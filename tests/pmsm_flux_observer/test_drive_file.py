@@ -84,7 +84,7 @@ def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys):
     full = tmp_path / "full.toml"
     assert main(["init", str(minimal), "--out", str(full)]) == 0
     assert load_drive(str(full)).T_N == pytest.approx(load_drive(str(minimal)).T_N)
-    assert main(["tune", str(full), "--family", "odrive", "--out", str(tmp_path / "t"), "--quiet"]) in (0, 3)
+    assert main(["tune", str(full), "--law", "odrive", "--out", str(tmp_path / "t"), "--quiet"]) in (0, 3)
     out = capsys.readouterr().out
     assert "ODrive defaults" in out and "VESC detection" in out
     table = tmp_path / "t" / "gains_odrive.json"

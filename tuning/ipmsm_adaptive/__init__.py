@@ -1,8 +1,8 @@
-"""Tuning hooks of the adaptive observer: the gain families law16 (eq. (16)) and schedule, by the shared NLP.
+"""Tuning hooks of the adaptive observer: the laws speed-dependent (eq. (16)) and schedule, by the shared NLP.
 
-law16 is the default on the preset (the paper's law), schedule on a drive of the user's own.
+The speed-dependent law is the default on the preset (the paper's law), schedule on a drive of the user's own.
 
-Piippo, Hinkkanen, Luomi (2008). Builders of the TuningModels: families.py. Settings: the drive's
+Piippo, Hinkkanen, Luomi (2008). Builders of the TuningModels: laws.py. Settings: the drive's
 ``[tuning]`` section (design/envelope.py; the laws' own keys in design/ipmsm_adaptive/law_settings.py).
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 from sensorless.tuning.family import Tunable, TuningHooks
-from sensorless.tuning.ipmsm_adaptive.families import build_law16, build_schedule
+from sensorless.tuning.ipmsm_adaptive.laws import build_schedule, build_speed_dependent
 
 _POINTS = (
     ("w_m_pu", "w_m_pu"),
@@ -31,10 +31,11 @@ def _settings(drive: Any) -> Any:
 HOOKS = TuningHooks(
     tunables=(
         Tunable(
-            "law16",
-            "eq. (16): lambda', omega_lambda (optionally alpha_fo)",
+            "speed-dependent",
+            "the speed-dependent gain, eq. (16) of Piippo, Hinkkanen, Luomi (2008): lambda', "
+            "omega_lambda (optionally alpha_fo)",
             _settings,
-            build=build_law16,
+            build=build_speed_dependent,
             columns=(_POINTS, _BASELINE),
         ),
         Tunable(
@@ -42,12 +43,12 @@ HOOKS = TuningHooks(
             "free speed schedule: (lambda1, lambda2) at speed breakpoints, linear in between",
             _settings,
             build=build_schedule,
-            seed="law16",
+            seed="speed-dependent",
             columns=(_POINTS, _BASELINE),
         ),
     ),
-    # on a drive of the user's own the schedule is the default: never worse than law16 on the dense
-    # grid, it reaches the pointwise bound where law16 leaves damping (docs/tuning.md); the preset
-    # keeps law16, the paper's
+    # on a drive of the user's own the schedule is the default: never worse than the speed-dependent
+    # law on the dense grid, it reaches the pointwise bound where that law leaves damping
+    # (docs/tuning.md); the preset keeps the speed-dependent law, the paper's
     own_default="schedule",
 )

@@ -1,6 +1,6 @@
 """The TuningModel of one gain law of the adaptive observer: its closed loop (local gain data,
-linearization, noise), equilibria and gains, and the fields every family of tuning/ipmsm_adaptive/
-families.py shares (which laws, boxes and starts: there).
+linearization, noise), equilibria and gains, and the fields every law of tuning/ipmsm_adaptive/
+laws.py shares (which laws, boxes and starts: there).
 
 The law is plugged into the analysis closed loop of design/ipmsm_adaptive/linearize.py
 (``linearization_function``): the NLP differentiates exactly the Jacobian that ``sensorless analyze``
@@ -28,7 +28,7 @@ N_PHI = 6  # local gain data: lambda1, lambda2, their slopes in w_hat, w_m, alph
 
 
 def _closed_loop(drive: Any, law: GainLaw, tune_alpha: bool) -> tuple[ca.Function, ca.Function, ca.Function]:
-    """(local, linearization, noise) Functions of the family.
+    """(local, linearization, noise) Functions of the law.
 
     local(theta, point) -> phi = [lambda1, lambda2, dlambda1/dw_hat, dlambda2/dw_hat, w_m, alpha_fo]:
     the law (16) or schedule and its slope at the point's speed, by AD of the one law expression.
@@ -91,7 +91,7 @@ def law_values(law: GainLaw) -> ca.Function:
 
 def law_model(
     drive: Any,
-    law: GainLaw,
+    gain_law: GainLaw,
     settings: TuningSettings,
     theta0: ArrayLike,
     lower: ArrayLike,
@@ -99,8 +99,10 @@ def law_model(
     typical: ArrayLike,
     **kw: Any,
 ) -> TuningModel:
-    """The TuningModel of ``law`` on ``drive`` with the box (lower, upper), baseline theta0 and typical
-    magnitudes of its parameters (alpha_fo appended when tuned); ``kw``: the family's own fields."""
+    """The TuningModel of ``gain_law`` on ``drive`` with the box (lower, upper), baseline theta0 and
+    typical magnitudes of its parameters (alpha_fo appended when tuned); ``kw``: the law's own fields
+    (``law``: its name)."""
+    law = gain_law
     tune_alpha = law_settings(settings).tune_alpha_fo
     a0 = drive.observer.alpha_fo
     names, units = law.param_names, law.param_units

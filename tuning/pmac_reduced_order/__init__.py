@@ -1,4 +1,4 @@
-"""Tuning hooks of the reduced-order observer: the gain family deangelo (g, Gamma), by a tuner of its own.
+"""Tuning hooks of the reduced-order observer: the gain law constant (g, Gamma), by a tuner of its own.
 
 De Angelo et al. (2006). Its poles are Floquet exponents of the sampled observer, so it does not go
 through the shared NLP: tuner.py has a closed form and a compass search on the discrete poles.
@@ -13,8 +13,9 @@ from sensorless.tuning.pmac_reduced_order.tuner import tune_deangelo
 HOOKS = TuningHooks(
     tunables=(
         Tunable(
-            "deangelo",
-            "reduced-order EMF/load-torque observer: g, Gamma",
+            "constant",
+            "constant gains g, Gamma of the reduced-order EMF/load-torque observer, eqs. (9)-(10) of "
+            "De Angelo et al. (2006)",
             default_settings,
             tuner=tune_deangelo,
             columns=(

@@ -1,4 +1,4 @@
-"""Objective of the deangelo tuner: discrete poles and noise of one gain pair on a grid, their rank,
+"""Objective of the constant-gain tuner: discrete poles and noise of one gain pair on a grid, their rank,
 and the compass search that maximizes it."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Result of the deangelo tuner: the terminal summary and the gain table it writes (docs/gain_tables.md)."""
+"""Result of the constant-gain tuner: the terminal summary and its gain table (docs/gain_tables.md)."""
 
 from __future__ import annotations
 
@@ -20,9 +20,9 @@ from sensorless.tuning.pmac_reduced_order.settings import (
 
 @dataclass(frozen=True)
 class DeAngeloResult:
-    """What ``sensorless tune`` reports for the deangelo family."""
+    """What ``sensorless tune`` reports for the constant law."""
 
-    family: str
+    law: str
     g: float
     Gamma: float
     g0: float  # the drive's gains (baseline)
@@ -154,7 +154,7 @@ def gain_table(drive: Any, r: DeAngeloResult) -> GainTable:
         "bounds": {"g": [st.g_min, st.g_max], "Gamma": [st.Gamma_min, st.Gamma_max]},
     }
     return GainTable(
-        family="deangelo",
+        law="constant",
         drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
         gains={"g": r.g, "Gamma": r.Gamma},
         envelope=envelope,

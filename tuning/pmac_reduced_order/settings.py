@@ -1,4 +1,4 @@
-"""Settings and search box of the deangelo tuner: envelope grids, gain bounds and the closed form.
+"""Settings and search box of the constant-gain tuner: envelope grids, gain bounds and the closed form.
 
 The closed form and the Gamma box come from the hand-derived characteristic polynomial of the
 sinusoidal continuous-time model, (s + g)(s^2 + g s + Gamma (Phi_1/J)^2) (tuner.py, step 1).
@@ -21,7 +21,7 @@ MIN_FACTOR = 0.01  # default lower bounds: 1 % of the drive's g (and of its Gamm
 
 @dataclass(frozen=True)
 class DeAngeloSettings:
-    """Envelope, bounds and constraint of the deangelo family."""
+    """Envelope, bounds and constraint of the constant law."""
 
     speeds_rpm: tuple[float, ...]  # mechanical speeds [r/min], nonzero
     loads_Nm: tuple[float, ...]  # load torques [N m]

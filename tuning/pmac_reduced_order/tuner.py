@@ -1,4 +1,4 @@
-"""Tuning pipeline of the gain family ``deangelo`` of the reduced-order observer: the gains g and Gamma.
+"""Tuning pipeline of the gain law ``constant`` of the reduced-order observer: the gains g and Gamma.
 
 De Angelo, Bossio, Solsona, Garcia, Valla (2006), eqs. (9)-(10).
 
@@ -89,7 +89,7 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     lower = np.log([st.g_min, st.Gamma_min])
     upper = np.log([st.g_max, st.Gamma_max])
     say(
-        f"deangelo: g, Gamma over {n.size} envelope points; closed form (sinusoidal, continuous): "
+        f"constant: g, Gamma over {n.size} envelope points; closed form (sinusoidal, continuous): "
         f"g = {gc:.5g} 1/s, Gamma = {Gc:.5g} A^2 s^2"
     )
 
@@ -176,7 +176,7 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     evals = len(seen)
     seconds = time.perf_counter() - t0
     result = DeAngeloResult(
-        family="deangelo",
+        law="constant",
         g=g,
         Gamma=Gamma,
         g0=g0,

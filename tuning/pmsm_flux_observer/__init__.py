@@ -116,7 +116,7 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
         base = runtime_params(drive, g)
         k_0 = (
             4 * float(g.values["foc_observer_gain"]) * drive.estimate.psi_pm**2
-            if g.family == "vesc"
+            if g.law == "vesc"
             else float(g.values["observer_gain"])
         )
         for c in cs:
@@ -225,7 +225,7 @@ def k_grid(drive: Any) -> np.ndarray:
 
 @dataclass
 class FluxOutcome:
-    family: str
+    law: str
     table: GainTable
     lines: list[str]
 
@@ -250,7 +250,7 @@ def _baselines(drive: Any, settings: FluxTuneSettings) -> tuple[list[str], dict[
 def _same_law(drive: Any, law: str) -> list[GainSet]:
     """The drive file's gains where they are of ``law``."""
     g = drive_gains_or_none(drive)
-    return [g] if g is not None and g.family == law else []
+    return [g] if g is not None and g.law == law else []
 
 
 def drive_gains_or_none(drive: Any) -> GainSet | None:

@@ -197,7 +197,7 @@ class PllObserverFamily(ObserverFamily):
     scenarios = "families.pll.scenarios"
     tuning = "families.pll.tuning"
     report = "families.pll.report"
-    gain_families = LAWS
+    laws = LAWS
     estimate_keys = ("R_s", "L", "psi_pm", "J")  # [estimate_scale]: one inductance
     panels = (CURRENT_PANEL,)
 

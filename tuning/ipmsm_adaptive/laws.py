@@ -1,20 +1,21 @@
-"""Tunable gain families of the adaptive observer: law (16) and the free speed schedule.
+"""Tunable gain laws of the adaptive observer: the speed-dependent gain (16) and the free speed schedule.
 
 Both are gain laws of symbolic/ipmsm_adaptive/gains.py, each a TuningModel of
 tuning/ipmsm_adaptive/model.py (the analysis closed loop with the law plugged in): here are their
 parameters, boxes, starts and regularizers. theta is the law's parameter vector, plus alpha_fo (10)
 when ``tune_alpha_fo`` is set.
 
-- law16: theta = [lambda' (ohm), omega_lambda (rad/s)], eq. (16) of Piippo, Hinkkanen, Luomi (2008).
+- speed-dependent: theta = [lambda' (ohm), omega_lambda (rad/s)], eq. (16) of Piippo, Hinkkanen, Luomi (2008).
   Baseline: the drive's ``[observer.gains.speed]`` (the paper's Fig. 4(c): lambda' = 2 R̂s,
   omega_lambda = 1 p.u.).
 - schedule: theta = [lambda1 at each breakpoint..., lambda2 at each breakpoint...] (ohm), linear in
   the speed estimate between breakpoints, held beyond the ends (``schedule_law``). Breakpoints: zero,
   ``breakpoints`` speeds per direction from speed_min to speed_max, and the kinks +-omega_lambda of
-  the drive file's law (16) and of the tuned law16 (its seed) inside the envelope. Eq. (16) is
-  piecewise linear with kinks only at 0 and +-omega_lambda, so on these breakpoints the schedule reproduces
-  both laws *exactly* over the envelope: its baseline is the drive file's gains sampled at the
-  breakpoints, its NLP start the tuned law16 sampled there, and the tuner can only improve on law16.
+  the drive file's law (16) and of the tuned speed-dependent law (its seed) inside the envelope.
+  Eq. (16) is piecewise linear with kinks only at 0 and +-omega_lambda, so on these breakpoints the
+  schedule reproduces both laws *exactly* over the envelope: its baseline is the drive file's gains
+  sampled at the breakpoints, its NLP start the tuned speed-dependent law sampled there, and the
+  tuner can only improve on it.
 """
 
 from __future__ import annotations
@@ -34,9 +35,9 @@ GAIN_BOX = 20.0  # default search box |lambda| <= 20 R̂s when no lambda_max is 
 LAMBDA1_MIN = -0.9  # lambda1 > -R̂s (Section IV-B): the box keeps lambda1 >= -0.9 R̂s
 
 
-def _model(drive: Any, law: GainLaw, settings: TuningSettings, **kw: Any) -> TuningModel:
+def _model(drive: Any, gain_law: GainLaw, settings: TuningSettings, **kw: Any) -> TuningModel:
     """The law's TuningModel, whose pointwise model (of the bound, tuning/bound.py) is build_pointwise."""
-    return law_model(drive, law, settings, pointwise=lambda: build_pointwise(drive, settings), **kw)
+    return law_model(drive, gain_law, settings, pointwise=lambda: build_pointwise(drive, settings), **kw)
 
 
 def _lambda_max(settings: TuningSettings, R: float) -> float:
@@ -57,8 +58,10 @@ def _alpha_reg(th: ca.SX, law: GainLaw, settings: TuningSettings, a0: float) -> 
     return (th[law.n_params] / a0 - 1) ** 2 if law_settings(settings).tune_alpha_fo else 0
 
 
-def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
-    """Family law16: eq. (16) with lambda' and omega_lambda free."""
+def build_speed_dependent(
+    drive: Any, settings: TuningSettings, seed: np.ndarray | None = None
+) -> TuningModel:
+    """Law speed-dependent: eq. (16) with lambda' and omega_lambda free."""
     law = get_law("speed")
     R = drive.estimate.R_s
     wb = drive.base.w
@@ -87,7 +90,7 @@ def build_law16(drive: Any, settings: TuningSettings, seed: np.ndarray | None = 
         lower=[0.0, 0.01 * wb],
         upper=[lam_max, 10.0 * wb],
         typical=[R, wb],
-        family="law16",
+        law="speed-dependent",
         # no regularizer: the optimum is a ridge (lambda' |w|/omega_lambda fixed at the binding
         # speed) and any point on it is as good; the NLP is deterministic for given inputs
         regularizer=None,
@@ -117,7 +120,7 @@ def schedule_breakpoints(
     return tuple(float(v) for v in np.concatenate([-mag[::-1], [0.0], mag]))
 
 
-def _law16_at(grid: tuple[float, ...], params: np.ndarray) -> np.ndarray:
+def _speed_dependent_at(grid: tuple[float, ...], params: np.ndarray) -> np.ndarray:
     """eq. (16) with params [lambda', omega_lambda] sampled at the breakpoints: [lambda1..., lambda2...]."""
     l1, l2 = law_values(get_law("speed")).map(len(grid))(np.array(grid)[None, :], params[:2])
     return np.concatenate([np.asarray(l1).ravel(), np.asarray(l2).ravel()])
@@ -125,7 +128,7 @@ def _law16_at(grid: tuple[float, ...], params: np.ndarray) -> np.ndarray:
 
 def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
     """Family schedule: free (lambda1, lambda2) at each breakpoint, linear in between; started from
-    ``seed``, the tuned law16 parameters (lambda', omega_lambda[, alpha_fo]), when given."""
+    ``seed``, the tuned speed-dependent parameters (lambda', omega_lambda[, alpha_fo]), when given."""
     g = drive.gain("speed")
     baseline = np.array([g.lambda_p, g.w_lambda])
     grid = schedule_breakpoints(drive, settings, (g.w_lambda, *(() if seed is None else (seed[1],))))
@@ -134,7 +137,7 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
     R = drive.estimate.R_s
     a0 = drive.observer.alpha_fo
     lam_max = _lambda_max(settings, R)
-    theta0 = _law16_at(grid, baseline)
+    theta0 = _speed_dependent_at(grid, baseline)
     lower = np.concatenate([np.full(K, max(LAMBDA1_MIN * R, -lam_max)), np.full(K, -lam_max)])
     upper = np.full(2 * K, lam_max)
     w = np.array(grid)
@@ -161,7 +164,7 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
 
     start = None
     if seed is not None:
-        start = _law16_at(grid, np.asarray(seed, float))
+        start = _speed_dependent_at(grid, np.asarray(seed, float))
         if law_settings(settings).tune_alpha_fo:
             start = np.append(start, seed[2])
 
@@ -182,11 +185,11 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
         lower=lower,
         upper=upper,
         typical=np.full(2 * K, R),
-        family="schedule",
+        law="schedule",
         regularizer=regularizer,
         table_gains=table_gains,
         start=start,
-        start_label="law16 optimum" if seed is not None else "",
+        start_label="speed-dependent optimum" if seed is not None else "",
         from_pointwise=from_pointwise,
         n_initial_active=16,
     )
@@ -247,7 +250,7 @@ def build_pointwise(drive: Any, settings: TuningSettings, seed: np.ndarray | Non
         lower=[max(LAMBDA1_MIN * R, -lam_max), -lam_max],
         upper=[lam_max, lam_max],
         typical=[R, R],
-        family="pointwise",
+        law="pointwise",
         regularizer=None,
         table_gains=lambda theta: {"lambda1": float(theta[0]), "lambda2": float(theta[1])},
         starts=starts,

@@ -1,0 +1,161 @@
+"""Firmware configuration files in and out: what VESC, ODrive and SimpleFOC store, as drive values.
+
+Each firmware has a module here (vesc.py, odrive.py, simplefoc.py) with its field names, units and
+conventions (docs/families/pmsm_flux_observer_firmware.md; the facts and their sources:
+shared/references/firmware_flux_observer.md). This module holds what they share:
+
+- :class:`Imported`: the minimal drive file an import writes (TOML text, each converted value with its
+  rule as a comment) and the lines said on stderr: which values were missing, what was assumed and
+  which option supplies each, which of two redundant values was used and why;
+- :class:`FirmwareDrive`: the typed record an export reads (the values the firmware is given, its
+  loop period and the law's gains), built from a drive and a gain set by the family's report hooks;
+- :class:`Fields`: a firmware file's fields read strictly (a bad value is one line naming the file
+  and the field);
+- :func:`choose_flux`: the cross-check of redundant flux values (flux linkage, KV, torque constant).
+
+Units are SI; the firmware's own units are converted where read or written, nowhere else.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from sensorless.design.drive_file import DriveDocument, Entry
+from sensorless.design.motor_data import FLUX_TOLERANCE
+from sensorless.design.units import DriveFileError
+
+
+@dataclass(frozen=True)
+class Imported:
+    """An imported firmware configuration: the minimal drive file and what to tell the user."""
+
+    text: str  # TOML of kind pmsm-flux-observer (the family's agreed minimal format)
+    notes: tuple[str, ...]  # one line each: missing values, assumptions, cross-checks
+
+
+@dataclass(frozen=True)
+class FirmwareDrive:
+    """What an export writes: the motor values the firmware is to be given (the drive's estimates,
+    SI, per phase of the equivalent wye), its loop, the observer variant and the law's gains."""
+
+    name: str
+    p: int  # pole pairs
+    R_s: float  # ohm
+    L_d: float  # H
+    L_q: float  # H
+    psi_pm: float  # Wb (V s), peak phase flux
+    u_dc: float  # V
+    T_obs: float  # s: the observer and PLL period
+    correction: str  # "gradient" | "clamped-gradient" | "box-clamp"
+    lambda_adaptation: bool
+    law: str  # the gain law: "odrive" | "vesc" | "schedule"
+    gains: Mapping[str, float] = field(default_factory=dict)  # the law's gains, SI or firmware-raw
+    source: str = ""  # where the gains come from (the drive file's [gains] or a gain table), for messages
+
+
+class Fields:
+    """A firmware file's fields (flat names -> raw values), read strictly: ``number`` refuses a value
+    that is not a finite number (odrivetool writes ``Infinity`` and ``NaN``) with one line naming the
+    file and the field; ``missing`` lists what was asked for and absent."""
+
+    def __init__(self, values: Mapping[str, Any], file: str) -> None:
+        self.values, self.file = values, file
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.values
+
+    def error(self, name: str, problem: str) -> DriveFileError:
+        """The one-line error naming the file and the field."""
+        return DriveFileError(self.file, name, problem)
+
+    def number(self, name: str, positive: bool = True) -> float | None:
+        """The field as a finite number (> 0 with ``positive``), or None if absent."""
+        if name not in self.values:
+            return None
+        raw = self.values[name]
+        try:
+            x = float(raw) if not isinstance(raw, bool) else math.nan
+        except (TypeError, ValueError):
+            raise self.error(name, f"{raw!r} is not a number") from None
+        if not math.isfinite(x):
+            raise self.error(name, f"{raw!r} is not a finite number")
+        if positive and not x > 0:
+            raise self.error(name, f"{raw!r}: must be > 0")
+        return x
+
+    def integer(self, name: str) -> int | None:
+        """The field as an integer >= 1, or None if absent."""
+        x = self.number(name)
+        if x is None:
+            return None
+        if x != int(x):
+            raise self.error(name, f"{self.values[name]!r} is not a whole number")
+        return int(x)
+
+
+def choose_flux(
+    candidates: list[tuple[str, float | None, bool, str]], file: str, need: str
+) -> tuple[float, str, list[str]]:
+    """The PM flux to use from redundant values, with the reason and the notes of the cross-check.
+
+    ``candidates``: (name, psi_pm or None if absent, is the factory default, rule), in the order of
+    preference (the value the observer itself runs with first). The first that is not a factory
+    default is used; a default is used only when nothing else is given, with a note naming ``need``
+    (the option that supplies a real value). Every other given value is compared with it: beyond
+    design/motor_data.py FLUX_TOLERANCE a note says so (the file is kept; the firmware holds both)."""
+    given = [c for c in candidates if c[1] is not None]
+    if not given:
+        raise DriveFileError(file, candidates[0][0], f"missing: no PM flux value in the file; give {need}")
+    real = [c for c in given if not c[2]]
+    name, psi, _, rule = (real or given)[0]
+    assert psi is not None
+    notes: list[str] = []
+    why = f"flux linkage {psi * 1e3:.5g} mWb from {name}"
+    if not real:
+        notes.append(
+            f"{why} is still the factory default: the drive's flux is a guess until you give {need} "
+            "(the flux observer needs it within a few per cent)"
+        )
+    else:
+        for other, x, default, _ in given:
+            if other == name:
+                continue
+            assert x is not None
+            if default:
+                notes.append(
+                    f"{other} is still the factory default ({x * 1e3:.5g} mWb); used {why} instead "
+                    "(set by the user or measured); an export writes it back"
+                )
+            elif abs(x / psi - 1) > FLUX_TOLERANCE:
+                notes.append(
+                    f"{other} implies {x * 1e3:.5g} mWb, {100 * abs(x / psi - 1):.0f} % from the {why} "
+                    f"(tolerance {100 * FLUX_TOLERANCE:.0f} %); used {name}: check pole pairs and the "
+                    "constants' conventions"
+                )
+            else:
+                notes.append(f"{other} ({x * 1e3:.5g} mWb) agrees with the {why}, which is used")
+    return psi, rule, notes
+
+
+def drive_document(header: list[str], sections: Mapping[str, Mapping[str, Entry]]) -> str:
+    """The TOML text of a minimal drive file (design/drive_file.py DriveDocument: rules as comments)."""
+    doc = DriveDocument(header=list(header))
+    for name, entries in sections.items():
+        if entries:
+            doc.section(name).update(entries)
+    return doc.toml()
+
+
+def quantity(x: float, unit: str) -> str:
+    """``x`` [SI] as a drive-file quantity string, to 12 significant digits (an export read back gives
+    the exported values to 5e-12 relative; the firmwares store float32, good to 1e-7)."""
+    return f"{x:.12g} {unit}"
+
+
+def check_limit(ok: bool, source: str, key: str, why: Callable[[], str]) -> None:
+    """Refuse an export that breaks a firmware's own limit: one line naming where the gain came from."""
+    if not ok:
+        raise DriveFileError(source or "gains", key, why())

@@ -1,0 +1,318 @@
+"""VESC: VESC Tool's motor configuration XML read into a drive file, and tuned values written back.
+
+The file is ``<MCConfiguration>`` with one element per configuration field, values in SI (VESC Tool's
+"save motor configuration XML"). The conventions converted here (firmware_flux_observer.md, VESC):
+
+- ``si_motor_poles`` is the number of magnet poles (p = poles / 2); older files lack it (--pole-pairs);
+- ``foc_motor_l`` = (L_d + L_q) / 2 and ``foc_motor_ld_lq_diff`` = L_q - L_d, both as detection
+  stores them: 0.9 x the measured values ("more stable when the inductance is underestimated"). The
+  stored values are what the firmware runs ([estimate]); the motor's are stored / 0.9 (``--l-scale``:
+  the factor the file's values carry, 1 for values typed from a datasheet);
+- ``foc_motor_flux_linkage`` [Wb] and ``foc_motor_r`` [ohm] are per phase of the equivalent wye;
+- ``foc_observer_gain`` is raw: detection stores 1e6 x (1e-3 / lambda^2) = 1000 / lambda^2 and VESC
+  Tool shows raw x 1e-6 as "Observer Gain (x1M)"; at run time gamma = 4 x raw x max(gain_slow,
+  |duty| V_bus / 40 V), so gamma lambda^2 = 4000 x max(...) with the detection gain;
+- the observer and PLL run once per PWM period, T = 2 / ``foc_f_zv`` (f_zv counts both zero vectors),
+  or T = 1 / f_zv when ``foc_sample_v0_v7`` samples at both;
+- ``foc_observer_type``: 0 ORTEGA_ORIGINAL (clamped gradient), 1 MXLEMMING (box clamp),
+  2 ORTEGA_LAMBDA_COMP, 3 MXLEMMING_LAMBDA_COMP (with online flux adaptation), 4 MXV and
+  5 MXV_LAMBDA_COMP (circular clamp, not modelled: read as the box clamp, with a note).
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from sensorless.design.drive_file import Entry
+from sensorless.design.motor_data import kv_to_psi
+from sensorless.design.pmsm_flux_observer.firmware import (
+    Fields,
+    FirmwareDrive,
+    Imported,
+    check_limit,
+    choose_flux,
+    drive_document,
+    quantity,
+)
+from sensorless.design.units import DriveFileError
+
+ROOT = "MCConfiguration"
+DETECTION_L_SCALE = 0.9  # detection stores 0.9 x the measured inductances
+DETECTION_GAIN = 1e-3  # detection: gain = 1e-3 / lambda^2, stored x 1e6
+GAIN_DISPLAY = 1e-6  # VESC Tool shows the raw gain x 1e-6 ("x1M")
+SCHEDULE_FACTOR = 4.0  # gamma = 4 raw max(gain_slow, |duty| V_bus / V_SCHEDULE)
+V_SCHEDULE = 40.0  # V
+# firmware defaults, used (with a note) where an older file lacks the field
+DEFAULTS = {
+    "foc_observer_gain_slow": 0.05,
+    "foc_pll_kp": 2000.0,
+    "foc_pll_ki": 30000.0,
+    "foc_f_zv": 25e3,
+}
+V_PER_CELL = 3.7  # V: nominal li-ion cell, for si_battery_cells when --u-dc is not given
+# foc_observer_type -> (name, correction, online flux adaptation)
+OBSERVER_TYPES = {
+    0: ("ORTEGA_ORIGINAL", "clamped-gradient", False),
+    1: ("MXLEMMING", "box-clamp", False),
+    2: ("ORTEGA_LAMBDA_COMP", "clamped-gradient", True),
+    3: ("MXLEMMING_LAMBDA_COMP", "box-clamp", True),
+    4: ("MXV", "box-clamp", False),
+    5: ("MXV_LAMBDA_COMP", "box-clamp", True),
+}
+NOT_MODELLED = (4, 5)
+
+
+def observer_gain_detection(psi_pm: float) -> float:
+    """The raw ``foc_observer_gain`` VESC Tool's detection stores for flux linkage ``psi_pm`` [Wb]."""
+    return DETECTION_GAIN / psi_pm**2 / GAIN_DISPLAY
+
+
+def fields(text: str, file: str) -> dict[str, str]:
+    """The fields of a VESC Tool motor configuration XML (one-line DriveFileError if it is not one)."""
+    if "<!DOCTYPE" in text or "<!ENTITY" in text:
+        raise DriveFileError(file, ROOT, "document type declarations are not read (not a VESC Tool XML)")
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as e:
+        raise DriveFileError(file, "(syntax)", f"not valid XML: {e}") from None
+    if root.tag != ROOT:
+        raise DriveFileError(file, root.tag, f"the root element is <{root.tag}>, not <{ROOT}>")
+    return {child.tag: (child.text or "").strip() for child in root}
+
+
+def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
+    """The minimal drive file of a VESC Tool motor configuration XML (module docstring); ``given``:
+    the values of the import options (pole_pairs, u_dc, J, KV, l_scale, f_s, name) that were given."""
+    f = Fields(fields(text, file), file)
+    notes: list[str] = []
+    motor: dict[str, Entry] = {}
+    estimate: dict[str, Entry] = {}
+
+    poles = f.integer("si_motor_poles")
+    if given.get("pole_pairs"):
+        p = int(given["pole_pairs"])
+        if poles is not None and poles != 2 * p:
+            notes.append(f"--pole-pairs {p} used; the file's si_motor_poles = {poles} differs")
+        motor["p"] = Entry(p, "--pole-pairs")
+        if poles is None:
+            notes.append(f"si_motor_poles missing (an older file): {p} pole pairs from --pole-pairs")
+    elif poles is None:
+        raise f.error("si_motor_poles", "missing (an older VESC Tool file): give --pole-pairs")
+    elif poles % 2:
+        raise f.error("si_motor_poles", f"{poles}: the number of magnet poles is even")
+    else:
+        p = poles // 2
+        motor["p"] = Entry(p, f"si_motor_poles/2 = {poles}/2")
+
+    R = f.number("foc_motor_r")
+    L = f.number("foc_motor_l")
+    if R is None or L is None:
+        name = "foc_motor_r" if R is None else "foc_motor_l"
+        raise f.error(name, "missing: run the motor detection in VESC Tool or type the value")
+    diff = f.number("foc_motor_ld_lq_diff", positive=False)
+    if diff is None:
+        diff = 0.0
+        notes.append("foc_motor_ld_lq_diff missing (an older file): assumed L_d = L_q = foc_motor_l")
+    Ld_fw, Lq_fw = L - diff / 2, L + diff / 2
+    if not Ld_fw > 0:
+        raise f.error("foc_motor_ld_lq_diff", f"{diff!r} H makes L_d = foc_motor_l - diff/2 <= 0")
+    scale = float(given.get("l_scale") or DETECTION_L_SCALE)
+    motor["R_s"] = Entry(quantity(R, "ohm"), "foc_motor_r")
+    rule = "(foc_motor_l {} foc_motor_ld_lq_diff/2)" + (f" / {scale:g}" if scale != 1 else "")
+    motor["L_d"] = Entry(quantity(Ld_fw / scale, "H"), rule.format("-"))
+    motor["L_q"] = Entry(quantity(Lq_fw / scale, "H"), rule.format("+"))
+    if scale != 1:
+        estimate["L_d"] = Entry(quantity(Ld_fw, "H"), "foc_motor_l - foc_motor_ld_lq_diff/2: what VESC runs")
+        estimate["L_q"] = Entry(quantity(Lq_fw, "H"), "foc_motor_l + foc_motor_ld_lq_diff/2: what VESC runs")
+        if "l_scale" not in given:
+            notes.append(
+                f"foc_motor_l, foc_motor_ld_lq_diff read as VESC Tool's detection stores them ({scale:g} x "
+                f"measured): motor L_d, L_q = stored/{scale:g}, the stored values as the estimate the "
+                "firmware runs; give --l-scale 1 if they were typed from a datasheet"
+            )
+
+    flux_rule = "foc_motor_flux_linkage"
+    candidates: list[tuple[str, float | None, bool, str]] = [
+        ("foc_motor_flux_linkage", f.number("foc_motor_flux_linkage"), False, flux_rule)
+    ]
+    if given.get("KV"):
+        kv = float(given["KV"])
+        candidates.append(
+            ("--KV", kv_to_psi(kv * 2 * math.pi / 60, p), False, f"60/(2 pi sqrt(3) p KV), KV {kv:g}")
+        )
+    psi, rule, flux_notes = choose_flux(candidates, file, "--KV (rpm/V, line-line peak)")
+    motor["psi_pm"] = Entry(quantity(psi, "Wb"), rule)
+    notes += flux_notes
+    if given.get("J"):
+        motor["J"] = Entry(quantity(float(given["J"]), "kg m^2"), "--J")
+    else:
+        notes.append("no inertia in a VESC file: J derived by the family's rule (give --J in kg m2)")
+
+    inverter: dict[str, Entry] = {}
+    if given.get("u_dc"):
+        inverter["u_dc"] = Entry(quantity(float(given["u_dc"]), "V"), "--u-dc")
+    else:
+        cells = f.integer("si_battery_cells")
+        if cells is None:
+            raise f.error("si_battery_cells", "missing: no bus voltage in the file; give --u-dc")
+        inverter["u_dc"] = Entry(quantity(cells * V_PER_CELL, "V"), f"si_battery_cells x {V_PER_CELL} V")
+        notes.append(f"bus voltage assumed {cells} cells x {V_PER_CELL} V (li-ion nominal); give --u-dc")
+    f_zv = f.number("foc_f_zv")
+    loop_from = "foc_f_zv"
+    if f_zv is None and "foc_f_sw" in f:
+        f_sw = f.number("foc_f_sw")
+        assert f_sw is not None
+        f_zv = 2 * f_sw
+        loop_from = "foc_f_sw"
+        notes.append(
+            f"foc_f_zv missing: read the older foc_f_sw {f_sw:g} Hz as the PWM frequency (f_zv = 2 f_sw)"
+        )
+    elif f_zv is None:
+        f_zv = DEFAULTS["foc_f_zv"]
+        notes.append(f"foc_f_zv missing: assumed the firmware default {f_zv:g} Hz")
+    both = f.values.get("foc_sample_v0_v7", "0").strip().lower() in ("1", "true")
+    T = (1 if both else 2) / f_zv
+    loop = "1/foc_f_zv (foc_sample_v0_v7)" if both else "2/foc_f_zv"
+    if loop_from == "foc_f_sw":
+        loop = "1/foc_f_sw"
+    inverter["f_s"] = Entry(quantity(1 / T, "Hz"), f"the observer's rate: T_obs = {loop}")
+
+    kind_raw = f.values.get("foc_observer_type")
+    if kind_raw is None:
+        code = 0
+        notes.append(
+            "foc_observer_type missing (an older file, before the other observers): assumed 0 ORTEGA_ORIGINAL"
+        )
+    else:
+        by_name = {n: c for c, (n, _, _) in OBSERVER_TYPES.items()}
+        word = kind_raw.strip().upper().removeprefix("FOC_OBSERVER_")
+        x = by_name.get(word)
+        if x is None:
+            x = f.number("foc_observer_type", positive=False)
+        code = int(x) if x == int(x) else -1
+        if code not in OBSERVER_TYPES:
+            raise f.error("foc_observer_type", f"{kind_raw}: not one of {sorted(OBSERVER_TYPES)}")
+    name, correction, adapt = OBSERVER_TYPES[code]
+    if code in NOT_MODELLED:
+        notes.append(
+            f"foc_observer_type {code} ({name}, circular clamp) is not modelled: read as the box clamp"
+        )
+    observer = {
+        "firmware": Entry("vesc"),
+        "correction": Entry(correction, f"foc_observer_type {code} ({name})"),
+        "inductance": Entry("interpolated", "VESC interpolates L between L_d and L_q"),
+        "lambda_adaptation": Entry(adapt, f"foc_observer_type {code} ({name})"),
+        "T_obs": Entry(quantity(T, "s"), loop),
+    }
+
+    gains: dict[str, Entry] = {"law": Entry("vesc")}
+    raw = f.number("foc_observer_gain")
+    if raw is None:
+        raw = observer_gain_detection(psi)
+        notes.append(
+            f"foc_observer_gain missing: assumed VESC Tool's detection rule 1000/lambda^2 = {raw:.6g}"
+        )
+    elif abs(raw / observer_gain_detection(psi) - 1) < 1e-3:
+        notes.append("foc_observer_gain is VESC Tool's detection value 1000/lambda^2 for this flux linkage")
+    gains["foc_observer_gain"] = Entry(raw, f"raw; VESC Tool shows {raw * GAIN_DISPLAY:.4g} (x1M)")
+    for key, unit in (("foc_observer_gain_slow", ""), ("foc_pll_kp", "1/s"), ("foc_pll_ki", "")):
+        x = f.number(key)
+        if x is None:
+            x = DEFAULTS[key]
+            notes.append(f"{key} missing: assumed the firmware default {x:g}")
+        gains[key] = Entry(quantity(x, unit) if unit else x, "1/s^2" if key == "foc_pll_ki" else "")
+
+    rating: dict[str, Entry] = {}
+    i_max = f.number("l_current_max")
+    if i_max is not None:
+        rating["I_N"] = Entry(
+            quantity(i_max / math.sqrt(2), "A"), "l_current_max/sqrt(2): the limit taken as rated"
+        )
+    stem = Path(file).stem
+    header = [
+        f"imported from {Path(file).name} (VESC Tool motor configuration XML) by sensorless init --from vesc",
+        "each converted value has its rule as a comment (docs/families/pmsm_flux_observer_firmware.md)",
+    ]
+    sections = {
+        "drive": {
+            "name": Entry(str(given.get("name") or stem)),
+            "kind": Entry(kind),
+            "source": Entry(f"VESC Tool motor configuration {Path(file).name}"),
+        },
+        "motor": motor,
+        "rating": rating,
+        "inverter": inverter,
+        "observer": observer,
+        "estimate": estimate,
+        "gains": gains,
+    }
+    return Imported(drive_document(header, sections), tuple(notes))
+
+
+def _element(name: str, value: Any, comment: str = "") -> str:
+    text = f"    <{name}>{value}</{name}>"
+    return f"{text}  <!-- {comment.replace('--', '-')} -->" if comment else text
+
+
+def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
+    """VESC Tool XML fragment (``vesc.xml``) of the drive's motor values and law ``vesc`` gains; a
+    DriveFileError (one line) where the drive or gains break the firmware's own limits."""
+    check_limit(
+        d.law == "vesc", d.source, "law", lambda: f"law {d.law!r}: the vesc target writes law 'vesc' gains"
+    )
+    if d.correction == "gradient":
+        raise DriveFileError(
+            d.source, "observer.correction", "VESC has no unclamped gradient observer: use 'clamped-gradient'"
+        )
+    code = next(
+        c for c, (_, corr, ad) in OBSERVER_TYPES.items() if corr == d.correction and ad == d.lambda_adaptation
+    )
+    g = d.gains
+    raw, slow, kp, ki = (
+        g["foc_observer_gain"],
+        g["foc_observer_gain_slow"],
+        g["foc_pll_kp"],
+        g["foc_pll_ki"],
+    )
+    # the largest run-time gain: full duty at the drive's bus voltage
+    top = SCHEDULE_FACTOR * raw * max(slow, d.u_dc / V_SCHEDULE) * d.psi_pm**2
+    check_limit(
+        d.T_obs * top < 2,
+        d.source,
+        "foc_observer_gain",
+        lambda: (
+            f"T gamma lambda^2 = {d.T_obs * top:.3g} >= 2 at full duty (4 raw max(gain_slow, u_dc/40 V) "
+            f"lambda^2 = {top:.4g} 1/s, T = {d.T_obs * 1e6:.4g} us): VESC's forward Euler step is unstable"
+        ),
+    )
+    name = OBSERVER_TYPES[code][0]
+    lines = [
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        f"<!-- sensorless export for VESC Tool: drive {d.name}; a fragment of the motor configuration: load",
+        "     it or copy its fields; SI units. The motor values are those the tuning assumed the firmware",
+        "     is given (VESC Tool's detection would store 0.9 x the measured inductances). -->",
+        f"<{ROOT}>",
+        _element("si_motor_poles", 2 * d.p, f"{d.p} pole pairs"),
+        _element("foc_motor_r", repr(d.R_s), "ohm, per phase"),
+        _element("foc_motor_l", repr((d.L_d + d.L_q) / 2), "H, (L_d + L_q)/2"),
+        _element("foc_motor_ld_lq_diff", repr(d.L_q - d.L_d), "H, L_q - L_d"),
+        _element("foc_motor_flux_linkage", repr(d.psi_pm), "Wb"),
+        _element("foc_f_zv", repr(2 / d.T_obs), f"Hz: observer period 2/f_zv = {d.T_obs * 1e6:.6g} us"),
+        _element("foc_sample_v0_v7", 0, "one observer step per PWM period, as T assumes"),
+        _element("foc_observer_type", code, f"{name}: the observer the gains were tuned for"),
+        _element("foc_observer_gain", repr(raw), f"VESC Tool shows {raw * GAIN_DISPLAY:.4g} (x1M)"),
+        _element("foc_observer_gain_slow", repr(slow)),
+        _element("foc_pll_kp", repr(kp), "1/s"),
+        _element("foc_pll_ki", repr(ki), "1/s^2"),
+        f"</{ROOT}>",
+    ]
+    notes = [
+        f"VESC Tool shows foc_observer_gain as {raw * GAIN_DISPLAY:.4g} (x1M); observer type {code} {name}"
+    ]
+    if d.correction == "box-clamp":
+        notes.append(f"{name} has no gain: foc_observer_gain does not act on it")
+    return {"vesc.xml": "\n".join(lines) + "\n"}, notes
