@@ -106,6 +106,7 @@ class FluxObserverDrive:
     envelope: Envelope
     digest: str = ""
     warnings: tuple[str, ...] = ()
+    i_noise: float = 0.0  # [control] i_noise, the current-sensor noise [A rms per axis]; 0: the default
 
     @property
     def T_N(self) -> float:
@@ -254,7 +255,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             sec[k] = Entry(v, r)
 
     ctl_t = table(data, "control", file) if "control" in data else {}
-    check_keys(ctl_t, ("alpha_c", "alpha_s", "T_max"), file, "control.")
+    check_keys(ctl_t, ("alpha_c", "alpha_s", "T_max", "i_noise"), file, "control.")
     alpha_c = (
         positive(ctl_t, "alpha_c", "angular", file, "control") if "alpha_c" in ctl_t else ALPHA_C / T_obs
     )
@@ -375,6 +376,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
         gains_table=dict(d["gains"]),
         envelope=env,
         digest=digest,
+        i_noise=positive(ctl, "i_noise", "current", file, "control") if "i_noise" in ctl else 0.0,
     )
     from sensorless.design.pmsm_flux_observer.gains import drive_gains
 

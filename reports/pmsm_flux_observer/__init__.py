@@ -20,12 +20,13 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from sensorless.design.envelope import RANGES
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import read_gain_table
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
-from sensorless.reports.cli.common import Number
+from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
 from sensorless.reports.document import (
     Figure,
     Paragraph,
@@ -151,6 +152,23 @@ TUNE_OPTIONS = (
     Option(("--r-error",), {"type": Number(0.0, 0.9), "help": "stator resistance error (fraction)"}),
     Option(("--flux-error",), {"type": Number(0.0, 0.9), "help": "PM flux estimate error (fraction)"}),
     Option(("--l-error",), {"type": Number(0.0, 0.9), "help": "inductance estimate error (fraction)"}),
+    Option(
+        ("--max-noise",),
+        {
+            "help": "limit the RMS noise of the estimates from the drive's current-sensor noise, e.g. "
+            "position=0.05deg,speed=0.002pu (an angle alone limits the position, a speed the speed)"
+        },
+    ),
+    Option(
+        ("--pareto",),
+        {
+            "type": Number(*RANGES["pareto"], integer=True),
+            "nargs": "?",
+            "const": 8,
+            "metavar": "N",
+            "help": "also compute the damping-versus-noise front at N noise limits (2..100; default 8)",
+        },
+    ),
 )
 
 
@@ -165,6 +183,14 @@ def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> FluxTun
         s = dataclasses.replace(s, bias_max_deg=float(args.bias_max))
     if args.hold_speed is not None:
         s = dataclasses.replace(s, hold_speed=float(args.hold_speed) * drive.w_base)
+    if args.max_noise:
+        s = dataclasses.replace(s, max_noise=parse_max_noise(args.max_noise, drive.w_base))
+    if args.pareto is not None:
+        if tunable.name not in ("odrive", "vesc"):
+            raise UsageError(
+                f"--pareto: the {tunable.name} law has no damping-versus-bias front (odrive, vesc)"
+            )
+        s = dataclasses.replace(s, pareto=int(args.pareto))
     return s
 
 
