@@ -196,6 +196,28 @@ class ObserverFamily:
         """Linearization (design/linearization.Linearization) at speeds ``w`` [rad/s] x ``torque``."""
         raise CapabilityError(f"observer family {self.name!r} has no linearization")
 
+    def low_speed_options(self, drive: Drive) -> dict[str, Any]:
+        """The :meth:`linearize` options of the minimum-speed analysis (design/low_speed.py): what the
+        drive runs at low speed (e.g. its HF injection) and the family's noise model; none here."""
+        return {}
+
+    def holds_zero_speed(self, drive: Drive) -> bool:
+        """Whether the drive's observer holds zero speed under load by itself (e.g. on HF injection into
+        a salient motor): then it needs no open-loop start (design/startup.py); False here."""
+        return False
+
+    def low_speed_reason(self, drive: Drive) -> str:
+        """Why the drive's observer cannot hold zero speed, the physics in one clause (e.g. "non-salient
+        motor: rotor position unobservable at zero frequency"); "" where it can or the family does not
+        say."""
+        return ""
+
+    def with_estimate_errors(self, drive: Drive, factors: Mapping[str, float]) -> Drive:
+        """The drive with its observer's estimates scaled by ``factors`` (keys of ``estimate_keys``;
+        a key it does not model in its linearization is ignored): the minimum-speed analysis under
+        stated estimate errors."""
+        raise CapabilityError(f"observer family {self.name!r} takes no estimate errors in its analysis")
+
     # ---------------------------------------------------------------------------------- simulation
     def bases(self, drive: Drive) -> PerUnitBases | None:
         """The drive's per-unit bases (the report's drive-data tables show values in them); None where

@@ -39,6 +39,21 @@ class Linearization:
         """A family's own header notes of the pole tables ("what: value", e.g. its gain law); none here."""
         return ()
 
+    def angle_bias(self) -> np.ndarray | None:
+        """(N,) steady rotor-angle error of the estimate [rad] at each point (under the estimates the
+        family was linearized with); None where the family does not give it."""
+        return None
+
+    def low_speed_decay(self) -> np.ndarray:
+        """(N,) decay rate [1/s] that the minimum-speed analysis requires (design/low_speed.py): that of
+        the slowest mode, unless a family knows a mode that does not move its estimates."""
+        return self.decay_rate
+
+    def angle_noise(self) -> np.ndarray | None:
+        """(N,) RMS rotor-angle error [rad] from the drive's current-sensor noise; None where the
+        family was linearized without a noise model."""
+        return None
+
     @property
     def equilibrium(self) -> np.ndarray:
         """(N,) bool: an equilibrium exists (the poles are defined) at the point."""

@@ -15,6 +15,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from sensorless.design.family import CapabilityError, Panel, TraceLine
+from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
@@ -29,6 +30,7 @@ from sensorless.symbolic.pmsm_drive import (
     loop_function,
     observer_record,
 )
+from sensorless.symbolic.startup import W_CMD
 
 # the parameter-error factors of a scenario's [estimate_scale] that the loop applies to the
 # controllers' estimates (a family on this loop declares them in ObserverFamily.estimate_keys, with
@@ -115,6 +117,38 @@ def inputs(sc: Scenario, T_s: float) -> np.ndarray:
     return v
 
 
+def startup_setup(drive: OnPmsm, setup: RuntimeSetup) -> tuple[RuntimeSetup, str]:
+    """``setup`` wrapped in the I-f start (design/startup.py) where the design has a minimum sensorless
+    speed at rated load (design/low_speed.py, at the gains of ``setup``), and one line saying so;
+    unchanged where it holds zero speed. CapabilityError for a drive without a PMSM's data."""
+    from sensorless.design.low_speed import QUICK, minimum_speed
+    from sensorless.design.poles import MIN_DAMPING
+    from sensorless.design.startup import if_values, with_if_start
+
+    fam = family_of(drive)
+    if fam.holds_zero_speed(drive):
+        return setup, "no I-f start: the observer holds zero speed (its family: HF injection)"
+    try:
+        m, c = drive.motor, drive.control
+        inertia, pole_pairs, T_max = m.J, m.p, c.T_max
+        i_d, i_q = mtpa_torque_current(T_max, m)
+        k_t = T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
+    except AttributeError:
+        raise CapabilityError(
+            f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
+        ) from None
+    ls = minimum_speed(drive, setup.gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
+    if ls.w_min_rated <= 0:
+        return setup, "no I-f start: the design holds zero speed"
+    values = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, ls.w_min_rated)
+    line = (
+        f"I-f start: {values['if_i']:.4g} A, {values['if_acc']:.4g} rad/s^2, handover at "
+        f"{values['if_w_on'] / drive.w_base:.3g} p.u., back below "
+        f"{values['if_w_off'] / drive.w_base:.3g} p.u."
+    )
+    return with_if_start(setup, values), line
+
+
 def loop_setup(
     drive: OnPmsm,
     sc: Scenario,
@@ -129,9 +163,12 @@ def loop_setup(
     output ``u_c_d``; 0: none); ``notch``: it injects in this run, so the current control must not see
     the carrier. ``meta`` adds the family's own lines (gains, injection, ...) to the provenance.
     """
+    if sc.startup:
+        setup, line = startup_setup(drive, setup)
+        meta = {**meta, "startup": line}
     obs = setup.observer
     meas = tuple(f.name for f in obs.meas)
-    if meas != MEAS:
+    if meas not in (MEAS, (*MEAS, W_CMD.name)):
         raise CapabilityError(
             f"{obs.name}: the PMSM drive loop feeds the measurements {', '.join(MEAS)}, "
             f"the observer takes {', '.join(meas)}"

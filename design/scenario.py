@@ -78,6 +78,9 @@ class Scenario:
     i_noise: float  # standard deviation of the current-measurement noise, per axis [A]
     seed: int
     estimate_scale: Mapping[str, float] = field(default_factory=dict)  # parameter errors
+    # the open-loop I-f start below the design's minimum sensorless speed, where it has one
+    # (symbolic/startup.py, design/startup.py)
+    startup: bool = False
     options: Mapping[str, Any] = field(default_factory=dict)  # the family's keys (scenario_options)
 
 
@@ -102,6 +105,7 @@ _SCHEMA: dict[str, dict[str, tuple[str, Any]]] = {
         "stiff_load": ("bool", False),
         "speed_filter": ("angular", None),  # None: speed_filter_of (10 x the speed loop, >= 50 Hz)
         "current_bandwidth": ("angular", None),  # None: the drive's (reduced-order drive: 2 pi 400 rad/s)
+        "startup": ("bool", False),  # the I-f start below the minimum sensorless speed (design/startup.py)
     },
     "initial": {
         "w_m": ("angular_any", 0.0),
@@ -316,6 +320,7 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         i_noise=s["noise"]["i_std"],
         seed=s["noise"]["seed"],
         estimate_scale=s["estimate_scale"],
+        startup=c["startup"],
         options={
             k: s[sec][k]
             for sec, keys in schema.items()
@@ -374,7 +379,7 @@ def speed_filter_of(sc: Scenario, alpha_s: float) -> float:
 # --------------------------------------------------------------------------------------------------
 # Generic scenarios, scaled to a drive
 # --------------------------------------------------------------------------------------------------
-GENERIC = ("speed_steps", "load_steps", "reversal")
+GENERIC = ("speed_steps", "load_steps", "reversal", "start")
 
 
 def generic_times(sc: DriveScales) -> dict[str, float]:
@@ -418,13 +423,22 @@ def generic_scenarios(drive: Drive) -> list[Scenario]:
     every load change ramps in ``t_rise`` (:func:`generic_times`);
     - ``reversal``: a slow ramp from 0.5 to -0.5 p.u. at rated load (Piippo et al. 2008 Fig. 10, scaled;
       simulate-able for every drive, but not one of the report's checks where the observer does not
-      run through zero speed: reports/time_domain.py).
+      run through zero speed: reports/time_domain.py);
+    - the speed steps, the reversal and the start run through the open-loop I-f start below the
+      design's minimum sensorless speed where it does not hold zero speed (``[control] startup``:
+      design/pmsm_drive.py ``startup_setup``);
+    - ``start``: from standstill, rated load applied in ``t_rise``, then a ramp to 0.5 p.u. in
+      ``t_seg``, through the open-loop I-f start where the design does not hold zero speed
+      (``[control] startup``: design/pmsm_drive.py ``startup_setup``).
     """
     scales = registry.family_of(drive).scales(drive)
     t = generic_times(scales)
     seg, ramp, r = t["t_seg"], t["t_ramp"], t["t_rise"]
     # an observer that does not run through zero speed steps down to ZERO_SPEED_LOW_PU, not -0.5 p.u.
     low = f"{ZERO_SPEED_LOW_PU:g}" if scales.zero_speed else "-0.5"
+    # the I-f start where the family's observer may be taken through zero speed at all (a family that
+    # says it may not stays above it: its loop need not model a start)
+    su = "" if scales.zero_speed else "[control]\nstartup = true\n"
     g = lambda x: f"{x:.6g}"  # noqa: E731
     head = (
         f'kind = "{drive.kind}"\nsource = "generic scenario, scaled to the drive: t_seg = {g(seg)} s '
@@ -435,7 +449,7 @@ def generic_scenarios(drive: Drive) -> list[Scenario]:
             f"Speed steps at rated load (0.5, 1, {low}, 0.5 p.u.)",
             5 * seg,
             '["speed", "torque", "theta_error"]',
-            '[initial]\nw_m = "0.5 pu"\n'
+            f'{su}[initial]\nw_m = "0.5 pu"\n'
             f"[speed_reference]\nt = [0, {g(2 * seg)}, {g(3 * seg)}, {g(4 * seg)}]\n"
             f'value = ["0.5 pu", "1 pu", "{low} pu", "0.5 pu"]\n'
             f'[load_torque]\ninterpolation = "linear"\nt = [0, {g(seg)}, {g(seg + r)}]\n'
@@ -455,11 +469,20 @@ def generic_scenarios(drive: Drive) -> list[Scenario]:
             "Slow reversal at rated load (0.5 to -0.5 p.u.)",
             ramp + 2 * seg,
             '["speed", "torque", "theta_error"]',
-            '[initial]\nw_m = "0.5 pu"\n'
+            f'{su}[initial]\nw_m = "0.5 pu"\n'
             f'[speed_reference]\ninterpolation = "linear"\nt = [0, {g(seg)}, {g(seg + ramp)}]\n'
             'value = ["0.5 pu", "0.5 pu", "-0.5 pu"]\n'
             f'[load_torque]\ninterpolation = "linear"\nt = [0, {g(seg / 2)}, {g(seg / 2 + r)}]\n'
             'value = ["0 Nm", "0 Nm", "1 T_N"]\n',
+        ),
+        "start": (
+            "Start from standstill against rated load (0 to 0.5 p.u.)",
+            r + 2 * seg,
+            '["speed", "torque", "theta_error"]',
+            '[control]\nstartup = true\n[initial]\nw_m = "0 pu"\n'
+            f'[speed_reference]\ninterpolation = "linear"\nt = [0, {g(r)}, {g(r + seg)}]\n'
+            'value = ["0 pu", "0 pu", "0.5 pu"]\n'
+            f'[load_torque]\ninterpolation = "linear"\nt = [0, {g(r)}]\nvalue = ["0 Nm", "1 T_N"]\n',
         ),
     }
     rel = drive_units(drive)

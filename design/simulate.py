@@ -107,6 +107,9 @@ class Traces:
         if bad is None and "theta_err" in self.data:
             w_min = LOST_MIN_SPEED * self.meta.get("base_w", 0.0)
             moving = np.abs(self["w_m"]) >= w_min if "w_m" in self.data else None
+            if "startup_mode" in self.data:  # the open-loop I-f start: theta_hat is not an estimate
+                closed = np.asarray(self["startup_mode"]) < 0.5
+                moving = closed if moving is None else moving & closed
             lost = position_lost(self.t, self["theta_err"], moving)
             if lost is not None:
                 out.append(

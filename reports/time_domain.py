@@ -56,8 +56,8 @@ def scenarios(drive: Drive, paper: Sequence[str], user: Sequence[str] = ()) -> l
             out = generic_scenarios(drive)
         except CapabilityError:  # a family without scales: its own scenarios
             pass
-        if zero_speed_limit(drive):
-            out = [sc for sc in out if not crosses_zero(sc)]
+        if zero_speed_limit(drive):  # nor a start from standstill, which its loop cannot simulate
+            out = [sc for sc in out if not crosses_zero(sc) and not sc.startup]
     if not out:
         out = [load_scenario(name, drive) for name in paper]
     return out + [load_scenario(path, drive) for path in user]
@@ -70,9 +70,9 @@ def limitations(drive: Drive) -> list[str]:
     if not why:
         return []
     return [
-        "Not checked: running through zero speed (no generic reversal; the speed steps go down to "
-        f"{ZERO_SPEED_LOW_PU:g} p.u. only). {why} A reversal can still be simulated (sensorless simulate "
-        "DRIVE --scenario reversal) or checked with --scenario FILE."
+        "Not checked: running through zero speed (no generic reversal or start from standstill; the "
+        f"speed steps go down to {ZERO_SPEED_LOW_PU:g} p.u. only). {why} A reversal can still be simulated "
+        "(sensorless simulate DRIVE --scenario reversal) or checked with --scenario FILE."
     ]
 
 
@@ -86,8 +86,19 @@ def judge(tr: Any, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[st
     failed: list[str] = []
     problems = tr.problems()
     failed += problems
+    open_loop = np.asarray(tr["startup_mode"]) > 0.5 if "startup_mode" in tr.data else None
+    if open_loop is not None:
+        # the I-f start: theta_hat is the current vector's angle there, not an estimate; the position
+        # error is judged from the handovers on (the first closed-loop sample after each)
+        m["open_loop_s"] = f(np.count_nonzero(open_loop) * (tr.t[1] - tr.t[0]) if tr.t.size > 1 else 0)
+        k_on = np.flatnonzero(open_loop[:-1] & ~open_loop[1:]) + 1
+        m["handovers"] = int(k_on.size)
+        if k_on.size:
+            m["handover_theta_err_deg"] = f(np.degrees(np.abs(_wrap(tr["theta_err"][k_on])).max()))
     if "theta_err" in tr.data:
         th = _wrap(tr["theta_err"])
+        if open_loop is not None:
+            th = np.where(open_loop, 0.0, th)
         m["rms_theta_err_deg"] = f(np.degrees(np.sqrt(np.mean(th**2))))
         lim = np.radians(LIMITS["max_abs_theta_err_deg"])
         within = np.flatnonzero(np.abs(th) <= lim)

@@ -72,6 +72,29 @@ class AdaptiveFluxObserver(ObserverFamily):
             with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
         )
 
+    def low_speed_options(self, drive: Any) -> dict[str, Any]:
+        """Its HF injection where the drive injects (it runs at low speed), and its noise model."""
+        return {"injection": bool(drive.injection.enabled), "noise": True}
+
+    def holds_zero_speed(self, drive: Any) -> bool:
+        """On HF injection (a salient motor the current sensor sees): Piippo et al. (2008) Sec. V."""
+        return bool(drive.injection.enabled)
+
+    def low_speed_reason(self, drive: Any) -> str:
+        """Without HF injection the flux observer sees the rotor only through its back-EMF."""
+        if drive.injection.enabled:
+            return ""
+        return (
+            "no HF injection (a non-salient motor, or a saliency the current sensor cannot see): the rotor "
+            "position is unobservable at zero frequency, where the back-EMF vanishes"
+        )
+
+    def with_estimate_errors(self, drive: Any, factors: Any) -> Any:
+        """[estimate] R_s, L_d, L_q, psi_pm scaled (J only enters the simulated speed controller)."""
+        e = drive.estimate
+        new = {k: getattr(e, k) * float(v) for k, v in factors.items() if k in e.__dataclass_fields__}
+        return dataclasses.replace(drive, estimate=dataclasses.replace(e, **new))
+
     def bases(self, drive: Any) -> PerUnitBases:
         """The [base] section: speed w, voltage u, current i, impedance Z = u/i, flux psi = u/w."""
         b = drive.base

@@ -23,8 +23,10 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
   paper's Fig. 4 (zero, constant lambda1 = -0.5 R_s_hat, speed-dependent (16) lambda' = 2 R_s_hat,
   omega_lambda = 1 p.u.) are the baseline that ``sensorless tune`` starts from.
 - ``[injection]``: on only where the saliency gives a usable error signal (19): 2 |L_q - L_d| /
-  (L_q + L_d) >= SALIENCY_MIN; carrier f_s/6 (833 Hz at 5 kHz), u_c = 0.13 p.u. of the base voltage
-  (40 V of 302 V), alpha_i = f_s/1000 (5 Hz), w_Delta = 0.13 p.u.; off (u_c = 0 V) otherwise.
+  (L_q + L_d) >= SALIENCY_MIN and the current sensor sees it; carrier f_s/6 (833 Hz at 5 kHz) and u_c
+  from the saliency, the sensor's noise and resolution, the inverter's voltage margin and the sampling
+  rate (carrier.py: 32 V on the paper's motor, which uses 40 V), alpha_i = f_s/1000 (5 Hz), w_Delta
+  = 0.13 p.u.; off (u_c = 0 V, with a warning where the sensor is the reason) otherwise.
 - ``[runtime]`` and ``[tuning]``: the documented defaults (schema.RUNTIME_DEFAULTS, design/envelope.py).
 """
 
@@ -47,6 +49,7 @@ from sensorless.design.drive_file import (
     table,
     toml_value,
 )
+from sensorless.design.ipmsm_adaptive.carrier import CARRIER_FS, carrier
 from sensorless.design.ipmsm_adaptive.schema import (
     I_NOISE_DEFAULT,
     RUNTIME_DEFAULTS,
@@ -68,8 +71,7 @@ ALPHA_FO_S = 5.0  # the speed estimate (adaptation bandwidth alpha_fo) at least 
 ALPHA_FO_TAU = 50.0  # alpha_fo x tau_m at least (Piippo et al.: 2 pi 50 Hz x 0.168 s = 53)
 ALPHA_FO_MAX_FS = 1 / 20  # alpha_fo at most f_s/20
 ALPHA_FO_FS = 1 / 100
-CARRIER_FS = 1 / 6
-U_C_PU = 0.13
+W_DELTA_PU = 0.13  # injection fade-out speed (Piippo et al.)
 ALPHA_I_FO = 1 / 10
 T_MAX_TN = 1.5
 W_MAX_PU, W_MAX_MIN_PU = 2.0, 1.2  # the runtime top speed [p.u.]: default, and least where the voltage limits
@@ -201,7 +203,6 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     for k, (v, rule) in derived_base.items():
         sec[k] = Entry(base_t[k], given=True) if k in base_t else Entry(v, rule)
     _extra(sec, base_t, derived_base)
-    u_base = math.sqrt(2 / 3) * U_N if "u" not in base_t else r.value("base", "u", "voltage")
     i_base = math.sqrt(2) * I_N if "i" not in base_t else r.value("base", "i", "current")
 
     # ------------------------------------------------------------------ estimate
@@ -243,7 +244,14 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             f'i_noise = "{g6(I_NOISE_DEFAULT * i_base)} A"  # optional: current-sensor noise, rms per axis '
             "and sample (default 0.3 % of base i)"
         )
-    _extra(sec, ctl_t, (*derived_ctl, "i_noise"))
+    if "i_resolution" in ctl_t:
+        sec["i_resolution"] = Entry(ctl_t["i_resolution"], given=True)
+    else:
+        doc.optional.setdefault("control", []).append(
+            'i_resolution = "..."  # optional: current-sensor resolution, A per converter step (sizes the '
+            "HF carrier with i_noise)"
+        )
+    _extra(sec, ctl_t, (*derived_ctl, "i_noise", "i_resolution"))
 
     # ------------------------------------------------------------------ observer and gains
     obs_t = r.table("observer") or {}
@@ -280,23 +288,46 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     inj_t = r.table("injection") or {}
     xi = saliency(m.L_d, m.L_q)
     usable = xi >= SALIENCY_MIN
-    f_c = CARRIER_FS * f_s
+    cw = None
+    if usable and "u_c" not in inj_t:  # a drive file that gives u_c keeps it (a preset is complete)
+
+        def rate(section: str, key: str, default: float, t: Mapping[str, Any]) -> float:
+            raw = t.get(key)
+            if isinstance(raw, str) and raw.strip().endswith("pu"):  # per unit of the rated speed
+                return (
+                    parse_quantity(raw.strip()[:-2], "dimensionless", file=file, key=f"{section}.{key}")[0]
+                    * w_N
+                )
+            return r.value(section, key, "angular") if key in t else default
+
+        alpha_i = rate("injection", "alpha_i", 2 * math.pi * ALPHA_I_FO * ALPHA_FO_FS * f_s, inj_t)
+        w_delta = rate("injection", "w_Delta", W_DELTA_PU * w_N, inj_t)
+        w_c = rate("injection", "w_c", 2 * math.pi * CARRIER_FS * f_s, inj_t)
+        i_noise = r.value("control", "i_noise", "current") if "i_noise" in ctl_t else I_NOISE_DEFAULT * i_base
+        i_res = r.value("control", "i_resolution", "current") if "i_resolution" in ctl_t else 0.0
+        cw = carrier(m, f_s, u_dc, T_N, w_delta, alpha_i, i_noise, i_res, i_base, w_c / (2 * math.pi))
+    if cw is not None and cw.warning:
+        doc.context["carrier_warning"] = f"{file}: injection.u_c: {cw.warning}"
+    on = cw.u_c > 0 if cw is not None else usable
     note = f"HF injection, Section V: saliency 2|L_q - L_d|/(L_q + L_d) = {xi:.3g} " + (
-        f">= {SALIENCY_MIN:g}: on" if usable else f"< {SALIENCY_MIN:g}: no usable error signal (19), off"
+        f">= {SALIENCY_MIN:g}: " + ("on" if on else "but too small for the current sensor: off")
+        if usable
+        else f"< {SALIENCY_MIN:g}: no usable error signal (19), off"
     )
     sec = doc.section("injection", note)
+    f_c = cw.f_c if cw is not None else CARRIER_FS * f_s
     derived_inj = {
-        "w_c": (f"{g6(f_c)} Hz", "carrier f_s/6 (Piippo et al.: 833 Hz at 5 kHz)"),
+        "w_c": (f"{g6(f_c)} Hz", cw.rule_f if cw is not None else "carrier f_s/6 (Piippo et al.: 833 Hz)"),
         "u_c": (
-            (f"{g6(U_C_PU * u_base)} V", "0.13 p.u. of the base voltage (Piippo et al.: 40 V of 302 V)")
-            if usable
+            (f"{g6(cw.u_c)} V", cw.rule_u)
+            if cw is not None
             else ("0 V", "off: the motor's saliency is too small (u_c > 0 turns it on)")
-        ),
+        ),  # (u_c given: kept below)
         "alpha_i": (
             f"{g6(ALPHA_I_FO * ALPHA_FO_FS * f_s)} Hz",
             "f_s/1000 (Piippo et al.: 5 Hz at 5 kHz), eq. (22)",
         ),
-        "w_Delta": ("0.13 pu", "Piippo et al.: fades out at 0.13 p.u."),
+        "w_Delta": (f"{W_DELTA_PU:g} pu", "Piippo et al.: fades out at 0.13 p.u."),
     }
     for k, (v, rule) in derived_inj.items():
         sec[k] = Entry(inj_t[k], given=True) if k in inj_t else Entry(v, rule)
@@ -367,4 +398,6 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> IpmsmDri
     with doc.blaming_given_keys(data, file):
         drive = load_complete(doc.data(), file, digest, kind)
     warnings = check_plausibility(drive, doc.context)
+    if "carrier_warning" in doc.context:
+        warnings = [*warnings, doc.context["carrier_warning"]]
     return dataclasses.replace(drive, warnings=tuple(warnings)) if warnings else drive

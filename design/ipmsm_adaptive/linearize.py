@@ -185,6 +185,8 @@ class PoleSweep(Linearization):
     C: np.ndarray  # (N, 1, n)
     D: np.ndarray  # (N, 1, 1)
     noise_input: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (B_n, C_n, D_n), see noise_rms
+    # the drive's current-sensor noise [A rms per axis and sample] and period [s] with noise_input
+    noise_sigma: tuple[float, float] | None = None
 
     def point_columns(self) -> dict[str, np.ndarray]:
         """The operating point's MTPA current (rotor frame) [A]."""
@@ -193,6 +195,38 @@ class PoleSweep(Linearization):
     def notes(self) -> tuple[str, ...]:
         """The gain law and the HF-injection switch of the sweep."""
         return (f"gain law: {self.law.name}", f"injection: {'on' if self.injection else 'off'}")
+
+    def angle_bias(self) -> np.ndarray:
+        """(N,) equilibrium position error theta_tilde [rad] under the estimates linearized with."""
+        return self.x0[:, STATE_NAMES.index("theta_tilde")]
+
+    def low_speed_decay(self) -> np.ndarray:
+        """(N,) decay rate [1/s] of the slowest mode that moves the estimates: with injection, a mode
+        living in the PI state x_eps alone (eigenvector over 99 % in it: the PI pole heading for the
+        origin as the injection fades out towards w_Delta) is left out."""
+        if not self.injection:
+            return self.decay_rate
+        out = self.decay_rate.copy()
+        ok = np.isfinite(self.A).all(axis=(1, 2)) & ~np.all(self.A[:, 4, :] == 0, axis=1)
+        if ok.any():
+            lam, vec = np.linalg.eig(self.A[ok])
+            share = np.abs(vec[:, 4, :]) / np.linalg.norm(vec, axis=1)
+            re = np.where(share > 0.99, -np.inf, lam.real)
+            out[ok] = -re.max(axis=1)
+        return out
+
+    def angle_noise(self) -> np.ndarray | None:
+        """(N,) RMS position error [rad] from the drive's current-sensor noise (``noise=True``)."""
+        if self.noise_sigma is None or self.noise_input is None:
+            return None
+        out = self.noise_rms(*self.noise_sigma)[:, 0]
+        if self.injection:  # above w_Delta the PI state x_eps is frozen (zero row): its 4 poles
+            frozen = np.isfinite(self.A).all(axis=(1, 2)) & np.all(self.A[:, 4, :] == 0, axis=1)
+            if frozen.any():
+                B, C, D = (a[frozen] for a in self.noise_input)
+                A = self.A[frozen][:, :4, :4]
+                out[frozen] = noise_rms(A, B[:, :4], C[:, :, :4], D, *self.noise_sigma)[:, 0]
+        return out
 
     def noise_rms(self, sigma: float, T_s: float) -> np.ndarray:
         """(N, 2) RMS of the position error [rad] and the speed estimate [rad/s] for current-sensor
@@ -311,6 +345,7 @@ def linearize(
         noise_input = (B_n, C_n, D_n)
     return PoleSweep(
         noise_input=noise_input,
+        noise_sigma=(float(drive.control.i_noise), float(drive.control.T_s)) if noise else None,
         law=law,
         injection=injection,
         w=w_flat,

@@ -69,6 +69,8 @@ class Control(PmsmControl):
 
     # optional: the current sensor's noise, per axis, rms, in each sample at T_s (design/noise.py)
     i_noise: float = q("current", doc="current-sensor noise [A rms]", default=0.0)
+    # optional: its resolution, one step of the converter [A] (sizes the HF carrier: carrier.py)
+    i_resolution: float = q("current", doc="current-sensor resolution [A per step]", default=0.0)
 
 
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the base (nominal peak) current
@@ -336,7 +338,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
 def _load_control(t: Mapping[str, Any], file: str, rel: Mapping[str, float], base: Base) -> Control:
     """[control]; ``i_noise`` (the current sensor's noise, A rms per axis and sample) is optional:
     default I_NOISE_DEFAULT times the base current, e.g. 0.018 A for the paper's 6.08 A."""
-    c = load_section(Control, t, file, "control", rel, optional=("i_noise",))
+    c = load_section(Control, t, file, "control", rel, optional=("i_noise", "i_resolution"))
     if "i_noise" in t:
         return c
     return dataclasses.replace(c, i_noise=I_NOISE_DEFAULT * base.i)

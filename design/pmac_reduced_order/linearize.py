@@ -137,6 +137,14 @@ class ObserverPoles(Linearization):
     # noise (``analyze(..., noise=True)``, design/noise.py); inf where unstable
     noise: np.ndarray | None = None
 
+    def angle_bias(self) -> np.ndarray:
+        """(N,) steady position error of the discrete observer [rad] (NaN: ``errors=False``)."""
+        return self.err_theta
+
+    def angle_noise(self) -> np.ndarray | None:
+        """(N,) RMS position error [rad] from the current-sensor noise (``noise=True``)."""
+        return None if self.noise is None else self.noise[:, 0]
+
     @property
     def T_L(self) -> np.ndarray:
         """(N,) load torque [N m] (the operating point's torque)."""

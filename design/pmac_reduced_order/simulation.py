@@ -61,6 +61,10 @@ def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
         )
     if sc.mode != "speed" or sc.stiff_load:
         raise DriveFileError(sc.file, "control.mode", "this drive's loop (Fig. 1) has speed control only")
+    if sc.startup:  # De Angelo et al. (2006), Sec. V start and reverse open loop; this loop does not
+        raise DriveFileError(
+            sc.file, "control.startup", "this drive's loop (Fig. 1) has no open-loop start (I-f) modelled"
+        )
     orders = tuple(int(n) for n in m.harmonics)
     gains = gains or drive_gains(drive)
     if not sc.options["load_torque_estimation"]:

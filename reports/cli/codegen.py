@@ -8,6 +8,7 @@ options give byte-identical files. Any observer family with a runtime observer (
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from typing import Any
 
@@ -50,6 +51,12 @@ def register(sub: Any) -> None:
         default=None,
         help="override the drive's discretization of the runtime step (the family's schemes)",
     )
+    p.add_argument(
+        "--startup",
+        action="store_true",
+        help="wrap the observer in the open-loop I-f start below the design's minimum sensorless speed "
+        "(symbolic/startup.py; its parameters in the struct, a mode output, the speed command an input)",
+    )
     p.add_argument("--prefix", default=None, help="C name prefix (default: the drive name)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -78,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
         raise  # already one line naming the family, or the file and key (not the option)
     except ValueError as e:
         raise UsageError(f"argument --discretization: {e}" if args.discretization else str(e)) from None
+    if args.startup:
+        from sensorless.design.pmsm_drive import startup_setup
+
+        setup, line = startup_setup(drive, setup)
+        setup = dataclasses.replace(setup, notes=(*setup.notes, line)) if "no I-f" in line else setup
     out = OutputSet(args.out, force=args.force, names=output_names(prefix))
     out.check()  # before the C is generated
     try:

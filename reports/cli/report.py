@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from typing import Any
 
 from sensorless.design.family import CapabilityError
+from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.registry import family_of
 from sensorless.reports.cli.common import MIN_DAMPING, Number, foreign_table, load, version
 from sensorless.reports.document import report_json
 from sensorless.reports.family import hooks
 from sensorless.reports.files import OutputSet
 from sensorless.reports.html import render
+from sensorless.reports.low_speed import add_to_report
 
 
 def register(sub: Any) -> None:
@@ -39,6 +42,13 @@ def register(sub: Any) -> None:
         default=[],
         metavar="FILE",
         help="a scenario TOML to check in the time domain besides the built-in ones (repeatable)",
+    )
+    p.add_argument(
+        "--max-bias",
+        type=Number(0.1, 90),
+        default=MAX_BIAS_DEG,
+        help="largest angle bias under the estimate errors [deg electrical] of the minimum sensorless "
+        f"speed (default {MAX_BIAS_DEG:g})",
     )
     p.add_argument(
         "--montecarlo",
@@ -87,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
         progress=lambda msg: print(msg, file=sys.stderr, flush=True),
         scenarios=tuple(args.scenario),
     )
+    gains = fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
+    rep = add_to_report(rep, drive, gains, args.min_damping, math.radians(args.max_bias), args.quick)
     if foreign:  # said in the report too: its numbers are for this drive, its gains from another
         rep.data["inputs"]["gain_table_warning"] = foreign
     if args.montecarlo:

@@ -163,6 +163,16 @@ def print_summary(tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     e_th = np.degrees(tr["theta_err"])
     e_w = (tr["w_m"] - tr["w_hat"]) * k
+    if "startup_mode" in tr.data:  # the open-loop I-f start: its theta_hat, w_hat are not estimates
+        closed = np.asarray(tr["startup_mode"]) < 0.5
+        on = int(np.count_nonzero(closed[1:] & ~closed[:-1]))
+        print(
+            f"{tr.meta.get('startup', 'I-f start')}: open loop "
+            f"{np.count_nonzero(~closed) * tr.meta['T_s']:.3g} s, {on} handover(s); the errors below are "
+            "those of the observer's samples"
+        )
+        if closed.any():
+            e_th, e_w = e_th[closed], e_w[closed]
     print(
         f"position error: RMS {np.sqrt(np.mean(e_th**2)):.3g} deg, peak {np.max(np.abs(e_th)):.3g} deg, "
         f"final {e_th[-1]:+.3g} deg; speed error: RMS {np.sqrt(np.mean(e_w**2)):.3g} {unit}, "

@@ -92,7 +92,7 @@ def test_the_verdict_agrees_with_its_checks(flow):
     _, _, _, d, codes = flow
     data = verdict_agrees_with_checks(d / "r", codes["report"])
     v, td = data["verdict"], data["time_domain"]
-    assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal"]  # generic, scaled
+    assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal", "start"]  # generic, scaled
     assert v["limitations"] == []  # this observer runs through zero speed: nothing left out
     assert "paper speed" not in (d / "r" / "report.html").read_text()  # a user's gains are not the paper's
 

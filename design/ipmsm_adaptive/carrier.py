@@ -1,0 +1,106 @@
+"""HF-injection carrier of a derived drive file from the motor: amplitude and frequency, each with its reason.
+
+Piippo et al. (2008) Section V inject a pulsating carrier u_c cos(w_c t) on the estimated d axis; the
+q-axis current it leaves at an angle error theta_tilde is, for w_c far above the rotor speed and R_s/L
+(the inductances dominate at the carrier frequency),
+
+    i_qc = (u_c / w_c) (L_q - L_d) / (2 L_d L_q) sin(2 theta_tilde),
+
+and the error signal (19) is that current demodulated and averaged by the injection PI (21)-(22) of
+bandwidth alpha_i. The rules (constants below) of :func:`carrier`:
+
+- frequency: w_c = 2 pi f_s/6: six samples per carrier period (the current sensor samples it without
+  aliasing and the band-stop of the current control can remove it), twice the current control's
+  f_s/12.5, so the current loop neither follows nor cancels it (the paper: 833 Hz at 5 kHz);
+- amplitude: the smallest u_c at which an angle error of THETA_RES (5 deg electrical) shows in the
+  averaged error signal SNR (3) times above the current sensor's noise, sigma_eff = sqrt(i_noise^2 +
+  q^2/12) per axis and sample (q: the resolution, one step of the sensor's converter), whose variance
+  the demodulation (x 2) and the PI's averaging (equivalent bandwidth alpha_i/2 of a sample of T_s)
+  reduce by alpha_i T_s:
+      u_c = SNR sigma_eff sqrt(alpha_i T_s) w_c 2 L_d L_q / (|L_q - L_d| sin(2 THETA_RES));
+  on the paper's motor (i_noise 0.3 % of base i) this gives 32 V against its 40 V;
+- limits: u_c at most VOLTAGE_SHARE (half) of the voltage the inverter has left at the fade-out speed
+  w_Delta under rated load (u_dc/sqrt(3) less the steady voltage there), and the carrier's d-axis
+  current u_c/(w_c L_d) at most CURRENT_SHARE (10 %) of the base current (torque ripple and losses).
+  Where the amplitude needed exceeds a limit, the motor's saliency is too small for the sensor to see:
+  injection off, with a warning that says by how much and what would help.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from sensorless.design.motor_data import mtpa_torque_current, steady_voltage
+from sensorless.design.pmsm_schema import PmsmMotor
+
+CARRIER_FS = 1 / 6  # w_c = 2 pi f_s / 6
+THETA_RES = math.radians(5.0)  # the angle error the error signal must show
+SNR = 3.0  # ... this many times above its noise
+VOLTAGE_SHARE = 0.5  # of the inverter's voltage left at w_Delta under rated load
+CURRENT_SHARE = 0.1  # carrier d-axis current, of the base current
+
+
+@dataclass(frozen=True)
+class Carrier:
+    """The derived carrier: frequency [Hz], amplitude [V] (0: off) and the reasons."""
+
+    f_c: float
+    u_c: float
+    needed: float  # the amplitude the sensor needs [V]
+    limit: float  # the smaller limit [V]
+    rule_f: str
+    rule_u: str
+    warning: str = ""
+
+
+def carrier(
+    m: PmsmMotor,
+    f_s: float,
+    u_dc: float,
+    T_N: float,
+    w_delta: float,
+    alpha_i: float,
+    i_noise: float,
+    i_resolution: float,
+    i_base: float,
+    f_c: float | None = None,
+) -> Carrier:
+    """The carrier of a motor ``m`` sampled at ``f_s`` [Hz] (module docstring); speeds in rad/s;
+    ``f_c`` [Hz]: the drive file's carrier frequency where it gives one."""
+    f_c = CARRIER_FS * f_s if f_c is None else f_c
+    w_c = 2 * math.pi * f_c
+    T_s = 1 / f_s
+    dL = abs(m.L_q - m.L_d)
+    sigma = math.hypot(i_noise, i_resolution / math.sqrt(12))
+    needed = SNR * sigma * math.sqrt(alpha_i * T_s) * w_c * 2 * m.L_d * m.L_q / (dL * math.sin(2 * THETA_RES))
+    i_d, i_q = mtpa_torque_current(T_N, m)
+    left = max(u_dc / math.sqrt(3) - steady_voltage(m, w_delta, i_d, i_q), 0.0)
+    by_voltage = VOLTAGE_SHARE * left
+    by_current = CURRENT_SHARE * i_base * w_c * m.L_d
+    limit = min(by_voltage, by_current)
+    rule_f = (
+        "carrier f_s/6: six samples a period, twice the current control's f_s/12.5 (Piippo et al.: 833 Hz)"
+    )
+    sens = (
+        f"sensor noise sqrt(i_noise^2 + q^2/12) = {sigma:.3g} A, averaged by the PI at alpha_i = "
+        f"{alpha_i / (2 * math.pi):.3g} Hz"
+    )
+    lim_text = (
+        f"limits: {VOLTAGE_SHARE:g} x the {left:.4g} V the inverter has left at w_Delta under T_N "
+        f"({by_voltage:.4g} V), carrier d current <= {CURRENT_SHARE:g} base i ({by_current:.4g} V)"
+    )
+    if needed > limit:
+        warning = (
+            f"HF injection off: the saliency |L_q - L_d| = {dL:.3g} H is too small for the current sensor "
+            f"to see a {math.degrees(THETA_RES):g}-deg angle error: the carrier would need {needed:.4g} V "
+            f"({sens}), above the {limit:.4g} V limit; a less noisy or finer current sensor, or a lower "
+            "carrier frequency, would help; below the minimum sensorless speed the drive needs the "
+            "open-loop start"
+        )
+        return Carrier(f_c, 0.0, needed, limit, rule_f, f"off: {needed:.4g} V needed > {lim_text}", warning)
+    rule_u = (
+        f"smallest u_c showing a {math.degrees(THETA_RES):g}-deg angle error {SNR:g}x above the {sens} "
+        f"(i_qc = u_c/w_c (L_q - L_d)/(2 L_d L_q) sin 2 theta); {lim_text}"
+    )
+    return Carrier(f_c, needed, needed, limit, rule_f, rule_u)

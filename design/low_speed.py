@@ -1,0 +1,248 @@
+"""Minimum sensorless speed versus load of any family's design, from its linearization.
+
+Below some speed every sensorless observer stops being good enough: its linearized error dynamics lose
+damping or decay (the adaptive flux observer's regenerating band near zero speed, Piippo et al. 2008
+Sec. IV), or the rotor angle it derives from a vanishing back-EMF is biased by the parameter-estimate
+errors or buried in the current sensor's noise (every EMF-based observer: the angle error of an EMF
+estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over the torque range
+[-T_N, T_N], with nothing but the family contract (design/family.py):
+
+- the family's linearization (``ObserverFamily.linearize``) at the gains under review, with the
+  options the family names for this analysis (``ObserverFamily.low_speed_options``: e.g. its HF
+  injection where the drive injects, its noise model), at the drive file's estimates, or scaled by
+  ``errors`` (factors on its ``estimate_keys``, ``ObserverFamily.with_estimate_errors``);
+- per point, four criteria, each a limit the caller states: worst damping >= ``min_damping``;
+  decay rate >= ``min_decay`` (default: a tenth of the speed-loop bandwidth of ``DriveScales``: an
+  observer much slower than the speed loop it feeds drives that loop on a lagging estimate);
+  |angle bias| <= ``max_bias`` (default 30 deg electrical: the torque still has cos 30 deg = 87 % of
+  its command);
+  RMS angle noise from the current-sensor noise <= ``max_bias / 3`` (three standard deviations within
+  the same limit). A criterion the family's linearization does not give (``Linearization.angle_bias``
+  or ``angle_noise`` None) is not applied, and the result says which were;
+- w_min(T) = the lowest speed from which every speed up to the highest one that meets all four (at
+  most 1 p.u.) meets all four (w_min = 1 p.u. where no speed does): a dense logarithmic grid
+  (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds), then bisection
+  of the highest failing grid interval (one batched call per step over all torques). Speeds are
+  positive; the torques take both signs, so motoring (T > 0) and regenerating (T < 0) are both
+  covered, as an observer of a PMSM is symmetric under (w, T) -> (-w, -T).
+
+The rated-load value (``w_min_rated``) is the larger of the two at +T_N and -T_N. Where the criteria
+hold down to the grid's floor (:data:`FLOOR_PU`), w_min = 0: no lower limit found (the headline says
+"down to the analysis' floor", not that the observer holds zero speed).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.registry import family_of
+
+MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
+FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the design holds zero speed
+N_SPEEDS = 40  # logarithmic grid FLOOR_PU .. 1 p.u.
+N_TORQUES = 9  # -T_N .. T_N
+SPEED_BLOCKS = 8  # the grid in this many batched linearizations (see minimum_speed)
+BISECTIONS = 8  # each halves the bracket in log speed: 3/39 decade (19 %) / 2^8, about 0.07 %
+QUICK = {"n_speeds": 16, "n_torques": 5, "bisections": 6}  # `sensorless report --quick`
+CRITERIA = ("damping", "decay", "bias", "noise")
+DECAY_SHARE = 0.1  # default required decay: this share of the speed-loop bandwidth
+
+
+@dataclass(frozen=True)
+class LowSpeed:
+    """w_min(T) of a design and what limits it (module docstring)."""
+
+    torque: np.ndarray  # (K,) [N m]
+    w_min: np.ndarray  # (K,) [rad/s electrical]; 0: the criteria hold down to FLOOR_PU
+    limited_by: tuple[str, ...]  # (K,) the criterion that fails just below w_min ("" where 0)
+    w_base: float
+    T_N: float
+    pole_pairs: int
+    min_damping: float
+    min_decay: float
+    max_bias: float  # [rad]
+    max_noise: float  # [rad rms]
+    applied: tuple[str, ...]  # the criteria the family's linearization gives
+    holds_zero: bool = False  # the family says its observer holds zero speed by itself (HF injection)
+
+    @property
+    def rated(self) -> int:
+        """Index of the worse of +-T_N."""
+        ends = [0, len(self.torque) - 1]
+        return ends[int(np.argmax(self.w_min[ends]))]
+
+    @property
+    def w_min_rated(self) -> float:
+        """w_min at rated load [rad/s]: the larger of motoring and regenerating."""
+        return float(self.w_min[self.rated])
+
+    @property
+    def rated_limited_by(self) -> str:
+        return self.limited_by[self.rated]
+
+    def rpm(self, w: float) -> float:
+        """Mechanical r/min of electrical speed ``w``."""
+        return w / self.pole_pairs * 30 / np.pi
+
+    def data(self) -> dict[str, Any]:
+        """report.json's ``low_speed``."""
+        return {
+            "w_min_rated_pu": float(self.w_min_rated / self.w_base),
+            "w_min_rated_rpm": float(self.rpm(self.w_min_rated)),
+            "limited_by": self.rated_limited_by,
+            "curve": [
+                {
+                    "T_Nm": float(t),
+                    "T_pu": float(t / self.T_N),
+                    "w_min_pu": float(w / self.w_base),
+                    "limited_by": lim,
+                }
+                for t, w, lim in zip(self.torque, self.w_min, self.limited_by, strict=True)
+            ],
+            "criteria": {
+                "min_damping": self.min_damping,
+                "min_decay_per_s": self.min_decay,
+                "max_bias_deg": float(np.degrees(self.max_bias)),
+                "max_noise_deg_rms": float(np.degrees(self.max_noise)),
+                "applied": list(self.applied),
+            },
+            "floor_pu": FLOOR_PU,
+        }
+
+
+def _failing(lin: Any, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]]:
+    """(N,) index of the first failed criterion per point (-1: all met) and the criteria applied."""
+    zeta = np.where(np.isnan(lin.worst_damping), -np.inf, lin.worst_damping)
+    decay = lin.low_speed_decay()
+    decay = np.where(np.isnan(decay), -np.inf, decay)
+    tests = [zeta < crit["damping"], decay < crit["decay"]]
+    applied = ["damping", "decay"]
+    bias, noise = lin.angle_bias(), lin.angle_noise()
+    for name, val in (("bias", bias), ("noise", noise)):
+        if val is None:
+            tests.append(np.zeros(zeta.shape, bool))
+        else:
+            applied.append(name)
+            v = np.abs(np.asarray(val, float))
+            tests.append(np.where(np.isnan(v), False, v > crit[name]))
+    bad = np.stack(tests)  # (4, N)
+    first = np.where(bad.any(axis=0), np.argmax(bad, axis=0), -1)
+    return first, applied
+
+
+def minimum_speed(
+    drive: Drive,
+    gains: GainSet,
+    *,
+    min_damping: float,
+    max_bias: float = np.radians(MAX_BIAS_DEG),
+    min_decay: float | None = None,
+    errors: Mapping[str, float] | None = None,
+    n_speeds: int = N_SPEEDS,
+    n_torques: int = N_TORQUES,
+    bisections: int = BISECTIONS,
+) -> LowSpeed:
+    """w_min(T) of ``drive`` with ``gains`` (module docstring); ``max_bias`` [rad], ``errors``: factors
+    on the family's estimate keys (None: the drive file's estimates); the grid (``n_speeds`` x
+    ``n_torques``) and ``bisections`` set the resolution (:data:`QUICK`: previews and tests)."""
+    fam = family_of(drive)
+    if errors:
+        drive = fam.with_estimate_errors(drive, errors)
+    if min_decay is None:
+        try:
+            min_decay = DECAY_SHARE * float(fam.scales(drive).alpha_s)
+        except CapabilityError:
+            min_decay = 0.0
+    crit = {"damping": min_damping, "decay": min_decay, "bias": max_bias, "noise": max_bias / 3}
+    opts = fam.low_speed_options(drive)
+    wb, TN = drive.w_base, drive.T_N
+    w = wb * np.logspace(np.log10(FLOOR_PU), 0.0, n_speeds)
+    T = TN * np.linspace(-1.0, 1.0, n_torques)
+    # one batched call per block of speeds: a family that simulates its discrete observer over a
+    # window growing as 1/w (the reduced-order family's steady errors) runs every point of a call as
+    # long as its slowest one
+    rows = []
+    for blk in np.array_split(np.arange(n_speeds), SPEED_BLOCKS):
+        first, applied = _failing(fam.linearize(drive, gains, w[blk, None], T[None, :], **opts), crit)
+        rows.append(first.reshape(blk.size, n_torques))
+    first = np.vstack(rows)
+    bad = first >= 0
+    # per torque: the highest passing grid speed (a failure above it is no low-speed limit: the
+    # report's other sections judge it), and below it the highest failing one; the bracket
+    # (w[k], w[k+1]) holds the edge
+    idx = np.arange(n_speeds)[:, None]
+    k_pass = np.where(~bad, idx, -1).max(axis=0)
+    k = np.where(bad & (idx < k_pass), idx, -1).max(axis=0)
+    none = k_pass < 0  # no speed meets the criteria at this torque
+    k = np.where(none, n_speeds - 1, k)
+    any_bad = k >= 0
+    cause = np.array([first[k[j], j] if any_bad[j] else -1 for j in range(n_torques)])
+    w_min = np.zeros(n_torques)
+    w_min[none] = wb
+    ref = any_bad & ~none
+    if ref.any():
+        lo, hi = np.log(w[k[ref]]), np.log(w[k[ref] + 1])
+        c = cause[ref]
+        for _ in range(bisections):
+            mid = 0.5 * (lo + hi)
+            f_mid, _ = _failing(fam.linearize(drive, gains, np.exp(mid), T[ref], **opts), crit)
+            fails = f_mid >= 0
+            c = np.where(fails, f_mid, c)
+            lo, hi = np.where(fails, mid, lo), np.where(fails, hi, mid)
+        w_min[ref] = np.exp(hi)
+        cause[ref] = c
+    return LowSpeed(
+        torque=T,
+        w_min=w_min,
+        limited_by=tuple(CRITERIA[i] if i >= 0 else "" for i in cause),
+        w_base=wb,
+        T_N=TN,
+        pole_pairs=drive.pole_pairs,
+        min_damping=min_damping,
+        min_decay=min_decay,
+        max_bias=max_bias,
+        max_noise=max_bias / 3,
+        applied=tuple(applied),
+        holds_zero=fam.holds_zero_speed(drive),
+    )
+
+
+WHAT_TO_DO = {
+    "damping": "run the open-loop start (I-f) below it, or retune for more damping at low speed",
+    "decay": "run the open-loop start (I-f) below it, or retune for a faster observer at low speed",
+    "bias": "run the open-loop start (I-f) below it, or measure the motor parameters more closely",
+    "noise": "run the open-loop start (I-f) below it, or use a less noisy current sensor",
+}
+
+
+def headline(ls: LowSpeed) -> str:
+    """One line: "sensorless down to X p.u. (Y rpm) at rated load; below: <what to do>"."""
+    w = ls.w_min_rated
+    if w <= 0:
+        return (
+            f"sensorless down to {FLOOR_PU:g} p.u., the analysis' floor, at rated load (every criterion "
+            "holds there: the linearization finds no lower limit)"
+        )
+    why = ls.rated_limited_by
+    todo = WHAT_TO_DO[why]
+    if ls.holds_zero:  # no open-loop start: the family's own means (injection) carry it below
+        todo = todo.replace("run the open-loop start (I-f) below it, or ", "") + (
+            " (the observer's own zero-speed means, e.g. HF injection, carry it below: see the time-domain "
+            "checks)"
+        )
+    return (
+        f"sensorless down to {w / ls.w_base:.3g} p.u. ({ls.rpm(w):.4g} rpm) at rated load, limited by "
+        f"{_CRITERION_TEXT[why](ls)}; below: {todo}"
+    )
+
+
+_CRITERION_TEXT = {
+    "damping": lambda ls: f"damping < {ls.min_damping:g}",
+    "decay": lambda ls: f"decay rate < {ls.min_decay:.4g} 1/s",
+    "bias": lambda ls: f"angle bias > {np.degrees(ls.max_bias):.3g} deg",
+    "noise": lambda ls: f"angle noise > {np.degrees(ls.max_noise):.3g} deg rms",
+}

@@ -1,0 +1,93 @@
+"""The open-loop I-f start (symbolic/startup.py, design/startup.py) against a hand calculation.
+
+The rules' numbers are typed from their statement (T_max/k_t, half the torque margin's acceleration,
+2 w_min and w_min); the wrapped runtime step of a real observer (the adaptive family's, on the 400-W
+servo of docs/examples/motors) is run sample by sample with no current and no voltage and a negative
+speed command beyond w_on: in open loop its outputs must be the current command -i_if, the speed
+-a k T_s (period k) and the angle
+sum_j w_j T_s, the handover come at the first period whose speed has reached w_on, and, the observer
+seeing no motion, the mode return to open loop in the next period (|w_hat| < w_off: the hysteresis)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from sensorless.design.drive import load_drive
+from sensorless.design.registry import family_of
+from sensorless.design.startup import if_values, with_if_start
+
+MOTORS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors"
+
+
+def test_the_rules():
+    v = if_values(T_N=2.0, T_max=3.0, J=1e-3, p=4, k_t=0.5, w_min=40.0)
+    assert v == {
+        "if_i": 6.0,
+        "if_acc": 0.5 * 4 * 1.0 / 1e-3,
+        "if_w_on": 80.0,
+        "if_w_off": 40.0,
+    }
+
+
+def test_the_wrapped_step_ramps_hands_over_and_falls_back():
+    drive = load_drive(MOTORS / "servo400.toml")
+    fam = family_of(drive)
+    base = fam.runtime(drive, fam.gains(drive))
+    a, T_s, w_on = 2000.0, drive.T_s, 30.0
+    setup = with_if_start(base, {"if_i": 3.0, "if_acc": a, "if_w_on": w_on, "if_w_off": 20.0})
+    obs = setup.observer
+    step = setup.step_function()
+    out = {f.name: k for k, f in enumerate(obs.outputs)}
+    x = setup.initial_state()
+    meas = np.zeros(len(obs.meas))
+    meas[-1] = -1000.0  # the speed command w_cmd, beyond -w_on
+    k_on = math.ceil(w_on / (a * T_s))  # the first period whose speed has reached w_on
+    theta = 0.0
+    for k in range(k_on + 3):
+        x_next, y = step(x, meas, setup.p, setup.gain)
+        y = np.asarray(y).ravel()
+        if k <= k_on:  # open loop, the speed and angle of the period's start
+            w_k = -min(a * k * T_s, w_on)
+            assert y[out["startup_mode"]] == 1 and y[out["i_f"]] == -3.0
+            assert math.isclose(y[out["w_hat"]], w_k, rel_tol=1e-9, abs_tol=1e-9)
+            assert math.isclose(math.remainder(y[out["theta_hat"]] - theta, 2 * math.pi), 0, abs_tol=1e-9)
+            theta += w_k * T_s
+        elif k == k_on + 1:  # handed over: the observer's estimates, no current command
+            assert y[out["startup_mode"]] == 0 and y[out["i_f"]] == 0
+            assert abs(y[out["w_hat"]]) < 20.0  # it saw no motion...
+        else:  # ...so back to the open-loop start
+            assert y[out["startup_mode"]] == 1
+        assert y[out["valid"]] == 1
+        x = np.asarray(x_next).ravel()
+    # the parameter struct carries the start's parameters
+    assert [f.name for f in obs.params][-4:] == ["if_i", "if_acc", "if_w_on", "if_w_off"]
+    assert obs.meas[-1].name == "w_cmd"
+
+
+def test_codegen_prints_the_start_in_the_structs(tmp_path):
+    from sensorless.reports.cli.main import main
+
+    out = tmp_path / "c"
+    assert main(["codegen", str(MOTORS / "servo400.toml"), "--startup", "--out", str(out)]) == 0
+    h = (out / "servo400.h").read_text(encoding="utf-8")
+    for name in ("if_i;", "if_acc;", "if_w_on;", "if_w_off;", "w_cmd;", "startup_mode;", "i_f;"):
+        assert name in h
+
+
+def test_a_non_salient_motor_starts_from_standstill_against_rated_load_through_the_start():
+    from sensorless.design.scenario import load_scenario
+    from sensorless.design.simulate import simulate
+    from sensorless.reports.time_domain import judge
+
+    drive = load_drive(MOTORS / "servo400.toml")  # non-salient: no injection, needs the start
+    sc = load_scenario("start", drive)
+    assert sc.startup
+    tr = simulate(drive, sc, None)
+    assert tr.meta["startup"].startswith("I-f start")
+    mode = np.asarray(tr["startup_mode"])
+    assert mode[0] == 1 and mode[-1] == 0  # starts open loop, ends on the observer
+    m, failed, problems = judge(tr, sc, drive.w_base)
+    assert m["handovers"] >= 1 and m["handover_theta_err_deg"] < 30
+    assert not failed and not problems
