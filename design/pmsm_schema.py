@@ -7,14 +7,16 @@ model of it, :class:`PmsmEstimate` (``[estimate]``). A drive file may give ``[mo
 terms instead (design/motor_data.py ``read_motor``, which returns the same record with where each
 value came from), and :class:`PmsmControl` is the ``[control]`` of the shared drive loop
 (design/pmsm_drive.py; a family may extend it with keys of its own). Loading is the strict loading
-of every drive file (design/drive_file.py). What is a family's own stays in its folder: its
-``[rating]`` (which nameplate keys it takes and derives), its observer's sections, and a motor model
+of every drive file (design/drive_file.py). :class:`PmsmRating` is the nameplate's minimum (n_N, T_N:
+the per-unit speed base and the nominal torque) for a family that needs no more. What is a family's
+own stays in its folder: a ``[rating]`` with more nameplate keys, its observer's sections, and a motor model
 of its own (the EMF series of design/pmac_reduced_order/, read from datasheet terms with the same
 ``read_motor``).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -55,6 +57,18 @@ class PmsmEstimate:
         return [self.R_s, self.L_d, self.L_q, self.psi_pm]
 
 
+@dataclass(frozen=True)
+class PmsmRating:
+    """The nameplate's minimum: the nominal speed (1 p.u.) and the nominal torque."""
+
+    n_N: float = q("mech_speed", doc="nominal mechanical speed [r/min]")
+    T_N: float = q("torque", doc="nominal torque [N m]")
+
+    def w_base(self, pole_pairs: int) -> float:
+        """1 p.u. speed: the nominal speed, electrical rad/s."""
+        return self.n_N * math.pi / 30 * pole_pairs
+
+
 def saliency(L_d: float, L_q: float) -> float:
     """2 |L_q - L_d| / (L_q + L_d): 0 for a non-salient motor, 0.35 for the IPMSM of Piippo et al. (2008)."""
     return 2 * abs(L_q - L_d) / (L_q + L_d)
@@ -69,6 +83,31 @@ class PmsmControl:
     alpha_s: float = q("angular", doc="speed-control bandwidth [rad/s]")
     T_max: float = q("torque", doc="electromagnetic torque limit [N m]")
     u_dc: float = q("voltage", doc="nominal DC-link voltage [V]")
+
+
+class PmsmDriveProperties:
+    """The ``Drive`` properties (design/family.py) of a drive record with fields ``rating``
+    (:class:`PmsmRating`), ``motor`` and ``control``: a mixin of a family's frozen drive dataclass."""
+
+    rating: PmsmRating
+    motor: PmsmMotor
+    control: PmsmControl
+
+    @property
+    def T_N(self) -> float:
+        return self.rating.T_N
+
+    @property
+    def w_base(self) -> float:
+        return self.rating.w_base(self.motor.p)
+
+    @property
+    def pole_pairs(self) -> int:
+        return self.motor.p
+
+    @property
+    def T_s(self) -> float:
+        return self.control.T_s
 
 
 def load_motor(data: Mapping[str, Any], file: str) -> PmsmMotor:

@@ -76,15 +76,21 @@ def pareto_csv(table: GainTable) -> str:
     """The damping-versus-noise front of ``summary.pareto``: noise, worst damping, slowest decay and the
     parameters of each point (dense re-verification)."""
     pf = table.summary["pareto"]
-    names = list(table.summary.get("parameters", {}))
+    # a front may trade damping against another figure than noise: its name, the figure's meaning and
+    # the parameters' names are then the front's own
+    metric = pf.get("metric", "noise")
+    names = pf.get("parameters") or list(table.summary.get("parameters", {}))
+    meaning = pf.get("description") or (
+        f"noise = worst RMS of the {pf['output']} estimate [{pf['unit']}] over the dense grid"
+    )
     lines = [
-        f"# sensorless: damping-versus-noise front, law {table.law}, drive {table.drive.get('name')}; "
-        f"noise = worst RMS of the {pf['output']} estimate [{pf['unit']}] over the dense grid",
-        ",".join(["noise", "limit", "worst_damping", "min_decay_rate_1_s", *names]),
+        f"# sensorless: damping-versus-{metric} front, law {table.law}, drive {table.drive.get('name')}; "
+        + meaning,
+        ",".join([metric, "limit", "worst_damping", "min_decay_rate_1_s", *names]),
     ]
     for p in pf["points"]:
         vals = [
-            p["noise"],
+            p[metric],
             p.get("limit", float("inf")),
             p["worst_damping"],
             p["min_decay_rate"],

@@ -75,17 +75,21 @@ class Tunable:
 @dataclass(frozen=True)
 class TuningHooks:
     """A family's tunables; the first is the default of ``sensorless tune`` on a built-in preset (the
-    paper's law, to reproduce the paper), ``own_default`` (the family's best law; None: the first) the
-    default on a drive of the user's own."""
+    paper's law, to reproduce the paper), ``own_default`` the default on a drive of the user's own: a
+    name (the family's best law), or (drive) -> name (e.g. the law the drive file's own gains are of;
+    None from it or no ``own_default``: the first)."""
 
     tunables: tuple[Tunable, ...]
-    own_default: str | None = None
+    own_default: str | Callable[[Any], str | None] | None = None
 
-    def tunable(self, name: str | None, family: ObserverFamily, preset: bool = True) -> Tunable:
+    def tunable(
+        self, name: str | None, family: ObserverFamily, preset: bool = True, drive: Any = None
+    ) -> Tunable:
         """The tunable called ``name`` (None: the default for a preset or a drive of the user's own);
         CapabilityError naming what exists."""
-        if name is None:
-            name = None if preset else self.own_default
+        if name is None and not preset:
+            own = self.own_default
+            name = own(drive) if callable(own) else own
         if name is None:
             return self.tunables[0]
         for t in self.tunables:
@@ -112,7 +116,8 @@ def tunable_for(drive: Any, name: str | None = None) -> Tunable:
     """The tunable ``name`` (None: the default, which differs between a built-in preset and a drive of
     the user's own: :class:`TuningHooks`) of the drive's family."""
     fam = family_of(drive)
-    return hooks(fam).tunable(name, fam, preset=str(getattr(drive, "file", "")).startswith("preset:"))
+    preset = str(getattr(drive, "file", "")).startswith("preset:")
+    return hooks(fam).tunable(name, fam, preset=preset, drive=drive)
 
 
 def all_tunables() -> dict[str, str]:

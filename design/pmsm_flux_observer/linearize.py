@@ -37,6 +37,7 @@ from sensorless.design.discrete import (
 )
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.linearization import Linearization
+from sensorless.design.noise import noise_rms_periodic
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.poles import eigvals_batched
 from sensorless.symbolic.frames import J, rot, wrap_angle
@@ -44,6 +45,7 @@ from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS, rhs_function, runtime_observer
 
 NEWTON_STEPS = 12
+I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N
 _IX = {f.name: k for k, f in enumerate(PARAMS)}
 
 
@@ -132,19 +134,46 @@ def sampled_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> Sampled
 
 
 def discrete_analysis(
-    drive: Any, loop: SampledLoop, y0: np.ndarray, W: np.ndarray, T: np.ndarray, p: np.ndarray, gain: Any
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    drive: Any,
+    loop: SampledLoop,
+    y0: np.ndarray,
+    W: np.ndarray,
+    T: np.ndarray,
+    p: np.ndarray,
+    gain: Any,
+    sigma: float | None = None,
+) -> tuple[np.ndarray, ...]:
     """(poles ln(z)/T_obs, |z| largest, angle error theta - theta_hat) of the sampled observer from the
-    start points y0 (the continuous equilibria); p (n_p,) or (n_p, N), gain one or per point."""
+    start points y0 (the continuous equilibria); p (n_p,) or (n_p, N), gain one or per point. With
+    ``sigma`` [A rms per axis and sample], a fourth: (N, 2) RMS of the PLL's angle [rad] and speed
+    [rad/s] for that current-sensor noise (design/noise.py, the per-sample propagation through the
+    one-step Jacobian; inf where unstable)."""
     m = drive.motor
     i_r = np.column_stack(mtpa_currents(drive, T))
     plant = pmsm_zoh_plant(m.vector(), W, i_r, drive.observer.T_obs)
     y, Jd = fixed_points(loop, y0, W, plant, p, gain)
     poles = discrete_poles(Jd, drive.observer.T_obs, loop.n_y)[0]
-    out = sensitivities(loop, y, W, plant, p, gain)["out"]
-    err = wrap(-out[:, loop.observer.index("outputs", "theta_hat")])
+    sens = sensitivities(loop, y, W, plant, p, gain)
+    err = wrap(-sens["out"][:, loop.observer.index("outputs", "theta_hat")])
     z = np.abs(eigenvalues_by_size(Jd)[:, 0])
-    return poles, z, err
+    if sigma is None:
+        return poles, z, err
+    # the current samples are meas[0:2] (stationary frame: the noise is isotropic, so its rotation
+    # into the rotor coordinates leaves its covariance unchanged)
+    n = loop.n_y
+    C = np.zeros((2, n))
+    C[0, n - 2] = C[1, n - 1] = 1.0  # delta = theta - theta_pll, w_pll
+    noise = noise_rms_periodic(Jd[:, None], sens["Jm"][:, None, :, 0:2], C, sigma)
+    return poles, z, err, noise
+
+
+def current_noise(drive: Any) -> float:
+    """The current-sensor noise [A rms per axis and sample]: ``[control] i_noise``, or I_NOISE_DEFAULT
+    of the current amplitude at rated torque (the other families' default)."""
+    if drive.i_noise > 0:
+        return float(drive.i_noise)
+    i_d, i_q = mtpa_currents(drive, np.array([drive.T_N]))
+    return I_NOISE_DEFAULT * float(np.hypot(i_d[0], i_q[0]))
 
 
 def mtpa_currents(drive: Any, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

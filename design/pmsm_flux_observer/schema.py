@@ -14,7 +14,7 @@ Rules (the constants below; reasons in the family doc):
 - n_N = N_SPEED x the no-load speed u_dc / (sqrt(3) psi_pm p) (the voltage the inverter has);
 - I_N = I_DROP u_dc / R_s (the current whose resistive drop is I_DROP of the DC link), T_N its MTPA torque;
 - T_obs = 1/f_s; control: alpha_c = ALPHA_C/T_obs, alpha_s = min(alpha_c/ALPHA_S_DIV, the PLL's slowest
-  pole / 4) (the speed loop closes on the PLL's speed), T_max = 2 T_N;
+  pole its speed estimate shows / 4) (the speed loop closes on the PLL's speed), T_max = 2 T_N;
 - envelope: |speed| ENV_SPEEDS p.u. of n_N, torques 0 and T_N.
 """
 
@@ -59,6 +59,7 @@ N_SPEED = 0.8  # rated speed / no-load speed at the DC link
 I_DROP = 0.05  # R_s I_N / u_dc
 ALPHA_C = 0.2  # alpha_c T_obs
 ALPHA_S_DIV = 16.0
+PLL_CANCELLED = 0.1  # weight of the PLL's slow root in its speed estimate below which it is ignored
 T_MAX_TN = 2.0
 ENV_SPEEDS = (0.05, 1.0, 12)  # speed_min, speed_max [p.u.], speeds per direction
 
@@ -106,6 +107,7 @@ class FluxObserverDrive:
     envelope: Envelope
     digest: str = ""
     warnings: tuple[str, ...] = ()
+    i_noise: float = 0.0  # [control] i_noise, the current-sensor noise [A rms per axis]; 0: the default
     startup: Any = None  # [startup] of the file (design/startup.StartupSettings) or None: the rules
 
     @property
@@ -255,7 +257,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             sec[k] = Entry(v, r)
 
     ctl_t = table(data, "control", file) if "control" in data else {}
-    check_keys(ctl_t, ("alpha_c", "alpha_s", "T_max"), file, "control.")
+    check_keys(ctl_t, ("alpha_c", "alpha_s", "T_max", "i_noise"), file, "control.")
     alpha_c = (
         positive(ctl_t, "alpha_c", "angular", file, "control") if "alpha_c" in ctl_t else ALPHA_C / T_obs
     )
@@ -291,8 +293,12 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
 
 
 def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
-    """-(the PLL's slowest pole) [1/s] of a [gains] section: bw (odrive, flux_schedule) or the slow root
-    of s^2 + k_p s + k_i (vesc; k_p/2 where the roots are complex)."""
+    """-(the PLL's slowest pole seen in its speed estimate) [1/s] of a [gains] section: bw (odrive,
+    flux_schedule) or the slow root of s^2 + k_p s + k_i (vesc; k_p/2 where the roots are complex).
+
+    The speed estimate follows the speed by (k_p s + k_i)/((s + p_1)(s + p_2)): in its step response the
+    slow root p_1 has the weight p_1/(p_2 - p_1) (the PI's zero k_i/k_p nearly cancels it). Below
+    PLL_CANCELLED (VESC's defaults 2000/30000: 0.8 %) the speed loop sees the fast root p_2."""
     from sensorless.design.pmsm_flux_observer.gains import parse_law
 
     t = {k: e.value for k, e in gains.items()}
@@ -304,7 +310,10 @@ def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
         return float(v["pll_bandwidth"])
     kp, ki = v["foc_pll_kp"], v["foc_pll_ki"]
     disc = kp**2 - 4 * ki
-    return (kp - math.sqrt(disc)) / 2 if disc > 0 else kp / 2
+    if disc <= 0:
+        return kp / 2
+    p1, p2 = (kp - math.sqrt(disc)) / 2, (kp + math.sqrt(disc)) / 2
+    return p2 if p1 / (p2 - p1) < PLL_CANCELLED else p1
 
 
 def default_gains(law: str, psi: float) -> dict[str, tuple[Any, str]]:
@@ -376,6 +385,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
         gains_table=dict(d["gains"]),
         envelope=env,
         digest=digest,
+        i_noise=positive(ctl, "i_noise", "current", file, "control") if "i_noise" in ctl else 0.0,
     )
     from sensorless.design.pmsm_flux_observer.gains import drive_gains
 

@@ -11,6 +11,7 @@ from typing import Any
 from sensorless.design.family import CapabilityError
 from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.registry import family_of
+from sensorless.reports.cli import many
 from sensorless.reports.cli.common import MIN_DAMPING, Number, foreign_table, load, version
 from sensorless.reports.document import report_json
 from sensorless.reports.family import hooks
@@ -27,7 +28,12 @@ def register(sub: Any) -> None:
         description="Write report.html (self-contained, figures embedded as SVG) and report.json (every "
         "number the report shows) for a drive and, with --gains, a tuned gain table.",
     )
-    p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
+    p.add_argument(
+        "drive",
+        metavar="PRESET_OR_TOML",
+        help="built-in preset name or drive TOML file; or a directory or a quoted glob of drive files: "
+        "each drive run on Dask into --out DIR/<drive name>/, with DIR/summary.csv",
+    )
     p.add_argument("--gains", default=None, help="gain table JSON from `sensorless tune` to review")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument(
@@ -60,6 +66,7 @@ def register(sub: Any) -> None:
     )
     p.add_argument("--quick", action="store_true", help="coarser grids (for previews and tests)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    many.add_engine_options(p)
     p.set_defaults(func=run)
 
 
@@ -67,6 +74,10 @@ def run(args: argparse.Namespace) -> int:
     """Compute the report, then write both files at once."""
     from sensorless.design.gain_table import read_gain_table
 
+    files = many.drive_files(args.drive)
+    if files is not None:
+        return many.run("report", args, files)
+    many.refuse_engine_options(args)
     drive = load(args.drive, "report")
     fam = family_of(drive)
     compute = hooks(fam).report

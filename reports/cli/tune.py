@@ -8,7 +8,8 @@ files to stdout: ``gains_<law>.json``/``.csv``, ``speeds_<law>.csv`` (the bound 
 law, its seed and the drive file's gains at every dense speed) when the tuner computed the bound,
 ``pareto_<law>.csv`` with ``--pareto``. If the tuner fails or the constraints cannot be met, one line
 says so (for an infeasible envelope, with its evidence) and the exit status is 2; nothing is written. If
-the best gains found are still below the damping a report requires by default (common.MIN_DAMPING), or
+the best gains found are still below the damping a report requires by default (common.MIN_DAMPING; the
+one ``--min-damping`` requires where the drive's family takes it), or
 their worst damping is not finite, the tables are written (they are the result) with a warning line, and
 the exit status is 3.
 """
@@ -23,6 +24,7 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import families, family_of
+from sensorless.reports.cli import many
 from sensorless.reports.cli.common import MIN_DAMPING, UsageError, load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
@@ -51,7 +53,12 @@ def register(sub: Any) -> None:
         "re-verify on a denser grid, and write the gain table. Laws: "
         + "; ".join(f"{k}: {v}" for k, v in laws.items()),
     )
-    p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
+    p.add_argument(
+        "drive",
+        metavar="PRESET_OR_TOML",
+        help="built-in preset name or drive TOML file; or a directory or a quoted glob of drive files: "
+        "each drive run on Dask into --out DIR/<drive name>/, with DIR/summary.csv",
+    )
     p.add_argument(
         "--law",
         default=None,
@@ -73,6 +80,7 @@ def register(sub: Any) -> None:
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_family_options(p, "tune")
+    many.add_engine_options(p)
     p.set_defaults(func=run)
 
 
@@ -80,6 +88,10 @@ def run(args: argparse.Namespace) -> int:
     """Tune, print the summary, write the tables."""
     from sensorless.tuning.tune import tune
 
+    files = many.drive_files(args.drive)
+    if files is not None:
+        return many.run("tune", args, files)
+    many.refuse_engine_options(args)
     drive = load(args.drive, "tune")
     fam = family_of(drive)
     h = hooks(fam)
@@ -127,12 +139,18 @@ def run(args: argparse.Namespace) -> int:
     for p in out.commit():
         print(f"wrote {p}")
     worst = r.table.summary.get("worst_damping")
-    if not isinstance(worst, int | float) or not math.isfinite(worst) or worst < MIN_DAMPING:
+    # the damping the user requires where the family takes --min-damping, else the report's default
+    need = MIN_DAMPING if getattr(args, "min_damping", None) is None else float(args.min_damping)
+    if not isinstance(worst, int | float) or not math.isfinite(worst) or worst < need:
         shown = f"{worst:.4g}" if isinstance(worst, int | float) else "not finite"
         print(
-            f"sensorless tune: warning: the tuned gains' worst damping ({shown}) is below {MIN_DAMPING:g}, "
-            "the damping `sensorless report` requires by default: poorly damped somewhere in the envelope "
-            "(narrow the envelope or relax its constraints)",
+            f"sensorless tune: warning: the tuned gains' worst damping ({shown}) is below {need:g}, "
+            + (
+                "the damping `sensorless report` requires by default"
+                if need == MIN_DAMPING
+                else "the damping --min-damping requires"
+            )
+            + ": poorly damped somewhere in the envelope (narrow the envelope or relax its constraints)",
             file=sys.stderr,
         )
         return 3

@@ -11,15 +11,15 @@ import dataclasses
 from typing import Any
 
 from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
+from sensorless.reports.envelope_options import ENVELOPE_OPTIONS, NOISE_OPTIONS
 from sensorless.reports.family import Option
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.pmac_reduced_order.settings import DeAngeloSettings, default_settings
 
+DENSE_FACTOR = next(o for o in ENVELOPE_OPTIONS if o.dest == "dense_factor")
+MAX_NOISE = next(o for o in NOISE_OPTIONS if o.dest == "max_noise")
 OPTIONS = (
-    Option(
-        ("--dense-factor",),
-        {"type": Number(4, 64, integer=True), "help": "re-verification refinement (4..64)"},
-    ),
+    DENSE_FACTOR,  # the shared options' (reports/envelope_options.py)
     Option(
         ("--g-max",),
         {
@@ -35,13 +35,7 @@ OPTIONS = (
             "Gamma (Phi_1/J)^2 = g_max^2, and at least the drive's Gamma)",
         },
     ),
-    Option(
-        ("--max-noise",),
-        {
-            "help": "limit the RMS noise of the estimates from the drive's current-sensor noise, e.g. "
-            "position=0.05deg,speed=0.002pu (an angle alone limits the position, a speed the speed)"
-        },
-    ),
+    MAX_NOISE,
     Option(
         ("--min-damping",),
         {"type": Number(0, 1, hi_open=True), "help": "worst damping required, in [0, 1) (default 0.707)"},

@@ -20,12 +20,13 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from sensorless.design.envelope import RANGES
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import read_gain_table
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
-from sensorless.reports.cli.common import Number
+from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
 from sensorless.reports.document import (
     Figure,
     Paragraph,
@@ -151,6 +152,31 @@ TUNE_OPTIONS = (
     Option(("--r-error",), {"type": Number(0.0, 0.9), "help": "stator resistance error (fraction)"}),
     Option(("--flux-error",), {"type": Number(0.0, 0.9), "help": "PM flux estimate error (fraction)"}),
     Option(("--l-error",), {"type": Number(0.0, 0.9), "help": "inductance estimate error (fraction)"}),
+    Option(
+        ("--min-damping",),
+        {
+            "type": Number(0, 1, hi_open=True),
+            "help": "worst damping required, in [0, 1) (default 0.2, as `sensorless report`): below it the "
+            "tables are written with a warning and exit status 3",
+        },
+    ),
+    Option(
+        ("--max-noise",),
+        {
+            "help": "limit the RMS noise of the estimates from the drive's current-sensor noise, e.g. "
+            "position=0.05deg,speed=0.002pu (an angle alone limits the position, a speed the speed)"
+        },
+    ),
+    Option(
+        ("--pareto",),
+        {
+            "type": Number(*RANGES["pareto"], integer=True),
+            "nargs": "?",
+            "const": 8,
+            "metavar": "N",
+            "help": "also compute the damping-versus-noise front at N noise limits (2..100; default 8)",
+        },
+    ),
 )
 
 
@@ -165,6 +191,14 @@ def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> FluxTun
         s = dataclasses.replace(s, bias_max_deg=float(args.bias_max))
     if args.hold_speed is not None:
         s = dataclasses.replace(s, hold_speed=float(args.hold_speed) * drive.w_base)
+    if args.max_noise:
+        s = dataclasses.replace(s, max_noise=parse_max_noise(args.max_noise, drive.w_base))
+    if args.pareto is not None:
+        if tunable.name not in ("odrive", "vesc"):
+            raise UsageError(
+                f"--pareto: the {tunable.name} law has no damping-versus-bias front (odrive, vesc)"
+            )
+        s = dataclasses.replace(s, pareto=int(args.pareto))
     return s
 
 
@@ -251,7 +285,18 @@ def compute(
             f"error; the firmwares' defaults on this motor hold down to the speeds shown (hold speed "
             f"{w_hold / drive.w_base:.3g} p.u.)."
         )
-        sections.append(Section("2. The gains and the firmwares' defaults", (Paragraph(text), cmp_table)))
+        items: tuple[Any, ...] = (Paragraph(text), cmp_table)
+        pf = table.summary.get("pareto") if table is not None else None
+        if pf is not None and pf.get("metric") == "bias":
+            items += (
+                Figure(
+                    svg_uri(front_figure(pf, analysis.get(review, {}))),
+                    f"Damping-versus-bias front of the {table.law} law (sensorless tune --pareto): the "
+                    "candidates that hold down to the hold speed and that no other beats in both worst "
+                    "damping and worst angle bias over the speeds from it up; x: the gains under review.",
+                ),
+            )
+        sections.append(Section("2. The gains and the firmwares' defaults", items))
         sections.append(Section("3. Damping and angle error over speed", (fig, bias_fig)))
         figs = []
     else:
@@ -308,6 +353,27 @@ def compute(
     verdict = verdict_box(status, Paragraph(summary, status_class(status)), findings=findings)
     del figs
     return Report(drive.name, review, data, verdict, all_sections)
+
+
+def front_figure(pf: dict[str, Any], mine: dict[str, Any]) -> Any:
+    """Worst damping over worst angle bias along the front, the gains under review marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams["svg.hashsalt"] = "sensorless"
+    fig, ax = plt.subplots(figsize=(6.4, 3.4))
+    pts = pf["points"]
+    ax.plot([p["bias"] for p in pts], [p["worst_damping"] for p in pts], "o-", ms=4, label="front")
+    if mine.get("worst_bias_deg") is not None and mine.get("worst_damping") is not None:
+        ax.plot(mine["worst_bias_deg"], mine["worst_damping"], "kx", ms=8, label="gains under review")
+    ax.set_xlabel("worst angle bias (deg)")
+    ax.set_ylabel("worst damping")
+    ax.grid(True, lw=0.3, color="0.8")
+    ax.legend(fontsize=8, frameon=False)
+    fig.tight_layout()
+    return fig
 
 
 def bias_caption(settings: FluxTuneSettings) -> str:

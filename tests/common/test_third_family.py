@@ -33,6 +33,7 @@ from sensorless.design.runtime import run_trajectory
 from sensorless.design.scenario import builtin_names
 from sensorless.reports.cli.main import main
 from sensorless.reports.traces import read_csv
+from sensorless.tuning.constant_law import GRID
 
 ROOT = Path(__file__).resolve().parents[2]
 PLL = ROOT / "tests" / "families" / "pll"
@@ -111,10 +112,20 @@ def test_reads_the_shared_pmsm_records_and_refuses_a_salient_motor(drive, tmp_pa
 def test_analyze_writes_poles_from_the_casadi_jacobians(drive, tmp_path, capsys):
     code, stdout, err = run(["analyze", DRIVE, "--out", tmp_path], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["poles.csv", "poles.png", "poles.svg"]
+    names = ["poles.csv", "poles.png", "poles.svg", "poles_discrete.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == names  # the shared analyze output
     assert "worst over 148 points" in stdout and "T_e = 1.3 N m" in stdout
-    rows = [ln for ln in (tmp_path / "poles.csv").read_text().splitlines() if not ln.startswith("#")]
-    assert rows[0].startswith("w_rad_s,w_pu,T_e_Nm") and len(rows) == 1 + 148
+    # the terminal shows the envelope's own speeds (10 per direction) of each torque, not the refined grid
+    shown = [
+        float(ln.split()[0])
+        for ln in stdout.splitlines()
+        if ln.startswith("  ") and ln.split()[0][-1].isdigit()
+    ]
+    assert shown == 2 * [round(x, 3) for x in (*np.linspace(-1, -0.1, 10), *np.linspace(0.1, 1, 10))]
+    for name in ("poles.csv", "poles_discrete.csv"):
+        rows = [ln for ln in (tmp_path / name).read_text().splitlines() if not ln.startswith("#")]
+        # the family's own column (the steady angle error) after the operating point
+        assert rows[0].startswith("w_m_pu,w_m_rad_s,T_e_Nm,theta_err_rad,pole0_re") and len(rows) == 1 + 148
 
 
 def test_linearization_is_the_sampled_observer_that_runs(drive):
@@ -184,7 +195,7 @@ def test_tune_goes_through_the_shared_pipeline_and_the_analysis_confirms_its_tab
     w_pll = table.gains["w_pll"]
     assert w_pll != pytest.approx(drive.observer.w_pll, rel=1e-3)
     s = table.summary
-    assert s["global_phase"]["candidates"] == pll_tuning.GRID + 1  # its log grid and the drive's gain
+    assert s["global_phase"]["candidates"] == GRID + 1  # its log grid and the drive's gain
     assert "tie_break" in s["selection"] and "bound" in s and s["exchange_rounds"] >= 1
     floor = s["decay_floor_1_s"]
     assert floor == pytest.approx(pll_tuning.FLOOR * drive.observer.w_pll)
@@ -375,7 +386,7 @@ def test_foreign_options_and_wrong_gains_are_one_line_errors(tmp_path, capsys):
         (["tune", DRIVE, "--law", "law16"], "cannot be tuned"),
         (["codegen", DRIVE, "--gain", "speed", "--out", tmp_path / "c"], "one gain"),
         (["simulate", DRIVE, "--scenario", "speed_steps", "--injection", "on"], "--injection"),
-        (["simulate", DRIVE, "--scenario", "speed_steps", "--gains", bad], "not for the PLL observer"),
+        (["simulate", DRIVE, "--scenario", "speed_steps", "--gains", bad], "its laws: pll"),
     ):
         code, _, err = run(args, capsys)
         assert code == 2 and err.count("\n") == 1 and words in err, (args, err)
@@ -411,7 +422,7 @@ class NoSteadyState(GainsOnly):
     name = "pmsm_nss"
 
     def runtime(self, drive, gains, *, discretization=None):
-        setup = design.runtime_setup(drive, gains, discretization)
+        setup = FAMILY.runtime(drive, gains, discretization=discretization)
         return dataclasses.replace(setup, observer=dataclasses.replace(setup.observer, steady_state=None))
 
     def simulation(self, drive, scenario, gains):

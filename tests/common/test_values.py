@@ -174,7 +174,7 @@ def test_the_matrix_covers_every_family_option_and_the_commands_own():
     assert {
         ("analyze", "--points"),
         ("tune", "--g-max"),
-        ("tune", "--bandwidth-max"),
+        ("tune", "--w-pll-max"),
         ("simulate", "--every"),
     } <= typed
 

@@ -3,6 +3,7 @@ other candidate of the grid, ODrive's and VESC's limits hold, and the gain table
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -81,3 +82,48 @@ def test_flux_schedule_table_runs_as_a_schedule_over_the_pll_speed(drive):
         assert float(law(-w, setup.gain)) == pytest.approx(k)
     lin = fam.linearize(drive, gains, np.array([speeds[-1]]), np.zeros(1))
     assert lin.decay_rate_discrete[0] > 0
+
+
+def test_default_law_on_a_drive_of_ones_own_is_its_files(tmp_path):
+    from importlib.resources import files
+
+    from sensorless.tuning.family import tunable_for
+
+    text = (files("sensorless.design.pmsm_flux_observer.presets") / "hubmotor48.toml").read_text()
+    assert 'law = "vesc"' in text
+    own = tmp_path / "hub.toml"
+    own.write_text(text)
+    assert tunable_for(load_drive(str(own))).name == "vesc"
+    assert tunable_for(load_drive("hubmotor48"), None).name == "odrive"  # a preset: the first law
+    assert tunable_for(load_drive(str(own)), "flux_schedule").name == "flux_schedule"
+
+
+def test_noise_limit_holds_and_front_trades_damping_for_bias(drive, tuned):
+    lim = 0.9 * math.radians(tuned.table.summary["worst_noise_deg"])
+    s = FluxTuneSettings(max_noise=(("position", lim),), pareto=4)
+    r = tune_odrive(drive, s)
+    assert math.radians(r.table.summary["worst_noise_deg"]) <= lim
+    assert r.table.gains["observer_gain"] != tuned.table.gains["observer_gain"]  # the limit binds
+    pts = r.table.summary["pareto"]["points"]
+    assert 2 <= len(pts) <= 4
+    for a, b in itertools.pairwise(pts):  # more bias buys more damping along the front
+        assert b["bias"] > a["bias"] and b["worst_damping"] > a["worst_damping"]
+    assert all(p["noise"] <= math.degrees(lim) * (1 + 1e-9) for p in pts)
+    # each front point re-judged alone gives its figures back
+    k = pts[-1]["theta"][0]
+    a = assess(drive, [odrive_candidate(drive, k)], s)
+    f = figures(drive, a, 0, r.table.summary["hold_speed_rad_s"])
+    assert f["worst_damping"] == pytest.approx(pts[-1]["worst_damping"])
+
+
+def test_angle_noise_scales_with_the_sensor_noise(drive):
+    import dataclasses
+
+    c = [odrive_candidate(drive, 500.0)]
+    a1 = assess(drive, c, FluxTuneSettings())
+    a2 = assess(dataclasses.replace(drive, i_noise=0.0), c, FluxTuneSettings())
+    a3 = assess(dataclasses.replace(drive, i_noise=1.0), c, FluxTuneSettings())
+    assert np.allclose(a1.noise, a2.noise)  # 0: the default
+    a4 = assess(dataclasses.replace(drive, i_noise=2.0), c, FluxTuneSettings())
+    fin = np.isfinite(a3.noise)
+    assert fin.any() and np.allclose(a4.noise[fin], 2 * a3.noise[fin])

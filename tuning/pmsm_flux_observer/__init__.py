@@ -34,8 +34,9 @@ import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTable
-from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF, constant_law, runtime_params
+from sensorless.design.pmsm_flux_observer.gains import TABLE_LAWS, VESC_U_REF, constant_law, runtime_params
 from sensorless.design.pmsm_flux_observer.linearize import (
+    current_noise,
     discrete_analysis,
     equilibrium_function,
     motor_vector,
@@ -56,6 +57,7 @@ K_T_MAX = 1.9  # T k at most (the Euler bound is 2)
 SLOW_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0)  # foc_observer_gain_slow candidates
 ERRORS = {"R_s": 0.3, "psi_pm": 0.1, "L": 0.2}  # default estimate errors (+-)
 BIAS_MAX_DEG = 15.0
+NOISE_INDEX = {"position": 0, "speed": 1}  # --max-noise outputs: the PLL's angle and speed
 VESC_DEFAULT = {"foc_observer_gain_slow": 0.05, "foc_pll_kp": 2000.0, "foc_pll_ki": 30000.0}
 ODRIVE_DEFAULT = {"observer_gain": 1000.0, "pll_bandwidth": 1000.0}
 
@@ -68,7 +70,9 @@ class FluxTuneSettings:
     bias_max_deg: float = BIAS_MAX_DEG
     hold_speed: float | None = None  # [rad/s]; None: the firmware defaults' best limit
     bound: bool = False
-    pareto: int = 0
+    pareto: int = 0  # points of the damping-versus-bias front (``pareto_<law>.csv``); 0: none
+    # RMS noise of the PLL's estimates at most, ((output, limit), ...): position [rad], speed [rad/s]
+    max_noise: tuple[tuple[str, float], ...] = ()
 
 
 def default_settings(drive: Any) -> FluxTuneSettings:
@@ -103,6 +107,7 @@ class Assessment:
     bias: np.ndarray  # (C, P) worst |bias| [rad] over the corners
     holds: np.ndarray  # (C, S) per envelope |speed|
     poles: np.ndarray  # (C, P, n) nominal discrete poles [1/s]
+    noise: np.ndarray | None = None  # (C, P, 2) worst PLL angle [rad] and speed [rad/s] noise, RMS
 
 
 def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
@@ -136,7 +141,8 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
     loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
     m = motor_vector(drive)
     s = np.full((n, loop.n_y), np.nan + 0j)
-    zmax, err = np.full(n, np.nan), np.full(n, np.nan)
+    zmax, err, noise = np.full(n, np.nan), np.full(n, np.nan), np.full((n, 2), np.nan)
+    sigma = current_noise(drive)
     for j in range(0, n, CHUNK):
         sl = slice(j, min(j + CHUNK, n))
         k = sl.stop - sl.start
@@ -144,12 +150,18 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
         scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
         ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
         y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
-        s[sl], zmax[sl], err[sl] = discrete_analysis(drive, loop, y0, Wn[sl], Tn[sl], P[:, sl], G[:, sl])
+        s[sl], zmax[sl], err[sl], nz = discrete_analysis(
+            drive, loop, y0, Wn[sl], Tn[sl], P[:, sl], G[:, sl], sigma
+        )
+        noise[sl] = nz
     ok = np.isfinite(zmax)
     zeta = worst_damping(s).reshape(len(cands), nc, npt)
     bias = np.abs(np.where(ok, err, np.nan)).reshape(len(cands), nc, npt)
     stable = (ok & (zmax < 1)).reshape(len(cands), nc, npt)
+    noise = np.where(ok[:, None], noise, np.inf).reshape(len(cands), nc, npt, 2)
     good = stable & (bias <= math.radians(settings.bias_max_deg))
+    for name, lim in settings.max_noise:
+        good &= noise[..., NOISE_INDEX[name]] <= lim
     good_pt = good.all(axis=1)  # (C, P)
     holds = np.stack([good_pt[:, np.abs(W) == sp].all(axis=1) for sp in speeds], axis=1)
     worst = np.where(stable.all(axis=1), np.nanmin(np.where(np.isnan(zeta), -1, zeta), axis=1), -1.0)
@@ -158,6 +170,7 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
         np.nanmax(np.where(np.isnan(bias), np.inf, bias), axis=1),
         holds,
         s.reshape(len(cands), nc, npt, -1)[:, 0],
+        np.nanmax(noise, axis=1),
     )
 
 
@@ -186,6 +199,8 @@ def figures(drive: Any, a: Assessment, c: int, w_from: float | None = None) -> d
         "worst_bias_deg": float(np.degrees(np.max(a.bias[c, sel]))) if sel.any() else float("nan"),
         "low_speed_limit_rad_s": float(lim),
         "low_speed_limit_pu": float(lim / drive.w_base),
+        "worst_noise_deg": float(np.degrees(np.max(a.noise[c, sel, 0]))) if a.noise is not None else math.nan,
+        "worst_speed_noise_rad_s": float(np.max(a.noise[c, sel, 1])) if a.noise is not None else math.nan,
     }
 
 
@@ -202,6 +217,49 @@ def best(drive: Any, a: Assessment, w_hold: float) -> int:
             z = figures(drive, a, c)["worst_damping"]
             keys.append((1, lim[c], -(z if math.isfinite(z) else -9.0), c))
     return min(keys)[-1]
+
+
+def front(
+    drive: Any, a: Assessment, cands: list[GainSet], w_hold: float, n: int, limit_deg: float
+) -> dict[str, Any]:
+    """The damping-versus-bias front of the candidates (``tune --pareto N``): of those that hold down
+    to the hold speed, the ones no other beats in both worst damping and worst angle bias over the
+    speeds from it up, at most ``n`` of them evenly over the front, by increasing bias."""
+    W, _ = drive.grid()
+    speeds = np.unique(np.abs(W))
+    lim = low_limit(a.holds, speeds)
+    sel = np.abs(W) >= w_hold
+    pts = []
+    for c in np.flatnonzero(lim <= w_hold * (1 + 1e-12)):
+        fg = figures(drive, a, int(c), w_hold)
+        decay = float(-np.nanmax(a.poles[c, sel].real))
+        pts.append((fg["worst_bias_deg"], -fg["worst_damping"], decay, fg["worst_noise_deg"], int(c)))
+    pts.sort()
+    kept, best_z = [], -np.inf
+    for b, mz, decay, nz, c in pts:  # by increasing bias: kept where better damped than all before
+        if -mz > best_z:
+            kept.append((b, -mz, decay, nz, c))
+            best_z = -mz
+    if len(kept) > n:
+        kept = [kept[round(i)] for i in np.linspace(0, len(kept) - 1, n)]
+    names = [k for k, v in cands[0].values.items() if not isinstance(v, list)]
+    return {
+        "metric": "bias",
+        "description": "bias = worst steady angle bias [deg] under the estimate errors over the speeds "
+        f"from the hold speed {w_hold / drive.w_base:.4g} p.u. up",
+        "parameters": names,
+        "points": [
+            {
+                "bias": b,
+                "limit": limit_deg,
+                "worst_damping": z,
+                "min_decay_rate": decay,
+                "noise": nz,
+                "theta": [float(cands[c].values[k]) for k in names],
+            }
+            for b, z, decay, nz, c in kept
+        ],
+    }
 
 
 def hold_speed(drive: Any, settings: FluxTuneSettings, base: dict[str, Any]) -> float:
@@ -266,8 +324,13 @@ def _line(label: str, f: dict[str, float]) -> str:
     held = f"holds down to {lim:.3g} p.u."
     return (
         f"  {label:<16} worst damping {f['worst_damping']:.3f}, worst angle bias "
-        f"{f['worst_bias_deg']:.2f} deg; {held}"
+        f"{f['worst_bias_deg']:.2f} deg{_noise(f)}; {held}"
     )
+
+
+def _noise(f: dict[str, float]) -> str:
+    n = f.get("worst_noise_deg", float("nan"))
+    return f", angle noise {n:.3g} deg rms" if math.isfinite(n) else ""
 
 
 def _table(
@@ -295,6 +358,16 @@ def _table(
     return GainTable(law, head, gains, env, points, summary)
 
 
+def _limits(settings: FluxTuneSettings, pf: dict[str, Any] | None) -> dict[str, Any]:
+    """The summary's noise limit and front, where the run has them (preset tables stay as they were)."""
+    out: dict[str, Any] = {}
+    if settings.max_noise:
+        out["max_noise"] = dict(settings.max_noise)
+    if pf is not None:
+        out["pareto"] = pf
+    return out
+
+
 def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``odrive`` law: one observer_gain and pll_bandwidth over the envelope (module docstring)."""
     ks = k_grid(drive)
@@ -307,6 +380,7 @@ def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) ->
     base_lines, base = _baselines(drive, settings)
     w_hold = hold_speed(drive, settings, base)
     c = best(drive, a, w_hold)
+    pf = front(drive, a, cands, w_hold, settings.pareto, settings.bias_max_deg) if settings.pareto else None
     # refined between the grid's neighbours of the best, with the firmware's default and the drive
     # file's gains of this law as candidates too (the tuned gains are never worse than either)
     lo, hi = ks[max(c - 1, 0)], ks[min(c + 1, len(ks) - 1)]
@@ -330,6 +404,7 @@ def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) ->
         "baselines": base,
         "errors": settings.errors,
         "bias_max_deg": settings.bias_max_deg,
+        **_limits(settings, pf),
     }
     return FluxOutcome("odrive", _table(drive, "odrive", g, a, c, summary), lines)
 
@@ -364,6 +439,7 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
     base_lines, base = _baselines(drive, settings)
     w_hold = hold_speed(drive, settings, base)
     c = best(drive, a, w_hold)
+    pf = front(drive, a, cands, w_hold, settings.pareto, settings.bias_max_deg) if settings.pareto else None
     # refined in the gain at the best slow gain, with VESC Tool's detection and the drive file's gains
     # of this law as candidates too (the tuned gains are never worse than either)
     raw0, slow0 = cands[c].values["foc_observer_gain"], cands[c].values["foc_observer_gain_slow"]
@@ -395,6 +471,7 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
         "baselines": base,
         "errors": settings.errors,
         "bias_max_deg": settings.bias_max_deg,
+        **_limits(settings, pf),
     }
     return FluxOutcome("vesc", _table(drive, "vesc", g, a, c, summary), lines)
 
@@ -469,6 +546,13 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
     return Assessment(worst[None], bias.max(axis=0)[None], holds, poles[None])
 
 
+def own_law(drive: Any) -> str | None:
+    """The default law on a drive of the user's own: the law of its file's [gains] (a VESC user's drive
+    tunes the vesc law), where it is a tunable one."""
+    law = drive.gains_table.get("law")
+    return law if law in TABLE_LAWS else None
+
+
 _LEAD = (("w_m_pu", "w_m_pu"), ("T_e_Nm", "T_e_Nm"))
 HOOKS = TuningHooks(
     tunables=(
@@ -493,5 +577,6 @@ HOOKS = TuningHooks(
             tuner=tune_schedule,
             columns=(_LEAD, ()),
         ),
-    )
+    ),
+    own_default=own_law,
 )

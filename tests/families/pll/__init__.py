@@ -5,10 +5,10 @@ family has, one module per layer, mirroring the folders of the built-in families
 
 - symbolic.py: its equations (reduced-order back-EMF observer + PI-type PLL) and the runtime step
   (the one runtime contract, symbolic/runtime.py);
-- design.py: drive-file schema, gains, runtime set-up, linearization (CasADi Jacobians of the
-  equations of symbolic.py), simulation on the shared PMSM drive loop, and the family record FAMILY;
-- tuning.py: its gain law ``pll`` (one PLL bandwidth), a TuningModel for the shared tuning pipeline;
-- report.py: ``analyze`` output, ``tune`` options and the stability report;
+- design.py: drive-file schema, gains, runtime set-up, its observer in rotor coordinates for the shared
+  linearizations, simulation on the shared PMSM drive loop, and the family record FAMILY;
+- tuning.py: its gain law ``pll`` (one PLL bandwidth), a constant law of the shared tuning pipeline;
+- report.py: the shared ``analyze`` output and stability report, and its law's ``tune`` option;
 - presets/ and scenarios/: its drive TOML and its one built-in scenario.
 
 Nothing outside this package names it: ``with registered(FAMILY):`` makes it known.

@@ -1,0 +1,122 @@
+"""The continuous-time linearization of any observer from its rotor-frame rate function: equilibrium, poles.
+
+The twin of design/discrete.py (the sampled observer that runs) for the continuous observer of a
+paper. A family declares a :class:`RotorFrameLoop`: the observer (with whatever plant it needs) in
+steady state at an operating point, written in rotor coordinates where the steady state is a fixed
+point, as one SX Function ``rates(x_r, w, torque, plant, p) -> f_r``, and a Function giving Newton's
+start ``start(w, torque, plant, p) -> x_r``. This module builds, once per loop, Newton's method on
+those SX expressions and the Jacobian at its end (:func:`equilibrium_function`), evaluates it over N
+operating points at once (``Function.map`` through design/batch.py, :func:`equilibria`) and returns
+the eigenvalues of the Jacobians (:func:`continuous_poles`). Nothing is re-typed: the family's SX
+rates are differentiated by CasADi. ``plant`` is one vector for all points (e.g. the true motor's
+parameters); ``p`` the observer's parameters, one vector or one column per point.
+
+For an observer on a PMSM the plant is the motor in steady state at the operating point under ideal
+current control: :func:`pmsm_steady` gives its MTPA current and steady voltage in rotor coordinates
+from the shared PMSM model (symbolic/pmsm.py) for the plant vector :func:`pmsm_plant`, and
+:func:`pmsm_steady_current` the current numerically (the samples of design/discrete.py
+``pmsm_zoh_plant``).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from sensorless.design.batch import evaluate_batch
+from sensorless.design.pmsm_schema import PmsmMotor
+from sensorless.design.poles import eigvals_batched
+from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
+
+NEWTON_STEPS = 12
+RESIDUAL = 1e-9  # converged: |f_r|_inf at most this times max(|x_r|_inf, 1)
+
+
+@dataclass(frozen=True, eq=False)
+class RotorFrameLoop:
+    """A family's continuous observer in rotor coordinates (module docstring); hashable by identity,
+    so declare it once (e.g. in a ``functools.cache``d function)."""
+
+    name: str  # for the Functions built from it
+    rates: ca.Function  # (x_r[n], w, torque, plant[m], p[k]) -> f_r[n]
+    start: ca.Function  # (w, torque, plant[m], p[k]) -> x_r[n]: where Newton's method starts
+
+    @property
+    def n_x(self) -> int:
+        return int(self.rates.size1_in(0))
+
+
+@functools.cache
+def equilibrium_function(loop: RotorFrameLoop) -> ca.Function:
+    """(w, torque, plant, p) -> (x_r*, A, res): NEWTON_STEPS Newton steps on f_r(x_r) = 0 from the loop's
+    start, the Jacobian A = df_r/dx_r there and the residual |f_r(x_r*)|_inf."""
+    f = loop.rates
+    x_r = ca.SX.sym("x_r", loop.n_x)
+    w, T = ca.SX.sym("w"), ca.SX.sym("torque")
+    plant, p = ca.SX.sym("plant", f.size1_in(3)), ca.SX.sym("p", f.size1_in(4))
+    G = f(x_r, w, T, plant, p)
+    g_fn = ca.Function("G", [x_r, w, T, plant, p], [G, ca.jacobian(G, x_r)])
+    xk = loop.start(w, T, plant, p)
+    for _ in range(NEWTON_STEPS):
+        Gk, Jk = g_fn(xk, w, T, plant, p)
+        xk = xk - ca.solve(Jk, Gk)
+    Gk, Jk = g_fn(xk, w, T, plant, p)
+    return ca.Function(
+        f"{loop.name}_equilibrium_c",
+        [w, T, plant, p],
+        [xk, ca.densify(Jk), ca.norm_inf(Gk)],
+        ["w", "torque", "plant", "p"],
+        ["x", "A", "res"],
+    )
+
+
+def equilibria(
+    loop: RotorFrameLoop, w: Any, torque: Any, plant: Any, p: Any
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x_r* (N, n), A (N, n, n), converged (N,)) at the N points (w, torque), batched; a point where
+    Newton's method does not converge has NaN in x_r* and A."""
+    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
+    x, A, res = evaluate_batch(equilibrium_function(loop), W.size, [W, T, np.asarray(plant, float), p])
+    x = x[:, :, 0]
+    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0))
+    return np.where(ok[:, None], x, np.nan), np.where(ok[:, None, None], A, np.nan), ok
+
+
+def continuous_poles(
+    loop: RotorFrameLoop, w: Any, torque: Any, plant: Any, p: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """(poles (N, n), x_r* (N, n)): the eigenvalues of the Jacobian at each point's equilibrium; a NaN
+    row where there is none."""
+    x, A, ok = equilibria(loop, w, torque, plant, p)
+    poles = np.full(x.shape, np.nan + 0j)
+    if ok.any():
+        poles[ok] = eigvals_batched(A[ok])
+    return poles, x
+
+
+def pmsm_plant(motor: PmsmMotor) -> np.ndarray:
+    """[R_s, L_d, L_q, psi_pm, p] of the true motor: the ``plant`` of :func:`pmsm_steady`."""
+    return np.array([*motor.vector(), float(motor.p)])
+
+
+def pmsm_steady(w: ca.SX, T_e: ca.SX, plant: ca.SX) -> tuple[ca.SX, ca.SX]:
+    """(i_r, u_r): the rotor-frame MTPA current for torque T_e and the steady stator voltage at speed w
+    of the motor ``plant`` = [R_s, L_d, L_q, psi_pm, p] (symbolic/pmsm.py)."""
+    motor = PmsmParams(plant[0], plant[1], plant[2], plant[3])
+    i_r = mtpa_current(T_e, motor, plant[4])
+    return i_r, stator_voltage(i_r, 0, flux_from_current(i_r, motor), w, motor.R_s)
+
+
+@functools.cache
+def _steady_current() -> ca.Function:
+    T_e, plant = ca.SX.sym("T_e"), ca.SX.sym("plant", 5)
+    return ca.Function("pmsm_steady_current", [T_e, plant], [pmsm_steady(0, T_e, plant)[0]])
+
+
+def pmsm_steady_current(torque: np.ndarray, plant: np.ndarray) -> np.ndarray:
+    """(N, 2) rotor-frame MTPA currents for the torques (N,) [N m] of the motor ``plant``."""
+    T = np.ravel(torque).astype(float)
+    return evaluate_batch(_steady_current(), T.size, [T, plant])[0][:, :, 0]

@@ -1,0 +1,231 @@
+"""The ``analyze`` output and the stability report of any family from its linearization over its envelope.
+
+A family that has a linearization (``ObserverFamily.linearize``) gets both by naming them in its report
+hooks (``ReportHooks(analyze=analyze, report=report)``) and declares nothing more. The operating
+points are the shared envelope (design/envelope.py) of its default tunable's settings (the drive's own
+envelope; the shared defaults for a family with nothing to tune): its speeds, refined in speed, times
+its torques. The poles are the linearization's continuous ones and, where it has them, the sampled
+observer's ln(z)/T_s, which the figures of merit then take (what runs is the sampled observer).
+
+- :func:`analyze`: a summary per torque on the terminal, ``poles.csv`` (and ``poles_discrete.csv``)
+  by reports/pole_map.py with the family's own per-point columns, and a figure of the poles' real
+  parts and the worst damping over speed;
+- :func:`report`: the frame of reports/review.py (gains under review, opening data, time-domain
+  checks of the family's built-in or the generic scenarios, verdict) around one section of poles over
+  the envelope per gain set: stable, worst damping against the required, slowest decay and where.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from sensorless.design.envelope import Envelope
+from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.gain_table import read_gain_table
+from sensorless.design.linearization import Linearization
+from sensorless.design.poles import MIN_DAMPING
+from sensorless.design.registry import family_of
+from sensorless.design.scenario import builtin_names
+from sensorless.reports import time_domain
+from sensorless.reports.document import (
+    Figure,
+    Paragraph,
+    Report,
+    Section,
+    Table,
+    drive_section,
+    f,
+    num,
+    svg_uri,
+)
+from sensorless.reports.files import OutputSet
+from sensorless.reports.pole_map import pole_csv
+from sensorless.reports.review import gains_under_review, opening, settle, status_class, verdict_box
+from sensorless.tuning.family import hooks as tuning_hooks
+
+ANALYZE_REFINE = 4  # analyze and the normal report refine the envelope's speeds this many times
+
+
+def envelope(drive: Drive) -> Envelope:
+    """The envelope of the drive: its family's default tunable's, else the shared defaults."""
+    fam = family_of(drive)
+    try:
+        return tuning_hooks(fam).tunables[0].settings(drive).envelope
+    except CapabilityError:
+        return Envelope()
+
+
+def points(drive: Drive, refine: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Flat (speed [rad/s], torque [N m]) of the envelope's speeds (refined) x its torques."""
+    env = envelope(drive)
+    W, T = np.meshgrid(env.speed_grid(drive.w_base, refine), env.torque_grid(drive.T_N))
+    return W.ravel(), T.ravel()
+
+
+def figures(lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
+    """(worst damping, decay rate) per point: the sampled observer's where the linearization has it."""
+    if lin.poles_discrete is not None:
+        return lin.worst_damping_discrete, lin.decay_rate_discrete
+    return lin.worst_damping, lin.decay_rate
+
+
+def poles_figure(lin: Linearization, w_base: float, title: str) -> Any:
+    """Real parts of the poles (continuous o, sampled x) and the worst damping over speed, per torque."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams["svg.hashsalt"] = "sensorless"
+    fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(6.4, 5.0))
+    for j, T in enumerate(np.unique(lin.torque)):
+        m, c = lin.torque == T, f"C{j}"
+        w = lin.w[m] / w_base
+        n = lin.poles.shape[1]
+        a1.plot(np.repeat(w, n), lin.poles[m].real.ravel(), "o", ms=3, mfc="none", color=c)
+        a2.plot(w, lin.worst_damping[m], "--" if lin.poles_discrete is not None else "-", color=c)
+        if lin.poles_discrete is not None:
+            a1.plot(np.repeat(w, n), lin.poles_discrete[m].real.ravel(), "x", ms=3, color=c)
+            a2.plot(w, lin.worst_damping_discrete[m], "-", color=c)
+        a2.plot([], [], "-", color=c, label=f"{lin.torque_name} = {T:g} N m")
+    a1.set_ylabel("Re(p) (1/s)")
+    a2.set_ylabel("worst damping")
+    a2.set_xlabel("speed (p.u.)")
+    a2.legend(fontsize=8, frameon=False)
+    for a in (a1, a2):
+        a.grid(True, lw=0.3, color="0.8")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+CAPTION = (
+    "Real parts of the observer's poles over speed, continuous observer (o) and, where analysed, the "
+    "sampled observer at the drive's sampling period, ln(z)/T_s (x); below, the worst damping "
+    "(sampled: solid, continuous: dashed). Colours: torque."
+)
+
+
+def analyze(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
+    """Poles over the envelope (speeds refined ANALYZE_REFINE times): terminal summary, CSV, figure."""
+    fam = family_of(drive)
+    gains = fam.gains(drive, table=read_gain_table(args.gains), table_file=args.gains) if args.gains else None
+    gains = gains or fam.gains(drive)
+    W, T = points(drive, ANALYZE_REFINE)
+    lin = fam.linearize(drive, gains, W, T)
+    sampled = lin.poles_discrete is not None
+    print(f"{drive.name}: {drive.source}")
+    print(f"{fam.title} ({fam.citation}); gains: {gains.source}")
+    print("; ".join(f"{k} = {v:.6g}" for k, v in gains.values.items() if np.ndim(v) == 0))
+    z, d = figures(lin)
+    kind = f"sampled observer at T_s = {lin.T_s:g} s" if sampled else "continuous observer"
+    own = np.isclose(lin.w[:, None], envelope(drive).speed_grid(drive.w_base)[None, :], rtol=1e-12).any(
+        axis=1
+    )
+    for T_e in np.unique(T):  # at the envelope's own speeds
+        print(f"{lin.torque_name} = {T_e:g} N m:")
+        print(f"  {'speed [pu]':>10} {'worst damping':>14} {'slowest decay [1/s]':>20}")
+        for k in np.flatnonzero((lin.torque == T_e) & own):
+            print(f"  {lin.w[k] / drive.w_base:>10.3f} {z[k]:>14.4f} {d[k]:>20.5g}")
+    worst = f"damping {np.nanmin(z):.4f}, slowest decay {np.nanmin(d):.4g} 1/s"
+    print(f"worst over {lin.w.size} points: {worst} ({kind})")
+    out.add_text("poles.csv", pole_csv(lin, drive.w_base))
+    lost = ~np.isfinite(lin.poles).all(axis=1)
+    if sampled:
+        lost |= ~np.isfinite(lin.poles_discrete).all(axis=1)
+    if lost.any():  # not a result: every written number finite or said (exit status 3)
+        out.warnings.append(
+            f"poles.csv: no finite poles at {int(lost.sum())} of {lost.size} operating points (nan in "
+            "their rows): no equilibrium found there, or the linearized observer overflows; check the "
+            "drive's units and the gains"
+        )
+    if sampled:
+        out.add_text(
+            "poles_discrete.csv", pole_csv(dataclasses.replace(lin, poles=lin.poles_discrete), drive.w_base)
+        )
+    fig = poles_figure(lin, drive.w_base, f"{drive.name}: observer poles over the envelope")
+    out.add_figures("poles", fig)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def summary(lin: Linearization, gains: GainSet, w_base: float) -> dict[str, Any]:
+    """The report.json figures of one gain set over the envelope."""
+    z, d = figures(lin)
+    k = int(np.nanargmin(d)) if np.isfinite(d).any() else 0
+    return {
+        **{name: f(v) for name, v in gains.values.items() if np.ndim(v) == 0},
+        "worst_damping_continuous": f(np.nanmin(lin.worst_damping)),
+        "worst_damping": f(np.nanmin(z)),
+        "min_decay_rate": f(np.nanmin(d)),
+        "slowest_at": {"w_pu": f(lin.w[k] / w_base), f"{lin.torque_name}_Nm": f(lin.torque[k])},
+        "stable": bool(np.isfinite(d).all() and (d > 0).all()),
+    }
+
+
+def report(
+    drive: Drive,
+    table: Any | None = None,
+    table_file: str = "",
+    min_damping: float = MIN_DAMPING,
+    resolution: str = "normal",
+    progress: Callable[[str], None] = lambda s: None,
+    scenarios: Sequence[str] = (),
+) -> Report:
+    """The stability report (module docstring)."""
+    fam = family_of(drive)
+    rev = gains_under_review(fam, drive, table, table_file)
+    W, T = points(drive, 1 if resolution == "quick" else ANALYZE_REFINE)
+    progress(f"[1/3] poles over the envelope ({W.size} points)")
+    lins = {label: fam.linearize(drive, g, W, T) for label, g in rev.choices.items()}
+    analysis = {label: summary(lin, rev.choices[label], drive.w_base) for label, lin in lins.items()}
+    progress("[2/3] time-domain checks")
+    runs = time_domain.scenarios(drive, builtin_names(drive.kind), scenarios)
+    td, td_figs = time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
+    progress("[3/3] verdict")
+    a = analysis[rev.label]
+    damped = a["worst_damping"] is not None and a["worst_damping"] >= min_damping
+    status, td_findings = settle("fail" if not a["stable"] else "pass" if damped else "warn", td)
+    findings = [] if damped else [f"worst damping {num(a['worst_damping'])} < required {min_damping:g}"]
+    findings += [x["text"] for x in td_findings]
+    data = {
+        **opening(fam, drive, table, min_damping, rev.label),
+        "sampling_period_s": f(drive.T_s),
+        "analysis": analysis,
+        "time_domain": td,
+        "verdict": {"status": status, "damped": damped, "findings": findings},
+    }
+    torque_key = f"{lins[rev.label].torque_name}_Nm"
+    rows = tuple(
+        (
+            label,
+            "yes" if x["stable"] else "NO",
+            num(x["worst_damping"]),
+            num(x["min_decay_rate"]),
+            f"{num(x['slowest_at']['w_pu'])}, {num(x['slowest_at'][torque_key])}",
+        )
+        for label, x in analysis.items()
+    )
+    header = ("gains", "stable", "worst damping", "slowest decay (1/s)", "at (p.u., N m)")
+    fig = Figure(
+        svg_uri(poles_figure(lins[rev.label], drive.w_base, f"{drive.name}: poles, gains {rev.label}")),
+        CAPTION,
+    )
+    sections = (
+        drive_section(1, data["drive"], fam.bases(drive)),
+        Section("2. Observer poles over the envelope", (fig, Table(header, rows, "", frozenset({2, 3})))),
+        time_domain.section(3, td, td_figs, time_domain.limitations(drive)),
+    )
+    gains_text = ", ".join(f"{k} = {num(v)}" for k, v in a.items() if k in rev.gains.values)
+    text = (
+        f"Gains {rev.label} ({gains_text}): the observer is {'stable' if a['stable'] else 'NOT stable'} over "
+        f"the envelope, worst damping {num(a['worst_damping'])} (required {min_damping:g}), slowest decay "
+        f"{num(a['min_decay_rate'])} 1/s."
+    )
+    verdict = verdict_box(status, Paragraph(text, status_class(status)), findings=findings)
+    return Report(drive.name, rev.label, data, verdict, sections)

@@ -1,0 +1,109 @@
+"""The shared continuous linearization (design/rotor_frame.py) against closed forms.
+
+A rotating first-order system written in rotor coordinates, dx/dt = (-a I - w J) x + [k T, 0] with
+a = p[0], k = plant[0], has the equilibrium x* = (a I + w J)^-1 [k T, 0] and the poles -a +- j w, for
+any speed and torque; Newton's method starts far from it (x = [1, 1]) and meets it exactly (the
+rates are linear, so one step suffices and the rest keep it). A nonlinear rate with a known root
+checks the convergence flag. And the PMSM steady state against hand formulas: i_d = 0 on a
+non-salient motor, T = 1.5 p (psi_pm i_q - (L_q - L_d) i_d i_q) on a salient one, and u = R i + w J psi.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import casadi as ca
+import numpy as np
+import pytest
+from sensorless.design.pmsm_schema import PmsmMotor
+from sensorless.design.rotor_frame import (
+    RotorFrameLoop,
+    continuous_poles,
+    equilibria,
+    pmsm_plant,
+    pmsm_steady,
+    pmsm_steady_current,
+)
+
+
+def _loop(rates_of) -> RotorFrameLoop:
+    x, w, T = ca.SX.sym("x", 2), ca.SX.sym("w"), ca.SX.sym("T")
+    plant, p = ca.SX.sym("plant", 1), ca.SX.sym("p", 1)
+    rates = ca.Function("f", [x, w, T, plant, p], [rates_of(x, w, T, plant, p)])
+    start = ca.Function("s", [w, T, plant, p], [ca.DM([1.0, 1.0])])
+    return RotorFrameLoop("test", rates, start)
+
+
+def test_equilibria_and_poles_of_a_rotating_linear_system():
+    loop = _loop(lambda x, w, T, k, a: ca.vertcat(-a * x[0] + w * x[1] + k * T, -w * x[0] - a * x[1]))
+    W = np.array([-300.0, 0.0, 5.0, 1000.0])
+    T = np.array([1.0, -2.0, 0.5, 3.0])
+    a = np.array([[10.0, 20.0, 30.0, 40.0]])  # one parameter vector per point
+    poles, x = continuous_poles(loop, W, T, [2.0], a)
+    for j in range(W.size):
+        M = np.array([[a[0, j], -W[j]], [W[j], a[0, j]]])
+        assert np.allclose(x[j], np.linalg.solve(M, [2.0 * T[j], 0.0]), rtol=1e-12, atol=1e-12)
+        want = np.sort_complex(np.array([-a[0, j] + 1j * W[j], -a[0, j] - 1j * W[j]]))
+        assert np.allclose(np.sort_complex(poles[j]), want, rtol=1e-12, atol=1e-9)
+
+
+def test_a_point_without_an_equilibrium_is_nan():
+    # x0^2 + 1 = 0 has no real root; x0^2 - T = 0 has one for T > 0
+    loop = _loop(lambda x, w, T, k, a: ca.vertcat(x[0] ** 2 - T, -a * x[1]))
+    x, A, ok = equilibria(loop, [0.0, 0.0], [4.0, -1.0], [1.0], [3.0])
+    assert ok.tolist() == [True, False]
+    assert x[0] == pytest.approx([2.0, 0.0]) and np.isnan(x[1]).all() and np.isnan(A[1]).all()
+    poles, _ = continuous_poles(loop, [0.0, 0.0], [4.0, -1.0], [1.0], [3.0])
+    assert np.sort(poles[0].real) == pytest.approx([-3.0, 4.0]) and np.isnan(poles[1]).all()
+
+
+def test_pmsm_steady_state_against_hand_formulas():
+    for L_q in (5e-3, 9e-3):  # non-salient, salient
+        m = PmsmMotor(p=3, R_s=0.5, L_d=5e-3, L_q=L_q, psi_pm=0.1, J=1e-3)
+        plant = pmsm_plant(m)
+        T = np.array([-4.0, 0.0, 2.5, 6.0])
+        i = pmsm_steady_current(T, plant)
+        torque = 1.5 * m.p * (m.psi_pm * i[:, 1] + (m.L_d - m.L_q) * i[:, 0] * i[:, 1])
+        assert torque == pytest.approx(T, rel=1e-12, abs=1e-12)
+        if L_q == m.L_d:
+            assert np.all(i[:, 0] == 0)
+        else:
+            assert np.all(i[:, 0] <= 0)  # MTPA weakens the flux on a salient motor
+        w, T_e, P = ca.SX.sym("w"), ca.SX.sym("T"), ca.SX.sym("plant", 5)
+        fn = ca.Function("ss", [w, T_e, P], list(pmsm_steady(w, T_e, P)))
+        i_r, u_r = (np.asarray(v).ravel() for v in fn(300.0, 2.5, plant))
+        psi = np.array([m.L_d * i_r[0] + m.psi_pm, m.L_q * i_r[1]])
+        assert u_r == pytest.approx(m.R_s * i_r + 300.0 * np.array([-psi[1], psi[0]]), rel=1e-12)
+
+
+# ------------------------------------------------------------------ gains from the laws' keys
+def test_gains_from_a_section_and_from_tables_with_one_line_errors():
+    from types import SimpleNamespace
+
+    from sensorless.design.family import ObserverFamily
+    from sensorless.design.gain_table import GainTable, GainTableError
+    from sensorless.design.law_gains import section_gains, table_gains
+
+    class Fam(ObserverFamily):
+        kind, name, title, citation = "k-test", "k_test", "a test observer", ""
+        laws: ClassVar = {"two": ("a", "b")}
+
+    fam, drive = Fam(), SimpleNamespace(kind="k-test")
+    g = section_gains("two", ("a", "b"), SimpleNamespace(a=1, b=2.5, c=9), "drive.toml [observer]")
+    assert (g.law, dict(g.values), g.source) == ("two", {"a": 1.0, "b": 2.5}, "drive.toml [observer]")
+    ok = GainTable("two", {"name": "d", "kind": "k-test"}, {"a": 3, "b": -1.5})
+    assert dict(table_gains(fam, drive, ok, "t.json").values) == {"a": 3.0, "b": -1.5}
+    bad = (
+        (GainTable("two", {"kind": "other"}, {"a": 1, "b": 1}), "key 'drive.kind'"),
+        (
+            GainTable("three", {}, {"a": 1, "b": 1}),
+            "key 'law': 'three' gains are not for a test observer drives (kind 'k-test'); its laws: two",
+        ),
+        (GainTable("two", {}, {"a": 1}), "key 'gains.b'"),
+        (GainTable("two", {}, {"a": "x", "b": 1}), "key 'gains.a'"),
+        (GainTable("two", {}, {"a": float("inf"), "b": 1}), "key 'gains.a': need a finite number"),
+    )
+    for table, words in bad:
+        with pytest.raises(GainTableError) as e:
+            table_gains(fam, drive, table, "t.json")
+        assert str(e.value).startswith("t.json: ") and words in str(e.value) and "\n" not in str(e.value)
