@@ -125,14 +125,14 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     [rad/s] (0 where not analysed). CapabilityError for a drive without a PMSM's data."""
     from sensorless.design.low_speed import QUICK, minimum_speed
     from sensorless.design.poles import MIN_DAMPING
-    from sensorless.design.startup import if_values
+    from sensorless.design.startup import ON_FACTOR, if_values
 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
         return None, "no I-f start: the observer holds zero speed (its family: HF injection)", 0.0
     startup = getattr(drive, "startup", None)
     given = startup.values() if startup is not None else {}
-    values, w_min = given, 0.0
+    values, w_min, warn = given, 0.0, ""
     if startup is None or startup.needs_w_min:  # a key the file does not give keeps its rule
         try:
             m, c = drive.motor, drive.control
@@ -150,14 +150,22 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
         given = startup.values(w_min) if startup is not None else {}
         values = {**if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min), **given}
         if values["if_w_off"] >= values["if_w_on"]:
-            raise DriveFileError(
-                drive.file, "startup.w_off", "not below startup.w_on (by the keys given and the rules)"
+            if "if_w_off" in given:
+                raise DriveFileError(
+                    drive.file, "startup.w_off", "not below startup.w_on (by the keys given and the rules)"
+                )
+            # a handover given below w_min (e.g. a firmware's open-loop ERPM): kept, as the file says,
+            # with the rules' hysteresis ratio below it, and said
+            values["if_w_off"] = values["if_w_on"] / ON_FACTOR
+            warn = (
+                f"; the handover given is below w_min = {w_min / drive.w_base:.3g} p.u.: the observer takes "
+                f"over where its criteria do not hold (raise startup.w_on to {ON_FACTOR:g} w_min)"
             )
     line = (
         f"I-f start{' ([startup] of the drive file)' if given else ''}: "
         f"{values['if_i']:.4g} A, {values['if_acc']:.4g} rad/s^2, handover at "
         f"{values['if_w_on'] / drive.w_base:.3g} p.u., back below "
-        f"{values['if_w_off'] / drive.w_base:.3g} p.u."
+        f"{values['if_w_off'] / drive.w_base:.3g} p.u.{warn}"
     )
     return values, line, w_min
 

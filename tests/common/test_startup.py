@@ -118,6 +118,11 @@ def test_init_writes_the_start_with_its_rules_and_every_command_reads_it_back(tm
     out.write_text(edited, encoding="utf-8")
     values, line, _ = startup_values(load_drive(out), family_of(drive).gains(drive))
     assert values["if_w_on"] == pytest.approx(0.05 * drive.w_base) and "[startup] of the drive file" in line
+    # a handover given below w_min (a firmware's open-loop ERPM): kept, w_off half of it, and said
+    out.write_text(text.replace('w_on = "2 w_min"', 'w_on = "1e-4 pu"').replace('w_off = "1 w_min"\n', ""))
+    values, line, w_min = startup_values(load_drive(out), family_of(drive).gains(drive))
+    assert values["if_w_on"] == pytest.approx(1e-4 * drive.w_base) and values["if_w_on"] < w_min
+    assert values["if_w_off"] == pytest.approx(0.5e-4 * drive.w_base) and "below w_min" in line
     # the adaptive observer on the salient traction motor holds zero speed on injection: no section
     prius = tmp_path / "prius.toml"
     assert main(["init", str(MOTORS / "prius.toml"), "--out", str(prius)]) == 0
