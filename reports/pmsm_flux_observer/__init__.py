@@ -20,7 +20,6 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
-from sensorless.design.envelope import RANGES
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import read_gain_table
 from sensorless.design.pmsm_flux_observer import FAMILY
@@ -38,6 +37,7 @@ from sensorless.reports.document import (
     num,
     svg_uri,
 )
+from sensorless.reports.envelope_options import NOISE_OPTIONS
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
@@ -160,23 +160,8 @@ TUNE_OPTIONS = (
             "tables are written with a warning and exit status 3",
         },
     ),
-    Option(
-        ("--max-noise",),
-        {
-            "help": "limit the RMS noise of the estimates from the drive's current-sensor noise, e.g. "
-            "position=0.05deg,speed=0.002pu (an angle alone limits the position, a speed the speed)"
-        },
-    ),
-    Option(
-        ("--pareto",),
-        {
-            "type": Number(*RANGES["pareto"], integer=True),
-            "nargs": "?",
-            "const": 8,
-            "metavar": "N",
-            "help": "also compute the damping-versus-noise front at N noise limits (2..100; default 8)",
-        },
-    ),
+    # the shared noise limit and front options, as every family on the shared envelope declares them
+    *(o for o in NOISE_OPTIONS if o.flags[0] in ("--max-noise", "--pareto")),
 )
 
 
