@@ -255,8 +255,16 @@ def headline(ls: LowSpeed) -> str:
         )
     return (
         f"sensorless down to {w / ls.w_base:.3g} p.u. ({ls.rpm(w):.4g} rpm) at rated load, limited by "
-        f"{_CRITERION_TEXT[why](ls)}; below: {todo}"
+        f"{_CRITERION_TEXT[why](ls)}{_basis(ls)}; below: {todo}"
     )
+
+
+def _basis(ls: LowSpeed) -> str:
+    """What the figure leaves out where the angle-bias criterion did not apply: with estimates equal to
+    the motor there is no bias, so a limit found under estimate errors (``tune``'s) may lie higher."""
+    if "bias" in ls.applied:
+        return ""
+    return " (at the drive file's estimates, no estimate errors: the angle bias they cause is not in it)"
 
 
 _CRITERION_TEXT = {
