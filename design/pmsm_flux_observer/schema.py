@@ -40,7 +40,7 @@ from sensorless.design.drive_file import (
 )
 from sensorless.design.motor_data import mtpa_torque, read_motor
 from sensorless.design.plausibility import plausibility, warning_lines
-from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
+from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, PmsmRating
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_flux_observer.observer import CORRECTIONS, INDUCTANCES
 
@@ -62,12 +62,6 @@ ALPHA_S_DIV = 16.0
 PLL_CANCELLED = 0.1  # weight of the PLL's slow root in its speed estimate below which it is ignored
 T_MAX_TN = 2.0
 ENV_SPEEDS = (0.05, 1.0, 12)  # speed_min, speed_max [p.u.], speeds per direction
-
-
-@dataclass(frozen=True)
-class Rating:
-    n_N: float = q("mech_speed", doc="rated mechanical speed [r/min]")
-    T_N: float = q("torque", doc="rated torque [N m]")
 
 
 @dataclass(frozen=True)
@@ -98,7 +92,7 @@ class FluxObserverDrive:
     kind: str
     source: str
     file: str
-    rating: Rating
+    rating: PmsmRating
     motor: PmsmMotor
     estimate: PmsmEstimate
     control: PmsmControl
@@ -339,7 +333,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
     head = d["drive"]
     m = read_motor(d["motor"], file)  # datasheet terms; the drive keeps the shared record
     motor = PmsmMotor(m.p, m.R_s, m.L_d, m.L_q, m.psi_pm, m.J)
-    rating = load_section(Rating, d["rating"], file, "rating", skip=("I_N",))
+    rating = load_section(PmsmRating, d["rating"], file, "rating", skip=("I_N",))
     obs_t = d["observer"]
     adapt = obs_t["lambda_adaptation"]
     if not isinstance(adapt, bool):
