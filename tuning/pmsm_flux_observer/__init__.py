@@ -387,12 +387,41 @@ def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) ->
     cands = [cands[c], *(odrive_candidate(drive, float(k)) for k in np.geomspace(lo, hi, REFINE))]
     cands += [odrive_gains(), *_same_law(drive, "odrive")]
     a = assess(drive, cands, settings)
+    return _outcome(
+        drive,
+        "odrive",
+        lambda g: (
+            f"tuned odrive: observer_gain = {g['observer_gain']:.6g} 1/s, "
+            f"pll_bandwidth = {g['pll_bandwidth']:.6g} rad/s"
+        ),
+        cands,
+        a,
+        w_hold,
+        (base, base_lines),
+        settings,
+        pf,
+    )
+
+
+def _outcome(
+    drive: Any,
+    law: str,
+    header: Any,
+    cands: list[Any],
+    a: Any,
+    w_hold: float,
+    baselines: tuple[Any, list[str]],
+    settings: FluxTuneSettings,
+    pf: Any,
+) -> FluxOutcome:
+    """The best candidate held down to ``w_hold``, its table and summary: ``header`` (gains) -> the
+    summary's first line, in the law's own terms; ``baselines`` the firmware defaults and their lines."""
+    base, base_lines = baselines
     c = best(drive, a, w_hold)
     g = dict(cands[c].values)
     f = figures(drive, a, c)
     lines = [
-        f"tuned odrive: observer_gain = {g['observer_gain']:.6g} 1/s, "
-        f"pll_bandwidth = {g['pll_bandwidth']:.6g} rad/s",
+        header(g),
         _line("tuned", f),
         f"  (hold speed {w_hold / drive.w_base:.3g} p.u.: the better firmware default's low-speed limit)",
         "baselines (the firmwares' defaults on this motor, same criterion):",
@@ -406,7 +435,7 @@ def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) ->
         "bias_max_deg": settings.bias_max_deg,
         **_limits(settings, pf),
     }
-    return FluxOutcome("odrive", _table(drive, "odrive", g, a, c, summary), lines)
+    return FluxOutcome(law, _table(drive, law, g, a, c, summary), lines)
 
 
 def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
@@ -452,28 +481,22 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
     cands = [cands[c], *fine, vesc_gains(drive), *_same_law(drive, "vesc")]
     del slow0
     a = assess(drive, cands, settings)
-    c = best(drive, a, w_hold)
-    g = dict(cands[c].values)
-    f = figures(drive, a, c)
-    lines = [
-        f"tuned vesc: foc_observer_gain = {g['foc_observer_gain']:.6g} "
-        f"({g['foc_observer_gain'] / 1e6:.4g} x1M), "
-        f"foc_observer_gain_slow = {g['foc_observer_gain_slow']:.3g}, foc_pll_kp = {g['foc_pll_kp']:.6g}, "
-        f"foc_pll_ki = {g['foc_pll_ki']:.6g}",
-        _line("tuned", f),
-        f"  (hold speed {w_hold / drive.w_base:.3g} p.u.: the better firmware default's low-speed limit)",
-        "baselines (the firmwares' defaults on this motor, same criterion):",
-        *base_lines,
-    ]
-    summary = {
-        **f,
-        "hold_speed_rad_s": w_hold,
-        "baselines": base,
-        "errors": settings.errors,
-        "bias_max_deg": settings.bias_max_deg,
-        **_limits(settings, pf),
-    }
-    return FluxOutcome("vesc", _table(drive, "vesc", g, a, c, summary), lines)
+    return _outcome(
+        drive,
+        "vesc",
+        lambda g: (
+            f"tuned vesc: foc_observer_gain = {g['foc_observer_gain']:.6g} "
+            f"({g['foc_observer_gain'] / 1e6:.4g} x1M), "
+            f"foc_observer_gain_slow = {g['foc_observer_gain_slow']:.3g}, foc_pll_kp = {g['foc_pll_kp']:.6g}, "
+            f"foc_pll_ki = {g['foc_pll_ki']:.6g}"
+        ),
+        cands,
+        a,
+        w_hold,
+        (base, base_lines),
+        settings,
+        pf,
+    )
 
 
 def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
