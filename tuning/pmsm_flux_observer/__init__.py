@@ -487,8 +487,8 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
         lambda g: (
             f"tuned vesc: foc_observer_gain = {g['foc_observer_gain']:.6g} "
             f"({g['foc_observer_gain'] / 1e6:.4g} x1M), "
-            f"foc_observer_gain_slow = {g['foc_observer_gain_slow']:.3g}, foc_pll_kp = {g['foc_pll_kp']:.6g}, "
-            f"foc_pll_ki = {g['foc_pll_ki']:.6g}"
+            f"foc_observer_gain_slow = {g['foc_observer_gain_slow']:.3g}, "
+            f"foc_pll_kp = {g['foc_pll_kp']:.6g}, foc_pll_ki = {g['foc_pll_ki']:.6g}"
         ),
         cands,
         a,
