@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from sensorless.design.drive_file import DriveDocument, Entry
-from sensorless.design.motor_data import FLUX_TOLERANCE
+from sensorless.design.motor_data import FLUX_TOLERANCE, kv_to_psi
 from sensorless.design.units import DriveFileError
 
 
@@ -142,6 +142,24 @@ def choose_flux(
             else:
                 notes.append(f"{other} ({x * 1e3:.5g} mWb) agrees with the {why}, which is used")
     return psi, rule, notes
+
+
+def kv_candidates(given: Mapping[str, Any], p: int, rule: str) -> list[tuple[str, float | None, bool, str]]:
+    """The flux candidate of a ``--KV`` option (rpm/V, line-line peak: design/motor_data.py kv_to_psi)
+    for :func:`choose_flux`, ``rule`` naming the firmware's own form of the conversion; none without it."""
+    if not given.get("KV"):
+        return []
+    kv = float(given["KV"])
+    return [("--KV", kv_to_psi(kv * 2 * math.pi / 60, p), False, f"{rule}, KV {kv:g}")]
+
+
+def inertia(given: Mapping[str, Any], motor: dict[str, Entry], notes: list[str], what: str) -> None:
+    """``motor.J`` from ``--J`` [kg m2]; else a note that the family's rule derives it (``what``: the file
+    kind, which has no inertia)."""
+    if given.get("J"):
+        motor["J"] = Entry(quantity(float(given["J"]), "kg m^2"), "--J")
+    else:
+        notes.append(f"no inertia in {what}: J derived by the family's rule (give --J in kg m2)")
 
 
 def drive_document(header: list[str], sections: Mapping[str, Mapping[str, Entry]]) -> str:

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from sensorless.design.drive_file import Entry
-from sensorless.design.motor_data import kt_to_psi, kv_to_psi
+from sensorless.design.motor_data import kt_to_psi
 from sensorless.design.pmsm_flux_observer.firmware import (
     Fields,
     FirmwareDrive,
@@ -38,6 +38,8 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     check_limit,
     choose_flux,
     drive_document,
+    inertia,
+    kv_candidates,
     quantity,
     startup_entries,
 )
@@ -127,18 +129,11 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
             f"torque_constant/(1.5 pole_pairs), torque_constant = {kT!r} N m/A",
         ),
     ]
-    if given.get("KV"):
-        kv = float(given["KV"])
-        candidates.append(
-            ("--KV", kv_to_psi(kv * 2 * math.pi / 60, p), False, f"5.51328895422/(pole_pairs KV), KV {kv:g}")
-        )
+    candidates += kv_candidates(given, p, "5.51328895422/(pole_pairs KV)")
     psi, rule, flux_notes = choose_flux(candidates, file, "--KV (rpm/V)")
     motor["psi_pm"] = Entry(quantity(psi, "Wb"), rule)
     notes += flux_notes
-    if given.get("J"):
-        motor["J"] = Entry(quantity(float(given["J"]), "kg m^2"), "--J")
-    else:
-        notes.append("no inertia in an odrivetool backup: J derived by the family's rule (give --J in kg m2)")
+    inertia(given, motor, notes, "an odrivetool backup")
 
     if not given.get("u_dc"):
         raise DriveFileError(file, "(bus voltage)", "an odrivetool backup holds no bus voltage: give --u-dc")

@@ -34,7 +34,6 @@ from pathlib import Path
 from typing import Any
 
 from sensorless.design.drive_file import Entry
-from sensorless.design.motor_data import kv_to_psi
 from sensorless.design.pmsm_flux_observer.firmware import (
     Fields,
     FirmwareDrive,
@@ -43,6 +42,8 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     choose_flux,
     drive_document,
     erpm,
+    inertia,
+    kv_candidates,
     quantity,
     startup_entries,
 )
@@ -147,18 +148,11 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     candidates: list[tuple[str, float | None, bool, str]] = [
         ("foc_motor_flux_linkage", f.number("foc_motor_flux_linkage"), False, flux_rule)
     ]
-    if given.get("KV"):
-        kv = float(given["KV"])
-        candidates.append(
-            ("--KV", kv_to_psi(kv * 2 * math.pi / 60, p), False, f"60/(2 pi sqrt(3) p KV), KV {kv:g}")
-        )
+    candidates += kv_candidates(given, p, "60/(2 pi sqrt(3) p KV)")
     psi, rule, flux_notes = choose_flux(candidates, file, "--KV (rpm/V, line-line peak)")
     motor["psi_pm"] = Entry(quantity(psi, "Wb"), rule)
     notes += flux_notes
-    if given.get("J"):
-        motor["J"] = Entry(quantity(float(given["J"]), "kg m^2"), "--J")
-    else:
-        notes.append("no inertia in a VESC file: J derived by the family's rule (give --J in kg m2)")
+    inertia(given, motor, notes, "a VESC file")
 
     inverter: dict[str, Entry] = {}
     if given.get("u_dc"):
