@@ -13,8 +13,15 @@ import functools
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, Drive, GainSet
-from sensorless.design.low_speed import MAX_BIAS_DEG, QUICK, LowSpeed, headline, minimum_speed
+from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
+from sensorless.design.low_speed import (
+    MAX_BIAS_DEG,
+    QUICK,
+    LowSpeed,
+    headline,
+    minimum_speed,
+    minimum_speed_under,
+)
 from sensorless.design.registry import family_of
 from sensorless.design.startup import ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
@@ -69,7 +76,8 @@ def add_to_report(
     ``quick``: the coarser grid of ``sensorless report --quick``."""
     try:
         grid = QUICK if quick else {}
-        ls = minimum_speed(drive, gains, min_damping=min_damping, max_bias=max_bias, **grid)
+        errors = family_of(drive).estimate_errors(drive)
+        ls = under_errors(drive, gains, errors, min_damping=min_damping, max_bias=max_bias, **grid)
     except CapabilityError:
         return rep
     line = headline(ls)
@@ -92,11 +100,24 @@ def add_to_report(
     return dataclasses.replace(rep, data=data, verdict=verdict, sections=(*rep.sections, sec))
 
 
-def tune_line(drive: Drive, gains: GainSet, min_damping: float) -> str:
-    """The tune summary's line (the tuned gains, the grid of ``report --quick``), or "" where the family
-    has no linearization."""
+def under_errors(drive: Drive, gains: GainSet, errors: EstimateErrors, **kw: Any) -> LowSpeed:
+    """w_min under ``errors`` (design/low_speed.py ``minimum_speed_under``); where the family's analysis
+    takes no estimate errors, at the drive file's estimates, saying so."""
     try:
-        ls = minimum_speed(drive, gains, min_damping=min_damping, max_bias=np.radians(MAX_BIAS_DEG), **QUICK)
-        return headline(ls)
+        return minimum_speed_under(drive, gains, errors, **kw)
+    except CapabilityError:
+        if not errors:
+            raise
+    ls = minimum_speed(drive, gains, **kw)
+    why = f"its family's analysis takes no estimate errors, not the stated {errors.text()}"
+    return dataclasses.replace(ls, errors_source=why)
+
+
+def tune_line(drive: Drive, gains: GainSet, min_damping: float, errors: EstimateErrors) -> str:
+    """The tune summary's line (the tuned gains under the ``errors`` tuned under, the grid of ``report
+    --quick``), or "" where the family has no linearization."""
+    try:
+        kw = {"min_damping": min_damping, "max_bias": np.radians(MAX_BIAS_DEG), **QUICK}
+        return headline(under_errors(drive, gains, errors, **kw))
     except CapabilityError:
         return ""
