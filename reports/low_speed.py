@@ -85,11 +85,18 @@ def add_to_report(
     start = ""
     if ls.w_min_rated > 0 and not fam.holds_zero_speed(drive):
         why = fam.low_speed_reason(drive) or "the observer does not hold zero speed under rated load"
+        on, off = _handover(drive, gains, ls)
         start = (
             f"{why[0].upper() + why[1:]}; a start or a reversal under load passes through the open-loop I-f "
-            f"start, 0 to {ON_FACTOR * ls.w_min_rated / ls.w_base:.3g} p.u. (handover; back below "
-            f"{ls.w_min_rated / ls.w_base:.3g} p.u.: design/startup.py)"
+            f"start, 0 to {on / ls.w_base:.3g} p.u. (handover; back below {off / ls.w_base:.3g} p.u.: "
+            "design/startup.py)"
         )
+        if off < ls.w_min_rated * (1 - 1e-3):  # the start's rules take w_min at the drive's estimates
+            start += (
+                f"; that is below w_min = {ls.w_min_rated / ls.w_base:.3g} p.u. under the estimate errors: "
+                f"give [startup] w_on = {ON_FACTOR * ls.w_min_rated / ls.w_base:.3g} pu and w_off = "
+                f"{ls.w_min_rated / ls.w_base:.3g} pu to hand over only where they allow it"
+            )
     data = {**rep.data, "low_speed": {**ls.data(), "headline": line, "startup": start}}
     if isinstance(data.get("verdict"), dict):
         data["verdict"] = {**data["verdict"], "low_speed": line}
@@ -98,6 +105,21 @@ def add_to_report(
     verdict = dataclasses.replace(rep.verdict, lines=(*lines[:1], *extra, *lines[1:]))
     sec = section(len(rep.sections) + 1, ls, drive, rep.review)
     return dataclasses.replace(rep, data=data, verdict=verdict, sections=(*rep.sections, sec))
+
+
+def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float]:
+    """(w_on, w_off) [rad/s] of the drive's I-f start where its family runs one (its [startup], else
+    the rules from w_min at its estimates: design/pmsm_drive.py), else the rules at ``ls``'s w_min."""
+    if family_of(drive).open_loop_start:
+        from sensorless.design.pmsm_drive import startup_values
+
+        try:
+            values, _, _ = startup_values(drive, gains)  # type: ignore[arg-type]
+        except CapabilityError:
+            values = None
+        if values is not None:
+            return values["if_w_on"], values["if_w_off"]
+    return ON_FACTOR * ls.w_min_rated, ls.w_min_rated
 
 
 def under_errors(drive: Drive, gains: GainSet, errors: EstimateErrors, **kw: Any) -> LowSpeed:

@@ -19,6 +19,7 @@ over four speeds 0.5..2 w_min and needed a tolerance of -25 %/+33 %.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -116,3 +117,27 @@ def test_curve_is_one_batched_grid_and_its_data_is_json_ready():
     # a stricter damping requirement cannot lower the minimum speed
     strict = minimum_speed(drive, family_of(drive).gains(drive), min_damping=0.5)
     assert np.all(strict.w_min >= ls.w_min - 1e-9)
+
+
+def test_tune_states_the_errors_it_tuned_under():
+    """tune's line takes the errors of the run: the family's own where the options leave them (said
+    where they are stated), the options' where they differ; the shared NLP's TuningSettings alike."""
+    from sensorless.reports.low_speed import tune_line
+    from sensorless.tuning.family import estimate_errors, tunable_for
+
+    flux = load_drive("outrunner270")
+    tunable = tunable_for(flux, "odrive")
+    settings = tunable.settings(flux)
+    errors = estimate_errors(flux, tunable, settings)
+    assert errors.source == family_of(flux).estimate_errors(flux).source
+    assert len(errors.cases()) == 9  # the centre and the 8 corners the flux tuner judges
+    line = tune_line(flux, family_of(flux).gains(flux), 0.2, errors)
+    assert f"under estimate errors {errors.text()} ({errors.source}, every corner)" in line
+    narrow = dataclasses.replace(settings, errors={**settings.errors, "R_s": 0.1})
+    assert "R_s +-10 %" in estimate_errors(flux, tunable, narrow).text()
+    assert estimate_errors(flux, tunable, narrow).source != errors.source
+    servo = load_drive(MOTORS / "servo400.toml")
+    shared = tunable_for(servo, "schedule")
+    assert not estimate_errors(servo, shared, shared.settings(servo))  # the file states none
+    stated = dataclasses.replace(shared.settings(servo), errors=(0.3, 0.0, 0.0, 0.0))
+    assert estimate_errors(servo, shared, stated).text() == "R_s +-30 %"
