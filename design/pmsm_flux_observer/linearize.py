@@ -63,6 +63,10 @@ class FluxLinearization(Linearization):
     def notes(self) -> tuple[str, ...]:
         return (f"gain law: {self.law}",)
 
+    def angle_bias(self) -> np.ndarray | None:
+        """(N,) steady angle error of the sampled observer [rad], as its tuner judges it."""
+        return self.theta_err_discrete
+
 
 def steady_motor(w: Any, T_e: Any, m: Any) -> tuple[Any, Any]:
     """(i_r, u_r) of the true motor m = [R_s, L_d, L_q, psi_pm, p] at speed w, torque T_e (MTPA, the

@@ -328,7 +328,8 @@ def compute(
         + (
             f"worst damping {num(mine.get('worst_damping'))}, worst angle bias "
             f"{num(mine.get('worst_bias_deg'))} deg, "
-            f"holds down to {num(mine.get('low_speed_limit_pu'))} p.u.; "
+            f"holds down to {num(mine.get('low_speed_limit_pu'))} p.u. (the lowest envelope speed from which "
+            f"it is stable with an angle bias <= {settings.bias_max_deg:g} deg at every error corner); "
             if linearizable
             else "box clamp (not linearizable); "
         )

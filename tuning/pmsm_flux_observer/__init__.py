@@ -32,8 +32,9 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.batch import evaluate_batch
-from sensorless.design.family import GainSet
+from sensorless.design.family import EstimateErrors, GainSet
 from sensorless.design.gain_table import GainTable
+from sensorless.design.pmsm_flux_observer import ERROR_KEYS, ERRORS  # default estimate errors (+-)
 from sensorless.design.pmsm_flux_observer.gains import TABLE_LAWS, VESC_U_REF, constant_law, runtime_params
 from sensorless.design.pmsm_flux_observer.linearize import (
     current_noise,
@@ -55,7 +56,6 @@ REFINE = 9  # candidates between the best grid point's neighbours
 K_MIN = 20.0  # [1/s] smallest candidate
 K_T_MAX = 1.9  # T k at most (the Euler bound is 2)
 SLOW_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0)  # foc_observer_gain_slow candidates
-ERRORS = {"R_s": 0.3, "psi_pm": 0.1, "L": 0.2}  # default estimate errors (+-)
 BIAS_MAX_DEG = 15.0
 NOISE_INDEX = {"position": 0, "speed": 1}  # --max-noise outputs: the PLL's angle and speed
 VESC_DEFAULT = {"foc_observer_gain_slow": 0.05, "foc_pll_kp": 2000.0, "foc_pll_ki": 30000.0}
@@ -317,11 +317,18 @@ def drive_gains_or_none(drive: Any) -> GainSet | None:
     return drive_gains(drive)
 
 
-def _line(label: str, f: dict[str, float]) -> str:
+def _line(label: str, f: dict[str, float], settings: FluxTuneSettings | None = None) -> str:
+    """One summary line; with ``settings``, what "holds" means (the shared minimum-speed line printed
+    after it judges other limits: design/low_speed.py)."""
     lim = f["low_speed_limit_pu"]
     if not math.isfinite(lim):
         return f"  {label:<16} loses the motor at every envelope speed (unstable or biased beyond the limit)"
     held = f"holds down to {lim:.3g} p.u."
+    if settings is not None:
+        held += (
+            f" (the lowest envelope speed from which it is stable with an angle bias <= "
+            f"{settings.bias_max_deg:g} deg at every error corner)"
+        )
     return (
         f"  {label:<16} worst damping {f['worst_damping']:.3f}, worst angle bias "
         f"{f['worst_bias_deg']:.2f} deg{_noise(f)}; {held}"
@@ -422,7 +429,7 @@ def _outcome(
     f = figures(drive, a, c)
     lines = [
         header(g),
-        _line("tuned", f),
+        _line("tuned", f, settings),
         f"  (hold speed {w_hold / drive.w_base:.3g} p.u.: the better firmware default's low-speed limit)",
         "baselines (the firmwares' defaults on this motor, same criterion):",
         *base_lines,
@@ -530,7 +537,7 @@ def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) 
         "tuned flux_schedule: observer_gain over |speed| "
         + ", ".join(f"{s / drive.w_base:.3g} pu: {k:.4g}" for s, k in zip(speeds, chosen, strict=True))
         + f"; pll_bandwidth = {bw:.6g} rad/s",
-        _line("tuned", f),
+        _line("tuned", f, settings),
         "baselines (the firmwares' defaults on this motor, same criterion):",
         *base_lines,
     ]
@@ -602,4 +609,5 @@ HOOKS = TuningHooks(
         ),
     ),
     own_default=own_law,
+    estimate_errors=lambda drive, settings: EstimateErrors(dict(settings.errors), ERROR_KEYS),
 )
