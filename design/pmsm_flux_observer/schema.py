@@ -290,9 +290,11 @@ def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
     """-(the PLL's slowest pole seen in its speed estimate) [1/s] of a [gains] section: bw (odrive,
     flux_schedule) or the slow root of s^2 + k_p s + k_i (vesc; k_p/2 where the roots are complex).
 
-    The speed estimate follows the speed by (k_p s + k_i)/((s + p_1)(s + p_2)): in its step response the
+    d theta_pll/dt follows the speed by (k_p s + k_i)/((s + p_1)(s + p_2)): in its step response the
     slow root p_1 has the weight p_1/(p_2 - p_1) (the PI's zero k_i/k_p nearly cancels it). Below
-    PLL_CANCELLED (VESC's defaults 2000/30000: 0.8 %) the speed loop sees the fast root p_2."""
+    PLL_CANCELLED (VESC's defaults 2000/30000: 0.8 %) the rule takes the fast root p_2. The runtime's
+    speed output is the integrator w_pll, k_i/((s + p_1)(s + p_2)), which shows p_1 in full: the report
+    says so where p_1 is below a tenth of alpha_s (reports/pmsm_flux_observer/findings.py)."""
     from sensorless.design.pmsm_flux_observer.gains import parse_law
 
     t = {k: e.value for k, e in gains.items()}

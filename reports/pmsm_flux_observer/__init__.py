@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import read_gain_table
+from sensorless.design.low_speed import DECAY_SHARE
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
@@ -40,6 +41,7 @@ from sensorless.reports.document import (
 from sensorless.reports.envelope_options import NOISE_OPTIONS
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
+from sensorless.reports.pmsm_flux_observer.findings import damping_finding, holds_nowhere_finding, pll_finding
 from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
 from sensorless.reports.review import (
     gains_under_review,
@@ -305,15 +307,19 @@ def compute(
         mine.get("worst_damping") is not None and mine["worst_damping"] >= min_damping
     )
     stable = not linearizable or mine.get("low_speed_limit_pu") is not None
-    status, td_findings = settle("fail" if not stable else "pass" if damped and tracks else "warn", td)
+    pll = pll_finding(rev.gains, DECAY_SHARE * drive.control.alpha_s, td)
+    status = "fail" if not stable else "pass" if damped and tracks and not pll else "warn"
+    status, td_findings = settle(status, td)
     findings = []
     if linearizable and not stable:
-        findings.append("the gains under review hold at no envelope speed under the estimate errors")
+        findings.append(holds_nowhere_finding(drive, rev.gains, settings))
     if not damped:
-        findings.append(f"worst damping {num(mine.get('worst_damping'))} < required {min_damping:g}")
+        findings.append(damping_finding(drive, a, labels.index(review), min_damping, rev.gains.law))
     if not tracks:
         findings.append(f"a time-domain check exceeds {MAX_RMS_THETA_DEG:g} deg RMS position error")
     findings += [x["text"] for x in td_findings]
+    if pll:
+        findings.append(pll)
     data = {
         **opening(FAMILY, drive, table, min_damping, review),
         "observer_period_s": f(drive.observer.T_obs),
