@@ -22,7 +22,6 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import read_gain_table
-from sensorless.design.low_speed import DECAY_SHARE
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
@@ -53,7 +52,7 @@ from sensorless.reports.review import (
 )
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
-    assess,
+    assess_any,
     corners,
     figures,
     hold_speed,
@@ -224,7 +223,7 @@ def compute(
     if linearizable:
         progress("[1/3] the gains judged over the envelope under the estimate errors")
         labels = list(rev.choices)
-        a = assess(drive, [rev.choices[k] for k in labels], settings)
+        a = assess_any(drive, [rev.choices[k] for k in labels], settings)
         base = {
             k: figures(drive, a, j)
             for j, k in enumerate(labels)
@@ -307,7 +306,7 @@ def compute(
         mine.get("worst_damping") is not None and mine["worst_damping"] >= min_damping
     )
     stable = not linearizable or mine.get("low_speed_limit_pu") is not None
-    pll = pll_finding(rev.gains, DECAY_SHARE * drive.control.alpha_s, td)
+    pll = pll_finding(rev.gains, drive.control.alpha_s, td)
     status = "fail" if not stable else "pass" if damped and tracks and not pll else "warn"
     status, td_findings = settle(status, td)
     findings = []

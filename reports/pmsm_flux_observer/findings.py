@@ -7,7 +7,7 @@ design's own numbers, and what to do.
   speed-estimation error, while the angle the drive commutates on (the observer's) is not delayed;
 - the estimate errors: which one alone already loses the motor at every envelope speed (the gradient
   observer's angle error under a flux error grows with k/|w|, Lee et al. 2010's circle |eta| = lambda);
-- the damping: where it is worst (the gradient observer's k/(2|w|) falls as the speed rises).
+- the damping: where it is worst (the gradient observer's k/(2|w|): low where k is small for the speed).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF, base_gain, pll_gains
+from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 from sensorless.tuning.pmsm_flux_observer import Assessment, FluxTuneSettings, assess, low_limit
 
 
@@ -30,8 +31,10 @@ def pll_roots(gains: GainSet) -> tuple[complex, complex]:
     return complex(r[0]), complex(r[1])
 
 
-def pll_finding(gains: GainSet, min_decay: float, td: list[dict[str, Any]]) -> str:
-    """Empty where the PLL's speed estimate settles at ``min_decay`` [1/s] or faster; else why, what to do."""
+def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str:
+    """Empty where the PLL's speed estimate settles at PLL_SPEED_LOOP x the speed loop's bandwidth
+    ``alpha_s`` [rad/s] or faster; else why, and what to do."""
+    min_decay = PLL_SPEED_LOOP * alpha_s
     slow, fast = pll_roots(gains)
     sigma = -slow.real
     if sigma >= min_decay:
@@ -39,19 +42,25 @@ def pll_finding(gains: GainSet, min_decay: float, td: list[dict[str, Any]]) -> s
     k_p, k_i = pll_gains(gains)
     if gains.law == "vesc":
         names = f"foc_pll_kp = {k_p:.6g} 1/s, foc_pll_ki = {k_i:.6g} 1/s^2"
+        kp = max(k_p, 2 * min_decay)  # a double root at -kp/2, at least min_decay
         todo = (
-            f"foc_pll_ki = foc_pll_kp^2/4 = {k_p**2 / 4:.4g} 1/s^2 (a double root at {-k_p / 2:.4g} 1/s), "
-            "or sensorless tune --law vesc"
+            f"foc_pll_kp = {kp:.6g} 1/s, foc_pll_ki = foc_pll_kp^2/4 = {kp**2 / 4:.4g} 1/s^2 (a double root "
+            f"at {-kp / 2:.4g} 1/s), a slower speed loop ([control] alpha_s at most "
+            f"{sigma / PLL_SPEED_LOOP:.4g} rad/s), or sensorless tune --law vesc"
         )
     else:
         names = f"pll_bandwidth = {k_p / 2:.6g} rad/s"
-        todo = f"pll_bandwidth of at least {min_decay:.4g} rad/s, or sensorless tune"
+        todo = (
+            f"pll_bandwidth of at least {min_decay:.4g} rad/s, a slower speed loop ([control] alpha_s at "
+            f"most {sigma / PLL_SPEED_LOOP:.4g} rad/s), or sensorless tune"
+        )
     checks = [c["name"] for c in td if any("speed-estimation" in x for x in c["failed"])]
     seen = f"; the final speed-estimation error of {', '.join(checks)} is that lag" if checks else ""
     return (
         f"the PLL's speed estimate (its integrator) settles at {sigma:.3g} 1/s at every speed ({names}: "
         f"roots {slow.real:.4g} and {fast.real:.4g} 1/s of s^2 + k_p s + k_i), slower than the "
-        f"{min_decay:.4g} 1/s a tenth of the speed loop's bandwidth asks; a speed ramp of a rad/s^2 leaves "
+        f"{min_decay:.4g} 1/s the speed loop closing on it asks ({PLL_SPEED_LOOP:g} x its bandwidth, the "
+        "rule of [control] alpha_s); a speed ramp of a rad/s^2 leaves "
         f"it {k_p / k_i * 1e3:.3g} ms x a behind, caught up {3 / sigma * 1e3:.3g} ms (3 time constants) "
         f"after the ramp{seen}; the angle the drive commutates on is the "
         f"observer's, not delayed by it; to do: {todo}"
@@ -107,7 +116,8 @@ def damping_finding(drive: Any, a: Assessment, c: int, min_damping: float, law: 
         )
     return (
         f"worst damping {a.damping[c, j]:.4g} < required {min_damping:g} at {W[j] / drive.w_base:+.3g} p.u., "
-        f"T_e = {T[j]:.4g} N m (under the estimate errors): the flux observer's damping k/(2|w|) falls as "
-        "the speed rises; a larger gain raises it, and the angle bias under a resistance error with it "
+        f"T_e = {T[j]:.4g} N m (under the estimate errors): the flux observer's damping is k/(2|w|), low "
+        "where the gain is small for the speed (at the top speed with a constant gain); a larger gain there "
+        "raises it, and the angle bias under a resistance error with it "
         f"(sensorless tune --law {law} trades them; --min-damping states what the drive needs)"
     )

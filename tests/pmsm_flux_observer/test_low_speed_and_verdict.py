@@ -19,6 +19,7 @@ from sensorless.design.poles import MIN_DAMPING
 from sensorless.design.scenario import load_scenario
 from sensorless.design.simulate import simulate
 from sensorless.reports.pmsm_flux_observer import compute
+from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings
 
 FAST_PLL = 'foc_pll_ki = "1000000 1/s2"'  # foc_pll_kp^2/4: a double root at -1000 1/s
 
@@ -56,7 +57,8 @@ def test_the_final_speed_error_is_the_lag_of_vescs_default_pll(hub):
 def test_the_verdict_names_the_pll_root_and_the_fix_that_passes(hub):
     rep = compute(hub, resolution="quick")
     text = " ".join(rep.data["verdict"]["findings"])
-    assert "roots -15.11 and -1985 1/s" in text and "foc_pll_ki = foc_pll_kp^2/4 = 1e+06 1/s^2" in text
+    assert "roots -15.11 and -1985 1/s" in text
+    assert "foc_pll_kp = 2000 1/s, foc_pll_ki = foc_pll_kp^2/4 = 1e+06 1/s^2" in text
     assert "R_s +-30 %" in text or "psi_pm +-10 %" in text  # which error loses it, not only that
     fast = load_drive_text(hub_text().replace('foc_pll_ki = "30000 1/s2"', FAST_PLL), "fast.toml")
     fixed = compute(fast, resolution="quick")
@@ -109,3 +111,25 @@ def test_a_box_clamp_drive_without_a_start_stays_above_zero_speed_and_says_why(t
     drive = load_drive_text(text.replace('name = "hubmotor48"', 'name = "box"'), "box.toml")
     why = FAMILY.scales(drive).zero_speed
     assert "no linearization" in why and "[startup]" in why
+
+
+@pytest.mark.parametrize("law", ["odrive", "vesc", "flux_schedule"])
+def test_each_tuned_pll_is_four_times_the_speed_loop_and_its_table_reports(hub, law):
+    """The speed loop closes on the PLL's speed: every law's tuned PLL roots lie at 4 alpha_s or
+    beyond (roots of s^2 + k_p s + k_i from the table's own numbers), and the report reads the table
+    (a flux_schedule table among the firmware defaults included) without a PLL finding."""
+    from sensorless.tuning.pmsm_flux_observer import tune_odrive, tune_schedule, tune_vesc
+
+    tuner = {"odrive": tune_odrive, "vesc": tune_vesc, "flux_schedule": tune_schedule}[law]
+    table = tuner(hub, FluxTuneSettings()).table
+    g = table.gains
+    k_p, k_i = (
+        (g["foc_pll_kp"], g["foc_pll_ki"])
+        if law == "vesc"
+        else (2 * g["pll_bandwidth"], g["pll_bandwidth"] ** 2)
+    )
+    slowest = -max(np.roots([1.0, k_p, k_i]).real)
+    assert slowest >= 4 * hub.control.alpha_s * (1 - 1e-9)
+    rep = compute(hub, table=table, table_file="t.json", resolution="quick")
+    assert not any("PLL" in x for x in rep.data["verdict"]["findings"])
+    assert all(abs(c["metrics"]["final_speed_err_pu"]) < 0.02 for c in rep.data["time_domain"])

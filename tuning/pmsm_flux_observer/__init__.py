@@ -18,7 +18,9 @@ So the tuned gains lose the motor at no higher speed than the better firmware de
 best damped of those. (Damping grows with the gain, k/(2|w|), and the resistance bias with it too,
 k dR i_q/(lambda w^2): the hold speed is where the trade between them is set.)
 Limits: T gamma lambda^2 < 2 is in the poles (the Euler bound), T k_p <= KP_T (ODrive refuses T k_p >=
-1). The PLL: k_p = 2 bw, k_i = bw^2 with bw = min(k, KP_T / (2 T)): a double pole at -bw, twice the
+1). The PLL: k_p = 2 bw, k_i = bw^2 with bw = min(max(k, PLL_SPEED_LOOP alpha_s), KP_T / (2 T)) (the
+drive's speed loop closes on the PLL's speed: its root at least that multiple of the loop's bandwidth,
+the drive file's rule for alpha_s): a double pole at -bw, twice the
 observer's decay rate k/2, within the limit (the PLL does not feed back into the observer).
 ``flux_schedule`` picks the gain per speed by the same criterion at that speed alone.
 """
@@ -42,6 +44,7 @@ from sensorless.design.pmsm_flux_observer.linearize import (
     motor_vector,
     sampled_loop,
 )
+from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 from sensorless.design.poles import MIN_DAMPING, worst_damping
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 from sensorless.tuning.family import Tunable, TuningHooks
@@ -273,8 +276,13 @@ def hold_speed(drive: Any, settings: FluxTuneSettings, base: dict[str, Any]) -> 
 
 def odrive_candidate(drive: Any, k: float) -> GainSet:
     T = drive.observer.T_obs
-    bw = min(k, KP_T / (2 * T))
+    bw = min(max(k, pll_floor(drive)), KP_T / (2 * T))
     return GainSet("odrive", {"observer_gain": k, "pll_bandwidth": bw}, "candidate")
+
+
+def pll_floor(drive: Any) -> float:
+    """The slowest PLL root [1/s] the drive's speed loop allows: PLL_SPEED_LOOP x its bandwidth."""
+    return PLL_SPEED_LOOP * float(drive.control.alpha_s)
 
 
 def k_grid(drive: Any) -> np.ndarray:
@@ -449,7 +457,7 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
     for slow in SLOW_GRID:
         for k in np.geomspace(K_MIN, K_T_MAX / T, 16):
             raw = k / (4 * psi**2 * max(slow, top))  # k at the top speed
-            kp = min(2 * k / 2, KP_T / T)
+            kp = min(max(k, 2 * pll_floor(drive)), KP_T / T)  # a double root at -k_p/2
             cands.append(
                 GainSet(
                     "vesc",
@@ -520,7 +528,7 @@ def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) 
         chosen.append(float(ks[min(score)[2]]))
     T = drive.observer.T_obs
     # one PLL at every speed: its double pole at the geometric mean of the scheduled gains
-    bw = min(float(np.exp(np.mean(np.log(chosen)))), KP_T / (2 * T))
+    bw = min(max(float(np.exp(np.mean(np.log(chosen)))), pll_floor(drive)), KP_T / (2 * T))
     g = {"speeds": [float(s) for s in speeds], "observer_gain": chosen, "pll_bandwidth": bw}
     gs = GainSet("flux_schedule", g, "tuned")
     a_s = assess_linearized(drive, gs, settings)  # the schedule itself, its law's derivative included
@@ -567,6 +575,32 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
     holds = np.array([[good[np.abs(W) == sp].all() for sp in speeds]])
     worst = np.where(stable.all(axis=0), zeta.min(axis=0), -1.0)
     return Assessment(worst[None], bias.max(axis=0)[None], holds, poles[None])
+
+
+def assess_any(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
+    """:func:`assess` of gain sets of any law: the scheduled ones (flux_schedule) through
+    :func:`assess_linearized` (no noise figure), the others in one batch; in the order given."""
+    sched = [j for j, g in enumerate(cands) if g.law == "flux_schedule"]
+    if not sched:
+        return assess(drive, cands, settings)
+    rest = [j for j in range(len(cands)) if j not in sched]
+    parts = {j: assess_linearized(drive, cands[j], settings) for j in sched}
+    if rest:
+        a = assess(drive, [cands[j] for j in rest], settings)
+        for i, j in enumerate(rest):
+            noise = None if a.noise is None else a.noise[i : i + 1]
+            parts[j] = Assessment(
+                a.damping[i : i + 1], a.bias[i : i + 1], a.holds[i : i + 1], a.poles[i : i + 1], noise
+            )
+    rows = [parts[j] for j in range(len(cands))]
+    nan = np.full((*rows[0].damping.shape, 2), np.nan)
+    return Assessment(
+        np.concatenate([r.damping for r in rows]),
+        np.concatenate([r.bias for r in rows]),
+        np.concatenate([r.holds for r in rows]),
+        np.concatenate([r.poles for r in rows]),
+        np.concatenate([r.noise if r.noise is not None else nan for r in rows]),
+    )
 
 
 def own_law(drive: Any) -> str | None:
