@@ -37,6 +37,12 @@ def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) 
             for c in range(len(ks))
         ]
         chosen.append(float(ks[min(score)[2]]))
+    # below the lowest speed where a gain holds, every candidate ties at "no equilibrium under some
+    # error" and the first (K_MIN) would win: an observer slowest where it needs speed most; the
+    # schedule is held at the lowest holding speed's gain instead (as the law holds it beyond its ends)
+    held = np.flatnonzero(a.holds.any(axis=0))
+    if held.size:
+        chosen = [chosen[held[0]] if j < held[0] else k for j, k in enumerate(chosen)]
     T = drive.observer.T_obs
     # one PLL at every speed: its double pole at the geometric mean of the scheduled gains
     bw = min(max(float(np.exp(np.mean(np.log(chosen)))), pll_floor(drive)), KP_T / (2 * T))
