@@ -102,9 +102,28 @@ class FluxObserverFamily(ObserverFamily):
         return dataclasses.replace(drive, estimate=dataclasses.replace(e, **new))
 
     def scales(self, drive: Any) -> DriveScales:
+        """Its drives are taken through zero speed by the open-loop I-f start below w_min
+        (``open_loop_start``), so the generic checks run a start, a reversal and speed steps through
+        zero (``zero_speed`` left empty; why the observer needs the start: :meth:`low_speed_reason`).
+        Not the box clamp without a complete ``[startup]``: it has no linearization, so no w_min for
+        the start's rules (design/pmsm_drive.py ``startup_values``)."""
         c = drive.control
-        why = "the flux observer loses the angle at standstill (Henwood, Malaize, Praly 2012)"
+        why = ""
+        start = getattr(drive, "startup", None)
+        if drive.observer.correction == "box-clamp" and (start is None or start.needs_w_min):
+            why = (
+                "The box-clamp observer (MXLEMMING) has no linearization, so no minimum sensorless speed "
+                "to derive the open-loop I-f start from: give [startup] current, acceleration, w_on and "
+                "w_off (e.g. the firmware's open-loop ERPM) to check a start and a reversal."
+            )
         return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s, why)
+
+    def low_speed_reason(self, drive: Any) -> str:
+        """The observer sees the rotor only through the back-EMF it integrates."""
+        return (
+            "a back-EMF (flux) observer: the rotor position is unobservable at zero frequency, where the "
+            "back-EMF vanishes (Henwood, Malaize, Praly 2012)"
+        )
 
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation(drive, scenario, gains)
