@@ -138,6 +138,8 @@ def compute(
                 "rhp_bands_pu": bands(g_rev, T, s, True),
                 "worst": _worst_point(s, w_env, wb),
             }
+        # the fastest growth with the injection (its RHP band, if any, is named in the verdict)
+        growth = max(float(np.nanmax(np.real(x.poles))) for x in inj_sweeps.values())
         inj_title = f"{drive.name}: {review} with HF injection (averaged (19)-(22))"
         inj_block: Any = Figure(
             svg_later(functools.partial(plot_pole_maps, inj_sweeps, wb, inj_title, inj_lows)),
@@ -145,6 +147,7 @@ def compute(
             "|ω| < ω_Δ: compare the right-half-plane bands with and without it in the table above.",
         )
     else:
+        growth = float("nan")
         progress(f"[2/{steps}] no HF injection: {injection_off(drive)}")
         inj_block = Paragraph(
             f"No pole maps with HF injection: {injection_off(drive)}. Without it, a right-half-plane band "
@@ -214,7 +217,7 @@ def compute(
     data["tuning"] = tuning_data
     limits = time_domain.limitations(drive)  # what the generic checks leave out, said in the verdict
     w1 = coupling_limit(drive.motor, T_N) / wb  # where the HF correction turns sign, regenerating
-    data["verdict"] = {**verdict(data, review, min_damping, w1), "limitations": limits}
+    data["verdict"] = {**verdict(data, review, min_damping, (w1, growth)), "limitations": limits}
     sections = (
         drive_section(1, data["drive"], FAMILY.bases(drive)),
         Section("2. Pole maps over speed", (_pole_table(pm), *pole_figs, inj_block)),
@@ -295,12 +298,15 @@ def _robustness_table(rob: dict[str, Any]) -> Table:
 
 
 def verdict(
-    data: dict[str, Any], label: str, min_damping: float, coupling_pu: float = float("inf")
+    data: dict[str, Any],
+    label: str,
+    min_damping: float,
+    coupling: tuple[float, float] = (float("inf"), float("nan")),
 ) -> dict[str, Any]:
     """Where the reviewed gains are stable with the required damping, where not, and why;
-    ``coupling_pu``: the speed below which the HF correction holds regenerating at T_N with zero gain
-    (design/ipmsm_adaptive/carrier.py ``coupling_limit``), named where the injection's RHP band is
-    regenerating only."""
+    ``coupling``: the speed [p.u.] below which the HF correction holds regenerating at T_N with zero
+    gain (design/ipmsm_adaptive/carrier.py ``coupling_limit``) and the fastest growth [1/s] with the
+    injection, named where the injection's RHP band is regenerating only."""
     plane = data["plane"]
     m = plane["maps"][label]
     w_pu = np.array(plane["w_pu"], float)
@@ -344,8 +350,9 @@ def verdict(
             b = max(abs(b) for bands in rhp_inj.values() for band in bands for b in band)
             reasons.append(
                 f"HF-injection coupling limit: regenerating at ±T_N the injection leaves a real RHP pole for "
-                f"{a:.3g} ≤ |ω| ≤ {b:.3g} p.u., where the observer's answer to the HF correction (20) turns "
-                f"sign (below (R̂s + λ1) ψ_d / (L_d L_q |i_q|) = {coupling_pu:.3g} p.u. at T_N with λ1 = 0: "
+                f"{a:.3g} ≤ |ω| ≤ {b:.3g} p.u. (growth up to {coupling[1]:.2g} 1/s), where the observer's "
+                "answer to the HF correction (20) turns sign (below (R̂s + λ1) ψ_d / (L_d L_q |i_q|) = "
+                f"{coupling[0]:.3g} p.u. at T_N with λ1 = 0: "
                 "design/ipmsm_adaptive/carrier.py); zero-speed crossings pass it in a transient (the "
                 "time-domain checks), but do not hold a regenerating speed in that band under load."
             )

@@ -103,3 +103,30 @@ def test_the_hf_correction_turns_sign_regenerating_at_the_coupling_limit(tmp_pat
 def test_the_papers_motor_has_its_coupling_limit_beyond_the_fade_out():
     d = load_drive("piippo2008")
     assert coupling_limit(d.motor, 1.5 * 14.0) > 1.5 * d.injection.w_Delta
+
+
+def _verdict_data(inj_bands: dict[str, list[list[float]]]) -> dict:
+    bands = {"+300": [[0.0, 0.03]], "-300": [[-0.03, 0.0]]}
+    return {
+        "plane": {
+            "w_pu": [0.5, 1.0],
+            "T_Nm": [-300.0, 300.0],
+            "maps": {"g": {"damping": [[0.5, 0.5], [0.5, 0.5]]}},
+        },
+        "pole_maps": {
+            "g": {k: {"rhp_bands_pu": v} for k, v in bands.items()},
+            "g + injection": {k: {"rhp_bands_pu": v} for k, v in inj_bands.items()},
+        },
+    }
+
+
+def test_the_verdict_names_the_coupling_limit_where_the_injections_band_is_regenerating():
+    from sensorless.reports.ipmsm_adaptive.report import verdict
+
+    regen = {"+300": [[-0.13, -0.004]], "-300": [[0.004, 0.13]]}
+    v = verdict(_verdict_data(regen), "g", 0.2, (0.0122, 23.0))
+    assert len(v["reasons"]) == 1 and v["reasons"][0].startswith("HF-injection coupling limit")
+    assert "0.004 ≤ |ω| ≤ 0.13 p.u." in v["reasons"][0] and "0.0122 p.u." in v["reasons"][0]
+    motoring = {"+300": [[0.01, 0.02]], "-300": []}  # not this mechanism: the plain statement
+    v = verdict(_verdict_data(motoring), "g", 0.2, (0.0122, 23.0))
+    assert v["reasons"] == ["RHP pole below 0.03 p.u. remains even with the injection."]
