@@ -390,7 +390,8 @@ def _coupling(m: Any, T_N: float, w_N: float, on: bool) -> str:
     return (
         f"; regenerating at T_N the HF correction (20) holds only below (R_s psi_d)/(L_d L_q i_q) = "
         f"{w1:.3g} p.u. (carrier.py coupling_limit): crossing zero passes {w1:.3g}-{W_DELTA_PU:g} p.u. "
-        "in a transient, but a regenerating speed held there under load loses the rotor"
+        "in a transient, but a regenerating speed held there under load drifts off (its growth rate: "
+        "`sensorless report`)"
     )
 
 
