@@ -24,6 +24,20 @@ bandwidth alpha_i. The rules (constants below) of :func:`carrier`:
   current u_c/(w_c L_d) at most CURRENT_SHARE (10 %) of the base current (torque ripple and losses).
   Where the amplitude needed exceeds a limit, the motor's saliency is too small for the sensor to see:
   injection off, with a warning that says by how much and what would help.
+
+The carrier's error signal corrects the observer through the rotation omega_eps of its flux estimate
+(20). How the adaptive observer answers that rotation sets the sign of the correction's integral
+loop (21): at equilibrium (exact estimates, i_tilde_q = 0 by the adaptation (9)) a rotation shifts the
+angle by -N / (w_m D) with N = (R_s + lambda1) psi_d + (w_m L_d + lambda2) L_q i_q, psi_d = psi_pm
++ L_d i_d. Regenerating (w_m i_q < 0), N changes sign at the speed of :func:`coupling_limit`,
+
+    |w_1| = (R_s + lambda1) psi_d / ((L_d + lambda2/w_m) L_q |i_q|),
+
+and between |w_1| and w_Delta the averaged loop with the injection has a real pole in the right half
+plane (the linearization's crossing equals w_1: tests/ipmsm_adaptive/test_carrier.py). The paper's
+motor has |w_1| = 0.38 p.u. at T_N, beyond its w_Delta = 0.13 p.u.; a motor of small R_s and strong
+reluctance torque (small psi_d under load, large L_d L_q i_q) has it far below: zero-speed crossings
+pass the band in a transient, but holding a regenerating speed inside it under load loses the rotor.
 """
 
 from __future__ import annotations
@@ -104,3 +118,16 @@ def carrier(
         f"(i_qc = u_c/w_c (L_q - L_d)/(2 L_d L_q) sin 2 theta); {lim_text}"
     )
     return Carrier(f_c, needed, needed, limit, rule_f, rule_u)
+
+
+def coupling_limit(m: PmsmMotor, T: float, lambda1: float = 0.0, lambda2_per_w: float = 0.0) -> float:
+    """|w_1| [rad/s, electrical]: regenerating at the torque ``T`` [N m] (MTPA current), the HF correction
+    (20)-(21) holds the angle only below this speed (module docstring); ``lambda1`` [ohm] and
+    ``lambda2_per_w`` = lambda2/w_m [H] are the observer gain (7) near zero speed (law (16): both 0 at
+    zero speed). ``inf`` where N keeps its sign at every speed, 0 where it is wrong from zero speed on."""
+    i_d, i_q = mtpa_torque_current(T, m)
+    rho_psi = (m.R_s + lambda1) * (m.psi_pm + m.L_d * i_d)
+    den = (m.L_d + lambda2_per_w) * m.L_q * abs(i_q)
+    if den <= 0:
+        return math.inf if rho_psi > 0 else 0.0
+    return max(rho_psi / den, 0.0)

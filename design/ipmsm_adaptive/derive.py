@@ -27,7 +27,11 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
   from the saliency, the sensor's noise and resolution, the inverter's voltage margin and the sampling
   rate (carrier.py: 32 V on the paper's motor, which uses 40 V), alpha_i = f_s/1000 (5 Hz), w_Delta
   = 0.13 p.u.; off (u_c = 0 V, with a warning where the sensor is the reason) otherwise.
-- ``[runtime]`` and ``[tuning]``: the documented defaults (schema.RUNTIME_DEFAULTS, design/envelope.py).
+- ``[tuning]``: torques -T_max, -T_N, 0, T_N, T_max (the torques the drive applies: gains tuned at
+  +-T_N only were unstable just beyond it); the rest the documented defaults (design/envelope.py).
+- ``[runtime]``: the documented defaults (schema.RUNTIME_DEFAULTS).
+- ``w_Delta``'s rule names the HF correction's coupling limit where it lies inside the band
+  (carrier.py ``coupling_limit``).
 """
 
 from __future__ import annotations
@@ -49,7 +53,7 @@ from sensorless.design.drive_file import (
     table,
     toml_value,
 )
-from sensorless.design.ipmsm_adaptive.carrier import CARRIER_FS, carrier
+from sensorless.design.ipmsm_adaptive.carrier import CARRIER_FS, carrier, coupling_limit
 from sensorless.design.ipmsm_adaptive.schema import (
     I_NOISE_DEFAULT,
     RUNTIME_DEFAULTS,
@@ -91,7 +95,7 @@ TUNING_DEFAULTS: dict[str, Any] = {
     "speed_max": "1 pu",
     "speeds": 20,
     "directions": "both",
-    "torques": ["-1 T_N", "0 T_N", "1 T_N"],
+    "torques": ["-1 T_N", "0 T_N", "1 T_N"],  # widened to +-T_max by tuning_torques()
     "dense_factor": 4,
     "min_decay": "0 1/s",
     "breakpoints": 11,
@@ -327,7 +331,10 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             f"{g6(ALPHA_I_FO * ALPHA_FO_FS * f_s)} Hz",
             "f_s/1000 (Piippo et al.: 5 Hz at 5 kHz), eq. (22)",
         ),
-        "w_Delta": (f"{W_DELTA_PU:g} pu", "Piippo et al.: fades out at 0.13 p.u."),
+        "w_Delta": (
+            f"{W_DELTA_PU:g} pu",
+            "Piippo et al.: fades out at 0.13 p.u." + _coupling(m, T_N, w_N, on),
+        ),
     }
     for k, (v, rule) in derived_inj.items():
         sec[k] = Entry(inj_t[k], given=True) if k in inj_t else Entry(v, rule)
@@ -354,8 +361,10 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     tu_t = r.table("tuning")
     sec = doc.section("tuning", "envelope and constraints of `sensorless tune` (design/envelope.py)")
     if tu_t is None:
+        T_max = r.value("control", "T_max", "torque") if "T_max" in ctl_t else T_MAX_TN * T_N
         for k, v in TUNING_DEFAULTS.items():
             sec[k] = Entry(v, "default")
+        sec["torques"] = Entry(tuning_torques(T_max / T_N), TORQUES_RULE)
     else:
         sec.update({k: Entry(v, given=True) for k, v in tu_t.items()})
     doc.context["motor"] = m
@@ -370,6 +379,34 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     }
     doc.context["given"] = {"I_N": "I_N" in rating_t and "T_N" in rating_t, "f_N": "f_N" in rating_t}
     return doc
+
+
+def _coupling(m: Any, T_N: float, w_N: float, on: bool) -> str:
+    """The w_Delta rule's note where the HF correction turns sign regenerating at T_N inside the band
+    (carrier.py ``coupling_limit``)."""
+    w1 = coupling_limit(m, T_N) / w_N
+    if not on or w1 >= W_DELTA_PU:
+        return ""
+    return (
+        f"; regenerating at T_N the HF correction (20) holds only below (R_s psi_d)/(L_d L_q i_q) = "
+        f"{w1:.3g} p.u. (carrier.py coupling_limit): crossing zero passes {w1:.3g}-{W_DELTA_PU:g} p.u. "
+        "in a transient, but a regenerating speed held there under load drifts off (its growth rate: "
+        "`sensorless report`)"
+    )
+
+
+TORQUES_RULE = (
+    "the torques the drive applies: +-T_max (the speed loop's limit, reached in every acceleration) and "
+    "+-T_N, as the report judges +-1.5 T_N; gains tuned at +-T_N only were unstable just beyond it (a "
+    "traction IPMSM lost the rotor at 1 p.u. after an acceleration at T_max)"
+)
+
+
+def tuning_torques(k_max: float) -> list[str]:
+    """The tuning envelope's torques: +-k_max T_N (the torque limit T_max in T_N), +-T_N where it lies
+    within, and zero (TORQUES_RULE)."""
+    ks = sorted({0.0, k_max, -k_max, *((1.0, -1.0) if k_max > 1 else ())})
+    return [f"{g6(k)} T_N" for k in ks]
 
 
 def _extra(sec: dict[str, Entry], given: Mapping[str, Any], known: Any) -> None:

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
+from sensorless.design.ipmsm_adaptive.carrier import coupling_limit
 from sensorless.design.ipmsm_adaptive.linearize import PoleSweep, unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.design.poles import MIN_DAMPING
@@ -137,6 +138,8 @@ def compute(
                 "rhp_bands_pu": bands(g_rev, T, s, True),
                 "worst": _worst_point(s, w_env, wb),
             }
+        # the fastest growth with the injection (its RHP band, if any, is named in the verdict)
+        growth = max(float(np.nanmax(np.real(x.poles))) for x in inj_sweeps.values())
         inj_title = f"{drive.name}: {review} with HF injection (averaged (19)-(22))"
         inj_block: Any = Figure(
             svg_later(functools.partial(plot_pole_maps, inj_sweeps, wb, inj_title, inj_lows)),
@@ -144,6 +147,7 @@ def compute(
             "|ω| < ω_Δ: compare the right-half-plane bands with and without it in the table above.",
         )
     else:
+        growth = float("nan")
         progress(f"[2/{steps}] no HF injection: {injection_off(drive)}")
         inj_block = Paragraph(
             f"No pole maps with HF injection: {injection_off(drive)}. Without it, a right-half-plane band "
@@ -212,7 +216,8 @@ def compute(
     tuning_data, tuning_section = tuning.compute(drive, table, choices, review, progress, default)
     data["tuning"] = tuning_data
     limits = time_domain.limitations(drive)  # what the generic checks leave out, said in the verdict
-    data["verdict"] = {**verdict(data, review, min_damping), "limitations": limits}
+    w1 = coupling_limit(drive.motor, T_N) / wb  # where the HF correction turns sign, regenerating
+    data["verdict"] = {**verdict(data, review, min_damping, (w1, growth)), "limitations": limits}
     sections = (
         drive_section(1, data["drive"], FAMILY.bases(drive)),
         Section("2. Pole maps over speed", (_pole_table(pm), *pole_figs, inj_block)),
@@ -292,8 +297,16 @@ def _robustness_table(rob: dict[str, Any]) -> Table:
     )
 
 
-def verdict(data: dict[str, Any], label: str, min_damping: float) -> dict[str, Any]:
-    """Where the reviewed gains are stable with the required damping, where not, and why."""
+def verdict(
+    data: dict[str, Any],
+    label: str,
+    min_damping: float,
+    coupling: tuple[float, float] = (float("inf"), float("nan")),
+) -> dict[str, Any]:
+    """Where the reviewed gains are stable with the required damping, where not, and why;
+    ``coupling``: the speed [p.u.] below which the HF correction holds regenerating at T_N with zero
+    gain (design/ipmsm_adaptive/carrier.py ``coupling_limit``) and the fastest growth [1/s] with the
+    injection, named where the injection's RHP band is regenerating only."""
     plane = data["plane"]
     m = plane["maps"][label]
     w_pu = np.array(plane["w_pu"], float)
@@ -332,6 +345,17 @@ def verdict(data: dict[str, Any], label: str, min_damping: float) -> dict[str, A
                 f"RHP real pole below {edge:.3g} p.u. (rotor saliency, Section IV-B): "
                 "needs HF injection there; with the injection the linearized loop is stable."
             )
+        elif _regenerating_only(rhp_inj):
+            a = min(abs(b) for bands in rhp_inj.values() for band in bands for b in band)
+            b = max(abs(b) for bands in rhp_inj.values() for band in bands for b in band)
+            reasons.append(
+                f"HF-injection coupling limit: regenerating at ±T_N the injection leaves a real RHP pole for "
+                f"{a:.3g} ≤ |ω| ≤ {b:.3g} p.u. (growth up to {coupling[1]:.2g} 1/s), where the observer's "
+                "answer to the HF correction (20) turns sign (below (R̂s + λ1) ψ_d / (L_d L_q |i_q|) = "
+                f"{coupling[0]:.3g} p.u. at T_N with λ1 = 0: "
+                "design/ipmsm_adaptive/carrier.py); zero-speed crossings pass it in a transient (the "
+                "time-domain checks), but do not hold a regenerating speed in that band under load."
+            )
         else:
             reasons.append(f"RHP pole below {edge:.3g} p.u. remains even with the injection.")
     ok = np.isfinite(Z) & (Z >= min_damping)
@@ -359,6 +383,13 @@ def verdict(data: dict[str, Any], label: str, min_damping: float) -> dict[str, A
         "rhp_bands_pu": rhp,
         "rhp_bands_pu_injection": rhp_inj,
     }
+
+
+def _regenerating_only(rhp: dict[str, list[list[float]]]) -> bool:
+    """Whether every RHP band (torque key -> speed bands in p.u.) lies where the speed's sign is not the
+    torque's (regenerating)."""
+    ends = [(float(T), b) for T, bands in rhp.items() for band in bands for b in band]
+    return bool(ends) and all(T * b <= 0 for T, b in ends)
 
 
 def verdict_block(v: dict[str, Any]) -> Verdict:

@@ -128,7 +128,8 @@ def test_runs_on_an_example_motor_with_deterministic_outputs(servo, tmp_path, ca
     s = json.loads((tmp_path / "a" / "summary.json").read_text())
     y = s["yield"]
     assert 0 <= y["damping"]["value"] <= 1 and y["damping"]["draws"] == 120
-    assert y["time_domain"]["draws"] == 1 and s["envelope_points"] == 36
+    # 6 speeds x 2 directions x 5 torques (the derived envelope: -T_max, -T_N, 0, T_N, T_max)
+    assert y["time_domain"]["draws"] == 1 and s["envelope_points"] == 6 * 2 * 5
     assert {r["parameter"] for r in s["sensitivity"]} == {
         "plant R_s", "plant L_d", "plant psi_pm", "plant J", "estimate R_s"
     }  # fmt: skip

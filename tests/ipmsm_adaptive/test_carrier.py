@@ -4,14 +4,20 @@ The q-axis carrier current at an angle error theta, i_qc = (u_c/w_c) (L_q - L_d)
 is typed here from the pulsating-injection model; the derived u_c must make a 5-deg error show 3x above
 the sensor noise after the PI's averaging (variance x alpha_i T_s), its frequency be f_s/6, a noisier
 sensor need a proportionally larger carrier, a sensor too noisy for the saliency turn the injection off
-with a warning naming the key, and the paper's preset keep its 40 V."""
+with a warning naming the key, and the paper's preset keep its 40 V. The HF correction's coupling limit
+(carrier.py ``coupling_limit``) against a brute-force MTPA and the linearization's pole crossing."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
+import numpy as np
+import pytest
+from sensorless.design import registry
 from sensorless.design.drive import load_drive
+from sensorless.design.ipmsm_adaptive.carrier import coupling_limit
 
 MOTORS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors"
 
@@ -51,3 +57,76 @@ def test_a_sensor_too_noisy_for_the_saliency_turns_injection_off_with_a_warning(
 def test_the_preset_keeps_the_papers_carrier():
     d = load_drive("piippo2008")
     assert math.isclose(d.injection.u_c, 40.0) and math.isclose(d.injection.w_c, 2 * math.pi * 833)
+
+
+def _mtpa(T: float, m) -> tuple[float, float]:
+    """The MTPA current for the torque T by brute force: the smallest amplitude whose best angle reaches
+    T = 1.5 p (psi_pm i_q + (L_d - L_q) i_d i_q) (bisection on the amplitude, a fine scan of the angle)."""
+    beta = np.linspace(0, np.pi / 2, 200001)  # angle from the q axis towards -d
+
+    def best(i):
+        i_d, i_q = -i * np.sin(beta), i * np.cos(beta)
+        Te = 1.5 * m.p * (m.psi_pm * i_q + (m.L_d - m.L_q) * i_d * i_q)
+        k = int(np.argmax(Te))
+        return Te[k], i_d[k], i_q[k]
+
+    lo, hi = 0.0, 10 * T / (1.5 * m.p * m.psi_pm)
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if best(mid)[0] < T else (lo, mid)
+    return best(hi)[1:]
+
+
+@pytest.mark.parametrize("load, l1", [(1.0, 0.0), (1.5, 0.0), (1.0, 5.0)])
+def test_the_hf_correction_turns_sign_regenerating_at_the_coupling_limit(tmp_path, load, l1):
+    """Hand calculation: regenerating, N = (R_s + lambda1) psi_d + w L_d L_q i_q changes sign at
+    |w_1| = (R_s + lambda1) psi_d / (L_d L_q |i_q|) (lambda2 = 0); the averaged loop with the injection
+    (the Jacobian of the coupled system) has its real pole cross zero there, from stable below to
+    unstable above, on the traction IPMSM whose |w_1| (0.012 p.u. at T_N) lies far inside w_Delta."""
+    d = _drive(tmp_path)
+    m = d.motor
+    T = load * 300.0
+    i_d, i_q = _mtpa(T, m)
+    w1 = (m.R_s + l1 * m.R_s) * (m.psi_pm + m.L_d * i_d) / (m.L_d * m.L_q * abs(i_q))
+    assert math.isclose(coupling_limit(m, T, lambda1=l1 * m.R_s), w1, rel_tol=1e-4)
+    assert w1 < d.injection.w_Delta  # inside the injection's band
+    gains = dict(d.observer.gains)
+    gains["constant"] = dataclasses.replace(gains["constant"], lambda1=l1 * m.R_s, lambda2=0.0)
+    d = dataclasses.replace(d, observer=dataclasses.replace(d.observer, gains=gains))
+    fam = registry.family_of(d)
+    w = -w1 * np.array([0.97, 1.03])  # regenerating: w < 0 under a positive torque
+    ps = fam.linearize(d, fam.gains(d, name="constant"), w, np.full(2, T), injection=True)
+    worst = np.max(np.real(ps.poles), axis=1)
+    assert worst[0] < 0 < worst[1]
+
+
+def test_the_papers_motor_has_its_coupling_limit_beyond_the_fade_out():
+    d = load_drive("piippo2008")
+    assert coupling_limit(d.motor, 1.5 * 14.0) > 1.5 * d.injection.w_Delta
+
+
+def _verdict_data(inj_bands: dict[str, list[list[float]]]) -> dict:
+    bands = {"+300": [[0.0, 0.03]], "-300": [[-0.03, 0.0]]}
+    return {
+        "plane": {
+            "w_pu": [0.5, 1.0],
+            "T_Nm": [-300.0, 300.0],
+            "maps": {"g": {"damping": [[0.5, 0.5], [0.5, 0.5]]}},
+        },
+        "pole_maps": {
+            "g": {k: {"rhp_bands_pu": v} for k, v in bands.items()},
+            "g + injection": {k: {"rhp_bands_pu": v} for k, v in inj_bands.items()},
+        },
+    }
+
+
+def test_the_verdict_names_the_coupling_limit_where_the_injections_band_is_regenerating():
+    from sensorless.reports.ipmsm_adaptive.report import verdict
+
+    regen = {"+300": [[-0.13, -0.004]], "-300": [[0.004, 0.13]]}
+    v = verdict(_verdict_data(regen), "g", 0.2, (0.0122, 23.0))
+    assert len(v["reasons"]) == 1 and v["reasons"][0].startswith("HF-injection coupling limit")
+    assert "0.004 ≤ |ω| ≤ 0.13 p.u." in v["reasons"][0] and "0.0122 p.u." in v["reasons"][0]
+    motoring = {"+300": [[0.01, 0.02]], "-300": []}  # not this mechanism: the plain statement
+    v = verdict(_verdict_data(motoring), "g", 0.2, (0.0122, 23.0))
+    assert v["reasons"] == ["RHP pole below 0.03 p.u. remains even with the injection."]

@@ -27,6 +27,7 @@ import casadi as ca
 import numpy as np
 from sensorless.design.envelope import TuningSettings
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
+from sensorless.design.units import MAGNITUDE
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law, schedule_law
 from sensorless.tuning.ipmsm_adaptive.model import law_model, law_values
 from sensorless.tuning.model import TuningModel
@@ -104,6 +105,13 @@ def build_speed_dependent(
     )
 
 
+def _ohm(v: float) -> float:
+    """A tuned gain for the table: a rounding residue below the tables' smallest magnitude (1e-12 ohm,
+    design/units.py) is zero, as the optimizer meant (lambda2 at zero speed came out -4e-14 ohm, which
+    the table's reader refuses); every other value is kept as it is."""
+    return 0.0 if abs(v) < MAGNITUDE[0] else float(v)
+
+
 def schedule_breakpoints(
     drive: Any, settings: TuningSettings, kinks: tuple[float, ...] = ()
 ) -> tuple[float, ...]:
@@ -157,8 +165,8 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
     def table_gains(theta: np.ndarray) -> dict[str, Any]:
         return {
             "w_hat": list(grid),
-            "lambda1": [float(v) for v in theta[:K]],
-            "lambda2": [float(v) for v in theta[K : 2 * K]],
+            "lambda1": [_ohm(v) for v in theta[:K]],
+            "lambda2": [_ohm(v) for v in theta[K : 2 * K]],
             "alpha_fo": float(theta[2 * K] if law_settings(settings).tune_alpha_fo else a0),
         }
 
