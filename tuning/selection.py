@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from sensorless.tuning import nlp
 from sensorless.tuning.bound import Bound, pointwise_bound
+from sensorless.tuning.candidates import meets_floor
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, figures
 from sensorless.tuning.slots import T_MAX
@@ -66,6 +67,7 @@ def select(
     floor: float,
     max_noise: np.ndarray | None,
     say,
+    scale: float,
 ) -> tuple[np.ndarray, Figures, dict[str, Any], nlp.Solution | None]:
     """The best on the dense grid among the starts (``pool``: the drive file's gains, a seed's, the
     global phase's) and every round each NLP verified on its grid.
@@ -74,7 +76,8 @@ def select(
     unstable), which only the dense grid shows. Admissible: decay >= the floor (with the NLP's
     tolerance) and noise within its limits on the dense grid; among those, the best worst damping.
     So the reported gains are never worse than the drive file's or a seed's when those are
-    admissible."""
+    admissible. The floor is met as in every other step (``candidates.meets_floor``, with the pole
+    scale ``scale``)."""
     use_noise = max_noise is not None
     cands: list[tuple[str, np.ndarray, Figures, nlp.Solution | None]] = []
     for name, th in pool:
@@ -88,7 +91,7 @@ def select(
             cands.append((tag + name, th, figures(model, th, Wd, Td, noise=use_noise), s))
 
     def admissible(f: Figures) -> bool:
-        ok = bool(np.min(f.decay) >= floor * (1 - 1e-6) - 1e-9) if floor > 0 else bool(np.min(f.decay) > 0)
+        ok = bool(np.all(meets_floor(f.decay, floor, scale)))
         if ok and use_noise:
             ok = bool(np.all(f.worst_noise() <= max_noise * (1 + 1e-6)))
         return ok

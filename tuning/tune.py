@@ -37,7 +37,7 @@ import numpy as np
 from sensorless.design.envelope import TuningSettings
 from sensorless.tuning import nlp, search, tiebreak
 from sensorless.tuning.bound import Bound, pointwise_bound, with_witness
-from sensorless.tuning.candidates import DAMPING, NOISE, Candidates
+from sensorless.tuning.candidates import DAMPING, NOISE, Candidates, meets_floor
 from sensorless.tuning.conditions import ROBUST_MARGIN, check_error_equilibria, error_scenarios, label, robust
 from sensorless.tuning.conditions import candidates as _candidates
 from sensorless.tuning.family import tunable_for
@@ -226,7 +226,7 @@ def _optimize(
         # already within CERTIFIED of it leaves the NLP nothing to gain
         f0 = figures(model, starts[0], pb.Wd, pb.Td)
         gap = float(np.min(bound.damping)) - f0.worst_damping()
-        certified = gap <= CERTIFIED and float(np.min(f0.decay)) >= pb.floor * (1 - 1e-6) - 1e-9
+        certified = gap <= CERTIFIED and bool(np.all(meets_floor(f0.decay, pb.floor, pb.scale)))
         if certified:
             say(f"the best start is {gap:.1e} below the pointwise bound on the dense grid: no NLP needed")
     if not certified:
@@ -261,7 +261,7 @@ def _optimize(
     if pb.start is not None:
         pool.append((model.start_label or "start", pb.start))
     pool += [(f"global-phase start {i + 1}", th) for i, th in enumerate(starts)]
-    theta, dense, note, best_sol = select(model, sols, pool, pb.Wd, pb.Td, pb.floor, max_noise, say)
+    theta, dense, note, best_sol = select(model, sols, pool, pb.Wd, pb.Td, pb.floor, max_noise, say, pb.scale)
     if best_sol is None:  # a start was kept: report the best NLP run (if any) for its statistics
         best_sol = max(sols, key=lambda s: s.t) if sols else nlp.Solution(theta, float("nan"), (), 0, 0, ())
     if note["admissible"] and model.gain_size is not None and model.n_theta <= search.MAX_PATTERN_PARAMETERS:
