@@ -125,7 +125,7 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     [rad/s] (0 where not analysed). CapabilityError for a drive without a PMSM's data."""
     from sensorless.design.low_speed import QUICK, minimum_speed
     from sensorless.design.poles import MIN_DAMPING
-    from sensorless.design.startup import ON_FACTOR, if_values
+    from sensorless.design.startup import HANDOVER_DECAY, ON_FACTOR, if_values
 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
@@ -144,11 +144,21 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
                 f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
             ) from None
         ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
-        w_min = ls.w_min_rated
+        # the handover's w_min: the design's criteria, and the observer's error decaying at least at a
+        # share of the speed-loop bandwidth (design/startup.py HANDOVER_DECAY)
+        alpha_s = fam.scales(drive).alpha_s
+        lh = minimum_speed(
+            drive,  # type: ignore[arg-type]
+            gains,
+            min_damping=MIN_DAMPING,
+            min_decay=HANDOVER_DECAY * alpha_s,
+            **QUICK,  # type: ignore[arg-type]
+        )
+        w_min = max(ls.w_min_rated, lh.w_min_rated)
         if w_min <= 0:
             return None, "no I-f start: the design holds zero speed", 0.0
         given = startup.values(w_min) if startup is not None else {}
-        values = {**if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min), **given}
+        values = {**if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min, alpha_s), **given}
         if values["if_w_off"] >= values["if_w_on"]:
             if "if_w_off" in given:
                 raise DriveFileError(

@@ -23,35 +23,50 @@ MOTORS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors"
 
 
 def test_the_rules():
-    v = if_values(T_N=2.0, T_max=3.0, J=1e-3, p=4, k_t=0.5, w_min=40.0)
-    assert v == {
-        "if_i": 6.0,
-        "if_acc": 0.5 * 4 * 1.0 / 1e-3,
-        "if_w_on": 80.0,
-        "if_w_off": 40.0,
-    }
+    v = if_values(T_N=2.0, T_max=3.0, J=1e-3, p=4, k_t=0.5, w_min=40.0, alpha_s=10.0)
+    # the swing about the current vector at rated load: cos(delta_N) = sqrt(1 - (2/3)^2) = sqrt(5)/3
+    w_n = math.sqrt(4 * 3.0 * (math.sqrt(5) / 3) / 1e-3)
+    assert v == pytest.approx(
+        {
+            "if_i": 6.0,
+            "if_acc": 0.5 * 4 * 1.0 / 1e-3,
+            "if_w_on": 80.0,
+            "if_w_off": 40.0,
+            "if_k_d": 2 * 0.5 * w_n,  # zeta = 0.5
+            "if_w_hp": w_n / 4,
+            "if_t_dwell": 1 / (0.1 * 10.0),  # a time constant at a tenth of the speed-loop bandwidth
+        },
+        rel=1e-12,
+    )
 
 
-def test_the_wrapped_step_ramps_hands_over_and_falls_back():
+@pytest.mark.parametrize("dwell", [0, 7])
+def test_the_wrapped_step_ramps_hands_over_and_falls_back(dwell):
     drive = load_drive(MOTORS / "servo400.toml")
     fam = family_of(drive)
     base = fam.runtime(drive, fam.gains(drive))
     a, T_s, w_on = 2000.0, drive.T_s, 30.0
-    setup = with_if_start(base, {"if_i": 3.0, "if_acc": a, "if_w_on": w_on, "if_w_off": 20.0})
+    # no damping; the load angle's low-pass one period behind (its swing: one period's turn, settled)
+    values = {"if_i": 3.0, "if_acc": a, "if_w_on": w_on, "if_w_off": 20.0, "if_k_d": 0.0, "if_w_hp": 1 / T_s}
+    setup = with_if_start(base, {**values, "if_t_dwell": dwell * T_s})
     obs = setup.observer
     step = setup.step_function()
     out = {f.name: k for k, f in enumerate(obs.outputs)}
     x = setup.initial_state()
     meas = np.zeros(len(obs.meas))
     meas[-1] = -1000.0  # the speed command w_cmd, beyond -w_on
-    k_on = math.ceil(w_on / (a * T_s))  # the first period whose speed has reached w_on
+    k_at = math.ceil(w_on / (a * T_s))  # the first period whose speed has reached w_on
+    k_on = k_at + dwell  # ... and stayed there for the dwell
     theta = 0.0
     for k in range(k_on + 3):
         x_next, y = step(x, meas, setup.p, setup.gain)
         y = np.asarray(y).ravel()
         if k <= k_on:  # open loop, the speed and angle of the period's start
             w_k = -min(a * k * T_s, w_on)
-            assert y[out["startup_mode"]] == 1 and y[out["i_f"]] == -3.0
+            # the current on the frame's d axis; on the observer's q axis (it saw no motion: angle 0)
+            # its share sin(theta_ol)
+            assert y[out["startup_mode"]] == 1 and y[out["i_f"]] == 3.0
+            assert y[out["i_f_q"]] == pytest.approx(3.0 * math.sin(theta), abs=1e-9)
             assert math.isclose(y[out["w_hat"]], w_k, rel_tol=1e-9, abs_tol=1e-9)
             assert math.isclose(math.remainder(y[out["theta_hat"]] - theta, 2 * math.pi), 0, abs_tol=1e-9)
             theta += w_k * T_s
@@ -63,7 +78,8 @@ def test_the_wrapped_step_ramps_hands_over_and_falls_back():
         assert y[out["valid"]] == 1
         x = np.asarray(x_next).ravel()
     # the parameter struct carries the start's parameters
-    assert [f.name for f in obs.params][-4:] == ["if_i", "if_acc", "if_w_on", "if_w_off"]
+    names = ["if_i", "if_acc", "if_w_on", "if_w_off", "if_k_d", "if_w_hp", "if_t_dwell"]
+    assert [f.name for f in obs.params][-7:] == names
     assert obs.meas[-1].name == "w_cmd"
 
 
@@ -73,7 +89,7 @@ def test_codegen_prints_the_start_in_the_structs(tmp_path):
     out = tmp_path / "c"
     assert main(["codegen", str(MOTORS / "servo400.toml"), "--startup", "--out", str(out)]) == 0
     h = (out / "servo400.h").read_text(encoding="utf-8")
-    for name in ("if_i;", "if_acc;", "if_w_on;", "if_w_off;", "w_cmd;", "startup_mode;", "i_f;"):
+    for name in ("if_i;", "if_acc;", "if_w_on;", "if_w_off;", "if_k_d;", "if_t_dwell;", "w_cmd;", "i_f_q;"):
         assert name in h
 
 
@@ -92,6 +108,22 @@ def test_a_non_salient_motor_starts_from_standstill_against_rated_load_through_t
     m, failed, problems = judge(tr, sc, drive.w_base)
     assert m["handovers"] >= 1 and m["handover_theta_err_deg"] < 30
     assert not failed and not problems
+    # parked: the rotor starts on the current vector (no torque, no error) ...
+    assert tr["theta_err"][0] == 0 and tr["T_e"][0] == pytest.approx(0, abs=1e-9)
+    # ... and carries the load lagging it: torque k_t i_if sin(delta), delta = theta_ol - theta_m (hand
+    # calculation from the motor's data, the current and the rotor's angle in the trace)
+    i_if = float(tr.meta["startup"].split(" A,")[0].split()[-1])
+    t_if = 1.5 * drive.motor.p * drive.motor.psi_pm * i_if
+    # the open-loop samples whose current has reached the command (the current loop's rise excepted)
+    settled = np.abs(np.hypot(tr["i_d"], tr["i_q"]) / i_if - 1) < 0.01
+    open_ = np.flatnonzero((mode > 0.5) & settled)
+    assert open_.size >= 20
+    delta = -np.asarray(tr["theta_err"])[open_]
+    assert np.asarray(tr["T_e"])[open_] == pytest.approx(t_if * np.sin(delta), abs=0.05 * t_if)
+    # bumpless handover: the speed controller takes over the torque the I-f current carried
+    k = int(np.flatnonzero((mode[:-1] > 0.5) & (mode[1:] < 0.5))[0])
+    T_e = np.asarray(tr["T_e"])
+    assert abs(T_e[k + 5] - T_e[k - 1]) < 0.1 * drive.T_N
 
 
 def test_init_writes_the_start_with_its_rules_and_every_command_reads_it_back(tmp_path, capsys):
