@@ -8,20 +8,29 @@ The rules (each with its reason; :func:`if_values`):
 - acceleration a = ACC_SHARE p (T_max - T_N) / J: half what the torque margin over rated load gives
   the rotor, so that it follows the current vector with margin;
 - handover speed w_on = ON_FACTOR (2) w_min and back to open loop below w_off = w_min, w_min the minimum
-  speed at rated load for the handover: the design's minimum sensorless speed (design/low_speed.py),
-  with the observer's error decaying at least at HANDOVER_DECAY alpha_s (alpha_s the speed-loop
-  bandwidth; 0.1, the analysis' default: 0.5 put the handover above 1 p.u. on the 400-W servo of
-  docs/examples/motors, whose observer decays slower than that at every speed); the
-  observer takes over only where its criteria hold with margin, and the band between is the hysteresis;
+  speed at rated load for the handover (:func:`handover_decay`): the design's minimum sensorless speed
+  (design/low_speed.py) with the observer's error decaying at least at max(DECAY_SHARE alpha_s,
+  sqrt(a_max / theta_max)), a_max = p (T_max - T_N) / J the drive's full acceleration against rated
+  load and theta_max the analysis' angle limit (30 deg): a tracking loop whose slowest mode decays at
+  sigma lags a ramp of the speed by about a / sigma^2 in angle, so that below that speed the observer
+  loses the rotor when the speed controller it takes over from the start accelerates at the torque
+  limit (the drone of docs/examples/motors, tuned: lost from 0.1 p.u., kept from 0.2 p.u., in
+  closed-loop simulation; sqrt(a_max / theta_max) puts its handover w_min at 0.17 p.u.; the minimum
+  sensorless speed of the analysis, at steady speed, is 0.0054 p.u.); where no speed up to 1 p.u.
+  gives that decay, the design's own w_min, and the start says so (the slowest mode need not be the one
+  an acceleration excites: the 400-W servo's default gains follow the full acceleration from 0.02 p.u.
+  in simulation, with a slowest mode that never decays that fast); the observer takes over only where
+  its criteria hold with margin, and the band between is the hysteresis;
 - damping gain k_d = 2 ZETA w_n (ZETA = 0.5), w_n = sqrt(p T_max cos(delta_N) / J) the rotor's swing
   about the current vector at rated load (sin(delta_N) = T_N / T_max; symbolic/startup.py): a swing
   decays within about a period instead of lasting until the rotor slips;
 - the swing's high-pass corner w_hp = HP_SHARE (1/4) w_n: well below the swing (whose phase it leaves
   within 15 deg), well above the slow change of the load angle along the ramp;
-- dwell at the handover speed t_dwell = DWELL (1) / (HANDOVER_DECAY alpha_s): a time constant of the
-  observer's error at the slowest decay the handover speed guarantees, so that the observer has
-  converged on the rotor when it takes over (the ramp alone reaches w_on within a few milliseconds on
-  the example motors, while the observer there converges in tenths of a second).
+- dwell at the handover speed t_dwell = DWELL (1.5) / sigma, sigma the decay rate the handover's w_min
+  guarantees (above): three time constants of the observer's error at w_on = 2 w_min, where it decays
+  at least twice as fast (at least in proportion to the speed on the example motors' designs), so that
+  it has converged on the rotor when it takes over (it may have lost it while the ramp accelerated
+  through low speeds, where the start does not need it; the start re-seeds it: symbolic/startup.py).
 """
 
 from __future__ import annotations
@@ -32,6 +41,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from sensorless.design.drive_file import Entry, load_section, q, table
+from sensorless.design.low_speed import DECAY_SHARE, MAX_BIAS_DEG
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 from sensorless.symbolic.startup import with_startup
@@ -39,8 +49,7 @@ from sensorless.symbolic.startup import with_startup
 ACC_SHARE = 0.5
 ON_FACTOR = 2.0
 ZETA = 0.5
-HANDOVER_DECAY = 0.1
-DWELL = 1.0
+DWELL = 1.5
 HP_SHARE = 0.25
 
 
@@ -49,11 +58,18 @@ def swing_frequency(T_N: float, T_max: float, J: float, p: int) -> float:
     return math.sqrt(p * T_max * math.sqrt(max(0.0, 1 - (T_N / T_max) ** 2)) / J)
 
 
+def handover_decay(T_N: float, T_max: float, J: float, p: int, alpha_s: float) -> float:
+    """sigma [1/s]: the decay rate of the observer's error the handover asks for (module docstring),
+    alpha_s the speed-loop bandwidth [rad/s]."""
+    a_max = p * (T_max - T_N) / J
+    return max(DECAY_SHARE * alpha_s, math.sqrt(a_max / math.radians(MAX_BIAS_DEG)))
+
+
 def if_values(
-    T_N: float, T_max: float, J: float, p: int, k_t: float, w_min: float, alpha_s: float
+    T_N: float, T_max: float, J: float, p: int, k_t: float, w_min: float, sigma: float
 ) -> dict[str, float]:
-    """The I-f start's parameters (module docstring); speeds electrical [rad/s], alpha_s the speed-loop
-    bandwidth [rad/s]."""
+    """The I-f start's parameters (module docstring); speeds electrical [rad/s], sigma the decay rate
+    at the handover speed (:func:`handover_decay`) [1/s]."""
     w_n = swing_frequency(T_N, T_max, J, p)
     return {
         "if_i": T_max / k_t,
@@ -62,7 +78,7 @@ def if_values(
         "if_w_off": w_min,
         "if_k_d": 2 * ZETA * w_n,
         "if_w_hp": HP_SHARE * w_n,
-        "if_t_dwell": DWELL / (HANDOVER_DECAY * alpha_s),
+        "if_t_dwell": DWELL / sigma,
     }
 
 
@@ -157,8 +173,9 @@ def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -
         "w_on": Entry(f"{ON_FACTOR:g} w_min", "the handover, with margin (rad/s or p.u. to fix it)"),
         "w_off": Entry(
             "1 w_min",
-            f"w_min at rated load for the handover, the gains under review (design/low_speed.py, decay >= "
-            f"{HANDOVER_DECAY:g} alpha_s): {w_min / w_base:.4g} p.u. at this file's",
+            f"w_min at rated load for the handover, the gains under review (design/low_speed.py, with the "
+            "decay that follows the full acceleration, design/startup.py): "
+            f"{w_min / w_base:.4g} p.u. at this file's",
         ),
         "damping": Entry(
             f"{values['if_k_d']:.6g} 1/s",
@@ -171,7 +188,7 @@ def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -
         ),
         "dwell": Entry(
             f"{values['if_t_dwell']:.6g} s",
-            f"{DWELL:g} / ({HANDOVER_DECAY:g} alpha_s): the observer converges at w_on before it takes over",
+            f"{DWELL:g} / sigma, sigma the decay at w_min: the observer converges at w_on before handover",
         ),
     }
 

@@ -21,8 +21,9 @@ The I-f current drives an undamped pendulum (J/p delta'' = T - k_t i_if sin(delt
 acceleration or load leaves the rotor swinging about the current vector. A damping loop turns the
 frame's speed against the load angle's swing: w_ol = w_ramp - k_d f delta_hp, where delta_hp is the
 load angle delta_obs = theta_ol - theta_obs, seen by the wrapped observer (which always runs), high-
-passed (first order, corner ``if_w_hp``: the steady load angle is no swing), and f = min(1, |w_ol| /
-w_off) fades it in with speed (the observer's angle means nothing at standstill). Linearized about a
+passed (first order, corner ``if_w_hp``: the steady load angle is no swing), limited to +-``SWING_MAX``
+and left out where delta_obs is 90 deg or more (an observer that lost the rotor), and f = min(1,
+|w_r| / w_off) fades it in with speed (the observer's angle means nothing at standstill). Linearized about a
 steady load angle, delta_hp ~ delta - delta_0, and with delta' = w_ol - w_m, J/p w_m' = k_t i_if cos
 (delta_0) (delta - delta_0): s^2 + k_d s + w_n^2 = 0, w_n^2 = p k_t i_if cos(delta_0) / J, so that
 k_d = 2 zeta w_n gives the damping zeta (the power-based stabilizer of Fatu et al. 2008 damps the same
@@ -38,14 +39,19 @@ Per sampling period T_s:
   open-loop frame, ``i_f_q`` = i_if sin(delta_obs) its component on the observer's q axis (the torque-
   producing current by the observer: a speed controller taking over starts from it, without a torque
   step);
-- handover (mode 0 from the next period) once |w_r| has been at w_on for ``if_t_dwell`` (the observer,
-  slow at low speed, converges there: a ramp reaches w_on within a few of its time constants), the
-  observer's angle lies within 90 deg of the frame's (an observer off by half a turn is not handed the
-  drive) and the swing has settled (|delta_hp| below ``SETTLED``);
+- handover (mode 0 from the next period) once, for ``if_t_dwell`` without a break, |w_r| has been at
+  w_on, the observer's angle within 90 deg of the frame's (an observer off by half a turn is not handed
+  the drive) and the swing settled (|delta_hp| below ``SETTLED``): the observer, which may have lost
+  the rotor while the ramp accelerated through low speeds, has converged and stays;
+- the wrapped observer re-seeded (its steady state at the frame's angle and speed, the current on
+  the frame's d axis: an angle error of the load angle, below 90 deg) when the ramp arrives at w_on and
+  while its angle is 90 deg or more off the frame's there: at low speed, under acceleration, it may
+  have lost the rotor or settled on a wrong solution, and need not find it back by itself;
 - closed loop (mode 0): the observer's estimates pass through, ``i_f`` = ``i_f_q`` = 0; back to open
   loop when |w_hat| < w_off (< w_on: the hysteresis), at the observer's speed, the frame placed ahead
   of the observer's angle by the load angle that carries the current the speed controller had asked
-  for: delta = asin(i_q / i_if), i_q the measured current on the observer's q axis (no torque step).
+  for: delta = asin(i_q / i_if), i_q the measured current on the observer's q axis (no torque step),
+  at most ``DROP_MAX`` (60 deg: a speed controller at its torque limit asks for i_if, the edge).
 
 Parameters (appended to the observer's): ``if_i`` [A], ``if_acc`` [rad/s^2], ``if_w_on`` and
 ``if_w_off`` [rad/s], ``if_k_d`` [1/s], ``if_w_hp`` [rad/s], ``if_t_dwell`` [s]; measurement
@@ -76,7 +82,7 @@ STATE = (
     Field("if_theta", "rad", "I-f start: angle of the current vector (electrical)", bound="pi"),
     Field("if_w", "rad/s", "I-f start: ramp speed of the current vector (electrical)", bound="pi / T_s"),
     Field("if_delta_lp", "rad", "I-f start: low-passed load angle by the observer", bound="pi"),
-    Field("if_t", "s", "I-f start: time at the handover speed (up to if_t_dwell)"),
+    Field("if_t", "s", "I-f start: time at the handover speed with the observer agreeing (to if_t_dwell)"),
     Field("startup_mode_x", "1", "1: open-loop I-f start; 0: observer", bound="1"),
 )
 OUTPUTS = (
@@ -88,6 +94,8 @@ OUTPUTS = (
 )
 INNER_REJECTS = "obs_rejects"  # the wrapped observer's own counter, renamed (one 'rejects' per struct)
 SETTLED = math.pi / 18  # handover once the load angle's swing (high-passed) is within 10 deg
+SWING_MAX = math.pi / 12  # the damping acts on swings up to 15 deg (beyond: saturated)
+DROP_MAX = math.pi / 3  # back to open loop at most 60 deg ahead of the rotor (30 deg from the edge)
 
 
 @functools.cache
@@ -119,6 +127,10 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             # the load angle by the observer and its swing (high-passed)
             delta = wrap_angle(th - theta_obs)
             swing = wrap_angle(delta - d_lp)
+            # the damping's swing: within +-SWING_MAX, and none from an observer off by 90 deg or more
+            # (lost while the ramp accelerated through low speeds: the start then holds the rotor alone)
+            agree_90 = ca.fabs(delta) < ca.pi / 2
+            swing_d = ca.if_else(agree_90, ca.fmin(ca.fmax(swing, -SWING_MAX), SWING_MAX), 0)
             d_lp_next = wrap_angle(d_lp + P["if_w_hp"] * T_s * swing)
             # open loop: the ramp towards the command (within +-w_on); the frame's speed damped against
             # the swing, faded in with speed (module docstring); the angle with the period's speed
@@ -126,15 +138,15 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             dw = P["if_acc"] * T_s
             w_r_next = w_r + ca.fmin(ca.fmax(target - w_r, -dw), dw)
             fade = ca.fmin(1, ca.fabs(w_r) / ca.fmax(P["if_w_off"], 1e-9))
-            w_ol = w_r - P["if_k_d"] * fade * swing
+            w_ol = w_r - P["if_k_d"] * fade * swing_d
             th_ol = wrap_angle(th + w_ol * T_s)
             # handover at w_on, the observer's angle within 90 deg of the frame's (where an I-f start
             # that holds the rotor keeps it; an observer off by half a turn is not handed the drive),
             # the swing settled
-            agree = ca.logic_and(ca.fabs(delta) < ca.pi / 2, ca.fabs(swing) < SETTLED)
-            at_on = ca.fabs(w_r) >= P["if_w_on"] * (1 - 1e-9)
+            agree = ca.logic_and(agree_90, ca.fabs(swing) < SETTLED)
+            at_on = ca.logic_and(ca.fabs(w_r) >= P["if_w_on"] * (1 - 1e-9), agree)
             t_next = ca.if_else(at_on, ca.fmin(t_on + T_s, P["if_t_dwell"]), 0)
-            handover = ca.logic_and(ca.logic_and(at_on, t_on >= P["if_t_dwell"] * (1 - 1e-9)), agree)
+            handover = ca.logic_and(at_on, t_on >= P["if_t_dwell"] * (1 - 1e-9))
             # closed loop: back to open loop below w_off, at the observer's speed, the frame ahead of its
             # angle by the load angle that carries the measured q-axis current
             i_if = ca.fmax(P["if_i"], 1e-12)
@@ -143,7 +155,8 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             else:
                 i_a, i_b = meas[k_i[0]], meas[k_i[1]]
                 i_q = -ca.sin(theta_obs) * i_a + ca.cos(theta_obs) * i_b
-            d_drop = ca.asin(ca.fmin(ca.fmax(i_q / i_if, -1), 1))
+            s_max = math.sin(DROP_MAX)
+            d_drop = ca.asin(ca.fmin(ca.fmax(i_q / i_if, -s_max), s_max))
             drop = ca.fabs(w_obs) < P["if_w_off"]
             open_now = mode > 0.5
             mode_next = ca.if_else(open_now, ca.if_else(handover, 0, 1), ca.if_else(drop, 1, 0))
@@ -157,6 +170,15 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             i_f_q = ca.if_else(open_now, P["if_i"] * ca.sin(delta), 0)
             y_if = (open_now, i_f, i_f_q)
             t_next = ca.if_else(open_now, t_next, 0)
+            if obs.steady_state is not None:
+                # re-seeded on the frame when the ramp arrives at w_on, and while off by 90 deg or more
+                # there: steady at the frame's angle and speed, the current on its d axis (module doc)
+                at_w_on = ca.fabs(w_r_next) >= P["if_w_on"] * (1 - 1e-9)
+                arrive = ca.logic_and(at_w_on, ca.fabs(w_r) < P["if_w_on"] * (1 - 1e-9))
+                lost = ca.logic_and(at_w_on, ca.logic_not(agree_90))
+                reseed = ca.logic_and(open_now, ca.logic_or(arrive, lost))
+                seed = obs.steady_state()(p[:n_p], ca.vertcat(th_ol, w_r_next, P["if_i"], 0))
+                x_in_next = ca.if_else(reseed, seed, x_in_next)
             x_if = ca.vertcat(th_next, w_next, d_next, t_next, mode_next)
             cand = (ca.vertcat(x_in_next, x_if), ca.vertcat(*y_out, *y_if))
             x_coast = ca.vertcat(x[:n_x], wrap_angle(th + w_r * T_s), w_r, d_lp, t_on, mode)
