@@ -133,16 +133,17 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     startup = getattr(drive, "startup", None)
     given = startup.values() if startup is not None else {}
     values, w_min, warn = given, 0.0, ""
+    try:
+        m, c = drive.motor, drive.control
+        inertia, pole_pairs, T_max = m.J, m.p, c.T_max
+        i_d, i_q = mtpa_torque_current(T_max, m)
+        k_t = T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
+    except AttributeError:
+        raise CapabilityError(
+            f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
+        ) from None
+    values = {**given, "if_k_a": inertia / (pole_pairs * k_t)}  # the motor's (design/startup.py)
     if startup is None or startup.needs_w_min:  # a key the file does not give keeps its rule
-        try:
-            m, c = drive.motor, drive.control
-            inertia, pole_pairs, T_max = m.J, m.p, c.T_max
-            i_d, i_q = mtpa_torque_current(T_max, m)
-            k_t = T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
-        except AttributeError:
-            raise CapabilityError(
-                f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
-            ) from None
         # the handover's w_min: the design's criteria with the decay that follows the full acceleration;
         # where no speed up to 1 p.u. gives that decay (the slowest mode need not be the one an
         # acceleration excites: the 400-W servo's default gains follow it from 0.02 p.u. in simulation),

@@ -26,6 +26,8 @@ The rules (each with its reason; :func:`if_values`):
   decays within about a period instead of lasting until the rotor slips;
 - the swing's high-pass corner w_hp = HP_SHARE (1/4) w_n: well below the swing (whose phase it leaves
   within 15 deg), well above the slow change of the load angle along the ramp;
+- current per acceleration k_a = J / (p k_t), the motor's (not a choice: never in the drive file),
+  for the load angle of a drop back to open loop (symbolic/startup.py);
 - dwell at the handover speed t_dwell = DWELL (1.5) / sigma, sigma the decay rate the handover's w_min
   guarantees (above): three time constants of the observer's error at w_on = 2 w_min, where it decays
   at least twice as fast (at least in proportion to the speed on the example motors' designs), so that
@@ -79,6 +81,7 @@ def if_values(
         "if_k_d": 2 * ZETA * w_n,
         "if_w_hp": HP_SHARE * w_n,
         "if_t_dwell": DWELL / sigma,
+        "if_k_a": J / (p * k_t),
     }
 
 

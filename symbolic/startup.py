@@ -44,17 +44,24 @@ Per sampling period T_s:
   the drive) and the swing settled (|delta_hp| below ``SETTLED``): the observer, which may have lost
   the rotor while the ramp accelerated through low speeds, has converged and stays;
 - the wrapped observer re-seeded (its steady state at the frame's angle and speed, the current on
-  the frame's d axis: an angle error of the load angle, below 90 deg) when the ramp arrives at w_on and
-  while its angle is 90 deg or more off the frame's there: at low speed, under acceleration, it may
-  have lost the rotor or settled on a wrong solution, and need not find it back by itself;
+  the frame's d axis: an angle error of the load angle, below 90 deg) while the ramp is at w_on and its
+  angle more than ``LOST`` (120 deg) off the frame's, where a rotor that follows the frame cannot be:
+  at low speed, under acceleration, it may have lost the rotor or settled on a wrong solution, and need
+  not find it back by itself (a seed on every arrival at w_on put it 90 deg off a rotor swinging at
+  the edge, in simulation);
 - closed loop (mode 0): the observer's estimates pass through, ``i_f`` = ``i_f_q`` = 0; back to open
   loop when |w_hat| < w_off (< w_on: the hysteresis), at the observer's speed, the frame placed ahead
-  of the observer's angle by the load angle that carries the current the speed controller had asked
-  for: delta = asin(i_q / i_if), i_q the measured current on the observer's q axis (no torque step),
-  at most ``DROP_MAX`` (60 deg: a speed controller at its torque limit asks for i_if, the edge).
+  of the observer's angle by the load angle that carries the current the open loop needs: delta =
+  asin(i_n / i_if), i_n = i_q - k_a (dw - a_f), i_q the measured current on the observer's q axis,
+  dw the observer's acceleration (low-passed), a_f = +-a the frame's towards the command and k_a =
+  J / (p k_t) the current per acceleration: the load's current and the frame's acceleration's (a
+  drive braking at its torque limit with the load's help decelerates ten times faster than the start's
+  ramp on the drone of docs/examples/motors: placed for the braking current, the rotor slipped), at
+  most ``DROP_MAX`` (60 deg, 30 deg from the edge).
 
 Parameters (appended to the observer's): ``if_i`` [A], ``if_acc`` [rad/s^2], ``if_w_on`` and
-``if_w_off`` [rad/s], ``if_k_d`` [1/s], ``if_w_hp`` [rad/s], ``if_t_dwell`` [s]; measurement
+``if_w_off`` [rad/s], ``if_k_d`` [1/s], ``if_w_hp`` [rad/s], ``if_t_dwell`` [s], ``if_k_a`` [A s^2/rad];
+measurement
 (appended): ``w_cmd`` [rad/s].
 """
 
@@ -75,6 +82,12 @@ PARAMS = (
     Field("if_k_d", "1/s", "I-f start: damping gain, frame speed per rad of load-angle swing", "nonnegative"),
     Field("if_w_hp", "rad/s", "I-f start: corner of the load angle's high-pass (the swing)", "positive"),
     Field("if_t_dwell", "s", "I-f start: time at the handover speed before the handover", "nonnegative"),
+    Field(
+        "if_k_a",
+        "A s^2/rad",
+        "I-f start: current per acceleration J / (p k_t) (rotor, electrical)",
+        "nonnegative",
+    ),
 )
 # the measurement the start adds to the observer's: the speed command (what the drive is asked for)
 W_CMD = Field("w_cmd", "rad/s", "speed command (electrical): the I-f start ramps towards it")
@@ -83,6 +96,8 @@ STATE = (
     Field("if_w", "rad/s", "I-f start: ramp speed of the current vector (electrical)", bound="pi / T_s"),
     Field("if_delta_lp", "rad", "I-f start: low-passed load angle by the observer", bound="pi"),
     Field("if_t", "s", "I-f start: time at the handover speed with the observer agreeing (to if_t_dwell)"),
+    Field("if_w_obs", "rad/s", "I-f start: the observer's speed estimate of the previous period"),
+    Field("if_dw", "rad/s^2", "I-f start: the observer's acceleration, low-passed (corner if_w_hp)"),
     Field("startup_mode_x", "1", "1: open-loop I-f start; 0: observer", bound="1"),
 )
 OUTPUTS = (
@@ -95,6 +110,7 @@ OUTPUTS = (
 INNER_REJECTS = "obs_rejects"  # the wrapped observer's own counter, renamed (one 'rejects' per struct)
 SETTLED = math.pi / 18  # handover once the load angle's swing (high-passed) is within 10 deg
 SWING_MAX = math.pi / 12  # the damping acts on swings up to 15 deg (beyond: saturated)
+LOST = 2 * math.pi / 3  # an observer further off the frame than a rotor can lag: re-seeded
 DROP_MAX = math.pi / 3  # back to open loop at most 60 deg ahead of the rotor (30 deg from the edge)
 
 
@@ -122,7 +138,7 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             lam_in = lam if lam is not None else ca.SX(0, 1)
             x_in_next, y_in = inner(x[:n_x], meas[: len(obs.meas)], p[:n_p], lam_in)
             w_cmd = meas[len(obs.meas)]
-            th, w_r, d_lp, t_on, mode = (x[n_x + k] for k in range(5))
+            th, w_r, d_lp, t_on, w_prev, dw, mode = (x[n_x + k] for k in range(7))
             theta_obs, w_obs = y_in[k_th], y_in[k_w]
             # the load angle by the observer and its swing (high-passed)
             delta = wrap_angle(th - theta_obs)
@@ -135,8 +151,8 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             # open loop: the ramp towards the command (within +-w_on); the frame's speed damped against
             # the swing, faded in with speed (module docstring); the angle with the period's speed
             target = ca.fmin(ca.fmax(w_cmd, -P["if_w_on"]), P["if_w_on"])
-            dw = P["if_acc"] * T_s
-            w_r_next = w_r + ca.fmin(ca.fmax(target - w_r, -dw), dw)
+            step_r = P["if_acc"] * T_s
+            w_r_next = w_r + ca.fmin(ca.fmax(target - w_r, -step_r), step_r)
             fade = ca.fmin(1, ca.fabs(w_r) / ca.fmax(P["if_w_off"], 1e-9))
             w_ol = w_r - P["if_k_d"] * fade * swing_d
             th_ol = wrap_angle(th + w_ol * T_s)
@@ -156,7 +172,12 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
                 i_a, i_b = meas[k_i[0]], meas[k_i[1]]
                 i_q = -ca.sin(theta_obs) * i_a + ca.cos(theta_obs) * i_b
             s_max = math.sin(DROP_MAX)
-            d_drop = ca.asin(ca.fmin(ca.fmax(i_q / i_if, -s_max), s_max))
+            # the current the open loop needs: the load's (the closed loop's current less what its
+            # acceleration takes) and what the frame's acceleration towards the command takes
+            dw_next = dw + P["if_w_hp"] * T_s * ((w_obs - w_prev) / T_s - dw)
+            a_f = P["if_acc"] * ca.sign(target - w_obs)
+            i_need = i_q - P["if_k_a"] * (dw - a_f)
+            d_drop = ca.asin(ca.fmin(ca.fmax(i_need / i_if, -s_max), s_max))
             drop = ca.fabs(w_obs) < P["if_w_off"]
             open_now = mode > 0.5
             mode_next = ca.if_else(open_now, ca.if_else(handover, 0, 1), ca.if_else(drop, 1, 0))
@@ -171,19 +192,17 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             y_if = (open_now, i_f, i_f_q)
             t_next = ca.if_else(open_now, t_next, 0)
             if obs.steady_state is not None:
-                # re-seeded on the frame when the ramp arrives at w_on, and while off by 90 deg or more
-                # there: steady at the frame's angle and speed, the current on its d axis (module doc)
+                # re-seeded on the frame at w_on while off by more than LOST (module docstring): steady
+                # at the frame's angle and speed, the current on its d axis
                 at_w_on = ca.fabs(w_r_next) >= P["if_w_on"] * (1 - 1e-9)
-                arrive = ca.logic_and(at_w_on, ca.fabs(w_r) < P["if_w_on"] * (1 - 1e-9))
-                lost = ca.logic_and(at_w_on, ca.logic_not(agree_90))
-                reseed = ca.logic_and(open_now, ca.logic_or(arrive, lost))
+                reseed = ca.logic_and(open_now, ca.logic_and(at_w_on, ca.fabs(delta) > LOST))
                 seed = obs.steady_state()(p[:n_p], ca.vertcat(th_ol, w_r_next, P["if_i"], 0))
                 x_in_next = ca.if_else(reseed, seed, x_in_next)
-            x_if = ca.vertcat(th_next, w_next, d_next, t_next, mode_next)
+            x_if = ca.vertcat(th_next, w_next, d_next, t_next, w_obs, dw_next, mode_next)
             cand = (ca.vertcat(x_in_next, x_if), ca.vertcat(*y_out, *y_if))
-            x_coast = ca.vertcat(x[:n_x], wrap_angle(th + w_r * T_s), w_r, d_lp, t_on, mode)
+            x_coast = ca.vertcat(x[:n_x], wrap_angle(th + w_r * T_s), w_r, d_lp, t_on, w_prev, dw, mode)
             coast = (x_coast, ca.vertcat(*y_out, *y_if))
-            reset = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 1, 0)
+            reset = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 0, 0, 1, 0)
             # the wrapped step's own verdict counts: its sample rejected, the wrapper coasts too
             ok = y_in[len(obs.outputs) - 2] > 0.5
             return guarded(x, p, state, params, cand=cand, coast=coast, reset=reset, ok=ok)
@@ -192,7 +211,7 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
 
     def initial() -> ca.Function:
         p = ca.SX.sym("p", len(params))
-        x0 = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 1, 0)  # at rest, open loop
+        x0 = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 0, 0, 1, 0)  # at rest, open loop
         return ca.Function(f"{obs.name}_if_init", [p], [x0], ["p"], ["x0"])
 
     steady = None
@@ -203,9 +222,11 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             x_in = obs.steady_state()(p[:n_p], op)
             w_on = p[n_p + 2]
             mode = ca.if_else(ca.fabs(op[1]) >= w_on, 0, 1)  # running above w_on: the observer
-            w0 = ca.if_else(mode > 0.5, 0 * op[1], op[1])
+            w0 = op[1]  # in open loop below w_on: the frame turning with the rotor, parked on it
             return ca.Function(
-                f"{obs.name}_if_steady", [p, op], [ca.vertcat(x_in[:-1], x_in[-1], op[0], w0, 0, 0, mode, 0)]
+                f"{obs.name}_if_steady",
+                [p, op],
+                [ca.vertcat(x_in[:-1], x_in[-1], op[0], w0, 0, 0, op[1], 0, mode, 0)],
             )
 
         steady = steady_fn

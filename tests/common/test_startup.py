@@ -35,6 +35,7 @@ def test_the_rules():
             "if_k_d": 2 * 0.5 * w_n,  # zeta = 0.5
             "if_w_hp": w_n / 4,
             "if_t_dwell": 1.5 / 2.5,  # three time constants at twice the decay sigma = 2.5 1/s given
+            "if_k_a": 1e-3 / (4 * 0.5),  # J / (p k_t)
         },
         rel=1e-12,
     )
@@ -48,6 +49,7 @@ def test_the_wrapped_step_ramps_hands_over_and_falls_back(dwell):
     a, T_s, w_on = 2000.0, drive.T_s, 30.0
     # no damping; the load angle's low-pass one period behind (its swing: one period's turn, settled)
     values = {"if_i": 3.0, "if_acc": a, "if_w_on": w_on, "if_w_off": 20.0, "if_k_d": 0.0, "if_w_hp": 1 / T_s}
+    values["if_k_a"] = 1e-3
     setup = with_if_start(base, {**values, "if_t_dwell": dwell * T_s})
     obs = setup.observer
     step = setup.step_function()
@@ -56,9 +58,7 @@ def test_the_wrapped_step_ramps_hands_over_and_falls_back(dwell):
     meas = np.zeros(len(obs.meas))
     meas[-1] = -1000.0  # the speed command w_cmd, beyond -w_on
     k_at = math.ceil(w_on / (a * T_s))  # the first period whose speed has reached w_on
-    # the observer re-seeded on the frame there: its swing filter sees that step for a period, and then
-    # the dwell
-    k_on = k_at + 1 + dwell
+    k_on = k_at + dwell  # ... and stayed there for the dwell (the observer, 13 deg off, not re-seeded)
     theta = 0.0
     for k in range(k_on + 3):
         x_next, y = step(x, meas, setup.p, setup.gain)
@@ -66,10 +66,9 @@ def test_the_wrapped_step_ramps_hands_over_and_falls_back(dwell):
         if k <= k_on:  # open loop, the speed and angle of the period's start
             w_k = -min(a * k * T_s, w_on)
             # the current on the frame's d axis; on the observer's q axis (it saw no motion: angle 0)
-            # its share sin(theta_ol), until the observer is re-seeded at the frame's angle (none)
+            # its share sin(theta_ol)
             assert y[out["startup_mode"]] == 1 and y[out["i_f"]] == 3.0
-            i_q = 3.0 * math.sin(theta) if k < k_at else 0.0
-            assert y[out["i_f_q"]] == pytest.approx(i_q, abs=1e-9 if k <= k_at else 0.1)
+            assert y[out["i_f_q"]] == pytest.approx(3.0 * math.sin(theta), abs=1e-9)
             assert math.isclose(y[out["w_hat"]], w_k, rel_tol=1e-9, abs_tol=1e-9)
             assert math.isclose(math.remainder(y[out["theta_hat"]] - theta, 2 * math.pi), 0, abs_tol=1e-9)
             theta += w_k * T_s
@@ -81,8 +80,8 @@ def test_the_wrapped_step_ramps_hands_over_and_falls_back(dwell):
         assert y[out["valid"]] == 1
         x = np.asarray(x_next).ravel()
     # the parameter struct carries the start's parameters
-    names = ["if_i", "if_acc", "if_w_on", "if_w_off", "if_k_d", "if_w_hp", "if_t_dwell"]
-    assert [f.name for f in obs.params][-7:] == names
+    names = ["if_i", "if_acc", "if_w_on", "if_w_off", "if_k_d", "if_w_hp", "if_t_dwell", "if_k_a"]
+    assert [f.name for f in obs.params][-8:] == names
     assert obs.meas[-1].name == "w_cmd"
 
 
