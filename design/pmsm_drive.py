@@ -125,7 +125,7 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     [rad/s] (0 where not analysed). CapabilityError for a drive without a PMSM's data."""
     from sensorless.design.low_speed import QUICK, minimum_speed
     from sensorless.design.poles import MIN_DAMPING
-    from sensorless.design.startup import ON_FACTOR, handover_decay, if_values
+    from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR, handover_decay, if_values
 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
@@ -154,11 +154,12 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
             ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
             sigma = ls.min_decay
             warn = (
-                f"; the observer's slowest mode decays slower than sqrt(a_max / 30 deg) = "
+                f"; {ACCELERATION_LIMIT} sqrt(a_max / 30 deg) = "
                 f"{handover_decay(drive.T_N, T_max, inertia, pole_pairs, 0.0):.3g} 1/s (what follows the "
                 "full acceleration a_max against rated load) at every speed up to 1 p.u.: handover at the "
-                "design's minimum sensorless speed, where a full-torque acceleration may lose the rotor "
-                "(check the speed steps; raise startup.w_on or lower T_max)"
+                "design's minimum sensorless speed, where a full-torque acceleration or braking may lose "
+                "the rotor (limit the acceleration: ramp the speed reference or lower T_max; or raise the "
+                "observer's gains)"
             )
         w_min = ls.w_min_rated
         if w_min <= 0:

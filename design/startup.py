@@ -49,6 +49,9 @@ from sensorless.design.units import DriveFileError, check_magnitude, parse_quant
 from sensorless.symbolic.startup import with_startup
 
 ACC_SHARE = 0.5
+# how the start's line says that the observer cannot follow the drive's full acceleration (the failed
+# checks of reports/time_domain.py quote it)
+ACCELERATION_LIMIT = "the observer's slowest mode decays slower than"
 ON_FACTOR = 2.0
 ZETA = 0.5
 DWELL = 1.5
