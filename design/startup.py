@@ -192,11 +192,16 @@ def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -
             f"{values['if_w_hp']:.6g} rad/s",
             f"{HP_SHARE:g} w_n: the swing's high-pass, below it, above the load angle's slow change",
         ),
-        "dwell": Entry(
-            f"{values['if_t_dwell']:.6g} s",
-            f"{DWELL:g} / sigma, sigma the decay at w_min: the observer converges at w_on before handover",
-        ),
     }
+
+
+def optional_lines(values: Mapping[str, float]) -> list[str]:
+    """The ``[startup]`` keys ``sensorless init`` writes commented out: the dwell, whose rule follows the
+    gains under review (as w_min does; a number in the file would keep the value of the file's own)."""
+    return [
+        f'dwell = "{values["if_t_dwell"]:.6g} s"  # optional: {DWELL:g} / sigma, sigma the decay at w_min at '
+        "the gains under review (this value at the file's): the observer converges at w_on before handover"
+    ]
 
 
 def with_if_start(setup: RuntimeSetup, values: dict[str, float]) -> RuntimeSetup:
