@@ -85,6 +85,34 @@ def test_the_wrapped_step_ramps_hands_over_and_falls_back(dwell):
     assert obs.meas[-1].name == "w_cmd"
 
 
+def test_the_drop_back_places_the_frame_at_the_load_angle_the_open_loop_needs():
+    # closed loop at rest, no current: the observer's speed (0) is below w_off, so the next period is open
+    # loop, the frame ahead of the observer's angle (0) by asin(i_n / i_if), i_n = i_q - k_a (dw - a_f)
+    # = k_a a (no current, no acceleration; the frame accelerates at +a towards the command): by hand,
+    # asin(2e-3 * 1500 / 6) = 30 deg
+    drive = load_drive(MOTORS / "servo400.toml")
+    fam = family_of(drive)
+    base = fam.runtime(drive, fam.gains(drive))
+    values = {"if_i": 6.0, "if_acc": 1500.0, "if_w_on": 30.0, "if_w_off": 20.0, "if_k_d": 0.0}
+    setup = with_if_start(base, {**values, "if_w_hp": 100.0, "if_t_dwell": 0.0, "if_k_a": 2e-3})
+    obs = setup.observer
+    state = [f.name for f in obs.state]
+    x = np.asarray(setup.initial_state(), float).ravel()
+    x[state.index("startup_mode_x")] = 0.0  # closed loop
+    meas = np.zeros(len(obs.meas))
+    meas[-1] = 1000.0  # w_cmd
+    x_next, y = setup.step_function()(x, meas, setup.p, setup.gain)
+    x_next = np.asarray(x_next).ravel()
+    assert np.asarray(y).ravel()[[f.name for f in obs.outputs].index("startup_mode")] == 0
+    assert x_next[state.index("startup_mode_x")] == 1
+    assert x_next[state.index("if_theta")] == pytest.approx(math.radians(30.0), abs=1e-9)
+    # a current asked for beyond the edge: at most 60 deg ahead
+    x[state.index("if_w_obs")] = 0.0
+    setup_far = with_if_start(base, {**values, "if_w_hp": 100.0, "if_t_dwell": 0.0, "if_k_a": 1.0})
+    x_far = np.asarray(setup_far.step_function()(x, meas, setup_far.p, setup_far.gain)[0]).ravel()
+    assert x_far[state.index("if_theta")] == pytest.approx(math.radians(60.0), abs=1e-9)
+
+
 def test_codegen_prints_the_start_in_the_structs(tmp_path):
     from sensorless.reports.cli.main import main
 
