@@ -15,8 +15,9 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import CapabilityError, Drive, GainSet
 from sensorless.design.low_speed import MAX_BIAS_DEG, QUICK, LowSpeed, headline, minimum_speed
+from sensorless.design.pmsm_drive import startup_values
 from sensorless.design.registry import family_of
-from sensorless.design.startup import ON_FACTOR
+from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
 from sensorless.reports.svg_render import svg_later
 
@@ -77,10 +78,19 @@ def add_to_report(
     start = ""
     if ls.w_min_rated > 0 and not fam.holds_zero_speed(drive):
         why = fam.low_speed_reason(drive) or "the observer does not hold zero speed under rated load"
+        # the start's own speeds (its handover w_min asks for more than the analysis': design/startup.py)
+        w_on, w_off, limit = ON_FACTOR * ls.w_min_rated, ls.w_min_rated, ""
+        try:
+            values, sline, _ = startup_values(drive, gains)  # type: ignore[arg-type]
+        except CapabilityError:
+            values, sline = None, ""
+        if values is not None:
+            w_on, w_off = values["if_w_on"], values["if_w_off"]
+            limit = f"; {sline[sline.index(ACCELERATION_LIMIT) :]}" if ACCELERATION_LIMIT in sline else ""
         start = (
             f"{why[0].upper() + why[1:]}; a start or a reversal under load passes through the open-loop I-f "
-            f"start, 0 to {ON_FACTOR * ls.w_min_rated / ls.w_base:.3g} p.u. (handover; back below "
-            f"{ls.w_min_rated / ls.w_base:.3g} p.u.: design/startup.py)"
+            f"start, 0 to {w_on / ls.w_base:.3g} p.u. (handover; back below "
+            f"{w_off / ls.w_base:.3g} p.u.: design/startup.py){limit}"
         )
     data = {**rep.data, "low_speed": {**ls.data(), "headline": line, "startup": start}}
     if isinstance(data.get("verdict"), dict):
