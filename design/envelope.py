@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
+from sensorless.design.family import EstimateErrors
 from sensorless.design.units import DriveFileError, check_magnitude, parse_number, parse_quantity
 
 ESTIMATE_KEYS = ("R_s", "L_d", "L_q", "psi_pm")  # order of the estimate vector
@@ -136,6 +137,10 @@ class TuningSettings:
     pareto_output: str = ""  # noise output of the front ("": the first limited one, else the family's first)
     bound: bool = True  # compute the pointwise bound (the certificate) on the dense grid
     law: LawSettings = NoLawSettings()  # what the family's gain laws add (LawKeys)
+
+    def estimate_errors(self, source: str = "the drive file's [tuning] errors") -> EstimateErrors:
+        """``errors`` as the box the design is tuned and reviewed for (design/family.py)."""
+        return EstimateErrors(dict(zip(ESTIMATE_KEYS, self.errors, strict=True)), source=source)
 
     def noise_limits(self, outputs: tuple[str, ...]) -> np.ndarray | None:
         """Limits per noise output (inf: none), in the order of ``outputs``; None if no limit is set."""

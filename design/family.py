@@ -28,6 +28,7 @@ one line naming the family and what it lacks.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
@@ -141,6 +142,36 @@ class DriveScales:
         return self.J * self.w_base / self.pole_pairs / self.T_N
 
 
+@dataclass(frozen=True)
+class EstimateErrors:
+    """The estimate errors a design is tuned and reviewed for: a box of relative errors (+-) on the
+    observer's estimates, judged at its centre (the drive file's estimates) and every corner. ``box``
+    labels -> relative error (e.g. {"R_s": 0.3, "L": 0.2}); ``keys`` the ``estimate_keys`` a label
+    scales together (default: the label itself); ``source`` where they are stated (one clause)."""
+
+    box: Mapping[str, float] = field(default_factory=dict)
+    keys: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    source: str = ""
+
+    def __bool__(self) -> bool:
+        return any(v > 0 for v in self.box.values())
+
+    def cases(self) -> list[dict[str, float]]:
+        """The centre ({}: no factor) and every corner of the box, as factors on ``estimate_keys``."""
+        labels = [k for k, v in self.box.items() if v > 0]
+        out: list[dict[str, float]] = [{}]
+        for signs in itertools.product((1, -1), repeat=len(labels)):
+            case: dict[str, float] = {}
+            for lab, s in zip(labels, signs, strict=True):
+                case.update(dict.fromkeys(self.keys.get(lab, (lab,)), 1 + s * self.box[lab]))
+            out.append(case)
+        return out if labels else [{}]
+
+    def text(self) -> str:
+        """E.g. "R_s +-30 %, L +-20 %" ("" where none)."""
+        return ", ".join(f"{k} +-{100 * v:g} %" for k, v in self.box.items() if v > 0)
+
+
 class ObserverFamily:
     """Base class of an observer family; subclasses override what they support (module docstring)."""
 
@@ -215,6 +246,12 @@ class ObserverFamily:
         motor: rotor position unobservable at zero frequency"); "" where it can or the family does not
         say."""
         return ""
+
+    def estimate_errors(self, drive: Drive) -> EstimateErrors:
+        """The estimate errors the drive's design is tuned and reviewed for (its drive file's, or its
+        tuner's defaults): the minimum-speed analysis judges the angle bias under them
+        (design/low_speed.py); none here."""
+        return EstimateErrors()
 
     def with_estimate_errors(self, drive: Drive, factors: Mapping[str, float]) -> Drive:
         """The drive with its observer's estimates scaled by ``factors`` (keys of ``estimate_keys``;

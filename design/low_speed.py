@@ -27,6 +27,11 @@ estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over t
   positive; the torques take both signs, so motoring (T > 0) and regenerating (T < 0) are both
   covered, as an observer of a PMSM is symmetric under (w, T) -> (-w, -T).
 
+:func:`minimum_speed_under` judges a design under the estimate errors its family states for it
+(``ObserverFamily.estimate_errors``, a box of +- errors): every criterion at the drive file's
+estimates, and at every corner a stable equilibrium (damping, decay >= 0) with the bias and noise
+within their limits; w_min is the highest of the cases.
+
 The rated-load value (``w_min_rated``) is the larger of the two at +T_N and -T_N. Where the criteria
 hold down to the grid's floor (:data:`FLOOR_PU`), w_min = 0: no lower limit found (the headline says
 "down to the analysis' floor", not that the observer holds zero speed). Where the family declares
@@ -37,12 +42,13 @@ floor is no verified minimum speed and quotes the family (``LowSpeed.declared``)
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
 from sensorless.design.registry import family_of
 
 MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
@@ -73,6 +79,8 @@ class LowSpeed:
     applied: tuple[str, ...]  # the criteria the family's linearization gives
     holds_zero: bool = False  # the family says its observer holds zero speed by itself (HF injection)
     declared: str = ""  # the family's DriveScales.zero_speed: why it does not run through zero speed
+    errors: str = ""  # the estimate errors judged (EstimateErrors.text; "": the drive file's estimates)
+    errors_source: str = ""  # where they are stated
 
     @property
     def rated(self) -> int:
@@ -117,6 +125,7 @@ class LowSpeed:
             },
             "floor_pu": FLOOR_PU,
             "declared_limit": self.declared,
+            "estimate_errors": {"box": self.errors, "source": self.errors_source},
         }
 
 
@@ -220,11 +229,42 @@ def minimum_speed(
     )
 
 
+def minimum_speed_under(
+    drive: Drive, gains: GainSet, errors: EstimateErrors, *, min_damping: float, **kw: Any
+) -> LowSpeed:
+    """:func:`minimum_speed` (keywords ``kw``) under the estimate errors ``errors`` (the family's
+    ``estimate_errors``): every criterion at the drive file's estimates, and at every corner of the box
+    the observer keeps a stable equilibrium (damping and decay >= 0, not the required values: the
+    damping under errors is a robustness figure, not a low-speed limit) with its angle bias and noise
+    within their limits, as the tuners judge gains under errors (tuning/conditions.py, the flux
+    tuner's "holds"). Per torque the highest w_min of the cases and what limits it there ("stability"
+    where a corner has no stable equilibrium)."""
+    runs = [minimum_speed(drive, gains, min_damping=min_damping, **kw)]
+    corner = {**kw, "min_decay": 0.0}
+    runs += [minimum_speed(drive, gains, min_damping=0.0, errors=c, **corner) for c in errors.cases()[1:]]
+    w = np.stack([r.w_min for r in runs])
+    worst = np.argmax(w, axis=0)  # ties: the first, the drive file's estimates
+
+    def cause(j: int, k: int) -> str:
+        why = runs[j].limited_by[k]
+        return "stability" if j > 0 and why in ("damping", "decay") else why
+
+    return dataclasses.replace(
+        runs[0],
+        w_min=w.max(axis=0),
+        limited_by=tuple(cause(int(j), k) for k, j in enumerate(worst)),
+        applied=tuple(c for c in CRITERIA if any(c in r.applied for r in runs)),
+        errors=errors.text(),
+        errors_source=errors.source if errors else "",
+    )
+
+
 WHAT_TO_DO = {
     "damping": "run the open-loop start (I-f) below it, or retune for more damping at low speed",
     "decay": "run the open-loop start (I-f) below it, or retune for a faster observer at low speed",
     "bias": "run the open-loop start (I-f) below it, or measure the motor parameters more closely",
     "noise": "run the open-loop start (I-f) below it, or use a less noisy current sensor",
+    "stability": "run the open-loop start (I-f) below it, or measure the motor parameters more closely",
 }
 
 
@@ -243,8 +283,8 @@ def headline(ls: LowSpeed) -> str:
         )
     if w <= 0:
         return (
-            f"sensorless down to {FLOOR_PU:g} p.u., the analysis' floor, at rated load (every criterion "
-            "holds there: the linearization finds no lower limit)"
+            f"sensorless down to {FLOOR_PU:g} p.u., the analysis' floor, at rated load{_basis(ls)}: every "
+            "criterion holds there, the linearization finds no lower limit"
         )
     why = ls.rated_limited_by
     todo = WHAT_TO_DO[why]
@@ -254,17 +294,20 @@ def headline(ls: LowSpeed) -> str:
             "checks)"
         )
     return (
-        f"sensorless down to {w / ls.w_base:.3g} p.u. ({ls.rpm(w):.4g} rpm) at rated load, limited by "
-        f"{_CRITERION_TEXT[why](ls)}{_basis(ls)}; below: {todo}"
+        f"sensorless down to {w / ls.w_base:.3g} p.u. ({ls.rpm(w):.4g} rpm) at rated load{_basis(ls)}, "
+        f"limited by {_CRITERION_TEXT[why](ls)}; below: {todo}"
     )
 
 
 def _basis(ls: LowSpeed) -> str:
-    """What the figure leaves out where the angle-bias criterion did not apply: with estimates equal to
-    the motor there is no bias, so a limit found under estimate errors (``tune``'s) may lie higher."""
-    if "bias" in ls.applied:
-        return ""
-    return " (at the drive file's estimates, no estimate errors: the angle bias they cause is not in it)"
+    """Under which estimates the figure holds: the stated errors (every corner), or, where the drive file
+    states none, its own estimates, which leave out the angle bias errors cause (a limit found under
+    errors, e.g. by a tuner given some on its command line, may lie higher)."""
+    if ls.errors:
+        return f" under estimate errors {ls.errors} ({ls.errors_source}, every corner)"
+    if ls.errors_source:
+        return f" (at the drive file's estimates: {ls.errors_source})"
+    return " (at the drive file's estimates: it states no estimate errors, so their angle bias is not in it)"
 
 
 _CRITERION_TEXT = {
@@ -272,4 +315,5 @@ _CRITERION_TEXT = {
     "decay": lambda ls: f"decay rate < {ls.min_decay:.4g} 1/s",
     "bias": lambda ls: f"angle bias > {np.degrees(ls.max_bias):.3g} deg",
     "noise": lambda ls: f"angle noise > {np.degrees(ls.max_noise):.3g} deg rms",
+    "stability": lambda ls: "stability under the estimate errors (no stable equilibrium at a corner)",
 }

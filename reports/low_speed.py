@@ -13,9 +13,15 @@ import functools
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, Drive, GainSet
-from sensorless.design.low_speed import MAX_BIAS_DEG, QUICK, LowSpeed, headline, minimum_speed
-from sensorless.design.pmsm_drive import startup_values
+from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
+from sensorless.design.low_speed import (
+    MAX_BIAS_DEG,
+    QUICK,
+    LowSpeed,
+    headline,
+    minimum_speed,
+    minimum_speed_under,
+)
 from sensorless.design.registry import family_of
 from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
@@ -70,7 +76,8 @@ def add_to_report(
     ``quick``: the coarser grid of ``sensorless report --quick``."""
     try:
         grid = QUICK if quick else {}
-        ls = minimum_speed(drive, gains, min_damping=min_damping, max_bias=max_bias, **grid)
+        errors = family_of(drive).estimate_errors(drive)
+        ls = under_errors(drive, gains, errors, min_damping=min_damping, max_bias=max_bias, **grid)
     except CapabilityError:
         return rep
     line = headline(ls)
@@ -78,20 +85,18 @@ def add_to_report(
     start = ""
     if ls.w_min_rated > 0 and not fam.holds_zero_speed(drive):
         why = fam.low_speed_reason(drive) or "the observer does not hold zero speed under rated load"
-        # the start's own speeds (its handover w_min asks for more than the analysis': design/startup.py)
-        w_on, w_off, limit = ON_FACTOR * ls.w_min_rated, ls.w_min_rated, ""
-        try:
-            values, sline, _ = startup_values(drive, gains)  # type: ignore[arg-type]
-        except CapabilityError:
-            values, sline = None, ""
-        if values is not None:
-            w_on, w_off = values["if_w_on"], values["if_w_off"]
-            limit = f"; {sline[sline.index(ACCELERATION_LIMIT) :]}" if ACCELERATION_LIMIT in sline else ""
+        on, off, limit = _handover(drive, gains, ls)
         start = (
             f"{why[0].upper() + why[1:]}; a start or a reversal under load passes through the open-loop I-f "
-            f"start, 0 to {w_on / ls.w_base:.3g} p.u. (handover; back below "
-            f"{w_off / ls.w_base:.3g} p.u.: design/startup.py){limit}"
+            f"start, 0 to {on / ls.w_base:.3g} p.u. (handover; back below {off / ls.w_base:.3g} p.u.: "
+            f"design/startup.py){limit}"
         )
+        if off < ls.w_min_rated * (1 - 1e-3):  # the start's rules take w_min at the drive's estimates
+            start += (
+                f"; that is below w_min = {ls.w_min_rated / ls.w_base:.3g} p.u. under the estimate errors: "
+                f"give [startup] w_on = {ON_FACTOR * ls.w_min_rated / ls.w_base:.3g} pu and w_off = "
+                f"{ls.w_min_rated / ls.w_base:.3g} pu to hand over only where they allow it"
+            )
     data = {**rep.data, "low_speed": {**ls.data(), "headline": line, "startup": start}}
     if isinstance(data.get("verdict"), dict):
         data["verdict"] = {**data["verdict"], "low_speed": line}
@@ -102,11 +107,41 @@ def add_to_report(
     return dataclasses.replace(rep, data=data, verdict=verdict, sections=(*rep.sections, sec))
 
 
-def tune_line(drive: Drive, gains: GainSet, min_damping: float) -> str:
-    """The tune summary's line (the tuned gains, the grid of ``report --quick``), or "" where the family
-    has no linearization."""
+def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float, str]:
+    """(w_on, w_off) [rad/s] of the drive's I-f start where its family runs one (its [startup], else
+    the rules from w_min at its estimates: design/pmsm_drive.py), else the rules at ``ls``'s w_min; and
+    the physical limit the start names ("; ..." or "": an observer too slow for the full acceleration)."""
+    if family_of(drive).open_loop_start:
+        from sensorless.design.pmsm_drive import startup_values
+
+        try:
+            values, sline, _ = startup_values(drive, gains)  # type: ignore[arg-type]
+        except CapabilityError:
+            values, sline = None, ""
+        if values is not None:
+            limit = f"; {sline[sline.index(ACCELERATION_LIMIT) :]}" if ACCELERATION_LIMIT in sline else ""
+            return values["if_w_on"], values["if_w_off"], limit
+    return ON_FACTOR * ls.w_min_rated, ls.w_min_rated, ""
+
+
+def under_errors(drive: Drive, gains: GainSet, errors: EstimateErrors, **kw: Any) -> LowSpeed:
+    """w_min under ``errors`` (design/low_speed.py ``minimum_speed_under``); where the family's analysis
+    takes no estimate errors, at the drive file's estimates, saying so."""
     try:
-        ls = minimum_speed(drive, gains, min_damping=min_damping, max_bias=np.radians(MAX_BIAS_DEG), **QUICK)
-        return headline(ls)
+        return minimum_speed_under(drive, gains, errors, **kw)
+    except CapabilityError:
+        if not errors:
+            raise
+    ls = minimum_speed(drive, gains, **kw)
+    why = f"its family's analysis takes no estimate errors, not the stated {errors.text()}"
+    return dataclasses.replace(ls, errors_source=why)
+
+
+def tune_line(drive: Drive, gains: GainSet, min_damping: float, errors: EstimateErrors) -> str:
+    """The tune summary's line (the tuned gains under the ``errors`` tuned under, the grid of ``report
+    --quick``), or "" where the family has no linearization."""
+    try:
+        kw = {"min_damping": min_damping, "max_bias": np.radians(MAX_BIAS_DEG), **QUICK}
+        return headline(under_errors(drive, gains, errors, **kw))
     except CapabilityError:
         return ""

@@ -10,12 +10,13 @@ Either way the result has a gain table (design/gain_table.py) and a terminal sum
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from sensorless.design.family import CapabilityError, ObserverFamily
+from sensorless.design.family import CapabilityError, EstimateErrors, ObserverFamily
 from sensorless.design.registry import families, family_of
 
 Progress = Callable[[str], None]
@@ -81,6 +82,9 @@ class TuningHooks:
 
     tunables: tuple[Tunable, ...]
     own_default: str | Callable[[Any], str | None] | None = None
+    # (drive, settings) -> the estimate errors its tuners of their own judge the gains under, from their
+    # settings; None: the family's estimate_errors(drive) (:func:`estimate_errors`)
+    estimate_errors: Callable[[Any, Any], EstimateErrors] | None = None
 
     def tunable(
         self, name: str | None, family: ObserverFamily, preset: bool = True, drive: Any = None
@@ -118,6 +122,24 @@ def tunable_for(drive: Any, name: str | None = None) -> Tunable:
     fam = family_of(drive)
     preset = str(getattr(drive, "file", "")).startswith("preset:")
     return hooks(fam).tunable(name, fam, preset=preset, drive=drive)
+
+
+def estimate_errors(drive: Any, tunable: Tunable, settings: Any) -> EstimateErrors:
+    """The estimate errors a run of ``tunable`` with ``settings`` tunes under: a tunable on the shared NLP
+    those of its TuningSettings (design/envelope.py), a tuner of its own those of the family's hook; the
+    family's ``estimate_errors(drive)`` (with where it states them) where the run's are the same."""
+    fam = family_of(drive)
+    stated = fam.estimate_errors(drive)
+    h = hooks(fam)
+    if tunable.build is not None:
+        run = settings.estimate_errors()
+    elif h.estimate_errors is not None:
+        run = h.estimate_errors(drive, settings)
+    else:
+        return stated
+    if run.text() == stated.text():
+        return stated
+    return dataclasses.replace(run, source="the errors of this tune run's options")
 
 
 def all_tunables() -> dict[str, str]:

@@ -14,7 +14,14 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily, PerUnitBases
+from sensorless.design.family import (
+    CapabilityError,
+    DriveScales,
+    EstimateErrors,
+    GainSet,
+    ObserverFamily,
+    PerUnitBases,
+)
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.ipmsm_adaptive import derive, discrete, schema, simulation
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
@@ -89,6 +96,10 @@ class AdaptiveFluxObserver(ObserverFamily):
             "no HF injection (a non-salient motor, or a saliency the current sensor cannot see): the rotor "
             "position is unobservable at zero frequency, where the back-EMF vanishes"
         )
+
+    def estimate_errors(self, drive: Any) -> EstimateErrors:
+        """Its [tuning] errors: the box the shared tuner keeps gains stable over (tuning/conditions.py)."""
+        return drive.tuning.estimate_errors()
 
     def with_estimate_errors(self, drive: Any, factors: Any) -> Any:
         """[estimate] R_s, L_d, L_q, psi_pm scaled (J only enters the simulated speed controller)."""

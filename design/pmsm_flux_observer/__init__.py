@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
+from sensorless.design.family import CapabilityError, DriveScales, EstimateErrors, GainSet, ObserverFamily
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_flux_observer import gains as _gains
@@ -35,6 +35,12 @@ def simulation(drive: Any, sc: Any, gains: GainSet | None) -> Any:
         f"{drive.observer.inductance_rule} inductance, T_obs = {drive.observer.T_obs * 1e6:.6g} us"
     }
     return loop_setup(drive, sc, setup, meta=meta)
+
+
+# the estimate errors its tuner and its report judge the gains under by default (+-; "L" scales L_d and
+# L_q together): docs/families/pmsm_flux_observer.md "Tuning"; `tune --r-error/--flux-error/--l-error`
+ERRORS = {"R_s": 0.3, "psi_pm": 0.1, "L": 0.2}
+ERROR_KEYS = {"L": ("L_d", "L_q")}
 
 
 class FluxObserverFamily(ObserverFamily):
@@ -85,10 +91,39 @@ class FluxObserverFamily(ObserverFamily):
             )
         return _linearize.linearize(drive, gains, w, torque, **options)
 
+    def estimate_errors(self, drive: Any) -> EstimateErrors:
+        """The tuner's default errors (:data:`ERRORS`), which its report judges the gains under too."""
+        return EstimateErrors(dict(ERRORS), ERROR_KEYS, "the flux tuner's defaults")
+
+    def with_estimate_errors(self, drive: Any, factors: Any) -> Any:
+        """[estimate] R_s, L_d, L_q, psi_pm scaled: the runtime parameters the observer runs with."""
+        e = drive.estimate
+        new = {k: getattr(e, k) * float(v) for k, v in factors.items() if k in e.__dataclass_fields__}
+        return dataclasses.replace(drive, estimate=dataclasses.replace(e, **new))
+
     def scales(self, drive: Any) -> DriveScales:
+        """Its drives are taken through zero speed by the open-loop I-f start below w_min
+        (``open_loop_start``), so the generic checks run a start, a reversal and speed steps through
+        zero (``zero_speed`` left empty; why the observer needs the start: :meth:`low_speed_reason`).
+        Not the box clamp without a complete ``[startup]``: it has no linearization, so no w_min for
+        the start's rules (design/pmsm_drive.py ``startup_values``)."""
         c = drive.control
-        why = "the flux observer loses the angle at standstill (Henwood, Malaize, Praly 2012)"
+        why = ""
+        start = getattr(drive, "startup", None)
+        if drive.observer.correction == "box-clamp" and (start is None or start.needs_w_min):
+            why = (
+                "The box-clamp observer (MXLEMMING) has no linearization, so no minimum sensorless speed "
+                "to derive the open-loop I-f start from: give [startup] current, acceleration, w_on and "
+                "w_off (e.g. the firmware's open-loop ERPM) to check a start and a reversal."
+            )
         return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s, why)
+
+    def low_speed_reason(self, drive: Any) -> str:
+        """The observer sees the rotor only through the back-EMF it integrates."""
+        return (
+            "a back-EMF (flux) observer: the rotor position is unobservable at zero frequency, where the "
+            "back-EMF vanishes (Henwood, Malaize, Praly 2012)"
+        )
 
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation(drive, scenario, gains)

@@ -56,12 +56,27 @@ class FluxLinearization(Linearization):
     theta_err: np.ndarray | None = None  # (N,) [rad], continuous observer
     theta_err_discrete: np.ndarray | None = None  # (N,) [rad], the sampled observer
     law: str = ""
+    observer_decay: np.ndarray | None = None  # (N,) [1/s] decay rate of the observer's own modes
+
+    def low_speed_decay(self) -> np.ndarray:
+        """The observer's decay without the PLL's roots where the observer does not depend on the PLL.
+
+        The PLL's roots (s^2 + k_p s + k_i) do not depend on the speed: a slow one (VESC's default
+        k_p = 2000 1/s, k_i = 30000 1/s^2: -15.1 1/s) is slow at every speed and sets no minimum
+        speed; the report judges it on its own (reports/pmsm_flux_observer: the speed estimate's
+        settling). Where the gain is scheduled over the PLL speed (flux_schedule) the modes are
+        coupled and the slowest of all counts."""
+        return self.decay_rate if self.observer_decay is None else self.observer_decay
 
     def point_columns(self) -> dict[str, np.ndarray]:
         return {"theta_err_deg": np.degrees(self.theta_err_discrete)}
 
     def notes(self) -> tuple[str, ...]:
         return (f"gain law: {self.law}",)
+
+    def angle_bias(self) -> np.ndarray | None:
+        """(N,) steady angle error of the sampled observer [rad], as its tuner judges it."""
+        return self.theta_err_discrete
 
 
 def steady_motor(w: Any, T_e: Any, m: Any) -> tuple[Any, Any]:
@@ -229,8 +244,10 @@ def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = N
     scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
     ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
     poles = np.full((n, A.shape[1]), np.nan + 0j)
+    own = np.full(n, np.nan)
     if ok.any():
         poles[ok] = eigvals_batched(A[ok])
+        own[ok] = _observer_decay(A[ok], poles[ok])
     y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
     poles_d, _, err_d = discrete_analysis(
         drive, sampled_loop(kind, rule, adapt, law), y0, W, T, p, setup.gain
@@ -245,7 +262,18 @@ def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = N
         theta_err=np.where(ok, wrap(err[:, 0, 0]), np.nan),
         theta_err_discrete=err_d,
         law=gains.law,
+        observer_decay=own,
     )
+
+
+def _observer_decay(A: np.ndarray, poles: np.ndarray) -> np.ndarray:
+    """(N,) -max Re of the observer block's eigenvalues (flux state, lambda_hat) where the Jacobian is
+    block triangular (the observer rows do not depend on the PLL's delta, w_pll: then its eigenvalues
+    are the observer block's and the PLL block's); elsewhere of all poles."""
+    m = A.shape[1] - 2
+    own = -np.max(eigvals_batched(np.ascontiguousarray(A[:, :m, :m])).real, axis=1)
+    coupled = np.abs(A[:, :m, m:]).max(axis=(1, 2)) > 0
+    return np.where(coupled, -np.max(poles.real, axis=1), own)
 
 
 def wrap(a: np.ndarray) -> np.ndarray:

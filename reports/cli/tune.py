@@ -30,7 +30,7 @@ from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 from sensorless.reports.gain_csv import pareto_csv, speeds_csv, table_csv
 from sensorless.reports.low_speed import tune_line
-from sensorless.tuning.family import all_tunables, tunable_for
+from sensorless.tuning.family import all_tunables, estimate_errors, tunable_for
 from sensorless.tuning.nlp import TuningError
 
 
@@ -127,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
     except (TuningError, CapabilityError) as e:
         raise UsageError(str(e)) from None
     print("\n".join(r.summary_lines(drive)))
-    low = tune_line(drive, fam.gains(drive, table=r.table, table_file=json_name), MIN_DAMPING)
+    tuned = fam.gains(drive, table=r.table, table_file=json_name)
+    low = tune_line(drive, tuned, MIN_DAMPING, estimate_errors(drive, tunable, settings))
     if low:
         print(low)
     out.add_text(json_name, r.table.to_json())

@@ -40,6 +40,7 @@ from sensorless.reports.document import (
 from sensorless.reports.envelope_options import NOISE_OPTIONS
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
+from sensorless.reports.pmsm_flux_observer.findings import damping_finding, holds_nowhere_finding, pll_finding
 from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
 from sensorless.reports.review import (
     gains_under_review,
@@ -51,7 +52,7 @@ from sensorless.reports.review import (
 )
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
-    assess,
+    assess_any,
     corners,
     figures,
     hold_speed,
@@ -222,7 +223,7 @@ def compute(
     if linearizable:
         progress("[1/3] the gains judged over the envelope under the estimate errors")
         labels = list(rev.choices)
-        a = assess(drive, [rev.choices[k] for k in labels], settings)
+        a = assess_any(drive, [rev.choices[k] for k in labels], settings)
         base = {
             k: figures(drive, a, j)
             for j, k in enumerate(labels)
@@ -305,15 +306,19 @@ def compute(
         mine.get("worst_damping") is not None and mine["worst_damping"] >= min_damping
     )
     stable = not linearizable or mine.get("low_speed_limit_pu") is not None
-    status, td_findings = settle("fail" if not stable else "pass" if damped and tracks else "warn", td)
+    pll = pll_finding(rev.gains, drive.control.alpha_s, td)
+    status = "fail" if not stable else "pass" if damped and tracks and not pll else "warn"
+    status, td_findings = settle(status, td)
     findings = []
     if linearizable and not stable:
-        findings.append("the gains under review hold at no envelope speed under the estimate errors")
+        findings.append(holds_nowhere_finding(drive, rev.gains, settings))
     if not damped:
-        findings.append(f"worst damping {num(mine.get('worst_damping'))} < required {min_damping:g}")
+        findings.append(damping_finding(drive, a, labels.index(review), min_damping, rev.gains.law))
     if not tracks:
         findings.append(f"a time-domain check exceeds {MAX_RMS_THETA_DEG:g} deg RMS position error")
     findings += [x["text"] for x in td_findings]
+    if pll:
+        findings.append(pll)
     data = {
         **opening(FAMILY, drive, table, min_damping, review),
         "observer_period_s": f(drive.observer.T_obs),
@@ -328,7 +333,8 @@ def compute(
         + (
             f"worst damping {num(mine.get('worst_damping'))}, worst angle bias "
             f"{num(mine.get('worst_bias_deg'))} deg, "
-            f"holds down to {num(mine.get('low_speed_limit_pu'))} p.u.; "
+            f"holds down to {num(mine.get('low_speed_limit_pu'))} p.u. (the lowest envelope speed from which "
+            f"it is stable with an angle bias <= {settings.bias_max_deg:g} deg at every error corner); "
             if linearizable
             else "box clamp (not linearizable); "
         )

@@ -127,3 +127,16 @@ def test_angle_noise_scales_with_the_sensor_noise(drive):
     a4 = assess(dataclasses.replace(drive, i_noise=2.0), c, FluxTuneSettings())
     fin = np.isfinite(a3.noise)
     assert fin.any() and np.allclose(a4.noise[fin], 2 * a3.noise[fin])
+
+
+def test_flux_schedule_is_held_below_its_lowest_holding_speed(drive):
+    """Where no candidate holds (every one lacks an equilibrium under some error corner) the criterion
+    ties; the schedule keeps the lowest holding speed's gain there rather than the grid's smallest."""
+    from sensorless.tuning.pmsm_flux_observer import assess, k_grid, odrive_candidate, tune_schedule
+
+    s = FluxTuneSettings()
+    a = assess(drive, [odrive_candidate(drive, float(k)) for k in k_grid(drive)], s)
+    first = int(np.flatnonzero(a.holds.any(axis=0))[0])
+    assert first > 0  # the outrunner has speeds where no gain holds
+    ks = tune_schedule(drive, s).table.gains["observer_gain"]
+    assert ks[:first] == [ks[first]] * first and ks[first] > k_grid(drive)[0]

@@ -1,0 +1,123 @@
+"""What the flux-observer report's verdict says of a figure that misses its limit: the cause in the
+design's own numbers, and what to do.
+
+- the PLL: its speed estimate is the integrator of a PI on the observer's angle, so it settles with the
+  slower root of s^2 + k_p s + k_i at every speed (VESC's default k_p = 2000 1/s, k_i = 30000 1/s^2:
+  -15.1 1/s); a time-domain check that ends soon after a speed ramp sees that lag as its final
+  speed-estimation error, while the angle the drive commutates on (the observer's) is not delayed;
+- the estimate errors: which one alone already loses the motor at every envelope speed (the gradient
+  observer's angle error under a flux error grows with k/|w|, Lee et al. 2010's circle |eta| = lambda);
+- the damping: where it is worst (the gradient observer's k/(2|w|): low where k is small for the speed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+from sensorless.design.family import GainSet
+from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF, base_gain, pll_gains
+from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
+from sensorless.tuning.pmsm_flux_observer import Assessment, FluxTuneSettings, assess, low_limit
+
+
+def pll_roots(gains: GainSet) -> tuple[complex, complex]:
+    """The roots of the PLL's s^2 + k_p s + k_i [1/s], slower first."""
+    k_p, k_i = pll_gains(gains)
+    r = np.roots([1.0, k_p, k_i])
+    r = sorted(r, key=lambda z: -z.real)
+    return complex(r[0]), complex(r[1])
+
+
+def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str:
+    """Empty where the PLL's speed estimate settles at PLL_SPEED_LOOP x the speed loop's bandwidth
+    ``alpha_s`` [rad/s] or faster; else why, and what to do."""
+    min_decay = PLL_SPEED_LOOP * alpha_s
+    slow, fast = pll_roots(gains)
+    sigma = -slow.real
+    if sigma >= min_decay:
+        return ""
+    k_p, k_i = pll_gains(gains)
+    if gains.law == "vesc":
+        names = f"foc_pll_kp = {k_p:.6g} 1/s, foc_pll_ki = {k_i:.6g} 1/s^2"
+        kp = max(k_p, 2 * min_decay)  # a double root at -kp/2, at least min_decay
+        todo = (
+            f"foc_pll_kp = {kp:.6g} 1/s, foc_pll_ki = foc_pll_kp^2/4 = {kp**2 / 4:.4g} 1/s^2 (a double root "
+            f"at {-kp / 2:.4g} 1/s), a slower speed loop ([control] alpha_s at most "
+            f"{sigma / PLL_SPEED_LOOP:.4g} rad/s), or sensorless tune --law vesc"
+        )
+    else:
+        names = f"pll_bandwidth = {k_p / 2:.6g} rad/s"
+        todo = (
+            f"pll_bandwidth of at least {min_decay:.4g} rad/s, a slower speed loop ([control] alpha_s at "
+            f"most {sigma / PLL_SPEED_LOOP:.4g} rad/s), or sensorless tune"
+        )
+    checks = [c["name"] for c in td if any("speed-estimation" in x for x in c["failed"])]
+    seen = f"; the final speed-estimation error of {', '.join(checks)} is that lag" if checks else ""
+    return (
+        f"the PLL's speed estimate (its integrator) settles at {sigma:.3g} 1/s at every speed ({names}: "
+        f"roots {slow.real:.4g} and {fast.real:.4g} 1/s of s^2 + k_p s + k_i), slower than the "
+        f"{min_decay:.4g} 1/s the speed loop closing on it asks ({PLL_SPEED_LOOP:g} x its bandwidth, the "
+        "rule of [control] alpha_s); a speed ramp of a rad/s^2 leaves "
+        f"it {k_p / k_i * 1e3:.3g} ms x a behind, caught up {3 / sigma * 1e3:.3g} ms (3 time constants) "
+        f"after the ramp{seen}; the angle the drive commutates on is the "
+        f"observer's, not delayed by it; to do: {todo}"
+    )
+
+
+def holds_nowhere_finding(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> str:
+    """Why the gains hold at no envelope speed under the estimate errors: which error alone already
+    loses the motor, the gain's ratio to the speed at the top, and what to do."""
+    errors = settings.errors
+    lost = []
+    for key in (k for k, v in errors.items() if v > 0):
+        alone = {k: (v if k == key else 0.0) for k, v in errors.items()}
+        if not assess(drive, [gains], dataclasses.replace(settings, errors=alone)).holds.any():
+            lost.append(f"{key} +-{100 * errors[key]:g} %")
+    w_top = float(drive.envelope.speed_max)
+    k = base_gain(gains, drive.estimate.psi_pm)
+    if gains.law == "vesc":
+        k *= max(float(gains.values["foc_observer_gain_slow"]), drive.motor.psi_pm * w_top / VESC_U_REF)
+    which = (
+        f"{' and '.join(lost)} alone already lose{'s' if len(lost) == 1 else ''} it"
+        if lost
+        else "only the errors together lose it"
+    )
+    vesc = ", VESC's k grows with the voltage" if gains.law == "vesc" else ""
+    adapt = (
+        ""
+        if drive.observer.lambda_adaptation
+        else (", run the flux adaptation ([observer] lambda_adaptation = true, VESC's *_LAMBDA_COMP)")
+    )
+    return (
+        f"the gains under review hold at no envelope speed under the estimate errors: {which} (no "
+        f"equilibrium near the rotor angle, or an angle bias over {settings.bias_max_deg:g} deg); the "
+        "flux observer's angle error under an estimate error grows with its gain k (a flux error's with "
+        f"k/|w|, a resistance error's as k dR i_q/(lambda w^2)): k/|w| = {k / w_top:.3g} at the top speed "
+        f"({w_top / drive.w_base:.3g} p.u.{vesc}); to do: measure R_s and psi_pm closer and state their "
+        f"errors (sensorless tune --r-error, --flux-error){adapt}, or sensorless tune --law {gains.law}"
+    )
+
+
+def damping_finding(drive: Any, a: Assessment, c: int, min_damping: float, law: str) -> str:
+    """Where candidate ``c``'s worst damping over the speeds it holds is, and why it is low there."""
+    W, T = drive.grid()
+    speeds = np.unique(np.abs(W))
+    lim = low_limit(a.holds[c : c + 1], speeds)[0]
+    sel = np.abs(W) >= lim if math.isfinite(lim) else np.ones(W.size, bool)
+    z = np.where(sel, a.damping[c], np.inf)
+    j = int(np.argmin(z))
+    if a.damping[c, j] <= -1.0:
+        return (
+            f"worst damping: no equilibrium under an estimate error at {W[j] / drive.w_base:+.3g} p.u., "
+            f"T_e = {T[j]:.4g} N m (counted as -1 < required {min_damping:g})"
+        )
+    return (
+        f"worst damping {a.damping[c, j]:.4g} < required {min_damping:g} at {W[j] / drive.w_base:+.3g} p.u., "
+        f"T_e = {T[j]:.4g} N m (under the estimate errors): the flux observer's damping is k/(2|w|), low "
+        "where the gain is small for the speed (at the top speed with a constant gain); a larger gain there "
+        "raises it, and the angle bias under a resistance error with it "
+        f"(sensorless tune --law {law} trades them; --min-damping states what the drive needs)"
+    )

@@ -1,0 +1,253 @@
+"""The flux-observer tuners' criterion (package docstring): every candidate judged by the sampled
+observer's linearization on the envelope x the estimate-error corners, its low-speed limit, the best
+candidate, the damping-versus-bias front and the hold speed."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sensorless.design.batch import evaluate_batch
+from sensorless.design.family import GainSet
+from sensorless.design.pmsm_flux_observer.gains import constant_law, runtime_params
+from sensorless.design.pmsm_flux_observer.linearize import (
+    current_noise,
+    discrete_analysis,
+    equilibrium_function,
+    motor_vector,
+    sampled_loop,
+)
+from sensorless.design.poles import worst_damping
+from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
+from sensorless.tuning.pmsm_flux_observer.settings import CHUNK, NOISE_INDEX, FluxTuneSettings, corners
+
+
+@dataclass
+class Assessment:
+    """Per candidate: per-point discrete damping and bias (nominal estimates), per-speed holds."""
+
+    damping: np.ndarray  # (C, P) worst damping over the corners
+    bias: np.ndarray  # (C, P) worst |bias| [rad] over the corners
+    holds: np.ndarray  # (C, S) per envelope |speed|
+    poles: np.ndarray  # (C, P, n) nominal discrete poles [1/s]
+    noise: np.ndarray | None = None  # (C, P, 2) worst PLL angle [rad] and speed [rad/s] noise, RMS
+
+
+def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
+    """The sampled observer with each candidate's gains on the envelope x the error corners."""
+    W, T = drive.grid()
+    speeds = np.unique(np.abs(W))
+    cs = corners(settings.errors)
+    names = [f.name for f in PARAMS]
+    rows, gains = [], []
+    for g in cands:
+        base = runtime_params(drive, g)
+        k_0 = (
+            4 * float(g.values["foc_observer_gain"]) * drive.estimate.psi_pm**2
+            if g.law == "vesc"
+            else float(g.values["observer_gain"])
+        )
+        for c in cs:
+            p = dict(base)
+            p.update(R_s=p["R_s"] * c["R_s"], psi_pm=p["psi_pm"] * c["psi_pm"])
+            p.update(L_d=p["L_d"] * c["L"], L_q=p["L_q"] * c["L"])
+            rows.append([p[n] for n in names])
+            gains.append(k_0)
+    nc, npt = len(cs), W.size
+    n = len(cands) * nc * npt
+    P = np.repeat(np.asarray(rows).T, npt, axis=1)
+    G = np.repeat(np.asarray(gains)[None, :], npt, axis=1)
+    Wn, Tn = np.tile(W, len(cands) * nc), np.tile(T, len(cands) * nc)
+    o = drive.observer
+    law = constant_law()
+    fn = equilibrium_function("gradient", o.inductance_rule, o.lambda_adaptation, law)
+    loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
+    m = motor_vector(drive)
+    s = np.full((n, loop.n_y), np.nan + 0j)
+    zmax, err, noise = np.full(n, np.nan), np.full(n, np.nan), np.full((n, 2), np.nan)
+    sigma = current_noise(drive)
+    for j in range(0, n, CHUNK):
+        sl = slice(j, min(j + CHUNK, n))
+        k = sl.stop - sl.start
+        x, A, res, _ = evaluate_batch(fn, k, [Wn[sl], Tn[sl], m, P[:, sl], G[:, sl]])
+        scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
+        ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
+        y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
+        s[sl], zmax[sl], err[sl], nz = discrete_analysis(
+            drive, loop, y0, Wn[sl], Tn[sl], P[:, sl], G[:, sl], sigma
+        )
+        noise[sl] = nz
+    ok = np.isfinite(zmax)
+    zeta = worst_damping(s).reshape(len(cands), nc, npt)
+    bias = np.abs(np.where(ok, err, np.nan)).reshape(len(cands), nc, npt)
+    stable = (ok & (zmax < 1)).reshape(len(cands), nc, npt)
+    noise = np.where(ok[:, None], noise, np.inf).reshape(len(cands), nc, npt, 2)
+    good = stable & (bias <= math.radians(settings.bias_max_deg))
+    for name, lim in settings.max_noise:
+        good &= noise[..., NOISE_INDEX[name]] <= lim
+    good_pt = good.all(axis=1)  # (C, P)
+    holds = np.stack([good_pt[:, np.abs(W) == sp].all(axis=1) for sp in speeds], axis=1)
+    worst = np.where(stable.all(axis=1), np.nanmin(np.where(np.isnan(zeta), -1, zeta), axis=1), -1.0)
+    return Assessment(
+        worst,
+        np.nanmax(np.where(np.isnan(bias), np.inf, bias), axis=1),
+        holds,
+        s.reshape(len(cands), nc, npt, -1)[:, 0],
+        np.nanmax(noise, axis=1),
+    )
+
+
+def low_limit(holds: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+    """(C,) the lowest speed from which every higher envelope speed holds (inf: none holds at the top)."""
+    out = np.full(holds.shape[0], np.inf)
+    for c in range(holds.shape[0]):
+        for j in range(len(speeds) - 1, -1, -1):
+            if not holds[c, j]:
+                break
+            out[c] = speeds[j]
+    return out
+
+
+def figures(drive: Any, a: Assessment, c: int, w_from: float | None = None) -> dict[str, float]:
+    """Worst damping and bias over the speeds from ``w_from`` (None: its own low-speed limit) up, and
+    the low-speed limit."""
+    W, _ = drive.grid()
+    speeds = np.unique(np.abs(W))
+    lim = low_limit(a.holds[c : c + 1], speeds)[0]
+    sel = np.abs(W) >= (lim if w_from is None else w_from)
+    if not sel.any():  # no speed holds: the figures over the whole envelope
+        sel = np.ones(W.size, bool)
+    return {
+        "worst_damping": float(np.min(a.damping[c, sel])) if sel.any() else float("nan"),
+        "worst_bias_deg": float(np.degrees(np.max(a.bias[c, sel]))) if sel.any() else float("nan"),
+        "low_speed_limit_rad_s": float(lim),
+        "low_speed_limit_pu": float(lim / drive.w_base),
+        "worst_noise_deg": float(np.degrees(np.max(a.noise[c, sel, 0]))) if a.noise is not None else math.nan,
+        "worst_speed_noise_rad_s": float(np.max(a.noise[c, sel, 1])) if a.noise is not None else math.nan,
+    }
+
+
+def best(drive: Any, a: Assessment, w_hold: float) -> int:
+    """The criterion of the package docstring: the index of the best candidate."""
+    W, _ = drive.grid()
+    speeds = np.unique(np.abs(W))
+    lim = low_limit(a.holds, speeds)
+    keys = []
+    for c in range(len(lim)):
+        if lim[c] <= w_hold * (1 + 1e-12):
+            keys.append((0, -figures(drive, a, c, w_hold)["worst_damping"], c))
+        else:
+            z = figures(drive, a, c)["worst_damping"]
+            keys.append((1, lim[c], -(z if math.isfinite(z) else -9.0), c))
+    return min(keys)[-1]
+
+
+def front(
+    drive: Any, a: Assessment, cands: list[GainSet], w_hold: float, n: int, limit_deg: float
+) -> dict[str, Any]:
+    """The damping-versus-bias front of the candidates (``tune --pareto N``): of those that hold down
+    to the hold speed, the ones no other beats in both worst damping and worst angle bias over the
+    speeds from it up, at most ``n`` of them evenly over the front, by increasing bias."""
+    W, _ = drive.grid()
+    speeds = np.unique(np.abs(W))
+    lim = low_limit(a.holds, speeds)
+    sel = np.abs(W) >= w_hold
+    pts = []
+    for c in np.flatnonzero(lim <= w_hold * (1 + 1e-12)):
+        fg = figures(drive, a, int(c), w_hold)
+        decay = float(-np.nanmax(a.poles[c, sel].real))
+        pts.append((fg["worst_bias_deg"], -fg["worst_damping"], decay, fg["worst_noise_deg"], int(c)))
+    pts.sort()
+    kept, best_z = [], -np.inf
+    for b, mz, decay, nz, c in pts:  # by increasing bias: kept where better damped than all before
+        if -mz > best_z:
+            kept.append((b, -mz, decay, nz, c))
+            best_z = -mz
+    if len(kept) > n:
+        kept = [kept[round(i)] for i in np.linspace(0, len(kept) - 1, n)]
+    names = [k for k, v in cands[0].values.items() if not isinstance(v, list)]
+    return {
+        "metric": "bias",
+        "description": "bias = worst steady angle bias [deg] under the estimate errors over the speeds "
+        f"from the hold speed {w_hold / drive.w_base:.4g} p.u. up",
+        "parameters": names,
+        "points": [
+            {
+                "bias": b,
+                "limit": limit_deg,
+                "worst_damping": z,
+                "min_decay_rate": decay,
+                "noise": nz,
+                "theta": [float(cands[c].values[k]) for k in names],
+            }
+            for b, z, decay, nz, c in kept
+        ],
+    }
+
+
+def hold_speed(drive: Any, settings: FluxTuneSettings, base: dict[str, Any]) -> float:
+    """The hold speed of the criterion (package docstring) [rad/s]."""
+    if settings.hold_speed is not None:
+        return settings.hold_speed
+    lims = [b["low_speed_limit_rad_s"] for k, b in base.items() if k != "drive file"]
+    finite = [x for x in lims if math.isfinite(x)]
+    return min(finite) if finite else float(drive.envelope.speed_max)
+
+
+def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Assessment:
+    """:func:`assess` of one gain set of any law through the family's linearization (a scheduled
+    gain with its derivative in the PLL speed), one call per estimate corner."""
+    from sensorless.design.registry import family_of
+
+    fam = family_of(drive)
+    W, T = drive.grid()
+    speeds = np.unique(np.abs(W))
+    e = drive.estimate
+    zs, bs, st, poles = [], [], [], None
+    for c in corners(settings.errors):
+        est = {
+            "R_s": e.R_s * c["R_s"],
+            "psi_pm": e.psi_pm * c["psi_pm"],
+            "L_d": e.L_d * c["L"],
+            "L_q": e.L_q * c["L"],
+        }
+        lin = fam.linearize(drive, gains, W, T, estimate=est)
+        if poles is None:
+            poles = lin.poles_discrete
+        ok = np.isfinite(lin.poles_discrete).all(axis=1)
+        zs.append(np.where(ok, lin.worst_damping_discrete, -1.0))
+        bs.append(np.where(ok, np.abs(lin.theta_err_discrete), np.inf))
+        st.append(ok & (lin.decay_rate_discrete > 0))
+    zeta, bias, stable = np.array(zs), np.array(bs), np.array(st)
+    good = (stable & (bias <= math.radians(settings.bias_max_deg))).all(axis=0)
+    holds = np.array([[good[np.abs(W) == sp].all() for sp in speeds]])
+    worst = np.where(stable.all(axis=0), zeta.min(axis=0), -1.0)
+    return Assessment(worst[None], bias.max(axis=0)[None], holds, poles[None])
+
+
+def assess_any(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
+    """:func:`assess` of gain sets of any law: the scheduled ones (flux_schedule) through
+    :func:`assess_linearized` (no noise figure), the others in one batch; in the order given."""
+    sched = [j for j, g in enumerate(cands) if g.law == "flux_schedule"]
+    if not sched:
+        return assess(drive, cands, settings)
+    rest = [j for j in range(len(cands)) if j not in sched]
+    parts = {j: assess_linearized(drive, cands[j], settings) for j in sched}
+    if rest:
+        a = assess(drive, [cands[j] for j in rest], settings)
+        for i, j in enumerate(rest):
+            noise = None if a.noise is None else a.noise[i : i + 1]
+            parts[j] = Assessment(
+                a.damping[i : i + 1], a.bias[i : i + 1], a.holds[i : i + 1], a.poles[i : i + 1], noise
+            )
+    rows = [parts[j] for j in range(len(cands))]
+    nan = np.full((*rows[0].damping.shape, 2), np.nan)
+    return Assessment(
+        np.concatenate([r.damping for r in rows]),
+        np.concatenate([r.bias for r in rows]),
+        np.concatenate([r.holds for r in rows]),
+        np.concatenate([r.poles for r in rows]),
+        np.concatenate([r.noise if r.noise is not None else nan for r in rows]),
+    )

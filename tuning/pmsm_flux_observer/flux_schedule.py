@@ -1,0 +1,63 @@
+"""The ``flux_schedule`` law's tuner: gamma lambda^2 per envelope speed, by the criterion at that speed."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from sensorless.design.family import GainSet
+from sensorless.design.poles import MIN_DAMPING
+from sensorless.tuning.pmsm_flux_observer.assessment import assess, assess_linearized, figures
+from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome, baselines, gain_table, summary_line
+from sensorless.tuning.pmsm_flux_observer.settings import (
+    KP_T,
+    FluxTuneSettings,
+    k_grid,
+    odrive_candidate,
+    pll_floor,
+)
+
+
+def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
+    """The ``flux_schedule`` law: gamma lambda^2 per envelope speed, by the criterion at that speed."""
+    ks = k_grid(drive)
+    cands = [odrive_candidate(drive, float(k)) for k in ks]
+    a = assess(drive, cands, settings)
+    W, _ = drive.grid()
+    speeds = np.unique(np.abs(W))
+    chosen = []
+    for j, sp in enumerate(speeds):
+        sel = np.abs(W) == sp
+        hold = a.holds[:, j]
+        zeta = [float(np.min(a.damping[c, sel])) for c in range(len(ks))]
+        bias = [float(np.max(a.bias[c, sel])) for c in range(len(ks))]
+        # holding and damped enough: the least bias; else holding: the best damped; else the best damped
+        score = [
+            (0, bias[c], c) if hold[c] and zeta[c] >= MIN_DAMPING else (1 if hold[c] else 2, -zeta[c], c)
+            for c in range(len(ks))
+        ]
+        chosen.append(float(ks[min(score)[2]]))
+    # below the lowest speed where a gain holds, every candidate ties at "no equilibrium under some
+    # error" and the first (K_MIN) would win: an observer slowest where it needs speed most; the
+    # schedule is held at the lowest holding speed's gain instead (as the law holds it beyond its ends)
+    held = np.flatnonzero(a.holds.any(axis=0))
+    if held.size:
+        chosen = [chosen[held[0]] if j < held[0] else k for j, k in enumerate(chosen)]
+    T = drive.observer.T_obs
+    # one PLL at every speed: its double pole at the geometric mean of the scheduled gains
+    bw = min(max(float(np.exp(np.mean(np.log(chosen)))), pll_floor(drive)), KP_T / (2 * T))
+    g = {"speeds": [float(s) for s in speeds], "observer_gain": chosen, "pll_bandwidth": bw}
+    gs = GainSet("flux_schedule", g, "tuned")
+    a_s = assess_linearized(drive, gs, settings)  # the schedule itself, its law's derivative included
+    f = figures(drive, a_s, 0)
+    base_lines, base = baselines(drive, settings)
+    lines = [
+        "tuned flux_schedule: observer_gain over |speed| "
+        + ", ".join(f"{s / drive.w_base:.3g} pu: {k:.4g}" for s, k in zip(speeds, chosen, strict=True))
+        + f"; pll_bandwidth = {bw:.6g} rad/s",
+        summary_line("tuned", f, settings),
+        "baselines (the firmwares' defaults on this motor, same criterion):",
+        *base_lines,
+    ]
+    summary = {**f, "baselines": base, "errors": settings.errors, "bias_max_deg": settings.bias_max_deg}
+    return FluxOutcome("flux_schedule", gain_table(drive, "flux_schedule", g, a_s, 0, summary), lines)

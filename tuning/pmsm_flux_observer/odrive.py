@@ -1,0 +1,52 @@
+"""The ``odrive`` law's tuner: one observer_gain and pll_bandwidth over the envelope."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from sensorless.tuning.pmsm_flux_observer.assessment import assess, best, front, hold_speed
+from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome, baselines, outcome, same_law
+from sensorless.tuning.pmsm_flux_observer.settings import (
+    REFINE,
+    FluxTuneSettings,
+    corners,
+    k_grid,
+    odrive_candidate,
+    odrive_gains,
+)
+
+
+def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
+    """The ``odrive`` law: one observer_gain and pll_bandwidth over the envelope (package docstring)."""
+    ks = k_grid(drive)
+    cands = [odrive_candidate(drive, float(k)) for k in ks]
+    if progress:
+        progress(
+            f"{len(cands)} observer gains x the envelope x {len(corners(settings.errors))} estimate cases"
+        )
+    a = assess(drive, cands, settings)
+    base_lines, base = baselines(drive, settings)
+    w_hold = hold_speed(drive, settings, base)
+    c = best(drive, a, w_hold)
+    pf = front(drive, a, cands, w_hold, settings.pareto, settings.bias_max_deg) if settings.pareto else None
+    # refined between the grid's neighbours of the best, with the firmware's default and the drive
+    # file's gains of this law as candidates too (the tuned gains are never worse than either)
+    lo, hi = ks[max(c - 1, 0)], ks[min(c + 1, len(ks) - 1)]
+    cands = [cands[c], *(odrive_candidate(drive, float(k)) for k in np.geomspace(lo, hi, REFINE))]
+    cands += [odrive_gains(), *same_law(drive, "odrive")]
+    a = assess(drive, cands, settings)
+    return outcome(
+        drive,
+        "odrive",
+        lambda g: (
+            f"tuned odrive: observer_gain = {g['observer_gain']:.6g} 1/s, "
+            f"pll_bandwidth = {g['pll_bandwidth']:.6g} rad/s"
+        ),
+        cands,
+        a,
+        w_hold,
+        (base, base_lines),
+        settings,
+        pf,
+    )

@@ -1,0 +1,144 @@
+"""What a flux-observer tuner returns: the best candidate's gain table, its summary lines and the
+firmwares' defaults judged beside it (baselines)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sensorless.design.family import GainSet
+from sensorless.design.gain_table import GainTable
+from sensorless.design.poles import worst_damping
+from sensorless.tuning.pmsm_flux_observer.assessment import Assessment, assess, best, figures
+from sensorless.tuning.pmsm_flux_observer.settings import FluxTuneSettings, odrive_gains, vesc_gains
+
+
+@dataclass
+class FluxOutcome:
+    law: str
+    table: GainTable
+    lines: list[str]
+
+    def summary_lines(self, drive: Any) -> list[str]:
+        return self.lines
+
+
+def baselines(drive: Any, settings: FluxTuneSettings) -> tuple[list[str], dict[str, Any]]:
+    cands = [odrive_gains(), vesc_gains(drive), drive_gains_or_none(drive)]
+    cands = [c for c in cands if c is not None]
+    a = assess(drive, cands, settings)
+    lines, out = [], {}
+    for j, (label, g) in enumerate(
+        zip(("ODrive defaults", "VESC detection", "drive file"), cands, strict=False)
+    ):
+        f = figures(drive, a, j)
+        out[label] = {**f, "gains": dict(g.values)}
+        lines.append(summary_line(label, f))
+    return lines, out
+
+
+def same_law(drive: Any, law: str) -> list[GainSet]:
+    """The drive file's gains where they are of ``law``."""
+    g = drive_gains_or_none(drive)
+    return [g] if g is not None and g.law == law else []
+
+
+def drive_gains_or_none(drive: Any) -> GainSet | None:
+    from sensorless.design.pmsm_flux_observer.gains import drive_gains
+
+    return drive_gains(drive)
+
+
+def summary_line(label: str, f: dict[str, float], settings: FluxTuneSettings | None = None) -> str:
+    """One summary line; with ``settings``, what "holds" means (the shared minimum-speed line printed
+    after it judges other limits: design/low_speed.py)."""
+    lim = f["low_speed_limit_pu"]
+    if not math.isfinite(lim):
+        return f"  {label:<16} loses the motor at every envelope speed (unstable or biased beyond the limit)"
+    held = f"holds down to {lim:.3g} p.u."
+    if settings is not None:
+        held += (
+            f" (the lowest envelope speed from which it is stable with an angle bias <= "
+            f"{settings.bias_max_deg:g} deg at every error corner)"
+        )
+    return (
+        f"  {label:<16} worst damping {f['worst_damping']:.3f}, worst angle bias "
+        f"{f['worst_bias_deg']:.2f} deg{noise_clause(f)}; {held}"
+    )
+
+
+def noise_clause(f: dict[str, float]) -> str:
+    n = f.get("worst_noise_deg", float("nan"))
+    return f", angle noise {n:.3g} deg rms" if math.isfinite(n) else ""
+
+
+def gain_table(
+    drive: Any, law: str, gains: dict[str, Any], a: Assessment, c: int, summary: dict[str, Any]
+) -> GainTable:
+    W, T = drive.grid()
+    base = assess(drive, [drive_gains_or_none(drive)], FluxTuneSettings())
+    points = []
+    for j in range(W.size):
+        points.append(
+            {
+                "w_m_pu": float(W[j] / drive.w_base),
+                "T_e_Nm": float(T[j]),
+                "damping": float(worst_damping(a.poles[c, j : j + 1])[0]),
+                "decay_rate": float(-np.max(a.poles[c, j].real)),
+                "poles": [[float(p.real), float(p.imag)] for p in a.poles[c, j]],
+                "baseline": {
+                    "damping": float(worst_damping(base.poles[0, j : j + 1])[0]),
+                    "decay_rate": float(-np.max(base.poles[0, j].real)),
+                },
+            }
+        )
+    env = {"speed_base_rad_s": drive.w_base, "T_s_s": drive.observer.T_obs}
+    head = {"name": drive.name, "kind": drive.kind, "sha256": drive.digest}
+    return GainTable(law, head, gains, env, points, summary)
+
+
+def summary_limits(settings: FluxTuneSettings, pf: dict[str, Any] | None) -> dict[str, Any]:
+    """The summary's noise limit and front, where the run has them (preset tables stay as they were)."""
+    out: dict[str, Any] = {}
+    if settings.max_noise:
+        out["max_noise"] = dict(settings.max_noise)
+    if pf is not None:
+        out["pareto"] = pf
+    return out
+
+
+def outcome(
+    drive: Any,
+    law: str,
+    header: Any,
+    cands: list[Any],
+    a: Any,
+    w_hold: float,
+    baselines: tuple[Any, list[str]],
+    settings: FluxTuneSettings,
+    pf: Any,
+) -> FluxOutcome:
+    """The best candidate held down to ``w_hold``, its table and summary: ``header`` (gains) -> the
+    summary's first line, in the law's own terms; ``baselines`` the firmware defaults and their lines."""
+    base, base_lines = baselines
+    c = best(drive, a, w_hold)
+    g = dict(cands[c].values)
+    f = figures(drive, a, c)
+    lines = [
+        header(g),
+        summary_line("tuned", f, settings),
+        f"  (hold speed {w_hold / drive.w_base:.3g} p.u.: the better firmware default's low-speed limit)",
+        "baselines (the firmwares' defaults on this motor, same criterion):",
+        *base_lines,
+    ]
+    summary = {
+        **f,
+        "hold_speed_rad_s": w_hold,
+        "baselines": base,
+        "errors": settings.errors,
+        "bias_max_deg": settings.bias_max_deg,
+        **summary_limits(settings, pf),
+    }
+    return FluxOutcome(law, gain_table(drive, law, g, a, c, summary), lines)
