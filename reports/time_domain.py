@@ -96,6 +96,16 @@ def judge(tr: Any, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[st
         m["handovers"] = int(k_on.size)
         if k_on.size:
             m["handover_theta_err_deg"] = f(np.degrees(np.abs(_wrap(tr["theta_err"][k_on])).max()))
+        if open_loop.all() and "w_ref" in tr.data and "w_hat" in tr.data:
+            # the start alone, throughout: fine where the reference stays within its range, not where it
+            # asks for more (the open-loop frame turns at most at the handover speed)
+            top, asked = np.max(np.abs(tr["w_hat"])), np.max(np.abs(tr["w_ref"]))
+            if asked > 1.05 * top:
+                failed = [
+                    *failed,
+                    f"the drive never handed over to the observer: the open-loop start ran throughout, at "
+                    f"most {top / base_w:.3g} p.u., while the reference asked for {asked / base_w:.3g} p.u.",
+                ]
         slip = out_of_step(tr.t, np.asarray(tr["theta_err"]), open_loop)
         if slip is not None:
             speed = f", speed {tr['w_m'][slip[1]] / base_w:+.3f} p.u." if "w_m" in tr.data else ""
