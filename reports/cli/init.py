@@ -24,7 +24,7 @@ from sensorless.design import registry
 from sensorless.design.drive import load_drive_text, preset_text
 from sensorless.design.drive_file import Entry, read_text, table
 from sensorless.design.family import CapabilityError
-from sensorless.design.startup import SECTION, document_entries
+from sensorless.design.startup import SECTION, document_entries, optional_lines
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.common import UsageError, print_warnings
 from sensorless.reports.family import Importer, add_options, import_options, importers
@@ -120,6 +120,8 @@ def _startup_section(doc: Any, fam: Any, drive: Any, given: Any) -> bool:
     sec = doc.section(SECTION, note)
     if values is not None:
         sec.update(document_entries(values, drive.w_base, w_min))
+        if not (given and "dwell" in given):
+            doc.optional.setdefault(SECTION, []).extend(optional_lines(values))
     sec.update({k: Entry(v, given=True) for k, v in (given or {}).items()})
     return True
 
