@@ -181,7 +181,7 @@ def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -
             "1 w_min",
             f"w_min at rated load for the handover, the gains under review (design/low_speed.py, with the "
             "decay that follows the full acceleration, design/startup.py): "
-            f"{w_min / w_base:.4g} p.u. at this file's",
+            f"{w_min / w_base:.4g} p.u. at this file's own gains",
         ),
         "damping": Entry(
             f"{values['if_k_d']:.6g} 1/s",

@@ -114,7 +114,22 @@ def _startup_section(doc: Any, fam: Any, drive: Any, given: Any) -> bool:
     from sensorless.design.pmsm_drive import startup_values
 
     note = "the open-loop I-f start below the minimum sensorless speed (design/startup.py)"
-    values, _, w_min = startup_values(drive, fam.gains(drive))  # ``drive`` has no [startup] yet
+    try:
+        values, _, w_min = startup_values(drive, fam.gains(drive))  # ``drive`` has no [startup] yet
+    except CapabilityError as e:
+        # no minimum-speed analysis (an observer without a linearization): the speeds cannot follow a
+        # rule, so they are left for the user to give, with the reason; the rest keeps its rules
+        sec = doc.section(SECTION, f"{note}; handover speeds not derived: {e}")
+        sec.update({k: Entry(v, given=True) for k, v in (given or {}).items()})
+        doc.optional.setdefault(SECTION, []).extend(
+            line
+            for line in (
+                'w_on = "..."  # give the handover speed (rad/s, Hz or p.u.) to run the start',
+                'w_off = "..."  # and the speed below w_on where the drive goes back to open loop',
+            )
+            if not (given and line.split()[0] in given)
+        )
+        return True
     if values is None and given is None:
         return False
     sec = doc.section(SECTION, note)
