@@ -143,13 +143,19 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
             f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
         ) from None
     values = {**given, "if_k_a": inertia / (pole_pairs * k_t)}  # the motor's (design/startup.py)
-    if startup is None or startup.needs_w_min:  # a key the file does not give keeps its rule
+    if startup is None or not startup.complete:  # a key the file does not give keeps its rule
         # the handover's w_min: the design's criteria with the decay that follows the full acceleration;
         # where no speed up to 1 p.u. gives that decay (the slowest mode need not be the one an
         # acceleration excites: the 400-W servo's default gains follow it from 0.02 p.u. in simulation),
         # the design's own w_min, and said (design/startup.py)
         sigma = handover_decay(drive.T_N, T_max, inertia, pole_pairs, fam.scales(drive).alpha_s)
-        ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, min_decay=sigma, **QUICK)  # type: ignore[arg-type]
+        try:
+            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, min_decay=sigma, **QUICK)  # type: ignore[arg-type]
+        except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
+            if startup is None or startup.needs_w_min:
+                raise
+            rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma)
+            return (*_startup_line({**rules, **given}, given, drive.w_base, ""), 0.0)
         if ls.w_min_rated >= drive.w_base * (1 - 1e-9):
             ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
             sigma = ls.min_decay
@@ -178,13 +184,20 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
                 f"; the handover given is below w_min = {w_min / drive.w_base:.3g} p.u.: the observer takes "
                 f"over where its criteria do not hold (raise startup.w_on to {ON_FACTOR:g} w_min)"
             )
+    return (*_startup_line(values, given, drive.w_base, warn), w_min)
+
+
+def _startup_line(
+    values: dict[str, float], given: Any, w_base: float, warn: str
+) -> tuple[dict[str, float], str]:
+    """(values, the one line that says the start's numbers)."""
     line = (
         f"I-f start{' ([startup] of the drive file)' if given else ''}: "
         f"{values['if_i']:.4g} A, {values['if_acc']:.4g} rad/s^2, handover at "
-        f"{values['if_w_on'] / drive.w_base:.3g} p.u., back below "
-        f"{values['if_w_off'] / drive.w_base:.3g} p.u.{warn}"
+        f"{values['if_w_on'] / w_base:.3g} p.u., back below "
+        f"{values['if_w_off'] / w_base:.3g} p.u.{warn}"
     )
-    return values, line, w_min
+    return values, line
 
 
 def startup_setup(drive: OnPmsm, setup: RuntimeSetup) -> tuple[RuntimeSetup, str]:

@@ -110,9 +110,15 @@ class StartupSettings:
 
     @property
     def needs_w_min(self) -> bool:
-        """Whether a value is to come from w_min (its rule, or a multiple of it)."""
+        """Whether a value is to come from w_min: a speed not given, or given as a multiple of it (the
+        other keys' rules need no w_min: the dwell's decay is :func:`handover_decay` then)."""
+        return any(getattr(self, k) is None for k in SPEEDS)
+
+    @property
+    def complete(self) -> bool:
+        """Whether every key is given (no rule needed at all)."""
         keys = ("current", "acceleration", "damping", "w_hp", "dwell", *SPEEDS)
-        return any(getattr(self, k) is None for k in keys)
+        return all(getattr(self, k) is not None for k in keys)
 
     def values(self, w_min: float | None = None) -> dict[str, float]:
         """The keys given, as :func:`if_values` names them, speeds in w_min resolved at ``w_min`` (left

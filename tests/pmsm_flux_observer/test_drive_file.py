@@ -8,7 +8,9 @@ import json
 import math
 
 import pytest
+from sensorless.design import registry
 from sensorless.design.drive import load_drive
+from sensorless.design.pmsm_drive import startup_values
 from sensorless.reports.cli.main import main
 
 MINIMAL = """
@@ -116,4 +118,9 @@ def test_init_of_a_box_clamp_leaves_the_handover_speeds_to_give(minimal, tmp_pat
     assert drive.startup is not None and drive.startup.needs_w_min
     given = text.replace('# w_on = "..."', 'w_on = "0.2 pu"').replace('# w_off = "..."', 'w_off = "0.1 pu"')
     full.write_text(given)
-    assert load_drive(str(full)).startup.w_on == pytest.approx(0.2 * drive.w_base)
+    with_speeds = load_drive(str(full))
+    assert with_speeds.startup.w_on == pytest.approx(0.2 * drive.w_base)
+    fam = registry.family_of(with_speeds)
+    values, line, _ = startup_values(with_speeds, fam.gains(with_speeds))  # other keys: rules; no analysis
+    assert values["if_w_on"] == pytest.approx(0.2 * drive.w_base) and values["if_i"] > 0, line
+    assert not fam.scales(with_speeds).zero_speed  # the checks go through zero
