@@ -125,7 +125,7 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     [rad/s] (0 where not analysed). CapabilityError for a drive without a PMSM's data."""
     from sensorless.design.low_speed import QUICK, minimum_speed
     from sensorless.design.poles import MIN_DAMPING
-    from sensorless.design.startup import ON_FACTOR, if_values
+    from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR, handover_decay, if_values
 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
@@ -133,22 +133,45 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     startup = getattr(drive, "startup", None)
     given = startup.values() if startup is not None else {}
     values, w_min, warn = given, 0.0, ""
-    if startup is None or startup.needs_w_min:  # a key the file does not give keeps its rule
+    try:
+        m, c = drive.motor, drive.control
+        inertia, pole_pairs, T_max = m.J, m.p, c.T_max
+        i_d, i_q = mtpa_torque_current(T_max, m)
+        k_t = T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
+    except AttributeError:
+        raise CapabilityError(
+            f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
+        ) from None
+    values = {**given, "if_k_a": inertia / (pole_pairs * k_t)}  # the motor's (design/startup.py)
+    if startup is None or not startup.complete:  # a key the file does not give keeps its rule
+        # the handover's w_min: the design's criteria with the decay that follows the full acceleration;
+        # where no speed up to 1 p.u. gives that decay (the slowest mode need not be the one an
+        # acceleration excites: the 400-W servo's default gains follow it from 0.02 p.u. in simulation),
+        # the design's own w_min, and said (design/startup.py)
+        sigma = handover_decay(drive.T_N, T_max, inertia, pole_pairs, fam.scales(drive).alpha_s)
         try:
-            m, c = drive.motor, drive.control
-            inertia, pole_pairs, T_max = m.J, m.p, c.T_max
-            i_d, i_q = mtpa_torque_current(T_max, m)
-            k_t = T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
-        except AttributeError:
-            raise CapabilityError(
-                f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
-            ) from None
-        ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
+            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, min_decay=sigma, **QUICK)  # type: ignore[arg-type]
+        except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
+            if startup is None or startup.needs_w_min:
+                raise
+            rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma)
+            return (*_startup_line({**rules, **given}, given, drive.w_base, ""), 0.0)
+        if ls.w_min_rated >= drive.w_base * (1 - 1e-9):
+            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
+            sigma = ls.min_decay
+            warn = (
+                f"; {ACCELERATION_LIMIT} sqrt(a_max / 30 deg) = "
+                f"{handover_decay(drive.T_N, T_max, inertia, pole_pairs, 0.0):.3g} 1/s (what follows the "
+                "full acceleration a_max against rated load) at every speed up to 1 p.u.: handover at the "
+                "design's minimum sensorless speed, where a full-torque acceleration or braking may lose "
+                "the rotor (limit the acceleration: ramp the speed reference or lower T_max; or raise the "
+                "observer's gains)"
+            )
         w_min = ls.w_min_rated
         if w_min <= 0:
             return None, "no I-f start: the design holds zero speed", 0.0
         given = startup.values(w_min) if startup is not None else {}
-        values = {**if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min), **given}
+        values = {**if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min, sigma), **given}
         if values["if_w_off"] >= values["if_w_on"]:
             if "if_w_off" in given:
                 raise DriveFileError(
@@ -157,17 +180,24 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
             # a handover given below w_min (e.g. a firmware's open-loop ERPM): kept, as the file says,
             # with the rules' hysteresis ratio below it, and said
             values["if_w_off"] = values["if_w_on"] / ON_FACTOR
-            warn = (
+            warn += (
                 f"; the handover given is below w_min = {w_min / drive.w_base:.3g} p.u.: the observer takes "
                 f"over where its criteria do not hold (raise startup.w_on to {ON_FACTOR:g} w_min)"
             )
+    return (*_startup_line(values, given, drive.w_base, warn), w_min)
+
+
+def _startup_line(
+    values: dict[str, float], given: Any, w_base: float, warn: str
+) -> tuple[dict[str, float], str]:
+    """(values, the one line that says the start's numbers)."""
     line = (
         f"I-f start{' ([startup] of the drive file)' if given else ''}: "
         f"{values['if_i']:.4g} A, {values['if_acc']:.4g} rad/s^2, handover at "
-        f"{values['if_w_on'] / drive.w_base:.3g} p.u., back below "
-        f"{values['if_w_off'] / drive.w_base:.3g} p.u.{warn}"
+        f"{values['if_w_on'] / w_base:.3g} p.u., back below "
+        f"{values['if_w_off'] / w_base:.3g} p.u.{warn}"
     )
-    return values, line, w_min
+    return values, line
 
 
 def startup_setup(drive: OnPmsm, setup: RuntimeSetup) -> tuple[RuntimeSetup, str]:

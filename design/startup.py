@@ -8,32 +8,83 @@ The rules (each with its reason; :func:`if_values`):
 - acceleration a = ACC_SHARE p (T_max - T_N) / J: half what the torque margin over rated load gives
   the rotor, so that it follows the current vector with margin;
 - handover speed w_on = ON_FACTOR (2) w_min and back to open loop below w_off = w_min, w_min the minimum
-  sensorless speed at rated load (design/low_speed.py): the observer takes over only where its
-  criteria hold with margin, and the band between is the hysteresis.
+  speed at rated load for the handover (:func:`handover_decay`): the design's minimum sensorless speed
+  (design/low_speed.py) with the observer's error decaying at least at max(DECAY_SHARE alpha_s,
+  sqrt(a_max / theta_max)), a_max = p (T_max - T_N) / J the drive's full acceleration against rated
+  load and theta_max the analysis' angle limit (30 deg): a tracking loop whose slowest mode decays at
+  sigma lags a ramp of the speed by about a / sigma^2 in angle, so that below that speed the observer
+  loses the rotor when the speed controller it takes over from the start accelerates at the torque
+  limit (the drone of docs/examples/motors, tuned: lost from 0.1 p.u., kept from 0.2 p.u., in
+  closed-loop simulation; sqrt(a_max / theta_max) puts its handover w_min at 0.17 p.u.; the minimum
+  sensorless speed of the analysis, at steady speed, is 0.0054 p.u.); where no speed up to 1 p.u.
+  gives that decay, the design's own w_min, and the start says so (the slowest mode need not be the one
+  an acceleration excites: the 400-W servo's default gains follow the full acceleration from 0.02 p.u.
+  in simulation, with a slowest mode that never decays that fast); the observer takes over only where
+  its criteria hold with margin, and the band between is the hysteresis;
+- damping gain k_d = 2 ZETA w_n (ZETA = 0.5), w_n = sqrt(p T_max cos(delta_N) / J) the rotor's swing
+  about the current vector at rated load (sin(delta_N) = T_N / T_max; symbolic/startup.py): a swing
+  decays within about a period instead of lasting until the rotor slips;
+- the swing's high-pass corner w_hp = HP_SHARE (1/4) w_n: well below the swing (whose phase it leaves
+  within 15 deg), well above the slow change of the load angle along the ramp;
+- current per acceleration k_a = J / (p k_t), the motor's (not a choice: never in the drive file),
+  for the load angle of a drop back to open loop (symbolic/startup.py);
+- dwell at the handover speed t_dwell = DWELL (1.5) / sigma, sigma the decay rate the handover's w_min
+  guarantees (above): three time constants of the observer's error at w_on = 2 w_min, where it decays
+  at least twice as fast (at least in proportion to the speed on the example motors' designs), so that
+  it has converged on the rotor when it takes over (it may have lost it while the ramp accelerated
+  through low speeds, where the start does not need it; the start re-seeds it: symbolic/startup.py).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from typing import Any
 
 from sensorless.design.drive_file import Entry, load_section, q, table
+from sensorless.design.low_speed import DECAY_SHARE, MAX_BIAS_DEG
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 from sensorless.symbolic.startup import with_startup
 
 ACC_SHARE = 0.5
+# how the start's line says that the observer cannot follow the drive's full acceleration (the failed
+# checks of reports/time_domain.py quote it)
+ACCELERATION_LIMIT = "the observer's slowest mode decays slower than"
 ON_FACTOR = 2.0
+ZETA = 0.5
+DWELL = 1.5
+HP_SHARE = 0.25
 
 
-def if_values(T_N: float, T_max: float, J: float, p: int, k_t: float, w_min: float) -> dict[str, float]:
-    """The I-f start's parameters (module docstring); speeds electrical [rad/s]."""
+def swing_frequency(T_N: float, T_max: float, J: float, p: int) -> float:
+    """w_n [rad/s]: the rotor's swing about the I-f current vector (k_t i_if = T_max) at rated load."""
+    return math.sqrt(p * T_max * math.sqrt(max(0.0, 1 - (T_N / T_max) ** 2)) / J)
+
+
+def handover_decay(T_N: float, T_max: float, J: float, p: int, alpha_s: float) -> float:
+    """sigma [1/s]: the decay rate of the observer's error the handover asks for (module docstring),
+    alpha_s the speed-loop bandwidth [rad/s]."""
+    a_max = p * (T_max - T_N) / J
+    return max(DECAY_SHARE * alpha_s, math.sqrt(a_max / math.radians(MAX_BIAS_DEG)))
+
+
+def if_values(
+    T_N: float, T_max: float, J: float, p: int, k_t: float, w_min: float, sigma: float
+) -> dict[str, float]:
+    """The I-f start's parameters (module docstring); speeds electrical [rad/s], sigma the decay rate
+    at the handover speed (:func:`handover_decay`) [1/s]."""
+    w_n = swing_frequency(T_N, T_max, J, p)
     return {
         "if_i": T_max / k_t,
         "if_acc": ACC_SHARE * p * (T_max - T_N) / J,
         "if_w_on": ON_FACTOR * w_min,
         "if_w_off": w_min,
+        "if_k_d": 2 * ZETA * w_n,
+        "if_w_hp": HP_SHARE * w_n,
+        "if_t_dwell": DWELL / sigma,
+        "if_k_a": J / (p * k_t),
     }
 
 
@@ -51,13 +102,23 @@ class StartupSettings:
     acceleration: float | None = q("rate_squared", doc="I-f acceleration, electrical", default=None)
     w_on: float | None = q("angular", doc="handover speed to the observer, electrical", default=None)
     w_off: float | None = q("angular", doc="back to open loop below it, electrical", default=None)
+    damping: float | None = q("rate", "nonnegative", doc="damping gain of the swing", default=None)
+    w_hp: float | None = q("angular", doc="high-pass corner of the swing, electrical", default=None)
+    dwell: float | None = q("time", "nonnegative", doc="time at w_on before the handover", default=None)
     w_on_per_w_min: float | None = None  # w_on given as this multiple of w_min
     w_off_per_w_min: float | None = None
 
     @property
     def needs_w_min(self) -> bool:
-        """Whether a value is to come from w_min (its rule, or a multiple of it)."""
-        return None in (self.current, self.acceleration) or any(getattr(self, k) is None for k in SPEEDS)
+        """Whether a value is to come from w_min: a speed not given, or given as a multiple of it (the
+        other keys' rules need no w_min: the dwell's decay is :func:`handover_decay` then)."""
+        return any(getattr(self, k) is None for k in SPEEDS)
+
+    @property
+    def complete(self) -> bool:
+        """Whether every key is given (no rule needed at all)."""
+        keys = ("current", "acceleration", "damping", "w_hp", "dwell", *SPEEDS)
+        return all(getattr(self, k) is not None for k in keys)
 
     def values(self, w_min: float | None = None) -> dict[str, float]:
         """The keys given, as :func:`if_values` names them, speeds in w_min resolved at ``w_min`` (left
@@ -65,7 +126,15 @@ class StartupSettings:
         k = (self.w_on_per_w_min, self.w_off_per_w_min)
         on = self.w_on if k[0] is None else (None if w_min is None else k[0] * w_min)
         off = self.w_off if k[1] is None else (None if w_min is None else k[1] * w_min)
-        given = {"if_i": self.current, "if_acc": self.acceleration, "if_w_on": on, "if_w_off": off}
+        given = {
+            "if_i": self.current,
+            "if_acc": self.acceleration,
+            "if_w_on": on,
+            "if_w_off": off,
+            "if_k_d": self.damping,
+            "if_w_hp": self.w_hp,
+            "if_t_dwell": self.dwell,
+        }
         return {k: v for k, v in given.items() if v is not None}
 
 
@@ -74,7 +143,7 @@ def load_startup(data: Mapping[str, Any], file: str, w_base: float) -> StartupSe
     ``w_base`` or w_min; each key optional, a missing one keeps its rule); DriveFileError naming the
     key."""
     t = table(data, SECTION, file)
-    keys = ("current", "acceleration", *SPEEDS)
+    keys = ("current", "acceleration", *SPEEDS, "damping", "w_hp", "dwell")
     s = load_section(
         StartupSettings, t, file, SECTION, skip=(*SPEEDS, "w_on_per_w_min", "w_off_per_w_min"), optional=keys
     )
@@ -116,10 +185,29 @@ def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -
         "w_on": Entry(f"{ON_FACTOR:g} w_min", "the handover, with margin (rad/s or p.u. to fix it)"),
         "w_off": Entry(
             "1 w_min",
-            f"w_min at rated load, the gains under review (design/low_speed.py): {w_min / w_base:.4g} p.u. "
-            "at this file's",
+            f"w_min at rated load for the handover, the gains under review (design/low_speed.py, with the "
+            "decay that follows the full acceleration, design/startup.py): "
+            f"{w_min / w_base:.4g} p.u. at this file's own gains",
+        ),
+        "damping": Entry(
+            f"{values['if_k_d']:.6g} 1/s",
+            f"2 zeta w_n, zeta = {ZETA:g}: damps the rotor's swing about the current vector, w_n = sqrt(p "
+            "T_max cos(delta_N) / J), sin(delta_N) = T_N / T_max (0: undamped)",
+        ),
+        "w_hp": Entry(
+            f"{values['if_w_hp']:.6g} rad/s",
+            f"{HP_SHARE:g} w_n: the swing's high-pass, below it, above the load angle's slow change",
         ),
     }
+
+
+def optional_lines(values: Mapping[str, float]) -> list[str]:
+    """The ``[startup]`` keys ``sensorless init`` writes commented out: the dwell, whose rule follows the
+    gains under review (as w_min does; a number in the file would keep the value of the file's own)."""
+    return [
+        f'dwell = "{values["if_t_dwell"]:.6g} s"  # optional: {DWELL:g} / sigma, sigma the decay at w_min at '
+        "the gains under review (this value at the file's): the observer converges at w_on before handover"
+    ]
 
 
 def with_if_start(setup: RuntimeSetup, values: dict[str, float]) -> RuntimeSetup:

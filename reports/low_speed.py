@@ -23,7 +23,7 @@ from sensorless.design.low_speed import (
     minimum_speed_under,
 )
 from sensorless.design.registry import family_of
-from sensorless.design.startup import ON_FACTOR
+from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
 from sensorless.reports.svg_render import svg_later
 
@@ -85,11 +85,11 @@ def add_to_report(
     start = ""
     if ls.w_min_rated > 0 and not fam.holds_zero_speed(drive):
         why = fam.low_speed_reason(drive) or "the observer does not hold zero speed under rated load"
-        on, off = _handover(drive, gains, ls)
+        on, off, limit = _handover(drive, gains, ls)
         start = (
             f"{why[0].upper() + why[1:]}; a start or a reversal under load passes through the open-loop I-f "
             f"start, 0 to {on / ls.w_base:.3g} p.u. (handover; back below {off / ls.w_base:.3g} p.u.: "
-            "design/startup.py)"
+            f"design/startup.py){limit}"
         )
         if off < ls.w_min_rated * (1 - 1e-3):  # the start's rules take w_min at the drive's estimates
             start += (
@@ -107,19 +107,21 @@ def add_to_report(
     return dataclasses.replace(rep, data=data, verdict=verdict, sections=(*rep.sections, sec))
 
 
-def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float]:
+def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float, str]:
     """(w_on, w_off) [rad/s] of the drive's I-f start where its family runs one (its [startup], else
-    the rules from w_min at its estimates: design/pmsm_drive.py), else the rules at ``ls``'s w_min."""
+    the rules from w_min at its estimates: design/pmsm_drive.py), else the rules at ``ls``'s w_min; and
+    the physical limit the start names ("; ..." or "": an observer too slow for the full acceleration)."""
     if family_of(drive).open_loop_start:
         from sensorless.design.pmsm_drive import startup_values
 
         try:
-            values, _, _ = startup_values(drive, gains)  # type: ignore[arg-type]
+            values, sline, _ = startup_values(drive, gains)  # type: ignore[arg-type]
         except CapabilityError:
-            values = None
+            values, sline = None, ""
         if values is not None:
-            return values["if_w_on"], values["if_w_off"]
-    return ON_FACTOR * ls.w_min_rated, ls.w_min_rated
+            limit = f"; {sline[sline.index(ACCELERATION_LIMIT) :]}" if ACCELERATION_LIMIT in sline else ""
+            return values["if_w_on"], values["if_w_off"], limit
+    return ON_FACTOR * ls.w_min_rated, ls.w_min_rated, ""
 
 
 def under_errors(drive: Drive, gains: GainSet, errors: EstimateErrors, **kw: Any) -> LowSpeed:

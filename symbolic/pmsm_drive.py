@@ -181,12 +181,12 @@ def loop_function(
         x_obs_next, y = step(x_obs, ca.vertcat(i_meas, u_now, *cmd), p_obs, gain)
         Y = {name: y[k] for k, name in enumerate(y_names)}
         w_hat, theta_hat, u_c_d = Y["w_hat"], Y["theta_hat"], Y.get("u_c_d", 0)
-        # an observer wrapped in the open-loop I-f start (symbolic/startup.py): its mode and current
-        m_if, i_f = Y.get("startup_mode", 0), Y.get("i_f", 0)
+        # an observer wrapped in the open-loop I-f start (symbolic/startup.py): its mode and currents
+        m_if, i_f, i_f_q = Y.get("startup_mode", 0), Y.get("i_f", 0), Y.get("i_f_q", 0)
     else:
         x_obs_next, y = ca.SX(0, 1), ca.SX(0, 1)
         w_hat, theta_hat, u_c_d = Z["w_m"], Z["theta_m"], 0
-        m_if, i_f = 0, 0
+        m_if, i_f, i_f_q = 0, 0, 0
 
     sensor = Q["sensor"]
     theta_c = sensor * Z["theta_m"] + (1 - sensor) * theta_hat  # controller frame angle
@@ -200,15 +200,15 @@ def loop_function(
     T_ref = speed_mode * sc.T_ref + (1 - speed_mode) * T_ext
     x_s_next = speed_mode * sc.x_next + (1 - speed_mode) * Z["x_s"]
     i_ref = mtpa_current(T_ref, est, Q["p"])
-    # I-f start: the current vector i_f on the q axis of the open-loop frame (theta_hat is its angle);
-    # the speed controller held where it hands over the torque the I-f current carries at its design
-    # load angle (2/3 of k_t i_f: rated load at T_max = 1.5 T_N, symbolic/startup.py), without a kick
+    # I-f start: the current vector i_f on the d axis of the open-loop frame (theta_hat is its angle);
+    # the speed controller held where it hands over the torque the I-f current carries by the observer
+    # (i_f_q, its component on the observer's q axis: symbolic/startup.py), without a torque step
     if not isinstance(m_if, int):
-        T_if = 2 / 3 * 1.5 * Q["p"] * Q["psi_pm_hat"] * i_f
+        T_if = 1.5 * Q["p"] * Q["psi_pm_hat"] * i_f_q
         k_p_s, _ = speed_gains(Q["alpha_s"], Q["J_hat"], Q["p"])
         x_s_next = ca.if_else(m_if > 0.5, speed_mode * (T_if + k_p_s * w_c), x_s_next)
-        i_ref = ca.if_else(m_if > 0.5, ca.vertcat(0, i_f), i_ref)
-        T_ref = ca.if_else(m_if > 0.5, 1.5 * Q["p"] * Q["psi_pm_hat"] * i_f, T_ref)
+        i_ref = ca.if_else(m_if > 0.5, ca.vertcat(i_f, 0), i_ref)
+        T_ref = ca.if_else(m_if > 0.5, T_if, T_ref)
 
     # current control in the controller frame; carrier (17) on its d axis; delay-compensated output
     i_c = rot(theta_c).T @ i_meas

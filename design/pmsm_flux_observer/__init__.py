@@ -105,16 +105,16 @@ class FluxObserverFamily(ObserverFamily):
         """Its drives are taken through zero speed by the open-loop I-f start below w_min
         (``open_loop_start``), so the generic checks run a start, a reversal and speed steps through
         zero (``zero_speed`` left empty; why the observer needs the start: :meth:`low_speed_reason`).
-        Not the box clamp without a complete ``[startup]``: it has no linearization, so no w_min for
-        the start's rules (design/pmsm_drive.py ``startup_values``)."""
+        Not the box clamp without ``[startup]`` w_on and w_off: it has no linearization, so no w_min for
+        the start's speed rules (design/pmsm_drive.py ``startup_values``)."""
         c = drive.control
         why = ""
         start = getattr(drive, "startup", None)
         if drive.observer.correction == "box-clamp" and (start is None or start.needs_w_min):
             why = (
                 "The box-clamp observer (MXLEMMING) has no linearization, so no minimum sensorless speed "
-                "to derive the open-loop I-f start from: give [startup] current, acceleration, w_on and "
-                "w_off (e.g. the firmware's open-loop ERPM) to check a start and a reversal."
+                "to derive the open-loop I-f start's speeds from: give [startup] w_on and w_off (rad/s, "
+                "Hz or p.u.; e.g. the firmware's open-loop ERPM) to check a start and a reversal."
             )
         return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s, why)
 

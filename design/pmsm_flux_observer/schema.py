@@ -265,8 +265,9 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             "alpha_c": (f"{g6(ALPHA_C / T_obs)} rad/s", f"{ALPHA_C:g}/T_obs"),
             "alpha_s": (
                 f"{g6(min(alpha_c / ALPHA_S_DIV, pll_slow / PLL_SPEED_LOOP))} rad/s",
-                f"min(alpha_c/{ALPHA_S_DIV:g}, the PLL's slowest pole {g6(pll_slow)} 1/s / "
-                f"{PLL_SPEED_LOOP:g}): the speed loop closes on the PLL's speed",
+                f"min(alpha_c/{ALPHA_S_DIV:g}, the PLL's pole {g6(pll_slow)} 1/s / {PLL_SPEED_LOOP:g}): the "
+                "speed loop closes on the PLL's speed (vesc: the fast root where the PI's zero nearly "
+                "cancels the slow one in the angle; the report names the slow root's lag in the speed)",
             ),
             "T_max": (f"{g6(T_MAX_TN * T_N)} Nm", f"{T_MAX_TN:g} T_N"),
         },

@@ -24,7 +24,7 @@ from sensorless.design import registry
 from sensorless.design.drive import load_drive_text, preset_text
 from sensorless.design.drive_file import Entry, read_text, table
 from sensorless.design.family import CapabilityError
-from sensorless.design.startup import SECTION, document_entries
+from sensorless.design.startup import SECTION, document_entries, optional_lines
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.common import UsageError, print_warnings
 from sensorless.reports.family import Importer, add_options, import_options, importers
@@ -114,12 +114,29 @@ def _startup_section(doc: Any, fam: Any, drive: Any, given: Any) -> bool:
     from sensorless.design.pmsm_drive import startup_values
 
     note = "the open-loop I-f start below the minimum sensorless speed (design/startup.py)"
-    values, _, w_min = startup_values(drive, fam.gains(drive))  # ``drive`` has no [startup] yet
+    try:
+        values, _, w_min = startup_values(drive, fam.gains(drive))  # ``drive`` has no [startup] yet
+    except CapabilityError as e:
+        # no minimum-speed analysis (an observer without a linearization): the speeds cannot follow a
+        # rule, so they are left for the user to give, with the reason; the rest keeps its rules
+        sec = doc.section(SECTION, f"{note}; handover speeds not derived: {e}")
+        sec.update({k: Entry(v, given=True) for k, v in (given or {}).items()})
+        doc.optional.setdefault(SECTION, []).extend(
+            line
+            for line in (
+                'w_on = "..."  # give the handover speed (rad/s, Hz or p.u.) to run the start',
+                'w_off = "..."  # and the speed below w_on where the drive goes back to open loop',
+            )
+            if not (given and line.split()[0] in given)
+        )
+        return True
     if values is None and given is None:
         return False
     sec = doc.section(SECTION, note)
     if values is not None:
         sec.update(document_entries(values, drive.w_base, w_min))
+        if not (given and "dwell" in given):
+            doc.optional.setdefault(SECTION, []).extend(optional_lines(values))
     sec.update({k: Entry(v, given=True) for k, v in (given or {}).items()})
     return True
 

@@ -8,7 +8,9 @@ import json
 import math
 
 import pytest
+from sensorless.design import registry
 from sensorless.design.drive import load_drive
+from sensorless.design.pmsm_drive import startup_values
 from sensorless.reports.cli.main import main
 
 MINIMAL = """
@@ -100,3 +102,25 @@ def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys):
     box.write_text(MINIMAL)  # VESC's default: box clamp
     assert main(["analyze", str(box), "--out", str(tmp_path / "a")]) == 2
     assert "not linearizable" in capsys.readouterr().err
+
+
+def test_init_of_a_box_clamp_leaves_the_handover_speeds_to_give(minimal, tmp_path, capsys):
+    """The box clamp (VESC's default) has no linearization, so no w_min: init still writes the drive
+    file, its [startup] asking for the handover speeds with the reason, and the file loads; given them,
+    the start runs on them."""
+    full = tmp_path / "full.toml"
+    assert main(["init", str(minimal), "--out", str(full)]) == 0
+    text = full.read_text()
+    head = text.split("[startup]")[0].rstrip().splitlines()[-1]
+    assert "not derived" in head and "not linearizable" in head
+    assert '# w_on = "..."' in text and '# w_off = "..."' in text
+    drive = load_drive(str(full))
+    assert drive.startup is not None and drive.startup.needs_w_min
+    given = text.replace('# w_on = "..."', 'w_on = "0.2 pu"').replace('# w_off = "..."', 'w_off = "0.1 pu"')
+    full.write_text(given)
+    with_speeds = load_drive(str(full))
+    assert with_speeds.startup.w_on == pytest.approx(0.2 * drive.w_base)
+    fam = registry.family_of(with_speeds)
+    values, line, _ = startup_values(with_speeds, fam.gains(with_speeds))  # other keys: rules; no analysis
+    assert values["if_w_on"] == pytest.approx(0.2 * drive.w_base) and values["if_i"] > 0, line
+    assert not fam.scales(with_speeds).zero_speed  # the checks go through zero
