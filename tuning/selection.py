@@ -21,6 +21,7 @@ RIDGE_TOL = 1e-2
 # tuning/tiebreak.py uses the same tolerance): below what the tuner resolves and below anything a time
 # response shows (the overshoot moves by < 0.13 percentage points at any damping >= 0.1; docs/tuning.md).
 TIE = 5e-4
+DRIVE_FILE = "drive file's gains"  # the label of the drive file's gains among the starts
 
 
 def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> str:
@@ -117,14 +118,15 @@ def select(
     if not rank(best)[0]:
         text += "; no candidate meets the constraints on the dense grid: use more --speeds"
     say(f"kept: {text}")
-    seed_start = [v for k, v in starts.items() if k != "drive file's gains"]
+    drive_file = [k for k in starts if k.startswith(DRIVE_FILE)]  # (in the law's box, if it holds some)
+    seed_start = [v for k, v in starts.items() if k not in drive_file]
     return (
         theta,
         figures(model, theta, Wd, Td, noise=model.noise is not None),
         {
             "selected": name,
             "start": model.start_label,
-            "start_worst_damping": seed_start[0] if model.start is not None else starts["drive file's gains"],
+            "start_worst_damping": seed_start[0] if model.start is not None else starts[drive_file[0]],
             "nlp_solution_worst_damping": max(finals.values()) if finals else float("nan"),
             "best_worst_damping": rank(top)[1],
             "admissible": rank(best)[0],

@@ -43,7 +43,7 @@ from sensorless.tuning.conditions import candidates as _candidates
 from sensorless.tuning.family import tunable_for
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, TuneResult, figures, gain_table
-from sensorless.tuning.selection import infeasible, ridge_of, select
+from sensorless.tuning.selection import DRIVE_FILE, infeasible, ridge_of, select
 
 # A law of a few parameters has several local optima: the NLP runs from this many distinct feasible
 # starts of the global phase (one NLP each); a rich one from the best start only.
@@ -81,7 +81,9 @@ def tune(
     wb, T_N = drive.w_base, drive.T_N
     W, T = env.grid(wb, T_N)
     Wd, Td = env.grid(wb, T_N, env.dense_factor)
-    theta0 = np.clip(model.theta0, model.lower, model.upper)
+    # the baseline as the drive file gives it (reported, and the pole scale); a start in the box (a law
+    # may hold some parameters at one value, which the drive file's gains need not have)
+    theta0 = np.asarray(model.theta0, float)
     start = None if model.start is None else np.clip(model.start, model.lower, model.upper)
     base = figures(model, theta0, W, T)
     if not np.isfinite(base.poles).all():
@@ -113,7 +115,8 @@ def tune(
     if seed_res is not None and model.pointwise is not None and model.from_pointwise is not None:
         bound = _bound(drive, model, settings, floor, scale, max_noise, [seed_res], say, seed_res.bound)
         extra.append(model.from_pointwise(bound.speeds, bound.theta))
-    pb = _Problem(model, settings, W, T, Wd, Td, wb, scale, theta0, start, floor, say)
+    in_box = np.clip(theta0, model.lower, model.upper)
+    pb = _Problem(model, settings, W, T, Wd, Td, wb, scale, in_box, start, floor, say)
     opt = _optimize(drive, pb, cand, max_noise, extra, bound)
     theta, dense, note, best_sol, ranked, starts = (
         opt.theta,
@@ -257,7 +260,8 @@ def _optimize(
         except nlp.TuningError as e:
             say(f"start {i + 1}: the NLP failed ({e}); its start stays a candidate")
     say(f"re-verifying on the {pb.settings.envelope.dense_factor}x denser grid")
-    pool = [("drive file's gains", pb.theta0)]
+    boxed = not np.array_equal(pb.theta0, model.theta0)
+    pool = [(DRIVE_FILE + (" in the law's box" if boxed else ""), pb.theta0)]
     if pb.start is not None:
         pool.append((model.start_label or "start", pb.start))
     pool += [(f"global-phase start {i + 1}", th) for i, th in enumerate(starts)]
