@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from sensorless.tuning.candidates import lowest_decay
 from sensorless.tuning.model import TuningModel, evaluate
 
 STEP_MIN = 0.05  # smallest pattern step of the basin search, in typical magnitudes (the NLP polishes)
@@ -244,7 +245,7 @@ def pointwise_bound(
         _polish(model, speeds, torques, low, x, f, floor, scale, limit, typ, figures)
     theta = x * typ
     z, d, nz = figures(theta, speeds)
-    _, feas = _score(z, d, nz, floor * (1 - 1e-6) - 1e-9 * scale, limit, scale)
+    _, feas = _score(z, d, nz, lowest_decay(floor, scale), limit, scale)
     if progress:
         progress(f"pointwise bound: {evals} evaluations")
     return Bound(
@@ -279,7 +280,7 @@ def with_witness(
     z = np.where(np.isfinite(e.damping), e.damping, -np.inf).reshape(S, NT).min(axis=1)
     d = np.where(np.isfinite(e.decay), e.decay, -np.inf).reshape(S, NT).min(axis=1)
     nz = np.where(np.isnan(e.noise), np.inf, e.noise).reshape(S, NT, -1).max(axis=1) if use_noise else None
-    fl = bound.floor * (1 - 1e-6) - 1e-9 * scale
+    fl = lowest_decay(bound.floor, scale)
     new, feas = _score(z, d, nz, fl, limit, scale)
     old, _ = _score(bound.damping, bound.decay, bound.noise if use_noise else None, fl, limit, scale)
     up = new > old
@@ -346,6 +347,6 @@ def _polish(model, speeds, torques, idx, x, f, floor, scale, limit, typ, figures
             continue
         # accept within the NLP's tolerance on the floor (the score would reject 1e-7 1/s below it)
         zj, dj, nj = figures(sol.theta[None], speeds[j : j + 1])
-        _, ok = _score(zj, dj, nj, floor * (1 - 1e-6) - 1e-9 * scale, limit, scale)
+        _, ok = _score(zj, dj, nj, lowest_decay(floor, scale), limit, scale)
         if ok[0] and zj[0] > f[j]:
             x[j], f[j] = sol.theta / typ, zj[0]

@@ -11,6 +11,12 @@ from sensorless.design.poles import max_real, worst_damping
 from sensorless.tuning.model import TuningModel, evaluate
 
 DAMPING, STABILITY, NOISE = 1, 0, 2  # a candidate's condition
+# Margins (relative to the pole scale) down to -this count as met: the NLP's tolerance. The one rule of
+# every step that judges a decay floor (global phase, selection, certificate, tie-break, bound): with a
+# tighter one in the selection than in the global phase, the schedule's best start on prius (worst damping
+# 0.4519, slowest decay 4e-4 1/s under the seed's 2.0889 1/s, the global phase's tolerance 8.8e-4 1/s) was
+# refused for the seed's 0.0998.
+FEASIBILITY_TOL = 1e-7
 
 
 @dataclass(frozen=True)
@@ -26,6 +32,20 @@ class Candidates:
     @property
     def size(self) -> int:
         return self.P.shape[1]
+
+
+def lowest_decay(floor: float, scale: float) -> float:
+    """The slowest decay rate [1/s] that meets the decay floor ``floor`` [1/s] (FEASIBILITY_TOL x the
+    pole scale ``scale`` below it); 0 without a floor (then stable means a decay above 0)."""
+    return max(floor - FEASIBILITY_TOL * scale, 0.0) if floor > 0 else 0.0
+
+
+def meets_floor(decay: np.ndarray | float, floor: float, scale: float) -> np.ndarray:
+    """Whether the decay rates ``decay`` [1/s] meet the decay floor ``floor`` (lowest_decay) and are
+    stable (> 0; NaN: no equilibrium, not met)."""
+    d = np.asarray(decay, float)
+    with np.errstate(invalid="ignore"):
+        return (d >= lowest_decay(floor, scale)) & (d > 0)
 
 
 def fixed_points(model: TuningModel, P: np.ndarray) -> np.ndarray:

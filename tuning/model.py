@@ -87,6 +87,8 @@ class TuningModel:
     gain_size: Callable[[np.ndarray], np.ndarray] | None = None
     gain_size_unit: str = ""  # its unit, for the summary's row heading
     gain_size_meaning: str = ""  # what it measures, in a few words (the tie-break's line)
+    # the law's own remark for the table's summary: e.g. which parameters its box holds at one value, and why
+    note: str = ""
 
     @property
     def n_theta(self) -> int:

@@ -168,6 +168,8 @@ class TuneResult:
         r = s.get("ridge")
         if r:
             out.append(r["text"])
+        if s.get("law_note"):
+            out.append(s["law_note"])
         for rb in s["robust"]:
             out.append(
                 f"estimates {rb['scenario']}: max Re(p) = {rb['max_real_1_s']:.4g} 1/s at "
@@ -319,6 +321,8 @@ def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float
         ]
     if r.ridge is not None:
         summary["ridge"] = r.ridge
+    if m.note:
+        summary["law_note"] = m.note
     if r.pareto is not None:
         summary["pareto"] = r.pareto
     W, _ = env.grid(wb, drive.T_N)

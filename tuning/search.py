@@ -26,11 +26,17 @@ from dataclasses import dataclass
 
 import numpy as np
 from sensorless.design.poles import max_real, worst_damping
-from sensorless.tuning.candidates import DAMPING, NOISE, Candidates, fixed_points, noise_margin
+from sensorless.tuning.candidates import (
+    DAMPING,
+    FEASIBILITY_TOL,
+    NOISE,
+    Candidates,
+    fixed_points,
+    noise_margin,
+)
 from sensorless.tuning.model import TuningModel, evaluate
 
 MAX_PATTERN_PARAMETERS = 4  # the margin search runs for laws with at most this many parameters
-FEASIBILITY_TOL = 1e-7  # margins (relative to the pole scale) down to -this count as met: the NLP's tolerance
 
 
 @dataclass(frozen=True)

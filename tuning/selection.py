@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from sensorless.tuning import nlp
 from sensorless.tuning.bound import Bound, pointwise_bound
+from sensorless.tuning.candidates import meets_floor
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, figures
 from sensorless.tuning.slots import T_MAX
@@ -20,6 +21,7 @@ RIDGE_TOL = 1e-2
 # tuning/tiebreak.py uses the same tolerance): below what the tuner resolves and below anything a time
 # response shows (the overshoot moves by < 0.13 percentage points at any damping >= 0.1; docs/tuning.md).
 TIE = 5e-4
+DRIVE_FILE = "drive file's gains"  # the label of the drive file's gains among the starts
 
 
 def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> str:
@@ -66,6 +68,7 @@ def select(
     floor: float,
     max_noise: np.ndarray | None,
     say,
+    scale: float,
 ) -> tuple[np.ndarray, Figures, dict[str, Any], nlp.Solution | None]:
     """The best on the dense grid among the starts (``pool``: the drive file's gains, a seed's, the
     global phase's) and every round each NLP verified on its grid.
@@ -74,7 +77,8 @@ def select(
     unstable), which only the dense grid shows. Admissible: decay >= the floor (with the NLP's
     tolerance) and noise within its limits on the dense grid; among those, the best worst damping.
     So the reported gains are never worse than the drive file's or a seed's when those are
-    admissible."""
+    admissible. The floor is met as in every other step (``candidates.meets_floor``, with the pole
+    scale ``scale``)."""
     use_noise = max_noise is not None
     cands: list[tuple[str, np.ndarray, Figures, nlp.Solution | None]] = []
     for name, th in pool:
@@ -88,7 +92,7 @@ def select(
             cands.append((tag + name, th, figures(model, th, Wd, Td, noise=use_noise), s))
 
     def admissible(f: Figures) -> bool:
-        ok = bool(np.min(f.decay) >= floor * (1 - 1e-6) - 1e-9) if floor > 0 else bool(np.min(f.decay) > 0)
+        ok = bool(np.all(meets_floor(f.decay, floor, scale)))
         if ok and use_noise:
             ok = bool(np.all(f.worst_noise() <= max_noise * (1 + 1e-6)))
         return ok
@@ -114,14 +118,15 @@ def select(
     if not rank(best)[0]:
         text += "; no candidate meets the constraints on the dense grid: use more --speeds"
     say(f"kept: {text}")
-    seed_start = [v for k, v in starts.items() if k != "drive file's gains"]
+    drive_file = [k for k in starts if k.startswith(DRIVE_FILE)]  # (in the law's box, if it holds some)
+    seed_start = [v for k, v in starts.items() if k not in drive_file]
     return (
         theta,
         figures(model, theta, Wd, Td, noise=model.noise is not None),
         {
             "selected": name,
             "start": model.start_label,
-            "start_worst_damping": seed_start[0] if model.start is not None else starts["drive file's gains"],
+            "start_worst_damping": seed_start[0] if model.start is not None else starts[drive_file[0]],
             "nlp_solution_worst_damping": max(finals.values()) if finals else float("nan"),
             "best_worst_damping": rank(top)[1],
             "admissible": rank(best)[0],

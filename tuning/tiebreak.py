@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.tuning import search
-from sensorless.tuning.candidates import Candidates, noise_margin
+from sensorless.tuning.candidates import Candidates, lowest_decay, noise_margin
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, figures
 from sensorless.tuning.selection import TIE
@@ -170,8 +170,8 @@ def _dense_ok(model, thetas, grids, target, floor2) -> tuple[np.ndarray, np.ndar
     e = evaluate(model, np.repeat(thetas, N, axis=0).T, np.tile(P, (1, K)), noise=grids.max_noise is not None)
     z = np.where(np.isfinite(e.damping), e.damping, -np.inf).reshape(K, N)
     dec = np.where(np.isfinite(e.decay), e.decay, -np.inf).reshape(K, N)
-    floor_ok = floor2 * (1 - 1e-6) - 1e-9
-    margin = np.minimum(z - target, (dec - floor_ok) / grids.scale)
+    margin = np.minimum(z - target, (dec - lowest_decay(floor2, grids.scale)) / grids.scale)
+    margin = np.where(dec > 0, margin, np.minimum(margin, -1.0))
     if grids.max_noise is not None:
         margin = np.minimum(margin, noise_margin(e.noise.reshape(K, N, -1), grids.max_noise))
     ok = margin.min(axis=1) >= 0

@@ -37,13 +37,13 @@ import numpy as np
 from sensorless.design.envelope import TuningSettings
 from sensorless.tuning import nlp, search, tiebreak
 from sensorless.tuning.bound import Bound, pointwise_bound, with_witness
-from sensorless.tuning.candidates import DAMPING, NOISE, Candidates
+from sensorless.tuning.candidates import DAMPING, NOISE, Candidates, meets_floor
 from sensorless.tuning.conditions import ROBUST_MARGIN, check_error_equilibria, error_scenarios, label, robust
 from sensorless.tuning.conditions import candidates as _candidates
 from sensorless.tuning.family import tunable_for
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, TuneResult, figures, gain_table
-from sensorless.tuning.selection import infeasible, ridge_of, select
+from sensorless.tuning.selection import DRIVE_FILE, infeasible, ridge_of, select
 
 # A law of a few parameters has several local optima: the NLP runs from this many distinct feasible
 # starts of the global phase (one NLP each); a rich one from the best start only.
@@ -81,7 +81,9 @@ def tune(
     wb, T_N = drive.w_base, drive.T_N
     W, T = env.grid(wb, T_N)
     Wd, Td = env.grid(wb, T_N, env.dense_factor)
-    theta0 = np.clip(model.theta0, model.lower, model.upper)
+    # the baseline as the drive file gives it (reported, and the pole scale); a start in the box (a law
+    # may hold some parameters at one value, which the drive file's gains need not have)
+    theta0 = np.asarray(model.theta0, float)
     start = None if model.start is None else np.clip(model.start, model.lower, model.upper)
     base = figures(model, theta0, W, T)
     if not np.isfinite(base.poles).all():
@@ -113,7 +115,8 @@ def tune(
     if seed_res is not None and model.pointwise is not None and model.from_pointwise is not None:
         bound = _bound(drive, model, settings, floor, scale, max_noise, [seed_res], say, seed_res.bound)
         extra.append(model.from_pointwise(bound.speeds, bound.theta))
-    pb = _Problem(model, settings, W, T, Wd, Td, wb, scale, theta0, start, floor, say)
+    in_box = np.clip(theta0, model.lower, model.upper)
+    pb = _Problem(model, settings, W, T, Wd, Td, wb, scale, in_box, start, floor, say)
     opt = _optimize(drive, pb, cand, max_noise, extra, bound)
     theta, dense, note, best_sol, ranked, starts = (
         opt.theta,
@@ -226,7 +229,7 @@ def _optimize(
         # already within CERTIFIED of it leaves the NLP nothing to gain
         f0 = figures(model, starts[0], pb.Wd, pb.Td)
         gap = float(np.min(bound.damping)) - f0.worst_damping()
-        certified = gap <= CERTIFIED and float(np.min(f0.decay)) >= pb.floor * (1 - 1e-6) - 1e-9
+        certified = gap <= CERTIFIED and bool(np.all(meets_floor(f0.decay, pb.floor, pb.scale)))
         if certified:
             say(f"the best start is {gap:.1e} below the pointwise bound on the dense grid: no NLP needed")
     if not certified:
@@ -257,11 +260,12 @@ def _optimize(
         except nlp.TuningError as e:
             say(f"start {i + 1}: the NLP failed ({e}); its start stays a candidate")
     say(f"re-verifying on the {pb.settings.envelope.dense_factor}x denser grid")
-    pool = [("drive file's gains", pb.theta0)]
+    boxed = not np.array_equal(pb.theta0, model.theta0)
+    pool = [(DRIVE_FILE + (" in the law's box" if boxed else ""), pb.theta0)]
     if pb.start is not None:
         pool.append((model.start_label or "start", pb.start))
     pool += [(f"global-phase start {i + 1}", th) for i, th in enumerate(starts)]
-    theta, dense, note, best_sol = select(model, sols, pool, pb.Wd, pb.Td, pb.floor, max_noise, say)
+    theta, dense, note, best_sol = select(model, sols, pool, pb.Wd, pb.Td, pb.floor, max_noise, say, pb.scale)
     if best_sol is None:  # a start was kept: report the best NLP run (if any) for its statistics
         best_sol = max(sols, key=lambda s: s.t) if sols else nlp.Solution(theta, float("nan"), (), 0, 0, ())
     if note["admissible"] and model.gain_size is not None and model.n_theta <= search.MAX_PATTERN_PARAMETERS:

@@ -11,6 +11,7 @@ import math
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from helpers.report_checks import c_example_initializes, verdict_agrees_with_checks
 from sensorless.design.drive import load_drive
@@ -95,6 +96,33 @@ def test_the_verdict_agrees_with_its_checks(flow):
     assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal", "start"]  # generic, scaled
     assert v["limitations"] == []  # this observer runs through zero speed: nothing left out
     assert "paper speed" not in (d / "r" / "report.html").read_text()  # a user's gains are not the paper's
+
+
+def test_the_schedule_keeps_the_seed_law_inside_the_injection_band(flow):
+    """Where the drive injects, the schedule's breakpoints with |w_hat| <= w_Delta hold the seed's gains:
+    eq. (16) of Piippo et al. (2008) with the seed's lambda', omega_lambda, typed here from the
+    equation (lambda1 = lambda' min(|w|/omega_lambda, 1), lambda2 = lambda' clip(w/omega_lambda, -1, 1))
+    with w_Delta from the written drive file; the breakpoints beyond the band are the tuner's. Without
+    injection (the servo) nothing is held."""
+    name, _, drive, d, _ = flow
+    table = json.loads((d / "tune" / "gains_schedule.json").read_text())
+    g, s = table["gains"], table["summary"]
+    inj = load_drive(str(drive)).injection
+    w = np.array(g["w_hat"])
+    l1, l2 = np.array(g["lambda1"]), np.array(g["lambda2"])
+    if not inj.enabled:
+        assert name == "servo" and "law_note" not in s
+        return
+    lp, wl = s["seed"]["parameters"]["lambda_p"], s["seed"]["parameters"]["w_lambda"]
+    band = np.abs(w) <= inj.w_Delta
+    assert band.sum() >= 3  # zero and at least one breakpoint per direction
+    np.testing.assert_allclose(l1[band], lp * np.minimum(np.abs(w[band]) / wl, 1), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(l2[band], lp * np.clip(w[band] / wl, -1, 1), rtol=1e-12, atol=1e-12)
+    assert "injection band" in s["law_note"] and "Piippo" in s["law_note"]
+    # beyond the band the gains are tuned (not all the seed's)
+    free = ~band
+    seed1 = lp * np.minimum(np.abs(w[free]) / wl, 1)
+    assert np.max(np.abs(l1[free] - seed1)) > 1e-3 * lp
 
 
 @pytest.mark.skipif(CC is None, reason="no C compiler")

@@ -185,7 +185,10 @@ def test_dense_reverification_rejects_between_grid_instability(drive, speed_depe
     np.testing.assert_allclose(on_grid, on_grid_ok, atol=1e-9)  # identical at the optimization grid
     sol = Solution(bad, 0.9, (), 1, 1, (bad,))
     floor = float(np.min(figures(m, m.start, W, T).decay))
-    theta, _, note, _ = select(m, [sol], [(m.start_label, m.start)], Wd, Td, floor, None, lambda s: None)
+    scale = float(np.abs(figures(m, np.clip(m.theta0, m.lower, m.upper), W, T).poles).max())  # as tune()
+    theta, _, note, _ = select(
+        m, [sol], [(m.start_label, m.start)], Wd, Td, floor, None, lambda s: None, scale
+    )
     assert note["nlp_solution_worst_damping"] < note["start_worst_damping"] - 0.02
     assert note["selected"] == m.start_label and np.array_equal(theta, m.start)
 

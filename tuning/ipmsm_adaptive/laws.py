@@ -16,6 +16,13 @@ when ``tune_alpha_fo`` is set.
   schedule reproduces both laws *exactly* over the envelope: its baseline is the drive file's gains
   sampled at the breakpoints, its NLP start the tuned speed-dependent law sampled there, and the
   tuner can only improve on it.
+  Where the drive injects (``[injection] u_c > 0``), the breakpoints inside the injection band
+  (|w_hat| <= w_Delta) keep the seed's gains (law (16), else the drive file's): their box is that
+  one value (``pinned_in_band``). There the HF correction (20) and the observer gains act together,
+  and the linear analysis of the averaged loop does not capture the large-signal transient: on the
+  traction example (docs/examples/motors/prius.toml) the linear optimum in the band lost the rotor in
+  the time-domain checks speed_steps and start; law (16) is what Piippo et al. (2008) validated with
+  the injection (docs/families/ipmsm_adaptive.md, "Tuning").
 """
 
 from __future__ import annotations
@@ -134,9 +141,20 @@ def _speed_dependent_at(grid: tuple[float, ...], params: np.ndarray) -> np.ndarr
     return np.concatenate([np.asarray(l1).ravel(), np.asarray(l2).ravel()])
 
 
+def pinned_in_band(drive: Any, grid: tuple[float, ...]) -> np.ndarray:
+    """(K,) bool: the breakpoints [rad/s] of ``grid`` inside the injection band (|w_hat| <= w_Delta)
+    where the drive injects; none without injection."""
+    inj = drive.injection
+    if not inj.enabled:
+        return np.zeros(len(grid), bool)
+    return np.abs(np.array(grid)) <= inj.w_Delta * (1 + 1e-9)
+
+
 def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
     """Family schedule: free (lambda1, lambda2) at each breakpoint, linear in between; started from
-    ``seed``, the tuned speed-dependent parameters (lambda', omega_lambda[, alpha_fo]), when given."""
+    ``seed``, the tuned speed-dependent parameters (lambda', omega_lambda[, alpha_fo]), when given.
+    In the injection band the breakpoints keep the seed's gains (the drive file's without a seed):
+    the module docstring."""
     g = drive.gain("speed")
     baseline = np.array([g.lambda_p, g.w_lambda])
     grid = schedule_breakpoints(drive, settings, (g.w_lambda, *(() if seed is None else (seed[1],))))
@@ -148,6 +166,23 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
     theta0 = _speed_dependent_at(grid, baseline)
     lower = np.concatenate([np.full(K, max(LAMBDA1_MIN * R, -lam_max)), np.full(K, -lam_max)])
     upper = np.full(2 * K, lam_max)
+    start = None
+    if seed is not None:
+        start = _speed_dependent_at(grid, np.asarray(seed, float))
+    pin = np.tile(pinned_in_band(drive, grid), 2)
+    kept = np.clip(theta0 if start is None else start, lower, upper)
+    lower[pin] = upper[pin] = kept[pin]
+    note = ""
+    if pin.any():
+        at = ", ".join(f"{v / drive.base.w:+.3g}" for v in np.array(grid)[pin[:K]])
+        note = (
+            f"held: lambda1, lambda2 at the breakpoints inside the injection band |w_hat| <= w_Delta = "
+            f"{drive.injection.w_Delta / drive.base.w:.3g} p.u. ({at} p.u.) keep "
+            + ("the speed-dependent optimum's" if start is not None else "the drive file's")
+            + " gains (16): there the HF correction (20) and the observer gains act together, and the "
+            "linear analysis of the averaged loop does not capture the large-signal transient; law (16) "
+            "is what Piippo et al. (2008) validated with the injection"
+        )
     w = np.array(grid)
     h = np.diff(w)
     h_mean = float(h.mean())
@@ -170,11 +205,8 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
             "alpha_fo": float(theta[2 * K] if law_settings(settings).tune_alpha_fo else a0),
         }
 
-    start = None
-    if seed is not None:
-        start = _speed_dependent_at(grid, np.asarray(seed, float))
-        if law_settings(settings).tune_alpha_fo:
-            start = np.append(start, seed[2])
+    if start is not None and law_settings(settings).tune_alpha_fo:
+        start = np.append(start, seed[2])
 
     def from_pointwise(speeds: np.ndarray, optima: np.ndarray) -> np.ndarray:
         """The pointwise optima (per speed: lambda1, lambda2[, alpha_fo]) sampled at the breakpoints
@@ -200,6 +232,7 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
         start_label="speed-dependent optimum" if seed is not None else "",
         from_pointwise=from_pointwise,
         n_initial_active=16,
+        note=note,
     )
 
 
