@@ -10,6 +10,7 @@ choices: docs/families/pmsm_flux_observer.md.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import Any
 
 from sensorless.design.family import CapabilityError, DriveScales, EstimateErrors, GainSet, ObserverFamily
@@ -41,6 +42,17 @@ def simulation(drive: Any, sc: Any, gains: GainSet | None) -> Any:
 # L_q together): docs/families/pmsm_flux_observer.md "Tuning"; `tune --r-error/--flux-error/--l-error`
 ERRORS = {"R_s": 0.3, "psi_pm": 0.1, "L": 0.2}
 ERROR_KEYS = {"L": ("L_d", "L_q")}
+
+
+def corner_estimate(estimate: Any, factors: Mapping[str, float]) -> dict[str, float]:
+    """The estimates R_s, psi_pm, L_d, L_q of ``estimate`` scaled by one corner of the error box
+    (``factors`` on the :data:`ERRORS` keys, "L" on both inductances: :data:`ERROR_KEYS`)."""
+    return {
+        "R_s": estimate.R_s * factors["R_s"],
+        "psi_pm": estimate.psi_pm * factors["psi_pm"],
+        "L_d": estimate.L_d * factors["L"],
+        "L_q": estimate.L_q * factors["L"],
+    }
 
 
 class FluxObserverFamily(ObserverFamily):

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import read_gain_table
-from sensorless.design.pmsm_flux_observer import FAMILY
+from sensorless.design.pmsm_flux_observer import FAMILY, corner_estimate
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
 from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
@@ -401,12 +401,7 @@ def bias_figure(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Any:
         ax.plot(s / drive.w_base, np.degrees(lin.theta_err_discrete), label=label)
     worst = np.zeros(s.size)
     for c in corners(settings.errors)[1:]:
-        est = {
-            "R_s": e.R_s * c["R_s"],
-            "psi_pm": e.psi_pm * c["psi_pm"],
-            "L_d": e.L_d * c["L"],
-            "L_q": e.L_q * c["L"],
-        }
+        est = corner_estimate(e, c)
         lin = FAMILY.linearize(drive, gains, s, T, estimate=est)
         worst = np.fmax(worst, np.abs(np.degrees(lin.theta_err_discrete)))
     ax.plot(s / drive.w_base, worst, "k--", label="worst corner |bias|")

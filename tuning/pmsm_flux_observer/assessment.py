@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.family import GainSet
+from sensorless.design.pmsm_flux_observer import corner_estimate
 from sensorless.design.pmsm_flux_observer.gains import constant_law, runtime_params
 from sensorless.design.pmsm_flux_observer.linearize import (
     current_noise,
@@ -207,12 +208,7 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
     e = drive.estimate
     zs, bs, st, poles = [], [], [], None
     for c in corners(settings.errors):
-        est = {
-            "R_s": e.R_s * c["R_s"],
-            "psi_pm": e.psi_pm * c["psi_pm"],
-            "L_d": e.L_d * c["L"],
-            "L_q": e.L_q * c["L"],
-        }
+        est = corner_estimate(e, c)
         lin = fam.linearize(drive, gains, W, T, estimate=est)
         if poles is None:
             poles = lin.poles_discrete
