@@ -170,13 +170,20 @@ def _table(tmp_path, capsys, drive, name):
 
 
 @pytest.fixture(scope="module")
-def deangelo_table(tmp_path_factory):
-    """A tuned gain table of the reduced-order preset (the document, for edited copies)."""
+def deangelo_table():
+    """A tuned gain table of the reduced-order preset (the document, for edited copies): tuned on a
+    small envelope (two speeds, two loads: 3.5 s instead of the default's 14 s) and written by the
+    writer `sensorless tune` uses."""
+    import dataclasses
     import json
 
-    d = tmp_path_factory.mktemp("tune")
-    assert main(["tune", "deangelo2006", "--quiet", "--out", str(d / "t")]) == 0
-    return json.loads((d / "t" / "gains_constant.json").read_text())
+    from sensorless.design.drive import load_drive
+    from sensorless.tuning.pmac_reduced_order.settings import default_settings
+    from sensorless.tuning.pmac_reduced_order.tuner import tune_deangelo
+
+    drive = load_drive("deangelo2006")
+    small = dataclasses.replace(default_settings(drive), speeds_rpm=(250.0, 1000.0), loads_Nm=(0.0, 5.0))
+    return json.loads(tune_deangelo(drive, small).table.to_json())
 
 
 def test_gain_table_errors_name_the_file_and_the_key(tmp_path, capsys, deangelo_table):
