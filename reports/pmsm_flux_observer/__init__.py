@@ -40,7 +40,12 @@ from sensorless.reports.document import (
 from sensorless.reports.envelope_options import NOISE_OPTIONS
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
-from sensorless.reports.pmsm_flux_observer.findings import damping_finding, holds_nowhere_finding, pll_finding
+from sensorless.reports.pmsm_flux_observer.findings import (
+    damping_finding,
+    failure_cause,
+    holds_nowhere_finding,
+    pll_finding,
+)
 from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
 from sensorless.reports.review import (
     gains_under_review,
@@ -300,7 +305,8 @@ def compute(
     runs = time_domain.scenarios(drive, TIME_DOMAIN, scenarios)
     td, td_figs = time_domain_checks(drive, rev, runs, progress)
     progress("[3/3] verdict")
-    tracks = all(item["metrics"]["rms_theta_err_deg"] < MAX_RMS_THETA_DEG for item in td)
+    # the closed-loop error (None: a run the observer never had: not tested sensorless, said by its check)
+    tracks = all((item["metrics"]["rms_theta_err_deg"] or 0.0) < MAX_RMS_THETA_DEG for item in td)
     mine = analysis.get(review, {})
     damped = not linearizable or (
         mine.get("worst_damping") is not None and mine["worst_damping"] >= min_damping
@@ -421,6 +427,7 @@ HOOKS = ReportHooks(
     tune_settings=tune_settings,
     describe_envelope=describe,
     report=compute,
+    failure_cause=failure_cause,
     settings_sections=("gains", "envelope", "control"),
     importers=IMPORTERS,
     exporters=EXPORTERS,
