@@ -46,7 +46,9 @@ def _check(name: str, failed: bool = False, untested: str = "", crosses: bool = 
         "passed": not failed,
         "untested": untested,
         "failed": ["x"] if failed else [],
-        "failures": [{"text": "x", "cause": c, "cause_title": CATALOGUE[c].title, "fix": "f"} for c in causes],
+        "failures": [
+            {"text": "x", "cause": c, "cause_title": CATALOGUE[c].title, "fix": "f"} for c in causes
+        ],
         "causes": list(causes),
         "problems": [],
         "crosses_zero": crosses,
