@@ -15,8 +15,14 @@ failed, where), its ``metrics`` and the ``limits`` they were held to (:data:`LIM
 - in speed control, the final speed within 5 % of the base speed of its reference (the drive reached
   what it was asked; the generic scenarios give it the time its torque limit needs).
 
-A failed check is said in its entry, in the section, in the report's verdict (a finding; the status is
-then at best "warn") and by ``sensorless report`` (a warning line, exit status 3).
+Only sensorless runs count: a run whose open-loop I-f start (its output ``startup_mode``) never handed
+over, had the loop for more than MAX_OPEN_LOOP_SHARE of the time or ended in it is "not tested
+sensorless" (:func:`untested_reason`; the check is then at best "warn"); the position errors are the
+closed loop's, the open-loop part its own metric and column. One verdict rule (:func:`status_with`): a
+failed check makes the verdict "fail". Each failure carries its evidence and its cause from the
+catalogue reports/causes.py (the family's own finding first, its report hooks' ``failure_cause``),
+with the change that fixes it; it is said in its entry, in the section, in the report's verdict (a
+finding) and by ``sensorless report`` (a warning line, exit status 3).
 """
 
 from __future__ import annotations
