@@ -306,6 +306,7 @@ def compute(
     td, td_figs = time_domain_checks(drive, rev, runs, progress)
     progress("[3/3] verdict")
     # the closed-loop error (None: a run the observer never had: not tested sensorless, said by its check)
+    untested = [item["name"] for item in td if item.get("untested")]
     tracks = all((item["metrics"]["rms_theta_err_deg"] or 0.0) < MAX_RMS_THETA_DEG for item in td)
     mine = analysis.get(review, {})
     damped = not linearizable or (
@@ -345,7 +346,8 @@ def compute(
             else "box clamp (not linearizable); "
         )
         + f"time-domain check {'within' if tracks else 'beyond'} {MAX_RMS_THETA_DEG:g} deg RMS "
-        "position error."
+        "position error in closed loop"
+        + (f" ({len(untested)} not tested sensorless: {', '.join(untested)})." if untested else ".")
     )
     verdict = verdict_box(status, Paragraph(summary, status_class(status)), findings=findings)
     del figs
