@@ -324,7 +324,7 @@ def compute(
     if not tracks:
         findings.append(f"a time-domain check exceeds {MAX_RMS_THETA_DEG:g} deg RMS position error")
     findings += [x["text"] for x in td_findings]
-    if pll:
+    if pll and not any("pll_root" in c.get("causes", ()) for c in td):  # else said as a check's cause
         findings.append(pll)
     data = {
         **opening(FAMILY, drive, table, min_damping, review),
