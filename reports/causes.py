@@ -16,7 +16,9 @@ acceleration before it, whether the I-f start had the loop). :func:`classify` na
    at ACCEL_SHARE of its full acceleration or more just before, ``rhp_band`` where the drive's
    linearization at that speed and load (the family's ``linearize``) has a right-half-plane pole,
    ``torque_limit`` where the torque command sat at its limit, else ``estimate_error``; a final
-   speed-estimation error is ``estimate_error``.
+   speed-estimation error is ``estimate_error``;
+3. in one run (:func:`classify_all`), a failure of the run's end after it lost the rotor (or diverged,
+   or slipped in the I-f start) has the cause of that loss.
 
 Shared code names no family here: the family-specific causes are ids a family's hooks return.
 """
@@ -118,6 +120,7 @@ class Failure:
     t: float | None = None  # [s]
     w_pu: float | None = None  # rotor speed there [p.u.]
     load_pu: float | None = None  # load torque there [p.u. of T_N]
+    torque_e_pu: float | None = None  # electromagnetic torque there [p.u. of T_N] (its sign: motoring or not)
     torque_pu: float | None = None  # peak |torque command| just before (slip: peak |T_e| in open loop) [p.u.]
     limit_pu: float | None = None  # the drive's torque limit T_max [p.u. of T_N]
     accel_share: float | None = None  # mean |dw/dt| just before, over the full acceleration p T_max / J
@@ -175,6 +178,12 @@ def _where(f: Failure) -> str:
     return ", ".join(parts)
 
 
+def operating_torque_pu(f: Failure) -> float | None:
+    """The torque [p.u. of T_N] of a failure's operating point: the electromagnetic torque where
+    recorded (braking at the limit while the load pulls the other way is regenerating), else the load."""
+    return f.torque_e_pu if f.torque_e_pu is not None else f.load_pu
+
+
 def shared_cause(f: Failure, unstable: Callable[[Failure], bool | None] = lambda f: None) -> Named:
     """The cause of ``f`` by the shared rules (module docstring); ``unstable(f)``: whether the drive's
     linearization at the failure's speed and load has a right-half-plane pole (None: not known)."""
@@ -222,3 +231,23 @@ def classify(
         raise ValueError(f"failure kind {f.kind!r} is not one of {KINDS}")
     own = family(f) if family is not None else None
     return own if own is not None else shared_cause(f, unstable)
+
+
+def classify_all(
+    failures: list[Failure],
+    family: Finder | None = None,
+    unstable: Callable[[Failure], bool | None] = lambda f: None,
+) -> list[Named]:
+    """The cause of each failure of one run: a run that lost the rotor (or diverged, or slipped in the
+    I-f start) ends wherever it ends, so a failure of its end (tracking, final speed estimate) has the
+    cause of that loss, said so; the others are classified on their own evidence."""
+    out = [classify(f, family, unstable) for f in failures]
+    first = next((i for i, f in enumerate(failures) if f.kind in {"lost", "diverged", "slip"}), None)
+    if first is None:
+        return out
+    loss, named = failures[first], out[first]
+    when = f" at t = {loss.t:.4g} s" if loss.t is not None else ""
+    for i, f in enumerate(failures):
+        if f.kind in {"tracking", "speed_estimate"}:
+            out[i] = Named(named.cause, f"a consequence of the rotor lost{when}: {named.detail}".rstrip(": "))
+    return out

@@ -46,7 +46,7 @@ from sensorless.design.scenario import (
 )
 from sensorless.design.simulate import simulate
 from sensorless.design.startup import ACCELERATION_LIMIT
-from sensorless.reports.causes import CATALOGUE, Failure, Named, classify
+from sensorless.reports.causes import CATALOGUE, Failure, Named, classify_all, operating_torque_pu
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.svg_render import svg_later
 
@@ -175,6 +175,8 @@ def assess(tr: Any, sc: Scenario, base_w: float, scales: DriveScales | None = No
         if T_N:
             if has("T_L"):
                 out["load_pu"] = float(tr["T_L"][k] / T_N)
+            if has("T_e"):
+                out["torque_e_pu"] = float(tr["T_e"][k] / T_N)
             if has("T_ref"):
                 out["torque_pu"] = float(np.max(np.abs(tr["T_ref"][a : k + 1])) / T_N)
             if scales is not None:
@@ -323,11 +325,12 @@ def finders(drive: Drive, gains: GainSet | None) -> tuple[Any, Callable[[Failure
     family = (lambda x: own(drive, reviewed(), x)) if own is not None else None
 
     def unstable(x: Failure) -> bool | None:
-        if x.w_pu is None or x.load_pu is None or fam.holds_zero_speed(drive):
+        torque = operating_torque_pu(x)
+        if x.w_pu is None or torque is None or fam.holds_zero_speed(drive):
             return None
         try:
             lin = fam.linearize(
-                drive, reviewed(), np.array([x.w_pu * drive.w_base]), np.array([x.load_pu * drive.T_N])
+                drive, reviewed(), np.array([x.w_pu * drive.w_base]), np.array([torque * drive.T_N])
             )
         except CapabilityError:
             return None
@@ -403,7 +406,7 @@ def checks(
         progress(f"      simulating {sc.name}: {sc.title}")
         tr = simulate(drive, sc, gains)
         j = assess(tr, sc, drive.w_base, scales)
-        check = entry(sc, j, [classify(x, family, unstable) for x in j.failures], label)
+        check = entry(sc, j, classify_all(j.failures, family, unstable), label)
         out.append(check)
         make = functools.partial(plot_traces, tr, sc.figure, f"{drive.name}: {sc.title}")
         figs.append(Figure(svg_later(make), check["caption"]))

@@ -21,7 +21,7 @@ import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive import FAMILY
 from sensorless.design.ipmsm_adaptive.carrier import coupling_limit
-from sensorless.reports.causes import CLOSED_LOOP, Failure, Named
+from sensorless.reports.causes import CLOSED_LOOP, Failure, Named, operating_torque_pu
 
 
 def crossings(td: Sequence[dict[str, Any]]) -> str:
@@ -53,22 +53,18 @@ def failure_cause(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
     (design/ipmsm_adaptive/carrier.py ``coupling_limit``), is the injection's coupling band; one where the
     linearization with the injection the drive runs has a right-half-plane pole, an RHP band; None for
     anything else (the shared rules)."""
-    if (
-        failure.kind not in CLOSED_LOOP
-        or failure.open_loop
-        or failure.w_pu is None
-        or failure.load_pu is None
-    ):
+    torque = operating_torque_pu(failure)  # T_e where recorded: braking against the load regenerates
+    if failure.kind not in CLOSED_LOOP or failure.open_loop or failure.w_pu is None or torque is None:
         return None
     wb, T_N = drive.w_base, drive.T_N
-    w, T = failure.w_pu * wb, failure.load_pu * T_N
+    w, T = failure.w_pu * wb, torque * T_N
     inj = bool(drive.injection.enabled)
     if inj and abs(w) < drive.injection.w_Delta and w * T < 0:
         w1 = coupling_limit(drive.motor, T)
         if abs(w) > w1:
             return Named(
                 "injection_coupling_band",
-                f"regenerating at {failure.w_pu:+.3g} p.u. under {failure.load_pu:+.3g} T_N: above the HF "
+                f"regenerating at {failure.w_pu:+.3g} p.u., T_e = {torque:+.3g} T_N: above the HF "
                 f"correction's coupling limit {w1 / wb:.3g} p.u. at this torque, below the injection's "
                 f"fade-out {drive.injection.w_Delta / wb:.3g} p.u. (design/ipmsm_adaptive/carrier.py)",
             )
@@ -76,7 +72,7 @@ def failure_cause(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
     if np.nanmax(s.max_real) > 0:
         return Named(
             "rhp_band",
-            f"at {failure.w_pu:+.3g} p.u., {failure.load_pu:+.3g} T_N the linearized observer"
+            f"at {failure.w_pu:+.3g} p.u., T_e = {torque:+.3g} T_N the linearized observer"
             f"{' with the injection' if inj else ''} has a pole at Re = {np.nanmax(s.max_real):+.3g} 1/s",
         )
     return None

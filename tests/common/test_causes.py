@@ -24,7 +24,7 @@ import pytest
 from sensorless.design.family import DriveScales
 from sensorless.design.simulate import Traces
 from sensorless.reports import time_domain as td_mod
-from sensorless.reports.causes import CATALOGUE, Failure, Named, classify, shared_cause
+from sensorless.reports.causes import CATALOGUE, Failure, Named, classify, classify_all, shared_cause
 
 MOTORS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors"
 W_BASE, T_N = 1000.0, 10.0
@@ -86,6 +86,17 @@ def test_a_family_finding_comes_first_and_must_be_in_the_catalogue():
         Named("a_families_private_cause")
     with pytest.raises(ValueError, match="kind"):
         classify(Failure("something", "x"))
+
+
+def test_the_end_of_a_run_that_lost_the_rotor_has_the_losss_cause():
+    """The traction motor lost the rotor and then ended 0.5 p.u. short of its reference at T_max: the
+    shortfall is the loss's consequence, not a torque limit of its own."""
+    lost = Failure("lost", "x", t=3.8, w_pu=0.2, load_pu=1.0, accel_share=0.6)
+    short = Failure("tracking", "y", torque_pu=1.5, limit_pu=1.5)
+    named = classify_all([lost, short])
+    assert [n.cause for n in named] == ["observer_lag_acceleration"] * 2
+    assert "consequence of the rotor lost at t = 3.8 s" in named[1].detail
+    assert [n.cause for n in classify_all([short])] == ["torque_limit"]  # without a loss: its own
 
 
 def test_the_catalogue_holds_the_ids_other_modules_use():
@@ -240,6 +251,9 @@ def test_the_adaptive_observers_injection_coupling_band():
     for w in (0.05, -0.2 * w1_bound):
         named = failure_cause(d, g, Failure("lost", "x", w_pu=w, load_pu=1.0))
         assert named is None or named.cause != "injection_coupling_band"
+    # braking at the limit against a motoring load regenerates: the electromagnetic torque decides
+    braking = Failure("lost", "x", w_pu=0.05, load_pu=1.0, torque_e_pu=-1.5)
+    assert failure_cause(d, g, braking).cause == "injection_coupling_band"
 
 
 # ------------------------------------------------------------------ no explanation contradicts a check
