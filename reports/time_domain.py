@@ -122,17 +122,15 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def untested_reason(open_loop: np.ndarray | None, dt: float) -> str:
-    """Why a run with the open-loop I-f start ``open_loop`` (per sample) did not test the observer: it
-    never handed over, spent more than :data:`MAX_OPEN_LOOP_SHARE` of its time in open loop, or ended
-    in it; "" where the observer had the loop (or the run has no start)."""
+    """Why a run with the open-loop I-f start ``open_loop`` (per sample) did not test the observer: the
+    start had the loop throughout (never handed over), for more than :data:`MAX_OPEN_LOOP_SHARE` of the
+    run, or at its end; "" where the observer had the loop (or the run has no start)."""
     if open_loop is None or not open_loop.any():
         return ""
     share = float(np.mean(open_loop))
     t_open = np.count_nonzero(open_loop) * dt
     if open_loop[0] and not (~open_loop).any():
         return f"the open-loop I-f start ran throughout ({t_open:.3g} s): the observer never had the loop"
-    if open_loop[0] and _runs(open_loop)[0][1] == open_loop.size:
-        return "the open-loop I-f start never handed over to the observer"
     if share > MAX_OPEN_LOOP_SHARE:
         return (
             f"the open-loop I-f start had the loop for {100 * share:.0f} % of the run ({t_open:.3g} s), the "
