@@ -12,6 +12,12 @@ the best gains found are still below the damping a report requires by default (c
 one ``--min-damping`` requires where the drive's family takes it), or
 their worst damping is not finite, the tables are written (they are the result) with a warning line, and
 the exit status is 3.
+
+Before anything is written the table is proved (reports/tune_proof.py): its gains and the drive file's
+over the drive's real range (+-T_max) by the linear analysis and on the report's time-domain checks. A
+table that runs worse than the drive file's gains is not written as tuned: the tuner's fallback (a
+seeded law: its seed's optimum in this law's parameters) is proved next, and if none holds the command
+says which point and which check, writes nothing and exits 3. ``--unchecked`` skips the proof.
 """
 
 from __future__ import annotations
