@@ -124,3 +124,19 @@ def test_tune_refuses_a_table_worse_than_the_drive_files(tmp_path, monkeypatch, 
     assert "no table written" in err.err and "w = +1.000 p.u., T = -22 N m" in err.err
     assert calls == ["drive file", "tuned"]  # the speed-dependent law has no fallback
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_ipopt_linear_algebra_loads_single_threaded(monkeypatch):
+    """The thread count of CasADi's OpenBLAS (read when IPOPT's plugin is loaded) changed the last bits
+    of the NLP's sums: a Dask worker (one thread) and a shell (two) tuned a drone-class motor to
+    different gains. The solver is built with one thread whatever the process's environment, which is
+    restored afterwards."""
+    from sensorless.tuning import slots
+
+    seen = {}
+    monkeypatch.setenv("OMP_NUM_THREADS", "4")
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setattr(slots.ca, "nlpsol", lambda *a: seen.update({k: slots.os.environ.get(k) for k in a}))
+    slots._nlpsol_one_thread("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+    assert seen == {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    assert slots.os.environ["OMP_NUM_THREADS"] == "4" and "OPENBLAS_NUM_THREADS" not in slots.os.environ
