@@ -135,12 +135,13 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     values, w_min, warn = given, 0.0, ""
     try:
         m, c = drive.motor, drive.control
-        inertia, pole_pairs, T_max = m.J, m.p, c.T_max
+        inertia, pole_pairs, T_max, _ = m.J, m.p, c.T_max, m.psi_pm  # another motor model: no I-f rules
         i_d, i_q = mtpa_torque_current(T_max, m)
         k_t = T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
     except AttributeError:
         raise CapabilityError(
-            f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
+            f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max); this "
+            "drive's motor model has none (--startup: not for this drive)"
         ) from None
     values = {**given, "if_k_a": inertia / (pole_pairs * k_t)}  # the motor's (design/startup.py)
     if startup is None or not startup.complete:  # a key the file does not give keeps its rule

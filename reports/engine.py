@@ -36,8 +36,35 @@ LOCAL_CONFIG = {
 }
 
 
+# The address schemes a scheduler of another process can listen on (Dask's ``inproc://`` is this
+# process only; ``ucx://`` needs a library that is not a dependency).
+SCHEMES = ("tcp", "tls", "ws", "wss")
+
+
 class EngineError(ValueError):
     """The engine cannot be started or reached; one line naming the option."""
+
+
+def scheduler_address(text: str) -> str:
+    """An argparse ``type`` for ``--scheduler``: 'synchronous' or SCHEME://HOST:PORT (SCHEMES, a port in
+    1..65535), checked before anything runs: Dask's own address parser raises bare ValueErrors (no
+    port, an unknown scheme, a port that is not a number) that would end the command in a traceback."""
+    import argparse
+
+    if text == SYNCHRONOUS:
+        return text
+    scheme, sep, rest = text.partition("://")
+    if not sep:
+        scheme, rest = "tcp", text  # Dask reads a bare HOST:PORT as tcp
+    want = f"expected 'synchronous' or SCHEME://HOST:PORT with SCHEME in {', '.join(SCHEMES)}"
+    if scheme not in SCHEMES:
+        raise argparse.ArgumentTypeError(f"{text!r}: unknown scheme {scheme!r}; {want}")
+    host, colon, port = rest.rpartition(":")
+    if not colon or not host.strip("[]") or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: no host and port (1-65535); {want}")
+    if any(c.isspace() or c in "/?#@" for c in host):
+        raise argparse.ArgumentTypeError(f"{text!r}: {host!r} is not a host name; {want}")
+    return text
 
 
 class Engine:
@@ -76,7 +103,7 @@ class Engine:
                 self.client = Client(self.cluster)
             else:
                 self.client = Client(self.scheduler, timeout="10s")
-        except OSError as e:
+        except (OSError, ValueError, TypeError) as e:  # unreachable, or an address Dask cannot parse
             self.__exit__(None, None, None)
             raise EngineError(f"--scheduler {self.scheduler}: cannot connect ({e})") from None
         return self

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from sensorless.reports.cli.common import Number, UsageError
+from sensorless.reports.engine import scheduler_address
 
 SUMMARY = "summary.csv"
 _PATTERN = set("*?[")
@@ -44,6 +45,7 @@ def add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--scheduler",
         metavar="ADDRESS",
+        type=scheduler_address,
         help="with several drives: Dask scheduler (tcp://HOST:PORT) to run on, or 'synchronous' (in "
         "this process); default: a local cluster",
     )

@@ -71,11 +71,15 @@ def fields(text: str, file: str) -> dict[str, Any]:
     """The attribute paths of an odrivetool backup (``Infinity``, ``NaN`` read as floats)."""
     try:
         data = json.loads(text)
+        if not isinstance(data, dict):
+            raise DriveFileError(file, "(top level)", "not a JSON object of odrivetool settings")
+        return flatten(data)
     except json.JSONDecodeError as e:
         raise DriveFileError(file, "(syntax)", f"not valid JSON: {e}") from None
-    if not isinstance(data, dict):
-        raise DriveFileError(file, "(top level)", "not a JSON object of odrivetool settings")
-    return flatten(data)
+    except RecursionError:  # the parser's (or flatten's) recursion: a backup nests a few levels
+        raise DriveFileError(
+            file, "(structure)", "JSON nested deeper than Python can read: not an odrivetool backup"
+        ) from None
 
 
 def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
