@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
+from sensorless.design.units import MAX_POLE_PAIRS, DriveFileError, check_magnitude, parse_quantity
 
 
 def read_text(path: Path) -> str:
@@ -42,6 +42,7 @@ _CHECKS: dict[str, tuple[Callable[[float], bool], str]] = {
     "positive": (lambda x: x > 0, "must be > 0"),
     "nonnegative": (lambda x: x >= 0, "must be >= 0"),
     "any": (lambda x: True, ""),
+    "pole_pairs": (lambda x: 1 <= x <= MAX_POLE_PAIRS, f"pole pairs from 1 to {MAX_POLE_PAIRS}"),
 }
 
 

@@ -201,6 +201,17 @@ def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -
     }
 
 
+# The drive-file keys each derived [startup] value follows from (by the rules of document_entries):
+# an error in a derived value names them, the keys the user wrote
+DERIVED_FROM = {
+    "current": "control.T_max, motor.psi_pm",
+    "acceleration": "motor.J, motor.p, control.T_max",
+    "damping": "motor.J, motor.p, control.T_max",
+    "w_hp": "motor.J, motor.p, control.T_max",
+    "dwell": "motor.J, motor.p, control.T_max",
+}
+
+
 def optional_lines(values: Mapping[str, float]) -> list[str]:
     """The ``[startup]`` keys ``sensorless init`` writes commented out: the dwell, whose rule follows the
     gains under review (as w_min does; a number in the file would keep the value of the file's own)."""

@@ -13,15 +13,28 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError, Drive, GainSet
 from sensorless.design.pmsm_flux_observer import FAMILY
-from sensorless.design.pmsm_flux_observer.firmware import FirmwareDrive, odrive, simplefoc, vesc
+from sensorless.design.pmsm_flux_observer.firmware import (
+    F_S_RANGE,
+    POLE_PAIRS_RANGE,
+    U_DC_RANGE,
+    FirmwareDrive,
+    odrive,
+    simplefoc,
+    vesc,
+)
 from sensorless.reports.cli.common import Number
 from sensorless.reports.family import Exporter, Importer, Option
 
 POLE_PAIRS = Option(
     ("--pole-pairs",),
-    {"type": Number(1, 1000, integer=True), "help": "pole pairs, where the file lacks them or to override"},
+    {
+        "type": Number(*POLE_PAIRS_RANGE, integer=True),
+        "help": "pole pairs, where the file lacks them or to override",
+    },
 )
-U_DC = Option(("--u-dc",), {"type": Number(1, 1e4, unit="V"), "metavar": "V", "help": "DC bus voltage [V]"})
+U_DC = Option(
+    ("--u-dc",), {"type": Number(*U_DC_RANGE, unit="V"), "metavar": "V", "help": "DC bus voltage [V]"}
+)
 INERTIA = Option(
     ("--J",),
     {
@@ -49,7 +62,7 @@ L_SCALE = Option(
 F_S = Option(
     ("--f-s",),
     {
-        "type": Number(100, 1e6, unit="Hz"),
+        "type": Number(*F_S_RANGE, unit="Hz"),
         "metavar": "HZ",
         "help": "the firmware's current-loop frequency [Hz]",
     },

@@ -32,6 +32,7 @@ from typing import Any
 from sensorless.design.drive_file import Entry
 from sensorless.design.motor_data import kt_to_psi
 from sensorless.design.pmsm_flux_observer.firmware import (
+    POLE_PAIRS_RANGE,
     Fields,
     FirmwareDrive,
     Imported,
@@ -102,6 +103,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     elif pp is None:
         raise f.error(MOTOR + "pole_pairs", "missing: give --pole-pairs")
     else:
+        f.within(MOTOR + "pole_pairs", pp, POLE_PAIRS_RANGE, "pole pairs")
         p = pp
         motor["p"] = Entry(p, "motor.config.pole_pairs")
 
