@@ -9,8 +9,10 @@ family's ``HOOKS`` declares.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
+from sensorless.design.drive_file import name_problem
 from sensorless.design.family import CapabilityError, Drive, GainSet
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.pmsm_flux_observer.firmware import (
@@ -22,7 +24,7 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     simplefoc,
     vesc,
 )
-from sensorless.reports.cli.common import Number
+from sensorless.reports.cli.common import Number, UsageError, drive_name
 from sensorless.reports.family import Exporter, Importer, Option
 
 POLE_PAIRS = Option(
@@ -67,7 +69,7 @@ F_S = Option(
         "help": "the firmware's current-loop frequency [Hz]",
     },
 )
-NAME = Option(("--name",), {"help": "the drive's name (default: the file's name)"})
+NAME = Option(("--name",), {"type": drive_name, "help": "the drive's name (default: the file's name)"})
 
 
 def importers(kind: str) -> dict[str, Importer]:
@@ -77,6 +79,12 @@ def importers(kind: str) -> dict[str, Importer]:
         read: Callable[..., Any],
     ) -> Callable[[str, str, Mapping[str, Any]], tuple[str, tuple[str, ...]]]:
         def run(text: str, file: str, given: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
+            if not given.get("name"):  # the default, the file's name, becomes the drive's
+                why = name_problem(Path(file).stem)
+                if why is not None:
+                    raise UsageError(
+                        f"argument --name: the file's name cannot be the drive's ({why}): give --name"
+                    )
             imported = read(text, file, given, kind)
             return imported.text, imported.notes
 
