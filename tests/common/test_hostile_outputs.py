@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import io
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -62,3 +63,64 @@ def test_a_csv_cell_is_a_finite_number_or_empty_with_the_rows_reason(v):
 
     assert row([1.5, v], "why") == "1.5,,why"
     assert row([1.5, 2], "why") == "1.5,2,"
+
+
+# ------------------------------------------------------------------------------------- many drives
+def _servo_dir(tmp_path, names=("a", "b")):
+    import re
+
+    from sensorless.design.drive import preset_text
+
+    d = tmp_path / "drives"
+    d.mkdir()
+    for n in names:
+        (d / f"{n}.toml").write_text(
+            re.sub(r"^name = .*$", f'name = "{n}"', preset_text("piippo2008"), flags=re.M)
+        )
+    return d
+
+
+def test_report_over_a_directory_reads_the_tables_tune_wrote_there(tmp_path, capsys, monkeypatch):
+    # `report DIR --gains DIR` was refused per drive as "a directory" (and wrote summary.csv)
+    from sensorless.reports.cli import many
+    from sensorless.reports.cli.main import main
+
+    drives = _servo_dir(tmp_path)
+    tuned = tmp_path / "tuned"
+    for n in ("a", "b"):
+        (tuned / n).mkdir(parents=True)
+        (tuned / n / "gains_speed-dependent.json").write_text("{}")
+    seen = {}
+
+    def one(command, base, file, out):  # the drive's run: which table it was given
+        seen[Path(file).stem] = base["gains"]
+        return {"code": 0, "stdout": "", "stderr": ""}
+
+    monkeypatch.setattr(many, "one", one)
+    argv = ["report", drives, "--gains", tuned, "--scheduler", "synchronous", "--out", tmp_path / "r"]
+    assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    assert seen == {n: str(tuned / n / "gains_speed-dependent.json") for n in ("a", "b")}
+    capsys.readouterr()
+    # a drive without its table: one line naming --gains and the drive, before anything is written
+    (tuned / "b" / "gains_speed-dependent.json").unlink()
+    argv[-1] = tmp_path / "r2"
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--gains" in err and "'b'" in err, err
+    assert not (tmp_path / "r2").exists()
+    # one drive: a directory holding one table is that table
+    assert many.gain_table_of(str(tuned / "a"), "piippo2008") == str(
+        tuned / "a" / "gains_speed-dependent.json"
+    )
+
+
+def test_the_summary_gives_a_failed_drives_error_not_its_earlier_warning():
+    from sensorless.reports.cli.many import _row
+
+    stderr = "sensorless tune: warning: L/R is short\nsensorless tune: error: key 'x': bad\n"
+    row = _row("tune", "a", "a.toml", Path("o"), {"code": 2, "stdout": "", "stderr": stderr})
+    assert row["message"] == "sensorless tune: error: key 'x': bad"
+    ok = _row(
+        "tune", "a", "a.toml", Path("o/none"), {"code": 0, "stdout": "", "stderr": stderr.split("\n")[0]}
+    )
+    assert ok["message"] == "sensorless tune: warning: L/R is short"
