@@ -33,6 +33,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from sensorless.reports import interrupts
 from sensorless.reports.cli.common import Number, UsageError
 from sensorless.reports.engine import scheduler_address
 
@@ -166,7 +167,14 @@ def one(command: str, base: dict[str, Any], file: str, out: str) -> dict[str, An
         warnings.simplefilter("ignore", RuntimeWarning)  # as main() does: the command says what is not finite
         try:
             code = int(ns.func(ns) or 0)
-        except (KeyboardInterrupt, SystemExit):
+        except KeyboardInterrupt as e:
+            if getattr(e, "signum", None) != interrupts.BUDGET:
+                raise
+            # this drive's time budget (on the synchronous engine): its line, the others go on
+            text, code = interrupts.line(e.signum)
+            interrupts.reset()
+            print(text, file=sys.stderr)
+        except SystemExit:
             raise
         except Exception as e:
             try:
