@@ -124,3 +124,95 @@ def test_the_summary_gives_a_failed_drives_error_not_its_earlier_warning():
         "tune", "a", "a.toml", Path("o/none"), {"code": 0, "stdout": "", "stderr": stderr.split("\n")[0]}
     )
     assert ok["message"] == "sensorless tune: warning: L/R is short"
+
+
+# ------------------------------------------------------------------- bounded work, signals, Ctrl-C
+SWALLOWING = """
+import subprocess, sys, time
+from sensorless.reports import interrupts
+interrupts.GRACE = 0.5
+child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+print(child.pid, flush=True)
+with interrupts.handled("sensorless x"):
+    while True:  # as the tuner goes on after IPOPT returned from an interrupt it caught
+        try:
+            time.sleep(0.01)
+        except KeyboardInterrupt:
+            pass
+"""
+
+
+def test_a_signal_the_computation_swallows_still_ends_the_process_and_its_children():
+    # a SIGTERMed tune computed on for 8 minutes (IPOPT catches the interrupt; the next round starts)
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    p = subprocess.Popen(
+        [sys.executable, "-c", SWALLOWING], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    child = int(p.stdout.readline())
+    p.send_signal(signal.SIGTERM)
+    t0 = time.monotonic()
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 143 and err == "sensorless x: terminated\n", err
+    assert time.monotonic() - t0 < 30
+    for _ in range(100):  # the process it started is gone too (killed, then reaped by init)
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        raise AssertionError(f"child {child} still running")
+
+
+def test_tune_ends_at_its_time_budget_with_one_line_and_nothing_written(tmp_path, capsys):
+    # the servo with J in kg m2 where kg cm2 was meant (the plausibility warning: 68.5 s) tuned on
+    # past 300 s; a budget ends any tune, with the line saying why it may have run that long
+    import re
+
+    from sensorless.reports.cli.main import main
+
+    servo = (
+        Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors" / "servo400.toml"
+    ).read_text()
+    f = tmp_path / "servo_J.toml"
+    f.write_text(re.sub(r"^J = .*$", 'J = "0.277 kgm2"', servo, flags=re.M))
+    code = main(["tune", str(f), "--time-limit", "0.5", "--quiet", "--out", str(tmp_path / "t")])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 3 and "68.5 s" in lines[0], lines
+    assert lines[1:] == [lines[-1]] and "--time-limit" in lines[-1] and "0.5 s" in lines[-1], lines
+    assert not (tmp_path / "t").exists()
+
+
+ENGINE_CTRL_C = """
+import os, signal, sys
+import distributed
+from sensorless.reports.cli.main import main
+real = distributed.LocalCluster.__init__
+def started_then_ctrl_c(self, *a, **k):  # Ctrl-C at the terminal while the workers start
+    real(self, *a, **k)
+    os.killpg(0, signal.SIGINT)
+distributed.LocalCluster.__init__ = started_then_ctrl_c
+sys.exit(main(["tune", sys.argv[1], "--workers", "1", "--out", sys.argv[2]]))
+"""
+
+
+def test_ctrl_c_on_a_local_cluster_is_one_line(tmp_path):
+    # 29-135 lines of the workers' and Dask's tracebacks (AssertionError: Status.init) before
+    import subprocess
+    import sys
+
+    d = _servo_dir(tmp_path, ("a",))
+    p = subprocess.run(
+        [sys.executable, "-c", ENGINE_CTRL_C, str(d), str(tmp_path / "t")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        start_new_session=True,  # its own process group: the Ctrl-C reaches it and its workers only
+    )
+    assert p.returncode == 130 and p.stderr == "sensorless tune: interrupted\n", p.stderr
+    assert not (tmp_path / "t").exists()
