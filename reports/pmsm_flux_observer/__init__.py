@@ -112,6 +112,15 @@ def poles_csv(lin: Any, drive: Any) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _shown(v: float, spec: str) -> str:
+    """``v`` in ``spec``, or '-' where the analysis has no value (poles.csv says why)."""
+    return (
+        format(float(v), spec)
+        if np.isfinite(v)
+        else format("-", spec[0] + spec[1:].rstrip("fgs").split(".")[0])
+    )
+
+
 def not_finite(lin: Any) -> str | None:
     """The warning line of an analysis with points without a value (their rows say why), or None."""
     lost = ~np.isfinite(lin.worst_damping_discrete) | ~np.isfinite(lin.worst_damping)
@@ -145,10 +154,10 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
         print(f"T_e = {T_e:.4g} N m:\n  {head}")
         for k in np.flatnonzero(lin.torque == T_e)[::2]:
             print(
-                f"  {lin.w[k] / drive.w_base:>10.3f} {lin.worst_damping[k]:>8.3f}/"
-                f"{lin.worst_damping_discrete[k]:<9.3f} "
-                f"{lin.decay_rate[k]:>11.4g}/{lin.decay_rate_discrete[k]:<12.4g} "
-                f"{np.degrees(lin.theta_err_discrete[k]):>16.4f}"
+                f"  {lin.w[k] / drive.w_base:>10.3f} {_shown(lin.worst_damping[k], '>8.3f')}/"
+                f"{_shown(lin.worst_damping_discrete[k], '<9.3f')} "
+                f"{_shown(lin.decay_rate[k], '>11.4g')}/{_shown(lin.decay_rate_discrete[k], '<12.4g')} "
+                f"{_shown(np.degrees(lin.theta_err_discrete[k]), '>16.4f')}"
             )
     print(
         f"worst over {lin.w.size} points: damping {np.nanmin(lin.worst_damping_discrete):.4f}, slowest decay "
