@@ -83,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
     compute = hooks(fam).report
     if compute is None:
         raise CapabilityError(f"observer family {fam.name!r} has no stability report")
+    if args.gains:  # a directory of tune's tables: this drive's
+        args.gains = many.gain_table_of(args.gains, drive.name)
     table = read_gain_table(args.gains) if args.gains else None
     foreign = None
     if table is not None:

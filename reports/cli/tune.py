@@ -31,8 +31,9 @@ from typing import Any
 
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import families, family_of
+from sensorless.reports import interrupts
 from sensorless.reports.cli import many
-from sensorless.reports.cli.common import MIN_DAMPING, UsageError, load
+from sensorless.reports.cli.common import MIN_DAMPING, Number, UsageError, load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 from sensorless.reports.gain_csv import pareto_csv, speeds_csv, table_csv
@@ -49,6 +50,11 @@ class _OldFlag(argparse.Action):
     def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
         print("sensorless tune: note: --family is now called --law", file=sys.stderr)
         setattr(namespace, self.dest, values)
+
+
+# The default time budget [s] of one drive's tuning: twice the slowest tune of the example motors on a
+# loaded machine (~400 s); a drive with implausible data (J in kg m2 for kg cm2) ran on for hours
+TIME_LIMIT = 900.0
 
 
 def register(sub: Any) -> None:
@@ -96,6 +102,14 @@ def register(sub: Any) -> None:
         "time-domain checks against the drive file's gains: reports/tune_proof.py); default: checked, "
         f"unless ${UNCHECKED_ENV} is set",
     )
+    p.add_argument(
+        "--time-limit",
+        type=Number(0, 1e6, unit="s"),
+        default=TIME_LIMIT,
+        metavar="SECONDS",
+        help=f"give up after this many seconds of wall time, writing nothing (default {TIME_LIMIT:g}; 0: "
+        "none): a drive with implausible data can make the tuning run far longer than usual",
+    )
     add_family_options(p, "tune")
     many.add_engine_options(p)
     p.set_defaults(func=run)
@@ -139,8 +153,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"law {tunable.name}: {tunable.description}")
     if h.describe_envelope is not None:
         print(h.describe_envelope(drive, settings))
+    limit = getattr(args, "time_limit", None)  # a many-drive task's namespace may predate the option
+    note = (
+        f"the tuning did not end within {limit:g} s (--time-limit); nothing written. A drive whose data "
+        "are implausible (the warnings above, e.g. J's unit) can make it run far longer than usual: check "
+        "them, or raise --time-limit"
+    )
     try:
-        r = tune(drive, tunable.name, settings, progress=progress)
+        with interrupts.budget(limit, note):
+            r = tune(drive, tunable.name, settings, progress=progress)
     except (TuningError, CapabilityError) as e:
         raise UsageError(str(e)) from None
     proof: list[str] = []
