@@ -132,8 +132,8 @@ import subprocess, sys, time
 from sensorless.reports import interrupts
 interrupts.GRACE = 0.5
 child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
-print(child.pid, flush=True)
 with interrupts.handled("sensorless x"):
+    print(child.pid, flush=True)  # only once the handler is in place: a loaded machine signals early
     while True:  # as the tuner goes on after IPOPT returned from an interrupt it caught
         try:
             time.sleep(0.01)
