@@ -20,10 +20,18 @@ from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario, speed_filter_of
-from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
+from sensorless.design.simulate import (
+    LoopCoordinates,
+    LoopSetup,
+    StateFrames,
+    noise,
+    provenance,
+    sample_times,
+)
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_drive import (
     INPUTS,
+    LOOP_STATE,
     MEAS,
     PARAMS,
     RECORD,
@@ -216,12 +224,16 @@ def loop_setup(
     meta: dict[str, Any],
     carrier: tuple[float, float] = (0.0, 0.0),
     notch: bool = False,
+    frames: StateFrames | None = None,
 ) -> LoopSetup:
     """The loop set-up of ``sc`` on a PMSM drive with the runtime observer ``setup``.
 
     ``carrier``: (frequency, band-stop bandwidth) [rad/s] of the carrier an observer injects (its
     output ``u_c_d``; 0: none); ``notch``: it injects in this run, so the current control must not see
     the carrier. ``meta`` adds the family's own lines (gains, injection, ...) to the provenance.
+    ``frames``: how the observer's state turns with the rotor (its family's declaration), which gives
+    the set-up its rotor coordinates (the whole-drive linearization) where it runs without injection
+    and without the I-f start.
     """
     if sc.startup:
         setup, line = startup_setup(drive, setup)
@@ -247,6 +259,9 @@ def loop_setup(
     op = np.asarray(op).ravel()
     op[0] -= sc.theta_err0  # the estimate starts off by the scenario's angle error
     x_obs = np.asarray(obs.steady_state()(setup.p, op)).ravel()
+    coords = None
+    if frames is not None and not sc.startup and not notch:
+        coords = _coordinates(frames, obs, q, setup.p)
     return LoopSetup(
         loop=loop,
         q=q,
@@ -270,4 +285,42 @@ def loop_setup(
             "speed_scale": 1 / drive.w_base,  # rad/s (electrical) -> speed_unit
             **meta,
         },
+        coordinates=coords,
+    )
+
+
+_Z = {f.name: k for k, f in enumerate(LOOP_STATE)}
+_V = {f.name: k for k, f in enumerate(INPUTS)}
+
+
+def _coordinates(frames: StateFrames, obs: Any, q: np.ndarray, p_obs: np.ndarray) -> LoopCoordinates:
+    """The rotor coordinates of this loop (symbolic/pmsm_drive.py: the flux in the true rotor frame, the
+    current PI and the notch filters in the controller frame, the applied voltage in the stationary
+    frame) with the observer's ``frames`` after it; the notch filters are held (nothing reads them
+    without injection)."""
+    n = len(LOOP_STATE)
+    names = [f.name for f in obs.state]
+    ix = lambda name: n + names.index(name)  # noqa: E731
+
+    def start(v0: np.ndarray, w0: np.ndarray) -> np.ndarray:
+        N = w0.size
+        z_loop, op = initial_loop_state_function().map(N)(q, v0, w0.reshape(1, -1), 0.0)
+        x_obs = obs.steady_state().map(N)(p_obs, op)
+        return np.vstack([np.asarray(z_loop), np.asarray(x_obs)])
+
+    return LoopCoordinates(
+        theta=_Z["theta_m"],
+        speed=_Z["w_m"],
+        w_ref=_V["w_ref"],
+        load=_V["T_L"],
+        sensor=[f.name for f in PARAMS].index("sensor"),
+        observer=n,
+        angles=tuple(ix(a) for a in frames.angles),
+        vectors=((_Z["u_a"], _Z["u_b"]), *((ix(a), ix(b)) for a, b in frames.vectors)),
+        held=(
+            *(_Z[k] for k in ("nf_d1", "nf_d2", "nf_q1", "nf_q2")),
+            *(ix(h) for h in frames.held),
+            n + len(names) - 1,  # the runtime contract's counter: 0 in steady state
+        ),
+        start=start,
     )
