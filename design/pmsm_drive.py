@@ -131,9 +131,9 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     file gives one, else the rules from the minimum sensorless speed at rated load (design/low_speed.py,
     at ``gains``); None where the observer holds zero speed. With one line saying which, and w_min
     [rad/s] (0 where not analysed). CapabilityError for a drive without a PMSM's data."""
-    from sensorless.design.low_speed import QUICK, minimum_speed
+    from sensorless.design.low_speed import DECAY_SHARE, QUICK, minimum_speed
     from sensorless.design.poles import MIN_DAMPING
-    from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR, handover_decay, if_values
+    from sensorless.design.startup import ON_FACTOR, handover_reason, if_values
 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
@@ -152,34 +152,27 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
         ) from None
     values = {**given, "if_k_a": inertia / (pole_pairs * k_t)}  # the motor's (design/startup.py)
     if startup is None or not startup.complete:  # a key the file does not give keeps its rule
-        # the handover's w_min: the design's criteria with the decay that follows the full acceleration;
-        # where no speed up to 1 p.u. gives that decay (the slowest mode need not be the one an
-        # acceleration excites: the 400-W servo's default gains follow it from 0.02 p.u. in simulation),
-        # the design's own w_min, and said (design/startup.py)
-        sigma = handover_decay(drive.T_N, T_max, inertia, pole_pairs, fam.scales(drive).alpha_s)
+        # the handover's w_min: the whole drive's criteria with its angle error under the full
+        # acceleration a_max against rated load (design/low_speed.py); the handover never above 1 p.u.
         try:
-            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, min_decay=sigma, **QUICK)  # type: ignore[arg-type]
+            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, acceleration=True, **QUICK)  # type: ignore[arg-type]
         except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
             if startup is None or startup.needs_w_min:
                 raise
-            rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma)
+            sigma = DECAY_SHARE * fam.scales(drive).alpha_s
+            rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma, drive.w_base)
             return (*_startup_line({**rules, **given}, given, drive.w_base, ""), 0.0)
-        if ls.w_min_rated >= drive.w_base * (1 - 1e-9):
-            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
-            sigma = ls.min_decay
-            warn = (
-                f"; {ACCELERATION_LIMIT} sqrt(a_max / 30 deg) = "
-                f"{handover_decay(drive.T_N, T_max, inertia, pole_pairs, 0.0):.3g} 1/s (what follows the "
-                "full acceleration a_max against rated load) at every speed up to 1 p.u.: handover at the "
-                "design's minimum sensorless speed, where a full-torque acceleration or braking may lose "
-                "the rotor (limit the acceleration: ramp the speed reference or lower T_max; or raise the "
-                "observer's gains)"
-            )
+        sigma = _handover_decay(drive, gains, ls)
+        if ls.w_min_rated >= drive.w_base * (1 - 1e-9) or ls.rated_limited_by == "acceleration":
+            warn = "; " + handover_reason(ls)
         w_min = ls.w_min_rated
         if w_min <= 0:
             return None, "no I-f start: the design holds zero speed", 0.0
         given = startup.values(w_min) if startup is not None else {}
-        values = {**if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min, sigma), **given}
+        values = {
+            **if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min, sigma, drive.w_base),
+            **given,
+        }
         if values["if_w_off"] >= values["if_w_on"]:
             if "if_w_off" in given:
                 raise DriveFileError(
@@ -193,6 +186,21 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
                 f"over where its criteria do not hold (raise startup.w_on to {ON_FACTOR:g} w_min)"
             )
     return (*_startup_line(values, given, drive.w_base, warn), w_min)
+
+
+def _handover_decay(drive: OnPmsm, gains: Any, ls: Any) -> float:
+    """sigma [1/s]: the slowest decay of the whole drive at the handover (2 w_min, at most 1 p.u., +-T_N),
+    at least the required one; the required one where the drive is not linearized."""
+    from sensorless.design.drive_analysis import linearize_drive
+    from sensorless.design.startup import ON_FACTOR
+
+    w_on = min(ON_FACTOR * ls.w_min_rated, drive.w_base)
+    try:
+        lin = linearize_drive(drive, gains, w_on, np.array([-1.0, 1.0]) * drive.T_N)  # type: ignore[arg-type]
+    except CapabilityError:
+        return ls.min_decay
+    decay = np.nanmin(lin.decay) if np.isfinite(lin.decay).any() else ls.min_decay
+    return float(max(ls.min_decay, decay))
 
 
 def _startup_line(
