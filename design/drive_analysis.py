@@ -208,10 +208,15 @@ def linearize_drive(
     M = A - eye
     ok = np.isfinite(M).all(axis=(1, 2))
     lag = np.full(n, np.nan)
-    if ok.any():
+    solvable = ok.copy()
+    solvable[ok] = np.abs(np.linalg.det(M[ok])) > 1e-300  # a pole at z = 1: no steady lag
+    if solvable.any() and not sensor:
+        ok_ = ok
+        ok = solvable
         dy = np.linalg.solve(M[ok], -Jw[ok])
         d = np.linalg.solve(M[ok], dy * s.T_s)
         lag[ok] = np.einsum("ni,ni->n", De[ok, :, 0], d[:, :, 0])
+        ok = ok_
     block = np.flatnonzero(kept < c.observer) if sensor else np.arange(y.shape[1])
     z = np.full((n, y.shape[1]), np.nan + 0j)
     if ok.any():
