@@ -34,6 +34,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from sensorless.design.batch import evaluate_batch
 from sensorless.design.discrete import newton
 from sensorless.design.family import CapabilityError, Drive, GainSet
 from sensorless.design.poles import sort_poles
@@ -125,6 +126,24 @@ def map_function(loop: ca.Function, key: tuple, n_z: int, i_err: int) -> ca.Func
     )
 
 
+WARM_STEPS = 512  # periods the loop runs from rest where Newton's method from rest finds no fixed point
+
+
+@functools.cache
+def warm_function(fn: ca.Function, steps: int = WARM_STEPS) -> ca.Function:
+    """(y, v, z_rest, q, p_obs, gain) -> y after ``steps`` periods of the one-step map ``fn`` (the loop
+    run in rotor coordinates, i.e. simulated): a start for Newton's method near a stable fixed point."""
+    ins = [ca.SX.sym(fn.name_in(k), fn.sparsity_in(k)) for k in range(fn.n_in())]
+    par = ca.vertcat(*ins[1:])
+    one = ca.Function("one", [ins[0], par], [fn(*ins)[0]])
+    P = ca.MX.sym("par", par.size1())
+    Y = ca.MX.sym("y", ins[0].size1())
+    y_end = one.fold(steps)(Y, ca.repmat(P, 1, steps))
+    mx = [Y, *(ca.MX.sym(fn.name_in(k), fn.sparsity_in(k)) for k in range(1, fn.n_in()))]
+    out = ca.Function("w", [Y, P], [y_end])(mx[0], ca.vertcat(*mx[1:]))
+    return ca.Function(f"{fn.name()}_warm{steps}", mx, [out], fn.name_in(), ["y_end"])
+
+
 @dataclass(frozen=True)
 class DriveLinearization:
     """The whole drive at N operating points (module docstring); NaN where no fixed point is found."""
@@ -203,6 +222,14 @@ def linearize_drive(
     fn = map_function(s.loop, c.key(), Z0.shape[0], i_err)
     args = [V, Z0, q, s.p_obs, s.gain]
     y, A, Jw, e, De = newton(fn, args, y0, dl.angles)
+    lost = ~np.isfinite(y).all(axis=1)
+    if lost.any():  # Newton from rest left the basin: run the loop from rest first (where it is stable)
+        sub = [a[:, lost] if np.ndim(a) == 2 and a.shape[1] == n and n > 1 else a for a in args]
+        m = int(lost.sum())
+        (y_w,) = evaluate_batch(warm_function(fn), m, [y0[lost].T, *sub])
+        found = newton(fn, sub, y_w[:, :, 0], dl.angles)
+        for full, part in zip((y, A, Jw, e, De), found, strict=True):
+            full[lost] = part
     # the lag under a ramp: (A - I) y' = -F_w, (A - I) d = y' T_s (per unit acceleration)
     eye = np.eye(y.shape[1])
     M = A - eye

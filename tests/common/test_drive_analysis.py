@@ -26,9 +26,7 @@ from sensorless.design.simulate import run_loop, simulate
 
 MOTORS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors"
 LIMIT = 30.0  # deg, the default max_bias
-# servo400 is not here yet: at R_s +50 % Newton's method from the loop at rest finds no fixed point of
-# its whole drive below 1.05 w_min at -T_N, where the simulated drive settles (known, not fixed)
-CASES = {"outrunner270": ("outrunner270", 1.3)}
+CASES = {"servo400": (str(MOTORS / "servo400.toml"), 1.5), "outrunner270": ("outrunner270", 1.3)}
 
 
 def era_poles(y: np.ndarray, order: int, T: float) -> np.ndarray:
@@ -42,35 +40,41 @@ def era_poles(y: np.ndarray, order: int, T: float) -> np.ndarray:
     return np.log(np.linalg.eigvals(A).astype(complex)) / T
 
 
-# servo400 (the adaptive observer) is not here yet: its slow modes (-185 +- 506j, -232, -233 1/s at
-# 0.3 p.u., T_N/2) are too close for the identification to separate them within 3 %
-@pytest.mark.parametrize(("path", "order"), [("outrunner270", 3)])
-def test_slowest_poles_are_the_simulated_step_response(path, order):
+# (drive, identified order, slow poles checked, decimation, samples): one per family; the reduced-order
+# drive's loop analysed (and simulated here) is its sinusoidal one (its drive_loop: EMF harmonics left out)
+STEPS = {
+    "pmsm_flux_observer": ("outrunner270", 3, 3, 4, 100),
+    "ipmsm_adaptive": (str(MOTORS / "servo400.toml"), 4, 2, 2, 300),  # next: -232, -233 1/s, near-double
+    "pmac_reduced_order": ("deangelo2006", 3, 3, 20, 300),
+}
+
+
+@pytest.mark.parametrize("family", sorted(STEPS))
+def test_slowest_poles_are_the_simulated_step_response(family):
+    path, order, check, dec, length = STEPS[family]
     drive = load_drive(path)
     gains = family_of(drive).gains(drive)
     dl = drive_loop(drive, gains)
     s, c = dl.setup, dl.coordinates
     w, T = 0.3 * drive.w_base, 0.5 * drive.T_N
     lin = linearize_drive(drive, gains, w, T, dl)
+    s_lin = lin.poles[0][np.argsort(-lin.poles[0].real)]
     # the loop at its fixed point (rotor at angle 0), then a load step of 1 % T_N
     V0 = np.zeros((s.inputs.shape[0], 1))
     V0[c.w_ref], V0[c.load] = w, T
     z = c.start(V0, np.array([w]))[:, 0]
     z[c.theta], z[dl.kept] = 0.0, lin.y[0]
-    n = 6000
+    k0 = int(5 / -s_lin[order].real / s.T_s) + 20  # the faster modes have died by then
+    n = k0 + dec * length + 20
     V = np.repeat(V0, n, axis=1)
     V[c.load, 10:] += 0.01 * drive.T_N
     rec = run_loop(dataclasses.replace(s, z0=z, inputs=V), compile=False)
     names = [f.name for f in s.record]
-    y = np.stack([rec[names.index(k)] for k in ("w_m", "w_hat", "theta_err", "T_ref")])
-    y = y - y[:, -1:]
-    y = y / np.abs(y).max(axis=1, keepdims=True)
-    # the free response after the fast modes have died, every 4th sample
-    k0 = int(5 / np.max(-np.sort(lin.poles[0].real)[::-1][order:]).real / s.T_s) + 20
-    s_sim = era_poles(y[:, k0 : k0 + 400 : 4], order, 4 * s.T_s)
-    s_lin = lin.poles[0][np.argsort(-lin.poles[0].real)][:order]
-    for p in s_lin:  # each slow pole of the linearization has a simulated one within 3 %
-        assert np.min(np.abs(s_sim - p)) < 0.03 * abs(p), (s_lin, s_sim)
+    y = np.diff(np.stack([rec[names.index(k)] for k in ("w_m", "w_hat", "theta_err", "T_ref")]), axis=1)
+    y = y[:, k0 : k0 + dec * length : dec]
+    s_sim = era_poles(y / np.abs(y).max(axis=1, keepdims=True), order, dec * s.T_s)
+    for p in s_lin[:check]:  # each slow pole of the linearization has a simulated one within 3 %
+        assert np.min(np.abs(s_sim - p)) < 0.03 * abs(p), (s_lin[:order], s_sim)
 
 
 @pytest.fixture(scope="module", params=sorted(CASES))
