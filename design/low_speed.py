@@ -60,6 +60,8 @@ BISECTIONS = 8  # each halves the bracket in log speed: 3/39 decade (19 %) / 2^8
 QUICK = {"n_speeds": 16, "n_torques": 5, "bisections": 6}  # `sensorless report --quick`
 CRITERIA = ("damping", "decay", "bias", "noise", "acceleration")
 DECAY_SHARE = 0.1  # default required decay: this share of the speed-loop bandwidth
+REFERENCE_PU = 0.5  # the whole drive's own damping and decay, away from low speed, are taken here
+FLOOR_SHARE = 0.9  # a point fails below this share of them
 
 
 @dataclass(frozen=True)
@@ -180,6 +182,7 @@ class WholeDrive:
 
     lin: Any  # DriveLinearization, sensorless
     ref: Any  # DriveLinearization, the controllers with a sensor
+    mid: Any  # DriveLinearization, sensorless at REFERENCE_PU at the same torques
     observer: Any  # the family's Linearization (for the noise) or None
     acceleration: float  # [rad/s^2]
 
@@ -191,7 +194,13 @@ class WholeDrive:
         return self.lin.decay
 
     def floors(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.ref.worst_damping, self.ref.decay
+        """The damping and decay below which a point fails where they are below the required ones: a
+        share FLOOR_SHARE of the lower of the controllers' with a sensor and the sensorless drive's at
+        REFERENCE_PU (a mode as weak at every speed is no low-speed limit: the report's pole sections
+        judge it)."""
+        z = np.fmin(self.ref.worst_damping, self.mid.worst_damping)
+        d = np.fmin(self.ref.decay, self.mid.decay)
+        return FLOOR_SHARE * z, FLOOR_SHARE * d
 
     def angle_bias(self) -> np.ndarray:
         return self.lin.theta_err
@@ -238,9 +247,11 @@ def _analysis(
 
     def whole(w: Any, T: Any) -> WholeDrive:
         obs = observer_only(w, T)
+        mid = np.broadcast_to(REFERENCE_PU * drive.w_base, np.broadcast(np.asarray(w), np.asarray(T)).shape)
         return WholeDrive(
             linearize_drive(drive, gains, w, T, dl),
             linearize_drive(drive, gains, w, T, dl, sensor=True),
+            linearize_drive(drive, gains, mid, T, dl),
             obs,
             acceleration,
         )

@@ -173,6 +173,10 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
             **if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min, sigma, drive.w_base),
             **given,
         }
+        if values["if_w_on"] > drive.w_base and (startup is None or startup.w_on is None):
+            # a handover given in w_min never above 1 p.u. (the rules' cap)
+            values["if_w_on"] = drive.w_base
+            values["if_w_off"] = min(values["if_w_off"], drive.w_base / ON_FACTOR)
         if values["if_w_off"] >= values["if_w_on"]:
             if "if_w_off" in given:
                 raise DriveFileError(
