@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from sensorless.design.drive import load_drive
 from sensorless.design.drive_analysis import drive_loop, linearize_drive
-from sensorless.design.low_speed import minimum_speed
+from sensorless.design.low_speed import full_acceleration, minimum_speed
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import drive_units, load_scenario_text
 from sensorless.design.simulate import run_loop, simulate
@@ -150,3 +150,31 @@ def test_w_min_is_the_sensorless_drives_30_degree_crossing(case):
         observer_only=True,
     )
     assert paper.w_min[0] < 0.9 * ls.w_min[0]
+
+
+def test_ramp_lag_is_the_simulated_lag_under_a_speed_ramp():
+    """The angle error's lag under a speed ramp (a linear property of the whole drive: its steady error
+    to a ramp of the reference) against the simulated loop: from the fixed point at 0.3 p.u., T_N/2 the
+    reference ramps at a fifth of the full acceleration; after the transients, the simulated angle error
+    less the fixed point's at the reference of the moment is the predicted lag."""
+    drive = load_drive("outrunner270")
+    gains = family_of(drive).gains(drive)
+    dl = drive_loop(drive, gains)
+    s, c = dl.setup, dl.coordinates
+    w0, T = 0.3 * drive.w_base, 0.5 * drive.T_N
+    lin = linearize_drive(drive, gains, w0, T, dl)
+    a = 0.2 * full_acceleration(drive)
+    n = int(10 / lin.decay[0] / s.T_s)  # ten time constants of the slowest mode
+    t = np.arange(n) * s.T_s
+    V = np.zeros((s.inputs.shape[0], n))
+    V[c.w_ref], V[c.load] = w0 + a * t, T
+    z = c.start(V[:, :1], np.array([w0]))[:, 0]
+    z[c.theta], z[dl.kept] = 0.0, lin.y[0]
+    rec = run_loop(dataclasses.replace(s, z0=z, inputs=V), compile=False)
+    err = rec[[f.name for f in s.record].index("theta_err")]
+    k = np.array([n - 1 - n // 10, n - 1])  # two late instants: the lag is steady
+    at = linearize_drive(drive, gains, V[c.w_ref, k], T, dl)
+    lag_sim = err[k] - at.theta_err
+    lag = at.ramp_lag * a
+    assert np.abs(lag).min() > np.radians(0.1)  # a lag to measure
+    np.testing.assert_allclose(lag_sim, lag, rtol=0.01)
