@@ -221,16 +221,36 @@ def newton(
             r[:, j] = np.angle(np.exp(1j * r[:, j]))
         return r
 
+    def at(idx: np.ndarray) -> list[np.ndarray]:
+        """The arguments at the points idx (evaluate_batch: one instance, or one column per point)."""
+        out = []
+        for k, a in enumerate(args, start=1):
+            a = np.asarray(a, float)
+            rows = fn.size1_in(k)
+            if a.size == rows:  # one instance
+                out.append(a)
+            elif a.ndim == 1:  # a scalar input per point
+                out.append(a[idx])
+            else:
+                out.append(a.reshape(rows, n)[:, idx])
+        return out
+
+    todo = np.arange(n)  # the points still iterating (only they are evaluated)
     for _ in range(iterations):
-        y_next, Jy, *_ = evaluate_batch(fn, n, [y.T, *args])
-        r = residual(y_next)
-        todo = ~(np.abs(r) <= 1e-13 * scale).all(axis=1) & np.isfinite(Jy).all(axis=(1, 2))
-        if not todo.any():
+        y_next, Jy, *_ = evaluate_batch(fn, todo.size, [y[todo].T, *at(todo)])
+        r = y_next[:, :, 0] - y[todo]
+        for j in angles:
+            r[:, j] = np.angle(np.exp(1j * r[:, j]))
+        go = ~(np.abs(r) <= 1e-13 * scale[todo]).all(axis=1) & np.isfinite(Jy).all(axis=(1, 2))
+        if not go.any():
             break
-        A = Jy[todo] - eye
+        A = Jy[go] - eye
         ok = np.abs(np.linalg.det(A)) > 1e-300
-        idx = np.flatnonzero(todo)[ok]
-        y[idx] -= np.linalg.solve(A[ok], r[idx][:, :, None])[:, :, 0]
+        step = np.linalg.solve(A[ok], r[go][ok][:, :, None])[:, :, 0]
+        todo = todo[go][ok]
+        y[todo] -= step
+        if todo.size == 0:
+            break
     y_next, Jy, *more = evaluate_batch(fn, n, [y.T, *args])
     bad |= ~(np.abs(residual(y_next)) <= 1e-9 * scale).all(axis=1)
     y[bad] = np.nan

@@ -182,7 +182,7 @@ class WholeDrive:
 
     lin: Any  # DriveLinearization, sensorless
     ref: Any  # DriveLinearization, the controllers with a sensor
-    mid: Any  # DriveLinearization, sensorless at REFERENCE_PU at the same torques
+    mid: tuple[np.ndarray, np.ndarray]  # worst damping and decay of the drive at REFERENCE_PU, same torques
     observer: Any  # the family's Linearization (for the noise) or None
     acceleration: float  # [rad/s^2]
 
@@ -198,8 +198,8 @@ class WholeDrive:
         share FLOOR_SHARE of the lower of the controllers' with a sensor and the sensorless drive's at
         REFERENCE_PU (a mode as weak at every speed is no low-speed limit: the report's pole sections
         judge it)."""
-        z = np.fmin(self.ref.worst_damping, self.mid.worst_damping)
-        d = np.fmin(self.ref.decay, self.mid.decay)
+        z = np.fmin(self.ref.worst_damping, self.mid[0])
+        d = np.fmin(self.ref.decay, self.mid[1])
         return FLOOR_SHARE * z, FLOOR_SHARE * d
 
     def angle_bias(self) -> np.ndarray:
@@ -247,11 +247,13 @@ def _analysis(
 
     def whole(w: Any, T: Any) -> WholeDrive:
         obs = observer_only(w, T)
-        mid = np.broadcast_to(REFERENCE_PU * drive.w_base, np.broadcast(np.asarray(w), np.asarray(T)).shape)
+        Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
+        torques, back = np.unique(Tb, return_inverse=True)  # the drive at REFERENCE_PU: once per torque
+        mid = linearize_drive(drive, gains, REFERENCE_PU * drive.w_base, torques, dl)
         return WholeDrive(
             linearize_drive(drive, gains, w, T, dl),
             linearize_drive(drive, gains, w, T, dl, sensor=True),
-            linearize_drive(drive, gains, mid, T, dl),
+            (mid.worst_damping[back], mid.decay[back]),
             obs,
             acceleration,
         )
