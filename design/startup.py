@@ -202,8 +202,8 @@ def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -
         "w_on": Entry(f"{ON_FACTOR:g} w_min", "the handover, with margin (rad/s or p.u. to fix it)"),
         "w_off": Entry(
             "1 w_min",
-            f"w_min at rated load for the handover, the gains under review (design/low_speed.py, with the "
-            "decay that follows the full acceleration, design/startup.py): "
+            f"w_min at rated load for the handover, the gains under review (design/low_speed.py on the whole "
+            "sampled drive, with its angle error under the full acceleration, design/startup.py): "
             f"{w_min / w_base:.4g} p.u. at this file's own gains",
         ),
         "damping": Entry(
