@@ -178,3 +178,15 @@ def test_ramp_lag_is_the_simulated_lag_under_a_speed_ramp():
     lag = at.ramp_lag * a
     assert np.abs(lag).min() > np.radians(0.1)  # a lag to measure
     np.testing.assert_allclose(lag_sim, lag, rtol=0.01)
+
+
+def test_analyze_drive_writes_the_whole_drive_beside_the_family_analysis(tmp_path, capsys):
+    from sensorless.reports.cli.main import main
+
+    assert main(["analyze", "outrunner270", "--drive", "--out", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    assert "whole sampled drive:" in out and "largest lag under the full acceleration" in out
+    names = {p.name for p in (tmp_path / "a").iterdir()}
+    assert {"poles.csv", "drive_poles.csv", "drive_poles.svg"} <= names  # the family's and the drive's
+    rows = (tmp_path / "a" / "drive_poles.csv").read_text().splitlines()
+    assert rows[1].startswith("w_m_pu,T_pu,max_real_1_s") and len(rows) == 2 + 40 * 3
