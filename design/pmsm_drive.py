@@ -193,18 +193,21 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
 
 
 def _handover_decay(drive: OnPmsm, gains: Any, ls: Any) -> float:
-    """sigma [1/s]: the slowest decay of the whole drive at the handover (2 w_min, at most 1 p.u., +-T_N),
-    at least the required one; the required one where the drive is not linearized."""
-    from sensorless.design.drive_analysis import linearize_drive
+    """sigma [1/s]: the decay of the observer's error during the dwell at the handover (2 w_min, at most
+    1 p.u., +-T_N), at least the required one. In the dwell the controllers run on the I-f frame, not on
+    the estimate, so the observer's error decays as the family's observer-only linearization says (the
+    whole drive's slowest mode need not be the observer's); the required decay where it gives none."""
     from sensorless.design.startup import ON_FACTOR
 
+    fam = family_of(drive)
     w_on = min(ON_FACTOR * ls.w_min_rated, drive.w_base)
     try:
-        lin = linearize_drive(drive, gains, w_on, np.array([-1.0, 1.0]) * drive.T_N)  # type: ignore[arg-type]
+        T = np.array([-1.0, 1.0]) * drive.T_N
+        lin = fam.linearize(drive, gains, np.full(2, w_on), T, **fam.low_speed_options(drive))
+        decay = np.asarray(lin.low_speed_decay(), float)
     except CapabilityError:
         return ls.min_decay
-    decay = np.nanmin(lin.decay) if np.isfinite(lin.decay).any() else ls.min_decay
-    return float(max(ls.min_decay, decay))
+    return float(max(ls.min_decay, np.nanmin(decay))) if np.isfinite(decay).any() else ls.min_decay
 
 
 def _startup_line(

@@ -24,9 +24,12 @@ The rules (each with its reason; :func:`if_values`):
   within 15 deg), well above the slow change of the load angle along the ramp;
 - current per acceleration k_a = J / (p k_t), the motor's (not a choice: never in the drive file),
   for the load angle of a drop back to open loop (symbolic/startup.py);
-- dwell at the handover speed t_dwell = DWELL (1.5) / sigma, sigma the whole drive's slowest decay at
-  w_on under rated load (at least the required one): three time constants of the slowest mode there, so
-  that the observer has converged on the rotor when it takes over (it may have lost it while the ramp
+- dwell at the handover speed t_dwell = DWELL (1.5) / sigma, sigma the observer's decay at w_on under
+  rated load (at least the required one) from the family's observer-only linearization: in the dwell
+  the controllers run on the I-f frame, not on the estimate, which is that analysis' set-up (the whole
+  drive's slowest mode need not be the observer's: on the 400-W servo, tuned, 233 1/s against the
+  observer's 398 1/s, and a dwell that long leaves the speed steps in open loop at their end); three
+  time constants of the observer's error, so that the observer has converged on the rotor when it takes over (it may have lost it while the ramp
   accelerated through low speeds, where the start does not need it; the start re-seeds it:
   symbolic/startup.py).
 """
