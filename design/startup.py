@@ -29,9 +29,9 @@ The rules (each with its reason; :func:`if_values`):
   the controllers run on the I-f frame, not on the estimate, which is that analysis' set-up (the whole
   drive's slowest mode need not be the observer's: on the 400-W servo, tuned, 233 1/s against the
   observer's 398 1/s, and a dwell that long leaves the speed steps in open loop at their end); three
-  time constants of the observer's error, so that the observer has converged on the rotor when it takes over (it may have lost it while the ramp
-  accelerated through low speeds, where the start does not need it; the start re-seeds it:
-  symbolic/startup.py).
+  time constants of the observer's error, so that the observer has converged on the rotor when it
+  takes over (it may have lost it while the ramp accelerated through low speeds, where the start does
+  not need it; the start re-seeds it: symbolic/startup.py).
 """
 
 from __future__ import annotations
