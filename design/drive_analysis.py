@@ -199,16 +199,11 @@ def linearize_drive(
     w: Any,
     torque: Any,
     loop: DriveLoop | None = None,
-    sensor: bool = False,
 ) -> DriveLinearization:
     """The whole drive of ``drive`` at ``gains`` (None: the drive file's) at the operating points (``w``
-    [rad/s], ``torque`` [N m], broadcast together): one batched evaluation per Newton step. ``sensor``:
-    the same loop with the controllers on the measured angle and speed, its poles those of the
-    controllers and the plant alone (the observer's, which then feed nothing back, left out)."""
+    [rad/s], ``torque`` [N m], broadcast together): one batched evaluation per Newton step."""
     dl = loop or drive_loop(drive, gains)
     s, c = dl.setup, dl.coordinates
-    q = np.array(s.q, float)
-    q[c.sensor] = 1.0 if sensor else 0.0
     W, T = (np.asarray(a, float).ravel() for a in np.broadcast_arrays(np.asarray(w, float), torque))
     n = W.size
     V = np.zeros((s.inputs.shape[0], n))
@@ -220,7 +215,7 @@ def linearize_drive(
         y0[:, j] = np.angle(np.exp(1j * y0[:, j]))
     i_err = [f.name for f in s.record].index("theta_err")
     fn = map_function(s.loop, c.key(), Z0.shape[0], i_err)
-    args = [V, Z0, q, s.p_obs, s.gain]
+    args = [V, Z0, s.q, s.p_obs, s.gain]
     y, A, Jw, e, De = newton(fn, args, y0, dl.angles)
     lost = ~np.isfinite(y).all(axis=1)
     if lost.any():  # Newton from rest left the basin: run the loop from rest first (where it is stable)
@@ -237,17 +232,16 @@ def linearize_drive(
     lag = np.full(n, np.nan)
     solvable = ok.copy()
     solvable[ok] = np.abs(np.linalg.det(M[ok])) > 1e-300  # a pole at z = 1: no steady lag
-    if solvable.any() and not sensor:
+    if solvable.any():
         ok_ = ok
         ok = solvable
         dy = np.linalg.solve(M[ok], -Jw[ok])
         d = np.linalg.solve(M[ok], dy * s.T_s)
         lag[ok] = np.einsum("ni,ni->n", De[ok, :, 0], d[:, :, 0])
         ok = ok_
-    block = np.flatnonzero(kept < c.observer) if sensor else np.arange(y.shape[1])
     z = np.full((n, y.shape[1]), np.nan + 0j)
     if ok.any():
-        z[np.ix_(ok, block)] = np.linalg.eigvals(A[ok][:, block][:, :, block]).astype(complex)
+        z[ok] = np.linalg.eigvals(A[ok]).astype(complex)
     with np.errstate(divide="ignore", invalid="ignore"):
         poles = sort_poles(np.log(z) / s.T_s)
     names = tuple(s_name for s_name in _state_names(s, c, kept))

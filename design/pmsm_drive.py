@@ -328,8 +328,6 @@ def _coordinates(frames: StateFrames, obs: Any, q: np.ndarray, p_obs: np.ndarray
         speed=_Z["w_m"],
         w_ref=_V["w_ref"],
         load=_V["T_L"],
-        sensor=[f.name for f in PARAMS].index("sensor"),
-        observer=n,
         angles=tuple(ix(a) for a in frames.angles),
         vectors=((_Z["u_a"], _Z["u_b"]), *((ix(a), ix(b)) for a, b in frames.vectors)),
         held=(

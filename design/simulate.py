@@ -72,8 +72,6 @@ class LoopCoordinates:
     speed: int
     w_ref: int
     load: int
-    sensor: int  # the sensor-feedback switch in the loop's parameters q (1: the controllers' reference loop)
-    observer: int  # where the observer's state starts in z (the controllers' and the plant's before it)
     angles: tuple[int, ...] = ()
     vectors: tuple[tuple[int, int], ...] = ()
     held: tuple[int, ...] = ()

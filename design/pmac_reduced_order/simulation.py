@@ -158,8 +158,6 @@ def _coordinates(orders: tuple[int, ...], q: np.ndarray, p_obs: np.ndarray, n_ob
         speed=3,
         w_ref=0,
         load=1,
-        sensor=[f.name for f in drive_loop.PARAMS].index("sensor"),
-        observer=n,
         angles=(n + 3,),
         vectors=((0, 1), (4, 5), (10, 11), (n, n + 1), (n + 5, n + 6), (n + 7, n + 8)),
         held=(n + n_obs - 1,),
