@@ -239,7 +239,7 @@ def _analysis(
         )
     try:
         dl = drive_loop(drive, gains)
-    except CapabilityError as e:
+    except ValueError as e:  # CapabilityError, or a loop its scenario cannot be simulated on (said)
         return observer_only, f"the observer alone ({e})"
 
     def whole(w: Any, T: Any) -> WholeDrive:

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.drive_analysis import DriveLinearization, linearize_drive
-from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.family import Drive, GainSet
 from sensorless.design.low_speed import full_acceleration
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
 from sensorless.reports.svg_render import svg_later
@@ -182,7 +182,7 @@ def add_to_report(rep: Report, drive: Drive, gains: GainSet, quick: bool = False
 
     try:
         lin = sweep(drive, gains, QUICK_SPEEDS if quick else N_SPEEDS)
-    except CapabilityError as e:
+    except ValueError as e:  # CapabilityError, or a loop that cannot be set up for this drive (said)
         return dataclasses.replace(rep, data={**rep.data, "drive_analysis": {"not_analysed": str(e)}})
     sec = section(len(rep.sections) + 1, lin, drive)
     return dataclasses.replace(
