@@ -245,7 +245,8 @@ def newton(
         if not go.any():
             break
         A = Jy[go] - eye
-        ok = np.abs(np.linalg.det(A)) > 1e-300
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge determinant is no singular one
+            ok = np.abs(np.linalg.det(A)) > 1e-300
         step = np.linalg.solve(A[ok], r[go][ok][:, :, None])[:, :, 0]
         todo = todo[go][ok]
         y[todo] -= step

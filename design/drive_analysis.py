@@ -231,7 +231,8 @@ def linearize_drive(
     ok = np.isfinite(M).all(axis=(1, 2))
     lag = np.full(n, np.nan)
     solvable = ok.copy()
-    solvable[ok] = np.abs(np.linalg.det(M[ok])) > 1e-300  # a pole at z = 1: no steady lag
+    with np.errstate(over="ignore", invalid="ignore"):  # a pole at z = 1: no steady lag
+        solvable[ok] = np.abs(np.linalg.det(M[ok])) > 1e-300
     if solvable.any():
         ok_ = ok
         ok = solvable
