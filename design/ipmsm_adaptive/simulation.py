@@ -100,4 +100,11 @@ FRAMES = StateFrames(angles=("theta",), held=("phi_c", "bp_z1", "bp_z2", "lp_z1"
 def analysed_loop(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """The loop the whole-drive linearization analyses: the HF injection off (its carrier has no fixed
     point; with injection the observer-only analysis holds, design/low_speed.py)."""
-    return build(drive, dataclasses.replace(sc, options={**sc.options, "injection": False}), gains)
+    setup = build(drive, dataclasses.replace(sc, options={**sc.options, "injection": False}), gains)
+    if not drive.injection.enabled:
+        return setup
+    note = (
+        "HF injection off: its carrier has no fixed point; the observer-only analysis with the injection "
+        "averaged (analyze --injection) and the minimum sensorless speed cover it"
+    )
+    return dataclasses.replace(setup, meta={**setup.meta, "drive_note": note})
