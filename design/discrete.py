@@ -192,34 +192,71 @@ def fixed_points(
     each coordinate (default 1 + |y0|). A point whose iteration does not settle (a residual above
     1e-9 of its scale), or that starts from NaN, gets NaN.
     """
-    fn = map_function(loop)
-    n = y0.shape[0]
     args = _args(loop, theta, w, plant, p, gain)
+    return newton(map_function(loop), args, y0, loop.angles, scale, iterations)[:2]
+
+
+def newton(
+    fn: ca.Function,
+    args: Sequence[np.ndarray],
+    y0: np.ndarray,
+    angles: Sequence[int] = (),
+    scale: np.ndarray | None = None,
+    iterations: int = 12,
+) -> tuple[np.ndarray, ...]:
+    """Newton's method on the fixed point of any one-step map ``fn`` (y, *args) -> (y_next, Jy, ...)
+    from ``y0`` (N, n_y), batched (evaluate_batch): (y, Jy, the map's other outputs there), each
+    (N, ...); ``angles`` the entries of y whose residual is taken modulo 2 pi. A point whose iteration
+    does not settle (a residual above 1e-9 of its ``scale``, default 1 + |y0|), or that starts from
+    NaN, gets NaN."""
+    n, n_y = y0.shape
     bad = ~np.isfinite(y0).all(axis=1)
     y = np.where(bad[:, None], 0.0, y0)
     scale = 1.0 + np.abs(y) if scale is None else scale
-    eye = np.eye(loop.n_y)
+    eye = np.eye(n_y)
 
     def residual(y_next: np.ndarray) -> np.ndarray:
         r = y_next[:, :, 0] - y
-        for j in loop.angles:
+        for j in angles:
             r[:, j] = np.angle(np.exp(1j * r[:, j]))
         return r
 
+    def at(idx: np.ndarray) -> list[np.ndarray]:
+        """The arguments at the points idx (evaluate_batch: one instance, or one column per point)."""
+        out = []
+        for k, a in enumerate(args, start=1):
+            a = np.asarray(a, float)
+            rows = fn.size1_in(k)
+            if a.size == rows:  # one instance
+                out.append(a)
+            elif a.ndim == 1:  # a scalar input per point
+                out.append(a[idx])
+            else:
+                out.append(a.reshape(rows, n)[:, idx])
+        return out
+
+    todo = np.arange(n)  # the points still iterating (only they are evaluated)
     for _ in range(iterations):
-        y_next, Jy = evaluate_batch(fn, n, [y.T, *args])
-        r = residual(y_next)
-        todo = ~(np.abs(r) <= 1e-13 * scale).all(axis=1) & np.isfinite(Jy).all(axis=(1, 2))
-        if not todo.any():
+        y_next, Jy, *_ = evaluate_batch(fn, todo.size, [y[todo].T, *at(todo)])
+        r = y_next[:, :, 0] - y[todo]
+        for j in angles:
+            r[:, j] = np.angle(np.exp(1j * r[:, j]))
+        go = ~(np.abs(r) <= 1e-13 * scale[todo]).all(axis=1) & np.isfinite(Jy).all(axis=(1, 2))
+        if not go.any():
             break
-        A = Jy[todo] - eye
-        ok = np.abs(np.linalg.det(A)) > 1e-300
-        idx = np.flatnonzero(todo)[ok]
-        y[idx] -= np.linalg.solve(A[ok], r[idx][:, :, None])[:, :, 0]
-    y_next, Jy = evaluate_batch(fn, n, [y.T, *args])
+        A = Jy[go] - eye
+        with np.errstate(over="ignore", invalid="ignore"):  # a huge determinant is no singular one
+            ok = np.abs(np.linalg.det(A)) > 1e-300
+        step = np.linalg.solve(A[ok], r[go][ok][:, :, None])[:, :, 0]
+        todo = todo[go][ok]
+        y[todo] -= step
+        if todo.size == 0:
+            break
+    y_next, Jy, *more = evaluate_batch(fn, n, [y.T, *args])
     bad |= ~(np.abs(residual(y_next)) <= 1e-9 * scale).all(axis=1)
     y[bad] = np.nan
-    return y, np.where(bad[:, None, None], np.nan, Jy)
+    nan = lambda a: np.where(bad.reshape(-1, *([1] * (a.ndim - 1))), np.nan, a)  # noqa: E731
+    return (y, nan(Jy), *(nan(m) for m in more))
 
 
 def sensitivities(

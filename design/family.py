@@ -273,6 +273,13 @@ class ObserverFamily:
         """The loop set-up (design/simulate.LoopSetup) of ``scenario`` on ``drive``."""
         raise CapabilityError(f"observer family {self.name!r} has no time-domain simulation")
 
+    def drive_loop(self, drive: Drive, scenario: Any, gains: GainSet | None) -> Any:
+        """The loop set-up the whole-drive linearization analyses (design/drive_analysis.py) at the
+        analysis' ``scenario``: its simulation's, whose ``coordinates`` say how its state turns with
+        the rotor. A family whose loop as run has no fixed point in rotor coordinates (an HF carrier,
+        EMF harmonics) gives the loop it analyses instead and says which in ``meta['drive_note']``."""
+        return self.simulation(drive, scenario, gains)
+
     def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
         """What the header of a run's traces says of the family's own settings of the run (its loop
         set-up's ``meta``), one clause each (reports/traces.py); none here."""

@@ -58,8 +58,10 @@ N_TORQUES = 9  # -T_N .. T_N
 SPEED_BLOCKS = 8  # the grid in this many batched linearizations (see minimum_speed)
 BISECTIONS = 8  # each halves the bracket in log speed: 3/39 decade (19 %) / 2^8, about 0.07 %
 QUICK = {"n_speeds": 16, "n_torques": 5, "bisections": 6}  # `sensorless report --quick`
-CRITERIA = ("damping", "decay", "bias", "noise")
+CRITERIA = ("damping", "decay", "bias", "noise", "acceleration")
 DECAY_SHARE = 0.1  # default required decay: this share of the speed-loop bandwidth
+REFERENCE_PU = 0.5  # the whole drive's own damping and decay, away from low speed, are taken here
+FLOOR_SHARE = 0.9  # a point fails below this share of them
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,8 @@ class LowSpeed:
     declared: str = ""  # the family's DriveScales.zero_speed: why it does not run through zero speed
     errors: str = ""  # the estimate errors judged (EstimateErrors.text; "": the drive file's estimates)
     errors_source: str = ""  # where they are stated
+    basis: str = ""  # what was linearized: the whole drive, or the observer alone and why
+    acceleration: float = 0.0  # [rad/s^2] the acceleration whose lag the criteria include (0: none)
 
     @property
     def rated(self) -> int:
@@ -124,6 +128,8 @@ class LowSpeed:
                 "applied": list(self.applied),
             },
             "floor_pu": FLOOR_PU,
+            "analysis": self.basis,
+            "acceleration_rad_per_s2": self.acceleration,
             "declared_limit": self.declared,
             "estimate_errors": {"box": self.errors, "source": self.errors_source},
         }
@@ -134,9 +140,21 @@ def _failing(lin: Any, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]
     zeta = np.where(np.isnan(lin.worst_damping), -np.inf, lin.worst_damping)
     decay = lin.low_speed_decay()
     decay = np.where(np.isnan(decay), -np.inf, decay)
-    tests = [zeta < crit["damping"], decay < crit["decay"]]
+    # the whole drive: no less than required, or than the controllers give with a sensor where they
+    # give less (a loop the observer does not make worse is no low-speed limit of the observer)
+    floor = getattr(lin, "floors", lambda: None)()
+    need_z, need_d = (
+        (crit["damping"], crit["decay"])
+        if floor is None
+        else (
+            np.minimum(crit["damping"], floor[0]),
+            np.minimum(crit["decay"], floor[1]),
+        )
+    )
+    tests = [zeta < need_z, decay < need_d]
     applied = ["damping", "decay"]
     bias, noise = lin.angle_bias(), lin.angle_noise()
+    lag = getattr(lin, "angle_lag", lambda: None)() if "acceleration" in crit else None
     for name, val in (("bias", bias), ("noise", noise)):
         if val is None or np.isnan(np.asarray(val, float)).all():  # not given here
             tests.append(np.zeros(zeta.shape, bool))
@@ -144,9 +162,100 @@ def _failing(lin: Any, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]
             applied.append(name)
             v = np.abs(np.asarray(val, float))
             tests.append(np.where(np.isnan(v), False, v > crit[name]))
-    bad = np.stack(tests)  # (4, N)
+    if lag is None:
+        tests.append(np.zeros(zeta.shape, bool))
+    else:  # the bias and the lag under the full acceleration (or braking) together within the limit
+        applied.append("acceleration")
+        v = np.abs(np.asarray(bias, float)) + np.abs(np.asarray(lag, float))
+        tests.append(np.where(np.isnan(v), True, v > crit["bias"]))
+    bad = np.stack(tests)  # (5, N)
     first = np.where(bad.any(axis=0), np.argmax(bad, axis=0), -1)
     return first, applied
+
+
+@dataclass(frozen=True)
+class WholeDrive:
+    """The low-speed criteria's figures from the whole sampled drive (design/drive_analysis.py): its
+    poles (damping and decay, each no worse than required or than 90 % of the drive's own at 0.5 p.u.
+    where that is less), its steady angle error (the bias) and its lag under ``acceleration``; the
+    angle noise from the family's observer-only linearization (None: not applied)."""
+
+    lin: Any  # DriveLinearization
+    mid: tuple[np.ndarray, np.ndarray]  # worst damping and decay of the drive at REFERENCE_PU, same torques
+    observer: Any  # the family's Linearization (for the noise) or None
+    acceleration: float  # [rad/s^2]
+
+    @property
+    def worst_damping(self) -> np.ndarray:
+        return self.lin.worst_damping
+
+    def low_speed_decay(self) -> np.ndarray:
+        return self.lin.decay
+
+    def floors(self) -> tuple[np.ndarray, np.ndarray]:
+        """The damping and decay below which a point fails where they are below the required ones: a
+        share FLOOR_SHARE of the drive's own at REFERENCE_PU and the same torque (a mode as weak at
+        every speed, e.g. of the controllers, is no low-speed limit: the report's pole sections judge
+        it)."""
+        return FLOOR_SHARE * self.mid[0], FLOOR_SHARE * self.mid[1]
+
+    def angle_bias(self) -> np.ndarray:
+        return self.lin.theta_err
+
+    def angle_noise(self) -> np.ndarray | None:
+        return None if self.observer is None else self.observer.angle_noise()
+
+    def angle_lag(self) -> np.ndarray:
+        return self.lin.lag(self.acceleration)
+
+
+def full_acceleration(drive: Drive) -> float:
+    """a_max [rad/s^2 electrical]: what the torque margin over rated load gives the rotor, p (T_max -
+    T_N) / J (the family's DriveScales); 0 where it gives none."""
+    try:
+        sc = family_of(drive).scales(drive)
+    except CapabilityError:
+        return 0.0
+    return float(sc.pole_pairs * max(0.0, sc.T_max - sc.T_N) / sc.J)
+
+
+def _analysis(
+    drive: Drive, gains: GainSet, opts: Mapping[str, Any], acceleration: float, observer: bool = False
+) -> tuple[Any, str]:
+    """(w, T) -> the figures the criteria judge, and what is linearized (one line)."""
+    from sensorless.design.drive_analysis import drive_loop, linearize_drive
+
+    fam = family_of(drive)
+
+    def observer_only(w: Any, T: Any) -> Any:
+        return fam.linearize(drive, gains, w, T, **opts)
+
+    if observer:
+        return observer_only, "the observer alone (asked)"
+    if fam.holds_zero_speed(drive):
+        return (
+            observer_only,
+            "the observer alone (its own zero-speed means, e.g. HF injection, run at low speed)",
+        )
+    try:
+        dl = drive_loop(drive, gains)
+    except ValueError as e:  # CapabilityError, or a loop its scenario cannot be simulated on (said)
+        return observer_only, f"the observer alone ({e})"
+
+    def whole(w: Any, T: Any) -> WholeDrive:
+        obs = observer_only(w, T)
+        Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
+        torques, back = np.unique(Tb, return_inverse=True)  # the drive at REFERENCE_PU: once per torque
+        mid = linearize_drive(drive, gains, REFERENCE_PU * drive.w_base, torques, dl)
+        return WholeDrive(
+            linearize_drive(drive, gains, w, T, dl),
+            (mid.worst_damping[back], mid.decay[back]),
+            obs,
+            acceleration,
+        )
+
+    basis = "the whole sampled drive (design/drive_analysis.py)" + (f"; {dl.note}" if dl.note else "")
+    return whole, basis
 
 
 def minimum_speed(
@@ -160,10 +269,15 @@ def minimum_speed(
     n_speeds: int = N_SPEEDS,
     n_torques: int = N_TORQUES,
     bisections: int = BISECTIONS,
+    acceleration: bool = False,
+    observer_only: bool = False,
 ) -> LowSpeed:
     """w_min(T) of ``drive`` with ``gains`` (module docstring); ``max_bias`` [rad], ``errors``: factors
     on the family's estimate keys (None: the drive file's estimates); the grid (``n_speeds`` x
-    ``n_torques``) and ``bisections`` set the resolution (:data:`QUICK`: previews and tests)."""
+    ``n_torques``) and ``bisections`` set the resolution (:data:`QUICK`: previews and tests);
+    ``acceleration``: the angle error under the drive's full acceleration (:func:`full_acceleration`)
+    is judged too (the handover's w_min, design/startup.py); ``observer_only``: the family's
+    observer-only linearization (the paper's analysis) instead of the whole drive."""
     fam = family_of(drive)
     if errors:
         drive = fam.with_estimate_errors(drive, errors)
@@ -174,7 +288,11 @@ def minimum_speed(
     if min_decay is None:
         min_decay = DECAY_SHARE * float(scales.alpha_s) if scales is not None else 0.0
     crit = {"damping": min_damping, "decay": min_decay, "bias": max_bias, "noise": max_bias / 3}
+    a_max = full_acceleration(drive) if acceleration else 0.0
+    if acceleration:
+        crit["acceleration"] = a_max
     opts = fam.low_speed_options(drive)
+    analyse, basis = _analysis(drive, gains, opts, a_max, observer_only)
     wb, TN = drive.w_base, drive.T_N
     w = wb * np.logspace(np.log10(FLOOR_PU), 0.0, n_speeds)
     T = TN * np.linspace(-1.0, 1.0, n_torques)
@@ -183,7 +301,7 @@ def minimum_speed(
     # long as its slowest one
     rows, given = [], set()
     for blk in np.array_split(np.arange(n_speeds), SPEED_BLOCKS):
-        first, applied = _failing(fam.linearize(drive, gains, w[blk, None], T[None, :], **opts), crit)
+        first, applied = _failing(analyse(w[blk, None], T[None, :]), crit)
         rows.append(first.reshape(blk.size, n_torques))
         given.update(applied)
     first = np.vstack(rows)
@@ -206,7 +324,7 @@ def minimum_speed(
         c = cause[ref]
         for _ in range(bisections):
             mid = 0.5 * (lo + hi)
-            f_mid, _ = _failing(fam.linearize(drive, gains, np.exp(mid), T[ref], **opts), crit)
+            f_mid, _ = _failing(analyse(np.exp(mid), T[ref]), crit)
             fails = f_mid >= 0
             c = np.where(fails, f_mid, c)
             lo, hi = np.where(fails, mid, lo), np.where(fails, hi, mid)
@@ -226,6 +344,8 @@ def minimum_speed(
         applied=tuple(c for c in CRITERIA if c in given),
         holds_zero=fam.holds_zero_speed(drive),
         declared=scales.zero_speed if scales is not None else "",
+        basis=basis,
+        acceleration=a_max,
     )
 
 
@@ -265,6 +385,8 @@ WHAT_TO_DO = {
     "bias": "run the open-loop start (I-f) below it, or measure the motor parameters more closely",
     "noise": "run the open-loop start (I-f) below it, or use a less noisy current sensor",
     "stability": "run the open-loop start (I-f) below it, or measure the motor parameters more closely",
+    "acceleration": "run the open-loop start (I-f) below it, limit the acceleration (ramp the speed "
+    "reference, lower T_max) or raise the observer's gains",
 }
 
 
@@ -316,4 +438,8 @@ _CRITERION_TEXT = {
     "bias": lambda ls: f"angle bias > {np.degrees(ls.max_bias):.3g} deg",
     "noise": lambda ls: f"angle noise > {np.degrees(ls.max_noise):.3g} deg rms",
     "stability": lambda ls: "stability under the estimate errors (no stable equilibrium at a corner)",
+    "acceleration": lambda ls: (
+        f"angle error under the full acceleration ({ls.acceleration:.4g} rad/s^2) > "
+        f"{np.degrees(ls.max_bias):.3g} deg"
+    ),
 }

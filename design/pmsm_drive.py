@@ -20,10 +20,18 @@ from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario, speed_filter_of
-from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
+from sensorless.design.simulate import (
+    LoopCoordinates,
+    LoopSetup,
+    StateFrames,
+    noise,
+    provenance,
+    sample_times,
+)
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_drive import (
     INPUTS,
+    LOOP_STATE,
     MEAS,
     PARAMS,
     RECORD,
@@ -123,15 +131,9 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     file gives one, else the rules from the minimum sensorless speed at rated load (design/low_speed.py,
     at ``gains``); None where the observer holds zero speed. With one line saying which, and w_min
     [rad/s] (0 where not analysed). CapabilityError for a drive without a PMSM's data."""
-    from sensorless.design.low_speed import QUICK, minimum_speed
+    from sensorless.design.low_speed import DECAY_SHARE, QUICK, minimum_speed
     from sensorless.design.poles import MIN_DAMPING
-    from sensorless.design.startup import (
-        ACCELERATION_LIMIT,
-        CURRENT_SHARE_MAX,
-        ON_FACTOR,
-        handover_decay,
-        if_values,
-    )
+    from sensorless.design.startup import CURRENT_SHARE_MAX, ON_FACTOR, handover_reason, if_values
 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
@@ -159,34 +161,31 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
         )
     values = {**given, "if_k_a": inertia / (pole_pairs * k_t)}  # the motor's (design/startup.py)
     if startup is None or not startup.complete:  # a key the file does not give keeps its rule
-        # the handover's w_min: the design's criteria with the decay that follows the full acceleration;
-        # where no speed up to 1 p.u. gives that decay (the slowest mode need not be the one an
-        # acceleration excites: the 400-W servo's default gains follow it from 0.02 p.u. in simulation),
-        # the design's own w_min, and said (design/startup.py)
-        sigma = handover_decay(drive.T_N, T_max, inertia, pole_pairs, fam.scales(drive).alpha_s)
+        # the handover's w_min: the whole drive's criteria with its angle error under the full
+        # acceleration a_max against rated load (design/low_speed.py); the handover never above 1 p.u.
         try:
-            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, min_decay=sigma, **QUICK)  # type: ignore[arg-type]
+            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, acceleration=True, **QUICK)  # type: ignore[arg-type]
         except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
             if startup is None or startup.needs_w_min:
                 raise
-            rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma)
+            sigma = DECAY_SHARE * fam.scales(drive).alpha_s
+            rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma, drive.w_base)
             return (*_startup_line({**rules, **given}, given, drive.w_base, ""), 0.0)
-        if ls.w_min_rated >= drive.w_base * (1 - 1e-9):
-            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **QUICK)  # type: ignore[arg-type]
-            sigma = ls.min_decay
-            warn = (
-                f"; {ACCELERATION_LIMIT} sqrt(a_max / 30 deg) = "
-                f"{handover_decay(drive.T_N, T_max, inertia, pole_pairs, 0.0):.3g} 1/s (what follows the "
-                "full acceleration a_max against rated load) at every speed up to 1 p.u.: handover at the "
-                "design's minimum sensorless speed, where a full-torque acceleration or braking may lose "
-                "the rotor (limit the acceleration: ramp the speed reference or lower T_max; or raise the "
-                "observer's gains)"
-            )
+        sigma = _handover_decay(drive, gains, ls)
+        if ls.w_min_rated >= drive.w_base * (1 - 1e-9) or ls.rated_limited_by == "acceleration":
+            warn = "; " + handover_reason(ls)
         w_min = ls.w_min_rated
         if w_min <= 0:
             return None, "no I-f start: the design holds zero speed", 0.0
         given = startup.values(w_min) if startup is not None else {}
-        values = {**if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min, sigma), **given}
+        values = {
+            **if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, w_min, sigma, drive.w_base),
+            **given,
+        }
+        if values["if_w_on"] > drive.w_base and (startup is None or startup.w_on is None):
+            # a handover given in w_min never above 1 p.u. (the rules' cap)
+            values["if_w_on"] = drive.w_base
+            values["if_w_off"] = min(values["if_w_off"], drive.w_base / ON_FACTOR)
         if values["if_w_off"] >= values["if_w_on"]:
             if "if_w_off" in given:
                 raise DriveFileError(
@@ -200,6 +199,24 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
                 f"over where its criteria do not hold (raise startup.w_on to {ON_FACTOR:g} w_min)"
             )
     return (*_startup_line(values, given, drive.w_base, warn), w_min)
+
+
+def _handover_decay(drive: OnPmsm, gains: Any, ls: Any) -> float:
+    """sigma [1/s]: the decay of the observer's error during the dwell at the handover (2 w_min, at most
+    1 p.u., +-T_N), at least the required one. In the dwell the controllers run on the I-f frame, not on
+    the estimate, so the observer's error decays as the family's observer-only linearization says (the
+    whole drive's slowest mode need not be the observer's); the required decay where it gives none."""
+    from sensorless.design.startup import ON_FACTOR
+
+    fam = family_of(drive)
+    w_on = min(ON_FACTOR * ls.w_min_rated, drive.w_base)
+    try:
+        T = np.array([-1.0, 1.0]) * drive.T_N
+        lin = fam.linearize(drive, gains, np.full(2, w_on), T, **fam.low_speed_options(drive))
+        decay = np.asarray(lin.low_speed_decay(), float)
+    except CapabilityError:
+        return ls.min_decay
+    return float(max(ls.min_decay, np.nanmin(decay))) if np.isfinite(decay).any() else ls.min_decay
 
 
 def _startup_line(
@@ -231,12 +248,16 @@ def loop_setup(
     meta: dict[str, Any],
     carrier: tuple[float, float] = (0.0, 0.0),
     notch: bool = False,
+    frames: StateFrames | None = None,
 ) -> LoopSetup:
     """The loop set-up of ``sc`` on a PMSM drive with the runtime observer ``setup``.
 
     ``carrier``: (frequency, band-stop bandwidth) [rad/s] of the carrier an observer injects (its
     output ``u_c_d``; 0: none); ``notch``: it injects in this run, so the current control must not see
     the carrier. ``meta`` adds the family's own lines (gains, injection, ...) to the provenance.
+    ``frames``: how the observer's state turns with the rotor (its family's declaration), which gives
+    the set-up its rotor coordinates (the whole-drive linearization) where it runs without injection
+    and without the I-f start.
     """
     if sc.startup:
         setup, line = startup_setup(drive, setup)
@@ -262,6 +283,9 @@ def loop_setup(
     op = np.asarray(op).ravel()
     op[0] -= sc.theta_err0  # the estimate starts off by the scenario's angle error
     x_obs = np.asarray(obs.steady_state()(setup.p, op)).ravel()
+    coords = None
+    if frames is not None and not sc.startup and not notch:
+        coords = _coordinates(frames, obs, q, setup.p)
     return LoopSetup(
         loop=loop,
         q=q,
@@ -285,4 +309,40 @@ def loop_setup(
             "speed_scale": 1 / drive.w_base,  # rad/s (electrical) -> speed_unit
             **meta,
         },
+        coordinates=coords,
+    )
+
+
+_Z = {f.name: k for k, f in enumerate(LOOP_STATE)}
+_V = {f.name: k for k, f in enumerate(INPUTS)}
+
+
+def _coordinates(frames: StateFrames, obs: Any, q: np.ndarray, p_obs: np.ndarray) -> LoopCoordinates:
+    """The rotor coordinates of this loop (symbolic/pmsm_drive.py: the flux in the true rotor frame, the
+    current PI and the notch filters in the controller frame, the applied voltage in the stationary
+    frame) with the observer's ``frames`` after it; the notch filters are held (nothing reads them
+    without injection)."""
+    n = len(LOOP_STATE)
+    names = [f.name for f in obs.state]
+    ix = lambda name: n + names.index(name)  # noqa: E731
+
+    def start(v0: np.ndarray, w0: np.ndarray) -> np.ndarray:
+        N = w0.size
+        z_loop, op = initial_loop_state_function().map(N)(q, v0, w0.reshape(1, -1), 0.0)
+        x_obs = obs.steady_state().map(N)(p_obs, op)
+        return np.vstack([np.asarray(z_loop), np.asarray(x_obs)])
+
+    return LoopCoordinates(
+        theta=_Z["theta_m"],
+        speed=_Z["w_m"],
+        w_ref=_V["w_ref"],
+        load=_V["T_L"],
+        angles=tuple(ix(a) for a in frames.angles),
+        vectors=((_Z["u_a"], _Z["u_b"]), *((ix(a), ix(b)) for a, b in frames.vectors)),
+        held=(
+            *(_Z[k] for k in ("nf_d1", "nf_d2", "nf_q1", "nf_q2")),
+            *(ix(h) for h in frames.held),
+            n + len(names) - 1,  # the runtime contract's counter: 0 in steady state
+        ),
+        start=start,
     )

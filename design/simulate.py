@@ -45,6 +45,44 @@ class SimulationError(ValueError):
 
 
 @dataclass(frozen=True)
+class StateFrames:
+    """How a runtime observer's state turns with the rotor, by field name: what a family declares of
+    its observer for the whole-drive linearization (design/drive_analysis.py) of the loop it runs in.
+    The fields not named are invariant (rotor- or estimated-frame quantities, speeds, gains)."""
+
+    angles: tuple[str, ...] = ()  # stationary-frame angles (the angle estimate)
+    vectors: tuple[tuple[str, str], ...] = ()  # stationary-frame vectors (alpha, beta)
+    held: tuple[str, ...] = ()  # at rest in the drive analysed (e.g. an HF-injection chain switched off)
+
+
+@dataclass(frozen=True)
+class LoopCoordinates:
+    """How a drive loop's state turns with the rotor: the declaration its whole-drive linearization
+    (design/drive_analysis.py) needs, by index into the loop's state z and per-sample inputs v.
+
+    The loop is invariant under a rotation of the stationary frame (a sinusoidal EMF); in rotor
+    coordinates (the angle ``theta`` left out, the other stationary-frame ``angles`` taken relative to
+    it, the stationary-frame ``vectors`` turned into the rotor frame) its one-step map has a fixed
+    point at a steady operating point. ``held`` entries are no dynamics of the loop analysed (the
+    runtime contract's counter, filters whose output nothing reads in it): held at their rest value.
+    ``start(v0 (n_v, N), w0 (N,)) -> z0 (n_z, N)``: the loop at rest at those inputs and speeds with the
+    rotor at angle 0 (the Newton start of the fixed point)."""
+
+    theta: int
+    speed: int
+    w_ref: int
+    load: int
+    angles: tuple[int, ...] = ()
+    vectors: tuple[tuple[int, int], ...] = ()
+    held: tuple[int, ...] = ()
+    start: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = field(default=None, compare=False)
+
+    def key(self) -> tuple:
+        """What the map's Function depends on (hashable; ``start`` left out)."""
+        return (self.theta, self.speed, self.w_ref, self.load, self.angles, self.vectors, self.held)
+
+
+@dataclass(frozen=True)
 class LoopSetup:
     """Everything the runner needs: the loop Function, its constant inputs, initial state and inputs."""
 
@@ -57,6 +95,8 @@ class LoopSetup:
     record: tuple[Field, ...]  # names and units of the rows of rec
     T_s: float
     meta: dict[str, Any] = field(default_factory=dict)
+    # how its state turns with the rotor (the whole-drive linearization); None: not declared
+    coordinates: LoopCoordinates | None = None
 
 
 @dataclass(frozen=True)

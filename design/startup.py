@@ -7,20 +7,16 @@ The rules (each with its reason; :func:`if_values`):
   the 90 deg at which the rotor falls out of step;
 - acceleration a = ACC_SHARE p (T_max - T_N) / J: half what the torque margin over rated load gives
   the rotor, so that it follows the current vector with margin;
-- handover speed w_on = ON_FACTOR (2) w_min and back to open loop below w_off = w_min, w_min the minimum
-  speed at rated load for the handover (:func:`handover_decay`): the design's minimum sensorless speed
-  (design/low_speed.py) with the observer's error decaying at least at max(DECAY_SHARE alpha_s,
-  sqrt(a_max / theta_max)), a_max = p (T_max - T_N) / J the drive's full acceleration against rated
-  load and theta_max the analysis' angle limit (30 deg): a tracking loop whose slowest mode decays at
-  sigma lags a ramp of the speed by about a / sigma^2 in angle, so that below that speed the observer
-  loses the rotor when the speed controller it takes over from the start accelerates at the torque
-  limit (the drone of docs/examples/motors, tuned: lost from 0.1 p.u., kept from 0.2 p.u., in
-  closed-loop simulation; sqrt(a_max / theta_max) puts its handover w_min at 0.17 p.u.; the minimum
-  sensorless speed of the analysis, at steady speed, is 0.0054 p.u.); where no speed up to 1 p.u.
-  gives that decay, the design's own w_min, and the start says so (the slowest mode need not be the one
-  an acceleration excites: the 400-W servo's default gains follow the full acceleration from 0.02 p.u.
-  in simulation, with a slowest mode that never decays that fast); the observer takes over only where
-  its criteria hold with margin, and the band between is the hysteresis;
+- handover speed w_on = ON_FACTOR (2) w_min, never above 1 p.u., and back to open loop below w_off =
+  w_min (at most w_on / ON_FACTOR), w_min the minimum speed at rated load for the handover: the whole
+  sampled drive's minimum sensorless speed (design/low_speed.py on design/drive_analysis.py) with, as a
+  fifth criterion, its angle error under the full acceleration a_max = p (T_max - T_N) / J against
+  rated load within the analysis' angle limit (30 deg): the bias at the fixed point plus the loop's
+  steady lag to a speed ramp of slope a_max, a linear property of the whole-drive linearization. Below
+  that speed the observer loses the rotor when the speed controller it takes over from the start
+  accelerates at the torque limit; where the handover must be high (the acceleration limits it, or no
+  speed up to 1 p.u. meets the criteria) the start's line says why with the numbers
+  (:func:`handover_reason`); the band between w_off and w_on is the hysteresis;
 - damping gain k_d = 2 ZETA w_n (ZETA = 0.5), w_n = sqrt(p T_max cos(delta_N) / J) the rotor's swing
   about the current vector at rated load (sin(delta_N) = T_N / T_max; symbolic/startup.py): a swing
   decays within about a period instead of lasting until the rotor slips;
@@ -28,11 +24,14 @@ The rules (each with its reason; :func:`if_values`):
   within 15 deg), well above the slow change of the load angle along the ramp;
 - current per acceleration k_a = J / (p k_t), the motor's (not a choice: never in the drive file),
   for the load angle of a drop back to open loop (symbolic/startup.py);
-- dwell at the handover speed t_dwell = DWELL (1.5) / sigma, sigma the decay rate the handover's w_min
-  guarantees (above): three time constants of the observer's error at w_on = 2 w_min, where it decays
-  at least twice as fast (at least in proportion to the speed on the example motors' designs), so that
-  it has converged on the rotor when it takes over (it may have lost it while the ramp accelerated
-  through low speeds, where the start does not need it; the start re-seeds it: symbolic/startup.py).
+- dwell at the handover speed t_dwell = DWELL (1.5) / sigma, sigma the observer's decay at w_on under
+  rated load (at least the required one) from the family's observer-only linearization: in the dwell
+  the controllers run on the I-f frame, not on the estimate, which is that analysis' set-up (the whole
+  drive's slowest mode need not be the observer's: on the 400-W servo, tuned, 233 1/s against the
+  observer's 398 1/s, and a dwell that long leaves the speed steps in open loop at their end); three
+  time constants of the observer's error, so that the observer has converged on the rotor when it
+  takes over (it may have lost it while the ramp accelerated through low speeds, where the start does
+  not need it; the start re-seeds it: symbolic/startup.py).
 """
 
 from __future__ import annotations
@@ -43,7 +42,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from sensorless.design.drive_file import Entry, load_section, q, table
-from sensorless.design.low_speed import DECAY_SHARE, MAX_BIAS_DEG
+from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 from sensorless.symbolic.startup import with_startup
@@ -51,7 +50,7 @@ from sensorless.symbolic.startup import with_startup
 ACC_SHARE = 0.5
 # how the start's line says that the observer cannot follow the drive's full acceleration (the failed
 # checks of reports/time_domain.py quote it)
-ACCELERATION_LIMIT = "the observer's slowest mode decays slower than"
+ACCELERATION_LIMIT = "the whole drive's angle error under the full acceleration exceeds its limit below"
 ON_FACTOR = 2.0
 ZETA = 0.5
 DWELL = 1.5
@@ -71,24 +70,45 @@ def swing_frequency(T_N: float, T_max: float, J: float, p: int) -> float:
     return math.sqrt(p * T_max * math.sqrt(max(0.0, 1 - (T_N / T_max) ** 2)) / J)
 
 
-def handover_decay(T_N: float, T_max: float, J: float, p: int, alpha_s: float) -> float:
-    """sigma [1/s]: the decay rate of the observer's error the handover asks for (module docstring),
-    alpha_s the speed-loop bandwidth [rad/s]."""
-    a_max = p * (T_max - T_N) / J
-    return max(DECAY_SHARE * alpha_s, math.sqrt(a_max / math.radians(MAX_BIAS_DEG)))
+def handover_reason(ls: Any) -> str:
+    """Why the handover is high, in one line with the numbers (a LowSpeed of design/low_speed.py with
+    the acceleration criterion): what limits w_min at rated load, and that the handover stays at 1 p.u.
+    at most."""
+    w = ls.w_min_rated / ls.w_base
+    why = ls.rated_limited_by
+    if why == "acceleration":
+        head = (
+            f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg at a_max = p (T_max - "
+            f"T_N) / J = {ls.acceleration:.4g} rad/s^2, the whole drive's lag to a speed ramp)"
+        )
+    else:
+        head = f"the whole drive's w_min at rated load is {w:.3g} p.u. (limited by {why})"
+    cap = " (above 1 p.u.: handover at 1 p.u.)" if w >= 1 - 1e-9 else ""
+    return (
+        f"{head}{cap}: a full-torque acceleration or braking below it may lose the rotor (limit the "
+        "acceleration: ramp the speed reference or lower T_max; or raise the observer's gains)"
+    )
 
 
 def if_values(
-    T_N: float, T_max: float, J: float, p: int, k_t: float, w_min: float, sigma: float
+    T_N: float,
+    T_max: float,
+    J: float,
+    p: int,
+    k_t: float,
+    w_min: float,
+    sigma: float,
+    w_rated: float = math.inf,
 ) -> dict[str, float]:
     """The I-f start's parameters (module docstring); speeds electrical [rad/s], sigma the decay rate
-    at the handover speed (:func:`handover_decay`) [1/s]."""
+    at the handover speed [1/s]; the handover never above ``w_rated``."""
     w_n = swing_frequency(T_N, T_max, J, p)
+    w_on = min(ON_FACTOR * w_min, w_rated)
     return {
         "if_i": T_max / k_t,
         "if_acc": ACC_SHARE * p * (T_max - T_N) / J,
-        "if_w_on": ON_FACTOR * w_min,
-        "if_w_off": w_min,
+        "if_w_on": w_on,
+        "if_w_off": min(w_min, w_on / ON_FACTOR),
         "if_k_d": 2 * ZETA * w_n,
         "if_w_hp": HP_SHARE * w_n,
         "if_t_dwell": DWELL / sigma,
@@ -119,7 +139,7 @@ class StartupSettings:
     @property
     def needs_w_min(self) -> bool:
         """Whether a value is to come from w_min: a speed not given, or given as a multiple of it (the
-        other keys' rules need no w_min: the dwell's decay is :func:`handover_decay` then)."""
+        other keys' rules need no w_min: the dwell's decay is the required decay then)."""
         return any(getattr(self, k) is None for k in SPEEDS)
 
     @property
@@ -210,8 +230,8 @@ def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -
         "w_on": Entry(f"{ON_FACTOR:g} w_min", "the handover, with margin (rad/s or p.u. to fix it)"),
         "w_off": Entry(
             "1 w_min",
-            f"w_min at rated load for the handover, the gains under review (design/low_speed.py, with the "
-            "decay that follows the full acceleration, design/startup.py): "
+            f"w_min at rated load for the handover, the gains under review (design/low_speed.py on the whole "
+            "sampled drive, with its angle error under the full acceleration, design/startup.py): "
             f"{w_min / w_base:.4g} p.u. at this file's own gains",
         ),
         "damping": Entry(

@@ -53,7 +53,8 @@ def section(number: int, ls: LowSpeed, drive: Drive, label: str) -> Section:
         f"(a tenth of the speed-loop bandwidth unless stated), an angle bias under the estimate errors "
         f"of at most {crit['max_bias_deg']:.3g} deg and an RMS angle noise from the current sensor of at "
         f"most {crit['max_noise_deg_rms']:.3g} deg (criteria the family's linearization gives: "
-        f"{', '.join(crit['applied'])}); from the linearization (design/low_speed.py). {headline(ls)}."
+        f"{', '.join(crit['applied'])}); from the linearization of {ls.basis or 'the observer'} "
+        f"(design/low_speed.py). {headline(ls)}."
     )
     rows = tuple(
         (num(t / ls.T_N, 3), num(w / ls.w_base, 4), num(ls.rpm(w), 4), lim or "–")

@@ -131,6 +131,9 @@ class AdaptiveFluxObserver(ObserverFamily):
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
 
+    def drive_loop(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+        return simulation.analysed_loop(drive, scenario, gains)
+
     def trace_notes(self, meta: Any) -> tuple[str, ...]:
         """The run's HF-injection switch (simulation.build puts it in the provenance)."""
         return (f"HF injection {'on' if meta['injection'] else 'off'}",)

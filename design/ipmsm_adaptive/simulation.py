@@ -16,7 +16,7 @@ from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setu
 from sensorless.design.pmsm_schema import saliency
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
-from sensorless.design.simulate import LoopSetup, SimulationError
+from sensorless.design.simulate import LoopSetup, SimulationError, StateFrames
 
 # scenario keys this family adds (design/scenario.py): section -> key -> (dimension, default)
 SCENARIO_OPTIONS = {
@@ -88,4 +88,23 @@ def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
         meta={"injection": bool(sc.options["injection"])},
         carrier=(drive.injection.w_c, drive.runtime.w_bp),
         notch=bool(sc.options["injection"]),
+        frames=FRAMES,
     )
+
+
+# how the observer's state turns with the rotor (the whole-drive linearization, design/drive_analysis.py):
+# the angle estimate; the flux estimate is in the estimated rotor frame; the HF chain at rest (off)
+FRAMES = StateFrames(angles=("theta",), held=("phi_c", "bp_z1", "bp_z2", "lp_z1", "lp_z2", "x_eps"))
+
+
+def analysed_loop(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
+    """The loop the whole-drive linearization analyses: the HF injection off (its carrier has no fixed
+    point; with injection the observer-only analysis holds, design/low_speed.py)."""
+    setup = build(drive, dataclasses.replace(sc, options={**sc.options, "injection": False}), gains)
+    if not drive.injection.enabled:
+        return setup
+    note = (
+        "HF injection off: its carrier has no fixed point; the observer-only analysis with the injection "
+        "averaged (analyze --injection) and the minimum sensorless speed cover it"
+    )
+    return dataclasses.replace(setup, meta={**setup.meta, "drive_note": note})

@@ -103,6 +103,9 @@ class ReducedOrderObserver(ObserverFamily):
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.build(drive, scenario, gains)
 
+    def drive_loop(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+        return simulation.analysed_loop(drive, scenario, gains)
+
     def trace_notes(self, meta: Any) -> tuple[str, ...]:
         """No HF injection: said as the traces' header has always said it (the same trace files)."""
         return ("HF injection off",)

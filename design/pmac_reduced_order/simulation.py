@@ -15,7 +15,7 @@ import numpy as np
 from sensorless.design.family import GainSet, Panel, TraceLine
 from sensorless.design.pmac_reduced_order.runtime import drive_gains, runtime_setup
 from sensorless.design.scenario import Scenario, speed_filter_of
-from sensorless.design.simulate import LoopSetup, noise, provenance, sample_times
+from sensorless.design.simulate import LoopCoordinates, LoopSetup, noise, provenance, sample_times
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmac_reduced_order import drive_loop
 
@@ -139,4 +139,48 @@ def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
         record=drive_loop.RECORD,
         T_s=c.T_s,
         meta=meta,
+        coordinates=_coordinates(orders, q, setup.p, len(obs.state)) if orders == (1,) else None,
     )
+
+
+def _coordinates(orders: tuple[int, ...], q: np.ndarray, p_obs: np.ndarray, n_obs: int) -> LoopCoordinates:
+    """The rotor coordinates of Fig. 1's loop with a sinusoidal EMF (with harmonics it is periodic in
+    the angle, no fixed point): the currents, voltages and the observer's EMF and stored samples are
+    stationary-frame vectors, its angle estimate an angle; the runtime contract's counter held at 0."""
+    n = len(drive_loop.LOOP_STATE)
+    init = drive_loop.initial_state_function(orders)
+
+    def start(v0: np.ndarray, w0: np.ndarray) -> np.ndarray:
+        return np.asarray(init.map(w0.size)(q, p_obs, v0, w0.reshape(1, -1), 0.0, 0.0))
+
+    return LoopCoordinates(
+        theta=2,
+        speed=3,
+        w_ref=0,
+        load=1,
+        angles=(n + 3,),
+        vectors=((0, 1), (4, 5), (10, 11), (n, n + 1), (n + 5, n + 6), (n + 7, n + 8)),
+        held=(n + n_obs - 1,),
+        start=start,
+    )
+
+
+def analysed_loop(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
+    """The loop the whole-drive linearization analyses: with EMF harmonics, the drive with its
+    fundamental only (the sinusoidal case: the loop with harmonics runs on a periodic orbit, which the
+    observer-only Floquet analysis covers), and said in ``meta['drive_note']``."""
+    m, e = drive.motor, drive.estimate
+    if tuple(m.harmonics) == (1,) and tuple(e.harmonics) == (1,):
+        return build(drive, sc, gains)
+    sine = dataclasses.replace(
+        drive,
+        motor=dataclasses.replace(m, harmonics=(1,), Phi=(m.Phi[m.harmonics.index(1)],)),
+        estimate=dataclasses.replace(e, harmonics=(1,), Phi=(e.Phi[e.harmonics.index(1)],)),
+    )
+    setup = build(sine, sc, gains)
+    note = (
+        f"EMF harmonics {', '.join(str(h) for h in m.harmonics if h != 1)} left out: the drive with its "
+        "fundamental EMF is linearized (with harmonics the loop runs on a periodic orbit; the observer-only "
+        "analysis covers it by Floquet multipliers)"
+    )
+    return dataclasses.replace(setup, meta={**setup.meta, "drive_note": note})

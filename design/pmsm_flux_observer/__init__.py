@@ -19,6 +19,7 @@ from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setu
 from sensorless.design.pmsm_flux_observer import gains as _gains
 from sensorless.design.pmsm_flux_observer import linearize as _linearize
 from sensorless.design.pmsm_flux_observer import schema
+from sensorless.design.simulate import StateFrames
 
 
 def simulation(drive: Any, sc: Any, gains: GainSet | None) -> Any:
@@ -35,7 +36,15 @@ def simulation(drive: Any, sc: Any, gains: GainSet | None) -> Any:
         "gain": f"{setup.gain_source}: law {setup.gains.law}, {drive.observer.correction}, "
         f"{drive.observer.inductance_rule} inductance, T_obs = {drive.observer.T_obs * 1e6:.6g} us"
     }
-    return loop_setup(drive, sc, setup, meta=meta)
+    frames = FRAMES if drive.observer.lambda_adaptation else FRAMES_FIXED
+    return loop_setup(drive, sc, setup, meta=meta, frames=frames)
+
+
+# how the observer's state turns with the rotor (the whole-drive linearization, design/drive_analysis.py):
+# the flux state and the stored voltage are stationary-frame vectors, the PLL angle an angle; the flux
+# linkage estimate is a constant where it is not adapted
+FRAMES = StateFrames(angles=("theta_pll",), vectors=(("x_alpha", "x_beta"), ("u_prev_alpha", "u_prev_beta")))
+FRAMES_FIXED = dataclasses.replace(FRAMES, held=("lambda_hat",))
 
 
 # the estimate errors its tuner and its report judge the gains under by default (+-; "L" scales L_d and

@@ -31,6 +31,13 @@ def register(sub: Any) -> None:
     p.add_argument("--gains", metavar="TABLE", default=None, help="analyse the gains of a tuned gain table")
     p.add_argument("--out", default=None, help="output directory (default: analysis-<drive name>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument(
+        "--drive",
+        dest="whole_drive",
+        action="store_true",
+        help="also linearize the whole sampled drive (current PI in the estimated frame, delay, speed PI on "
+        "the estimate; design/drive_analysis.py): print its summary, write drive_poles.csv and .svg",
+    )
     add_family_options(p, "analyze")
     p.set_defaults(func=run)
 
@@ -58,8 +65,27 @@ def run(args: argparse.Namespace) -> int:
     out = OutputSet(args.out or f"analysis-{drive.name}", force=args.force)
     out.check()
     h.analyze(drive, args, out)
+    if args.whole_drive:
+        _whole_drive(drive, args, out)
     for p in out.commit():
         print(f"wrote {p}")
     for line in out.warnings:  # written (the rest is the result), but said: exit status 3
         print(f"sensorless analyze: warning: {line}", file=sys.stderr)
     return 3 if out.warnings else 0  # 3: a result that does not hold (reports/cli/main.py EXIT_RESULT)
+
+
+def _whole_drive(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
+    """The whole sampled drive beside the family's analysis: summary lines, CSV and pole map."""
+    from sensorless.design.gain_table import read_gain_table
+    from sensorless.reports import drive_analysis as whole
+
+    fam = family_of(drive)
+    if args.gains:
+        gains = fam.gains(drive, table=read_gain_table(args.gains), table_file=args.gains)
+    else:
+        gains = fam.gains(drive)
+    lin = whole.sweep(drive, gains)
+    for line in whole.summary(lin, drive):
+        print(line)
+    out.add_text("drive_poles.csv", whole.csv(lin, drive))
+    out.add_figures("drive_poles", whole.figure(lin, drive, f"{drive.name}: whole sampled drive, slow poles"))

@@ -14,6 +14,7 @@ from sensorless.design.registry import family_of
 from sensorless.reports.cli import many
 from sensorless.reports.cli.common import MIN_DAMPING, Number, foreign_table, load, version
 from sensorless.reports.document import report_json
+from sensorless.reports.drive_analysis import add_to_report as add_drive_analysis
 from sensorless.reports.family import hooks
 from sensorless.reports.files import OutputSet
 from sensorless.reports.html import render
@@ -112,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
     )
     gains = fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
     rep = add_to_report(rep, drive, gains, args.min_damping, math.radians(args.max_bias), args.quick)
+    rep = add_drive_analysis(rep, drive, gains, args.quick)
     if foreign:  # said in the report too: its numbers are for this drive, its gains from another
         rep.data["inputs"]["gain_table_warning"] = foreign
     if args.montecarlo:

@@ -43,7 +43,8 @@ def case(request):
     path, r_scale = CASES[request.param]
     drive = load_drive(path)
     gains = family_of(drive).gains(drive)
-    return drive, gains, r_scale, minimum_speed(drive, gains, min_damping=0.2, errors={"R_s": r_scale})
+    ls = minimum_speed(drive, gains, min_damping=0.2, errors={"R_s": r_scale}, observer_only=True)
+    return drive, gains, r_scale, ls
 
 
 def steady_angle_error(drive, w_pu: float, T_pu: float, r_scale: float) -> float:
@@ -98,11 +99,11 @@ def test_w_min_under_an_error_box_is_its_worst_corner(case):
     no torque below w_min at the drive file's estimates; the headline names the box and its source."""
     drive, gains, r_scale, ls = case
     box = EstimateErrors({"R_s": r_scale - 1}, source="a test's errors")
-    under = minimum_speed_under(drive, gains, box, min_damping=0.2)
+    under = minimum_speed_under(drive, gains, box, min_damping=0.2, observer_only=True)
     assert under.w_min[0] >= ls.w_min[0] and under.limited_by[0] in ("bias", "stability")
     line = headline(under)
     assert f"under estimate errors R_s +-{100 * (r_scale - 1):g} % (a test's errors" in line
-    nominal = minimum_speed_under(drive, gains, EstimateErrors(), min_damping=0.2)
+    nominal = minimum_speed_under(drive, gains, EstimateErrors(), min_damping=0.2, observer_only=True)
     assert "it states no estimate errors" in headline(nominal)
     assert np.all(nominal.w_min <= under.w_min + 1e-12)
 

@@ -63,14 +63,22 @@ def test_the_verdict_names_the_pll_root_and_the_fix_that_passes(hub):
     fast = load_drive_text(hub_text().replace('foc_pll_ki = "30000 1/s2"', FAST_PLL), "fast.toml")
     fixed = compute(fast, resolution="quick")
     assert not any("PLL" in x for x in fixed.data["verdict"]["findings"])
-    # the generic checks of a user's file: the final speed error is within the limit with the fix
-    assert all(abs(c["metrics"]["final_speed_err_pu"]) < 0.02 for c in fixed.data["time_domain"])
+    # the generic checks of a user's file: the final speed error is within the limit with the fix, where
+    # the check ends sensorless: the whole drive's w_min at +T_N (0.26 p.u., its decay) puts the handover
+    # at 0.51 p.u., above the 0.5 p.u. the speed steps end at (the I-f start's open loop there)
+    from sensorless.design.pmsm_drive import startup_values
+
+    w_on = startup_values(fast, FAMILY.gains(fast))[0]["if_w_on"] / fast.w_base
+    ends = {"speed_steps": 0.5, "reversal": -0.5, "start": 0.5}  # load_steps: no start, sensorless
+    closed = [c for c in fixed.data["time_domain"] if abs(ends.get(c["name"], np.inf)) > w_on]
+    assert closed
+    assert all(abs(c["metrics"]["final_speed_err_pu"]) < 0.02 for c in closed)
 
 
 def test_w_min_at_no_load_is_the_observers_decay_not_the_plls(hub):
     """At T = 0 (i = 0, |u| = psi w) the observer's poles are s^2 + k s + w^2 with
     k = 4 raw psi^2 max(slow, psi w / u_ref): w_min solves k/2 - sqrt(k^2/4 - w^2) = min_decay."""
-    ls = minimum_speed(hub, FAMILY.gains(hub), min_damping=MIN_DAMPING, n_torques=3)
+    ls = minimum_speed(hub, FAMILY.gains(hub), min_damping=MIN_DAMPING, n_torques=3, observer_only=True)
     psi, g = hub.motor.psi_pm, FAMILY.gains(hub).values
     k0 = 4 * g["foc_observer_gain"] * psi**2
     need = DECAY_SHARE * hub.control.alpha_s

@@ -1,0 +1,190 @@
+"""The whole sampled drive's poles (design/drive_analysis.py) for ``analyze --drive`` and the report.
+
+Shared by every family: the computation is the design layer's; this module sweeps the speed at -T_N, 0
+and T_N in one batched linearization and presents it beside the family's observer-only analysis (the
+paper's, which stays): a pole map of the drive's slow poles, a CSV of every point, report.json's
+``drive_analysis`` and a report section.
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+from typing import Any
+
+import numpy as np
+from sensorless.design.drive_analysis import DriveLinearization, linearize_drive
+from sensorless.design.family import Drive, GainSet
+from sensorless.design.low_speed import full_acceleration
+from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
+from sensorless.reports.svg_render import svg_later
+
+N_SPEEDS = 40  # -1 .. 1 p.u. (no point at exactly zero speed); QUICK_SPEEDS for `report --quick`
+QUICK_SPEEDS = 20
+TORQUES = (-1.0, 0.0, 1.0)  # in T_N
+
+
+def sweep(drive: Drive, gains: GainSet, n_speeds: int = N_SPEEDS) -> DriveLinearization:
+    """The whole drive over speeds -1..1 p.u. x TORQUES (speed-major), one batched evaluation."""
+    w = drive.w_base * np.linspace(-1.0, 1.0, n_speeds)
+    T = drive.T_N * np.array(TORQUES)
+    return linearize_drive(drive, gains, w[:, None], T[None, :])
+
+
+def data(lin: DriveLinearization, drive: Drive) -> dict[str, Any]:
+    """report.json's ``drive_analysis``: per point the slow poles, worst damping, slowest decay, steady
+    angle error and the lag under the full acceleration."""
+    a = full_acceleration(drive)
+    slow = lin.slow()
+    f = lambda v: None if not np.isfinite(v) else float(v)  # noqa: E731
+    points = []
+    for k in range(lin.w.size):
+        s = slow[k][np.isfinite(slow[k])]
+        points.append(
+            {
+                "w_pu": float(lin.w[k] / drive.w_base),
+                "T_pu": float(lin.torque[k] / drive.T_N),
+                "fixed_point": bool(np.isfinite(lin.y[k]).all()),
+                "max_real_per_s": f(lin.max_real[k]),
+                "worst_damping": f(lin.worst_damping[k]),
+                "theta_err_deg": f(np.degrees(lin.theta_err[k])),
+                "lag_at_a_max_deg": f(np.degrees(lin.lag(a)[k])),
+                "slow_poles": [[float(p.real), float(p.imag)] for p in s if p.imag >= 0],
+            }
+        )
+    return {
+        "what": "the whole sampled drive linearized (design/drive_analysis.py): plant under the inverter's "
+        "hold, current PI in the estimated frame with its delay, speed PI on the observer's speed, the "
+        "observer's runtime step, mechanics with the load",
+        "note": lin.note,
+        "a_max_rad_per_s2": a,
+        "points": points,
+    }
+
+
+def csv(lin: DriveLinearization, drive: Drive) -> str:
+    """CSV text: one row per operating point; the slow poles as re/im pairs [1/s]."""
+    n = lin.poles.shape[1]
+    a = full_acceleration(drive)
+    head = ["w_m_pu", "T_pu", "max_real_1_s", "worst_damping", "theta_err_deg", "lag_at_a_max_deg"]
+    head += [f"pole{k}_{c}_1_s" for k in range(n) for c in ("re", "im")]
+    buf = io.StringIO()
+    buf.write(f"# whole sampled drive (design/drive_analysis.py); a_max = {a:.6g} rad/s^2")
+    buf.write(f"; {lin.note}\n" if lin.note else "\n")
+    buf.write(",".join(head) + "\n")
+    g = lambda v: "nan" if not np.isfinite(v) else f"{v:.10g}"  # noqa: E731
+    for k in range(lin.w.size):
+        row = [lin.w[k] / drive.w_base, lin.torque[k] / drive.T_N, lin.max_real[k], lin.worst_damping[k]]
+        row += [np.degrees(lin.theta_err[k]), np.degrees(lin.lag(a)[k])]
+        for p in lin.poles[k]:
+            row += [p.real, p.imag]
+        buf.write(",".join(g(v) for v in row) + "\n")
+    return buf.getvalue()
+
+
+def figure(lin: DriveLinearization, drive: Drive, title: str) -> Any:
+    """Pole map of the slow poles (upper half-plane), one panel per torque, coloured by speed."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(TORQUES), figsize=(9.0, 3.4), sharey=True)
+    slow = lin.slow()
+    T_pu = lin.torque / drive.T_N
+    for ax, t in zip(axes, TORQUES, strict=True):
+        sel = np.isclose(T_pu, t)
+        s = slow[sel]
+        w = np.repeat((lin.w[sel] / drive.w_base)[:, None], s.shape[1], axis=1)
+        keep = np.isfinite(s) & (s.imag >= 0)
+        sc = ax.scatter(s.real[keep], s.imag[keep], c=w[keep], cmap="viridis", s=8, vmin=-1, vmax=1)
+        ax.axvline(0, color="k", lw=0.6)
+        ax.set_title(f"T = {t:g} T_N", fontsize=9)
+        ax.set_xlabel("Re s (1/s)")
+        ax.grid(True, color="0.9")
+    axes[0].set_ylabel("Im s (1/s)")
+    fig.colorbar(sc, ax=axes, label="speed (p.u.)")
+    fig.suptitle(title, fontsize=9)
+    return fig
+
+
+def summary(lin: DriveLinearization, drive: Drive) -> list[str]:
+    """Lines for the terminal: the least stable point, the least damped one, the largest angle error
+    and the largest lag under the full acceleration."""
+    a = full_acceleration(drive)
+    w, T = lin.w / drive.w_base, lin.torque / drive.T_N
+    found = np.isfinite(lin.y).all(axis=1)
+    out = [f"whole sampled drive: {int(found.sum())} of {found.size} operating points have a fixed point"]
+    if lin.note:
+        out.append(f"  ({lin.note})")
+    if not found.any():
+        return out
+    at = lambda k: f"at {w[k]:+.3g} p.u., {T[k]:+.3g} T_N"  # noqa: E731
+    k = int(np.nanargmax(np.where(found, lin.max_real, -np.inf)))
+    out.append(f"  largest real part {lin.max_real[k]:.4g} 1/s {at(k)}")
+    k = int(np.nanargmin(np.where(found, lin.worst_damping, np.inf)))
+    out.append(f"  worst damping of the slow poles {lin.worst_damping[k]:.3g} {at(k)}")
+    err = np.where(found, np.abs(lin.theta_err), -np.inf)
+    k = int(np.argmax(err))
+    out.append(f"  largest steady angle error {np.degrees(lin.theta_err[k]):.3g} deg {at(k)}")
+    lag = np.where(found, np.abs(lin.lag(a)), -np.inf)
+    k = int(np.nanargmax(lag))
+    out.append(
+        f"  largest lag under the full acceleration {a:.4g} rad/s^2: {np.degrees(lag[k]):.3g} deg {at(k)}"
+    )
+    return out
+
+
+def section(number: int, lin: DriveLinearization, drive: Drive) -> Section:
+    """The report section of the whole drive's poles."""
+    text = (
+        "The whole sampled drive linearized at its fixed point at each speed and load (design/"
+        "drive_analysis.py): the loop the simulations run, with the current PI in the estimated frame, "
+        "its computation delay, the speed PI on the observer's speed and the observer's runtime step; "
+        "its one-step Jacobian by automatic differentiation, poles ln(z)/T_s. Beside the observer-only "
+        "analysis above (the paper's), which closes the observer on ideal current control in the true "
+        "frame. The minimum sensorless speed and the I-f handover are judged on this one."
+        + (f" {lin.note[0].upper() + lin.note[1:]}." if lin.note else "")
+    )
+    rows = []
+    w, T = lin.w / drive.w_base, lin.torque / drive.T_N
+    a = full_acceleration(drive)
+    for t in TORQUES:
+        sel = np.flatnonzero(np.isclose(T, t) & (w > 0))
+        for k in sel[:: max(1, sel.size // 5)]:
+            rows.append(
+                (
+                    num(T[k], 3),
+                    num(w[k], 3),
+                    num(lin.max_real[k], 4),
+                    num(lin.worst_damping[k], 3),
+                    num(np.degrees(lin.theta_err[k]), 3),
+                    num(np.degrees(lin.lag(a)[k]), 3),
+                )
+            )
+    head = (
+        "T (T_N)",
+        "speed (p.u.)",
+        "max Re s (1/s)",
+        "worst damping",
+        "angle error (deg)",
+        "lag at a_max (deg)",
+    )
+    table = Table(head, tuple(rows), numeric=frozenset(range(6)))
+    fig = Figure(
+        svg_later(functools.partial(figure, lin, drive, f"{drive.name}: whole sampled drive, slow poles")),
+        "Slow poles of the whole sampled drive (|s| below a quarter of the sampling limit), by speed.",
+    )
+    return Section(f"{number}. Whole sampled drive: poles", (Paragraph(text), table, fig))
+
+
+def add_to_report(rep: Report, drive: Drive, gains: GainSet, quick: bool = False) -> Report:
+    """``rep`` with report.json's ``drive_analysis`` and its section (last); unchanged where the family
+    declares no drive loop (said in report.json)."""
+    import dataclasses
+
+    try:
+        lin = sweep(drive, gains, QUICK_SPEEDS if quick else N_SPEEDS)
+    except ValueError as e:  # CapabilityError, or a loop that cannot be set up for this drive (said)
+        return dataclasses.replace(rep, data={**rep.data, "drive_analysis": {"not_analysed": str(e)}})
+    sec = section(len(rep.sections) + 1, lin, drive)
+    return dataclasses.replace(
+        rep, data={**rep.data, "drive_analysis": data(lin, drive)}, sections=(*rep.sections, sec)
+    )
