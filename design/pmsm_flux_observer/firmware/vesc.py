@@ -32,12 +32,14 @@ import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
+from xml.parsers.expat import errors as expat_errors
 
 from sensorless.design.drive_file import Entry
 from sensorless.design.pmsm_flux_observer.firmware import (
     Fields,
     FirmwareDrive,
     Imported,
+    Missing,
     check_limit,
     choose_flux,
     drive_document,
@@ -45,6 +47,7 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     inertia,
     kv_candidates,
     quantity,
+    rated_from_limit,
     startup_entries,
 )
 from sensorless.design.units import DriveFileError
@@ -54,6 +57,7 @@ DETECTION_L_SCALE = 0.9  # detection stores 0.9 x the measured inductances
 DETECTION_GAIN = 1e-3  # detection: gain = 1e-3 / lambda^2, stored x 1e6
 GAIN_DISPLAY = 1e-6  # VESC Tool shows the raw gain x 1e-6 ("x1M")
 SCHEDULE_FACTOR = 4.0  # gamma = 4 raw max(gain_slow, |duty| V_bus / V_SCHEDULE)
+OLD_SCHEDULE_FACTOR = 5.0  # the same map's factor in firmware before about 2020
 V_SCHEDULE = 40.0  # V
 # firmware defaults, used (with a note) where an older file lacks the field
 DEFAULTS = {
@@ -80,6 +84,35 @@ def observer_gain_detection(psi_pm: float) -> float:
     return DETECTION_GAIN / psi_pm**2 / GAIN_DISPLAY
 
 
+# what the XML parser's errors mean in a configuration file (its own words say "invalid token")
+XML_PROBLEMS = {
+    expat_errors.XML_ERROR_INVALID_TOKEN: "a character that cannot stand there (an unescaped '<' or '&' in "
+    "a value, a stray character before the first tag, or not a text file)",
+    expat_errors.XML_ERROR_UNCLOSED_TOKEN: "the file ends inside a tag (cut off?)",
+    expat_errors.XML_ERROR_NO_ELEMENTS: "no element, or the file ends before its elements close (empty or "
+    "cut off?)",
+    expat_errors.XML_ERROR_TAG_MISMATCH: "a closing tag that does not match the element it closes (a tag "
+    "misspelt, or one not closed)",
+    expat_errors.XML_ERROR_JUNK_AFTER_DOC_ELEMENT: f"text after the closing </{ROOT}> (two configurations in "
+    "one file?)",
+    expat_errors.XML_ERROR_UNDEFINED_ENTITY: "an undefined entity (&name;): write '&' as '&amp;'",
+    expat_errors.XML_ERROR_DUPLICATE_ATTRIBUTE: "an attribute given twice in one tag",
+    expat_errors.XML_ERROR_MISPLACED_XML_PI: "the <?xml ...?> declaration is not at the very start",
+}
+
+
+def xml_problem(e: ET.ParseError, text: str) -> str:
+    """A malformed XML file's problem in words: what is wrong, where, and the line it is on."""
+    line, col = e.position
+    message = expat_errors.messages.get(e.code, "")
+    what = XML_PROBLEMS.get(message, message or str(e))
+    lines = text.splitlines()
+    shown = lines[line - 1].strip()[:60] if 0 < line <= len(lines) else ""
+    return f"not a readable XML file: {what}, at line {line}, column {col + 1}" + (
+        f" ({shown!r})" if shown else ""
+    )
+
+
 def fields(text: str, file: str) -> dict[str, str]:
     """The fields of a VESC Tool motor configuration XML (one-line DriveFileError if it is not one)."""
     if "<!DOCTYPE" in text or "<!ENTITY" in text:
@@ -87,7 +120,7 @@ def fields(text: str, file: str) -> dict[str, str]:
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
-        raise DriveFileError(file, "(syntax)", f"not valid XML: {e}") from None
+        raise DriveFileError(file, "(syntax)", xml_problem(e, text)) from None
     if root.tag != ROOT:
         raise DriveFileError(file, root.tag, f"the root element is <{root.tag}>, not <{ROOT}>")
     return {child.tag: (child.text or "").strip() for child in root}
@@ -100,8 +133,27 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     notes: list[str] = []
     motor: dict[str, Entry] = {}
     estimate: dict[str, Entry] = {}
+    missing = Missing(file)  # every value the file lacks and no option supplies, named in one error
 
     poles = f.integer("si_motor_poles")
+    if poles is not None and poles % 2 and not given.get("pole_pairs"):
+        raise f.error("si_motor_poles", f"{poles}: the number of magnet poles is even")
+    if not given.get("pole_pairs") and poles is None:
+        missing.add("si_motor_poles", "an older VESC Tool file has no pole count: give --pole-pairs")
+    R = f.number("foc_motor_r")
+    L = f.number("foc_motor_l")
+    for name, x in (("foc_motor_r", R), ("foc_motor_l", L)):
+        if x is None:
+            missing.add(name, "run the motor detection in VESC Tool or type the value")
+    if f.number("foc_motor_flux_linkage") is None and not given.get("KV"):
+        missing.add("foc_motor_flux_linkage", "give --KV (rpm/V, line-line peak)")
+    cells = f.integer("si_battery_cells")
+    v_max = f.number("l_max_vin")
+    if not given.get("u_dc") and cells is None and v_max is None:
+        missing.add("si_battery_cells", "no bus voltage in the file (nor l_max_vin): give --u-dc")
+    missing.check()
+    assert R is not None and L is not None
+
     if given.get("pole_pairs"):
         p = int(given["pole_pairs"])
         if poles is not None and poles != 2 * p:
@@ -109,19 +161,11 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         motor["p"] = Entry(p, "--pole-pairs")
         if poles is None:
             notes.append(f"si_motor_poles missing (an older file): {p} pole pairs from --pole-pairs")
-    elif poles is None:
-        raise f.error("si_motor_poles", "missing (an older VESC Tool file): give --pole-pairs")
-    elif poles % 2:
-        raise f.error("si_motor_poles", f"{poles}: the number of magnet poles is even")
     else:
+        assert poles is not None
         p = poles // 2
         motor["p"] = Entry(p, f"si_motor_poles/2 = {poles}/2")
 
-    R = f.number("foc_motor_r")
-    L = f.number("foc_motor_l")
-    if R is None or L is None:
-        name = "foc_motor_r" if R is None else "foc_motor_l"
-        raise f.error(name, "missing: run the motor detection in VESC Tool or type the value")
     diff = f.number("foc_motor_ld_lq_diff", positive=False)
     if diff is None:
         diff = 0.0
@@ -157,30 +201,34 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     inverter: dict[str, Entry] = {}
     if given.get("u_dc"):
         inverter["u_dc"] = Entry(quantity(float(given["u_dc"]), "V"), "--u-dc")
-    else:
-        cells = f.integer("si_battery_cells")
-        if cells is None:
-            raise f.error("si_battery_cells", "missing: no bus voltage in the file; give --u-dc")
+    elif cells is not None:
         inverter["u_dc"] = Entry(quantity(cells * V_PER_CELL, "V"), f"si_battery_cells x {V_PER_CELL} V")
         notes.append(f"bus voltage assumed {cells} cells x {V_PER_CELL} V (li-ion nominal); give --u-dc")
+    else:
+        assert v_max is not None
+        inverter["u_dc"] = Entry(
+            quantity(v_max, "V"), "l_max_vin: the highest input voltage the drive runs at"
+        )
+        notes.append(
+            f"no battery in the file (an older file): bus voltage from l_max_vin = {v_max:g} V, the highest "
+            "input voltage the drive runs at (speeds are judged at it); give --u-dc the battery's voltage"
+        )
     f_zv = f.number("foc_f_zv")
-    loop_from = "foc_f_zv"
     if f_zv is None and "foc_f_sw" in f:
         f_sw = f.number("foc_f_sw")
         assert f_sw is not None
-        f_zv = 2 * f_sw
-        loop_from = "foc_f_sw"
+        f_zv = f_sw
         notes.append(
-            f"foc_f_zv missing: read the older foc_f_sw {f_sw:g} Hz as the PWM frequency (f_zv = 2 f_sw)"
+            f"foc_f_zv missing (an older file): read foc_f_sw {f_sw:g} Hz as it, the setting's earlier name "
+            "(the control loop runs at half of it unless sampled at both zero vectors: vedderb/bldc#212)"
         )
     elif f_zv is None:
         f_zv = DEFAULTS["foc_f_zv"]
         notes.append(f"foc_f_zv missing: assumed the firmware default {f_zv:g} Hz")
+    freq = "foc_f_zv" if "foc_f_zv" in f else "foc_f_sw" if "foc_f_sw" in f else "foc_f_zv"
     both = f.values.get("foc_sample_v0_v7", "0").strip().lower() in ("1", "true")
     T = (1 if both else 2) / f_zv
-    loop = "1/foc_f_zv (foc_sample_v0_v7)" if both else "2/foc_f_zv"
-    if loop_from == "foc_f_sw":
-        loop = "1/foc_f_sw"
+    loop = f"1/{freq} (foc_sample_v0_v7)" if both else f"2/{freq}"
     inverter["f_s"] = Entry(quantity(1 / T, "Hz"), f"the observer's rate: T_obs = {loop}")
 
     kind_raw = f.values.get("foc_observer_type")
@@ -228,12 +276,9 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
             notes.append(f"{key} missing: assumed the firmware default {x:g}")
         gains[key] = Entry(quantity(x, unit) if unit else x, "1/s^2" if key == "foc_pll_ki" else "")
 
-    rating: dict[str, Entry] = {}
+    notes += version_notes(f)
     i_max = f.number("l_current_max")
-    if i_max is not None:
-        rating["I_N"] = Entry(
-            quantity(i_max / math.sqrt(2), "A"), "l_current_max/sqrt(2): the limit taken as rated"
-        )
+    rating = {} if i_max is None else {"I_N": rated_from_limit(i_max, "l_current_max")}
     stem = Path(file).stem
     header = [
         f"imported from {Path(file).name} (VESC Tool motor configuration XML) by sensorless init --from vesc",
@@ -271,6 +316,30 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         "startup": startup,
     }
     return Imported(drive_document(header, sections), tuple(notes))
+
+
+def version_notes(f: Fields) -> list[str]:
+    """What differs between the firmware the file was saved for and the one the analysis models (the
+    present one): the run-time gain factor of files older than the fields VESC added about 2020, and the
+    compensations the analysis leaves out where the file turns them on."""
+    notes = []
+    if "foc_observer_type" not in f and "si_motor_poles" not in f:
+        notes.append(
+            f"an older file (no foc_observer_type, no si_motor_poles: firmware before about 2020): "
+            f"VESC then ran the observer at {OLD_SCHEDULE_FACTOR:g} x foc_observer_gain x max(gain_slow, "
+            f"|duty| V_bus/40 V), not {SCHEDULE_FACTOR:g} x; the analysis takes the present factor; on "
+            f"the older firmware the observer runs {OLD_SCHEDULE_FACTOR / SCHEDULE_FACTOR:g} x the gain "
+            f"analysed (write foc_observer_gain x {SCHEDULE_FACTOR / OLD_SCHEDULE_FACTOR:g} there for the "
+            "gain tuned, or update the firmware)"
+        )
+    for key, what in (
+        ("foc_sat_comp", "the saturation compensation"),
+        ("foc_temp_comp", "the temperature compensation of R"),
+    ):
+        raw = f.values.get(key, "0").strip().lower()
+        if raw not in ("0", "0.0", "false", ""):
+            notes.append(f"{key} = {raw}: {what} is on in the file and not modelled by the analysis")
+    return notes
 
 
 def _element(name: str, value: Any, comment: str = "") -> str:
