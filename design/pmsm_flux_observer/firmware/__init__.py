@@ -62,6 +62,8 @@ class FirmwareDrive:
     # the open-loop I-f start (design/startup.py): if_i [A], if_acc [rad/s^2], if_w_on, if_w_off [rad/s],
     # electrical; None where the drive has none
     startup: Mapping[str, float] | None = None
+    # what the export says of the drive's own settings it changes (one line each, with why)
+    notes: tuple[str, ...] = ()
 
 
 class Fields:
@@ -132,7 +134,7 @@ def stored(x: float) -> str:
     """``x`` as the firmware stores it, in the fewest digits that read back to the same float32: what a
     firmware file holds, without float noise (10.0 not 9.999999999999998; 400 not 400.00000000034464)."""
     y = float32(x)
-    if y == int(y) and abs(y) < 1e7:
+    if y == int(y) and abs(y) < 1e10:
         return str(int(y))
     for digits in range(1, 10):
         text = f"{y:.{digits}g}"

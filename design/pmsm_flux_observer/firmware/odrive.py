@@ -44,6 +44,7 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     quantity,
     rated_from_limit,
     startup_entries,
+    stored,
 )
 from sensorless.design.units import DriveFileError
 
@@ -253,6 +254,8 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
             f"fall back to open loop below w_off = {d.startup['if_w_off']:.6g} rad/s (w_min): do not stop "
             "or reverse in sensorless mode"
         )
+    # as the firmware stores them (float32), without float noise
+    values = {k: v if isinstance(v, int) else float(stored(v)) for k, v in values.items()}
     js = json.dumps(values, indent=2, sort_keys=True) + "\n"
     lines = [f"# sensorless export for odrivetool: drive {d.name}; paste into odrivetool, then save"]
     lines += [f"odrv0.{k} = {v!r}" for k, v in sorted(values.items())]

@@ -43,12 +43,12 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     check_limit,
     choose_flux,
     drive_document,
-    erpm,
     inertia,
     kv_candidates,
     quantity,
     rated_from_limit,
     startup_entries,
+    stored,
 )
 from sensorless.design.units import DriveFileError
 
@@ -348,19 +348,26 @@ def _element(name: str, value: Any, comment: str = "") -> str:
 
 
 def _startup_elements(d: FirmwareDrive) -> list[str]:
-    """The open-loop start's fields (module docstring) of the drive's I-f start; none without one."""
+    """The open-loop start's fields (module docstring) of the drive's I-f start; none without one.
+    ``foc_sl_erpm`` (the hybrid sensor modes' switch-over) is not written: the user's is kept."""
     if d.startup is None:
         return []
+    from sensorless.design.pmsm_flux_observer.firmware.startup import fields
+
     w_on, w_off, acc = d.startup["if_w_on"], d.startup["if_w_off"], d.startup["if_acc"]
+    f = {k: stored(v) for k, (v, _) in fields("vesc", d.startup).items()}
     return [
-        _element("foc_openloop_rpm", repr(erpm(w_on)), f"ERPM: the handover speed w_on = {w_on:.6g} rad/s"),
-        _element("foc_sl_openloop_time", repr(w_on / acc), f"s: w_on / acceleration ({acc:.6g} rad/s^2)"),
+        _element(
+            "foc_openloop_rpm", f["foc_openloop_rpm"], f"ERPM: the handover speed w_on = {w_on:.6g} rad/s"
+        ),
+        _element(
+            "foc_sl_openloop_time", f["foc_sl_openloop_time"], f"s: w_on / acceleration ({acc:.6g} rad/s^2)"
+        ),
         _element(
             "foc_sl_openloop_hyst",
-            repr((w_on - w_off) / acc),
+            f["foc_sl_openloop_hyst"],
             f"s: (w_on - w_off) / acceleration, w_off = {w_off:.6g} rad/s (w_min)",
         ),
-        _element("foc_sl_erpm", repr(erpm(w_on)), "ERPM: the observer's lower speed in the hybrid modes"),
     ]
 
 
@@ -403,22 +410,23 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
         "     is given (VESC Tool's detection would store 0.9 x the measured inductances). -->",
         f"<{ROOT}>",
         _element("si_motor_poles", 2 * d.p, f"{d.p} pole pairs"),
-        _element("foc_motor_r", repr(d.R_s), "ohm, per phase"),
-        _element("foc_motor_l", repr((d.L_d + d.L_q) / 2), "H, (L_d + L_q)/2"),
-        _element("foc_motor_ld_lq_diff", repr(d.L_q - d.L_d), "H, L_q - L_d"),
-        _element("foc_motor_flux_linkage", repr(d.psi_pm), "Wb"),
-        _element("foc_f_zv", repr(2 / d.T_obs), f"Hz: observer period 2/f_zv = {d.T_obs * 1e6:.6g} us"),
+        _element("foc_motor_r", stored(d.R_s), "ohm, per phase"),
+        _element("foc_motor_l", stored((d.L_d + d.L_q) / 2), "H, (L_d + L_q)/2"),
+        _element("foc_motor_ld_lq_diff", stored(d.L_q - d.L_d), "H, L_q - L_d"),
+        _element("foc_motor_flux_linkage", stored(d.psi_pm), "Wb"),
+        _element("foc_f_zv", stored(2 / d.T_obs), f"Hz: observer period 2/f_zv = {d.T_obs * 1e6:.6g} us"),
         _element("foc_sample_v0_v7", 0, "one observer step per PWM period, as T assumes"),
         _element("foc_observer_type", code, f"{name}: the observer the gains were tuned for"),
-        _element("foc_observer_gain", repr(raw), f"VESC Tool shows {raw * GAIN_DISPLAY:.4g} (x1M)"),
-        _element("foc_observer_gain_slow", repr(slow)),
-        _element("foc_pll_kp", repr(kp), "1/s"),
-        _element("foc_pll_ki", repr(ki), "1/s^2"),
+        _element("foc_observer_gain", stored(raw), f"VESC Tool shows {raw * GAIN_DISPLAY:.4g} (x1M)"),
+        _element("foc_observer_gain_slow", stored(slow)),
+        _element("foc_pll_kp", stored(kp), "1/s"),
+        _element("foc_pll_ki", stored(ki), "1/s^2"),
         *_startup_elements(d),
         f"</{ROOT}>",
     ]
     notes = [
-        f"VESC Tool shows foc_observer_gain as {raw * GAIN_DISPLAY:.4g} (x1M); observer type {code} {name}"
+        "foc_sl_erpm (the hybrid sensor modes' switch-over to the observer) is not written: yours is kept",
+        f"VESC Tool shows foc_observer_gain as {raw * GAIN_DISPLAY:.4g} (x1M); observer type {code} {name}",
     ]
     if d.correction == "box-clamp":
         notes.append(f"{name} has no gain: foc_observer_gain does not act on it")
