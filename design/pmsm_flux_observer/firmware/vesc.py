@@ -13,7 +13,8 @@ The file is ``<MCConfiguration>`` with one element per configuration field, valu
   Tool shows raw x 1e-6 as "Observer Gain (x1M)"; at run time gamma = 4 x raw x max(gain_slow,
   |duty| V_bus / 40 V), so gamma lambda^2 = 4000 x max(...) with the detection gain;
 - the observer and PLL run once per PWM period, T = 2 / ``foc_f_zv`` (f_zv counts both zero vectors),
-  or T = 1 / f_zv when ``foc_sample_v0_v7`` samples at both;
+  or T = 1 / f_zv when ``foc_sample_v0_v7`` samples at both; older files' ``foc_f_sw`` is the same
+  setting under its earlier name (the loop runs at half the "switching frequency" set: vedderb/bldc#212);
 - ``foc_observer_type``: 0 ORTEGA_ORIGINAL (clamped gradient), 1 MXLEMMING (box clamp),
   2 ORTEGA_LAMBDA_COMP, 3 MXLEMMING_LAMBDA_COMP (with online flux adaptation), 4 MXV and
   5 MXV_LAMBDA_COMP (circular clamp, not modelled: read as the box clamp, with a note);
@@ -21,7 +22,8 @@ The file is ``<MCConfiguration>`` with one element per configuration field, valu
   open loop drives the motor to and below which it returns to it: the handover speed w_on;
   ``foc_sl_openloop_time`` [s] its duration: w_on / acceleration; VESC's hysteresis is a time,
   ``foc_sl_openloop_hyst`` [s]: the time the I-f ramp takes across the band w_off..w_on, (w_on - w_off) /
-  acceleration; ``foc_sl_erpm`` [ERPM] (the observer's lower speed in the hybrid sensor modes): w_on.
+  acceleration; ``foc_sl_erpm`` [ERPM] (the observer's lower speed in the hybrid sensor modes) is the
+  user's and is not written (firmware/startup.py writes the judged start's fields).
   VESC sets the open loop's current by its own (``foc_sl_openloop_boost_q``, ...): not written.
 """
 
