@@ -102,6 +102,11 @@ def judge_startup(drive: Any, gains: Any) -> StartJudgement | None:
         return None
     given = start.values(w_min) if start is not None else {}
     v = {**rules, **given}
+    # the rules' values as settings: 3 digits, each rounded to the side its bound allows (the current and
+    # the acceleration down, within the torque limit; the speeds up, above w_min)
+    for key, name in KEYS.items():
+        if name not in given:
+            v[name] = (_down if key in ("current", "acceleration") else _up)(v[name])
     m, c = drive.motor, drive.control
     i_d, i_q = mtpa_torque_current(c.T_max, m)
     k_t = c.T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
