@@ -8,10 +8,12 @@ family's ``HOOKS`` declares.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
 from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.pmsm_flux_observer.firmware import FirmwareDrive, odrive, simplefoc, vesc
 from sensorless.design.pmsm_flux_observer.firmware.startup import change_lines
@@ -139,6 +141,7 @@ def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
         source=gains.source,
         startup=startup,
         notes=tuple(notes),
+        i_max=float(f"{math.hypot(*mtpa_torque_current(drive.control.T_max, drive.motor)):.4g}"),
     )
 
 

@@ -155,3 +155,19 @@ def test_vesc_drive_exports_within_reach_and_keeps_the_users_switch_over(skate20
     assert root.find("foc_sl_erpm") is None and any("foc_sl_erpm" in n and "kept" in n for n in notes)
     assert root.findtext("foc_observer_gain") == "58203000" and root.findtext("foc_pll_ki") == "40000"
     assert len([n for n in notes if n.startswith("start-up: [startup]")]) == len(j.shortfalls)
+
+
+def test_the_exported_start_read_back_is_the_same_drive_and_holds(d5065):
+    """export -> init --from: the same rating (the current limit written back is the one read), the
+    start as written, and judged again at the same gains it holds: nothing left to change."""
+    from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS
+
+    d, j = d5065
+    files, _ = EXPORTERS["odrive"].export(d, family_of(d).gains(d))
+    assert json.loads(files["odrive.json"])["axis0.motor.config.current_lim"] == 60.0
+    back = load_drive_text(odrive.read(files["odrive.json"], "o.json", {"u_dc": 24.0}, KIND).text, "o.json")
+    assert back.T_N == pytest.approx(d.T_N, rel=1e-6) and back.motor.J == pytest.approx(d.motor.J, rel=1e-6)
+    again = judge_startup(back, family_of(back).gains(back))
+    assert again.shortfalls == ()
+    for k in ("if_i", "if_acc", "if_w_on"):
+        assert again.values[k] == pytest.approx(j.values[k], rel=1.2e-7), k

@@ -64,6 +64,9 @@ class FirmwareDrive:
     startup: Mapping[str, float] | None = None
     # what the export says of the drive's own settings it changes (one line each, with why)
     notes: tuple[str, ...] = ()
+    # [A, amplitude] the torque limit's current (MTPA at [control] T_max): the firmware's motor current
+    # limit, which an import reads back as the torque limit (rated_from_limit); None: not written
+    i_max: float | None = None
 
 
 class Fields:

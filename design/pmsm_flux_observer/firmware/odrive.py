@@ -245,6 +245,8 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
         ESTIMATOR + "observer_gain": gain,
         ESTIMATOR + "pll_bandwidth": bw,
     }
+    if d.i_max is not None:  # the torque limit's current: the limit the start and the tuning assumed
+        values[MOTOR + "current_lim"] = d.i_max
     if d.startup is not None:  # the I-f start (module docstring); ODrive has no w_off
         values[RAMP + "current"] = d.startup["if_i"]
         values[RAMP + "accel"] = d.startup["if_acc"]

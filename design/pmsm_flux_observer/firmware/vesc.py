@@ -424,6 +424,13 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
         _element("foc_pll_kp", stored(kp), "1/s"),
         _element("foc_pll_ki", stored(ki), "1/s^2"),
         *_startup_elements(d),
+        *(
+            []
+            if d.i_max is None
+            else [
+                _element("l_current_max", stored(d.i_max), "A: the torque limit's current, the drive's limit")
+            ]
+        ),
         f"</{ROOT}>",
     ]
     notes = [
