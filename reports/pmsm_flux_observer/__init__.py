@@ -321,6 +321,7 @@ def compute(
     if pll:
         findings.append(pll)
     findings += start
+    findings += reversal_finding(drive, runs, td)
     data = {
         **opening(FAMILY, drive, table, min_damping, review),
         "observer_period_s": f(drive.observer.T_obs),
@@ -376,6 +377,26 @@ def startup_findings(drive: Any, gains: GainSet) -> tuple[list[str], dict[str, A
         ],
     }
     return change_lines(fw, judged, drive.w_base), data
+
+
+def reversal_finding(drive: Any, runs: Sequence[Any], td: Sequence[dict[str, Any]]) -> list[str]:
+    """Where the firmware cannot run a failed check: ODrive's sensorless mode "does not support stopping
+    or changing direction" (ODrive's documentation, sensorless mode), so a check through zero speed
+    judges the I-f start's fall-back below w_off, which ODrive does not have."""
+    from sensorless.design.scenario import crosses_zero
+
+    if drive.observer.firmware != "odrive":
+        return []
+    through = {sc.name for sc in runs if crosses_zero(sc)}
+    names = [c["name"] for c in td if not c["passed"] and c["name"] in through]
+    if not names:
+        return []
+    return [
+        f"{', '.join(names)}: through zero speed, which ODrive's sensorless mode does not support (its "
+        'documentation: it "does not support stopping or changing direction"; no fall-back to open loop, no '
+        "field for w_off); the check judges the I-f start's fall-back of the generated code, not ODrive: "
+        "with ODrive, stop and reverse in closed loop with a sensor, or not at all"
+    ]
 
 
 def tune_startup(drive: Any, gains: GainSet) -> list[str]:
