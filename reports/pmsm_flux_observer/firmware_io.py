@@ -114,6 +114,7 @@ def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
 
     e, obs = drive.estimate, drive.observer
     notes: list[str] = []
+    startup = None  # none where the drive needs no start (its observer holds zero speed)
     try:
         judged = judge_startup(drive, gains)
     except CapabilityError:  # no minimum-speed analysis (e.g. the box clamp is not linearizable)
