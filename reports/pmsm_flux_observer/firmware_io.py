@@ -121,6 +121,15 @@ def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
         judged = None
         given = drive.startup.values() if drive.startup is not None else {}
         startup = given if {"if_i", "if_acc", "if_w_on", "if_w_off"} <= set(given) else None
+        # not judged against a w_min, but never a speed the motor cannot reach
+        top = min(drive.w_base, drive.control.u_dc / (math.sqrt(3) * drive.motor.psi_pm))
+        if startup is not None and startup["if_w_on"] > top:
+            notes.append(
+                f"start-up not written: [startup] w_on = {startup['if_w_on']:.6g} rad/s is above the rated "
+                f"or no-load speed ({top:.6g} rad/s), which the open loop never reaches "
+                "(cause: speed_unreachable)"
+            )
+            startup = None
     if judged is not None:
         startup = judged.values if judged.fixable else None
         notes = change_lines(obs.firmware, judged, drive.w_base)

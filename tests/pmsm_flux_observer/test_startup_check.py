@@ -171,3 +171,19 @@ def test_the_exported_start_read_back_is_the_same_drive_and_holds(d5065):
     assert again.shortfalls == ()
     for k in ("if_i", "if_acc", "if_w_on"):
         assert again.values[k] == pytest.approx(j.values[k], rel=1.2e-7), k
+
+
+def test_a_start_without_a_w_min_is_still_never_written_beyond_reach():
+    """The box clamp (the hub motor's MXLEMMING) has no linearization, so no w_min to judge the start
+    against: its given start is written as given, but not a handover above rated speed."""
+    from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS
+
+    keys = 'current = "50 A"\nacceleration = "2000 rad/s2"\nw_off = "0.1 pu"\nw_on = '
+    for w_on, written in (('"0.3 pu"', True), ('"1.5 pu"', False)):
+        d = drive_of(vesc, "hub_motor_mcconf.xml", {}, keys + w_on)
+        files, notes = EXPORTERS["vesc"].export(d, family_of(d).gains(d))
+        assert ("foc_openloop_rpm" in files["vesc.xml"]) == written
+        assert any("speed_unreachable" in n for n in notes) != written
+        if written:
+            rpm = float(ET.fromstring(files["vesc.xml"].split("\n", 1)[1]).findtext("foc_openloop_rpm"))
+            assert rpm == round(0.3 * d.w_base * 60 / (2 * math.pi))
