@@ -131,8 +131,8 @@ def run(args: argparse.Namespace) -> int:
     low = tune_line(drive, tuned, MIN_DAMPING, estimate_errors(drive, tunable, settings))
     if low:
         print(low)
-    if h.startup_lines is not None:
-        print("\n".join(h.startup_lines(drive, tuned)))
+    for line in h.startup_lines(drive, tuned) if h.startup_lines is not None else ():
+        print(line)
     out.add_text(json_name, r.table.to_json())
     out.add_text(csv_name, table_csv(r.table, tunable.columns))
     if "speeds" in r.table.summary:
