@@ -81,6 +81,9 @@ class ReportHooks:
     tune_options: tuple[Option, ...] = ()
     tune_settings: Callable[[Drive, argparse.Namespace, Any], TuneSettings] | None = None
     describe_envelope: Callable[[Drive, Any], str] | None = None
+    # (drive, tuned gains) -> the lines tune says of the drive's start-up at the tuned gains (the values
+    # it proposes, the drive file's kept where they hold, each change with why)
+    startup_lines: Callable[[Drive, Any], list[str]] | None = None
     # sensorless simulate: options, and (drive, args, scenario) -> the scenario with them applied
     # (one-line errors naming the option or the drive file)
     simulate_options: tuple[Option, ...] = ()

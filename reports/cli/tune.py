@@ -184,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
     low = tune_line(drive, tuned, MIN_DAMPING, estimate_errors(drive, tunable, settings))
     if low:
         print(low)
+    for line in h.startup_lines(drive, tuned) if h.startup_lines is not None else ():
+        print(line)
     out.add_text(json_name, r.table.to_json())
     out.add_text(csv_name, table_csv(r.table, tunable.columns))
     if "speeds" in r.table.summary:

@@ -8,12 +8,14 @@ family's ``HOOKS`` declares.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 from sensorless.design.drive_file import name_problem
 from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.pmsm_flux_observer.firmware import (
     F_S_RANGE,
@@ -24,6 +26,7 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     simplefoc,
     vesc,
 )
+from sensorless.design.pmsm_flux_observer.firmware.startup import change_lines
 from sensorless.reports.cli.common import Number, UsageError, drive_name
 from sensorless.reports.family import Exporter, Importer, Option
 
@@ -106,7 +109,12 @@ def exporters(record: Callable[[Drive, GainSet], FirmwareDrive]) -> dict[str, Ex
     """The exporters; ``record`` makes the typed record of a drive and its gains (the family's)."""
 
     def writer(export: Callable[[FirmwareDrive], tuple[dict[str, str], list[str]]]) -> Callable[..., Any]:
-        return lambda drive, gains: export(record(drive, gains))
+        def run(drive: Drive, gains: GainSet) -> tuple[dict[str, str], list[str]]:
+            d = record(drive, gains)
+            files, notes = export(d)
+            return files, [*d.notes, *notes]
+
+        return run
 
     return {
         "vesc": Exporter("VESC Tool motor configuration XML fragment", ("vesc.xml",), writer(vesc.export)),
@@ -120,14 +128,34 @@ def exporters(record: Callable[[Drive, GainSet], FirmwareDrive]) -> dict[str, Ex
 
 
 def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
-    """What an export writes: the drive's estimates (what the firmware is given), loop and gains."""
-    from sensorless.design.pmsm_drive import startup_values
+    """What an export writes: the drive's estimates (what the firmware is given), loop and gains, and its
+    I-f start judged at the gains (design/startup_check.py): the drive file's values kept where they
+    hold, each one that does not replaced by the value that fixes it, with one line saying why."""
+    from sensorless.design.startup_check import judge_startup
 
     e, obs = drive.estimate, drive.observer
-    try:  # its [startup], else by the rules from w_min
-        startup, _, _ = startup_values(drive, gains)
+    notes: list[str] = []
+    startup = None  # none where the drive needs no start (its observer holds zero speed)
+    try:
+        judged = judge_startup(drive, gains)
     except CapabilityError:  # no minimum-speed analysis (e.g. the box clamp is not linearizable)
-        startup = None if drive.startup is None or len(drive.startup.values()) < 4 else drive.startup.values()
+        judged = None
+        given = drive.startup.values() if drive.startup is not None else {}
+        startup = given if {"if_i", "if_acc", "if_w_on", "if_w_off"} <= set(given) else None
+        # not judged against a w_min, but never a speed the motor cannot reach
+        top = min(drive.w_base, drive.control.u_dc / (math.sqrt(3) * drive.motor.psi_pm))
+        if startup is not None and startup["if_w_on"] > top:
+            notes.append(
+                f"start-up not written: [startup] w_on = {startup['if_w_on']:.6g} rad/s is above the rated "
+                f"or no-load speed ({top:.6g} rad/s), which the open loop never reaches "
+                "(cause: speed_unreachable)"
+            )
+            startup = None
+    if judged is not None:
+        startup = judged.values if judged.fixable else None
+        notes = change_lines(obs.firmware, judged, drive.w_base)
+        if not judged.fixable:
+            notes.append("start-up not written (the firmware keeps its own): no start-up value fixes it")
     return FirmwareDrive(
         name=drive.name,
         p=drive.motor.p,
@@ -143,6 +171,8 @@ def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
         gains=dict(gains.values),
         source=gains.source,
         startup=startup,
+        notes=tuple(notes),
+        i_max=float(f"{math.hypot(*mtpa_torque_current(drive.control.T_max, drive.motor)):.4g}"),
     )
 
 

@@ -162,7 +162,7 @@ def test_round_trip_through_the_commands(tmp_path, capsys):
     assert code == 0, err
     a, b = load_drive(first), load_drive(again)
     for k in ("R_s", "L_d", "L_q", "psi_pm", "p"):
-        assert getattr(b.motor, k) == pytest.approx(getattr(a.motor, k), rel=1e-11), k
+        assert getattr(b.motor, k) == pytest.approx(getattr(a.motor, k), rel=1.2e-7), k  # float32
     assert b.observer.T_obs == pytest.approx(a.observer.T_obs, rel=1e-11)
     assert b.gains_table == a.gains_table
 

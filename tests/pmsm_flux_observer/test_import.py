@@ -70,8 +70,8 @@ def test_vesc_hub_motor_example_converts_each_value():
     g = d["gains"]
     assert g["law"] == "vesc" and g["foc_observer_gain"] == 1067965 and g["foc_pll_ki"] == 30000
     assert si(g["foc_pll_kp"], "rate") == 2000
-    # l_current_max 60 A (amplitude) -> 42.43 A rms
-    assert si(d["rating"]["I_N"], "current") == pytest.approx(42.4264, rel=1e-5)
+    # l_current_max 60 A (amplitude) is the torque limit T_max = 2 T_N: rated 30 A amplitude, 21.21 A rms
+    assert si(d["rating"]["I_N"], "current") == pytest.approx(30 / math.sqrt(2), rel=1e-11)
     said = "\n".join(notes)
     assert "--u-dc" in said and "--J" in said and "0.9" in said and "--l-scale 1" in said
     # 1000 / 0.0306^2 = 1067965.3: the stored gain is still the detection value, and the note says so
@@ -94,17 +94,18 @@ def test_vesc_detection_gain_and_its_display():
 
 def test_vesc_older_file_names_what_is_missing_and_the_options():
     text = (EXAMPLES / "outrunner_old_mcconf.xml").read_text()
+    # one run names every missing value (the pole count and, with neither cells nor l_max_vin, the voltage)
     with pytest.raises(DriveFileError) as e:
         vesc.read(text, "old.xml", {}, KIND)
-    assert "old.xml" in str(e.value) and "si_motor_poles" in str(e.value) and "--pole-pairs" in str(e.value)
-    with pytest.raises(DriveFileError) as e:
-        vesc.read(text, "old.xml", {"pole_pairs": 7}, KIND)
-    assert "si_battery_cells" in str(e.value) and "--u-dc" in str(e.value)
+    said = str(e.value)
+    assert "old.xml" in said and "\n" not in said
+    for name in ("si_motor_poles", "--pole-pairs", "si_battery_cells", "--u-dc"):
+        assert name in said, name
     d, notes = imported(vesc, text, {"pole_pairs": 7, "u_dc": 36.0, "l_scale": 1.0})
     assert d["motor"]["p"] == 7 and "estimate" not in d  # l-scale 1: the file's values are the motor's
     assert si(d["motor"]["L_d"], "inductance") == si(d["motor"]["L_q"], "inductance") == pytest.approx(8.9e-6)
-    # the older foc_f_sw is the PWM frequency: one observer step per period, 1/20 kHz = 50 us
-    assert si(d["observer"]["T_obs"], "time") == pytest.approx(50e-6, rel=1e-11)
+    # the older foc_f_sw is f_zv's earlier name: the loop runs at half of it, 2/20 kHz = 100 us
+    assert si(d["observer"]["T_obs"], "time") == pytest.approx(100e-6, rel=1e-11)
     assert d["observer"]["correction"] == "clamped-gradient" and d["observer"]["lambda_adaptation"] is False
     assert d["gains"]["foc_observer_gain_slow"] == 0.05 and d["gains"]["foc_pll_ki"] == 40000
     said = "\n".join(notes)
@@ -185,7 +186,7 @@ def test_odrive_outrunner_example_uses_the_torque_constant_over_the_default_flux
     assert d["observer"]["correction"] == "gradient" and d["gains"]["law"] == "odrive"
     assert si(d["gains"]["observer_gain"], "rate") == 1000
     assert si(d["gains"]["pll_bandwidth"], "angular") == 1000
-    assert si(d["rating"]["I_N"], "current") == pytest.approx(40 / math.sqrt(2), rel=1e-11)
+    assert si(d["rating"]["I_N"], "current") == pytest.approx(40 / (2 * math.sqrt(2)), rel=1e-11)
     said = "\n".join(notes)
     assert "pm_flux_linkage is still the factory default" in said and "torque_constant" in said
     assert "--f-s" in said and "--J" in said
@@ -250,3 +251,61 @@ def test_odrive_infinity_literals_elsewhere_are_read():
     assert "Infinity" in text
     d, notes = imported(odrive, text, {"u_dc": 24.0})
     assert "rating" not in d and any("current_lim = inf" in n for n in notes)
+
+
+# ------------------------------------------------------------------------------------ in one pass
+def test_every_missing_value_named_in_one_error():
+    """A file that lacks several values gets one error naming each with what supplies it (not one run
+    per value): VESC without poles, resistance and any voltage; ODrive without pole pairs, inductance and
+    the bus voltage."""
+    text = vesc_xml(**{**HUB, "si_motor_poles": None, "foc_motor_r": None, "si_battery_cells": None})
+    with pytest.raises(DriveFileError) as e:
+        vesc.read(text, "v.xml", {}, KIND)
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith("v.xml: keys ")
+    for name in ("si_motor_poles", "--pole-pairs", "foc_motor_r", "si_battery_cells", "--u-dc"):
+        assert name in msg, name
+    with pytest.raises(DriveFileError) as e:
+        odrive.read(odrive_json({"pole_pairs": None, "phase_inductance": None}), "o.json", {}, KIND)
+    msg = str(e.value)
+    for name in ("pole_pairs", "--pole-pairs", "phase_inductance", "--u-dc"):
+        assert name in msg, name
+
+
+def test_the_2017_file_imports_with_the_pole_pairs_alone():
+    """The 2017 file has neither si_motor_poles nor si_battery_cells: --pole-pairs is the one value
+    asked; the bus voltage is its l_max_vin (42 V), said; its foc_f_sw 20 kHz is f_zv's earlier name
+    (2/f_sw = 100 us); the note of the run-time gain factor of that era (5, not 4)."""
+    text = (EXAMPLES / "skate_2017_mcconf.xml").read_text()
+    with pytest.raises(DriveFileError) as e:
+        vesc.read(text, "old.xml", {}, KIND)
+    assert "si_motor_poles" in str(e.value) and "si_battery_cells" not in str(e.value)
+    d, notes = imported(vesc, text, {"pole_pairs": 7})
+    assert si(d["inverter"]["u_dc"], "voltage") == 42.0
+    assert si(d["observer"]["T_obs"], "time") == pytest.approx(1e-4, rel=1e-11)
+    said = "\n".join(notes)
+    assert "l_max_vin = 42 V" in said and "--u-dc" in said
+    assert "5 x foc_observer_gain" in said and "1.25 x the gain analysed" in said and "x 0.8" in said
+    # the start of that era: 400 ERPM in 0.5 s = 83.78 rad/s^2, back 0.5 s x that below: none left
+    s = d["startup"]
+    assert si(s["w_on"], "angular") == pytest.approx(400 * 2 * math.pi / 60, rel=1e-11)
+    assert si(s["acceleration"], "rate_squared") == pytest.approx(83.7758, rel=1e-5)
+    # a current-era file has no such note
+    _, notes = imported(vesc, (EXAMPLES / "hub_motor_mcconf.xml").read_text())
+    assert not any("older file" in n for n in notes)
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("<MCConfiguration><foc_motor_r>0.1 & 2</foc_motor_r></MCConfiguration>", "unescaped '<' or '&'"),
+        ("<MCConfiguration><foc_motor_r>0.1</foc_motor_l></MCConfiguration>", "closing tag that does not"),
+        ("<MCConfiguration><foc_motor_r>0.1</foc_motor_r>", "file ends before"),
+        ("", "no element"),
+    ],
+)
+def test_malformed_xml_says_what_is_wrong_in_words(text, words):
+    with pytest.raises(DriveFileError) as e:
+        vesc.read(text, "m.xml", {}, KIND)
+    msg = str(e.value)
+    assert words in msg and "line 1" in msg and "invalid token" not in msg and "\n" not in msg

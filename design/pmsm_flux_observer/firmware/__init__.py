@@ -11,7 +11,10 @@ shared/references/firmware_flux_observer.md). This module holds what they share:
   loop period and the law's gains), built from a drive and a gain set by the family's report hooks;
 - :class:`Fields`: a firmware file's fields read strictly (a bad value is one line naming the file
   and the field);
-- :func:`choose_flux`: the cross-check of redundant flux values (flux linkage, KV, torque constant).
+- :func:`choose_flux`: the cross-check of redundant flux values (flux linkage, KV, torque constant);
+- :class:`Missing`: every value a file lacks and no option supplies, named in one error (one run, not
+  one run per missing value);
+- :func:`stored`: a number as the firmware stores it (float32), written without float noise.
 
 Units are SI; the firmware's own units are converted where read or written, nowhere else
 (:func:`erpm`: electrical rad/s to the firmwares' electrical rpm).
@@ -20,6 +23,7 @@ Units are SI; the firmware's own units are converted where read or written, nowh
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -65,6 +69,11 @@ class FirmwareDrive:
     # the open-loop I-f start (design/startup.py): if_i [A], if_acc [rad/s^2], if_w_on, if_w_off [rad/s],
     # electrical; None where the drive has none
     startup: Mapping[str, float] | None = None
+    # what the export says of the drive's own settings it changes (one line each, with why)
+    notes: tuple[str, ...] = ()
+    # [A, amplitude] the torque limit's current (MTPA at [control] T_max): the firmware's motor current
+    # limit, which an import reads back as the torque limit (rated_from_limit); None: not written
+    i_max: float | None = None
 
 
 class Fields:
@@ -115,6 +124,43 @@ class Fields:
         if x != int(x):
             raise self.error(name, f"{self.values[name]!r} is not a whole number")
         return int(x)
+
+
+class Missing:
+    """The values a firmware file lacks that no option supplies: collected while the file is read, then
+    one DriveFileError naming every one with what supplies it (:meth:`check`)."""
+
+    def __init__(self, file: str) -> None:
+        self.file = file
+        self.items: list[tuple[str, str]] = []
+
+    def add(self, name: str, todo: str) -> None:
+        """``name`` is missing; ``todo``: what supplies it (an option, a measurement)."""
+        self.items.append((name, todo))
+
+    def check(self) -> None:
+        """Raise the one error of every missing value, if any."""
+        if self.items:
+            what = "; ".join(f"{name}: {todo}" for name, todo in self.items)
+            raise DriveFileError(self.file, ", ".join(n for n, _ in self.items), f"missing ({what})")
+
+
+def float32(x: float) -> float:
+    """``x`` rounded to the float32 the firmwares store (VESC, ODrive and SimpleFOC keep float)."""
+    return float(struct.unpack("f", struct.pack("f", x))[0])
+
+
+def stored(x: float) -> str:
+    """``x`` as the firmware stores it, in the fewest digits that read back to the same float32: what a
+    firmware file holds, without float noise (10.0 not 9.999999999999998; 400 not 400.00000000034464)."""
+    y = float32(x)
+    if y == int(y) and abs(y) < 1e10:
+        return str(int(y))
+    for digits in range(1, 10):
+        text = f"{y:.{digits}g}"
+        if float32(float(text)) == y:
+            return text
+    return repr(y)
 
 
 def choose_flux(
@@ -177,6 +223,19 @@ def inertia(given: Mapping[str, Any], motor: dict[str, Entry], notes: list[str],
         motor["J"] = Entry(quantity(float(given["J"]), "kg m^2"), "--J")
     else:
         notes.append(f"no inertia in {what}: J derived by the family's rule (give --J in kg m2)")
+
+
+def rated_from_limit(i_max: float, field: str) -> Entry:
+    """``rating.I_N`` [A rms] of a firmware's motor current limit ``i_max`` [A, amplitude]: the limit is
+    the most current the firmware ever commands, the drive's torque limit T_max (design/pmsm_flux_observer
+    schema.py: T_max = T_MAX_TN T_N), so the rated current is the limit / T_MAX_TN, in rms. The drive's
+    currents (the I-f start's among them) then stay within the firmware's limit."""
+    from sensorless.design.pmsm_flux_observer.schema import T_MAX_TN
+
+    return Entry(
+        quantity(i_max / (T_MAX_TN * math.sqrt(2)), "A"),
+        f"{field}/({T_MAX_TN:g} sqrt(2)): the limit as the torque limit T_max = {T_MAX_TN:g} T_N, in rms",
+    )
 
 
 def drive_document(header: list[str], sections: Mapping[str, Mapping[str, Entry]]) -> str:

@@ -36,13 +36,16 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     Fields,
     FirmwareDrive,
     Imported,
+    Missing,
     check_limit,
     choose_flux,
     drive_document,
     inertia,
     kv_candidates,
     quantity,
+    rated_from_limit,
     startup_entries,
+    stored,
 )
 from sensorless.design.units import DriveFileError
 
@@ -94,24 +97,30 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         mt = f.number(MOTOR + "motor_type", positive=False)
         if mt == 3:
             raise f.error(MOTOR + "motor_type", "3 (ACIM): an induction motor, not a PM motor")
+    missing = Missing(file)  # every value the file lacks and no option supplies, named in one error
     pp = f.integer(MOTOR + "pole_pairs")
+    if not given.get("pole_pairs") and pp is None:
+        missing.add(MOTOR + "pole_pairs", "give --pole-pairs")
+    R = f.number(MOTOR + "phase_resistance")
+    L = f.number(MOTOR + "phase_inductance")
+    for name, x in (("phase_resistance", R), ("phase_inductance", L)):
+        if x is None:
+            missing.add(MOTOR + name, "run the motor calibration (odrivetool) or type the value")
+    if not given.get("u_dc"):
+        missing.add("(bus voltage)", "an odrivetool backup holds no bus voltage: give --u-dc")
+    missing.check()
+    assert R is not None and L is not None
     if given.get("pole_pairs"):
         p = int(given["pole_pairs"])
         if pp is not None and pp != p:
             notes.append(f"--pole-pairs {p} used; the file's pole_pairs = {pp} differs")
         motor["p"] = Entry(p, "--pole-pairs")
-    elif pp is None:
-        raise f.error(MOTOR + "pole_pairs", "missing: give --pole-pairs")
     else:
+        assert pp is not None
         f.within(MOTOR + "pole_pairs", pp, POLE_PAIRS_RANGE, "pole pairs")
         p = pp
         motor["p"] = Entry(p, "motor.config.pole_pairs")
 
-    R = f.number(MOTOR + "phase_resistance")
-    L = f.number(MOTOR + "phase_inductance")
-    if R is None or L is None:
-        name = MOTOR + ("phase_resistance" if R is None else "phase_inductance")
-        raise f.error(name, "missing: run the motor calibration (odrivetool) or type the value")
     motor["R_s"] = Entry(quantity(R, "ohm"), "motor.config.phase_resistance")
     motor["L_d"] = Entry(quantity(L, "H"), "motor.config.phase_inductance (one inductance: L_d = L_q)")
     motor["L_q"] = Entry(quantity(L, "H"), "motor.config.phase_inductance (one inductance: L_d = L_q)")
@@ -141,8 +150,6 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     notes += flux_notes
     inertia(given, motor, notes, "an odrivetool backup")
 
-    if not given.get("u_dc"):
-        raise DriveFileError(file, "(bus voltage)", "an odrivetool backup holds no bus voltage: give --u-dc")
     f_s = float(given.get("f_s") or F_S_V3)
     if not given.get("f_s"):
         notes.append(f"loop frequency not in the backup: assumed {F_S_V3:g} Hz (ODrive v3); give --f-s")
@@ -168,9 +175,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     rating: dict[str, Entry] = {}
     lim = f.values.get(MOTOR + "current_lim")
     if isinstance(lim, int | float) and not isinstance(lim, bool) and math.isfinite(lim) and lim > 0:
-        rating["I_N"] = Entry(
-            quantity(lim / math.sqrt(2), "A"), "current_lim/sqrt(2): the limit taken as rated"
-        )
+        rating["I_N"] = rated_from_limit(lim, "current_lim")
     elif lim is not None:
         notes.append(f"current_lim = {lim!r}: no rated current taken from it")
     header = [
@@ -246,6 +251,8 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
         ESTIMATOR + "observer_gain": gain,
         ESTIMATOR + "pll_bandwidth": bw,
     }
+    if d.i_max is not None:  # the torque limit's current: the limit the start and the tuning assumed
+        values[MOTOR + "current_lim"] = d.i_max
     if d.startup is not None:  # the I-f start (module docstring); ODrive has no w_off
         values[RAMP + "current"] = d.startup["if_i"]
         values[RAMP + "accel"] = d.startup["if_acc"]
@@ -255,6 +262,8 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
             f"fall back to open loop below w_off = {d.startup['if_w_off']:.6g} rad/s (w_min): do not stop "
             "or reverse in sensorless mode"
         )
+    # as the firmware stores them (float32), without float noise
+    values = {k: v if isinstance(v, int) else float(stored(v)) for k, v in values.items()}
     js = json.dumps(values, indent=2, sort_keys=True) + "\n"
     lines = [f"# sensorless export for odrivetool: drive {d.name}; paste into odrivetool, then save"]
     lines += [f"odrv0.{k} = {v!r}" for k, v in sorted(values.items())]

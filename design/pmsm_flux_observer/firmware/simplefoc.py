@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 
 from sensorless.design.motor_data import kv_to_psi
-from sensorless.design.pmsm_flux_observer.firmware import FirmwareDrive
+from sensorless.design.pmsm_flux_observer.firmware import FirmwareDrive, stored
 
 
 def kv_rating(psi_pm: float, p: int) -> float:
@@ -23,7 +23,9 @@ def kv_rating(psi_pm: float, p: int) -> float:
 
 
 def _c(x: float) -> str:
-    return f"{x!r}f"
+    """A C float literal of ``x`` as the firmware stores it (float32, no float noise)."""
+    text = stored(x)
+    return f"{text}f" if any(c in text for c in ".e") else f"{text}.0f"
 
 
 def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:

@@ -13,7 +13,8 @@ The file is ``<MCConfiguration>`` with one element per configuration field, valu
   Tool shows raw x 1e-6 as "Observer Gain (x1M)"; at run time gamma = 4 x raw x max(gain_slow,
   |duty| V_bus / 40 V), so gamma lambda^2 = 4000 x max(...) with the detection gain;
 - the observer and PLL run once per PWM period, T = 2 / ``foc_f_zv`` (f_zv counts both zero vectors),
-  or T = 1 / f_zv when ``foc_sample_v0_v7`` samples at both;
+  or T = 1 / f_zv when ``foc_sample_v0_v7`` samples at both; older files' ``foc_f_sw`` is the same
+  setting under its earlier name (the loop runs at half the "switching frequency" set: vedderb/bldc#212);
 - ``foc_observer_type``: 0 ORTEGA_ORIGINAL (clamped gradient), 1 MXLEMMING (box clamp),
   2 ORTEGA_LAMBDA_COMP, 3 MXLEMMING_LAMBDA_COMP (with online flux adaptation), 4 MXV and
   5 MXV_LAMBDA_COMP (circular clamp, not modelled: read as the box clamp, with a note);
@@ -21,7 +22,8 @@ The file is ``<MCConfiguration>`` with one element per configuration field, valu
   open loop drives the motor to and below which it returns to it: the handover speed w_on;
   ``foc_sl_openloop_time`` [s] its duration: w_on / acceleration; VESC's hysteresis is a time,
   ``foc_sl_openloop_hyst`` [s]: the time the I-f ramp takes across the band w_off..w_on, (w_on - w_off) /
-  acceleration; ``foc_sl_erpm`` [ERPM] (the observer's lower speed in the hybrid sensor modes): w_on.
+  acceleration; ``foc_sl_erpm`` [ERPM] (the observer's lower speed in the hybrid sensor modes) is the
+  user's and is not written (firmware/startup.py writes the judged start's fields).
   VESC sets the open loop's current by its own (``foc_sl_openloop_boost_q``, ...): not written.
 """
 
@@ -32,6 +34,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
+from xml.parsers.expat import errors as expat_errors
 
 from sensorless.design.drive_file import Entry
 from sensorless.design.pmsm_flux_observer.firmware import (
@@ -41,14 +44,16 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     Fields,
     FirmwareDrive,
     Imported,
+    Missing,
     check_limit,
     choose_flux,
     drive_document,
-    erpm,
     inertia,
     kv_candidates,
     quantity,
+    rated_from_limit,
     startup_entries,
+    stored,
 )
 from sensorless.design.units import DriveFileError
 
@@ -57,6 +62,7 @@ DETECTION_L_SCALE = 0.9  # detection stores 0.9 x the measured inductances
 DETECTION_GAIN = 1e-3  # detection: gain = 1e-3 / lambda^2, stored x 1e6
 GAIN_DISPLAY = 1e-6  # VESC Tool shows the raw gain x 1e-6 ("x1M")
 SCHEDULE_FACTOR = 4.0  # gamma = 4 raw max(gain_slow, |duty| V_bus / V_SCHEDULE)
+OLD_SCHEDULE_FACTOR = 5.0  # the same map's factor in firmware before about 2020
 V_SCHEDULE = 40.0  # V
 # firmware defaults, used (with a note) where an older file lacks the field
 DEFAULTS = {
@@ -83,6 +89,35 @@ def observer_gain_detection(psi_pm: float) -> float:
     return DETECTION_GAIN / psi_pm**2 / GAIN_DISPLAY
 
 
+# what the XML parser's errors mean in a configuration file (its own words say "invalid token")
+XML_PROBLEMS = {
+    expat_errors.XML_ERROR_INVALID_TOKEN: "a character that cannot stand there (an unescaped '<' or '&' in "
+    "a value, a stray character before the first tag, or not a text file)",
+    expat_errors.XML_ERROR_UNCLOSED_TOKEN: "the file ends inside a tag (cut off?)",
+    expat_errors.XML_ERROR_NO_ELEMENTS: "no element, or the file ends before its elements close (empty or "
+    "cut off?)",
+    expat_errors.XML_ERROR_TAG_MISMATCH: "a closing tag that does not match the element it closes (a tag "
+    "misspelt, or one not closed)",
+    expat_errors.XML_ERROR_JUNK_AFTER_DOC_ELEMENT: f"text after the closing </{ROOT}> (two configurations in "
+    "one file?)",
+    expat_errors.XML_ERROR_UNDEFINED_ENTITY: "an undefined entity (&name;): write '&' as '&amp;'",
+    expat_errors.XML_ERROR_DUPLICATE_ATTRIBUTE: "an attribute given twice in one tag",
+    expat_errors.XML_ERROR_MISPLACED_XML_PI: "the <?xml ...?> declaration is not at the very start",
+}
+
+
+def xml_problem(e: ET.ParseError, text: str) -> str:
+    """A malformed XML file's problem in words: what is wrong, where, and the line it is on."""
+    line, col = e.position
+    message = expat_errors.messages.get(e.code, "")
+    what = XML_PROBLEMS.get(message, message or str(e))
+    lines = text.splitlines()
+    shown = lines[line - 1].strip()[:60] if 0 < line <= len(lines) else ""
+    return f"not a readable XML file: {what}, at line {line}, column {col + 1}" + (
+        f" ({shown!r})" if shown else ""
+    )
+
+
 def fields(text: str, file: str) -> dict[str, str]:
     """The fields of a VESC Tool motor configuration XML (one-line DriveFileError if it is not one)."""
     if "<!DOCTYPE" in text or "<!ENTITY" in text:
@@ -90,7 +125,7 @@ def fields(text: str, file: str) -> dict[str, str]:
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
-        raise DriveFileError(file, "(syntax)", f"not valid XML: {e}") from None
+        raise DriveFileError(file, "(syntax)", xml_problem(e, text)) from None
     if root.tag != ROOT:
         raise DriveFileError(file, root.tag, f"the root element is <{root.tag}>, not <{ROOT}>")
     return {child.tag: (child.text or "").strip() for child in root}
@@ -103,8 +138,27 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     notes: list[str] = []
     motor: dict[str, Entry] = {}
     estimate: dict[str, Entry] = {}
+    missing = Missing(file)  # every value the file lacks and no option supplies, named in one error
 
     poles = f.integer("si_motor_poles")
+    if poles is not None and poles % 2 and not given.get("pole_pairs"):
+        raise f.error("si_motor_poles", f"{poles}: the number of magnet poles is even")
+    if not given.get("pole_pairs") and poles is None:
+        missing.add("si_motor_poles", "an older VESC Tool file has no pole count: give --pole-pairs")
+    R = f.number("foc_motor_r")
+    L = f.number("foc_motor_l")
+    for name, x in (("foc_motor_r", R), ("foc_motor_l", L)):
+        if x is None:
+            missing.add(name, "run the motor detection in VESC Tool or type the value")
+    if f.number("foc_motor_flux_linkage") is None and not given.get("KV"):
+        missing.add("foc_motor_flux_linkage", "give --KV (rpm/V, line-line peak)")
+    cells = f.integer("si_battery_cells")
+    v_max = f.number("l_max_vin")
+    if not given.get("u_dc") and cells is None and v_max is None:
+        missing.add("si_battery_cells", "no bus voltage in the file (nor l_max_vin): give --u-dc")
+    missing.check()
+    assert R is not None and L is not None
+
     if given.get("pole_pairs"):
         p = int(given["pole_pairs"])
         if poles is not None and poles != 2 * p:
@@ -112,20 +166,12 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         motor["p"] = Entry(p, "--pole-pairs")
         if poles is None:
             notes.append(f"si_motor_poles missing (an older file): {p} pole pairs from --pole-pairs")
-    elif poles is None:
-        raise f.error("si_motor_poles", "missing (an older VESC Tool file): give --pole-pairs")
-    elif poles % 2:
-        raise f.error("si_motor_poles", f"{poles}: the number of magnet poles is even")
     else:
+        assert poles is not None
         f.within("si_motor_poles", poles // 2, POLE_PAIRS_RANGE, "pole pairs")
         p = poles // 2
         motor["p"] = Entry(p, f"si_motor_poles/2 = {poles}/2")
 
-    R = f.number("foc_motor_r")
-    L = f.number("foc_motor_l")
-    if R is None or L is None:
-        name = "foc_motor_r" if R is None else "foc_motor_l"
-        raise f.error(name, "missing: run the motor detection in VESC Tool or type the value")
     diff = f.number("foc_motor_ld_lq_diff", positive=False)
     if diff is None:
         diff = 0.0
@@ -161,33 +207,37 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     inverter: dict[str, Entry] = {}
     if given.get("u_dc"):
         inverter["u_dc"] = Entry(quantity(float(given["u_dc"]), "V"), "--u-dc")
-    else:
-        cells = f.integer("si_battery_cells")
-        if cells is None:
-            raise f.error("si_battery_cells", "missing: no bus voltage in the file; give --u-dc")
+    elif cells is not None:
         f.within("si_battery_cells", cells * V_PER_CELL, U_DC_RANGE, f"u_dc = cells x {V_PER_CELL} V", "V")
         inverter["u_dc"] = Entry(quantity(cells * V_PER_CELL, "V"), f"si_battery_cells x {V_PER_CELL} V")
         notes.append(f"bus voltage assumed {cells} cells x {V_PER_CELL} V (li-ion nominal); give --u-dc")
+    else:
+        assert v_max is not None
+        inverter["u_dc"] = Entry(
+            quantity(v_max, "V"), "l_max_vin: the highest input voltage the drive runs at"
+        )
+        notes.append(
+            f"no battery in the file (an older file): bus voltage from l_max_vin = {v_max:g} V, the highest "
+            "input voltage the drive runs at (speeds are judged at it); give --u-dc the battery's voltage"
+        )
     f_zv = f.number("foc_f_zv")
-    loop_from = "foc_f_zv"
     if f_zv is None and "foc_f_sw" in f:
         f_sw = f.number("foc_f_sw")
         assert f_sw is not None
-        f_zv = 2 * f_sw
-        loop_from = "foc_f_sw"
+        f_zv = f_sw
         notes.append(
-            f"foc_f_zv missing: read the older foc_f_sw {f_sw:g} Hz as the PWM frequency (f_zv = 2 f_sw)"
+            f"foc_f_zv missing (an older file): read foc_f_sw {f_sw:g} Hz as it, the setting's earlier name "
+            "(the control loop runs at half of it unless sampled at both zero vectors: vedderb/bldc#212)"
         )
     elif f_zv is None:
         f_zv = DEFAULTS["foc_f_zv"]
         notes.append(f"foc_f_zv missing: assumed the firmware default {f_zv:g} Hz")
+    freq = "foc_f_zv" if "foc_f_zv" in f else "foc_f_sw" if "foc_f_sw" in f else "foc_f_zv"
     both = f.values.get("foc_sample_v0_v7", "0").strip().lower() in ("1", "true")
     T = (1 if both else 2) / f_zv
-    if loop_from in f:  # the user's field, not the default
-        f.within(loop_from, 1 / T, F_S_RANGE, "the observer's rate f_s", "Hz")
-    loop = "1/foc_f_zv (foc_sample_v0_v7)" if both else "2/foc_f_zv"
-    if loop_from == "foc_f_sw":
-        loop = "1/foc_f_sw"
+    if freq in f:  # the user's field, not the default
+        f.within(freq, 1 / T, F_S_RANGE, "the observer's rate f_s", "Hz")
+    loop = f"1/{freq} (foc_sample_v0_v7)" if both else f"2/{freq}"
     inverter["f_s"] = Entry(quantity(1 / T, "Hz"), f"the observer's rate: T_obs = {loop}")
 
     kind_raw = f.values.get("foc_observer_type")
@@ -235,12 +285,9 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
             notes.append(f"{key} missing: assumed the firmware default {x:g}")
         gains[key] = Entry(quantity(x, unit) if unit else x, "1/s^2" if key == "foc_pll_ki" else "")
 
-    rating: dict[str, Entry] = {}
+    notes += version_notes(f)
     i_max = f.number("l_current_max")
-    if i_max is not None:
-        rating["I_N"] = Entry(
-            quantity(i_max / math.sqrt(2), "A"), "l_current_max/sqrt(2): the limit taken as rated"
-        )
+    rating = {} if i_max is None else {"I_N": rated_from_limit(i_max, "l_current_max")}
     stem = Path(file).stem
     header = [
         f"imported from {Path(file).name} (VESC Tool motor configuration XML) by sensorless init --from vesc",
@@ -280,25 +327,56 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     return Imported(drive_document(header, sections), tuple(notes))
 
 
+def version_notes(f: Fields) -> list[str]:
+    """What differs between the firmware the file was saved for and the one the analysis models (the
+    present one): the run-time gain factor of files older than the fields VESC added about 2020, and the
+    compensations the analysis leaves out where the file turns them on."""
+    notes = []
+    if "foc_observer_type" not in f and "si_motor_poles" not in f:
+        notes.append(
+            f"an older file (no foc_observer_type, no si_motor_poles: firmware before about 2020): "
+            f"VESC then ran the observer at {OLD_SCHEDULE_FACTOR:g} x foc_observer_gain x max(gain_slow, "
+            f"|duty| V_bus/40 V), not {SCHEDULE_FACTOR:g} x; the analysis takes the present factor; on "
+            f"the older firmware the observer runs {OLD_SCHEDULE_FACTOR / SCHEDULE_FACTOR:g} x the gain "
+            f"analysed (write foc_observer_gain x {SCHEDULE_FACTOR / OLD_SCHEDULE_FACTOR:g} there for the "
+            "gain tuned, or update the firmware)"
+        )
+    for key, what in (
+        ("foc_sat_comp", "the saturation compensation"),
+        ("foc_temp_comp", "the temperature compensation of R"),
+    ):
+        raw = f.values.get(key, "0").strip().lower()
+        if raw not in ("0", "0.0", "false", ""):
+            notes.append(f"{key} = {raw}: {what} is on in the file and not modelled by the analysis")
+    return notes
+
+
 def _element(name: str, value: Any, comment: str = "") -> str:
     text = f"    <{name}>{value}</{name}>"
     return f"{text}  <!-- {comment.replace('--', '-')} -->" if comment else text
 
 
 def _startup_elements(d: FirmwareDrive) -> list[str]:
-    """The open-loop start's fields (module docstring) of the drive's I-f start; none without one."""
+    """The open-loop start's fields (module docstring) of the drive's I-f start; none without one.
+    ``foc_sl_erpm`` (the hybrid sensor modes' switch-over) is not written: the user's is kept."""
     if d.startup is None:
         return []
+    from sensorless.design.pmsm_flux_observer.firmware.startup import fields
+
     w_on, w_off, acc = d.startup["if_w_on"], d.startup["if_w_off"], d.startup["if_acc"]
+    f = {k: stored(v) for k, (v, _) in fields("vesc", d.startup).items()}
     return [
-        _element("foc_openloop_rpm", repr(erpm(w_on)), f"ERPM: the handover speed w_on = {w_on:.6g} rad/s"),
-        _element("foc_sl_openloop_time", repr(w_on / acc), f"s: w_on / acceleration ({acc:.6g} rad/s^2)"),
+        _element(
+            "foc_openloop_rpm", f["foc_openloop_rpm"], f"ERPM: the handover speed w_on = {w_on:.6g} rad/s"
+        ),
+        _element(
+            "foc_sl_openloop_time", f["foc_sl_openloop_time"], f"s: w_on / acceleration ({acc:.6g} rad/s^2)"
+        ),
         _element(
             "foc_sl_openloop_hyst",
-            repr((w_on - w_off) / acc),
+            f["foc_sl_openloop_hyst"],
             f"s: (w_on - w_off) / acceleration, w_off = {w_off:.6g} rad/s (w_min)",
         ),
-        _element("foc_sl_erpm", repr(erpm(w_on)), "ERPM: the observer's lower speed in the hybrid modes"),
     ]
 
 
@@ -341,22 +419,30 @@ def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
         "     is given (VESC Tool's detection would store 0.9 x the measured inductances). -->",
         f"<{ROOT}>",
         _element("si_motor_poles", 2 * d.p, f"{d.p} pole pairs"),
-        _element("foc_motor_r", repr(d.R_s), "ohm, per phase"),
-        _element("foc_motor_l", repr((d.L_d + d.L_q) / 2), "H, (L_d + L_q)/2"),
-        _element("foc_motor_ld_lq_diff", repr(d.L_q - d.L_d), "H, L_q - L_d"),
-        _element("foc_motor_flux_linkage", repr(d.psi_pm), "Wb"),
-        _element("foc_f_zv", repr(2 / d.T_obs), f"Hz: observer period 2/f_zv = {d.T_obs * 1e6:.6g} us"),
+        _element("foc_motor_r", stored(d.R_s), "ohm, per phase"),
+        _element("foc_motor_l", stored((d.L_d + d.L_q) / 2), "H, (L_d + L_q)/2"),
+        _element("foc_motor_ld_lq_diff", stored(d.L_q - d.L_d), "H, L_q - L_d"),
+        _element("foc_motor_flux_linkage", stored(d.psi_pm), "Wb"),
+        _element("foc_f_zv", stored(2 / d.T_obs), f"Hz: observer period 2/f_zv = {d.T_obs * 1e6:.6g} us"),
         _element("foc_sample_v0_v7", 0, "one observer step per PWM period, as T assumes"),
         _element("foc_observer_type", code, f"{name}: the observer the gains were tuned for"),
-        _element("foc_observer_gain", repr(raw), f"VESC Tool shows {raw * GAIN_DISPLAY:.4g} (x1M)"),
-        _element("foc_observer_gain_slow", repr(slow)),
-        _element("foc_pll_kp", repr(kp), "1/s"),
-        _element("foc_pll_ki", repr(ki), "1/s^2"),
+        _element("foc_observer_gain", stored(raw), f"VESC Tool shows {raw * GAIN_DISPLAY:.4g} (x1M)"),
+        _element("foc_observer_gain_slow", stored(slow)),
+        _element("foc_pll_kp", stored(kp), "1/s"),
+        _element("foc_pll_ki", stored(ki), "1/s^2"),
         *_startup_elements(d),
+        *(
+            []
+            if d.i_max is None
+            else [
+                _element("l_current_max", stored(d.i_max), "A: the torque limit's current, the drive's limit")
+            ]
+        ),
         f"</{ROOT}>",
     ]
     notes = [
-        f"VESC Tool shows foc_observer_gain as {raw * GAIN_DISPLAY:.4g} (x1M); observer type {code} {name}"
+        "foc_sl_erpm (the hybrid sensor modes' switch-over to the observer) is not written: yours is kept",
+        f"VESC Tool shows foc_observer_gain as {raw * GAIN_DISPLAY:.4g} (x1M); observer type {code} {name}",
     ]
     if d.correction == "box-clamp":
         notes.append(f"{name} has no gain: foc_observer_gain does not act on it")

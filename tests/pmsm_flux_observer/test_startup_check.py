@@ -1,0 +1,189 @@
+"""The I-f start's settings judged like gains (design/startup_check.py) on the two real configurations
+(docs/examples/firmware: an odrivetool backup of a D5065-class motor, a 2017 VESC motor XML), and what
+each firmware's export writes of them: speeds within the motor's reach and the tuned w_min, currents
+within its limits, the user's keys kept where they hold, each change said in one line, no float noise.
+
+The needed values are checked against the start's physics typed here (the rotor carries rated load and
+the ramp's acceleration at a load angle of at most 60 deg: k_t i sin 60 deg >= T_N + J a / p, k_t =
+1.5 p psi_pm for these non-salient motors), not against the module's own numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+from sensorless.design.drive import load_drive_text
+from sensorless.design.pmsm_flux_observer.firmware import float32, odrive, vesc
+from sensorless.design.pmsm_flux_observer.firmware.startup import change_lines
+from sensorless.design.registry import family_of
+from sensorless.design.startup_check import judge_startup
+
+KIND = "pmsm-flux-observer"
+EXAMPLES = Path(__file__).resolve().parents[2] / "docs" / "examples" / "firmware"
+# a number in an exported file: at most 9 significant digits (float32 needs 9 to round-trip)
+NUMBER = re.compile(r"(?<![\w.])-?\d+(?:\.\d+)?(?:e[+-]?\d+)?")
+
+
+def digits(text: str) -> int:
+    mantissa = text.lstrip("-").split("e")[0].replace(".", "").lstrip("0")
+    return len(mantissa.rstrip("0")) if "." not in text.split("e")[0] else len(mantissa)
+
+
+def drive_of(mod, name: str, given: dict, startup: str | None = None):
+    """The example imported, its [startup] replaced by ``startup`` where given."""
+    text = mod.read((EXAMPLES / name).read_text(), name, given, KIND).text
+    if startup is not None:
+        text = text[: text.index("[startup]")] + "[startup]\n" + startup + "\n"
+    return load_drive_text(text, name)
+
+
+def k_t(d) -> float:
+    return 1.5 * d.motor.p * d.motor.psi_pm
+
+
+@pytest.fixture(scope="module")
+def d5065():
+    d = drive_of(odrive, "d5065_odrive.json", {"u_dc": 24.0})
+    return d, judge_startup(d, family_of(d).gains(d))
+
+
+@pytest.fixture(scope="module")
+def skate2017():
+    d = drive_of(vesc, "skate_2017_mcconf.xml", {"pole_pairs": 7})
+    return d, judge_startup(d, family_of(d).gains(d))
+
+
+def test_odrive_ramp_current_cannot_carry_rated_load_and_the_current_that_does_is_named(d5065):
+    """10 A at k_t 0.0306 N m/A gives 0.31 N m, a third of the rated 0.92 N m (half the 60 A current
+    limit's torque): the finding names sensorless_ramp.current and a current that carries rated load
+    and the ramp's acceleration at 60 deg, within the 60 A limit."""
+    d, j = d5065
+    assert k_t(d) == pytest.approx(0.0306, rel=2e-3) and d.T_N == pytest.approx(0.92, rel=2e-3)
+    s = {x.key: x for x in j.shortfalls}
+    assert s["current"].value == 10.0 and s["current"].cause == "if_current_below_load" and s["current"].given
+    a = j.values["if_acc"]
+    need = (d.T_N + d.motor.J * a / d.motor.p) / (k_t(d) * math.sin(math.radians(60)))
+    assert need <= j.values["if_i"] <= 1.01 * need
+    assert j.values["if_i"] <= 60.0  # the firmware's current_lim is the torque limit's current
+    lines = change_lines("odrive", j, d.w_base)
+    assert len([x for x in lines if "[startup] current = 10 A" in x]) == 1
+    assert f"axis0.config.sensorless_ramp.current = {j.values['if_i']:g} A (was 10)" in lines[-1]
+
+
+def test_vesc_2017_ramp_never_hands_over_and_the_handover_that_does_is_named(skate2017):
+    """foc_openloop_rpm 400 ERPM (41.9 rad/s) is far below the observer's w_min: the finding names it
+    with a handover above w_min and below rated; the ramp 400 ERPM / 0.5 s = 83.8 rad/s^2 is slower
+    than the drive's own start asks (0.5 p.u. in t_seg) and is replaced, foc_sl_openloop_time with it."""
+    d, j = skate2017
+    s = {x.key: x for x in j.shortfalls}
+    assert s["w_on"].value == pytest.approx(400 * 2 * math.pi / 60)
+    assert s["w_on"].cause == "observer_lag_acceleration"
+    assert j.w_min < j.values["if_w_on"] <= d.w_base
+    assert s["acceleration"].value == pytest.approx(83.7758, rel=1e-5)
+    assert s["acceleration"].cause == "ramp_slower_than_reference"
+    assert "current" not in s  # the rule's current (VESC sets its own) carries the load
+    lines = change_lines("vesc", j, d.w_base)
+    rpm = round(j.values["if_w_on"] * 60 / (2 * math.pi))
+    assert f"foc_openloop_rpm = {rpm} ERPM (was 400)" in lines[-1] and "foc_sl_openloop_time" in lines[-1]
+
+
+def test_values_that_hold_are_kept_and_those_beyond_reach_or_limit_are_not(d5065):
+    """A start within every bound is kept as given (no finding); a current above the 60 A limit and a
+    handover above rated speed are each replaced by a value within them, said with the cause."""
+    d, j = d5065
+    ok = (
+        f'current = "{math.ceil(j.values["if_i"])} A"\nacceleration = "{j.values["if_acc"]:g} rad/s2"\n'
+        f'w_on = "{math.ceil(1.5 * j.w_min)} rad/s"\nw_off = "{math.ceil(j.w_min)} rad/s"'
+    )
+    kept = judge_startup(drive_of(odrive, "d5065_odrive.json", {"u_dc": 24.0}, ok), family_of(d).gains(d))
+    assert kept.shortfalls == () and kept.values["if_w_on"] == math.ceil(1.5 * j.w_min)
+    bad = 'current = "100 A"\nacceleration = "20000 rad/s2"\nw_on = "1.5 pu"'
+    dd = drive_of(odrive, "d5065_odrive.json", {"u_dc": 24.0}, bad)
+    b = judge_startup(dd, family_of(dd).gains(dd))
+    s = {x.key: x for x in b.shortfalls}
+    assert s["current"].cause == "torque_limit" and b.values["if_i"] <= 60.0
+    assert s["w_on"].cause == "speed_unreachable" and j.w_min < b.values["if_w_on"] <= dd.w_base
+    assert b.values["if_w_on"] < dd.control.u_dc / (math.sqrt(3) * dd.motor.psi_pm)  # no-load speed
+
+
+@pytest.mark.parametrize("target", ["odrive", "simplefoc"])
+def test_odrive_drive_exports_within_reach_and_limits_without_float_noise(d5065, target):
+    from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS
+
+    d, j = d5065
+    files, notes = EXPORTERS[target].export(d, family_of(d).gains(d))
+    for name, text in files.items():
+        for n in NUMBER.findall(re.sub(r"(//|#).*", "", text)):
+            assert digits(n) <= 9, (name, n)
+    said = [n for n in notes if n.startswith("start-up: [startup]")]
+    assert len(said) == len(j.shortfalls)  # every change to the user's settings, one line each
+    if target == "odrive":
+        v = json.loads(files["odrive.json"])
+        ramp = "axis0.config.sensorless_ramp."
+        assert j.w_min <= v[ramp + "vel"] <= d.w_base
+        assert v[ramp + "current"] <= 60.0
+        a = v[ramp + "accel"]
+        assert k_t(d) * v[ramp + "current"] * math.sin(math.radians(60)) >= d.T_N + d.motor.J * a / d.motor.p
+        # the user's motor values kept, as float32 stores them
+        assert float32(v["axis0.motor.config.phase_resistance"]) == float32(0.039449997246265411)
+        assert v["axis0.motor.config.pole_pairs"] == 7
+        assert v["axis0.sensorless_estimator.config.observer_gain"] == 1000.0
+    else:
+        assert "motor.KV_rating = 269.99783f;" in files["simplefoc.cpp"]  # 8.27 / 0.0306296: ~270
+
+
+def test_vesc_drive_exports_within_reach_and_keeps_the_users_switch_over(skate2017):
+    from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS
+
+    d, j = skate2017
+    files, notes = EXPORTERS["vesc"].export(d, family_of(d).gains(d))
+    text = files["vesc.xml"]
+    for n in NUMBER.findall(re.sub(r"<!--.*?-->|<\?.*?\?>", "", text, flags=re.S)):
+        assert digits(n) <= 9, n
+    root = ET.fromstring(text.split("\n", 1)[1])
+    w_on = float(root.findtext("foc_openloop_rpm")) * 2 * math.pi / 60
+    assert j.w_min <= w_on <= d.w_base and w_on < d.control.u_dc / (math.sqrt(3) * d.motor.psi_pm)
+    acc = w_on / float(root.findtext("foc_sl_openloop_time"))
+    assert acc == pytest.approx(j.values["if_acc"], rel=1e-3)
+    w_off = w_on - float(root.findtext("foc_sl_openloop_hyst")) * acc
+    assert j.w_min * 0.999 <= w_off < w_on
+    assert root.find("foc_sl_erpm") is None and any("foc_sl_erpm" in n and "kept" in n for n in notes)
+    assert root.findtext("foc_observer_gain") == "58203000" and root.findtext("foc_pll_ki") == "40000"
+    assert len([n for n in notes if n.startswith("start-up: [startup]")]) == len(j.shortfalls)
+
+
+def test_the_exported_start_read_back_is_the_same_drive_and_holds(d5065):
+    """export -> init --from: the same rating (the current limit written back is the one read), the
+    start as written, and judged again at the same gains it holds: nothing left to change."""
+    from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS
+
+    d, j = d5065
+    files, _ = EXPORTERS["odrive"].export(d, family_of(d).gains(d))
+    assert json.loads(files["odrive.json"])["axis0.motor.config.current_lim"] == 60.0
+    back = load_drive_text(odrive.read(files["odrive.json"], "o.json", {"u_dc": 24.0}, KIND).text, "o.json")
+    assert back.T_N == pytest.approx(d.T_N, rel=1e-6) and back.motor.J == pytest.approx(d.motor.J, rel=1e-6)
+    again = judge_startup(back, family_of(back).gains(back))
+    assert again.shortfalls == ()
+    for k in ("if_i", "if_acc", "if_w_on"):
+        assert again.values[k] == pytest.approx(j.values[k], rel=1.2e-7), k
+
+
+def test_a_start_without_a_w_min_is_still_never_written_beyond_reach():
+    """The box clamp (the hub motor's MXLEMMING) has no linearization, so no w_min to judge the start
+    against: its given start is written as given, but not a handover above rated speed."""
+    from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS
+
+    keys = 'current = "50 A"\nacceleration = "2000 rad/s2"\nw_off = "0.1 pu"\nw_on = '
+    for w_on, written in (('"0.3 pu"', True), ('"1.5 pu"', False)):
+        d = drive_of(vesc, "hub_motor_mcconf.xml", {}, keys + w_on)
+        files, notes = EXPORTERS["vesc"].export(d, family_of(d).gains(d))
+        assert ("foc_openloop_rpm" in files["vesc.xml"]) == written
+        assert any("speed_unreachable" in n for n in notes) != written
+        if written:
+            rpm = float(ET.fromstring(files["vesc.xml"].split("\n", 1)[1]).findtext("foc_openloop_rpm"))
+            assert rpm == round(0.3 * d.w_base * 60 / (2 * math.pi))
