@@ -94,6 +94,13 @@ CATALOGUE: dict[str, Cause] = {
             "with a smaller steady error there",
         ),
         Cause(
+            "speed_unreachable",
+            "speed out of the drive's reach",
+            "a start-up speed at or above the rated speed or the no-load speed at the DC link: the open "
+            "loop never gets there; a handover speed below both ([startup] w_on, the firmware's "
+            "open-loop speed) with an observer that holds there",
+        ),
+        Cause(
             "not_tested_sensorless",
             "not tested sensorless",
             "the observer was not in the loop for the part of the run the check tests: a handover at a "
