@@ -50,8 +50,9 @@ class FixedModel:
     _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def of(cls, drive: Any, gains: Any, scenarios: list[Any], n_x: int) -> FixedModel:
-        x, m = probe_runs(drive, gains, scenarios, n_x)
+    def of(cls, drive: Any, gains: Any, scenarios: list[Any], setup: Any) -> FixedModel:
+        """From the closed-loop runs of ``scenarios`` (those that run ``setup``'s observer)."""
+        x, m = probe_runs(drive, gains, scenarios, len(setup.observer.state), setup.observer.name)
         return cls(x, m)
 
     def program(self, setup: Any) -> FixedStep:

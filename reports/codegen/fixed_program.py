@@ -51,6 +51,7 @@ class FixedStep:
     state_out: list[int]  # slot of each next-state field
     outputs: list[dict[str, Any]]  # name, kind, f, slot
     x0: list[int]  # raw initial state
+    wr: list[float]  # worst-case raw magnitude of each slot (what decides 64-bit work and saturation)
     signals: list[dict[str, Any]] = field(default_factory=list)  # every slot's format and range
 
     def to_raw(self, values: np.ndarray, which: str) -> np.ndarray:
@@ -379,8 +380,11 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
         kind, fm = low.fmt(s)
         outputs.append({"name": fl.name, "kind": kind, "f": fm, "slot": s, "unit": fl.unit})
     x0 = _raw_list(setup.initial_state(), inputs[: len(obs.state)])
-    signals = [{"slot": k, "op": ins.op, "kind": ins.kind, "f": ins.f, "sat": ins.sat} for k, ins in enumerate(low.prog)]
-    return FixedStep(low.prog, inputs, state_out, outputs, x0, signals)
+    signals = [
+        {"slot": k, "op": ins.op, "kind": ins.kind, "f": ins.f, "saturates": ins.sat, "what": ins.what}
+        for k, ins in enumerate(low.prog)
+    ]
+    return FixedStep(low.prog, inputs, state_out, outputs, x0, low.wr, signals)
 
 
 def _raw_list(x0: np.ndarray, fmts: list[dict[str, Any]]) -> list[int]:

@@ -161,7 +161,7 @@ def interval(nodes: list[Node], seeds: dict[int, tuple[float, float]], const: di
     return iv
 
 
-def probe_runs(drive: Any, gains: Any, scenarios: list[Any], n_x: int) -> tuple[np.ndarray, np.ndarray]:
+def probe_runs(drive: Any, gains: Any, scenarios: list[Any], n_x: int, observer: str) -> tuple[np.ndarray, np.ndarray]:
     """(x, meas) of every sample of the closed-loop runs of ``scenarios`` with the double step: the
     observer's state before each step and its measurements (columns are samples)."""
     from sensorless.design.registry import family_of
@@ -169,6 +169,7 @@ def probe_runs(drive: Any, gains: Any, scenarios: list[Any], n_x: int) -> tuple[
 
     fam = family_of(drive)
     xs, ms = [], []
+    seen: list[str] = []
 
     def probe(setup: Any, step: ca.Function) -> ca.Function:
         # the step with its state extended by the measurements it was given: the loop then carries them
@@ -176,12 +177,15 @@ def probe_runs(drive: Any, gains: Any, scenarios: list[Any], n_x: int) -> tuple[
         x = ca.SX.sym("x", nx + nm)
         m = ca.SX.sym("m", nm)
         p, g = ca.SX.sym("p", step.size1_in(2)), ca.SX.sym("g", step.size1_in(3))
+        seen.append(setup.observer.name)
         x_next, y = step(x[:nx], m, p, g)
         return ca.Function("probe", [x, m, p, g], [ca.vertcat(x_next, m), y])
 
     for sc in scenarios:
         with step_variant(probe):
             ls = fam.simulation(drive, sc, gains)
+        if seen[-1] != observer:
+            continue  # a run of another observer (the I-f start's wrapper): not this step's ranges
         n = ls.inputs.shape[1]
         n_m = ls.loop.size1_in(0) - len(ls.z0)
         z0 = np.concatenate([ls.z0, np.zeros(n_m)])
