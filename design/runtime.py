@@ -83,7 +83,9 @@ class RuntimeSetup:
 # What runs in place of the double step while :func:`step_variant` is active (e.g. the fixed-point
 # step of sensorless codegen, reports/codegen/fixed_model.py): design does not know the variants
 StepVariant = Callable[[RuntimeSetup, ca.Function], ca.Function]
-_STEP_VARIANT: contextvars.ContextVar[StepVariant | None] = contextvars.ContextVar("step_variant", default=None)
+_STEP_VARIANT: contextvars.ContextVar[StepVariant | None] = contextvars.ContextVar(
+    "step_variant", default=None
+)
 
 
 @contextlib.contextmanager

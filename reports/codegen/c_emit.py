@@ -155,7 +155,9 @@ class Emitted:
     n_coef: int = 0
 
 
-def build_graph(f: ca.Function, param_inputs: set[int]) -> tuple[list[Node], list[tuple[tuple[int, int], int]]]:
+def build_graph(
+    f: ca.Function, param_inputs: set[int]
+) -> tuple[list[Node], list[tuple[tuple[int, int], int]]]:
     """The simplified operation graph of ``f`` (c_graph's passes applied) and its outputs
     [((output index, nonzero), node)]; the inputs in ``param_inputs`` are parameter-only."""
     param_in = param_inputs

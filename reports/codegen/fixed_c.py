@@ -139,7 +139,11 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
         if op == "IN":
             d = fx.inputs[m[0]]
             src = f"{x}.{d['name']}" if d["vector"] == "x" else f"{inp}->{d['name']}"
-            e = src if len(m) == 1 else f"({src} < {lit(m[1])} ? {lit(m[1])} : ({src} > {lit(m[2])} ? {lit(m[2])} : {src}))"
+            e = (
+                src
+                if len(m) == 1
+                else f"({src} < {lit(m[1])} ? {lit(m[1])} : ({src} > {lit(m[2])} ? {lit(m[2])} : {src}))"
+            )
         elif op == "CONST":
             e = lit(m[0])
         elif op == "ALIGN":
@@ -205,7 +209,11 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
 
 
 def format_text(kind: str, f: int) -> str:
-    return "binary angle (pi = 2^31)" if kind == "ang" else ("0/1" if kind == "bool" else f"Q{f} (value = raw * 2^-{f})")
+    return (
+        "binary angle (pi = 2^31)"
+        if kind == "ang"
+        else ("0/1" if kind == "bool" else f"Q{f} (value = raw * 2^-{f})")
+    )
 
 
 def formats_json(fx: FixedStep, header: dict[str, Any]) -> str:

@@ -70,7 +70,6 @@ class FixedModel:
         return self.function(setup)
 
 
-
 def _function(fx: FixedStep, obs: Any, n_p: int, n_g: int) -> ca.Function:
     n_x, n_m = len(obs.state), len(obs.meas)
     x = ca.SX.sym("x", n_x)
@@ -92,4 +91,6 @@ def _function(fx: FixedStep, obs: Any, n_p: int, n_g: int) -> ca.Function:
     states = fx.inputs[:n_x]
     x_next = ca.vertcat(*[si(s, d["kind"], d["f"]) for s, d in zip(fx.state_out, states, strict=True)])
     y = ca.vertcat(*[si(o["slot"], o["kind"], o["f"]) for o in fx.outputs])
-    return ca.Function(f"{obs.name}_fixed", [x, m, pp, gg], [x_next, y], ["x", "meas", "p", "gain"], ["x_next", "y"])
+    return ca.Function(
+        f"{obs.name}_fixed", [x, m, pp, gg], [x_next, y], ["x", "meas", "p", "gain"], ["x_next", "y"]
+    )

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from sensorless.design.runtime import scheduled_step
 from sensorless.reports.codegen.c_emit import build_graph
 from sensorless.reports.codegen.c_graph import Node, live_nodes
 from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, Ins
@@ -57,7 +58,9 @@ class FixedStep:
     def to_raw(self, values: np.ndarray, which: str) -> np.ndarray:
         """SI values (rows: the fields of ``which`` = "x" or "meas") as raw words (round to nearest)."""
         fmts = [i for i in self.inputs if i["vector"] == which]
-        return np.stack([_raw(np.asarray(v, float), i["kind"], i["f"]) for v, i in zip(values, fmts, strict=True)])
+        return np.stack(
+            [_raw(np.asarray(v, float), i["kind"], i["f"]) for v, i in zip(values, fmts, strict=True)]
+        )
 
     def outputs_si(self, slots: list[Any]) -> np.ndarray:
         """The outputs in SI from the program's slot values."""
@@ -88,7 +91,9 @@ def _close(v: float | None, target: float) -> bool:
 class _Lowering:
     """Lowers the graph's nodes on demand (memoized), tracking each slot's format and worst case."""
 
-    def __init__(self, nodes: list[Node], const: dict[int, float], rng: dict[int, float], angle_fields: set[int]):
+    def __init__(
+        self, nodes: list[Node], const: dict[int, float], rng: dict[int, float], angle_fields: set[int]
+    ):
         self.nodes, self.const, self.rng = nodes, const, rng
         self.prog: list[Ins] = []
         self.wr: list[float] = []  # worst-case raw magnitude of each slot
@@ -182,7 +187,7 @@ class _Lowering:
     def ang(self, n: int) -> int:
         if n in self.ang_c:
             return self.ang_c[n]
-        nd, N = self.nodes[n], self.nodes
+        nd = self.nodes[n]
         c = self.cval(n)
         if c is not None:
             s = self.const_slot(c, kind="ang")
@@ -213,7 +218,7 @@ class _Lowering:
 
     def ang_of(self, n: int) -> int:
         """Node n (any real signal) as a binary angle, modulo 2 pi: sums stay sums of angles."""
-        nd, N = self.nodes[n], self.nodes
+        nd = self.nodes[n]
         if self.is_angle(n) or self.cval(n) is not None:
             return self.ang(n)
         if nd.op in ("ADD", "SUB"):
@@ -225,7 +230,7 @@ class _Lowering:
             cs = [a for a in nd.args if self.cval(a) is not None]
             if cs:
                 k = self.cval(cs[0])
-                x = [a for a in nd.args if a != cs[0]][0] if nd.args[0] != nd.args[1] else nd.args[0]
+                x = next(a for a in nd.args if a != cs[0]) if nd.args[0] != nd.args[1] else nd.args[0]
         xs = self.lin(x)
         ratio = k * 2.0 ** (31 - self.fmt(xs)[1]) / _PI
         sh = 25 - math.floor(math.log2(abs(ratio))) if ratio else 0
@@ -241,7 +246,7 @@ class _Lowering:
         return s
 
     def _lin(self, n: int) -> int:
-        nd, N = self.nodes[n], self.nodes
+        nd = self.nodes[n]
         c = self.cval(n)
         if c is not None:
             return self.const_slot(c)
@@ -252,7 +257,9 @@ class _Lowering:
             fo = format_of(_PI)
             sh = 20 + 31 - fo  # K ~ 2^21: the product stays below 2^53 (exact in the SX model)
             K = round(_PI * 2.0 ** (fo - 31 + sh))
-            return self.add(Ins("ANG2LIN", (a,), "fix", fo, (K, sh), what="binary angle to rad"), 2.0**31 * K / 2**sh)
+            return self.add(
+                Ins("ANG2LIN", (a,), "fix", fo, (K, sh), what="binary angle to rad"), 2.0**31 * K / 2**sh
+            )
         op = nd.op
         fo = format_of(self.rng.get(n, 0.0))
         if op == "ASSIGN":
@@ -304,14 +311,17 @@ class _Lowering:
         if op in ("SIN", "COS"):
             a = self.ang_of(nd.args[0])
             return self.add(Ins(op, (a,), "fix", 26, what=f"{op.lower()} (polynomial)"), 2.0**26 + 64)
-        raise NotImplementedError(f"fixed point: operation {op} on runtime values (node {n}) is not supported")
+        raise NotImplementedError(
+            f"fixed point: operation {op} on runtime values (node {n}) is not supported"
+        )
 
 
 def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
     """The fixed-point program of ``setup``'s step, its formats from the observer inputs ``x``, ``meas``
     (columns: samples of the checks' closed-loop runs, fixed_ranges.probe_runs) and the state bounds."""
     obs = setup.observer
-    f = setup.step_function()
+    # the double step itself (not a variant installed by design/runtime.step_variant: that may be us)
+    f = scheduled_step(obs, setup.discretization, setup.schedule.law if setup.schedule is not None else None)
     nodes, outs = build_graph(f, {2, 3})
     p, g = setup.p, setup.gain
     param_used = {a for i, nd in enumerate(nodes) if not nd.param for a in nd.args if nodes[a].param}
@@ -321,7 +331,9 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
     live = live_nodes(nodes, [n for _, n in outs])
     runtime = sorted(i for i in live if not nodes[i].param)
     sim = evaluate(nodes, {0: x, 1: meas, 2: p, 3: g}, {n for _, n in outs})
-    sim_max = {i: float(np.nanmax(np.abs(np.broadcast_to(v, x.shape[1:])))) for i, v in sim.items() if i in runtime}
+    sim_max = {
+        i: float(np.nanmax(np.abs(np.broadcast_to(v, x.shape[1:])))) for i, v in sim.items() if i in runtime
+    }
 
     bounds = np.asarray(obs.bounds()(p)).ravel()
     inputs: list[dict[str, Any]] = []
@@ -342,8 +354,17 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
                 kind, r, why = "fix", MARGIN * sim_r, f"simulated max {sim_r:.6g} x {MARGIN:g}"
             r = max(r, RANGE_FLOOR)
             fm = 31 if kind == "ang" else format_of(r)
-            inputs.append({"name": fl.name, "vector": "x" if vec == 0 else "meas", "kind": kind, "f": fm,
-                           "range": r, "reason": why, "node": n})
+            inputs.append(
+                {
+                    "name": fl.name,
+                    "vector": "x" if vec == 0 else "meas",
+                    "kind": kind,
+                    "f": fm,
+                    "range": r,
+                    "reason": why,
+                    "node": n,
+                }
+            )
             if n is not None:
                 seeds[n] = (-r, r)
     iv = interval(nodes, seeds, const)

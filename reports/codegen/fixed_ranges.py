@@ -1,4 +1,4 @@
-"""The range of every signal of the step, for choosing its fixed-point format (docs/codegen.md, "Fixed point").
+"""The range of every signal of the step, for its fixed-point format (docs/codegen.md, "Fixed point").
 
 Two sources, both from the drive:
 
@@ -63,7 +63,9 @@ _F = {
 }
 
 
-def evaluate(nodes: list[Node], inputs: dict[int, np.ndarray], want: set[int] | None = None) -> dict[int, Any]:
+def evaluate(
+    nodes: list[Node], inputs: dict[int, np.ndarray], want: set[int] | None = None
+) -> dict[int, Any]:
     """Every node's value (float64, vectorized over samples) with input ``i`` = ``inputs[i]`` (rows:
     nonzeros). Only the nodes ``want`` depends on, if given."""
     from sensorless.reports.codegen.c_graph import live_nodes
@@ -88,7 +90,9 @@ def evaluate(nodes: list[Node], inputs: dict[int, np.ndarray], want: set[int] | 
     return val
 
 
-def interval(nodes: list[Node], seeds: dict[int, tuple[float, float]], const: dict[int, float]) -> dict[int, tuple]:
+def interval(
+    nodes: list[Node], seeds: dict[int, tuple[float, float]], const: dict[int, float]
+) -> dict[int, tuple]:
     """Interval [lo, hi] of every runtime node from the inputs' ``seeds`` (node -> interval) and the
     parameter-only nodes' values ``const``; (-inf, inf) where no bound follows."""
     iv: dict[int, tuple[float, float]] = {}
@@ -100,7 +104,7 @@ def interval(nodes: list[Node], seeds: dict[int, tuple[float, float]], const: di
 
     def mul(a: tuple, b: tuple) -> tuple:
         with np.errstate(all="ignore"):
-            return hull(*(x * y if x * 0 == 0 and y * 0 == 0 else x * y for x in a for y in b))
+            return hull(*(x * y for x in a for y in b))  # inf * 0: NaN, no bound
 
     for i, nd in enumerate(nodes):
         if i in const:
@@ -114,7 +118,10 @@ def interval(nodes: list[Node], seeds: dict[int, tuple[float, float]], const: di
             continue
         if nd.param:
             continue  # parameter-only, not read by the step
-        a = [iv[j] if j in iv else (const[j], const[j]) if j in const else (nodes[j].const,) * 2 for j in nd.args]
+        a = [
+            iv[j] if j in iv else (const[j], const[j]) if j in const else (nodes[j].const,) * 2
+            for j in nd.args
+        ]
         op = nd.op
         if op == "ADD":
             r = (a[0][0] + a[1][0], a[0][1] + a[1][1])
@@ -146,7 +153,10 @@ def interval(nodes: list[Node], seeds: dict[int, tuple[float, float]], const: di
             f = min if op == "FMIN" else max
             r = (f(a[0][0], a[1][0]), f(a[0][1], a[1][1]))
         elif op in ("CEIL", "FLOOR"):
-            r = (math.floor(a[0][0]) if a[0][0] > -inf else -inf, math.ceil(a[0][1]) if a[0][1] < inf else inf)
+            r = (
+                math.floor(a[0][0]) if a[0][0] > -inf else -inf,
+                math.ceil(a[0][1]) if a[0][1] < inf else inf,
+            )
         elif op in ("LT", "LE", "EQ", "NE", "AND", "OR", "NOT"):
             r = (0.0, 1.0)
         elif op == "IF_ELSE_ZERO":
@@ -161,7 +171,9 @@ def interval(nodes: list[Node], seeds: dict[int, tuple[float, float]], const: di
     return iv
 
 
-def probe_runs(drive: Any, gains: Any, scenarios: list[Any], n_x: int, observer: str) -> tuple[np.ndarray, np.ndarray]:
+def probe_runs(
+    drive: Any, gains: Any, scenarios: list[Any], n_x: int, observer: str
+) -> tuple[np.ndarray, np.ndarray]:
     """(x, meas) of every sample of the closed-loop runs of ``scenarios`` with the double step: the
     observer's state before each step and its measurements (columns are samples)."""
     from sensorless.design.registry import family_of

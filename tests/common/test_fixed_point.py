@@ -1,0 +1,139 @@
+"""`codegen --precision fixed` (reports/codegen/fixed_*.py) on the flux observer's outrunner270: the C
+against the integer-numpy model bit for bit, no floating point on a Cortex-M0+, the integer methods
+against numpy's float functions, and the fixed-point step in closed loop against the double one."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+from helpers.fuzz import CC
+from sensorless.design.drive import load_drive
+from sensorless.design.registry import family_of
+from sensorless.design.runtime import step_variant
+from sensorless.design.scenario import load_scenario
+from sensorless.design.simulate import simulate
+from sensorless.reports.codegen import fixed_ops
+from sensorless.reports.codegen.fixed_generate import fixed_model, generate_fixed
+from sensorless.reports.codegen.fixed_model import run_raw
+from sensorless.reports.codegen.generate import Provenance
+
+pytestmark = pytest.mark.skipif(CC is None, reason="no host C compiler (gcc/cc) on PATH")
+STRICT = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic"]
+ARM = shutil.which("arm-none-eabi-gcc")
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    d = load_drive("outrunner270")
+    fam = family_of(d)
+    setup = fam.runtime(d, fam.gains(d))
+    model = fixed_model(d, None, setup)
+    files = generate_fixed(setup, model, Provenance(d.name, d.file, d.digest, "sensorless test"), d.name)
+    out = tmp_path_factory.mktemp("fixed")
+    for name, text in files.items():
+        (out / name).write_text(text)
+    exe = out / "replay"
+    r = subprocess.run(
+        [CC, *STRICT, "-o", str(exe), str(out / "main.c"), str(out / f"{d.name}.c")],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    return d, setup, model, model.program(setup), out, exe
+
+
+def replay(exe, out, raw):
+    f = out / "samples.bin"
+    np.ascontiguousarray(raw, dtype="<i4").tofile(f)
+    r = subprocess.run([str(exe), str(f)], capture_output=True)
+    assert r.returncode == 0
+    return np.frombuffer(r.stdout, "<i4").reshape(len(raw), -1)
+
+
+def test_c_equals_the_integer_model_bit_for_bit(built):
+    _d, _setup, model, fx, out, exe = built
+    clean = fx.to_raw(model.meas[:, ::20][:, :200], "meas").T
+    rng = np.random.default_rng(3)
+    hostile = rng.integers(-(2**31), 2**31, size=(60, clean.shape[1]))  # any int32 word
+    raw = np.vstack([clean[:100], hostile, clean[100:]])
+    c = replay(exe, out, raw)
+    xs, ys = run_raw(fx, raw)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    # the guard keeps its meaning: every accepted state within its bounds, flags 0/1
+    n_y = len(fx.outputs)
+    assert set(np.unique(c[:, n_y - 2 : n_y]).tolist()) <= {0, 1}
+    assert c[:, n_y - 2].min() == 0 and c[100:, n_y - 2].max() == 1
+
+
+def test_sx_twin_equals_the_integer_model(built):
+    _d, setup, model, fx, _out, _exe = built
+    meas = model.meas[:, :150]
+    _, ys_r = run_raw(fx, fx.to_raw(meas, "meas").T)
+    F = model.function(setup).mapaccum(meas.shape[1])
+    _, ys = F(setup.initial_state(), meas, setup.p, setup.gain)
+    ys = np.asarray(ys)
+    for k, o in enumerate(fx.outputs):
+        scale = np.pi / 2**31 if o["kind"] == "ang" else 2.0 ** -o["f"]
+        assert np.array_equal(ys[k], ys_r[:, k] * scale), o["name"]
+
+
+@pytest.mark.skipif(ARM is None, reason="arm-none-eabi-gcc not installed")
+def test_no_floating_point_on_cortex_m0plus(built, tmp_path):
+    d, *_, out, _ = built
+    obj = tmp_path / "m0.o"
+    cmd = [
+        ARM,
+        *STRICT,
+        "-Os",
+        "-mcpu=cortex-m0plus",
+        "-mthumb",
+        "-c",
+        "-o",
+        str(obj),
+        str(out / f"{d.name}.c"),
+    ]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    syms = subprocess.run(["arm-none-eabi-nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
+    assert not [s for s in syms if s.startswith(("__aeabi_f", "__aeabi_d")) or s in ("sqrtf", "atan2f")], syms
+    # the same check fails on the float C of the same step (it can fail)
+    obj_f = tmp_path / "f.o"
+    src = tmp_path / "f.c"
+    src.write_text("float g(float a, float b) { return a * b + 1.5f; }\n")
+    subprocess.run(
+        [ARM, "-Os", "-mcpu=cortex-m0plus", "-mthumb", "-c", "-o", str(obj_f), str(src)], check=True
+    )
+    syms_f = subprocess.run(["arm-none-eabi-nm", "-u", str(obj_f)], capture_output=True, text=True).stdout
+    assert "__aeabi_f" in syms_f
+
+
+def test_integer_methods_within_their_stated_bounds():
+    B = fixed_ops.NUMPY
+    rng = np.random.default_rng(0)
+    a = rng.integers(-(2**31), 2**31, size=20000)
+    s = fixed_ops.sin_binary(B, a) * 2.0**-fixed_ops.SIN_F
+    assert np.abs(s - np.sin(a * np.pi / 2**31)).max() < 1e-6
+    r = 2.0 ** rng.uniform(8, 30.9, size=20000)  # any magnitude of an int32 vector from 2^8 up
+    th = rng.uniform(-np.pi, np.pi, size=20000)
+    x, y = np.round(r * np.cos(th)).astype(np.int64), np.round(r * np.sin(th)).astype(np.int64)
+    z = fixed_ops.cordic_atan2(B, y, x) * np.pi / 2**31
+    err = np.abs(np.angle(np.exp(1j * (z - np.arctan2(y, x)))))
+    assert np.all(err <= 3.1e-5 + 24 / r)  # the stated bound: atan(2^-15) + 24 LSB / |v|
+    v = rng.integers(0, 2**32, size=20000)
+    q = B.isqrt(v)
+    assert np.all(q * q <= v) and np.all((q + 1) * (q + 1) > v)
+
+
+def test_closed_loop_angle_error_within_0p2_deg_of_the_double_step(built):
+    d, _setup, model, *_ = built
+    sc = load_scenario("torque_steps", d)
+    ref = simulate(d, sc, compile=False)
+    with step_variant(model.variant):
+        fix = simulate(d, sc, compile=False)
+    e = np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
+    steady = fix.t > 0.8 * fix.t[-1]
+    assert np.abs(e[steady]).max() <= 0.2, np.abs(e[steady]).max()
+    assert not fix.problems()
