@@ -11,6 +11,7 @@ sine, integer square root) are ``static`` functions of the generated file.
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 from sensorless.reports.codegen.fixed_ops import CORDIC_ANGLES, INT_MAX, NOMINAL_BITS, SIN_COEF, SIN_F, Ins
@@ -85,10 +86,7 @@ static int32_t fx_sin(int32_t a) /* sin of a binary angle, Q%(sin_f)d */
     }
     x = t >> %(sin_shift)d;
     x2 = (x * x) >> %(sin_f)d;
-    p = %(c7)s;
-    p = ((p * x2) >> %(sin_f)d) + %(c5)s;
-    p = ((p * x2) >> %(sin_f)d) + %(c3)s;
-    p = ((p * x2) >> %(sin_f)d) + %(c1)s;
+%(horner)s
     return (int32_t)((p * x) >> %(sin_f)d);
 }
 """
@@ -101,17 +99,25 @@ def lit(v: int) -> str:
     return f"INT32_C({v})" if abs(v) > 32767 else str(v)
 
 
-def helpers() -> str:
-    return HELPERS % {
+def helpers(used: str) -> str:
+    """The helper functions that the step text ``used`` calls (an unused static function is a warning)."""
+    text = HELPERS % {
         "n_cordic": len(CORDIC_ANGLES),
         "cordic": ", ".join(str(a) for a in CORDIC_ANGLES),
         "sin_f": SIN_F,
         "sin_shift": 30 - SIN_F,
-        "c1": f"INT64_C({SIN_COEF[0]})",
-        "c3": f"INT64_C({SIN_COEF[1]})",
-        "c5": f"INT64_C({SIN_COEF[2]})",
-        "c7": f"INT64_C({SIN_COEF[3]})",
+        "horner": "\n".join(
+            [f"    p = INT64_C({SIN_COEF[-1]});"]
+            + [f"    p = ((p * x2) >> {SIN_F}) + INT64_C({c});" for c in reversed(SIN_COEF[:-1])]
+        ),
     }
+    blocks = ["static " + b if k else b for k, b in enumerate(text.split("\n\nstatic "))]
+    keep = []
+    for b in blocks:
+        name = re.match(r"static (?:const )?int32_t (\w+)", b).group(1)
+        if name in used or (name == "fx_atan_table" and "fx_atan2" in used):
+            keep.append(b)
+    return "\n\n".join(keep).rstrip() + "\n"
 
 
 def _sh(a: str, k: int, wide: bool) -> str:
@@ -122,6 +128,13 @@ def _sh(a: str, k: int, wide: bool) -> str:
     if k < 0:
         return f"({w} >> {-k})"
     return w
+
+
+def _rnd(a: str, k: int, ceil: int, wide: bool) -> str:
+    """a 2^k, rounded up where ``ceil`` (fixed_ops._rounded)."""
+    if ceil and k < 0:
+        return f"(-((-(int64_t){a}) >> {-k}))"
+    return _sh(a, k, wide)
 
 
 def _wide(prog: list[Ins], wr: list[float], ins: Ins, ks: tuple[int, ...], args: tuple[int, ...]) -> bool:
@@ -168,9 +181,10 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
             if not ins.sat:
                 e = f"(-{a[0]})" if op == "NEG" else f"({a[0]} < 0 ? -{a[0]} : {a[0]})"
         elif op in ("LT", "LE", "EQ", "NE"):
-            w = any(kk > 0 for kk in m)
+            w = any(kk > 0 for kk in m[:2])
             c = {"LT": "<", "LE": "<=", "EQ": "==", "NE": "!="}[op]
-            e = f"({_sh(a[0], m[0], w)} {c} {_sh(a[1], m[1], w)})"
+            p, q = (_rnd(x, k, r, w) for x, k, r in ((a[0], m[0], m[2]), (a[1], m[1], m[3])))
+            e = f"({p} {c} {q})"
         elif op in ("AND", "OR"):
             e = f"({a[0]} {'&&' if op == 'AND' else '||'} {a[1]})"
         elif op == "NOT":

@@ -19,8 +19,8 @@ from sensorless.reports.codegen.fixed_ranges import MARGIN
 ERRORS = (
     f"atan2: vectoring CORDIC, {CORDIC_STEPS} steps, error <= atan(2^-15) + 24 LSB / |v| rad "
     "(|v| the raw magnitude; tests/common/test_fixed_point.py); "
-    "sin/cos: odd polynomial of degree 7 on the angle folded "
-    "to [-pi/2, pi/2], error <= 1e-6; sqrt: integer square root of a 32-bit word (floor, 16 bits)"
+    "sin/cos: odd polynomial of degree 9 on the angle folded "
+    "to [-pi/2, pi/2], error <= 1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits)"
 )
 
 
@@ -93,7 +93,7 @@ def generate_fixed(setup: Any, model: FixedModel, provenance: Any, prefix: str) 
         banner,
         f'#include "{P}.h"',
         "",
-        helpers(),
+        helpers("\n".join(step)),
         f"void {P}_init({P}_observer *obs)",
         "{",
         *init,

@@ -14,7 +14,7 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
   symbolic/frames.py, recognised in the graph) are binary angles: int32 with pi <-> 2^31, so wrapping
   is the integer's own overflow. ``wrap_angle(a + b)`` becomes a wrapping sum of the operands
   converted to binary angles (one multiplication by a constant for a product such as T_s w);
-- **atan2** by CORDIC (16 steps), **sin/cos** by an odd polynomial of degree 7 on the folded angle,
+- **atan2** by CORDIC (16 steps), **sin/cos** by an odd polynomial of degree 9 on the folded angle,
   **sqrt** as an integer square root of a 32-bit word: bounds in docs/codegen.md ("Fixed point");
 - no division: the graph's divisions by parameters are multiplications by constants already (c_graph);
   a division by a runtime value is refused (NotImplementedError) until it is proven non-zero.
@@ -53,6 +53,7 @@ class FixedStep:
     outputs: list[dict[str, Any]]  # name, kind, f, slot
     x0: list[int]  # raw initial state
     wr: list[float]  # worst-case raw magnitude of each slot (what decides 64-bit work and saturation)
+    node_slot: dict[int, int] = field(default_factory=dict)  # graph node -> its linear slot (diagnostics)
     signals: list[dict[str, Any]] = field(default_factory=list)  # every slot's format and range
 
     def to_raw(self, values: np.ndarray, which: str) -> np.ndarray:
@@ -237,6 +238,24 @@ class _Lowering:
         K = round(ratio * 2.0**sh)
         return self.add(Ins("TOANG", (xs,), "ang", 31, (K, sh), what="to binary angle"), 2**31)
 
+    def compare(self, op: str, args: tuple[int, ...]) -> tuple[tuple[int, int], str, int, tuple[int, ...]]:
+        """Operands and rounding of an exact comparison in 32 bits: the finer operand is rounded to the
+        coarser format, down or up as the comparison needs (x < y 2^k iff floor(x 2^-k) < y; x <= y 2^k
+        iff ceil(x 2^-k) <= y; and mirrored); equality aligns up in 64 bits."""
+        a, b = self.lin(args[0]), self.lin(args[1])
+        fa, fb = self.fmt(a)[1], self.fmt(b)[1]
+        if op in ("EQ", "NE"):
+            F = max(fa, fb)
+            if F - min(fa, fb) > 30:
+                raise ValueError(f"equality of formats Q{fa} and Q{fb}: too far apart")
+            return (a, b), "bool", 0, (F - fa, F - fb, 0, 0)
+        # a word shifted right by 31 (floor) or 32 (ceil, in 64 bits) is already -1, 0 or 1
+        if fa >= fb:
+            up = int(op == "LE")
+            return (a, b), "bool", 0, (max(fb - fa, -31 - up), 0, up, 0)
+        up = int(op == "LT")
+        return (a, b), "bool", 0, (0, max(fa - fb, -31 - up), 0, up)
+
     # ------------------------------------------------------------------------------- linear values
     def lin(self, n: int) -> int:
         if n in self.lin_c:
@@ -265,10 +284,7 @@ class _Lowering:
         if op == "ASSIGN":
             return self.lin(nd.args[0])
         if op in ("LT", "LE", "EQ", "NE"):
-            a, b = self.lin(nd.args[0]), self.lin(nd.args[1])
-            F = max(self.fmt(a)[1], self.fmt(b)[1])
-            ka, kb = F - self.fmt(a)[1], F - self.fmt(b)[1]
-            return self.add(Ins(op, (a, b), "bool", 0, (ka, kb)), 1)
+            return self.add(Ins(op, *self.compare(op, nd.args)), 1)
         if op in ("AND", "OR"):
             return self.add(Ins(op, (self.lin(nd.args[0]), self.lin(nd.args[1])), "bool", 0), 1)
         if op == "NOT":
@@ -276,7 +292,7 @@ class _Lowering:
         if op in ("ADD", "SUB", "TWICE", "FMIN", "FMAX"):
             a = self.lin(nd.args[0])
             b = a if op == "TWICE" else self.lin(nd.args[1])
-            ka, kb = fo - self.fmt(a)[1], fo - self.fmt(b)[1]
+            ka, kb = max(fo - self.fmt(a)[1], -31), max(fo - self.fmt(b)[1], -31)
             wr = self.wr[a] * 2.0**ka + self.wr[b] * 2.0**kb
             name = {"TWICE": "ADD", "FMIN": "MIN", "FMAX": "MAX"}.get(op, op)
             if name in ("MIN", "MAX"):
@@ -296,12 +312,13 @@ class _Lowering:
             cond = self.lin(nd.args[0])
             a = self.lin(nd.args[1])
             b = self.lin(nd.args[2]) if op == "SELECT" else self.const_slot(0.0, fo)
-            ka, kb = fo - self.fmt(a)[1], fo - self.fmt(b)[1]
+            ka, kb = max(fo - self.fmt(a)[1], -31), max(fo - self.fmt(b)[1], -31)
             wr = max(self.wr[a] * 2.0**ka, self.wr[b] * 2.0**kb)
             return self.add(Ins("SEL", (cond, a, b), "fix", fo, (ka, kb)), wr)
         if op in ("CEIL", "FLOOR"):
             a = self.lin(nd.args[0])
             fa = self.fmt(a)[1]
+            fa = min(fa, 31 if op == "FLOOR" else 32)  # beyond, the result is -1, 0 or 1 already
             return self.add(Ins(op, (a,), "fix", 0, (fa,)), self.wr[a] * 2.0**-fa + 1)
         if op == "SQRT":
             a = self.lin(nd.args[0])
@@ -391,6 +408,7 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
             continue
         s = low.lin(n)
         k = d["f"] - low.fmt(s)[1]
+        k = max(k, -31)
         if k != 0 or low.prog[s].kind != "fix":
             s = low.add(Ins("ALIGN", (s,), "fix", d["f"], (k,)), low.wr[s] * 2.0**k)
         state_out.append(s)
@@ -405,7 +423,7 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
         {"slot": k, "op": ins.op, "kind": ins.kind, "f": ins.f, "saturates": ins.sat, "what": ins.what}
         for k, ins in enumerate(low.prog)
     ]
-    return FixedStep(low.prog, inputs, state_out, outputs, x0, low.wr, signals)
+    return FixedStep(low.prog, inputs, state_out, outputs, x0, low.wr, dict(low.lin_c), signals)
 
 
 def _raw_list(x0: np.ndarray, fmts: list[dict[str, Any]]) -> list[int]:

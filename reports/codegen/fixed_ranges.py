@@ -16,6 +16,7 @@ fixed-point step saturates wherever a worst-case input could exceed the format (
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -171,38 +172,74 @@ def interval(
     return iv
 
 
+CHUNK = 2048  # samples per compiled call of a probe run
+
+
+@functools.cache
+def _probe(step: ca.Function) -> ca.Function:
+    """``step`` with its state extended by the measurements it was given: the loop then carries them."""
+    nx, nm = step.size1_in(0), step.size1_in(1)
+    x = ca.SX.sym("x", nx + nm)
+    m = ca.SX.sym("m", nm)
+    p, g = ca.SX.sym("p", step.size1_in(2)), ca.SX.sym("g", step.size1_in(3))
+    x_next, y = step(x[:nx], m, p, g)
+    return ca.Function(f"{step.name()}_probe", [x, m, p, g], [ca.vertcat(x_next, m), y])
+
+
+@functools.cache
+def _states(loop: ca.Function, n: int) -> ca.Function:
+    """(z, V, q, p, gain) -> every loop state of ``n`` steps, compiled (design/compiled.py)."""
+    from sensorless.design.compiled import compiled
+
+    args = [ca.MX.sym(loop.name_in(k), loop.sparsity_in(k)) for k in range(loop.n_in())]
+    V = ca.MX.sym("V", loop.size1_in(1), n)
+    zs, _ = loop.mapaccum(n)(args[0], V, *args[2:])
+    return compiled(ca.Function(f"{loop.name()}_states{n}", [args[0], V, *args[2:]], [zs]))
+
+
 def probe_runs(
     drive: Any, gains: Any, scenarios: list[Any], n_x: int, observer: str
 ) -> tuple[np.ndarray, np.ndarray]:
     """(x, meas) of every sample of the closed-loop runs of ``scenarios`` with the double step: the
-    observer's state before each step and its measurements (columns are samples)."""
+    observer's state before each step and its measurements (columns are samples). A scenario that
+    cannot run on the drive (a start the loop does not model) or that runs another observer (the I-f
+    start's wrapper) is left out."""
     from sensorless.design.registry import family_of
     from sensorless.design.runtime import step_variant
+    from sensorless.design.units import DriveFileError
 
     fam = family_of(drive)
     xs, ms = [], []
     seen: list[str] = []
 
     def probe(setup: Any, step: ca.Function) -> ca.Function:
-        # the step with its state extended by the measurements it was given: the loop then carries them
-        nx, nm = step.size1_in(0), step.size1_in(1)
-        x = ca.SX.sym("x", nx + nm)
-        m = ca.SX.sym("m", nm)
-        p, g = ca.SX.sym("p", step.size1_in(2)), ca.SX.sym("g", step.size1_in(3))
         seen.append(setup.observer.name)
-        x_next, y = step(x[:nx], m, p, g)
-        return ca.Function("probe", [x, m, p, g], [ca.vertcat(x_next, m), y])
+        return _probe(step)
 
     for sc in scenarios:
-        with step_variant(probe):
-            ls = fam.simulation(drive, sc, gains)
+        try:
+            with step_variant(probe):
+                ls = fam.simulation(drive, sc, gains)
+        except (DriveFileError, ValueError):
+            continue
         if seen[-1] != observer:
-            continue  # a run of another observer (the I-f start's wrapper): not this step's ranges
+            continue
         n = ls.inputs.shape[1]
         n_m = ls.loop.size1_in(0) - len(ls.z0)
-        z0 = np.concatenate([ls.z0, np.zeros(n_m)])
-        zs, _ = ls.loop.mapaccum(n)(z0, ls.inputs, ls.q, ls.p_obs, ls.gain)
-        z_all = np.hstack([z0[:, None], np.asarray(zs)])
+        z = np.concatenate([ls.z0, np.zeros(n_m)])
+        fn = _states(ls.loop, CHUNK)
+        cols = [z[:, None]]
+        for k0 in range(0, n, CHUNK):
+            V = ls.inputs[:, k0 : k0 + CHUNK]
+            k = V.shape[1]
+            if k < CHUNK:
+                V = np.hstack([V, np.repeat(V[:, -1:], CHUNK - k, axis=1)])
+            zs = np.asarray(fn(z, V, ls.q, ls.p_obs, ls.gain))[:, :k]
+            cols.append(zs)
+            z = zs[:, -1]
+        z_all = np.hstack(cols)
         xs.append(z_all[-(n_x + n_m) : -n_m, :-1])
         ms.append(z_all[-n_m:, 1:])
+    if not xs:
+        raise ValueError(f"{observer}: no scenario runs this observer, so no signal has a range")
     return np.hstack(xs), np.hstack(ms)
