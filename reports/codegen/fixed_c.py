@@ -46,6 +46,11 @@ static int32_t fx_isqrt(int64_t v) /* floor(sqrt(v)), v clamped to [0, 2^32 - 1]
     return (int32_t)r;
 }
 
+static int32_t fx_div(int64_t n, int32_t d) /* floor(n / d), d > 0 */
+{
+    return (int32_t)(n >= 0 ? n / d : -((-n + d - 1) / d));
+}
+
 static const int32_t fx_atan_table[%(n_cordic)d] = {%(cordic)s};
 
 static int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vectoring CORDIC */
@@ -197,6 +202,8 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
             e = _sh(a[0], -m[0], False)
         elif op == "CEIL":
             e = f"(int32_t)(-({_sh('(-(int64_t)' + a[0] + ')', -m[0], False)}))"
+        elif op == "DIV":
+            e = f"fx_div({_sh(a[0], m[0], True)}, {a[1]})"
         elif op == "SQRT":
             e = f"fx_isqrt({_sh(a[0], m[0], True)})"
         elif op == "ATAN2":

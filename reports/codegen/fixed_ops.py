@@ -100,6 +100,9 @@ class NumpyBackend:
     def absval(self, a: Any) -> Any:
         return np.abs(a)
 
+    def div(self, n: Any, d: Any) -> Any:  # floor division, d > 0
+        return n // d
+
     def minmax(self, op: str, a: Any, b: Any) -> Any:
         return np.minimum(a, b) if op == "MIN" else np.maximum(a, b)
 
@@ -137,6 +140,11 @@ class SxBackend(NumpyBackend):
 
     def absval(self, a: Any) -> Any:
         return ca.fabs(a)
+
+    def div(self, n: Any, d: Any) -> Any:  # exact for |n| < 2^53
+        q = ca.floor(n / d)
+        q = ca.if_else(q * d > n, q - 1, q)
+        return ca.if_else((q + 1) * d <= n, q + 1, q)
 
     def minmax(self, op: str, a: Any, b: Any) -> Any:
         return ca.fmin(a, b) if op == "MIN" else ca.fmax(a, b)
@@ -220,6 +228,8 @@ def run(prog: list[Ins], B: Any, inputs: list[Any]) -> list[Any]:
             r = B.shift(a[0], -m[0])
         elif op == "CEIL":
             r = -B.shift(-a[0], -m[0])
+        elif op == "DIV":  # floor(a 2^k / b), b > 0
+            r = B.div(B.shift(a[0], m[0]), a[1])
         elif op == "SQRT":
             r = B.isqrt(B.clip(B.shift(a[0], m[0]), 0, 2**32 - 1))
         elif op == "ATAN2":

@@ -103,6 +103,8 @@ class _Lowering:
         self.in_slot: dict[int, int] = {}  # input node -> slot (filled by the caller)
         self.angle_fields = angle_fields
         self.angle: dict[int, bool] = {}
+        self.sim_lo: dict[int, float] = {}  # smallest and largest simulated value of each node
+        self.sim_hi: dict[int, float] = {}
 
     # ----------------------------------------------------------------------------------- helpers
     def add(self, ins: Ins, wr: float) -> int:
@@ -256,6 +258,31 @@ class _Lowering:
         up = int(op == "LT")
         return (a, b), "bool", 0, (0, max(fa - fb, -31 - up), 0, up)
 
+    def divide(self, n: int, fo: int) -> int:
+        """a / b by a divisor proven positive: clamped to half its smallest simulated value (what the
+        checks' runs show it never goes below; a hostile sample is clamped, as a glitch is). A divisor
+        whose runs change sign is refused."""
+        an, bn = self.nodes[n].args
+        c = self.cval(bn)
+        if c is not None:  # by a constant: a product with its reciprocal
+            a, r = self.lin(an), self.const_slot(1.0 / c)
+            s = self.fmt(a)[1] + self.fmt(r)[1] - fo
+            return self.add(Ins("MUL", (a, r), "fix", fo, (s,)), self.wr[a] * self.wr[r] * 2.0**-s)
+        lo, hi = self.sim_lo.get(bn, 0.0), self.sim_hi.get(bn, 0.0)
+        if not lo > 0:
+            raise NotImplementedError(
+                f"fixed point: division by a runtime value that is not positive in every run (node {bn}, "
+                f"{self.nodes[bn].op} in [{lo:.3g}, {hi:.3g}])"
+            )
+        a, b = self.lin(an), self.lin(bn)
+        fa, fb = self.fmt(a)[1], self.fmt(b)[1]
+        floor_raw = max(1, math.floor(lo / MARGIN * 2.0**fb))
+        bc = self.add(Ins("MAX", (b, self.const_slot(floor_raw * 2.0**-fb, fb)), "fix", fb, (0, 0)), self.wr[b])
+        k = fo - fa + fb
+        while self.wr[a] * 2.0**k > 2.0**52 or self.wr[a] * 2.0**k / floor_raw > INT_MAX:
+            k, fo = k - 1, fo - 1  # the numerator within 53 bits, the quotient within int32
+        return self.add(Ins("DIV", (a, bc), "fix", fo, (k,), what="divisor clamped positive"), 2.0**26)
+
     # ------------------------------------------------------------------------------- linear values
     def lin(self, n: int) -> int:
         if n in self.lin_c:
@@ -325,6 +352,8 @@ class _Lowering:
             fa = self.fmt(a)[1]
             k = 6 if (fa + 6) % 2 == 0 else 5  # the radicand below 2^32 at the top of its range
             return self.add(Ins("SQRT", (a,), "fix", (fa + k) // 2, (k,)), 2.0**16)
+        if op == "DIV":
+            return self.divide(n, fo)
         if op in ("SIN", "COS"):
             a = self.ang_of(nd.args[0])
             return self.add(Ins(op, (a,), "fix", 26, what=f"{op.lower()} (polynomial)"), 2.0**26 + 64)
@@ -393,6 +422,10 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
         if not math.isfinite(rng[i]):
             raise ValueError(f"{obs.name}: no range for a signal (node {i}, {nodes[i].op})")
     low = _Lowering(nodes, const, rng, angle_fields)
+    for i, v in sim.items():
+        if i in runtime:
+            v = np.broadcast_to(v, x.shape[1:])
+            low.sim_lo[i], low.sim_hi[i] = float(np.nanmin(v)), float(np.nanmax(v))
     for j, d in enumerate(inputs):
         imm = (j,) if d["kind"] == "ang" else (j, -(2 ** (NOMINAL_BITS + 1)), 2 ** (NOMINAL_BITS + 1))
         wr = 2.0**31 if d["kind"] == "ang" else 2.0 ** (NOMINAL_BITS + 1)
