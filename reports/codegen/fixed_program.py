@@ -108,7 +108,9 @@ class _Lowering:
 
     # ----------------------------------------------------------------------------------- helpers
     def add(self, ins: Ins, wr: float) -> int:
-        if ins.sat or wr > INT_MAX:
+        if ins.kind == "ang":
+            wr = min(wr, 2.0**31)  # wraps: never saturated
+        elif ins.sat or wr > INT_MAX:
             ins = Ins(ins.op, ins.args, ins.kind, ins.f, ins.imm, True, ins.what)
             wr = min(wr, 2.0**31)
         self.prog.append(ins)
@@ -234,8 +236,11 @@ class _Lowering:
             if cs:
                 k = self.cval(cs[0])
                 x = next(a for a in nd.args if a != cs[0]) if nd.args[0] != nd.args[1] else nd.args[0]
-        xs = self.lin(x)
-        ratio = k * 2.0 ** (31 - self.fmt(xs)[1]) / _PI
+        if self.is_angle(x):  # k theta of a binary angle: exact modulo 2 pi for an integer k
+            xs, ratio = self.ang(x), k
+        else:
+            xs = self.lin(x)
+            ratio = k * 2.0 ** (31 - self.fmt(xs)[1]) / _PI
         sh = 25 - math.floor(math.log2(abs(ratio))) if ratio else 0
         K = round(ratio * 2.0**sh)
         return self.add(Ins("TOANG", (xs,), "ang", 31, (K, sh), what="to binary angle"), 2**31)
@@ -296,8 +301,6 @@ class _Lowering:
         c = self.cval(n)
         if c is not None:
             return self.const_slot(c)
-        if nd.op == "INPUT":
-            return self.in_slot[n]
         if self.is_angle(n):
             a = self.ang(n)
             fo = format_of(_PI)
@@ -306,6 +309,8 @@ class _Lowering:
             return self.add(
                 Ins("ANG2LIN", (a,), "fix", fo, (K, sh), what="binary angle to rad"), 2.0**31 * K / 2**sh
             )
+        if nd.op == "INPUT":
+            return self.in_slot[n]
         op = nd.op
         fo = format_of(self.rng.get(n, 0.0))
         if op == "ASSIGN":
