@@ -34,7 +34,9 @@ def fixed_model(drive: Any, gains: Any, setup: Any) -> FixedModel:
         scenarios += generic_scenarios(drive)
     except CapabilityError:
         pass
-    return FixedModel.of(drive, gains, scenarios, setup)
+    model = FixedModel.of(drive, gains, scenarios)
+    model.data(setup)  # ValueError if no run ran this observer
+    return model
 
 
 def generate_fixed(setup: Any, model: FixedModel, provenance: Any, prefix: str) -> dict[str, str]:
@@ -109,7 +111,7 @@ def generate_fixed(setup: Any, model: FixedModel, provenance: Any, prefix: str) 
     values = [f"out.{o['name']}" for o in fx.outputs] + [f"obs.x.{d['name']}" for d in fx.inputs[:n_x]]
     main = "\n".join(
         [
-            f"/* Example and replayer of {P}: `./example samples.bin > y.bin` reads rows of "
+            f"/* Example and replayer of {P}: `./example samples.bin [x0.bin] > y.bin` reads rows of "
             f"{len(meas)} int32",
             " * (little-endian raw measurements) and writes, per row, the outputs then the state (int32). */",
             "#include <stdio.h>",
@@ -126,6 +128,15 @@ def generate_fixed(setup: Any, model: FixedModel, provenance: Any, prefix: str) 
             '        FILE *f = fopen(argv[1], "rb");',
             "        if (f == NULL) {",
             "            return 1;",
+            "        }",
+            "        if (argc > 2) { /* the initial state: raw words in the state's order */",
+            '            FILE *g = fopen(argv[2], "rb");',
+            f"            int32_t x[{n_x}];",
+            "            if (g == NULL || fread(x, sizeof x, 1, g) != 1) {",
+            "                return 1;",
+            "            }",
+            "            fclose(g);",
+            *[f"            obs.x.{d['name']} = x[{k}];" for k, d in enumerate(fx.inputs[:n_x])],
             "        }",
             "        while (fread(row, sizeof row, 1, f) == 1) {",
             *[f"            in.{n} = row[{k}];" for k, n in enumerate(meas)],

@@ -45,18 +45,27 @@ def run_raw(fx: FixedStep, meas: np.ndarray, x0: np.ndarray | None = None) -> tu
 class FixedModel:
     """The fixed-point step of one drive: the observer inputs of its checks' runs fix the formats."""
 
-    x: np.ndarray
-    meas: np.ndarray
+    runs: dict[str, tuple[np.ndarray, np.ndarray]]  # observer name -> (x, meas) of its runs
     _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def of(cls, drive: Any, gains: Any, scenarios: list[Any], setup: Any) -> FixedModel:
-        """From the closed-loop runs of ``scenarios`` (those that run ``setup``'s observer)."""
-        x, m = probe_runs(drive, gains, scenarios, len(setup.observer.state), setup.observer.name)
-        return cls(x, m)
+    def of(cls, drive: Any, gains: Any, scenarios: list[Any]) -> FixedModel:
+        """From the closed-loop runs of ``scenarios``."""
+        return cls(probe_runs(drive, gains, scenarios))
+
+    def data(self, setup: Any) -> tuple[np.ndarray, np.ndarray]:
+        """(x, meas) of the runs of ``setup``'s observer."""
+        if setup.observer.name not in self.runs:
+            raise ValueError(f"{setup.observer.name}: no run of the checks runs this observer (no ranges)")
+        return self.runs[setup.observer.name]
+
+    @property
+    def meas(self) -> np.ndarray:
+        """The measurements of the first observer's runs (examples, benchmarks)."""
+        return next(iter(self.runs.values()))[1]
 
     def program(self, setup: Any) -> FixedStep:
-        return fixed_step(setup, self.x, self.meas)
+        return fixed_step(setup, *self.data(setup))
 
     def function(self, setup: Any) -> ca.Function:
         """The step as a CasADi Function (the module docstring); one per set-up's constants."""

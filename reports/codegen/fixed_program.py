@@ -282,7 +282,9 @@ class _Lowering:
         a, b = self.lin(an), self.lin(bn)
         fa, fb = self.fmt(a)[1], self.fmt(b)[1]
         floor_raw = max(1, math.floor(lo / MARGIN * 2.0**fb))
-        bc = self.add(Ins("MAX", (b, self.const_slot(floor_raw * 2.0**-fb, fb)), "fix", fb, (0, 0)), self.wr[b])
+        bc = self.add(
+            Ins("MAX", (b, self.const_slot(floor_raw * 2.0**-fb, fb)), "fix", fb, (0, 0)), self.wr[b]
+        )
         k = fo - fa + fb
         while self.wr[a] * 2.0**k > 2.0**52 or self.wr[a] * 2.0**k / floor_raw > INT_MAX:
             k, fo = k - 1, fo - 1  # the numerator within 53 bits, the quotient within int32

@@ -197,23 +197,21 @@ def _states(loop: ca.Function, n: int) -> ca.Function:
     return compiled(ca.Function(f"{loop.name()}_states{n}", [args[0], V, *args[2:]], [zs]))
 
 
-def probe_runs(
-    drive: Any, gains: Any, scenarios: list[Any], n_x: int, observer: str
-) -> tuple[np.ndarray, np.ndarray]:
-    """(x, meas) of every sample of the closed-loop runs of ``scenarios`` with the double step: the
-    observer's state before each step and its measurements (columns are samples). A scenario that
-    cannot run on the drive (a start the loop does not model) or that runs another observer (the I-f
-    start's wrapper) is left out."""
+def probe_runs(drive: Any, gains: Any, scenarios: list[Any]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """{observer name: (x, meas)} of every sample of the closed-loop runs of ``scenarios`` with the
+    double step: the observer's state before each step and its measurements (columns are samples), by
+    the observer that ran (the I-f start's wrapper is another). A scenario that cannot run on the
+    drive (a start its loop does not model) is left out."""
     from sensorless.design.registry import family_of
     from sensorless.design.runtime import step_variant
     from sensorless.design.units import DriveFileError
 
     fam = family_of(drive)
-    xs, ms = [], []
-    seen: list[str] = []
+    runs: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    seen: list[tuple[str, int]] = []
 
     def probe(setup: Any, step: ca.Function) -> ca.Function:
-        seen.append(setup.observer.name)
+        seen.append((setup.observer.name, step.size1_in(0)))
         return _probe(step)
 
     for sc in scenarios:
@@ -222,8 +220,7 @@ def probe_runs(
                 ls = fam.simulation(drive, sc, gains)
         except (DriveFileError, ValueError):
             continue
-        if seen[-1] != observer:
-            continue
+        observer, n_x = seen[-1]
         n = ls.inputs.shape[1]
         n_m = ls.loop.size1_in(0) - len(ls.z0)
         z = np.concatenate([ls.z0, np.zeros(n_m)])
@@ -238,8 +235,5 @@ def probe_runs(
             cols.append(zs)
             z = zs[:, -1]
         z_all = np.hstack(cols)
-        xs.append(z_all[-(n_x + n_m) : -n_m, :-1])
-        ms.append(z_all[-n_m:, 1:])
-    if not xs:
-        raise ValueError(f"{observer}: no scenario runs this observer, so no signal has a range")
-    return np.hstack(xs), np.hstack(ms)
+        runs.setdefault(observer, []).append((z_all[-(n_x + n_m) : -n_m, :-1], z_all[-n_m:, 1:]))
+    return {k: (np.hstack([x for x, _ in v]), np.hstack([m for _, m in v])) for k, v in runs.items()}
