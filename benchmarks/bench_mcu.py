@@ -236,7 +236,6 @@ def main(presets: list[str]) -> None:
         n_x = len(setup.observer.state)
         meas = model.meas[:, -N_STEPS * 50 :: 50]
         raw = fx.to_raw(meas, "meas").T
-        names = [f.name for f in setup.observer.meas]
         for core, prec in (("M0", "fixed"), ("M4", "float")):
             with tempfile.TemporaryDirectory() as tmp:
                 work = Path(tmp)
@@ -250,18 +249,17 @@ def main(presets: list[str]) -> None:
                     files = generate(setup, prov, precision="float", prefix=P)
                     rows = ", ".join("{" + ", ".join(f"{v:.9g}f" for v in r) + "}" for r in meas.T)
                     init = f"(void){P}_init(&bench_obs, &{P}_default_params)"
-                    ram_struct = 4 * (n_x + files[f"{P}.h"].count("coef[") and 0)
                     m = re.search(rf"#define {P.upper()}_N_COEF (\d+)", files[f"{P}.h"])
                     ram_struct = 4 * (n_x + (int(m.group(1)) if m else 0))
                     cpu = ["-mcpu=cortex-m4", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"]
                 samples = f'#include "{P}.h"\nconst {P}_input bench_in[{N_STEPS}] = {{{rows}}};\n'
-                _ = names
                 elf = build(work, P, files, samples, init, cpu)
                 ins, cycles = emulate(elf, core)
                 flash, frame = sizes(work, P, cpu)
+                label = core + ("+" if core == "M0" else "F")
                 print(
-                    f"{name:14s} {core + ('+' if core == 'M0' else 'F'):5s} {prec:9s} {ins:10.0f} {cycles:11.0f} "
-                    f"{flash:8d} {ram_struct + frame:6d}",
+                    f"{name:14s} {label:5s} {prec:9s} {ins:10.0f} {cycles:11.0f} {flash:8d} "
+                    f"{ram_struct + frame:6d}",
                     flush=True,
                 )
 

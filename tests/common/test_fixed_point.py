@@ -152,3 +152,34 @@ def test_closed_loop_angle_error_within_0p2_deg_of_the_double_step(built):
     steady = fix.t > 0.8 * fix.t[-1]
     assert np.abs(e[steady]).max() <= 0.2, np.abs(e[steady]).max()
     assert not fix.problems()
+
+
+@pytest.mark.parametrize(("preset", "scenario"), [("piippo2008", "fig9b"), ("deangelo2006", "fig2")])
+def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
+    """The adaptive observer (sin/cos, filters with unbounded states) and the reduced-order one (its
+    harmonic EMF, a division by a magnitude proven positive): C == model on 300 closed-loop samples
+    and 40 hostile words; ranges from one scenario to keep the test short."""
+    from sensorless.reports.codegen.fixed_model import FixedModel
+
+    d = load_drive(preset)
+    fam = family_of(d)
+    setup = fam.runtime(d, fam.gains(d))
+    model = FixedModel.of(d, None, [load_scenario(scenario, d)])
+    fx = model.program(setup)
+    files = generate_fixed(setup, model, Provenance(d.name, d.file, d.digest, "sensorless test"), d.name)
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    exe = tmp_path / "replay"
+    r = subprocess.run(
+        [CC, *STRICT, "-o", str(exe), str(tmp_path / "main.c"), str(tmp_path / f"{d.name}.c")],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    x, meas = model.data(setup)
+    raw = fx.to_raw(meas[:, 500:800], "meas").T
+    raw[100:140] = np.random.default_rng(5).integers(-(2**31), 2**31, size=(40, raw.shape[1]))
+    x0 = fx.to_raw(x[:, 500], "x")
+    c = replay(exe, tmp_path, raw, x0)
+    xs, ys = run_raw(fx, raw, x0)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
