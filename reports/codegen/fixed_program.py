@@ -205,9 +205,11 @@ class _Lowering:
         elif nd.op == "ATAN2":
             y, x = self.lin(nd.args[0]), self.lin(nd.args[1])
             F = max(self.fmt(y)[1], self.fmt(x)[1])
-            while F > min(self.fmt(y)[1], self.fmt(x)[1]) and max(
-                self.wr[y] * 2.0 ** (F - self.fmt(y)[1]), self.wr[x] * 2.0 ** (F - self.fmt(x)[1])
-            ) > 2.0**31:
+            while (
+                F > min(self.fmt(y)[1], self.fmt(x)[1])
+                and max(self.wr[y] * 2.0 ** (F - self.fmt(y)[1]), self.wr[x] * 2.0 ** (F - self.fmt(x)[1]))
+                > 2.0**31
+            ):
                 F -= 1  # the common format as fine as int32 holds both operands in
             ky, kx = max(F - self.fmt(y)[1], -31), max(F - self.fmt(x)[1], -31)
             s = self.add(Ins("ATAN2", (y, x), "ang", 31, (ky, kx), what="atan2 (CORDIC)"), 2**31)
