@@ -142,6 +142,18 @@ def _rnd(a: str, k: int, ceil: int, wide: bool) -> str:
     return _sh(a, k, wide)
 
 
+def _q15(prog: list[Ins], wr: list[float], k: int, ins: Ins) -> tuple[int, str] | None:
+    """(slot, literal) of a product by a 16-bit constant whose parts stay within int32, else None."""
+    s = ins.imm[0]
+    if ins.op != "MUL" or s < 1 or ins.sat or (s < 16 and wr[k] >= 2.0**30):
+        return None
+    a, b = ins.args
+    for x, k in ((a, b), (b, a)):
+        if prog[k].op == "CONST" and abs(prog[k].imm[0]) < 2**15 and prog[x].op != "CONST":
+            return x, lit(prog[k].imm[0])
+    return None
+
+
 def _wide(prog: list[Ins], wr: list[float], ins: Ins, ks: tuple[int, ...], args: tuple[int, ...]) -> bool:
     """Whether an aligned operation needs 64 bits: a saturation, or an operand shifted left beyond int32."""
     return ins.sat or any(k > 0 and wr[a] * 2.0**k > INT_MAX / 2 for a, k in zip(args, ks, strict=False))
@@ -175,6 +187,15 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
             else:
                 e = f"({p} {'<' if op == 'MIN' else '>'} {q} ? {p} : {q})"
             e = f"{fin}{e}" if w else e
+        elif op == "MUL" and _q15(fx.prog, wr, k, ins) is not None:
+            v, c = _q15(fx.prog, wr, k, ins)
+            # exactly floor(x c 2^-s) for a 16-bit c: x = 2^16 xh + xl, two products of 32 bits
+            # (a Cortex-M0+ multiplies 32 x 32 -> 32 in one cycle; a 64-bit product is a libgcc call)
+            lo = f"(((s{v} & 0xFFFF) * {c}) >> {m[0]})"
+            if m[0] >= 16:
+                e = f"((((s{v} >> 16) * {c}) + (((s{v} & 0xFFFF) * {c}) >> 16)) >> {m[0] - 16})"
+            else:
+                e = f"(((s{v} >> 16) * {c} * {1 << (16 - m[0])}) + {lo})"
         elif op == "MUL":
             small = wr[ins.args[0]] * wr[ins.args[1]] < INT_MAX and not ins.sat and m[0] < 31
             prod = f"({a[0]} * {a[1]})" if small else f"((int64_t){a[0]} * {a[1]})"
@@ -226,7 +247,15 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
     n_x = len(fx.state_out)
     lines += [f"{x}.{d['name']} = s{s};" for d, s in zip(fx.inputs[:n_x], fx.state_out, strict=True)]
     lines += [f"{out}->{o['name']} = s{o['slot']};" for o in fx.outputs]
-    return lines
+    # a constant that every reader spells as a literal (the 16-bit products) is not declared
+    text = "\n".join(lines)
+    used = {int(t) for t in re.findall(r"\bs(\d+)\b", text)} if text else set()
+    counts = {k: len(re.findall(rf"\bs{k}\b", text)) for k in used}
+    return [
+        line
+        for k, line in enumerate(lines[: len(fx.prog)])
+        if not (fx.prog[k].op == "CONST" and counts.get(k, 0) <= 1)
+    ] + lines[len(fx.prog) :]
 
 
 def format_text(kind: str, f: int) -> str:

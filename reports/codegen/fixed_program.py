@@ -33,6 +33,8 @@ from sensorless.reports.codegen.c_graph import Node, live_nodes
 from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, Ins
 from sensorless.reports.codegen.fixed_ranges import MARGIN, evaluate, interval
 
+Q15_FACTORS = True  # constant factors of products in 16 bits (see _Lowering.factor)
+COEF_BITS = 15
 RANGE_FLOOR = 2.0**-24  # smallest range given a format (a signal that stays below it reads as 0 in steps)
 _PI = math.pi
 
@@ -135,6 +137,14 @@ class _Lowering:
         if abs(raw) > INT_MAX:
             raise ValueError(f"constant {c!r} does not fit format Q{f}")
         return self.add(Ins("CONST", (), "fix", f, (raw,), what=f"{c:.9g}"), abs(raw))
+
+    def factor(self, n: int) -> int:
+        """A product's operand: a constant factor is stored in Q15 (16 significant bits), so that a
+        Cortex-M0+ multiplies by it with two 16 x 16 products instead of a 64-bit multiply (fixed_c)."""
+        c = self.cval(n)
+        if c is None or c == 0 or not Q15_FACTORS:
+            return self.lin(n)
+        return self.const_slot(c, COEF_BITS - math.ceil(math.log2(abs(c) * (1 + 2.0**-20))))
 
     def is_angle(self, n: int) -> bool:
         if n not in self.angle:
@@ -339,8 +349,8 @@ class _Lowering:
                 wr = max(self.wr[a] * 2.0**ka, self.wr[b] * 2.0**kb)
             return self.add(Ins(name, (a, b), "fix", fo, (ka, kb)), wr)
         if op in ("MUL", "SQ"):
-            a = self.lin(nd.args[0])
-            b = a if op == "SQ" else self.lin(nd.args[1])
+            a = self.factor(nd.args[0])
+            b = a if op == "SQ" else self.factor(nd.args[1])
             s = self.fmt(a)[1] + self.fmt(b)[1] - fo
             if not -30 <= s <= 62:
                 raise ValueError(f"product shift {s} out of range (node {n})")
