@@ -128,5 +128,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {note}")
     for p in written:
         print(f"wrote {p}")
-    print(f"build the example: make -C {args.out}; Cortex-M4F object: make -C {args.out} {prefix}-m4.o")
+    if fixed:
+        print(f"formats: {prefix}_formats.json; Cortex-M0+ object: make -C {args.out} {prefix}-m0.o")
+    else:
+        print(f"build the example: make -C {args.out}; Cortex-M4F object: make -C {args.out} {prefix}-m4.o")
     return 0

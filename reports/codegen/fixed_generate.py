@@ -14,6 +14,7 @@ from typing import Any
 from sensorless.reports.codegen.fixed_c import body, format_text, formats_json, helpers, lit
 from sensorless.reports.codegen.fixed_model import FixedModel
 from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS
+from sensorless.reports.codegen.fixed_poles import pole_shift
 from sensorless.reports.codegen.fixed_ranges import MARGIN
 
 ERRORS = (
@@ -43,6 +44,7 @@ def generate_fixed(setup: Any, model: FixedModel, provenance: Any, prefix: str) 
     """{file name: text} of the fixed-point C of ``setup`` (module docstring)."""
     fx = model.program(setup)
     obs = setup.observer
+    poles = pole_shift(setup, fx, *model.data(setup))
     P, PU = prefix, prefix.upper()
     n_x = len(obs.state)
 
@@ -176,6 +178,7 @@ def generate_fixed(setup: Any, model: FixedModel, provenance: Any, prefix: str) 
         "generator": provenance.generator,
         "margin": MARGIN,
         "methods": ERRORS,
+        "poles": poles,
     }
     return {
         f"{P}.h": "\n".join(h),

@@ -56,6 +56,7 @@ class FixedStep:
     x0: list[int]  # raw initial state
     wr: list[float]  # worst-case raw magnitude of each slot (what decides 64-bit work and saturation)
     node_slot: dict[int, int] = field(default_factory=dict)  # graph node -> its linear slot (diagnostics)
+    stored: dict[int, float] = field(default_factory=dict)  # constant node -> its stored value (poles)
     signals: list[dict[str, Any]] = field(default_factory=list)  # every slot's format and range
 
     def to_raw(self, values: np.ndarray, which: str) -> np.ndarray:
@@ -105,6 +106,7 @@ class _Lowering:
         self.in_slot: dict[int, int] = {}  # input node -> slot (filled by the caller)
         self.angle_fields = angle_fields
         self.angle: dict[int, bool] = {}
+        self.stored: dict[int, float] = {}  # constant node -> the value the program stores
         self.sim_lo: dict[int, float] = {}  # smallest and largest simulated value of each node
         self.sim_hi: dict[int, float] = {}
 
@@ -144,7 +146,9 @@ class _Lowering:
         c = self.cval(n)
         if c is None or c == 0 or not Q15_FACTORS:
             return self.lin(n)
-        return self.const_slot(c, COEF_BITS - math.ceil(math.log2(abs(c) * (1 + 2.0**-20))))
+        s = self.const_slot(c, COEF_BITS - math.ceil(math.log2(abs(c) * (1 + 2.0**-20))))
+        self.stored[n] = self.prog[s].imm[0] * 2.0 ** -self.prog[s].f  # the coarser storage
+        return s
 
     def is_angle(self, n: int) -> bool:
         if n not in self.angle:
@@ -318,7 +322,9 @@ class _Lowering:
         nd = self.nodes[n]
         c = self.cval(n)
         if c is not None:
-            return self.const_slot(c)
+            s = self.const_slot(c)
+            self.stored.setdefault(n, self.prog[s].imm[0] * 2.0 ** -self.prog[s].f)
+            return s
         if self.is_angle(n):
             a = self.ang(n)
             fo = format_of(_PI)
@@ -479,7 +485,9 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
         {"slot": k, "op": ins.op, "kind": ins.kind, "f": ins.f, "saturates": ins.sat, "what": ins.what}
         for k, ins in enumerate(low.prog)
     ]
-    return FixedStep(low.prog, inputs, state_out, outputs, x0, low.wr, dict(low.lin_c), signals)
+    return FixedStep(
+        low.prog, inputs, state_out, outputs, x0, low.wr, dict(low.lin_c), dict(low.stored), signals
+    )
 
 
 def _raw_list(x0: np.ndarray, fmts: list[dict[str, Any]]) -> list[int]:

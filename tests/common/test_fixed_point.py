@@ -183,3 +183,14 @@ def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
     c = replay(exe, tmp_path, raw, x0)
     xs, ys = run_raw(fx, raw, x0)
     assert int((c != np.hstack([ys, xs])).sum()) == 0
+
+
+def test_stored_constants_move_the_poles_little(built):
+    """The quantization's effect on the observer's poles, as the header and the JSON report it: not
+    zero (the constants are rounded) and far below what would matter (1e-4 of the unit circle)."""
+    import json
+
+    d, _setup, _model, _fx, out, _ = built
+    poles = json.loads((out / f"{d.name}_formats.json").read_text())["poles"]
+    assert 0 < poles["max_pole_shift"] < 1e-4
+    assert abs(poles["spectral_radius_stored"] - poles["spectral_radius_double"]) < 1e-4
