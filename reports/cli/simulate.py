@@ -138,9 +138,12 @@ def run(args: argparse.Namespace) -> int:
         from sensorless.design.runtime import step_variant
         from sensorless.reports.codegen.fixed_generate import fixed_model
 
-        model = fixed_model(drive, gains, fam.runtime(drive, gains or fam.gains(drive)))
-        with step_variant(model.variant):
-            tr = simulate(drive, sc, gains, progress=progress)
+        try:
+            model = fixed_model(drive, gains, fam.runtime(drive, gains or fam.gains(drive)))
+            with step_variant(model.variant):
+                tr = simulate(drive, sc, gains, progress=progress)
+        except (NotImplementedError, ValueError) as e:  # a step the fixed-point lowering does not take
+            raise UsageError(f"argument --precision fixed: {e}") from None
         tr.meta["precision"] = "fixed"
     else:
         tr = simulate(drive, sc, gains, progress=progress)

@@ -194,3 +194,21 @@ def test_stored_constants_move_the_poles_little(built):
     poles = json.loads((out / f"{d.name}_formats.json").read_text())["poles"]
     assert 0 < poles["max_pole_shift"] < 1e-4
     assert abs(poles["spectral_radius_stored"] - poles["spectral_radius_double"]) < 1e-4
+
+
+def test_cli_writes_the_fixed_point_files_together(tmp_path, capsys):
+    import json
+
+    from sensorless.reports.cli.main import main
+
+    out = tmp_path / "c"
+    assert main(["codegen", "outrunner270", "--precision", "fixed", "--out", str(out)]) == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(
+        ["Makefile", "main.c", "outrunner270.c", "outrunner270.h", "outrunner270_formats.json"]
+    )
+    data = json.loads((out / "outrunner270_formats.json").read_text())
+    assert [d["name"] for d in data["inputs"]][:2] == ["x_alpha", "x_beta"]
+    assert all(d["reason"] for d in data["inputs"])
+    assert "no floating point" in (out / "outrunner270.h").read_text()
+    assert "Cortex-M0+" in capsys.readouterr().out
