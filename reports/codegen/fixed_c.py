@@ -233,6 +233,10 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
             e = f"fx_sin({a[0]})"
         elif op == "COS":
             e = f"fx_sin(fx_wrap((int64_t){a[0]} + INT64_C(1073741824)))"
+        elif op in ("TOANG", "ANG2LIN") and abs(m[0]) < 2**15 and m[1] >= 16:
+            # floor(a K 2^-s) from two 32-bit products; within int32 (|a K| < 2^46), so no wrap is needed
+            v = f"s{ins.args[0]}"
+            e = f"((((({v} >> 16) * {m[0]}) + ((({v} & 0xFFFF) * {m[0]}) >> 16)) >> {m[1] - 16}))"
         elif op == "TOANG":
             e = f"fx_wrap(((int64_t){a[0]} * INT64_C({m[0]})) >> {m[1]})"
         elif op in ("ANGADD", "ANGSUB"):

@@ -103,6 +103,7 @@ class _Lowering:
         self.wr: list[float] = []  # worst-case raw magnitude of each slot
         self.lin_c: dict[int, int] = {}
         self.ang_c: dict[int, int] = {}
+        self.ang_of_c: dict[int, int] = {}  # node -> its value as a binary angle (one conversion each)
         self.in_slot: dict[int, int] = {}  # input node -> slot (filled by the caller)
         self.angle_fields = angle_fields
         self.angle: dict[int, bool] = {}
@@ -243,6 +244,11 @@ class _Lowering:
 
     def ang_of(self, n: int) -> int:
         """Node n (any real signal) as a binary angle, modulo 2 pi: sums stay sums of angles."""
+        if n not in self.ang_of_c:
+            self.ang_of_c[n] = self._ang_of(n)
+        return self.ang_of_c[n]
+
+    def _ang_of(self, n: int) -> int:
         nd = self.nodes[n]
         if self.is_angle(n) or self.cval(n) is not None:
             return self.ang(n)
@@ -261,7 +267,8 @@ class _Lowering:
         else:
             xs = self.lin(x)
             ratio = k * 2.0 ** (31 - self.fmt(xs)[1]) / _PI
-        sh = 25 - math.floor(math.log2(abs(ratio))) if ratio else 0
+        # K in 15 bits (Q15, as the factors of products): two 32-bit products on a Cortex-M0+
+        sh = COEF_BITS - 1 - math.floor(math.log2(abs(ratio))) if ratio else 0
         K = round(ratio * 2.0**sh)
         return self.add(Ins("TOANG", (xs,), "ang", 31, (K, sh), what="to binary angle"), 2**31)
 
@@ -328,7 +335,7 @@ class _Lowering:
         if self.is_angle(n):
             a = self.ang(n)
             fo = format_of(_PI)
-            sh = 20 + 31 - fo  # K ~ 2^21: the product stays below 2^53 (exact in the SX model)
+            sh = COEF_BITS - 2 + 31 - fo  # K ~ 2^14 (Q15: two 32-bit products on a Cortex-M0+)
             K = round(_PI * 2.0 ** (fo - 31 + sh))
             return self.add(
                 Ins("ANG2LIN", (a,), "fix", fo, (K, sh), what="binary angle to rad"), 2.0**31 * K / 2**sh
