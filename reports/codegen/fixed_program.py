@@ -335,8 +335,10 @@ class _Lowering:
         if self.is_angle(n):
             a = self.ang(n)
             fo = format_of(_PI)
-            sh = COEF_BITS - 2 + 31 - fo  # K ~ 2^14 (Q15: two 32-bit products on a Cortex-M0+)
-            K = round(_PI * 2.0 ** (fo - 31 + sh))
+            # K ~ 2^21 (the product below 2^53, exact in the SX model), rounded down so that an angle
+            # read as rad never exceeds pi (the guard's bound |theta| <= pi stays true)
+            sh = 20 + 31 - fo
+            K = math.floor(_PI * 2.0 ** (fo - 31 + sh))
             return self.add(
                 Ins("ANG2LIN", (a,), "fix", fo, (K, sh), what="binary angle to rad"), 2.0**31 * K / 2**sh
             )
