@@ -49,9 +49,9 @@ class FixedModel:
     _cache: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def of(cls, drive: Any, gains: Any, scenarios: list[Any]) -> FixedModel:
-        """From the closed-loop runs of ``scenarios``."""
-        return cls(probe_runs(drive, gains, scenarios))
+    def of(cls, drive: Any, gains: Any, scenarios: list[Any], compile: bool = True) -> FixedModel:
+        """From the closed-loop runs of ``scenarios`` (fixed_ranges.probe_runs)."""
+        return cls(probe_runs(drive, gains, scenarios, compile))
 
     def data(self, setup: Any) -> tuple[np.ndarray, np.ndarray]:
         """(x, meas) of the runs of ``setup``'s observer."""

@@ -187,21 +187,25 @@ def _probe(step: ca.Function) -> ca.Function:
 
 
 @functools.cache
-def _states(loop: ca.Function, n: int) -> ca.Function:
+def _states(loop: ca.Function, n: int, native: bool = True) -> ca.Function:
     """(z, V, q, p, gain) -> every loop state of ``n`` steps, compiled (design/compiled.py)."""
     from sensorless.design.compiled import compiled
 
     args = [ca.MX.sym(loop.name_in(k), loop.sparsity_in(k)) for k in range(loop.n_in())]
     V = ca.MX.sym("V", loop.size1_in(1), n)
     zs, _ = loop.mapaccum(n)(args[0], V, *args[2:])
-    return compiled(ca.Function(f"{loop.name()}_states{n}", [args[0], V, *args[2:]], [zs]))
+    fn = ca.Function(f"{loop.name()}_states{n}", [args[0], V, *args[2:]], [zs])
+    return compiled(fn) if native else fn
 
 
-def probe_runs(drive: Any, gains: Any, scenarios: list[Any]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def probe_runs(
+    drive: Any, gains: Any, scenarios: list[Any], compile: bool = True
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """{observer name: (x, meas)} of every sample of the closed-loop runs of ``scenarios`` with the
     double step: the observer's state before each step and its measurements (columns are samples), by
     the observer that ran (the I-f start's wrapper is another). A scenario that cannot run on the
-    drive (a start its loop does not model) is left out."""
+    drive (a start its loop does not model) is left out. ``compile``: the runs as native code (False:
+    CasADi's virtual machine, cheaper for a short run than compiling)."""
     from sensorless.design.registry import family_of
     from sensorless.design.runtime import step_variant
     from sensorless.design.units import DriveFileError
@@ -224,7 +228,7 @@ def probe_runs(drive: Any, gains: Any, scenarios: list[Any]) -> dict[str, tuple[
         n = ls.inputs.shape[1]
         n_m = ls.loop.size1_in(0) - len(ls.z0)
         z = np.concatenate([ls.z0, np.zeros(n_m)])
-        fn = _states(ls.loop, CHUNK)
+        fn = _states(ls.loop, CHUNK, compile)
         cols = [z[:, None]]
         for k0 in range(0, n, CHUNK):
             V = ls.inputs[:, k0 : k0 + CHUNK]
