@@ -10,7 +10,10 @@ simulation, C generation and :func:`run_trajectory` take it from there, whatever
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -68,11 +71,32 @@ class RuntimeSetup:
     def step_function(self) -> ca.Function:
         """The step (x, meas, p, gain) -> (x_next, y) with this set-up's schedule."""
         law = self.schedule.law if self.schedule is not None else None
-        return scheduled_step(self.observer, self.discretization, law)
+        step = scheduled_step(self.observer, self.discretization, law)
+        variant = _STEP_VARIANT.get()
+        return step if variant is None else variant(self, step)
 
     def initial_state(self) -> np.ndarray:
         """x0 for these parameters."""
         return np.asarray(self.observer.initial_state()(self.p)).ravel()
+
+
+# What runs in place of the double step while :func:`step_variant` is active (e.g. the fixed-point
+# step of sensorless codegen, reports/codegen/fixed_model.py): design does not know the variants
+StepVariant = Callable[[RuntimeSetup, ca.Function], ca.Function]
+_STEP_VARIANT: contextvars.ContextVar[StepVariant | None] = contextvars.ContextVar(
+    "step_variant", default=None
+)
+
+
+@contextlib.contextmanager
+def step_variant(variant: StepVariant | None) -> Iterator[None]:
+    """Within the block, ``RuntimeSetup.step_function()`` returns ``variant(setup, double_step)``: a
+    Function of the same signature (simulation then runs, e.g., the fixed-point step in closed loop)."""
+    token = _STEP_VARIANT.set(variant)
+    try:
+        yield
+    finally:
+        _STEP_VARIANT.reset(token)
 
 
 @functools.cache

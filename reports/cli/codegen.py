@@ -45,7 +45,12 @@ def register(sub: Any) -> None:
         help="without --gains: which of the drive file's named gain sets, where its observer family has "
         "several (default: the drive file's choice)",
     )
-    p.add_argument("--precision", choices=PRECISIONS, default="float", help="C floating type (default float)")
+    p.add_argument(
+        "--precision",
+        choices=(*PRECISIONS, "fixed"),
+        default="float",
+        help="C floating type, or fixed: 32-bit integer arithmetic for MCUs without an FPU (default float)",
+    )
     p.add_argument(
         "--discretization",
         default=None,
@@ -95,16 +100,24 @@ def run(args: argparse.Namespace) -> int:
 
         setup, line = startup_setup(drive, setup)
         setup = dataclasses.replace(setup, notes=(*setup.notes, line)) if "no I-f" in line else setup
-    out = OutputSet(args.out, force=args.force, names=output_names(prefix))
+    fixed = args.precision == "fixed"
+    names = (*output_names(prefix), f"{prefix}_formats.json") if fixed else output_names(prefix)
+    out = OutputSet(args.out, force=args.force, names=names)
     out.check()  # before the C is generated
     try:
-        files = generate(
-            setup,
-            Provenance(drive.name, drive.file, drive.digest, f"sensorless {version()}"),
-            precision=args.precision,
-            prefix=prefix,
-        )
-    except ValueError as e:
+        if fixed:
+            from sensorless.reports.codegen.fixed_generate import fixed_model, generate_fixed
+
+            prov = Provenance(drive.name, drive.file, drive.digest, f"sensorless {version()}")
+            files = generate_fixed(setup, fixed_model(drive, gains, setup), prov, prefix)
+        else:
+            files = generate(
+                setup,
+                Provenance(drive.name, drive.file, drive.digest, f"sensorless {version()}"),
+                precision=args.precision,
+                prefix=prefix,
+            )
+    except (ValueError, NotImplementedError) as e:
         raise UsageError(str(e)) from None
     for name, text in files.items():
         out.add_text(name, text)
@@ -120,5 +133,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {note}")
     for p in written:
         print(f"wrote {p}")
-    print(f"build the example: make -C {args.out}; Cortex-M4F object: make -C {args.out} {prefix}-m4.o")
+    if fixed:
+        print(f"formats: {prefix}_formats.json; Cortex-M0+ object: make -C {args.out} {prefix}-m0.o")
+    else:
+        print(f"build the example: make -C {args.out}; Cortex-M4F object: make -C {args.out} {prefix}-m4.o")
     return 0

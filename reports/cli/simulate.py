@@ -53,6 +53,12 @@ def register(sub: Any) -> None:
     p.add_argument("--out", help="output directory (default: simulation-<drive>-<scenario>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument(
+        "--precision",
+        choices=("double", "fixed"),
+        default="double",
+        help="the observer step that runs: double, or the fixed-point step of `codegen --precision fixed`",
+    )
     add_family_options(p, "simulate")
     p.set_defaults(func=run)
 
@@ -128,7 +134,20 @@ def run(args: argparse.Namespace) -> int:
 
     print(f"{drive.name}: {sc.title}")
     progress = None if args.quiet else Progress(f"simulate {sc.name}", drive.T_s)
-    tr = simulate(drive, sc, gains, progress=progress)
+    if args.precision == "fixed":
+        from sensorless.design.runtime import step_variant
+        from sensorless.reports.codegen.fixed_generate import fixed_model
+
+        try:
+            model = fixed_model(drive, gains, fam.runtime(drive, gains or fam.gains(drive)))
+            with step_variant(model.variant):
+                tr = simulate(drive, sc, gains, progress=progress)
+        except (NotImplementedError, ValueError) as e:  # a step the fixed-point lowering does not take
+            raise UsageError(f"argument --precision fixed: {e}") from None
+        tr.meta["precision"] = "fixed"
+    else:
+        tr = simulate(drive, sc, gains, progress=progress)
+    print(f"observer step: {args.precision} precision")
     n = len(tr.t)
     print(
         f"{n} samples ({tr.t[-1]:.3g} s at T_s = {tr.meta['T_s']:g} s) in {tr.wall_time:.2f} s "

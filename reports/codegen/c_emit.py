@@ -155,30 +155,12 @@ class Emitted:
     n_coef: int = 0
 
 
-def emit(
-    f: ca.Function,
-    *,
-    prec: Precision,
-    runtime_in: dict[int, list[str]],
-    param_in: dict[int, list[str]],
-    out: dict[int, list[str]],
-    coef: str,
-    coef_offset: int = 0,
-    prefix: str = "t",
-) -> Emitted:
-    """Print ``f`` (an SX Function) as C.
-
-    ``runtime_in[i][nz]`` is the C expression reading nonzero ``nz`` of input ``i`` in the step;
-    ``param_in[i][nz]`` the expression reading a parameter in the init code; every input of ``f`` is in
-    exactly one of the two. ``out[i][nz]`` is the C lvalue receiving an output nonzero. Coefficients
-    are ``{coef}[coef_offset + j]`` (an array expression valid in both the init code and the step).
-    """
-    if not f.is_a("SXFunction"):
-        raise TypeError(f"{f.name()}: only SX Functions can be printed as C")
-    for i in range(f.n_in()):
-        if (i in runtime_in) == (i in param_in):
-            raise ValueError(f"{f.name()}: input {f.name_in(i)} must be either runtime or parameter")
-
+def build_graph(
+    f: ca.Function, param_inputs: set[int]
+) -> tuple[list[Node], list[tuple[tuple[int, int], int]]]:
+    """The simplified operation graph of ``f`` (c_graph's passes applied) and its outputs
+    [((output index, nonzero), node)]; the inputs in ``param_inputs`` are parameter-only."""
+    param_in = param_inputs
     nodes: list[Node] = []
     work: dict[int, int] = {}
     outputs: list[tuple[tuple[int, int], int]] = []
@@ -205,6 +187,35 @@ def emit(
     fuse_selects(nodes)
     alias = forward_trivial_selects(nodes)
     outputs = [(o, alias.get(n, n)) for o, n in outputs]
+
+    return nodes, outputs
+
+
+def emit(
+    f: ca.Function,
+    *,
+    prec: Precision,
+    runtime_in: dict[int, list[str]],
+    param_in: dict[int, list[str]],
+    out: dict[int, list[str]],
+    coef: str,
+    coef_offset: int = 0,
+    prefix: str = "t",
+) -> Emitted:
+    """Print ``f`` (an SX Function) as C.
+
+    ``runtime_in[i][nz]`` is the C expression reading nonzero ``nz`` of input ``i`` in the step;
+    ``param_in[i][nz]`` the expression reading a parameter in the init code; every input of ``f`` is in
+    exactly one of the two. ``out[i][nz]`` is the C lvalue receiving an output nonzero. Coefficients
+    are ``{coef}[coef_offset + j]`` (an array expression valid in both the init code and the step).
+    """
+    if not f.is_a("SXFunction"):
+        raise TypeError(f"{f.name()}: only SX Functions can be printed as C")
+    for i in range(f.n_in()):
+        if (i in runtime_in) == (i in param_in):
+            raise ValueError(f"{f.name()}: input {f.name_in(i)} must be either runtime or parameter")
+
+    nodes, outputs = build_graph(f, set(param_in))
 
     # coefficients: parameter-only, non-constant values that runtime values or outputs read
     used_by_runtime: list[int] = []

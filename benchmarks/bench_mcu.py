@@ -1,0 +1,268 @@
+"""Instructions and estimated cycles per observer step on an emulated Cortex-M0+ (fixed point) and
+Cortex-M4F (float), with the step's flash and RAM.
+
+    python benchmarks/bench_mcu.py [PRESET ...]     (needs arm-none-eabi-gcc and `pip install .[bench]`)
+
+For each preset the generated C (``codegen --precision fixed`` for the M0+, ``--precision float``
+for the M4F) is linked bare-metal with a harness that steps the observer on 64 recorded closed-loop
+samples; unicorn (a QEMU-based instruction-set emulator) runs the Thumb code and counts the
+instructions between two markers around each step call (the call, the step and everything it calls:
+libgcc's 64-bit multiply, newlib's libm). Cycles are estimated per instruction from the cores'
+published timings (Cortex-M0+ TRM / Cortex-M4 TRM, table "Instruction timings"): M0+ (single-cycle
+multiplier) 1 cycle, loads/stores 2, taken branches 2 (BL 3), PUSH/POP/LDM/STM 1 + N (POP with PC
+3 + N); M4F 1 cycle, loads/stores 2, taken branches 2 (BL 3; pipelining is ignored: an upper
+estimate), VDIV/VSQRT 14, SDIV/UDIV 7. Flash: the observer object's text + data; RAM: the observer
+struct + the step's stack frame (-fstack-usage) + its callees' (not counted: below 100 B here).
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+FLASH, RAM = 0x0, 0x20000000
+N_STEPS = 64
+
+HARNESS = """#include "%(P)s.h"
+extern const %(P)s_input bench_in[%(N)d];
+__attribute__((noinline)) void mark_begin(void) { __asm__ volatile(""); }
+__attribute__((noinline)) void mark_end(void) { __asm__ volatile(""); }
+%(P)s_observer bench_obs;
+%(P)s_output bench_out;
+void bench_main(void)
+{
+    int k;
+    %(init)s;
+    for (k = 0; k < %(N)d; ++k) {
+        mark_begin();
+        %(P)s_step(&bench_obs, &bench_in[k], &bench_out);
+        mark_end();
+    }
+    for (;;) {
+    }
+}
+__attribute__((naked, section(".start"))) void _start(void)
+{
+    __asm__ volatile("ldr r0, =0x20010000\\n mov sp, r0\\n bl bench_main\\n");
+}
+"""
+LINK = """MEMORY { FLASH (rx) : ORIGIN = 0x0, LENGTH = 1M  RAM (rwx) : ORIGIN = 0x20000000, LENGTH = 64K }
+SECTIONS {
+  .text : { *(.start) *(.text*) *(.rodata*) } > FLASH
+  .data : { *(.data*) } > RAM AT > FLASH
+  .bss : { *(.bss*) *(COMMON) } > RAM
+  /DISCARD/ : { *(.ARM.exidx*) }
+}
+"""
+
+
+def _cycles_m0(ins: str, taken: bool) -> int:
+    op = ins.split()[0].lower() if ins else ""
+    if op.startswith(("push", "pop", "ldm", "stm")):
+        n = ins.count(",") + 1
+        return 1 + n + (2 if "pc" in ins and op.startswith("pop") else 0)
+    if op.startswith(("ldr", "str")):
+        return 2
+    if op == "bl":
+        return 3
+    if op.startswith("b") and taken:
+        return 2
+    return 1
+
+
+def _cycles_m4(ins: str, taken: bool) -> int:
+    op = ins.split()[0].lower() if ins else ""
+    if op.startswith(("vdiv", "vsqrt")):
+        return 14
+    if op.startswith(("sdiv", "udiv")):
+        return 7
+    if op.startswith(("push", "pop", "ldm", "stm", "vpush", "vpop", "vldm", "vstm")):
+        return 1 + ins.count(",") + 1
+    if op.startswith(("ldr", "str", "vldr", "vstr")):
+        return 2
+    if op == "bl":
+        return 3
+    if op.startswith("b") and taken:
+        return 2
+    return 1
+
+
+def build(work: Path, P: str, files: dict[str, str], samples: str, init: str, cpu: list[str]) -> Path:
+    for name, text in files.items():
+        (work / name).write_text(text)
+    (work / "harness.c").write_text(HARNESS % {"P": P, "N": N_STEPS, "init": init})
+    (work / "samples.c").write_text(samples)
+    (work / "link.ld").write_text(LINK)
+    flags = [*cpu, "-mthumb", "-Os", "-std=c99", "-ffreestanding", "-fstack-usage"]
+    elf = work / "bench.elf"
+    r = subprocess.run(
+        [
+            "arm-none-eabi-gcc",
+            *flags,
+            "-nostartfiles",
+            "-T",
+            str(work / "link.ld"),
+            "--specs=nosys.specs",
+            "-o",
+            str(elf),
+            str(work / "harness.c"),
+            str(work / f"{P}.c"),
+            str(work / "samples.c"),
+            "-lm",
+            "-lgcc",
+        ],
+        check=False,
+        cwd=work,
+        capture_output=True,
+        text=True,
+    )
+    if not elf.exists():
+        raise SystemExit(f"link failed: {r.stderr[-2000:]}")
+    return elf
+
+
+def emulate(elf: Path, model: str) -> tuple[float, float]:
+    """(instructions, estimated cycles) per step, the mean over the harness's steps."""
+    import unicorn
+    from unicorn import arm_const as A
+
+    syms = {}
+    for line in subprocess.run(
+        ["arm-none-eabi-nm", str(elf)], capture_output=True, text=True
+    ).stdout.splitlines():
+        parts = line.split()
+        if len(parts) == 3:
+            syms[parts[2]] = int(parts[0], 16)
+    binf = elf.with_suffix(".bin")
+    subprocess.run(["arm-none-eabi-objcopy", "-O", "binary", "-j", ".text", str(elf), str(binf)], check=True)
+    dis = {}
+    for line in subprocess.run(
+        ["arm-none-eabi-objdump", "-d", str(elf)], capture_output=True, text=True
+    ).stdout.splitlines():
+        m = re.match(r"\s*([0-9a-f]+):\s+(?:[0-9a-f]{4} ?){1,2}\s+(.*)", line)
+        if m:
+            dis[int(m.group(1), 16)] = m.group(2).strip()
+    uc = unicorn.Uc(unicorn.UC_ARCH_ARM, unicorn.UC_MODE_THUMB | unicorn.UC_MODE_MCLASS)
+    uc.ctl_set_cpu_model(getattr(A, f"UC_CPU_ARM_CORTEX_{model}"))
+    uc.mem_map(FLASH, 1 << 20)
+    uc.mem_map(RAM, 1 << 16)
+    uc.mem_write(FLASH, binf.read_bytes())
+    data = subprocess.run(
+        ["arm-none-eabi-objcopy", "-O", "binary", "-j", ".data", str(elf), "/dev/stdout"], capture_output=True
+    ).stdout
+    if data:
+        uc.mem_write(syms.get("__data_start__", RAM), data)  # .data is empty here (const tables in flash)
+    begin, end = syms["mark_begin"], syms["mark_end"]
+    count = {"on": False, "ins": 0, "cyc": 0, "steps": 0, "prev": None}
+    cyc = _cycles_m0 if model == "M0" else _cycles_m4
+
+    def hook(uc, address, size, _):
+        prev = count["prev"]
+        if count["on"] and prev is not None:
+            pa, ps, pins = prev
+            taken = address != pa + ps
+            count["cyc"] += cyc(pins, taken)
+            count["ins"] += 1
+        if address == begin:
+            count["on"] = True
+        elif address == end:
+            count["on"] = False
+            count["steps"] += 1
+            if count["steps"] == N_STEPS:
+                uc.emu_stop()
+        count["prev"] = (address, size, dis.get(address, ""))
+
+    uc.hook_add(unicorn.UC_HOOK_CODE, hook)
+    if model == "M4":
+        uc.reg_write(A.UC_ARM_REG_C1_C0_2, 0xF << 20)  # CPACR: the FPU on
+    try:
+        uc.emu_start(syms["_start"] | 1, 0xFFFFFFFE, count=50_000_000)
+    except unicorn.UcError as e:
+        pc = uc.reg_read(A.UC_ARM_REG_PC)
+        raise SystemExit(f"{model}: {e} at 0x{pc:x}: {dis.get(pc, '?')} (after {count['prev']})") from None
+    return count["ins"] / count["steps"], count["cyc"] / count["steps"]
+
+
+def sizes(work: Path, P: str, cpu: list[str]) -> tuple[int, int]:
+    obj = work / "obs.o"
+    subprocess.run(
+        [
+            "arm-none-eabi-gcc",
+            *cpu,
+            "-mthumb",
+            "-Os",
+            "-std=c99",
+            "-fstack-usage",
+            "-c",
+            "-o",
+            str(obj),
+            str(work / f"{P}.c"),
+        ],
+        check=True,
+        cwd=work,
+    )
+    text, data, _bss = (
+        int(v)
+        for v in subprocess.run(["arm-none-eabi-size", str(obj)], capture_output=True, text=True)
+        .stdout.splitlines()[1]
+        .split()[:3]
+    )
+    su = (work / "obs.su").read_text()
+    frame = max((int(m) for m in re.findall(rf"{P}_step\t(\d+)", su)), default=0)
+    return text + data, frame
+
+
+def main(presets: list[str]) -> None:
+    from sensorless.design.drive import load_drive
+    from sensorless.design.registry import family_of
+    from sensorless.reports.codegen.fixed_generate import fixed_model, generate_fixed
+    from sensorless.reports.codegen.generate import Provenance, generate
+
+    print(
+        f"{'preset':14s} {'core':5s} {'precision':9s} {'instr/step':>10s} {'cycles/step':>11s} "
+        f"{'flash B':>8s} {'RAM B':>6s}"
+    )
+    for name in presets:
+        d = load_drive(name)
+        fam = family_of(d)
+        setup = fam.runtime(d, fam.gains(d))
+        model = fixed_model(d, None, setup)
+        fx = model.program(setup)
+        prov = Provenance(d.name, d.file, d.digest, "bench")
+        P = d.name
+        n_x = len(setup.observer.state)
+        meas = model.meas[:, -N_STEPS * 50 :: 50]
+        raw = fx.to_raw(meas, "meas").T
+        for core, prec in (("M0", "fixed"), ("M4", "float")):
+            with tempfile.TemporaryDirectory() as tmp:
+                work = Path(tmp)
+                if prec == "fixed":
+                    files = generate_fixed(setup, model, prov, P)
+                    rows = ", ".join("{" + ", ".join(str(int(v)) for v in r) + "}" for r in raw)
+                    init = f"{P}_init(&bench_obs)"
+                    ram_struct = 4 * n_x
+                    cpu = ["-mcpu=cortex-m0plus"]
+                else:
+                    files = generate(setup, prov, precision="float", prefix=P)
+                    rows = ", ".join("{" + ", ".join(f"{v:.9g}f" for v in r) + "}" for r in meas.T)
+                    init = f"(void){P}_init(&bench_obs, &{P}_default_params)"
+                    m = re.search(rf"#define {P.upper()}_N_COEF (\d+)", files[f"{P}.h"])
+                    ram_struct = 4 * (n_x + (int(m.group(1)) if m else 0))
+                    cpu = ["-mcpu=cortex-m4", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"]
+                samples = f'#include "{P}.h"\nconst {P}_input bench_in[{N_STEPS}] = {{{rows}}};\n'
+                elf = build(work, P, files, samples, init, cpu)
+                ins, cycles = emulate(elf, core)
+                flash, frame = sizes(work, P, cpu)
+                label = core + ("+" if core == "M0" else "F")
+                print(
+                    f"{name:14s} {label:5s} {prec:9s} {ins:10.0f} {cycles:11.0f} {flash:8d} "
+                    f"{ram_struct + frame:6d}",
+                    flush=True,
+                )
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:] or ["outrunner270", "piippo2008", "deangelo2006"])

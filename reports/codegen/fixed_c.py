@@ -1,0 +1,282 @@
+"""C99 text of a fixed-point step (reports/codegen/fixed_program.py): integer only, no libm, no float.
+
+Printed independently of the Python model (fixed_ops.py), which tests compare it with bit for bit. Every
+slot is a ``const int32_t``; products and aligned sums that need it are computed in ``int64_t``;
+saturation (``fx_sat``) only where the program says a worst case could overflow. Right shifts of
+negative values are arithmetic (gcc, clang and arm-none-eabi-gcc define it so); conversions of
+unsigned words to int32 are modulo 2^32 (the same compilers). The helpers (CORDIC atan2, polynomial
+sine, integer square root) are ``static`` functions of the generated file.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from typing import Any
+
+from sensorless.reports.codegen.fixed_ops import CORDIC_ANGLES, INT_MAX, NOMINAL_BITS, SIN_COEF, SIN_F, Ins
+from sensorless.reports.codegen.fixed_program import FixedStep
+
+HELPERS = """static int32_t fx_sat(int64_t v)
+{
+    return v > INT32_MAX ? INT32_MAX : (v < INT32_MIN ? INT32_MIN : (int32_t)v);
+}
+
+static int32_t fx_wrap(int64_t v) /* modulo 2^32: binary angles */
+{
+    return (int32_t)(uint32_t)(uint64_t)v;
+}
+
+static int32_t fx_isqrt(int64_t v) /* floor(sqrt(v)), v clamped to [0, 2^32 - 1] */
+{
+    uint32_t x = v < 0 ? 0u : (v > (int64_t)UINT32_MAX ? UINT32_MAX : (uint32_t)v);
+    uint32_t r = 0, b = 1ul << 30;
+    while (b > x) {
+        b >>= 2;
+    }
+    while (b != 0) {
+        if (x >= r + b) {
+            x -= r + b;
+            r = (r >> 1) + b;
+        } else {
+            r >>= 1;
+        }
+        b >>= 2;
+    }
+    return (int32_t)r;
+}
+
+static int32_t fx_div(int64_t n, int32_t d) /* floor(n / d), d > 0 */
+{
+    return (int32_t)(n >= 0 ? n / d : -((-n + d - 1) / d));
+}
+
+static const int32_t fx_atan_table[%(n_cordic)d] = {%(cordic)s};
+
+static int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vectoring CORDIC */
+{
+    int32_t x = x0 >> 2, y = y0 >> 2;
+    uint32_t z = 0;
+    int i;
+    if (x == 0 && y == 0) {
+        return 0;
+    }
+    if (x < 0) {
+        x = -x;
+        y = -y;
+        z = 0x80000000ul;
+    }
+    for (i = 0; i < %(n_cordic)d; ++i) {
+        const int32_t xs = x >> i, ys = y >> i;
+        if (0 < y) {
+            x += ys;
+            y -= xs;
+            z += (uint32_t)fx_atan_table[i];
+        } else {
+            x -= ys;
+            y += xs;
+            z -= (uint32_t)fx_atan_table[i];
+        }
+    }
+    return (int32_t)z;
+}
+
+static int32_t fx_sin(int32_t a) /* sin of a binary angle, Q%(sin_f)d */
+{
+    int64_t t = a, x, x2, p;
+    if (t > 0x40000000l) {
+        t = 0x80000000l - t;
+    } else if (t < -0x40000000l) {
+        t = -0x80000000l - t;
+    }
+    x = t >> %(sin_shift)d;
+    x2 = (x * x) >> %(sin_f)d;
+%(horner)s
+    return (int32_t)((p * x) >> %(sin_f)d);
+}
+"""
+
+
+def lit(v: int) -> str:
+    """An int32 literal (INT32_MIN spelled without overflow)."""
+    if v == -(2**31):
+        return "INT32_MIN"
+    return f"INT32_C({v})" if abs(v) > 32767 else str(v)
+
+
+def helpers(used: str) -> str:
+    """The helper functions that the step text ``used`` calls (an unused static function is a warning)."""
+    text = HELPERS % {
+        "n_cordic": len(CORDIC_ANGLES),
+        "cordic": ", ".join(str(a) for a in CORDIC_ANGLES),
+        "sin_f": SIN_F,
+        "sin_shift": 30 - SIN_F,
+        "horner": "\n".join(
+            [f"    p = INT64_C({SIN_COEF[-1]});"]
+            + [f"    p = ((p * x2) >> {SIN_F}) + INT64_C({c});" for c in reversed(SIN_COEF[:-1])]
+        ),
+    }
+    blocks = ["static " + b if k else b for k, b in enumerate(text.split("\n\nstatic "))]
+    keep = []
+    for b in blocks:
+        name = re.match(r"static (?:const )?int32_t (\w+)", b).group(1)
+        if name in used or (name == "fx_atan_table" and "fx_atan2" in used):
+            keep.append(b)
+    return "\n\n".join(keep).rstrip() + "\n"
+
+
+def _sh(a: str, k: int, wide: bool) -> str:
+    """a 2^k (floor), in int64 if ``wide``."""
+    w = f"(int64_t){a}" if wide else a
+    if k > 0:
+        return f"({w} * INT64_C({1 << k}))" if wide else f"({a} * {1 << k})"
+    if k < 0:
+        return f"({w} >> {-k})"
+    return w
+
+
+def _rnd(a: str, k: int, ceil: int, wide: bool) -> str:
+    """a 2^k, rounded up where ``ceil`` (fixed_ops._rounded)."""
+    if ceil and k < 0:
+        return f"(-((-(int64_t){a}) >> {-k}))"
+    return _sh(a, k, wide)
+
+
+def _q15(prog: list[Ins], wr: list[float], k: int, ins: Ins) -> tuple[int, str] | None:
+    """(slot, literal) of a product by a 16-bit constant whose parts stay within int32, else None."""
+    s = ins.imm[0]
+    if ins.op != "MUL" or s < 1 or ins.sat or (s < 16 and wr[k] >= 2.0**30):
+        return None
+    a, b = ins.args
+    for x, k in ((a, b), (b, a)):
+        if prog[k].op == "CONST" and abs(prog[k].imm[0]) < 2**15 and prog[x].op != "CONST":
+            return x, lit(prog[k].imm[0])
+    return None
+
+
+def _wide(prog: list[Ins], wr: list[float], ins: Ins, ks: tuple[int, ...], args: tuple[int, ...]) -> bool:
+    """Whether an aligned operation needs 64 bits: a saturation, or an operand shifted left beyond int32."""
+    return ins.sat or any(k > 0 and wr[a] * 2.0**k > INT_MAX / 2 for a, k in zip(args, ks, strict=False))
+
+
+def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str]:
+    """The step's statements: slots s0.. from ``x``/``inp`` fields, then the state and outputs."""
+    lines: list[str] = []
+    for k, ins in enumerate(fx.prog):
+        a = [f"s{j}" for j in ins.args]
+        m, op = ins.imm, ins.op
+        fin = "fx_sat" if ins.sat else "(int32_t)"
+        if op == "IN":
+            d = fx.inputs[m[0]]
+            src = f"{x}.{d['name']}" if d["vector"] == "x" else f"{inp}->{d['name']}"
+            e = (
+                src
+                if len(m) == 1
+                else f"({src} < {lit(m[1])} ? {lit(m[1])} : ({src} > {lit(m[2])} ? {lit(m[2])} : {src}))"
+            )
+        elif op == "CONST":
+            e = lit(m[0])
+        elif op == "ALIGN":
+            w = _wide(fx.prog, wr, ins, m, ins.args)
+            e = f"{fin}({_sh(a[0], m[0], True)})" if w else _sh(a[0], m[0], False)
+        elif op in ("ADD", "SUB", "MIN", "MAX"):
+            w = _wide(fx.prog, wr, ins, m, ins.args) or wr[k] > INT_MAX / 2
+            p, q = _sh(a[0], m[0], w), _sh(a[1], m[1], w)
+            if op in ("ADD", "SUB"):
+                e = f"({p} {'+' if op == 'ADD' else '-'} {q})"
+            else:
+                e = f"({p} {'<' if op == 'MIN' else '>'} {q} ? {p} : {q})"
+            e = f"{fin}{e}" if w else e
+        elif op == "MUL" and _q15(fx.prog, wr, k, ins) is not None:
+            v, c = _q15(fx.prog, wr, k, ins)
+            # exactly floor(x c 2^-s) for a 16-bit c: x = 2^16 xh + xl, two products of 32 bits
+            # (a Cortex-M0+ multiplies 32 x 32 -> 32 in one cycle; a 64-bit product is a libgcc call)
+            lo = f"(((s{v} & 0xFFFF) * {c}) >> {m[0]})"
+            if m[0] >= 16:
+                e = f"((((s{v} >> 16) * {c}) + (((s{v} & 0xFFFF) * {c}) >> 16)) >> {m[0] - 16})"
+            else:
+                e = f"(((s{v} >> 16) * {c} * {1 << (16 - m[0])}) + {lo})"
+        elif op == "MUL":
+            small = wr[ins.args[0]] * wr[ins.args[1]] < INT_MAX and not ins.sat and m[0] < 31
+            prod = f"({a[0]} * {a[1]})" if small else f"((int64_t){a[0]} * {a[1]})"
+            e = f"({prod} >> {m[0]})" if m[0] >= 0 else f"({prod} * {1 << -m[0]})"
+            e = e if small else f"{fin}{e}"
+        elif op in ("NEG", "ABS"):
+            v = f"(-(int64_t){a[0]})" if ins.sat else f"(-{a[0]})"
+            e = f"{fin}{v}" if op == "NEG" else f"{fin}({a[0]} < 0 ? {v} : (int64_t){a[0]})"
+            if not ins.sat:
+                e = f"(-{a[0]})" if op == "NEG" else f"({a[0]} < 0 ? -{a[0]} : {a[0]})"
+        elif op in ("LT", "LE", "EQ", "NE"):
+            w = any(kk > 0 for kk in m[:2])
+            c = {"LT": "<", "LE": "<=", "EQ": "==", "NE": "!="}[op]
+            p, q = (_rnd(x, k, r, w) for x, k, r in ((a[0], m[0], m[2]), (a[1], m[1], m[3])))
+            e = f"({p} {c} {q})"
+        elif op in ("AND", "OR"):
+            e = f"({a[0]} {'&&' if op == 'AND' else '||'} {a[1]})"
+        elif op == "NOT":
+            e = f"(!{a[0]})"
+        elif op == "SEL":
+            w = _wide(fx.prog, wr, ins, m, ins.args[1:])
+            e = f"({a[0]} ? {_sh(a[1], m[0], w)} : {_sh(a[2], m[1], w)})"
+            e = f"{fin}{e}" if w else e
+        elif op == "FLOOR":
+            e = _sh(a[0], -m[0], False)
+        elif op == "CEIL":
+            e = f"(int32_t)(-({_sh('(-(int64_t)' + a[0] + ')', -m[0], False)}))"
+        elif op == "DIV":
+            e = f"fx_div({_sh(a[0], m[0], True)}, {a[1]})"
+        elif op == "SQRT":
+            e = f"fx_isqrt({_sh(a[0], m[0], True)})"
+        elif op == "ATAN2":
+            e = f"fx_atan2({_sh(a[0], m[0], False)}, {_sh(a[1], m[1], False)})"
+        elif op == "SIN":
+            e = f"fx_sin({a[0]})"
+        elif op == "COS":
+            e = f"fx_sin(fx_wrap((int64_t){a[0]} + INT64_C(1073741824)))"
+        elif op in ("TOANG", "ANG2LIN") and abs(m[0]) < 2**15 and m[1] >= 16:
+            # floor(a K 2^-s) from two 32-bit products; within int32 (|a K| < 2^46), so no wrap is needed
+            v = f"s{ins.args[0]}"
+            e = f"((((({v} >> 16) * {m[0]}) + ((({v} & 0xFFFF) * {m[0]}) >> 16)) >> {m[1] - 16}))"
+        elif op == "TOANG":
+            e = f"fx_wrap(((int64_t){a[0]} * INT64_C({m[0]})) >> {m[1]})"
+        elif op in ("ANGADD", "ANGSUB"):
+            e = f"fx_wrap((int64_t){a[0]} {'+' if op == 'ANGADD' else '-'} {a[1]})"
+        elif op == "ANG2LIN":
+            e = f"(int32_t)(((int64_t){a[0]} * INT64_C({m[0]})) >> {m[1]})"
+        else:
+            raise NotImplementedError(f"fixed-point op {op} has no C spelling")
+        decl = "int" if ins.kind == "bool" else "int32_t"
+        note = f" /* {ins.what} */" if ins.what else ""
+        lines.append(f"const {decl} s{k} = {e};{note}")
+    n_x = len(fx.state_out)
+    lines += [f"{x}.{d['name']} = s{s};" for d, s in zip(fx.inputs[:n_x], fx.state_out, strict=True)]
+    lines += [f"{out}->{o['name']} = s{o['slot']};" for o in fx.outputs]
+    # a constant that every reader spells as a literal (the 16-bit products) is not declared
+    text = "\n".join(lines)
+    used = {int(t) for t in re.findall(r"\bs(\d+)\b", text)} if text else set()
+    counts = {k: len(re.findall(rf"\bs{k}\b", text)) for k in used}
+    return [
+        line
+        for k, line in enumerate(lines[: len(fx.prog)])
+        if not (fx.prog[k].op == "CONST" and counts.get(k, 0) <= 1)
+    ] + lines[len(fx.prog) :]
+
+
+def format_text(kind: str, f: int) -> str:
+    return (
+        "binary angle (pi = 2^31)"
+        if kind == "ang"
+        else ("0/1" if kind == "bool" else f"Q{f} (value = raw * 2^-{f})")
+    )
+
+
+def formats_json(fx: FixedStep, header: dict[str, Any]) -> str:
+    """The machine-readable formats (beside the C): every field's format, range and reason."""
+    data = {
+        **header,
+        "nominal_bits": NOMINAL_BITS,
+        "inputs": [{k: v for k, v in d.items() if k != "node"} for d in fx.inputs],
+        "outputs": [{k: v for k, v in d.items() if k != "slot"} for d in fx.outputs],
+        "signals": fx.signals,
+    }
+    return json.dumps(data, indent=1, sort_keys=True) + "\n"

@@ -1,0 +1,250 @@
+"""The integer semantics of the fixed-point step: one definition, run on integer numpy or on CasADi SX.
+
+A fixed-point program (reports/codegen/fixed_program.py) is a list of :class:`Ins`: SSA integer
+operations on 32-bit words. :func:`run` executes it with an arithmetic *backend*:
+
+- :data:`NUMPY` (int64 arrays): the bit-exact Python model of the generated C. Every operand is a
+  32-bit word and every intermediate fits in 64 bits, so int64 numpy computes exactly what the C
+  computes; tests compare the two on trajectories, 0 differences allowed;
+- :class:`SxBackend` (CasADi SX, doubles holding integers): the same program as a CasADi Function,
+  so that ``simulate`` runs the fixed-point step inside its compiled closed loop. A double holds an
+  integer exactly below 2^53; the formats keep every nominal value below 2^26 and so every product of
+  two below 2^52 (fixed_program.py), so on plausible samples it equals the numpy model bit for bit
+  (tests check it; hostile inputs are the numpy model's and the C's business).
+
+The C printer (reports/codegen/fixed_c.py) spells the same operations independently; this module is the
+reference it is checked against. Shifts right are floors (arithmetic shifts), as gcc and clang do for
+signed integers (implementation-defined in C99; both documented compilers define it so).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+INT_MAX = 2**31 - 1
+INT_MIN = -(2**31)
+NOMINAL_BITS = 26  # a signal at the top of its range is 2^26 (5 bits of headroom below 2^31)
+CORDIC_STEPS = 16  # atan2: error <= atan(2^-15) + rounding (docs/codegen.md, "Fixed point")
+# binary angle: an int32 word, pi <-> 2^31 (wraps: angle arithmetic is modulo 2 pi for free)
+CORDIC_ANGLES = tuple(round(math.atan(2.0**-i) * 2**31 / math.pi) for i in range(CORDIC_STEPS))
+SIN_F = NOMINAL_BITS  # format of sin/cos results
+SIN_TERMS = 5  # odd powers 1..9
+
+
+def _sin_coefficients() -> tuple[int, ...]:
+    """Odd polynomial c1 x + c3 x^3 + ... + c9 x^9 ~ sin(pi x / 2) on [-1, 1] (least squares on
+    Chebyshev nodes, max error 5.3e-8 with rounding), as Q26 integers."""
+    x = np.cos(np.pi * (np.arange(400) + 0.5) / 400)
+    a = np.stack([x ** (2 * k + 1) for k in range(SIN_TERMS)], axis=1)
+    c = np.linalg.lstsq(a, np.sin(np.pi * x / 2), rcond=None)[0]
+    return tuple(round(float(v) * 2**SIN_F) for v in c)
+
+
+SIN_COEF = _sin_coefficients()
+
+
+@dataclass(frozen=True)
+class Ins:
+    """One operation: ``op`` over slots ``args``; result format: kind 'fix' (value = raw 2^-f),
+    'bool' (0/1, f = 0) or 'ang' (binary angle, pi <-> 2^31); ``imm`` the op's integer constants;
+    ``sat``: the result is saturated to int32 (a worst-case input could overflow it)."""
+
+    op: str
+    args: tuple[int, ...]
+    kind: str
+    f: int
+    imm: tuple[int, ...] = ()
+    sat: bool = False
+    what: str = ""  # what it computes, for the C comment
+
+
+class NumpyBackend:
+    """int64 numpy arithmetic (exact for 32-bit operands)."""
+
+    def const(self, v: int, like: Any) -> Any:
+        return np.full_like(like, v, dtype=np.int64)
+
+    def mul(self, a: Any, b: Any) -> Any:
+        return a * b
+
+    def shift(self, a: Any, k: int) -> Any:  # a 2^k, floored
+        return a * (1 << k) if k >= 0 else a >> (-k)
+
+    def clip(self, a: Any, lo: int, hi: int) -> Any:
+        return np.clip(a, lo, hi)
+
+    def where(self, c: Any, a: Any, b: Any) -> Any:
+        return np.where(c != 0, a, b)
+
+    def cmp(self, op: str, a: Any, b: Any) -> Any:
+        return {"LT": a < b, "LE": a <= b, "EQ": a == b, "NE": a != b}[op].astype(np.int64)
+
+    def logic(self, op: str, a: Any, b: Any = None) -> Any:
+        if op == "NOT":
+            return (a == 0).astype(np.int64)
+        return (((a != 0) & (b != 0)) if op == "AND" else ((a != 0) | (b != 0))).astype(np.int64)
+
+    def wrap(self, a: Any) -> Any:  # to int32, modulo 2^32
+        return ((a + 2**31) & 0xFFFFFFFF) - 2**31
+
+    def isqrt(self, v: Any) -> Any:  # floor(sqrt(v)), 0 <= v < 2^32
+        r = np.floor(np.sqrt(v.astype(np.float64))).astype(np.int64)
+        r = np.where(r * r > v, r - 1, r)
+        return np.where((r + 1) * (r + 1) <= v, r + 1, r)
+
+    def absval(self, a: Any) -> Any:
+        return np.abs(a)
+
+    def div(self, n: Any, d: Any) -> Any:  # floor division, d > 0
+        return n // d
+
+    def minmax(self, op: str, a: Any, b: Any) -> Any:
+        return np.minimum(a, b) if op == "MIN" else np.maximum(a, b)
+
+
+class SxBackend(NumpyBackend):
+    """CasADi SX: doubles holding integers (exact below 2^53)."""
+
+    def const(self, v: int, like: Any) -> Any:
+        return ca.SX(float(v))
+
+    def shift(self, a: Any, k: int) -> Any:
+        return a * float(2**k) if k >= 0 else ca.floor(a * 2.0**k)
+
+    def clip(self, a: Any, lo: int, hi: int) -> Any:
+        return ca.fmin(ca.fmax(a, float(lo)), float(hi))
+
+    def where(self, c: Any, a: Any, b: Any) -> Any:
+        return ca.if_else(c, a, b)
+
+    def cmp(self, op: str, a: Any, b: Any) -> Any:
+        return {"LT": a < b, "LE": a <= b, "EQ": a == b, "NE": a != b}[op]
+
+    def logic(self, op: str, a: Any, b: Any = None) -> Any:
+        if op == "NOT":
+            return ca.logic_not(a)
+        return ca.logic_and(a, b) if op == "AND" else ca.logic_or(a, b)
+
+    def wrap(self, a: Any) -> Any:
+        return a - 2.0**32 * ca.floor((a + 2.0**31) * 2.0**-32)
+
+    def isqrt(self, v: Any) -> Any:
+        r = ca.floor(ca.sqrt(v))
+        r = ca.if_else(r * r > v, r - 1, r)
+        return ca.if_else((r + 1) * (r + 1) <= v, r + 1, r)
+
+    def absval(self, a: Any) -> Any:
+        return ca.fabs(a)
+
+    def div(self, n: Any, d: Any) -> Any:  # exact for |n| < 2^53
+        q = ca.floor(n / d)
+        q = ca.if_else(q * d > n, q - 1, q)
+        return ca.if_else((q + 1) * d <= n, q + 1, q)
+
+    def minmax(self, op: str, a: Any, b: Any) -> Any:
+        return ca.fmin(a, b) if op == "MIN" else ca.fmax(a, b)
+
+
+NUMPY = NumpyBackend()
+
+
+def _sat(B: Any, v: Any, ins: Ins) -> Any:
+    return B.clip(v, INT_MIN, INT_MAX) if ins.sat else v
+
+
+def cordic_atan2(B: Any, y: Any, x: Any) -> Any:
+    """atan2(y, x) as a binary angle: vectoring CORDIC, CORDIC_STEPS steps (inputs int32 words)."""
+    x, y = B.shift(x, -2), B.shift(y, -2)  # headroom for the CORDIC gain (1.65) and sqrt(2)
+    zero = B.logic("AND", B.cmp("EQ", x, B.const(0, x)), B.cmp("EQ", y, B.const(0, y)))
+    neg = B.cmp("LT", x, B.const(0, x))
+    x, y = B.where(neg, -x, x), B.where(neg, -y, y)
+    z = B.where(neg, B.const(2**31, x), B.const(0, x))
+    for i, a in enumerate(CORDIC_ANGLES):
+        d = B.cmp("LT", B.const(0, y), y)
+        xs, ys = B.shift(x, -i), B.shift(y, -i)
+        x, y = B.where(d, x + ys, x - ys), B.where(d, y - xs, y + xs)
+        z = B.where(d, z + a, z - a)
+    return B.where(zero, B.const(0, z), B.wrap(z))
+
+
+def sin_binary(B: Any, a: Any) -> Any:
+    """sin of a binary angle (int32), Q26: folded to [-pi/2, pi/2], odd polynomial of degree 9."""
+    half = 2**30
+    a = B.where(B.cmp("LT", B.const(half, a), a), B.const(2**31, a) - a, a)
+    a = B.where(B.cmp("LT", a, B.const(-half, a)), B.const(-(2**31), a) - a, a)
+    x = B.shift(a, SIN_F - 30)  # Q26, |x| <= 1
+    x2 = B.shift(B.mul(x, x), -SIN_F)
+    p = B.const(SIN_COEF[-1], x)
+    for c in reversed(SIN_COEF[:-1]):
+        p = B.shift(B.mul(p, x2), -SIN_F) + c
+    return B.shift(B.mul(p, x), -SIN_F)
+
+
+def _rounded(B: Any, a: Any, k: int, ceil: int) -> Any:
+    """a 2^k, floored (or, with ``ceil``, rounded up: x <= y 2^k exactly when ceil(x 2^-k) <= y)."""
+    return -B.shift(-a, k) if ceil and k < 0 else B.shift(a, k)
+
+
+def run(prog: list[Ins], B: Any, inputs: list[Any]) -> list[Any]:
+    """Execute ``prog``; ``inputs[j]`` is the value of input j (an 'IN' op with imm (j,)). Returns
+    every slot's value (outputs are slots named by the program)."""
+    v: list[Any] = []
+    for ins in prog:
+        a = [v[j] for j in ins.args]
+        op, m = ins.op, ins.imm
+        if op == "IN":
+            r = inputs[m[0]]
+            if len(m) == 3:  # clamped where it enters: a glitch beyond twice its range is clamped
+                r = B.clip(r, m[1], m[2])
+        elif op == "CONST":
+            r = B.const(m[0], inputs[0])
+        elif op == "ALIGN":
+            r = _sat(B, B.shift(a[0], m[0]), ins)
+        elif op in ("ADD", "SUB"):
+            p, q = B.shift(a[0], m[0]), B.shift(a[1], m[1])
+            r = _sat(B, p + q if op == "ADD" else p - q, ins)
+        elif op == "MUL":
+            r = _sat(B, B.shift(B.mul(a[0], a[1]), -m[0]), ins)
+        elif op == "NEG":
+            r = _sat(B, -a[0], ins)
+        elif op == "ABS":
+            r = _sat(B, B.absval(a[0]), ins)
+        elif op in ("MIN", "MAX"):
+            r = _sat(B, B.minmax(op, B.shift(a[0], m[0]), B.shift(a[1], m[1])), ins)
+        elif op in ("LT", "LE", "EQ", "NE"):  # the finer operand rounded to the coarser format
+            r = B.cmp(op, _rounded(B, a[0], m[0], m[2]), _rounded(B, a[1], m[1], m[3]))
+        elif op in ("AND", "OR"):
+            r = B.logic(op, a[0], a[1])
+        elif op == "NOT":
+            r = B.logic(op, a[0])
+        elif op == "SEL":
+            r = _sat(B, B.where(a[0], B.shift(a[1], m[0]), B.shift(a[2], m[1])), ins)
+        elif op == "FLOOR":
+            r = B.shift(a[0], -m[0])
+        elif op == "CEIL":
+            r = -B.shift(-a[0], -m[0])
+        elif op == "DIV":  # floor(a 2^k / b), b > 0
+            r = B.div(B.shift(a[0], m[0]), a[1])
+        elif op == "SQRT":
+            r = B.isqrt(B.clip(B.shift(a[0], m[0]), 0, 2**32 - 1))
+        elif op == "ATAN2":
+            r = cordic_atan2(B, B.shift(a[0], m[0]), B.shift(a[1], m[1]))
+        elif op == "SIN":
+            r = sin_binary(B, a[0])
+        elif op == "COS":
+            r = sin_binary(B, B.wrap(a[0] + 2**30))
+        elif op == "TOANG":
+            r = B.wrap(B.shift(B.mul(a[0], B.const(m[0], a[0])), -m[1]))
+        elif op in ("ANGADD", "ANGSUB"):
+            r = B.wrap(a[0] + a[1] if op == "ANGADD" else a[0] - a[1])
+        elif op == "ANG2LIN":
+            r = B.shift(B.mul(a[0], B.const(m[0], a[0])), -m[1])
+        else:
+            raise NotImplementedError(f"fixed-point op {op}")
+        v.append(r)
+    return v
