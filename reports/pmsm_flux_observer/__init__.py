@@ -53,6 +53,7 @@ from sensorless.reports.review import (
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
     assess_any,
+    check_variant,
     corners,
     figures,
     hold_speed,
@@ -146,6 +147,34 @@ def analyze_check(drive: Any, args: argparse.Namespace) -> None:
         FAMILY.linearize(drive, FAMILY.gains(drive), np.array([drive.w_base]), np.zeros(1))
 
 
+# --------------------------------------------------------------------------------------------- init
+INIT_OPTIONS = (
+    Option(
+        ("--firmware",),
+        {
+            "choices": ("vesc", "odrive", "simplefoc"),
+            "help": "the firmware the drive is for: its observer variant and default gains are written "
+            "(default: the file's [observer] firmware, else the generic gradient observer)",
+        },
+    ),
+)
+
+
+def init_data(data: Any, args: argparse.Namespace, file: str) -> Any:
+    """The minimal file's data with ``--firmware`` as its [observer] firmware (the file's own key where
+    none is given; both given and different: one line naming both)."""
+    fw = getattr(args, "firmware", None)
+    if fw is None:
+        return data
+    obs = data.get("observer", {})
+    if not isinstance(obs, dict):
+        return data  # the schema names the bad section
+    mine = obs.get("firmware")
+    if mine is not None and mine != fw:
+        raise UsageError(f"--firmware {fw}: {file} says [observer] firmware = {mine!r}; give one of the two")
+    return {**data, "observer": {**obs, "firmware": fw}}
+
+
 # --------------------------------------------------------------------------------------------- tune
 TUNE_OPTIONS = (
     Option(("--bias-max",), {"type": Number(0.1, 90.0), "help": "largest angle bias that holds [deg]"}),
@@ -167,6 +196,7 @@ TUNE_OPTIONS = (
 
 
 def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> FluxTuneSettings:
+    check_variant(drive, tunable.name)  # up front: a law the drive's observer variant cannot run
     s = tunable.settings(drive)
     errors = dict(s.errors)
     for opt, key in (("r_error", "R_s"), ("flux_error", "psi_pm"), ("l_error", "L")):
@@ -422,6 +452,8 @@ HOOKS = ReportHooks(
     describe_envelope=describe,
     report=compute,
     settings_sections=("gains", "envelope", "control"),
+    init_options=INIT_OPTIONS,
+    init_data=init_data,
     importers=IMPORTERS,
     exporters=EXPORTERS,
 )

@@ -49,6 +49,7 @@ from sensorless.tuning.pmsm_flux_observer.odrive import tune_odrive
 from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome
 from sensorless.tuning.pmsm_flux_observer.settings import (
     FluxTuneSettings,
+    check_variant,
     corners,
     default_settings,
     k_grid,
@@ -67,6 +68,7 @@ __all__ = [
     "assess_any",
     "assess_linearized",
     "best",
+    "check_variant",
     "corners",
     "default_settings",
     "figures",

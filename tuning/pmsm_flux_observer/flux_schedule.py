@@ -12,6 +12,7 @@ from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome, baselines,
 from sensorless.tuning.pmsm_flux_observer.settings import (
     KP_T,
     FluxTuneSettings,
+    check_variant,
     k_grid,
     odrive_candidate,
     pll_floor,
@@ -20,6 +21,7 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
 
 def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``flux_schedule`` law: gamma lambda^2 per envelope speed, by the criterion at that speed."""
+    check_variant(drive, "flux_schedule")
     ks = k_grid(drive)
     cands = [odrive_candidate(drive, float(k)) for k in ks]
     a = assess(drive, cands, settings)

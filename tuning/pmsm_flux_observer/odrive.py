@@ -10,6 +10,7 @@ from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome, baselines,
 from sensorless.tuning.pmsm_flux_observer.settings import (
     REFINE,
     FluxTuneSettings,
+    check_variant,
     corners,
     k_grid,
     odrive_candidate,
@@ -19,6 +20,7 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
 
 def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``odrive`` law: one observer_gain and pll_bandwidth over the envelope (package docstring)."""
+    check_variant(drive, "odrive")
     ks = k_grid(drive)
     cands = [odrive_candidate(drive, float(k)) for k in ks]
     if progress:

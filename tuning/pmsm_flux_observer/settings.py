@@ -8,8 +8,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import GainSet
+from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.pmsm_flux_observer import ERRORS  # default estimate errors (+-)
+from sensorless.design.pmsm_flux_observer.gains import law_misfit
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 
 KP_T = 0.5  # T k_p at most (ODrive flags T k_p >= 1 as unstable; half of it leaves a margin)
@@ -97,3 +98,11 @@ def pll_floor(drive: Any) -> float:
 
 def k_grid(drive: Any) -> np.ndarray:
     return np.geomspace(K_MIN, K_T_MAX / drive.observer.T_obs, K_GRID)
+
+
+def check_variant(drive: Any, law: str) -> None:
+    """CapabilityError (one line, before any work) where ``law`` cannot be tuned for the drive's observer
+    variant (design/pmsm_flux_observer/gains.py ``law_misfit``): never a table its export refuses."""
+    why = law_misfit(drive, law)
+    if why:
+        raise CapabilityError(why)

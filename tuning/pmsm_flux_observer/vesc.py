@@ -17,6 +17,7 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
     REFINE,
     SLOW_GRID,
     FluxTuneSettings,
+    check_variant,
     pll_floor,
     vesc_gains,
 )
@@ -24,6 +25,7 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
 
 def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``vesc`` law: foc_observer_gain and foc_observer_gain_slow under VESC's run-time schedule."""
+    check_variant(drive, "vesc")
     psi = drive.estimate.psi_pm
     T = drive.observer.T_obs
     # the schedule's factor at the top of the envelope: k there = 4 raw psi^2 max(slow, |u|/u_ref)
