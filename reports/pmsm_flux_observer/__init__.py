@@ -186,8 +186,9 @@ TUNE_OPTIONS = (
         ("--min-damping",),
         {
             "type": Number(0, 1, hi_open=True),
-            "help": "worst damping required, in [0, 1) (default 0.2, as `sensorless report`): below it the "
-            "tables are written with a warning and exit status 3",
+            "help": "worst damping required, in [0, 1) (default: none; the family judges decay, angle bias, "
+            "angle noise and the PLL's lag instead): below it the tables are written with a warning and "
+            "exit status 3",
         },
     ),
     # the shared noise limit and front options, as every family on the shared envelope declares them
@@ -207,6 +208,8 @@ def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> FluxTun
         s = dataclasses.replace(s, bias_max_deg=float(args.bias_max))
     if args.hold_speed is not None:
         s = dataclasses.replace(s, hold_speed=float(args.hold_speed) * drive.w_base)
+    if args.min_damping is not None:
+        s = dataclasses.replace(s, min_damping=float(args.min_damping))
     if args.max_noise:
         s = dataclasses.replace(s, max_noise=parse_max_noise(args.max_noise, drive.w_base))
     if args.pareto is not None:

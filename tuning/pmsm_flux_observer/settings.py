@@ -39,6 +39,11 @@ SLOW_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0)  # foc_observer_gain_slow can
 BIAS_MAX_DEG = 15.0
 
 
+# the observer's own modes decay at least this multiple of the drive's speed-loop bandwidth alpha_s (it
+# settles at least as fast as the speed loop it feeds); the PLL's slower root at least PLL_SPEED_LOOP x
+DECAY_SHARE = 1.0
+
+
 NOISE_INDEX = {"position": 0, "speed": 1}  # --max-noise outputs: the PLL's angle and speed
 
 
@@ -59,6 +64,8 @@ class FluxTuneSettings:
     pareto: int = 0  # points of the damping-versus-bias front (``pareto_<law>.csv``); 0: none
     # RMS noise of the PLL's estimates at most, ((output, limit), ...): position [rad], speed [rad/s]
     max_noise: tuple[tuple[str, float], ...] = ()
+    decay_share: float = DECAY_SHARE  # observer decay >= decay_share x alpha_s
+    min_damping: float = 0.0  # worst damping required (``--min-damping``); 0: none (not the criterion's)
 
 
 def default_settings(drive: Any) -> FluxTuneSettings:
