@@ -198,6 +198,17 @@ class ObserverFamily:
     # sensorless speed where the observer does not hold zero speed: their files take a [startup]
     # section, which `sensorless init` writes (its drive class then has a ``startup`` field)
     open_loop_start: ClassVar[bool] = False
+    # the worst damping its designs must keep where a command is given no --min-damping (`report`, the
+    # minimum-speed analysis, `montecarlo`'s yield); None: the shared design/poles.py MIN_DAMPING. A
+    # family whose observer's damping falls with speed by design states its own (and judges its gains
+    # by a criterion of its own: tuning/family.py TuneOutcome.shortfalls)
+    required_damping: ClassVar[float | None] = None
+
+    def min_damping(self) -> float:
+        """The damping its designs must keep by default (``required_damping``, else MIN_DAMPING)."""
+        from sensorless.design.poles import MIN_DAMPING
+
+        return MIN_DAMPING if self.required_damping is None else float(self.required_damping)
 
     # ---------------------------------------------------------------------------------- drive file
     def load(self, data: Mapping[str, Any], file: str, digest: str) -> Drive:

@@ -70,6 +70,10 @@ class FluxObserverFamily(ObserverFamily):
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
     open_loop_start = True
+    # its damping k/(2|w|) falls with speed by design (its error does not oscillate in the stationary
+    # frame): stable is all it asks of damping; its criterion is decay, angle bias and noise, the PLL's
+    # lag (tuning/pmsm_flux_observer/criterion.py)
+    required_damping = 0.0
 
     def load(self, data: Any, file: str, digest: str) -> schema.FluxObserverDrive:
         return schema.load(data, file, digest, self.kind)

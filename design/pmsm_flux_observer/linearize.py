@@ -189,8 +189,9 @@ def _sampled_observer_decay(Jd: np.ndarray, poles: np.ndarray, T: float) -> np.n
     """(N,) -max ln|z|/T of the one-step map's observer block where the map is block triangular (as
     ``_observer_decay``: the PLL's modes, the last two coordinates, left out); elsewhere of all poles."""
     m = Jd.shape[1] - 2
-    out = -np.nanmax(poles.real, axis=1) if poles.size else np.full(Jd.shape[0], np.nan)
     ok = np.isfinite(Jd).all(axis=(1, 2))
+    out = np.full(Jd.shape[0], np.nan)
+    out[ok] = -np.max(poles[ok].real, axis=1)
     if ok.any():
         J = Jd[ok]
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -83,8 +83,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--min-damping",
         type=Number(0, 1),
-        default=MIN_DAMPING,
-        help=f"required damping ratio, in [0, 1] (default {MIN_DAMPING:g})",
+        default=None,
+        help=f"required damping ratio, in [0, 1] (default: the observer family's, {MIN_DAMPING:g} for most)",
     )
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -108,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
     out = OutputSet(args.out, force=args.force, names=NAMES)
     out.check()
     fam = family_of(drive)
+    if args.min_damping is None:  # the family's (ObserverFamily.required_damping)
+        args.min_damping = fam.min_damping()
     params = fam.montecarlo_parameters(drive)  # CapabilityError: one line naming the family
     try:
         plant = mc.parse_spreads(args.spread, "--spread", params, estimates=False)

@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(e)) from None
     print("\n".join(r.summary_lines(drive)))
     tuned = fam.gains(drive, table=r.table, table_file=json_name)
-    low = tune_line(drive, tuned, MIN_DAMPING, estimate_errors(drive, tunable, settings))
+    low = tune_line(drive, tuned, fam.min_damping(), estimate_errors(drive, tunable, settings))
     if low:
         print(low)
     out.add_text(json_name, r.table.to_json())

@@ -57,7 +57,9 @@ from sensorless.tuning.pmsm_flux_observer import (
     corners,
     figures,
     hold_speed,
+    judged,
     odrive_gains,
+    shortfalls,
     vesc_gains,
 )
 
@@ -265,7 +267,11 @@ def compute(
         w_hold = hold_speed(drive, settings, base)
         for j, k in enumerate(labels):
             fg = figures(drive, a, j)
+            jd = judged(drive, a, j, settings)
             analysis[k] = {
+                "worst_decay_1_s": f(jd["worst_decay_1_s"]) if math.isfinite(jd["worst_decay_1_s"]) else None,
+                "pll_root_1_s": f(jd["pll_root_1_s"]),
+                "criterion_shortfalls": shortfalls(drive, rev.choices[k], jd, settings),
                 "gains": {n: f(v) for n, v in rev.choices[k].values.items() if not isinstance(v, list)},
                 "law": rev.choices[k].law,
                 "worst_damping": f(fg["worst_damping"]),
@@ -340,13 +346,25 @@ def compute(
     )
     stable = not linearizable or mine.get("low_speed_limit_pu") is not None
     pll = pll_finding(rev.gains, drive.control.alpha_s, td)
-    status = "fail" if not stable else "pass" if damped and tracks and not pll else "warn"
+    # the family's criterion (tuning/pmsm_flux_observer/criterion.py) beyond holding somewhere and the
+    # PLL (their own findings): holding only at the top speed, the observer's decay
+    crit = (
+        [
+            x
+            for x in mine.get("criterion_shortfalls", [])
+            if "PLL" not in x and "at no envelope speed" not in x
+        ]
+        if linearizable and stable
+        else []
+    )
+    status = "fail" if not stable else "pass" if damped and tracks and not pll and not crit else "warn"
     status, td_findings = settle(status, td)
     findings = []
     if linearizable and not stable:
         findings.append(holds_nowhere_finding(drive, rev.gains, settings))
     if not damped:
         findings.append(damping_finding(drive, a, labels.index(review), min_damping, rev.gains.law))
+    findings += crit
     if not tracks:
         findings.append(f"a time-domain check exceeds {MAX_RMS_THETA_DEG:g} deg RMS position error")
     findings += [x["text"] for x in td_findings]

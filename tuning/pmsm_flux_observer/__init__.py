@@ -44,6 +44,7 @@ from sensorless.tuning.pmsm_flux_observer.assessment import (
     hold_speed,
     low_limit,
 )
+from sensorless.tuning.pmsm_flux_observer.criterion import judged, requirements, shortfalls
 from sensorless.tuning.pmsm_flux_observer.flux_schedule import tune_schedule
 from sensorless.tuning.pmsm_flux_observer.odrive import tune_odrive
 from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome
@@ -74,11 +75,14 @@ __all__ = [
     "figures",
     "front",
     "hold_speed",
+    "judged",
     "k_grid",
     "low_limit",
     "odrive_candidate",
     "odrive_gains",
     "own_law",
+    "requirements",
+    "shortfalls",
     "tune_odrive",
     "tune_schedule",
     "tune_vesc",
