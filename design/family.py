@@ -314,6 +314,14 @@ class ObserverFamily:
         equilibrium may be NaN at all its points (its evaluation stops there)."""
         raise CapabilityError(f"observer family {self.name!r} has no batched linearization of draws")
 
+    def envelope_points(self, drive: Any) -> tuple[Any, Any]:
+        """(w [rad/s electrical], torque [N m]) of the design's envelope, the points a Monte-Carlo run
+        judges every draw at: the shared tuning envelope (design/envelope.py ``[tuning]``) by default."""
+        env = getattr(getattr(drive, "tuning", None), "envelope", None)
+        if env is None:
+            raise CapabilityError(f"{drive.file}: the drive has no tuning envelope to evaluate draws over")
+        return env.grid(drive.w_base, drive.T_N)
+
     def perturbed(self, drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
         """``drive`` with the true motor's (``plant``) and the observer's (``estimate``) parameters
         replaced by the given SI values (the time domain of a Monte-Carlo draw)."""

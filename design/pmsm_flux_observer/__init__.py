@@ -144,5 +144,27 @@ class FluxObserverFamily(ObserverFamily):
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation(drive, scenario, gains)
 
+    # Monte-Carlo (design/pmsm_flux_observer/montecarlo.py)
+    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
+        from sensorless.design.pmsm_flux_observer import montecarlo
+
+        return montecarlo.parameters(drive)
+
+    def linearize_draws(
+        self, drive: Any, gains: Any, plant: Any, estimate: Any, w: Any, torque: Any, complete: bool = True
+    ) -> Any:
+        from sensorless.design.pmsm_flux_observer import montecarlo
+
+        return montecarlo.linearize_draws(drive, gains, plant, estimate, w, torque, complete)
+
+    def envelope_points(self, drive: Any) -> tuple[Any, Any]:
+        """Its drive file's [envelope]: speeds in both directions x torques."""
+        return drive.grid()
+
+    def perturbed(self, drive: Any, plant: Any, estimate: Any) -> Any:
+        from sensorless.design.pmsm_flux_observer import montecarlo
+
+        return montecarlo.perturbed(drive, plant, estimate)
+
 
 FAMILY = FluxObserverFamily()

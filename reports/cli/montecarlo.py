@@ -52,7 +52,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--spread",
         metavar="SPREADS",
-        help=f"spread of the true motor: {SPREAD_HELP}; e.g. R_s=10%%,L_d=10%%,L_q=10%%,psi_pm=5%%,J=30%%",
+        help=f"spread of the true motor: {SPREAD_HELP}; e.g. R_s=10%%,L_d=10%%,L_q=10%%,psi_pm=5%%,J=30%% "
+        "(default: the observer family's typical spread)",
     )
     p.add_argument(
         "--estimate-error",
@@ -116,6 +117,14 @@ def run(args: argparse.Namespace) -> int:
         estimate = mc.parse_spreads(args.estimate_error, "--estimate-error", params, estimates=True)
     except mc.SpreadError as e:
         raise UsageError(str(e)) from None
+    if args.spread is None:  # the family's typical spread of the true motor (montecarlo_parameters)
+        plant = rmc.typical_spreads(params)
+        if not args.quiet:
+            typical = ", ".join(f"{k}={v.text()}" for k, v in plant.items())
+            print(
+                f"sensorless montecarlo: note: no --spread: the family's typical spread {typical}",
+                file=sys.stderr,
+            )
     if not plant and not estimate:
         raise UsageError("give --spread and/or --estimate-error: nothing is spread")
     gains = fam.gains(drive)
