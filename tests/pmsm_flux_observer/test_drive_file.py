@@ -34,7 +34,9 @@ firmware = "vesc"
 """
 
 
-BOX = MINIMAL.replace('firmware = "vesc"', 'firmware = "vesc"\ncorrection = "box-clamp"\nlambda_adaptation = true')
+BOX = MINIMAL.replace(
+    'firmware = "vesc"', 'firmware = "vesc"\ncorrection = "box-clamp"\nlambda_adaptation = true'
+)
 
 
 @pytest.fixture
@@ -57,7 +59,11 @@ def test_rules_of_a_minimal_file(minimal):
     assert d.motor.J == pytest.approx(0.1 * d.T_N / (d.rating.n_N * math.pi / 30), rel=1e-5)
     o = d.observer
     # VESC's ORTEGA_ORIGINAL: the observer whose gain its law tunes (the box clamp has none)
-    assert (o.correction, o.inductance_rule, o.lambda_adaptation) == ("clamped-gradient", "interpolated", False)
+    assert (o.correction, o.inductance_rule, o.lambda_adaptation) == (
+        "clamped-gradient",
+        "interpolated",
+        False,
+    )
     assert o.T_obs == pytest.approx(1e-4)
     g = d.gains_table
     assert g["law"] == "vesc" and g["foc_observer_gain"] == pytest.approx(1e3 / psi**2, rel=1e-5)

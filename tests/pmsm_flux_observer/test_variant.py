@@ -63,7 +63,9 @@ def test_init_firmware_refusals(tmp_path, capsys):
     assert not out.exists()
     rc = main(["init", "--from", "vesc", "x.xml", "--firmware", "vesc", "--out", str(tmp_path / "y.toml")])
     assert rc == 2 and "not of --from" in capsys.readouterr().err
-    rc = main(["init", "docs/examples/motors/servo400.toml", "--firmware", "vesc", "--out", str(tmp_path / "s")])
+    rc = main(
+        ["init", "docs/examples/motors/servo400.toml", "--firmware", "vesc", "--out", str(tmp_path / "s")]
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "--firmware" in err[0] and "not an option" in err[0]
 
