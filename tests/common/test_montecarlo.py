@@ -100,7 +100,7 @@ def _run(argv, capsys):
         (["--spread", "R_s=60%"], "--spread: 'R_s=60%': a normal spread of 50 % or more"),
         (["--spread", "Q=5%"], "--spread: 'Q' is not one of"),
         (["--estimate-error", "J=5%"], "--estimate-error: 'J' is not one of the drive's estimated"),
-        (["--spread", ""], "give --spread and/or --estimate-error"),  # none given: the typical spread
+        (["--spread", ""], "--spread: empty"),  # none given: the family's typical spread
         (["--spread", "R_s=5%", "--samples", "3", "--time-domain", "4"], "--time-domain: 4 is more"),
         (["--spread", "R_s=5%", "--workers", "2", "--scheduler", "synchronous"], "--workers"),
         (["--spread", "R_s=5%", "--gains", "nope.json"], "nope.json"),
