@@ -8,9 +8,11 @@ damping is not its figure. Per candidate, over the envelope x the estimate-error
 1. **holds**: a speed holds when at every torque, direction and corner the sampled observer is stable,
    its angle bias is within ``bias_max_deg`` and its angle noise within its limit (default a third of
    the bias limit); the *low-speed limit* is the lowest speed from which every higher one holds;
-2. **decay**: the observer's own modes (nominal estimates, the PLL's left out) decay at least
-   ``decay_share`` x alpha_s from the limit up: the observer settles as fast as the speed loop it feeds;
-3. **lag under acceleration**: the PLL's speed estimate (its integrator) settles with the slower root of
+2. **decay and lag under acceleration**: the observer's own modes (nominal estimates, the PLL's left
+   out) decay at least ``decay_share`` x alpha_s from the limit up (the observer settles as fast as
+   the speed loop it feeds), and at least sqrt(a_max / 30 deg) (a_max = p (T_max - T_N) / J: its angle
+   lags a ramp by about a / sigma^2; the I-f start's handover rule, design/startup.py);
+3. **the PLL's lag**: the PLL's speed estimate (its integrator) settles with the slower root of
    s^2 + k_p s + k_i, at least PLL_SPEED_LOOP x alpha_s (the drive file's rule); behind the drive's full
    acceleration a = p T_max / J it lags a k_p / k_i;
 4. optionally the worst damping (``--min-damping``).
@@ -32,6 +34,7 @@ import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer.gains import pll_gains
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
+from sensorless.design.startup import handover_decay
 from sensorless.tuning.pmsm_flux_observer.assessment import Assessment, assess, figures, low_limit
 from sensorless.tuning.pmsm_flux_observer.settings import FluxTuneSettings
 
@@ -41,10 +44,16 @@ TOL = 1e-9  # relative: a requirement met to rounding is met (a double root k_p/
 def requirements(drive: Any, settings: FluxTuneSettings) -> dict[str, float]:
     """The criterion's numbers on this drive: decay [1/s], PLL root [1/s], full acceleration [rad/s^2]."""
     a_s = float(drive.control.alpha_s)
+    m, c = drive.motor, drive.control
+    # what the full acceleration against rated load asks of the observer's decay (its angle lags a ramp
+    # by about a / sigma^2): the I-f start's handover rule, design/startup.py
+    follow = handover_decay(drive.T_N, c.T_max, m.J, m.p, 0.0)
     return {
-        "decay": settings.decay_share * a_s,
+        "decay": max(settings.decay_share * a_s, follow),
+        "decay_speed_loop": settings.decay_share * a_s,
+        "decay_acceleration": follow,
         "pll": PLL_SPEED_LOOP * a_s,
-        "acceleration": drive.motor.p * drive.control.T_max / drive.motor.J,
+        "acceleration": m.p * c.T_max / m.J,
     }
 
 
@@ -120,11 +129,21 @@ def shortfalls(
         )
     if ok["holds"] and not ok["decay"]:
         dec = j["worst_decay_1_s"]
+        if need["decay_speed_loop"] >= need["decay_acceleration"]:
+            why = (
+                f"the {need['decay']:.4g} 1/s the speed loop needs ({settings.decay_share:g} x alpha_s: the "
+                "observer settles at least as fast as the speed loop it feeds)"
+            )
+            fix = f"a slower speed loop ([control] alpha_s at most {dec / settings.decay_share:.4g} rad/s)"
+        else:
+            why = (
+                f"the {need['decay']:.4g} 1/s the full acceleration against rated load asks (sqrt(a_max / 30 "
+                "deg): its angle lag a / sigma^2 within 30 deg; design/startup.py)"
+            )
+            fix = "a lower torque limit ([control] T_max)"
         out.append(
-            f"the observer decays at {dec:.4g} 1/s at {j['worst_decay_at_rad_s'] / wb:.3g} p.u., below the "
-            f"{need['decay']:.4g} 1/s the speed loop needs ({settings.decay_share:g} x alpha_s: the observer "
-            f"settles at least as fast as the speed loop it feeds); change: a slower speed loop ([control] "
-            f"alpha_s at most {dec / settings.decay_share:.4g} rad/s) or a higher hold speed (--hold-speed)"
+            f"the observer decays at {dec:.4g} 1/s at {j['worst_decay_at_rad_s'] / wb:.3g} p.u., below "
+            f"{why}; change: {fix}, or a higher hold speed (--hold-speed)"
         )
     if pll and not ok["pll"]:
         k_p, k_i = pll_gains(gains)

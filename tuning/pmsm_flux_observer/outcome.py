@@ -162,9 +162,9 @@ def outcome(
     lines = [
         header(g),
         summary_line("tuned", f, settings),
-        f"  observer decay >= {j['worst_decay_1_s']:.4g} 1/s (required {need['decay']:.4g}: "
-        f"{settings.decay_share:g} x alpha_s), PLL root {j['pll_root_1_s']:.4g} 1/s (required "
-        f"{need['pll']:.4g}); the criterion: hold as low as possible, then the fastest decay",
+        f"  observer decay >= {j['worst_decay_1_s']:.4g} 1/s (required {need['decay']:.4g}: the larger of "
+        f"{settings.decay_share:g} x alpha_s and sqrt(a_max / 30 deg)), PLL root {j['pll_root_1_s']:.4g} "
+        f"1/s (required {need['pll']:.4g}); the criterion: hold as low as possible, then the fastest decay",
         "baselines (the firmwares' defaults on this motor, same criterion):",
         *base_lines,
     ]
