@@ -1,6 +1,7 @@
-"""The flux-observer tuners' criterion (package docstring): every candidate judged by the sampled
-observer's linearization on the envelope x the estimate-error corners, its low-speed limit, the best
-candidate, the damping-versus-bias front and the hold speed."""
+"""The flux-observer tuners' figures: every candidate judged by the sampled observer's linearization on
+the envelope x the estimate-error corners (holds, damping, bias, noise, the observer's decay, the PLL's
+slow root), its low-speed limit, the damping-versus-bias front and the firmware defaults' hold speed;
+criterion.py ranks and judges them."""
 
 from __future__ import annotations
 
@@ -149,21 +150,6 @@ def figures(drive: Any, a: Assessment, c: int, w_from: float | None = None) -> d
         "worst_noise_deg": float(np.degrees(np.max(a.noise[c, sel, 0]))) if a.noise is not None else math.nan,
         "worst_speed_noise_rad_s": float(np.max(a.noise[c, sel, 1])) if a.noise is not None else math.nan,
     }
-
-
-def best(drive: Any, a: Assessment, w_hold: float) -> int:
-    """The criterion of the package docstring: the index of the best candidate."""
-    W, _ = drive.grid()
-    speeds = np.unique(np.abs(W))
-    lim = low_limit(a.holds, speeds)
-    keys = []
-    for c in range(len(lim)):
-        if lim[c] <= w_hold * (1 + 1e-12):
-            keys.append((0, -figures(drive, a, c, w_hold)["worst_damping"], c))
-        else:
-            z = figures(drive, a, c)["worst_damping"]
-            keys.append((1, lim[c], -(z if math.isfinite(z) else -9.0), c))
-    return min(keys)[-1]
 
 
 def front(
