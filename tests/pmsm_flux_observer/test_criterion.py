@@ -34,7 +34,7 @@ def drive():
 
 
 def _rank(drive, a, c):
-    """The criterion typed from its docstring: (misses decay or PLL, low-speed limit, -worst decay)."""
+    """The criterion typed from its doc: (misses decay or PLL, low-speed limit, -worst decay)."""
     W, _ = drive.grid()
     speeds = np.unique(np.abs(W))
     lim = math.inf
@@ -48,7 +48,12 @@ def _rank(drive, a, c):
     # the PLL's slower root from the polynomial's own roots (not the criterion's closed form)
     k_p, k_i = a.pll_gains[c]
     slow = -max(np.roots([1.0, k_p, k_i]).real)
-    ok = decay >= drive.control.alpha_s and slow >= PLL_SPEED_LOOP * drive.control.alpha_s * (1 - 1e-6)
+    # the observer's decay: the speed loop's bandwidth, and what the full acceleration against rated
+    # load asks (its angle lag a / sigma^2 within 30 deg)
+    c, m = drive.control, drive.motor
+    a_max = m.p * (c.T_max - drive.T_N) / m.J
+    need = max(c.alpha_s, math.sqrt(a_max / math.radians(30.0)))
+    ok = decay >= need * (1 - 1e-9) and slow >= PLL_SPEED_LOOP * c.alpha_s * (1 - 1e-6)
     return (0 if ok else 1, lim, -decay)
 
 

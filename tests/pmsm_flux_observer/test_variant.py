@@ -4,29 +4,14 @@ tuned into a table `export` refuses."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from sensorless.design.drive import load_drive
 from sensorless.reports.cli.main import main
 
-MINIMAL = """
-[drive]
-name = "skate"
-kind = "pmsm-flux-observer"
-
-[motor]
-poles = 14
-KV = "190 rpm/V"
-R_ll = "0.056 ohm"
-connection = "wye"
-L_ll = "44 uH"
-
-[rating]
-I_N = "40 A"
-
-[inverter]
-u_dc = "44.4 V"
-f_s = "15 kHz"
-"""
+# a datasheet 6374 outrunner's minimal file (no [observer]: the firmware is given by --firmware or the key)
+MINIMAL = (Path(__file__).parent / "drives" / "skate6374.toml").read_text()
 
 
 def _init(tmp_path, text, *opts):
