@@ -119,3 +119,19 @@ def test_pll_double_root_at_the_limit_meets_it():
     assert pll_finding(g, 250.0, []) == ""
     slow = pll_finding(dataclasses.replace(g, values={**g.values, "foc_pll_ki": 30000.0}), 250.0, [])
     assert "foc_pll_kp = 2000" in slow and "foc_pll_ki = 30000" in slow
+
+
+def test_tune_exits_3_with_one_line_per_shortfall_and_writes_the_table(tmp_path, capsys):
+    from importlib.resources import files
+
+    from sensorless.reports.cli.main import main
+
+    text = (files("sensorless.design.pmsm_flux_observer.presets") / "outrunner270.toml").read_text()
+    drive = tmp_path / "d.toml"
+    drive.write_text(text + "\n[envelope]\nspeeds = 4\n")  # a coarse envelope: a quick tune
+    out = tmp_path / "t"
+    rc = main(["tune", str(drive), "--law", "odrive", "--bias-max", "0.5", "--out", str(out), "--quiet"])
+    err = [x for x in capsys.readouterr().err.splitlines() if "sensorless tune: warning: the tuned" in x]
+    assert rc == 3 and len(err) == 1
+    assert "hold at no envelope speed" in err[0] and "alone" in err[0] and "change:" in err[0]
+    assert (out / "gains_odrive.json").is_file()  # the result is written
