@@ -271,7 +271,10 @@ def compute(
             analysis[k] = {
                 "worst_decay_1_s": f(jd["worst_decay_1_s"]) if math.isfinite(jd["worst_decay_1_s"]) else None,
                 "pll_root_1_s": f(jd["pll_root_1_s"]),
-                "criterion_shortfalls": shortfalls(drive, rev.choices[k], jd, settings),
+                # what the gains under review miss of the family's criterion (the others: their row)
+                "criterion_shortfalls": shortfalls(drive, rev.choices[k], jd, settings)
+                if k == review
+                else [],
                 "gains": {n: f(v) for n, v in rev.choices[k].values.items() if not isinstance(v, list)},
                 "law": rev.choices[k].law,
                 "worst_damping": f(fg["worst_damping"]),
@@ -288,12 +291,18 @@ def compute(
                 num(x["worst_damping"]),
                 num(x["worst_bias_deg"]),
                 num(x["low_speed_limit_pu"]) if x["low_speed_limit_pu"] is not None else "none holds",
+                num(x["worst_decay_1_s"]),
+                num(x["pll_root_1_s"]),
             )
             for k, x in analysis.items()
         )
         head = ("gains", "law", "worst damping", "worst angle bias (deg)", "holds down to (p.u.)")
+        head += ("observer decay (1/s)", "PLL slow root (1/s)")
         cmp_table = Table(
-            head, rows, "each gain set under every estimate error (sampled observer)", frozenset({2, 3, 4})
+            head,
+            rows,
+            "each gain set under every estimate error (sampled observer)",
+            frozenset({2, 3, 4, 5, 6}),
         )
         W, T = drive.grid(1 if resolution == "quick" else 2)
         lin = FAMILY.linearize(drive, rev.gains, W, T)
@@ -307,8 +316,11 @@ def compute(
             "Judged as the tuner judges (tuning/pmsm_flux_observer): a speed holds when the sampled "
             "observer "
             f"is stable with an angle bias of at most {settings.bias_max_deg:g} deg under every estimate "
-            f"error; the firmwares' defaults on this motor hold down to the speeds shown (hold speed "
-            f"{w_hold / drive.w_base:.3g} p.u.)."
+            f"error; the firmwares' defaults on this motor hold down to the speeds shown (the better: "
+            f"{w_hold / drive.w_base:.3g} p.u.). The family's criterion (tuning/pmsm_flux_observer/"
+            "criterion.py) asks the observer's decay from there up to reach the larger of the speed loop's "
+            "bandwidth and what the full acceleration asks, and the PLL's slow root 4 x that bandwidth; "
+            "damping is not its figure (k/(2|w|) falls with speed by design)."
         )
         items: tuple[Any, ...] = (Paragraph(text), cmp_table)
         pf = table.summary.get("pareto") if table is not None else None
