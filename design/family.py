@@ -314,9 +314,11 @@ class ObserverFamily:
         equilibrium may be NaN at all its points (its evaluation stops there)."""
         raise CapabilityError(f"observer family {self.name!r} has no batched linearization of draws")
 
-    def envelope_points(self, drive: Any) -> tuple[Any, Any]:
+    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
         """(w [rad/s electrical], torque [N m]) of the design's envelope, the points a Monte-Carlo run
-        judges every draw at: the shared tuning envelope (design/envelope.py ``[tuning]``) by default."""
+        judges every draw at (with ``gains``, the gains under review: a family may keep only the points
+        where they run the drive, e.g. above its open-loop start): the shared tuning envelope
+        (design/envelope.py ``[tuning]``) by default."""
         env = getattr(getattr(drive, "tuning", None), "envelope", None)
         if env is None:
             raise CapabilityError(f"{drive.file}: the drive has no tuning envelope to evaluate draws over")

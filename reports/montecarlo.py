@@ -40,10 +40,10 @@ class Result:
     summary: dict[str, Any]
 
 
-def envelope(drive: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The design's envelope: the operating points the tuner held the gains to (the family's
-    ``envelope_points``)."""
-    return family_of(drive).envelope_points(drive)
+def envelope(drive: Any, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The design's envelope: the operating points the tuner held the gains to, where ``gains`` run the
+    drive (the family's ``envelope_points``)."""
+    return family_of(drive).envelope_points(drive, gains)
 
 
 def linear_task(drive: Any, gains: GainSet, plant: np.ndarray, estimate: np.ndarray, w: Any, T: Any) -> Any:
@@ -95,7 +95,7 @@ def run(
 ) -> Result:
     """Draw, evaluate on ``engine``, summarise (module docstring)."""
     draws = mc.draw(params, samples, seed, plant, estimate)
-    w, T = envelope(drive)
+    w, T = envelope(drive, gains)
     chunks = [(drive, gains, *draws.chunk(c), w, T) for c in range(draws.chunks)]
     items = []
     if time_domain:

@@ -121,7 +121,7 @@ class ReducedOrderObserver(ObserverFamily):
 
         return montecarlo.perturbed(drive, plant, estimate)
 
-    def envelope_points(self, drive: Any) -> tuple[Any, Any]:
+    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
         """Its drive file's [envelope]: mechanical speeds (electrical here) x load torques."""
         import numpy as np
 

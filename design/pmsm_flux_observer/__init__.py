@@ -157,9 +157,26 @@ class FluxObserverFamily(ObserverFamily):
 
         return montecarlo.linearize_draws(drive, gains, plant, estimate, w, torque, complete)
 
-    def envelope_points(self, drive: Any) -> tuple[Any, Any]:
-        """Its drive file's [envelope]: speeds in both directions x torques."""
-        return drive.grid()
+    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
+        """Its drive file's [envelope] (speeds in both directions x torques); with ``gains``, the points
+        where they run the drive sensorless: from the open-loop I-f start's hand-back speed w_off up
+        (its [startup], else its rules at the gains: design/pmsm_drive.py ``startup_values``), since
+        below it the drive runs open loop (no equilibrium there under an estimate error is no failure)."""
+        import numpy as np
+        from sensorless.design.pmsm_drive import startup_values
+
+        W, T = drive.grid()
+        if gains is None:
+            return W, T
+        try:
+            values, _, _ = startup_values(drive, gains)
+        except CapabilityError:
+            return W, T
+        w_off = (values or {}).get("if_w_off")
+        if not w_off:
+            return W, T
+        keep = np.abs(W) >= float(w_off) * (1 - 1e-12)
+        return (W[keep], T[keep]) if keep.any() else (W, T)
 
     def perturbed(self, drive: Any, plant: Any, estimate: Any) -> Any:
         from sensorless.design.pmsm_flux_observer import montecarlo

@@ -54,4 +54,5 @@ def test_montecarlo_command_defaults_to_the_typical_spread(tmp_path, capsys):
     params = family_of(load_drive("outrunner270")).montecarlo_parameters(load_drive("outrunner270"))
     assert s["spread"] == {p.name: f"{100 * p.typical:g}%" for p in params if p.typical > 0}
     assert s["min_damping"] == 0.0  # the family's: stable (its damping falls with speed by design)
-    assert s["samples"] == 3 and s["envelope_points"] == load_drive("outrunner270").grid()[0].size
+    # the points the gains run sensorless: from the I-f start's hand-back speed up
+    assert s["samples"] == 3 and 0 < s["envelope_points"] < load_drive("outrunner270").grid()[0].size
