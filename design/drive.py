@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from sensorless.design import registry
-from sensorless.design.drive_file import read_text, table
+from sensorless.design.drive_file import check_name, read_text, table
 from sensorless.design.family import Drive
 from sensorless.design.units import DriveFileError
 
@@ -50,6 +50,8 @@ def load_drive_text(text: str, file: str) -> Drive:
     except tomllib.TOMLDecodeError as e:
         raise DriveFileError(file, "(syntax)", f"not valid TOML: {e}") from None
     head = table(data, "drive", file)
+    if "name" in head:  # it becomes part of the outputs' names (each family requires the key)
+        check_name(head["name"], file, "drive.name")
     kind = head.get("kind")
     try:
         fam = registry.family(kind) if isinstance(kind, str) else None

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
+from sensorless.design.units import MAX_POLE_PAIRS, DriveFileError, check_magnitude, parse_quantity
 
 
 def read_text(path: Path) -> str:
@@ -42,6 +42,7 @@ _CHECKS: dict[str, tuple[Callable[[float], bool], str]] = {
     "positive": (lambda x: x > 0, "must be > 0"),
     "nonnegative": (lambda x: x >= 0, "must be >= 0"),
     "any": (lambda x: True, ""),
+    "pole_pairs": (lambda x: 1 <= x <= MAX_POLE_PAIRS, f"pole pairs from 1 to {MAX_POLE_PAIRS}"),
 }
 
 
@@ -102,6 +103,42 @@ def load_section(
             raise DriveFileError(file, key, f"non-physical value {raw!r}: {why}")
         values[f.name] = int(x) if dim == "integer" else x
     return cls(**values)
+
+
+# The longest drive or scenario name: names become directory names with the commands' prefixes and
+# suffixes (``simulation-<drive>-<scenario>``, the staging directory ``.<dir>.stage-<pid>-<tag>``), which
+# must fit a file system's 255 bytes per path component
+NAME_MAX = 64
+
+
+def name_problem(name: object) -> str | None:
+    """Why ``name`` cannot be a drive's (or scenario's) name, which becomes part of a file name: not a
+    string, empty, a path separator, '..', a control character, leading '-' or '.', or too long
+    (:data:`NAME_MAX` bytes of UTF-8); None if it can."""
+    if not isinstance(name, str):
+        return f"expected a string, got {name!r}"
+    if not name.strip():
+        return "empty"
+    bad = [c for c in name if c in "/\\" or ord(c) < 32 or ord(c) == 127]
+    if bad:
+        return (
+            f"{name!r} holds {bad[0]!r}: a name becomes part of file names (no path separators or "
+            "control characters)"
+        )
+    if ".." in name or name[0] in ".-":
+        return f"{name!r}: a name becomes part of file names (no '..', no leading '.' or '-')"
+    if len(name.encode()) > NAME_MAX:
+        return f"{len(name.encode())} bytes: at most {NAME_MAX} (a name becomes part of file names)"
+    return None
+
+
+def check_name(name: object, file: str, key: str) -> str:
+    """``name`` if :func:`name_problem` finds none, else DriveFileError naming ``file`` and ``key``."""
+    why = name_problem(name)
+    if why is not None:
+        raise DriveFileError(file, key, why)
+    assert isinstance(name, str)
+    return name
 
 
 def check_keys(data: Mapping[str, Any], allowed: tuple[str, ...], file: str, prefix: str) -> None:

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from sensorless.design.pmsm_schema import PmsmMotor
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import MAX_POLE_PAIRS, DriveFileError, parse_quantity
 
 EMF_CONVENTIONS = ("line-line peak", "line-line rms", "phase peak", "phase rms")
 TORQUE_CONVENTIONS = ("rms", "peak")
@@ -167,6 +167,10 @@ def read_motor(t: Mapping[str, Any], file: str, section: str = "motor") -> Motor
             source["p"] = key("poles")
             rules["p"] = f"poles/2 from poles = {poles}"
     assert p is not None
+    if p > MAX_POLE_PAIRS:
+        raise err(
+            source["p"].split(".")[-1], f"{p} pole pairs: more than {MAX_POLE_PAIRS} (no motor has as many)"
+        )
 
     # windings
     connection = choice("connection", CONNECTIONS) if "connection" in t else None

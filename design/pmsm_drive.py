@@ -125,7 +125,13 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     [rad/s] (0 where not analysed). CapabilityError for a drive without a PMSM's data."""
     from sensorless.design.low_speed import QUICK, minimum_speed
     from sensorless.design.poles import MIN_DAMPING
-    from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR, handover_decay, if_values
+    from sensorless.design.startup import (
+        ACCELERATION_LIMIT,
+        CURRENT_SHARE_MAX,
+        ON_FACTOR,
+        handover_decay,
+        if_values,
+    )
 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
@@ -135,13 +141,22 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     values, w_min, warn = given, 0.0, ""
     try:
         m, c = drive.motor, drive.control
-        inertia, pole_pairs, T_max = m.J, m.p, c.T_max
+        inertia, pole_pairs, T_max, _ = m.J, m.p, c.T_max, m.psi_pm  # another motor model: no I-f rules
         i_d, i_q = mtpa_torque_current(T_max, m)
         k_t = T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
     except AttributeError:
         raise CapabilityError(
-            f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max)"
+            f"observer family {fam.name!r}: the I-f start needs a PMSM drive (psi_pm, J, T_max); this "
+            "drive's motor model has none (--startup: not for this drive)"
         ) from None
+    i_max = CURRENT_SHARE_MAX * math.hypot(i_d, i_q)
+    if given.get("if_i", 0.0) > i_max:  # the range of a given current: the motor's own
+        raise DriveFileError(
+            drive.file,
+            "startup.current",
+            f"{given['if_i']:.6g} A: at most {CURRENT_SHARE_MAX:g} times the torque limit's current "
+            f"T_max/k_t = {math.hypot(i_d, i_q):.4g} A, i.e. {i_max:.4g} A (peak)",
+        )
     values = {**given, "if_k_a": inertia / (pole_pairs * k_t)}  # the motor's (design/startup.py)
     if startup is None or not startup.complete:  # a key the file does not give keeps its rule
         # the handover's w_min: the design's criteria with the decay that follows the full acceleration;

@@ -29,7 +29,7 @@ from sensorless.design.units import DriveFileError
 class PmsmMotor:
     """The true motor, per phase of the equivalent wye, SI: eqs. (1)-(3) of the PMSM model."""
 
-    p: int = q("integer", doc="pole pairs")
+    p: int = q("integer", check="pole_pairs", doc="pole pairs")
     R_s: float = q("resistance", doc="stator resistance [ohm]")
     L_d: float = q("inductance", doc="d-axis inductance [H]")
     L_q: float = q("inductance", doc="q-axis inductance [H]")

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.design import registry
-from sensorless.design.drive_file import read_text
+from sensorless.design.drive_file import check_name, read_text
 from sensorless.design.family import CapabilityError, Drive, DriveScales
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 
@@ -297,7 +297,7 @@ def load_scenario_text(text: str, file: str, rel: Mapping[str, float]) -> Scenar
         raise DriveFileError(file, "control.speed_filter", "must be > 0")
     head = s["scenario"]
     return Scenario(
-        name=head["name"],
+        name=check_name(head["name"], file, "scenario.name"),
         title=head["title"],
         source=head["source"],
         kind=head["kind"],

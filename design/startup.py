@@ -56,6 +56,14 @@ ON_FACTOR = 2.0
 ZETA = 0.5
 DWELL = 1.5
 HP_SHARE = 0.25
+# The ranges of the values a [startup] section may give (past them a value is a unit or typing error,
+# not a start): the handover below the rated speed (1 p.u.; a multiple of w_min up to W_MIN_FACTOR_MAX),
+# a dwell of at most DWELL_MAX (the rule gives 1.5 time constants of the observer's error), a current
+# of at most CURRENT_SHARE_MAX times the torque limit's (design/pmsm_drive.py, which knows the motor)
+SPEED_MAX_PU = 1.0
+W_MIN_FACTOR_MAX = 20.0
+DWELL_MAX = 10.0  # s
+CURRENT_SHARE_MAX = 3.0
 
 
 def swing_frequency(T_N: float, T_max: float, J: float, p: int) -> float:
@@ -158,11 +166,28 @@ def load_startup(data: Mapping[str, Any], file: str, w_base: float) -> StartupSe
         if not x > 0:
             raise DriveFileError(file, f"{SECTION}.{k}", f"non-physical value {t[k]!r}: must be > 0")
         if rel == "w_min":
+            if x > W_MIN_FACTOR_MAX:
+                raise DriveFileError(
+                    file, f"{SECTION}.{k}", f"{t[k]!r}: at most {W_MIN_FACTOR_MAX:g} w_min (the handover)"
+                )
             speeds[f"{k}_per_w_min"] = x
         else:
             speeds[k] = (
                 check_magnitude(x * w_base, t[k], file=file, key=f"{SECTION}.{k}") if rel == "pu" else x
             )
+            if speeds[k] > SPEED_MAX_PU * w_base * (1 + 1e-12):
+                raise DriveFileError(
+                    file,
+                    f"{SECTION}.{k}",
+                    f"{t[k]!r} = {speeds[k] / w_base:.4g} p.u.: the open loop hands over below the rated "
+                    f"speed (at most {SPEED_MAX_PU:g} p.u. = {SPEED_MAX_PU * w_base:.6g} rad/s, electrical)",
+                )
+    if s.dwell is not None and s.dwell > DWELL_MAX:
+        raise DriveFileError(
+            file,
+            f"{SECTION}.dwell",
+            f"{t['dwell']!r}: at most {DWELL_MAX:g} s (the time at w_on before handover)",
+        )
     s = dataclasses.replace(s, **speeds)
     on, off = (s.w_on, s.w_off) if s.w_on_per_w_min is None else (s.w_on_per_w_min, s.w_off_per_w_min)
     if (s.w_on is None) == (s.w_off is None) and on is not None and off is not None and off >= on:
@@ -199,6 +224,17 @@ def document_entries(values: Mapping[str, float], w_base: float, w_min: float) -
             f"{HP_SHARE:g} w_n: the swing's high-pass, below it, above the load angle's slow change",
         ),
     }
+
+
+# The drive-file keys each derived [startup] value follows from (by the rules of document_entries):
+# an error in a derived value names them, the keys the user wrote
+DERIVED_FROM = {
+    "current": "control.T_max, motor.psi_pm",
+    "acceleration": "motor.J, motor.p, control.T_max",
+    "damping": "motor.J, motor.p, control.T_max",
+    "w_hp": "motor.J, motor.p, control.T_max",
+    "dwell": "motor.J, motor.p, control.T_max",
+}
 
 
 def optional_lines(values: Mapping[str, float]) -> list[str]:

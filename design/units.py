@@ -132,6 +132,9 @@ _QTY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$"
 # any drive's values by many orders of magnitude, narrow enough that products and squares of them stay
 # finite in double precision (a value of 1e300 or 1e-300 otherwise turns into inf, 0 or NaN downstream).
 MAGNITUDE = (1e-12, 1e12)
+# The most pole pairs of any motor a drive file or an import may give (sensorless init --pole-pairs:
+# the same range); large direct-drive motors have some tens.
+MAX_POLE_PAIRS = 1000
 
 
 class UnknownName(KeyError):
@@ -155,10 +158,11 @@ def check_magnitude(x: float, raw: object, *, file: str, key: str) -> float:
         raise DriveFileError(file, key, f"value {raw!r} is not finite")
     lo, hi = MAGNITUDE
     if x != 0 and not lo <= abs(x) <= hi:
+        shown = f"{raw:.6g}" if isinstance(raw, int) else repr(raw)  # not an integer of 301 digits
         raise DriveFileError(
             file,
             key,
-            f"value {raw!r} is out of range: magnitudes from {lo:g} to {hi:g} (SI) or 0 are accepted",
+            f"value {shown} is out of range: magnitudes from {lo:g} to {hi:g} (SI) or 0 are accepted",
         )
     return x
 

@@ -36,8 +36,35 @@ LOCAL_CONFIG = {
 }
 
 
+# The address schemes a scheduler of another process can listen on (Dask's ``inproc://`` is this
+# process only; ``ucx://`` needs a library that is not a dependency).
+SCHEMES = ("tcp", "tls", "ws", "wss")
+
+
 class EngineError(ValueError):
     """The engine cannot be started or reached; one line naming the option."""
+
+
+def scheduler_address(text: str) -> str:
+    """An argparse ``type`` for ``--scheduler``: 'synchronous' or SCHEME://HOST:PORT (SCHEMES, a port in
+    1..65535), checked before anything runs: Dask's own address parser raises bare ValueErrors (no
+    port, an unknown scheme, a port that is not a number) that would end the command in a traceback."""
+    import argparse
+
+    if text == SYNCHRONOUS:
+        return text
+    scheme, sep, rest = text.partition("://")
+    if not sep:
+        scheme, rest = "tcp", text  # Dask reads a bare HOST:PORT as tcp
+    want = f"expected 'synchronous' or SCHEME://HOST:PORT with SCHEME in {', '.join(SCHEMES)}"
+    if scheme not in SCHEMES:
+        raise argparse.ArgumentTypeError(f"{text!r}: unknown scheme {scheme!r}; {want}")
+    host, colon, port = rest.rpartition(":")
+    if not colon or not host.strip("[]") or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r}: no host and port (1-65535); {want}")
+    if any(c.isspace() or c in "/?#@" for c in host):
+        raise argparse.ArgumentTypeError(f"{text!r}: {host!r} is not a host name; {want}")
+    return text
 
 
 class Engine:
@@ -61,27 +88,54 @@ class Engine:
         logging.getLogger("distributed").setLevel(logging.ERROR)  # its info lines are not ours to print
         try:
             if self.scheduler is None:
-                n = self.workers or os.cpu_count() or 1
-                env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
-                env.pop("MALLOC_TRIM_THRESHOLD_", None)
-                # the workers are configured when they start: the settings apply to this cluster only
-                with dask.config.set({**LOCAL_CONFIG, "distributed.nanny.pre-spawn-environ": env}):
-                    self.cluster = LocalCluster(
-                        n_workers=n,
-                        threads_per_worker=1,
-                        processes=True,
-                        dashboard_address=":0",  # no dashboard wanted; its HTTP server on any free port
-                        silence_logs=logging.ERROR,  # the workers' cancellation warnings on Ctrl-C
-                    )
-                self.client = Client(self.cluster)
+                self._start_local(dask, LocalCluster, Client, logging)
             else:
                 self.client = Client(self.scheduler, timeout="10s")
-        except OSError as e:
+        except (OSError, ValueError, TypeError) as e:  # unreachable, or an address Dask cannot parse
             self.__exit__(None, None, None)
             raise EngineError(f"--scheduler {self.scheduler}: cannot connect ({e})") from None
+        except BaseException as e:  # Ctrl-C while the cluster starts: close what started, then stop
+            self.__exit__(type(e), e, None)
+            _close_half_started()
+            raise
         return self
 
+    def _start_local(self, dask: Any, LocalCluster: Any, Client: Any, logging: Any) -> None:
+        """The local cluster, its processes started with their standard error on /dev/null: Ctrl-C at
+        the terminal reaches the whole process group, and processes still starting printed 30-140
+        lines of KeyboardInterrupt tracebacks (a started worker ignores it) while this one cancelled
+        their tasks and closed them anyway. What a worker has to say comes back through Dask (a
+        task's exception, a worker's death), not through its stderr. (Neither an ignored SIGINT nor a
+        blocked one works here: the first would lose a Ctrl-C during the start, numpy's threads
+        receive the second and drop it.)"""
+        sys.stderr.flush()
+        saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, 2)
+        try:
+            n = self.workers or os.cpu_count() or 1
+            env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
+            env.pop("MALLOC_TRIM_THRESHOLD_", None)
+            # the workers are configured when they start: the settings apply to this cluster only
+            with dask.config.set({**LOCAL_CONFIG, "distributed.nanny.pre-spawn-environ": env}):
+                self.cluster = LocalCluster(
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=":0",  # no dashboard wanted; its HTTP server on any free port
+                    silence_logs=logging.CRITICAL,  # the workers' cancellation warnings on Ctrl-C
+                )
+            self.client = Client(self.cluster)
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            os.close(devnull)
+
     def __exit__(self, *exc: Any) -> None:
+        if exc and exc[0] is not None:  # interrupted: Dask's own errors while it closes are not ours
+            import logging
+
+            for name in ("distributed", "asyncio", "tornado"):
+                logging.getLogger(name).setLevel(logging.CRITICAL + 1)
         for thing in (self.client, self.cluster):
             if thing is not None:
                 try:
@@ -134,6 +188,19 @@ class Engine:
             self.client.cancel(futures, force=True)
             raise
         return results
+
+
+def _close_half_started() -> None:
+    """Close the local clusters whose start was interrupted (the constructor never returned one to
+    close): else Dask's exit hook tries, and prints ``AssertionError: Status.init`` at exit."""
+    from distributed.deploy.spec import SpecCluster
+
+    for cluster in list(SpecCluster._instances):
+        try:
+            cluster.close(timeout=5)
+        except BaseException:  # it cannot close from where the start stopped: its processes end with us
+            pass
+        SpecCluster._instances.discard(cluster)
 
 
 class Progress:

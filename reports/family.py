@@ -22,6 +22,7 @@ from typing import Any
 from sensorless.design.family import CapabilityError, Drive, GainSet, ObserverFamily
 from sensorless.design.registry import families
 from sensorless.design.scenario import Scenario
+from sensorless.reports.causes import Failure, Named
 from sensorless.reports.cli.common import COUNT, FINITE
 from sensorless.reports.document import Report
 from sensorless.reports.files import OutputSet
@@ -86,6 +87,10 @@ class ReportHooks:
     simulate_scenario: Callable[[Drive, argparse.Namespace, Scenario], Scenario] | None = None
     # sensorless report: (drive, table or None, table file, min_damping, resolution, progress) -> Report
     report: Callable[..., Report] | None = None
+    # the cause of a failed time-domain check in the family's own analysis (reports/causes.py): (drive,
+    # the gains under review, the failure with its evidence) -> a Named catalogue id, or None where the
+    # shared rules judge (a PLL's root, an HF injection's coupling band: causes shared code cannot name)
+    failure_cause: Callable[[Drive, GainSet, Failure], Named | None] | None = None
     # drive sections that hold settings of other commands, not drive data: left out of the report's
     # drive-data tables (reports/review.py opening)
     settings_sections: tuple[str, ...] = ()

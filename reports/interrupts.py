@@ -13,10 +13,20 @@ goes on. So an interrupt cannot be recognised by the exception it ends with. The
 
 Inside :func:`deferred` (the final move of an output set) signals are only recorded, so the move
 completes: the old set or the new one, never a mix.
+
+A computation that swallows the signal and goes on (an interrupted IPOPT returns; the tuner starts its
+next round) is not waited for: :func:`handled` starts a watchdog with the first signal, and if the
+command has not ended :data:`GRACE` seconds later, it prints the command's line, ends the processes
+this one started (a local Dask cluster's workers) and exits with the signal's status. So SIGTERM ends
+the whole process tree within seconds (a SIGTERMed ``tune`` computed on for 8 minutes).
+
+:func:`budget` is a command's time budget: SIGALRM after that many seconds of wall time, handled as a
+signal (nothing written), whose line says the budget ran out, and why a run may take that long.
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -25,8 +35,14 @@ from contextlib import contextmanager
 from typing import Any
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
+BUDGET = signal.SIGALRM  # a command's time budget ran out (:func:`budget`)
+GRACE = 10.0  # s: how long a command may take to end after a signal before the watchdog ends it
 _received: int | None = None
 _defer = 0
+_prefix = "sensorless"  # the command's line prefix (the watchdog's line)
+_budget_note = ""  # what the budget's line says
+_handling = False  # inside handled() in the main thread: a signal starts the watchdog
+_cancel: threading.Event | None = None  # the running watchdog's: set when the command ends or resets
 
 
 class Interrupted(KeyboardInterrupt):
@@ -38,11 +54,54 @@ class Interrupted(KeyboardInterrupt):
 
 
 def _handler(signum: int, frame: Any) -> None:
-    global _received
+    global _received, _cancel
     if _received is None:
         _received = signum
+        if _handling:
+            _cancel = threading.Event()
+            _watch(signum, _cancel)
     if _defer == 0:
         raise Interrupted(signum)
+
+
+def line(signum: int) -> tuple[str, int]:
+    """(the one line, the exit status) of a command ended by ``signum``."""
+    if signum == BUDGET:
+        return f"{_prefix}: error: {_budget_note}", 3
+    return f"{_prefix}: {'interrupted' if signum == SIGNALS[0] else 'terminated'}", 128 + signum
+
+
+def _watch(signum: int, done: threading.Event) -> None:
+    """End the process and its children if the command has not ended GRACE s after ``signum``."""
+
+    def run() -> None:
+        if done.wait(GRACE):
+            return
+        text, code = line(signum)
+        try:
+            sys.__stderr__.write(text + "\n")
+            sys.__stderr__.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+        kill_children()
+        os._exit(code)
+
+    threading.Thread(target=run, name="sensorless-watchdog", daemon=True).start()
+
+
+def kill_children() -> None:
+    """SIGKILL every process this one started, their children first (psutil: a dependency of Dask)."""
+    try:
+        import psutil
+
+        kids = psutil.Process().children(recursive=True)
+    except Exception:  # no psutil, or the process table unreadable: nothing more to do
+        return
+    for k in reversed(kids):
+        try:
+            k.kill()
+        except Exception:
+            pass
 
 
 def _main_thread() -> bool:
@@ -73,10 +132,12 @@ class _CasadiInterruptFilter:
 
 
 @contextmanager
-def handled() -> Iterator[None]:
-    """Record SIGINT and SIGTERM for the length of the block (the command line's whole run)."""
-    global _received
-    _received = None
+def handled(prefix: str = "sensorless") -> Iterator[None]:
+    """Record SIGINT and SIGTERM for the length of the block (the command line's whole run; ``prefix``
+    its line's start), with the watchdog of a swallowed signal (module docstring)."""
+    global _prefix, _handling
+    reset()
+    _prefix, _handling = prefix, _main_thread()
     old = {s: signal.signal(s, _handler) for s in SIGNALS} if _main_thread() else {}
     stderr = sys.stderr
     filtered = _CasadiInterruptFilter(stderr)
@@ -84,11 +145,31 @@ def handled() -> Iterator[None]:
     try:
         yield
     finally:
+        _handling = False
+        reset()  # the command ended: no watchdog (main() has read the signal)
         sys.stderr = stderr
         if filtered._held and "KeyboardInterruptException" not in filtered._held:
             stderr.write(filtered._held)  # a CasADi line without its end: as it was
         for s, h in old.items():
             signal.signal(s, h)
+
+
+@contextmanager
+def budget(seconds: float | None, note: str) -> Iterator[None]:
+    """SIGALRM after ``seconds`` of wall time (None or 0: no budget) for the length of the block, handled
+    as SIGINT is; ``note``: the error line's text. Only in the main thread (elsewhere: no budget)."""
+    global _budget_note
+    if not seconds or not _main_thread():
+        yield
+        return
+    _budget_note = note
+    old = signal.signal(BUDGET, _handler)
+    signal.setitimer(signal.ITIMER_REAL, float(seconds))
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(BUDGET, old)
 
 
 def ignore() -> None:
@@ -104,9 +185,13 @@ def received() -> int | None:
 
 
 def reset() -> None:
-    """Forget a received signal (the next command of the same process starts afresh)."""
-    global _received
+    """Forget a received signal (the next command of the same process starts afresh), and stop its
+    watchdog (the command has handled it)."""
+    global _received, _cancel
     _received = None
+    if _cancel is not None:
+        _cancel.set()
+        _cancel = None
 
 
 def check() -> None:

@@ -200,6 +200,9 @@ def summarise(
     }
 
 
+NO_EQUILIBRIUM = "no equilibrium at some operating point of the envelope (the observer loses the rotor)"
+
+
 def _g(x: float) -> str:
     return "nan" if np.isnan(x) else "-inf" if np.isneginf(x) else f"{x:.9g}"
 
@@ -209,14 +212,16 @@ def draws_csv(res: Result, params: Sequence[mc.Uncertain], min_damping: float) -
     est = [p for p in params if p.estimate is not None]
     head = ["draw", *[f"plant_{p.name}" for p in params], *[f"estimate_{p.name}" for p in est]]
     head += ["worst_damping", "worst_speed_rad_s", "worst_torque_Nm", "passes_damping", "time_domain"]
+    head += ["no_value_reason"]
     lines = [",".join(head)]
     td = {t["draw"]: t["passed"] for t in res.td}
     cols = [j for j, p in enumerate(params) if p.estimate is not None]
     for i in range(res.worst.size):
         row = [str(i), *[_g(v) for v in res.draws.plant[i]], *[_g(res.draws.estimate[i, j]) for j in cols]]
-        lost = np.isinf(res.worst[i])
-        row += [_g(res.worst[i])] + (["", ""] if lost else [_g(res.w[res.at[i]]), _g(res.torque[res.at[i]])])
+        lost = not np.isfinite(res.worst[i])  # no damping to write: the cells empty, the reason said
+        row += ["", "", ""] if lost else [_g(res.worst[i]), _g(res.w[res.at[i]]), _g(res.torque[res.at[i]])]
         row += [str(int(res.worst[i] >= min_damping)), "" if i not in td else str(int(td[i]))]
+        row += [NO_EQUILIBRIUM if lost else ""]
         lines.append(",".join(row))
     return "\n".join(lines) + "\n"
 

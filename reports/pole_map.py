@@ -15,6 +15,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from sensorless.design.linearization import Linearization
+from sensorless.reports.csv_cells import REASON
+from sensorless.reports.csv_cells import row as csv_row
+
+# why a pole table's row has empty cells (the linearization's values there are not finite)
+NO_POLES = "no finite poles here: no equilibrium found or the linearized observer overflows"
 
 plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
 
@@ -29,7 +34,7 @@ def pole_csv(sweep: Linearization, w_base: float) -> str:
     head = ["w_m_pu", "w_m_rad_s", f"{sweep.torque_name}_Nm", *extra]
     for k in range(n):
         head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
-    head += ["worst_damping", "max_real_1_s"]
+    head += ["worst_damping", "max_real_1_s", REASON]
     buf = io.StringIO()
     buf.write("# " + "".join(f"{note}; " for note in sweep.notes()))
     buf.write(f"speed base {w_base:.10g} rad/s (electrical)\n")
@@ -39,12 +44,8 @@ def pole_csv(sweep: Linearization, w_base: float) -> str:
         for p in sweep.poles[j]:
             row += [p.real, p.imag]
         row += [sweep.worst_damping[j], sweep.max_real[j]]
-        buf.write(",".join(_fmt(v) for v in row) + "\n")
+        buf.write(csv_row(row, NO_POLES) + "\n")
     return buf.getvalue()
-
-
-def _fmt(v: float) -> str:
-    return "nan" if not np.isfinite(v) else f"{v:.10g}"
 
 
 def _zoom_window(sweep: Linearization, w_base: float) -> float:

@@ -5,8 +5,9 @@ A family's report hook (reports/family.py ``ReportHooks.report``) computes its o
 around it is here, once: which gains it compares and which one it reviews (:class:`Review`,
 :func:`gains_under_review`: a gain table's when one is given), the data every report.json opens with
 (:func:`opening`: inputs and their hashes, the drive-data tables, the label under review), the
-time-domain checks of the gains under review (:func:`time_domain_checks`, reports/time_domain.py) and
-the verdict's status with those checks and its box (:func:`settle`, :func:`verdict_box`).
+time-domain checks of the gains under review (:func:`time_domain_checks`, reports/time_domain.py, each
+failure named by its cause: reports/causes.py) and the verdict's status with those checks and its box
+(:func:`settle`, :func:`verdict_box`).
 """
 
 from __future__ import annotations
@@ -77,8 +78,9 @@ def time_domain_checks(
 
 
 def settle(status: str, td: Sequence[dict[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
-    """A verdict's status with the time-domain checks ``td`` (a failed check makes it at best "warn", a
-    run that does not hold "fail") and the findings of the failed checks."""
+    """A verdict's status with the time-domain checks ``td`` (one rule: a failed check makes it "fail", a
+    check not tested sensorless at best "warn") and the findings of those checks, each failure with its
+    cause and fix (reports/causes.py)."""
     return time_domain.status_with(status, td), time_domain.findings(td)
 
 

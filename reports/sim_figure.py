@@ -16,6 +16,10 @@ Panels (names used by a scenario's ``figure`` list): the shared ones of every dr
 and the panels the drive's family declares (``ObserverFamily.panels``: design/family.py ``Panel``, its
 lines over time), drawn from their declaration.
 
+Where the open-loop I-f start had the loop (its output ``startup_mode`` is 1: design/startup.py), every
+panel is shaded grey: there theta_hat and w_hat are the current vector's, not the observer's estimates,
+and the time-domain checks judge the observer only outside (reports/time_domain.py).
+
 Speeds are shown in the drive's display unit (the simulation set-up's ``speed_unit``: p.u. for PMSM
 drives, design/pmsm_drive.py; mechanical r/min for the reduced-order-observer drive).
 """
@@ -96,6 +100,17 @@ def panels_of(traces: Traces) -> dict[str, Callable[[Any, Any], None]]:
     return {**PANELS, **{p.name: _declared(p) for p in own}}
 
 
+def open_loop_intervals(traces: Traces) -> list[tuple[float, float]]:
+    """(start, end) [s] of each interval in which the open-loop I-f start had the loop (its output
+    ``startup_mode`` is 1); none for a run without it."""
+    if "startup_mode" not in traces.data:
+        return []
+    mode = np.asarray(traces["startup_mode"]) > 0.5
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], mode.astype(int), [0]))))
+    t = traces.t
+    return [(float(t[a]), float(t[min(b, t.size - 1)])) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
 MAX_POINTS = 20000  # per line: more is invisible at figure resolution and bloats the SVG
 
 
@@ -121,8 +136,11 @@ def plot_traces(traces: Traces, panels: tuple[str, ...], title: str) -> Any:
     fig, axes = plt.subplots(len(panels), 1, sharex=True, figsize=(6.4, 1.9 * len(panels) + 0.8))
     axes = np.atleast_1d(axes)
     draw = panels_of(traces)
+    shaded = open_loop_intervals(traces)
     for ax, name in zip(axes, panels, strict=True):
         draw[name](ax, traces)
+        for a, b in shaded:  # the open-loop I-f start had the loop: not the observer's (time_domain.py)
+            ax.axvspan(a, b, color="0.88", lw=0, zorder=0)
         ax.grid(True, lw=0.3, color="0.8")
         if len(ax.get_lines()) > 1:
             ax.legend(loc="best", fontsize=8, frameon=False, ncol=len(ax.get_lines()))

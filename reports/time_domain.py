@@ -15,18 +15,27 @@ failed, where), its ``metrics`` and the ``limits`` they were held to (:data:`LIM
 - in speed control, the final speed within 5 % of the base speed of its reference (the drive reached
   what it was asked; the generic scenarios give it the time its torque limit needs).
 
-A failed check is said in its entry, in the section, in the report's verdict (a finding; the status is
-then at best "warn") and by ``sensorless report`` (a warning line, exit status 3).
+Only sensorless runs count: a run whose open-loop I-f start (its output ``startup_mode``) never handed
+over, had the loop for more than MAX_OPEN_LOOP_SHARE of the time or ended in it is "not tested
+sensorless" (:func:`untested_reason`; the check is then at best "warn"); the position errors are the
+closed loop's, the open-loop part its own metric and column. One verdict rule (:func:`status_with`): a
+failed check makes the verdict "fail". Each failure carries its evidence and its cause from the
+catalogue reports/causes.py (the family's own finding first, its report hooks' ``failure_cause``),
+with the change that fixes it; it is said in its entry, in the section, in the report's verdict (a
+finding) and by ``sensorless report`` (a warning line, exit status 3).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.family import CapabilityError, Drive, DriveScales, GainSet
+from sensorless.design.registry import family_of
 from sensorless.design.scenario import (
     ZERO_SPEED_LOW_PU,
     Scenario,
@@ -37,6 +46,7 @@ from sensorless.design.scenario import (
 )
 from sensorless.design.simulate import simulate
 from sensorless.design.startup import ACCELERATION_LIMIT
+from sensorless.reports.causes import CATALOGUE, Failure, Named, classify_all, operating_torque_pu
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.svg_render import svg_later
 
@@ -45,6 +55,8 @@ LIMITS = {
     "final_speed_err_pu": 0.02,
     "final_tracking_err_pu": 0.05,
 }
+# a run whose open-loop I-f start had the loop longer than this share of it did not test the observer
+MAX_OPEN_LOOP_SHARE = 0.5
 
 
 def scenarios(drive: Drive, paper: Sequence[str], user: Sequence[str] = ()) -> list[Scenario]:
@@ -81,46 +93,158 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return np.angle(np.exp(1j * np.asarray(a, float)))
 
 
+@dataclass(frozen=True)
+class Judged:
+    """One simulated scenario judged: its metrics, what failed (with the evidence where: reports/causes.py
+    ``Failure``), what makes the run not hold, and why it did not test the observer ("" where it did)."""
+
+    metrics: dict[str, Any]
+    failures: list[Failure]
+    problems: list[str]
+    untested: str
+
+    @property
+    def failed(self) -> list[str]:
+        """What failed, one line each."""
+        return [x.text for x in self.failures]
+
+
 def judge(tr: Any, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[str], list[str]]:
     """(metrics, what failed, problems) of one simulated scenario against :data:`LIMITS`."""
+    j = assess(tr, sc, base_w)
+    return j.metrics, j.failed, j.problems
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, one past last) index of each run of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(int), [0]))))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def untested_reason(open_loop: np.ndarray | None, dt: float) -> str:
+    """Why a run with the open-loop I-f start ``open_loop`` (per sample) did not test the observer: the
+    start had the loop throughout (never handed over), for more than :data:`MAX_OPEN_LOOP_SHARE` of the
+    run, or at its end; "" where the observer had the loop (or the run has no start)."""
+    if open_loop is None or not open_loop.any():
+        return ""
+    share = float(np.mean(open_loop))
+    t_open = np.count_nonzero(open_loop) * dt
+    if open_loop[0] and not (~open_loop).any():
+        return f"the open-loop I-f start ran throughout ({t_open:.3g} s): the observer never had the loop"
+    if share > MAX_OPEN_LOOP_SHARE:
+        return (
+            f"the open-loop I-f start had the loop for {100 * share:.0f} % of the run ({t_open:.3g} s), the "
+            f"observer for {100 * (1 - share):.0f} %"
+        )
+    if open_loop[-max(1, open_loop.size // 20) :].any():
+        return "the run ended in the open-loop I-f start: its final speed is not the observer's"
+    return ""
+
+
+def assess(tr: Any, sc: Scenario, base_w: float, scales: DriveScales | None = None) -> Judged:
+    """One simulated scenario judged against :data:`LIMITS`, each failure with its evidence (the torque
+    limit and full acceleration from ``scales``, where given)."""
     m: dict[str, Any] = {"duration_s": f(tr.t[-1]), "samples": int(tr.t.size)}
-    failed: list[str] = []
+    dt = float(tr.t[1] - tr.t[0]) if tr.t.size > 1 else 0.0
+    T_N = float(tr.meta.get("T_N") or (scales.T_N if scales is not None else 0.0)) or None
+    has = tr.data.__contains__
+    w_m = np.asarray(tr["w_m"], float) if has("w_m") else None
+    open_loop = np.asarray(tr["startup_mode"]) > 0.5 if has("startup_mode") else None
+    # the window before a failure in which the drive's acceleration and torque command are read: a fifth
+    # of the time the full acceleration needs for 1 p.u. (the observer's lag builds up over it)
+    n_w = 20
+    if scales is not None and dt > 0:
+        n_w = max(n_w, int(0.2 * scales.J * scales.w_base / (scales.pole_pairs * scales.T_max) / dt))
+
+    def evidence(kind: str, text: str, k: int | None, lo: int | None = None, **kw: Any) -> Failure:
+        if k is None:
+            return Failure(kind, text, **kw)
+        k = int(min(max(k, 0), tr.t.size - 1))
+        a = max(0, k - n_w) if lo is None else lo
+        out: dict[str, Any] = {
+            "t": float(tr.t[k]),
+            "open_loop": bool(open_loop[k]) if open_loop is not None else False,
+        }
+        if w_m is not None:
+            out["w_pu"] = float(w_m[k] / base_w)
+            if scales is not None and k > a:
+                a_max = scales.pole_pairs * scales.T_max / scales.J
+                out["accel_share"] = float(abs(w_m[k] - w_m[a]) / (tr.t[k] - tr.t[a]) / a_max)
+        if T_N:
+            if has("T_L"):
+                out["load_pu"] = float(tr["T_L"][k] / T_N)
+            if has("T_e"):
+                out["torque_e_pu"] = float(tr["T_e"][k] / T_N)
+            if has("T_ref"):
+                out["torque_pu"] = float(np.max(np.abs(tr["T_ref"][a : k + 1])) / T_N)
+            if scales is not None:
+                out["limit_pu"] = scales.T_max / T_N
+        return Failure(kind, text, **{**out, **kw})
+
+    failures: list[Failure] = []
     problems = tr.problems()
-    failed += problems
-    open_loop = np.asarray(tr["startup_mode"]) > 0.5 if "startup_mode" in tr.data else None
+    theta = np.asarray(tr["theta_err"], float) if has("theta_err") else None
+    lim = np.radians(LIMITS["max_abs_theta_err_deg"])
+    first_beyond: int | None = None
+    if theta is not None:
+        th = _wrap(theta)
+        if open_loop is not None:
+            th = np.where(open_loop, 0.0, th)
+        within = np.flatnonzero(np.abs(th) <= lim)
+        start = int(within[0]) if within.size else 0
+        beyond = np.flatnonzero(np.abs(th[start:]) > lim)
+        first_beyond = start + int(beyond[0]) if beyond.size else None
+    for p in problems:
+        kind = "diverged" if "diverged" in p else "rejected" if "rejected" in p else "lost"
+        k = first_beyond if kind == "lost" else None
+        if kind == "rejected" and has("valid"):
+            k = int(np.argmax(np.asarray(tr["valid"]) < 0.5))
+        if kind == "diverged":
+            bad = tr.nonfinite()
+            k = int(np.searchsorted(tr.t, bad[1])) - 1 if bad is not None else None
+        failures.append(evidence(kind, p, k))
     if open_loop is not None:
         # the I-f start: theta_hat is the current vector's angle there, not an estimate; the position
         # error is judged from the handovers on (the first closed-loop sample after each)
-        m["open_loop_s"] = f(np.count_nonzero(open_loop) * (tr.t[1] - tr.t[0]) if tr.t.size > 1 else 0)
+        m["open_loop_s"] = f(np.count_nonzero(open_loop) * dt)
+        m["open_loop_fraction"] = f(np.mean(open_loop))
         k_on = np.flatnonzero(open_loop[:-1] & ~open_loop[1:]) + 1
         m["handovers"] = int(k_on.size)
         if k_on.size:
             m["handover_theta_err_deg"] = f(np.degrees(np.abs(_wrap(tr["theta_err"][k_on])).max()))
-        if open_loop.all() and "w_ref" in tr.data and "w_hat" in tr.data:
+        if open_loop.all() and has("w_ref") and has("w_hat"):
             # the start alone, throughout: fine where the reference stays within its range, not where it
             # asks for more (the open-loop frame turns at most at the handover speed)
             top, asked = np.max(np.abs(tr["w_hat"])), np.max(np.abs(tr["w_ref"]))
             if asked > 1.05 * top:
-                failed = [
-                    *failed,
-                    f"the drive never handed over to the observer: the open-loop start ran throughout, at "
-                    f"most {top / base_w:.3g} p.u., while the reference asked for {asked / base_w:.3g} p.u.",
-                ]
+                failures.append(
+                    evidence(
+                        "no_handover",
+                        "the drive never handed over to the observer: the open-loop start ran throughout, "
+                        f"at most {top / base_w:.3g} p.u., while the reference asked for "
+                        f"{asked / base_w:.3g} p.u.",
+                        tr.t.size - 1,
+                    )
+                )
         slip = out_of_step(tr.t, np.asarray(tr["theta_err"]), open_loop)
         if slip is not None:
-            speed = f", speed {tr['w_m'][slip[1]] / base_w:+.3f} p.u." if "w_m" in tr.data else ""
-            problems = [
-                *problems,
+            speed = f", speed {w_m[slip[1]] / base_w:+.3f} p.u." if w_m is not None else ""
+            text = (
                 f"the rotor fell out of step in the open-loop I-f start at t = {slip[0]:.4g} s{speed} "
-                "(it slipped half a turn against the current vector)",
-            ]
-            failed = [*failed, problems[-1]]
-    if "theta_err" in tr.data:
-        th = _wrap(tr["theta_err"])
+                "(it slipped half a turn against the current vector)"
+            )
+            problems = [*problems, text]
+            # what the current carried: the peak |T_e| of the open-loop run up to the slip
+            a = next(r[0] for r in _runs(open_loop) if r[0] <= slip[1] < r[1])
+            carried = float(np.max(np.abs(tr["T_e"][a : slip[1] + 1])) / T_N) if T_N and has("T_e") else None
+            failures.append(evidence("slip", text, slip[1], lo=a, torque_pu=carried))
+    if theta is not None:
+        th = _wrap(theta)
+        closed = ~open_loop if open_loop is not None else np.ones(th.size, bool)
+        # the closed-loop error: over the samples where the observer had the loop
+        m["rms_theta_err_deg"] = f(np.degrees(np.sqrt(np.mean(th[closed] ** 2)))) if closed.any() else None
         if open_loop is not None:
             th = np.where(open_loop, 0.0, th)
-        m["rms_theta_err_deg"] = f(np.degrees(np.sqrt(np.mean(th**2))))
-        lim = np.radians(LIMITS["max_abs_theta_err_deg"])
         within = np.flatnonzero(np.abs(th) <= lim)
         start = int(within[0]) if within.size else 0
         k = start + int(np.argmax(np.abs(th[start:])))
@@ -128,15 +252,17 @@ def judge(tr: Any, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[st
         m["max_abs_theta_err_at_s"] = f(tr.t[k])
         if np.abs(th[k]) > lim and not any("position estimate was lost" in p for p in problems):
             where = f" at t = {tr.t[k]:.4g} s" + (
-                f", speed {tr['w_m'][k] / base_w:+.3f} p.u." if "w_m" in tr.data else ""
+                f", speed {w_m[k] / base_w:+.3f} p.u." if w_m is not None else ""
             )
-            failed.append(
+            text = (
                 f"position error {np.degrees(np.abs(th[k])):.3g} deg{where} "
                 f"(limit {LIMITS['max_abs_theta_err_deg']:g} deg)"
             )
-    if "w_m" in tr.data and "w_hat" in tr.data:
-        e = np.asarray(tr["w_m"]) - np.asarray(tr["w_hat"])
-        tail = slice(-max(1, e.size // 20), None)
+            failures.append(evidence("position", text, first_beyond if first_beyond is not None else k))
+    if w_m is not None and has("w_hat"):
+        e = w_m - np.asarray(tr["w_hat"])
+        n_tail = max(1, e.size // 20)
+        tail = slice(-n_tail, None)
         m["max_abs_speed_err_rad_s"] = f(np.max(np.abs(e)))
         m["final_speed_err_rad_s"] = f(np.mean(e[tail]))
         m["final_speed_err_pu"] = f(np.mean(e[tail]) / base_w)
@@ -144,22 +270,25 @@ def judge(tr: Any, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[st
         # swings about it): a run that ends there is judged by its tracking alone
         ends_open = open_loop is not None and bool(open_loop[tail].any())
         if not ends_open and abs(np.mean(e[tail])) > LIMITS["final_speed_err_pu"] * base_w:
-            failed.append(
+            text = (
                 f"final speed-estimation error {np.mean(e[tail]) / base_w:+.3g} p.u. "
                 f"({np.mean(e[tail]):+.4g} rad/s; limit {LIMITS['final_speed_err_pu']:g} p.u.)"
             )
-        if sc.mode == "speed" and not sc.stiff_load and "w_ref" in tr.data:
-            d = np.mean(np.asarray(tr["w_ref"])[tail] - np.asarray(tr["w_m"])[tail]) / base_w
+            failures.append(evidence("speed_estimate", text, e.size - 1, lo=e.size - n_tail))
+        if sc.mode == "speed" and not sc.stiff_load and has("w_ref"):
+            d = np.mean(np.asarray(tr["w_ref"])[tail] - w_m[tail]) / base_w
             m["final_tracking_err_pu"] = f(d)
             if abs(d) > LIMITS["final_tracking_err_pu"]:
-                failed.append(
+                text = (
                     f"the drive ended {d:+.3g} p.u. away from its speed reference (limit "
                     f"{LIMITS['final_tracking_err_pu']:g} p.u.)"
                 )
+                failures.append(evidence("tracking", text, e.size - 1, lo=e.size - n_tail))
     limit = tr.meta.get("startup", "").partition(ACCELERATION_LIMIT)[2]
-    if failed and limit:  # the start said where the observer cannot follow the drive (physics)
-        failed.append(f"physical limit: {ACCELERATION_LIMIT}{limit}")
-    return m, failed, problems
+    if failures and limit:  # the start said where the observer cannot follow the drive (physics)
+        note = f"; physical limit: {ACCELERATION_LIMIT}{limit}"
+        failures[-1] = dataclasses.replace(failures[-1], text=failures[-1].text + note)
+    return Judged(m, failures, problems, untested_reason(open_loop, dt))
 
 
 def out_of_step(t: np.ndarray, theta_err: np.ndarray, open_loop: np.ndarray) -> tuple[float, int] | None:
@@ -175,6 +304,82 @@ def out_of_step(t: np.ndarray, theta_err: np.ndarray, open_loop: np.ndarray) -> 
     return None
 
 
+def finders(drive: Drive, gains: GainSet | None) -> tuple[Any, Callable[[Failure], bool | None]]:
+    """The cause finders of ``drive`` (reports/causes.py ``classify``): its family's own (its report hooks'
+    ``failure_cause`` bound to the drive and ``gains``, None: the drive file's) and the shared test of a
+    right-half-plane pole of its linearization at a failure's speed and load (not where the family holds
+    zero speed by something the plain linearization leaves out, e.g. an injection: its hook judges)."""
+    from sensorless.reports.family import hooks
+
+    fam = family_of(drive)
+    own = hooks(fam).failure_cause
+    g = gains
+
+    def reviewed() -> GainSet:
+        nonlocal g
+        g = g if g is not None else fam.gains(drive)
+        return g
+
+    family = (lambda x: own(drive, reviewed(), x)) if own is not None else None
+
+    def unstable(x: Failure) -> bool | None:
+        torque = operating_torque_pu(x)
+        if x.w_pu is None or torque is None or fam.holds_zero_speed(drive):
+            return None
+        try:
+            lin = fam.linearize(
+                drive, reviewed(), np.array([x.w_pu * drive.w_base]), np.array([torque * drive.T_N])
+            )
+        except CapabilityError:
+            return None
+        return bool(np.nanmax(lin.max_real) > 0)
+
+    return family, unstable
+
+
+def entry(sc: Scenario, j: Judged, causes: Sequence[Named], label: str) -> dict[str, Any]:
+    """The check of one judged scenario (report.json ``time_domain``), its failures with their causes."""
+    cap = f"{sc.title} ({sc.source}), re-run with the gains under review ({label})."
+    if j.untested:
+        cap += f" Not tested sensorless: {j.untested}."
+    if j.failed:
+        cap += " Failed: " + "; ".join(j.failed) + "."
+    if open_loop_in(j.metrics):
+        cap += " Grey: the open-loop I-f start has the loop."
+    failures = [
+        {
+            **{k: v for k, v in dataclasses.asdict(x).items() if v is not None},
+            "cause": c.cause,
+            "cause_title": c.title,
+            "detail": c.detail,
+            "fix": c.fix,
+        }
+        for x, c in zip(j.failures, causes, strict=True)
+    ]
+    return {
+        "name": sc.name,
+        "title": sc.title,
+        "source": sc.source,
+        "crosses_zero": crosses_zero(sc),
+        "passed": not j.failed,
+        "status": "fail" if j.failed else "warn" if j.untested else "pass",
+        "sensorless": not j.untested,
+        "untested": j.untested,
+        "failed": j.failed,
+        "failures": failures,
+        "causes": sorted({c.cause for c in causes} | ({"not_tested_sensorless"} if j.untested else set())),
+        "problems": j.problems,
+        "metrics": j.metrics,
+        "limits": dict(LIMITS),
+        "caption": cap,
+    }
+
+
+def open_loop_in(metrics: dict[str, Any]) -> bool:
+    """Whether a run had the open-loop I-f start in the loop at some time."""
+    return bool(metrics.get("open_loop_s"))
+
+
 def checks(
     drive: Drive,
     gains: GainSet | None,
@@ -183,48 +388,62 @@ def checks(
     progress: Callable[[str], None],
 ) -> tuple[list[dict[str, Any]], list[Figure]]:
     """Simulate each scenario (a Scenario, or a built-in name or file) with ``gains`` (None: each
-    scenario's own choice) and judge it; (checks, figures)."""
+    scenario's own choice) and judge it, each failure with its cause (reports/causes.py); (checks,
+    figures)."""
     from sensorless.reports.sim_figure import plot_traces
 
+    try:
+        scales: DriveScales | None = family_of(drive).scales(drive)
+    except CapabilityError:
+        scales = None
+    family, unstable = finders(drive, gains)
     out: list[dict[str, Any]] = []
     figs: list[Figure] = []
     for item in runs:
         sc = item if isinstance(item, Scenario) else load_scenario(item, drive)
         progress(f"      simulating {sc.name}: {sc.title}")
         tr = simulate(drive, sc, gains)
-        m, failed, problems = judge(tr, sc, drive.w_base)
-        cap = f"{sc.title} ({sc.source}), re-run with the gains under review ({label})."
-        if failed:
-            cap += " Failed: " + "; ".join(failed) + "."
-        out.append(
-            {
-                "name": sc.name,
-                "title": sc.title,
-                "source": sc.source,
-                "passed": not failed,
-                "failed": failed,
-                "problems": problems,
-                "metrics": m,
-                "limits": dict(LIMITS),
-                "caption": cap,
-            }
-        )
+        j = assess(tr, sc, drive.w_base, scales)
+        check = entry(sc, j, classify_all(j.failures, family, unstable), label)
+        out.append(check)
         make = functools.partial(plot_traces, tr, sc.figure, f"{drive.name}: {sc.title}")
-        figs.append(Figure(svg_later(make), cap))
+        figs.append(Figure(svg_later(make), check["caption"]))
     return out, figs
 
 
 def findings(td: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Verdict findings of the failed checks: what failed and where."""
-    return [
-        {
-            "issue": "time-domain check failed",
-            "check": c["name"],
-            "text": f"time-domain check {c['name']} ({c['title']}) failed: " + "; ".join(c["failed"]),
-        }
-        for c in td
-        if not c["passed"]
-    ]
+    """Verdict findings of the checks that failed (what, where, its cause and the change that fixes it)
+    and of those that did not test the observer (why)."""
+    out = []
+    for c in td:
+        if not c["passed"]:
+            why = [cause_clause(x) for x in c["failures"]]
+            out.append(
+                {
+                    "issue": "time-domain check failed",
+                    "check": c["name"],
+                    "causes": c.get("causes", []),
+                    "text": f"time-domain check {c['name']} ({c['title']}) failed: " + "; ".join(why),
+                }
+            )
+        elif c.get("untested"):
+            fix = CATALOGUE["not_tested_sensorless"].fix
+            out.append(
+                {
+                    "issue": "not tested sensorless",
+                    "check": c["name"],
+                    "causes": ["not_tested_sensorless"],
+                    "text": f"time-domain check {c['name']} ({c['title']}) not tested sensorless: "
+                    f"{c['untested']} (fix: {fix})",
+                }
+            )
+    return out
+
+
+def cause_clause(x: dict[str, Any]) -> str:
+    """A failure of a check (report.json ``failures``) with its cause and fix, for a finding."""
+    detail = f": {x['detail']}" if x.get("detail") else ""
+    return f"{x['text']} ({x['cause_title']}{detail}; fix: {x['fix']})"
 
 
 def lost(td: Sequence[dict[str, Any]]) -> bool:
@@ -235,11 +454,16 @@ def lost(td: Sequence[dict[str, Any]]) -> bool:
 STATUS_ORDER = ("pass", "warn", "fail")
 
 
+def check_status(c: dict[str, Any]) -> str:
+    """A check's own status: "fail" where it failed, "warn" where it passed without testing the observer
+    (not tested sensorless), else "pass"."""
+    return "fail" if not c["passed"] else "warn" if c.get("untested") else "pass"
+
+
 def status_with(status: str, td: Sequence[dict[str, Any]]) -> str:
-    """A verdict's status with the checks: a failed check makes it at best "warn"; a run that does not
-    hold (diverged, rotor position lost) makes it "fail"."""
-    worst = "fail" if lost(td) else "warn" if any(not c["passed"] for c in td) else "pass"
-    return max(status, worst, key=STATUS_ORDER.index)
+    """A verdict's status with the checks (one rule): any failed check makes it "fail", a check not
+    tested sensorless at best "warn"."""
+    return max([status, *(check_status(c) for c in td)], key=STATUS_ORDER.index)
 
 
 def section(
@@ -254,33 +478,44 @@ def section(
     rows = []
     for item in td:
         m = item["metrics"]
+        share = m.get("open_loop_fraction")
         rows.append(
             (
                 f"{item['name']}: {item['title']}",
-                "pass" if item["passed"] else "FAIL",
+                {"pass": "pass", "warn": "not sensorless", "fail": "FAIL"}[check_status(item)],
                 num(m["duration_s"]),
+                f"{num(m['open_loop_s'])} ({100 * share:.0f} %)" if share is not None else "none",
                 num(m.get("rms_theta_err_deg")),
                 num(m.get("max_abs_theta_err_deg")),
                 num(m.get("max_abs_speed_err_rad_s")),
                 num(m.get("final_speed_err_rad_s")),
+                ", ".join(item.get("causes", [])) or "-",
             )
         )
     header = (
         "scenario",
         "check",
         "simulated (s)",
-        "RMS position error (deg)",
-        "max |position error| (deg)",
+        "open loop (s, share)",
+        "RMS position error, closed loop (deg)",
+        "max |position error|, closed loop (deg)",
         "max |speed error| (rad/s)",
         "final speed error (rad/s)",
+        "cause",
     )
     limits = (
         f"A check passes when the run holds (finite, no rejected samples, rotor position not lost), the peak "
         f"position error stays within {LIMITS['max_abs_theta_err_deg']:g} deg, the final speed-estimation "
         f"error within {LIMITS['final_speed_err_pu']:g} p.u. and, in speed control, the final speed within "
-        f"{LIMITS['final_tracking_err_pu']:g} p.u. of its reference."
+        f"{LIMITS['final_tracking_err_pu']:g} p.u. of its reference; and only where the observer had the "
+        "loop: a run whose open-loop I-f start never handed over, had the loop for more than "
+        f"{100 * MAX_OPEN_LOOP_SHARE:g} % of the time or ended in it is not tested sensorless (at best a "
+        "warning). The position errors are the closed loop's (from each handover on); the open-loop part is "
+        "its own column and shaded grey in the figures. A failure names its cause (reports/causes.py) and "
+        "the change that fixes it."
     )
-    table = Table(header, tuple(rows), numeric=frozenset({2, 3, 4, 5, 6}))
+    table = Table(header, tuple(rows), numeric=frozenset({2, 4, 5, 6, 7}))
     blocks: list[Any] = [Paragraph(limits), *notes, table]
-    blocks += [Paragraph(f"{c['name']}: " + "; ".join(c["failed"]) + ".", "bad") for c in td if c["failed"]]
+    for c in findings(td):
+        blocks.append(Paragraph(c["text"] + ".", "bad" if c["issue"] != "not tested sensorless" else ""))
     return Section(title, (*blocks, *figs))

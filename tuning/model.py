@@ -83,6 +83,10 @@ class TuningModel:
         None  # P -> (N,) bool: x0 not moved by theta
     )
     n_initial_active: int = 0  # exchange method: points in the first round (0: 3 n_theta, at least 4)
+    # P -> (N,) labels of points that share their local gains (e.g. the same speed): the exchange method's
+    # first round takes the worst point of each label and condition (a rich law binds at every speed);
+    # None: the n_initial_active worst points overall
+    point_group: Callable[[np.ndarray], np.ndarray] | None = None
     # (K, n_theta) -> (K,): how large the gains are over the speed range (smaller wins a tie)
     gain_size: Callable[[np.ndarray], np.ndarray] | None = None
     gain_size_unit: str = ""  # its unit, for the summary's row heading

@@ -28,6 +28,7 @@ it has one) is weighted by the ``smoothing`` setting.
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass
 
 import casadi as ca
@@ -153,6 +154,30 @@ def sizes(model: TuningModel) -> tuple[int, int, int, int]:
     return n, nphi, len(model.point_names), n * (n + 1) // 2
 
 
+# IPOPT's linear solver (MUMPS on the OpenBLAS that CasADi bundles) runs in one thread: OpenBLAS splits a
+# product over as many threads as its environment says when it is loaded, and the sums' order, hence
+# their last bits, follows. A Dask worker (one thread: OMP_NUM_THREADS=1 and OPENBLAS_NUM_THREADS=1 by
+# Dask's default) and the command in a shell (two threads on two cores) then ran different IPOPT paths
+# from the same inputs: `tune DIR` and `tune FILE` gave a drone-class motor different gains (lambda1
+# at the lowest breakpoints 0.0074 vs 0.088). The libraries read these when the IPOPT plugin is loaded,
+# at the first solver; the process's own values are restored after it.
+THREADS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+
+def _nlpsol_one_thread(*args: object) -> ca.Function:
+    """``casadi.nlpsol(*args)`` with IPOPT's linear algebra loaded single-threaded (see THREADS_ENV)."""
+    before = {k: os.environ.get(k) for k in THREADS_ENV}
+    os.environ.update(dict.fromkeys(THREADS_ENV, "1"))
+    try:
+        return ca.nlpsol(*args)
+    finally:
+        for k, v in before.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 @functools.cache
 def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
     """IPOPT solver for the slot layout L. Variables z = [theta/typical, t, free slots (phi/phi_typ,
@@ -221,7 +246,7 @@ def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
     reg = ca.Function("reg", [th_sx], [r])
     f = -w_t * t + w_reg * reg(theta)
     g = ca.vertcat(*g_phi, *g_eq, *g_ineq)
-    return ca.nlpsol(
+    return _nlpsol_one_thread(
         f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",
         "ipopt",
         {"x": z, "p": p, "f": f, "g": g},

@@ -395,3 +395,36 @@ def with_noise_points(cand: Candidates) -> Candidates:
         np.concatenate([cand.sigma, np.zeros(dmp.size)]),
         (*cand.labels, *(cand.labels[j] + ", noise" for j in dmp)),
     )
+
+
+def fallbacks(drive: Any, result: Any, settings: Any) -> list[tuple[str, Any]]:
+    """The tuner's next candidates where the kept gains fail their proof (reports/tune_proof.py: they
+    run worse than the drive file's): (what it is, a result with its own gain table), best first. For the
+    shared pipeline: the law's start where it has one and it differs from the kept gains (a seeded law:
+    its seed's optimum in this law's parameters, e.g. the tuned speed-dependent law (16) sampled at the
+    schedule's breakpoints, which that law reproduces exactly); a tuner of its own offers none."""
+    if not isinstance(result, TuneResult) or result.model.start is None:
+        return []
+    m = result.model
+    theta = np.clip(np.asarray(m.start, float), m.lower, m.upper)
+    if np.allclose(theta, result.theta, rtol=1e-9, atol=0.0):
+        return []
+    st = dataclasses.replace(settings, min_decay=result.floor)
+    env = st.envelope
+    W, T = env.grid(drive.w_base, drive.T_N)
+    Wd, Td = env.grid(drive.w_base, drive.T_N, env.dense_factor)
+    grid = figures(m, theta, W, T)
+    dense = figures(m, theta, Wd, Td, noise=m.noise is not None)
+    scale = float(np.abs(figures(m, result.theta0, W, T).poles).max())
+    what = m.start_label or "the law's start"
+    text = f"{what}: the fallback (the optimum ran worse than the drive file's gains in the command's proof)"
+    r = dataclasses.replace(
+        result,
+        theta=theta,
+        grid=grid,
+        dense=dense,
+        selection={"text": text, "fallback": True},
+        ridge=None,
+        pareto=None,
+    )
+    return [(what, dataclasses.replace(r, table=gain_table(drive, st, r, scale)))]

@@ -62,7 +62,7 @@ T_N_TOLERANCE = 0.01  # a given T_N against P_N / (2 pi n_N / 60)
 class PmacMotor:
     """The true motor, eqs. (2)-(5)."""
 
-    p: int = q("integer", doc="pole pairs")
+    p: int = q("integer", check="pole_pairs", doc="pole pairs")
     reading: str = field(metadata={"dim": "choice", "doc": "reading of eq. (2): mechanical|electrical"})
     R: float = q("resistance", doc="stator resistance [ohm]")
     L: float = q("inductance", doc="stator inductance [H]")

@@ -295,6 +295,28 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     return doc
 
 
+def _speed_keys(data: Mapping[str, Any], m: Any) -> str:
+    """The keys the user wrote that set the highest speed and the observer's period (a derived
+    value's error names them, not ``envelope.speed_max`` of a file that does not give it)."""
+    env, rating, obs = (data.get(s, {}) for s in ("envelope", "rating", "observer"))
+    speed = ["envelope.speed_max"] if isinstance(env, Mapping) and "speed_max" in env else []
+    if isinstance(rating, Mapping) and "n_N" in rating:
+        speed.append("rating.n_N")
+    else:  # n_N from the no-load speed u_dc/(sqrt(3) psi_pm p)
+        speed += ["inverter.u_dc", m.source.get("psi_pm", "motor.psi_pm")]
+    speed.append(m.source.get("p", "motor.p"))
+    period = "observer.T_obs" if isinstance(obs, Mapping) and "T_obs" in obs else "inverter.f_s"
+    return ", ".join(dict.fromkeys([*speed, period]))
+
+
+def _too_fast(w_max: float, T_obs: float) -> str:
+    return (
+        f"the highest speed {w_max:.4g} rad/s (electrical) leaves fewer than 4 observer periods "
+        f"(T_obs = {T_obs:.4g} s) per electrical period (w_max T_obs = {w_max * T_obs:.3g} >= pi/2): "
+        "check these values and their units, or lower envelope.speed_max"
+    )
+
+
 def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
     """-(the PLL's slowest pole seen in its speed estimate) [1/s] of a [gains] section: bw (odrive,
     flux_schedule) or the slow root of s^2 + k_p s + k_i (vesc; k_p/2 where the roots are complex).
@@ -374,9 +396,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
     if env.speeds < 2 or not env.speed_min < env.speed_max:
         raise DriveFileError(file, "envelope", "need speeds >= 2 and 0 < speed_min < speed_max")
     if env.speed_max * observer.T_obs >= math.pi / 2:
-        raise DriveFileError(
-            file, "envelope.speed_max", "fewer than 4 observer periods per electrical period"
-        )
+        raise DriveFileError(file, _speed_keys(data, m), _too_fast(env.speed_max, observer.T_obs))
     drive = FluxObserverDrive(
         name=head["name"],
         kind=kind,

@@ -74,7 +74,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_prefix(prefix)
     except ValueError as e:
-        raise UsageError(f"argument --prefix: {e}") from None
+        if args.prefix is not None:
+            raise UsageError(f"argument --prefix: {e}") from None
+        # the default, from the drive's name: name that, and the option that overrides it
+        raise DriveFileError(
+            drive.file, "drive.name", f"the C prefix made of it, {e}; give --prefix"
+        ) from None
     gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
     foreign = foreign_table(table, args.gains, drive) if table is not None else None
     if foreign:

@@ -76,6 +76,17 @@ class Number:
         return x
 
 
+def drive_name(text: str) -> str:
+    """An argparse ``type`` for a drive name given on the command line (``--name``): it becomes part of
+    file names, so it is checked as a path component (design/drive_file.py ``name_problem``)."""
+    from sensorless.design.drive_file import name_problem
+
+    why = name_problem(text)
+    if why is not None:
+        raise argparse.ArgumentTypeError(why)
+    return text
+
+
 FINITE = Number()  # any finite number of a magnitude that drive files accept (a bare ``float``)
 COUNT = Number(0, 1e9, integer=True)  # a non-negative integer (a bare ``int``)
 

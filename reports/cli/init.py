@@ -24,7 +24,7 @@ from sensorless.design import registry
 from sensorless.design.drive import load_drive_text, preset_text
 from sensorless.design.drive_file import Entry, read_text, table
 from sensorless.design.family import CapabilityError
-from sensorless.design.startup import SECTION, document_entries, optional_lines
+from sensorless.design.startup import DERIVED_FROM, SECTION, document_entries, optional_lines
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.common import UsageError, print_warnings
 from sensorless.reports.family import (
@@ -115,7 +115,15 @@ def run(args: argparse.Namespace) -> int:
     drive = load_drive_text(written, str(args.out))  # and so does what is written
     if fam.open_loop_start and _startup_section(doc, fam, drive, given_start):
         written = doc.toml()
-        drive = load_drive_text(written, str(args.out))
+        try:
+            drive = load_drive_text(written, str(args.out))
+        except DriveFileError as e:  # a [startup] value derived from the user's: name theirs
+            key = e.key.removeprefix(f"{SECTION}.")
+            if key not in DERIVED_FROM or (given_start and key in given_start):
+                raise
+            raise DriveFileError(
+                file, DERIVED_FROM[key], f"the I-f start's {key} derived from them: {e.problem}"
+            ) from None
     out.set_text(written)
     path = out.commit()
     print_warnings("init", source)
@@ -182,6 +190,19 @@ def _importer(name: str) -> Importer:
     return found[0][1]
 
 
+def _rules(text: str, keys: str) -> str:
+    """'inverter.u_dc = si_battery_cells x 3.7 V; ...': each drive-file key of ``keys`` (comma-separated)
+    with the rule an import wrote as its comment (the firmware's fields it comes from)."""
+    found, section = {}, ""
+    for line in text.splitlines():
+        if line.startswith("["):
+            section = line.strip("[] ")
+        elif " = " in line and "  # " in line:
+            found[f"{section}.{line.split(' = ', 1)[0].strip()}"] = line.rsplit("  # ", 1)[1].strip()
+    wanted = [k.strip() for k in keys.split(",")]
+    return "; ".join(f"{k} = {found.get(k, 'a rule of the drive file')}" for k in wanted)
+
+
 def run_import(args: argparse.Namespace) -> int:
     """Read a firmware's configuration, check the drive file it gives by loading it, write it."""
     name, spec = args.from_firmware
@@ -199,7 +220,10 @@ def run_import(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"{spec}: no such file")
     given = {d: getattr(args, d) for d in sorted(mine) if getattr(args, d, None) is not None}
     written, notes = imp.read(read_text(path), spec, given)
-    drive = load_drive_text(written, str(args.out))  # what is written loads (errors name its keys)
+    try:
+        drive = load_drive_text(written, str(args.out))  # what is written loads
+    except DriveFileError as e:  # nothing was written: name the file read and the fields behind the keys
+        raise DriveFileError(spec, e.key, f"{e.problem} (converted as {_rules(written, e.key)})") from None
     out.set_text(written)
     target = out.commit()
     for note in notes:

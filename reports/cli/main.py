@@ -9,7 +9,9 @@ Exit statuses (docs/conventions.md):
 - 3: the computation ran but its result does not hold: not finite (nothing is written), or written
   with a warning line (a simulated drive that lost the rotor position, tuned gains below the damping
   a report requires).
-- 130 (Ctrl-C) or 143 (SIGTERM): one line "interrupted"; nothing is written (reports/interrupts.py).
+- 130 (Ctrl-C) or 143 (SIGTERM): one line "interrupted"; nothing is written (reports/interrupts.py); a
+  computation that does not stop within seconds is ended, with the processes it started.
+- 3 also when a command's time budget runs out (``tune --time-limit``): one line; nothing is written.
 - 141: standard output closed early (``| head``): quietly.
 - 1: a bug (the traceback says where).
 """
@@ -95,7 +97,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
     command = words[0] if words and words[0] in COMMAND_NAMES else ""
     try:
-        with interrupts.handled():
+        with interrupts.handled(f"sensorless {command}".strip()):
             try:
                 args = build_parser().parse_args(argv)
                 _refuse_empty(args)
@@ -130,9 +132,9 @@ def _exit_status(e: BaseException, prefix: str) -> int:
     signum = interrupts.received()
     if signum is not None:  # whatever the exception: CasADi turns Ctrl-C into its own errors
         interrupts.reset()
-        what = "interrupted" if signum == interrupts.SIGNALS[0] else "terminated"
-        print(f"{prefix}: {what}", file=sys.stderr)
-        return 128 + signum
+        text, code = interrupts.line(signum)
+        print(text, file=sys.stderr)
+        return code
     if isinstance(e, SystemExit):
         raise e
     if isinstance(e, BrokenPipeError):

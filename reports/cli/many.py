@@ -33,7 +33,9 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from sensorless.reports import interrupts
 from sensorless.reports.cli.common import Number, UsageError
+from sensorless.reports.engine import scheduler_address
 
 SUMMARY = "summary.csv"
 _PATTERN = set("*?[")
@@ -44,6 +46,7 @@ def add_engine_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--scheduler",
         metavar="ADDRESS",
+        type=scheduler_address,
         help="with several drives: Dask scheduler (tcp://HOST:PORT) to run on, or 'synchronous' (in "
         "this process); default: a local cluster",
     )
@@ -72,6 +75,24 @@ def drive_files(spec: str) -> list[str] | None:
             raise UsageError(f"argument PRESET_OR_TOML: {spec}: no drive file matches")
         return files
     return None
+
+
+def gain_table_of(gains: str, name: str) -> str:
+    """The gain table ``--gains`` names for drive ``name``: the file itself, or in a directory that
+    ``tune`` wrote its one ``gains_*.json`` (``tune FILE --out DIR``) or ``<name>/gains_*.json`` (``tune
+    DIR --out DIR``, one directory per drive). UsageError naming --gains where there is none or more
+    than one."""
+    d = Path(gains)
+    if not d.is_dir():
+        return gains
+    found = sorted((d / name).glob("gains_*.json")) or sorted(d.glob("gains_*.json"))
+    if len(found) != 1:
+        what = "no gain table (gains_*.json)" if not found else f"{len(found)} gain tables"
+        raise UsageError(
+            f"argument --gains: {gains}: {what} for drive {name!r} in it or in {d / name}; "
+            "give the gain table's file"
+        )
+    return str(found[0])
 
 
 def refuse_engine_options(args: argparse.Namespace) -> None:
@@ -107,7 +128,11 @@ def run(command: str, args: argparse.Namespace, files: list[str]) -> int:
         if (root / SUMMARY).exists():
             raise UsageError(f"argument --out: {root / SUMMARY} exists (use --force to overwrite)")
     base = {k: v for k, v in vars(args).items() if k not in ("scheduler", "workers")}
-    items = [(command, base, f, str(root / name)) for name, f in names.items()]
+    tables = {name: gain_table_of(args.gains, name) for name in names} if getattr(args, "gains", None) else {}
+    items = [
+        (command, {**base, **({"gains": tables[name]} if tables else {})}, f, str(root / name))
+        for name, f in names.items()
+    ]
     try:
         with Engine(args.scheduler, args.workers, quiet=getattr(args, "quiet", False)) as engine:
             results = engine.map(one, items, f"{command}: drives")
@@ -142,7 +167,14 @@ def one(command: str, base: dict[str, Any], file: str, out: str) -> dict[str, An
         warnings.simplefilter("ignore", RuntimeWarning)  # as main() does: the command says what is not finite
         try:
             code = int(ns.func(ns) or 0)
-        except (KeyboardInterrupt, SystemExit):
+        except KeyboardInterrupt as e:
+            if getattr(e, "signum", None) != interrupts.BUDGET:
+                raise
+            # this drive's time budget (on the synchronous engine): its line, the others go on
+            text, code = interrupts.line(e.signum)
+            interrupts.reset()
+            print(text, file=sys.stderr)
+        except SystemExit:
             raise
         except Exception as e:
             try:
@@ -154,8 +186,10 @@ def one(command: str, base: dict[str, Any], file: str, out: str) -> dict[str, An
 
 
 def _row(command: str, name: str, file: str, out: Path, res: dict[str, Any]) -> dict[str, Any]:
-    lines = [ln for ln in res["stderr"].splitlines() if ": error: " in ln or ": warning: " in ln]
-    lines += [ln for ln in res["stderr"].splitlines() if ": bug: " in ln]
+    # the line that says why: a run that ends in an error gives the error, not an earlier warning
+    err = res["stderr"].splitlines()
+    lines = [ln for ln in err if ": error: " in ln or ": bug: " in ln] if res["code"] else []
+    lines += [ln for ln in err if ": warning: " in ln]
     result = ""
     if res["code"] in (0, 3):
         if command == "tune":

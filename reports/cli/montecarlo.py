@@ -16,6 +16,7 @@ import time
 from typing import Any
 
 from sensorless.reports.cli.common import MIN_DAMPING, Number, UsageError, load, version
+from sensorless.reports.engine import scheduler_address
 
 NAMES = (
     "summary.json",
@@ -73,6 +74,7 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--scheduler",
         metavar="ADDRESS",
+        type=scheduler_address,
         help="Dask scheduler (tcp://HOST:PORT) to run on, or 'synchronous' (in this process); "
         "default: a local cluster",
     )

@@ -13,26 +13,36 @@ one ``--min-damping`` requires where the drive's family takes it), or
 their worst damping is not finite, the tables are written (they are the result) with a warning line, and
 the exit status is 3; a tuner whose outcome judges by a criterion of its family's own
 (``TuneOutcome.shortfalls``) says what its gains miss instead, one warning line each (exit 3).
+
+Before anything is written the table is proved (reports/tune_proof.py): its gains and the drive file's
+over the drive's real range (+-T_max) by the linear analysis and on the report's time-domain checks. A
+table that runs worse than the drive file's gains is not written as tuned: the tuner's fallback (a
+seeded law: its seed's optimum in this law's parameters) is proved next, and if none holds the command
+says which point and which check, writes nothing and exits 3. ``--unchecked`` skips the proof.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from typing import Any
 
 from sensorless.design.family import CapabilityError
 from sensorless.design.registry import families, family_of
+from sensorless.reports import interrupts
 from sensorless.reports.cli import many
-from sensorless.reports.cli.common import MIN_DAMPING, UsageError, load
+from sensorless.reports.cli.common import MIN_DAMPING, Number, UsageError, load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 from sensorless.reports.gain_csv import pareto_csv, speeds_csv, table_csv
 from sensorless.reports.low_speed import tune_line
 from sensorless.tuning.family import all_tunables, estimate_errors, tunable_for
 from sensorless.tuning.nlp import TuningError
+
+UNCHECKED_ENV = "SENSORLESS_TUNE_UNCHECKED"  # set: --unchecked by default (the test suite's other tests)
 
 
 class _OldFlag(argparse.Action):
@@ -41,6 +51,11 @@ class _OldFlag(argparse.Action):
     def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
         print("sensorless tune: note: --family is now called --law", file=sys.stderr)
         setattr(namespace, self.dest, values)
+
+
+# The default time budget [s] of one drive's tuning: twice the slowest tune of the example motors on a
+# loaded machine (~400 s); a drive with implausible data (J in kg m2 for kg cm2) ran on for hours
+TIME_LIMIT = 900.0
 
 
 def register(sub: Any) -> None:
@@ -80,6 +95,22 @@ def register(sub: Any) -> None:
     p.add_argument("--out", default=None, help="output directory (default: tune-<drive name>)")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument(
+        "--unchecked",
+        action="store_true",
+        default=bool(os.environ.get(UNCHECKED_ENV)),
+        help="write the table without its proof (the linear analysis over +-T_max and the report's "
+        "time-domain checks against the drive file's gains: reports/tune_proof.py); default: checked, "
+        f"unless ${UNCHECKED_ENV} is set",
+    )
+    p.add_argument(
+        "--time-limit",
+        type=Number(0, 1e6, unit="s"),
+        default=TIME_LIMIT,
+        metavar="SECONDS",
+        help=f"give up after this many seconds of wall time, writing nothing (default {TIME_LIMIT:g}; 0: "
+        "none): a drive with implausible data can make the tuning run far longer than usual",
+    )
     add_family_options(p, "tune")
     many.add_engine_options(p)
     p.set_defaults(func=run)
@@ -123,11 +154,33 @@ def run(args: argparse.Namespace) -> int:
     print(f"law {tunable.name}: {tunable.description}")
     if h.describe_envelope is not None:
         print(h.describe_envelope(drive, settings))
+    limit = getattr(args, "time_limit", None)  # a many-drive task's namespace may predate the option
+    note = (
+        f"the tuning did not end within {limit:g} s (--time-limit); nothing written. A drive whose data "
+        "are implausible (the warnings above, e.g. J's unit) can make it run far longer than usual: check "
+        "them, or raise --time-limit"
+    )
     try:
-        r = tune(drive, tunable.name, settings, progress=progress)
+        with interrupts.budget(limit, note):
+            r = tune(drive, tunable.name, settings, progress=progress)
     except (TuningError, CapabilityError) as e:
         raise UsageError(str(e)) from None
+    proof: list[str] = []
+    if not args.unchecked:
+        kept, proof = _proved(drive, r, settings, json_name, progress)
+        if kept is None:
+            print("\n".join(r.summary_lines(drive)))
+            print("\n".join(proof))
+            print(
+                f"sensorless tune: error: no table written: the tuned gains run worse than the drive file's "
+                f"({proof[-1].partition(': ')[2]})",
+                file=sys.stderr,
+            )
+            return 3
+        r = kept
     print("\n".join(r.summary_lines(drive)))
+    if proof:
+        print("\n".join(proof))
     tuned = fam.gains(drive, table=r.table, table_file=json_name)
     low = tune_line(drive, tuned, fam.min_damping(), estimate_errors(drive, tunable, settings))
     if low:
@@ -163,3 +216,34 @@ def run(args: argparse.Namespace) -> int:
         )
         return 3
     return 0
+
+
+def _proved(drive: Any, r: Any, settings: Any, table_file: str, progress: Any) -> tuple[Any, list[str]]:
+    """(the result whose table is written, lines saying its proof) or (None, lines ending with what the
+    last candidate does worse): the tuned gains and then the tuner's fallbacks (tuning/tune.py), each
+    against the drive file's gains (reports/tune_proof.py)."""
+    from sensorless.reports import tune_proof
+    from sensorless.tuning.tune import fallbacks
+
+    fam = family_of(drive)
+    runs = tune_proof.runs(drive)
+    progress(f"proof: the drive file's and the tuned gains, {len(runs)} time-domain checks, +-T_max")
+    base = tune_proof.prove(drive, None, "drive file", runs, tune_proof.ANALYSIS, progress)
+    lines = [f"proof (linear analysis over +-T_max, {len(runs)} time-domain checks): {base.line()}"]
+    cands: list[tuple[str, Any]] = [("tuned", r)]
+    i = 0
+    while i < len(cands):
+        label, res = cands[i]
+        g = fam.gains(drive, table=res.table, table_file=table_file)
+        p = tune_proof.prove(drive, g, label, runs, tune_proof.ANALYSIS, progress)
+        lines.append(f"proof: {p.line()}")
+        bad = tune_proof.worse(p, base, drive.w_base)
+        if not bad:
+            if i:
+                lines.append(f"proof: kept {label} (the tuned gains ran worse than the drive file's)")
+            return res, lines
+        lines.append(f"proof: {label} worse than the drive file's gains: " + "; ".join(bad))
+        if i == 0:
+            cands += fallbacks(drive, r, settings)
+        i += 1
+    return None, lines

@@ -8,7 +8,7 @@ stability report).
 from __future__ import annotations
 
 from sensorless.reports.family import ReportHooks
-from sensorless.reports.ipmsm_adaptive import analyze, report, simulate, tune
+from sensorless.reports.ipmsm_adaptive import analyze, causes, report, simulate, tune
 
 HOOKS = ReportHooks(
     analyze_options=analyze.OPTIONS,
@@ -20,5 +20,6 @@ HOOKS = ReportHooks(
     simulate_options=simulate.OPTIONS,
     simulate_scenario=simulate.scenario,
     report=report.compute,
+    failure_cause=causes.failure_cause,
     settings_sections=("runtime", "tuning"),  # [runtime], [tuning]: settings, in their own sections
 )

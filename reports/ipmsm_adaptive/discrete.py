@@ -25,6 +25,8 @@ from sensorless.design.ipmsm_adaptive.discrete import (
 )
 from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.reports.cli.common import UsageError
+from sensorless.reports.csv_cells import REASON
+from sensorless.reports.csv_cells import row as csv_row
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.family import Option
 from sensorless.reports.svg_render import svg_later
@@ -97,6 +99,10 @@ def line(label: str, T: float, a: DiscretePoleSweep, w_base: float) -> str:
     )
 
 
+# why a row has empty cells (its values there are not finite)
+NO_POLES = "not finite here: no steady state found or the sampled observer overflows"
+
+
 def discrete_csv(a: DiscretePoleSweep, w_base: float) -> str:
     """CSV text: per operating point the continuous and discrete poles, steady errors, feedthrough."""
     n = a.poles.shape[1]
@@ -105,6 +111,7 @@ def discrete_csv(a: DiscretePoleSweep, w_base: float) -> str:
         for k in range(n):
             head += [f"{prefix}{k}_re_1_s", f"{prefix}{k}_im_1_s"]
     head += ["err_theta_deg", "err_w_rad_s", "dw_hat_du_d_rad_s_V", "dw_hat_du_q_rad_s_V", "memory_abs_z"]
+    head += [REASON]
     buf = io.StringIO()
     buf.write(
         f"# gain law: {a.law.name}; discretization: {a.discretization}; T_s {a.T_s:.10g} s; "
@@ -116,7 +123,7 @@ def discrete_csv(a: DiscretePoleSweep, w_base: float) -> str:
         for p in (*a.poles[j], *a.poles_discrete[j]):
             row += [p.real, p.imag]
         row += [np.degrees(a.err_theta[j]), a.err_w[j], *a.feedthrough[j], a.memory_z[j]]
-        buf.write(",".join("nan" if not np.isfinite(v) else f"{v:.10g}" for v in row) + "\n")
+        buf.write(csv_row(row, NO_POLES) + "\n")
     return buf.getvalue()
 
 
@@ -206,7 +213,7 @@ def study_csv(rows: dict[str, list[StudyRow]], w_base: float) -> str:
     """CSV of the study (one row per gain x scheme x T_s)."""
     head = (
         "gain,discretization,T_s_s,err_theta_max_deg,err_theta_at_w_pu,feedthrough_rad_s_V,"
-        "slow_decay_rel_error,worst_damping_c,worst_damping_d,pole_error_max_1_s"
+        f"slow_decay_rel_error,worst_damping_c,worst_damping_d,pole_error_max_1_s,{REASON}"
     )
     lines = [f"# speeds +-{', '.join(map(str, STUDY_SPEEDS))} p.u. at +-T_N; injection off", head]
     for label, rs in rows.items():
@@ -221,7 +228,7 @@ def study_csv(rows: dict[str, list[StudyRow]], w_base: float) -> str:
                 r.damping_d,
                 r.pole_error,
             )
-            lines.append(f"{label},{r.discretization}," + ",".join(f"{x:.10g}" for x in v))
+            lines.append(f"{label},{r.discretization}," + csv_row(v, NO_POLES))
     return "\n".join(lines) + "\n"
 
 

@@ -34,6 +34,7 @@ from sensorless.reports.document import (
     num,
 )
 from sensorless.reports.ipmsm_adaptive import tuning
+from sensorless.reports.ipmsm_adaptive.causes import crossings
 from sensorless.reports.ipmsm_adaptive.discrete import report_section as discrete_section
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
 from sensorless.reports.review import Review, opening, settle, time_domain_checks, verdict_box
@@ -353,8 +354,7 @@ def verdict(
                 f"{a:.3g} ≤ |ω| ≤ {b:.3g} p.u. (growth up to {coupling[1]:.2g} 1/s), where the observer's "
                 "answer to the HF correction (20) turns sign (below (R̂s + λ1) ψ_d / (L_d L_q |i_q|) = "
                 f"{coupling[0]:.3g} p.u. at T_N with λ1 = 0: "
-                "design/ipmsm_adaptive/carrier.py); zero-speed crossings pass it in a transient (the "
-                "time-domain checks), but do not hold a regenerating speed in that band under load."
+                f"design/ipmsm_adaptive/carrier.py); {crossings(data.get('time_domain') or [])}"
             )
         else:
             reasons.append(f"RHP pole below {edge:.3g} p.u. remains even with the injection.")

@@ -12,12 +12,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
+from sensorless.reports.csv_cells import REASON
+from sensorless.reports.csv_cells import row as csv_row
 
 plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
 
 
-def _fmt(v: float) -> str:
-    return "nan" if not np.isfinite(v) else f"{v:.10g}"
+# why a row has empty cells (its values there are not finite)
+OVERFLOW = "not finite here: the linearized observer overflows (check the drive's units and the gains)"
 
 
 def format_poles(poles: np.ndarray, digits: int = 4) -> str:
@@ -41,7 +43,7 @@ def poles_csv(r: ObserverPoles, drive: Any) -> str:
     head += [f"pole_d{k}_{ri}_1_s" for k in range(n_c) for ri in ("re", "im")]
     head += [f"memory_abs_z{k}" for k in range(n_m)]
     head += ["monodromy_steps", "worst_damping_c", "worst_damping_d"]
-    head += ["err_w_rad_s", "err_theta_rad", "err_T_L_Nm", "ripple_w_rad_s", "ripple_T_L_Nm"]
+    head += ["err_w_rad_s", "err_theta_rad", "err_T_L_Nm", "ripple_w_rad_s", "ripple_T_L_Nm", REASON]
     buf = io.StringIO()
     buf.write(
         f"# {drive.name}: load-torque estimation {'on' if r.load_estimation else 'off (Gamma = 0)'}; "
@@ -57,7 +59,7 @@ def poles_csv(r: ObserverPoles, drive: Any) -> str:
             row += [p.real, p.imag]
         row += [*r.memory_z[j], r.steps[j], wd_c[j], wd_d[j]]
         row += [r.err_w[j], r.err_theta[j], r.err_T[j], r.ripple_w[j], r.ripple_T[j]]
-        buf.write(",".join(_fmt(float(v)) for v in row) + "\n")
+        buf.write(csv_row(row, OVERFLOW) + "\n")
     return buf.getvalue()
 
 
@@ -70,7 +72,7 @@ def study_csv(rows: Sequence[Any], drive: Any) -> str:
     )
     buf.write(
         "method,T_s_s,speed_rpm,T_L_Nm,err_w_rad_s,err_theta_rad,err_T_L_Nm,ripple_w_rad_s,"
-        "effect_w_rad_s,slow_pole_c_1_s,slow_pole_d_1_s\n"
+        f"effect_w_rad_s,slow_pole_c_1_s,slow_pole_d_1_s,{REASON}\n"
     )
     for s in rows:
         vals = [
@@ -85,7 +87,7 @@ def study_csv(rows: Sequence[Any], drive: Any) -> str:
             s.slow_c,
             s.slow_d,
         ]
-        buf.write(s.method + "," + ",".join(_fmt(v) for v in vals) + "\n")
+        buf.write(s.method + "," + csv_row(vals, OVERFLOW) + "\n")
     return buf.getvalue()
 
 

@@ -26,6 +26,8 @@ from sensorless.design.pmsm_flux_observer import FAMILY, corner_estimate
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
 from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
+from sensorless.reports.csv_cells import REASON
+from sensorless.reports.csv_cells import row as csv_row
 from sensorless.reports.document import (
     Figure,
     Paragraph,
@@ -40,7 +42,12 @@ from sensorless.reports.document import (
 from sensorless.reports.envelope_options import NOISE_OPTIONS
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
-from sensorless.reports.pmsm_flux_observer.findings import damping_finding, holds_nowhere_finding, pll_finding
+from sensorless.reports.pmsm_flux_observer.findings import (
+    damping_finding,
+    failure_cause,
+    holds_nowhere_finding,
+    pll_finding,
+)
 from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
 from sensorless.reports.review import (
     gains_under_review,
@@ -94,16 +101,43 @@ def poles_figure(lin: Any, drive: Any, title: str) -> Any:
     return fig
 
 
+# why a row of poles.csv has empty cells: the continuous observer's (_c) values, or the sampled one's (_d)
+NO_EQUILIBRIUM = "no equilibrium of the observer found here"
+NO_FIXED_POINT = "no fixed point of the sampled observer found here (near the continuous equilibrium)"
+
+
 def poles_csv(lin: Any, drive: Any) -> str:
+    """One row per operating point; an empty cell where the analysis has no value, said in the row."""
     lines = [
         f"# {drive.name}: flux observer + PLL poles; discrete at T_obs = {lin.T_s:g} s; speeds electrical",
-        "w_rad_s,w_pu,T_e_Nm,damping_c,decay_c_1_s,damping_d,decay_d_1_s,theta_err_c_rad,theta_err_d_rad",
+        "w_rad_s,w_pu,T_e_Nm,damping_c,decay_c_1_s,damping_d,decay_d_1_s,theta_err_c_rad,theta_err_d_rad,"
+        + REASON,
     ]
     cols = (lin.w, lin.w / drive.w_base, lin.torque, lin.worst_damping, lin.decay_rate)
     cols += (lin.worst_damping_discrete, lin.decay_rate_discrete, lin.theta_err, lin.theta_err_discrete)
-    for row in zip(*cols, strict=True):
-        lines.append(",".join(f"{v:.10g}" for v in row))
+    for k, row in enumerate(zip(*cols, strict=True)):
+        lines.append(csv_row(row, NO_EQUILIBRIUM if not np.isfinite(lin.theta_err[k]) else NO_FIXED_POINT))
     return "\n".join(lines) + "\n"
+
+
+def _shown(v: float, spec: str) -> str:
+    """``v`` in ``spec``, or '-' where the analysis has no value (poles.csv says why)."""
+    return (
+        format(float(v), spec)
+        if np.isfinite(v)
+        else format("-", spec[0] + spec[1:].rstrip("fgs").split(".")[0])
+    )
+
+
+def not_finite(lin: Any) -> str | None:
+    """The warning line of an analysis with points without a value (their rows say why), or None."""
+    lost = ~np.isfinite(lin.worst_damping_discrete) | ~np.isfinite(lin.worst_damping)
+    if not lost.any():
+        return None
+    return (
+        f"poles.csv: no value at {int(lost.sum())} of {lost.size} operating points (empty cells; the row "
+        f"says why): no equilibrium of the observer, or of the sampled observer, found there"
+    )
 
 
 def _close(fig: Any) -> None:
@@ -128,16 +162,19 @@ def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
         print(f"T_e = {T_e:.4g} N m:\n  {head}")
         for k in np.flatnonzero(lin.torque == T_e)[::2]:
             print(
-                f"  {lin.w[k] / drive.w_base:>10.3f} {lin.worst_damping[k]:>8.3f}/"
-                f"{lin.worst_damping_discrete[k]:<9.3f} "
-                f"{lin.decay_rate[k]:>11.4g}/{lin.decay_rate_discrete[k]:<12.4g} "
-                f"{np.degrees(lin.theta_err_discrete[k]):>16.4f}"
+                f"  {lin.w[k] / drive.w_base:>10.3f} {_shown(lin.worst_damping[k], '>8.3f')}/"
+                f"{_shown(lin.worst_damping_discrete[k], '<9.3f')} "
+                f"{_shown(lin.decay_rate[k], '>11.4g')}/{_shown(lin.decay_rate_discrete[k], '<12.4g')} "
+                f"{_shown(np.degrees(lin.theta_err_discrete[k]), '>16.4f')}"
             )
     print(
         f"worst over {lin.w.size} points: damping {np.nanmin(lin.worst_damping_discrete):.4f}, slowest decay "
         f"{np.nanmin(lin.decay_rate_discrete):.4g} 1/s (sampled observer)"
     )
     out.add_text("poles.csv", poles_csv(lin, drive))
+    lost = not_finite(lin)
+    if lost:  # not a result there: said, exit status 3 (as the other families' analyses)
+        out.warnings.append(lost)
     fig = poles_figure(lin, drive, f"{drive.name}: damping (o continuous, x sampled) and angle error")
     out.add_figures("poles", fig)
     _close(fig)
@@ -351,7 +388,9 @@ def compute(
     runs = time_domain.scenarios(drive, TIME_DOMAIN, scenarios)
     td, td_figs = time_domain_checks(drive, rev, runs, progress)
     progress("[3/3] verdict")
-    tracks = all(item["metrics"]["rms_theta_err_deg"] < MAX_RMS_THETA_DEG for item in td)
+    # the closed-loop error (None: a run the observer never had: not tested sensorless, said by its check)
+    untested = [item["name"] for item in td if item.get("untested")]
+    tracks = all((item["metrics"]["rms_theta_err_deg"] or 0.0) < MAX_RMS_THETA_DEG for item in td)
     mine = analysis.get(review, {})
     damped = not linearizable or (
         mine.get("worst_damping") is not None and mine["worst_damping"] >= min_damping
@@ -380,7 +419,7 @@ def compute(
     if not tracks:
         findings.append(f"a time-domain check exceeds {MAX_RMS_THETA_DEG:g} deg RMS position error")
     findings += [x["text"] for x in td_findings]
-    if pll:
+    if pll and not any("pll_root" in c.get("causes", ()) for c in td):  # else said as a check's cause
         findings.append(pll)
     data = {
         **opening(FAMILY, drive, table, min_damping, review),
@@ -402,7 +441,8 @@ def compute(
             else "box clamp (not linearizable); "
         )
         + f"time-domain check {'within' if tracks else 'beyond'} {MAX_RMS_THETA_DEG:g} deg RMS "
-        "position error."
+        "position error in closed loop"
+        + (f" ({len(untested)} not tested sensorless: {', '.join(untested)})." if untested else ".")
     )
     verdict = verdict_box(status, Paragraph(summary, status_class(status)), findings=findings)
     del figs
@@ -484,6 +524,7 @@ HOOKS = ReportHooks(
     tune_settings=tune_settings,
     describe_envelope=describe,
     report=compute,
+    failure_cause=failure_cause,
     settings_sections=("gains", "envelope", "control"),
     init_options=INIT_OPTIONS,
     init_data=init_data,

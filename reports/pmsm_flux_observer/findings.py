@@ -7,6 +7,8 @@ design's own numbers, and what to do.
   speed-estimation error, while the angle the drive commutates on (the observer's) is not delayed;
 - the estimate errors: which one alone already loses the motor at every envelope speed (the gradient
   observer's angle error under a flux error grows with k/|w|, Lee et al. 2010's circle |eta| = lambda);
+- a failed time-domain check whose final speed-estimation error is that lag: its cause "pll_root"
+  (:func:`failure_cause`, the family's report hook; reports/causes.py);
 - the damping: where it is worst (the gradient observer's k/(2|w|): low where k is small for the speed).
 """
 
@@ -20,6 +22,7 @@ import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF, base_gain, pll_gains
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
+from sensorless.reports.causes import Failure, Named
 from sensorless.tuning.pmsm_flux_observer import Assessment, FluxTuneSettings, assess, low_limit
 
 
@@ -69,6 +72,16 @@ def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str
         f"after the ramp{seen}; the angle the drive commutates on is the "
         f"observer's, not delayed by it; to do: {todo}"
     )
+
+
+def failure_cause(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
+    """The cause of a failed time-domain check in the flux observer's own analysis (reports/causes.py):
+    a final speed-estimation error where the PLL's slower root is slower than the speed loop needs
+    (:func:`pll_finding`) is the PLL's lag ("pll_root"); None for anything else (the shared rules)."""
+    if failure.kind != "speed_estimate":
+        return None
+    why = pll_finding(gains, drive.control.alpha_s, [])
+    return Named("pll_root", why) if why else None
 
 
 def holds_nowhere_finding(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> str:

@@ -9,19 +9,34 @@ family's ``HOOKS`` declares.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
+from sensorless.design.drive_file import name_problem
 from sensorless.design.family import CapabilityError, Drive, GainSet
 from sensorless.design.pmsm_flux_observer import FAMILY
-from sensorless.design.pmsm_flux_observer.firmware import FirmwareDrive, odrive, simplefoc, vesc
-from sensorless.reports.cli.common import Number
+from sensorless.design.pmsm_flux_observer.firmware import (
+    F_S_RANGE,
+    POLE_PAIRS_RANGE,
+    U_DC_RANGE,
+    FirmwareDrive,
+    odrive,
+    simplefoc,
+    vesc,
+)
+from sensorless.reports.cli.common import Number, UsageError, drive_name
 from sensorless.reports.family import Exporter, Importer, Option
 
 POLE_PAIRS = Option(
     ("--pole-pairs",),
-    {"type": Number(1, 1000, integer=True), "help": "pole pairs, where the file lacks them or to override"},
+    {
+        "type": Number(*POLE_PAIRS_RANGE, integer=True),
+        "help": "pole pairs, where the file lacks them or to override",
+    },
 )
-U_DC = Option(("--u-dc",), {"type": Number(1, 1e4, unit="V"), "metavar": "V", "help": "DC bus voltage [V]"})
+U_DC = Option(
+    ("--u-dc",), {"type": Number(*U_DC_RANGE, unit="V"), "metavar": "V", "help": "DC bus voltage [V]"}
+)
 INERTIA = Option(
     ("--J",),
     {
@@ -49,12 +64,12 @@ L_SCALE = Option(
 F_S = Option(
     ("--f-s",),
     {
-        "type": Number(100, 1e6, unit="Hz"),
+        "type": Number(*F_S_RANGE, unit="Hz"),
         "metavar": "HZ",
         "help": "the firmware's current-loop frequency [Hz]",
     },
 )
-NAME = Option(("--name",), {"help": "the drive's name (default: the file's name)"})
+NAME = Option(("--name",), {"type": drive_name, "help": "the drive's name (default: the file's name)"})
 
 
 def importers(kind: str) -> dict[str, Importer]:
@@ -64,6 +79,12 @@ def importers(kind: str) -> dict[str, Importer]:
         read: Callable[..., Any],
     ) -> Callable[[str, str, Mapping[str, Any]], tuple[str, tuple[str, ...]]]:
         def run(text: str, file: str, given: Mapping[str, Any]) -> tuple[str, tuple[str, ...]]:
+            if not given.get("name"):  # the default, the file's name, becomes the drive's
+                why = name_problem(Path(file).stem)
+                if why is not None:
+                    raise UsageError(
+                        f"argument --name: the file's name cannot be the drive's ({why}): give --name"
+                    )
             imported = read(text, file, given, kind)
             return imported.text, imported.notes
 

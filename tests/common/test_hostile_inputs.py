@@ -34,8 +34,13 @@ def edited_preset(tmp_path, preset, pattern, repl, count=1):
 
 
 def refused(argv, capsys, *words):
-    """The command exits 2 with one line naming each of ``words``; returns the line."""
-    assert main([str(a) for a in argv]) == 2
+    """The command exits 2 with one line naming each of ``words`` (argparse's own errors included);
+    returns the line."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as e:  # argparse's error on an option's value: exit status 2, one line
+        code = e.code
+    assert code == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
     for w in words:
@@ -234,6 +239,10 @@ def test_analyze_says_why_it_writes_numbers_that_are_not_finite(tmp_path, capsys
     assert "RuntimeWarning" not in err and "Traceback" not in err, err
     lines = err.strip().splitlines()
     assert lines and all("warning" in x and "no finite poles" in x and ".csv" in x for x in lines), err
+    for csv in (tmp_path / "a").glob("*.csv"):  # empty cells, each such row saying why: no nan
+        rows = csv.read_text().splitlines()[2:]
+        assert "nan" not in csv.read_text() and all(r.endswith(",") or "overflows" in r for r in rows)
+        assert any("overflows" in r for r in rows), csv.name
     # the reduced-order drive with its inductance in H where uH was meant is refused at load (L/R)
     h = edited_preset(tmp_path, "deangelo2006", r'^L = "100 uH"', 'L = "100 H"', count=0)  # motor, estimate
     assert "motor.L" in load_error(h)
@@ -257,3 +266,158 @@ def test_casadis_own_report_of_a_caught_interrupt_is_silenced(capsys):
         sys.stderr.write("progress\n")
     err = capsys.readouterr().err
     assert err == 'CasADi - 2026-01-01 00:00:00 WARNING("something else") [x.cpp:1]\nprogress\n', err
+
+
+# ------------------------------------------------------------- external engines: one line each
+BAD_SCHEDULERS = ["bogus", "tcp://", "tcp://127.0.0.1:notaport", "http://127.0.0.1:1", "inproc://x"]
+
+
+@pytest.mark.parametrize("address", BAD_SCHEDULERS)
+def test_a_scheduler_address_dask_cannot_parse_is_one_line_before_anything_runs(
+    tmp_path, capsys, monkeypatch, address
+):
+    # Dask's address parser raised bare ValueErrors (a traceback) for each of these
+    monkeypatch.chdir(tmp_path)
+    drives = tmp_path / "drives"
+    drives.mkdir()
+    (drives / "servo.toml").write_text(SERVO)
+    mc = ["montecarlo", "piippo2008", "--spread", "R_s=10%", "--samples", "2", "--out", "mc"]
+    for argv in ([*mc, "--scheduler", address], ["tune", drives, "--out", "t", "--scheduler", address]):
+        refused(argv, capsys, "--scheduler", repr(address))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["drives"]
+
+
+def test_an_odrive_backup_nested_beyond_the_parser_is_one_line(tmp_path, capsys):
+    deep = tmp_path / "deep.json"
+    deep.write_text('{"a":' * 100_000 + "1" + "}" * 100_000)  # RecursionError before
+    refused(
+        ["init", "--from", "odrive", deep, "--u-dc", "24", "--out", tmp_path / "d.toml"], capsys, str(deep)
+    )
+    assert not (tmp_path / "d.toml").exists()
+
+
+def test_codegen_startup_on_a_drive_without_a_pmsm_motor_says_why(tmp_path, capsys):
+    # the reduced-order drive has no psi_pm: a CasADi shape error before
+    refused(["codegen", "deangelo2006", "--startup", "--out", tmp_path / "c"], capsys, "I-f start", "PMSM")
+    assert not (tmp_path / "c").exists()
+
+
+# ------------------------------------------ imported and derived values: ranges, the user's keys
+FLUX = preset_text("outrunner270")
+
+
+@pytest.mark.parametrize(
+    ("edit", "keys"),
+    [
+        (('KV = "270 rpm/V"', 'KV = "1e7 rpm/V"'), "inverter.u_dc, motor.KV, motor.poles, observer.T_obs"),
+        (('u_dc = "24 V"', 'u_dc = "1e6 V"'), "inverter.u_dc, motor.KV, motor.poles, observer.T_obs"),
+        (('T_obs = "125 us"', 'T_obs = "1 s"'), "observer.T_obs"),
+        (('T_obs = "125 us"\n', ""), "inverter.f_s"),  # with f_s = 10 Hz below
+    ],
+)
+def test_the_flux_familys_speed_limit_names_the_keys_the_user_wrote(tmp_path, edit, keys):
+    text = FLUX.replace(*edit)
+    if not edit[1]:
+        text = text.replace('f_s = "8 kHz"', 'f_s = "10 Hz"')
+    msg = load_error(write(tmp_path, text))
+    # 'envelope.speed_max', derived, was the only key named before
+    assert keys in msg and "mine.toml" in msg and "observer periods" in msg, msg
+
+
+@pytest.mark.parametrize(
+    ("line", "key", "words"),
+    [
+        ("poles = 1000000", "motor.poles", "more than 1000"),
+        ("p = " + "1" * 301, "motor.p", "1.11111e+300"),  # the value in 6 digits, not 301
+    ],
+)
+def test_pole_pairs_have_the_range_of_the_option(tmp_path, line, key, words):
+    msg = load_error(write(tmp_path, FLUX.replace("poles = 14", line)))
+    assert f"key '{key}'" in msg and words in msg and len(msg) < 300, msg
+
+
+def test_a_servo_with_pole_pairs_past_the_range_is_refused(tmp_path):
+    assert "more than 1000" in load_error(write(tmp_path, re.sub(r"^p = \d+", "p = 5000", SERVO, flags=re.M)))
+
+
+def _xml(**fields):
+    from sensorless.design.pmsm_flux_observer.firmware import vesc
+
+    example = Path(__file__).resolve().parents[2] / "docs" / "examples" / "firmware" / "skate6374_mcconf.xml"
+    text = example.read_text()
+    for k, v in fields.items():
+        text, n = re.subn(rf"<{k}>[^<]*</{k}>", f"<{k}>{v}</{k}>", text)
+        assert n == 1, k
+    assert vesc.ROOT in text
+    return text
+
+
+@pytest.mark.parametrize(
+    ("fields", "options", "words"),
+    [
+        ({"foc_f_zv": "1e12"}, [], ["key 'foc_f_zv'", "5e+11 Hz", "1e+06 Hz"]),  # accepted before
+        ({"foc_f_zv": "10"}, [], ["key 'foc_f_zv'", "5 Hz"]),  # envelope.speed_max of v.toml before
+        ({"si_motor_poles": "1000000"}, [], ["key 'si_motor_poles'", "500000", "1 to 1000"]),
+        ({"si_battery_cells": "100000"}, [], ["key 'si_battery_cells'", "370000 V"]),
+        # 1000 cells = 3700 V is within --u-dc's range: the drive's speed limit, named by its fields
+        ({"si_battery_cells": "1000"}, [], ["inverter.u_dc = si_battery_cells x 3.7 V", "observer periods"]),
+    ],
+)
+def test_an_imported_value_has_the_range_of_its_option_and_names_the_file_read(
+    tmp_path, capsys, fields, options, words
+):
+    f = tmp_path / "cfg.xml"
+    f.write_text(_xml(**fields))
+    out = tmp_path / "v.toml"
+    err = refused(["init", "--from", "vesc", f, *options, "--out", out], capsys, f"{f}: ", *words)
+    assert "v.toml" not in err and not out.exists(), err
+
+
+def test_a_derived_startup_value_names_the_motor_keys_it_follows_from(tmp_path, capsys):
+    # J = 1e-12 kg m2: the start's acceleration p (T_max - T_N) / (2 J) overflows; it blamed the
+    # derived startup.acceleration of the file being written
+    src = write(tmp_path, re.sub(r"^J = .*$", 'J = "1e-12 kgm2"', SERVO, flags=re.M), "servo.toml")
+    err = refused(["init", src, "--out", tmp_path / "s.toml"], capsys, f"{src}: ", "motor.J", "acceleration")
+    assert "s.toml" not in err and not (tmp_path / "s.toml").exists()
+
+
+# -------------------------------------------------------------- names that become file names
+@pytest.mark.parametrize("name", ["../evil", "a/b", "..", ".hidden", "-rf", "a\tb", "x" * 300])
+def test_a_drive_name_is_checked_as_a_path_component(tmp_path, capsys, monkeypatch, name):
+    monkeypatch.chdir(tmp_path)
+    src = write(tmp_path, re.sub(r"^name = .*$", f"name = {name!r}".replace("'", '"'), SERVO, flags=re.M))
+    msg = load_error(src)
+    assert "key 'drive.name'" in msg, msg
+    xml = tmp_path / "cfg.xml"
+    xml.write_text(_xml())
+    refused(["init", "--from", "vesc", xml, "--name", name, "--out", "d.toml"], capsys, "--name")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cfg.xml", "mine.toml"]
+
+
+def test_names_from_file_names_and_prefixes_name_what_the_user_gave(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    long = tmp_path / ("b" * 200 + ".xml")  # the default name is the file's: give --name
+    long.write_text(_xml())
+    refused(["init", "--from", "vesc", long, "--out", "d.toml"], capsys, "--name", "at most 64")
+    # a 60-character name is a drive name, but too long for a C prefix: --prefix was not given
+    src = write(tmp_path, re.sub(r"^name = .*$", f'name = "{"n" * 60}"', SERVO, flags=re.M))
+    err = refused(["codegen", src, "--out", "c"], capsys, "drive.name", "give --prefix")
+    assert "argument --prefix" not in err and "--out" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == [long.name, "mine.toml"]
+
+
+# -------------------------------------------------------------------------------------- [startup]
+@pytest.mark.parametrize(
+    ("line", "key"),
+    [
+        ('current = "1e6 A"', "startup.current"),
+        ('dwell = "1e6 s"', "startup.dwell"),
+        ('w_on = "100 pu"', "startup.w_on"),
+        ('w_on = "1e9 rad/s"', "startup.w_on"),
+        ('w_on = "1000 w_min"', "startup.w_on"),
+    ],
+)
+def test_startup_values_have_ranges(tmp_path, capsys, line, key):
+    src = write(tmp_path, f"{preset_text('hubmotor48')}\n[startup]\n{line}\n")  # a drive without warnings
+    refused(["codegen", src, "--startup", "--out", tmp_path / "c"], capsys, src, key)
+    assert not (tmp_path / "c").exists()

@@ -8,6 +8,7 @@ Piippo, Hinkkanen, Luomi (2008). Builders of the TuningModels: laws.py. Settings
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from sensorless.tuning.family import Tunable, TuningHooks
@@ -23,9 +24,24 @@ _POINTS = (
 _BASELINE = (("lambda1_ohm", "lambda1"), ("lambda2_ohm", "lambda2"))
 
 
-def _settings(drive: Any) -> Any:
-    """The drive's [tuning] settings (defaults where the section is absent)."""
-    return drive.tuning
+def _full_range(drive: Any) -> Any:
+    """The drive's [tuning] settings, their torques widened to the drive's torque limit +-T_max where
+    they stop short of it: the speed loop applies +-T_max in every acceleration (motoring and
+    regenerating), and gains tuned at +-T_N only were unstable just beyond it (piippo2008's schedule:
+    max Re +1.5 .. +11 1/s at T_max = 1.57 T_N for |w| >= 0.3 p.u., the rotor lost in fig9b)."""
+    s = drive.tuning
+    k = drive.control.T_max / drive.T_N
+    tq = s.envelope.torques_TN
+    if max(abs(t) for t in tq) >= k * (1 - 1e-9):
+        return s
+    env = dataclasses.replace(s.envelope, torques_TN=tuple(sorted({*tq, -k, k})))
+    return dataclasses.replace(s, envelope=env)
+
+
+def _paper_or_full(drive: Any) -> Any:
+    """The paper's law on its own preset keeps the preset's envelope (it reproduces Piippo et al. 2008,
+    tuned at +-T_N); on any other drive it tunes over the full range too (``_full_range``)."""
+    return drive.tuning if str(drive.file).startswith("preset:") else _full_range(drive)
 
 
 HOOKS = TuningHooks(
@@ -34,14 +50,14 @@ HOOKS = TuningHooks(
             "speed-dependent",
             "the speed-dependent gain, eq. (16) of Piippo, Hinkkanen, Luomi (2008): lambda', "
             "omega_lambda (optionally alpha_fo)",
-            _settings,
+            _paper_or_full,
             build=build_speed_dependent,
             columns=(_POINTS, _BASELINE),
         ),
         Tunable(
             "schedule",
             "free speed schedule: (lambda1, lambda2) at speed breakpoints, linear in between",
-            _settings,
+            _full_range,
             build=build_schedule,
             seed="speed-dependent",
             columns=(_POINTS, _BASELINE),

@@ -232,6 +232,8 @@ def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None
         start_label="speed-dependent optimum" if seed is not None else "",
         from_pointwise=from_pointwise,
         n_initial_active=16,
+        # the interval between breakpoints: its points share the pair of free gains at its ends
+        point_group=lambda P: np.searchsorted(w, P[0]),
         note=note,
     )
 

@@ -26,7 +26,14 @@ from typing import Any
 
 from sensorless.design.drive_file import DriveDocument, Entry
 from sensorless.design.motor_data import FLUX_TOLERANCE, kv_to_psi
-from sensorless.design.units import DriveFileError
+from sensorless.design.units import MAX_POLE_PAIRS, DriveFileError
+
+# The ranges of the values an import converts: the same as the import options that supply them
+# (reports/pmsm_flux_observer/firmware_io.py --pole-pairs, --u-dc, --f-s), so a file's value gets
+# the range an option's would
+POLE_PAIRS_RANGE = (1, MAX_POLE_PAIRS)
+U_DC_RANGE = (1.0, 1e4)  # V
+F_S_RANGE = (100.0, 1e6)  # Hz: the observer's rate
 
 
 @dataclass(frozen=True)
@@ -89,6 +96,16 @@ class Fields:
         if positive and not x > 0:
             raise self.error(name, f"{raw!r}: must be > 0")
         return x
+
+    def within(self, name: str, x: float, limits: tuple[float, float], what: str, unit: str = "") -> None:
+        """Refuse ``x``, converted from the field ``name`` as ``what``, outside ``limits`` (one line
+        naming the file and the field, with the value as written)."""
+        lo, hi = limits
+        if not lo <= x <= hi:
+            u = f" {unit}" if unit else ""
+            raise self.error(
+                name, f"{self.values[name]!r} gives {what} = {x:.6g}{u}: expected {lo:g} to {hi:g}{u}"
+            )
 
     def integer(self, name: str) -> int | None:
         """The field as an integer >= 1, or None if absent."""

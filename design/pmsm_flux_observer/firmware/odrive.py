@@ -32,6 +32,7 @@ from typing import Any
 from sensorless.design.drive_file import Entry
 from sensorless.design.motor_data import kt_to_psi
 from sensorless.design.pmsm_flux_observer.firmware import (
+    POLE_PAIRS_RANGE,
     Fields,
     FirmwareDrive,
     Imported,
@@ -71,11 +72,15 @@ def fields(text: str, file: str) -> dict[str, Any]:
     """The attribute paths of an odrivetool backup (``Infinity``, ``NaN`` read as floats)."""
     try:
         data = json.loads(text)
+        if not isinstance(data, dict):
+            raise DriveFileError(file, "(top level)", "not a JSON object of odrivetool settings")
+        return flatten(data)
     except json.JSONDecodeError as e:
         raise DriveFileError(file, "(syntax)", f"not valid JSON: {e}") from None
-    if not isinstance(data, dict):
-        raise DriveFileError(file, "(top level)", "not a JSON object of odrivetool settings")
-    return flatten(data)
+    except RecursionError:  # the parser's (or flatten's) recursion: a backup nests a few levels
+        raise DriveFileError(
+            file, "(structure)", "JSON nested deeper than Python can read: not an odrivetool backup"
+        ) from None
 
 
 def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
@@ -98,6 +103,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     elif pp is None:
         raise f.error(MOTOR + "pole_pairs", "missing: give --pole-pairs")
     else:
+        f.within(MOTOR + "pole_pairs", pp, POLE_PAIRS_RANGE, "pole pairs")
         p = pp
         motor["p"] = Entry(p, "motor.config.pole_pairs")
 

@@ -35,6 +35,9 @@ from typing import Any
 
 from sensorless.design.drive_file import Entry
 from sensorless.design.pmsm_flux_observer.firmware import (
+    F_S_RANGE,
+    POLE_PAIRS_RANGE,
+    U_DC_RANGE,
     Fields,
     FirmwareDrive,
     Imported,
@@ -114,6 +117,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     elif poles % 2:
         raise f.error("si_motor_poles", f"{poles}: the number of magnet poles is even")
     else:
+        f.within("si_motor_poles", poles // 2, POLE_PAIRS_RANGE, "pole pairs")
         p = poles // 2
         motor["p"] = Entry(p, f"si_motor_poles/2 = {poles}/2")
 
@@ -161,6 +165,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         cells = f.integer("si_battery_cells")
         if cells is None:
             raise f.error("si_battery_cells", "missing: no bus voltage in the file; give --u-dc")
+        f.within("si_battery_cells", cells * V_PER_CELL, U_DC_RANGE, f"u_dc = cells x {V_PER_CELL} V", "V")
         inverter["u_dc"] = Entry(quantity(cells * V_PER_CELL, "V"), f"si_battery_cells x {V_PER_CELL} V")
         notes.append(f"bus voltage assumed {cells} cells x {V_PER_CELL} V (li-ion nominal); give --u-dc")
     f_zv = f.number("foc_f_zv")
@@ -178,6 +183,8 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         notes.append(f"foc_f_zv missing: assumed the firmware default {f_zv:g} Hz")
     both = f.values.get("foc_sample_v0_v7", "0").strip().lower() in ("1", "true")
     T = (1 if both else 2) / f_zv
+    if loop_from in f:  # the user's field, not the default
+        f.within(loop_from, 1 / T, F_S_RANGE, "the observer's rate f_s", "Hz")
     loop = "1/foc_f_zv (foc_sample_v0_v7)" if both else "2/foc_f_zv"
     if loop_from == "foc_f_sw":
         loop = "1/foc_f_sw"

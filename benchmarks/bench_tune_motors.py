@@ -1,0 +1,76 @@
+"""Benchmark: ``sensorless tune`` with its defaults on every example motor (docs/examples/motors), against
+the 30 s target, with ratios against an in-process baseline.
+
+For each motor the flow a user runs: ``sensorless init MOTOR.toml`` (in this process, through the command
+line's main), then the tuner with the drive's default law and settings (``tune(drive)``: the schedule, its
+speed-dependent seed, the pointwise bound, the NLP, the dense re-verification; what ``sensorless tune``
+runs before its proof). The baseline, timed in the same process between the motors, is the paper's law
+on the paper's preset (``tune(piippo2008, "speed-dependent")``): the ratio motor / baseline says how a
+motor compares with the tuner's best-known case whatever the machine's speed or load (this machine is
+shared; CPU seconds are printed beside the wall seconds). Prints per motor the median over the rounds:
+wall and CPU seconds, IPOPT iterations, worst damping (dense), the ratio, and whether it is within the
+target.
+
+    python benchmarks/bench_tune_motors.py [--repeat 3] [--motor drone ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from sensorless.design.drive import load_drive
+from sensorless.reports.cli.main import main as cli
+from sensorless.tuning.tune import tune
+
+MOTORS = Path(__file__).resolve().parents[1] / "docs" / "examples" / "motors"
+TARGET_S = 30.0
+
+
+def timed(fn):
+    """(wall s, CPU s, result) of fn()."""
+    w, c = time.perf_counter(), time.process_time()
+    r = fn()
+    return time.perf_counter() - w, time.process_time() - c, r
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=1, help="rounds per motor (medians)")
+    ap.add_argument("--motor", action="append", help="only these motors (file stems), default all")
+    args = ap.parse_args()
+    paper = load_drive("piippo2008")
+    tune(paper, "speed-dependent")  # builds the solvers and JIT libraries the baseline's rounds reuse
+    stems = args.motor or sorted(p.stem for p in MOTORS.glob("*.toml"))
+    print(f"{'motor':10} {'wall s':>8} {'CPU s':>8} {'ratio':>7} {'IPOPT it':>9} {'worst damp':>10}  target")
+    with tempfile.TemporaryDirectory() as tmp:
+        for stem in stems:
+            out = Path(tmp, f"{stem}.toml")
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                if cli(["init", str(MOTORS / f"{stem}.toml"), "--out", str(out), "--force"]) != 0:
+                    raise SystemExit(f"init {stem} failed")
+            drive = load_drive(str(out))
+            walls, cpus, ratios = [], [], []
+            r = None
+            for _ in range(args.repeat):
+                _, bc, _ = timed(lambda: tune(paper, "speed-dependent"))
+                w, c, r = timed(lambda d=drive: tune(d))
+                walls.append(w)
+                cpus.append(c)
+                ratios.append(c / bc)
+            s = r.table.summary
+            wall, cpu = statistics.median(walls), statistics.median(cpus)
+            print(
+                f"{stem:10} {wall:8.1f} {cpu:8.1f} {statistics.median(ratios):7.1f} "
+                f"{s.get('ipopt_iterations', 0):9d} {s['worst_damping']:10.4f}  "
+                f"{'ok' if cpu <= TARGET_S else 'OVER'} (<= {TARGET_S:g} s CPU)"
+            )
+
+
+if __name__ == "__main__":
+    main()

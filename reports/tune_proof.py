@@ -1,0 +1,162 @@
+"""The proof of a tuned gain table before ``sensorless tune`` writes it: the drive as it runs, judged
+against the drive file's own gains.
+
+Tuned gains that run worse than the drive file's are a bug, so before a table is written as "tuned"
+its gains go through the checks a report holds them to, and the drive file's gains through the same:
+
+- the **linear analysis** over the drive's real range: speeds +-[0.05, 1] p.u. (both directions) x
+  torques {-T_max, -T_N, 0, T_N, T_max} (motoring and regenerating at the torque limit the speed loop
+  reaches in every acceleration; design/family.py ``DriveScales``). Which analysis is a step of its
+  own (:data:`Analysis`): the family's observer linearization (``ObserverFamily.linearize``) by
+  default; a whole-sampled-drive linearization plugs in as another function of the same signature;
+- the **time-domain checks** of ``sensorless report`` (reports/time_domain.py: a preset's paper
+  scenarios, else the generic ones scaled to the drive), each simulated and judged by the same limits.
+
+The tuned gains are *worse* (:func:`worse`) where the drive file's are stable at an envelope point and
+they are not, or where the drive file's pass a time-domain check and they fail it (or they lose the
+rotor where the drive file's hold it). The command (reports/cli/tune.py) then falls back to the tuner's
+next candidate, or exits 3 naming the point and the check, and writes nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.registry import family_of
+from sensorless.design.scenario import Scenario, builtin_names
+from sensorless.design.simulate import simulate
+from sensorless.reports import time_domain
+
+# (drive, gains, w [rad/s electrical], torque [N m]) -> a Linearization (design/linearization.py)
+Analysis = Callable[[Drive, GainSet, np.ndarray, np.ndarray], Any]
+ANALYSIS: Analysis  # the analysis ``sensorless tune`` proves with (set below: observer_analysis)
+SPEEDS = 20  # per direction, from SPEED_MIN to 1 p.u.
+SPEED_MIN = 0.05  # p.u.
+
+
+def observer_analysis(drive: Drive, gains: GainSet, w: np.ndarray, torque: np.ndarray) -> Any:
+    """The family's observer linearization (``sensorless analyze``): the default analysis."""
+    return family_of(drive).linearize(drive, gains, w, torque)
+
+
+ANALYSIS = observer_analysis
+
+
+def envelope(drive: Drive) -> tuple[np.ndarray, np.ndarray] | None:
+    """(w [rad/s], torque [N m]) of the drive's real range (module docstring); None for a family
+    without scales (then the linear part of the proof is skipped and said so)."""
+    try:
+        sc = family_of(drive).scales(drive)
+    except CapabilityError:
+        return None
+    mag = np.linspace(SPEED_MIN, 1.0, SPEEDS) * sc.w_base
+    w = np.concatenate([-mag[::-1], mag])
+    torques = np.unique([-sc.T_max, -sc.T_N, 0.0, sc.T_N, sc.T_max])
+    W, T = np.meshgrid(w, torques)
+    return W.ravel(), T.ravel()
+
+
+@dataclass(frozen=True)
+class Proof:
+    """One gain set's figures: per envelope point (max Re [1/s], NaN: no equilibrium) and per check."""
+
+    label: str
+    w: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    torque: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    max_real: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    worst_damping: float = float("nan")
+    checks: tuple[dict[str, Any], ...] = ()
+
+    def stable(self) -> np.ndarray:
+        """(N,) bool: an equilibrium exists and every pole has Re < 0."""
+        with np.errstate(invalid="ignore"):
+            return np.isfinite(self.max_real) & (self.max_real < 0)
+
+    def line(self) -> str:
+        """One line: the figures of this gain set."""
+        td = ", ".join(
+            f"{c['name']} {'pass' if c['passed'] else 'FAIL'}"
+            + (
+                f" {c['metrics']['max_abs_theta_err_deg']:.3g} deg"
+                if isinstance(c["metrics"].get("max_abs_theta_err_deg"), int | float)
+                else ""
+            )
+            for c in self.checks
+        )
+        lin = (
+            f"worst damping {self.worst_damping:.4f}, stable at {int(self.stable().sum())}/{self.w.size} "
+            "points"
+            if self.w.size
+            else "no linear analysis"
+        )
+        return f"{self.label}: {lin}; {td or 'no time-domain checks'}"
+
+
+def runs(drive: Drive) -> list[Scenario]:
+    """The time-domain checks of ``sensorless report`` on this drive (reports/time_domain.py)."""
+    return time_domain.scenarios(drive, builtin_names(drive.kind))
+
+
+def prove(
+    drive: Drive,
+    gains: GainSet | None,
+    label: str,
+    scenarios: Sequence[Scenario],
+    analysis: Analysis = observer_analysis,
+    progress: Callable[[str], None] = lambda s: None,
+) -> Proof:
+    """The figures of ``gains`` (None: the drive file's, each scenario its own choice, as ``report``)."""
+    fam = family_of(drive)
+    env = envelope(drive)
+    w = t = mr = np.zeros(0)
+    wd = float("nan")
+    if env is not None:
+        w, t = env
+        lin = analysis(drive, gains if gains is not None else fam.gains(drive), w, t)
+        mr = np.asarray(lin.max_real, float)
+        d = np.asarray(lin.worst_damping, float)
+        wd = float(np.nanmin(d)) if np.isfinite(d).any() else float("nan")
+    checks = []
+    for sc in scenarios:
+        progress(f"checking {label} gains: simulating {sc.name}")
+        tr = simulate(drive, sc, gains)
+        m, failed, problems = time_domain.judge(tr, sc, drive.w_base)
+        checks.append(
+            {"name": sc.name, "passed": not failed, "failed": failed, "problems": problems, "metrics": m}
+        )
+    return Proof(label, w, t, mr, wd, tuple(checks))
+
+
+def worse(tuned: Proof, base: Proof, w_base: float) -> list[str]:
+    """What the tuned gains do worse than the drive file's (module docstring), one clause each naming
+    the point or the check; empty: no worse."""
+    out = []
+    if tuned.w.size and base.w.size:
+        lost = base.stable() & ~tuned.stable()
+        if lost.any():
+            k = np.flatnonzero(lost)
+            j = int(k[np.argmax(np.nan_to_num(tuned.max_real[k], nan=np.inf))])
+            mr = tuned.max_real[j]
+            out.append(
+                f"linear analysis: unstable at w = {tuned.w[j] / w_base:+.3f} p.u., "
+                f"T = {tuned.torque[j]:+.4g} N m "
+                + (f"(max Re {mr:+.3g} 1/s)" if np.isfinite(mr) else "(no equilibrium)")
+                + f" and at {k.size - 1} more of the {tuned.w.size} points where the drive file's gains "
+                "are stable"
+            )
+    was = {c["name"]: c for c in base.checks}
+    for c in tuned.checks:
+        b = was.get(c["name"])
+        if b is None:
+            continue
+        if (b["passed"] and not c["passed"]) or (c["problems"] and not b["problems"]):
+            out.append(
+                f"time-domain check {c['name']}: "
+                + "; ".join(c["failed"])
+                + " (the drive file's gains pass it)"
+            )
+    return out

@@ -1,0 +1,218 @@
+"""Hostile inputs against what the commands write and how they end (continues test_hostile_inputs.py):
+every number written is finite, or its cell is empty and the row says why (reports/csv_cells.py); the
+many-drive engine's summary gives each drive's error; work on a plausible-but-wrong input is bounded;
+Ctrl-C on many drives is one line."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sensorless.design.drive import load_drive
+
+
+# ------------------------------------------------------------------ no nan or inf in what is written
+def test_montecarlo_draws_without_equilibrium_have_an_empty_cell_and_a_reason():
+    from types import SimpleNamespace
+
+    from sensorless.design.montecarlo import Draws, Uncertain
+    from sensorless.reports.montecarlo import NO_EQUILIBRIUM, draws_csv
+
+    params = [Uncertain("R_s", 1.0, 1.0, "ohm", True)]
+    draws = Draws(("R_s",), np.array([[1.0], [2.0]]), np.array([[1.0], [1.0]]), {})
+    res = SimpleNamespace(
+        draws=draws,
+        worst=np.array([0.5, -np.inf]),  # the second draw: no equilibrium somewhere (-inf: '-inf' before)
+        at=np.array([1, 0]),
+        w=np.array([10.0, 20.0]),
+        torque=np.array([0.0, 1.0]),
+        td=[],
+    )
+    text = draws_csv(res, params, 0.2)
+    assert "inf" not in text and "nan" not in text, text
+    rows = list(csv.DictReader(io.StringIO(text)))
+    assert rows[0]["worst_damping"] == "0.5" and rows[0]["worst_speed_rad_s"] == "20"
+    assert rows[0]["no_value_reason"] == ""
+    assert rows[1]["worst_damping"] == "" and rows[1]["passes_damping"] == "0"
+    assert rows[1]["no_value_reason"] == NO_EQUILIBRIUM
+
+
+def test_a_flux_preset_point_without_a_sampled_fixed_point_is_said_not_written_as_nan():
+    # analyze hubmotor48 wrote nan in the discrete columns of this row, silently (exit 0)
+    from sensorless.design.pmsm_flux_observer import FAMILY
+    from sensorless.reports.pmsm_flux_observer import NO_FIXED_POINT, not_finite, poles_csv
+
+    drive = load_drive("hubmotor48")
+    W, T = drive.grid(2)
+    k = np.flatnonzero(np.isclose(W / drive.w_base, 0.95682, atol=1e-5) & (T == drive.T_N))
+    lin = FAMILY.linearize(drive, FAMILY.gains(drive), W[k], T[k])
+    assert not np.isfinite(lin.worst_damping_discrete).all()  # the case: no value there
+    text = poles_csv(lin, drive)
+    assert "nan" not in text and "inf" not in text, text
+    row = next(csv.DictReader(io.StringIO(text.split("\n", 1)[1])))
+    assert row["damping_d"] == "" and row["damping_c"] != "" and row["no_value_reason"] == NO_FIXED_POINT
+    assert "poles.csv" in not_finite(lin)  # the warning line (exit status 3)
+
+
+@pytest.mark.parametrize("v", [float("nan"), float("inf"), -float("inf"), None])
+def test_a_csv_cell_is_a_finite_number_or_empty_with_the_rows_reason(v):
+    from sensorless.reports.csv_cells import row
+
+    assert row([1.5, v], "why") == "1.5,,why"
+    assert row([1.5, 2], "why") == "1.5,2,"
+
+
+# ------------------------------------------------------------------------------------- many drives
+def _servo_dir(tmp_path, names=("a", "b")):
+    import re
+
+    from sensorless.design.drive import preset_text
+
+    d = tmp_path / "drives"
+    d.mkdir()
+    for n in names:
+        (d / f"{n}.toml").write_text(
+            re.sub(r"^name = .*$", f'name = "{n}"', preset_text("piippo2008"), flags=re.M)
+        )
+    return d
+
+
+def test_report_over_a_directory_reads_the_tables_tune_wrote_there(tmp_path, capsys, monkeypatch):
+    # `report DIR --gains DIR` was refused per drive as "a directory" (and wrote summary.csv)
+    from sensorless.reports.cli import many
+    from sensorless.reports.cli.main import main
+
+    drives = _servo_dir(tmp_path)
+    tuned = tmp_path / "tuned"
+    for n in ("a", "b"):
+        (tuned / n).mkdir(parents=True)
+        (tuned / n / "gains_speed-dependent.json").write_text("{}")
+    seen = {}
+
+    def one(command, base, file, out):  # the drive's run: which table it was given
+        seen[Path(file).stem] = base["gains"]
+        return {"code": 0, "stdout": "", "stderr": ""}
+
+    monkeypatch.setattr(many, "one", one)
+    argv = ["report", drives, "--gains", tuned, "--scheduler", "synchronous", "--out", tmp_path / "r"]
+    assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    assert seen == {n: str(tuned / n / "gains_speed-dependent.json") for n in ("a", "b")}
+    capsys.readouterr()
+    # a drive without its table: one line naming --gains and the drive, before anything is written
+    (tuned / "b" / "gains_speed-dependent.json").unlink()
+    argv[-1] = tmp_path / "r2"
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--gains" in err and "'b'" in err, err
+    assert not (tmp_path / "r2").exists()
+    # one drive: a directory holding one table is that table
+    assert many.gain_table_of(str(tuned / "a"), "piippo2008") == str(
+        tuned / "a" / "gains_speed-dependent.json"
+    )
+
+
+def test_the_summary_gives_a_failed_drives_error_not_its_earlier_warning():
+    from sensorless.reports.cli.many import _row
+
+    stderr = "sensorless tune: warning: L/R is short\nsensorless tune: error: key 'x': bad\n"
+    row = _row("tune", "a", "a.toml", Path("o"), {"code": 2, "stdout": "", "stderr": stderr})
+    assert row["message"] == "sensorless tune: error: key 'x': bad"
+    ok = _row(
+        "tune", "a", "a.toml", Path("o/none"), {"code": 0, "stdout": "", "stderr": stderr.split("\n")[0]}
+    )
+    assert ok["message"] == "sensorless tune: warning: L/R is short"
+
+
+# ------------------------------------------------------------------- bounded work, signals, Ctrl-C
+SWALLOWING = """
+import subprocess, sys, time
+from sensorless.reports import interrupts
+interrupts.GRACE = 0.5
+child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+with interrupts.handled("sensorless x"):
+    print(child.pid, flush=True)  # only once the handler is in place: a loaded machine signals early
+    while True:  # as the tuner goes on after IPOPT returned from an interrupt it caught
+        try:
+            time.sleep(0.01)
+        except KeyboardInterrupt:
+            pass
+"""
+
+
+def test_a_signal_the_computation_swallows_still_ends_the_process_and_its_children():
+    # a SIGTERMed tune computed on for 8 minutes (IPOPT catches the interrupt; the next round starts)
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    p = subprocess.Popen(
+        [sys.executable, "-c", SWALLOWING], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    child = int(p.stdout.readline())
+    p.send_signal(signal.SIGTERM)
+    t0 = time.monotonic()
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 143 and err == "sensorless x: terminated\n", err
+    assert time.monotonic() - t0 < 30
+    for _ in range(100):  # the process it started is gone too (killed, then reaped by init)
+        try:
+            os.kill(child, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        raise AssertionError(f"child {child} still running")
+
+
+def test_tune_ends_at_its_time_budget_with_one_line_and_nothing_written(tmp_path, capsys):
+    # the servo with J in kg m2 where kg cm2 was meant (the plausibility warning: 68.5 s) tuned on
+    # past 300 s; a budget ends any tune, with the line saying why it may have run that long
+    import re
+
+    from sensorless.reports.cli.main import main
+
+    servo = (
+        Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors" / "servo400.toml"
+    ).read_text()
+    f = tmp_path / "servo_J.toml"
+    f.write_text(re.sub(r"^J = .*$", 'J = "0.277 kgm2"', servo, flags=re.M))
+    code = main(["tune", str(f), "--time-limit", "0.5", "--quiet", "--out", str(tmp_path / "t")])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 3 and "68.5 s" in lines[0], lines
+    assert lines[1:] == [lines[-1]] and "--time-limit" in lines[-1] and "0.5 s" in lines[-1], lines
+    assert not (tmp_path / "t").exists()
+
+
+ENGINE_CTRL_C = """
+import os, signal, sys
+import distributed
+from sensorless.reports.cli.main import main
+real = distributed.LocalCluster.__init__
+def started_then_ctrl_c(self, *a, **k):  # Ctrl-C at the terminal while the workers start
+    real(self, *a, **k)
+    os.killpg(0, signal.SIGINT)
+distributed.LocalCluster.__init__ = started_then_ctrl_c
+sys.exit(main(["tune", sys.argv[1], "--workers", "1", "--out", sys.argv[2]]))
+"""
+
+
+def test_ctrl_c_on_a_local_cluster_is_one_line(tmp_path):
+    # 29-135 lines of the workers' and Dask's tracebacks (AssertionError: Status.init) before
+    import subprocess
+    import sys
+
+    d = _servo_dir(tmp_path, ("a",))
+    p = subprocess.run(
+        [sys.executable, "-c", ENGINE_CTRL_C, str(d), str(tmp_path / "t")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        start_new_session=True,  # its own process group: the Ctrl-C reaches it and its workers only
+    )
+    assert p.returncode == 130 and p.stderr == "sensorless tune: interrupted\n", p.stderr
+    assert not (tmp_path / "t").exists()

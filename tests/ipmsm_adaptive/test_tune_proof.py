@@ -1,0 +1,142 @@
+"""Tuning over the drive's real range, then proving it: the envelope reaches +-T_max, the NLP's feasible
+start is feasible in its own formulation and ends feasible, and ``sensorless tune`` refuses (exit 3,
+nothing written) a table that runs worse than the drive file's gains (reports/tune_proof.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from sensorless.design.drive import load_drive, preset_text
+from sensorless.reports import tune_proof
+from sensorless.reports.cli.main import main
+from sensorless.tuning import nlp
+from sensorless.tuning.candidates import DAMPING, margins
+from sensorless.tuning.conditions import candidates
+from sensorless.tuning.family import tunable_for
+from sensorless.tuning.ipmsm_adaptive.laws import build_speed_dependent
+from sensorless.tuning.result import figures
+
+
+def test_envelope_reaches_the_torque_limit_except_the_papers_law_on_its_preset(drive, tmp_path):
+    k = drive.control.T_max / drive.T_N  # 22 N m / 14 N m
+    sched = tunable_for(drive, "schedule").settings(drive).envelope.torques_TN
+    assert min(sched) == pytest.approx(-k) and max(sched) == pytest.approx(k)
+    assert {-1.0, 0.0, 1.0} <= set(sched)  # the preset's own torques stay
+    # the paper's law on the paper's preset: its envelope as the paper (the reproduction)
+    assert tunable_for(drive, "speed-dependent").settings(drive).envelope.torques_TN == (-1.0, 0.0, 1.0)
+    # the same drive as a file of the user's own: every law reaches +-T_max
+    f = tmp_path / "mine.toml"
+    f.write_text(preset_text("piippo2008"))
+    mine = load_drive(str(f))
+    for law in ("speed-dependent", "schedule"):
+        tq = tunable_for(mine, law).settings(mine).envelope.torques_TN
+        assert max(abs(t) for t in tq) == pytest.approx(k), law
+
+
+def test_nlp_start_at_its_own_decay_floor_is_feasible_and_ends_feasible(drive, monkeypatch):
+    """Every NLP keeps its start's slowest decay as a floor, so the point that sets it has a shifted
+    root at zero: the slot scale collapsed there and the start violated the factor equalities by
+    0.27..13 (IPOPT: Infeasible_Problem_Detected from gains that meet every constraint)."""
+    env = dataclasses.replace(drive.tuning.envelope, speeds=4, torques_TN=(-1.5, 0.0, 1.5))
+    st = dataclasses.replace(drive.tuning, envelope=env)
+    model = build_speed_dependent(drive, st)
+    W, T = env.grid(drive.w_base, drive.T_N)
+    theta = np.asarray(model.theta0, float)
+    f0 = figures(model, theta, W, T)
+    scale = float(np.abs(f0.poles).max())
+    floor = float(np.min(f0.decay))
+    cand = candidates(model, dataclasses.replace(st, min_decay=floor), W, T, drive.w_base, scale)
+    assert (margins(model, theta, cand, f0.worst_damping() - 1e-3, scale) >= -1e-9).all()  # feasible
+
+    seen: list[float] = []
+    build = nlp.ipopt_solver
+
+    class Watched:  # the violation of the NLP's own constraints at each round's start
+        def __init__(self, f):
+            self.f = f
+
+        def __call__(self, **kw):
+            g = np.asarray(self.f.get_function("nlp_g")(kw["x0"], kw["p"])).ravel()
+            seen.append(float(np.max(np.maximum(kw["lbg"] - g, 0) + np.maximum(g - kw["ubg"], 0))))
+            return self.f(**kw)
+
+        def stats(self):
+            return self.f.stats()
+
+    monkeypatch.setattr(nlp, "ipopt_solver", lambda m, L: Watched(build(m, L)))
+    sol = nlp.solve(model, cand, theta, scale)
+    assert seen and seen[0] < 1e-8, seen
+    m = margins(model, sol.theta, cand, 0.0, scale)
+    assert (m[cand.condition != DAMPING] >= -1e-7).all()  # the decay floor held
+    assert figures(model, sol.theta, W, T).worst_damping() >= f0.worst_damping() - 1e-6
+
+
+def _proof(label, stable, passed, w_base=100.0):
+    w = np.array([-1.0, 1.0]) * w_base
+    return tune_proof.Proof(
+        label,
+        w,
+        np.array([22.0, -22.0]),
+        np.where(stable, -5.0, 3.0),
+        0.5,
+        (
+            {
+                "name": "fig9b",
+                "passed": passed,
+                "failed": [] if passed else ["rotor lost"],
+                "problems": [],
+                "metrics": {},
+            },
+        ),
+    )
+
+
+def test_worse_names_the_point_and_the_check():
+    base = _proof("drive file", [True, True], True)
+    assert tune_proof.worse(_proof("tuned", [True, True], True), base, 100.0) == []
+    bad = tune_proof.worse(_proof("tuned", [True, False], False), base, 100.0)
+    assert "w = +1.000 p.u., T = -22 N m (max Re +3 1/s)" in bad[0]
+    assert bad[1].startswith("time-domain check fig9b: rotor lost")
+    # no worse where the drive file's gains are unstable or fail too
+    assert (
+        tune_proof.worse(_proof("tuned", [False, True], False), _proof("b", [False, True], False), 100.0)
+        == []
+    )
+
+
+def test_tune_refuses_a_table_worse_than_the_drive_files(tmp_path, monkeypatch, capsys):
+    """The proof constructed: the drive file's gains pass, every candidate fails -> exit 3, no table."""
+    monkeypatch.delenv("SENSORLESS_TUNE_UNCHECKED", raising=False)
+    monkeypatch.setattr(tune_proof, "runs", lambda drive: [])
+    calls = []
+
+    def fake(drive, gains, label, runs, analysis=None, progress=None):
+        calls.append(label)
+        return _proof(label, [True, gains is None], True, drive.w_base)
+
+    monkeypatch.setattr(tune_proof, "prove", fake)
+    out = tmp_path / "o"
+    args = ["tune", "piippo2008", "--speeds", "2", "--torque=-1T_N,1T_N", "--quiet", "--out", str(out)]
+    assert main([*args, "--law", "speed-dependent"]) == 3
+    err = capsys.readouterr()
+    assert "no table written" in err.err and "w = +1.000 p.u., T = -22 N m" in err.err
+    assert calls == ["drive file", "tuned"]  # the speed-dependent law has no fallback
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_ipopt_linear_algebra_loads_single_threaded(monkeypatch):
+    """The thread count of CasADi's OpenBLAS (read when IPOPT's plugin is loaded) changed the last bits
+    of the NLP's sums: a Dask worker (one thread) and a shell (two) tuned a drone-class motor to
+    different gains. The solver is built with one thread whatever the process's environment, which is
+    restored afterwards."""
+    from sensorless.tuning import slots
+
+    seen = {}
+    monkeypatch.setenv("OMP_NUM_THREADS", "4")
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setattr(slots.ca, "nlpsol", lambda *a: seen.update({k: slots.os.environ.get(k) for k in a}))
+    slots._nlpsol_one_thread("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+    assert seen == {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+    assert slots.os.environ["OMP_NUM_THREADS"] == "4" and "OPENBLAS_NUM_THREADS" not in slots.os.environ
