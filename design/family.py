@@ -198,6 +198,17 @@ class ObserverFamily:
     # sensorless speed where the observer does not hold zero speed: their files take a [startup]
     # section, which `sensorless init` writes (its drive class then has a ``startup`` field)
     open_loop_start: ClassVar[bool] = False
+    # the worst damping its designs must keep where a command is given no --min-damping (`report`, the
+    # minimum-speed analysis, `montecarlo`'s yield); None: the shared design/poles.py MIN_DAMPING. A
+    # family whose observer's damping falls with speed by design states its own (and judges its gains
+    # by a criterion of its own: tuning/family.py TuneOutcome.shortfalls)
+    required_damping: ClassVar[float | None] = None
+
+    def min_damping(self) -> float:
+        """The damping its designs must keep by default (``required_damping``, else MIN_DAMPING)."""
+        from sensorless.design.poles import MIN_DAMPING
+
+        return MIN_DAMPING if self.required_damping is None else float(self.required_damping)
 
     # ---------------------------------------------------------------------------------- drive file
     def load(self, data: Mapping[str, Any], file: str, digest: str) -> Drive:
@@ -309,6 +320,16 @@ class ObserverFamily:
         batched evaluation, no loop over draws. ``complete`` False: a draw with a point without
         equilibrium may be NaN at all its points (its evaluation stops there)."""
         raise CapabilityError(f"observer family {self.name!r} has no batched linearization of draws")
+
+    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
+        """(w [rad/s electrical], torque [N m]) of the design's envelope, the points a Monte-Carlo run
+        judges every draw at (with ``gains``, the gains under review: a family may keep only the points
+        where they run the drive, e.g. above its open-loop start): the shared tuning envelope
+        (design/envelope.py ``[tuning]``) by default."""
+        env = getattr(getattr(drive, "tuning", None), "envelope", None)
+        if env is None:
+            raise CapabilityError(f"{drive.file}: the drive has no tuning envelope to evaluate draws over")
+        return env.grid(drive.w_base, drive.T_N)
 
     def perturbed(self, drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
         """``drive`` with the true motor's (``plant``) and the observer's (``estimate``) parameters

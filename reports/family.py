@@ -97,6 +97,11 @@ class ReportHooks:
     # drive sections that hold settings of other commands, not drive data: left out of the report's
     # drive-data tables (reports/review.py opening)
     settings_sections: tuple[str, ...] = ()
+    # sensorless init (of a minimal drive file): options, and (data, args, file) -> the file's data with
+    # them applied (e.g. which variant of its observer the file is for; one-line errors naming the
+    # option or the file's key)
+    init_options: tuple[Option, ...] = ()
+    init_data: Callable[[Mapping[str, Any], argparse.Namespace, str], Mapping[str, Any]] | None = None
     # sensorless init --from NAME FILE and sensorless export --target NAME: firmware formats by name
     importers: Mapping[str, Importer] = field(default_factory=dict)
     exporters: Mapping[str, Exporter] = field(default_factory=dict)
@@ -113,8 +118,8 @@ def hooks(family: ObserverFamily) -> ReportHooks:
 
 
 def all_options(command: str) -> dict[str, tuple[Option, list[str]]]:
-    """Every family's options of command ``command`` ("analyze", "tune" or "simulate"): dest -> (option,
-    families)."""
+    """Every family's options of command ``command`` ("analyze", "tune", "simulate" or "init"): dest ->
+    (option, families)."""
     out: dict[str, tuple[Option, list[str]]] = {}
     for fam in families():
         for opt in getattr(hooks(fam), f"{command}_options"):

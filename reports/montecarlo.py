@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.design import montecarlo as mc
-from sensorless.design.family import CapabilityError, GainSet
+from sensorless.design.family import GainSet
 from sensorless.design.registry import family_of
 from sensorless.reports.engine import Engine
 
@@ -40,12 +40,10 @@ class Result:
     summary: dict[str, Any]
 
 
-def envelope(drive: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The design's envelope: the operating points the tuner held the gains to."""
-    env = getattr(getattr(drive, "tuning", None), "envelope", None)
-    if env is None:
-        raise CapabilityError(f"{drive.file}: the drive has no tuning envelope to evaluate draws over")
-    return env.grid(drive.w_base, drive.T_N)
+def envelope(drive: Any, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The design's envelope: the operating points the tuner held the gains to, where ``gains`` run the
+    drive (the family's ``envelope_points``)."""
+    return family_of(drive).envelope_points(drive, gains)
 
 
 def linear_task(drive: Any, gains: GainSet, plant: np.ndarray, estimate: np.ndarray, w: Any, T: Any) -> Any:
@@ -97,7 +95,7 @@ def run(
 ) -> Result:
     """Draw, evaluate on ``engine``, summarise (module docstring)."""
     draws = mc.draw(params, samples, seed, plant, estimate)
-    w, T = envelope(drive)
+    w, T = envelope(drive, gains)
     chunks = [(drive, gains, *draws.chunk(c), w, T) for c in range(draws.chunks)]
     items = []
     if time_domain:

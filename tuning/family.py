@@ -32,6 +32,11 @@ class TuneOutcome(Protocol):
         """Parameters before -> after, worst figures and where, what was kept and why."""
         ...
 
+    # Optional: ``shortfalls(drive) -> list[str]``, what the tuned gains miss of a criterion of the
+    # family's own (one line each: the cause and the change that fixes it). Where an outcome has it,
+    # ``sensorless tune`` exits 3 on any line instead of comparing the worst damping with the report's
+    # (a family whose damping falls with speed by design judges its gains by other figures).
+
 
 class TuneSettings(Protocol):
     """What shared code reads of any tunable's settings (the rest is the tunable's own): which tables

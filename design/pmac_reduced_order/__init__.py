@@ -106,6 +106,31 @@ class ReducedOrderObserver(ObserverFamily):
     def drive_loop(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation.analysed_loop(drive, scenario, gains)
 
+    # Monte-Carlo (design/pmac_reduced_order/montecarlo.py)
+    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
+        from sensorless.design.pmac_reduced_order import montecarlo
+
+        return montecarlo.parameters(drive)
+
+    def linearize_draws(
+        self, drive: Any, gains: Any, plant: Any, estimate: Any, w: Any, torque: Any, complete: bool = True
+    ) -> Any:
+        from sensorless.design.pmac_reduced_order import montecarlo
+
+        return montecarlo.linearize_draws(drive, gains, plant, estimate, w, torque, complete)
+
+    def perturbed(self, drive: Any, plant: Any, estimate: Any) -> Any:
+        from sensorless.design.pmac_reduced_order import montecarlo
+
+        return montecarlo.perturbed(drive, plant, estimate)
+
+    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
+        """Its drive file's [envelope]: mechanical speeds (electrical here) x load torques."""
+        import numpy as np
+
+        W, T = np.meshgrid(drive.rpm_to_w(drive.envelope.speeds), np.asarray(drive.envelope.loads, float))
+        return W.ravel(), T.ravel()
+
     def trace_notes(self, meta: Any) -> tuple[str, ...]:
         """No HF injection: said as the traces' header has always said it (the same trace files)."""
         return ("HF injection off",)

@@ -165,7 +165,13 @@ def floquet_exponents(monodromy: np.ndarray, duration: np.ndarray) -> np.ndarray
 
 
 def continuous_poles(
-    drive: Any, w: Any, T_L: Any, load_estimation: bool = True, n_angles: int = 64, **over: Any
+    drive: Any,
+    w: Any,
+    T_L: Any,
+    load_estimation: bool = True,
+    n_angles: int = 64,
+    columns: tuple[np.ndarray, np.ndarray] | None = None,
+    **over: Any,
 ) -> np.ndarray:
     """Continuous-time poles at the operating points (broadcast, flattened) [1/s].
 
@@ -173,6 +179,8 @@ def continuous_poles(
     harmonics it is periodic in theta: the Floquet exponents ln(mu)/T_p of the monodromy matrix over one
     period T_p (a product of matrix exponentials over ``n_angles`` sub-intervals); their real parts are
     the decay rates, their imaginary parts are defined modulo 2 pi / T_p (principal branch).
+    ``columns``: (motor, params) vectors per point, (n_m, N) and (n_p, N), instead of the drive's (the
+    draws of a Monte-Carlo run: design/pmac_reduced_order/montecarlo.py).
     """
     w_f, T_f = (a.ravel() for a in np.broadcast_arrays(np.asarray(w, float), np.asarray(T_L, float)))
     om, oo, motor, params = analysis_arguments(drive, **over)
@@ -183,13 +191,17 @@ def continuous_poles(
     # midpoints of the K sub-intervals, in the direction of rotation
     theta = 0.3 + np.sign(w_f)[:, None] * (np.arange(K)[None, :] + 0.5) * step  # (n, K)
     fn = _mapped(continuous_jacobian_function(om, oo, load_estimation), n * K)
+    if columns is None:
+        m_cols, p_cols = motor[:, None], params[:, None]
+    else:  # each point's own vectors, repeated over its sub-intervals
+        m_cols, p_cols = (np.repeat(np.asarray(c, float), K, axis=1) for c in columns)
     A = np.asarray(
         fn(
             theta.reshape(1, -1),
             np.repeat(w_f, K)[None],
             np.repeat(T_f, K)[None],
-            motor[:, None],
-            params[:, None],
+            m_cols,
+            p_cols,
         )[0]
     )
     ny = A.shape[0]

@@ -79,6 +79,10 @@ class FluxObserverFamily(ObserverFamily):
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
     open_loop_start = True
+    # its damping k/(2|w|) falls with speed by design (its error does not oscillate in the stationary
+    # frame): stable is all it asks of damping; its criterion is decay, angle bias and noise, the PLL's
+    # lag (tuning/pmsm_flux_observer/criterion.py)
+    required_damping = 0.0
 
     def load(self, data: Any, file: str, digest: str) -> schema.FluxObserverDrive:
         return schema.load(data, file, digest, self.kind)
@@ -148,6 +152,45 @@ class FluxObserverFamily(ObserverFamily):
 
     def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
         return simulation(drive, scenario, gains)
+
+    # Monte-Carlo (design/pmsm_flux_observer/montecarlo.py)
+    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
+        from sensorless.design.pmsm_flux_observer import montecarlo
+
+        return montecarlo.parameters(drive)
+
+    def linearize_draws(
+        self, drive: Any, gains: Any, plant: Any, estimate: Any, w: Any, torque: Any, complete: bool = True
+    ) -> Any:
+        from sensorless.design.pmsm_flux_observer import montecarlo
+
+        return montecarlo.linearize_draws(drive, gains, plant, estimate, w, torque, complete)
+
+    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
+        """Its drive file's [envelope] (speeds in both directions x torques); with ``gains``, the points
+        where they run the drive sensorless: from the open-loop I-f start's hand-back speed w_off up
+        (its [startup], else its rules at the gains: design/pmsm_drive.py ``startup_values``), since
+        below it the drive runs open loop (no equilibrium there under an estimate error is no failure)."""
+        import numpy as np
+        from sensorless.design.pmsm_drive import startup_values
+
+        W, T = drive.grid()
+        if gains is None:
+            return W, T
+        try:
+            values, _, _ = startup_values(drive, gains)
+        except CapabilityError:
+            return W, T
+        w_off = (values or {}).get("if_w_off")
+        if not w_off:
+            return W, T
+        keep = np.abs(W) >= float(w_off) * (1 - 1e-12)
+        return (W[keep], T[keep]) if keep.any() else (W, T)
+
+    def perturbed(self, drive: Any, plant: Any, estimate: Any) -> Any:
+        from sensorless.design.pmsm_flux_observer import montecarlo
+
+        return montecarlo.perturbed(drive, plant, estimate)
 
 
 FAMILY = FluxObserverFamily()

@@ -193,3 +193,27 @@ def runtime_setup(drive: Any, gains: GainSet, discretization: str | None = None)
     if o.correction == "box-clamp":
         notes = ("box-clamp: the observer gain is unused (pure integration, each axis clamped to +-lambda)",)
     return RuntimeSetup(obs, disc, params, gains, schedule_of(gains, drive.estimate.psi_pm), notes)
+
+
+def law_misfit(drive: Any, law: str) -> str:
+    """Why gains of ``law`` cannot be tuned for the drive's observer variant ("" where they can): the
+    box clamp has no observer gain and no linearization (nothing for a tuner to judge), and the vesc
+    law's gain is VESC's ORTEGA_ORIGINAL (the clamped gradient), which its export writes and the other
+    variants do not run (VESC has no unclamped gradient observer)."""
+    o = drive.observer
+    where = f"{drive.file}: [observer] firmware = {o.firmware!r}, correction = {o.correction!r}"
+    if o.correction == "box-clamp":
+        return (
+            f"{where}: the box clamp (MXLEMMING) has no observer gain and no linearization, so there is "
+            f"nothing to tune for law {law!r}; for VESC's tunable observer set correction = "
+            '"clamped-gradient" (ORTEGA_ORIGINAL, foc_observer_type 0), or judge the box clamp by '
+            "sensorless report"
+        )
+    if law == "vesc" and o.correction != "clamped-gradient":
+        return (
+            f"{where}: law 'vesc' tunes VESC's clamped-gradient observer (ORTEGA_ORIGINAL), which "
+            "`export --target vesc` writes; this drive runs the unclamped gradient observer, which VESC "
+            "does not have: write the drive for VESC (sensorless init --firmware vesc, or [observer] "
+            'firmware = "vesc" with correction = "clamped-gradient"), or tune --law odrive'
+        )
+    return ""

@@ -157,12 +157,14 @@ def discrete_analysis(
     p: np.ndarray,
     gain: Any,
     sigma: float | None = None,
+    observer_decay: bool = False,
 ) -> tuple[np.ndarray, ...]:
     """(poles ln(z)/T_obs, |z| largest, angle error theta - theta_hat) of the sampled observer from the
     start points y0 (the continuous equilibria); p (n_p,) or (n_p, N), gain one or per point. With
     ``sigma`` [A rms per axis and sample], a fourth: (N, 2) RMS of the PLL's angle [rad] and speed
     [rad/s] for that current-sensor noise (design/noise.py, the per-sample propagation through the
-    one-step Jacobian; inf where unstable)."""
+    one-step Jacobian; inf where unstable). With ``observer_decay``, last: (N,) the decay rate [1/s] of
+    the observer's own modes, without the PLL's (``_observer_decay``, sampled)."""
     m = drive.motor
     i_r = np.column_stack(mtpa_currents(drive, T))
     plant = pmsm_zoh_plant(m.vector(), W, i_r, drive.observer.T_obs)
@@ -171,15 +173,32 @@ def discrete_analysis(
     sens = sensitivities(loop, y, W, plant, p, gain)
     err = wrap(-sens["out"][:, loop.observer.index("outputs", "theta_hat")])
     z = np.abs(eigenvalues_by_size(Jd)[:, 0])
+    own = (_sampled_observer_decay(Jd, poles, drive.observer.T_obs),) if observer_decay else ()
     if sigma is None:
-        return poles, z, err
+        return poles, z, err, *own
     # the current samples are meas[0:2] (stationary frame: the noise is isotropic, so its rotation
     # into the rotor coordinates leaves its covariance unchanged)
     n = loop.n_y
     C = np.zeros((2, n))
     C[0, n - 2] = C[1, n - 1] = 1.0  # delta = theta - theta_pll, w_pll
     noise = noise_rms_periodic(Jd[:, None], sens["Jm"][:, None, :, 0:2], C, sigma)
-    return poles, z, err, noise
+    return poles, z, err, noise, *own
+
+
+def _sampled_observer_decay(Jd: np.ndarray, poles: np.ndarray, T: float) -> np.ndarray:
+    """(N,) -max ln|z|/T of the one-step map's observer block where the map is block triangular (as
+    ``_observer_decay``: the PLL's modes, the last two coordinates, left out); elsewhere of all poles."""
+    m = Jd.shape[1] - 2
+    ok = np.isfinite(Jd).all(axis=(1, 2))
+    out = np.full(Jd.shape[0], np.nan)
+    out[ok] = -np.max(poles[ok].real, axis=1)
+    if ok.any():
+        J = Jd[ok]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            own = -np.max(np.log(np.abs(eigvals_batched(np.ascontiguousarray(J[:, :m, :m])))), axis=1) / T
+        coupled = np.abs(J[:, :m, m:]).max(axis=(1, 2)) > 0
+        out[ok] = np.where(coupled, out[ok], own)
+    return out
 
 
 def current_noise(drive: Any) -> float:

@@ -47,10 +47,13 @@ from sensorless.symbolic.pmsm_flux_observer.observer import CORRECTIONS, INDUCTA
 PAGE = "docs/families/pmsm_flux_observer.md"
 SECTIONS = ("drive", "motor", "rating", "inverter", "observer", "estimate", "gains", "control", "envelope")
 FIRMWARES = ("odrive", "vesc", "simplefoc", "generic")
-# each firmware's observer: (correction, inductance rule, lambda adaptation, law)
+# each firmware's observer: (correction, inductance rule, lambda adaptation, law). VESC: ORTEGA_ORIGINAL
+# (foc_observer_type 0), the observer whose gain its law sets and the analysis judges; its newer default
+# MXLEMMING_LAMBDA_COMP is the box clamp (no gain, no linearization): correction = "box-clamp" and
+# lambda_adaptation = true in the file for it
 FIRMWARE_DEFAULTS = {
     "odrive": ("gradient", "fixed", False, "odrive"),
-    "vesc": ("box-clamp", "interpolated", True, "vesc"),
+    "vesc": ("clamped-gradient", "interpolated", False, "vesc"),
     "simplefoc": ("box-clamp", "q-axis", False, "odrive"),
     "generic": ("gradient", "fixed", False, "odrive"),
 }
@@ -216,7 +219,11 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
         sec,
         obs_t,
         {
-            "firmware": ("generic", "default"),
+            "firmware": (
+                "generic",
+                "no firmware given (sensorless init --firmware vesc|odrive|simplefoc, or this key): "
+                "the gradient observer of Lee et al. (2010) with ODrive's gains",
+            ),
             "correction": (corr, f"{fw}'s observer"),
             "inductance": (rule, f"{fw}'s inductance rule"),
             "lambda_adaptation": (adapt, f"{fw}'s default"),

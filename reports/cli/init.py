@@ -27,7 +27,16 @@ from sensorless.design.family import CapabilityError
 from sensorless.design.startup import DERIVED_FROM, SECTION, document_entries, optional_lines
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.common import UsageError, print_warnings
-from sensorless.reports.family import Importer, add_options, import_options, importers
+from sensorless.reports.family import (
+    Importer,
+    add_family_options,
+    add_options,
+    all_options,
+    hooks,
+    import_options,
+    importers,
+    refuse_foreign,
+)
 from sensorless.reports.files import OutputFile
 
 
@@ -61,6 +70,7 @@ def register(sub: Any) -> None:
         "options of --from (each firmware declares its own; refused by the others)",
         "--from ",
     )
+    add_family_options(p, "init")
     p.set_defaults(func=run)
 
 
@@ -69,6 +79,9 @@ def run(args: argparse.Namespace) -> int:
     if args.from_firmware is not None:
         if args.drive is not None:
             raise UsageError(f"--from reads {args.from_firmware[1]}: give no drive file beside it")
+        for opt, _ in all_options("init").values():
+            if getattr(args, opt.dest, None) is not None:
+                raise UsageError(f"{opt.flags[0]}: an option of a minimal drive file, not of --from")
         return run_import(args)
     if args.drive is None:
         raise UsageError("give a minimal drive file (or a preset), or --from FIRMWARE FILE")
@@ -89,6 +102,10 @@ def run(args: argparse.Namespace) -> int:
         raise DriveFileError(
             file, "drive.kind", f"unknown drive kind {kind!r} (known: {', '.join(registry.kinds())})"
         )
+    refuse_foreign(args, fam, "init")
+    own = hooks(fam).init_data
+    if own is not None:
+        data = dict(own(data, args, file))
     out = OutputFile(args.out, force=args.force)
     out.check()
     given_start = data.pop(SECTION, None)  # [startup] is read by design/drive.py for every family

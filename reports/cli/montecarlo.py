@@ -53,7 +53,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--spread",
         metavar="SPREADS",
-        help=f"spread of the true motor: {SPREAD_HELP}; e.g. R_s=10%%,L_d=10%%,L_q=10%%,psi_pm=5%%,J=30%%",
+        help=f"spread of the true motor: {SPREAD_HELP}; e.g. R_s=10%%,L_d=10%%,L_q=10%%,psi_pm=5%%,J=30%% "
+        "(default: the observer family's typical spread)",
     )
     p.add_argument(
         "--estimate-error",
@@ -85,8 +86,8 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--min-damping",
         type=Number(0, 1),
-        default=MIN_DAMPING,
-        help=f"required damping ratio, in [0, 1] (default {MIN_DAMPING:g})",
+        default=None,
+        help=f"required damping ratio, in [0, 1] (default: the observer family's, {MIN_DAMPING:g} for most)",
     )
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -110,12 +111,22 @@ def run(args: argparse.Namespace) -> int:
     out = OutputSet(args.out, force=args.force, names=NAMES)
     out.check()
     fam = family_of(drive)
+    if args.min_damping is None:  # the family's (ObserverFamily.required_damping)
+        args.min_damping = fam.min_damping()
     params = fam.montecarlo_parameters(drive)  # CapabilityError: one line naming the family
     try:
         plant = mc.parse_spreads(args.spread, "--spread", params, estimates=False)
         estimate = mc.parse_spreads(args.estimate_error, "--estimate-error", params, estimates=True)
     except mc.SpreadError as e:
         raise UsageError(str(e)) from None
+    if args.spread is None:  # the family's typical spread of the true motor (montecarlo_parameters)
+        plant = rmc.typical_spreads(params)
+        if not args.quiet:
+            typical = ", ".join(f"{k}={v.text()}" for k, v in plant.items())
+            print(
+                f"sensorless montecarlo: note: no --spread: the family's typical spread {typical}",
+                file=sys.stderr,
+            )
     if not plant and not estimate:
         raise UsageError("give --spread and/or --estimate-error: nothing is spread")
     gains = fam.gains(drive)

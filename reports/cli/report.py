@@ -40,8 +40,9 @@ def register(sub: Any) -> None:
     p.add_argument(
         "--min-damping",
         type=Number(0, 1),
-        default=MIN_DAMPING,
-        help=f"required damping ratio, in [0, 1] (default {MIN_DAMPING:g})",
+        default=None,
+        help=f"required damping ratio, in [0, 1] (default: the observer family's, {MIN_DAMPING:g} for "
+        "most; the flux observer's damping falls with speed by design: stability only)",
     )
     p.add_argument(
         "--scenario",
@@ -81,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
     many.refuse_engine_options(args)
     drive = load(args.drive, "report")
     fam = family_of(drive)
+    if args.min_damping is None:  # the family's (ObserverFamily.required_damping)
+        args.min_damping = fam.min_damping()
     compute = hooks(fam).report
     if compute is None:
         raise CapabilityError(f"observer family {fam.name!r} has no stability report")

@@ -11,7 +11,8 @@ says so (for an infeasible envelope, with its evidence) and the exit status is 2
 the best gains found are still below the damping a report requires by default (common.MIN_DAMPING; the
 one ``--min-damping`` requires where the drive's family takes it), or
 their worst damping is not finite, the tables are written (they are the result) with a warning line, and
-the exit status is 3.
+the exit status is 3; a tuner whose outcome judges by a criterion of its family's own
+(``TuneOutcome.shortfalls``) says what its gains miss instead, one warning line each (exit 3).
 
 Before anything is written the table is proved (reports/tune_proof.py): its gains and the drive file's
 over the drive's real range (+-T_max) by the linear analysis and on the report's time-domain checks. A
@@ -181,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     if proof:
         print("\n".join(proof))
     tuned = fam.gains(drive, table=r.table, table_file=json_name)
-    low = tune_line(drive, tuned, MIN_DAMPING, estimate_errors(drive, tunable, settings))
+    low = tune_line(drive, tuned, fam.min_damping(), estimate_errors(drive, tunable, settings))
     if low:
         print(low)
     for line in h.startup_lines(drive, tuned) if h.startup_lines is not None else ():
@@ -194,6 +195,12 @@ def run(args: argparse.Namespace) -> int:
         out.add_text(pareto_name, pareto_csv(r.table))
     for p in out.commit():
         print(f"wrote {p}")
+    own = getattr(r, "shortfalls", None)
+    if own is not None:  # the family's own criterion (tuning/family.py TuneOutcome.shortfalls)
+        missed = own(drive)
+        for line in missed:
+            print(f"sensorless tune: warning: {line}", file=sys.stderr)
+        return 3 if missed else 0
     worst = r.table.summary.get("worst_damping")
     # the damping the user requires where the family takes --min-damping, else the report's default
     need = MIN_DAMPING if getattr(args, "min_damping", None) is None else float(args.min_damping)

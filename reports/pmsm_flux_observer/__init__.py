@@ -60,10 +60,13 @@ from sensorless.reports.review import (
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
     assess_any,
+    check_variant,
     corners,
     figures,
     hold_speed,
+    judged,
     odrive_gains,
+    shortfalls,
     vesc_gains,
 )
 
@@ -183,6 +186,34 @@ def analyze_check(drive: Any, args: argparse.Namespace) -> None:
         FAMILY.linearize(drive, FAMILY.gains(drive), np.array([drive.w_base]), np.zeros(1))
 
 
+# --------------------------------------------------------------------------------------------- init
+INIT_OPTIONS = (
+    Option(
+        ("--firmware",),
+        {
+            "choices": ("vesc", "odrive", "simplefoc"),
+            "help": "the firmware the drive is for: its observer variant and default gains are written "
+            "(default: the file's [observer] firmware, else the generic gradient observer)",
+        },
+    ),
+)
+
+
+def init_data(data: Any, args: argparse.Namespace, file: str) -> Any:
+    """The minimal file's data with ``--firmware`` as its [observer] firmware (the file's own key where
+    none is given; both given and different: one line naming both)."""
+    fw = getattr(args, "firmware", None)
+    if fw is None:
+        return data
+    obs = data.get("observer", {})
+    if not isinstance(obs, dict):
+        return data  # the schema names the bad section
+    mine = obs.get("firmware")
+    if mine is not None and mine != fw:
+        raise UsageError(f"--firmware {fw}: {file} says [observer] firmware = {mine!r}; give one of the two")
+    return {**data, "observer": {**obs, "firmware": fw}}
+
+
 # --------------------------------------------------------------------------------------------- tune
 TUNE_OPTIONS = (
     Option(("--bias-max",), {"type": Number(0.1, 90.0), "help": "largest angle bias that holds [deg]"}),
@@ -194,8 +225,9 @@ TUNE_OPTIONS = (
         ("--min-damping",),
         {
             "type": Number(0, 1, hi_open=True),
-            "help": "worst damping required, in [0, 1) (default 0.2, as `sensorless report`): below it the "
-            "tables are written with a warning and exit status 3",
+            "help": "worst damping required, in [0, 1) (default: none; the family judges decay, angle bias, "
+            "angle noise and the PLL's lag instead): below it the tables are written with a warning and "
+            "exit status 3",
         },
     ),
     # the shared noise limit and front options, as every family on the shared envelope declares them
@@ -204,6 +236,7 @@ TUNE_OPTIONS = (
 
 
 def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> FluxTuneSettings:
+    check_variant(drive, tunable.name)  # up front: a law the drive's observer variant cannot run
     s = tunable.settings(drive)
     errors = dict(s.errors)
     for opt, key in (("r_error", "R_s"), ("flux_error", "psi_pm"), ("l_error", "L")):
@@ -214,6 +247,8 @@ def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> FluxTun
         s = dataclasses.replace(s, bias_max_deg=float(args.bias_max))
     if args.hold_speed is not None:
         s = dataclasses.replace(s, hold_speed=float(args.hold_speed) * drive.w_base)
+    if args.min_damping is not None:
+        s = dataclasses.replace(s, min_damping=float(args.min_damping))
     if args.max_noise:
         s = dataclasses.replace(s, max_noise=parse_max_noise(args.max_noise, drive.w_base))
     if args.pareto is not None:
@@ -269,7 +304,14 @@ def compute(
         w_hold = hold_speed(drive, settings, base)
         for j, k in enumerate(labels):
             fg = figures(drive, a, j)
+            jd = judged(drive, a, j, settings)
             analysis[k] = {
+                "worst_decay_1_s": f(jd["worst_decay_1_s"]) if math.isfinite(jd["worst_decay_1_s"]) else None,
+                "pll_root_1_s": f(jd["pll_root_1_s"]),
+                # what the gains under review miss of the family's criterion (the others: their row)
+                "criterion_shortfalls": shortfalls(drive, rev.choices[k], jd, settings)
+                if k == review
+                else [],
                 "gains": {n: f(v) for n, v in rev.choices[k].values.items() if not isinstance(v, list)},
                 "law": rev.choices[k].law,
                 "worst_damping": f(fg["worst_damping"]),
@@ -286,12 +328,18 @@ def compute(
                 num(x["worst_damping"]),
                 num(x["worst_bias_deg"]),
                 num(x["low_speed_limit_pu"]) if x["low_speed_limit_pu"] is not None else "none holds",
+                num(x["worst_decay_1_s"]),
+                num(x["pll_root_1_s"]),
             )
             for k, x in analysis.items()
         )
         head = ("gains", "law", "worst damping", "worst angle bias (deg)", "holds down to (p.u.)")
+        head += ("observer decay (1/s)", "PLL slow root (1/s)")
         cmp_table = Table(
-            head, rows, "each gain set under every estimate error (sampled observer)", frozenset({2, 3, 4})
+            head,
+            rows,
+            "each gain set under every estimate error (sampled observer)",
+            frozenset({2, 3, 4, 5, 6}),
         )
         W, T = drive.grid(1 if resolution == "quick" else 2)
         lin = FAMILY.linearize(drive, rev.gains, W, T)
@@ -305,8 +353,11 @@ def compute(
             "Judged as the tuner judges (tuning/pmsm_flux_observer): a speed holds when the sampled "
             "observer "
             f"is stable with an angle bias of at most {settings.bias_max_deg:g} deg under every estimate "
-            f"error; the firmwares' defaults on this motor hold down to the speeds shown (hold speed "
-            f"{w_hold / drive.w_base:.3g} p.u.)."
+            f"error; the firmwares' defaults on this motor hold down to the speeds shown (the better: "
+            f"{w_hold / drive.w_base:.3g} p.u.). The family's criterion (tuning/pmsm_flux_observer/"
+            "criterion.py) asks the observer's decay from there up to reach the larger of the speed loop's "
+            "bandwidth and what the full acceleration asks, and the PLL's slow root 4 x that bandwidth; "
+            "damping is not its figure (k/(2|w|) falls with speed by design)."
         )
         items: tuple[Any, ...] = (Paragraph(text), cmp_table)
         pf = table.summary.get("pareto") if table is not None else None
@@ -347,13 +398,27 @@ def compute(
     stable = not linearizable or mine.get("low_speed_limit_pu") is not None
     pll = pll_finding(rev.gains, drive.control.alpha_s, td)
     start, start_data = startup_findings(drive, rev.gains)
-    status = "fail" if not stable else "pass" if damped and tracks and not pll and not start else "warn"
+    # the family's criterion (tuning/pmsm_flux_observer/criterion.py) beyond holding somewhere and the
+    # PLL (their own findings): holding only at the top speed, the observer's decay
+    crit = (
+        [
+            x
+            for x in mine.get("criterion_shortfalls", [])
+            if "PLL" not in x and "at no envelope speed" not in x
+        ]
+        if linearizable and stable
+        else []
+    )
+    status = (
+        "fail" if not stable else "pass" if damped and tracks and not pll and not crit and not start else "warn"
+    )
     status, td_findings = settle(status, td)
     findings = []
     if linearizable and not stable:
         findings.append(holds_nowhere_finding(drive, rev.gains, settings))
     if not damped:
         findings.append(damping_finding(drive, a, labels.index(review), min_damping, rev.gains.law))
+    findings += crit
     if not tracks:
         findings.append(f"a time-domain check exceeds {MAX_RMS_THETA_DEG:g} deg RMS position error")
     findings += [x["text"] for x in td_findings]
@@ -540,6 +605,8 @@ HOOKS = ReportHooks(
     report=compute,
     failure_cause=failure_cause,
     settings_sections=("gains", "envelope", "control"),
+    init_options=INIT_OPTIONS,
+    init_data=init_data,
     importers=IMPORTERS,
     exporters=EXPORTERS,
 )

@@ -27,11 +27,15 @@ from sensorless.tuning.pmsm_flux_observer import Assessment, FluxTuneSettings, a
 
 
 def pll_roots(gains: GainSet) -> tuple[complex, complex]:
-    """The roots of the PLL's s^2 + k_p s + k_i [1/s], slower first."""
+    """The roots of the PLL's s^2 + k_p s + k_i [1/s], slower first, in closed form (a double root is
+    -k_p/2 exactly: a polynomial solver's rounding would put it on either side of a limit)."""
     k_p, k_i = pll_gains(gains)
-    r = np.roots([1.0, k_p, k_i])
-    r = sorted(r, key=lambda z: -z.real)
-    return complex(r[0]), complex(r[1])
+    disc = k_p**2 / 4 - k_i
+    if disc > 0:
+        r = math.sqrt(disc)
+        return complex(-k_p / 2 + r), complex(-k_p / 2 - r)
+    im = math.sqrt(-disc)
+    return complex(-k_p / 2, im), complex(-k_p / 2, -im)
 
 
 def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str:
@@ -40,7 +44,7 @@ def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str
     min_decay = PLL_SPEED_LOOP * alpha_s
     slow, fast = pll_roots(gains)
     sigma = -slow.real
-    if sigma >= min_decay:
+    if sigma >= min_decay * (1 - 1e-9):  # met to rounding is met
         return ""
     k_p, k_i = pll_gains(gains)
     if gains.law == "vesc":

@@ -34,6 +34,11 @@ firmware = "vesc"
 """
 
 
+BOX = MINIMAL.replace(
+    'firmware = "vesc"', 'firmware = "vesc"\ncorrection = "box-clamp"\nlambda_adaptation = true'
+)
+
+
 @pytest.fixture
 def minimal(tmp_path):
     p = tmp_path / "mymotor.toml"
@@ -53,7 +58,12 @@ def test_rules_of_a_minimal_file(minimal):
     assert d.T_N == pytest.approx(1.5 * p * psi * math.sqrt(2) * I_N, rel=1e-6)
     assert d.motor.J == pytest.approx(0.1 * d.T_N / (d.rating.n_N * math.pi / 30), rel=1e-5)
     o = d.observer
-    assert (o.correction, o.inductance_rule, o.lambda_adaptation) == ("box-clamp", "interpolated", True)
+    # VESC's ORTEGA_ORIGINAL: the observer whose gain its law tunes (the box clamp has none)
+    assert (o.correction, o.inductance_rule, o.lambda_adaptation) == (
+        "clamped-gradient",
+        "interpolated",
+        False,
+    )
     assert o.T_obs == pytest.approx(1e-4)
     g = d.gains_table
     assert g["law"] == "vesc" and g["foc_observer_gain"] == pytest.approx(1e3 / psi**2, rel=1e-5)
@@ -99,7 +109,7 @@ def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys):
     assert {"ODrive defaults", "VESC detection", "drive file", "tuned"} <= set(rep["analysis"])
     # box clamp: analysis refused in one line, simulation runs
     box = tmp_path / "box.toml"
-    box.write_text(MINIMAL)  # VESC's default: box clamp
+    box.write_text(BOX)  # VESC's MXLEMMING: box clamp
     assert main(["analyze", str(box), "--out", str(tmp_path / "a")]) == 2
     assert "not linearizable" in capsys.readouterr().err
 
@@ -109,6 +119,7 @@ def test_init_of_a_box_clamp_leaves_the_handover_speeds_to_give(minimal, tmp_pat
     file, its [startup] asking for the handover speeds with the reason, and the file loads; given them,
     the start runs on them."""
     full = tmp_path / "full.toml"
+    minimal.write_text(BOX)
     assert main(["init", str(minimal), "--out", str(full)]) == 0
     text = full.read_text()
     head = text.split("[startup]")[0].rstrip().splitlines()[-1]

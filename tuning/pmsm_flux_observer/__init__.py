@@ -5,24 +5,17 @@ numbers, so every candidate of a grid is judged on the whole envelope at once (o
 of the sampled observer's linearization, design/pmsm_flux_observer/linearize.py) under the estimate
 errors a user states (default R_s +-30 %, psi_pm +-10 %, L +-20 %: every corner and the nominal).
 
-Criterion (docs/families/pmsm_flux_observer.md "Tuning"), per candidate:
-1. a speed *holds* when at every torque, both directions and every error corner the sampled observer
-   has an equilibrium, its discrete poles lie inside the unit circle, and its angle bias is at most
-   ``bias_max``; the candidate's *low-speed limit* is the lowest envelope speed from which every
-   higher one holds (the speed below which it loses the motor);
-2. the hold speed: the lowest low-speed limit of the firmwares' defaults on this motor (ODrive's,
-   VESC Tool's detection; the envelope's top speed where neither holds anywhere), or ``hold_speed``;
-3. of the candidates that hold down to the hold speed, the best has the best worst damping over the
-   speeds from it up; where none does, the lowest limit, then the best damping.
-So the tuned gains lose the motor at no higher speed than the better firmware default and are the
-best damped of those. (Damping grows with the gain, k/(2|w|), and the resistance bias with it too,
-k dR i_q/(lambda w^2): the hold speed is where the trade between them is set.)
+Criterion: the family's own, criterion.py (docs/families/pmsm_flux_observer.md "Tuning"): a speed
+holds where the sampled observer is stable with its angle bias and noise within limits at every error
+corner; the candidates that decay fast enough (the speed loop, the full acceleration) with a PLL fast
+enough rank first, then the lower low-speed limit, then the faster decay. The firmware defaults of the
+law and the drive file's gains are candidates, so the tuned gains rank no worse than either.
 Limits: T gamma lambda^2 < 2 is in the poles (the Euler bound), T k_p <= KP_T (ODrive refuses T k_p >=
 1). The PLL: k_p = 2 bw, k_i = bw^2 with bw = min(max(k, PLL_SPEED_LOOP alpha_s), KP_T / (2 T)) (the
 drive's speed loop closes on the PLL's speed: its root at least that multiple of the loop's bandwidth,
 the drive file's rule for alpha_s): a double pole at -bw, twice the
 observer's decay rate k/2, within the limit (the PLL does not feed back into the observer).
-``flux_schedule`` picks the gain per speed by the same criterion at that speed alone.
+``flux_schedule`` picks the gain per speed by the criterion at that speed alone.
 """
 
 from __future__ import annotations
@@ -38,17 +31,18 @@ from sensorless.tuning.pmsm_flux_observer.assessment import (
     assess,
     assess_any,
     assess_linearized,
-    best,
     figures,
     front,
     hold_speed,
     low_limit,
 )
+from sensorless.tuning.pmsm_flux_observer.criterion import best, judged, requirements, shortfalls
 from sensorless.tuning.pmsm_flux_observer.flux_schedule import tune_schedule
 from sensorless.tuning.pmsm_flux_observer.odrive import tune_odrive
 from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome
 from sensorless.tuning.pmsm_flux_observer.settings import (
     FluxTuneSettings,
+    check_variant,
     corners,
     default_settings,
     k_grid,
@@ -67,16 +61,20 @@ __all__ = [
     "assess_any",
     "assess_linearized",
     "best",
+    "check_variant",
     "corners",
     "default_settings",
     "figures",
     "front",
     "hold_speed",
+    "judged",
     "k_grid",
     "low_limit",
     "odrive_candidate",
     "odrive_gains",
     "own_law",
+    "requirements",
+    "shortfalls",
     "tune_odrive",
     "tune_schedule",
     "tune_vesc",

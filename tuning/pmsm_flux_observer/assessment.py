@@ -1,6 +1,7 @@
-"""The flux-observer tuners' criterion (package docstring): every candidate judged by the sampled
-observer's linearization on the envelope x the estimate-error corners, its low-speed limit, the best
-candidate, the damping-versus-bias front and the hold speed."""
+"""The flux-observer tuners' figures: every candidate judged by the sampled observer's linearization on
+the envelope x the estimate-error corners (holds, damping, bias, noise, the observer's decay, the PLL's
+slow root), its low-speed limit, the damping-versus-bias front and the firmware defaults' hold speed;
+criterion.py ranks and judges them."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer import corner_estimate
-from sensorless.design.pmsm_flux_observer.gains import constant_law, runtime_params
+from sensorless.design.pmsm_flux_observer.gains import constant_law, pll_gains, runtime_params
 from sensorless.design.pmsm_flux_observer.linearize import (
     current_noise,
     discrete_analysis,
@@ -34,6 +35,8 @@ class Assessment:
     holds: np.ndarray  # (C, S) per envelope |speed|
     poles: np.ndarray  # (C, P, n) nominal discrete poles [1/s]
     noise: np.ndarray | None = None  # (C, P, 2) worst PLL angle [rad] and speed [rad/s] noise, RMS
+    decay: np.ndarray | None = None  # (C, P) decay rate of the observer's own modes [1/s], nominal
+    pll: np.ndarray | None = None  # (C,) the PLL's slower root [1/s] (its speed estimate's lag)
 
 
 def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
@@ -68,6 +71,7 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
     m = motor_vector(drive)
     s = np.full((n, loop.n_y), np.nan + 0j)
     zmax, err, noise = np.full(n, np.nan), np.full(n, np.nan), np.full((n, 2), np.nan)
+    own = np.full(n, np.nan)
     sigma = current_noise(drive)
     for j in range(0, n, CHUNK):
         sl = slice(j, min(j + CHUNK, n))
@@ -76,8 +80,8 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
         scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
         ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
         y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
-        s[sl], zmax[sl], err[sl], nz = discrete_analysis(
-            drive, loop, y0, Wn[sl], Tn[sl], P[:, sl], G[:, sl], sigma
+        s[sl], zmax[sl], err[sl], nz, own[sl] = discrete_analysis(
+            drive, loop, y0, Wn[sl], Tn[sl], P[:, sl], G[:, sl], sigma, observer_decay=True
         )
         noise[sl] = nz
     ok = np.isfinite(zmax)
@@ -86,7 +90,7 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
     stable = (ok & (zmax < 1)).reshape(len(cands), nc, npt)
     noise = np.where(ok[:, None], noise, np.inf).reshape(len(cands), nc, npt, 2)
     good = stable & (bias <= math.radians(settings.bias_max_deg))
-    for name, lim in settings.max_noise:
+    for name, lim in noise_limits(settings):
         good &= noise[..., NOISE_INDEX[name]] <= lim
     good_pt = good.all(axis=1)  # (C, P)
     holds = np.stack([good_pt[:, np.abs(W) == sp].all(axis=1) for sp in speeds], axis=1)
@@ -97,7 +101,25 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
         holds,
         s.reshape(len(cands), nc, npt, -1)[:, 0],
         np.nanmax(noise, axis=1),
+        np.where(ok, own, np.nan).reshape(len(cands), nc, npt)[:, 0],
+        np.array([pll_slow_root(g) for g in cands]),
     )
+
+
+def noise_limits(settings: FluxTuneSettings) -> tuple[tuple[str, float], ...]:
+    """The noise limits a speed must meet to hold: the run's (``--max-noise``), and by default the
+    angle's RMS within a third of the bias limit (three standard deviations within it)."""
+    lims = dict(settings.max_noise)
+    lims.setdefault("position", math.radians(settings.bias_max_deg) / 3)
+    return tuple(lims.items())
+
+
+def pll_slow_root(gains: GainSet) -> float:
+    """-(the slower root) of the PLL's s^2 + k_p s + k_i [1/s] in closed form (its real part where
+    the roots are complex; a double root k_p/2 exactly, no rounding of a polynomial solver)."""
+    k_p, k_i = pll_gains(gains)
+    disc = k_p**2 / 4 - k_i
+    return float(k_p / 2 - math.sqrt(disc)) if disc > 0 else float(k_p / 2)
 
 
 def low_limit(holds: np.ndarray, speeds: np.ndarray) -> np.ndarray:
@@ -128,21 +150,6 @@ def figures(drive: Any, a: Assessment, c: int, w_from: float | None = None) -> d
         "worst_noise_deg": float(np.degrees(np.max(a.noise[c, sel, 0]))) if a.noise is not None else math.nan,
         "worst_speed_noise_rad_s": float(np.max(a.noise[c, sel, 1])) if a.noise is not None else math.nan,
     }
-
-
-def best(drive: Any, a: Assessment, w_hold: float) -> int:
-    """The criterion of the package docstring: the index of the best candidate."""
-    W, _ = drive.grid()
-    speeds = np.unique(np.abs(W))
-    lim = low_limit(a.holds, speeds)
-    keys = []
-    for c in range(len(lim)):
-        if lim[c] <= w_hold * (1 + 1e-12):
-            keys.append((0, -figures(drive, a, c, w_hold)["worst_damping"], c))
-        else:
-            z = figures(drive, a, c)["worst_damping"]
-            keys.append((1, lim[c], -(z if math.isfinite(z) else -9.0), c))
-    return min(keys)[-1]
 
 
 def front(
@@ -206,12 +213,14 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
     W, T = drive.grid()
     speeds = np.unique(np.abs(W))
     e = drive.estimate
-    zs, bs, st, poles = [], [], [], None
+    zs, bs, st, poles, decay = [], [], [], None, None
     for c in corners(settings.errors):
         est = corner_estimate(e, c)
         lin = fam.linearize(drive, gains, W, T, estimate=est)
         if poles is None:
             poles = lin.poles_discrete
+            # the scheduled gain couples the observer to the PLL's speed: the slowest of all modes
+            decay = np.where(np.isfinite(lin.decay_rate_discrete), lin.decay_rate_discrete, np.nan)
         ok = np.isfinite(lin.poles_discrete).all(axis=1)
         zs.append(np.where(ok, lin.worst_damping_discrete, -1.0))
         bs.append(np.where(ok, np.abs(lin.theta_err_discrete), np.inf))
@@ -220,7 +229,15 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
     good = (stable & (bias <= math.radians(settings.bias_max_deg))).all(axis=0)
     holds = np.array([[good[np.abs(W) == sp].all() for sp in speeds]])
     worst = np.where(stable.all(axis=0), zeta.min(axis=0), -1.0)
-    return Assessment(worst[None], bias.max(axis=0)[None], holds, poles[None])
+    return Assessment(
+        worst[None],
+        bias.max(axis=0)[None],
+        holds,
+        poles[None],
+        None,
+        decay[None],
+        np.array([pll_slow_root(gains)]),
+    )
 
 
 def assess_any(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
@@ -236,7 +253,13 @@ def assess_any(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> 
         for i, j in enumerate(rest):
             noise = None if a.noise is None else a.noise[i : i + 1]
             parts[j] = Assessment(
-                a.damping[i : i + 1], a.bias[i : i + 1], a.holds[i : i + 1], a.poles[i : i + 1], noise
+                a.damping[i : i + 1],
+                a.bias[i : i + 1],
+                a.holds[i : i + 1],
+                a.poles[i : i + 1],
+                noise,
+                a.decay[i : i + 1],
+                a.pll[i : i + 1],
             )
     rows = [parts[j] for j in range(len(cands))]
     nan = np.full((*rows[0].damping.shape, 2), np.nan)
@@ -246,4 +269,6 @@ def assess_any(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> 
         np.concatenate([r.holds for r in rows]),
         np.concatenate([r.poles for r in rows]),
         np.concatenate([r.noise if r.noise is not None else nan for r in rows]),
+        np.concatenate([r.decay for r in rows]),
+        np.concatenate([r.pll for r in rows]),
     )

@@ -6,12 +6,13 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.family import GainSet
-from sensorless.design.poles import MIN_DAMPING
 from sensorless.tuning.pmsm_flux_observer.assessment import assess, assess_linearized, figures
+from sensorless.tuning.pmsm_flux_observer.criterion import judged, requirements, shortfalls
 from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome, baselines, gain_table, summary_line
 from sensorless.tuning.pmsm_flux_observer.settings import (
     KP_T,
     FluxTuneSettings,
+    check_variant,
     k_grid,
     odrive_candidate,
     pll_floor,
@@ -20,20 +21,23 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
 
 def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``flux_schedule`` law: gamma lambda^2 per envelope speed, by the criterion at that speed."""
+    check_variant(drive, "flux_schedule")
     ks = k_grid(drive)
     cands = [odrive_candidate(drive, float(k)) for k in ks]
     a = assess(drive, cands, settings)
     W, _ = drive.grid()
     speeds = np.unique(np.abs(W))
+    need = requirements(drive, settings)["decay"]
     chosen = []
     for j, sp in enumerate(speeds):
         sel = np.abs(W) == sp
         hold = a.holds[:, j]
         zeta = [float(np.min(a.damping[c, sel])) for c in range(len(ks))]
-        bias = [float(np.max(a.bias[c, sel])) for c in range(len(ks))]
-        # holding and damped enough: the least bias; else holding: the best damped; else the best damped
+        decay = [float(np.nan_to_num(np.min(a.decay[c, sel]), nan=-np.inf)) for c in range(len(ks))]
+        # the family's criterion at this speed (criterion.py): holding and decaying as fast as the speed
+        # loop needs: the fastest decay; else holding: the fastest decay; else the best damped
         score = [
-            (0, bias[c], c) if hold[c] and zeta[c] >= MIN_DAMPING else (1 if hold[c] else 2, -zeta[c], c)
+            (0 if decay[c] >= need else 1, -decay[c], c) if hold[c] else (2, -zeta[c], c)
             for c in range(len(ks))
         ]
         chosen.append(float(ks[min(score)[2]]))
@@ -59,5 +63,8 @@ def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) 
         "baselines (the firmwares' defaults on this motor, same criterion):",
         *base_lines,
     ]
+    jd = judged(drive, a_s, 0, settings)
+    f.update(worst_decay_1_s=jd["worst_decay_1_s"], pll_root_1_s=jd["pll_root_1_s"])
     summary = {**f, "baselines": base, "errors": settings.errors, "bias_max_deg": settings.bias_max_deg}
-    return FluxOutcome("flux_schedule", gain_table(drive, "flux_schedule", g, a_s, 0, summary), lines)
+    missed = shortfalls(drive, gs, jd, settings)
+    return FluxOutcome("flux_schedule", gain_table(drive, "flux_schedule", g, a_s, 0, summary), lines, missed)

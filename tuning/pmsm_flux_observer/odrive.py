@@ -5,11 +5,13 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from sensorless.tuning.pmsm_flux_observer.assessment import assess, best, front, hold_speed
+from sensorless.tuning.pmsm_flux_observer.assessment import assess, front
+from sensorless.tuning.pmsm_flux_observer.criterion import best, judged
 from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome, baselines, outcome, same_law
 from sensorless.tuning.pmsm_flux_observer.settings import (
     REFINE,
     FluxTuneSettings,
+    check_variant,
     corners,
     k_grid,
     odrive_candidate,
@@ -19,6 +21,7 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
 
 def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``odrive`` law: one observer_gain and pll_bandwidth over the envelope (package docstring)."""
+    check_variant(drive, "odrive")
     ks = k_grid(drive)
     cands = [odrive_candidate(drive, float(k)) for k in ks]
     if progress:
@@ -27,8 +30,8 @@ def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) ->
         )
     a = assess(drive, cands, settings)
     base_lines, base = baselines(drive, settings)
-    w_hold = hold_speed(drive, settings, base)
-    c = best(drive, a, w_hold)
+    c = best(drive, a, settings)
+    w_hold = judged(drive, a, c, settings)["hold_from_rad_s"]
     pf = front(drive, a, cands, w_hold, settings.pareto, settings.bias_max_deg) if settings.pareto else None
     # refined between the grid's neighbours of the best, with the firmware's default and the drive
     # file's gains of this law as candidates too (the tuned gains are never worse than either)
@@ -45,7 +48,6 @@ def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) ->
         ),
         cands,
         a,
-        w_hold,
         (base, base_lines),
         settings,
         pf,

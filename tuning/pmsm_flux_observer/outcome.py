@@ -4,14 +4,14 @@ firmwares' defaults judged beside it (baselines)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTable
 from sensorless.design.poles import worst_damping
-from sensorless.tuning.pmsm_flux_observer.assessment import Assessment, assess, best, figures
+from sensorless.tuning.pmsm_flux_observer.assessment import Assessment, assess, figures
 from sensorless.tuning.pmsm_flux_observer.settings import FluxTuneSettings, odrive_gains, vesc_gains
 
 
@@ -20,12 +20,20 @@ class FluxOutcome:
     law: str
     table: GainTable
     lines: list[str]
+    missed: list[str] = field(default_factory=list)  # the family criterion's shortfalls (criterion.py)
 
     def summary_lines(self, drive: Any) -> list[str]:
         return self.lines
 
+    def shortfalls(self, drive: Any) -> list[str]:
+        """What the tuned gains miss of the family's own criterion (tuning/pmsm_flux_observer/
+        criterion.py), one line each with cause and change: ``tune`` exits 3 where there is any."""
+        return self.missed
+
 
 def baselines(drive: Any, settings: FluxTuneSettings) -> tuple[list[str], dict[str, Any]]:
+    from sensorless.tuning.pmsm_flux_observer.criterion import judged
+
     cands = [odrive_gains(), vesc_gains(drive), drive_gains_or_none(drive)]
     cands = [c for c in cands if c is not None]
     a = assess(drive, cands, settings)
@@ -34,9 +42,29 @@ def baselines(drive: Any, settings: FluxTuneSettings) -> tuple[list[str], dict[s
         zip(("ODrive defaults", "VESC detection", "drive file"), cands, strict=False)
     ):
         f = figures(drive, a, j)
-        out[label] = {**f, "gains": dict(g.values)}
-        lines.append(summary_line(label, f))
+        jd = judged(drive, a, j, settings)
+        met = all(jd["meets"].values()) and jd["low_speed_limit_rad_s"] < top_speed(drive)
+        out[label] = {
+            **f,
+            "gains": dict(g.values),
+            "worst_decay_1_s": jd["worst_decay_1_s"],
+            "pll_root_1_s": jd["pll_root_1_s"],
+            "meets_criterion": met,
+        }
+        lines.append(summary_line(label, f) + criterion_clause(jd, met))
     return lines, out
+
+
+def top_speed(drive: Any) -> float:
+    W, _ = drive.grid()
+    return float(np.max(np.abs(W))) * (1 - 1e-9)
+
+
+def criterion_clause(j: dict[str, Any], met: bool) -> str:
+    """The criterion's figures of a judged candidate (criterion.judged), for its summary line."""
+    d = j["worst_decay_1_s"]
+    dec = f"decay {d:.4g} 1/s" if math.isfinite(d) else "no decay figure"
+    return f"; {dec}, PLL root {j['pll_root_1_s']:.4g} 1/s: {'meets' if met else 'misses'} the criterion"
 
 
 def same_law(drive: Any, law: str) -> list[GainSet]:
@@ -115,30 +143,41 @@ def outcome(
     header: Any,
     cands: list[Any],
     a: Any,
-    w_hold: float,
     baselines: tuple[Any, list[str]],
     settings: FluxTuneSettings,
     pf: Any,
 ) -> FluxOutcome:
-    """The best candidate held down to ``w_hold``, its table and summary: ``header`` (gains) -> the
-    summary's first line, in the law's own terms; ``baselines`` the firmware defaults and their lines."""
+    """The best candidate by the family's criterion (criterion.py), its table and summary: ``header``
+    (gains) -> the summary's first line, in the law's own terms; ``baselines`` the firmware defaults
+    and their lines."""
+    from sensorless.tuning.pmsm_flux_observer.criterion import best, judged, shortfalls
+
     base, base_lines = baselines
-    c = best(drive, a, w_hold)
+    c = best(drive, a, settings)
     g = dict(cands[c].values)
+    j = judged(drive, a, c, settings)
     f = figures(drive, a, c)
+    w_hold = j["hold_from_rad_s"]
+    need = j["requirements"]
     lines = [
         header(g),
         summary_line("tuned", f, settings),
-        f"  (hold speed {w_hold / drive.w_base:.3g} p.u.: the better firmware default's low-speed limit)",
+        f"  observer decay >= {j['worst_decay_1_s']:.4g} 1/s (required {need['decay']:.4g}: the larger of "
+        f"{settings.decay_share:g} x alpha_s and sqrt(a_max / 30 deg)), PLL root {j['pll_root_1_s']:.4g} "
+        f"1/s (required {need['pll']:.4g}); the criterion: hold as low as possible, then the fastest decay",
         "baselines (the firmwares' defaults on this motor, same criterion):",
         *base_lines,
     ]
     summary = {
         **f,
+        "worst_decay_1_s": j["worst_decay_1_s"],
+        "pll_root_1_s": j["pll_root_1_s"],
+        "required": need,
         "hold_speed_rad_s": w_hold,
         "baselines": base,
         "errors": settings.errors,
         "bias_max_deg": settings.bias_max_deg,
         **summary_limits(settings, pf),
     }
-    return FluxOutcome(law, gain_table(drive, law, g, a, c, summary), lines)
+    missed = shortfalls(drive, cands[c], j, settings)
+    return FluxOutcome(law, gain_table(drive, law, g, a, c, summary), lines, missed)

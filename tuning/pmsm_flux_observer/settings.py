@@ -8,8 +8,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import GainSet
+from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.pmsm_flux_observer import ERRORS  # default estimate errors (+-)
+from sensorless.design.pmsm_flux_observer.gains import law_misfit
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 
 KP_T = 0.5  # T k_p at most (ODrive flags T k_p >= 1 as unstable; half of it leaves a margin)
@@ -38,6 +39,11 @@ SLOW_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0)  # foc_observer_gain_slow can
 BIAS_MAX_DEG = 15.0
 
 
+# the observer's own modes decay at least this multiple of the drive's speed-loop bandwidth alpha_s (it
+# settles at least as fast as the speed loop it feeds); the PLL's slower root at least PLL_SPEED_LOOP x
+DECAY_SHARE = 1.0
+
+
 NOISE_INDEX = {"position": 0, "speed": 1}  # --max-noise outputs: the PLL's angle and speed
 
 
@@ -58,6 +64,8 @@ class FluxTuneSettings:
     pareto: int = 0  # points of the damping-versus-bias front (``pareto_<law>.csv``); 0: none
     # RMS noise of the PLL's estimates at most, ((output, limit), ...): position [rad], speed [rad/s]
     max_noise: tuple[tuple[str, float], ...] = ()
+    decay_share: float = DECAY_SHARE  # observer decay >= decay_share x alpha_s
+    min_damping: float = 0.0  # worst damping required (``--min-damping``); 0: none (not the criterion's)
 
 
 def default_settings(drive: Any) -> FluxTuneSettings:
@@ -97,3 +105,11 @@ def pll_floor(drive: Any) -> float:
 
 def k_grid(drive: Any) -> np.ndarray:
     return np.geomspace(K_MIN, K_T_MAX / drive.observer.T_obs, K_GRID)
+
+
+def check_variant(drive: Any, law: str) -> None:
+    """CapabilityError (one line, before any work) where ``law`` cannot be tuned for the drive's observer
+    variant (design/pmsm_flux_observer/gains.py ``law_misfit``): never a table its export refuses."""
+    why = law_misfit(drive, law)
+    if why:
+        raise CapabilityError(why)

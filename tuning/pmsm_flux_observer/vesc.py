@@ -8,15 +8,18 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF
-from sensorless.tuning.pmsm_flux_observer.assessment import assess, best, front, hold_speed
+from sensorless.tuning.pmsm_flux_observer.assessment import assess, front
+from sensorless.tuning.pmsm_flux_observer.criterion import best, judged
 from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome, baselines, outcome, same_law
 from sensorless.tuning.pmsm_flux_observer.settings import (
     K_MIN,
     K_T_MAX,
     KP_T,
+    ODRIVE_DEFAULT,
     REFINE,
     SLOW_GRID,
     FluxTuneSettings,
+    check_variant,
     pll_floor,
     vesc_gains,
 )
@@ -24,6 +27,7 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
 
 def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``vesc`` law: foc_observer_gain and foc_observer_gain_slow under VESC's run-time schedule."""
+    check_variant(drive, "vesc")
     psi = drive.estimate.psi_pm
     T = drive.observer.T_obs
     # the schedule's factor at the top of the envelope: k there = 4 raw psi^2 max(slow, |u|/u_ref)
@@ -50,8 +54,8 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
         progress(f"{len(cands)} (gain, slow gain) pairs x the envelope")
     a = assess(drive, cands, settings)
     base_lines, base = baselines(drive, settings)
-    w_hold = hold_speed(drive, settings, base)
-    c = best(drive, a, w_hold)
+    c = best(drive, a, settings)
+    w_hold = judged(drive, a, c, settings)["hold_from_rad_s"]
     pf = front(drive, a, cands, w_hold, settings.pareto, settings.bias_max_deg) if settings.pareto else None
     # refined in the gain at the best slow gain, with VESC Tool's detection and the drive file's gains
     # of this law as candidates too (the tuned gains are never worse than either)
@@ -62,7 +66,7 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
         g0 = dict(cands[c].values)
         g0["foc_observer_gain"] = float(raw)
         fine.append(GainSet("vesc", g0, "candidate"))
-    cands = [cands[c], *fine, vesc_gains(drive), *same_law(drive, "vesc")]
+    cands = [cands[c], *fine, vesc_gains(drive), odrive_in_vesc_terms(drive), *same_law(drive, "vesc")]
     del slow0
     a = assess(drive, cands, settings)
     return outcome(
@@ -76,8 +80,20 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
         ),
         cands,
         a,
-        w_hold,
         (base, base_lines),
         settings,
         pf,
     )
+
+
+def odrive_in_vesc_terms(drive: Any) -> GainSet:
+    """ODrive's defaults (k = 1000 1/s, a PLL double root at 1000 1/s) as VESC gains: the slow gain 1
+    keeps k = 4 raw lambda^2 constant up to |u| = u_ref (23.1 V), and above it k grows with |u|."""
+    k, bw = ODRIVE_DEFAULT["observer_gain"], ODRIVE_DEFAULT["pll_bandwidth"]
+    values = {
+        "foc_observer_gain": k / (4 * drive.estimate.psi_pm**2),
+        "foc_observer_gain_slow": 1.0,
+        "foc_pll_kp": 2 * bw,
+        "foc_pll_ki": bw**2,
+    }
+    return GainSet("vesc", values, "ODrive defaults in VESC's terms")

@@ -1,0 +1,102 @@
+"""Monte-Carlo draws of the flux-observer drive (design/montecarlo.py): the spreadable parameters, every
+draw's linearized observer in one batched evaluation, and a perturbed drive for the time domain.
+
+The true motor's R_s, L_d, L_q, psi_pm (and J, time domain only) and the firmware's estimates of the
+first four. Each draw is the continuous observer of Lee et al. (2010) eq. (8) with its PLL at every
+operating point (the Newton equilibrium and Jacobian of linearize.py ``equilibrium_function``, one
+batched call over draws x points: the drawn motor and runtime parameters are its columns); a point
+without an equilibrium is NaN. The sampled observer's analysis is the tuner's and the report's; here the
+yield is the share of draws whose observer keeps the family's required damping (stable: its damping
+falls with speed by design) at every point of the envelope.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from sensorless.design.batch import evaluate_batch
+from sensorless.design.family import CapabilityError, GainSet
+from sensorless.design.montecarlo import Uncertain
+from sensorless.design.pmsm_flux_observer.gains import runtime_setup
+from sensorless.design.pmsm_flux_observer.linearize import FluxLinearization, equilibrium_function, wrap
+from sensorless.design.poles import eigvals_batched
+from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
+
+ELECTRICAL = ("R_s", "L_d", "L_q", "psi_pm")
+# the plant's typical spread (1 sigma) a run assumes without --spread: the winding's resistance with its
+# temperature, inductance tolerance, the magnets' flux; the load's inertia
+TYPICAL = {"R_s": 0.10, "L_d": 0.10, "L_q": 0.10, "psi_pm": 0.05, "J": 0.30}
+UNITS = {"R_s": "ohm", "L_d": "H", "L_q": "H", "psi_pm": "V s"}
+
+
+def parameters(drive: Any) -> tuple[Uncertain, ...]:
+    m, e = drive.motor, drive.estimate
+    out = [Uncertain(k, getattr(m, k), getattr(e, k), UNITS[k], True, TYPICAL[k]) for k in ELECTRICAL]
+    out.append(Uncertain("J", m.J, None, "kg m^2", False, TYPICAL["J"]))
+    return tuple(out)
+
+
+def perturbed(drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
+    motor = dataclasses.replace(drive.motor, **{k: float(v) for k, v in plant.items()})
+    est = dataclasses.replace(drive.estimate, **{k: float(v) for k, v in estimate.items()})
+    return dataclasses.replace(drive, motor=motor, estimate=est)
+
+
+def linearize_draws(
+    drive: Any,
+    gains: GainSet,
+    plant: np.ndarray,
+    estimate: np.ndarray,
+    w: np.ndarray,
+    torque: np.ndarray,
+    complete: bool = True,
+) -> FluxLinearization:
+    """Every draw (rows, columns in :func:`parameters`' order) at every point, draw-major, one batched
+    evaluation; ``complete`` False: a draw with a point without equilibrium is NaN at all its points."""
+    o = drive.observer
+    if o.correction == "box-clamp":
+        raise CapabilityError(
+            "the box-clamp observer (MXLEMMING) is not linearizable: no Monte-Carlo of its linearization"
+        )
+    w, torque = np.asarray(w, float).ravel(), np.asarray(torque, float).ravel()
+    n_d, n_p = plant.shape[0], w.size
+    k = len(ELECTRICAL)
+    setup = runtime_setup(drive, gains)
+    names = [f.name for f in PARAMS]
+    base = dict(setup.params)
+    P = np.empty((len(names), n_d))
+    for j, name in enumerate(names):
+        P[j] = base[name]
+    for c, name in enumerate(ELECTRICAL):  # the estimates the observer runs with
+        P[names.index(name)] = estimate[:, c]
+    if gains.law == "vesc":  # VESC's run-time gain is 4 raw lambda_hat^2 x its factor: scaled with it
+        gain = np.asarray(setup.gain, float).reshape(-1, 1) * (estimate[:, 3] / drive.estimate.psi_pm) ** 2
+    else:
+        gain = np.repeat(np.asarray(setup.gain, float).reshape(-1, 1), n_d, axis=1)
+    M = np.vstack([plant[:, :k].T, np.full((1, n_d), float(drive.motor.p))])
+    W, T = np.tile(w, n_d), np.tile(torque, n_d)
+    rep = lambda a: np.repeat(a, n_p, axis=1)  # noqa: E731  (draw-major columns)
+    fn = equilibrium_function("gradient", o.inductance_rule, o.lambda_adaptation, setup.schedule.law)
+    x, A, res, err = evaluate_batch(fn, W.size, [W, T, rep(M), rep(P), rep(gain)])
+    scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
+    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
+    if not complete:
+        ok &= np.repeat(ok.reshape(n_d, n_p).all(axis=1), n_p)
+    poles = np.full((W.size, A.shape[1]), np.nan + 0j)
+    if ok.any():
+        poles[ok] = eigvals_batched(np.ascontiguousarray(A[ok]))
+    nan = np.full_like(poles, np.nan)
+    return FluxLinearization(
+        w=W,
+        torque=T,
+        poles=poles,
+        poles_discrete=nan,
+        T_s=o.T_obs,
+        torque_name="T_e",
+        theta_err=np.where(ok, wrap(err[:, 0, 0]), np.nan),
+        theta_err_discrete=np.full(W.size, np.nan),
+        law=gains.law,
+    )
