@@ -409,9 +409,8 @@ def compute(
         if linearizable and stable
         else []
     )
-    status = (
-        "fail" if not stable else "pass" if damped and tracks and not pll and not crit and not start else "warn"
-    )
+    clean = damped and tracks and not pll and not crit and not start
+    status = "fail" if not stable else "pass" if clean else "warn"
     status, td_findings = settle(status, td)
     findings = []
     if linearizable and not stable:
