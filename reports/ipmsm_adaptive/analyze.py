@@ -18,10 +18,10 @@ import numpy as np
 from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
 from sensorless.design.ipmsm_adaptive.linearize import unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
-from sensorless.reports.cli.common import Number, UsageError, parse_torques
 from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
 from sensorless.reports.ipmsm_adaptive import discrete
+from sensorless.reports.options import Number, UsageError, parse_torques
 
 OPTIONS = (
     Option(

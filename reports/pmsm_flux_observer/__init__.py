@@ -25,7 +25,6 @@ from sensorless.design.gain_table import read_gain_table
 from sensorless.design.pmsm_flux_observer import FAMILY, corner_estimate
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
-from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
 from sensorless.reports.document import (
     Figure,
     Paragraph,
@@ -40,6 +39,7 @@ from sensorless.reports.document import (
 from sensorless.reports.envelope_options import NOISE_OPTIONS
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
+from sensorless.reports.options import Number, UsageError, parse_max_noise
 from sensorless.reports.pmsm_flux_observer.findings import damping_finding, holds_nowhere_finding, pll_finding
 from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
 from sensorless.reports.review import (

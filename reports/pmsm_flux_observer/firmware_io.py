@@ -14,8 +14,8 @@ from typing import Any
 from sensorless.design.family import CapabilityError, Drive, GainSet
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.pmsm_flux_observer.firmware import FirmwareDrive, odrive, simplefoc, vesc
-from sensorless.reports.cli.common import Number
 from sensorless.reports.family import Exporter, Importer, Option
+from sensorless.reports.options import Number
 
 POLE_PAIRS = Option(
     ("--pole-pairs",),
