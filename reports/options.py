@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import math
 from dataclasses import dataclass
+from typing import Any
 
 from sensorless.design.envelope import NOISE_DIMS, NOISE_OUTPUTS
 from sensorless.design.units import MAGNITUDE, DriveFileError, check_magnitude, parse_number, parse_quantity
@@ -176,3 +177,30 @@ def _spaced(v: str) -> str:
     ):
         i += 1
     return f"{v[:i]} {v[i:]}".strip()
+
+
+# Former spellings of options, accepted for one release with a note: former -> current
+RENAMED = {"--gain": "--gain-set"}  # a drive file's named gain set, not to be read as --gains TABLE
+
+
+class Renamed(argparse.Action):
+    """``action=Renamed`` for an option whose flags are (current, former...): stores the value; the former
+    spelling (:data:`RENAMED`) still works for one release and prints one note on stderr naming the new
+    one (the only thing this module prints: at parse time, before anything is computed)."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option: str | None = None,
+    ) -> None:
+        if option in RENAMED:
+            import sys
+
+            print(
+                f"{parser.prog}: note: {option} is now {RENAMED[option]} (the old spelling is accepted "
+                "until the next release)",
+                file=sys.stderr,
+            )
+        setattr(namespace, self.dest, values)

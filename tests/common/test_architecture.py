@@ -233,6 +233,7 @@ SHARED_WORDS = {
     "gain",  # the shared LoopSetup.gain / RuntimeSetup.gain and the traces' provenance line "gain"
     "min_damping",  # the shared damping floor (design/poles.py MIN_DAMPING; report/tune --min-damping)
     "f_s",  # the shared [inverter] sampling frequency that design/drive_file.py reads for every family
+    "gain_set",  # the shared codegen/export --gain-set (one of a drive file's named gain sets)
     "base",  # the per-unit base of the shared commands (speed_base, a base record), a section of one family
 }
 # A local or parameter named as an equation's symbol (w_c, w_0, T_s: a letter, "_", one or two more)

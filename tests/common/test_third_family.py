@@ -384,7 +384,7 @@ def test_foreign_options_and_wrong_gains_are_one_line_errors(tmp_path, capsys):
         (["analyze", DRIVE, "--study"], "--study: not an option"),
         (["tune", DRIVE, "--g-max", "3"], "--g-max: not an option"),
         (["tune", DRIVE, "--law", "law16"], "cannot be tuned"),
-        (["codegen", DRIVE, "--gain", "speed", "--out", tmp_path / "c"], "one gain"),
+        (["codegen", DRIVE, "--gain-set", "speed", "--out", tmp_path / "c"], "one gain"),
         (["simulate", DRIVE, "--scenario", "speed_steps", "--injection", "on"], "--injection"),
         (["simulate", DRIVE, "--scenario", "speed_steps", "--gains", bad], "its laws: pll"),
     ):
