@@ -642,3 +642,18 @@ def test_the_cycle_check_can_fail(tmp_path):
     ]
     (tmp_path / "design" / "c.py").write_text("X = 1\n")
     assert _cycles(_import_graph(tmp_path)) == []
+
+
+def test_the_readme_and_the_architecture_name_every_family_and_preset():
+    """README.md and docs/architecture.md name every registered family and each of its presets (a new
+    family or preset is not left out of the two pages a reader starts from)."""
+    from importlib import resources
+
+    for doc in (ROOT / "README.md", ROOT / "docs" / "architecture.md"):
+        text = doc.read_text(encoding="utf-8")
+        for fam in families():
+            presets = sorted(
+                p.name[:-5] for p in resources.files(fam.presets).iterdir() if p.name.endswith(".toml")
+            )
+            missing = [n for n in (fam.name, *presets) if not re.search(rf"`{re.escape(n)}`", text)]
+            assert not missing, (doc.name, missing)
