@@ -35,6 +35,8 @@ from sensorless.reports.cli.main import main
 from sensorless.reports.traces import read_csv
 from sensorless.tuning.constant_law import GRID
 
+pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parents[2]
 PLL = ROOT / "tests" / "families" / "pll"
 DRIVE = str(PLL / "presets" / "pll_servo.toml")
