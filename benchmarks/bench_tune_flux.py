@@ -1,4 +1,4 @@
-"""Benchmark: ``sensorless tune --law odrive`` on the outrunner preset (the issue's target: under 3 s).
+"""Benchmark: ``sensorless tune --law odrive`` on the outrunner preset (target: under 3 s).
 
 Times, as medians of repeated runs, wall clock and CPU time (the process's own, or its child's for the
 command line: on a loaded machine CPU time is the figure to compare with the target):

@@ -16,8 +16,8 @@ from typing import Any
 from sensorless.design.envelope import DIRECTIONS, ESTIMATE_KEYS, NOISE_OUTPUTS, RANGES, TuningSettings
 from sensorless.design.family import Drive
 from sensorless.design.units import DriveFileError, parse_quantity
-from sensorless.reports.cli.common import Number, UsageError, option_error, parse_max_noise, parse_torques
 from sensorless.reports.family import Option
+from sensorless.reports.options import Number, UsageError, option_error, parse_max_noise, parse_torques
 
 # the same ranges as the drive file's [tuning] keys (design/envelope.py RANGES)
 SPEED = Number(*RANGES["speed"], lo_open=True, unit="p.u.")

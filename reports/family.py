@@ -23,9 +23,9 @@ from sensorless.design.family import CapabilityError, Drive, GainSet, ObserverFa
 from sensorless.design.registry import families
 from sensorless.design.scenario import Scenario
 from sensorless.reports.causes import Failure, Named
-from sensorless.reports.cli.common import COUNT, FINITE
 from sensorless.reports.document import Report
 from sensorless.reports.files import OutputSet
+from sensorless.reports.options import COUNT, FINITE
 from sensorless.tuning.family import TuneSettings
 
 
@@ -134,8 +134,8 @@ def add_family_options(parser: argparse.ArgumentParser, command: str) -> None:
     """Register every family's options of command ``command``, each flag once, under one group.
 
     A numeric option declared with a bare ``float`` or ``int`` is parsed by the shared checked number
-    (reports/cli/common.py: finite, of a magnitude drive files accept); families state ranges with
-    ``common.Number`` themselves."""
+    (reports/options.py: finite, of a magnitude drive files accept); families state ranges with
+    ``options.Number`` themselves."""
     add_options(parser, all_options(command), "options of some observer families (refused by the others)")
 
 

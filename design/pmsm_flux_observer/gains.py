@@ -6,7 +6,7 @@ Laws (docs/families/pmsm_flux_observer.md "Gains"):
 - ``vesc``: foc_observer_gain (raw as VESC stores it), foc_observer_gain_slow, foc_pll_kp, foc_pll_ki;
   run-time k = gamma lambda^2 = 4 foc_observer_gain lambda^2 max(foc_observer_gain_slow, |duty| V_bus /
   40 V), |duty| V_bus = sqrt(3) |u| (so u_ref = 40 V / sqrt(3));
-- ``flux_schedule`` (the issue's ``schedule``: that name is another family's law): observer_gain
+- ``flux_schedule`` (not ``schedule``: that name is another family's law): observer_gain
   (gamma lambda^2) a table over |PLL speed| (``speeds``, linear in between,
   held beyond the ends), and pll_bandwidth.
 """

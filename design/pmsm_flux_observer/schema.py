@@ -344,7 +344,7 @@ def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
 
 
 def default_gains(law: str, psi: float) -> dict[str, tuple[Any, str]]:
-    """The firmware's default gains of ``law`` (fact sheet; docs/families/pmsm_flux_observer.md)."""
+    """The firmware's default gains of ``law`` (their sources: docs/families/pmsm_flux_observer.md)."""
     if law == "vesc":
         return {
             "law": ("vesc", "VESC Tool's detection"),

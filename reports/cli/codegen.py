@@ -26,6 +26,7 @@ from sensorless.reports.codegen.generate import (
     output_names,
 )
 from sensorless.reports.files import OutputSet
+from sensorless.reports.options import Renamed
 
 
 def register(sub: Any) -> None:
@@ -40,10 +41,14 @@ def register(sub: Any) -> None:
     p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
     p.add_argument("--gains", metavar="TABLE", help="tuned gain table (JSON, sensorless-gain-table/1)")
     p.add_argument(
+        "--gain-set",
         "--gain",
+        action=Renamed,
         default=None,
+        metavar="NAME",
         help="without --gains: which of the drive file's named gain sets, where its observer family has "
-        "several (default: the drive file's choice)",
+        "several (default: the drive file's choice; --gain: its former spelling, accepted until the next "
+        "release)",
     )
     p.add_argument(
         "--precision",
@@ -73,8 +78,8 @@ def run(args: argparse.Namespace) -> int:
     drive = load(args.drive, "codegen")
     fam = family_of(drive)
     table = read_gain_table(args.gains) if args.gains else None
-    if table is not None and args.gain:
-        raise UsageError("--gain and --gains exclude each other (the table holds the gains)")
+    if table is not None and args.gain_set:
+        raise UsageError("--gain-set and --gains exclude each other (the table holds the gains)")
     prefix = c_identifier(drive.name) if args.prefix is None else args.prefix
     try:
         check_prefix(prefix)
@@ -85,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         raise DriveFileError(
             drive.file, "drive.name", f"the C prefix made of it, {e}; give --prefix"
         ) from None
-    gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
+    gains = fam.gains(drive, name=args.gain_set, table=table, table_file=args.gains or "")
     foreign = foreign_table(table, args.gains, drive) if table is not None else None
     if foreign:
         print(f"sensorless codegen: warning: {foreign}", file=sys.stderr)

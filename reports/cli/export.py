@@ -19,6 +19,7 @@ from sensorless.design.registry import family_of
 from sensorless.reports.cli.common import UsageError, foreign_table, load
 from sensorless.reports.family import exporter_names, hooks
 from sensorless.reports.files import OutputSet
+from sensorless.reports.options import Renamed
 
 
 def register(sub: Any) -> None:
@@ -33,7 +34,13 @@ def register(sub: Any) -> None:
     p.add_argument("drive", metavar="PRESET_OR_TOML", help="built-in preset name or drive TOML file")
     p.add_argument("--gains", metavar="TABLE", help="tuned gain table (JSON, sensorless-gain-table/1)")
     p.add_argument(
-        "--gain", default=None, help="without --gains: which of the drive file's named gain sets, if several"
+        "--gain-set",
+        "--gain",
+        action=Renamed,
+        default=None,
+        metavar="NAME",
+        help="without --gains: which of the drive file's named gain sets, if several (--gain: its former "
+        "spelling, accepted until the next release)",
     )
     p.add_argument(
         "--target",
@@ -51,9 +58,9 @@ def run(args: argparse.Namespace) -> int:
     drive = load(args.drive, "export")
     fam = family_of(drive)
     table = read_gain_table(args.gains) if args.gains else None
-    if table is not None and args.gain:
-        raise UsageError("--gain and --gains exclude each other (the table holds the gains)")
-    gains = fam.gains(drive, name=args.gain, table=table, table_file=args.gains or "")
+    if table is not None and args.gain_set:
+        raise UsageError("--gain-set and --gains exclude each other (the table holds the gains)")
+    gains = fam.gains(drive, name=args.gain_set, table=table, table_file=args.gains or "")
     foreign = foreign_table(table, args.gains, drive) if table is not None else None
     exporter = hooks(fam).exporters.get(args.target)
     out = OutputSet(args.out, force=args.force, names=exporter.files if exporter else ())

@@ -18,15 +18,20 @@ import numpy as np
 from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
 from sensorless.design.ipmsm_adaptive.linearize import unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
-from sensorless.reports.cli.common import Number, UsageError, parse_torques
 from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
 from sensorless.reports.ipmsm_adaptive import discrete
+from sensorless.reports.options import Number, Renamed, UsageError, parse_torques
 
 OPTIONS = (
     Option(
-        ("--gain",),
-        {"help": "gain from [observer.gains.*]: zero, constant, speed, or 'all' (default: [observer] gain)"},
+        ("--gain-set", "--gain"),
+        {
+            "action": Renamed,
+            "metavar": "NAME",
+            "help": "gain set from [observer.gains.*]: zero, constant, speed, or 'all' (default: [observer] "
+            "gain; --gain: the former spelling, accepted until the next release)",
+        },
     ),
     Option(
         ("--torque",),
@@ -57,11 +62,11 @@ def gain_choices(drive: Any, args: argparse.Namespace) -> dict[str, Any]:
     if args.gains:
         from sensorless.design.gain_table import read_gain_table
 
-        if args.gain:
-            raise UsageError("--gain and --gains exclude each other (the table holds the gains)")
+        if args.gain_set:
+            raise UsageError("--gain-set and --gains exclude each other (the table holds the gains)")
         g = FAMILY.gains(drive, table=read_gain_table(args.gains), table_file=args.gains)
         return {f"tuned {g.law}": g}
-    names = list(drive.observer.gains) if args.gain == "all" else [args.gain or drive.observer.gain]
+    names = list(drive.observer.gains) if args.gain_set == "all" else [args.gain_set or drive.observer.gain]
     return {n: FAMILY.gains(drive, name=n) for n in names}
 
 

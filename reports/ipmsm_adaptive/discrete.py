@@ -24,11 +24,11 @@ from sensorless.design.ipmsm_adaptive.discrete import (
     discretization_study,
 )
 from sensorless.design.ipmsm_adaptive.runtime import law_of
-from sensorless.reports.cli.common import UsageError
 from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.family import Option
+from sensorless.reports.options import UsageError
 from sensorless.reports.svg_render import svg_later
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 

@@ -15,11 +15,17 @@ from sensorless.design.family import Drive
 from sensorless.design.ipmsm_adaptive import FAMILY
 from sensorless.design.scenario import Scenario
 from sensorless.reports.family import Option
+from sensorless.reports.options import Renamed
 
 OPTIONS = (
     Option(
-        ("--gain",),
-        {"help": "override the scenario's [observer] gain: a drive file's [observer.gains.*] name"},
+        ("--gain-set", "--gain"),
+        {
+            "action": Renamed,
+            "metavar": "NAME",
+            "help": "override the scenario's [observer] gain: a drive file's [observer.gains.*] name "
+            "(--gain: the former spelling, accepted until the next release)",
+        },
     ),
     Option(
         ("--injection",),
@@ -31,10 +37,10 @@ OPTIONS = (
 def scenario(drive: Drive, args: argparse.Namespace, sc: Scenario) -> Scenario:
     """``sc`` with the options given; a gain the drive file does not define is one line naming it."""
     options = dict(sc.options)
-    if args.gain is not None:
-        options["gain"] = args.gain
+    if args.gain_set is not None:
+        options["gain"] = args.gain_set
     if args.injection is not None:
         options["injection"] = args.injection == "on"
-    if args.gain:
-        FAMILY.gains(drive, name=args.gain)  # clear error naming the drive file if absent
+    if args.gain_set:
+        FAMILY.gains(drive, name=args.gain_set)  # clear error naming the drive file if absent
     return dataclasses.replace(sc, options=options)

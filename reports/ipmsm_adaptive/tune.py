@@ -14,9 +14,9 @@ from typing import Any
 from sensorless.design.ipmsm_adaptive.law_settings import BREAKPOINTS
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.reports import envelope_options
-from sensorless.reports.cli.common import Number, option_error
 from sensorless.reports.envelope_options import ENVELOPE_OPTIONS, NOISE_OPTIONS, tune_settings
 from sensorless.reports.family import Option
+from sensorless.reports.options import Number, option_error
 
 OPTIONS = (
     *ENVELOPE_OPTIONS,

@@ -15,9 +15,9 @@ import numpy as np
 from sensorless.design.pmac_reduced_order import FAMILY
 from sensorless.design.pmac_reduced_order.discretization import discretization_study
 from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
-from sensorless.reports.cli.common import RELATIVE_LIMIT, option_error, quantities
 from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
+from sensorless.reports.options import RELATIVE_LIMIT, option_error, quantities
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS
 
 OPTIONS = (

@@ -10,9 +10,9 @@ import argparse
 import dataclasses
 from typing import Any
 
-from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
 from sensorless.reports.envelope_options import ENVELOPE_OPTIONS, NOISE_OPTIONS
 from sensorless.reports.family import Option
+from sensorless.reports.options import Number, UsageError, parse_max_noise
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.pmac_reduced_order.settings import DeAngeloSettings, default_settings
 

@@ -25,7 +25,6 @@ from sensorless.design.gain_table import read_gain_table
 from sensorless.design.pmsm_flux_observer import FAMILY, corner_estimate
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.reports import time_domain
-from sensorless.reports.cli.common import Number, UsageError, parse_max_noise
 from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
 from sensorless.reports.document import (
@@ -42,6 +41,7 @@ from sensorless.reports.document import (
 from sensorless.reports.envelope_options import NOISE_OPTIONS
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.files import OutputSet
+from sensorless.reports.options import Number, UsageError, parse_max_noise
 from sensorless.reports.pmsm_flux_observer.findings import (
     damping_finding,
     failure_cause,

@@ -27,8 +27,8 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     vesc,
 )
 from sensorless.design.pmsm_flux_observer.firmware.startup import change_lines
-from sensorless.reports.cli.common import Number, UsageError, drive_name
 from sensorless.reports.family import Exporter, Importer, Option
+from sensorless.reports.options import Number, UsageError, drive_name
 
 POLE_PAIRS = Option(
     ("--pole-pairs",),

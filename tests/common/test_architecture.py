@@ -7,6 +7,7 @@ family is covered without editing any list.
 """
 
 import ast
+import functools
 import importlib.util
 import pkgutil
 import re
@@ -45,6 +46,18 @@ def _shared_modules() -> list[str]:
     return sorted(out)
 
 
+CLI = "sensorless.reports.cli"
+
+
+def _below_the_command_line() -> list[str]:
+    """Every package and module of the four layers outside the command line (reports/cli/)."""
+    out = [f"sensorless.{layer}" for layer in LAYERS if layer != "reports"]
+    pkg = importlib.import_module("sensorless.reports")
+    return out + sorted(
+        info.name for info in pkgutil.iter_modules(pkg.__path__, "sensorless.reports.") if info.name != CLI
+    )
+
+
 def _config() -> str:
     fams = [f.name for f in families()]
     lines = [
@@ -65,6 +78,14 @@ def _config() -> str:
         *(f"    {m}" for m in _shared_modules()),
         "forbidden_modules =",
         *(f"    {m}" for name in fams for m in _family_packages(name)),
+        "",
+        "[importlinter:contract:cli-on-top]",
+        "name = the command line only parses: nothing else imports it (option types: reports/options.py)",
+        "type = forbidden",
+        "source_modules =",
+        *(f"    {m}" for m in _below_the_command_line()),
+        "forbidden_modules =",
+        f"    {CLI}",
         "",
     ]
     for name in fams:
@@ -95,7 +116,7 @@ def test_import_contracts_hold(tmp_path):
         [str(lint), "--config", str(cfg), "--no-cache"], capture_output=True, text=True, cwd=tmp_path
     )
     assert r.returncode == 0, r.stdout[-4000:] + r.stderr[-2000:]
-    assert "BROKEN" not in r.stdout and r.stdout.count("KEPT") >= 2 + len(families()) - 1
+    assert "BROKEN" not in r.stdout and r.stdout.count("KEPT") >= 3 + len(families()) - 1
 
 
 def test_the_contracts_can_fail(tmp_path):
@@ -120,12 +141,67 @@ def _package_sources() -> list[Path]:
     return sorted(p for layer in LAYERS for p in (ROOT / layer).rglob("*.py"))
 
 
+def _fold(node: ast.AST) -> str | None:
+    """The string a expression always evaluates to, where the parser leaves it in pieces: a constant,
+    a sum of such (``"pmsm_flux" + "_observer"``), an f-string of such, ``"".join`` of such; else None."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, str):
+        return node.value
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add):
+        a, b = _fold(node.left), _fold(node.right)
+        return a + b if a is not None and b is not None else None
+    if isinstance(node, ast.JoinedStr):
+        parts = [
+            _fold(v.value) if isinstance(v, ast.FormattedValue) and v.format_spec is None else _fold(v)
+            for v in node.values
+        ]
+        return "".join(parts) if all(x is not None for x in parts) else None  # type: ignore[arg-type]
+    if (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Attribute)
+        and node.func.attr == "join"
+        and len(node.args) == 1
+        and isinstance(node.args[0], ast.List | ast.Tuple)
+        and (sep := _fold(node.func.value)) is not None
+    ):
+        parts = [_fold(e) for e in node.args[0].elts]
+        return sep.join(parts) if all(x is not None for x in parts) else None  # type: ignore[arg-type]
+    return None
+
+
+def _docstrings(tree: ast.AST) -> set[int]:
+    return {
+        id(node.body[0].value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
+        and node.body
+        and isinstance(node.body[0], ast.Expr)
+        and isinstance(node.body[0].value, ast.Constant)
+    }
+
+
+def _strings(tree: ast.AST) -> set[str]:
+    """Every string value a module writes, however quoted or pieced together (docstrings left out)."""
+    skip = _docstrings(tree)
+    return {s for node in ast.walk(tree) if id(node) not in skip and (s := _fold(node)) is not None}
+
+
+@functools.cache
+def _file_strings(path: Path) -> frozenset[str]:
+    return frozenset(_strings(ast.parse(path.read_text(encoding="utf-8"))))
+
+
+def _kind_modules(kind: str, paths: list[Path]) -> list[Path]:
+    """The modules among ``paths`` that write the drive kind string ``kind`` (any quoting, pieced
+    together or not)."""
+    return [p for p in paths if kind in _file_strings(p)]
+
+
 def test_each_drive_kind_string_is_written_in_one_registering_module():
     """The registry is the only place that maps a kind to code: the kind string of each family
     appears in its registering module (design/<family>/__init__.py) and in no other module."""
+    sources = _package_sources()
     for fam in families():
-        where = [p for p in _package_sources() if f'"{fam.kind}"' in p.read_text(encoding="utf-8")]
-        assert where == [ROOT / "design" / fam.name / "__init__.py"], (fam.kind, where)
+        assert _kind_modules(fam.kind, sources) == [ROOT / "design" / fam.name / "__init__.py"], fam.kind
 
 
 def test_no_name_is_a_paper_storage_number():
@@ -155,7 +231,14 @@ def test_no_name_is_a_paper_storage_number():
 # Words a family declares that are also the shared contract's own (checked by hand, each with why):
 SHARED_WORDS = {
     "gain",  # the shared LoopSetup.gain / RuntimeSetup.gain and the traces' provenance line "gain"
+    "min_damping",  # the shared damping floor (design/poles.py MIN_DAMPING; report/tune --min-damping)
+    "f_s",  # the shared [inverter] sampling frequency that design/drive_file.py reads for every family
+    "gain_set",  # the shared codegen/export --gain-set (one of a drive file's named gain sets)
+    "base",  # the per-unit base of the shared commands (speed_base, a base record), a section of one family
 }
+# A local or parameter named as an equation's symbol (w_c, w_0, T_s: a letter, "_", one or two more)
+# takes the equation's meaning, not a family's field of the same symbol
+SYMBOL = re.compile(r"[A-Za-z]_[A-Za-z0-9]{1,2}")
 
 
 def _module_path(module: str) -> Path:
@@ -164,20 +247,14 @@ def _module_path(module: str) -> Path:
     return path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
 
 
-def _names_used(path: Path) -> set[str]:
-    """The identifiers a module uses as data or members: string constants that are whole words (not
-    docstrings), attribute names, keyword-argument names and class-level field names."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    docstrings = {
-        id(node.body[0].value)
-        for node in ast.walk(tree)
-        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
-        and node.body
-        and isinstance(node.body[0], ast.Expr)
-        and isinstance(node.body[0].value, ast.Constant)
-    }
+def _names_used(path: Path, text: str | None = None) -> set[str]:
+    """The identifiers a module uses as data, members or names of its own: string values that are whole
+    words (not docstrings; pieced-together strings folded, any quoting), attribute names, keyword-argument
+    names, class-level field names, and the names it binds (variables, parameters, functions, classes).
+    ``text`` stands for the file's content (the self-tests inject offences into a copy)."""
+    tree = ast.parse(path.read_text(encoding="utf-8") if text is None else text)
     # format specs ("{x:g}") are not names; nor are the members of imported modules (tomllib.loads)
-    skip = docstrings | {
+    skip = _docstrings(tree) | {
         id(c)
         for node in ast.walk(tree)
         if isinstance(node, ast.FormattedValue) and node.format_spec
@@ -193,20 +270,53 @@ def _names_used(path: Path) -> set[str]:
     for node in ast.walk(tree):
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in modules:
             continue
-        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in skip:
-            word = node.value.lstrip("-").replace("-", "_")  # an option flag is its dest
+        if id(node) not in skip and (value := _fold(node)) is not None:
+            word = value.lstrip("-").replace("-", "_")  # an option flag is its dest
             if word.isidentifier():
                 out.add(word)
         elif isinstance(node, ast.Attribute):
             out.add(node.attr)
         elif isinstance(node, ast.keyword) and node.arg:
             out.add(node.arg)
-        elif isinstance(node, ast.ClassDef):
+        elif (isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store)) or isinstance(node, ast.arg):
+            name = node.id if isinstance(node, ast.Name) else node.arg
+            if not SYMBOL.fullmatch(name):
+                out.add(name)
+        elif isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            out.add(node.name)
+        if isinstance(node, ast.ClassDef):
+            out.add(node.name)
             out |= {
                 s.target.id
                 for s in node.body
                 if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)
             }
+    return out
+
+
+def _family_references(path: Path, text: str | None = None) -> set[str]:
+    """Where a module names a registered family itself (the test family included): an import of or a
+    string naming one of its packages (``importlib.import_module("sensorless.design.<family>.x")``), its
+    name or kind in a string however written or pieced together (``fam.name == 'pmsm_flux_observer'``),
+    an attribute or variable of that name. Returns the offending names."""
+    tree = ast.parse(path.read_text(encoding="utf-8") if text is None else text)
+    idents = {f.name for f in families()} | {f.kind for f in families()}
+    idents |= {i.replace("-", "_") for i in idents}
+    skip = _docstrings(tree)
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        words: list[str] = []
+        if isinstance(node, ast.Import):
+            words = [p for a in node.names for p in a.name.split(".")]
+        elif isinstance(node, ast.ImportFrom):
+            words = [*(node.module or "").split("."), *(a.name for a in node.names)]
+        elif isinstance(node, ast.Attribute):
+            words = [node.attr]
+        elif isinstance(node, ast.Name):
+            words = [node.id]
+        elif id(node) not in skip and (value := _fold(node)) is not None:
+            words = [w for part in re.split(r"[^\w-]+", value) for w in (part, part.replace("-", "_"))]
+        out |= idents.intersection(words)
     return out
 
 
@@ -232,6 +342,7 @@ def _shared_vocabulary() -> set[str]:
     from sensorless.design import (
         envelope,
         family,
+        gain_table,
         linearization,
         motor_data,
         plausibility,
@@ -261,6 +372,7 @@ def _shared_vocabulary() -> set[str]:
         runtime.RuntimeSetup,
         scenario.Scenario,
         linearization.Linearization,
+        gain_table.GainTable,  # the shared gain-table format's fields ("points", ...)
     )
     for cls in shared_records:
         out |= {f.name for f in dataclasses.fields(cls)}
@@ -279,6 +391,8 @@ def _shared_vocabulary() -> set[str]:
     out |= set(pmsm_drive.ESTIMATE_KEYS) | {pmsm_drive.CURRENT_PANEL.name}
     # the shared [tuning] section's keys (the envelope every law is tuned over)
     out |= set(envelope._KEYS)
+    # the shared motor record's datasheet keys (KV, kE, ...) and the panels every family draws
+    out |= set(motor_data.MOTOR_KEYS) | set(motor_data.FLUX_KEYS) | set(scenario.GENERIC_PANELS)
     out |= {
         f.name
         for group in (loop.LOOP_STATE, loop.INPUTS, loop.PARAMS, loop.RECORD, loop.MEAS_FIELDS)
@@ -307,11 +421,27 @@ def _vocabulary(fam) -> dict[str, str]:
         out.update({k: f"scenario option [{section}]" for k in keys})
     out.update({k: "[estimate_scale] key" for k in fam.estimate_keys})
     out.update({p.name: "trace panel" for p in fam.panels})
+    out.update({dest: what for dest, what in _cli_options(fam).items() if dest not in out})
     if fam.presets is not None:
         out.update({k: "drive field" for k in _fields(_family_drive(fam)) if k not in out})
     shared = _shared_vocabulary()
     # single letters (g, L, R, w) are the symbols of many equations, not a family's vocabulary
     return {k: v for k, v in out.items() if k not in shared and len(k) > 1}
+
+
+def _cli_options(fam) -> dict[str, str]:
+    """The command-line options ``fam`` declares (reports/family.py): their dest -> what they are."""
+    from sensorless.reports.family import hooks
+
+    h = hooks(fam)
+    out = {
+        o.dest: f"{command} option {o.flags[0]}"
+        for command in ("analyze", "tune", "simulate")
+        for o in getattr(h, f"{command}_options")
+    }
+    for name, imp in h.importers.items():
+        out.update({o.dest: f"init --from {name} option {o.flags[0]}" for o in imp.options})
+    return out
 
 
 def _with_test_family():
@@ -322,30 +452,48 @@ def _with_test_family():
     return registered(FAMILY)
 
 
+@functools.cache
+def _vocabularies() -> dict[str, dict[str, str]]:
+    """Family name -> its own words (name -> what it is), the test family included, without the words
+    every family declares (the drive file's [motor], [control], [observer], ...: the drive files'
+    common vocabulary, no one family's)."""
+    with _with_test_family():
+        vocab = {fam.name: _vocabulary(fam) for fam in families()}
+    assert "pmsm_pll" in vocab  # the test family is among them
+    common = set.intersection(*(set(v) for v in vocab.values()))
+    return {fam: {w: what for w, what in words.items() if w not in common} for fam, words in vocab.items()}
+
+
+def _module_offences(path: Path, text: str | None = None) -> dict[str, set[str]]:
+    """What one shared module names of a family: word -> the families that own it (their vocabulary,
+    and the families named themselves). ``text`` stands for the file's content."""
+    out: dict[str, set[str]] = {}
+    used = _names_used(path, text)
+    for fam, words in _vocabularies().items():
+        for word in used & set(words):
+            out.setdefault(word, set()).add(fam)
+    with _with_test_family():
+        for word in _family_references(path, text):
+            out.setdefault(word, set()).add("the family itself")
+    return out
+
+
 def _offences() -> dict[str, dict[str, set[str]]]:
     """Shared module (path) -> name -> the families that declare it."""
     out: dict[str, dict[str, set[str]]] = {}
     with _with_test_family():
-        vocab = {fam.name: _vocabulary(fam) for fam in families()}
-        assert "pmsm_pll" in vocab  # the test family is among them
-        # what every family declares (the drive file's [motor], [control], [observer], ...) is the
-        # drive files' common vocabulary, no one family's
-        common = set.intersection(*(set(v) for v in vocab.values()))
-        vocab = {
-            fam: {w: what for w, what in words.items() if w not in common} for fam, words in vocab.items()
-        }
-        for module in _shared_modules():
-            path = _module_path(module)
-            used = _names_used(path)
-            for fam, words in vocab.items():
-                for word in used & set(words):
-                    out.setdefault(str(path.relative_to(ROOT)), {}).setdefault(word, set()).add(fam)
+        modules = _shared_modules()
+    for module in modules:
+        path = _module_path(module)
+        if found := _module_offences(path):
+            out[str(path.relative_to(ROOT))] = found
     return out
 
 
 def test_shared_modules_name_no_family_vocabulary():
-    """No shared module names a family's gain laws, gains, scenario options, [estimate_scale] keys,
-    trace panels or drive fields (string constants, attribute and keyword names; whole words), for
+    """No shared module names a family (its packages, name or kind), its gain laws, gains, scenario
+    options, [estimate_scale] keys, trace panels, command-line options or drive fields (string values
+    however written, attribute, keyword, variable, parameter and definition names; whole words), for
     every registered family and the test family."""
     found = _offences()
     assert not found, {p: {w: sorted(f) for w, f in names.items()} for p, names in found.items()}
@@ -359,9 +507,52 @@ def test_the_vocabulary_check_can_fail(tmp_path):
     )
     assert {"injection", "w_eps", "law16"} <= _names_used(src)
     assert "injections" in _names_used(src) and "Doc" not in _names_used(src)
-    with _with_test_family():
-        vocab = {w for fam in families() for w in _vocabulary(fam)}
+    vocab = {w for words in _vocabularies().values() for w in words}
     assert {"injection", "w_eps", "law16", "load_torque_estimation", "alpha_fo", "w_pll"} <= vocab
+
+
+# Offences a contributor could write in shared code, each as it would be written: the checks above must
+# find every one (injected into a copy of a real shared module) and nothing in the unmodified copy.
+OFFENCES = {
+    "static import of a family module": "from sensorless.design.ipmsm_adaptive import carrier\n",
+    "dynamic import of a family module": (
+        "import importlib\ncarrier = importlib.import_module('sensorless.design.ipmsm_adaptive.carrier')\n"
+    ),
+    "family name compared": 'def f(fam):\n    return fam.name == "pmsm_flux_observer"\n',
+    "kind string, double quotes": 'def f(drive):\n    return drive.kind == "pmsm-flux-observer"\n',
+    "kind string, single quotes": "def f(drive):\n    return drive.kind == 'pmsm-flux-observer'\n",
+    "family gain as a string key": "def f(gains):\n    return gains['w_eps']\n",
+    "family field as an attribute": "def f(drive):\n    return drive.observer.injection\n",
+    "local variable named after a family field": "def f(drive):\n    injection = 1.0\n    return injection\n",
+    "parameter named after a family field": "def f(drive, injection=False):\n    return drive\n",
+    "family command-line option read from args": "def f(args):\n    return args.tune_alpha_fo\n",
+    "string built by concatenation": "def f(opts):\n    return opts['inj' + 'ection']\n",
+    "string built as an f-string": "def f(opts):\n    return opts[f\"{'w'}_eps\"]\n",
+    "family name built by concatenation": "def f(fam):\n    return fam.name == 'pmsm_flux' + '_observer'\n",
+}
+SCRATCH = ROOT / "design" / "simulate.py"  # a real shared module, copied with one offence appended
+
+
+def test_the_unmodified_copy_is_clean():
+    assert not _module_offences(SCRATCH, SCRATCH.read_text(encoding="utf-8"))
+
+
+@pytest.mark.parametrize("offence", sorted(OFFENCES))
+def test_each_offence_in_shared_code_is_caught(offence):
+    text = SCRATCH.read_text(encoding="utf-8") + "\n\n" + OFFENCES[offence]
+    assert _module_offences(SCRATCH, text), offence
+
+
+def test_a_kind_string_outside_the_registering_module_is_caught(tmp_path):
+    """However the kind string is quoted or pieced together, the module writing it is found."""
+    kind = "pmsm-flux-observer"
+    for i, line in enumerate(
+        [f'k = "{kind}"', f"k = '{kind}'", "k = 'pmsm-flux' + '-observer'", "k = f\"{'pmsm'}-flux-observer\""]
+    ):
+        (tmp_path / f"m{i}.py").write_text(f'"""Doc."""\n{line}\n')
+    (tmp_path / "clean.py").write_text(f'"""The {kind} family (a docstring may name it)."""\n')
+    paths = sorted(tmp_path.glob("*.py"))
+    assert _kind_modules(kind, paths) == [tmp_path / f"m{i}.py" for i in range(4)]
 
 
 def _import_graph(root: Path) -> dict[str, set[str]]:
@@ -451,3 +642,18 @@ def test_the_cycle_check_can_fail(tmp_path):
     ]
     (tmp_path / "design" / "c.py").write_text("X = 1\n")
     assert _cycles(_import_graph(tmp_path)) == []
+
+
+def test_the_readme_and_the_architecture_name_every_family_and_preset():
+    """README.md and docs/architecture.md name every registered family and each of its presets (a new
+    family or preset is not left out of the two pages a reader starts from)."""
+    from importlib import resources
+
+    for doc in (ROOT / "README.md", ROOT / "docs" / "architecture.md"):
+        text = doc.read_text(encoding="utf-8")
+        for fam in families():
+            presets = sorted(
+                p.name[:-5] for p in resources.files(fam.presets).iterdir() if p.name.endswith(".toml")
+            )
+            missing = [n for n in (fam.name, *presets) if not re.search(rf"`{re.escape(n)}`", text)]
+            assert not missing, (doc.name, missing)

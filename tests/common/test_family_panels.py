@@ -25,7 +25,7 @@ def test_shared_figure_code_draws_the_shared_panels():
     assert tuple(PANELS) == GENERIC_PANELS
 
 
-@pytest.mark.parametrize("name", ["ipmsm_adaptive", "pmac_reduced_order", "pmsm_pll"])
+@pytest.mark.parametrize("name", [*(f.name for f in families()), PLL.name])  # every registered family
 def test_every_declared_panel_is_drawn_from_a_run_of_the_family(name):
     """A short run of a built-in scenario with every panel the family's scenarios may name: each is
     drawn (its traces exist), with its declared axis label."""

@@ -14,6 +14,8 @@ from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.main import main
 from sensorless.reports.family import all_options
 
+pytestmark = pytest.mark.long(24)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+
 TESTS = Path(__file__).resolve().parents[1]
 SERVO = (TESTS / "ipmsm_adaptive" / "drives" / "servo_minimal.toml").read_text()
 HUB = (TESTS / "pmac_reduced_order" / "drives" / "hub48v_minimal.toml").read_text()

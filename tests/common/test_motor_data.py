@@ -113,7 +113,7 @@ def test_KV_with_its_emf_convention_is_rpm_per_volt_of_that_measure(conv):
 
 @pytest.mark.parametrize("conv", list(KE_SI))
 def test_minimal_drive_file_with_KV_and_its_convention_loads(tmp_path, conv):
-    # the datasheet motor of the issue: 270 rpm/V, 14 poles; psi = phase peak EMF per mechanical rad/s / p
+    # a drone outrunner's datasheet: 270 rpm/V, 14 poles; psi = phase peak EMF per mechanical rad/s / p
     f = tmp_path / "kv.toml"
     f.write_text(
         MINIMAL.format(flux=f'KV = "270 rpm/V"\nemf_convention = "{conv}"')

@@ -24,6 +24,8 @@ from sensorless.reports.cli import codegen as codegen_cli
 from sensorless.reports.cli.main import main
 from sensorless.reports.files import OutputError, OutputSet
 
+pytestmark = pytest.mark.long(50)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+
 SCRIPT = Path(sys.executable).parent / "sensorless"  # the installed console script
 OLD = {"a.txt": b"old a\n", "b.txt": b"old b\n"}
 NEW = {"a.txt": b"new a\n", "b.txt": b"new b\n"}

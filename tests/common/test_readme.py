@@ -6,29 +6,12 @@ install lines are what CI itself runs (.ci/run)."""
 from __future__ import annotations
 
 import json
-import re
-import shlex
-import shutil
-from pathlib import Path
 
 import pytest
-from sensorless.reports.cli.main import main
+from helpers.readme import README, blocks, commands
 
-README = Path(__file__).resolve().parents[2] / "README.md"
-BLOCK = re.compile(r"^```(\w+)\n(.*?)^```", re.S | re.M)
-
-
-def blocks(lang: str) -> list[str]:
-    return [body for kind, body in BLOCK.findall(README.read_text(encoding="utf-8")) if kind == lang]
-
-
-def commands() -> list[list[str]]:
-    out = []
-    for body in blocks("sh"):
-        for line in body.splitlines():
-            if line.startswith("sensorless "):
-                out.append(shlex.split(line, comments=True)[1:])
-    return out
+# the README's commands run once per session (tests/conftest.py readme_run), on this file's worker
+pytestmark = pytest.mark.long(70)
 
 
 def test_the_readme_has_the_quick_start_and_your_own_motor():
@@ -38,30 +21,23 @@ def test_the_readme_has_the_quick_start_and_your_own_motor():
     assert "python3 -m venv" in blocks("sh")[0]
 
 
-def test_every_readme_command_runs_as_written(tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)
-    for body in blocks("toml"):
-        first = body.splitlines()[0]
-        m = re.fullmatch(r"# (\S+\.toml)", first)
-        if m:
-            (tmp_path / m.group(1)).write_text(body, encoding="utf-8")
-    assert (tmp_path / "servo.toml").is_file()
-    shutil.copytree(README.parent / "docs" / "examples", tmp_path / "docs" / "examples")
-    for argv in commands():
-        code = main(argv)
-        err = capsys.readouterr().err
+def test_every_readme_command_runs_as_written(readme_run):
+    assert [argv for argv, _, _ in readme_run.results] == commands()  # all of them, in order
+    for argv, code, err in readme_run.results:
         assert code == 0, (argv, err[-2000:])
+    where = readme_run.dir
+    assert (where / "servo.toml").is_file()
     # what the own-motor lines wrote
-    assert (tmp_path / "servo-drive.toml").is_file()
-    assert (tmp_path / "c-servo" / "servo400.c").is_file()
-    assert (tmp_path / "report-servo" / "report.json").is_file()
+    assert (where / "servo-drive.toml").is_file()
+    assert (where / "c-servo" / "servo400.c").is_file()
+    assert (where / "report-servo" / "report.json").is_file()
     # what the firmware lines wrote: both firmwares' settings, and reports with the tuned gains beside
     # the firmwares' defaults
-    assert (tmp_path / "firmware-skate-vesc" / "vesc.xml").is_file()
-    assert (tmp_path / "firmware-skate-odrive" / "odrive.json").is_file()
-    assert (tmp_path / "tune-skate-odrive" / "pareto_odrive.csv").is_file()
+    assert (where / "firmware-skate-vesc" / "vesc.xml").is_file()
+    assert (where / "firmware-skate-odrive" / "odrive.json").is_file()
+    assert (where / "tune-skate-odrive" / "pareto_odrive.csv").is_file()
     for fw in ("vesc", "odrive"):
-        rep = json.loads((tmp_path / f"report-skate-{fw}" / "report.json").read_text())
+        rep = json.loads((where / f"report-skate-{fw}" / "report.json").read_text())
         assert {"tuned", "ODrive defaults", "VESC detection"} <= set(rep["analysis"])
 
 

@@ -13,6 +13,8 @@ from sensorless.design.ipmsm_adaptive.discrete import linearize
 from sensorless.reports.cli.common import version
 from sensorless.reports.cli.main import main
 
+pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):

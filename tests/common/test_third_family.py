@@ -35,6 +35,8 @@ from sensorless.reports.cli.main import main
 from sensorless.reports.traces import read_csv
 from sensorless.tuning.constant_law import GRID
 
+pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parents[2]
 PLL = ROOT / "tests" / "families" / "pll"
 DRIVE = str(PLL / "presets" / "pll_servo.toml")
@@ -384,7 +386,7 @@ def test_foreign_options_and_wrong_gains_are_one_line_errors(tmp_path, capsys):
         (["analyze", DRIVE, "--study"], "--study: not an option"),
         (["tune", DRIVE, "--g-max", "3"], "--g-max: not an option"),
         (["tune", DRIVE, "--law", "law16"], "cannot be tuned"),
-        (["codegen", DRIVE, "--gain", "speed", "--out", tmp_path / "c"], "one gain"),
+        (["codegen", DRIVE, "--gain-set", "speed", "--out", tmp_path / "c"], "one gain"),
         (["simulate", DRIVE, "--scenario", "speed_steps", "--injection", "on"], "--injection"),
         (["simulate", DRIVE, "--scenario", "speed_steps", "--gains", bad], "its laws: pll"),
     ):

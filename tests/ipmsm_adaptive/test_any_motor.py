@@ -1,5 +1,6 @@
 """Two motors that are not presets, from minimal drive files, through every command: a non-salient
-400-W servo (L_d = L_q, no injection possible) and a strongly salient traction IPMSM. Each: init ->
+400-W servo (L_d = L_q, no injection possible; the README's own motor, its run shared with the README
+test) and a strongly salient traction IPMSM. Each: init ->
 tune -> codegen (float; it builds and the example initializes) -> report, no traceback, gains found,
 a verdict that agrees with its own checks; and the derivation rules checked against values typed from
 their documented formulas (design/ipmsm_adaptive/derive.py)."""
@@ -29,36 +30,52 @@ def run(argv, capsys):
     return code, out.out, out.err
 
 
-@pytest.fixture(scope="module", params=sorted(MOTORS))
+# the servo is the README's own motor (its servo.toml: the same motor in its datasheet's terms), whose
+# commands the README test runs once for both (one worker: group "readme" of tests/conftest.py); the
+# traction motor runs here
+pytestmark = pytest.mark.long(40)
+
+
+@pytest.fixture(scope="module", params=["servo", "traction"])
 def flow(request, tmp_path_factory):
-    """init, tune, codegen and report of one motor (module scope: the steps are the slow part)."""
+    """init, tune, codegen and report of one motor (module scope: the steps are the slow part):
+    (name, minimal file, written drive file, {step: output directory}, {step: exit status})."""
     name = request.param
+    if name == "servo":
+        r = request.getfixturevalue("readme_run")
+        drive = r.dir / "servo-drive.toml"
+        dirs = {"tune": r.dir / "tune-servo", "codegen": r.dir / "c-servo", "report": r.dir / "report-servo"}
+        codes = {"init": r.code("init", "servo.toml"), **{k: r.code(k, str(drive.name)) for k in dirs}}
+        return name, r.dir / "servo.toml", drive, dirs, codes
     d = tmp_path_factory.mktemp(name)
     src = DRIVES / MOTORS[name]
     drive = d / "drive.toml"
+    dirs = {"tune": d / "tune", "codegen": d / "c", "report": d / "r"}
     codes = {
         "init": main(["init", str(src), "--out", str(drive)]),
         # a coarser optimization grid than the default 20 speeds per direction (the same law, envelope
         # and checks; a third of the time: the suite's budget)
-        "tune": main(["tune", str(drive), "--out", str(d / "tune"), "--quiet", "--speeds", "10"]),
+        "tune": main(["tune", str(drive), "--out", str(dirs["tune"]), "--quiet", "--speeds", "10"]),
     }
-    table = d / "tune" / "gains_schedule.json"
+    table = dirs["tune"] / "gains_schedule.json"
     codes["codegen"] = main(
-        ["codegen", str(drive), "--gains", str(table), "--precision", "float", "--out", str(d / "c")]
+        ["codegen", str(drive), "--gains", str(table), "--precision", "float", "--out", str(dirs["codegen"])]
     )
-    codes["report"] = main(["report", str(drive), "--gains", str(table), "--quick", "--out", str(d / "r")])
-    return name, src, drive, d, codes
+    codes["report"] = main(
+        ["report", str(drive), "--gains", str(table), "--quick", "--out", str(dirs["report"])]
+    )
+    return name, src, drive, dirs, codes
 
 
 def test_every_command_succeeds_and_finds_gains(flow):
     _, _, _, d, codes = flow
     assert codes["init"] == codes["tune"] == codes["codegen"] == 0, codes
     assert codes["report"] in (0, 3), codes  # 3: a check failed; the report says so (below)
-    table = json.loads((d / "tune" / "gains_schedule.json").read_text())
+    table = json.loads((d["tune"] / "gains_schedule.json").read_text())
     # stable gains with the damping a report requires, found on the motor's own envelope
     assert table["summary"]["worst_damping"] > MIN_DAMPING, table["summary"]
     # on a drive of the user's own the default is the family's best law (the schedule), which gets
-    # closer to the pointwise bound than the paper's law (16) it starts from (issue 24)
+    # closer to the pointwise bound than the paper's law (16) it starts from
     assert table["law"] == "schedule"
     bound = table["summary"]["bound"]
     assert bound["gap"] <= bound["gap_seed"] + 1e-9, bound
@@ -93,11 +110,12 @@ def test_derived_values_follow_their_documented_rules(flow):
 
 def test_the_verdict_agrees_with_its_checks(flow):
     _, _, _, d, codes = flow
-    data = verdict_agrees_with_checks(d / "r", codes["report"])
+    data = verdict_agrees_with_checks(d["report"], codes["report"])
     v, td = data["verdict"], data["time_domain"]
     assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal", "start"]  # generic, scaled
     assert v["limitations"] == []  # this observer runs through zero speed: nothing left out
-    assert "paper speed" not in (d / "r" / "report.html").read_text()  # a user's gains are not the paper's
+    # a user's gains are not the paper's
+    assert "paper speed" not in (d["report"] / "report.html").read_text()
 
 
 def test_the_schedule_keeps_the_seed_law_inside_the_injection_band(flow):
@@ -107,7 +125,7 @@ def test_the_schedule_keeps_the_seed_law_inside_the_injection_band(flow):
     with w_Delta from the written drive file; the breakpoints beyond the band are the tuner's. Without
     injection (the servo) nothing is held."""
     name, _, drive, d, _ = flow
-    table = json.loads((d / "tune" / "gains_schedule.json").read_text())
+    table = json.loads((d["tune"] / "gains_schedule.json").read_text())
     g, s = table["gains"], table["summary"]
     inj = load_drive(str(drive)).injection
     w = np.array(g["w_hat"])
@@ -130,7 +148,7 @@ def test_the_schedule_keeps_the_seed_law_inside_the_injection_band(flow):
 @pytest.mark.skipif(CC is None, reason="no C compiler")
 def test_the_generated_float_c_builds_and_its_example_initializes(flow):
     _, _, _, d, _ = flow
-    c_example_initializes(d / "c")
+    c_example_initializes(d["codegen"])
 
 
 def test_injection_on_a_non_salient_motor_is_a_one_line_error(capsys, tmp_path):

@@ -120,7 +120,7 @@ def test_double_matches_python_on_the_trajectory(drive, trajectory, schedule_tab
         args += ["--gains", schedule_table]
         setup = runtime_setup(drive, table=read_gain_table(schedule_table), discretization=disc)
     elif gains == "constant":
-        args += ["--gain", "constant"]
+        args += ["--gain-set", "constant"]
         setup = runtime_setup(drive, gain="constant", discretization=disc)
     else:
         setup = runtime_setup(drive, discretization=disc)
@@ -343,7 +343,7 @@ def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys, schedule_table):
     bad.write_text(json.dumps({**doc, "law": "constant", "gains": {"g": 400, "Gamma": 1e4}}))
     assert main(["codegen", "piippo2008", "--gains", str(bad), "--out", str(out)]) == 2
     assert "dean.json: key 'law'" in capsys.readouterr().err
-    assert main(["codegen", "piippo2008", "--gain", "nope", "--out", str(out)]) == 2
+    assert main(["codegen", "piippo2008", "--gain-set", "nope", "--out", str(out)]) == 2
     assert main(["codegen", "piippo2008", "--prefix", "9x-y", "--out", str(out)]) == 2
     assert not out.exists()
     assert main(["codegen", "piippo2008", "--out", str(out)]) == 0

@@ -18,6 +18,8 @@ from sensorless.tuning.sector import factors_from_poles
 from sensorless.tuning.selection import select
 from sensorless.tuning.tune import tune
 
+pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+
 
 def small(drive, **kw):
     env = Envelope(speed_min=0.05, speed_max=1.0, speeds=8, torques_TN=(-1.0, 1.0))

@@ -57,7 +57,7 @@ def test_study_option(tmp_path, capsys, monkeypatch):
         (["--speed", "0rpm"], "--speed"),
         (["--speed", "250 ohm"], "not a mech speed unit"),
         (["--discretization", "rk4"], "unknown scheme"),
-        (["--gain", "speed"], "it applies to: ipmsm_adaptive"),
+        (["--gain-set", "speed"], "it applies to: ipmsm_adaptive"),
         (["--injection"], "it applies to: ipmsm_adaptive"),
     ],
 )

@@ -533,7 +533,7 @@ def test_example_builds_with_its_makefile_and_runs(tmp_path, precision):
 
 def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys, tuned_table):
     out = tmp_path / "o"
-    assert main(["codegen", P, "--gain", "speed", "--out", str(out)]) == 2
+    assert main(["codegen", P, "--gain-set", "speed", "--out", str(out)]) == 2
     assert "one set of gains" in capsys.readouterr().err
     law16 = tmp_path / "law16.json"
     doc = read_gain_table(tuned_table)

@@ -16,6 +16,8 @@ from sensorless.tuning.family import tunable_for
 from sensorless.tuning.pmac_reduced_order.settings import closed_form, default_settings, grid, speed_grid
 from sensorless.tuning.pmac_reduced_order.tuner import tune_deangelo
 
+pytestmark = pytest.mark.long(20)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+
 
 def hand_poles(g, Gamma, Phi1, J):
     """Roots of (s + g)(s^2 + g s + Gamma (Phi1/J)^2): the hand derivation of the family doc."""

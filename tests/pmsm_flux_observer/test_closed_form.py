@@ -1,4 +1,4 @@
-"""The flux observer's linearization against closed forms typed here from the fact sheet's derivations
+"""The flux observer's linearization against closed forms typed here from their derivations
 (docs/families/pmsm_flux_observer.md): error poles s^2 + gamma lambda^2 s + w^2, the Euler bound
 T gamma lambda^2 < 2, the resistance-error angle bias -gamma lambda dR i_q / w^2, the PLL's double pole
 at -bw (k_p = 2 bw, k_i = bw^2), and motulator's equal poles with sigma = gamma lambda^2 / 2."""

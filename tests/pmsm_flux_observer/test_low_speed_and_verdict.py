@@ -21,6 +21,8 @@ from sensorless.design.simulate import simulate
 from sensorless.reports.pmsm_flux_observer import compute
 from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings
 
+pytestmark = pytest.mark.long(24)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+
 FAST_PLL = 'foc_pll_ki = "1000000 1/s2"'  # foc_pll_kp^2/4: a double root at -1000 1/s
 
 

@@ -1,8 +1,8 @@
 """Firmware configuration files in and out: what VESC, ODrive and SimpleFOC store, as drive values.
 
 Each firmware has a module here (vesc.py, odrive.py, simplefoc.py) with its field names, units and
-conventions (docs/families/pmsm_flux_observer_firmware.md; the facts and their sources:
-shared/references/firmware_flux_observer.md). This module holds what they share:
+conventions (docs/families/pmsm_flux_observer_firmware.md: the facts and their public sources).
+This module holds what they share:
 
 - :class:`Imported`: the minimal drive file an import writes (TOML text, each converted value with its
   rule as a comment) and the lines said on stderr: which values were missing, what was assumed and

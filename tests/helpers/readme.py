@@ -1,0 +1,66 @@
+"""The README's command lines and example files, and one run of all of them (the README test and the
+own-motor tests share that run: it is the suite's longest step)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import re
+import shlex
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+BLOCK = re.compile(r"^```(\w+)\n(.*?)^```", re.S | re.M)
+
+
+def blocks(lang: str) -> list[str]:
+    return [body for kind, body in BLOCK.findall(README.read_text(encoding="utf-8")) if kind == lang]
+
+
+def commands() -> list[list[str]]:
+    """Every ``sensorless`` line of the README's ``sh`` blocks, in order, as argv (without the program)."""
+    out = []
+    for body in blocks("sh"):
+        for line in body.splitlines():
+            if line.startswith("sensorless "):
+                out.append(shlex.split(line, comments=True)[1:])
+    return out
+
+
+@dataclass(frozen=True)
+class ReadmeRun:
+    """Where the README's commands ran, and each command's argv, exit status and standard error."""
+
+    dir: Path
+    results: tuple[tuple[list[str], int, str], ...]
+
+    def code(self, command: str, file: str) -> int:
+        """The exit status of the first ``command`` whose arguments name ``file``."""
+        return next(c for argv, c, _ in self.results if argv[0] == command and file in argv)
+
+
+def run_readme(where: Path) -> ReadmeRun:
+    """Run every README command as written, in order, in ``where`` holding the README's example files
+    (``toml`` blocks that start with a ``# NAME.toml`` line) and the repository's docs/examples."""
+    from sensorless.reports.cli.main import main
+
+    for body in blocks("toml"):
+        m = re.fullmatch(r"# (\S+\.toml)", body.splitlines()[0])
+        if m:
+            (where / m.group(1)).write_text(body, encoding="utf-8")
+    shutil.copytree(README.parent / "docs" / "examples", where / "docs" / "examples")
+    results = []
+    cwd = os.getcwd()
+    os.chdir(where)
+    try:
+        for argv in commands():
+            err, out = io.StringIO(), io.StringIO()
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+                code = main(argv)
+            results.append((argv, code, err.getvalue()))
+    finally:
+        os.chdir(cwd)
+    return ReadmeRun(where, tuple(results))
