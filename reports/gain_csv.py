@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import json
-import math
 from typing import Any
 
 from sensorless.design.gain_table import GainTable, clean
+from sensorless.reports.csv_cells import REASON
+from sensorless.reports.csv_cells import row as csv_row
+
+# why a cell is empty (reports/csv_cells.py: every number written is finite)
+NO_POINT_VALUE = "no finite figure at this operating point (no equilibrium or a linearization that overflows)"
+NO_SPEED_VALUE = "no gain of this column reaches a finite figure at this speed"
+NO_LIMIT = "no limit on this front point"
 
 
 def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
@@ -25,6 +31,7 @@ def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
     bound_keys = [k for k in p0.get("bound", {}) if k != "damping"]
     if "bound" in p0:
         head += ["bound_damping"] + [f"bound_{k}" for k in bound_keys]
+    head.append(REASON)
     where = (
         f"speed base {env.get('speed_base_rad_s', float('nan')):.10g} rad/s (electrical)"
         if "speed_base_rad_s" in env
@@ -48,7 +55,7 @@ def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
             row += [p["seed"]["damping"], p["seed"]["decay_rate"]]
         if "bound" in p0:
             row += [p["bound"]["damping"]] + [p["bound"][k] for k in bound_keys]
-        lines.append(",".join("nan" if v is None or not math.isfinite(v) else f"{v:.10g}" for v in row))
+        lines.append(csv_row(row, NO_POINT_VALUE))
     return "\n".join(lines) + "\n"
 
 
@@ -64,11 +71,11 @@ def speeds_csv(table: GainTable) -> str:
         f"{table.drive.get('name')}; bound = the best any gain reaches at that speed (decay >= "
         f"{b.get('floor_1_s', float('nan')):.6g} 1/s); baseline = the drive file's gains (which the bound "
         "does not bound where they decay slower than its floor)",
-        ",".join(["w_m_pu", *(f"{names.get(k, k)}_damping" for k in keys)]),
+        ",".join(["w_m_pu", *(f"{names.get(k, k)}_damping" for k in keys), REASON]),
     ]
     for r in rows:
         vals = [r["w_m_pu"], *(r[k] for k in keys)]
-        lines.append(",".join("nan" if v is None or not math.isfinite(v) else f"{v:.10g}" for v in vals))
+        lines.append(csv_row(vals, NO_SPEED_VALUE))
     return "\n".join(lines) + "\n"
 
 
@@ -86,7 +93,7 @@ def pareto_csv(table: GainTable) -> str:
     lines = [
         f"# sensorless: damping-versus-{metric} front, law {table.law}, drive {table.drive.get('name')}; "
         + meaning,
-        ",".join([metric, "limit", "worst_damping", "min_decay_rate_1_s", *names]),
+        ",".join([metric, "limit", "worst_damping", "min_decay_rate_1_s", *names, REASON]),
     ]
     for p in pf["points"]:
         vals = [
@@ -96,5 +103,9 @@ def pareto_csv(table: GainTable) -> str:
             p["min_decay_rate"],
             *p["theta"],
         ]
-        lines.append(",".join("nan" if v is None or not math.isfinite(v) else f"{v:.10g}" for v in vals))
+        lines.append(
+            csv_row(
+                vals, NO_LIMIT if p.get("limit") is None or p.get("limit") == float("inf") else NO_POINT_VALUE
+            )
+        )
     return "\n".join(lines) + "\n"

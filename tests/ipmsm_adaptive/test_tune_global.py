@@ -165,9 +165,10 @@ def test_cli_prints_the_bound_and_writes_the_speeds_table(tmp_path, capsys):
     line = next(ln for ln in stdout.splitlines() if "bound" in ln and "worst" in ln)
     assert "p.u." in line and "below it" in line
     rows = (out / "speeds_speed-dependent.csv").read_text().splitlines()
-    assert rows[1] == "w_m_pu,bound_damping,speed-dependent_damping,baseline_damping"
+    assert rows[1] == "w_m_pu,bound_damping,speed-dependent_damping,baseline_damping,no_value_reason"
     head = (out / "gains_speed-dependent.csv").read_text().splitlines()[2]
-    assert head.endswith("bound_damping,bound_lambda1,bound_lambda2")
+    assert head.endswith("bound_damping,bound_lambda1,bound_lambda2,no_value_reason")
+    assert "nan" not in (out / "speeds_speed-dependent.csv").read_text().split("\n", 1)[1]
 
 
 # ------------------------------------------------------------------------------------------- ridges
@@ -249,7 +250,9 @@ def test_max_noise_limit_holds_on_the_dense_grid_and_the_front(drive, tmp_path, 
     assert doc["summary"]["noise"]["tuned"][0] == pytest.approx(np.max(nz[:, 0]), rel=1e-9)
     front = (out / "pareto_speed-dependent.csv").read_text().splitlines()
     assert front[1].startswith("noise,limit,worst_damping")
-    pts = [[float(v) for v in ln.split(",")[:3]] for ln in front[2:]]
+    # the limit column is empty (with its reason) on the front's unconstrained end: never nan or inf
+    assert all("nan" not in ln and "inf" not in ln for ln in front[2:])
+    pts = [[float(v or "inf") for v in ln.split(",")[:3]] for ln in front[2:]]
     assert len(pts) >= 2
     noise, damp = np.array([p[0] for p in pts]), np.array([p[2] for p in pts])
     order = np.argsort(noise)
