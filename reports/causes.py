@@ -11,7 +11,10 @@ acceleration before it, whether the I-f start had the loop). :func:`classify` na
    over is ``not_tested_sensorless``; a rotor that slipped against the I-f current vector is
    ``if_current_below_load`` (the current's torque, at most what the run shows it produced, did not
    carry the load and the acceleration); a drive that ended away from its reference is
-   ``torque_limit`` where its torque command sat at T_max, else ``ramp_slower_than_reference``; a
+   ``ramp_slower_than_reference`` where the I-f start's time since the reference's last step made
+   the difference (the rest of the step at the torque limit fits the time to the judged end, with the
+   start's time added it does not), else ``torque_limit`` where its torque command sat at T_max, else
+   ``ramp_slower_than_reference``; a
    position error or loss in closed loop is ``observer_lag_acceleration`` where the drive accelerated
    at ACCEL_SHARE of its full acceleration or more just before, ``rhp_band`` where the drive's
    linearization at that speed and load (the family's ``linearize``) has a right-half-plane pole,
@@ -58,7 +61,8 @@ CATALOGUE: dict[str, Cause] = {
             "ramp_slower_than_reference",
             "ramp slower than the reference",
             "the drive's speed followed a slower ramp than its reference asked: give the reference the "
-            "time the drive needs (a slower ramp), or a faster start ([startup] acceleration) or speed "
+            "time the drive needs (a slower ramp), or a faster start ([startup] acceleration, a lower "
+            "handover [startup] w_on: gains tuned for a lower w_min, a shorter [startup] dwell) or speed "
             "loop ([control] alpha_s)",
         ),
         Cause(
@@ -132,6 +136,19 @@ class Failure:
     limit_pu: float | None = None  # the drive's torque limit T_max [p.u. of T_N]
     accel_share: float | None = None  # mean |dw/dt| just before, over the full acceleration p T_max / J
     open_loop: bool = False  # the I-f start had the loop there
+    # a run's end (tracking): since the reference's last step, the time the I-f start had the loop, the
+    # time to the judged tail, and the time the rest of the step needs at the torque limit [s]
+    open_s: float | None = None
+    avail_s: float | None = None
+    need_s: float | None = None
+
+    @property
+    def open_loop_took_it(self) -> bool:
+        """Whether the I-f start's time made the difference: the step's speed outside the start, at the
+        torque limit, fits the time there is; with the start's time added it does not."""
+        if self.open_s is None or self.avail_s is None or self.need_s is None or self.open_s <= 0:
+            return False
+        return self.need_s <= self.avail_s < self.need_s + self.open_s
 
     @property
     def at_limit(self) -> bool:
@@ -209,6 +226,13 @@ def shared_cause(f: Failure, unstable: Callable[[Failure], bool | None] = lambda
             why = "the current's torque did not carry the load and the acceleration"
         return Named("if_current_below_load", why)
     if f.kind == "tracking":
+        if f.open_loop_took_it:
+            return Named(
+                "ramp_slower_than_reference",
+                f"in the open-loop start: it had the loop for {1e3 * (f.open_s or 0):.3g} ms of the "
+                f"{1e3 * (f.avail_s or 0):.3g} ms after the reference's last step; at the torque limit the "
+                f"rest of the step needs {1e3 * (f.need_s or 0):.3g} ms",
+            )
         if f.at_limit:
             return Named(
                 "torque_limit", f"torque command {f.torque_pu:.3g} T_N at the limit {f.limit_pu:.3g} T_N"

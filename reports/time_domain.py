@@ -181,6 +181,30 @@ def assess(tr: Any, sc: Scenario, base_w: float, scales: DriveScales | None = No
                 out["limit_pu"] = scales.T_max / T_N
         return Failure(kind, text, **{**out, **kw})
 
+    def open_time(k_tail: int) -> dict[str, float]:
+        # since the reference's last step: the I-f start's time, the time to the judged tail, and what
+        # the rest of the step (outside the start's speeds) needs at the torque limit against the load
+        if open_loop is None or w_m is None or scales is None or not has("w_ref") or dt <= 0:
+            return {}
+        w_ref = np.asarray(tr["w_ref"], float)
+        steps = np.flatnonzero(np.diff(w_ref[: k_tail + 1]) != 0)
+        k0 = int(steps[-1]) + 1 if steps.size else 0
+        ol = np.flatnonzero(open_loop[k0:k_tail])
+        if not ol.size:
+            return {}
+        dw = w_ref[k_tail] - w_m[k0]
+        covered = abs(w_m[k0 + ol[-1]] - w_m[k0 + ol[0]])
+        load = float(tr["T_L"][k_tail]) if has("T_L") else 0.0
+        margin = scales.T_max - np.sign(dw) * load
+        if margin <= 0:
+            return {}
+        a_lim = scales.pole_pairs * margin / scales.J
+        return {
+            "open_s": ol.size * dt,
+            "avail_s": (k_tail - k0) * dt,
+            "need_s": float(max(0.0, abs(dw) - covered) / a_lim),
+        }
+
     failures: list[Failure] = []
     problems = tr.problems()
     theta = np.asarray(tr["theta_err"], float) if has("theta_err") else None
@@ -283,7 +307,9 @@ def assess(tr: Any, sc: Scenario, base_w: float, scales: DriveScales | None = No
                     f"the drive ended {d:+.3g} p.u. away from its speed reference (limit "
                     f"{LIMITS['final_tracking_err_pu']:g} p.u.)"
                 )
-                failures.append(evidence("tracking", text, e.size - 1, lo=e.size - n_tail))
+                failures.append(
+                    evidence("tracking", text, e.size - 1, lo=e.size - n_tail, **open_time(e.size - n_tail))
+                )
     limit = tr.meta.get("startup", "").partition(ACCELERATION_LIMIT)[2]
     if failures and limit:  # the start said where the observer cannot follow the drive (physics)
         note = f"; physical limit: {ACCELERATION_LIMIT}{limit}"

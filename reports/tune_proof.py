@@ -7,8 +7,9 @@ its gains go through the checks a report holds them to, and the drive file's gai
 - the **linear analysis** over the drive's real range: speeds +-[0.05, 1] p.u. (both directions) x
   torques {-T_max, -T_N, 0, T_N, T_max} (motoring and regenerating at the torque limit the speed loop
   reaches in every acceleration; design/family.py ``DriveScales``). Which analysis is a step of its
-  own (:data:`Analysis`): the family's observer linearization (``ObserverFamily.linearize``) by
-  default; a whole-sampled-drive linearization plugs in as another function of the same signature;
+  own (:data:`Analysis`): the whole sampled drive where the family has a drive loop, the family's
+  observer linearization (``ObserverFamily.linearize``) at the saturated loads and without one
+  (:func:`drive_analysis`);
 - the **time-domain checks** of ``sensorless report`` (reports/time_domain.py: a preset's paper
   scenarios, else the generic ones scaled to the drive), each simulated and judged by the same limits.
 
@@ -33,7 +34,7 @@ from sensorless.reports import time_domain
 
 # (drive, gains, w [rad/s electrical], torque [N m]) -> a Linearization (design/linearization.py)
 Analysis = Callable[[Drive, GainSet, np.ndarray, np.ndarray], Any]
-ANALYSIS: Analysis  # the analysis ``sensorless tune`` proves with (set below: observer_analysis)
+ANALYSIS: Analysis  # the analysis ``sensorless tune`` proves with (set below: drive_analysis)
 SPEEDS = 20  # per direction, from SPEED_MIN to 1 p.u.
 SPEED_MIN = 0.05  # p.u.
 
@@ -43,7 +44,43 @@ def observer_analysis(drive: Drive, gains: GainSet, w: np.ndarray, torque: np.nd
     return family_of(drive).linearize(drive, gains, w, torque)
 
 
-ANALYSIS = observer_analysis
+# below the torque limit by this share: at a load of +-T_max the speed loop sits at its limit (saturated:
+# no closed-loop fixed point, Newton's result there is noise), so the observer-only analysis judges it
+SATURATED_SHARE = 0.999
+
+
+@dataclass(frozen=True)
+class Combined:
+    """The figures :func:`prove` reads, per envelope point, from two analyses."""
+
+    max_real: np.ndarray
+    worst_damping: np.ndarray
+
+
+def drive_analysis(drive: Drive, gains: GainSet, w: np.ndarray, torque: np.ndarray) -> Any:
+    """The whole sampled drive (design/drive_analysis.py: observer, current PI in the estimated frame,
+    speed PI on the estimate, delay, mechanics) where the family has a drive loop and the speed loop is
+    within its torque limit; the observer-only linearization at the loads at +-T_max (the speed loop
+    saturated there: the observer runs with the torque command at the limit, its own set-up) and for a
+    family without a drive loop."""
+    from sensorless.design.drive_analysis import linearize_drive
+
+    obs = observer_analysis(drive, gains, w, torque)
+    try:
+        T_max = family_of(drive).scales(drive).T_max
+        inside = np.abs(torque) < SATURATED_SHARE * T_max
+        if not inside.any():
+            return obs
+        lin = linearize_drive(drive, gains, w[inside], torque[inside])
+    except CapabilityError:
+        return obs
+    mr = np.array(obs.max_real, float, copy=True)
+    wd = np.array(obs.worst_damping, float, copy=True)
+    mr[inside], wd[inside] = lin.max_real, lin.worst_damping
+    return Combined(mr, wd)
+
+
+ANALYSIS = drive_analysis
 
 
 def envelope(drive: Drive) -> tuple[np.ndarray, np.ndarray] | None:

@@ -140,3 +140,23 @@ def test_ipopt_linear_algebra_loads_single_threaded(monkeypatch):
     slots._nlpsol_one_thread("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
     assert seen == {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
     assert slots.os.environ["OMP_NUM_THREADS"] == "4" and "OPENBLAS_NUM_THREADS" not in slots.os.environ
+
+
+def test_the_proof_analyses_the_whole_drive_below_the_torque_limit_the_observer_at_it(drive):
+    # the whole sampled drive (speed PI on the estimate, mechanics) where the speed loop is within its
+    # limit; at +-T_max it is saturated (no closed-loop fixed point): the observer-only analysis there
+    from sensorless.design.drive_analysis import linearize_drive
+    from sensorless.design.registry import family_of
+
+    g = family_of(drive).gains(drive)
+    w, t = tune_proof.envelope(drive)
+    both = tune_proof.drive_analysis(drive, g, w, t)
+    obs = tune_proof.observer_analysis(drive, g, w, t)
+    sat = np.abs(t) >= tune_proof.SATURATED_SHARE * drive.control.T_max
+    assert sat.any() and (~sat).any()
+    np.testing.assert_array_equal(both.max_real[sat], np.asarray(obs.max_real, float)[sat])
+    whole = linearize_drive(drive, g, w[~sat], t[~sat])
+    np.testing.assert_allclose(both.max_real[~sat], whole.max_real, rtol=1e-9)
+    # the drive has slow modes the observer alone has not (the speed loop, the mechanics): the proof
+    # now sees them
+    assert (both.max_real[~sat] > np.asarray(obs.max_real, float)[~sat] + 1.0).any()
