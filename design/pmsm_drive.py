@@ -18,7 +18,7 @@ from sensorless.design.family import CapabilityError, Panel, TraceLine
 from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.registry import family_of
-from sensorless.design.runtime import RuntimeSetup
+from sensorless.design.runtime import RuntimeSetup, step_variant
 from sensorless.design.scenario import Scenario, speed_filter_of
 from sensorless.design.simulate import (
     LoopCoordinates,
@@ -164,14 +164,18 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
         # the handover's w_min: the whole drive's criteria with its angle error under the full
         # acceleration a_max against rated load (design/low_speed.py); the handover never above 1 p.u.
         try:
-            ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, acceleration=True, **QUICK)  # type: ignore[arg-type]
+            # the analysis behind the start's values is the design's (double) step, whatever step the
+            # run itself is given (design/runtime.py step_variant: e.g. the fixed-point step)
+            with step_variant(None):
+                ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, acceleration=True, **QUICK)  # type: ignore[arg-type]
         except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
             if startup is None or startup.needs_w_min:
                 raise
             sigma = DECAY_SHARE * fam.scales(drive).alpha_s
             rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma, drive.w_base)
             return (*_startup_line({**rules, **given}, given, drive.w_base, ""), 0.0)
-        sigma = _handover_decay(drive, gains, ls)
+        with step_variant(None):
+            sigma = _handover_decay(drive, gains, ls)
         if ls.w_min_rated >= drive.w_base * (1 - 1e-9) or ls.rated_limited_by == "acceleration":
             warn = "; " + handover_reason(ls)
         w_min = ls.w_min_rated

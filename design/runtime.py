@@ -91,7 +91,9 @@ _STEP_VARIANT: contextvars.ContextVar[StepVariant | None] = contextvars.ContextV
 @contextlib.contextmanager
 def step_variant(variant: StepVariant | None) -> Iterator[None]:
     """Within the block, ``RuntimeSetup.step_function()`` returns ``variant(setup, double_step)``: a
-    Function of the same signature (simulation then runs, e.g., the fixed-point step in closed loop)."""
+    Function of the same signature (simulation then runs, e.g., the fixed-point step in closed loop).
+    It applies to the run, not to the analyses that set the run up (design/pmsm_drive.py runs those
+    inside ``step_variant(None)``: a linearization of a fixed-point step's floors has no derivative)."""
     token = _STEP_VARIANT.set(variant)
     try:
         yield

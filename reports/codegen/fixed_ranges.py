@@ -81,9 +81,13 @@ def evaluate(
                 val[i] = nd.const
             elif nd.op == "INPUT":
                 val[i] = inputs[nd.source[0]][nd.source[1]]
-            else:
+            elif nd.op in _F:
                 with np.errstate(all="ignore"):
                     val[i] = _F[nd.op](*[get(a) for a in nd.args])
+            else:  # the lowering's own refusal (fixed_program.py), before the ranges need it
+                raise NotImplementedError(
+                    f"fixed point: operation {nd.op} on runtime values (node {i}) is not supported"
+                )
         return val[i]
 
     for i in idx:
@@ -207,24 +211,15 @@ def probe_runs(
     drive (a start its loop does not model) is left out. ``compile``: the runs as native code (False:
     CasADi's virtual machine, cheaper for a short run than compiling)."""
     from sensorless.design.registry import family_of
-    from sensorless.design.runtime import step_variant
     from sensorless.design.units import DriveFileError
 
     fam = family_of(drive)
     runs: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
-    seen: list[tuple[str, int]] = []
-
-    def probe(setup: Any, step: ca.Function) -> ca.Function:
-        seen.append((setup.observer.name, step.size1_in(0)))
-        return _probe(step)
-
     for sc in scenarios:
         try:
-            with step_variant(probe):
-                ls = fam.simulation(drive, sc, gains)
+            ls, observer, n_x = _probe_setup(fam, drive, sc, gains)
         except (DriveFileError, ValueError):
             continue
-        observer, n_x = seen[-1]
         n = ls.inputs.shape[1]
         n_m = ls.loop.size1_in(0) - len(ls.z0)
         z = np.concatenate([ls.z0, np.zeros(n_m)])
@@ -241,3 +236,38 @@ def probe_runs(
         z_all = np.hstack(cols)
         runs.setdefault(observer, []).append((z_all[-(n_x + n_m) : -n_m, :-1], z_all[-n_m:, 1:]))
     return {k: (np.hstack([x for x, _ in v]), np.hstack([m for _, m in v])) for k, v in runs.items()}
+
+
+def _probe_setup(fam: Any, drive: Any, sc: Any, gains: Any) -> tuple[Any, str, int]:
+    """(the loop set-up of ``sc`` whose observer step carries its measurements in its state
+    (:func:`_probe`), the observer's name, its state's length).
+
+    Only the scenario's own step may be the probe: setting a loop up can analyse other loops of the
+    drive first (the I-f start's handover speed is the whole drive's, design/drive_analysis.py), and
+    those take the double step as it is (the probe's longer state is not theirs: their initial
+    states are the observer's). The scenario's step is the last one its set-up asks for, so a first
+    set-up with the double step counts the requests and the second puts the probe in the last."""
+    from sensorless.design.runtime import step_variant
+
+    asked: list[tuple[Any, ca.Function]] = []
+
+    def count(setup: Any, step: ca.Function) -> ca.Function:
+        asked.append((setup, step))
+        return step
+
+    with step_variant(count):
+        plain = fam.simulation(drive, sc, gains)
+    last = len(asked) - 1
+    setup, step = asked[last]
+    asked.clear()
+
+    def probe(s: Any, st: ca.Function) -> ca.Function:
+        asked.append((s, st))
+        return _probe(st) if len(asked) - 1 == last else st
+
+    with step_variant(probe):
+        ls = fam.simulation(drive, sc, gains)
+    same = len(asked) == last + 1 and asked[last][1].name() == step.name()
+    if not same or not np.array_equal(ls.z0, plain.z0):
+        raise RuntimeError(f"{sc.name}: the set-up of the probe run is not that of the scenario's run")
+    return ls, setup.observer.name, step.size1_in(0)
