@@ -5,6 +5,7 @@ montecarlo` without --spread spreads the family's typical values (tiny draw coun
 from __future__ import annotations
 
 import json
+from importlib.resources import files
 
 import numpy as np
 from sensorless.design.drive import load_drive
@@ -35,11 +36,18 @@ def test_draws_reproduce_the_familys_linearization():
 
 
 def test_montecarlo_command_defaults_to_the_typical_spread(tmp_path, capsys):
+    # the preset with a start its user gives: the drive runs open loop below the hand-back speed w_off
+    # = 0.2 p.u., so the draws are judged only from there up (the preset's own start hands back below
+    # its envelope's lowest speed, 0.05 p.u., and would keep every point)
+    preset = (files("sensorless.design.pmsm_flux_observer.presets") / "outrunner270.toml").read_text()
+    assert "[startup]" not in preset
+    drive_file = tmp_path / "outrunner270_start.toml"
+    drive_file.write_text(preset + '\n[startup]\nw_on = "0.3 pu"\nw_off = "0.2 pu"\n')
     out = tmp_path / "mc"
     rc = main(
         [
             "montecarlo",
-            "outrunner270",
+            str(drive_file),
             "--samples",
             "3",
             "--scheduler",
@@ -51,8 +59,12 @@ def test_montecarlo_command_defaults_to_the_typical_spread(tmp_path, capsys):
     )
     assert rc in (0, 3)
     s = json.loads((out / "summary.json").read_text())
-    params = family_of(load_drive("outrunner270")).montecarlo_parameters(load_drive("outrunner270"))
+    d = load_drive("outrunner270")
+    params = family_of(d).montecarlo_parameters(d)
     assert s["spread"] == {p.name: f"{100 * p.typical:g}%" for p in params if p.typical > 0}
     assert s["min_damping"] == 0.0  # the family's: stable (its damping falls with speed by design)
     # the points the gains run sensorless: from the I-f start's hand-back speed up
-    assert s["samples"] == 3 and 0 < s["envelope_points"] < load_drive("outrunner270").grid()[0].size
+    W, _ = d.grid()
+    above = int(np.count_nonzero(np.abs(W) >= 0.2 * d.w_base * (1 - 1e-12)))
+    assert 0 < above < W.size
+    assert s["samples"] == 3 and s["envelope_points"] == above

@@ -16,6 +16,7 @@ import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import numpy as np
 import pytest
 from sensorless.design.drive import load_drive_text
 from sensorless.design.pmsm_flux_observer.firmware import float32, odrive, vesc
@@ -76,20 +77,33 @@ def test_odrive_ramp_current_cannot_carry_rated_load_and_the_current_that_does_i
 
 
 def test_vesc_2017_ramp_never_hands_over_and_the_handover_that_does_is_named(skate2017):
-    """foc_openloop_rpm 400 ERPM (41.9 rad/s) is far below the observer's w_min: the finding names it
-    with a handover above w_min and below rated; the ramp 400 ERPM / 0.5 s = 83.8 rad/s^2 is slower
-    than the drive's own start asks (0.5 p.u. in t_seg) and is replaced, foc_sl_openloop_time with it."""
+    """foc_openloop_rpm 400 ERPM (41.9 rad/s) hands over nowhere at the file's gains: the whole sampled
+    drive (speed PI on the PLL's speed, PLL 2000/40000 of the era) is unstable at every speed, so no
+    speed meets the low-speed criteria (w_min = 1 p.u., design/low_speed.py) and no start-up value
+    fixes it: the finding names speed_unreachable and the gains (sensorless tune). The ramp 400 ERPM /
+    0.5 s = 83.8 rad/s^2 is slower than the drive's own start asks (0.5 p.u. in t_seg) and is replaced.
+
+    The instability is checked in the time domain, independently of the linearization: load steps at
+    0.2 p.u. simulated on the drive as generated; a stable speed loop (bandwidth alpha_s = 125 rad/s,
+    time constant 8 ms) settles within the last 0.19 s at no load, this one still swings by more than
+    0.2 p.u. about its reference there."""
+    from sensorless.design.scenario import load_scenario
+    from sensorless.design.simulate import simulate
+
     d, j = skate2017
+    tr = simulate(d, load_scenario("load_steps", d))
+    last = tr.t > tr.t[-1] - 0.1
+    assert np.max(np.abs(tr["w_m"] - tr["w_ref"])[last]) > 0.2 * d.w_base  # electrical
     s = {x.key: x for x in j.shortfalls}
+    assert j.w_min == pytest.approx(d.w_base)
     assert s["w_on"].value == pytest.approx(400 * 2 * math.pi / 60)
-    assert s["w_on"].cause == "observer_lag_acceleration"
-    assert j.w_min < j.values["if_w_on"] <= d.w_base
+    assert s["w_on"].cause == "speed_unreachable" and math.isnan(s["w_on"].needed) and not j.fixable
     assert s["acceleration"].value == pytest.approx(83.7758, rel=1e-5)
     assert s["acceleration"].cause == "ramp_slower_than_reference"
     assert "current" not in s  # the rule's current (VESC sets its own) carries the load
     lines = change_lines("vesc", j, d.w_base)
-    rpm = round(j.values["if_w_on"] * 60 / (2 * math.pi))
-    assert f"foc_openloop_rpm = {rpm} ERPM (was 400)" in lines[-1] and "foc_sl_openloop_time" in lines[-1]
+    assert not any("foc_openloop_rpm =" in x for x in lines)  # nothing to write: the gains must change
+    assert len([x for x in lines if "speed_unreachable" in x and "sensorless tune" in x]) == 1
 
 
 def test_values_that_hold_are_kept_and_those_beyond_reach_or_limit_are_not(d5065):
@@ -102,12 +116,22 @@ def test_values_that_hold_are_kept_and_those_beyond_reach_or_limit_are_not(d5065
     )
     kept = judge_startup(drive_of(odrive, "d5065_odrive.json", {"u_dc": 24.0}, ok), family_of(d).gains(d))
     assert kept.shortfalls == () and kept.values["if_w_on"] == math.ceil(1.5 * j.w_min)
-    bad = 'current = "100 A"\nacceleration = "20000 rad/s2"\nw_on = "1.5 pu"'
-    dd = drive_of(odrive, "d5065_odrive.json", {"u_dc": 24.0}, bad)
+    # beyond reach as a user meets it: an odrivetool backup whose ramp ends at 5700 rad/s, 1.5 times
+    # the rated speed 0.8 u_dc / (sqrt(3) psi_pm) = 3800 rad/s at 24 V (a drive file refuses a handover
+    # above 1 p.u.: the importer leaves it out, said with the cause, and the rule's handover applies)
+    w_rated = 0.8 * 24.0 / (math.sqrt(3) * d.motor.psi_pm)
+    assert w_rated == pytest.approx(d.w_base)
+    ramp = {"current": (10.0, 100.0), "accel": (200.0, 20000.0), "vel": (400.0, 1.5 * w_rated)}
+    backup = (EXAMPLES / "d5065_odrive.json").read_text()
+    for k, (was, now) in ramp.items():
+        backup = backup.replace(f'"{k}": {was!r}', f'"{k}": {now!r}')
+    im = odrive.read(backup, "d5065_odrive.json", {"u_dc": 24.0}, KIND)
+    assert len([n for n in im.notes if "speed_unreachable" in n and "sensorless_ramp.vel" in n]) == 1
+    dd = load_drive_text(im.text, "d5065_odrive.json")
     b = judge_startup(dd, family_of(dd).gains(dd))
     s = {x.key: x for x in b.shortfalls}
     assert s["current"].cause == "torque_limit" and b.values["if_i"] <= 60.0
-    assert s["w_on"].cause == "speed_unreachable" and j.w_min < b.values["if_w_on"] <= dd.w_base
+    assert "w_on" not in b.given and j.w_min < b.values["if_w_on"] <= dd.w_base
     assert b.values["if_w_on"] < dd.control.u_dc / (math.sqrt(3) * dd.motor.psi_pm)  # no-load speed
 
 
@@ -146,12 +170,13 @@ def test_vesc_drive_exports_within_reach_and_keeps_the_users_switch_over(skate20
     for n in NUMBER.findall(re.sub(r"<!--.*?-->|<\?.*?\?>", "", text, flags=re.S)):
         assert digits(n) <= 9, n
     root = ET.fromstring(text.split("\n", 1)[1])
-    w_on = float(root.findtext("foc_openloop_rpm")) * 2 * math.pi / 60
-    assert j.w_min <= w_on <= d.w_base and w_on < d.control.u_dc / (math.sqrt(3) * d.motor.psi_pm)
-    acc = w_on / float(root.findtext("foc_sl_openloop_time"))
-    assert acc == pytest.approx(j.values["if_acc"], rel=1e-3)
-    w_off = w_on - float(root.findtext("foc_sl_openloop_hyst")) * acc
-    assert j.w_min * 0.999 <= w_off < w_on
+    # no handover below rated speed at the file's gains (w_min = 1 p.u., see the test above): no start-up
+    # value fixes it, so none is written (the firmware keeps its own) and the note says why
+    assert not j.fixable
+    for key in ("foc_openloop_rpm", "foc_sl_openloop_time", "foc_sl_openloop_hyst"):
+        assert root.find(key) is None, key
+    assert any(n.startswith("start-up not written") for n in notes)
+    assert len([n for n in notes if "speed_unreachable" in n]) == 1
     assert root.find("foc_sl_erpm") is None and any("foc_sl_erpm" in n and "kept" in n for n in notes)
     assert root.findtext("foc_observer_gain") == "58203000" and root.findtext("foc_pll_ki") == "40000"
     assert len([n for n in notes if n.startswith("start-up: [startup]")]) == len(j.shortfalls)
@@ -175,15 +200,27 @@ def test_the_exported_start_read_back_is_the_same_drive_and_holds(d5065):
 
 def test_a_start_without_a_w_min_is_still_never_written_beyond_reach():
     """The box clamp (the hub motor's MXLEMMING) has no linearization, so no w_min to judge the start
-    against: its given start is written as given, but not a handover above rated speed."""
+    against: its given start is written as given, but not a handover above rated speed (a VESC file
+    whose foc_openloop_rpm lies above it: the importer leaves it out with the cause, nothing of it is
+    exported)."""
     from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS
 
-    keys = 'current = "50 A"\nacceleration = "2000 rad/s2"\nw_off = "0.1 pu"\nw_on = '
-    for w_on, written in (('"0.3 pu"', True), ('"1.5 pu"', False)):
-        d = drive_of(vesc, "hub_motor_mcconf.xml", {}, keys + w_on)
-        files, notes = EXPORTERS["vesc"].export(d, family_of(d).gains(d))
-        assert ("foc_openloop_rpm" in files["vesc.xml"]) == written
-        assert any("speed_unreachable" in n for n in notes) != written
-        if written:
-            rpm = float(ET.fromstring(files["vesc.xml"].split("\n", 1)[1]).findtext("foc_openloop_rpm"))
-            assert rpm == round(0.3 * d.w_base * 60 / (2 * math.pi))
+    keys = 'current = "50 A"\nacceleration = "2000 rad/s2"\nw_off = "0.1 pu"\nw_on = "0.3 pu"'
+    d = drive_of(vesc, "hub_motor_mcconf.xml", {}, keys)
+    files, notes = EXPORTERS["vesc"].export(d, family_of(d).gains(d))
+    assert not any("speed_unreachable" in n for n in notes)
+    rpm = float(ET.fromstring(files["vesc.xml"].split("\n", 1)[1]).findtext("foc_openloop_rpm"))
+    assert rpm == round(0.3 * d.w_base * 60 / (2 * math.pi))
+    # 1.5 times the rated speed 0.8 u_dc / (sqrt(3) psi_pm) (the file's 14 cells x 3.7 V), in ERPM
+    w_rated = 0.8 * d.control.u_dc / (math.sqrt(3) * d.motor.psi_pm)
+    assert w_rated == pytest.approx(d.w_base)
+    above = round(1.5 * w_rated * 60 / (2 * math.pi))
+    xml = (EXAMPLES / "hub_motor_mcconf.xml").read_text()
+    assert xml.count("<foc_openloop_rpm>1500<") == 1
+    im = vesc.read(xml.replace("<foc_openloop_rpm>1500<", f"<foc_openloop_rpm>{above}<"), "h.xml", {}, KIND)
+    assert len([n for n in im.notes if "speed_unreachable" in n and "foc_openloop_rpm" in n]) == 1
+    startup = im.text[im.text.index("[startup]") :]
+    assert "w_on" not in startup and "w_off" not in startup
+    d = load_drive_text(im.text, "h.xml")
+    files, _ = EXPORTERS["vesc"].export(d, family_of(d).gains(d))
+    assert "foc_openloop_rpm" not in files["vesc.xml"]

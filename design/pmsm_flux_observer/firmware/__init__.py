@@ -264,9 +264,29 @@ def startup_entries(
     w_on: float | None,
     w_off: float | None,
     rules: Mapping[str, str],
+    rated: tuple[float, float] | None = None,
+    notes: list[str] | None = None,
 ) -> dict[str, Entry]:
     """The ``[startup]`` entries (design/startup.py) of the firmware values found (SI), each with its
-    rule (``rules``: key -> the firmware fields it comes from)."""
+    rule (``rules``: key -> the firmware fields it comes from). ``rated``: (u_dc [V], psi_pm [Wb]) of
+    the drive file written without a rated speed, whose 1 p.u. is then N_SPEED x the no-load speed
+    u_dc / (sqrt(3) psi_pm) (design/pmsm_flux_observer/schema.py): a firmware's handover above it is
+    left out (the drive file refuses a handover above rated speed, design/startup.py: the open loop
+    never gets there, cause speed_unreachable), its hand-back with it, said in ``notes``; the rule's
+    handover then applies."""
+    if rated is not None and w_on is not None:
+        from sensorless.design.pmsm_flux_observer.schema import N_SPEED
+
+        w_rated = N_SPEED * rated[0] / (math.sqrt(3) * rated[1])
+        if w_on > w_rated:
+            if notes is not None:
+                notes.append(
+                    f"{rules['w_on']}: the handover w_on = {w_on:.6g} rad/s is above the rated speed "
+                    f"{w_rated:.6g} rad/s ({N_SPEED:g} x the no-load speed at u_dc): the open loop never "
+                    "gets there (cause: speed_unreachable); left out of [startup] with its hand-back, the "
+                    "rule's handover applies (sensorless tune proposes it)"
+                )
+            w_on = w_off = None
     found = {
         "current": (current, "A"),
         "acceleration": (acc, "rad/s2"),

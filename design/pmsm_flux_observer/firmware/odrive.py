@@ -191,6 +191,8 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
             k: f"config.sensorless_ramp.{v}"
             for k, v in (("current", "current"), ("acceleration", "accel"), ("w_on", "vel"))
         },
+        (float(given["u_dc"]), psi),
+        notes,
     )
     sections = {
         "drive": {

@@ -205,6 +205,9 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
     inertia(given, motor, notes, "a VESC file")
 
     inverter: dict[str, Entry] = {}
+    # the bus voltage the drive file states (its rated speed follows from it)
+    u_dc = float(given["u_dc"]) if given.get("u_dc") else cells * V_PER_CELL if cells is not None else v_max
+    assert u_dc is not None
     if given.get("u_dc"):
         inverter["u_dc"] = Entry(quantity(float(given["u_dc"]), "V"), "--u-dc")
     elif cells is not None:
@@ -309,6 +312,8 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
             "w_on": "foc_openloop_rpm x 2 pi/60 (ERPM)",
             "w_off": "foc_openloop_rpm - foc_sl_openloop_hyst x acceleration",
         },
+        (u_dc, psi),
+        notes,
     )
     sections = {
         "drive": {
