@@ -21,6 +21,7 @@ index, never on how many workers evaluate the chunks.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -32,6 +33,14 @@ CHUNK = 250  # draws per chunk: the unit of seeding and of distributed work
 CLIP_FRACTION = 0.05  # a non-physical draw (<= 0) is clipped to this fraction of the nominal value
 MAX_NORMAL, MAX_UNIFORM = 0.5, 1.0  # relative spreads refused: they draw <= 0 too often (or always)
 _SPEC = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)=([0-9.eE+-]+)%(u?)$")
+
+
+def perturbed(drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
+    """``drive`` (a frozen dataclass with ``motor`` and ``estimate`` records) with its true motor's and
+    its estimates' parameters replaced by the given values: a draw's time domain."""
+    motor = dataclasses.replace(drive.motor, **{k: float(v) for k, v in plant.items()})
+    est = dataclasses.replace(drive.estimate, **{k: float(v) for k, v in estimate.items()})
+    return dataclasses.replace(drive, motor=motor, estimate=est)
 
 
 class SpreadError(ValueError):

@@ -31,9 +31,7 @@ it does between the continuation and the rootfinder).
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-from collections.abc import Mapping
 from typing import Any
 
 import casadi as ca
@@ -47,6 +45,7 @@ from sensorless.design.ipmsm_adaptive.operating_point import (
     residual_function,
 )
 from sensorless.design.montecarlo import Uncertain
+from sensorless.design.montecarlo import perturbed as shared_perturbed
 from sensorless.design.poles import eigvals_batched, sort_poles
 from sensorless.symbolic.ipmsm_adaptive.gains import get_law
 
@@ -69,11 +68,9 @@ def parameters(drive: Any) -> tuple[Uncertain, ...]:
     return tuple(out)
 
 
-def perturbed(drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
-    """``drive`` with its true motor's and its estimates' parameters replaced by the given values."""
-    motor = dataclasses.replace(drive.motor, **{k: float(v) for k, v in plant.items()})
-    est = dataclasses.replace(drive.estimate, **{k: float(v) for k, v in estimate.items()})
-    return dataclasses.replace(drive, motor=motor, estimate=est)
+perturbed = (
+    shared_perturbed  # design/montecarlo.py: the same for every family with motor and estimate records
+)
 
 
 @functools.cache

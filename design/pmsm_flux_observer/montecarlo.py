@@ -12,14 +12,13 @@ falls with speed by design) at every point of the envelope.
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.montecarlo import Uncertain
+from sensorless.design.montecarlo import perturbed as shared_perturbed
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.pmsm_flux_observer.linearize import FluxLinearization, equilibrium_function, wrap
 from sensorless.design.poles import eigvals_batched
@@ -39,10 +38,9 @@ def parameters(drive: Any) -> tuple[Uncertain, ...]:
     return tuple(out)
 
 
-def perturbed(drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
-    motor = dataclasses.replace(drive.motor, **{k: float(v) for k, v in plant.items()})
-    est = dataclasses.replace(drive.estimate, **{k: float(v) for k, v in estimate.items()})
-    return dataclasses.replace(drive, motor=motor, estimate=est)
+perturbed = (
+    shared_perturbed  # design/montecarlo.py: the same for every family with motor and estimate records
+)
 
 
 def linearize_draws(
