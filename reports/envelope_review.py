@@ -106,6 +106,10 @@ class Judge(Protocol):
         """The gain sets reviewed, the drive file's last; None: the drive file's alone."""
         ...
 
+    def notes(self, drive: Drive) -> tuple[str, ...]:
+        """Lines ``analyze`` prints of the drive's own settings under the gains (e.g. its variant)."""
+        ...
+
     def scenarios(self, drive: Drive) -> Sequence[str]:
         """The built-in scenarios the report checks in the time domain."""
         ...
@@ -198,6 +202,8 @@ def analyze_with(judge: Judge) -> Callable[[Drive, argparse.Namespace, OutputSet
         print(f"{drive.name}: {drive.source}")
         print(f"{fam.title} ({fam.citation}); gains: {gains.source}")
         print("; ".join(f"{k} = {v:.6g}" for k, v in gains.values.items() if np.ndim(v) == 0))
+        for line in judge.notes(drive):
+            print(line)
         z, d = figures(lin)
         kind = f"sampled observer at T_s = {lin.T_s:g} s" if sampled else "continuous observer"
         own = np.isclose(lin.w[:, None], np.unique(judge.points(drive, 1)[0])[None, :], rtol=1e-12).any(
@@ -262,6 +268,9 @@ class PolesJudge:
 
     def choices(self, drive: Drive) -> dict[str, GainSet] | None:
         return None
+
+    def notes(self, drive: Drive) -> tuple[str, ...]:
+        return ()
 
     def scenarios(self, drive: Drive) -> Sequence[str]:
         return builtin_names(drive.kind)

@@ -65,6 +65,11 @@ class FluxJudge:
         mine = FAMILY.gains(drive)
         return {DEFAULTS[0]: odrive_gains(), DEFAULTS[1]: vesc_gains(drive), "drive file": mine}
 
+    def notes(self, drive: Any) -> tuple[str, ...]:
+        o = drive.observer
+        T_us = o.T_obs * 1e6
+        return (f"{o.firmware}: {o.correction}, {o.inductance_rule} inductance; T_obs = {T_us:g} us",)
+
     def scenarios(self, drive: Any) -> Sequence[str]:
         return TIME_DOMAIN
 
