@@ -43,6 +43,9 @@ class RotorFrameLoop:
     name: str  # for the Functions built from it
     rates: ca.Function  # (x_r[n], w, torque, plant[m], p[k]) -> f_r[n]
     start: ca.Function  # (w, torque, plant[m], p[k]) -> x_r[n]: where Newton's method starts
+    # what the family reads at the equilibrium (e.g. the observer's steady angle error): (x_r[n], w,
+    # torque, plant[m], p[k]) -> y[l]; None: nothing
+    output: ca.Function | None = None
 
     @property
     def n_x(self) -> int:
@@ -51,8 +54,9 @@ class RotorFrameLoop:
 
 @functools.cache
 def equilibrium_function(loop: RotorFrameLoop) -> ca.Function:
-    """(w, torque, plant, p) -> (x_r*, A, res): NEWTON_STEPS Newton steps on f_r(x_r) = 0 from the loop's
-    start, the Jacobian A = df_r/dx_r there and the residual |f_r(x_r*)|_inf."""
+    """(w, torque, plant, p) -> (x_r*, A, res[, y]): NEWTON_STEPS Newton steps on f_r(x_r) = 0 from the
+    loop's start, the Jacobian A = df_r/dx_r there, the residual |f_r(x_r*)|_inf and, where the loop
+    declares an ``output``, its value there."""
     f = loop.rates
     x_r = ca.SX.sym("x_r", loop.n_x)
     w, T = ca.SX.sym("w"), ca.SX.sym("torque")
@@ -64,13 +68,36 @@ def equilibrium_function(loop: RotorFrameLoop) -> ca.Function:
         Gk, Jk = g_fn(xk, w, T, plant, p)
         xk = xk - ca.solve(Jk, Gk)
     Gk, Jk = g_fn(xk, w, T, plant, p)
+    y = [] if loop.output is None else [loop.output(xk, w, T, plant, p)]
     return ca.Function(
         f"{loop.name}_equilibrium_c",
         [w, T, plant, p],
-        [xk, ca.densify(Jk), ca.norm_inf(Gk)],
+        [xk, ca.densify(Jk), ca.norm_inf(Gk), *y],
         ["w", "torque", "plant", "p"],
-        ["x", "A", "res"],
+        ["x", "A", "res", *(["y"] if y else [])],
     )
+
+
+@dataclass(frozen=True)
+class Equilibria:
+    """The equilibria of a :class:`RotorFrameLoop` at N operating points (NaN rows where Newton's method
+    does not converge)."""
+
+    x: np.ndarray  # (N, n) the rotor-frame state
+    A: np.ndarray  # (N, n, n) the Jacobian df_r/dx_r
+    ok: np.ndarray  # (N,) converged
+    y: np.ndarray | None  # (N, l) the loop's ``output`` there, None without one
+
+
+def equilibrium_points(loop: RotorFrameLoop, w: Any, torque: Any, plant: Any, p: Any) -> Equilibria:
+    """The equilibria at the N points (w, torque), batched: ``plant`` one vector or one column per
+    point, ``p`` likewise."""
+    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
+    out = evaluate_batch(equilibrium_function(loop), W.size, [W, T, np.asarray(plant, float), p])
+    x, A, res = out[0][:, :, 0], out[1], out[2]
+    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0))
+    y = np.where(ok[:, None], out[3][:, :, 0], np.nan) if len(out) > 3 else None
+    return Equilibria(np.where(ok[:, None], x, np.nan), np.where(ok[:, None, None], A, np.nan), ok, y)
 
 
 def equilibria(
@@ -78,11 +105,8 @@ def equilibria(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(x_r* (N, n), A (N, n, n), converged (N,)) at the N points (w, torque), batched; a point where
     Newton's method does not converge has NaN in x_r* and A."""
-    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
-    x, A, res = evaluate_batch(equilibrium_function(loop), W.size, [W, T, np.asarray(plant, float), p])
-    x = x[:, :, 0]
-    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0))
-    return np.where(ok[:, None], x, np.nan), np.where(ok[:, None, None], A, np.nan), ok
+    e = equilibrium_points(loop, w, torque, plant, p)
+    return e.x, e.A, e.ok
 
 
 def continuous_poles(

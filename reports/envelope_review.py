@@ -13,6 +13,12 @@ observer's ln(z)/T_s, which the figures of merit then take (what runs is the sam
 - :func:`report`: the frame of reports/review.py (gains under review, opening data, time-domain
   checks of the family's built-in or the generic scenarios, verdict) around one section of poles over
   the envelope per gain set: stable, worst damping against the required, slowest decay and where.
+
+A family that judges its gains by a criterion of its own keeps this frame and gives a :class:`Judge`
+(``report_with(judge)``, ``analyze_with(judge)``): its envelope's points, the gain sets it reviews, its
+sections and figures of the analysis, and its verdict's status and findings; the frame does the rest
+(gains under review, poles figure and tables, time-domain checks, verdict box, report.json).
+:data:`POLES` is the judge of the poles alone, the default.
 """
 
 from __future__ import annotations
@@ -20,7 +26,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from collections.abc import Callable, Sequence
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 from sensorless.design.envelope import Envelope
@@ -44,7 +51,7 @@ from sensorless.reports.document import (
 )
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
-from sensorless.reports.review import gains_under_review, opening, settle, status_class, verdict_box
+from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
 from sensorless.tuning.family import hooks as tuning_hooks
 
 ANALYZE_REFINE = 4  # analyze and the normal report refine the envelope's speeds this many times
@@ -66,6 +73,66 @@ def points(drive: Drive, refine: int = 1) -> tuple[np.ndarray, np.ndarray]:
     return W.ravel(), T.ravel()
 
 
+@dataclass(frozen=True)
+class Analysis:
+    """What a judge found over the envelope, before the time-domain checks."""
+
+    analysis: dict[str, Any]  # report.json "analysis": per gain set label
+    sections: tuple[Section, ...]  # the report's sections between the drive data and the time-domain checks
+    data: dict[str, Any] = field(default_factory=dict)  # more report.json keys
+    context: Any = None  # what the judge's verdict needs of it
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """A judge's verdict before the time-domain checks' own findings (reports/review.py ``settle``)."""
+
+    status: str  # pass | warn | fail
+    findings: list[str]  # before the time-domain checks' findings
+    text: str  # the verdict's paragraph
+    after: list[str] = field(default_factory=list)  # findings after the time-domain checks'
+    data: dict[str, Any] = field(default_factory=dict)  # more report.json "verdict" keys
+    more: dict[str, Any] = field(default_factory=dict)  # more report.json keys
+
+
+class Judge(Protocol):
+    """How a family judges its gains over its envelope on the shared frame (module docstring)."""
+
+    def points(self, drive: Drive, refine: int) -> tuple[np.ndarray, np.ndarray]:
+        """Flat (speed [rad/s], torque [N m]) of the envelope, speeds refined ``refine`` times."""
+        ...
+
+    def choices(self, drive: Drive) -> dict[str, GainSet] | None:
+        """The gain sets reviewed, the drive file's last; None: the drive file's alone."""
+        ...
+
+    def notes(self, drive: Drive) -> tuple[str, ...]:
+        """Lines ``analyze`` prints of the drive's own settings under the gains (e.g. its variant)."""
+        ...
+
+    def scenarios(self, drive: Drive) -> Sequence[str]:
+        """The built-in scenarios the report checks in the time domain."""
+        ...
+
+    def analyse(
+        self, drive: Drive, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
+    ) -> Analysis:
+        """The gain sets judged over the envelope: report.json data and sections."""
+        ...
+
+    def verdict(
+        self,
+        drive: Drive,
+        rev: Review,
+        found: Analysis,
+        runs: Sequence[Any],
+        td: Sequence[dict[str, Any]],
+        min_damping: float,
+    ) -> Judgement:
+        """The status and findings of the analysis, with the time-domain checks ``td`` of ``runs``."""
+        ...
+
+
 def figures(lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
     """(worst damping, decay rate) per point: the sampled observer's where the linearization has it."""
     if lin.poles_discrete is not None:
@@ -74,14 +141,18 @@ def figures(lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
 
 
 def poles_figure(lin: Linearization, w_base: float, title: str) -> Any:
-    """Real parts of the poles (continuous o, sampled x) and the worst damping over speed, per torque."""
+    """Real parts of the poles (continuous o, sampled x) and the worst damping over speed, per torque;
+    below, the steady angle error where the linearization gives it (``angle_bias``)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     plt.rcParams["svg.hashsalt"] = "sensorless"
-    fig, (a1, a2) = plt.subplots(2, 1, sharex=True, figsize=(6.4, 5.0))
+    bias = lin.angle_bias()
+    rows = 2 if bias is None else 3
+    fig, axes = plt.subplots(rows, 1, sharex=True, figsize=(6.4, 2.5 * rows))
+    a1, a2 = axes[0], axes[1]
     for j, T in enumerate(np.unique(lin.torque)):
         m, c = lin.torque == T, f"C{j}"
         w = lin.w[m] / w_base
@@ -92,11 +163,15 @@ def poles_figure(lin: Linearization, w_base: float, title: str) -> Any:
             a1.plot(np.repeat(w, n), lin.poles_discrete[m].real.ravel(), "x", ms=3, color=c)
             a2.plot(w, lin.worst_damping_discrete[m], "-", color=c)
         a2.plot([], [], "-", color=c, label=f"{lin.torque_name} = {T:g} N m")
+        if bias is not None:
+            axes[2].plot(w, np.degrees(bias[m]), "-", color=c)
     a1.set_ylabel("Re(p) (1/s)")
     a2.set_ylabel("worst damping")
-    a2.set_xlabel("speed (p.u.)")
     a2.legend(fontsize=8, frameon=False)
-    for a in (a1, a2):
+    if bias is not None:
+        axes[2].set_ylabel("angle error (deg)")
+    axes[-1].set_xlabel("speed (p.u.)")
+    for a in axes:
         a.grid(True, lw=0.3, color="0.8")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
@@ -106,52 +181,63 @@ def poles_figure(lin: Linearization, w_base: float, title: str) -> Any:
 CAPTION = (
     "Real parts of the observer's poles over speed, continuous observer (o) and, where analysed, the "
     "sampled observer at the drive's sampling period, ln(z)/T_s (x); below, the worst damping "
-    "(sampled: solid, continuous: dashed). Colours: torque."
+    "(sampled: solid, continuous: dashed) and, where the family gives it, the observer's steady angle "
+    "error at the drive's estimates. Colours: torque."
 )
 
 
-def analyze(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
-    """Poles over the envelope (speeds refined ANALYZE_REFINE times): terminal summary, CSV, figure."""
-    fam = family_of(drive)
-    gains = fam.gains(drive, table=read_gain_table(args.gains), table_file=args.gains) if args.gains else None
-    gains = gains or fam.gains(drive)
-    W, T = points(drive, ANALYZE_REFINE)
-    lin = fam.linearize(drive, gains, W, T)
-    sampled = lin.poles_discrete is not None
-    print(f"{drive.name}: {drive.source}")
-    print(f"{fam.title} ({fam.citation}); gains: {gains.source}")
-    print("; ".join(f"{k} = {v:.6g}" for k, v in gains.values.items() if np.ndim(v) == 0))
-    z, d = figures(lin)
-    kind = f"sampled observer at T_s = {lin.T_s:g} s" if sampled else "continuous observer"
-    own = np.isclose(lin.w[:, None], envelope(drive).speed_grid(drive.w_base)[None, :], rtol=1e-12).any(
-        axis=1
-    )
-    for T_e in np.unique(T):  # at the envelope's own speeds
-        print(f"{lin.torque_name} = {T_e:g} N m:")
-        print(f"  {'speed [pu]':>10} {'worst damping':>14} {'slowest decay [1/s]':>20}")
-        for k in np.flatnonzero((lin.torque == T_e) & own):
-            print(f"  {lin.w[k] / drive.w_base:>10.3f} {z[k]:>14.4f} {d[k]:>20.5g}")
-    worst = f"damping {np.nanmin(z):.4f}, slowest decay {np.nanmin(d):.4g} 1/s"
-    print(f"worst over {lin.w.size} points: {worst} ({kind})")
-    out.add_text("poles.csv", pole_csv(lin, drive.w_base))
-    lost = ~np.isfinite(lin.poles).all(axis=1)
-    if sampled:
-        lost |= ~np.isfinite(lin.poles_discrete).all(axis=1)
-    if lost.any():  # not a result: every written number finite or said (exit status 3)
-        out.warnings.append(
-            f"poles.csv: no finite poles at {int(lost.sum())} of {lost.size} operating points (nan in "
-            "their rows): no equilibrium found there, or the linearized observer overflows; check the "
-            "drive's units and the gains"
-        )
-    if sampled:
-        out.add_text(
-            "poles_discrete.csv", pole_csv(dataclasses.replace(lin, poles=lin.poles_discrete), drive.w_base)
-        )
-    fig = poles_figure(lin, drive.w_base, f"{drive.name}: observer poles over the envelope")
-    out.add_figures("poles", fig)
-    import matplotlib.pyplot as plt
+def analyze_with(judge: Judge) -> Callable[[Drive, argparse.Namespace, OutputSet], None]:
+    """The ``analyze`` hook of a family judged by ``judge`` (its envelope's points)."""
 
-    plt.close(fig)
+    def analyze(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
+        """Poles over the envelope (speeds refined ANALYZE_REFINE times): terminal summary, CSV, figure."""
+        fam = family_of(drive)
+        table = read_gain_table(args.gains) if args.gains else None
+        gains = (
+            fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
+        )
+        W, T = judge.points(drive, ANALYZE_REFINE)
+        lin = fam.linearize(drive, gains, W, T)
+        sampled = lin.poles_discrete is not None
+        print(f"{drive.name}: {drive.source}")
+        print(f"{fam.title} ({fam.citation}); gains: {gains.source}")
+        print("; ".join(f"{k} = {v:.6g}" for k, v in gains.values.items() if np.ndim(v) == 0))
+        for line in judge.notes(drive):
+            print(line)
+        z, d = figures(lin)
+        kind = f"sampled observer at T_s = {lin.T_s:g} s" if sampled else "continuous observer"
+        own = np.isclose(lin.w[:, None], np.unique(judge.points(drive, 1)[0])[None, :], rtol=1e-12).any(
+            axis=1
+        )
+        for T_e in np.unique(T):  # at the envelope's own speeds
+            print(f"{lin.torque_name} = {T_e:g} N m:")
+            print(f"  {'speed [pu]':>10} {'worst damping':>14} {'slowest decay [1/s]':>20}")
+            for k in np.flatnonzero((lin.torque == T_e) & own):
+                print(f"  {lin.w[k] / drive.w_base:>10.3f} {z[k]:>14.4f} {d[k]:>20.5g}")
+        worst = f"damping {np.nanmin(z):.4f}, slowest decay {np.nanmin(d):.4g} 1/s"
+        print(f"worst over {lin.w.size} points: {worst} ({kind})")
+        out.add_text("poles.csv", pole_csv(lin, drive.w_base))
+        lost = ~np.isfinite(lin.poles).all(axis=1)
+        if sampled:
+            lost |= ~np.isfinite(lin.poles_discrete).all(axis=1)
+        if lost.any():  # not a result: every written number finite or said (exit status 3)
+            out.warnings.append(
+                f"poles.csv: no finite poles at {int(lost.sum())} of {lost.size} operating points (nan in "
+                "their rows): no equilibrium found there, or the linearized observer overflows; check the "
+                "drive's units and the gains"
+            )
+        if sampled:
+            out.add_text(
+                "poles_discrete.csv",
+                pole_csv(dataclasses.replace(lin, poles=lin.poles_discrete), drive.w_base),
+            )
+        fig = poles_figure(lin, drive.w_base, f"{drive.name}: observer poles over the envelope")
+        out.add_figures("poles", fig)
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+
+    return analyze
 
 
 def summary(lin: Linearization, gains: GainSet, w_base: float) -> dict[str, Any]:
@@ -168,64 +254,119 @@ def summary(lin: Linearization, gains: GainSet, w_base: float) -> dict[str, Any]
     }
 
 
-def report(
-    drive: Drive,
-    table: Any | None = None,
-    table_file: str = "",
-    min_damping: float = MIN_DAMPING,
-    resolution: str = "normal",
-    progress: Callable[[str], None] = lambda s: None,
-    scenarios: Sequence[str] = (),
-) -> Report:
-    """The stability report (module docstring)."""
-    fam = family_of(drive)
-    rev = gains_under_review(fam, drive, table, table_file)
-    W, T = points(drive, 1 if resolution == "quick" else ANALYZE_REFINE)
-    progress(f"[1/3] poles over the envelope ({W.size} points)")
-    lins = {label: fam.linearize(drive, g, W, T) for label, g in rev.choices.items()}
-    analysis = {label: summary(lin, rev.choices[label], drive.w_base) for label, lin in lins.items()}
-    progress("[2/3] time-domain checks")
-    runs = time_domain.scenarios(drive, builtin_names(drive.kind), scenarios)
-    td, td_figs = time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
-    progress("[3/3] verdict")
-    a = analysis[rev.label]
-    damped = a["worst_damping"] is not None and a["worst_damping"] >= min_damping
-    status, td_findings = settle("fail" if not a["stable"] else "pass" if damped else "warn", td)
-    findings = [] if damped else [f"worst damping {num(a['worst_damping'])} < required {min_damping:g}"]
-    findings += [x["text"] for x in td_findings]
-    data = {
-        **opening(fam, drive, table, min_damping, rev.label),
-        "sampling_period_s": f(drive.T_s),
-        "analysis": analysis,
-        "time_domain": td,
-        "verdict": {"status": status, "damped": damped, "findings": findings},
-    }
-    torque_key = f"{lins[rev.label].torque_name}_Nm"
-    rows = tuple(
-        (
-            label,
-            "yes" if x["stable"] else "NO",
-            num(x["worst_damping"]),
-            num(x["min_decay_rate"]),
-            f"{num(x['slowest_at']['w_pu'])}, {num(x['slowest_at'][torque_key])}",
+def poles_section_figure(drive: Drive, lin: Linearization, label: str) -> Figure:
+    """The report's figure of the poles over the envelope of the gains ``label``."""
+    return Figure(svg_uri(poles_figure(lin, drive.w_base, f"{drive.name}: poles, gains {label}")), CAPTION)
+
+
+class PolesJudge:
+    """The judge of the poles alone: every gain set linearized over the shared envelope, stable and
+    damped as required (the module docstring's report)."""
+
+    def points(self, drive: Drive, refine: int) -> tuple[np.ndarray, np.ndarray]:
+        return points(drive, refine)
+
+    def choices(self, drive: Drive) -> dict[str, GainSet] | None:
+        return None
+
+    def notes(self, drive: Drive) -> tuple[str, ...]:
+        return ()
+
+    def scenarios(self, drive: Drive) -> Sequence[str]:
+        return builtin_names(drive.kind)
+
+    def analyse(
+        self, drive: Drive, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
+    ) -> Analysis:
+        fam = family_of(drive)
+        W, T = self.points(drive, 1 if resolution == "quick" else ANALYZE_REFINE)
+        progress(f"[1/3] poles over the envelope ({W.size} points)")
+        lins = {label: fam.linearize(drive, g, W, T) for label, g in rev.choices.items()}
+        analysis = {label: summary(lin, rev.choices[label], drive.w_base) for label, lin in lins.items()}
+        torque_key = f"{lins[rev.label].torque_name}_Nm"
+        rows = tuple(
+            (
+                label,
+                "yes" if x["stable"] else "NO",
+                num(x["worst_damping"]),
+                num(x["min_decay_rate"]),
+                f"{num(x['slowest_at']['w_pu'])}, {num(x['slowest_at'][torque_key])}",
+            )
+            for label, x in analysis.items()
         )
-        for label, x in analysis.items()
-    )
-    header = ("gains", "stable", "worst damping", "slowest decay (1/s)", "at (p.u., N m)")
-    fig = Figure(
-        svg_uri(poles_figure(lins[rev.label], drive.w_base, f"{drive.name}: poles, gains {rev.label}")),
-        CAPTION,
-    )
-    sections = (
-        drive_section(1, data["drive"], fam.bases(drive)),
-        Section("2. Observer poles over the envelope", (fig, Table(header, rows, "", frozenset({2, 3})))),
-        time_domain.section(3, td, td_figs, time_domain.limitations(drive)),
-    )
-    gains_text = ", ".join(f"{k} = {num(v)}" for k, v in a.items() if k in rev.gains.values)
-    text = (
-        f"Gains {rev.label} ({gains_text}): the observer is {'stable' if a['stable'] else 'NOT stable'} over "
-        f"the envelope, worst damping {num(a['worst_damping'])} (required {min_damping:g}), slowest decay "
-        f"{num(a['min_decay_rate'])} 1/s."
-    )
-    verdict = verdict_box(status, Paragraph(text, status_class(status)), findings=findings)
-    return Report(drive.name, rev.label, data, verdict, sections)
+        header = ("gains", "stable", "worst damping", "slowest decay (1/s)", "at (p.u., N m)")
+        fig = poles_section_figure(drive, lins[rev.label], rev.label)
+        table = Table(header, rows, "", frozenset({2, 3}))
+        section = Section("2. Observer poles over the envelope", (fig, table))
+        return Analysis(analysis, (section,), {"sampling_period_s": f(drive.T_s)})
+
+    def verdict(
+        self,
+        drive: Drive,
+        rev: Review,
+        found: Analysis,
+        runs: Sequence[Any],
+        td: Sequence[dict[str, Any]],
+        min_damping: float,
+    ) -> Judgement:
+        a = found.analysis[rev.label]
+        damped = a["worst_damping"] is not None and a["worst_damping"] >= min_damping
+        status = "fail" if not a["stable"] else "pass" if damped else "warn"
+        findings = [] if damped else [f"worst damping {num(a['worst_damping'])} < required {min_damping:g}"]
+        gains_text = ", ".join(f"{k} = {num(v)}" for k, v in a.items() if k in rev.gains.values)
+        text = (
+            f"Gains {rev.label} ({gains_text}): the observer is {'stable' if a['stable'] else 'NOT stable'} "
+            f"over the envelope, worst damping {num(a['worst_damping'])} (required {min_damping:g}), slowest "
+            f"decay {num(a['min_decay_rate'])} 1/s."
+        )
+        return Judgement(status, findings, text, data={"damped": damped})
+
+
+POLES = PolesJudge()
+
+
+def report_with(judge: Judge) -> Callable[..., Report]:
+    """The ``report`` hook of a family judged by ``judge``: the stability report on the shared frame."""
+
+    def report(
+        drive: Drive,
+        table: Any | None = None,
+        table_file: str = "",
+        min_damping: float = MIN_DAMPING,
+        resolution: str = "normal",
+        progress: Callable[[str], None] = lambda s: None,
+        scenarios: Sequence[str] = (),
+    ) -> Report:
+        """The stability report (module docstring)."""
+        fam = family_of(drive)
+        rev = gains_under_review(fam, drive, table, table_file, choices=judge.choices(drive))
+        found = judge.analyse(drive, rev, min_damping, resolution, progress)
+        progress("[2/3] time-domain checks")
+        runs = time_domain.scenarios(drive, judge.scenarios(drive), scenarios)
+        td, td_figs = time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
+        progress("[3/3] verdict")
+        v = judge.verdict(drive, rev, found, runs, td, min_damping)
+        status, td_findings = settle(v.status, td)
+        findings = [*v.findings, *(x["text"] for x in td_findings), *v.after]
+        data = {
+            **opening(fam, drive, table, min_damping, rev.label),
+            **found.data,
+            "analysis": found.analysis,
+            "time_domain": td,
+            **v.more,
+            "verdict": {"status": status, **v.data, "findings": findings},
+        }
+        n = len(found.sections) + 2
+        sections = (
+            drive_section(1, data["drive"], fam.bases(drive)),
+            *found.sections,
+            time_domain.section(n, td, td_figs, time_domain.limitations(drive)),
+        )
+        verdict = verdict_box(status, Paragraph(v.text, status_class(status)), findings=findings)
+        return Report(drive.name, rev.label, data, verdict, sections)
+
+    return report
+
+
+analyze = analyze_with(POLES)
+report = report_with(POLES)

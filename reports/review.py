@@ -29,6 +29,7 @@ class Review:
     choices: dict[str, GainSet]
     label: str
     tuned: bool  # the gains under review are a gain table's
+    table: Any = None  # that gain table (design/gain_table.py GainTable), None without
 
     @property
     def gains(self) -> GainSet:
@@ -54,7 +55,7 @@ def gains_under_review(
     choices = dict(choices) if choices is not None else {label: family.gains(drive)}
     if table is not None:
         choices["tuned"] = family.gains(drive, table=table, table_file=table_file)
-    return Review(choices, list(choices)[-1], table is not None)
+    return Review(choices, list(choices)[-1], table is not None, table)
 
 
 def opening(

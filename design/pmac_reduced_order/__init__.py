@@ -15,7 +15,7 @@ import dataclasses
 from typing import Any
 
 from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
-from sensorless.design.gain_table import GainTableError
+from sensorless.design.law_gains import table_gains
 from sensorless.design.pmac_reduced_order import derive, schema, simulation
 from sensorless.design.pmac_reduced_order import linearize as _linearize
 from sensorless.design.pmac_reduced_order import runtime as _runtime
@@ -55,13 +55,7 @@ class ReducedOrderObserver(ObserverFamily):
             )
         if table is None:
             return _runtime.drive_gains(drive)
-        kind = table.drive.get("kind")
-        if kind is not None and kind != drive.kind:
-            where = table.where(table_file)
-            raise GainTableError(
-                f"{where}: key 'drive.kind': {kind!r} does not match the drive ({drive.kind})"
-            )
-        return _runtime.table_gains(table, table.where(table_file))
+        return table_gains(self, drive, table, table_file, values=_runtime.table_values)
 
     def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
         return _runtime.runtime_setup(drive, gains, discretization)

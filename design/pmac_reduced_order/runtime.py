@@ -9,10 +9,11 @@ scheduled outside the step.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 from sensorless.design.family import GainSet
-from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.gain_table import GainTableError
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.symbolic.pmac_reduced_order.step import runtime_observer
 
@@ -30,24 +31,17 @@ def drive_gains(drive: Any) -> GainSet:
     return GainSet("constant", {"g": float(o.g), "Gamma": float(o.Gamma)}, f"{drive.file} [observer]")
 
 
-def table_gains(table: GainTable, where: str) -> GainSet:
-    """The gains of a ``constant`` table; ``where`` names the table in errors."""
-    if table.law not in TABLE_LAWS:
-        raise GainTableError(
-            f"{where}: key 'law': {table.law!r} gains are not for the reduced-order observer "
-            "(use a constant table)"
-        )
+def table_values(law: str, gains: Mapping[str, Any], where: str) -> dict[str, float]:
+    """The SI gains of a ``constant`` table (design/law_gains.py ``table_gains`` checks kind and law);
+    ``where`` names the table in errors."""
     values = {}
     for k, need in (("g", "a finite number > 0"), ("Gamma", "a finite number >= 0")):
-        v = table.gains[k]
+        v = gains[k]
         x = float(v) if isinstance(v, int | float) and not isinstance(v, bool) else math.nan
         if not (math.isfinite(x) and (x > 0 if k == "g" else x >= 0)):
             raise GainTableError(f"{where}: key 'gains.{k}': expected {need}, got {v!r}")
         values[k] = x
-    g, Gamma = values["g"], values["Gamma"]
-    return GainSet(
-        "constant", {"g": g, "Gamma": Gamma}, f"constant table {where} (tuned for {table.drive.get('name')})"
-    )
+    return values
 
 
 def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:

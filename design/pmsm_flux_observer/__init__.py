@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from sensorless.design.family import CapabilityError, DriveScales, EstimateErrors, GainSet, ObserverFamily
-from sensorless.design.gain_table import GainTableError
+from sensorless.design.law_gains import table_gains
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_flux_observer import gains as _gains
 from sensorless.design.pmsm_flux_observer import linearize as _linearize
@@ -97,13 +97,7 @@ class FluxObserverFamily(ObserverFamily):
             raise CapabilityError(f"{drive.file}: one [gains] section; there is no [gains.{name}] to choose")
         if table is None:
             return _gains.drive_gains(drive)
-        kind = table.drive.get("kind")
-        if kind is not None and kind != drive.kind:
-            raise GainTableError(
-                f"{table.where(table_file)}: key 'drive.kind': {kind!r} does not match the drive "
-                f"({drive.kind})"
-            )
-        return _gains.table_gains(table, table.where(table_file))
+        return table_gains(self, drive, table, table_file, values=_gains.table_values)
 
     def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
         return _gains.runtime_setup(drive, gains, discretization)

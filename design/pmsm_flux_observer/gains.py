@@ -21,7 +21,7 @@ from typing import Any
 
 import casadi as ca
 from sensorless.design.family import GainSet
-from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.gain_table import GainTableError
 from sensorless.design.runtime import GainSchedule, RuntimeSetup
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.pmsm_flux_observer.observer import runtime_observer
@@ -94,15 +94,12 @@ def drive_gains(drive: Any) -> GainSet:
     return GainSet(law, parse_law(law, t, drive.file, "gains"), f"{drive.file} [gains]")
 
 
-def table_gains(table: GainTable, where: str) -> GainSet:
-    """The gains of a gain table of one of the family's laws."""
-    if table.law not in TABLE_LAWS:
-        raise GainTableError(f"{where}: key 'law': {table.law!r} is not a law of the flux observer")
+def table_values(law: str, gains: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """The SI gains of a gain table of ``law`` (design/law_gains.py ``table_gains`` checks kind and law)."""
     try:
-        values = parse_law(table.law, {"law": table.law, **table.gains}, where, "gains")
+        return parse_law(law, {"law": law, **gains}, where, "gains")
     except DriveFileError as e:
         raise GainTableError(f"{where}: key '{e.key}': {e.problem}") from None
-    return GainSet(table.law, values, f"{table.law} table {where} (tuned for {table.drive.get('name')})")
 
 
 def pll_gains(gains: GainSet) -> tuple[float, float]:

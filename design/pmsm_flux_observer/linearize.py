@@ -25,7 +25,6 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.batch import evaluate_batch
 from sensorless.design.discrete import (
     SampledLoop,
     discrete_poles,
@@ -40,11 +39,17 @@ from sensorless.design.linearization import Linearization
 from sensorless.design.noise import noise_rms_periodic
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.poles import eigvals_batched
+from sensorless.design.rotor_frame import (
+    RotorFrameLoop,
+    equilibrium_points,
+    pmsm_plant,
+    pmsm_steady,
+    pmsm_steady_current,
+)
 from sensorless.symbolic.frames import J, rot, wrap_angle
-from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
+from sensorless.symbolic.pmsm import PmsmParams, flux_from_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS, rhs_function, runtime_observer
 
-NEWTON_STEPS = 12
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N
 _IX = {f.name: k for k, f in enumerate(PARAMS)}
 
@@ -79,49 +84,50 @@ class FluxLinearization(Linearization):
         return self.theta_err_discrete
 
 
-def steady_motor(w: Any, T_e: Any, m: Any) -> tuple[Any, Any]:
-    """(i_r, u_r) of the true motor m = [R_s, L_d, L_q, psi_pm, p] at speed w, torque T_e (MTPA, the
-    steady voltage of the shared PMSM model)."""
-    motor = PmsmParams(m[0], m[1], m[2], m[3])
-    i_r = mtpa_current(T_e, motor, m[4])
-    return i_r, stator_voltage(i_r, 0, flux_from_current(i_r, motor), w, motor.R_s)
-
-
 def motor_vector(drive: Any) -> np.ndarray:
-    mt = drive.motor
-    return np.array([mt.R_s, mt.L_d, mt.L_q, mt.psi_pm, float(mt.p)])
+    """[R_s, L_d, L_q, psi_pm, p] of the true motor: the loop's ``plant`` (design/rotor_frame.py)."""
+    return pmsm_plant(drive.motor)
 
 
 @functools.cache
-def equilibrium_function(kind: str, rule: str, adapt: bool, law: ca.Function) -> ca.Function:
-    """(w, T_e, motor[5], p, gain) -> (x_r*, A, residual, theta_err): Newton on the continuous
-    observer in the rotor frame, x_r = [x_r (2), (lambda_hat), delta, w_pll], then its Jacobian."""
+def rotor_frame_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> RotorFrameLoop:
+    """The continuous observer + PLL on the motor in steady state, in the rotor frame (design/rotor_frame.py):
+    x_r = [flux state rotated by -theta (2), (lambda_hat), delta = theta - theta_pll, w_pll]; its ``p`` is
+    the runtime parameters (PARAMS) followed by the schedule's gain vector; its output the observer's
+    steady angle error theta - atan2(eta) (rotor frame: theta = 0)."""
     n = 5 if adapt else 4
+    n_p = len(PARAMS)
     x_r = ca.SX.sym("x_r", n)
     w, T_e = ca.SX.sym("w"), ca.SX.sym("T_e")
-    m, p, gain = ca.SX.sym("motor", 5), ca.SX.sym("p", len(PARAMS)), ca.SX.sym("gain", law.size1_in(1))
-    i_r, u_r = steady_motor(w, T_e, m)
+    m, pg = ca.SX.sym("motor", 5), ca.SX.sym("p", n_p + law.size1_in(1))
+    p, gain = pg[:n_p], pg[n_p:]
+    i_r, u_r = pmsm_steady(w, T_e, m)
     lam = x_r[2] if adapt else p[_IX["psi_pm"]]
     delta, w_p = x_r[n - 2], x_r[n - 1]
     dx = rhs_function(kind, rule)(ca.vertcat(x_r[0:2], lam, -delta, w_p), i_r, u_r, p, law(w_p, gain))
     G = ca.vertcat(*([dx[0:2] - w * (J @ x_r[0:2])] + ([dx[2]] if adapt else []) + [w - dx[3], dx[4]]))
-    g_fn = ca.Function("G", [x_r, w, T_e, m, p, gain], [G, ca.jacobian(G, x_r)])
     psi_r = flux_from_current(i_r, PmsmParams(m[0], m[1], m[2], m[3]))
-    xk = ca.vertcat(*([psi_r] + ([p[_IX["psi_pm"]]] if adapt else []) + [0, w]))
-    for _ in range(NEWTON_STEPS):
-        Gk, Jk = g_fn(xk, w, T_e, m, p, gain)
-        xk = xk - ca.solve(Jk, Gk)
-    Gk, _ = g_fn(xk, w, T_e, m, p, gain)
-    A = ca.substitute(ca.jacobian(G, x_r), x_r, xk)
-    # the observer's angle error theta - atan2(eta) at the equilibrium (rotor frame: theta = 0)
-    eta = xk[0:2] - _inductance_at(rule, i_r, p) * i_r
-    return ca.Function(
-        "pmsm_flux_observer_equilibrium_c",
-        [w, T_e, m, p, gain],
-        [xk, ca.densify(A), ca.norm_inf(Gk), -ca.atan2(eta[1], eta[0])],
-        ["w", "T_e", "motor", "p", "gain"],
-        ["x", "A", "res", "theta_err"],
+    x0 = ca.vertcat(*([psi_r] + ([p[_IX["psi_pm"]]] if adapt else []) + [0, w]))
+    eta = x_r[0:2] - _inductance_at(rule, i_r, p) * i_r
+    args, names = [x_r, w, T_e, m, pg], ["x_r", "w", "torque", "plant", "p"]
+    return RotorFrameLoop(
+        "pmsm_flux_observer",
+        ca.Function("pmsm_flux_observer_rates", args, [G], names, ["f_r"]),
+        ca.Function("pmsm_flux_observer_start", args[1:], [x0], names[1:], ["x_r"]),
+        ca.Function(
+            "pmsm_flux_observer_angle_error", args, [-ca.atan2(eta[1], eta[0])], names, ["theta_err"]
+        ),
     )
+
+
+def with_gain(p: np.ndarray, gain: Any) -> np.ndarray:
+    """The loop's ``p``: the runtime parameters, then the gain; one vector or a column per point."""
+    p, gain = np.asarray(p, float), np.asarray(gain, float)
+    if p.ndim == 1 and gain.ndim <= 1:
+        return np.concatenate([p, gain.ravel()])
+    n = max(a.shape[1] for a in (p, gain) if a.ndim == 2)
+    cols = lambda a: a if a.ndim == 2 else np.repeat(a.reshape(-1, 1), n, axis=1)  # noqa: E731
+    return np.vstack([cols(p), cols(gain)])
 
 
 @functools.cache
@@ -166,12 +172,12 @@ def discrete_analysis(
     one-step Jacobian; inf where unstable). With ``observer_decay``, last: (N,) the decay rate [1/s] of
     the observer's own modes, without the PLL's (``_observer_decay``, sampled)."""
     m = drive.motor
-    i_r = np.column_stack(mtpa_currents(drive, T))
+    i_r = pmsm_steady_current(T, pmsm_plant(m))
     plant = pmsm_zoh_plant(m.vector(), W, i_r, drive.observer.T_obs)
     y, Jd = fixed_points(loop, y0, W, plant, p, gain)
     poles = discrete_poles(Jd, drive.observer.T_obs, loop.n_y)[0]
     sens = sensitivities(loop, y, W, plant, p, gain)
-    err = wrap(-sens["out"][:, loop.observer.index("outputs", "theta_hat")])
+    err = -sens["out"][:, loop.observer.index("outputs", "theta_hat")]  # atan2's range: no wrap
     z = np.abs(eigenvalues_by_size(Jd)[:, 0])
     own = (_sampled_observer_decay(Jd, poles, drive.observer.T_obs),) if observer_decay else ()
     if sigma is None:
@@ -206,22 +212,8 @@ def current_noise(drive: Any) -> float:
     of the current amplitude at rated torque (the other families' default)."""
     if drive.i_noise > 0:
         return float(drive.i_noise)
-    i_d, i_q = mtpa_currents(drive, np.array([drive.T_N]))
-    return I_NOISE_DEFAULT * float(np.hypot(i_d[0], i_q[0]))
-
-
-def mtpa_currents(drive: Any, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(i_d, i_q) [A] of the true motor's MTPA current at each torque (symbolic/pmsm.py, evaluated)."""
-    fn = _mtpa()
-    u = np.unique(T)
-    vals = {t: np.asarray(fn(t, drive.motor.vector(), drive.motor.p)).ravel() for t in u}
-    return np.array([vals[t][0] for t in T]), np.array([vals[t][1] for t in T])
-
-
-@functools.cache
-def _mtpa() -> ca.Function:
-    T, m, pp = ca.SX.sym("T"), ca.SX.sym("m", 4), ca.SX.sym("p")
-    return ca.Function("mtpa", [T, m, pp], [mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), pp)])
+    i_r = pmsm_steady_current(np.array([drive.T_N]), pmsm_plant(drive.motor))
+    return I_NOISE_DEFAULT * float(np.hypot(*i_r[0]))
 
 
 def _inductance_at(rule: str, i_r: Any, p: Any) -> Any:
@@ -254,22 +246,19 @@ def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = N
     if estimate:
         params.update(estimate)
     p = setup.observer.pack_params(params)
-    motor = motor_vector(drive)
     law = setup.schedule.law
     rule, adapt = o.inductance_rule, o.lambda_adaptation
-    x, A, res, err = evaluate_batch(
-        equilibrium_function(kind, rule, adapt, law), n, [W, T, motor, p, setup.gain]
+    eq = equilibrium_points(
+        rotor_frame_loop(kind, rule, adapt, law), W, T, motor_vector(drive), with_gain(p, setup.gain)
     )
-    scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
-    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
-    poles = np.full((n, A.shape[1]), np.nan + 0j)
+    ok = eq.ok
+    poles = np.full((n, eq.A.shape[1]), np.nan + 0j)
     own = np.full(n, np.nan)
     if ok.any():
-        poles[ok] = eigvals_batched(A[ok])
-        own[ok] = _observer_decay(A[ok], poles[ok])
-    y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
+        poles[ok] = eigvals_batched(eq.A[ok])
+        own[ok] = _observer_decay(eq.A[ok], poles[ok])
     poles_d, _, err_d = discrete_analysis(
-        drive, sampled_loop(kind, rule, adapt, law), y0, W, T, p, setup.gain
+        drive, sampled_loop(kind, rule, adapt, law), eq.x, W, T, p, setup.gain
     )
     return FluxLinearization(
         w=W,
@@ -278,7 +267,7 @@ def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = N
         poles_discrete=poles_d,
         T_s=o.T_obs,
         torque_name="T_e",
-        theta_err=np.where(ok, wrap(err[:, 0, 0]), np.nan),
+        theta_err=eq.y[:, 0],
         theta_err_discrete=err_d,
         law=gains.law,
         observer_decay=own,
@@ -293,7 +282,3 @@ def _observer_decay(A: np.ndarray, poles: np.ndarray) -> np.ndarray:
     own = -np.max(eigvals_batched(np.ascontiguousarray(A[:, :m, :m])).real, axis=1)
     coupled = np.abs(A[:, :m, m:]).max(axis=(1, 2)) > 0
     return np.where(coupled, -np.max(poles.real, axis=1), own)
-
-
-def wrap(a: np.ndarray) -> np.ndarray:
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi

@@ -3,8 +3,9 @@ draw's linearized observer in one batched evaluation, and a perturbed drive for 
 
 The true motor's R_s, L_d, L_q, psi_pm (and J, time domain only) and the firmware's estimates of the
 first four. Each draw is the continuous observer of Lee et al. (2010) eq. (8) with its PLL at every
-operating point (the Newton equilibrium and Jacobian of linearize.py ``equilibrium_function``, one
-batched call over draws x points: the drawn motor and runtime parameters are its columns); a point
+operating point (the Newton equilibrium and Jacobian of its linearize.py ``rotor_frame_loop`` by the
+shared design/rotor_frame.py, one batched call over draws x points: the drawn motor and runtime
+parameters are its columns); a point
 without an equilibrium is NaN. The sampled observer's analysis is the tuner's and the report's; here the
 yield is the share of draws whose observer keeps the family's required damping (stable: its damping
 falls with speed by design) at every point of the envelope.
@@ -15,13 +16,13 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from sensorless.design.batch import evaluate_batch
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.montecarlo import Uncertain
 from sensorless.design.montecarlo import perturbed as shared_perturbed
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
-from sensorless.design.pmsm_flux_observer.linearize import FluxLinearization, equilibrium_function, wrap
+from sensorless.design.pmsm_flux_observer.linearize import FluxLinearization, rotor_frame_loop, with_gain
 from sensorless.design.poles import eigvals_batched
+from sensorless.design.rotor_frame import equilibrium_points
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 
 ELECTRICAL = ("R_s", "L_d", "L_q", "psi_pm")
@@ -77,10 +78,9 @@ def linearize_draws(
     M = np.vstack([plant[:, :k].T, np.full((1, n_d), float(drive.motor.p))])
     W, T = np.tile(w, n_d), np.tile(torque, n_d)
     rep = lambda a: np.repeat(a, n_p, axis=1)  # noqa: E731  (draw-major columns)
-    fn = equilibrium_function("gradient", o.inductance_rule, o.lambda_adaptation, setup.schedule.law)
-    x, A, res, err = evaluate_batch(fn, W.size, [W, T, rep(M), rep(P), rep(gain)])
-    scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
-    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
+    loop = rotor_frame_loop("gradient", o.inductance_rule, o.lambda_adaptation, setup.schedule.law)
+    eq = equilibrium_points(loop, W, T, rep(M), with_gain(rep(P), rep(gain)))
+    ok, A = eq.ok, eq.A
     if not complete:
         ok &= np.repeat(ok.reshape(n_d, n_p).all(axis=1), n_p)
     poles = np.full((W.size, A.shape[1]), np.nan + 0j)
@@ -94,7 +94,7 @@ def linearize_draws(
         poles_discrete=nan,
         T_s=o.T_obs,
         torque_name="T_e",
-        theta_err=np.where(ok, wrap(err[:, 0, 0]), np.nan),
+        theta_err=np.where(ok, eq.y[:, 0], np.nan),
         theta_err_discrete=np.full(W.size, np.nan),
         law=gains.law,
     )

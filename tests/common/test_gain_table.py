@@ -93,7 +93,7 @@ CASES = [
         "speed-dependent-no-kind-to-reduced-order",
         {**LAW16, "drive": {"name": "piippo2008"}},
         "deangelo2006",
-        "key 'law': 'speed-dependent' gains are not for the reduced-order observer",
+        "key 'law': 'speed-dependent' gains are not for extended reduced-order EMF",
     ),
     (
         "constant-to-adaptive",

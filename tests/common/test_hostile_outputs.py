@@ -6,6 +6,7 @@ Ctrl-C on many drives is one line."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 from pathlib import Path
 
@@ -43,18 +44,18 @@ def test_montecarlo_draws_without_equilibrium_have_an_empty_cell_and_a_reason():
 def test_a_flux_preset_point_without_a_sampled_fixed_point_is_said_not_written_as_nan():
     # analyze hubmotor48 wrote nan in the discrete columns of this row, silently (exit 0)
     from sensorless.design.pmsm_flux_observer import FAMILY
-    from sensorless.reports.pmsm_flux_observer import NO_FIXED_POINT, not_finite, poles_csv
+    from sensorless.reports.pole_map import NO_POLES, pole_csv
 
     drive = load_drive("hubmotor48")
     W, T = drive.grid(2)
     k = np.flatnonzero(np.isclose(W / drive.w_base, 0.95682, atol=1e-5) & (T == drive.T_N))
     lin = FAMILY.linearize(drive, FAMILY.gains(drive), W[k], T[k])
     assert not np.isfinite(lin.worst_damping_discrete).all()  # the case: no value there
-    text = poles_csv(lin, drive)
-    assert "nan" not in text and "inf" not in text, text
-    row = next(csv.DictReader(io.StringIO(text.split("\n", 1)[1])))
-    assert row["damping_d"] == "" and row["damping_c"] != "" and row["no_value_reason"] == NO_FIXED_POINT
-    assert "poles.csv" in not_finite(lin)  # the warning line (exit status 3)
+    for poles, reason in ((lin.poles_discrete, NO_POLES), (lin.poles, "")):
+        text = pole_csv(dataclasses.replace(lin, poles=poles), drive.w_base)
+        assert "nan" not in text and "inf" not in text, text
+        row = next(csv.DictReader(io.StringIO(text.split("\n", 1)[1])))
+        assert row["no_value_reason"] == reason and (row["worst_damping"] == "") == bool(reason)
 
 
 @pytest.mark.parametrize("v", [float("nan"), float("inf"), -float("inf"), None])

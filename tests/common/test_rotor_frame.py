@@ -20,6 +20,7 @@ from sensorless.design.rotor_frame import (
     RotorFrameLoop,
     continuous_poles,
     equilibria,
+    equilibrium_points,
     pmsm_plant,
     pmsm_steady,
     pmsm_steady_current,
@@ -55,6 +56,28 @@ def test_a_point_without_an_equilibrium_is_nan():
     assert x[0] == pytest.approx([2.0, 0.0]) and np.isnan(x[1]).all() and np.isnan(A[1]).all()
     poles, _ = continuous_poles(loop, [0.0, 0.0], [4.0, -1.0], [1.0], [3.0])
     assert np.sort(poles[0].real) == pytest.approx([-3.0, 4.0]) and np.isnan(poles[1]).all()
+
+
+def test_the_loops_output_is_read_at_the_equilibrium_and_nan_where_there_is_none():
+    # the output |x|^2 at the closed-form equilibrium of the rotating linear system; NaN at the point
+    # without an equilibrium (the second rate has no real root there)
+    x, w, T = ca.SX.sym("x", 2), ca.SX.sym("w"), ca.SX.sym("T")
+    k, a = ca.SX.sym("plant", 1), ca.SX.sym("p", 1)
+    f_r = ca.vertcat(-a * x[0] + w * x[1] + k * T, x[1] ** 2 + w * x[1] + 1.0)  # real roots for |w| >= 2
+    args = [x, w, T, k, a]
+    loop = RotorFrameLoop(
+        "test",
+        ca.Function("f", args, [f_r]),
+        ca.Function("s", args[1:], [ca.vertcat(0.0, -w / 2 - 0.1 * ca.sign(w))]),
+        ca.Function("y", args, [ca.sumsqr(x)]),
+    )
+    eq = equilibrium_points(loop, [5.0, 0.0], [1.0, 1.0], [2.0], [3.0])
+    assert eq.ok.tolist() == [True, False] and np.isnan(eq.y[1]).all() and np.isnan(eq.x[1]).all()
+    x1 = (-5.0 - np.sqrt(21.0)) / 2  # the root of x1^2 + 5 x1 + 1 that Newton reaches from -2.6
+    x0 = (2.0 * 1.0 + 5.0 * x1) / 3.0
+    assert eq.x[0] == pytest.approx([x0, x1], rel=1e-12)
+    assert eq.y[0, 0] == pytest.approx(x0**2 + x1**2, rel=1e-12)
+    assert equilibrium_points(_loop(lambda *z: z[0]), [0.0], [0.0], [1.0], [1.0]).y is None
 
 
 def test_pmsm_steady_state_against_hand_formulas():

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from families.pll import design
 from families.pll import tuning as pll_tuning
+from families.pll.constant_law import GRID
 from families.pll.design import FAMILY
 from families.pll.symbolic import OUTPUTS, STATE
 from helpers.fuzz import fuzz, pmsm_steady_segments, steady_rows
@@ -33,7 +34,6 @@ from sensorless.design.runtime import run_trajectory
 from sensorless.design.scenario import builtin_names
 from sensorless.reports.cli.main import main
 from sensorless.reports.traces import read_csv
-from sensorless.tuning.constant_law import GRID
 
 pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
 

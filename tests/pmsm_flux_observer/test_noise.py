@@ -7,18 +7,18 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
-from sensorless.design.batch import evaluate_batch
 from sensorless.design.discrete import fixed_points, pmsm_zoh_plant
 from sensorless.design.drive import load_drive
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.pmsm_flux_observer.linearize import (
     discrete_analysis,
-    equilibrium_function,
     motor_vector,
-    mtpa_currents,
+    rotor_frame_loop,
     sampled_loop,
+    with_gain,
 )
+from sensorless.design.rotor_frame import equilibrium_points, pmsm_steady_current
 
 
 def test_angle_noise_matches_a_monte_carlo_run_of_the_step():
@@ -29,8 +29,8 @@ def test_angle_noise_matches_a_monte_carlo_run_of_the_step():
     p = setup.observer.pack_params(dict(setup.params))
     law = setup.schedule.law
     w, T = np.array([0.5 * drive.w_base]), np.array([0.5 * drive.T_N])
-    fn = equilibrium_function("gradient", o.inductance_rule, o.lambda_adaptation, law)
-    x, _, _, _ = evaluate_batch(fn, 1, [w, T, motor_vector(drive), p, setup.gain])
+    frame = rotor_frame_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
+    x = equilibrium_points(frame, w, T, motor_vector(drive), with_gain(p, setup.gain)).x[:, :, None]
     loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
     sigma = 0.05  # [A]: small beside the current (linear regime), large beside round-off
     _, _, _, noise = discrete_analysis(drive, loop, x[:, :, 0], w, T, p, setup.gain, sigma)
@@ -44,7 +44,7 @@ def test_angle_noise_matches_a_monte_carlo_run_of_the_step():
     x_next, _ = loop.step()(ca.vertcat(x0, 0), meas, pp, gain)
     y_next = loop.rotor(x_next[:n_x], th + ww * pp[loop.observer.index("params", "T_s")])
     f = ca.Function("f", [y, th, ww, pl, pp, gain, n], [y_next])
-    i_r = np.column_stack(mtpa_currents(drive, T))
+    i_r = pmsm_steady_current(T, motor_vector(drive))
     plant = pmsm_zoh_plant(drive.motor.vector(), w, i_r, o.T_obs)  # (1, n_plant)
     yf, _ = fixed_points(loop, x[:, :, 0], w, plant, p, setup.gain)
     rng = np.random.default_rng(1)

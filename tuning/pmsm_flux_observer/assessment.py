@@ -10,18 +10,19 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.batch import evaluate_batch
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer import corner_estimate
 from sensorless.design.pmsm_flux_observer.gains import constant_law, pll_gains, runtime_params
 from sensorless.design.pmsm_flux_observer.linearize import (
     current_noise,
     discrete_analysis,
-    equilibrium_function,
     motor_vector,
+    rotor_frame_loop,
     sampled_loop,
+    with_gain,
 )
 from sensorless.design.poles import worst_damping
+from sensorless.design.rotor_frame import equilibrium_points
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 from sensorless.tuning.pmsm_flux_observer.settings import CHUNK, NOISE_INDEX, FluxTuneSettings, corners
 
@@ -66,7 +67,7 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
     Wn, Tn = np.tile(W, len(cands) * nc), np.tile(T, len(cands) * nc)
     o = drive.observer
     law = constant_law()
-    fn = equilibrium_function("gradient", o.inductance_rule, o.lambda_adaptation, law)
+    frame = rotor_frame_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
     loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
     m = motor_vector(drive)
     s = np.full((n, loop.n_y), np.nan + 0j)
@@ -75,11 +76,7 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
     sigma = current_noise(drive)
     for j in range(0, n, CHUNK):
         sl = slice(j, min(j + CHUNK, n))
-        k = sl.stop - sl.start
-        x, A, res, _ = evaluate_batch(fn, k, [Wn[sl], Tn[sl], m, P[:, sl], G[:, sl]])
-        scale = np.maximum(np.abs(x[:, :, 0]).max(axis=1), 1.0)
-        ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= 1e-9 * scale)
-        y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
+        y0 = equilibrium_points(frame, Wn[sl], Tn[sl], m, with_gain(P[:, sl], G[:, sl])).x
         s[sl], zmax[sl], err[sl], nz, own[sl] = discrete_analysis(
             drive, loop, y0, Wn[sl], Tn[sl], P[:, sl], G[:, sl], sigma, observer_decay=True
         )

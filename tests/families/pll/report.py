@@ -2,7 +2,7 @@
 
 ``analyze`` and the stability report are the shared ones of any linearization over the drive's envelope
 (reports/envelope_review.py); ``tune`` takes the shared envelope options (reports/envelope_options.py)
-and its law's ``--w-pll-max`` (the upper end of its box, tuning/constant_law.py ``GainBox``).
+and its law's ``--w-pll-max`` (the upper end of its box, constant_law.py ``GainBox``).
 """
 
 from __future__ import annotations

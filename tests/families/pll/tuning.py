@@ -2,7 +2,7 @@
 the shared pipeline (tuning/tune.py: global phase, max-min damping NLP, dense re-verification,
 tie-break, pointwise bound).
 
-A law of constant gains that are runtime parameters: the shared tuning/constant_law.py builds its model
+A law of constant gains that are runtime parameters: constant_law.py (beside this) builds its model
 from the continuous observer in the rotor frame (design.rotor_loop, the SX the analysis linearizes)
 and the box. What is the family's own: which estimates an operating point carries, the box and the
 decay floor. With exact estimates the equilibrium (the exact EMF, no angle error, w_i = w) does not
@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 from sensorless.design.envelope import TuningSettings
 from sensorless.design.rotor_frame import pmsm_plant
-from sensorless.tuning.constant_law import GainBox, constant_law_model
 from sensorless.tuning.family import Tunable, TuningHooks
 from sensorless.tuning.model import TuningModel
 
+from families.pll.constant_law import GainBox, constant_law_model
 from families.pll.design import drive_gains, rotor_loop, runtime_params
 
 ESTIMATES = ("R_s", "L", "psi_pm")  # the estimates an operating point carries (PARAMS names)

@@ -1,4 +1,6 @@
-"""A gain law of constant gains (the same at every speed) that are runtime parameters, for the shared NLP.
+"""The test family's gain law of constant gains (the same at every speed) that are runtime parameters, for
+the shared NLP. (No production family tunes such a law on the NLP: the flux family's constant laws have a
+tuner of their own, so this lives with the one family that uses it.)
 
 For a family whose continuous observer is a design/rotor_frame.py :class:`RotorFrameLoop` over its
 runtime parameter vector, a law whose gains are some of those parameters, unchanged over the speed
