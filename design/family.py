@@ -324,12 +324,12 @@ class ObserverFamily:
     def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
         """(w [rad/s electrical], torque [N m]) of the design's envelope, the points a Monte-Carlo run
         judges every draw at (with ``gains``, the gains under review: a family may keep only the points
-        where they run the drive, e.g. above its open-loop start): the shared tuning envelope
-        (design/envelope.py ``[tuning]``) by default."""
-        env = getattr(getattr(drive, "tuning", None), "envelope", None)
+        where they run the drive, e.g. above its open-loop start): the drive's envelope
+        (design/envelope.py :class:`Envelope`, the one analyze, tune and report read) by default."""
+        env = getattr(drive, "envelope", None)
         if env is None:
-            raise CapabilityError(f"{drive.file}: the drive has no tuning envelope to evaluate draws over")
-        return env.grid(drive.w_base, drive.T_N)
+            raise CapabilityError(f"{drive.file}: the drive has no envelope to evaluate draws over")
+        return env.grid()
 
     def perturbed(self, drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
         """``drive`` with the true motor's (``plant``) and the observer's (``estimate``) parameters

@@ -119,11 +119,9 @@ class ReducedOrderObserver(ObserverFamily):
         return montecarlo.perturbed(drive, plant, estimate)
 
     def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
-        """Its drive file's [envelope]: mechanical speeds (electrical here) x load torques."""
-        import numpy as np
-
-        W, T = np.meshgrid(drive.rpm_to_w(drive.envelope.speeds), np.asarray(drive.envelope.loads, float))
-        return W.ravel(), T.ravel()
+        """Its drive file's [envelope] (design/envelope.py, the grid its tuner reads): electrical
+        speeds, sorted and distinct, x load torques, sorted and distinct."""
+        return drive.envelope.grid()
 
     def trace_notes(self, meta: Any) -> tuple[str, ...]:
         """No HF injection: said as the traces' header has always said it (the same trace files)."""

@@ -40,9 +40,9 @@ def compute(
 
     settings = drive.tuning
     env = settings.envelope
-    wb, T_N = drive.w_base, drive.T_N
-    speeds = env.speed_grid(wb, env.dense_factor)
-    torques = env.torque_grid(T_N, env.dense_factor)
+    wb = drive.w_base
+    speeds = env.speed_grid(env.dense_factor)
+    torques = env.torque_grid(env.dense_factor)
     W, T = np.meshgrid(speeds, torques)
     sigma, T_s = drive.control.i_noise, drive.control.T_s
     summary = table.summary if table is not None else {}

@@ -35,7 +35,7 @@ def drive():
 
 def _rank(drive, a, c):
     """The criterion typed from its doc: (misses decay or PLL, low-speed limit, -worst decay)."""
-    W, _ = drive.grid()
+    W, _ = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     lim = math.inf
     for j in range(len(speeds) - 1, -1, -1):  # the lowest speed from which every higher one holds
