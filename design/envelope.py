@@ -199,6 +199,11 @@ def tuning_envelope(w_base: float, T_N: float, **keys: Any) -> Envelope:
     return Envelope(rule, torques, w_base, T_N, torque_unit=T_N, dense_factor=k["dense_factor"])
 
 
+def with_tuning_keys(env: Envelope, **keys: Any) -> Envelope:
+    """``env`` (made by :func:`tuning_envelope`) with the given ``[tuning]`` keys replaced."""
+    return tuning_envelope(env.w_base, env.T_N, **{**tuning_keys(env), **keys})
+
+
 def tuning_keys(env: Envelope) -> dict[str, Any]:
     """The ``[tuning]`` keys of an envelope made by :func:`tuning_envelope` (to apply overrides)."""
     r = env.rule

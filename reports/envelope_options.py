@@ -19,8 +19,7 @@ from sensorless.design.envelope import (
     NOISE_OUTPUTS,
     RANGES,
     TuningSettings,
-    tuning_envelope,
-    tuning_keys,
+    with_tuning_keys,
 )
 from sensorless.design.family import Drive
 from sensorless.design.units import DriveFileError, parse_quantity
@@ -97,8 +96,7 @@ def apply_options(s: TuningSettings, drive: Drive, args: argparse.Namespace) -> 
             env[key] = v
     if getattr(args, "torque", None):
         env["torques_TN"] = tuple(t / drive.T_N for t in parse_torques(args.torque, drive.T_N))
-    e = s.envelope
-    out: dict[str, Any] = {"envelope": tuning_envelope(e.w_base, e.T_N, **{**tuning_keys(e), **env})}
+    out: dict[str, Any] = {"envelope": with_tuning_keys(s.envelope, **env)}
     if getattr(args, "min_decay", None) is not None:
         out["min_decay"] = args.min_decay
     if getattr(args, "errors", None):

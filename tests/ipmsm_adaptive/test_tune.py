@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from helpers.closed_form_ipmsm import mtpa_reference, paper_gain, paper_matrices
-from sensorless.design.envelope import Envelope
+from sensorless.design.envelope import tuning_envelope
 from sensorless.design.ipmsm_adaptive.linearize import linearize
 from sensorless.reports.cli.main import main
 from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law
@@ -22,7 +22,14 @@ pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: schedul
 
 
 def small(drive, **kw):
-    env = Envelope(speed_min=0.05, speed_max=1.0, speeds=8, torques_TN=(-1.0, 1.0))
+    env = tuning_envelope(
+        drive.w_base,
+        drive.T_N,
+        speed_min=0.05,
+        speed_max=1.0,
+        speeds=8,
+        torques_TN=(-1.0, 1.0),
+    )
     return dataclasses.replace(drive.tuning, envelope=env, **kw)
 
 
@@ -102,9 +109,9 @@ def test_speed_dependent_at_least_as_good_as_brute_force(drive, speed_dependent)
 def test_table_reports_dense_reverification(drive, speed_dependent):
     s = speed_dependent.table.summary
     env = small(drive).envelope
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     wb, TN = drive.base.w, drive.T_N
-    w_opt, w_den = env.speed_grid(wb)[env.speeds :], env.speed_grid(wb, env.dense_factor)
+    w_opt, w_den = env.speed_grid()[env.rule.count :], env.speed_grid(env.dense_factor)
     assert np.diff(w_den[w_den > 0]).max() <= np.diff(w_opt).max() / 4 + 1e-9  # >= 4x denser per axis
     assert (
         np.diff(env.torque_grid(TN, env.dense_factor)).max() <= np.diff(env.torque_grid(TN)).max() / 4 + 1e-9
@@ -126,7 +133,7 @@ def test_paper_defaults_reproduce(drive, speed_dependent):
     assert b["lambda_p"] == pytest.approx(2 * drive.estimate.R_s)
     assert b["w_lambda"] == pytest.approx(drive.base.w)
     env = small(drive).envelope
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     ref = linearize(drive, Wd, Td, gain="speed")
     assert speed_dependent.table.summary["baseline_worst_damping"] == pytest.approx(
         np.nanmin(ref.worst_damping), abs=1e-9
@@ -143,7 +150,7 @@ def test_schedule_at_least_as_good_as_speed_dependent(drive, speed_dependent, sc
     path; its start reproduces the tuned law (16) exactly (a kink breakpoint at omega_lambda)."""
     s = schedule.table.summary
     env = small(drive).envelope
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     g = schedule.table.gains
     law = schedule_law(tuple(g["w_hat"]))
     ref = linearize(drive, Wd, Td, gain=(law, np.concatenate([g["lambda1"], g["lambda2"]])))
@@ -199,12 +206,19 @@ def test_stable_under_stated_estimate_errors(drive):
     """Tuned with R̂s +-20 % and L̂q +-10 % stated, the gains keep every corner stable on the dense
     grid, checked through the analysis path with the drive's estimates replaced. (From 0.3 p.u.:
     lower, the equilibrium itself is lost, see the next test.)"""
-    env = Envelope(speed_min=0.3, speed_max=1.0, speeds=8, torques_TN=(-1.0, 1.0))
+    env = tuning_envelope(
+        drive.w_base,
+        drive.T_N,
+        speed_min=0.3,
+        speed_max=1.0,
+        speeds=8,
+        torques_TN=(-1.0, 1.0),
+    )
     st = dataclasses.replace(drive.tuning, envelope=env, errors=(0.2, 0.0, 0.1, 0.0))
     r = tune(drive, "speed-dependent", st)
     assert len(r.robust) == 4 and all(x["stable"] for x in r.robust)
     env = st.envelope
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     nom = np.array(drive.estimate.vector())
     for s1 in (1, -1):
         for s3 in (1, -1):
