@@ -110,7 +110,7 @@ def test_table_reports_dense_reverification(drive, speed_dependent):
     s = speed_dependent.table.summary
     env = small(drive).envelope
     Wd, Td = env.grid(env.dense_factor, env.dense_factor)
-    wb, TN = drive.base.w, drive.T_N
+    TN = drive.T_N
     w_opt, w_den = env.speed_grid()[env.rule.count :], env.speed_grid(env.dense_factor)
     assert np.diff(w_den[w_den > 0]).max() <= np.diff(w_opt).max() / 4 + 1e-9  # >= 4x denser per axis
     assert (
