@@ -94,7 +94,7 @@ def speed_dependent(drive):
 
 def test_speed_dependent_at_least_as_good_as_brute_force(drive, speed_dependent):
     """The NLP optimum beats (within 0.002) a coarse independent grid search on the same envelope."""
-    W, T = small(drive).envelope.grid(drive.base.w, drive.T_N)
+    W, T = small(drive).envelope.grid()
     R, wb = drive.estimate.R_s, drive.base.w
     best = max(
         closed_form_worst_damping(drive, W, T, lp * R, wl * wb)
@@ -110,11 +110,10 @@ def test_table_reports_dense_reverification(drive, speed_dependent):
     s = speed_dependent.table.summary
     env = small(drive).envelope
     Wd, Td = env.grid(env.dense_factor, env.dense_factor)
-    TN = drive.T_N
     w_opt, w_den = env.speed_grid()[env.rule.count :], env.speed_grid(env.dense_factor)
     assert np.diff(w_den[w_den > 0]).max() <= np.diff(w_opt).max() / 4 + 1e-9  # >= 4x denser per axis
     assert (
-        np.diff(env.torque_grid(TN, env.dense_factor)).max() <= np.diff(env.torque_grid(TN)).max() / 4 + 1e-9
+        np.diff(env.torque_grid(env.dense_factor)).max() <= np.diff(env.torque_grid()).max() / 4 + 1e-9
     )
     pts = speed_dependent.table.points
     assert len(pts) == Wd.size
@@ -163,7 +162,7 @@ def test_schedule_at_least_as_good_as_speed_dependent(drive, speed_dependent, sc
     # +-omega_lambda are breakpoints where they lie inside the envelope (outside it law (16) is linear
     # over each direction of the envelope and the schedule reproduces it anyway)
     e = small(drive).envelope
-    inside = e.speed_min * drive.base.w < speed_dependent.theta[1] < e.speed_max * drive.base.w
+    inside = e.rule.lo * drive.base.w < speed_dependent.theta[1] < e.rule.hi * drive.base.w
     assert np.isclose(np.abs(g["w_hat"]), speed_dependent.theta[1]).sum() == (2 if inside else 0)
     assert s["worst_damping"] > speed_dependent.table.summary["worst_damping"] + 0.03  # and it does improve
     # without giving up decay rate (a pole creeping to the origin has damping 1)
@@ -178,9 +177,8 @@ def test_dense_reverification_rejects_between_grid_instability(drive, speed_depe
     st = small(drive, law=dataclasses.replace(drive.tuning.law, breakpoints=11))
     m = build_schedule(drive, st, speed_dependent.theta)
     env = st.envelope
-    wb, TN = drive.base.w, drive.T_N
-    W, T = env.grid(wb, TN)
-    Wd, Td = env.grid(wb, TN, env.dense_factor)
+    W, T = env.grid()
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     w = np.array(m.table_gains(m.start)["w_hat"])
     K = w.size
     G = np.array([np.interp(x, w, np.eye(K)[k]) for x in np.unique(W) for k in range(K)]).reshape(-1, K)

@@ -55,7 +55,7 @@ def test_global_phase_and_selection_judge_the_floor_alike(below):
     )
     st = dataclasses.replace(d.tuning, envelope=env)
     model = tunable_for(d, "speed-dependent").build(d, st, None)
-    W, T = env.grid(d.w_base, d.T_N)
+    W, T = env.grid()
     theta = np.array([10 * d.estimate.R_s, 0.5 * d.w_base])  # stable on this envelope
     f = figures(model, theta, W, T)
     assert np.isfinite(f.damping).all() and f.decay.min() > 0

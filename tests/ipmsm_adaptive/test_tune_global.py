@@ -127,7 +127,7 @@ def test_bound_at_a_speed_equals_a_brute_force_search(drive, w_pu):
     """The pointwise bound at one speed (nine torques, decay floor 10 1/s) is the brute-force maximum
     there to 0.005, and never far below it (it is attained by the gains it reports)."""
     env = drive.tuning.envelope
-    torques = env.torque_grid(drive.T_N, env.dense_factor)
+    torques = env.torque_grid(env.dense_factor)
     w = w_pu * drive.base.w
     b = pointwise_bound(build_pointwise(drive, drive.tuning), np.array([w]), torques, 10.0, 500.0)
     ref = brute_force(drive, w, torques, 10.0)

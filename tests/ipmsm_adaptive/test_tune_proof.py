@@ -43,7 +43,7 @@ def test_nlp_start_at_its_own_decay_floor_is_feasible_and_ends_feasible(drive, m
     env = with_tuning_keys(drive.tuning.envelope, speeds=4, torques_TN=(-1.5, 0.0, 1.5))
     st = dataclasses.replace(drive.tuning, envelope=env)
     model = build_speed_dependent(drive, st)
-    W, T = env.grid(drive.w_base, drive.T_N)
+    W, T = env.grid()
     theta = np.asarray(model.theta0, float)
     f0 = figures(model, theta, W, T)
     scale = float(np.abs(f0.poles).max())

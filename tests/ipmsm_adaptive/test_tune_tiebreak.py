@@ -43,7 +43,7 @@ def case():
     st = dataclasses.replace(drive.tuning, envelope=env, bound=False)
     r = tune(drive, "speed-dependent", st)
     R, wb = drive.estimate.R_s, drive.base.w
-    Wd, Td = env.grid(wb, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     # the brute force: worst damping and slowest decay on the dense grid, through the analysis path
     lps = np.geomspace(0.25, 20.0, 25) * R  # the box's cap is 20 R_s_hat
     wls = np.geomspace(0.01, 10.0, 25) * wb
