@@ -112,9 +112,7 @@ def test_table_reports_dense_reverification(drive, speed_dependent):
     Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     w_opt, w_den = env.speed_grid()[env.rule.count :], env.speed_grid(env.dense_factor)
     assert np.diff(w_den[w_den > 0]).max() <= np.diff(w_opt).max() / 4 + 1e-9  # >= 4x denser per axis
-    assert (
-        np.diff(env.torque_grid(env.dense_factor)).max() <= np.diff(env.torque_grid()).max() / 4 + 1e-9
-    )
+    assert np.diff(env.torque_grid(env.dense_factor)).max() <= np.diff(env.torque_grid()).max() / 4 + 1e-9
     pts = speed_dependent.table.points
     assert len(pts) == Wd.size
     assert s["worst_damping"] == min(p["damping"] for p in pts)
