@@ -26,7 +26,7 @@ import dataclasses
 import functools
 import itertools
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -117,6 +117,8 @@ class Envelope:
     T_N: float  # nominal torque [N m] (display at the edges)
     torque_unit: float = 1.0  # N m per unit of ``torque_values`` (T_N for torques given in T_N)
     dense_factor: int = 4  # the re-verification grid is this many times denser (>= 4)
+    # the section's keys as the file gives them (a dataclass; the drive-data table shows it), or None
+    given: Any = field(default=None, compare=False, repr=False)
 
     @functools.cached_property
     def speeds(self) -> tuple[float, ...]:

@@ -116,6 +116,15 @@ class PmacControl:
     u_dc: float = q("voltage", doc="DC-link voltage [V]", default=0.0)
 
 
+@dataclass(frozen=True)
+class EnvelopeKeys:
+    """[envelope] as the file gives it: mechanical speeds (r/min, nonzero) x load torques (N m); made the
+    drive's :class:`~sensorless.design.envelope.Envelope` at load."""
+
+    speeds: tuple[float, ...] = field(default=(), metadata={"dim": "mech_speed"})
+    loads: tuple[float, ...] = field(default=(), metadata={"dim": "torque"})
+
+
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N, base speed
 
 
@@ -298,7 +307,8 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     to_w = (math.pi / 30, motor.p)
     w_base = float(np.asarray(rating.n_N, float) * to_w[0] * to_w[1])
     T_N = rating.P_N / (rating.n_N * math.pi / 30)
-    envelope = Envelope(SpeedRule(listed=tuple(speeds_rpm), to_si=to_w), tuple(loads), w_base, T_N)
+    given = EnvelopeKeys(tuple(speeds_rpm), tuple(loads))
+    envelope = Envelope(SpeedRule(listed=given.speeds, to_si=to_w), given.loads, w_base, T_N, given=given)
     drive = PmacDrive(
         name=head["name"],
         kind=kind,

@@ -387,7 +387,10 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
     if keys.speed_max * observer.T_obs >= math.pi / 2:
         raise DriveFileError(file, _speed_keys(data, m), _too_fast(keys.speed_max, observer.T_obs))
     # speeds evenly spaced in rad/s from speed_min to speed_max, both directions
-    env = Envelope(SpeedRule(keys.speed_min, keys.speed_max, keys.speeds), tuple(torques), w_base, rating.T_N)
+    given = dataclasses.replace(keys, torques=tuple(torques))
+    env = Envelope(
+        SpeedRule(keys.speed_min, keys.speed_max, keys.speeds), given.torques, w_base, rating.T_N, given=given
+    )
     drive = FluxObserverDrive(
         name=head["name"],
         kind=kind,
