@@ -30,11 +30,12 @@ import numpy as np
 from sensorless.design.runtime import scheduled_step
 from sensorless.reports.codegen.c_emit import build_graph
 from sensorless.reports.codegen.c_graph import Node, live_nodes
-from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, Ins
+from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, NUMPY, SIN_F, Ins, run
 from sensorless.reports.codegen.fixed_ranges import MARGIN, evaluate, interval
 
 Q15_FACTORS = True  # constant factors of products in 16 bits (see _Lowering.factor)
 COEF_BITS = 15
+MULW_MAX = 2.0**29  # a product by four 32-bit products (fixed_ops.mulw): its result within this
 RANGE_FLOOR = 2.0**-24  # smallest range given a format (a signal that stays below it reads as 0 in steps)
 _PI = math.pi
 
@@ -101,6 +102,8 @@ class _Lowering:
         self.nodes, self.const, self.rng = nodes, const, rng
         self.prog: list[Ins] = []
         self.wr: list[float] = []  # worst-case raw magnitude of each slot
+        self.nom: list[float] = []  # nominal raw magnitude (the signal's range) of each slot
+        self.cse: dict[tuple, int] = {}  # an operation already in the program -> its slot
         self.lin_c: dict[int, int] = {}
         self.ang_c: dict[int, int] = {}
         self.ang_of_c: dict[int, int] = {}  # node -> its value as a binary angle (one conversion each)
@@ -112,15 +115,74 @@ class _Lowering:
         self.sim_hi: dict[int, float] = {}
 
     # ----------------------------------------------------------------------------------- helpers
-    def add(self, ins: Ins, wr: float) -> int:
+    def add(self, ins: Ins, wr: float, nom: float | None = None) -> int:
         if ins.kind == "ang":
             wr = min(wr, 2.0**31)  # wraps: never saturated
         elif ins.sat or wr > INT_MAX:
             ins = Ins(ins.op, ins.args, ins.kind, ins.f, ins.imm, True, ins.what)
             wr = min(wr, 2.0**31)
+        folded = self.fold(ins)
+        if folded is not None:
+            return folded
+        key = (ins.op, ins.args, ins.kind, ins.f, ins.imm, ins.sat)
+        if key in self.cse and ins.op != "IN":  # the same operation on the same slots: computed once
+            return self.cse[key]
         self.prog.append(ins)
         self.wr.append(wr)
+        self.nom.append(min(wr, 2.0**NOMINAL_BITS if nom is None else nom))
+        self.cse[key] = len(self.prog) - 1
         return len(self.prog) - 1
+
+    def fold(self, ins: Ins) -> int | None:
+        """The slot of ``ins`` where constant operands decide it: all constant (evaluated now, by the
+        model's own arithmetic), a product by 0, a selection on a constant; else None."""
+        P = self.prog
+        if ins.op in ("IN", "CONST") or not ins.args:
+            return None
+        is_c = [P[a].op == "CONST" for a in ins.args]
+        if all(is_c):
+            alone = Ins(ins.op, tuple(range(len(ins.args))), ins.kind, ins.f, ins.imm, ins.sat)
+            prog = [P[a] for a in ins.args] + [alone]
+            v = int(run(prog, NUMPY, [np.zeros(1, np.int64)])[-1][0])
+            return self.add(Ins("CONST", (), ins.kind, ins.f, (v,), what="folded"), abs(v))
+        if ins.op == "MUL" and any(c and P[a].imm[0] == 0 for a, c in zip(ins.args, is_c, strict=True)):
+            return self.add(Ins("CONST", (), ins.kind, ins.f, (0,), what="0"), 0)
+        if ins.op == "SEL" and is_c[0]:
+            j = 1 if P[ins.args[0]].imm[0] != 0 else 2
+            src, k = ins.args[j], ins.imm[j - 1] if ins.imm else 0
+            if k == 0 and P[src].f == ins.f and P[src].kind == ins.kind:
+                return src
+            return self.add(Ins("ALIGN", (src,), ins.kind, ins.f, (k,), ins.sat), self.wr[src] * 2.0**k)
+        if ins.op in ("AND", "OR") and any(is_c):
+            k = 0 if is_c[0] else 1
+            if (P[ins.args[k]].imm[0] != 0) == (ins.op == "OR"):
+                return self.add(Ins("CONST", (), "bool", 0, (int(ins.op == "OR"),)), 1)
+            other = ins.args[1 - k]
+            return other if P[other].kind == "bool" else None
+        return None
+
+    def clamped(self, s: int) -> int:
+        """Slot ``s`` clamped at twice its nominal range (four times its simulated one), where a worst
+        case goes beyond: a product's operand, so that the product stays within int32 without a
+        64-bit saturation (a glitch is clamped, as at the inputs; the guard then rejects it)."""
+        lim = math.ceil(2 * self.nom[s])
+        if self.wr[s] <= lim or self.prog[s].kind != "fix":
+            return s
+        return self.add(
+            Ins("CLAMP", (s,), "fix", self.fmt(s)[1], (-lim, lim), what="product operand"), lim, self.nom[s]
+        )
+
+    def exact_q15(self, c: int, x: int, s: int, wr: float) -> bool:
+        """Whether a product of the Q15 constant ``c`` and the word ``x`` shifted by ``s`` is the exact
+        two-32-bit-product form of reports/codegen/fixed_c.py (``_q15``): no saturation, and the
+        high part within int32."""
+        return (
+            self.prog[c].op == "CONST"
+            and abs(self.prog[c].imm[0]) < 2**15
+            and s >= 1
+            and wr <= INT_MAX
+            and (s >= 16 or wr < 2.0**30)
+        )
 
     def fmt(self, s: int) -> tuple[str, int]:
         return self.prog[s].kind, self.prog[s].f
@@ -230,6 +292,12 @@ class _Lowering:
             s = self.add(Ins("ATAN2", (y, x), "ang", 31, (ky, kx), what="atan2 (CORDIC)"), 2**31)
             if self.wr[y] * 2.0**ky > 2.0**31 or self.wr[x] * 2.0**kx > 2.0**31:
                 raise ValueError("atan2 operands of different formats beyond int32")
+        elif nd.op in ("SELECT", "IF_ELSE_ZERO") and self.cval(nd.args[0]) is not None:
+            on = self.cval(nd.args[0]) != 0
+            if on or nd.op == "SELECT":
+                s = self.ang(nd.args[1 if on else 2])
+            else:
+                s = self.const_slot(0.0, kind="ang")
         elif nd.op in ("SELECT", "IF_ELSE_ZERO") and self.is_angle(n):
             cond = self.lin(nd.args[0])
             a = self.ang(nd.args[1])
@@ -322,8 +390,34 @@ class _Lowering:
         if n in self.lin_c:
             return self.lin_c[n]
         s = self._lin(n)
+        if self.prog[s].kind == "fix" and self.prog[s].op not in ("CONST", "IN") and n in self.rng:
+            self.nom[s] = min(self.nom[s], max(self.rng[n], RANGE_FLOOR) * 2.0 ** self.prog[s].f)
         self.lin_c[n] = s
         return s
+
+    def folded(self, n: int) -> int | None:
+        """The slot of node n where a constant operand decides it (a flag of the variant selects a
+        branch, a product by 0, a sum with 0, |angle| <= pi of a binary angle), else None."""
+        nd, op = self.nodes[n], self.nodes[n].op
+        cv = [self.cval(a) for a in nd.args]
+        if op in ("SELECT", "IF_ELSE_ZERO") and cv[0] is not None:
+            if cv[0] != 0:
+                return self.lin(nd.args[1])
+            return self.lin(nd.args[2]) if op == "SELECT" else self.const_slot(0.0, 0)
+        if op in ("ADD", "SUB") and cv[1] == 0:
+            return self.lin(nd.args[0])
+        if op == "ADD" and cv[0] == 0:
+            return self.lin(nd.args[1])
+        if op in ("AND", "OR") and any(v is not None for v in cv):
+            k = 0 if cv[0] is not None else 1
+            if (cv[k] != 0) == (op == "OR"):  # true OR x, false AND x
+                return self.const_slot(float(op == "OR"), 0)
+            return self.lin(nd.args[1 - k])
+        if op in ("LE", "LT") and cv[1] is not None and cv[1] >= _PI:
+            a = self.nodes[nd.args[0]]
+            if a.op == "FABS" and self.is_angle(a.args[0]):  # a binary angle read as rad is below pi
+                return self.const_slot(1.0, 0)
+        return None
 
     def _lin(self, n: int) -> int:
         nd = self.nodes[n]
@@ -335,9 +429,9 @@ class _Lowering:
         if self.is_angle(n):
             a = self.ang(n)
             fo = format_of(_PI)
-            # K ~ 2^21 (the product below 2^53, exact in the SX model), rounded down so that an angle
+            # K in 15 bits (two 32-bit products; relative error 4e-5), rounded down so that an angle
             # read as rad never exceeds pi (the guard's bound |theta| <= pi stays true)
-            sh = 20 + 31 - fo
+            sh = 13 + 31 - fo
             K = math.floor(_PI * 2.0 ** (fo - 31 + sh))
             return self.add(
                 Ins("ANG2LIN", (a,), "fix", fo, (K, sh), what="binary angle to rad"), 2.0**31 * K / 2**sh
@@ -346,6 +440,9 @@ class _Lowering:
             return self.in_slot[n]
         op = nd.op
         fo = format_of(self.rng.get(n, 0.0))
+        fold = self.folded(n)
+        if fold is not None:
+            return fold
         if op == "ASSIGN":
             return self.lin(nd.args[0])
         if op in ("LT", "LE", "EQ", "NE"):
@@ -364,12 +461,26 @@ class _Lowering:
                 wr = max(self.wr[a] * 2.0**ka, self.wr[b] * 2.0**kb)
             return self.add(Ins(name, (a, b), "fix", fo, (ka, kb)), wr)
         if op in ("MUL", "SQ"):
+            if any(self.cval(x) == 0 for x in nd.args):
+                return self.const_slot(0.0, fo)
+            same = op == "SQ" or nd.args[0] == nd.args[1]
+            consts = [self.cval(x) is not None for x in nd.args[: 1 if same else 2]]
             a = self.factor(nd.args[0])
-            b = a if op == "SQ" else self.factor(nd.args[1])
+            b = a if same else self.factor(nd.args[1])
             s = self.fmt(a)[1] + self.fmt(b)[1] - fo
+            wr = self.wr[a] * self.wr[b] * 2.0**-s
+            c, x = (a, b) if consts[0] else (b, a)
+            if any(consts) and self.exact_q15(c, x, s, wr):
+                return self.add(Ins("MUL", (a, b), "fix", fo, (s,)), wr)
+            if 16 <= s <= 32 and wr > MULW_MAX:
+                a, b = self.clamped(a), self.clamped(b)
+                b = a if same else b
+                wr = self.wr[a] * self.wr[b] * 2.0**-s
+            if 16 <= s <= 32 and wr <= MULW_MAX and self.wr[a] * self.wr[b] >= INT_MAX:
+                return self.add(Ins("MULW", (a, b), "fix", fo, (s,)), wr + 4)
             if not -30 <= s <= 62:
                 raise ValueError(f"product shift {s} out of range (node {n})")
-            return self.add(Ins("MUL", (a, b), "fix", fo, (s,)), self.wr[a] * self.wr[b] * 2.0**-s)
+            return self.add(Ins("MUL", (a, b), "fix", fo, (s,)), wr)
         if op in ("NEG", "FABS"):
             a = self.lin(nd.args[0])
             return self.add(Ins("NEG" if op == "NEG" else "ABS", (a,), "fix", self.fmt(a)[1]), self.wr[a] + 1)
@@ -394,7 +505,7 @@ class _Lowering:
             return self.divide(n, fo)
         if op in ("SIN", "COS"):
             a = self.ang_of(nd.args[0])
-            return self.add(Ins(op, (a,), "fix", 26, what=f"{op.lower()} (polynomial)"), 2.0**26 + 64)
+            return self.add(Ins(op, (a,), "fix", SIN_F, what=f"{op.lower()} (polynomial)"), 2.0**SIN_F + 64)
         raise NotImplementedError(
             f"fixed point: operation {op} on runtime values (node {n}) is not supported"
         )
@@ -456,7 +567,8 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
     for i in runtime:
         ia = max(abs(iv[i][0]), abs(iv[i][1]))
         sm = MARGIN * sim_max.get(i, math.inf)
-        rng[i] = min(ia, sm)
+        # a signal that never moved in the runs (the guard's counter) keeps its sound interval bound
+        rng[i] = min(ia, sm) if sm > 0 or not math.isfinite(ia) else ia
         if not math.isfinite(rng[i]):
             raise ValueError(f"{obs.name}: no range for a signal (node {i}, {nodes[i].op})")
     low = _Lowering(nodes, const, rng, angle_fields)

@@ -130,13 +130,13 @@ def test_integer_methods_within_their_stated_bounds():
     rng = np.random.default_rng(0)
     a = rng.integers(-(2**31), 2**31, size=20000)
     s = fixed_ops.sin_binary(B, a) * 2.0**-fixed_ops.SIN_F
-    assert np.abs(s - np.sin(a * np.pi / 2**31)).max() < 1e-7
+    assert np.abs(s - np.sin(a * np.pi / 2**31)).max() < 2e-7  # the stated bound
     r = 2.0 ** rng.uniform(8, 30.9, size=20000)  # any magnitude of an int32 vector from 2^8 up
     th = rng.uniform(-np.pi, np.pi, size=20000)
     x, y = np.round(r * np.cos(th)).astype(np.int64), np.round(r * np.sin(th)).astype(np.int64)
     z = fixed_ops.cordic_atan2(B, y, x) * np.pi / 2**31
     err = np.abs(np.angle(np.exp(1j * (z - np.arctan2(y, x)))))
-    assert np.all(err <= 3.1e-5 + 24 / r)  # the stated bound: atan(2^-15) + 24 LSB / |v|
+    assert np.all(err <= 1.23e-4 + 24 / r)  # the stated bound: atan(2^-13) + 24 LSB / |v|
     v = rng.integers(0, 2**32, size=20000)
     q = B.isqrt(v)
     assert np.all(q * q <= v) and np.all((q + 1) * (q + 1) > v)
