@@ -234,3 +234,22 @@ def test_adaptive_observer_closed_loop_within_0p2_deg_of_the_double_step():
     e = np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
     assert np.abs(e).max() <= 0.2, np.abs(e).max()
     assert not fix.problems()
+
+
+def test_a_long_burst_resets_the_step_as_the_double_step_does(built):
+    """More rejected samples in a row than the guard allows: the fixed-point step resets itself on the
+    same sample as the double step (its counter counts: a format from runs that never reject would
+    not), and the C equals the model through it."""
+    _d, setup, model, fx, out, exe = built
+    x0_si, meas = model.data(setup)[0][:, 1000], model.data(setup)[1][:, 1000:1300].copy()
+    meas[:, 40:200] *= 50.0  # implausible: every one rejected
+    raw = fx.to_raw(meas, "meas").T
+    x0 = fx.to_raw(x0_si, "x")
+    c = replay(exe, out, raw, x0)
+    xs, ys = run_raw(fx, raw, x0)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    names = [o["name"] for o in fx.outputs]
+    _, ys_d = run_trajectory(setup, meas.T, x0_si)
+    fixed_resets = np.nonzero(ys[:, names.index("reset")])[0]
+    double_resets = np.nonzero(ys_d[:, names.index("reset")])[0]
+    assert len(double_resets) > 0 and np.array_equal(fixed_resets, double_resets)
