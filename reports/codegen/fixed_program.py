@@ -5,8 +5,12 @@ the graph the double and float C are printed from; parameters and gains become c
 of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
 
 - **formats**: a signal of range R (fixed_ranges.py) is stored as raw = value 2^f with the largest f
-  such that R 2^f <= 2^26: 26 bits of precision, 5 bits of headroom. Products are 64-bit and shifted
-  back (floor); sums are aligned by shifts; comparisons are exact (aligned to the finer format);
+  such that R 2^f <= 2^26: 26 bits of precision, 5 bits of headroom. Products by a constant (Q15)
+  are two 32-bit products (exact); products of two signals four 32-bit products of their 16-bit
+  halves (fixed_ops.mulw, within 3 LSB; operands clamped at twice their range where a glitch could
+  overflow), 64-bit only where neither form holds; sums are aligned by shifts; comparisons are exact;
+- **folded and shared**: a variant's flags select their branch in the program (a product by 0, a
+  sum with 0, |binary angle| <= pi are constants); an operation on the same slots is computed once;
 - **saturation** where a worst-case input (measurements and unbounded state fields clamped at twice
   their range where they enter, bounded state fields within their bounds, angles anything) could take
   a result beyond int32: there the result is clamped, elsewhere no check is spent;
@@ -14,7 +18,7 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
   symbolic/frames.py, recognised in the graph) are binary angles: int32 with pi <-> 2^31, so wrapping
   is the integer's own overflow. ``wrap_angle(a + b)`` becomes a wrapping sum of the operands
   converted to binary angles (one multiplication by a constant for a product such as T_s w);
-- **atan2** by CORDIC (16 steps), **sin/cos** by an odd polynomial of degree 9 on the folded angle,
+- **atan2** by CORDIC (14 steps), **sin/cos** by an odd polynomial of degree 9 on the folded angle,
   **sqrt** as an integer square root of a 32-bit word: bounds in docs/codegen.md ("Fixed point");
 - no division: the graph's divisions by parameters are multiplications by constants already (c_graph);
   a division by a runtime value is refused (NotImplementedError) until it is proven non-zero.
