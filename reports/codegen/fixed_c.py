@@ -161,7 +161,8 @@ def _rnd(a: str, k: int, ceil: int, wide: bool, neg32: bool = False) -> str:
 def _q15(prog: list[Ins], wr: list[float], k: int, ins: Ins) -> tuple[int, str] | None:
     """(slot, literal) of a product by a 16-bit constant whose parts stay within int32, else None."""
     s = ins.imm[0]
-    if ins.op != "MUL" or s < 1 or ins.sat or (s < 16 and wr[k] >= 2.0**30):
+    # s < 16: the high part shifted left is within |a c| 2^-s + 2^(31-s) (fixed_program.exact_q15)
+    if ins.op != "MUL" or s < 1 or ins.sat or (s < 16 and wr[k] + 2.0 ** (32 - s) >= 2.0**31):
         return None
     a, b = ins.args
     for x, k in ((a, b), (b, a)):
@@ -202,7 +203,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
             w = _wide(fx.prog, wr, ins, m, ins.args)
             e = f"{fin}({_sh(a[0], m[0], True)})" if w else _sh(a[0], m[0], False)
         elif op in ("ADD", "SUB", "MIN", "MAX"):
-            w = _wide(fx.prog, wr, ins, m, ins.args) or wr[k] > INT_MAX / 2
+            w = _wide(fx.prog, wr, ins, m, ins.args)  # else the result is within int32 (not saturated)
             p, q = _sh(a[0], m[0], w), _sh(a[1], m[1], w)
             if op in ("ADD", "SUB"):
                 e = f"({p} {'+' if op == 'ADD' else '-'} {q})"

@@ -20,8 +20,8 @@ from sensorless.reports.codegen.fixed_ranges import MARGIN
 ERRORS = (
     f"atan2: vectoring CORDIC, {CORDIC_STEPS} steps, error <= atan(2^-13) + 24 LSB / |v| rad "
     "(|v| the raw magnitude; tests/common/test_fixed_point.py); "
-    "sin/cos: odd polynomial of degree 9 on the angle folded "
-    "to [-pi/2, pi/2], error <= 2e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits); "
+    "sin/cos: odd polynomial of degree 7 on the angle folded "
+    "to [-pi/2, pi/2], error <= 1e-6; sqrt: integer square root of a 32-bit word (floor, 16 bits); "
     "products of two signals: four 32-bit products of 16-bit halves, within 3 LSB"
 )
 

@@ -32,17 +32,17 @@ NOMINAL_BITS = 26  # a signal at the top of its range is 2^26 (5 bits of headroo
 # Error bounds matched to where the value goes: atan2's angle is an output read once per sample
 # (1.2e-4 rad = 0.007 deg, 1/30 of the 0.2 deg the fixed-point step may differ from the double one by),
 # so 14 CORDIC steps; sin/cos rotate states that are integrated (the adaptive observer's frame), where
-# a 1e-4 error biased piippo2008's angle by 0.27 deg (measured), so they keep 26 bits (1e-7).
+# a 1e-4 error biased piippo2008's angle by 0.27 deg (measured), so they keep 26 bits and degree 7 (1e-6).
 CORDIC_STEPS = 14  # atan2: error <= atan(2^-13) = 1.22e-4 rad + rounding (docs/codegen.md, "Fixed point")
 # binary angle: an int32 word, pi <-> 2^31 (wraps: angle arithmetic is modulo 2 pi for free)
 CORDIC_ANGLES = tuple(round(math.atan(2.0**-i) * 2**31 / math.pi) for i in range(CORDIC_STEPS))
 SIN_F = NOMINAL_BITS  # format of sin/cos results
-SIN_TERMS = 5  # odd powers 1..9
+SIN_TERMS = 4  # odd powers 1..7
 
 
 def _sin_coefficients() -> tuple[int, ...]:
-    """Odd polynomial c1 x + c3 x^3 + ... + c9 x^9 ~ sin(pi x / 2) on [-1, 1] (least squares on
-    Chebyshev nodes; with the products of :func:`mulw` the error is <= 1e-7), as Q26 integers."""
+    """Odd polynomial c1 x + c3 x^3 + c5 x^5 + c7 x^7 ~ sin(pi x / 2) on [-1, 1] (least squares on
+    Chebyshev nodes; with the products of :func:`mulw` the error is <= 1e-6), as Q26 integers."""
     x = np.cos(np.pi * (np.arange(400) + 0.5) / 400)
     a = np.stack([x ** (2 * k + 1) for k in range(SIN_TERMS)], axis=1)
     c = np.linalg.lstsq(a, np.sin(np.pi * x / 2), rcond=None)[0]
@@ -192,7 +192,7 @@ def mulw(B: Any, a: Any, b: Any, s: int) -> Any:
 
 
 def sin_binary(B: Any, a: Any) -> Any:
-    """sin of a binary angle (int32), Q26: folded to [-pi/2, pi/2], odd polynomial of degree 9, its
+    """sin of a binary angle (int32), Q26: folded to [-pi/2, pi/2], odd polynomial of degree 7, its
     products by :func:`mulw` (no 64-bit product)."""
     half = 2**30
     a = B.where(B.cmp("LT", B.const(half, a), a), B.const(2**31, a) - a, a)

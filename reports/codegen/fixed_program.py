@@ -18,7 +18,7 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
   symbolic/frames.py, recognised in the graph) are binary angles: int32 with pi <-> 2^31, so wrapping
   is the integer's own overflow. ``wrap_angle(a + b)`` becomes a wrapping sum of the operands
   converted to binary angles (one multiplication by a constant for a product such as T_s w);
-- **atan2** by CORDIC (14 steps), **sin/cos** by an odd polynomial of degree 9 on the folded angle,
+- **atan2** by CORDIC (14 steps), **sin/cos** by an odd polynomial of degree 7 on the folded angle,
   **sqrt** as an integer square root of a 32-bit word: bounds in docs/codegen.md ("Fixed point");
 - no division: the graph's divisions by parameters are multiplications by constants already (c_graph);
   a division by a runtime value is refused (NotImplementedError) until it is proven non-zero.
@@ -39,7 +39,6 @@ from sensorless.reports.codegen.fixed_ranges import MARGIN, evaluate, interval
 
 Q15_FACTORS = True  # constant factors of products in 16 bits (see _Lowering.factor)
 COEF_BITS = 15
-MULW_MAX = 2.0**29  # a product by four 32-bit products (fixed_ops.mulw): its result within this
 RANGE_FLOOR = 2.0**-24  # smallest range given a format (a signal that stays below it reads as 0 in steps)
 _PI = math.pi
 
@@ -185,8 +184,15 @@ class _Lowering:
             and abs(self.prog[c].imm[0]) < 2**15
             and s >= 1
             and wr <= INT_MAX
-            and (s >= 16 or wr < 2.0**30)
+            and (s >= 16 or wr + 2.0 ** (32 - s) < 2.0**31)  # (x >> 16) c 2^(16-s) within int32
         )
+
+    def mulw_fits(self, a: int, b: int, s: int) -> bool:
+        """Whether fixed_ops.mulw of slots a, b (shift s) stays within int32 in every partial sum: the
+        high term is within |a b| 2^-s + (|a| + |b|) 2^(16-s) + 2^(32-s), each cross term within
+        |a| 2^(16-s) (or |b|), the low one below 2^(32-s); doubled for safety."""
+        wa, wb = self.wr[a], self.wr[b]
+        return 16 <= s <= 32 and wa * wb * 2.0**-s + (wa + wb) * 2.0 ** (17 - s) + 2.0 ** (34 - s) < 2.0**31
 
     def fmt(self, s: int) -> tuple[str, int]:
         return self.prog[s].kind, self.prog[s].f
@@ -476,11 +482,11 @@ class _Lowering:
             c, x = (a, b) if consts[0] else (b, a)
             if any(consts) and self.exact_q15(c, x, s, wr):
                 return self.add(Ins("MUL", (a, b), "fix", fo, (s,)), wr)
-            if 16 <= s <= 32 and wr > MULW_MAX:
+            if 16 <= s <= 32 and not self.mulw_fits(a, b, s):
                 a, b = self.clamped(a), self.clamped(b)
                 b = a if same else b
                 wr = self.wr[a] * self.wr[b] * 2.0**-s
-            if 16 <= s <= 32 and wr <= MULW_MAX and self.wr[a] * self.wr[b] >= INT_MAX:
+            if self.mulw_fits(a, b, s) and self.wr[a] * self.wr[b] >= INT_MAX:
                 return self.add(Ins("MULW", (a, b), "fix", fo, (s,)), wr + 4)
             if not -30 <= s <= 62:
                 raise ValueError(f"product shift {s} out of range (node {n})")
