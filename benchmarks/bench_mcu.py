@@ -252,8 +252,8 @@ def main(presets: list[str]) -> None:
                 if prec == "fixed":
                     files = generate_fixed(setup, model, prov, P)
                     rows = ", ".join("{" + ", ".join(str(int(v)) for v in r) + "}" for r in raw)
-                    init = f"{P}_init(&bench_obs)"
-                    ram_struct = 4 * n_x
+                    init = f"(void){P}_init(&bench_obs, &{P}_default_params)"
+                    ram_struct = 4 * (n_x + len(fx.params))  # the state and the parameter struct
                     cpu = ["-mcpu=cortex-m0plus"]
                 else:
                     files = generate(setup, prov, precision="float", prefix=P)

@@ -166,10 +166,10 @@ def _q15(prog: list[Ins], wr: list[float], k: int, ins: Ins) -> tuple[int, str] 
         return None
     a, b = ins.args
     for x, k in ((a, b), (b, a)):
-        if prog[k].op == "CONST" and abs(prog[k].imm[0]) < 2**15 and prog[x].op != "CONST":
-            if wr[x] * abs(prog[k].imm[0]) < INT_MAX:
+        if prog[k].op in ("CONST", "PARAM") and wr[k] < 2**15 and prog[x].op not in ("CONST", "PARAM"):
+            if wr[x] * wr[k] < INT_MAX:
                 return None  # one 32-bit product holds it
-            return x, lit(prog[k].imm[0])
+            return x, lit(prog[k].imm[0]) if prog[k].op == "CONST" else f"s{k}"
     return None
 
 
@@ -178,7 +178,7 @@ def _wide(prog: list[Ins], wr: list[float], ins: Ins, ks: tuple[int, ...], args:
     return ins.sat or any(k > 0 and wr[a] * 2.0**k > INT_MAX / 2 for a, k in zip(args, ks, strict=False))
 
 
-def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str]:
+def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = "obs->prm") -> list[str]:
     """The step's statements: slots s0.. from ``x``/``inp`` fields, then the state and outputs."""
     exprs: list[str] = []
     for k, ins in enumerate(fx.prog):
@@ -195,6 +195,17 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
             )
         elif op == "CONST":
             e = lit(m[0])
+        elif op == "PARAM":
+            e = f"{prm}.{fx.params[m[0]]['name']}"
+        elif op == "TOANGP":  # as TOANG below, the factor a parameter of at most 15 bits
+            v, c = f"s{ins.args[0]}", f"s{ins.args[1]}"
+            if m[0] >= 16:
+                e = f"((({v} >> 16) * {c}) + ((({v} & 0xFFFF) * {c}) >> 16)) >> {m[0] - 16}"
+            else:
+                e = (
+                    f"(int32_t)(((uint32_t)(({v} >> 16) * {c}) << {16 - m[0]}) "
+                    f"+ (uint32_t)((({v} & 0xFFFF) * {c}) >> {m[0]}))"
+                )
         elif op == "CLAMP":
             e = f"({a[0]} < {lit(m[0])} ? {lit(m[0])} : ({a[0]} > {lit(m[1])} ? {lit(m[1])} : {a[0]}))"
         elif op == "MULW":

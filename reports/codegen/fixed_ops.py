@@ -210,8 +210,9 @@ def _rounded(B: Any, a: Any, k: int, ceil: int) -> Any:
     return -B.shift(-a, k) if ceil and k < 0 else B.shift(a, k)
 
 
-def run(prog: list[Ins], B: Any, inputs: list[Any]) -> list[Any]:
-    """Execute ``prog``; ``inputs[j]`` is the value of input j (an 'IN' op with imm (j,)). Returns
+def run(prog: list[Ins], B: Any, inputs: list[Any], params: list[int] | None = None) -> list[Any]:
+    """Execute ``prog``; ``inputs[j]`` is the value of input j (an 'IN' op with imm (j,)); ``params``
+    the parameter struct's raw words (default: the drive's, each 'PARAM' op's imm (j, raw)). Returns
     every slot's value (outputs are slots named by the program)."""
     v: list[Any] = []
     for ins in prog:
@@ -223,6 +224,10 @@ def run(prog: list[Ins], B: Any, inputs: list[Any]) -> list[Any]:
                 r = B.clip(r, m[1], m[2])
         elif op == "CONST":
             r = B.const(m[0], inputs[0])
+        elif op == "PARAM":
+            r = B.const(m[1] if params is None else params[m[0]], inputs[0])
+        elif op == "TOANGP":  # a K 2^-s modulo 2^32, K a parameter
+            r = B.wrap(B.shift(B.mul(a[0], a[1]), -m[0]))
         elif op == "ALIGN":
             r = _sat(B, B.shift(a[0], m[0]), ins)
         elif op == "CLAMP":

@@ -27,6 +27,7 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,6 +63,7 @@ class FixedStep:
     node_slot: dict[int, int] = field(default_factory=dict)  # graph node -> its linear slot (diagnostics)
     stored: dict[int, float] = field(default_factory=dict)  # constant node -> its stored value (poles)
     signals: list[dict[str, Any]] = field(default_factory=list)  # every slot's format and range
+    params: list[dict[str, Any]] = field(default_factory=list)  # the parameter struct's fields
 
     def to_raw(self, values: np.ndarray, which: str) -> np.ndarray:
         """SI values (rows: the fields of ``which`` = "x" or "meas") as raw words (round to nearest)."""
@@ -114,6 +116,10 @@ class _Lowering:
         self.angle_fields = angle_fields
         self.angle: dict[int, bool] = {}
         self.stored: dict[int, float] = {}  # constant node -> the value the program stores
+        self.rt: set[int] = set()  # parameter-derived nodes read from the parameter struct at run time
+        self.expr: Any = str  # node -> its expression in the parameters' names (the header's comment)
+        self.params: list[dict[str, Any]] = []  # the parameter struct's fields
+        self.param_c: dict[tuple, int] = {}
         self.sim_lo: dict[int, float] = {}  # smallest and largest simulated value of each node
         self.sim_hi: dict[int, float] = {}
 
@@ -150,6 +156,20 @@ class _Lowering:
             return self.add(Ins("CONST", (), ins.kind, ins.f, (v,), what="folded"), abs(v))
         if ins.op == "MUL" and any(c and P[a].imm[0] == 0 for a, c in zip(ins.args, is_c, strict=True)):
             return self.add(Ins("CONST", (), ins.kind, ins.f, (0,), what="0"), 0)
+        if ins.op in ("ADD", "SUB") and is_c[1] and P[ins.args[1]].imm[0] == 0:  # x + 0
+            src, k = ins.args[0], ins.imm[0]
+            if k == 0 and P[src].f == ins.f and P[src].kind == ins.kind:
+                return src
+            return self.add(Ins("ALIGN", (src,), ins.kind, ins.f, (k,), ins.sat), self.wr[src] * 2.0**k)
+        is_p = [P[a].op == "PARAM" for a in ins.args]
+        if ins.op == "MUL" and sorted(is_c) == [False, True] and sorted(is_p) == [False, True]:
+            # a parameter times a literal (k_0 / 2 once the flags have chosen k_0): itself a parameter
+            q, c = (P[a] for a in (ins.args if is_p[0] else ins.args[::-1]))
+            d = self.params[q.imm[0]]
+            v = d["value"] * c.imm[0] * 2.0**-c.f
+            return self.param_slot(
+                ("mul", q.imm[0], c.imm[0], c.f), v, f"{d['expr']} * {c.imm[0] * 2.0**-c.f:.6g}"
+            )
         if ins.op == "SEL" and is_c[0]:
             j = 1 if P[ins.args[0]].imm[0] != 0 else 2
             src, k = ins.args[j], ins.imm[j - 1] if ins.imm else 0
@@ -180,8 +200,8 @@ class _Lowering:
         two-32-bit-product form of reports/codegen/fixed_c.py (``_q15``): no saturation, and the
         high part within int32."""
         return (
-            self.prog[c].op == "CONST"
-            and abs(self.prog[c].imm[0]) < 2**15
+            self.prog[c].op in ("CONST", "PARAM")
+            and self.wr[c] < 2**15
             and s >= 1
             and wr <= INT_MAX
             and (s >= 16 or wr + 2.0 ** (32 - s) < 2.0**31)  # (x >> 16) c 2^(16-s) within int32
@@ -203,6 +223,44 @@ class _Lowering:
             return nd.const
         return self.const.get(n)
 
+    def fixed_val(self, n: int) -> float | None:
+        """The value of node n where it is fixed when the C is generated (a literal, or derived from
+        the variant's flags only); None for a runtime value or parameter."""
+        return None if n in self.rt else self.cval(n)
+
+    def param_slot(self, key: Any, c: float, name: str, f: int | None = None, kind: str = "fix") -> int:
+        """A field of the parameter struct of value ``c`` (the drive's), read at run time. Its format
+        holds twice its magnitude; init accepts it from 0 to twice the drive's value (the worst cases
+        and saturation of the program are proven for that range; beyond, regenerate)."""
+        f = 31 if kind == "ang" else format_of(2 * abs(c)) if f is None else f
+        if (key, f) in self.param_c:
+            return self.param_c[(key, f)]
+        raw = round(c * 2.0**f) if kind == "fix" else ((round(c * 2**31 / _PI) + 2**31) & 0xFFFFFFFF) - 2**31
+        if kind == "fix" and 2 * abs(raw) > INT_MAX:
+            raise ValueError(f"parameter {name} = {c!r} does not fit format Q{f}")
+        j = len(self.params)
+        field_name = name if re.fullmatch(r"[A-Za-z_]\w*", name) and name not in self.names() else f"c{j}"
+        lo, hi = (min(0, 2 * raw), max(0, 2 * raw)) if kind == "fix" else (-(2**31), INT_MAX)  # angles wrap
+        self.params.append(
+            {
+                "name": field_name,
+                "kind": kind,
+                "expr": name,
+                "f": f,
+                "value": c,
+                "raw": raw,
+                "lo": lo,
+                "hi": hi,
+            }
+        )
+        wr = 2.0**31 if kind == "ang" else max(1, 2 * abs(raw))
+        s = self.add(Ins("PARAM", (), kind, f, (j, raw), what=f"{name} (parameter)"), wr)
+        self.param_c[(key, f)] = s
+        return s
+
+    def names(self) -> set[str]:
+        return {d["name"] for d in self.params}
+
     def const_slot(self, c: float, f: int | None = None, kind: str = "fix") -> int:
         if kind == "ang":
             raw = ((round(c * 2**31 / _PI) + 2**31) & 0xFFFFFFFF) - 2**31
@@ -219,8 +277,12 @@ class _Lowering:
         c = self.cval(n)
         if c is None or c == 0 or not Q15_FACTORS:
             return self.lin(n)
-        s = self.const_slot(c, COEF_BITS - math.ceil(math.log2(abs(c) * (1 + 2.0**-20))))
-        self.stored[n] = self.prog[s].imm[0] * 2.0 ** -self.prog[s].f  # the coarser storage
+        f = COEF_BITS - math.ceil(math.log2(abs(c) * (1 + 2.0**-20)))
+        if n in self.rt:  # a run-time parameter: one bit less, so that twice it stays below 2^15
+            s = self.param_slot(n, c, self.expr(n), f - 1)
+        else:
+            s = self.const_slot(c, f)
+        self.stored[n] = self.prog[s].imm[-1] * 2.0 ** -self.prog[s].f  # the coarser storage
         return s
 
     def is_angle(self, n: int) -> bool:
@@ -282,7 +344,11 @@ class _Lowering:
         nd = self.nodes[n]
         c = self.cval(n)
         if c is not None:
-            s = self.const_slot(c, kind="ang")
+            s = (
+                self.param_slot(n, c, self.expr(n), kind="ang")
+                if n in self.rt
+                else self.const_slot(c, kind="ang")
+            )
         elif nd.op == "INPUT":
             s = self.in_slot[n]
         elif self.wrap_arg(n) is not None:
@@ -302,8 +368,8 @@ class _Lowering:
             s = self.add(Ins("ATAN2", (y, x), "ang", 31, (ky, kx), what="atan2 (CORDIC)"), 2**31)
             if self.wr[y] * 2.0**ky > 2.0**31 or self.wr[x] * 2.0**kx > 2.0**31:
                 raise ValueError("atan2 operands of different formats beyond int32")
-        elif nd.op in ("SELECT", "IF_ELSE_ZERO") and self.cval(nd.args[0]) is not None:
-            on = self.cval(nd.args[0]) != 0
+        elif nd.op in ("SELECT", "IF_ELSE_ZERO") and self.fixed_val(nd.args[0]) is not None:
+            on = self.fixed_val(nd.args[0]) != 0
             if on or nd.op == "SELECT":
                 s = self.ang(nd.args[1 if on else 2])
             else:
@@ -334,12 +400,23 @@ class _Lowering:
             a, b = (self.ang_of(x) for x in nd.args)
             op = "ANGADD" if nd.op == "ADD" else "ANGSUB"
             return self.add(Ins(op, (a, b), "ang", 31), 2**31)
-        k, x = 1.0, n
+        k, x, kn = 1.0, n, None
         if nd.op == "MUL":
             cs = [a for a in nd.args if self.cval(a) is not None]
             if cs:
-                k = self.cval(cs[0])
+                k, kn = self.cval(cs[0]), cs[0]
                 x = next(a for a in nd.args if a != cs[0]) if nd.args[0] != nd.args[1] else nd.args[0]
+        if kn in self.rt:  # a run-time factor such as T_s k_p: TOANGP, its factor a parameter
+            if self.is_angle(x):  # k e of a wrapped angle e: the word times k (|k| < 1 here)
+                xs, ratio, unit = self.ang(x), k, ""
+            else:
+                xs = self.lin(x)
+                ratio = k * 2.0 ** (31 - self.fmt(xs)[1]) / _PI
+                unit = f" * 2^{31 - self.fmt(xs)[1]} / pi"
+            sh = COEF_BITS - 2 - math.floor(math.log2(abs(ratio)))
+            name = f"({self.expr(kn)}){unit}" if unit else self.expr(kn)
+            K = self.param_slot(("ang", kn, self.fmt(xs)), ratio, name, sh)
+            return self.add(Ins("TOANGP", (xs, K), "ang", 31, (sh,), what="to binary angle"), 2**31)
         if self.is_angle(x):  # k theta of a binary angle: exact modulo 2 pi for an integer k
             xs, ratio = self.ang(x), k
         else:
@@ -375,7 +452,12 @@ class _Lowering:
         an, bn = self.nodes[n].args
         c = self.cval(bn)
         if c is not None:  # by a constant: a product with its reciprocal
-            a, r = self.lin(an), self.const_slot(1.0 / c)
+            a = self.lin(an)
+            r = (
+                self.param_slot(("inv", bn), 1.0 / c, f"1 / ({self.expr(bn)})")
+                if bn in self.rt
+                else self.const_slot(1.0 / c)
+            )
             s = self.fmt(a)[1] + self.fmt(r)[1] - fo
             return self.add(Ins("MUL", (a, r), "fix", fo, (s,)), self.wr[a] * self.wr[r] * 2.0**-s)
         lo, hi = self.sim_lo.get(bn, 0.0), self.sim_hi.get(bn, 0.0)
@@ -409,7 +491,7 @@ class _Lowering:
         """The slot of node n where a constant operand decides it (a flag of the variant selects a
         branch, a product by 0, a sum with 0, |angle| <= pi of a binary angle), else None."""
         nd, op = self.nodes[n], self.nodes[n].op
-        cv = [self.cval(a) for a in nd.args]
+        cv = [self.fixed_val(a) for a in nd.args]
         if op in ("SELECT", "IF_ELSE_ZERO") and cv[0] is not None:
             if cv[0] != 0:
                 return self.lin(nd.args[1])
@@ -433,8 +515,8 @@ class _Lowering:
         nd = self.nodes[n]
         c = self.cval(n)
         if c is not None:
-            s = self.const_slot(c)
-            self.stored.setdefault(n, self.prog[s].imm[0] * 2.0 ** -self.prog[s].f)
+            s = self.param_slot(n, c, self.expr(n)) if n in self.rt else self.const_slot(c)
+            self.stored.setdefault(n, self.prog[s].imm[-1] * 2.0 ** -self.prog[s].f)
             return s
         if self.is_angle(n):
             a = self.ang(n)
@@ -471,7 +553,7 @@ class _Lowering:
                 wr = max(self.wr[a] * 2.0**ka, self.wr[b] * 2.0**kb)
             return self.add(Ins(name, (a, b), "fix", fo, (ka, kb)), wr)
         if op in ("MUL", "SQ"):
-            if any(self.cval(x) == 0 for x in nd.args):
+            if any(self.fixed_val(x) == 0 for x in nd.args):
                 return self.const_slot(0.0, fo)
             same = op == "SQ" or nd.args[0] == nd.args[1]
             consts = [self.cval(x) is not None for x in nd.args[: 1 if same else 2]]
@@ -590,6 +672,7 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
         if not math.isfinite(rng[i]):
             raise ValueError(f"{obs.name}: no range for a signal (node {i}, {nodes[i].op})")
     low = _Lowering(nodes, const, rng, angle_fields)
+    low.rt, low.expr = runtime_parameters(nodes, obs)
     for i, v in sim.items():
         if i in runtime:
             v = np.broadcast_to(v, x.shape[1:])
@@ -625,8 +708,57 @@ def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
         for k, ins in enumerate(low.prog)
     ]
     return FixedStep(
-        low.prog, inputs, state_out, outputs, x0, low.wr, dict(low.lin_c), dict(low.stored), signals
+        low.prog,
+        inputs,
+        state_out,
+        outputs,
+        x0,
+        low.wr,
+        dict(low.lin_c),
+        dict(low.stored),
+        signals,
+        low.params,
     )
+
+
+_INFIX = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/"}
+
+
+def runtime_parameters(nodes: list[Node], obs: Any) -> tuple[set[int], Any]:
+    """(the parameter-derived nodes that depend on a parameter or gain other than the variant's flags:
+    the step reads them from the parameter struct at run time; a function giving a node's expression
+    in the parameters' names). Flags (``Field.check == "flag"``) select the variant's code, so what
+    derives from them alone stays a literal (and folds)."""
+    flags = {(2, j) for j, f in enumerate(obs.params) if f.check == "flag"}
+    deps: dict[int, frozenset] = {}
+
+    def dep(i: int) -> frozenset:
+        if i not in deps:
+            nd = nodes[i]
+            deps[i] = (
+                frozenset([nd.source]) if nd.op == "INPUT" else frozenset().union(*(dep(a) for a in nd.args))
+            )
+        return deps[i]
+
+    rt = {i for i, nd in enumerate(nodes) if nd.param and nd.op != "CONST" and not dep(i) <= flags}
+
+    def expr(i: int, depth: int = 0) -> str:
+        nd = nodes[i]
+        if nd.op == "CONST":
+            return f"{nd.const:.6g}"
+        if nd.op == "INPUT":
+            v, j = nd.source
+            return (obs.params if v == 2 else obs.lam)[j].name
+        if depth > 6:
+            return "..."
+        a = [expr(x, depth + 1) for x in nd.args]
+        if nd.op in _INFIX and len(a) == 2:
+            return f"({a[0]} {_INFIX[nd.op]} {a[1]})" if depth else f"{a[0]} {_INFIX[nd.op]} {a[1]}"
+        return {"NEG": f"-{a[0]}", "SQ": f"{a[0]}^2", "TWICE": f"2 {a[0]}", "INV": f"1/{a[0]}"}.get(
+            nd.op, f"{nd.op.lower()}({', '.join(a)})"
+        )
+
+    return rt, expr
 
 
 def _raw_list(x0: np.ndarray, fmts: list[dict[str, Any]]) -> list[int]:

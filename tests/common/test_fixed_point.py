@@ -45,17 +45,21 @@ def built(tmp_path_factory):
     return d, setup, model, model.program(setup), out, exe
 
 
-def replay(exe, out, raw, x0=None):
-    """The C on raw samples, from *_init or from the raw state ``x0``."""
+def replay(exe, out, raw, x0=None, params=None, code=0):
+    """The C on raw samples, from *_init or from the raw state ``x0``, with the drive's parameter
+    struct or the raw words ``params``; ``code``: the exit status expected."""
     f = out / "samples.bin"
     np.ascontiguousarray(raw, dtype="<i4").tofile(f)
     args = [str(exe), str(f)]
     if x0 is not None:
         np.ascontiguousarray(x0, dtype="<i4").tofile(out / "x0.bin")
         args.append(str(out / "x0.bin"))
+    if params is not None:
+        np.ascontiguousarray(params, dtype="<i4").tofile(out / "params.bin")
+        args.append(str(out / "params.bin"))
     r = subprocess.run(args, capture_output=True)
-    assert r.returncode == 0
-    return np.frombuffer(r.stdout, "<i4").reshape(len(raw), -1)
+    assert r.returncode == code, r.stderr
+    return np.frombuffer(r.stdout, "<i4").reshape(len(raw), -1) if code == 0 else r.stderr.decode()
 
 
 def test_c_equals_the_integer_model_and_recovers_from_a_glitch(built):
@@ -253,3 +257,25 @@ def test_a_long_burst_resets_the_step_as_the_double_step_does(built):
     fixed_resets = np.nonzero(ys[:, names.index("reset")])[0]
     double_resets = np.nonzero(ys_d[:, names.index("reset")])[0]
     assert len(double_resets) > 0 and np.array_equal(fixed_resets, double_resets)
+
+
+def test_gains_are_read_from_the_parameter_struct_at_run_time(built):
+    """The gains and motor constants are fields of <prefix>_params (Q formats in the header): the PLL's
+    gain doubled at run time changes the step, the C equals the model with that struct; init names a
+    field beyond twice the drive's value (the range the formats are proven for) and refuses it."""
+    _d, setup, model, fx, out, exe = built
+    names = [p["name"] for p in fx.params]
+    header = (out / f"{_d.name}.h").read_text()
+    assert all(f"int32_t {n}; /* " in header for n in names)
+    j = next(k for k, p in enumerate(fx.params) if p["expr"] == "T_s * k_p")
+    x0, meas = fx.to_raw(model.data(setup)[0][:, 1000], "x"), model.data(setup)[1][:, 1000:1200]
+    raw = fx.to_raw(meas, "meas").T
+    prm = [p["raw"] for p in fx.params]
+    prm[j] *= 2
+    c = replay(exe, out, raw, x0, prm)
+    xs, ys = run_raw(fx, raw, x0, prm)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    assert int((c != replay(exe, out, raw, x0)).sum()) > 0  # the gain took effect
+    prm[j] = 3 * fx.params[j]["raw"]
+    err = replay(exe, out, raw, x0, prm, code=2)
+    assert f"field {j + 1} out of its range" in err
