@@ -339,3 +339,31 @@ def test_fuzz_the_fixed_c_under_sanitizers(built):
         assert y[late, names.index("valid")].min() == 1
         assert np.abs(np.angle(np.exp(1j * (th[late] - tr[late, 0])))).max() < 0.1
         assert np.abs(w[late] - tr[late, 1]).max() < 0.02 * d.w_base
+
+
+def test_report_judges_the_fixed_step_and_reruns_the_poles_with_stored_constants(built):
+    """`report --precision fixed`'s parts (reports/fixed_review.py): the time-domain checks run the
+    step given to ``judged_with`` (and only they: the analyses that set a run up keep the double
+    step); the whole drive's slow poles re-run with the stored constants move, but little."""
+    import dataclasses
+
+    from sensorless.reports import time_domain
+    from sensorless.reports.fixed_review import _drive_poles, judged_with
+
+    d, _setup, model, *_ = built
+    ran = []
+
+    def spy(setup, step):
+        ran.append(setup.observer.name)
+        return model.variant(setup, step)
+
+    sc = dataclasses.replace(load_scenario("torque_steps", d), duration=0.05)
+    with judged_with(spy):
+        td, _ = time_domain.checks(d, None, [sc], "drive file", lambda m: None)
+    assert ran and td[0]["name"] == "torque_steps"
+    ran.clear()
+    time_domain.checks(d, None, [sc], "drive file", lambda m: None)
+    assert not ran  # outside the block the checks run the double step
+    poles = _drive_poles(d, family_of(d).gains(d), model, quick=True)
+    assert poles["points"] > 0 and 0 < poles["max_relative_pole_shift"] < 0.01
+    assert abs(poles["worst_damping_stored"] - poles["worst_damping_double"]) < 1e-3
