@@ -33,6 +33,8 @@ _SX = {
     "COS": ca.cos,
     "TAN": ca.tan,
     "ATAN2": ca.atan2,
+    "ASIN": ca.asin,
+    "SIGN": ca.sign,
     "FABS": ca.fabs,
     "FMIN": ca.fmin,
     "FMAX": ca.fmax,

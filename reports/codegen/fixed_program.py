@@ -291,7 +291,7 @@ class _Lowering:
             r = False
             if nd.op == "INPUT" and n in self.angle_fields:
                 r = True
-            elif nd.op == "ATAN2" or self.wrap_arg(n) is not None or self.half_arg(n) is not None:
+            elif nd.op in ("ATAN2", "ASIN") or self.wrap_arg(n) is not None or self.half_arg(n) is not None:
                 r = True
             elif nd.op in ("SELECT", "IF_ELSE_ZERO") and n not in self.const:
                 vals = [a for a in nd.args[1:] if self.cval(a) is None]
@@ -355,8 +355,11 @@ class _Lowering:
             s = self.ang_of(self.wrap_arg(n))
         elif self.half_arg(n) is not None:
             s = self.ang(self.half_arg(n))
-        elif nd.op == "ATAN2":
-            y, x = self.lin(nd.args[0]), self.lin(nd.args[1])
+        elif nd.op in ("ATAN2", "ASIN"):
+            if nd.op == "ASIN":  # asin v = atan2(v, sqrt(1 - v^2)), |v| <= 1 (the graph clamps it)
+                y, x = self.lin(nd.args[0]), self.asin_cos(nd.args[0])
+            else:
+                y, x = self.lin(nd.args[0]), self.lin(nd.args[1])
             F = max(self.fmt(y)[1], self.fmt(x)[1])
             while (
                 F > min(self.fmt(y)[1], self.fmt(x)[1])
@@ -427,6 +430,22 @@ class _Lowering:
         K = round(ratio * 2.0**sh)
         return self.add(Ins("TOANG", (xs,), "ang", 31, (K, sh), what="to binary angle"), 2**31)
 
+    def asin_cos(self, n: int) -> int:
+        """sqrt(1 - v^2) of node n's value v (|v| <= 1): the cosine of asin v, by the integer square root
+        (16 significant bits: asin's error stays the CORDIC's, 1.2e-4 rad, plus 2^-16 rad)."""
+        v = self.lin(n)
+        f = NOMINAL_BITS - 1  # |v| <= 1 within 2^25: v^2 and 1 - v^2 in the same Q25
+        va = self.add(
+            Ins("ALIGN", (v,), "fix", f, (f - self.fmt(v)[1],)),
+            min(self.wr[v] * 2.0 ** (f - self.fmt(v)[1]), 2.0**31),
+        )
+        vc = self.add(Ins("CLAMP", (va,), "fix", f, (-(2**f), 2**f)), 2.0**f)
+        sq = self.add(Ins("MULW", (vc, vc), "fix", f, (f,)), 2.0**f + 4)
+        one = self.const_slot(1.0, f)
+        d = self.add(Ins("SUB", (one, sq), "fix", f, (0, 0)), 2.0**f + 4)
+        k = 6 if (f + 6) % 2 == 0 else 5
+        return self.add(Ins("SQRT", (d,), "fix", (f + k) // 2, (k,), what="cos of asin"), 2.0**16)
+
     def compare(self, op: str, args: tuple[int, ...]) -> tuple[tuple[int, int], str, int, tuple[int, ...]]:
         """Operands and rounding of an exact comparison in 32 bits: the finer operand is rounded to the
         coarser format, down or up as the comparison needs (x < y 2^k iff floor(x 2^-k) < y; x <= y 2^k
@@ -438,11 +457,15 @@ class _Lowering:
             if F - min(fa, fb) > 30:
                 raise ValueError(f"equality of formats Q{fa} and Q{fb}: too far apart")
             return (a, b), "bool", 0, (F - fa, F - fb, 0, 0)
-        # a word shifted right by 31 (floor) or 32 (ceil, in 64 bits) is already -1, 0 or 1
+        # a word shifted right by 31 (floor) or 32 (ceil, in 64 bits) is already -1, 0 or 1.
+        # A threshold (a constant or parameter) finer than the signal is rounded away from it: the
+        # comparison holds within one LSB of the signal's format, so that a signal that reaches a stored
+        # value by its own rounding (an I-f ramp at w_on, compared with w_on (1 - 1e-9)) reaches it
+        thr = {"CONST", "PARAM"}
         if fa >= fb:
-            up = int(op == "LE")
+            up = 0 if self.prog[a].op in thr else int(op == "LE")
             return (a, b), "bool", 0, (max(fb - fa, -31 - up), 0, up, 0)
-        up = int(op == "LT")
+        up = 1 if self.prog[b].op in thr else int(op == "LT")
         return (a, b), "bool", 0, (0, max(fa - fb, -31 - up), 0, up)
 
     def divide(self, n: int, fo: int) -> int:
@@ -595,6 +618,11 @@ class _Lowering:
             return self.add(Ins("SQRT", (a,), "fix", (fa + k) // 2, (k,)), 2.0**16)
         if op == "DIV":
             return self.divide(n, fo)
+        if op == "SIGN":  # (0 < x) - (x < 0)
+            x, zero = self.lin(nd.args[0]), self.const_slot(0.0, 0)
+            pos = self.add(Ins("LT", (zero, x), "bool", 0, (0, 0, 0, 0)), 1)  # 0 is 0 in any format
+            neg = self.add(Ins("LT", (x, zero), "bool", 0, (0, 0, 0, 0)), 1)
+            return self.add(Ins("SUB", (pos, neg), "fix", 0, (0, 0)), 1)
         if op in ("SIN", "COS"):
             a = self.ang_of(nd.args[0])
             return self.add(Ins(op, (a,), "fix", SIN_F, what=f"{op.lower()} (polynomial)"), 2.0**SIN_F + 64)
