@@ -372,9 +372,9 @@ def test_report_judges_the_fixed_step_and_reruns_the_poles_with_stored_constants
 def test_the_i_f_start_in_fixed_point(tmp_path):
     """The I-f start (symbolic/startup.py) lowered: asin as the CORDIC atan2 of (v, sqrt(1 - v^2)),
     sign as two comparisons; thresholds a ramp reaches by its own rounding are reached (the handover at
-    w_on). outrunner270's start (0.3 s): the C equals the model bit for bit on its samples with a
-    hostile burst, and in closed loop the angle error ends within 0.2 deg of the double step's, the
-    handover within 10 periods of its."""
+    w_on). outrunner270's start (0.12 s, the handover at ~0.05 s): the C equals the model bit for bit
+    on its samples with a hostile burst, and in closed loop the angle error ends within 0.2 deg of the
+    double step's, the handover within 10 periods of its."""
     import dataclasses
 
     from sensorless.design.pmsm_drive import startup_setup
@@ -383,7 +383,7 @@ def test_the_i_f_start_in_fixed_point(tmp_path):
     d = load_drive("outrunner270")
     fam = family_of(d)
     setup, _ = startup_setup(d, fam.runtime(d, fam.gains(d)))
-    sc = dataclasses.replace(load_scenario("start", d), duration=0.3)
+    sc = dataclasses.replace(load_scenario("start", d), duration=0.12)
     model = FixedModel.of(d, None, [sc], compile=False)
     fx = model.program(setup)
     files = generate_fixed(setup, model, Provenance(d.name, d.file, d.digest, "sensorless test"), d.name)
