@@ -27,6 +27,7 @@ finding) and by ``sensorless report`` (a warning line, exit status 3).
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import functools
 from collections.abc import Callable, Sequence
@@ -36,6 +37,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.family import CapabilityError, Drive, DriveScales, GainSet
 from sensorless.design.registry import family_of
+from sensorless.design.runtime import step_variant
 from sensorless.design.scenario import (
     ZERO_SPEED_LOW_PU,
     Scenario,
@@ -57,6 +59,11 @@ LIMITS = {
 }
 # a run whose open-loop I-f start had the loop longer than this share of it did not test the observer
 MAX_OPEN_LOOP_SHARE = 0.5
+
+
+# the observer step the checks run (design/runtime.step_variant's variant), None: the double one;
+# set by `report --precision fixed` (reports/fixed_review.py judged_with)
+JUDGED_STEP: contextvars.ContextVar[Any] = contextvars.ContextVar("judged_step", default=None)
 
 
 def scenarios(drive: Drive, paper: Sequence[str], user: Sequence[str] = ()) -> list[Scenario]:
@@ -428,7 +435,12 @@ def checks(
     for item in runs:
         sc = item if isinstance(item, Scenario) else load_scenario(item, drive)
         progress(f"      simulating {sc.name}: {sc.title}")
-        tr = simulate(drive, sc, gains)
+        variant = JUDGED_STEP.get()
+        if variant is None:
+            tr = simulate(drive, sc, gains)
+        else:  # the step under review, e.g. the fixed-point one (report --precision fixed)
+            with step_variant(variant):
+                tr = simulate(drive, sc, gains)
         j = assess(tr, sc, drive.w_base, scales)
         check = entry(sc, j, classify_all(j.failures, family, unstable), label)
         out.append(check)

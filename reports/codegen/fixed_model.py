@@ -24,18 +24,23 @@ from sensorless.reports.codegen.fixed_program import FixedStep, fixed_step
 from sensorless.reports.codegen.fixed_ranges import probe_runs
 
 
-def step_raw(fx: FixedStep, x: np.ndarray, meas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One step on raw int64 words (rows: fields; columns: independent instances): (x_next, y)."""
-    v = run(fx.prog, NUMPY, [np.asarray(r, np.int64) for r in (*x, *meas)])
+def step_raw(
+    fx: FixedStep, x: np.ndarray, meas: np.ndarray, params: list[int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """One step on raw int64 words (rows: fields; columns: independent instances): (x_next, y);
+    ``params``: the parameter struct's raw words (default: the drive's)."""
+    v = run(fx.prog, NUMPY, [np.asarray(r, np.int64) for r in (*x, *meas)], params)
     return np.stack([v[s] for s in fx.state_out]), np.stack([v[o["slot"]] for o in fx.outputs])
 
 
-def run_raw(fx: FixedStep, meas: np.ndarray, x0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def run_raw(
+    fx: FixedStep, meas: np.ndarray, x0: np.ndarray | None = None, params: list[int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """A trajectory of raw measurements (N x n_meas): (states N x n_x after each step, outputs N x n_y)."""
     x = np.asarray(fx.x0 if x0 is None else x0, np.int64)[:, None]
     xs, ys = [], []
     for row in np.asarray(meas, np.int64):
-        x, y = step_raw(fx, x, row[:, None])
+        x, y = step_raw(fx, x, row[:, None], params)
         xs.append(x[:, 0])
         ys.append(y[:, 0])
     return np.array(xs), np.array(ys)

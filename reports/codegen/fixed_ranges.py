@@ -41,6 +41,7 @@ _F = {
     "TAN": np.tan,
     "ATAN": np.arctan,
     "ATAN2": np.arctan2,
+    "ASIN": np.arcsin,
     "EXP": np.exp,
     "LOG": np.log,
     "FABS": np.abs,
@@ -154,6 +155,10 @@ def interval(
             r = (-1.0, 1.0)
         elif op == "ATAN2":
             r = (-math.pi, math.pi)
+        elif op == "ASIN":
+            r = (-math.pi / 2, math.pi / 2)
+        elif op == "SIGN":
+            r = (-1.0, 1.0)
         elif op in ("FMIN", "FMAX"):
             f = min if op == "FMIN" else max
             r = (f(a[0][0], a[1][0]), f(a[0][1], a[1][1]))
