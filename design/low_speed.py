@@ -48,7 +48,15 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
+from sensorless.design.family import (
+    Drive,
+    EstimateErrors,
+    EstimateScaling,
+    GainSet,
+    Linearizable,
+    Scaled,
+    require,
+)
 from sensorless.design.registry import family_of
 
 MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
@@ -212,10 +220,10 @@ class WholeDrive:
 def full_acceleration(drive: Drive) -> float:
     """a_max [rad/s^2 electrical]: what the torque margin over rated load gives the rotor, p (T_max -
     T_N) / J (the family's DriveScales); 0 where it gives none."""
-    try:
-        sc = family_of(drive).scales(drive)
-    except CapabilityError:
+    fam = family_of(drive)
+    if not isinstance(fam, Scaled):
         return 0.0
+    sc = fam.scales(drive)
     return float(sc.pole_pairs * max(0.0, sc.T_max - sc.T_N) / sc.J)
 
 
@@ -228,7 +236,7 @@ def _analysis(
     fam = family_of(drive)
 
     def observer_only(w: Any, T: Any) -> Any:
-        return fam.linearize(drive, gains, w, T, **opts)
+        return require(fam, Linearizable).linearize(drive, gains, w, T, **opts)
 
     if observer:
         return observer_only, "the observer alone (asked)"
@@ -280,11 +288,8 @@ def minimum_speed(
     observer-only linearization (the paper's analysis) instead of the whole drive."""
     fam = family_of(drive)
     if errors:
-        drive = fam.with_estimate_errors(drive, errors)
-    try:
-        scales = fam.scales(drive)
-    except CapabilityError:
-        scales = None
+        drive = require(fam, EstimateScaling).with_estimate_errors(drive, errors)
+    scales = fam.scales(drive) if isinstance(fam, Scaled) else None
     if min_decay is None:
         min_decay = DECAY_SHARE * float(scales.alpha_s) if scales is not None else 0.0
     crit = {"damping": min_damping, "decay": min_decay, "bias": max_bias, "noise": max_bias / 3}

@@ -25,9 +25,13 @@ import dataclasses
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.family import Drive, GainSet
 
 CHUNK = 250  # draws per chunk: the unit of seeding and of distributed work
 CLIP_FRACTION = 0.05  # a non-physical draw (<= 0) is clipped to this fraction of the nominal value
@@ -172,7 +176,13 @@ def draw(
 
 
 def chunk_damping(
-    family: Any, drive: Any, gains: Any, plant: np.ndarray, estimate: np.ndarray, w: Any, torque: Any
+    family: Any,  # a MonteCarlo family (design/capabilities.py imports this module's Uncertain)
+    drive: Drive,
+    gains: GainSet,
+    plant: np.ndarray,
+    estimate: np.ndarray,
+    w: ArrayLike,
+    torque: ArrayLike,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per draw: the worst damping over the operating points (NaN where a point has no equilibrium:
     counted as a failure) and the index of the worst point. One batched linearization."""

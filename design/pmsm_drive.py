@@ -14,6 +14,7 @@ import math
 from typing import Any, Protocol
 
 import numpy as np
+from sensorless.design.capabilities import Linearizable, OpenLoopStart, Scaled, require
 from sensorless.design.family import CapabilityError, Panel, TraceLine
 from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
@@ -138,7 +139,7 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
         return None, "no I-f start: the observer holds zero speed (its family: HF injection)", 0.0
-    startup = getattr(drive, "startup", None)
+    startup = fam.startup(drive) if isinstance(fam, OpenLoopStart) else None
     given = startup.values() if startup is not None else {}
     values, w_min, warn = given, 0.0, ""
     try:
@@ -171,7 +172,7 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
         except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
             if startup is None or startup.needs_w_min:
                 raise
-            sigma = DECAY_SHARE * fam.scales(drive).alpha_s
+            sigma = DECAY_SHARE * require(fam, Scaled).scales(drive).alpha_s
             rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma, drive.w_base)
             return (*_startup_line({**rules, **given}, given, drive.w_base, ""), 0.0)
         with step_variant(None):
@@ -214,7 +215,9 @@ def _handover_decay(drive: OnPmsm, gains: Any, ls: Any) -> float:
 
     fam = family_of(drive)
     w_on = min(ON_FACTOR * ls.w_min_rated, drive.w_base)
-    try:
+    if not isinstance(fam, Linearizable):
+        return ls.min_decay
+    try:  # a drive its family does not linearize (e.g. a firmware variant) refuses it: CapabilityError
         T = np.array([-1.0, 1.0]) * drive.T_N
         lin = fam.linearize(drive, gains, np.full(2, w_on), T, **fam.low_speed_options(drive))
         decay = np.asarray(lin.low_speed_decay(), float)

@@ -20,8 +20,10 @@ from typing import Any
 
 import numpy as np
 from sensorless.design import montecarlo as mc
-from sensorless.design.family import GainSet
+from sensorless.design.capabilities import MonteCarlo, require
+from sensorless.design.family import Drive, GainSet
 from sensorless.design.registry import family_of
+from sensorless.design.scenario import Scenario
 from sensorless.reports.engine import Engine
 
 WORST = 10  # worst draws listed
@@ -40,25 +42,31 @@ class Result:
     summary: dict[str, Any]
 
 
-def envelope(drive: Any, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+def envelope(drive: Drive, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The design's envelope: the operating points the tuner held the gains to, where ``gains`` run the
     drive (the family's ``envelope_points``)."""
-    return family_of(drive).envelope_points(drive, gains)
+    return require(family_of(drive), MonteCarlo).envelope_points(drive, gains)
 
 
-def linear_task(drive: Any, gains: GainSet, plant: np.ndarray, estimate: np.ndarray, w: Any, T: Any) -> Any:
+def linear_task(
+    drive: Drive, gains: GainSet, plant: np.ndarray, estimate: np.ndarray, w: np.ndarray, T: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """One chunk on a worker: (worst damping, worst point) per draw."""
-    return mc.chunk_damping(family_of(drive), drive, gains, plant, estimate, w, T)
+    return mc.chunk_damping(require(family_of(drive), MonteCarlo), drive, gains, plant, estimate, w, T)
 
 
 def time_task(
-    drive: Any, gains: GainSet, plant: Mapping[str, float], estimate: Mapping[str, float], scenarios: Any
+    drive: Drive,
+    gains: GainSet,
+    plant: Mapping[str, float],
+    estimate: Mapping[str, float],
+    scenarios: Sequence[Scenario],
 ) -> list[tuple[str, list[str]]]:
     """One draw on a worker: each generic scenario simulated on the perturbed drive, (name, failed)."""
     from sensorless.design.simulate import simulate
     from sensorless.reports.time_domain import judge
 
-    fam = family_of(drive)
+    fam = require(family_of(drive), MonteCarlo)
     out = []
     for sc in scenarios:
         try:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from sensorless.design.capabilities import Linearizable, Scaled
 from sensorless.design.family import CapabilityError, Drive, DriveScales, GainSet
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import (
@@ -65,10 +66,8 @@ def scenarios(drive: Drive, paper: Sequence[str], user: Sequence[str] = ()) -> l
     :func:`limitations`); then the user's files (``--scenario``), as given."""
     out: list[Scenario] = []
     if not drive.file.startswith("preset:"):
-        try:
+        if isinstance(family_of(drive), Scaled):  # else (a family without scales): its own scenarios
             out = generic_scenarios(drive)
-        except CapabilityError:  # a family without scales: its own scenarios
-            pass
         if zero_speed_limit(drive):  # nor a start from standstill, which its loop cannot simulate
             out = [sc for sc in out if not crosses_zero(sc) and not sc.startup]
     if not out:
@@ -352,7 +351,9 @@ def finders(drive: Drive, gains: GainSet | None) -> tuple[Any, Callable[[Failure
         torque = operating_torque_pu(x)
         if x.w_pu is None or torque is None or fam.holds_zero_speed(drive):
             return None
-        try:
+        if not isinstance(fam, Linearizable):
+            return None
+        try:  # a drive its family does not linearize (a firmware variant) refuses it
             lin = fam.linearize(
                 drive, reviewed(), np.array([x.w_pu * drive.w_base]), np.array([torque * drive.T_N])
             )
@@ -418,10 +419,8 @@ def checks(
     figures)."""
     from sensorless.reports.sim_figure import plot_traces
 
-    try:
-        scales: DriveScales | None = family_of(drive).scales(drive)
-    except CapabilityError:
-        scales = None
+    fam = family_of(drive)
+    scales: DriveScales | None = fam.scales(drive) if isinstance(fam, Scaled) else None
     family, unstable = finders(drive, gains)
     out: list[dict[str, Any]] = []
     figs: list[Figure] = []

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from sensorless.design import registry
+from sensorless.design.capabilities import Documented, OpenLoopStart, require
 from sensorless.design.drive import load_drive_text, preset_text
 from sensorless.design.drive_file import Entry, read_text, table
 from sensorless.design.family import CapabilityError
@@ -109,11 +110,11 @@ def run(args: argparse.Namespace) -> int:
     out = OutputFile(args.out, force=args.force)
     out.check()
     given_start = data.pop(SECTION, None)  # [startup] is read by design/drive.py for every family
-    doc = fam.document(data, file)
+    doc = require(fam, Documented).document(data, file)
     written = doc.toml()
     source = load_drive_text(text, file)  # the source loads (errors and warnings name its keys)
     drive = load_drive_text(written, str(args.out))  # and so does what is written
-    if fam.open_loop_start and _startup_section(doc, fam, drive, given_start):
+    if isinstance(fam, OpenLoopStart) and _startup_section(doc, fam, drive, given_start):
         written = doc.toml()
         try:
             drive = load_drive_text(written, str(args.out))

@@ -8,6 +8,7 @@ import sys
 import time
 from typing import Any
 
+from sensorless.design.capabilities import MonteCarlo, require
 from sensorless.design.family import CapabilityError
 from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.registry import family_of
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     for path in args.scenario:  # each loads for this drive: one line naming the file if not
         load_scenario(path, drive)
     if args.montecarlo:
-        fam.montecarlo_parameters(drive)  # one line now if the family has no Monte-Carlo
+        require(fam, MonteCarlo)  # one line now if the family has no Monte-Carlo
     out = OutputSet(args.out, force=args.force, names=("report.html", "report.json"))
     out.check()  # before minutes of work
     t0 = time.perf_counter()
@@ -153,7 +154,7 @@ def _with_montecarlo(rep: Any, drive: Any, fam: Any, table: Any, args: argparse.
 
     print(f"      Monte-Carlo: {args.montecarlo} draws", file=sys.stderr, flush=True)
     gains = fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
-    params = fam.montecarlo_parameters(drive)
+    params = require(fam, MonteCarlo).montecarlo_parameters(drive)
     with Engine(SYNCHRONOUS, quiet=True) as engine:
         res = rmc.run(
             drive, gains, params, rmc.typical_spreads(params), {}, args.montecarlo, 0, 0,
