@@ -35,7 +35,8 @@ if TYPE_CHECKING:  # typed by name only: these modules import the family contrac
     from sensorless.design.montecarlo import Uncertain
     from sensorless.design.startup import StartupSettings
 
-D = TypeVar("D", bound=Drive, contravariant=True)
+D = TypeVar("D", bound=Drive, contravariant=True)  # a drive the capability takes
+E = TypeVar("E", bound=Drive)  # a drive it takes and returns
 
 # the capabilities typed beside their result types (a module that checks for one must not import this
 # one: design/scenario.py, design/simulate.py), gathered here
@@ -63,16 +64,16 @@ class Documented(Protocol):
 
 
 @runtime_checkable
-class MonteCarlo(Protocol[D]):
+class MonteCarlo(Protocol[E]):
     """Spreads its drive's parameters over draws (design/montecarlo.py, ``sensorless montecarlo``)."""
 
-    def montecarlo_parameters(self, drive: D) -> tuple[Uncertain, ...]:
+    def montecarlo_parameters(self, drive: E) -> tuple[Uncertain, ...]:
         """The parameters a run may spread, in the column order of the draws."""
         ...
 
     def linearize_draws(
         self,
-        drive: D,
+        drive: E,
         gains: GainSet,
         plant: np.ndarray,
         estimate: np.ndarray,
@@ -85,25 +86,25 @@ class MonteCarlo(Protocol[D]):
         equilibrium on."""
         ...
 
-    def envelope_points(self, drive: D, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def envelope_points(self, drive: E, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(w [rad/s, electrical], torque [N m]): the points every draw is judged at."""
         ...
 
-    def perturbed(self, drive: D, plant: Mapping[str, float], estimate: Mapping[str, float]) -> D:
+    def perturbed(self, drive: E, plant: Mapping[str, float], estimate: Mapping[str, float]) -> E:
         """``drive`` with the true motor's and the observer's parameters replaced (SI values)."""
         ...
 
 
 @runtime_checkable
-class OpenLoopStart(Protocol[D]):
+class OpenLoopStart(Protocol[E]):
     """Starts its drives open loop (the I-f start, design/startup.py) below their minimum sensorless
     speed: its drive files take a ``[startup]`` section, which ``sensorless init`` writes."""
 
-    def startup(self, drive: D) -> StartupSettings | None:
+    def startup(self, drive: E) -> StartupSettings | None:
         """The drive file's ``[startup]`` section (None: the rules give every value)."""
         ...
 
-    def with_startup(self, drive: D, startup: StartupSettings | None) -> D:
+    def with_startup(self, drive: E, startup: StartupSettings | None) -> E:
         """The drive with ``startup`` as its ``[startup]`` section."""
         ...
 

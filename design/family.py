@@ -45,14 +45,28 @@ class CapabilityError(ValueError):
 class Drive(Protocol):
     """What shared code reads of any family's drive description (each family adds its own sections)."""
 
-    name: str
-    kind: str
-    source: str
-    file: str  # the file it was loaded from (or "preset:<name>"), for messages
-    digest: str  # sha256 of the TOML text
-    # plausibility findings of its drive file (design/plausibility.py), one line each: every command
-    # prints them (reports/cli/common.py); () where there are none
-    warnings: tuple[str, ...]
+    # read-only (a family's drive is a frozen dataclass)
+    @property
+    def name(self) -> str: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def source(self) -> str: ...
+    @property
+    def file(self) -> str:
+        """The file it was loaded from (or "preset:<name>"), for messages."""
+        ...
+
+    @property
+    def digest(self) -> str:
+        """sha256 of the TOML text."""
+        ...
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """Plausibility findings of its drive file (design/plausibility.py), one line each: every command
+        prints them (reports/cli/common.py); () where there are none."""
+        ...
 
     @property
     def T_N(self) -> float:
@@ -81,6 +95,10 @@ class GainTableData(Protocol):
     law: str
     drive: dict[str, str]
     gains: dict[str, Any]
+    envelope: dict[str, Any]
+    points: list[dict[str, Any]]
+    summary: dict[str, Any]
+    file: str
 
     def where(self, table_file: str = "") -> str:
         """How messages name the table."""
@@ -285,7 +303,8 @@ class ObserverFamily(Generic[DriveT]):
         return f"<observer family {self.name} (kind {self.kind!r})>"
 
 
-D = TypeVar("D", bound=Drive, contravariant=True)
+D = TypeVar("D", bound=Drive, contravariant=True)  # a drive the capability takes
+E = TypeVar("E", bound=Drive)  # a drive it takes and returns
 C = TypeVar("C")
 
 
@@ -311,10 +330,10 @@ class Linearizable(Protocol[D]):
 
 
 @runtime_checkable
-class EstimateScaling(Protocol[D]):
+class EstimateScaling(Protocol[E]):
     """Takes stated estimate errors into its analysis (the minimum-speed analysis under errors)."""
 
-    def with_estimate_errors(self, drive: D, factors: Mapping[str, float]) -> D:
+    def with_estimate_errors(self, drive: E, factors: Mapping[str, float]) -> E:
         """The drive with its observer's estimates scaled by ``factors`` (keys of ``estimate_keys``)."""
         ...
 

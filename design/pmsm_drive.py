@@ -15,7 +15,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from sensorless.design.capabilities import Linearizable, OpenLoopStart, Scaled, require
-from sensorless.design.family import CapabilityError, Panel, TraceLine
+from sensorless.design.family import CapabilityError, Drive, Panel, TraceLine
 from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.registry import family_of
@@ -58,7 +58,7 @@ CURRENT_PANEL = Panel(
 )
 
 
-class OnPmsm(Protocol):
+class OnPmsm(Drive, Protocol):
     """What the loop reads of a drive whose observer runs on a PMSM (design/pmsm_schema.py)."""
 
     @property

@@ -21,6 +21,7 @@ from sensorless.design.family import (
     DriveScales,
     EstimateErrors,
     GainSet,
+    GainTableData,
     ObserverFamily,
     PerUnitBases,
 )
@@ -32,7 +33,6 @@ from sensorless.design.ipmsm_adaptive.simulation import injection_off
 if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
     from sensorless.design.drive_file import DriveDocument
-    from sensorless.design.gain_table import GainTable
     from sensorless.design.linearization import Linearization
     from sensorless.design.montecarlo import Uncertain
     from sensorless.design.runtime import RuntimeSetup
@@ -70,7 +70,7 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
         drive: schema.IpmsmDrive,
         *,
         name: str | None = None,
-        table: GainTable | None = None,
+        table: GainTableData | None = None,
         table_file: str = "",
     ) -> GainSet:
         if table is None:

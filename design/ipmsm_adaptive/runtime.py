@@ -15,8 +15,8 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.family import GainSet
-from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.family import GainSet, GainTableData
+from sensorless.design.gain_table import GainTableError
 from sensorless.design.runtime import GainSchedule, RuntimeSetup
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.ipmsm_adaptive.gains import LAWS, GainLaw, schedule_law
@@ -59,7 +59,7 @@ def drive_gains(drive: Any, name: str | None = None) -> GainSet:
     return GainSet(law, values, f"{drive.file} [observer.gains.{name}]")
 
 
-def table_gains(table: GainTable, where: str) -> GainSet:
+def table_gains(table: GainTableData, where: str) -> GainSet:
     """The gains of a ``speed-dependent`` or ``schedule`` table; ``where`` names the table in errors."""
     if table.law not in TABLE_LAWS:
         raise GainTableError(

@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
+from sensorless.design.family import CapabilityError, DriveScales, GainSet, GainTableData, ObserverFamily
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.pmac_reduced_order import derive, schema, simulation
 from sensorless.design.pmac_reduced_order import linearize as _linearize
@@ -25,7 +25,6 @@ from sensorless.design.pmac_reduced_order import runtime as _runtime
 if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
     from sensorless.design.drive_file import DriveDocument
-    from sensorless.design.gain_table import GainTable
     from sensorless.design.linearization import Linearization
     from sensorless.design.montecarlo import Uncertain
     from sensorless.design.runtime import RuntimeSetup
@@ -62,7 +61,7 @@ class ReducedOrderObserver(ObserverFamily[schema.PmacDrive]):
         drive: schema.PmacDrive,
         *,
         name: str | None = None,
-        table: GainTable | None = None,
+        table: GainTableData | None = None,
         table_file: str = "",
     ) -> GainSet:
         if name is not None:

@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from sensorless.design.family import GainSet
-from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.family import GainSet, GainTableData
+from sensorless.design.gain_table import GainTableError
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.symbolic.pmac_reduced_order.step import runtime_observer
 
@@ -30,7 +30,7 @@ def drive_gains(drive: Any) -> GainSet:
     return GainSet("constant", {"g": float(o.g), "Gamma": float(o.Gamma)}, f"{drive.file} [observer]")
 
 
-def table_gains(table: GainTable, where: str) -> GainSet:
+def table_gains(table: GainTableData, where: str) -> GainSet:
     """The gains of a ``constant`` table; ``where`` names the table in errors."""
     if table.law not in TABLE_LAWS:
         raise GainTableError(

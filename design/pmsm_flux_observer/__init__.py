@@ -14,7 +14,14 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, DriveScales, EstimateErrors, GainSet, ObserverFamily
+from sensorless.design.family import (
+    CapabilityError,
+    DriveScales,
+    EstimateErrors,
+    GainSet,
+    GainTableData,
+    ObserverFamily,
+)
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_flux_observer import gains as _gains
@@ -25,7 +32,6 @@ from sensorless.design.simulate import StateFrames
 if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
     from sensorless.design.drive_file import DriveDocument
-    from sensorless.design.gain_table import GainTable
     from sensorless.design.linearization import Linearization
     from sensorless.design.montecarlo import Uncertain
     from sensorless.design.runtime import RuntimeSetup
@@ -106,7 +112,7 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
         drive: schema.FluxObserverDrive,
         *,
         name: str | None = None,
-        table: GainTable | None = None,
+        table: GainTableData | None = None,
         table_file: str = "",
     ) -> GainSet:
         if name is not None:

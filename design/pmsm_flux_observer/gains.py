@@ -20,8 +20,8 @@ from collections.abc import Mapping
 from typing import Any
 
 import casadi as ca
-from sensorless.design.family import GainSet
-from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.family import GainSet, GainTableData
+from sensorless.design.gain_table import GainTableError
 from sensorless.design.runtime import GainSchedule, RuntimeSetup
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.pmsm_flux_observer.observer import runtime_observer
@@ -94,7 +94,7 @@ def drive_gains(drive: Any) -> GainSet:
     return GainSet(law, parse_law(law, t, drive.file, "gains"), f"{drive.file} [gains]")
 
 
-def table_gains(table: GainTable, where: str) -> GainSet:
+def table_gains(table: GainTableData, where: str) -> GainSet:
     """The gains of a gain table of one of the family's laws."""
     if table.law not in TABLE_LAWS:
         raise GainTableError(f"{where}: key 'law': {table.law!r} is not a law of the flux observer")
