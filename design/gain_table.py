@@ -28,7 +28,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from sensorless.design.registry import families
 from sensorless.design.units import MAGNITUDE
@@ -105,11 +105,11 @@ def _finite_float(text: str) -> float:
     return x
 
 
-def _no_constant(name: str) -> Any:
+def _no_constant(name: str) -> NoReturn:
     raise _NotFinite(f"{name} is not a number JSON allows")
 
 
-def _gain_value(v: Any, where: str, key: str) -> None:
+def _gain_value(v: object, where: str, key: str) -> None:
     """A gain: a finite number, or a non-empty list of them, each zero or of a magnitude in MAGNITUDE."""
     items = v if isinstance(v, list) else [v]
     if isinstance(v, list) and not v:

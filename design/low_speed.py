@@ -45,7 +45,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import (
@@ -58,6 +58,10 @@ from sensorless.design.family import (
     require,
 )
 from sensorless.design.registry import family_of
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.drive_analysis import DriveLinearization
+    from sensorless.design.linearization import Linearization
 
 MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
 FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the design holds zero speed
@@ -143,7 +147,7 @@ class LowSpeed:
         }
 
 
-def _failing(lin: Any, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]]:
+def _failing(lin: Linearization | WholeDrive, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]]:
     """(N,) index of the first failed criterion per point (-1: all met) and the criteria applied."""
     zeta = np.where(np.isnan(lin.worst_damping), -np.inf, lin.worst_damping)
     decay = lin.low_speed_decay()
@@ -188,9 +192,9 @@ class WholeDrive:
     where that is less), its steady angle error (the bias) and its lag under ``acceleration``; the
     angle noise from the family's observer-only linearization (None: not applied)."""
 
-    lin: Any  # DriveLinearization
+    lin: DriveLinearization
     mid: tuple[np.ndarray, np.ndarray]  # worst damping and decay of the drive at REFERENCE_PU, same torques
-    observer: Any  # the family's Linearization (for the noise) or None
+    observer: Linearization | None  # the family's (for the noise)
     acceleration: float  # [rad/s^2]
 
     @property
@@ -235,7 +239,7 @@ def _analysis(
 
     fam = family_of(drive)
 
-    def observer_only(w: Any, T: Any) -> Any:
+    def observer_only(w: np.ndarray, T: np.ndarray) -> Linearization:
         return require(fam, Linearizable).linearize(drive, gains, w, T, **opts)
 
     if observer:
@@ -250,7 +254,7 @@ def _analysis(
     except ValueError as e:  # CapabilityError, or a loop its scenario cannot be simulated on (said)
         return observer_only, f"the observer alone ({e})"
 
-    def whole(w: Any, T: Any) -> WholeDrive:
+    def whole(w: np.ndarray, T: np.ndarray) -> WholeDrive:
         obs = observer_only(w, T)
         Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
         torques, back = np.unique(Tb, return_inverse=True)  # the drive at REFERENCE_PU: once per torque

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design import montecarlo as mc
@@ -25,6 +25,10 @@ from sensorless.design.family import Drive, GainSet
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario
 from sensorless.reports.engine import Engine
+
+if TYPE_CHECKING:  # typed by name only
+    from matplotlib.figure import Figure as MplFigure
+    from sensorless.reports.document import Section
 
 WORST = 10  # worst draws listed
 
@@ -78,7 +82,7 @@ def time_task(
     return out
 
 
-def time_scenarios(drive: Any) -> list[Any]:
+def time_scenarios(drive: Drive) -> list[Scenario]:
     """The generic scenarios of the nominal drive (none through zero speed where the family says its
     observer does not run there)."""
     from sensorless.design.scenario import crosses_zero, generic_scenarios, zero_speed_limit
@@ -90,7 +94,7 @@ def time_scenarios(drive: Any) -> list[Any]:
 
 
 def run(
-    drive: Any,
+    drive: Drive,
     gains: GainSet,
     params: Sequence[mc.Uncertain],
     plant: Mapping[str, mc.Spread],
@@ -144,7 +148,7 @@ def _fraction(ok: np.ndarray) -> dict[str, Any]:
 
 
 def summarise(
-    drive: Any,
+    drive: Drive,
     gains: GainSet,
     params: Sequence[mc.Uncertain],
     draws: mc.Draws,
@@ -246,7 +250,7 @@ def summary_json(summary: Mapping[str, Any], version: str) -> str:
     return json.dumps({"sensorless_version": version, **summary}, indent=2, sort_keys=False) + "\n"
 
 
-def figures(res: Result, params: Sequence[mc.Uncertain], min_damping: float) -> dict[str, Any]:
+def figures(res: Result, params: Sequence[mc.Uncertain], min_damping: float) -> dict[str, MplFigure]:
     """{stem: matplotlib figure}: the histogram of the worst damping, and its scatter against each
     spread parameter's deviation."""
     import matplotlib
@@ -298,7 +302,7 @@ def typical_spreads(params: Sequence[mc.Uncertain]) -> dict[str, mc.Spread]:
     return {p.name: mc.Spread(p.typical) for p in params if p.typical > 0}
 
 
-def report_section(number: int, res: Result, params: Sequence[mc.Uncertain], min_damping: float) -> Any:
+def report_section(number: int, res: Result, params: Sequence[mc.Uncertain], min_damping: float) -> Section:
     """The report's Monte-Carlo section (``sensorless report --montecarlo N``): yield, sensitivity,
     worst draws and the histogram."""
     import matplotlib.pyplot as plt

@@ -31,7 +31,7 @@ import dataclasses
 import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.capabilities import Linearizable, Scaled
@@ -50,6 +50,9 @@ from sensorless.design.startup import ACCELERATION_LIMIT
 from sensorless.reports.causes import CATALOGUE, Failure, Named, classify_all, operating_torque_pu
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.svg_render import svg_later
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.simulate import Traces
 
 LIMITS = {
     "max_abs_theta_err_deg": 30.0,
@@ -108,7 +111,7 @@ class Judged:
         return [x.text for x in self.failures]
 
 
-def judge(tr: Any, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[str], list[str]]:
+def judge(tr: Traces, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[str], list[str]]:
     """(metrics, what failed, problems) of one simulated scenario against :data:`LIMITS`."""
     j = assess(tr, sc, base_w)
     return j.metrics, j.failed, j.problems
@@ -140,7 +143,7 @@ def untested_reason(open_loop: np.ndarray | None, dt: float) -> str:
     return ""
 
 
-def assess(tr: Any, sc: Scenario, base_w: float, scales: DriveScales | None = None) -> Judged:
+def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None = None) -> Judged:
     """One simulated scenario judged against :data:`LIMITS`, each failure with its evidence (the torque
     limit and full acceleration from ``scales``, where given)."""
     m: dict[str, Any] = {"duration_s": f(tr.t[-1]), "samples": int(tr.t.size)}
@@ -329,7 +332,9 @@ def out_of_step(t: np.ndarray, theta_err: np.ndarray, open_loop: np.ndarray) -> 
     return None
 
 
-def finders(drive: Drive, gains: GainSet | None) -> tuple[Any, Callable[[Failure], bool | None]]:
+def finders(
+    drive: Drive, gains: GainSet | None
+) -> tuple[Callable[[Failure], Named | None] | None, Callable[[Failure], bool | None]]:
     """The cause finders of ``drive`` (reports/causes.py ``classify``): its family's own (its report hooks'
     ``failure_cause`` bound to the drive and ``gains``, None: the drive file's) and the shared test of a
     right-half-plane pole of its linearization at a failure's speed and load (not where the family holds

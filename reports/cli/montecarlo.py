@@ -15,6 +15,7 @@ import sys
 import time
 from typing import Any
 
+from sensorless.design.family import Drive
 from sensorless.reports.cli.common import MIN_DAMPING, Number, UsageError, load, version
 from sensorless.reports.engine import scheduler_address
 
@@ -104,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     from sensorless.reports.engine import Engine, EngineError
     from sensorless.reports.files import OutputSet
 
-    drive: Any = load(args.drive, "montecarlo")
+    drive: Drive = load(args.drive, "montecarlo")
     if args.time_domain > args.samples:
         raise UsageError(f"argument --time-domain: {args.time_domain} is more than --samples {args.samples}")
     if args.workers and args.scheduler:

@@ -6,10 +6,10 @@ import argparse
 import math
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING
 
 from sensorless.design.capabilities import MonteCarlo, require
-from sensorless.design.family import CapabilityError
+from sensorless.design.family import CapabilityError, Drive, ObserverFamily
 from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.registry import family_of
 from sensorless.reports.cli import many
@@ -21,8 +21,12 @@ from sensorless.reports.files import OutputSet
 from sensorless.reports.html import render
 from sensorless.reports.low_speed import add_to_report
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.gain_table import GainTable
+    from sensorless.reports.document import Report
 
-def register(sub: Any) -> None:
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``report`` subcommand."""
     p = sub.add_parser(
         "report",
@@ -145,7 +149,9 @@ def run(args: argparse.Namespace) -> int:
     return 3 if failed else 0
 
 
-def _with_montecarlo(rep: Any, drive: Any, fam: Any, table: Any, args: argparse.Namespace) -> Any:
+def _with_montecarlo(
+    rep: Report, drive: Drive, fam: ObserverFamily, table: GainTable | None, args: argparse.Namespace
+) -> Report:
     """The report with a Monte-Carlo section at the end (reports/montecarlo.py), in this process."""
     import dataclasses
 
