@@ -153,12 +153,13 @@ def estimate_errors(drive: Drive, tunable: Tunable, settings: TuneSettings) -> E
 
 
 def all_tunables() -> dict[str, str]:
-    """Every tunable of every registered family: name -> description (for help texts)."""
-    out: dict[str, str] = {}
+    """Every tunable of every registered family: name -> description (for help texts); a name two
+    families have (law names are each family's own) -> each description, after its family's name."""
+    named: dict[str, list[tuple[str, str]]] = {}
     for fam in families():
         try:
             for t in hooks(fam).tunables:
-                out.setdefault(t.name, t.description)
+                named.setdefault(t.name, []).append((fam.name, t.description))
         except CapabilityError:
             continue
-    return out
+    return {k: v[0][1] if len(v) == 1 else " | ".join(f"({f}) {d}" for f, d in v) for k, v in named.items()}

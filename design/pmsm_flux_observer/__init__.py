@@ -94,6 +94,7 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
     tuning = "sensorless.tuning.pmsm_flux_observer"
     report = "sensorless.reports.pmsm_flux_observer"
     laws = _gains.TABLE_LAWS
+    law_aliases = _gains.LAW_ALIASES
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
     # its damping k/(2|w|) falls with speed by design (its error does not oscillate in the stationary

@@ -14,7 +14,7 @@ from sensorless.reports.envelope_options import ENVELOPE_OPTIONS, NOISE_OPTIONS
 from sensorless.reports.family import Option
 from sensorless.reports.options import Number, UsageError, parse_max_noise
 from sensorless.tuning.nlp import TuningError
-from sensorless.tuning.pmac_reduced_order.settings import DeAngeloSettings, default_settings
+from sensorless.tuning.pmac_reduced_order.settings import ConstantGainSettings, default_settings
 
 DENSE_FACTOR = next(o for o in ENVELOPE_OPTIONS if o.dest == "dense_factor")
 MAX_NOISE = next(o for o in NOISE_OPTIONS if o.dest == "max_noise")
@@ -43,7 +43,7 @@ OPTIONS = (
 )
 
 
-def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> DeAngeloSettings:
+def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> ConstantGainSettings:
     """Constant-gain settings: the drive's [envelope] and default bounds, with the overrides."""
     s = default_settings(drive)
     out: dict[str, Any] = {}
@@ -61,7 +61,7 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> DeAngeloSett
     return s
 
 
-def describe(drive: Any, settings: DeAngeloSettings) -> str:
+def describe(drive: Any, settings: ConstantGainSettings) -> str:
     """One line: the envelope."""
     return (
         f"envelope: speeds {', '.join(f'{v:g}' for v in settings.speeds_rpm)} r/min x loads "

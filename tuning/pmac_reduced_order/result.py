@@ -10,7 +10,7 @@ import numpy as np
 from sensorless.design.gain_table import GainTable
 from sensorless.tuning.pmac_reduced_order.objective import Figures
 from sensorless.tuning.pmac_reduced_order.settings import (
-    DeAngeloSettings,
+    ConstantGainSettings,
     grid,
     limits_text,
     load_grid,
@@ -19,7 +19,7 @@ from sensorless.tuning.pmac_reduced_order.settings import (
 
 
 @dataclass(frozen=True)
-class DeAngeloResult:
+class ConstantGainResult:
     """What ``sensorless tune`` reports for the constant law."""
 
     law: str
@@ -33,7 +33,7 @@ class DeAngeloResult:
     grid: Figures
     evaluations: int
     note: str  # which candidate was kept and why
-    settings: DeAngeloSettings
+    settings: ConstantGainSettings
     table: GainTable
     seconds: float
 
@@ -80,7 +80,7 @@ def _pairs(p: np.ndarray) -> list[list[float]]:
     return [[float(z.real), float(z.imag)] for z in p]
 
 
-def gain_table(drive: Any, r: DeAngeloResult) -> GainTable:
+def gain_table(drive: Any, r: ConstantGainResult) -> GainTable:
     """The gain table of a result: every dense-grid point with the tuned and the drive's gains."""
     st = r.settings
     d, d0 = r.dense, r.dense_baseline

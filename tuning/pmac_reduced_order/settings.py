@@ -20,7 +20,7 @@ MIN_FACTOR = 0.01  # default lower bounds: 1 % of the drive's g (and of its Gamm
 
 
 @dataclass(frozen=True)
-class DeAngeloSettings:
+class ConstantGainSettings:
     """Envelope, bounds and constraint of the constant law."""
 
     speeds_rpm: tuple[float, ...]  # mechanical speeds [r/min], nonzero
@@ -80,12 +80,12 @@ def gamma_box(drive: Any, g_min: float, g_max: float, Gamma0: float) -> tuple[fl
     return lo, max(4 * critical_gamma(drive, g_max), Gamma0)
 
 
-def default_settings(drive: Any) -> DeAngeloSettings:
+def default_settings(drive: Any) -> ConstantGainSettings:
     """The drive's [envelope], bounds around its [observer] gains (g) and their scale (Gamma)."""
     o = drive.observer
     g_min, g_max = MIN_FACTOR * o.g, G_MAX_FACTOR * o.g
     Gamma_min, Gamma_max = gamma_box(drive, g_min, g_max, float(o.Gamma))
-    return DeAngeloSettings(
+    return ConstantGainSettings(
         speeds_rpm=tuple(float(s) for s in drive.envelope.speeds),
         loads_Nm=tuple(float(t) for t in drive.envelope.loads),
         g_min=g_min,
@@ -116,7 +116,7 @@ def load_grid(loads_Nm: tuple[float, ...], factor: int = 1) -> np.ndarray:
     return np.concatenate([*(np.linspace(a, b, factor + 1)[:-1] for a, b in itertools.pairwise(T)), T[-1:]])
 
 
-def grid(settings: DeAngeloSettings, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def grid(settings: ConstantGainSettings, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Flat (speed [r/min], load [N m]) of the speed x load grid (load-major)."""
     n, T = np.meshgrid(speed_grid(settings.speeds_rpm, factor), load_grid(settings.loads_Nm, factor))
     return n.ravel(), T.ravel()
@@ -129,7 +129,7 @@ def closed_form(drive: Any, g_max: float, Gamma_max: float) -> tuple[float, floa
     return g, (g / (2 * k)) ** 2
 
 
-def limits_text(st: DeAngeloSettings) -> str:
+def limits_text(st: ConstantGainSettings) -> str:
     """The noise limits for messages: 'position <= 0.1 deg el.'."""
     parts = []
     for name, v in st.max_noise:
