@@ -130,7 +130,7 @@ def tunable_for(drive: Drive, name: str | None = None) -> Tunable:
     """The tunable ``name`` (None: the default, which differs between a built-in preset and a drive of
     the user's own: :class:`TuningHooks`) of the drive's family."""
     fam = family_of(drive)
-    preset = str(getattr(drive, "file", "")).startswith("preset:")
+    preset = drive.file.startswith("preset:")
     return hooks(fam).tunable(name, fam, preset=preset, drive=drive)
 
 
