@@ -262,7 +262,8 @@ class ObserverFamily(Generic[DriveT]):
 
     # ------------------------------------------------------------------------------------- runtime
     def runtime(self, drive: DriveT, gains: GainSet, *, discretization: str | None = None) -> Any:
-        """The runtime set-up (design/runtime.RuntimeSetup): observer step, parameters, schedule."""
+        """The runtime set-up (design/runtime.RuntimeSetup, which imports this module: each family's
+        override states it): observer step, parameters, schedule."""
         raise CapabilityError(f"observer family {self.name!r} has no runtime observer")
 
     # ------------------------------------------------------------------ low speed (design/low_speed.py)
@@ -288,7 +289,7 @@ class ObserverFamily(Generic[DriveT]):
         (design/low_speed.py); none here."""
         return EstimateErrors()
 
-    # ---------------------------------------------------------------------------------- simulation
+    # -------------------------------------------------------------------------- reports and traces
     def bases(self, drive: DriveT) -> PerUnitBases | None:
         """The drive's per-unit bases (the report's drive-data tables show values in them); None where
         its drive files define none."""
