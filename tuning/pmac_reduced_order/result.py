@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.gain_table import GainTable
@@ -16,6 +16,9 @@ from sensorless.tuning.pmac_reduced_order.settings import (
     load_grid,
     speed_grid,
 )
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 
 @dataclass(frozen=True)
@@ -37,7 +40,7 @@ class ConstantGainResult:
     table: GainTable
     seconds: float
 
-    def summary_lines(self, drive: Any = None) -> list[str]:
+    def summary_lines(self, drive: PmacDrive = None) -> list[str]:
         """The terminal summary."""
         s = self.table.summary
         env = self.table.envelope
@@ -80,7 +83,7 @@ def _pairs(p: np.ndarray) -> list[list[float]]:
     return [[float(z.real), float(z.imag)] for z in p]
 
 
-def gain_table(drive: Any, r: ConstantGainResult) -> GainTable:
+def gain_table(drive: PmacDrive, r: ConstantGainResult) -> GainTable:
     """The gain table of a result: every dense-grid point with the tuned and the drive's gains."""
     st = r.settings
     d, d0 = r.dense, r.dense_baseline

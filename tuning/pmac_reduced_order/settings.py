@@ -9,10 +9,13 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 from sensorless.tuning.nlp import TuningError
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 G_MAX_FACTOR = 100.0  # search box g <= 100 g (drive): the noise limit decides, not this
 NOISE_FACTOR = 2.0  # default noise limit: the position noise of the drive's gains times this
@@ -61,12 +64,12 @@ class ConstantGainSettings:
             raise TuningError(f"{file}: [envelope]: need nonzero speeds and at least one load")
 
 
-def critical_gamma(drive: Any, g: float) -> float:
+def critical_gamma(drive: PmacDrive, g: float) -> float:
     """Gamma that makes s^2 + g s + Gamma (Phi_1/J)^2 critically damped: (g J / (2 Phi_1))^2."""
     return (g * drive.estimate.J / (2 * drive.estimate.Phi[0])) ** 2
 
 
-def gamma_box(drive: Any, g_min: float, g_max: float, Gamma0: float) -> tuple[float, float]:
+def gamma_box(drive: PmacDrive, g_min: float, g_max: float, Gamma0: float) -> tuple[float, float]:
     """Default Gamma bounds for g in [g_min, g_max] (docs/families/pmac_reduced_order.md, "Tuning").
 
     Gamma acts through c = Gamma (Phi_1/J)^2 against g^2 (the quadratic s^2 + g s + c), so its
@@ -80,7 +83,7 @@ def gamma_box(drive: Any, g_min: float, g_max: float, Gamma0: float) -> tuple[fl
     return lo, max(4 * critical_gamma(drive, g_max), Gamma0)
 
 
-def default_settings(drive: Any) -> ConstantGainSettings:
+def default_settings(drive: PmacDrive) -> ConstantGainSettings:
     """The drive's [envelope], bounds around its [observer] gains (g) and their scale (Gamma)."""
     o = drive.observer
     g_min, g_max = MIN_FACTOR * o.g, G_MAX_FACTOR * o.g
@@ -122,7 +125,7 @@ def grid(settings: ConstantGainSettings, factor: int = 1) -> tuple[np.ndarray, n
     return n.ravel(), T.ravel()
 
 
-def closed_form(drive: Any, g_max: float, Gamma_max: float) -> tuple[float, float]:
+def closed_form(drive: PmacDrive, g_max: float, Gamma_max: float) -> tuple[float, float]:
     """(g*, Gamma*) of the sinusoidal continuous-time model (tuner.py docstring, step 1)."""
     k = drive.estimate.Phi[0] / drive.estimate.J  # Phi_1 / J: c = Gamma k^2
     g = min(g_max, 2 * math.sqrt(Gamma_max) * k)

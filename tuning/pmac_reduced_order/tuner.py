@@ -46,7 +46,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.tuning.nlp import TuningError
@@ -61,11 +61,14 @@ from sensorless.tuning.pmac_reduced_order.settings import (
     limits_text,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
+
 DENSE_TRIES = 6  # candidates re-verified densely at most
 
 
 def tune_constant_gains(
-    drive: Any, settings: Any, progress: Callable[[str], None] | None = None
+    drive: PmacDrive, settings: Any, progress: Callable[[str], None] | None = None
 ) -> ConstantGainResult:
     """Tune g and Gamma of a drive of this family (this module's docstring)."""
     t0 = time.perf_counter()
