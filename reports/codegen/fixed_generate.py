@@ -32,14 +32,13 @@ ERRORS = (
 
 def fixed_model(drive: Drive, gains: GainSet, setup: RuntimeSetup) -> FixedModel:
     """The fixed-point model of ``setup`` with ranges from the family's scenarios and the generic checks."""
-    from sensorless.design.family import CapabilityError
+    from sensorless.design.family import Scaled
+    from sensorless.design.registry import family_of
     from sensorless.design.scenario import builtin_names, generic_scenarios, load_scenario
 
     scenarios = [load_scenario(n, drive) for n in builtin_names(drive.kind)]
-    try:
+    if isinstance(family_of(drive), Scaled):  # the generic checks where the family gives their scales
         scenarios += generic_scenarios(drive)
-    except CapabilityError:
-        pass
     model = FixedModel.of(drive, gains, scenarios)
     model.data(setup)  # ValueError if no run ran this observer
     return model

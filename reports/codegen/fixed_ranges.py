@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.family import Drive, GainSet, ObserverFamily
+from sensorless.design.family import Drive, GainSet, ObserverFamily, require
 from sensorless.reports.codegen.c_graph import Node
 
 if TYPE_CHECKING:  # typed by name only
@@ -256,6 +256,9 @@ def _probe_setup(
     states are the observer's). The scenario's step is the last one its set-up asks for, so a first
     set-up with the double step counts the requests and the second puts the probe in the last."""
     from sensorless.design.runtime import step_variant
+    from sensorless.design.simulate import Simulatable
+
+    sim = require(fam, Simulatable)  # one line where the family has no simulation
 
     asked: list[tuple[RuntimeSetup, ca.Function]] = []
 
@@ -264,7 +267,7 @@ def _probe_setup(
         return step
 
     with step_variant(count):
-        plain = fam.simulation(drive, sc, gains)
+        plain = sim.simulation(drive, sc, gains)
     last = len(asked) - 1
     setup, step = asked[last]
     asked.clear()
@@ -274,7 +277,7 @@ def _probe_setup(
         return _probe(st) if len(asked) - 1 == last else st
 
     with step_variant(probe):
-        ls = fam.simulation(drive, sc, gains)
+        ls = sim.simulation(drive, sc, gains)
     same = len(asked) == last + 1 and asked[last][1].name() == step.name()
     if not same or not np.array_equal(ls.z0, plain.z0):
         raise RuntimeError(f"{sc.name}: the set-up of the probe run is not that of the scenario's run")
