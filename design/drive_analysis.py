@@ -36,11 +36,11 @@ import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.discrete import newton
-from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.family import CapabilityError, Drive, GainSet, require
 from sensorless.design.poles import sort_poles
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario, drive_units, load_scenario_text
-from sensorless.design.simulate import LoopCoordinates, LoopSetup
+from sensorless.design.simulate import AnalysedLoop, LoopCoordinates, LoopSetup, Simulatable
 from sensorless.symbolic.frames import rot, wrap_angle
 
 SLOW_SHARE = 0.25  # the drive's slow poles: |s| below this share of pi / T_s (the rest: delays, current PI)
@@ -80,7 +80,11 @@ class DriveLoop:
 def drive_loop(drive: Drive, gains: GainSet | None) -> DriveLoop:
     """The family's drive loop at the analysis' scenario; CapabilityError where it declares none."""
     fam = family_of(drive)
-    setup = fam.drive_loop(drive, analysis_scenario(drive), gains)
+    sc = analysis_scenario(drive)
+    if isinstance(fam, AnalysedLoop):  # a loop of its own to analyse, else the loop it runs
+        setup = fam.drive_loop(drive, sc, gains)
+    else:
+        setup = require(fam, Simulatable).simulation(drive, sc, gains)
     if setup.coordinates is None or setup.coordinates.start is None:
         raise CapabilityError(
             f"observer family {fam.name!r}: its drive loop declares no rotor coordinates "

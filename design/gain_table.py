@@ -28,8 +28,9 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
+from sensorless.design.family import ObserverFamily
 from sensorless.design.registry import families
 from sensorless.design.units import MAGNITUDE
 
@@ -37,14 +38,27 @@ FORMAT = "sensorless-gain-table/2"
 FORMAT_1 = "sensorless-gain-table/1"  # read for one release: "family" for "law", the laws' old names
 
 
-def gain_keys() -> dict[str, tuple[str, ...]]:
-    """Gain law -> required keys of "gains", over every registered observer family."""
-    return {g: keys for f in families() for g, keys in f.laws.items()}
+def gain_keys(kind: str | None = None) -> dict[str, list[tuple[str, ...]]]:
+    """Gain law -> the required keys of "gains" in each family that has the law (law names are the
+    families' own: two families may both have a "schedule"), of the family of drive kind ``kind`` only
+    where it is a registered kind, else of every registered family."""
+    out: dict[str, list[tuple[str, ...]]] = {}
+    for f in _families_of(kind):
+        for g, keys in f.laws.items():
+            out.setdefault(g, []).append(tuple(keys))
+    return out
 
 
-def law_aliases() -> dict[str, str]:
-    """Former law name -> its name now, over every registered observer family."""
-    return {old: new for f in families() for old, new in f.law_aliases.items()}
+def law_aliases(kind: str | None = None) -> dict[str, str]:
+    """Former law name -> its name now, of the family of drive kind ``kind`` (or of every family; a
+    former name is its family's own, so where two families disagree the kind decides)."""
+    return {old: new for f in _families_of(kind) for old, new in f.law_aliases.items()}
+
+
+def _families_of(kind: str | None) -> list[ObserverFamily]:
+    fams = families()
+    own = [f for f in fams if f.kind == kind]
+    return own or fams
 
 
 class GainTableError(ValueError):
@@ -105,11 +119,11 @@ def _finite_float(text: str) -> float:
     return x
 
 
-def _no_constant(name: str) -> Any:
+def _no_constant(name: str) -> NoReturn:
     raise _NotFinite(f"{name} is not a number JSON allows")
 
 
-def _gain_value(v: Any, where: str, key: str) -> None:
+def _gain_value(v: object, where: str, key: str) -> None:
     """A gain: a finite number, or a non-empty list of them, each zero or of a magnitude in MAGNITUDE."""
     items = v if isinstance(v, list) else [v]
     if isinstance(v, list) and not v:
@@ -151,8 +165,10 @@ def read_gain_table(path: str | Path) -> GainTable:
         raise GainTableError(f"{p}: key 'format': expected {FORMAT!r}")
     key = "law" if doc["format"] == FORMAT else "family"
     law = doc.get(key)
-    known = gain_keys()
-    old = law_aliases()
+    kind = doc["drive"].get("kind") if isinstance(doc.get("drive"), dict) else None
+    kind = kind if isinstance(kind, str) else None
+    known = gain_keys(kind)  # the laws of the table's drive kind (its family's names)
+    old = law_aliases(kind)
     notes = [f"format {FORMAT_1} read (tables are now {FORMAT}, key 'law')"] if key == "family" else []
     if isinstance(law, str) and law in old and law not in known:
         notes.append(f"law {law!r} is now called {old[law]!r}")
@@ -166,13 +182,15 @@ def read_gain_table(path: str | Path) -> GainTable:
     gains = doc.get("gains")
     if not isinstance(gains, dict):
         raise GainTableError(f"{p}: key 'gains': missing or not an object")
-    for k in known[law]:
+    # a law two families have (and a table that does not name its kind): the keys of either
+    keys = next((ks for ks in known[law] if set(ks) == set(gains)), known[law][0])
+    for k in keys:
         if k not in gains:
             raise GainTableError(f"{p}: key 'gains.{k}': missing for law {law}")
     for k in gains:
-        if k not in known[law]:
+        if k not in keys:
             raise GainTableError(
-                f"{p}: key 'gains.{k}': unknown key for law {law} (known: {', '.join(known[law])})"
+                f"{p}: key 'gains.{k}': unknown key for law {law} (known: {', '.join(keys)})"
             )
         _gain_value(gains[k], str(p), k)
     drive = doc.get("drive")

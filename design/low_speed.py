@@ -45,11 +45,23 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
+from sensorless.design.family import (
+    Drive,
+    EstimateErrors,
+    EstimateScaling,
+    GainSet,
+    Linearizable,
+    Scaled,
+    require,
+)
 from sensorless.design.registry import family_of
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.drive_analysis import DriveLinearization
+    from sensorless.design.linearization import Linearization
 
 MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
 FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the design holds zero speed
@@ -135,7 +147,7 @@ class LowSpeed:
         }
 
 
-def _failing(lin: Any, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]]:
+def _failing(lin: Linearization | WholeDrive, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]]:
     """(N,) index of the first failed criterion per point (-1: all met) and the criteria applied."""
     zeta = np.where(np.isnan(lin.worst_damping), -np.inf, lin.worst_damping)
     decay = lin.low_speed_decay()
@@ -180,9 +192,9 @@ class WholeDrive:
     where that is less), its steady angle error (the bias) and its lag under ``acceleration``; the
     angle noise from the family's observer-only linearization (None: not applied)."""
 
-    lin: Any  # DriveLinearization
+    lin: DriveLinearization
     mid: tuple[np.ndarray, np.ndarray]  # worst damping and decay of the drive at REFERENCE_PU, same torques
-    observer: Any  # the family's Linearization (for the noise) or None
+    observer: Linearization | None  # the family's (for the noise)
     acceleration: float  # [rad/s^2]
 
     @property
@@ -212,10 +224,10 @@ class WholeDrive:
 def full_acceleration(drive: Drive) -> float:
     """a_max [rad/s^2 electrical]: what the torque margin over rated load gives the rotor, p (T_max -
     T_N) / J (the family's DriveScales); 0 where it gives none."""
-    try:
-        sc = family_of(drive).scales(drive)
-    except CapabilityError:
+    fam = family_of(drive)
+    if not isinstance(fam, Scaled):
         return 0.0
+    sc = fam.scales(drive)
     return float(sc.pole_pairs * max(0.0, sc.T_max - sc.T_N) / sc.J)
 
 
@@ -227,8 +239,8 @@ def _analysis(
 
     fam = family_of(drive)
 
-    def observer_only(w: Any, T: Any) -> Any:
-        return fam.linearize(drive, gains, w, T, **opts)
+    def observer_only(w: np.ndarray, T: np.ndarray) -> Linearization:
+        return require(fam, Linearizable).linearize(drive, gains, w, T, **opts)
 
     if observer:
         return observer_only, "the observer alone (asked)"
@@ -242,7 +254,7 @@ def _analysis(
     except ValueError as e:  # CapabilityError, or a loop its scenario cannot be simulated on (said)
         return observer_only, f"the observer alone ({e})"
 
-    def whole(w: Any, T: Any) -> WholeDrive:
+    def whole(w: np.ndarray, T: np.ndarray) -> WholeDrive:
         obs = observer_only(w, T)
         Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
         torques, back = np.unique(Tb, return_inverse=True)  # the drive at REFERENCE_PU: once per torque
@@ -280,11 +292,8 @@ def minimum_speed(
     observer-only linearization (the paper's analysis) instead of the whole drive."""
     fam = family_of(drive)
     if errors:
-        drive = fam.with_estimate_errors(drive, errors)
-    try:
-        scales = fam.scales(drive)
-    except CapabilityError:
-        scales = None
+        drive = require(fam, EstimateScaling).with_estimate_errors(drive, errors)
+    scales = fam.scales(drive) if isinstance(fam, Scaled) else None
     if min_decay is None:
         min_decay = DECAY_SHARE * float(scales.alpha_s) if scales is not None else 0.0
     crit = {"damping": min_damping, "decay": min_decay, "bias": max_bias, "noise": max_bias / 3}

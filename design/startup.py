@@ -39,13 +39,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.drive_file import Entry, load_section, q, table
 from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 from sensorless.symbolic.startup import with_startup
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.low_speed import LowSpeed
 
 ACC_SHARE = 0.5
 # how the start's line says that the observer cannot follow the drive's full acceleration (the failed
@@ -70,7 +73,7 @@ def swing_frequency(T_N: float, T_max: float, J: float, p: int) -> float:
     return math.sqrt(p * T_max * math.sqrt(max(0.0, 1 - (T_N / T_max) ** 2)) / J)
 
 
-def handover_reason(ls: Any) -> str:
+def handover_reason(ls: LowSpeed) -> str:
     """Why the handover is high, in one line with the numbers (a LowSpeed of design/low_speed.py with
     the acceleration criterion): what limits w_min at rated load, and that the handover stays at 1 p.u.
     at most."""

@@ -32,9 +32,10 @@ import dataclasses
 import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from sensorless.design.capabilities import Linearizable, Scaled
 from sensorless.design.family import CapabilityError, Drive, DriveScales, GainSet
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import step_variant
@@ -51,6 +52,9 @@ from sensorless.design.startup import ACCELERATION_LIMIT
 from sensorless.reports.causes import CATALOGUE, Failure, Named, classify_all, operating_torque_pu
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.svg_render import svg_later
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.simulate import Traces
 
 LIMITS = {
     "max_abs_theta_err_deg": 30.0,
@@ -72,10 +76,8 @@ def scenarios(drive: Drive, paper: Sequence[str], user: Sequence[str] = ()) -> l
     :func:`limitations`); then the user's files (``--scenario``), as given."""
     out: list[Scenario] = []
     if not drive.file.startswith("preset:"):
-        try:
+        if isinstance(family_of(drive), Scaled):  # else (a family without scales): its own scenarios
             out = generic_scenarios(drive)
-        except CapabilityError:  # a family without scales: its own scenarios
-            pass
         if zero_speed_limit(drive):  # nor a start from standstill, which its loop cannot simulate
             out = [sc for sc in out if not crosses_zero(sc) and not sc.startup]
     if not out:
@@ -116,7 +118,7 @@ class Judged:
         return [x.text for x in self.failures]
 
 
-def judge(tr: Any, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[str], list[str]]:
+def judge(tr: Traces, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[str], list[str]]:
     """(metrics, what failed, problems) of one simulated scenario against :data:`LIMITS`."""
     j = assess(tr, sc, base_w)
     return j.metrics, j.failed, j.problems
@@ -148,7 +150,7 @@ def untested_reason(open_loop: np.ndarray | None, dt: float) -> str:
     return ""
 
 
-def assess(tr: Any, sc: Scenario, base_w: float, scales: DriveScales | None = None) -> Judged:
+def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None = None) -> Judged:
     """One simulated scenario judged against :data:`LIMITS`, each failure with its evidence (the torque
     limit and full acceleration from ``scales``, where given)."""
     m: dict[str, Any] = {"duration_s": f(tr.t[-1]), "samples": int(tr.t.size)}
@@ -337,7 +339,9 @@ def out_of_step(t: np.ndarray, theta_err: np.ndarray, open_loop: np.ndarray) -> 
     return None
 
 
-def finders(drive: Drive, gains: GainSet | None) -> tuple[Any, Callable[[Failure], bool | None]]:
+def finders(
+    drive: Drive, gains: GainSet | None
+) -> tuple[Callable[[Failure], Named | None] | None, Callable[[Failure], bool | None]]:
     """The cause finders of ``drive`` (reports/causes.py ``classify``): its family's own (its report hooks'
     ``failure_cause`` bound to the drive and ``gains``, None: the drive file's) and the shared test of a
     right-half-plane pole of its linearization at a failure's speed and load (not where the family holds
@@ -359,7 +363,9 @@ def finders(drive: Drive, gains: GainSet | None) -> tuple[Any, Callable[[Failure
         torque = operating_torque_pu(x)
         if x.w_pu is None or torque is None or fam.holds_zero_speed(drive):
             return None
-        try:
+        if not isinstance(fam, Linearizable):
+            return None
+        try:  # a drive its family does not linearize (a firmware variant) refuses it
             lin = fam.linearize(
                 drive, reviewed(), np.array([x.w_pu * drive.w_base]), np.array([torque * drive.T_N])
             )
@@ -425,10 +431,8 @@ def checks(
     figures)."""
     from sensorless.reports.sim_figure import plot_traces
 
-    try:
-        scales: DriveScales | None = family_of(drive).scales(drive)
-    except CapabilityError:
-        scales = None
+    fam = family_of(drive)
+    scales: DriveScales | None = fam.scales(drive) if isinstance(fam, Scaled) else None
     family, unstable = finders(drive, gains)
     out: list[dict[str, Any]] = []
     figs: list[Figure] = []

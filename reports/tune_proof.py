@@ -26,7 +26,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from sensorless.design.capabilities import Linearizable, Scaled, require
 from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.linearization import Linearization
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario, builtin_names
 from sensorless.design.simulate import simulate
@@ -39,9 +41,9 @@ SPEEDS = 20  # per direction, from SPEED_MIN to 1 p.u.
 SPEED_MIN = 0.05  # p.u.
 
 
-def observer_analysis(drive: Drive, gains: GainSet, w: np.ndarray, torque: np.ndarray) -> Any:
+def observer_analysis(drive: Drive, gains: GainSet, w: np.ndarray, torque: np.ndarray) -> Linearization:
     """The family's observer linearization (``sensorless analyze``): the default analysis."""
-    return family_of(drive).linearize(drive, gains, w, torque)
+    return require(family_of(drive), Linearizable).linearize(drive, gains, w, torque)
 
 
 # below the torque limit by this share: at a load of +-T_max the speed loop sits at its limit (saturated:
@@ -57,7 +59,9 @@ class Combined:
     worst_damping: np.ndarray
 
 
-def drive_analysis(drive: Drive, gains: GainSet, w: np.ndarray, torque: np.ndarray) -> Any:
+def drive_analysis(
+    drive: Drive, gains: GainSet, w: np.ndarray, torque: np.ndarray
+) -> Linearization | Combined:
     """The whole sampled drive (design/drive_analysis.py: observer, current PI in the estimated frame,
     speed PI on the estimate, delay, mechanics) where the family has a drive loop and the speed loop is
     within its torque limit; the observer-only linearization at the loads at +-T_max (the speed loop
@@ -66,8 +70,11 @@ def drive_analysis(drive: Drive, gains: GainSet, w: np.ndarray, torque: np.ndarr
     from sensorless.design.drive_analysis import linearize_drive
 
     obs = observer_analysis(drive, gains, w, torque)
-    try:
-        T_max = family_of(drive).scales(drive).T_max
+    fam = family_of(drive)
+    if not isinstance(fam, Scaled):
+        return obs
+    try:  # CapabilityError: no drive loop (design/drive_analysis.py)
+        T_max = fam.scales(drive).T_max
         inside = np.abs(torque) < SATURATED_SHARE * T_max
         if not inside.any():
             return obs
@@ -86,10 +93,10 @@ ANALYSIS = drive_analysis
 def envelope(drive: Drive) -> tuple[np.ndarray, np.ndarray] | None:
     """(w [rad/s], torque [N m]) of the drive's real range (module docstring); None for a family
     without scales (then the linear part of the proof is skipped and said so)."""
-    try:
-        sc = family_of(drive).scales(drive)
-    except CapabilityError:
+    fam = family_of(drive)
+    if not isinstance(fam, Scaled):
         return None
+    sc = fam.scales(drive)
     mag = np.linspace(SPEED_MIN, 1.0, SPEEDS) * sc.w_base
     w = np.concatenate([-mag[::-1], mag])
     torques = np.unique([-sc.T_max, -sc.T_N, 0.0, sc.T_N, sc.T_max])

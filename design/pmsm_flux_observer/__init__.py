@@ -11,9 +11,17 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sensorless.design.family import CapabilityError, DriveScales, EstimateErrors, GainSet, ObserverFamily
+import numpy as np
+from sensorless.design.family import (
+    CapabilityError,
+    DriveScales,
+    EstimateErrors,
+    GainSet,
+    GainTableData,
+    ObserverFamily,
+)
 from sensorless.design.law_gains import table_gains
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_flux_observer import gains as _gains
@@ -21,8 +29,18 @@ from sensorless.design.pmsm_flux_observer import linearize as _linearize
 from sensorless.design.pmsm_flux_observer import schema
 from sensorless.design.simulate import StateFrames
 
+if TYPE_CHECKING:  # typed by name only
+    from numpy.typing import ArrayLike
+    from sensorless.design.drive_file import DriveDocument
+    from sensorless.design.linearization import Linearization
+    from sensorless.design.montecarlo import Uncertain
+    from sensorless.design.runtime import RuntimeSetup
+    from sensorless.design.scenario import Scenario
+    from sensorless.design.simulate import LoopSetup
+    from sensorless.design.startup import StartupSettings
 
-def simulation(drive: Any, sc: Any, gains: GainSet | None) -> Any:
+
+def simulation(drive: schema.FluxObserverDrive, sc: Any, gains: GainSet | None) -> Any:
     """The loop set-up of ``sc``: the scenario's estimate errors scale the observer's model as the
     controllers'."""
     k = sc.estimate_scale
@@ -64,7 +82,7 @@ def corner_estimate(estimate: Any, factors: Mapping[str, float]) -> dict[str, fl
     }
 
 
-class FluxObserverFamily(ObserverFamily):
+class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
     """Lee et al. (2010) gradient flux observer with a PI PLL, in the firmwares' variants."""
 
     kind = "pmsm-flux-observer"
@@ -76,22 +94,27 @@ class FluxObserverFamily(ObserverFamily):
     tuning = "sensorless.tuning.pmsm_flux_observer"
     report = "sensorless.reports.pmsm_flux_observer"
     laws = _gains.TABLE_LAWS
+    law_aliases = _gains.LAW_ALIASES
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
-    open_loop_start = True
     # its damping k/(2|w|) falls with speed by design (its error does not oscillate in the stationary
     # frame): stable is all it asks of damping; its criterion is decay, angle bias and noise, the PLL's
     # lag (tuning/pmsm_flux_observer/criterion.py)
     required_damping = 0.0
 
-    def load(self, data: Any, file: str, digest: str) -> schema.FluxObserverDrive:
+    def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.FluxObserverDrive:
         return schema.load(data, file, digest, self.kind)
 
-    def document(self, data: Any, file: str) -> Any:
+    def document(self, data: Mapping[str, Any], file: str) -> DriveDocument:
         return schema.document(data, file)
 
     def gains(
-        self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
+        self,
+        drive: schema.FluxObserverDrive,
+        *,
+        name: str | None = None,
+        table: GainTableData | None = None,
+        table_file: str = "",
     ) -> GainSet:
         if name is not None:
             raise CapabilityError(f"{drive.file}: one [gains] section; there is no [gains.{name}] to choose")
@@ -99,10 +122,14 @@ class FluxObserverFamily(ObserverFamily):
             return _gains.drive_gains(drive)
         return table_gains(self, drive, table, table_file, values=_gains.table_values)
 
-    def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
+    def runtime(
+        self, drive: schema.FluxObserverDrive, gains: GainSet, *, discretization: str | None = None
+    ) -> RuntimeSetup:
         return _gains.runtime_setup(drive, gains, discretization)
 
-    def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
+    def linearize(
+        self, drive: schema.FluxObserverDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
+    ) -> Linearization:
         unknown = set(options) - {"estimate"}
         if unknown:
             raise CapabilityError(
@@ -110,17 +137,19 @@ class FluxObserverFamily(ObserverFamily):
             )
         return _linearize.linearize(drive, gains, w, torque, **options)
 
-    def estimate_errors(self, drive: Any) -> EstimateErrors:
+    def estimate_errors(self, drive: schema.FluxObserverDrive) -> EstimateErrors:
         """The tuner's default errors (:data:`ERRORS`), which its report judges the gains under too."""
         return EstimateErrors(dict(ERRORS), ERROR_KEYS, "the flux tuner's defaults")
 
-    def with_estimate_errors(self, drive: Any, factors: Any) -> Any:
+    def with_estimate_errors(
+        self, drive: schema.FluxObserverDrive, factors: Mapping[str, float]
+    ) -> schema.FluxObserverDrive:
         """[estimate] R_s, L_d, L_q, psi_pm scaled: the runtime parameters the observer runs with."""
         e = drive.estimate
         new = {k: getattr(e, k) * float(v) for k, v in factors.items() if k in e.__dataclass_fields__}
         return dataclasses.replace(drive, estimate=dataclasses.replace(e, **new))
 
-    def scales(self, drive: Any) -> DriveScales:
+    def scales(self, drive: schema.FluxObserverDrive) -> DriveScales:
         """Its drives are taken through zero speed by the open-loop I-f start below w_min
         (``open_loop_start``), so the generic checks run a start, a reversal and speed steps through
         zero (``zero_speed`` left empty; why the observer needs the start: :meth:`low_speed_reason`).
@@ -137,30 +166,41 @@ class FluxObserverFamily(ObserverFamily):
             )
         return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s, why)
 
-    def low_speed_reason(self, drive: Any) -> str:
+    def low_speed_reason(self, drive: schema.FluxObserverDrive) -> str:
         """The observer sees the rotor only through the back-EMF it integrates."""
         return (
             "a back-EMF (flux) observer: the rotor position is unobservable at zero frequency, where the "
             "back-EMF vanishes (Henwood, Malaize, Praly 2012)"
         )
 
-    def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+    def simulation(
+        self, drive: schema.FluxObserverDrive, scenario: Scenario, gains: GainSet | None
+    ) -> LoopSetup:
         return simulation(drive, scenario, gains)
 
     # Monte-Carlo (design/pmsm_flux_observer/montecarlo.py)
-    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
+    def montecarlo_parameters(self, drive: schema.FluxObserverDrive) -> tuple[Uncertain, ...]:
         from sensorless.design.pmsm_flux_observer import montecarlo
 
         return montecarlo.parameters(drive)
 
     def linearize_draws(
-        self, drive: Any, gains: Any, plant: Any, estimate: Any, w: Any, torque: Any, complete: bool = True
-    ) -> Any:
+        self,
+        drive: schema.FluxObserverDrive,
+        gains: GainSet,
+        plant: np.ndarray,
+        estimate: np.ndarray,
+        w: np.ndarray,
+        torque: np.ndarray,
+        complete: bool = True,
+    ) -> Linearization:
         from sensorless.design.pmsm_flux_observer import montecarlo
 
         return montecarlo.linearize_draws(drive, gains, plant, estimate, w, torque, complete)
 
-    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
+    def envelope_points(
+        self, drive: schema.FluxObserverDrive, gains: GainSet | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Its drive file's [envelope] (speeds in both directions x torques); with ``gains``, the points
         where they run the drive sensorless: from the open-loop I-f start's hand-back speed w_off up
         (its [startup], else its rules at the gains: design/pmsm_drive.py ``startup_values``), since
@@ -181,10 +221,21 @@ class FluxObserverFamily(ObserverFamily):
         keep = np.abs(W) >= float(w_off) * (1 - 1e-12)
         return (W[keep], T[keep]) if keep.any() else (W, T)
 
-    def perturbed(self, drive: Any, plant: Any, estimate: Any) -> Any:
+    def perturbed(
+        self, drive: schema.FluxObserverDrive, plant: Mapping[str, float], estimate: Mapping[str, float]
+    ) -> schema.FluxObserverDrive:
         from sensorless.design.pmsm_flux_observer import montecarlo
 
         return montecarlo.perturbed(drive, plant, estimate)
+
+    # the open-loop I-f start (design/startup.py): its drive files' optional [startup] section
+    def startup(self, drive: schema.FluxObserverDrive) -> StartupSettings | None:
+        return drive.startup
+
+    def with_startup(
+        self, drive: schema.FluxObserverDrive, startup: StartupSettings | None
+    ) -> schema.FluxObserverDrive:
+        return dataclasses.replace(drive, startup=startup)
 
 
 FAMILY = FluxObserverFamily()

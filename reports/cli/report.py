@@ -7,9 +7,10 @@ import contextlib
 import math
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING
 
-from sensorless.design.family import CapabilityError
+from sensorless.design.capabilities import MonteCarlo, require
+from sensorless.design.family import CapabilityError, Drive, ObserverFamily
 from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.registry import family_of
 from sensorless.reports.cli import many
@@ -21,8 +22,12 @@ from sensorless.reports.files import OutputSet
 from sensorless.reports.html import render
 from sensorless.reports.low_speed import add_to_report
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.gain_table import GainTable
+    from sensorless.reports.document import Report
 
-def register(sub: Any) -> None:
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``report`` subcommand."""
     p = sub.add_parser(
         "report",
@@ -109,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     for path in args.scenario:  # each loads for this drive: one line naming the file if not
         load_scenario(path, drive)
     if args.montecarlo:
-        fam.montecarlo_parameters(drive)  # one line now if the family has no Monte-Carlo
+        require(fam, MonteCarlo)  # one line now if the family has no Monte-Carlo
     out = OutputSet(args.out, force=args.force, names=("report.html", "report.json"))
     out.check()  # before minutes of work
     t0 = time.perf_counter()
@@ -171,7 +176,9 @@ def run(args: argparse.Namespace) -> int:
     return 3 if failed else 0
 
 
-def _with_montecarlo(rep: Any, drive: Any, fam: Any, table: Any, args: argparse.Namespace) -> Any:
+def _with_montecarlo(
+    rep: Report, drive: Drive, fam: ObserverFamily, table: GainTable | None, args: argparse.Namespace
+) -> Report:
     """The report with a Monte-Carlo section at the end (reports/montecarlo.py), in this process."""
     import dataclasses
 
@@ -180,7 +187,7 @@ def _with_montecarlo(rep: Any, drive: Any, fam: Any, table: Any, args: argparse.
 
     print(f"      Monte-Carlo: {args.montecarlo} draws", file=sys.stderr, flush=True)
     gains = fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
-    params = fam.montecarlo_parameters(drive)
+    params = require(fam, MonteCarlo).montecarlo_parameters(drive)
     with Engine(SYNCHRONOUS, quiet=True) as engine:
         res = rmc.run(
             drive, gains, params, rmc.typical_spreads(params), {}, args.montecarlo, 0, 0,

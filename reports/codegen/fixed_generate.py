@@ -9,13 +9,18 @@ checks in closed loop (fixed_ranges.py).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from sensorless.design.family import Drive, GainSet
 from sensorless.reports.codegen.fixed_c import body, format_text, formats_json, helpers, lit
 from sensorless.reports.codegen.fixed_model import FixedModel
 from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS
 from sensorless.reports.codegen.fixed_poles import pole_shift
 from sensorless.reports.codegen.fixed_ranges import MARGIN
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.runtime import RuntimeSetup
+    from sensorless.reports.codegen.generate import Provenance
 
 ERRORS = (
     f"atan2: vectoring CORDIC, {CORDIC_STEPS} steps, error <= atan(2^-13) + 24 LSB / |v| rad "
@@ -26,22 +31,23 @@ ERRORS = (
 )
 
 
-def fixed_model(drive: Any, gains: Any, setup: Any) -> FixedModel:
+def fixed_model(drive: Drive, gains: GainSet, setup: RuntimeSetup) -> FixedModel:
     """The fixed-point model of ``setup`` with ranges from the family's scenarios and the generic checks."""
-    from sensorless.design.family import CapabilityError
+    from sensorless.design.family import Scaled
+    from sensorless.design.registry import family_of
     from sensorless.design.scenario import builtin_names, generic_scenarios, load_scenario
 
     scenarios = [load_scenario(n, drive) for n in builtin_names(drive.kind)]
-    try:
+    if isinstance(family_of(drive), Scaled):  # the generic checks where the family gives their scales
         scenarios += generic_scenarios(drive)
-    except CapabilityError:
-        pass
     model = FixedModel.of(drive, gains, scenarios)
     model.data(setup)  # ValueError if no run ran this observer
     return model
 
 
-def generate_fixed(setup: Any, model: FixedModel, provenance: Any, prefix: str) -> dict[str, str]:
+def generate_fixed(
+    setup: RuntimeSetup, model: FixedModel, provenance: Provenance, prefix: str
+) -> dict[str, str]:
     """{file name: text} of the fixed-point C of ``setup`` (module docstring)."""
     fx = model.program(setup)
     obs = setup.observer

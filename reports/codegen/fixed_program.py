@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.runtime import scheduled_step
@@ -37,6 +37,9 @@ from sensorless.reports.codegen.c_emit import build_graph
 from sensorless.reports.codegen.c_graph import Node, live_nodes
 from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, NUMPY, SIN_F, Ins, run
 from sensorless.reports.codegen.fixed_ranges import MARGIN, evaluate, interval
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.runtime import RuntimeSetup
 
 Q15_FACTORS = True  # constant factors of products in 16 bits (see _Lowering.factor)
 COEF_BITS = 15
@@ -631,7 +634,7 @@ class _Lowering:
         )
 
 
-def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
+def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedStep:
     """The fixed-point program of ``setup``'s step, its formats from the observer inputs ``x``, ``meas``
     (columns: samples of the checks' closed-loop runs, fixed_ranges.probe_runs) and the state bounds."""
     obs = setup.observer

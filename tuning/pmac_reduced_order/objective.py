@@ -5,10 +5,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.pmac_reduced_order.linearize import analyze
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 
 @dataclass(frozen=True)
@@ -33,7 +36,7 @@ class Figures:
         return np.where(np.isnan(self.noise), np.inf, self.noise).max(axis=0)
 
 
-def figures(drive: Any, g: float, Gamma: float, n_rpm: np.ndarray, T_L: np.ndarray) -> Figures:
+def figures(drive: PmacDrive, g: float, Gamma: float, n_rpm: np.ndarray, T_L: np.ndarray) -> Figures:
     """Poles of the observer with gains (g, Gamma) at the points, by linearize.analyze."""
     w = drive.rpm_to_w(n_rpm)
     r = analyze(drive, w, T_L, g=float(g), Gamma=float(Gamma), noise=True, errors=False)

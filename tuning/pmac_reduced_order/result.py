@@ -4,22 +4,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.gain_table import GainTable
 from sensorless.tuning.pmac_reduced_order.objective import Figures
 from sensorless.tuning.pmac_reduced_order.settings import (
-    DeAngeloSettings,
+    ConstantGainSettings,
     grid,
     limits_text,
     load_grid,
     speed_grid,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
+
 
 @dataclass(frozen=True)
-class DeAngeloResult:
+class ConstantGainResult:
     """What ``sensorless tune`` reports for the constant law."""
 
     law: str
@@ -33,11 +36,11 @@ class DeAngeloResult:
     grid: Figures
     evaluations: int
     note: str  # which candidate was kept and why
-    settings: DeAngeloSettings
+    settings: ConstantGainSettings
     table: GainTable
     seconds: float
 
-    def summary_lines(self, drive: Any = None) -> list[str]:
+    def summary_lines(self, drive: PmacDrive = None) -> list[str]:
         """The terminal summary."""
         s = self.table.summary
         env = self.table.envelope
@@ -80,7 +83,7 @@ def _pairs(p: np.ndarray) -> list[list[float]]:
     return [[float(z.real), float(z.imag)] for z in p]
 
 
-def gain_table(drive: Any, r: DeAngeloResult) -> GainTable:
+def gain_table(drive: PmacDrive, r: ConstantGainResult) -> GainTable:
     """The gain table of a result: every dense-grid point with the tuned and the drive's gains."""
     st = r.settings
     d, d0 = r.dense, r.dense_baseline

@@ -46,28 +46,33 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.pmac_reduced_order.objective import compass_search, figures, rank
-from sensorless.tuning.pmac_reduced_order.result import DeAngeloResult, gain_table
+from sensorless.tuning.pmac_reduced_order.result import ConstantGainResult, gain_table
 from sensorless.tuning.pmac_reduced_order.settings import (
     NOISE_FACTOR,
-    DeAngeloSettings,
+    ConstantGainSettings,
     closed_form,
     default_settings,
     grid,
     limits_text,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
+
 DENSE_TRIES = 6  # candidates re-verified densely at most
 
 
-def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | None = None) -> DeAngeloResult:
+def tune_constant_gains(
+    drive: PmacDrive, settings: Any, progress: Callable[[str], None] | None = None
+) -> ConstantGainResult:
     """Tune g and Gamma of a drive of this family (this module's docstring)."""
     t0 = time.perf_counter()
-    st: DeAngeloSettings = settings or default_settings(drive)
+    st: ConstantGainSettings = settings or default_settings(drive)
     st.check(drive.file)
     say = progress or (lambda s: None)
     g0, G0 = float(drive.observer.g), float(drive.observer.Gamma)
@@ -175,7 +180,7 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     on_grid = figures(drive, g, Gamma, n, T)
     evals = len(seen)
     seconds = time.perf_counter() - t0
-    result = DeAngeloResult(
+    result = ConstantGainResult(
         law="constant",
         g=g,
         Gamma=Gamma,
