@@ -50,7 +50,13 @@ from typing import Any
 
 import numpy as np
 from sensorless.tuning.nlp import TuningError
-from sensorless.tuning.pmac_reduced_order.objective import compass_search, figures, rank
+from sensorless.tuning.pmac_reduced_order.objective import (
+    compass_search,
+    drive_check,
+    drive_shortfall,
+    figures,
+    rank,
+)
 from sensorless.tuning.pmac_reduced_order.result import DeAngeloResult, gain_table
 from sensorless.tuning.pmac_reduced_order.settings import (
     NOISE_FACTOR,
@@ -62,6 +68,7 @@ from sensorless.tuning.pmac_reduced_order.settings import (
 )
 
 DENSE_TRIES = 6  # candidates re-verified densely at most
+DENSE_SPREAD = 0.1  # least distance in ln g or ln Gamma between two of them
 
 
 def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | None = None) -> DeAngeloResult:
@@ -93,11 +100,20 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
         f"g = {gc:.5g} 1/s, Gamma = {Gc:.5g} A^2 s^2"
     )
 
+    # the whole sampled drive (feedforward off and on) must stay stable where the drive file's gains give it
+    # a fixed point (objective.py, FEEDFORWARD)
+    say("the whole sampled drive's constraint: its poles at the drive file's gains over +-T_N")
+    check = drive_check(drive, g0, G0)
+
     def evaluate(x: np.ndarray) -> tuple:
         score = rank(figures(drive, math.exp(x[0]), math.exp(x[1]), n, T), st.min_damping, lim)
+        why = drive_shortfall(drive, math.exp(x[0]), math.exp(x[1]), check) if score[0] else ""
+        if why:
+            score = (False, *score[1:])
         say(
             f"  g = {math.exp(x[0]):9.5g} 1/s, Gamma = {math.exp(x[1]):11.5g}: slowest decay "
             f"{score[1]:9.4g} 1/s, worst damping {score[2]:.4f}{'' if score[0] else ' (infeasible)'}"
+            + (f": {why}" if why else "")
         )
         return score
 
@@ -114,16 +130,30 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     say(f"re-verifying on the {st.dense_factor}x denser grid")
     nd, Td = grid(st, st.dense_factor)
     dense0 = figures(drive, g0, G0, nd, Td)
+
+    def drive_ok(key: tuple[float, float]) -> bool:
+        why = drive_shortfall(drive, math.exp(key[0]), math.exp(key[1]), check)
+        if why:
+            say(f"  g = {math.exp(key[0]):.5g}, Gamma = {math.exp(key[1]):.5g}: {why}")
+        return not why
+
     # The grid optimum sits on the damping floor, which the poles may cross between grid speeds:
     # verify the best candidates densely, in grid-rank order, and keep the first feasible one.
     ranked = sorted(seen.items(), key=lambda kv: kv[1], reverse=True)
     chosen, tried = None, []
-    for key, r in ranked[:DENSE_TRIES]:
-        if not r[0]:
+    # distinct candidates (DENSE_SPREAD apart in ln g or ln Gamma): the search's last steps cluster on one
+    # ridge of the grid, which the dense grid may reject as a whole (EMF harmonics at speeds between the
+    # grid's, the whole drive's margin)
+    picks: list[tuple[tuple[float, float], tuple]] = []
+    for key, r in ranked:
+        if not r[0] or len(picks) == DENSE_TRIES:
             break
+        if all(max(abs(key[0] - k[0]), abs(key[1] - k[1])) >= DENSE_SPREAD for k, _ in picks):
+            picks.append((key, r))
+    for key, _r in picks:
         f = figures(drive, math.exp(key[0]), math.exp(key[1]), nd, Td)
         tried.append((key, f))
-        if rank(f, st.min_damping, lim)[0]:
+        if rank(f, st.min_damping, lim)[0]:  # (the whole drive's constraint held in the search)
             chosen = (key, f)
             break
         if rank(f, st.min_damping)[0]:
@@ -134,7 +164,7 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
             k2 = (key[0] - math.log(over * 1.01), key[1] - 2 * math.log(over * 1.01))
             f2 = figures(drive, math.exp(k2[0]), math.exp(k2[1]), nd, Td)
             tried.append((k2, f2))
-            if rank(f2, st.min_damping, lim)[0]:
+            if rank(f2, st.min_damping, lim)[0] and drive_ok(k2):
                 say(
                     f"  g = {math.exp(key[0]):.5g}: {100 * (over - 1):.2g} % too noisy between the grid "
                     f"points; scaled to g = {math.exp(k2[0]):.5g}, Gamma = {math.exp(k2[1]):.5g}"
@@ -145,8 +175,8 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
                 break
         say(
             f"  g = {math.exp(key[0]):.5g}, Gamma = {math.exp(key[1]):.5g}: damping {f.worst()[0]:.4f}, "
-            f"slowest decay {f.worst()[1]:.4g} 1/s on the dense grid: below the floor, unstable or too noisy "
-            "between the grid points; next candidate"
+            f"slowest decay {f.worst()[1]:.4g} 1/s on the dense grid: below the floor, unstable, too noisy "
+            "between the grid points or the whole drive unstable; next candidate"
         )
     if chosen is None:
         if not rank(dense0, st.min_damping, lim)[0]:
@@ -155,8 +185,8 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
                 f"{st.min_damping:.3f} on the dense grid"
             )
         note = (
-            f"kept the drive's gains: the {len(tried)} best tuned candidates violate the damping floor or "
-            "the noise limit between the optimization grid points"
+            f"kept the drive's gains: the {len(tried)} best distinct tuned candidates violate the damping "
+            "floor, the noise limit or the whole drive's stability between the optimization grid points"
         )
         chosen = ((math.log(g0), math.log(G0)), dense0)
     else:
