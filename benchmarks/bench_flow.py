@@ -82,7 +82,7 @@ class Stamped(io.TextIOBase):
     def write(self, s: str) -> int:
         self._part += s
         *done, self._part = self._part.split("\n")
-        now = time.perf_counter()
+        now = time.process_time()  # CPU: the stages on a shared machine
         self.lines += [(now, ln) for ln in done if ln.strip()]
         return len(s)
 
@@ -124,7 +124,7 @@ def one_round(work: Path, commands: tuple = COMMANDS) -> dict:
             # report: stdout too (its "wrote" lines mark where computing ends and writing the files starts)
             err = Stamped()
             out = err if name == "report" else io.StringIO()
-            t0, c0 = time.perf_counter(), cpu_time()
+            t0, c0, p0 = time.perf_counter(), cpu_time(), time.process_time()
             with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
                 code = main([*argv, "--force"])
             t1, c1 = time.perf_counter(), cpu_time()
@@ -134,7 +134,7 @@ def one_round(work: Path, commands: tuple = COMMANDS) -> dict:
             res["stages"][name] = t1 - t0
             res["cpu"][name] = c1 - c0
             if name in ("tune", "report"):
-                res["inner"][name] = stage_times(err.lines, t0, t1)
+                res["inner"][name] = stage_times(err.lines, p0, time.process_time())
     finally:
         os.chdir(cwd)
     return res
@@ -222,7 +222,7 @@ def main() -> None:
             f"flow / baseline = {cpu / b:.2f} (CPU medians; the ratio holds on a busy machine too)"
         )
     for name in ("report", "tune"):
-        print(f"\nwhere {name} spends its time (median per progress line, until the next line):")
+        print(f"\nwhere {name} spends its time (median CPU per progress line, to the next; main process):")
         for text, t in median_inner(rounds, name):
             print(f"  {t:7.2f} s  {text[:100]}")
 
