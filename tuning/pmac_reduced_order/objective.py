@@ -142,30 +142,47 @@ def rank(f: Figures, min_damping: float, limits: np.ndarray | None = None) -> tu
 
 
 def compass_search(
-    evaluate: Callable[[np.ndarray], tuple], x0: list[np.ndarray], lower: np.ndarray, upper: np.ndarray
+    evaluate: Callable[[np.ndarray], tuple],
+    x0: list[np.ndarray],
+    lower: np.ndarray,
+    upper: np.ndarray,
+    refine: Callable[[np.ndarray, tuple], tuple] | None = None,
 ) -> tuple[np.ndarray, tuple, dict[tuple[float, float], tuple]]:
     """Maximize ``evaluate`` (a comparable rank) over the box from the best of the starts x0:
     poll +-h along ln g, ln Gamma and the critical curve (1, 2), take the first improvement, halve h
-    when none improves, stop below h = 0.01. Deterministic. Returns (best x, its rank, every
-    evaluated x -> rank)."""
+    when none improves, stop below h = 0.01. Deterministic. ``refine(x, rank)``: a costlier constraint
+    that can only lower a rank (e.g. to infeasible), applied only where the rank would improve on the
+    best (no other x can be taken). Returns (best x, its rank, every evaluated x -> rank; refined
+    where it was applied)."""
     cache: dict[tuple[float, float], tuple] = {}
+    refined: set[tuple[float, float]] = set()
+
+    def key_of(x: np.ndarray) -> tuple[float, float]:
+        return (round(float(x[0]), 12), round(float(x[1]), 12))
 
     def f(x: np.ndarray) -> tuple:
-        key = (round(float(x[0]), 12), round(float(x[1]), 12))
+        key = key_of(x)
         if key not in cache:
             cache[key] = evaluate(x)
         return cache[key]
 
+    def full(x: np.ndarray) -> tuple:
+        r, key = f(x), key_of(x)
+        if refine is not None and key not in refined:
+            refined.add(key)
+            cache[key] = r = refine(x, r)
+        return r
+
     starts = [np.clip(x, lower, upper) for x in x0]
-    best = max(starts, key=f)
+    best = max(starts, key=full)
     dirs = [np.array(d, float) for d in ((1, 2), (-1, -2), (1, 0), (-1, 0), (0, 1), (0, -1))]
     h = 0.25
     while h >= 0.01:
         for d in dirs:
             cand = np.clip(best + h * d / np.linalg.norm(d), lower, upper)
-            if f(cand) > f(best):
+            if f(cand) > full(best) and full(cand) > full(best):
                 best = cand
                 break
         else:
             h /= 2
-    return best, f(best), cache
+    return best, full(best), cache
