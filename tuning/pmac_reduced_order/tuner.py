@@ -148,14 +148,17 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     # distinct candidates (DENSE_SPREAD apart in ln g or ln Gamma): the search's last steps cluster on one
     # ridge of the grid, which the dense grid may reject as a whole (EMF harmonics at speeds between the
     # grid's, the whole drive's margin)
-    picks: list[tuple[tuple[float, float], tuple]] = []
-    for key, r in ranked:
-        if not r[0] or len(picks) == DENSE_TRIES:
+    picks: list[tuple[float, float]] = []
+    looked = 0  # candidates checked on the whole drive here (1-2 s each): at most 3 DENSE_TRIES
+    for key, r in list(ranked):
+        if not r[0] or len(picks) == DENSE_TRIES or looked == 3 * DENSE_TRIES:
             break
-        far = all(max(abs(key[0] - k[0]), abs(key[1] - k[1])) >= DENSE_SPREAD for k, _ in picks)
-        if far and drive_ok(key):  # (held already where the search refined it)
-            picks.append((key, r))
-    for key, _r in picks:
+        if any(max(abs(key[0] - k[0]), abs(key[1] - k[1])) < DENSE_SPREAD for k in picks):
+            continue
+        looked += 1
+        if not drive_ok(key):  # (held already where the search refined it)
+            continue
+        picks.append(key)
         f = figures(drive, math.exp(key[0]), math.exp(key[1]), nd, Td)
         tried.append((key, f))
         if rank(f, st.min_damping, lim)[0]:
