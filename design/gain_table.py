@@ -27,6 +27,7 @@ import json
 import math
 import sys
 from dataclasses import dataclass, field
+from json.encoder import encode_basestring_ascii
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -92,7 +93,54 @@ class GainTable:
             "points": self.points,
             "summary": self.summary,
         }
-        return json.dumps(clean(doc), indent=1, sort_keys=True, allow_nan=False) + "\n"
+        return dumps(clean(doc)) + "\n"
+
+
+def dumps(doc: Any) -> str:
+    """``json.dumps(doc, indent=1, sort_keys=True, allow_nan=False)`` of JSON data (dicts with str keys,
+    lists, str, int, float, bool, None; :func:`clean`'s output), the same text, built by joins: the
+    standard library's indented encoder is its pure-Python generator chain (0.48 s CPU for a servo's
+    3.5-MB schedule table, against 0.21 s here; tune writes it, report hashes it)."""
+    out: list[str] = []
+    put = out.append
+    frepr, irepr = float.__repr__, int.__repr__
+
+    def enc(x: Any, level: int) -> None:
+        t = type(x)
+        if t is str:
+            put(encode_basestring_ascii(x))
+        elif t is float:
+            if not math.isfinite(x):
+                raise ValueError("Out of range float values are not JSON compliant: " + repr(x))
+            put(frepr(x))
+        elif t is dict or t is list:
+            if not x:
+                put("{}" if t is dict else "[]")
+                return
+            nl = "\n" + " " * (level + 1)
+            put(("{" if t is dict else "[") + nl)
+            for k, item in enumerate(sorted(x) if t is dict else x):
+                if k:
+                    put("," + nl)
+                if t is dict:
+                    put(encode_basestring_ascii(item) + ": ")
+                    enc(x[item], level + 1)
+                else:
+                    enc(item, level + 1)
+            put("\n" + " " * level + ("}" if t is dict else "]"))
+        elif x is None:
+            put("null")
+        elif x is True:
+            put("true")
+        elif x is False:
+            put("false")
+        elif t is int:
+            put(irepr(x))
+        else:
+            raise TypeError(f"Object of type {t.__name__} is not JSON serializable")
+
+    enc(doc, 0)
+    return "".join(out)
 
 
 def clean(x: Any) -> Any:

@@ -132,7 +132,40 @@ def inputs(sc: Scenario, T_s: float) -> np.ndarray:
     return v
 
 
+# startup_values per (drive object, gains): a command simulates several scenarios of one drive at one gain
+# set (tune's proof: 4 checks x 2 gain sets; report: its checks), and each build of a run with the start
+# asked for the same whole-drive w_min (design/low_speed.py) again, 0.3-0.6 s each. Keyed by the drive's
+# identity (frozen; the entry holds it, so its id is not reused) and the gains' values; a few entries.
+_STARTUP_CACHE: dict[tuple[int, str, tuple], tuple[Any, tuple]] = {}
+_STARTUP_CACHE_SIZE = 8
+
+
+def _gains_key(gains: Any) -> tuple:
+    """A hashable, exact key of a gain set's law and values (arrays by their bytes)."""
+    if gains is None:
+        return (None,)
+    arrays = {k: np.asarray(v, float) for k, v in gains.values.items()}
+    return (gains.law, tuple((k, a.shape, a.tobytes()) for k, a in sorted(arrays.items())))
+
+
 def startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, float] | None, str, float]:
+    """:func:`compute_startup_values`, remembered per drive object and gains (see _STARTUP_CACHE)."""
+    try:
+        key = (id(drive), type(drive).__name__, _gains_key(gains))
+    except (TypeError, ValueError, AttributeError):  # gains of another shape: no cache
+        return compute_startup_values(drive, gains)
+    hit = _STARTUP_CACHE.get(key)
+    if hit is not None and hit[0] is drive:
+        values, line, w_min = hit[1]
+        return (None if values is None else dict(values)), line, w_min
+    out = compute_startup_values(drive, gains)
+    if len(_STARTUP_CACHE) >= _STARTUP_CACHE_SIZE:
+        _STARTUP_CACHE.pop(next(iter(_STARTUP_CACHE)))
+    _STARTUP_CACHE[key] = (drive, (None if out[0] is None else dict(out[0]), out[1], out[2]))
+    return out
+
+
+def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, float] | None, str, float]:
     """The I-f start's parameters of ``drive`` (design/startup.py): its ``[startup]`` section where the
     file gives one, else the rules from the minimum sensorless speed at rated load (design/low_speed.py,
     at ``gains``); None where the observer holds zero speed. With one line saying which, and w_min

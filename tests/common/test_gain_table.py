@@ -224,3 +224,35 @@ def test_law_names_are_each_familys_own(tmp_path, capsys):
     old = read_gain_table(write(tmp_path, "old", {**FLUX_SCHEDULE, "law": "flux_schedule"}))
     assert "law 'flux_schedule' is now called 'schedule'" in capsys.readouterr().err
     assert family_of(flux).gains(flux, table=old).values == g.values
+
+
+def test_dumps_is_the_standard_librarys_indented_json():
+    """design/gain_table.py ``dumps`` against ``json.dumps(indent=1, sort_keys=True, allow_nan=False)``
+    on the value kinds a table holds (and non-ASCII text), and on a tuned table's document."""
+    import json as _json
+
+    from sensorless.design.gain_table import clean, dumps
+
+    doc = {
+        "b": [
+            1,
+            -0.0,
+            1e-300,
+            2.5e16,
+            True,
+            False,
+            None,
+            '\u00e9\u2013"x\\',
+            [],
+            {},
+            [[1.5], {"z": 1, "a": [2]}],
+        ],
+        "a": {"k": 3, "nested": {"empty": [], "v": -7.125}},
+        "\u00fc": 12345678901234567890,
+    }
+    ref = _json.dumps(doc, indent=1, sort_keys=True, allow_nan=False)
+    assert dumps(doc) == ref
+    with pytest.raises(ValueError):
+        dumps({"x": [float("nan")]})
+    table = clean({"points": [{"w": 0.1 * k, "poles": [[-1.0 * k, 2.0]], "n": k} for k in range(50)]})
+    assert dumps(table) == _json.dumps(table, indent=1, sort_keys=True, allow_nan=False)

@@ -36,6 +36,9 @@ class ConstantGainSettings:
     dense_factor: int = 4
     # (output, limit SI) pairs; None: NOISE_FACTOR x the drive's gains' position noise; (): no limit
     max_noise: tuple[tuple[str, float], ...] | None = None
+    # the whole sampled drive's constraint (objective.py drive_check); False: the observer's poles alone
+    # (what the paper's analysis judges; the tests of the observer-only search use it)
+    whole_drive: bool = True
     # the tuner of its own computes neither a pointwise bound nor a damping-versus-noise front
     bound: ClassVar[bool] = False
     pareto: ClassVar[int] = 0
