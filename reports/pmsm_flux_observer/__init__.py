@@ -426,16 +426,24 @@ def compute(
         findings.append(pll)
     findings += start
     findings += reversal_finding(drive, runs, td)
+    limits = time_domain.limitations(drive)
     data = {
         **opening(FAMILY, drive, table, min_damping, review),
         "observer_period_s": f(drive.observer.T_obs),
         "analysis": analysis,
         "time_domain": td,
         "startup": start_data,
-        "verdict": {"status": status, "damped": damped, "tracks": tracks, "findings": findings},
+        "verdict": {
+            "status": status,
+            "damped": damped,
+            "tracks": tracks,
+            "findings": findings,
+            "limitations": limits,  # what the generic checks leave out (e.g. an ODrive drive's zero speed)
+        },
     }
     n = len(sections) + 2
-    all_sections = (drive_section(1, data["drive"]), *sections, time_domain.section(n, td, td_figs))
+    td_section = time_domain.section(n, td, td_figs, limits)
+    all_sections = (drive_section(1, data["drive"]), *sections, td_section)
     summary = (
         f"Gains {review}: "
         + (
@@ -450,7 +458,7 @@ def compute(
         "position error in closed loop"
         + (f" ({len(untested)} not tested sensorless: {', '.join(untested)})." if untested else ".")
     )
-    verdict = verdict_box(status, Paragraph(summary, status_class(status)), findings=findings)
+    verdict = verdict_box(status, Paragraph(summary, status_class(status)), notes=limits, findings=findings)
     del figs
     return Report(drive.name, review, data, verdict, all_sections)
 
