@@ -27,7 +27,6 @@ from sensorless.design.montecarlo import Uncertain
 from sensorless.design.montecarlo import perturbed as shared_perturbed
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.pmsm_flux_observer.linearize import (
-    DAMPED_STEPS,
     FluxLinearization,
     equilibrium_function,
     sampled_loop,
@@ -106,7 +105,7 @@ def linearize_draws(
     loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, setup.schedule.law)
     zoh = pmsm_zoh_plant(motors, W, i_r, o.T_obs)
     y0 = np.where(ok[:, None], x[:, :, 0], np.nan)
-    _, Jd = fixed_points(loop, y0, W, zoh, rep(P), rep(gain), iterations=DAMPED_STEPS, damped=True)
+    _, Jd = fixed_points(loop, y0, W, zoh, rep(P), rep(gain))
     poles_d = discrete_poles(Jd, o.T_obs, loop.n_y)[0]
     if not complete:
         bad = np.isnan(poles_d).all(axis=1).reshape(n_d, n_p).any(axis=1)
