@@ -161,6 +161,9 @@ class DriveScales:
     # "" where the observer runs through zero speed in closed loop; else why it does not (cited): the
     # generic speed steps then stay above zero and the report does not hold it to a reversal
     zero_speed: str = ""
+    # where zero_speed is given: whether the drive still starts once from standstill by its open-loop
+    # start (a firmware that spins up and never returns to open loop): the generic start stays a check
+    spins_up: bool = False
 
     @property
     def t_acc(self) -> float:

@@ -183,10 +183,12 @@ def chunk_damping(
     torque: ArrayLike,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per draw: the worst damping over the operating points (NaN where a point has no equilibrium:
-    counted as a failure) and the index of the worst point. One batched linearization."""
+    counted as a failure) and the index of the worst point. One batched linearization; of the sampled
+    observer that runs where the family's gives its poles (``poles_discrete``)."""
     w, torque = np.asarray(w, float), np.asarray(torque, float)
     lin = family.linearize_draws(drive, gains, plant, estimate, w, torque, complete=False)
-    wd = lin.worst_damping.reshape(plant.shape[0], w.size)
+    z = lin.worst_damping_discrete if lin.poles_discrete is not None else lin.worst_damping
+    wd = z.reshape(plant.shape[0], w.size)
     worst = np.where(np.isnan(wd), -np.inf, wd)
     at = np.argmin(worst, axis=1)
     return np.take_along_axis(worst, at[:, None], axis=1)[:, 0], at

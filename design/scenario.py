@@ -404,6 +404,13 @@ def zero_speed_limit(drive: Drive) -> str:
     return fam.scales(drive).zero_speed if isinstance(fam, Scaled) else ""
 
 
+def spins_up(drive: Drive) -> bool:
+    """Whether a drive whose observer does not run through zero speed still starts once from
+    standstill by its open-loop start (``DriveScales.spins_up``): the generic start stays a check."""
+    fam = registry.family_of(drive)
+    return fam.scales(drive).spins_up if isinstance(fam, Scaled) else False
+
+
 def crosses_zero(sc: Scenario) -> bool:
     """Whether the scenario's speed (initial speed and speed reference) changes sign."""
     w = np.array([sc.w_m0, *sc.speed_reference.value])

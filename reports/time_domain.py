@@ -45,6 +45,7 @@ from sensorless.design.scenario import (
     crosses_zero,
     generic_scenarios,
     load_scenario,
+    spins_up,
     zero_speed_limit,
 )
 from sensorless.design.simulate import simulate
@@ -78,8 +79,9 @@ def scenarios(drive: Drive, paper: Sequence[str], user: Sequence[str] = ()) -> l
     if not drive.file.startswith("preset:"):
         if isinstance(family_of(drive), Scaled):  # else (a family without scales): its own scenarios
             out = generic_scenarios(drive)
-        if zero_speed_limit(drive):  # nor a start from standstill, which its loop cannot simulate
-            out = [sc for sc in out if not crosses_zero(sc) and not sc.startup]
+        if zero_speed_limit(drive):  # nor a start from standstill, unless the drive spins up once
+            keep_start = spins_up(drive)
+            out = [sc for sc in out if not crosses_zero(sc) and (keep_start or not sc.startup)]
     if not out:
         out = [load_scenario(name, drive) for name in paper]
     return out + [load_scenario(path, drive) for path in user]
@@ -92,9 +94,10 @@ def limitations(drive: Drive) -> list[str]:
     if not why:
         return []
     return [
-        "Not checked: running through zero speed (no generic reversal or start from standstill; the "
-        f"speed steps go down to {ZERO_SPEED_LOW_PU:g} p.u. only). {why} A reversal can still be simulated "
-        "(sensorless simulate DRIVE --scenario reversal) or checked with --scenario FILE."
+        "Not checked: running through zero speed (no generic reversal"
+        + ("" if spins_up(drive) else " or start from standstill")
+        + f"; the speed steps go down to {ZERO_SPEED_LOW_PU:g} p.u. only). {why} A reversal can still be "
+        "simulated (sensorless simulate DRIVE --scenario reversal) or checked with --scenario FILE."
     ]
 
 

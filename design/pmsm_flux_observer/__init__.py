@@ -65,6 +65,19 @@ FRAMES = StateFrames(angles=("theta_pll",), vectors=(("x_alpha", "x_beta"), ("u_
 FRAMES_FIXED = dataclasses.replace(FRAMES, held=("lambda_hat",))
 
 
+# ODrive's sensorless mode (odriverobotics/ODrive v0.5, Firmware/MotorControl/axis.cpp, state
+# AXIS_STATE_SENSORLESS_CONTROL): one open-loop spin-up (run_lockin_spin on config.sensorless_ramp, "TODO:
+# restart if desired"), the speed setpoint set to the ramp's vel, then the sensorless control loop until an
+# error or another state: it never returns to open loop, so it has no w_off and runs through no zero speed
+ODRIVE_ONE_WAY = (
+    "ODrive's sensorless mode spins up once by its open-loop ramp (axis0.config.sensorless_ramp) and then "
+    "runs closed loop on the observer until the axis leaves the state: it never returns to open loop "
+    '(odriverobotics/ODrive, Firmware/MotorControl/axis.cpp; its documentation: sensorless "does not '
+    'support stopping or changing direction"). Keep the speed command above the minimum sensorless speed '
+    "in one direction; to stop, set the axis to AXIS_STATE_IDLE and spin up again from standstill."
+)
+
+
 # the estimate errors its tuner and its report judge the gains under by default (+-; "L" scales L_d and
 # L_q together): docs/families/pmsm_flux_observer.md "Tuning"; `tune --r-error/--flux-error/--l-error`
 ERRORS = {"R_s": 0.3, "psi_pm": 0.1, "L": 0.2}
@@ -153,6 +166,8 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
         """Its drives are taken through zero speed by the open-loop I-f start below w_min
         (``open_loop_start``), so the generic checks run a start, a reversal and speed steps through
         zero (``zero_speed`` left empty; why the observer needs the start: :meth:`low_speed_reason`).
+        Not an ODrive drive: ODrive spins up once and never returns to open loop (:data:`ODRIVE_ONE_WAY`):
+        its checks are the start and speed steps above zero (``spins_up``).
         Not the box clamp without ``[startup]`` w_on and w_off: it has no linearization, so no w_min for
         the start's speed rules (design/pmsm_drive.py ``startup_values``)."""
         c = drive.control
@@ -164,7 +179,28 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
                 "to derive the open-loop I-f start's speeds from: give [startup] w_on and w_off (rad/s, "
                 "Hz or p.u.; e.g. the firmware's open-loop ERPM) to check a start and a reversal."
             )
-        return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s, why)
+        spin = False
+        if not why and drive.observer.firmware == "odrive":
+            why, spin = ODRIVE_ONE_WAY, True
+        m = drive.motor
+        return DriveScales(drive.T_N, c.T_max, m.J, m.p, drive.w_base, c.alpha_s, why, spin)
+
+    def drive_loop(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+        """The loop as run, except the clamped gradient observer (VESC's ORTEGA_ORIGINAL): analysed on its
+        active side, the gradient observer, as its observer-only linearization is (linearize.py). At
+        exact estimates its fixed point lies on the clamp's kink (|eta| = lambda), where the one-sided
+        correction has no derivative: taken as off, a flux error inside the circle would be a
+        neutral pair at +-j w at every speed, which no gain moves (the simulation runs the clamp)."""
+        if drive.observer.correction != "clamped-gradient":
+            return simulation(drive, scenario, gains)
+        gradient = dataclasses.replace(drive.observer, correction="gradient")
+        active = dataclasses.replace(drive, observer=gradient)
+        setup = simulation(active, scenario, gains)
+        note = (
+            "the clamped gradient observer linearized on its active side (the gradient observer): at exact "
+            "estimates its fixed point lies on the clamp's kink"
+        )
+        return dataclasses.replace(setup, meta={**setup.meta, "drive_note": note})
 
     def low_speed_reason(self, drive: schema.FluxObserverDrive) -> str:
         """The observer sees the rotor only through the back-EMF it integrates."""
