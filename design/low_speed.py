@@ -17,9 +17,13 @@ estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over t
   |angle bias| <= ``max_bias`` (default 30 deg electrical: the torque still has cos 30 deg = 87 % of
   its command);
   RMS angle noise from the current-sensor noise <= ``max_bias / 3`` (three standard deviations within
-  the same limit). A criterion the family's linearization does not give (``Linearization.angle_bias``
-  or ``angle_noise`` None, or NaN at every point: e.g. the reduced-order family's bias, computed only
-  where the estimates differ from the motor) is not applied, and the result says which were;
+  the same limit). On the whole sampled drive the damping and decay asked are no more than
+  FLOOR_SHARE (90 %) of the drive's own at REFERENCE_PU (0.5 p.u.) and the same torque (a mode as
+  weak at every speed is no low-speed limit), and no less than stability: where the drive is unstable
+  at 0.5 p.u. each point must be stable (``WholeDrive.floors``). A criterion the family's
+  linearization does not give (``Linearization.angle_bias`` or ``angle_noise`` None, or NaN at every
+  point: e.g. the reduced-order family's bias, computed only where the estimates differ from the
+  motor) is not applied, and the result says which were;
 - w_min(T) = the lowest speed from which every speed up to the highest one that meets all four (at
   most 1 p.u.) meets all four (w_min = 1 p.u. where no speed does): a dense logarithmic grid
   (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds), then bisection
