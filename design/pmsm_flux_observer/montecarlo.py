@@ -5,12 +5,13 @@ The true motor's R_s, L_d, L_q, psi_pm (and J, time domain only) and the firmwar
 first four. Each draw is the sampled observer that runs (its runtime step at the firmware's period, on
 the drawn motor sampled under zero-order hold: linearize.py ``sampled_loop``, the analysis the tuner and
 the report make) with its PLL at every operating point: the continuous observer's equilibrium (Lee et
-al. (2010) eq. (8), linearize.py ``rotor_frame_loop`` by design/rotor_frame.py) starts Newton's
-method on the one-step map, whose Jacobian's eigenvalues give the poles ln(z)/T_obs; each step is one
-batched call over draws x points (the drawn motor, its MTPA current and zero-order-hold voltage and the runtime parameters are
-its columns). A point without a fixed point is NaN. The yield is the share of draws whose sampled
-observer keeps the family's required damping (stable: its damping falls with speed by design) at
-every point of the envelope (design/montecarlo.py ``chunk_damping`` judges ``poles_discrete``).
+al. (2010) eq. (8), linearize.py ``rotor_frame_loop`` by design/rotor_frame.py) starts Newton's method
+on the one-step map, whose Jacobian's eigenvalues give the poles ln(z)/T_obs; each step is one batched
+call over draws x points (the drawn motor, its MTPA current and zero-order-hold voltage and the runtime
+parameters are its columns). A point without a fixed point is NaN. The yield is the share of draws
+whose sampled observer keeps the family's required damping (stable: its damping falls with speed by
+design) at every point of the envelope (design/montecarlo.py ``chunk_damping`` judges
+``poles_discrete``).
 """
 
 from __future__ import annotations
