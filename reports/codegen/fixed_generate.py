@@ -214,7 +214,7 @@ def generate_fixed(setup: Any, model: FixedModel, provenance: Any, prefix: str) 
         ]
     )
     meta = {
-        "params": fx.params,
+        "params": [{k: v for k, v in d.items() if k != "recipe"} for d in fx.params],
         "format": "sensorless-fixed-point/1",
         "observer": obs.name,
         "drive": provenance.drive_name,

@@ -167,8 +167,12 @@ class _Lowering:
             q, c = (P[a] for a in (ins.args if is_p[0] else ins.args[::-1]))
             d = self.params[q.imm[0]]
             v = d["value"] * c.imm[0] * 2.0**-c.f
+            node, scale, inv = d["recipe"]
             return self.param_slot(
-                ("mul", q.imm[0], c.imm[0], c.f), v, f"{d['expr']} * {c.imm[0] * 2.0**-c.f:.6g}"
+                ("mul", q.imm[0], c.imm[0], c.f),
+                v,
+                f"{d['expr']} * {c.imm[0] * 2.0**-c.f:.6g}",
+                recipe=(node, scale * c.imm[0] * 2.0**-c.f, inv),
             )
         if ins.op == "SEL" and is_c[0]:
             j = 1 if P[ins.args[0]].imm[0] != 0 else 2
@@ -228,10 +232,20 @@ class _Lowering:
         the variant's flags only); None for a runtime value or parameter."""
         return None if n in self.rt else self.cval(n)
 
-    def param_slot(self, key: Any, c: float, name: str, f: int | None = None, kind: str = "fix") -> int:
+    def param_slot(
+        self,
+        key: Any,
+        c: float,
+        name: str,
+        f: int | None = None,
+        kind: str = "fix",
+        recipe: tuple[int, float, bool] | None = None,
+    ) -> int:
         """A field of the parameter struct of value ``c`` (the drive's), read at run time. Its format
         holds twice its magnitude; init accepts it from 0 to twice the drive's value (the worst cases
-        and saturation of the program are proven for that range; beyond, regenerate)."""
+        and saturation of the program are proven for that range; beyond, regenerate). ``recipe`` =
+        (node, scale, inverse): the field is scale * node (or scale / node) of the graph's parameter
+        nodes (default: ``key`` itself, scale 1), what fixed_params recomputes from SI values."""
         f = 31 if kind == "ang" else format_of(2 * abs(c)) if f is None else f
         if (key, f) in self.param_c:
             return self.param_c[(key, f)]
@@ -251,6 +265,7 @@ class _Lowering:
                 "raw": raw,
                 "lo": lo,
                 "hi": hi,
+                "recipe": recipe if recipe is not None else (key, 1.0, False),
             }
         )
         wr = 2.0**31 if kind == "ang" else max(1, 2 * abs(raw))
@@ -418,7 +433,7 @@ class _Lowering:
                 unit = f" * 2^{31 - self.fmt(xs)[1]} / pi"
             sh = COEF_BITS - 2 - math.floor(math.log2(abs(ratio)))
             name = f"({self.expr(kn)}){unit}" if unit else self.expr(kn)
-            K = self.param_slot(("ang", kn, self.fmt(xs)), ratio, name, sh)
+            K = self.param_slot(("ang", kn, self.fmt(xs)), ratio, name, sh, recipe=(kn, ratio / k, False))
             return self.add(Ins("TOANGP", (xs, K), "ang", 31, (sh,), what="to binary angle"), 2**31)
         if self.is_angle(x):  # k theta of a binary angle: exact modulo 2 pi for an integer k
             xs, ratio = self.ang(x), k
@@ -477,7 +492,7 @@ class _Lowering:
         if c is not None:  # by a constant: a product with its reciprocal
             a = self.lin(an)
             r = (
-                self.param_slot(("inv", bn), 1.0 / c, f"1 / ({self.expr(bn)})")
+                self.param_slot(("inv", bn), 1.0 / c, f"1 / ({self.expr(bn)})", recipe=(bn, 1.0, True))
                 if bn in self.rt
                 else self.const_slot(1.0 / c)
             )
@@ -631,13 +646,19 @@ class _Lowering:
         )
 
 
+def step_graph(setup: Any) -> tuple[list[Node], list[tuple[tuple[int, int], int]]]:
+    """The graph of ``setup``'s double step (its parameters and gains inputs 2 and 3)."""
+    obs = setup.observer
+    # the double step itself (not a variant installed by design/runtime.step_variant: that may be us)
+    f = scheduled_step(obs, setup.discretization, setup.schedule.law if setup.schedule is not None else None)
+    return build_graph(f, {2, 3})
+
+
 def fixed_step(setup: Any, x: np.ndarray, meas: np.ndarray) -> FixedStep:
     """The fixed-point program of ``setup``'s step, its formats from the observer inputs ``x``, ``meas``
     (columns: samples of the checks' closed-loop runs, fixed_ranges.probe_runs) and the state bounds."""
     obs = setup.observer
-    # the double step itself (not a variant installed by design/runtime.step_variant: that may be us)
-    f = scheduled_step(obs, setup.discretization, setup.schedule.law if setup.schedule is not None else None)
-    nodes, outs = build_graph(f, {2, 3})
+    nodes, outs = step_graph(setup)
     p, g = setup.p, setup.gain
     param_used = {a for i, nd in enumerate(nodes) if not nd.param for a in nd.args if nodes[a].param}
     param_used |= {n for _, n in outs if nodes[n].param}
