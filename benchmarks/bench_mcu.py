@@ -15,7 +15,6 @@ multiplier) 1 cycle, loads/stores 2, taken branches 2 (BL 3), PUSH/POP/LDM/STM 1
 3 + N); M4F 1 cycle, loads/stores 2, taken branches 2 (BL 3; pipelining is ignored: an upper
 estimate), VDIV/VSQRT 14, SDIV/UDIV 7. Flash: the observer object's text + data; RAM: the observer
 struct + the step's stack frame (-fstack-usage) + its callees' (not counted: below 100 B here).
-Compiled with -O2 (for speed, as a real-time step is); -Os trades ~7 % more cycles for ~12 % less flash.
 """
 
 from __future__ import annotations
@@ -28,8 +27,6 @@ from pathlib import Path
 
 FLASH, RAM = 0x0, 0x20000000
 N_STEPS = 64
-# compiled for speed: a real-time step is judged by its cycles (-Os: outrunner270 ~1230 cycles, 2.3 kB)
-OPT = "-O2"
 N_CLEAN = 48  # the first 48 samples are closed-loop ones; the last 16 are rejected (x 50)
 
 HARNESS = """#include "%(P)s.h"
@@ -102,7 +99,7 @@ def build(work: Path, P: str, files: dict[str, str], samples: str, init: str, cp
     (work / "harness.c").write_text(HARNESS % {"P": P, "N": N_STEPS, "init": init})
     (work / "samples.c").write_text(samples)
     (work / "link.ld").write_text(LINK)
-    flags = [*cpu, "-mthumb", OPT, "-std=c99", "-ffreestanding", "-fstack-usage"]
+    flags = [*cpu, "-mthumb", "-Os", "-std=c99", "-ffreestanding", "-fstack-usage"]
     elf = work / "bench.elf"
     r = subprocess.run(
         [
@@ -205,7 +202,7 @@ def sizes(work: Path, P: str, cpu: list[str]) -> tuple[int, int]:
             "arm-none-eabi-gcc",
             *cpu,
             "-mthumb",
-            OPT,
+            "-Os",
             "-std=c99",
             "-fstack-usage",
             "-c",
