@@ -60,7 +60,7 @@ static int32_t fx_div(int64_t n, int32_t d) /* floor(n / d), d > 0 */
 
 static const int32_t fx_atan_table[%(n_cordic)d] = {%(cordic)s};
 
-static int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vectoring CORDIC */
+static FX_NOINLINE int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vectoring CORDIC */
 {
     int32_t x = x0 >> 2, y = y0 >> 2;
     uint32_t z = 0;
@@ -135,10 +135,21 @@ def helpers(used: str) -> str:
     blocks = ["static " + b if k else b for k, b in enumerate(text.split("\n\nstatic "))]
     keep = []
     for b in blocks:
-        name = re.match(r"static (?:const )?int32_t (\w+)", b).group(1)
+        name = re.match(r"static (?:const )?(?:FX_NOINLINE )?int32_t (\w+)", b).group(1)
         if name in used or (name == "fx_atan_table" and "fx_atan2" in used):
             keep.append(b)
+    if "fx_atan2" in used:
+        # the CORDIC as a call, not inlined: inlined into the step (GCC at -Os), its loop's registers
+        # spilled the step's around it and cost outrunner270 ~60 cycles more than the call (M0+)
+        keep.insert(0, NOINLINE)
     return "\n\n".join(keep).rstrip() + "\n"
+
+
+NOINLINE = """#if defined(__GNUC__)
+#define FX_NOINLINE __attribute__((noinline))
+#else
+#define FX_NOINLINE
+#endif"""
 
 
 def _sh(a: str, k: int, wide: bool) -> str:
@@ -313,6 +324,12 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
                 run.append(k)
             k += 1
         c, pol = g
+        if len(run) == 1:  # one slot: a conditional expression (no zeroed variable to keep)
+            j = run[0]
+            decl = "int" if fx.prog[j].kind == "bool" else "int32_t"
+            note = f" /* {fx.prog[j].what} */" if fx.prog[j].what else ""
+            lines.append(f"const {decl} s{j} = {'' if pol else '!'}s{c} ? {exprs[j]} : 0;{note}")
+            continue
         lines.append(f"int32_t {', '.join(f's{j} = 0' for j in run)};")
         lines.append(f"if ({'' if pol else '!'}s{c}) {{")
         for j in run:
@@ -339,6 +356,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
 
 
 ALWAYS = "always"
+HEAVY = {"ATAN2", "SIN", "COS", "SQRT", "DIV"}
 
 
 def guards(prog: list[Ins], roots: list[int]) -> list[Any]:
@@ -358,8 +376,31 @@ def guards(prog: list[Ins], roots: list[int]) -> list[Any]:
 def _needs(prog: list[Ins], roots: list[int], banned: set[tuple[int, bool]]) -> list[Any]:
     need: list[Any] = [None] * len(prog)
 
+    def implies(g: Any, h: Any) -> bool:
+        """Condition g implies condition h: equal, or g is (c && ...) true with h among its terms."""
+        if g == h:
+            return True
+        if g in (None, ALWAYS) or h in (None, ALWAYS) or not g[1] or prog[g[0]].op != "AND":
+            return False
+        return any(implies((a, True), h) for a in prog[g[0]].args)
+
+    heavy: list[bool] = []  # a call (atan2, sin, cos, sqrt, division) or a slot that reads one
+    for ins in prog:
+        heavy.append(ins.op in HEAVY or any(heavy[a] for a in ins.args))
+
     def merge(k: int, g: Any) -> None:
-        need[k] = g if need[k] in (None, g) else ALWAYS
+        # needed under g and under h, g implying h: needed under h (the weaker), not always. Only
+        # for heavy slots (an atan2 that a sample rejected before it does not need is skipped); a
+        # cheap one is computed always (a branch and a zeroed variable cost more than it saves)
+        h = need[k]
+        if h is None or h == g:
+            need[k] = g
+        elif heavy[k] and implies(h, g):
+            need[k] = g
+        elif heavy[k] and implies(g, h):
+            need[k] = h
+        else:
+            need[k] = ALWAYS
 
     def cond(c: int, pol: bool, outer: Any) -> Any:
         if prog[c].op == "NOT":

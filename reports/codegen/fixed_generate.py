@@ -220,7 +220,7 @@ def generate_fixed(
         ]
     )
     meta = {
-        "params": fx.params,
+        "params": [{k: v for k, v in d.items() if k != "recipe"} for d in fx.params],
         "format": "sensorless-fixed-point/1",
         "observer": obs.name,
         "drive": provenance.drive_name,

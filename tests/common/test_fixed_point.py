@@ -18,6 +18,7 @@ from sensorless.design.simulate import simulate
 from sensorless.reports.codegen import fixed_ops
 from sensorless.reports.codegen.fixed_generate import fixed_model, generate_fixed
 from sensorless.reports.codegen.fixed_model import run_raw
+from sensorless.reports.codegen.fixed_params import params_from_si
 from sensorless.reports.codegen.generate import Provenance
 
 pytestmark = pytest.mark.skipif(CC is None, reason="no host C compiler (gcc/cc) on PATH")
@@ -279,6 +280,42 @@ def test_gains_are_read_from_the_parameter_struct_at_run_time(built):
     prm[j] = 3 * fx.params[j]["raw"]
     err = replay(exe, out, raw, x0, prm, code=2)
     assert f"field {j + 1} out of its range" in err
+
+
+def test_params_from_si_fills_the_struct_from_si_values(built):
+    """The host-side helper: at the drive's values it gives the generated defaults; with psi_pm x 1.1
+    and k_p x 1.5 each field equals its expression typed here from the SI values (the flux family's
+    fields), the C runs that struct equal to the model; a field beyond its proven range is refused."""
+    _d, setup, model, fx, out, exe = built
+    assert params_from_si(setup, fx) == [p["raw"] for p in fx.params]
+    names = [f.name for f in setup.observer.params]
+    si = dict(zip(names, (float(v) for v in np.ravel(setup.p)), strict=True))
+    new = {"psi_pm": 1.1 * si["psi_pm"], "k_p": 1.5 * si["k_p"]}
+    prm = params_from_si(setup, fx, new)
+    v = {**si, **new}
+    typed = {  # the field's expression (the header's comment), typed from the parameters
+        "T_s * k_p": v["T_s"] * v["k_p"],
+        "6 * psi_pm": 6 * v["psi_pm"],
+        "2.5 * psi_pm": 2.5 * v["psi_pm"],
+        "psi_pm": v["psi_pm"],
+        "T_s * 1/psi_pm^2": v["T_s"] / v["psi_pm"] ** 2,
+        "T_s * k_i": v["T_s"] * v["k_i"],
+    }
+    seen = 0
+    for d, raw in zip(fx.params, prm, strict=True):
+        if d["expr"] in typed:
+            assert raw == round(typed[d["expr"]] * 2.0 ** d["f"]), d["expr"]
+            seen += 1
+    assert seen == len(typed)
+    x0, meas = fx.to_raw(model.data(setup)[0][:, 1000], "x"), model.data(setup)[1][:, 1000:1100]
+    raw = fx.to_raw(meas, "meas").T
+    c = replay(exe, out, raw, x0, prm)
+    xs, ys = run_raw(fx, raw, x0, prm)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    with pytest.raises(ValueError, match=r"psi_pm.*regenerate"):
+        params_from_si(setup, fx, {"psi_pm": 3 * si["psi_pm"]})
+    with pytest.raises(ValueError, match="unknown parameter"):
+        params_from_si(setup, fx, {"psi": 1.0})
 
 
 def test_fuzz_the_fixed_c_under_sanitizers(built):
