@@ -7,7 +7,9 @@ For each preset the generated C (``codegen --precision fixed`` for the M0+, ``--
 for the M4F) is linked bare-metal with a harness that steps the observer on 64 recorded closed-loop
 samples; unicorn (a QEMU-based instruction-set emulator) runs the Thumb code and counts the
 instructions between two markers around each step call (the call, the step and everything it calls:
-libgcc's 64-bit multiply, newlib's libm). Cycles are estimated per instruction from the cores'
+libgcc's 64-bit multiply, newlib's libm). Printed: the mean over the first 48 samples (plausible
+ones) and the most cycles of any step ("worst"): the last 16 samples are scaled x 50, so the guard
+rejects them and the coasting branch runs. Cycles are estimated per instruction from the cores'
 published timings (Cortex-M0+ TRM / Cortex-M4 TRM, table "Instruction timings"): M0+ (single-cycle
 multiplier) 1 cycle, loads/stores 2, taken branches 2 (BL 3), PUSH/POP/LDM/STM 1 + N (POP with PC
 3 + N); M4F 1 cycle, loads/stores 2, taken branches 2 (BL 3; pipelining is ignored: an upper
@@ -25,6 +27,7 @@ from pathlib import Path
 
 FLASH, RAM = 0x0, 0x20000000
 N_STEPS = 64
+N_CLEAN = 48  # the first 48 samples are closed-loop ones; the last 16 are rejected (x 50)
 
 HARNESS = """#include "%(P)s.h"
 extern const %(P)s_input bench_in[%(N)d];
@@ -124,8 +127,10 @@ def build(work: Path, P: str, files: dict[str, str], samples: str, init: str, cp
     return elf
 
 
-def emulate(elf: Path, model: str) -> tuple[float, float]:
-    """(instructions, estimated cycles) per step, the mean over the harness's steps."""
+def emulate(elf: Path, model: str, n_clean: int = N_STEPS) -> tuple[float, float, float]:
+    """(instructions, estimated cycles) per step, the mean over the harness's first ``n_clean`` steps
+    (plausible samples), and the most cycles of any step (the rest are rejected samples: the
+    coasting branch runs)."""
     import unicorn
     from unicorn import arm_const as A
 
@@ -156,7 +161,7 @@ def emulate(elf: Path, model: str) -> tuple[float, float]:
     if data:
         uc.mem_write(syms.get("__data_start__", RAM), data)  # .data is empty here (const tables in flash)
     begin, end = syms["mark_begin"], syms["mark_end"]
-    count = {"on": False, "ins": 0, "cyc": 0, "steps": 0, "prev": None}
+    count = {"on": False, "ins": 0, "cyc": 0, "steps": 0, "prev": None, "c0": 0, "worst": 0, "clean": None}
     cyc = _cycles_m0 if model == "M0" else _cycles_m4
 
     def hook(uc, address, size, _):
@@ -171,6 +176,10 @@ def emulate(elf: Path, model: str) -> tuple[float, float]:
         elif address == end:
             count["on"] = False
             count["steps"] += 1
+            count["worst"] = max(count["worst"], count["cyc"] - count["c0"])
+            count["c0"] = count["cyc"]
+            if count["steps"] == n_clean:
+                count["clean"] = (count["ins"] / n_clean, count["cyc"] / n_clean)
             if count["steps"] == N_STEPS:
                 uc.emu_stop()
         count["prev"] = (address, size, dis.get(address, ""))
@@ -183,7 +192,7 @@ def emulate(elf: Path, model: str) -> tuple[float, float]:
     except unicorn.UcError as e:
         pc = uc.reg_read(A.UC_ARM_REG_PC)
         raise SystemExit(f"{model}: {e} at 0x{pc:x}: {dis.get(pc, '?')} (after {count['prev']})") from None
-    return count["ins"] / count["steps"], count["cyc"] / count["steps"]
+    return (*count["clean"], count["worst"])
 
 
 def sizes(work: Path, P: str, cpu: list[str]) -> tuple[int, int]:
@@ -223,7 +232,7 @@ def main(presets: list[str]) -> None:
 
     print(
         f"{'preset':14s} {'core':5s} {'precision':9s} {'instr/step':>10s} {'cycles/step':>11s} "
-        f"{'flash B':>8s} {'RAM B':>6s}"
+        f"{'worst cyc':>9s} {'flash B':>8s} {'RAM B':>6s}"
     )
     for name in presets:
         d = load_drive(name)
@@ -234,7 +243,8 @@ def main(presets: list[str]) -> None:
         prov = Provenance(d.name, d.file, d.digest, "bench")
         P = d.name
         n_x = len(setup.observer.state)
-        meas = model.meas[:, -N_STEPS * 50 :: 50]
+        meas = model.meas[:, -N_STEPS * 50 :: 50].copy()
+        meas[:, N_CLEAN:] *= 50.0  # implausible samples: rejected, the step coasts
         raw = fx.to_raw(meas, "meas").T
         for core, prec in (("M0", "fixed"), ("M4", "float")):
             with tempfile.TemporaryDirectory() as tmp:
@@ -242,8 +252,8 @@ def main(presets: list[str]) -> None:
                 if prec == "fixed":
                     files = generate_fixed(setup, model, prov, P)
                     rows = ", ".join("{" + ", ".join(str(int(v)) for v in r) + "}" for r in raw)
-                    init = f"{P}_init(&bench_obs)"
-                    ram_struct = 4 * n_x
+                    init = f"(void){P}_init(&bench_obs, &{P}_default_params)"
+                    ram_struct = 4 * (n_x + len(fx.params))  # the state and the parameter struct
                     cpu = ["-mcpu=cortex-m0plus"]
                 else:
                     files = generate(setup, prov, precision="float", prefix=P)
@@ -254,11 +264,11 @@ def main(presets: list[str]) -> None:
                     cpu = ["-mcpu=cortex-m4", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"]
                 samples = f'#include "{P}.h"\nconst {P}_input bench_in[{N_STEPS}] = {{{rows}}};\n'
                 elf = build(work, P, files, samples, init, cpu)
-                ins, cycles = emulate(elf, core)
+                ins, cycles, worst = emulate(elf, core, N_CLEAN)
                 flash, frame = sizes(work, P, cpu)
                 label = core + ("+" if core == "M0" else "F")
                 print(
-                    f"{name:14s} {label:5s} {prec:9s} {ins:10.0f} {cycles:11.0f} {flash:8d} "
+                    f"{name:14s} {label:5s} {prec:9s} {ins:10.0f} {cycles:11.0f} {worst:9.0f} {flash:8d} "
                     f"{ram_struct + frame:6d}",
                     flush=True,
                 )

@@ -30,6 +30,7 @@ import functools
 import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -170,8 +171,14 @@ def _args(loop: SampledLoop, theta, w, plant, p, gain) -> list[np.ndarray]:
         w[None, :],
         plant.T if plant.ndim == 2 else plant,
         np.asarray(p, float),
-        np.asarray(gain, float).ravel(),
+        _gain_columns(gain),
     ]
+
+
+def _gain_columns(gain: Any) -> np.ndarray:
+    """One gain vector for every point (any shape, flattened), or (n_gain, N): one column per point."""
+    g = np.asarray(gain, float)
+    return g if g.ndim == 2 else g.ravel()
 
 
 def fixed_points(
@@ -317,25 +324,28 @@ def pole_distance(poles_c: np.ndarray, poles_d: np.ndarray) -> np.ndarray:
 def zoh_voltage(motor: Sequence[float], w_m: np.ndarray, i_s0: np.ndarray, T_s: float) -> np.ndarray:
     """(N, 2) rotor-frame voltage u_z at the start of a period that keeps the sampled current at i_s0.
 
-    ``motor`` = [R_s, L_d, L_q, psi_pm] (the true motor), ``w_m`` (N,) [rad/s], ``i_s0`` (N, 2) [A]. The
+    ``motor`` = [R_s, L_d, L_q, psi_pm] (the true motor; or (N, 4), one motor per point), ``w_m`` (N,)
+    [rad/s], ``i_s0`` (N, 2) [A]. The
     stationary-frame voltage T(theta_m(t_k)) u_z is held over [t_k, t_k + T_s]; in the rotor frame it
     is T(-w_m tau) u_z. The flux equation of the PMSM (symbolic/pmsm.py; Piippo et al. (2008) eqs.
     (1)-(2)) in the rotor frame, d psi/dt = M psi + c + v with M = -R_s L^-1 - w_m J, c = R_s L^-1
     psi_pm, and dv/dt = -w_m J v: one 5x5 matrix exponential per point gives psi(T_s) = E11 psi(0) +
     E12 u_z + E13, and psi(T_s) = psi(0) = L i_s0 + psi_pm fixes u_z.
     """
-    R, Ld, Lq, psi_pm = (float(v) for v in motor)
     w = np.asarray(w_m, float).ravel()
     n = w.size
+    R, Ld, Lq, psi_pm = (np.broadcast_to(v, (n,)) for v in np.asarray(motor, float).reshape(-1, 4).T)
     Jm = np.array([[0.0, -1.0], [1.0, 0.0]])
-    Linv = np.diag([1 / Ld, 1 / Lq])
     Ma = np.zeros((n, 5, 5))
-    Ma[:, 0:2, 0:2] = -R * Linv - w[:, None, None] * Jm
+    Ma[:, 0:2, 0:2] = -w[:, None, None] * Jm
+    Ma[:, 0, 0] -= R / Ld
+    Ma[:, 1, 1] -= R / Lq
     Ma[:, 0:2, 2:4] = np.eye(2)
-    Ma[:, 0:2, 4] = R * Linv @ np.array([psi_pm, 0.0])
+    Ma[:, 0, 4] = R / Ld * psi_pm
     Ma[:, 2:4, 2:4] = -w[:, None, None] * Jm
     E = expm_batched(Ma * T_s)
-    psi0 = np.asarray(i_s0, float) * np.array([Ld, Lq]) + np.array([psi_pm, 0.0])
+    psi0 = np.asarray(i_s0, float) * np.column_stack([Ld, Lq])
+    psi0[:, 0] += psi_pm
     rhs = psi0 - np.einsum("nij,nj->ni", E[:, 0:2, 0:2], psi0) - E[:, 0:2, 4]
     return np.linalg.solve(E[:, 0:2, 2:4], rhs[:, :, None])[:, :, 0]
 

@@ -7,7 +7,6 @@ Errors raise :class:`~sensorless.design.units.DriveFileError` naming the file an
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import tomllib
 from importlib import resources
@@ -15,8 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from sensorless.design import registry
+from sensorless.design.capabilities import OpenLoopStart
 from sensorless.design.drive_file import check_name, read_text, table
-from sensorless.design.family import Drive
+from sensorless.design.family import Drive, ObserverFamily
 from sensorless.design.units import DriveFileError
 
 
@@ -64,18 +64,18 @@ def load_drive_text(text: str, file: str) -> Drive:
     return with_startup_section(fam, data, file, digest)
 
 
-def with_startup_section(fam: Any, data: dict[str, Any], file: str, digest: str) -> Drive:
+def with_startup_section(fam: ObserverFamily, data: dict[str, Any], file: str, digest: str) -> Drive:
     """``fam``'s drive of ``data``, its optional ``[startup]`` section (design/startup.py) read here for
-    every family that declares the open-loop start (``ObserverFamily.open_loop_start``)."""
+    every family that has the open-loop start (design/capabilities.py ``OpenLoopStart``)."""
     from sensorless.design.startup import SECTION, load_startup
 
     if SECTION not in data:
         return fam.load(data, file, digest)
-    if not fam.open_loop_start:
+    if not isinstance(fam, OpenLoopStart):
         raise DriveFileError(file, SECTION, f"observer family {fam.name!r} has no open-loop start")
     rest = {k: v for k, v in data.items() if k != SECTION}
     drive = fam.load(rest, file, digest)
-    return dataclasses.replace(drive, startup=load_startup(data, file, drive.w_base))  # type: ignore[type-var]
+    return fam.with_startup(drive, load_startup(data, file, drive.w_base))
 
 
 def load_drive(spec: str | Path) -> Drive:

@@ -36,21 +36,22 @@ import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.discrete import newton
-from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.family import CapabilityError, Drive, GainSet, require
 from sensorless.design.poles import sort_poles
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario, drive_units, load_scenario_text
-from sensorless.design.simulate import LoopCoordinates, LoopSetup
+from sensorless.design.simulate import AnalysedLoop, LoopCoordinates, LoopSetup, Simulatable
 from sensorless.symbolic.frames import rot, wrap_angle
 
 SLOW_SHARE = 0.25  # the drive's slow poles: |s| below this share of pi / T_s (the rest: delays, current PI)
 
 
-def analysis_scenario(drive: Drive) -> Scenario:
-    """The scenario of the whole-drive analysis: sensorless speed control, no noise, no I-f start."""
+def analysis_scenario(drive: Drive, extra: str = "") -> Scenario:
+    """The scenario of the whole-drive analysis: sensorless speed control, no noise, no I-f start;
+    ``extra``: more scenario TOML (e.g. a family's ``[control]`` option the drive may run with)."""
     text = (
         f'[scenario]\nname = "drive_analysis"\ntitle = "whole-drive linearization"\nkind = "{drive.kind}"\n'
-        f'duration = "{10 * drive.T_s:.9g} s"\n'
+        f'duration = "{10 * drive.T_s:.9g} s"\n{extra}'
     )
     return load_scenario_text(text, "drive analysis", drive_units(drive))
 
@@ -77,10 +78,15 @@ class DriveLoop:
         return tuple(kept.index(a) for a in self.coordinates.angles)
 
 
-def drive_loop(drive: Drive, gains: GainSet | None) -> DriveLoop:
-    """The family's drive loop at the analysis' scenario; CapabilityError where it declares none."""
+def drive_loop(drive: Drive, gains: GainSet | None, scenario: Scenario | None = None) -> DriveLoop:
+    """The family's drive loop at the analysis' scenario (or ``scenario``, one of
+    :func:`analysis_scenario`); CapabilityError where it declares none."""
     fam = family_of(drive)
-    setup = fam.drive_loop(drive, analysis_scenario(drive), gains)
+    sc = scenario or analysis_scenario(drive)
+    if isinstance(fam, AnalysedLoop):  # a loop of its own to analyse, else the loop it runs
+        setup = fam.drive_loop(drive, sc, gains)
+    else:
+        setup = require(fam, Simulatable).simulation(drive, sc, gains)
     if setup.coordinates is None or setup.coordinates.start is None:
         raise CapabilityError(
             f"observer family {fam.name!r}: its drive loop declares no rotor coordinates "

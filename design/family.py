@@ -1,29 +1,29 @@
-"""The observer-family contract: everything a command may ask of a family, in one base class.
+"""The observer-family contract: its core, one base class (its further capabilities: capabilities.py).
 
 An observer family (the speed-adaptive flux observer of Piippo et al., the reduced-order EMF observer
 of De Angelo et al., a firmware's flux observer + PLL, ...) is one :class:`ObserverFamily` instance,
 registered in :mod:`sensorless.design.registry`, which is the only place that maps a drive file's
-``[drive] kind`` to code. A family provides:
+``[drive] kind`` to code. Its core, here:
 
-- its drive-file schema (:meth:`ObserverFamily.load`), presets and built-in scenarios (packages), and
-  optionally the derivation of a complete drive file from a minimal one (:meth:`document`,
-  ``sensorless init``);
+- its drive-file schema (:meth:`ObserverFamily.load`, returning its own drive dataclass, the type
+  parameter of :class:`ObserverFamily`), presets and built-in scenarios (packages);
 - its gains: which gain laws (gain-table ``law``) it accepts and their keys, and the gains of a drive
   (:meth:`gains`, from the drive file or a tuned table);
 - its runtime observer: the discrete-time step of the one runtime contract (symbolic/runtime.py),
   with its parameters from a drive (:meth:`runtime`), which simulation runs and codegen prints as C;
-- its linearization (:meth:`linearize`), returning the common result type
-  :class:`~sensorless.design.linearization.Linearization`;
-- its simulation set-up for a scenario (:meth:`simulation`), the scenario keys it adds, the
-  parameter-error factors a scenario may give (``estimate_keys``) and the trace panels of its own
-  (``panels``: :class:`Panel`, drawn by the shared figure code);
+- the scenario keys it adds, the parameter-error factors a scenario may give (``estimate_keys``) and
+  the trace panels of its own (``panels``: :class:`Panel`, drawn by the shared figure code);
 - the names of the modules that hold its higher-layer hooks: tuning (tunable gain laws, tuners;
-  imported by ``sensorless.tuning``) and reports (analysis output, report sections; imported by
-  ``sensorless.reports``). The design layer never imports them, so no layer reaches up
+  imported by ``sensorless.tuning``) and reports (analysis output, report sections, firmware formats;
+  imported by ``sensorless.reports``). The design layer never imports them, so no layer reaches up
   (docs/architecture.md).
 
-A capability a family does not have raises :class:`CapabilityError`, which every command turns into
-one line naming the family and what it lacks.
+Beyond the core, each capability is a typed Protocol of design/capabilities.py that a family has by
+defining its methods: a minimal drive file's completion (``Documented``), its linearization
+(``Linearizable``), estimate errors (``EstimateScaling``), simulation (``Simulatable``, ``Scaled``,
+``AnalysedLoop``), Monte-Carlo (``MonteCarlo``) and the open-loop start (``OpenLoopStart``). Shared code
+asks for one by its Protocol; a command that needs one the family lacks says so in one line
+(:class:`CapabilityError`, ``capabilities.require``).
 """
 
 from __future__ import annotations
@@ -31,9 +31,10 @@ from __future__ import annotations
 import itertools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
 
 if TYPE_CHECKING:  # the result types below import this module: typed by name only where no cycle
+    from numpy.typing import ArrayLike
     from sensorless.design.linearization import Linearization
 
 
@@ -44,14 +45,28 @@ class CapabilityError(ValueError):
 class Drive(Protocol):
     """What shared code reads of any family's drive description (each family adds its own sections)."""
 
-    name: str
-    kind: str
-    source: str
-    file: str  # the file it was loaded from (or "preset:<name>"), for messages
-    digest: str  # sha256 of the TOML text
-    # plausibility findings of its drive file (design/plausibility.py), one line each: every command
-    # prints them (reports/cli/common.py); () where there are none
-    warnings: tuple[str, ...]
+    # read-only (a family's drive is a frozen dataclass)
+    @property
+    def name(self) -> str: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def source(self) -> str: ...
+    @property
+    def file(self) -> str:
+        """The file it was loaded from (or "preset:<name>"), for messages."""
+        ...
+
+    @property
+    def digest(self) -> str:
+        """sha256 of the TOML text."""
+        ...
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """Plausibility findings of its drive file (design/plausibility.py), one line each: every command
+        prints them (reports/cli/common.py); () where there are none."""
+        ...
 
     @property
     def T_N(self) -> float:
@@ -71,6 +86,22 @@ class Drive(Protocol):
     @property
     def T_s(self) -> float:
         """Sampling period of the runtime observer [s]."""
+        ...
+
+
+class GainTableData(Protocol):
+    """What a family reads of a gain table (design/gain_table.GainTable, which imports the registry)."""
+
+    law: str
+    drive: dict[str, str]
+    gains: dict[str, Any]
+    envelope: dict[str, Any]
+    points: list[dict[str, Any]]
+    summary: dict[str, Any]
+    file: str
+
+    def where(self, table_file: str = "") -> str:
+        """How messages name the table."""
         ...
 
 
@@ -130,6 +161,9 @@ class DriveScales:
     # "" where the observer runs through zero speed in closed loop; else why it does not (cited): the
     # generic speed steps then stay above zero and the report does not hold it to a reversal
     zero_speed: str = ""
+    # where zero_speed is given: whether the drive still starts once from standstill by its open-loop
+    # start (a firmware that spins up and never returns to open loop): the generic start stays a check
+    spins_up: bool = False
 
     @property
     def t_acc(self) -> float:
@@ -172,8 +206,13 @@ class EstimateErrors:
         return ", ".join(f"{k} +-{100 * v:g} %" for k, v in self.box.items() if v > 0)
 
 
-class ObserverFamily:
-    """Base class of an observer family; subclasses override what they support (module docstring)."""
+DriveT = TypeVar("DriveT", bound=Drive)  # a family's own drive dataclass
+
+
+class ObserverFamily(Generic[DriveT]):
+    """Base class of an observer family, generic in its drive type: the core every family has (module
+    docstring); what it may have beyond, each a Protocol of design/capabilities.py, it has by defining
+    the Protocol's methods."""
 
     kind: ClassVar[str]  # the drive files' [drive] kind: written nowhere else
     name: ClassVar[str]  # identifier = folder name in symbolic/, design/, tuning/, reports/
@@ -194,10 +233,6 @@ class ObserverFamily:
     estimate_keys: ClassVar[tuple[str, ...]] = ()
     # the trace panels of its own, beyond the shared ones (design/scenario.py GENERIC_PANELS)
     panels: ClassVar[tuple[Panel, ...]] = ()
-    # whether its drives start open loop (the I-f start, design/startup.py) below their minimum
-    # sensorless speed where the observer does not hold zero speed: their files take a [startup]
-    # section, which `sensorless init` writes (its drive class then has a ``startup`` field)
-    open_loop_start: ClassVar[bool] = False
     # the worst damping its designs must keep where a command is given no --min-damping (`report`, the
     # minimum-speed analysis, `montecarlo`'s yield); None: the shared design/poles.py MIN_DAMPING. A
     # family whose observer's damping falls with speed by design states its own (and judges its gains
@@ -211,85 +246,57 @@ class ObserverFamily:
         return MIN_DAMPING if self.required_damping is None else float(self.required_damping)
 
     # ---------------------------------------------------------------------------------- drive file
-    def load(self, data: Mapping[str, Any], file: str, digest: str) -> Drive:
+    def load(self, data: Mapping[str, Any], file: str, digest: str) -> DriveT:
         """The drive of a parsed TOML document (strict; DriveFileError naming file and key)."""
         raise CapabilityError(f"observer family {self.name!r} cannot load drive files")
 
-    def document(self, data: Mapping[str, Any], file: str) -> Any:
-        """The complete drive document (design/drive_file.DriveDocument) of a parsed drive TOML that may
-        give only the minimal data (motor, rating, inverter): every other value derived by the family's
-        documented rules, each with its rule (``sensorless init``)."""
-        raise CapabilityError(
-            f"observer family {self.name!r} reads no minimal drive files (`sensorless init`): write its "
-            "drive file in full, starting from a copy of its preset"
-        )
-
     # --------------------------------------------------------------------------------------- gains
     def gains(
-        self, drive: Drive, *, name: str | None = None, table: Any = None, table_file: str = ""
+        self,
+        drive: DriveT,
+        *,
+        name: str | None = None,
+        table: GainTableData | None = None,
+        table_file: str = "",
     ) -> GainSet:
         """The gains of ``drive``: from the gain table ``table`` if given, else the drive file's
         (``name`` chooses among several gain sections where the family has them)."""
         raise CapabilityError(f"observer family {self.name!r} has no gains to choose")
 
     # ------------------------------------------------------------------------------------- runtime
-    def runtime(self, drive: Drive, gains: GainSet, *, discretization: str | None = None) -> Any:
-        """The runtime set-up (design/runtime.RuntimeSetup): observer step, parameters, schedule."""
+    def runtime(self, drive: DriveT, gains: GainSet, *, discretization: str | None = None) -> Any:
+        """The runtime set-up (design/runtime.RuntimeSetup, which imports this module: each family's
+        override states it): observer step, parameters, schedule."""
         raise CapabilityError(f"observer family {self.name!r} has no runtime observer")
 
-    # ------------------------------------------------------------------------------- linearization
-    def linearize(self, drive: Drive, gains: GainSet, w: Any, torque: Any, **options: Any) -> Linearization:
-        """Linearization (design/linearization.Linearization) at speeds ``w`` [rad/s] x ``torque``."""
-        raise CapabilityError(f"observer family {self.name!r} has no linearization")
-
-    def low_speed_options(self, drive: Drive) -> dict[str, Any]:
+    # ------------------------------------------------------------------ low speed (design/low_speed.py)
+    def low_speed_options(self, drive: DriveT) -> dict[str, Any]:
         """The :meth:`linearize` options of the minimum-speed analysis (design/low_speed.py): what the
         drive runs at low speed (e.g. its HF injection) and the family's noise model; none here."""
         return {}
 
-    def holds_zero_speed(self, drive: Drive) -> bool:
+    def holds_zero_speed(self, drive: DriveT) -> bool:
         """Whether the drive's observer holds zero speed under load by itself (e.g. on HF injection into
         a salient motor): then it needs no open-loop start (design/startup.py); False here."""
         return False
 
-    def low_speed_reason(self, drive: Drive) -> str:
+    def low_speed_reason(self, drive: DriveT) -> str:
         """Why the drive's observer cannot hold zero speed, the physics in one clause (e.g. "non-salient
         motor: rotor position unobservable at zero frequency"); "" where it can or the family does not
         say."""
         return ""
 
-    def estimate_errors(self, drive: Drive) -> EstimateErrors:
+    def estimate_errors(self, drive: DriveT) -> EstimateErrors:
         """The estimate errors the drive's design is tuned and reviewed for (its drive file's, or its
         tuner's defaults): the minimum-speed analysis judges the angle bias under them
         (design/low_speed.py); none here."""
         return EstimateErrors()
 
-    def with_estimate_errors(self, drive: Drive, factors: Mapping[str, float]) -> Drive:
-        """The drive with its observer's estimates scaled by ``factors`` (keys of ``estimate_keys``;
-        a key it does not model in its linearization is ignored): the minimum-speed analysis under
-        stated estimate errors."""
-        raise CapabilityError(f"observer family {self.name!r} takes no estimate errors in its analysis")
-
-    # ---------------------------------------------------------------------------------- simulation
-    def bases(self, drive: Drive) -> PerUnitBases | None:
+    # -------------------------------------------------------------------------- reports and traces
+    def bases(self, drive: DriveT) -> PerUnitBases | None:
         """The drive's per-unit bases (the report's drive-data tables show values in them); None where
         its drive files define none."""
         return None
-
-    def scales(self, drive: Drive) -> DriveScales:
-        """The drive's torques, inertia and speed-loop bandwidth: the generic scenarios' scales."""
-        raise CapabilityError(f"observer family {self.name!r} gives no scales for generic scenarios")
-
-    def simulation(self, drive: Drive, scenario: Any, gains: GainSet | None) -> Any:
-        """The loop set-up (design/simulate.LoopSetup) of ``scenario`` on ``drive``."""
-        raise CapabilityError(f"observer family {self.name!r} has no time-domain simulation")
-
-    def drive_loop(self, drive: Drive, scenario: Any, gains: GainSet | None) -> Any:
-        """The loop set-up the whole-drive linearization analyses (design/drive_analysis.py) at the
-        analysis' ``scenario``: its simulation's, whose ``coordinates`` say how its state turns with
-        the rotor. A family whose loop as run has no fixed point in rotor coordinates (an HF carrier,
-        EMF harmonics) gives the loop it analyses instead and says which in ``meta['drive_note']``."""
-        return self.simulation(drive, scenario, gains)
 
     def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
         """What the header of a run's traces says of the family's own settings of the run (its loop
@@ -299,39 +306,54 @@ class ObserverFamily:
     def __repr__(self) -> str:
         return f"<observer family {self.name} (kind {self.kind!r})>"
 
-    # --------------------------------------------------------- Monte-Carlo (design/montecarlo.py)
-    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
-        """The parameters a Monte-Carlo run may spread (design/montecarlo.Uncertain, in the column
-        order of :meth:`linearize_draws` and :meth:`perturbed`): plant value, estimate, unit."""
-        raise CapabilityError(f"observer family {self.name!r} declares no parameters to spread (montecarlo)")
 
-    def linearize_draws(
-        self,
-        drive: Any,
-        gains: GainSet,
-        plant: Any,
-        estimate: Any,
-        w: Any,
-        torque: Any,
-        complete: bool = True,
-    ) -> Any:
-        """The Linearization of every draw (rows of ``plant`` and ``estimate``, (n_draws, k)) at every
-        operating point (``w`` [rad/s] x ``torque``, N points), draw-major: n_draws x N results in one
-        batched evaluation, no loop over draws. ``complete`` False: a draw with a point without
-        equilibrium may be NaN at all its points (its evaluation stops there)."""
-        raise CapabilityError(f"observer family {self.name!r} has no batched linearization of draws")
+D = TypeVar("D", bound=Drive, contravariant=True)  # a drive the capability takes
+E = TypeVar("E", bound=Drive)  # a drive it takes and returns
+C = TypeVar("C")
 
-    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
-        """(w [rad/s electrical], torque [N m]) of the design's envelope, the points a Monte-Carlo run
-        judges every draw at (with ``gains``, the gains under review: a family may keep only the points
-        where they run the drive, e.g. above its open-loop start): the drive's envelope
-        (design/envelope.py :class:`Envelope`, the one analyze, tune and report read) by default."""
-        env = getattr(drive, "envelope", None)
-        if env is None:
-            raise CapabilityError(f"{drive.file}: the drive has no envelope to evaluate draws over")
-        return env.grid()
 
-    def perturbed(self, drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
-        """``drive`` with the true motor's (``plant``) and the observer's (``estimate``) parameters
-        replaced by the given SI values (the time domain of a Monte-Carlo draw)."""
-        raise CapabilityError(f"observer family {self.name!r} cannot perturb a drive (montecarlo)")
+@runtime_checkable
+class Scaled(Protocol[D]):
+    """The capability to give the scales of the generic scenarios (design/scenario.py
+    ``generic_scenarios``); here beside its result type, like every capability (design/capabilities.py)."""
+
+    def scales(self, drive: D) -> DriveScales:
+        """The drive's torques, inertia, pole pairs, base speed and speed-loop bandwidth."""
+        ...
+
+
+@runtime_checkable
+class Linearizable(Protocol[D]):
+    """Linearizes its observer about the drive's operating points (design/linearization.py)."""
+
+    def linearize(
+        self, drive: D, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
+    ) -> Linearization:
+        """The linearization at speeds ``w`` [rad/s, electrical] x ``torque`` [N m]."""
+        ...
+
+
+@runtime_checkable
+class EstimateScaling(Protocol[E]):
+    """Takes stated estimate errors into its analysis (the minimum-speed analysis under errors)."""
+
+    def with_estimate_errors(self, drive: E, factors: Mapping[str, float]) -> E:
+        """The drive with its observer's estimates scaled by ``factors`` (keys of ``estimate_keys``)."""
+        ...
+
+
+# what a command's one line says (after "observer family NAME") where the family lacks a capability
+# it needs; each capability's module adds its own (design/simulate.py, design/capabilities.py)
+LACKS: dict[type, str] = {
+    Linearizable: "has no linearization",
+    EstimateScaling: "takes no estimate errors in its analysis",
+    Scaled: "gives no scales for generic scenarios",
+}
+
+
+def require(family: ObserverFamily[Any], capability: type[C]) -> C:
+    """``family`` as a holder of ``capability`` (a runtime-checkable Protocol); else a one-line
+    CapabilityError naming the family and what it lacks (:data:`LACKS`)."""
+    if not isinstance(family, capability):
+        raise CapabilityError(f"observer family {family.name!r} {LACKS[capability]}")
+    return family

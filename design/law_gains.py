@@ -15,8 +15,8 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from sensorless.design.family import Drive, GainSet, ObserverFamily
-from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.family import Drive, GainSet, GainTableData, ObserverFamily
+from sensorless.design.gain_table import GainTableError
 
 
 def section_gains(law: str, keys: tuple[str, ...], section: Any, source: str) -> GainSet:
@@ -33,7 +33,7 @@ ValuesReader = Callable[[str, Mapping[str, Any], str], dict[str, Any]]
 def table_gains(
     family: ObserverFamily,
     drive: Drive,
-    table: GainTable,
+    table: GainTableData,
     table_file: str = "",
     values: ValuesReader | None = None,
 ) -> GainSet:

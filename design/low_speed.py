@@ -17,9 +17,13 @@ estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over t
   |angle bias| <= ``max_bias`` (default 30 deg electrical: the torque still has cos 30 deg = 87 % of
   its command);
   RMS angle noise from the current-sensor noise <= ``max_bias / 3`` (three standard deviations within
-  the same limit). A criterion the family's linearization does not give (``Linearization.angle_bias``
-  or ``angle_noise`` None, or NaN at every point: e.g. the reduced-order family's bias, computed only
-  where the estimates differ from the motor) is not applied, and the result says which were;
+  the same limit). On the whole sampled drive the damping and decay asked are no more than
+  FLOOR_SHARE (90 %) of the drive's own at REFERENCE_PU (0.5 p.u.) and the same torque (a mode as
+  weak at every speed is no low-speed limit), and no less than stability: where the drive is unstable
+  at 0.5 p.u. each point must be stable (``WholeDrive.floors``). A criterion the family's
+  linearization does not give (``Linearization.angle_bias`` or ``angle_noise`` None, or NaN at every
+  point: e.g. the reduced-order family's bias, computed only where the estimates differ from the
+  motor) is not applied, and the result says which were;
 - w_min(T) = the lowest speed from which every speed up to the highest one that meets all four (at
   most 1 p.u.) meets all four (w_min = 1 p.u. where no speed does): a dense logarithmic grid
   (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds), then bisection
@@ -45,11 +49,23 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
+from sensorless.design.family import (
+    Drive,
+    EstimateErrors,
+    EstimateScaling,
+    GainSet,
+    Linearizable,
+    Scaled,
+    require,
+)
 from sensorless.design.registry import family_of
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.drive_analysis import DriveLinearization
+    from sensorless.design.linearization import Linearization
 
 MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
 FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the design holds zero speed
@@ -84,7 +100,9 @@ class LowSpeed:
     errors: str = ""  # the estimate errors judged (EstimateErrors.text; "": the drive file's estimates)
     errors_source: str = ""  # where they are stated
     basis: str = ""  # what was linearized: the whole drive, or the observer alone and why
-    acceleration: float = 0.0  # [rad/s^2] the acceleration whose lag the criteria include (0: none)
+    # [rad/s^2] the largest speed change at rated load, p (T_max + T_N) / J, whose lag the criteria
+    # include (each load's own: braking_acceleration); 0: none
+    acceleration: float = 0.0
 
     @property
     def rated(self) -> int:
@@ -135,7 +153,7 @@ class LowSpeed:
         }
 
 
-def _failing(lin: Any, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]]:
+def _failing(lin: Linearization | WholeDrive, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]]:
     """(N,) index of the first failed criterion per point (-1: all met) and the criteria applied."""
     zeta = np.where(np.isnan(lin.worst_damping), -np.inf, lin.worst_damping)
     decay = lin.low_speed_decay()
@@ -177,13 +195,14 @@ def _failing(lin: Any, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]
 class WholeDrive:
     """The low-speed criteria's figures from the whole sampled drive (design/drive_analysis.py): its
     poles (damping and decay, each no worse than required or than 90 % of the drive's own at 0.5 p.u.
-    where that is less), its steady angle error (the bias) and its lag under ``acceleration``; the
-    angle noise from the family's observer-only linearization (None: not applied)."""
+    where that is less, and stable: :meth:`floors`), its steady angle error (the bias) and its lag
+    under ``acceleration``; the angle noise from the family's observer-only linearization (None: not
+    applied)."""
 
-    lin: Any  # DriveLinearization
+    lin: DriveLinearization
     mid: tuple[np.ndarray, np.ndarray]  # worst damping and decay of the drive at REFERENCE_PU, same torques
-    observer: Any  # the family's Linearization (for the noise) or None
-    acceleration: float  # [rad/s^2]
+    observer: Linearization | None  # the family's (for the noise)
+    acceleration: np.ndarray | float  # [rad/s^2], per point (or one for all)
 
     @property
     def worst_damping(self) -> np.ndarray:
@@ -196,8 +215,15 @@ class WholeDrive:
         """The damping and decay below which a point fails where they are below the required ones: a
         share FLOOR_SHARE of the drive's own at REFERENCE_PU and the same torque (a mode as weak at
         every speed, e.g. of the controllers, is no low-speed limit: the report's pole sections judge
-        it)."""
-        return FLOOR_SHARE * self.mid[0], FLOOR_SHARE * self.mid[1]
+        it), and never below 0. Where the drive is unstable at REFERENCE_PU (its figure there negative,
+        or NaN: no fixed point) that figure is no reference (a share of a negative one would be
+        stricter than the figure itself, failing every speed, and would let a point unstable by less
+        pass): each point must then be stable (damping and decay not below 0) besides meeting the bias,
+        noise and acceleration criteria; the instability at REFERENCE_PU is the report's pole
+        sections' to judge, and a band of it above w_min lifts w_min no more than any failing band
+        (:func:`minimum_speed` takes the highest passing speed)."""
+        z, d = (np.nan_to_num(FLOOR_SHARE * np.asarray(x, float), nan=0.0) for x in self.mid)
+        return np.maximum(z, 0.0), np.maximum(d, 0.0)
 
     def angle_bias(self) -> np.ndarray:
         return self.lin.theta_err
@@ -212,23 +238,35 @@ class WholeDrive:
 def full_acceleration(drive: Drive) -> float:
     """a_max [rad/s^2 electrical]: what the torque margin over rated load gives the rotor, p (T_max -
     T_N) / J (the family's DriveScales); 0 where it gives none."""
-    try:
-        sc = family_of(drive).scales(drive)
-    except CapabilityError:
+    fam = family_of(drive)
+    if not isinstance(fam, Scaled):
         return 0.0
+    sc = fam.scales(drive)
     return float(sc.pole_pairs * max(0.0, sc.T_max - sc.T_N) / sc.J)
 
 
+def braking_acceleration(drive: Drive, torque: Any) -> np.ndarray:
+    """The largest speed change [rad/s^2 electrical] of the drive running at load ``torque`` [N m]: its
+    speed loop at the torque limit against the load's direction, the load helping, p (T_max + |T|) / J
+    (braking a motoring load, or driving against a regenerating one: the speed steps' approach to zero
+    speed; accelerating against the load gives only p (T_max - |T|) / J); 0 without scales."""
+    fam = family_of(drive)
+    if not isinstance(fam, Scaled):
+        return np.zeros(np.shape(torque))
+    sc = fam.scales(drive)
+    return sc.pole_pairs * (sc.T_max + np.abs(np.asarray(torque, float))) / sc.J
+
+
 def _analysis(
-    drive: Drive, gains: GainSet, opts: Mapping[str, Any], acceleration: float, observer: bool = False
+    drive: Drive, gains: GainSet, opts: Mapping[str, Any], acceleration: bool, observer: bool = False
 ) -> tuple[Any, str]:
     """(w, T) -> the figures the criteria judge, and what is linearized (one line)."""
     from sensorless.design.drive_analysis import drive_loop, linearize_drive
 
     fam = family_of(drive)
 
-    def observer_only(w: Any, T: Any) -> Any:
-        return fam.linearize(drive, gains, w, T, **opts)
+    def observer_only(w: np.ndarray, T: np.ndarray) -> Linearization:
+        return require(fam, Linearizable).linearize(drive, gains, w, T, **opts)
 
     if observer:
         return observer_only, "the observer alone (asked)"
@@ -242,17 +280,15 @@ def _analysis(
     except ValueError as e:  # CapabilityError, or a loop its scenario cannot be simulated on (said)
         return observer_only, f"the observer alone ({e})"
 
-    def whole(w: Any, T: Any) -> WholeDrive:
+    def whole(w: np.ndarray, T: np.ndarray) -> WholeDrive:
         obs = observer_only(w, T)
         Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
         torques, back = np.unique(Tb, return_inverse=True)  # the drive at REFERENCE_PU: once per torque
         mid = linearize_drive(drive, gains, REFERENCE_PU * drive.w_base, torques, dl)
-        return WholeDrive(
-            linearize_drive(drive, gains, w, T, dl),
-            (mid.worst_damping[back], mid.decay[back]),
-            obs,
-            acceleration,
-        )
+        lin = linearize_drive(drive, gains, w, T, dl)
+        Tp = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
+        a = braking_acceleration(drive, Tp) if acceleration else 0.0
+        return WholeDrive(lin, (mid.worst_damping[back], mid.decay[back]), obs, a)
 
     basis = "the whole sampled drive (design/drive_analysis.py)" + (f"; {dl.note}" if dl.note else "")
     return whole, basis
@@ -275,24 +311,23 @@ def minimum_speed(
     """w_min(T) of ``drive`` with ``gains`` (module docstring); ``max_bias`` [rad], ``errors``: factors
     on the family's estimate keys (None: the drive file's estimates); the grid (``n_speeds`` x
     ``n_torques``) and ``bisections`` set the resolution (:data:`QUICK`: previews and tests);
-    ``acceleration``: the angle error under the drive's full acceleration (:func:`full_acceleration`)
-    is judged too (the handover's w_min, design/startup.py); ``observer_only``: the family's
-    observer-only linearization (the paper's analysis) instead of the whole drive."""
+    ``acceleration``: the angle error under the drive's largest speed change at each load
+    (:func:`braking_acceleration`) is judged too (the handover's w_min, design/startup.py);
+    ``observer_only``: the family's observer-only linearization (the paper's analysis) instead of the
+    whole drive."""
     fam = family_of(drive)
     if errors:
-        drive = fam.with_estimate_errors(drive, errors)
-    try:
-        scales = fam.scales(drive)
-    except CapabilityError:
-        scales = None
+        drive = require(fam, EstimateScaling).with_estimate_errors(drive, errors)
+    scales = fam.scales(drive) if isinstance(fam, Scaled) else None
     if min_decay is None:
         min_decay = DECAY_SHARE * float(scales.alpha_s) if scales is not None else 0.0
     crit = {"damping": min_damping, "decay": min_decay, "bias": max_bias, "noise": max_bias / 3}
-    a_max = full_acceleration(drive) if acceleration else 0.0
+    # the acceleration at rated load (the headline's figure; each point is judged at its own load's)
+    a_max = float(braking_acceleration(drive, drive.T_N)) if acceleration else 0.0
     if acceleration:
         crit["acceleration"] = a_max
     opts = fam.low_speed_options(drive)
-    analyse, basis = _analysis(drive, gains, opts, a_max, observer_only)
+    analyse, basis = _analysis(drive, gains, opts, acceleration, observer_only)
     wb, TN = drive.w_base, drive.T_N
     w = wb * np.logspace(np.log10(FLOOR_PU), 0.0, n_speeds)
     T = TN * np.linspace(-1.0, 1.0, n_torques)
@@ -439,7 +474,8 @@ _CRITERION_TEXT = {
     "noise": lambda ls: f"angle noise > {np.degrees(ls.max_noise):.3g} deg rms",
     "stability": lambda ls: "stability under the estimate errors (no stable equilibrium at a corner)",
     "acceleration": lambda ls: (
-        f"angle error under the full acceleration ({ls.acceleration:.4g} rad/s^2) > "
+        f"angle error under the full braking (p (T_max + T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated "
+        "load) > "
         f"{np.degrees(ls.max_bias):.3g} deg"
     ),
 }

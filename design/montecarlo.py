@@ -28,6 +28,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
+from sensorless.design.family import Drive, DriveT, GainSet
 
 CHUNK = 250  # draws per chunk: the unit of seeding and of distributed work
 CLIP_FRACTION = 0.05  # a non-physical draw (<= 0) is clipped to this fraction of the nominal value
@@ -35,7 +37,7 @@ MAX_NORMAL, MAX_UNIFORM = 0.5, 1.0  # relative spreads refused: they draw <= 0 t
 _SPEC = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)=([0-9.eE+-]+)%(u?)$")
 
 
-def perturbed(drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
+def perturbed(drive: DriveT, plant: Mapping[str, float], estimate: Mapping[str, float]) -> DriveT:
     """``drive`` (a frozen dataclass with ``motor`` and ``estimate`` records) with its true motor's and
     its estimates' parameters replaced by the given values: a draw's time domain."""
     motor = dataclasses.replace(drive.motor, **{k: float(v) for k, v in plant.items()})
@@ -172,13 +174,21 @@ def draw(
 
 
 def chunk_damping(
-    family: Any, drive: Any, gains: Any, plant: np.ndarray, estimate: np.ndarray, w: Any, torque: Any
+    family: Any,  # a MonteCarlo family (design/capabilities.py imports this module's Uncertain)
+    drive: Drive,
+    gains: GainSet,
+    plant: np.ndarray,
+    estimate: np.ndarray,
+    w: ArrayLike,
+    torque: ArrayLike,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per draw: the worst damping over the operating points (NaN where a point has no equilibrium:
-    counted as a failure) and the index of the worst point. One batched linearization."""
+    counted as a failure) and the index of the worst point. One batched linearization; of the sampled
+    observer that runs where the family's gives its poles (``poles_discrete``)."""
     w, torque = np.asarray(w, float), np.asarray(torque, float)
     lin = family.linearize_draws(drive, gains, plant, estimate, w, torque, complete=False)
-    wd = lin.worst_damping.reshape(plant.shape[0], w.size)
+    z = lin.worst_damping_discrete if lin.poles_discrete is not None else lin.worst_damping
+    wd = z.reshape(plant.shape[0], w.size)
     worst = np.where(np.isnan(wd), -np.inf, wd)
     at = np.argmin(worst, axis=1)
     return np.take_along_axis(worst, at[:, None], axis=1)[:, 0], at

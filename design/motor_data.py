@@ -31,10 +31,13 @@ import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.pmsm_schema import PmsmMotor
 from sensorless.design.units import MAX_POLE_PAIRS, DriveFileError, parse_quantity
+
+if TYPE_CHECKING:  # imported where a Function is built
+    import casadi as ca
 
 EMF_CONVENTIONS = ("line-line peak", "line-line rms", "phase peak", "phase rms")
 TORQUE_CONVENTIONS = ("rms", "peak")
@@ -286,7 +289,7 @@ def read_motor(t: Mapping[str, Any], file: str, section: str = "motor") -> Motor
     return MotorData(p, R_s, L_d, L_q, psi_pm, J, source, rules)
 
 
-def _integer(v: Any, file: str, key: str) -> int:
+def _integer(v: object, file: str, key: str) -> int:
     x, _ = parse_quantity(v, "integer", file=file, key=key)
     if x < 1:
         raise DriveFileError(file, key, f"non-physical value {v}: must be >= 1")
@@ -297,7 +300,7 @@ def _integer(v: Any, file: str, key: str) -> int:
 # The rated point (MTPA current and steady voltage), for the plausibility checks and derived drives
 # --------------------------------------------------------------------------------------------------
 @functools.cache
-def _mtpa_function() -> Any:
+def _mtpa_function() -> ca.Function:
     """casadi.Function (T [N m], [R_s, L_d, L_q, psi_pm], p) -> MTPA current [i_d, i_q] (symbolic/pmsm.py).
 
     Built once: evaluating the expression in DM arithmetic costs milliseconds per call, and
@@ -332,7 +335,7 @@ def mtpa_torque(i_peak: float, motor: PmsmMotor) -> float:
 
 
 @functools.cache
-def _voltage_function() -> Any:
+def _voltage_function() -> ca.Function:
     """casadi.Function (w, [i_d, i_q], [R_s, L_d, L_q, psi_pm]) -> |u_s|: the steady stator voltage,
     eq. (1) with dpsi/dt = 0 in rotor coordinates and the flux of (2) (symbolic/pmsm.py)."""
     import casadi as ca

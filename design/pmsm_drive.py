@@ -11,10 +11,11 @@ inputs.
 from __future__ import annotations
 
 import math
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
-from sensorless.design.family import CapabilityError, Panel, TraceLine
+from sensorless.design.capabilities import Linearizable, OpenLoopStart, Scaled, require
+from sensorless.design.family import CapabilityError, Drive, GainSet, Panel, TraceLine
 from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.registry import family_of
@@ -41,6 +42,11 @@ from sensorless.symbolic.pmsm_drive import (
 )
 from sensorless.symbolic.startup import W_CMD
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.family import GainSet
+    from sensorless.design.low_speed import LowSpeed
+    from sensorless.symbolic.runtime import RuntimeObserver
+
 # the parameter-error factors of a scenario's [estimate_scale] that the loop applies to the
 # controllers' estimates (a family on this loop declares them in ObserverFamily.estimate_keys, with
 # the observer's own, which it applies itself); a factor not declared is 1
@@ -57,7 +63,7 @@ CURRENT_PANEL = Panel(
 )
 
 
-class OnPmsm(Protocol):
+class OnPmsm(Drive, Protocol):
     """What the loop reads of a drive whose observer runs on a PMSM (design/pmsm_schema.py)."""
 
     @property
@@ -126,7 +132,40 @@ def inputs(sc: Scenario, T_s: float) -> np.ndarray:
     return v
 
 
-def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, str, float]:
+# startup_values per (drive object, gains): a command simulates several scenarios of one drive at one gain
+# set (tune's proof: 4 checks x 2 gain sets; report: its checks), and each build of a run with the start
+# asked for the same whole-drive w_min (design/low_speed.py) again, 0.3-0.6 s each. Keyed by the drive's
+# identity (frozen; the entry holds it, so its id is not reused) and the gains' values; a few entries.
+_STARTUP_CACHE: dict[tuple[int, str, tuple], tuple[Any, tuple]] = {}
+_STARTUP_CACHE_SIZE = 8
+
+
+def _gains_key(gains: Any) -> tuple:
+    """A hashable, exact key of a gain set's law and values (arrays by their bytes)."""
+    if gains is None:
+        return (None,)
+    arrays = {k: np.asarray(v, float) for k, v in gains.values.items()}
+    return (gains.law, tuple((k, a.shape, a.tobytes()) for k, a in sorted(arrays.items())))
+
+
+def startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, float] | None, str, float]:
+    """:func:`compute_startup_values`, remembered per drive object and gains (see _STARTUP_CACHE)."""
+    try:
+        key = (id(drive), type(drive).__name__, _gains_key(gains))
+    except (TypeError, ValueError, AttributeError):  # gains of another shape: no cache
+        return compute_startup_values(drive, gains)
+    hit = _STARTUP_CACHE.get(key)
+    if hit is not None and hit[0] is drive:
+        values, line, w_min = hit[1]
+        return (None if values is None else dict(values)), line, w_min
+    out = compute_startup_values(drive, gains)
+    if len(_STARTUP_CACHE) >= _STARTUP_CACHE_SIZE:
+        _STARTUP_CACHE.pop(next(iter(_STARTUP_CACHE)))
+    _STARTUP_CACHE[key] = (drive, (None if out[0] is None else dict(out[0]), out[1], out[2]))
+    return out
+
+
+def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, float] | None, str, float]:
     """The I-f start's parameters of ``drive`` (design/startup.py): its ``[startup]`` section where the
     file gives one, else the rules from the minimum sensorless speed at rated load (design/low_speed.py,
     at ``gains``); None where the observer holds zero speed. With one line saying which, and w_min
@@ -138,7 +177,7 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     fam = family_of(drive)
     if fam.holds_zero_speed(drive):
         return None, "no I-f start: the observer holds zero speed (its family: HF injection)", 0.0
-    startup = getattr(drive, "startup", None)
+    startup = fam.startup(drive) if isinstance(fam, OpenLoopStart) else None
     given = startup.values() if startup is not None else {}
     values, w_min, warn = given, 0.0, ""
     try:
@@ -171,7 +210,7 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
         except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
             if startup is None or startup.needs_w_min:
                 raise
-            sigma = DECAY_SHARE * fam.scales(drive).alpha_s
+            sigma = DECAY_SHARE * require(fam, Scaled).scales(drive).alpha_s
             rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma, drive.w_base)
             return (*_startup_line({**rules, **given}, given, drive.w_base, ""), 0.0)
         with step_variant(None):
@@ -205,7 +244,7 @@ def startup_values(drive: OnPmsm, gains: Any) -> tuple[dict[str, float] | None, 
     return (*_startup_line(values, given, drive.w_base, warn), w_min)
 
 
-def _handover_decay(drive: OnPmsm, gains: Any, ls: Any) -> float:
+def _handover_decay(drive: OnPmsm, gains: GainSet, ls: LowSpeed) -> float:
     """sigma [1/s]: the decay of the observer's error during the dwell at the handover (2 w_min, at most
     1 p.u., +-T_N), at least the required one. In the dwell the controllers run on the I-f frame, not on
     the estimate, so the observer's error decays as the family's observer-only linearization says (the
@@ -214,7 +253,9 @@ def _handover_decay(drive: OnPmsm, gains: Any, ls: Any) -> float:
 
     fam = family_of(drive)
     w_on = min(ON_FACTOR * ls.w_min_rated, drive.w_base)
-    try:
+    if not isinstance(fam, Linearizable):
+        return ls.min_decay
+    try:  # a drive its family does not linearize (e.g. a firmware variant) refuses it: CapabilityError
         T = np.array([-1.0, 1.0]) * drive.T_N
         lin = fam.linearize(drive, gains, np.full(2, w_on), T, **fam.low_speed_options(drive))
         decay = np.asarray(lin.low_speed_decay(), float)
@@ -321,11 +362,15 @@ _Z = {f.name: k for k, f in enumerate(LOOP_STATE)}
 _V = {f.name: k for k, f in enumerate(INPUTS)}
 
 
-def _coordinates(frames: StateFrames, obs: Any, q: np.ndarray, p_obs: np.ndarray) -> LoopCoordinates:
+def _coordinates(
+    frames: StateFrames, obs: RuntimeObserver, q: np.ndarray, p_obs: np.ndarray
+) -> LoopCoordinates:
     """The rotor coordinates of this loop (symbolic/pmsm_drive.py: the flux in the true rotor frame, the
     current PI and the notch filters in the controller frame, the applied voltage in the stationary
     frame) with the observer's ``frames`` after it; the notch filters are held (nothing reads them
     without injection)."""
+    steady_state = obs.steady_state
+    assert steady_state is not None  # loop_setup refuses an observer without one
     n = len(LOOP_STATE)
     names = [f.name for f in obs.state]
     ix = lambda name: n + names.index(name)  # noqa: E731
@@ -333,7 +378,7 @@ def _coordinates(frames: StateFrames, obs: Any, q: np.ndarray, p_obs: np.ndarray
     def start(v0: np.ndarray, w0: np.ndarray) -> np.ndarray:
         N = w0.size
         z_loop, op = initial_loop_state_function().map(N)(q, v0, w0.reshape(1, -1), 0.0)
-        x_obs = obs.steady_state().map(N)(p_obs, op)
+        x_obs = steady_state().map(N)(p_obs, op)
         return np.vstack([np.asarray(z_loop), np.asarray(x_obs)])
 
     return LoopCoordinates(

@@ -26,15 +26,15 @@ _discovered = False
 
 
 def register(family: ObserverFamily) -> ObserverFamily:
-    """Add ``family`` (keyed by its kind); a second family of the same kind or name is an error."""
+    """Add ``family`` (keyed by its kind); a second family of the same kind or name is an error (gain
+    laws may share names across families)."""
     _discover()
+    # gain-law names are each family's own (a gain table names its drive kind): two may share one
     for other in _FAMILIES.values():
         if other is family:
             continue
-        shared = ({*other.laws, *other.law_aliases}) & ({*family.laws, *family.law_aliases})
-        if other.kind == family.kind or other.name == family.name or shared:
-            what = f"gain laws {sorted(shared)}" if shared else "kind or name"
-            raise ValueError(f"{family!r} clashes with the registered {other!r}: {what}")
+        if other.kind == family.kind or other.name == family.name:
+            raise ValueError(f"{family!r} clashes with the registered {other!r}: kind or name")
     _FAMILIES[family.kind] = family
     return family
 

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from sensorless.design import registry
 from sensorless.design.drive_file import check_name, read_text
-from sensorless.design.family import CapabilityError, Drive, DriveScales
+from sensorless.design.family import Drive, DriveScales, Scaled, require
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 
 INTERPOLATIONS = ("step", "linear")
@@ -400,10 +400,15 @@ ZERO_SPEED_LOW_PU = 0.25  # speed_steps' low step where the observer does not ru
 def zero_speed_limit(drive: Drive) -> str:
     """Why the drive's observer does not run through zero speed in closed loop (its family's
     ``DriveScales.zero_speed``); "" where it does, or where its family gives no scales."""
-    try:
-        return registry.family_of(drive).scales(drive).zero_speed
-    except CapabilityError:
-        return ""
+    fam = registry.family_of(drive)
+    return fam.scales(drive).zero_speed if isinstance(fam, Scaled) else ""
+
+
+def spins_up(drive: Drive) -> bool:
+    """Whether a drive whose observer does not run through zero speed still starts once from
+    standstill by its open-loop start (``DriveScales.spins_up``): the generic start stays a check."""
+    fam = registry.family_of(drive)
+    return fam.scales(drive).spins_up if isinstance(fam, Scaled) else False
 
 
 def crosses_zero(sc: Scenario) -> bool:
@@ -431,7 +436,8 @@ def generic_scenarios(drive: Drive) -> list[Scenario]:
       ``t_seg``, through the open-loop I-f start where the design does not hold zero speed
       (``[control] startup``: design/pmsm_drive.py ``startup_setup``).
     """
-    scales = registry.family_of(drive).scales(drive)
+    fam = require(registry.family_of(drive), Scaled)
+    scales = fam.scales(drive)
     t = generic_times(scales)
     seg, ramp, r = t["t_seg"], t["t_ramp"], t["t_rise"]
     # an observer that does not run through zero speed steps down to ZERO_SPEED_LOW_PU, not -0.5 p.u.

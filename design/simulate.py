@@ -18,12 +18,12 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import casadi as ca
 import numpy as np
 from sensorless.design.compiled import compiled
-from sensorless.design.family import Drive, GainSet
+from sensorless.design.family import LACKS, Drive, GainSet, require
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario
 from sensorless.symbolic.runtime import Field
@@ -97,6 +97,32 @@ class LoopSetup:
     meta: dict[str, Any] = field(default_factory=dict)
     # how its state turns with the rotor (the whole-drive linearization); None: not declared
     coordinates: LoopCoordinates | None = None
+
+
+D = TypeVar("D", bound=Drive, contravariant=True)
+
+
+# capabilities of a family (design/capabilities.py), typed here beside their result type
+@runtime_checkable
+class Simulatable(Protocol[D]):
+    """Simulates its drive in the time domain."""
+
+    def simulation(self, drive: D, scenario: Scenario, gains: GainSet | None) -> LoopSetup:
+        """The loop set-up of ``scenario`` on ``drive``."""
+        ...
+
+
+@runtime_checkable
+class AnalysedLoop(Protocol[D]):
+    """Analyses a loop of its own in the whole-drive linearization (design/drive_analysis.py) instead of
+    its simulation's (an HF carrier or EMF harmonics leave the loop as run without a fixed point)."""
+
+    def drive_loop(self, drive: D, scenario: Scenario, gains: GainSet | None) -> LoopSetup:
+        """The loop the whole-drive analysis linearizes; ``meta['drive_note']`` says how it differs."""
+        ...
+
+
+LACKS.update({Simulatable: "has no time-domain simulation", AnalysedLoop: "has no drive loop"})
 
 
 @dataclass(frozen=True)
@@ -288,7 +314,7 @@ def simulate(
     the drive file's); returns the traces (see :meth:`Traces.problems`). SimulationError if the
     scenario is longer than MAX_SAMPLES control periods."""
     check_length(scenario, drive.T_s)
-    setup = family_of(drive).simulation(drive, scenario, gains)
+    setup = require(family_of(drive), Simulatable).simulation(drive, scenario, gains)
     if compile:
         compiled_chunk(setup.loop, CHUNK)  # build and compile (or load from the cache) outside the timing
     t0 = time.perf_counter()

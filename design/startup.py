@@ -10,11 +10,16 @@ The rules (each with its reason; :func:`if_values`):
 - handover speed w_on = ON_FACTOR (2) w_min, never above 1 p.u., and back to open loop below w_off =
   w_min (at most w_on / ON_FACTOR), w_min the minimum speed at rated load for the handover: the whole
   sampled drive's minimum sensorless speed (design/low_speed.py on design/drive_analysis.py) with, as a
-  fifth criterion, its angle error under the full acceleration a_max = p (T_max - T_N) / J against
-  rated load within the analysis' angle limit (30 deg): the bias at the fixed point plus the loop's
-  steady lag to a speed ramp of slope a_max, a linear property of the whole-drive linearization. Below
-  that speed the observer loses the rotor when the speed controller it takes over from the start
-  accelerates at the torque limit; where the handover must be high (the acceleration limits it, or no
+  fifth criterion, its angle error under the largest speed change at each load T within the analysis'
+  angle limit (30 deg): the bias at the fixed point plus the loop's steady lag to a speed ramp of slope
+  p (T_max + |T|) / J, a linear property of the whole-drive linearization. That slope is the speed
+  loop braking at the torque limit with the load helping (a speed step towards zero under a motoring
+  load): the drop back to open loop is below w_min, so the observer must hold the rotor while the drive
+  brakes down to it (the 2807 drone motor with its tuned gains, speed steps: judged at p (T_max - T_N) /
+  J the drive dropped back at 0.087 p.u. and lost the rotor at 0.11 p.u., braking at 4.9 times that;
+  judged at p (T_max + T_N) / J it drops back at 0.18 p.u. and holds 19 deg). Below that speed the
+  observer loses the rotor when the speed controller it takes over from the start accelerates or
+  brakes at the torque limit; where the handover must be high (the acceleration limits it, or no
   speed up to 1 p.u. meets the criteria) the start's line says why with the numbers
   (:func:`handover_reason`); the band between w_off and w_on is the hysteresis;
 - damping gain k_d = 2 ZETA w_n (ZETA = 0.5), w_n = sqrt(p T_max cos(delta_N) / J) the rotor's swing
@@ -39,13 +44,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.drive_file import Entry, load_section, q, table
 from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.units import DriveFileError, check_magnitude, parse_quantity
 from sensorless.symbolic.startup import with_startup
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.low_speed import LowSpeed
 
 ACC_SHARE = 0.5
 # how the start's line says that the observer cannot follow the drive's full acceleration (the failed
@@ -70,7 +78,7 @@ def swing_frequency(T_N: float, T_max: float, J: float, p: int) -> float:
     return math.sqrt(p * T_max * math.sqrt(max(0.0, 1 - (T_N / T_max) ** 2)) / J)
 
 
-def handover_reason(ls: Any) -> str:
+def handover_reason(ls: LowSpeed) -> str:
     """Why the handover is high, in one line with the numbers (a LowSpeed of design/low_speed.py with
     the acceleration criterion): what limits w_min at rated load, and that the handover stays at 1 p.u.
     at most."""
@@ -78,8 +86,8 @@ def handover_reason(ls: Any) -> str:
     why = ls.rated_limited_by
     if why == "acceleration":
         head = (
-            f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg at a_max = p (T_max - "
-            f"T_N) / J = {ls.acceleration:.4g} rad/s^2, the whole drive's lag to a speed ramp)"
+            f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg braking at p (T_max + "
+            f"T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated load, the whole drive's lag to a speed ramp)"
         )
     else:
         head = f"the whole drive's w_min at rated load is {w:.3g} p.u. (limited by {why})"

@@ -33,12 +33,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
-from sensorless.design.family import DriveScales
+from sensorless.design.capabilities import OpenLoopStart
+from sensorless.design.family import DriveScales, GainSet
 from sensorless.design.motor_data import mtpa_torque_current
+from sensorless.design.registry import family_of
 from sensorless.design.scenario import generic_times
 from sensorless.symbolic.startup import DROP_MAX
+
+if TYPE_CHECKING:  # pmsm_drive imports this module's rules
+    from sensorless.design.pmsm_drive import OnPmsm
 
 LOAD_ANGLE_MAX = DROP_MAX  # the largest steady load angle a start may need (symbolic/startup.py)
 REFERENCE_PU = 0.5  # the drive's own start: 0.5 p.u. in t_seg (design/scenario.py generic_scenarios)
@@ -90,14 +95,17 @@ def _down(x: float) -> float:
     return math.floor(x / e + 1e-9) * e
 
 
-def judge_startup(drive: Any, gains: Any) -> StartJudgement | None:
+def judge_startup(drive: OnPmsm, gains: GainSet) -> StartJudgement | None:
     """The drive's I-f start judged at ``gains`` (module docstring); None where it needs no start.
     CapabilityError where the start has no rules (no PMSM data, no minimum-speed analysis)."""
     from sensorless.design.pmsm_drive import startup_values
     from sensorless.design.startup import ON_FACTOR
 
-    start = getattr(drive, "startup", None)
-    rules, _, w_min = startup_values(dataclasses.replace(drive, startup=None), gains)
+    fam = family_of(drive)
+    if not isinstance(fam, OpenLoopStart):
+        return None
+    start = fam.startup(drive)
+    rules, _, w_min = startup_values(fam.with_startup(drive, None), gains)
     if rules is None or w_min <= 0:
         return None
     given = start.values(w_min) if start is not None else {}

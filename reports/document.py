@@ -18,12 +18,15 @@ import json
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from sensorless.design.envelope import Envelope
 from sensorless.design.family import Drive, PerUnitBases
 from sensorless.design.gain_table import GainTable
+
+if TYPE_CHECKING:  # typed by name only
+    from matplotlib.figure import Figure as MplFigure
 
 
 # --------------------------------------------------------------------------------------------------
@@ -118,7 +121,7 @@ def num(v: Any, digits: int = 4) -> str:
     return "–" if v is None else f"{v:.{digits}g}"
 
 
-def svg_uri(fig: Any) -> str:
+def svg_uri(fig: MplFigure) -> str:
     """A matplotlib figure as an SVG data URI (closed afterwards; no date inside)."""
     import matplotlib.pyplot as plt
 

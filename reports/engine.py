@@ -27,7 +27,13 @@ import os
 import sys
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any, TextIO, TypeVar
+
+if TYPE_CHECKING:  # imported when a cluster starts, not before
+    from dask.distributed import Client, LocalCluster
+
+T = TypeVar("T")  # a task's result
 
 SYNCHRONOUS = "synchronous"
 LOCAL_CONFIG = {
@@ -74,8 +80,8 @@ class Engine:
         self.scheduler = scheduler
         self.workers = workers
         self.quiet = quiet
-        self.client: Any = None
-        self.cluster: Any = None
+        self.client: Client | None = None
+        self.cluster: LocalCluster | None = None
 
     def __enter__(self) -> Engine:
         if self.scheduler == SYNCHRONOUS:
@@ -100,7 +106,9 @@ class Engine:
             raise
         return self
 
-    def _start_local(self, dask: Any, LocalCluster: Any, Client: Any, logging: Any) -> None:
+    def _start_local(
+        self, dask: ModuleType, LocalCluster: type[LocalCluster], Client: type[Client], logging: ModuleType
+    ) -> None:
         """The local cluster, its processes started with their standard error on /dev/null: Ctrl-C at
         the terminal reaches the whole process group, and processes still starting printed 30-140
         lines of KeyboardInterrupt tracebacks (a started worker ignores it) while this one cancelled
@@ -130,7 +138,7 @@ class Engine:
             os.close(saved)
             os.close(devnull)
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         if exc and exc[0] is not None:  # interrupted: Dask's own errors while it closes are not ours
             import logging
 
@@ -151,13 +159,13 @@ class Engine:
             return 1
         return max(1, len(self.client.scheduler_info().get("workers", {})))
 
-    def map(self, fn: Callable[..., Any], items: Sequence[Any], label: str = "") -> list[Any]:
+    def map(self, fn: Callable[..., T], items: Sequence[Sequence[object]], label: str = "") -> list[T]:
         """``[fn(*item) for item in items]`` on the engine, in the items' order (module docstring)."""
         return self.map_groups([(fn, items)], label)[0]
 
     def map_groups(
-        self, groups: Sequence[tuple[Callable[..., Any], Sequence[Any]]], label: str = ""
-    ) -> list[list[Any]]:
+        self, groups: Sequence[tuple[Callable[..., Any], Sequence[Sequence[object]]]], label: str = ""
+    ) -> list[list[Any]]:  # groups of tasks of different results
         """:meth:`map` of several (fn, items) at once: every task submitted together, so a worker
         that ends its share of one group starts on the next instead of waiting for the slowest task
         (the serial part that kept the time-domain draws from scaling); results per group, in order."""
@@ -206,7 +214,7 @@ def _close_half_started() -> None:
 class Progress:
     """Progress on stderr: a bar on a terminal, a line per 10 % otherwise; silent for one item."""
 
-    def __init__(self, label: str, total: int, quiet: bool = False, stream: Any = None) -> None:
+    def __init__(self, label: str, total: int, quiet: bool = False, stream: TextIO | None = None) -> None:
         self.label, self.total, self.done = label, total, 0
         self.stream = stream or sys.stderr
         self.quiet = quiet or total <= 1 or not label

@@ -339,6 +339,7 @@ def report_with(judge: Judge) -> Callable[..., Report]:
         runs = time_domain.scenarios(drive, judge.scenarios(drive), scenarios)
         td, td_figs = time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
         progress("[3/3] verdict")
+        limits = time_domain.limitations(drive)
         v = judge.verdict(drive, rev, found, runs, td, min_damping)
         status, td_findings = settle(v.status, td)
         findings = [*v.findings, *(x["text"] for x in td_findings), *v.after]
@@ -348,15 +349,18 @@ def report_with(judge: Judge) -> Callable[..., Report]:
             "analysis": found.analysis,
             "time_domain": td,
             **v.more,
-            "verdict": {"status": status, **v.data, "findings": findings},
+            # limitations: what the generic checks leave out (e.g. an ODrive drive's zero speed)
+            "verdict": {"status": status, **v.data, "findings": findings, "limitations": limits},
         }
         n = len(found.sections) + 2
         sections = (
             drive_section(1, data["drive"], fam.bases(drive)),
             *found.sections,
-            time_domain.section(n, td, td_figs, time_domain.limitations(drive)),
+            time_domain.section(n, td, td_figs, limits),
         )
-        verdict = verdict_box(status, Paragraph(v.text, status_class(status)), findings=findings)
+        verdict = verdict_box(
+            status, Paragraph(v.text, status_class(status)), notes=limits, findings=findings
+        )
         return Report(drive.name, rev.label, data, verdict, sections)
 
     return report

@@ -26,7 +26,7 @@ from sensorless.reports.causes import Failure, Named
 from sensorless.reports.document import Report
 from sensorless.reports.files import OutputSet
 from sensorless.reports.options import COUNT, FINITE
-from sensorless.tuning.family import TuneSettings
+from sensorless.tuning.family import Tunable, TuneSettings
 
 
 @dataclass(frozen=True)
@@ -79,11 +79,11 @@ class ReportHooks:
     analyze_check: Callable[[Drive, argparse.Namespace], None] | None = None
     # sensorless tune: options, (drive, args, tunable) -> settings, (drive, settings) -> one line
     tune_options: tuple[Option, ...] = ()
-    tune_settings: Callable[[Drive, argparse.Namespace, Any], TuneSettings] | None = None
-    describe_envelope: Callable[[Drive, Any], str] | None = None
+    tune_settings: Callable[[Drive, argparse.Namespace, Tunable], TuneSettings] | None = None
+    describe_envelope: Callable[[Drive, TuneSettings], str] | None = None
     # (drive, tuned gains) -> the lines tune says of the drive's start-up at the tuned gains (the values
     # it proposes, the drive file's kept where they hold, each change with why)
-    startup_lines: Callable[[Drive, Any], list[str]] | None = None
+    startup_lines: Callable[[Drive, GainSet], list[str]] | None = None
     # sensorless simulate: options, and (drive, args, scenario) -> the scenario with them applied
     # (one-line errors naming the option or the drive file)
     simulate_options: tuple[Option, ...] = ()

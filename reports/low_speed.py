@@ -13,6 +13,7 @@ import functools
 from typing import Any
 
 import numpy as np
+from sensorless.design.capabilities import OpenLoopStart
 from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
 from sensorless.design.low_speed import (
     MAX_BIAS_DEG,
@@ -112,7 +113,7 @@ def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float,
     """(w_on, w_off) [rad/s] of the drive's I-f start where its family runs one (its [startup], else
     the rules from w_min at its estimates: design/pmsm_drive.py), else the rules at ``ls``'s w_min; and
     the physical limit the start names ("; ..." or "": an observer too slow for the full acceleration)."""
-    if family_of(drive).open_loop_start:
+    if isinstance(family_of(drive), OpenLoopStart):
         from sensorless.design.pmsm_drive import startup_values
 
         try:

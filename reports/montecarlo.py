@@ -16,13 +16,19 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design import montecarlo as mc
-from sensorless.design.family import GainSet
+from sensorless.design.capabilities import MonteCarlo, require
+from sensorless.design.family import Drive, GainSet
 from sensorless.design.registry import family_of
+from sensorless.design.scenario import Scenario
 from sensorless.reports.engine import Engine
+
+if TYPE_CHECKING:  # typed by name only
+    from matplotlib.figure import Figure as MplFigure
+    from sensorless.reports.document import Section
 
 WORST = 10  # worst draws listed
 
@@ -40,25 +46,31 @@ class Result:
     summary: dict[str, Any]
 
 
-def envelope(drive: Any, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+def envelope(drive: Drive, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The design's envelope: the operating points the tuner held the gains to, where ``gains`` run the
     drive (the family's ``envelope_points``)."""
-    return family_of(drive).envelope_points(drive, gains)
+    return require(family_of(drive), MonteCarlo).envelope_points(drive, gains)
 
 
-def linear_task(drive: Any, gains: GainSet, plant: np.ndarray, estimate: np.ndarray, w: Any, T: Any) -> Any:
+def linear_task(
+    drive: Drive, gains: GainSet, plant: np.ndarray, estimate: np.ndarray, w: np.ndarray, T: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """One chunk on a worker: (worst damping, worst point) per draw."""
-    return mc.chunk_damping(family_of(drive), drive, gains, plant, estimate, w, T)
+    return mc.chunk_damping(require(family_of(drive), MonteCarlo), drive, gains, plant, estimate, w, T)
 
 
 def time_task(
-    drive: Any, gains: GainSet, plant: Mapping[str, float], estimate: Mapping[str, float], scenarios: Any
+    drive: Drive,
+    gains: GainSet,
+    plant: Mapping[str, float],
+    estimate: Mapping[str, float],
+    scenarios: Sequence[Scenario],
 ) -> list[tuple[str, list[str]]]:
     """One draw on a worker: each generic scenario simulated on the perturbed drive, (name, failed)."""
     from sensorless.design.simulate import simulate
     from sensorless.reports.time_domain import judge
 
-    fam = family_of(drive)
+    fam = require(family_of(drive), MonteCarlo)
     out = []
     for sc in scenarios:
         try:
@@ -70,7 +82,7 @@ def time_task(
     return out
 
 
-def time_scenarios(drive: Any) -> list[Any]:
+def time_scenarios(drive: Drive) -> list[Scenario]:
     """The generic scenarios of the nominal drive (none through zero speed where the family says its
     observer does not run there)."""
     from sensorless.design.scenario import crosses_zero, generic_scenarios, zero_speed_limit
@@ -82,7 +94,7 @@ def time_scenarios(drive: Any) -> list[Any]:
 
 
 def run(
-    drive: Any,
+    drive: Drive,
     gains: GainSet,
     params: Sequence[mc.Uncertain],
     plant: Mapping[str, mc.Spread],
@@ -136,7 +148,7 @@ def _fraction(ok: np.ndarray) -> dict[str, Any]:
 
 
 def summarise(
-    drive: Any,
+    drive: Drive,
     gains: GainSet,
     params: Sequence[mc.Uncertain],
     draws: mc.Draws,
@@ -238,7 +250,7 @@ def summary_json(summary: Mapping[str, Any], version: str) -> str:
     return json.dumps({"sensorless_version": version, **summary}, indent=2, sort_keys=False) + "\n"
 
 
-def figures(res: Result, params: Sequence[mc.Uncertain], min_damping: float) -> dict[str, Any]:
+def figures(res: Result, params: Sequence[mc.Uncertain], min_damping: float) -> dict[str, MplFigure]:
     """{stem: matplotlib figure}: the histogram of the worst damping, and its scatter against each
     spread parameter's deviation."""
     import matplotlib
@@ -290,7 +302,7 @@ def typical_spreads(params: Sequence[mc.Uncertain]) -> dict[str, mc.Spread]:
     return {p.name: mc.Spread(p.typical) for p in params if p.typical > 0}
 
 
-def report_section(number: int, res: Result, params: Sequence[mc.Uncertain], min_damping: float) -> Any:
+def report_section(number: int, res: Result, params: Sequence[mc.Uncertain], min_damping: float) -> Section:
     """The report's Monte-Carlo section (``sensorless report --montecarlo N``): yield, sensitivity,
     worst draws and the histogram."""
     import matplotlib.pyplot as plt

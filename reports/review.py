@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from sensorless.design.family import Drive, GainSet, ObserverFamily
+from sensorless.design.gain_table import GainTable
+from sensorless.design.scenario import Scenario
 from sensorless.reports import time_domain
 from sensorless.reports.document import Figure, Paragraph, Verdict, drive_tables, report_inputs
 from sensorless.reports.family import hooks
@@ -45,7 +47,7 @@ class Review:
 def gains_under_review(
     family: ObserverFamily,
     drive: Drive,
-    table: Any | None,
+    table: GainTable | None,
     table_file: str,
     label: str = "drive file",
     choices: dict[str, GainSet] | None = None,
@@ -59,7 +61,7 @@ def gains_under_review(
 
 
 def opening(
-    family: ObserverFamily, drive: Drive, table: Any | None, min_damping: float, label: str
+    family: ObserverFamily, drive: Drive, table: GainTable | None, min_damping: float, label: str
 ) -> dict[str, Any]:
     """The data every report opens with: its inputs (drive, hashes, required damping), the drive-data
     tables (without the sections the family's report hooks leave out) and the label under review."""
@@ -71,7 +73,7 @@ def opening(
 
 
 def time_domain_checks(
-    drive: Drive, rev: Review, runs: Sequence[Any], progress: Callable[[str], None]
+    drive: Drive, rev: Review, runs: Sequence[Scenario | str], progress: Callable[[str], None]
 ) -> tuple[list[dict[str, Any]], list[Figure]]:
     """The scenarios ``runs`` (reports/time_domain.py ``scenarios``) simulated with the gains under
     review and judged: (checks, figures)."""

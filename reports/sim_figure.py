@@ -34,10 +34,11 @@ from sensorless.design import registry
 from sensorless.design.family import Panel
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from sensorless.design.simulate import Traces
 
 
-def _speed(ax: Any, tr: Traces) -> None:
+def _speed(ax: Axes, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     ax.plot(tr.t, tr["w_m"] * k, "k-", lw=1.0, label=r"$\omega_\mathrm{m}$")
     ax.plot(tr.t, tr["w_hat"] * k, "k--", lw=1.0, label=r"$\hat\omega_\mathrm{m}$")
@@ -45,19 +46,19 @@ def _speed(ax: Any, tr: Traces) -> None:
     ax.set_ylabel(rf"$\omega_\mathrm{{m}}$ ({unit})")
 
 
-def _speed_error(ax: Any, tr: Traces) -> None:
+def _speed_error(ax: Axes, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     ax.plot(tr.t, (tr["w_m"] - tr["w_hat"]) * k, "k-", lw=1.0, label=r"$\omega - \hat\omega$")
     ax.set_ylabel(rf"speed est. error ({unit})")
 
 
-def _tracking_error(ax: Any, tr: Traces) -> None:
+def _tracking_error(ax: Axes, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     ax.plot(tr.t, (tr["w_ref"] - tr["w_m"]) * k, "k-", lw=1.0, label=r"$\omega_\mathrm{ref} - \omega$")
     ax.set_ylabel(rf"tracking error ({unit})")
 
 
-def _torque(ax: Any, tr: Traces) -> None:
+def _torque(ax: Axes, tr: Traces) -> None:
     T_N = tr.meta["T_N"]
     if "T_e_hat" in tr.data:  # the torque the controller sees (estimated frame)
         ax.plot(tr.t, tr["T_e_hat"] / T_N, "k-", lw=1.0, label=r"$\hat T_\mathrm{e}$")
@@ -67,12 +68,12 @@ def _torque(ax: Any, tr: Traces) -> None:
     ax.set_ylabel(r"$T$ (p.u.)")
 
 
-def _theta_error(ax: Any, tr: Traces) -> None:
+def _theta_error(ax: Axes, tr: Traces) -> None:
     ax.plot(tr.t, np.degrees(tr["theta_err"]), "k-", lw=1.0, label=r"$\tilde\theta_\mathrm{m}$")
     ax.set_ylabel(r"$\tilde\theta_\mathrm{m}$ (deg)")
 
 
-PANELS: dict[str, Callable[[Any, Any], None]] = {  # design/scenario.py GENERIC_PANELS
+PANELS: dict[str, Callable[[Axes, Traces], None]] = {  # design/scenario.py GENERIC_PANELS
     "speed": _speed,
     "speed_error": _speed_error,
     "tracking_error": _tracking_error,
@@ -81,10 +82,10 @@ PANELS: dict[str, Callable[[Any, Any], None]] = {  # design/scenario.py GENERIC_
 }
 
 
-def _declared(panel: Panel) -> Callable[[Any, Any], None]:
+def _declared(panel: Panel) -> Callable[[Axes, Traces], None]:
     """The drawing of a family's declared panel: each line from the first of its traces the run has."""
 
-    def draw(ax: Any, tr: Traces) -> None:
+    def draw(ax: Axes, tr: Traces) -> None:
         for line in panel.lines:
             name = next((n for n in line.traces if n in tr.data), line.traces[-1])
             ax.plot(tr.t, tr[name], line.style, lw=1.0, label=line.label)
@@ -93,7 +94,7 @@ def _declared(panel: Panel) -> Callable[[Any, Any], None]:
     return draw
 
 
-def panels_of(traces: Traces) -> dict[str, Callable[[Any, Any], None]]:
+def panels_of(traces: Traces) -> dict[str, Callable[[Axes, Traces], None]]:
     """Panel name -> drawing, for the traces of a run: the shared panels and its family's."""
     kind = traces.meta.get("kind")
     own = registry.family(kind).panels if kind in registry.kinds() else ()

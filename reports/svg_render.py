@@ -25,9 +25,13 @@ import signal
 import sys
 import time
 import weakref
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from sensorless.reports.document import svg_uri
+
+if TYPE_CHECKING:  # typed by name only
+    from matplotlib.figure import Figure
 
 PREFIX = b"data:image/svg+xml;base64,"
 _running: list[weakref.ref[PendingSvg]] = []  # children not yet collected, oldest first
@@ -42,8 +46,8 @@ def forking() -> bool:
 class PendingSvg:
     """The SVG data URI of a figure that a child process renders; ``str()`` waits for it."""
 
-    def __init__(self, fig: Any) -> None:
-        self._fig: Any = fig  # kept to render it here if the child fails
+    def __init__(self, fig: Figure | Callable[[], Figure]) -> None:
+        self._fig: Figure | Callable[[], Figure] | None = fig  # kept to render it here if the child fails
         self._value: str | None = None
         self._child: tuple[int, int] | None = None  # (pid, read end of its pipe)
         self._finalizer: weakref.finalize | None = None
@@ -105,7 +109,7 @@ def _reap(owner: int, pid: int, fd: int) -> None:
             pass
 
 
-def _child(fig: Any, read_end: int, write_end: int, siblings: list[int]) -> None:
+def _child(fig: Figure | Callable[[], Figure], read_end: int, write_end: int, siblings: list[int]) -> None:
     """Render into the pipe and leave; never returns. ``siblings``: the read ends of the other
     children's pipes, closed here so that only the parent holds them (a child whose parent is gone
     then gets a broken pipe instead of waiting for a reader)."""
@@ -129,11 +133,11 @@ def _child(fig: Any, read_end: int, write_end: int, siblings: list[int]) -> None
         os._exit(code)
 
 
-def _made(fig: Any) -> Any:
+def _made(fig: Figure | Callable[[], Figure]) -> Figure:
     return fig() if callable(fig) else fig
 
 
-def svg_later(fig: Any) -> PendingSvg | str:
+def svg_later(fig: Figure | Callable[[], Figure]) -> PendingSvg | str:
     """The figure's SVG data URI as :func:`svg_uri` gives it, rendered by a child process (module
     docstring); ``str()`` of the result is the URI. ``fig`` is a matplotlib figure (closed here) or a
     function without arguments that makes one: the child calls it, so building the figure leaves

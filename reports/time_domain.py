@@ -27,21 +27,25 @@ finding) and by ``sensorless report`` (a warning line, exit status 3).
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from sensorless.design.capabilities import Linearizable, Scaled
 from sensorless.design.family import CapabilityError, Drive, DriveScales, GainSet
 from sensorless.design.registry import family_of
+from sensorless.design.runtime import step_variant
 from sensorless.design.scenario import (
     ZERO_SPEED_LOW_PU,
     Scenario,
     crosses_zero,
     generic_scenarios,
     load_scenario,
+    spins_up,
     zero_speed_limit,
 )
 from sensorless.design.simulate import simulate
@@ -49,6 +53,9 @@ from sensorless.design.startup import ACCELERATION_LIMIT
 from sensorless.reports.causes import CATALOGUE, Failure, Named, classify_all, operating_torque_pu
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.svg_render import svg_later
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.simulate import Traces
 
 LIMITS = {
     "max_abs_theta_err_deg": 30.0,
@@ -59,18 +66,22 @@ LIMITS = {
 MAX_OPEN_LOOP_SHARE = 0.5
 
 
+# the observer step the checks run (design/runtime.step_variant's variant), None: the double one;
+# set by `report --precision fixed` (reports/fixed_review.py judged_with)
+JUDGED_STEP: contextvars.ContextVar[Any] = contextvars.ContextVar("judged_step", default=None)
+
+
 def scenarios(drive: Drive, paper: Sequence[str], user: Sequence[str] = ()) -> list[Scenario]:
     """The scenarios of a report: a preset's ``paper`` ones (its family's names), else the generic ones
     scaled to the drive (without those through zero speed where the observer does not run there:
     :func:`limitations`); then the user's files (``--scenario``), as given."""
     out: list[Scenario] = []
     if not drive.file.startswith("preset:"):
-        try:
+        if isinstance(family_of(drive), Scaled):  # else (a family without scales): its own scenarios
             out = generic_scenarios(drive)
-        except CapabilityError:  # a family without scales: its own scenarios
-            pass
-        if zero_speed_limit(drive):  # nor a start from standstill, which its loop cannot simulate
-            out = [sc for sc in out if not crosses_zero(sc) and not sc.startup]
+        if zero_speed_limit(drive):  # nor a start from standstill, unless the drive spins up once
+            keep_start = spins_up(drive)
+            out = [sc for sc in out if not crosses_zero(sc) and (keep_start or not sc.startup)]
     if not out:
         out = [load_scenario(name, drive) for name in paper]
     return out + [load_scenario(path, drive) for path in user]
@@ -83,9 +94,10 @@ def limitations(drive: Drive) -> list[str]:
     if not why:
         return []
     return [
-        "Not checked: running through zero speed (no generic reversal or start from standstill; the "
-        f"speed steps go down to {ZERO_SPEED_LOW_PU:g} p.u. only). {why} A reversal can still be simulated "
-        "(sensorless simulate DRIVE --scenario reversal) or checked with --scenario FILE."
+        "Not checked: running through zero speed (no generic reversal"
+        + ("" if spins_up(drive) else " or start from standstill")
+        + f"; the speed steps go down to {ZERO_SPEED_LOW_PU:g} p.u. only). {why} A reversal can still be "
+        "simulated (sensorless simulate DRIVE --scenario reversal) or checked with --scenario FILE."
     ]
 
 
@@ -109,7 +121,7 @@ class Judged:
         return [x.text for x in self.failures]
 
 
-def judge(tr: Any, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[str], list[str]]:
+def judge(tr: Traces, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[str], list[str]]:
     """(metrics, what failed, problems) of one simulated scenario against :data:`LIMITS`."""
     j = assess(tr, sc, base_w)
     return j.metrics, j.failed, j.problems
@@ -141,7 +153,7 @@ def untested_reason(open_loop: np.ndarray | None, dt: float) -> str:
     return ""
 
 
-def assess(tr: Any, sc: Scenario, base_w: float, scales: DriveScales | None = None) -> Judged:
+def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None = None) -> Judged:
     """One simulated scenario judged against :data:`LIMITS`, each failure with its evidence (the torque
     limit and full acceleration from ``scales``, where given)."""
     m: dict[str, Any] = {"duration_s": f(tr.t[-1]), "samples": int(tr.t.size)}
@@ -330,7 +342,9 @@ def out_of_step(t: np.ndarray, theta_err: np.ndarray, open_loop: np.ndarray) -> 
     return None
 
 
-def finders(drive: Drive, gains: GainSet | None) -> tuple[Any, Callable[[Failure], bool | None]]:
+def finders(
+    drive: Drive, gains: GainSet | None
+) -> tuple[Callable[[Failure], Named | None] | None, Callable[[Failure], bool | None]]:
     """The cause finders of ``drive`` (reports/causes.py ``classify``): its family's own (its report hooks'
     ``failure_cause`` bound to the drive and ``gains``, None: the drive file's) and the shared test of a
     right-half-plane pole of its linearization at a failure's speed and load (not where the family holds
@@ -352,7 +366,9 @@ def finders(drive: Drive, gains: GainSet | None) -> tuple[Any, Callable[[Failure
         torque = operating_torque_pu(x)
         if x.w_pu is None or torque is None or fam.holds_zero_speed(drive):
             return None
-        try:
+        if not isinstance(fam, Linearizable):
+            return None
+        try:  # a drive its family does not linearize (a firmware variant) refuses it
             lin = fam.linearize(
                 drive, reviewed(), np.array([x.w_pu * drive.w_base]), np.array([torque * drive.T_N])
             )
@@ -418,17 +434,20 @@ def checks(
     figures)."""
     from sensorless.reports.sim_figure import plot_traces
 
-    try:
-        scales: DriveScales | None = family_of(drive).scales(drive)
-    except CapabilityError:
-        scales = None
+    fam = family_of(drive)
+    scales: DriveScales | None = fam.scales(drive) if isinstance(fam, Scaled) else None
     family, unstable = finders(drive, gains)
     out: list[dict[str, Any]] = []
     figs: list[Figure] = []
     for item in runs:
         sc = item if isinstance(item, Scenario) else load_scenario(item, drive)
         progress(f"      simulating {sc.name}: {sc.title}")
-        tr = simulate(drive, sc, gains)
+        variant = JUDGED_STEP.get()
+        if variant is None:
+            tr = simulate(drive, sc, gains)
+        else:  # the step under review, e.g. the fixed-point one (report --precision fixed)
+            with step_variant(variant):
+                tr = simulate(drive, sc, gains)
         j = assess(tr, sc, drive.w_base, scales)
         check = entry(sc, j, classify_all(j.failures, family, unstable), label)
         out.append(check)

@@ -14,10 +14,14 @@ import dataclasses
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
-from sensorless.design.family import CapabilityError, EstimateErrors, ObserverFamily
+from sensorless.design.family import CapabilityError, Drive, EstimateErrors, ObserverFamily
 from sensorless.design.registry import families, family_of
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.gain_table import GainTable
+    from sensorless.tuning.model import TuningModel
 
 Progress = Callable[[str], None]
 
@@ -26,9 +30,9 @@ class TuneOutcome(Protocol):
     """What a tuner returns: the gain table and the lines of its terminal summary."""
 
     law: str
-    table: Any  # design.gain_table.GainTable
+    table: GainTable
 
-    def summary_lines(self, drive: Any) -> list[str]:
+    def summary_lines(self, drive: Drive) -> list[str]:
         """Parameters before -> after, worst figures and where, what was kept and why."""
         ...
 
@@ -67,9 +71,10 @@ class Tunable:
 
     name: str
     description: str
-    settings: Callable[[Any], TuneSettings]
-    build: Callable[[Any, Any, Any], Any] | None = None
-    tuner: Callable[[Any, Any, Progress | None], TuneOutcome] | None = None
+    settings: Callable[[Drive], TuneSettings]
+    # (drive, settings, seed): the family's own drive and settings types
+    build: Callable[..., TuningModel] | None = None
+    tuner: Callable[..., TuneOutcome] | None = None  # (drive, settings, progress)
     seed: str | None = None
     columns: tuple[tuple[tuple[str, str], ...], tuple[tuple[str, str], ...]] = ((), ())
 
@@ -86,13 +91,13 @@ class TuningHooks:
     None from it or no ``own_default``: the first)."""
 
     tunables: tuple[Tunable, ...]
-    own_default: str | Callable[[Any], str | None] | None = None
+    own_default: str | Callable[[Drive], str | None] | None = None
     # (drive, settings) -> the estimate errors its tuners of their own judge the gains under, from their
     # settings; None: the family's estimate_errors(drive) (:func:`estimate_errors`)
-    estimate_errors: Callable[[Any, Any], EstimateErrors] | None = None
+    estimate_errors: Callable[[Drive, TuneSettings], EstimateErrors] | None = None
 
     def tunable(
-        self, name: str | None, family: ObserverFamily, preset: bool = True, drive: Any = None
+        self, name: str | None, family: ObserverFamily, preset: bool = True, drive: Drive = None
     ) -> Tunable:
         """The tunable called ``name`` (None: the default for a preset or a drive of the user's own);
         CapabilityError naming what exists."""
@@ -121,15 +126,15 @@ def hooks(family: ObserverFamily) -> TuningHooks:
     return h
 
 
-def tunable_for(drive: Any, name: str | None = None) -> Tunable:
+def tunable_for(drive: Drive, name: str | None = None) -> Tunable:
     """The tunable ``name`` (None: the default, which differs between a built-in preset and a drive of
     the user's own: :class:`TuningHooks`) of the drive's family."""
     fam = family_of(drive)
-    preset = str(getattr(drive, "file", "")).startswith("preset:")
+    preset = drive.file.startswith("preset:")
     return hooks(fam).tunable(name, fam, preset=preset, drive=drive)
 
 
-def estimate_errors(drive: Any, tunable: Tunable, settings: Any) -> EstimateErrors:
+def estimate_errors(drive: Drive, tunable: Tunable, settings: TuneSettings) -> EstimateErrors:
     """The estimate errors a run of ``tunable`` with ``settings`` tunes under: a tunable on the shared NLP
     those of its TuningSettings (design/envelope.py), a tuner of its own those of the family's hook; the
     family's ``estimate_errors(drive)`` (with where it states them) where the run's are the same."""
@@ -148,12 +153,13 @@ def estimate_errors(drive: Any, tunable: Tunable, settings: Any) -> EstimateErro
 
 
 def all_tunables() -> dict[str, str]:
-    """Every tunable of every registered family: name -> description (for help texts)."""
-    out: dict[str, str] = {}
+    """Every tunable of every registered family: name -> description (for help texts); a name two
+    families have (law names are each family's own) -> each description, after its family's name."""
+    named: dict[str, list[tuple[str, str]]] = {}
     for fam in families():
         try:
             for t in hooks(fam).tunables:
-                out.setdefault(t.name, t.description)
+                named.setdefault(t.name, []).append((fam.name, t.description))
         except CapabilityError:
             continue
-    return out
+    return {k: v[0][1] if len(v) == 1 else " | ".join(f"({f}) {d}" for f, d in v) for k, v in named.items()}

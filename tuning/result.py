@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings, tuning_keys
+from sensorless.design.family import Drive
 from sensorless.design.gain_table import GainTable
 from sensorless.tuning import nlp
 from sensorless.tuning.bound import Bound
@@ -82,7 +83,7 @@ class TuneResult:
     pareto: list[dict[str, Any]] | None = None  # damping-versus-noise front
     global_phase: dict[str, Any] = dataclasses.field(default_factory=dict)
 
-    def summary_lines(self, drive: Any) -> list[str]:
+    def summary_lines(self, drive: Drive) -> list[str]:
         """The terminal summary: parameters and worst damping before -> after, and where."""
         s = self.table.summary
         wb = drive.w_base
@@ -200,7 +201,7 @@ def where(f: Figures, k: int, wb: float) -> dict[str, float]:
     return {"w_m_pu": float(f.w_m[k] / wb), "w_m_rad_s": float(f.w_m[k]), "T_e_Nm": float(f.T_e[k])}
 
 
-def gain_table(drive: Any, settings: TuningSettings, r: TuneResult, scale: float) -> GainTable:
+def gain_table(drive: Drive, settings: TuningSettings, r: TuneResult, scale: float) -> GainTable:
     wb = drive.w_base
     env = settings.envelope
     d, d0 = r.dense, r.dense_baseline

@@ -35,12 +35,13 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.envelope import TuningSettings
+from sensorless.design.family import Drive
 from sensorless.tuning import nlp, search, tiebreak
 from sensorless.tuning.bound import Bound, pointwise_bound, with_witness
 from sensorless.tuning.candidates import DAMPING, NOISE, Candidates, meets_floor
 from sensorless.tuning.conditions import ROBUST_MARGIN, check_error_equilibria, error_scenarios, label, robust
 from sensorless.tuning.conditions import candidates as _candidates
-from sensorless.tuning.family import tunable_for
+from sensorless.tuning.family import TuneOutcome, TuneSettings, tunable_for
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, TuneResult, figures, gain_table
 from sensorless.tuning.selection import DRIVE_FILE, infeasible, ridge_of, select
@@ -54,11 +55,11 @@ CERTIFIED = 1e-4
 
 
 def tune(
-    drive: Any,
+    drive: Drive,
     law: str | None = None,
-    settings: Any = None,
+    settings: TuneSettings | None = None,
     progress: Callable[[str], None] | None = None,
-) -> Any:
+) -> TuneOutcome:
     """Tune the gain law ``law`` (None: the default of the drive's observer family) on ``drive``
     over the envelope of ``settings`` (default: the tunable's, e.g. the drive's ``[tuning]``). Returns a
     TuneResult (or the own tuner's result). Raises nlp.TuningError if the constraints cannot be met
@@ -205,7 +206,7 @@ class _Optimum:
 
 
 def _optimize(
-    drive: Any,
+    drive: Drive,
     pb: _Problem,
     cand: Candidates,
     max_noise: np.ndarray | None,
@@ -397,7 +398,7 @@ def with_noise_points(cand: Candidates) -> Candidates:
     )
 
 
-def fallbacks(drive: Any, result: Any, settings: Any) -> list[tuple[str, Any]]:
+def fallbacks(drive: Drive, result: TuneOutcome, settings: TuneSettings) -> list[tuple[str, TuneOutcome]]:
     """The tuner's next candidates where the kept gains fail their proof (reports/tune_proof.py: they
     run worse than the drive file's): (what it is, a result with its own gain table), best first. For the
     shared pipeline: the law's start where it has one and it differs from the kept gains (a seeded law:

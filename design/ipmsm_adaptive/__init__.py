@@ -12,13 +12,16 @@ Equations: symbolic/ipmsm_adaptive/. Theory and choices: docs/families/ipmsm_ada
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from sensorless.design.family import (
     CapabilityError,
     DriveScales,
     EstimateErrors,
     GainSet,
+    GainTableData,
     ObserverFamily,
     PerUnitBases,
 )
@@ -27,8 +30,18 @@ from sensorless.design.ipmsm_adaptive import derive, discrete, schema, simulatio
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
 from sensorless.design.ipmsm_adaptive.simulation import injection_off
 
+if TYPE_CHECKING:  # typed by name only
+    from numpy.typing import ArrayLike
+    from sensorless.design.drive_file import DriveDocument
+    from sensorless.design.linearization import Linearization
+    from sensorless.design.montecarlo import Uncertain
+    from sensorless.design.runtime import RuntimeSetup
+    from sensorless.design.scenario import Scenario
+    from sensorless.design.simulate import LoopSetup
+    from sensorless.design.startup import StartupSettings
 
-class AdaptiveFluxObserver(ObserverFamily):
+
+class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
     """The speed-adaptive stator-flux observer with gain (7)/(16), PI adaptation and HF injection."""
 
     kind = "ipmsm-adaptive"
@@ -44,17 +57,21 @@ class AdaptiveFluxObserver(ObserverFamily):
     scenario_options = simulation.SCENARIO_OPTIONS
     estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
     panels = simulation.PANELS
-    open_loop_start = True
 
-    def load(self, data: Any, file: str, digest: str) -> schema.IpmsmDrive:
+    def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.IpmsmDrive:
         return derive.load(data, file, digest, self.kind)
 
-    def document(self, data: Any, file: str) -> Any:
+    def document(self, data: Mapping[str, Any], file: str) -> DriveDocument:
         """The complete drive document of a (minimal) drive file (derive.py; ``sensorless init``)."""
         return derive.document(data, file)
 
     def gains(
-        self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
+        self,
+        drive: schema.IpmsmDrive,
+        *,
+        name: str | None = None,
+        table: GainTableData | None = None,
+        table_file: str = "",
     ) -> GainSet:
         if table is None:
             return _runtime.drive_gains(drive, name)
@@ -68,10 +85,14 @@ class AdaptiveFluxObserver(ObserverFamily):
             )
         return _runtime.table_gains(table, table.where(table_file))
 
-    def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
+    def runtime(
+        self, drive: schema.IpmsmDrive, gains: GainSet, *, discretization: str | None = None
+    ) -> RuntimeSetup:
         return _runtime.runtime_setup(drive, gains, discretization)
 
-    def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
+    def linearize(
+        self, drive: schema.IpmsmDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
+    ) -> Linearization:
         """Closed-loop poles (design/ipmsm_adaptive/linearize.py); options: injection, estimate, and
         discretization (with T_s): also the discrete-time observer that runs (discrete.py)."""
         if options.get("injection") and not drive.injection.enabled:
@@ -80,15 +101,15 @@ class AdaptiveFluxObserver(ObserverFamily):
             with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
         )
 
-    def low_speed_options(self, drive: Any) -> dict[str, Any]:
+    def low_speed_options(self, drive: schema.IpmsmDrive) -> dict[str, Any]:
         """Its HF injection where the drive injects (it runs at low speed), and its noise model."""
         return {"injection": bool(drive.injection.enabled), "noise": True}
 
-    def holds_zero_speed(self, drive: Any) -> bool:
+    def holds_zero_speed(self, drive: schema.IpmsmDrive) -> bool:
         """On HF injection (a salient motor the current sensor sees): Piippo et al. (2008) Sec. V."""
         return bool(drive.injection.enabled)
 
-    def low_speed_reason(self, drive: Any) -> str:
+    def low_speed_reason(self, drive: schema.IpmsmDrive) -> str:
         """Without HF injection the flux observer sees the rotor only through its back-EMF."""
         if drive.injection.enabled:
             return ""
@@ -97,17 +118,19 @@ class AdaptiveFluxObserver(ObserverFamily):
             "position is unobservable at zero frequency, where the back-EMF vanishes"
         )
 
-    def estimate_errors(self, drive: Any) -> EstimateErrors:
+    def estimate_errors(self, drive: schema.IpmsmDrive) -> EstimateErrors:
         """Its [tuning] errors: the box the shared tuner keeps gains stable over (tuning/conditions.py)."""
         return drive.tuning.estimate_errors()
 
-    def with_estimate_errors(self, drive: Any, factors: Any) -> Any:
+    def with_estimate_errors(
+        self, drive: schema.IpmsmDrive, factors: Mapping[str, float]
+    ) -> schema.IpmsmDrive:
         """[estimate] R_s, L_d, L_q, psi_pm scaled (J only enters the simulated speed controller)."""
         e = drive.estimate
         new = {k: getattr(e, k) * float(v) for k, v in factors.items() if k in e.__dataclass_fields__}
         return dataclasses.replace(drive, estimate=dataclasses.replace(e, **new))
 
-    def bases(self, drive: Any) -> PerUnitBases:
+    def bases(self, drive: schema.IpmsmDrive) -> PerUnitBases:
         """The [base] section: speed w, voltage u, current i, impedance Z = u/i, flux psi = u/w."""
         b = drive.base
         values = {
@@ -124,48 +147,64 @@ class AdaptiveFluxObserver(ObserverFamily):
         )
         return PerUnitBases(values, note)
 
-    def scales(self, drive: Any) -> DriveScales:
+    def scales(self, drive: schema.IpmsmDrive) -> DriveScales:
         c = drive.control
         return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s)
 
-    def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+    def simulation(self, drive: schema.IpmsmDrive, scenario: Scenario, gains: GainSet | None) -> LoopSetup:
         return simulation.build(drive, scenario, gains)
 
-    def drive_loop(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+    def drive_loop(self, drive: schema.IpmsmDrive, scenario: Scenario, gains: GainSet | None) -> LoopSetup:
         return simulation.analysed_loop(drive, scenario, gains)
 
-    def trace_notes(self, meta: Any) -> tuple[str, ...]:
+    def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
         """The run's HF-injection switch (simulation.build puts it in the provenance)."""
         return (f"HF injection {'on' if meta['injection'] else 'off'}",)
 
     # Monte-Carlo (montecarlo.py): the electrical parameters and J, spread in one batched linearization
-    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
+    def montecarlo_parameters(self, drive: schema.IpmsmDrive) -> tuple[Uncertain, ...]:
         from sensorless.design.ipmsm_adaptive.montecarlo import parameters
 
         return parameters(drive)
 
     def linearize_draws(
         self,
-        drive: Any,
+        drive: schema.IpmsmDrive,
         gains: GainSet,
-        plant: Any,
-        estimate: Any,
-        w: Any,
-        torque: Any,
+        plant: np.ndarray,
+        estimate: np.ndarray,
+        w: np.ndarray,
+        torque: np.ndarray,
         complete: bool = True,
-    ) -> Any:
+    ) -> Linearization:
         from sensorless.design.ipmsm_adaptive.montecarlo import linearize_draws
 
         drive = with_alpha_fo(drive, gains)
         return linearize_draws(drive, _runtime.law_of(gains), plant, estimate, w, torque, complete)
 
-    def perturbed(self, drive: Any, plant: Any, estimate: Any) -> Any:
+    def perturbed(
+        self, drive: schema.IpmsmDrive, plant: Mapping[str, float], estimate: Mapping[str, float]
+    ) -> schema.IpmsmDrive:
         from sensorless.design.ipmsm_adaptive.montecarlo import perturbed
 
         return perturbed(drive, plant, estimate)
 
+    # the open-loop I-f start (design/startup.py): its drive files' optional [startup] section
+    def startup(self, drive: schema.IpmsmDrive) -> StartupSettings | None:
+        return drive.startup
 
-def with_alpha_fo(drive: Any, gains: GainSet) -> Any:
+    def with_startup(self, drive: schema.IpmsmDrive, startup: StartupSettings | None) -> schema.IpmsmDrive:
+        return dataclasses.replace(drive, startup=startup)
+
+    def envelope_points(
+        self, drive: schema.IpmsmDrive, gains: GainSet | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The drive's range (``drive.envelope``: its [tuning] envelope, widened to +-T_max on a drive of
+        the user's own), the points tune and the report judge too."""
+        return drive.envelope.grid()
+
+
+def with_alpha_fo(drive: schema.IpmsmDrive, gains: GainSet) -> Any:
     """The drive with the adaptation bandwidth (10) of ``gains`` (a tuned table may carry its own)."""
     a = gains.values.get("alpha_fo", drive.observer.alpha_fo)
     if a == drive.observer.alpha_fo:

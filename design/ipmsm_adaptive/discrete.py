@@ -35,7 +35,7 @@ import dataclasses
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -47,6 +47,9 @@ from sensorless.design.ipmsm_adaptive.runtime import law_function, runtime_param
 from sensorless.symbolic.frames import wrap_angle
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw
 from sensorless.symbolic.ipmsm_adaptive.step import OBSERVER
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "w_i", "theta_tilde", "w_hat_prev")
 N_Y = len(STATE_NAMES)
@@ -109,7 +112,12 @@ class DiscretePoleSweep(PoleSweep):
 
 
 def discrete_sweep(
-    drive: Any, sweep: PoleSweep, gain: np.ndarray, discretization: str, T_s: float | None, estimate: Any
+    drive: IpmsmDrive,
+    sweep: PoleSweep,
+    gain: np.ndarray,
+    discretization: str,
+    T_s: float | None,
+    estimate: Any,
 ) -> DiscretePoleSweep:
     """The discrete analysis at the operating points of the continuous ``sweep`` (injection off).
 
@@ -163,7 +171,7 @@ def discrete_sweep(
 
 
 def linearize(
-    drive: Any,
+    drive: IpmsmDrive,
     w_m: Any,
     T_e: Any,
     gain: str | tuple | None = None,
@@ -205,7 +213,7 @@ class StudyRow:
 
 
 def discretization_study(
-    drive: Any,
+    drive: IpmsmDrive,
     gain: Any,
     schemes: Sequence[str],
     sampling: Sequence[float],

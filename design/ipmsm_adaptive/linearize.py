@@ -32,6 +32,7 @@ from sensorless.symbolic.linalg import charpoly
 
 if TYPE_CHECKING:  # python-control imports scipy.signal and matplotlib (~3 s): only where used
     import control
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
 
@@ -134,7 +135,7 @@ def paper_open_loop_function(law: str | GainLaw) -> ca.Function:
 
 
 def gain_parameters(
-    drive: Any, gain: str | tuple[str | GainLaw, Any] | None = None
+    drive: IpmsmDrive, gain: str | tuple[str | GainLaw, Any] | None = None
 ) -> tuple[GainLaw, np.ndarray]:
     """Resolve a gain choice to (law, parameter vector of the law's width).
 
@@ -156,7 +157,7 @@ def gain_parameters(
     return law, vec
 
 
-def drive_arguments(drive: Any, gain: str | tuple | None) -> tuple[GainLaw, dict[str, np.ndarray]]:
+def drive_arguments(drive: IpmsmDrive, gain: str | tuple | None) -> tuple[GainLaw, dict[str, np.ndarray]]:
     """The non-operating-point inputs of the analysis Functions for ``drive``."""
     law, gvec = gain_parameters(drive, gain)
     inj = drive.injection
@@ -286,7 +287,7 @@ def operating_points(w_m: Any, T_e: Any, estimate: Any = None) -> tuple[np.ndarr
 
 
 def linearize(
-    drive: Any,
+    drive: IpmsmDrive,
     w_m: Any,
     T_e: Any,
     gain: str | tuple | None = None,
@@ -373,7 +374,7 @@ def refine_band_edges(f_unstable: Any, lo: np.ndarray, hi: np.ndarray, iters: in
 
 
 def unstable_speed_bands(
-    drive: Any,
+    drive: IpmsmDrive,
     w: np.ndarray,
     T_e: float,
     gain: str | tuple | None = None,

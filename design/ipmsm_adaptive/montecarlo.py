@@ -32,7 +32,7 @@ it does between the continuation and the rootfinder).
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -49,6 +49,9 @@ from sensorless.design.montecarlo import perturbed as shared_perturbed
 from sensorless.design.poles import eigvals_batched, sort_poles
 from sensorless.symbolic.ipmsm_adaptive.gains import get_law
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
+
 ELECTRICAL = ("R_s", "L_d", "L_q", "psi_pm")  # the motor and estimate vectors' order
 NEWTON_ITERATIONS = 10  # per continuation step; a converging step takes 3-6
 FAST_STEPS = 5  # Newton steps from the nominal equilibrium: a 10 % draw converges in 3-4
@@ -59,7 +62,7 @@ TYPICAL = {"R_s": 0.10, "L_d": 0.10, "L_q": 0.10, "psi_pm": 0.05, "J": 0.30}
 BLOCK = 2048  # points per compiled call: below batch.JIT_MIN_POINTS, where evaluate_batch takes fn as given
 
 
-def parameters(drive: Any) -> tuple[Uncertain, ...]:
+def parameters(drive: IpmsmDrive) -> tuple[Uncertain, ...]:
     """The spreadable parameters of ``drive``: the four electrical ones (plant and estimate) and J."""
     m, e = drive.motor, drive.estimate
     units = {"R_s": "ohm", "L_d": "H", "L_q": "H", "psi_pm": "V s"}
@@ -230,7 +233,7 @@ def _sweep_parts(out: list[np.ndarray], good: np.ndarray) -> tuple[np.ndarray, n
 
 
 def linearize_draws(
-    drive: Any,
+    drive: IpmsmDrive,
     gain: Any,
     plant: np.ndarray,
     estimate: np.ndarray,

@@ -11,17 +11,20 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.family import GainSet
-from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.family import GainSet, GainTableData
+from sensorless.design.gain_table import GainTableError
 from sensorless.design.runtime import GainSchedule, RuntimeSetup
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.ipmsm_adaptive.gains import LAWS, GainLaw, schedule_law
 from sensorless.symbolic.ipmsm_adaptive.step import OBSERVER
 from sensorless.symbolic.runtime import Field
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 # gain-table law -> keys of its "gains" (all SI)
 TABLE_LAWS: dict[str, tuple[str, ...]] = {
@@ -49,7 +52,7 @@ _TEXT = {
 }
 
 
-def drive_gains(drive: Any, name: str | None = None) -> GainSet:
+def drive_gains(drive: IpmsmDrive, name: str | None = None) -> GainSet:
     """The drive file's ``[observer.gains.<name>]`` (default: ``[observer] gain``) with its alpha_fo."""
     name = name or drive.observer.gain
     g = drive.gain(name)  # KeyError naming the file if absent
@@ -59,7 +62,7 @@ def drive_gains(drive: Any, name: str | None = None) -> GainSet:
     return GainSet(law, values, f"{drive.file} [observer.gains.{name}]")
 
 
-def table_gains(table: GainTable, where: str) -> GainSet:
+def table_gains(table: GainTableData, where: str) -> GainSet:
     """The gains of a ``speed-dependent`` or ``schedule`` table; ``where`` names the table in errors."""
     if table.law not in TABLE_LAWS:
         raise GainTableError(
@@ -131,7 +134,7 @@ def schedule_of(gains: GainSet) -> GainSchedule:
     return GainSchedule(gains.law, law_function(law), values, fields, law.grid, _TEXT[gains.law])
 
 
-def runtime_params(drive: Any, alpha_fo: float | None = None) -> dict[str, float]:
+def runtime_params(drive: IpmsmDrive, alpha_fo: float | None = None) -> dict[str, float]:
     """Parameters of the runtime step (step.PARAMS) from a drive of this family."""
     e, inj, rt = drive.estimate, drive.injection, drive.runtime
     return {
@@ -154,7 +157,7 @@ def runtime_params(drive: Any, alpha_fo: float | None = None) -> dict[str, float
     }
 
 
-def _check_sampling(drive: Any, params: dict[str, float]) -> None:
+def _check_sampling(drive: IpmsmDrive, params: dict[str, float]) -> None:
     """Frequencies the sampled chain must resolve lie below the Nyquist frequency pi / T_s."""
     nyquist = math.pi / params["T_s"]
     for key, name in (("injection.w_c", "w_c"), ("runtime.w_lp", "w_lp")):
@@ -166,7 +169,7 @@ def _check_sampling(drive: Any, params: dict[str, float]) -> None:
             )
 
 
-def runtime_setup(drive: Any, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
+def runtime_setup(drive: IpmsmDrive, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
     """The runtime observer of ``drive`` with ``gains`` (discretization: the drive's ``[runtime]``)."""
     disc = discretization or drive.runtime.discretization
     if disc not in OBSERVER.discretizations:

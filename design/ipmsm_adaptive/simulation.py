@@ -8,7 +8,7 @@ observer's parameters.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING
 
 from sensorless.design.family import GainSet, Panel, TraceLine
 from sensorless.design.ipmsm_adaptive.runtime import drive_gains, runtime_setup
@@ -17,6 +17,9 @@ from sensorless.design.pmsm_schema import saliency
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.design.scenario import Scenario
 from sensorless.design.simulate import LoopSetup, SimulationError, StateFrames
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 # scenario keys this family adds (design/scenario.py): section -> key -> (dimension, default)
 SCENARIO_OPTIONS = {
@@ -53,7 +56,7 @@ def scaled_setup(setup: RuntimeSetup, sc: Scenario) -> RuntimeSetup:
     return dataclasses.replace(setup, params=params)
 
 
-def injection_off(drive: Any) -> str:
+def injection_off(drive: IpmsmDrive) -> str:
     """Why the drive has no HF injection to analyse or simulate (one line)."""
     xi = saliency(drive.estimate.L_d, drive.estimate.L_q)
     return (
@@ -62,7 +65,7 @@ def injection_off(drive: Any) -> str:
     )
 
 
-def with_injection(drive: Any, sc: Scenario) -> Scenario:
+def with_injection(drive: IpmsmDrive, sc: Scenario) -> Scenario:
     """The scenario with its injection switch resolved: not given, the drive's; on for a drive whose
     injection is off, SimulationError naming the key (a non-salient motor gives no error signal)."""
     inj = sc.options.get("injection")
@@ -76,7 +79,7 @@ def with_injection(drive: Any, sc: Scenario) -> Scenario:
     return dataclasses.replace(sc, options={**sc.options, "injection": bool(inj)})
 
 
-def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
+def build(drive: IpmsmDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """Loop set-up of ``sc`` on ``drive``; ``gains`` None: the scenario's [observer] gain choice."""
     sc = with_injection(drive, sc)
     gains = gains or drive_gains(drive, sc.options.get("gain"))
@@ -97,7 +100,7 @@ def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
 FRAMES = StateFrames(angles=("theta",), held=("phi_c", "bp_z1", "bp_z2", "lp_z1", "lp_z2", "x_eps"))
 
 
-def analysed_loop(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
+def analysed_loop(drive: IpmsmDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """The loop the whole-drive linearization analyses: the HF injection off (its carrier has no fixed
     point; with injection the observer-only analysis holds, design/low_speed.py)."""
     setup = build(drive, dataclasses.replace(sc, options={**sc.options, "injection": False}), gains)

@@ -12,16 +12,27 @@ Equations: symbolic/pmac_reduced_order/. Theory and choices: docs/families/pmac_
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
-from sensorless.design.family import CapabilityError, DriveScales, GainSet, ObserverFamily
+import numpy as np
+from sensorless.design.family import CapabilityError, DriveScales, GainSet, GainTableData, ObserverFamily
 from sensorless.design.law_gains import table_gains
 from sensorless.design.pmac_reduced_order import derive, schema, simulation
 from sensorless.design.pmac_reduced_order import linearize as _linearize
 from sensorless.design.pmac_reduced_order import runtime as _runtime
 
+if TYPE_CHECKING:  # typed by name only
+    from numpy.typing import ArrayLike
+    from sensorless.design.drive_file import DriveDocument
+    from sensorless.design.linearization import Linearization
+    from sensorless.design.montecarlo import Uncertain
+    from sensorless.design.runtime import RuntimeSetup
+    from sensorless.design.scenario import Scenario
+    from sensorless.design.simulate import LoopSetup
 
-class ReducedOrderObserver(ObserverFamily):
+
+class ReducedOrderObserver(ObserverFamily[schema.PmacDrive]):
     """The extended reduced-order observer of the EMF (with harmonics) and the load torque."""
 
     kind = "pmac-reduced-order"
@@ -38,15 +49,20 @@ class ReducedOrderObserver(ObserverFamily):
     estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
     panels = simulation.PANELS
 
-    def load(self, data: Any, file: str, digest: str) -> schema.PmacDrive:
+    def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.PmacDrive:
         return derive.load(data, file, digest, self.kind)
 
-    def document(self, data: Any, file: str) -> Any:
+    def document(self, data: Mapping[str, Any], file: str) -> DriveDocument:
         """The complete drive document of a (minimal) drive file (derive.py; ``sensorless init``)."""
         return derive.document(data, file)
 
     def gains(
-        self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
+        self,
+        drive: schema.PmacDrive,
+        *,
+        name: str | None = None,
+        table: GainTableData | None = None,
+        table_file: str = "",
     ) -> GainSet:
         if name is not None:
             raise CapabilityError(
@@ -57,17 +73,21 @@ class ReducedOrderObserver(ObserverFamily):
             return _runtime.drive_gains(drive)
         return table_gains(self, drive, table, table_file, values=_runtime.table_values)
 
-    def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
+    def runtime(
+        self, drive: schema.PmacDrive, gains: GainSet, *, discretization: str | None = None
+    ) -> RuntimeSetup:
         return _runtime.runtime_setup(drive, gains, discretization)
 
-    def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
+    def linearize(
+        self, drive: schema.PmacDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
+    ) -> Linearization:
         """Observer poles, continuous and discrete (linearize.analyze); ``torque`` is the load T_L.
 
         Options: load_estimation, method, T_s, settle_time, n_angles."""
         g = gains.values
         return _linearize.analyze(drive, w, torque, g=g["g"], Gamma=g["Gamma"], **options)
 
-    def low_speed_options(self, drive: Any) -> dict[str, Any]:
+    def low_speed_options(self, drive: schema.PmacDrive) -> dict[str, Any]:
         """Its noise model, and the discrete observer's steady errors (the angle bias) where the
         estimates differ from the motor (exact, the bias is the discretization's, below 1e-9 rad on
         the examples, and simulating the error window at low speed costs seconds per point)."""
@@ -76,11 +96,11 @@ class ReducedOrderObserver(ObserverFamily):
         # exact, the analysis starts on the observer's steady orbit: a short settling will do
         return {"noise": True, "errors": not exact, **({"settle_time": 0.05} if exact else {})}
 
-    def low_speed_reason(self, drive: Any) -> str:
+    def low_speed_reason(self, drive: schema.PmacDrive) -> str:
         """An EMF observer: the position is unobservable where the EMF vanishes."""
         return "an EMF observer: the rotor position is unobservable at zero frequency, where the EMF vanishes"
 
-    def with_estimate_errors(self, drive: Any, factors: Any) -> Any:
+    def with_estimate_errors(self, drive: schema.PmacDrive, factors: Mapping[str, float]) -> schema.PmacDrive:
         """[estimate] R, L (key L_d, as on a PMSM), J and the EMF harmonics Phi scaled."""
         e = drive.estimate
         k = {key: float(factors.get(key, 1.0)) for key in ("R_s", "L_d", "J", "Phi")}
@@ -89,41 +109,52 @@ class ReducedOrderObserver(ObserverFamily):
         )
         return dataclasses.replace(drive, estimate=est)
 
-    def scales(self, drive: Any) -> DriveScales:
+    def scales(self, drive: schema.PmacDrive) -> DriveScales:
         c = drive.control
         m = drive.motor
         return DriveScales(drive.T_N, c.T_max, m.J, drive.pole_pairs, drive.w_base, c.alpha_s, ZERO_SPEED)
 
-    def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+    def simulation(self, drive: schema.PmacDrive, scenario: Scenario, gains: GainSet | None) -> LoopSetup:
         return simulation.build(drive, scenario, gains)
 
-    def drive_loop(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+    def drive_loop(self, drive: schema.PmacDrive, scenario: Scenario, gains: GainSet | None) -> LoopSetup:
         return simulation.analysed_loop(drive, scenario, gains)
 
     # Monte-Carlo (design/pmac_reduced_order/montecarlo.py)
-    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
+    def montecarlo_parameters(self, drive: schema.PmacDrive) -> tuple[Uncertain, ...]:
         from sensorless.design.pmac_reduced_order import montecarlo
 
         return montecarlo.parameters(drive)
 
     def linearize_draws(
-        self, drive: Any, gains: Any, plant: Any, estimate: Any, w: Any, torque: Any, complete: bool = True
-    ) -> Any:
+        self,
+        drive: schema.PmacDrive,
+        gains: GainSet,
+        plant: np.ndarray,
+        estimate: np.ndarray,
+        w: np.ndarray,
+        torque: np.ndarray,
+        complete: bool = True,
+    ) -> Linearization:
         from sensorless.design.pmac_reduced_order import montecarlo
 
         return montecarlo.linearize_draws(drive, gains, plant, estimate, w, torque, complete)
 
-    def perturbed(self, drive: Any, plant: Any, estimate: Any) -> Any:
+    def perturbed(
+        self, drive: schema.PmacDrive, plant: Mapping[str, float], estimate: Mapping[str, float]
+    ) -> schema.PmacDrive:
         from sensorless.design.pmac_reduced_order import montecarlo
 
         return montecarlo.perturbed(drive, plant, estimate)
 
-    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
+    def envelope_points(
+        self, drive: schema.PmacDrive, gains: GainSet | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Its drive file's [envelope] (design/envelope.py, the grid its tuner reads): electrical
         speeds, sorted and distinct, x load torques, sorted and distinct."""
         return drive.envelope.grid()
 
-    def trace_notes(self, meta: Any) -> tuple[str, ...]:
+    def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
         """No HF injection: said as the traces' header has always said it (the same trace files)."""
         return ("HF injection off",)
 

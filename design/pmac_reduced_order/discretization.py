@@ -12,10 +12,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.pmac_reduced_order.linearize import analyze
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 
 @dataclass(frozen=True)
@@ -36,7 +39,7 @@ class StudyRow:
 
 
 def discretization_study(
-    drive: Any,
+    drive: PmacDrive,
     methods: Sequence[str],
     sampling: Sequence[float],
     rpm: Sequence[float],

@@ -30,7 +30,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -74,6 +74,9 @@ from sensorless.symbolic.pmac_reduced_order.observer import (
     speed_from_emf,
 )
 from sensorless.symbolic.pmac_reduced_order.step import split_params
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 
 @functools.cache
@@ -165,7 +168,7 @@ def floquet_exponents(monodromy: np.ndarray, duration: np.ndarray) -> np.ndarray
 
 
 def continuous_poles(
-    drive: Any,
+    drive: PmacDrive,
     w: Any,
     T_L: Any,
     load_estimation: bool = True,
@@ -216,7 +219,7 @@ def continuous_poles(
 
 
 def analyze(
-    drive: Any,
+    drive: PmacDrive,
     w: Any,
     T_L: Any,
     load_estimation: bool = True,

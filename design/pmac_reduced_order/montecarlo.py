@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.linearization import Linearization
 from sensorless.design.montecarlo import Uncertain
 from sensorless.design.pmac_reduced_order.linearize import continuous_poles
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 NAMES = ("R", "L", "J", "Phi")
 UNITS = {"R": "ohm", "L": "H", "J": "kg m^2", "Phi": "V s"}
@@ -32,7 +35,7 @@ def _values(record: Any) -> dict[str, float]:
     return {"R": record.R, "L": record.L, "J": record.J, "Phi": record.Phi[0]}
 
 
-def parameters(drive: Any) -> tuple[Uncertain, ...]:
+def parameters(drive: PmacDrive) -> tuple[Uncertain, ...]:
     """R, L, J, Phi of the motor with the observer's estimates of each (all enter its linearization:
     J through the load-torque estimate)."""
     m, e = _values(drive.motor), _values(drive.estimate)
@@ -47,14 +50,14 @@ def _replaced(record: Any, values: Mapping[str, float]) -> Any:
     return dataclasses.replace(record, **new)
 
 
-def perturbed(drive: Any, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
+def perturbed(drive: PmacDrive, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
     return dataclasses.replace(
         drive, motor=_replaced(drive.motor, plant), estimate=_replaced(drive.estimate, estimate)
     )
 
 
 def linearize_draws(
-    drive: Any,
+    drive: PmacDrive,
     gains: GainSet,
     plant: np.ndarray,
     estimate: np.ndarray,

@@ -9,7 +9,7 @@ Functions of linearize.py share the named inputs of :func:`symbols`; one_step.py
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -18,6 +18,9 @@ from sensorless.symbolic.pmac_reduced_order.observer import (
     zeta_tau,
 )
 from sensorless.symbolic.pmac_reduced_order.step import param_names, split_params
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 INPUT_NAMES = ("theta", "w", "T_L", "motor", "params")
 
@@ -82,7 +85,7 @@ def exact_state_function(
 
 
 def analysis_arguments(
-    drive: Any, T_s: float | None = None, g: float | None = None, Gamma: float | None = None
+    drive: PmacDrive, T_s: float | None = None, g: float | None = None, Gamma: float | None = None
 ) -> tuple[tuple[int, ...], tuple[int, ...], np.ndarray, np.ndarray]:
     """(orders_m, orders_o, motor vector, params vector) of a drive of this family."""
     return (

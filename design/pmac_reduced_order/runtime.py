@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.symbolic.pmac_reduced_order.step import runtime_observer
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 # gain-table law -> keys of its "gains": the constant gains g, Gamma of De Angelo et al. (2006)
 TABLE_LAWS: dict[str, tuple[str, ...]] = {
@@ -25,7 +28,7 @@ TABLE_LAWS: dict[str, tuple[str, ...]] = {
 LAW_ALIASES = {"deangelo": "constant"}
 
 
-def drive_gains(drive: Any) -> GainSet:
+def drive_gains(drive: PmacDrive) -> GainSet:
     """The drive file's ``[observer]`` g and Gamma."""
     o = drive.observer
     return GainSet("constant", {"g": float(o.g), "Gamma": float(o.Gamma)}, f"{drive.file} [observer]")
@@ -44,14 +47,14 @@ def table_values(law: str, gains: Mapping[str, Any], where: str) -> dict[str, fl
     return values
 
 
-def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:
+def runtime_params(drive: PmacDrive, gains: GainSet) -> dict[str, float]:
     """Parameters of the runtime step from the drive's estimates, sampling period and ``gains``."""
     obs = runtime_observer(tuple(drive.estimate.harmonics))
     vals = drive.observer_params(g=gains.values["g"], Gamma=gains.values["Gamma"])
     return {f.name: float(v) for f, v in zip(obs.params, vals, strict=True)}
 
 
-def runtime_setup(drive: Any, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
+def runtime_setup(drive: PmacDrive, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
     """The runtime observer of ``drive`` with ``gains`` (discretization: the drive's ``[control]``)."""
     obs = runtime_observer(tuple(drive.estimate.harmonics))
     disc = discretization or drive.control.discretization

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.family import GainSet, Panel, TraceLine
@@ -18,6 +18,9 @@ from sensorless.design.scenario import Scenario, speed_filter_of
 from sensorless.design.simulate import LoopCoordinates, LoopSetup, noise, provenance, sample_times
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmac_reduced_order import drive_loop
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 PMAC_ALPHA_C = 2 * math.pi * 400  # [rad/s] the paper's "fast current control loop", not specified
 
@@ -52,7 +55,7 @@ PANELS = (
 )
 
 
-def build(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
+def build(drive: PmacDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """Loop set-up of ``sc`` on ``drive`` (Fig. 1); ``gains`` None: the drive's [observer]."""
     m, e, c = drive.motor, drive.estimate, drive.control
     if tuple(m.harmonics) != tuple(e.harmonics):
@@ -165,7 +168,7 @@ def _coordinates(orders: tuple[int, ...], q: np.ndarray, p_obs: np.ndarray, n_ob
     )
 
 
-def analysed_loop(drive: Any, sc: Scenario, gains: GainSet | None) -> LoopSetup:
+def analysed_loop(drive: PmacDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """The loop the whole-drive linearization analyses: with EMF harmonics, the drive with its
     fundamental only (the sinusoidal case: the loop with harmonics runs on a periodic orbit, which the
     observer-only Floquet analysis covers), and said in ``meta['drive_note']``."""

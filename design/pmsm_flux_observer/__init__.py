@@ -11,9 +11,17 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sensorless.design.family import CapabilityError, DriveScales, EstimateErrors, GainSet, ObserverFamily
+import numpy as np
+from sensorless.design.family import (
+    CapabilityError,
+    DriveScales,
+    EstimateErrors,
+    GainSet,
+    GainTableData,
+    ObserverFamily,
+)
 from sensorless.design.law_gains import table_gains
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_flux_observer import gains as _gains
@@ -21,8 +29,18 @@ from sensorless.design.pmsm_flux_observer import linearize as _linearize
 from sensorless.design.pmsm_flux_observer import schema
 from sensorless.design.simulate import StateFrames
 
+if TYPE_CHECKING:  # typed by name only
+    from numpy.typing import ArrayLike
+    from sensorless.design.drive_file import DriveDocument
+    from sensorless.design.linearization import Linearization
+    from sensorless.design.montecarlo import Uncertain
+    from sensorless.design.runtime import RuntimeSetup
+    from sensorless.design.scenario import Scenario
+    from sensorless.design.simulate import LoopSetup
+    from sensorless.design.startup import StartupSettings
 
-def simulation(drive: Any, sc: Any, gains: GainSet | None) -> Any:
+
+def simulation(drive: schema.FluxObserverDrive, sc: Any, gains: GainSet | None) -> Any:
     """The loop set-up of ``sc``: the scenario's estimate errors scale the observer's model as the
     controllers'."""
     k = sc.estimate_scale
@@ -47,6 +65,19 @@ FRAMES = StateFrames(angles=("theta_pll",), vectors=(("x_alpha", "x_beta"), ("u_
 FRAMES_FIXED = dataclasses.replace(FRAMES, held=("lambda_hat",))
 
 
+# ODrive's sensorless mode (odriverobotics/ODrive v0.5, Firmware/MotorControl/axis.cpp, state
+# AXIS_STATE_SENSORLESS_CONTROL): one open-loop spin-up (run_lockin_spin on config.sensorless_ramp, "TODO:
+# restart if desired"), the speed setpoint set to the ramp's vel, then the sensorless control loop until an
+# error or another state: it never returns to open loop, so it has no w_off and runs through no zero speed
+ODRIVE_ONE_WAY = (
+    "ODrive's sensorless mode spins up once by its open-loop ramp (axis0.config.sensorless_ramp) and then "
+    "runs closed loop on the observer until the axis leaves the state: it never returns to open loop "
+    '(odriverobotics/ODrive, Firmware/MotorControl/axis.cpp; its documentation: sensorless "does not '
+    'support stopping or changing direction"). Keep the speed command above the minimum sensorless speed '
+    "in one direction; to stop, set the axis to AXIS_STATE_IDLE and spin up again from standstill."
+)
+
+
 # the estimate errors its tuner and its report judge the gains under by default (+-; "L" scales L_d and
 # L_q together): docs/families/pmsm_flux_observer.md "Tuning"; `tune --r-error/--flux-error/--l-error`
 ERRORS = {"R_s": 0.3, "psi_pm": 0.1, "L": 0.2}
@@ -64,7 +95,7 @@ def corner_estimate(estimate: Any, factors: Mapping[str, float]) -> dict[str, fl
     }
 
 
-class FluxObserverFamily(ObserverFamily):
+class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
     """Lee et al. (2010) gradient flux observer with a PI PLL, in the firmwares' variants."""
 
     kind = "pmsm-flux-observer"
@@ -76,22 +107,27 @@ class FluxObserverFamily(ObserverFamily):
     tuning = "sensorless.tuning.pmsm_flux_observer"
     report = "sensorless.reports.pmsm_flux_observer"
     laws = _gains.TABLE_LAWS
+    law_aliases = _gains.LAW_ALIASES
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
-    open_loop_start = True
     # its damping k/(2|w|) falls with speed by design (its error does not oscillate in the stationary
     # frame): stable is all it asks of damping; its criterion is decay, angle bias and noise, the PLL's
     # lag (tuning/pmsm_flux_observer/criterion.py)
     required_damping = 0.0
 
-    def load(self, data: Any, file: str, digest: str) -> schema.FluxObserverDrive:
+    def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.FluxObserverDrive:
         return schema.load(data, file, digest, self.kind)
 
-    def document(self, data: Any, file: str) -> Any:
+    def document(self, data: Mapping[str, Any], file: str) -> DriveDocument:
         return schema.document(data, file)
 
     def gains(
-        self, drive: Any, *, name: str | None = None, table: Any = None, table_file: str = ""
+        self,
+        drive: schema.FluxObserverDrive,
+        *,
+        name: str | None = None,
+        table: GainTableData | None = None,
+        table_file: str = "",
     ) -> GainSet:
         if name is not None:
             raise CapabilityError(f"{drive.file}: one [gains] section; there is no [gains.{name}] to choose")
@@ -99,10 +135,14 @@ class FluxObserverFamily(ObserverFamily):
             return _gains.drive_gains(drive)
         return table_gains(self, drive, table, table_file, values=_gains.table_values)
 
-    def runtime(self, drive: Any, gains: GainSet, *, discretization: str | None = None) -> Any:
+    def runtime(
+        self, drive: schema.FluxObserverDrive, gains: GainSet, *, discretization: str | None = None
+    ) -> RuntimeSetup:
         return _gains.runtime_setup(drive, gains, discretization)
 
-    def linearize(self, drive: Any, gains: GainSet, w: Any, torque: Any, **options: Any) -> Any:
+    def linearize(
+        self, drive: schema.FluxObserverDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
+    ) -> Linearization:
         unknown = set(options) - {"estimate"}
         if unknown:
             raise CapabilityError(
@@ -110,20 +150,24 @@ class FluxObserverFamily(ObserverFamily):
             )
         return _linearize.linearize(drive, gains, w, torque, **options)
 
-    def estimate_errors(self, drive: Any) -> EstimateErrors:
+    def estimate_errors(self, drive: schema.FluxObserverDrive) -> EstimateErrors:
         """The tuner's default errors (:data:`ERRORS`), which its report judges the gains under too."""
         return EstimateErrors(dict(ERRORS), ERROR_KEYS, "the flux tuner's defaults")
 
-    def with_estimate_errors(self, drive: Any, factors: Any) -> Any:
+    def with_estimate_errors(
+        self, drive: schema.FluxObserverDrive, factors: Mapping[str, float]
+    ) -> schema.FluxObserverDrive:
         """[estimate] R_s, L_d, L_q, psi_pm scaled: the runtime parameters the observer runs with."""
         e = drive.estimate
         new = {k: getattr(e, k) * float(v) for k, v in factors.items() if k in e.__dataclass_fields__}
         return dataclasses.replace(drive, estimate=dataclasses.replace(e, **new))
 
-    def scales(self, drive: Any) -> DriveScales:
+    def scales(self, drive: schema.FluxObserverDrive) -> DriveScales:
         """Its drives are taken through zero speed by the open-loop I-f start below w_min
         (``open_loop_start``), so the generic checks run a start, a reversal and speed steps through
         zero (``zero_speed`` left empty; why the observer needs the start: :meth:`low_speed_reason`).
+        Not an ODrive drive: ODrive spins up once and never returns to open loop (:data:`ODRIVE_ONE_WAY`):
+        its checks are the start and speed steps above zero (``spins_up``).
         Not the box clamp without ``[startup]`` w_on and w_off: it has no linearization, so no w_min for
         the start's speed rules (design/pmsm_drive.py ``startup_values``)."""
         c = drive.control
@@ -135,32 +179,64 @@ class FluxObserverFamily(ObserverFamily):
                 "to derive the open-loop I-f start's speeds from: give [startup] w_on and w_off (rad/s, "
                 "Hz or p.u.; e.g. the firmware's open-loop ERPM) to check a start and a reversal."
             )
-        return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s, why)
+        spin = False
+        if not why and drive.observer.firmware == "odrive":
+            why, spin = ODRIVE_ONE_WAY, True
+        m = drive.motor
+        return DriveScales(drive.T_N, c.T_max, m.J, m.p, drive.w_base, c.alpha_s, why, spin)
 
-    def low_speed_reason(self, drive: Any) -> str:
+    def drive_loop(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+        """The loop as run, except the clamped gradient observer (VESC's ORTEGA_ORIGINAL): analysed on its
+        active side, the gradient observer, as its observer-only linearization is (linearize.py). At
+        exact estimates its fixed point lies on the clamp's kink (|eta| = lambda), where the one-sided
+        correction has no derivative: taken as off, a flux error inside the circle would be a
+        neutral pair at +-j w at every speed, which no gain moves (the simulation runs the clamp)."""
+        if drive.observer.correction != "clamped-gradient":
+            return simulation(drive, scenario, gains)
+        gradient = dataclasses.replace(drive.observer, correction="gradient")
+        active = dataclasses.replace(drive, observer=gradient)
+        setup = simulation(active, scenario, gains)
+        note = (
+            "the clamped gradient observer linearized on its active side (the gradient observer): at exact "
+            "estimates its fixed point lies on the clamp's kink"
+        )
+        return dataclasses.replace(setup, meta={**setup.meta, "drive_note": note})
+
+    def low_speed_reason(self, drive: schema.FluxObserverDrive) -> str:
         """The observer sees the rotor only through the back-EMF it integrates."""
         return (
             "a back-EMF (flux) observer: the rotor position is unobservable at zero frequency, where the "
             "back-EMF vanishes (Henwood, Malaize, Praly 2012)"
         )
 
-    def simulation(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+    def simulation(
+        self, drive: schema.FluxObserverDrive, scenario: Scenario, gains: GainSet | None
+    ) -> LoopSetup:
         return simulation(drive, scenario, gains)
 
     # Monte-Carlo (design/pmsm_flux_observer/montecarlo.py)
-    def montecarlo_parameters(self, drive: Any) -> tuple[Any, ...]:
+    def montecarlo_parameters(self, drive: schema.FluxObserverDrive) -> tuple[Uncertain, ...]:
         from sensorless.design.pmsm_flux_observer import montecarlo
 
         return montecarlo.parameters(drive)
 
     def linearize_draws(
-        self, drive: Any, gains: Any, plant: Any, estimate: Any, w: Any, torque: Any, complete: bool = True
-    ) -> Any:
+        self,
+        drive: schema.FluxObserverDrive,
+        gains: GainSet,
+        plant: np.ndarray,
+        estimate: np.ndarray,
+        w: np.ndarray,
+        torque: np.ndarray,
+        complete: bool = True,
+    ) -> Linearization:
         from sensorless.design.pmsm_flux_observer import montecarlo
 
         return montecarlo.linearize_draws(drive, gains, plant, estimate, w, torque, complete)
 
-    def envelope_points(self, drive: Any, gains: GainSet | None = None) -> tuple[Any, Any]:
+    def envelope_points(
+        self, drive: schema.FluxObserverDrive, gains: GainSet | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Its drive file's [envelope] (speeds in both directions x torques); with ``gains``, the points
         where they run the drive sensorless: from the open-loop I-f start's hand-back speed w_off up
         (its [startup], else its rules at the gains: design/pmsm_drive.py ``startup_values``), since
@@ -181,10 +257,21 @@ class FluxObserverFamily(ObserverFamily):
         keep = np.abs(W) >= float(w_off) * (1 - 1e-12)
         return (W[keep], T[keep]) if keep.any() else (W, T)
 
-    def perturbed(self, drive: Any, plant: Any, estimate: Any) -> Any:
+    def perturbed(
+        self, drive: schema.FluxObserverDrive, plant: Mapping[str, float], estimate: Mapping[str, float]
+    ) -> schema.FluxObserverDrive:
         from sensorless.design.pmsm_flux_observer import montecarlo
 
         return montecarlo.perturbed(drive, plant, estimate)
+
+    # the open-loop I-f start (design/startup.py): its drive files' optional [startup] section
+    def startup(self, drive: schema.FluxObserverDrive) -> StartupSettings | None:
+        return drive.startup
+
+    def with_startup(
+        self, drive: schema.FluxObserverDrive, startup: StartupSettings | None
+    ) -> schema.FluxObserverDrive:
+        return dataclasses.replace(drive, startup=startup)
 
 
 FAMILY = FluxObserverFamily()

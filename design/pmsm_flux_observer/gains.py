@@ -6,9 +6,10 @@ Laws (docs/families/pmsm_flux_observer.md "Gains"):
 - ``vesc``: foc_observer_gain (raw as VESC stores it), foc_observer_gain_slow, foc_pll_kp, foc_pll_ki;
   run-time k = gamma lambda^2 = 4 foc_observer_gain lambda^2 max(foc_observer_gain_slow, |duty| V_bus /
   40 V), |duty| V_bus = sqrt(3) |u| (so u_ref = 40 V / sqrt(3));
-- ``flux_schedule`` (not ``schedule``: that name is another family's law): observer_gain
-  (gamma lambda^2) a table over |PLL speed| (``speeds``, linear in between,
-  held beyond the ends), and pll_bandwidth.
+- ``schedule``: observer_gain (gamma lambda^2) a table over |PLL speed| (``speeds``, linear in
+  between, held beyond the ends), and pll_bandwidth. (Law names are each family's own: the adaptive
+  observer's ``schedule`` is another law. Its former name ``flux_schedule`` is read from drive files,
+  gain tables and ``tune --law`` for one release, with a note.)
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import functools
 import itertools
 import math
+import sys
 from collections.abc import Mapping
 from typing import Any
 
@@ -37,12 +39,13 @@ LAW_KEYS: dict[str, dict[str, str]] = {
         "foc_pll_kp": "rate",
         "foc_pll_ki": "rate_squared",
     },
-    "flux_schedule": {"pll_bandwidth": "angular"},  # plus the lists speeds [rad/s], observer_gain [1/s]
+    "schedule": {"pll_bandwidth": "angular"},  # plus the lists speeds [rad/s], observer_gain [1/s]
 }
+LAW_ALIASES = {"flux_schedule": "schedule"}  # former name -> name now (read for one release)
 TABLE_LAWS: dict[str, tuple[str, ...]] = {
     "odrive": ("observer_gain", "pll_bandwidth"),
     "vesc": ("foc_observer_gain", "foc_observer_gain_slow", "foc_pll_kp", "foc_pll_ki"),
-    "flux_schedule": ("speeds", "observer_gain", "pll_bandwidth"),
+    "schedule": ("speeds", "observer_gain", "pll_bandwidth"),
 }
 
 
@@ -59,6 +62,9 @@ def _number(
 
 def parse_law(law: str, t: Mapping[str, Any], file: str, section: str) -> dict[str, Any]:
     """The SI gains of ``law`` from a table of quantities; DriveFileError naming the key."""
+    if law in LAW_ALIASES:  # its former name: read, and said once per file
+        _renamed(file, f"{section}.law", law)
+        law = LAW_ALIASES[law]
     if law not in LAW_KEYS:
         raise DriveFileError(file, f"{section}.law", f"{law!r} is not one of: {', '.join(LAW_KEYS)}")
     for k in t:
@@ -70,7 +76,7 @@ def parse_law(law: str, t: Mapping[str, Any], file: str, section: str) -> dict[s
         k: _number(t, k, dim, file, section, k == "foc_observer_gain_slow")
         for k, dim in LAW_KEYS[law].items()
     }
-    if law == "flux_schedule":
+    if law == "schedule":
         for k, dim in (("speeds", "angular"), ("observer_gain", "rate")):
             v = t.get(k)
             if not isinstance(v, list) or len(v) < 2:
@@ -83,15 +89,20 @@ def parse_law(law: str, t: Mapping[str, Any], file: str, section: str) -> dict[s
     return out
 
 
+@functools.cache
+def _renamed(file: str, key: str, law: str) -> None:
+    print(f"{file}: note: key '{key}': law {law!r} is now called {LAW_ALIASES[law]!r}", file=sys.stderr)
+
+
 def drive_gains(drive: Any) -> GainSet:
     """The drive file's [gains]."""
     t = drive.gains_table
     law = t.get("law")
     if not isinstance(law, str):
         raise DriveFileError(
-            drive.file, "gains.law", "missing key or not a string (odrive | vesc | flux_schedule)"
+            drive.file, "gains.law", "missing key or not a string (odrive | vesc | schedule)"
         )
-    return GainSet(law, parse_law(law, t, drive.file, "gains"), f"{drive.file} [gains]")
+    return GainSet(LAW_ALIASES.get(law, law), parse_law(law, t, drive.file, "gains"), f"{drive.file} [gains]")
 
 
 def table_values(law: str, gains: Mapping[str, Any], where: str) -> dict[str, Any]:
@@ -141,15 +152,13 @@ def constant_law() -> ca.Function:
 
 def schedule_of(gains: GainSet, psi_hat: float) -> GainSchedule:
     """The runtime schedule of k_0: a constant, or the table over |w_pll|."""
-    if gains.law == "flux_schedule":
+    if gains.law == "schedule":
         grid = tuple(float(w) for w in gains.values["speeds"])
         vals = tuple(float(k) for k in gains.values["observer_gain"])
         fields = tuple(
             Field(f"k_0_{j}", "1/s", f"observer gain at |w_pll| = {w:.6g} rad/s") for j, w in enumerate(grid)
         )
-        return GainSchedule(
-            "flux_schedule", table_law(grid), vals, fields, grid, "gamma lambda^2 over |w_pll|"
-        )
+        return GainSchedule("schedule", table_law(grid), vals, fields, grid, "gamma lambda^2 over |w_pll|")
     k_0 = base_gain(gains, psi_hat)
     text = "constant gamma lambda^2" if gains.law == "odrive" else "4 gain lambda^2 (x VESC's factor)"
     return GainSchedule(gains.law, constant_law(), (k_0,), (Field("k_0", "1/s", "observer gain"),), (), text)

@@ -69,7 +69,7 @@ class FluxLinearization(Linearization):
         The PLL's roots (s^2 + k_p s + k_i) do not depend on the speed: a slow one (VESC's default
         k_p = 2000 1/s, k_i = 30000 1/s^2: -15.1 1/s) is slow at every speed and sets no minimum
         speed; the report judges it on its own (reports/pmsm_flux_observer: the speed estimate's
-        settling). Where the gain is scheduled over the PLL speed (flux_schedule) the modes are
+        settling). Where the gain is scheduled over the PLL speed (schedule) the modes are
         coupled and the slowest of all counts."""
         return self.decay_rate if self.observer_decay is None else self.observer_decay
 

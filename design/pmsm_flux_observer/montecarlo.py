@@ -2,27 +2,39 @@
 draw's linearized observer in one batched evaluation, and a perturbed drive for the time domain.
 
 The true motor's R_s, L_d, L_q, psi_pm (and J, time domain only) and the firmware's estimates of the
-first four. Each draw is the continuous observer of Lee et al. (2010) eq. (8) with its PLL at every
-operating point (the Newton equilibrium and Jacobian of its linearize.py ``rotor_frame_loop`` by the
-shared design/rotor_frame.py, one batched call over draws x points: the drawn motor and runtime
-parameters are its columns); a point
-without an equilibrium is NaN. The sampled observer's analysis is the tuner's and the report's; here the
-yield is the share of draws whose observer keeps the family's required damping (stable: its damping
-falls with speed by design) at every point of the envelope.
+first four. Each draw is the sampled observer that runs (its runtime step at the firmware's period, on
+the drawn motor sampled under zero-order hold: linearize.py ``sampled_loop``, the analysis the tuner and
+the report make) with its PLL at every operating point: the continuous observer's equilibrium (Lee et
+al. (2010) eq. (8), linearize.py ``rotor_frame_loop`` by design/rotor_frame.py) starts Newton's method
+on the one-step map, whose Jacobian's eigenvalues give the poles ln(z)/T_obs; each step is one batched
+call over draws x points (the drawn motor, its MTPA current and zero-order-hold voltage and the runtime
+parameters are its columns). A point without a fixed point is NaN. The yield is the share of draws
+whose sampled observer keeps the family's required damping (stable: its damping falls with speed by
+design) at every point of the envelope (design/montecarlo.py ``chunk_damping`` judges
+``poles_discrete``).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
+import casadi as ca
 import numpy as np
+from sensorless.design.discrete import discrete_poles, fixed_points, pmsm_zoh_plant
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.montecarlo import Uncertain
 from sensorless.design.montecarlo import perturbed as shared_perturbed
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
-from sensorless.design.pmsm_flux_observer.linearize import FluxLinearization, rotor_frame_loop, with_gain
+from sensorless.design.pmsm_flux_observer.linearize import (
+    FluxLinearization,
+    rotor_frame_loop,
+    sampled_loop,
+    with_gain,
+)
 from sensorless.design.poles import eigvals_batched
 from sensorless.design.rotor_frame import equilibrium_points
+from sensorless.symbolic.pmsm import PmsmParams, mtpa_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 
 ELECTRICAL = ("R_s", "L_d", "L_q", "psi_pm")
@@ -86,15 +98,33 @@ def linearize_draws(
     poles = np.full((W.size, A.shape[1]), np.nan + 0j)
     if ok.any():
         poles[ok] = eigvals_batched(np.ascontiguousarray(A[ok]))
-    nan = np.full_like(poles, np.nan)
+    # the sampled observer from the continuous equilibria: each draw's true motor, its MTPA current at
+    # each torque and the voltage that holds it under zero-order hold
+    motors = rep(plant[:, :k].T).T  # (N, 4) R_s, L_d, L_q, psi_pm per point
+    i_r = np.asarray(_mtpa_map(W.size)(T[None, :], motors.T, float(drive.motor.p))).T
+    sampled = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, setup.schedule.law)
+    zoh = pmsm_zoh_plant(motors, W, i_r, o.T_obs)
+    y0 = np.where(ok[:, None], eq.x, np.nan)
+    _, Jd = fixed_points(sampled, y0, W, zoh, rep(P), rep(gain))
+    poles_d = discrete_poles(Jd, o.T_obs, sampled.n_y)[0]
+    if not complete:
+        bad = np.isnan(poles_d).all(axis=1).reshape(n_d, n_p).any(axis=1)
+        poles_d[np.repeat(bad, n_p)] = np.nan
     return FluxLinearization(
         w=W,
         torque=T,
         poles=poles,
-        poles_discrete=nan,
+        poles_discrete=poles_d,
         T_s=o.T_obs,
         torque_name="T_e",
         theta_err=np.where(ok, eq.y[:, 0], np.nan),
         theta_err_discrete=np.full(W.size, np.nan),
         law=gains.law,
     )
+
+
+@functools.cache
+def _mtpa_map(n: int) -> ca.Function:
+    """The MTPA current (symbolic/pmsm.py) mapped over n points, one motor [R_s, L_d, L_q, psi_pm] each."""
+    T, m, pp = ca.SX.sym("T"), ca.SX.sym("m", 4), ca.SX.sym("p")
+    return ca.Function("mtpa", [T, m, pp], [mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), pp)]).map(n)

@@ -240,12 +240,12 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     psi_hat = positive(est_t, "psi_pm", "flux", file, "estimate") if "psi_pm" in est_t else m.psi_pm
 
     gains_t = table(data, "gains", file) if "gains" in data else {}
-    sec = doc.section("gains", "the observer's gains in the firmware's terms (odrive | vesc | flux_schedule)")
+    sec = doc.section("gains", "the observer's gains in the firmware's terms (odrive | vesc | schedule)")
     if "law" in gains_t:
         _keep(sec, gains_t, {})
     else:
         if gains_t:
-            raise DriveFileError(file, "gains.law", "missing key (odrive | vesc | flux_schedule)")
+            raise DriveFileError(file, "gains.law", "missing key (odrive | vesc | schedule)")
         for k, (v, r) in default_gains(law, psi_hat).items():
             sec[k] = Entry(v, r)
 
@@ -310,7 +310,7 @@ def _too_fast(w_max: float, T_obs: float) -> str:
 
 def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
     """-(the PLL's slowest pole seen in its speed estimate) [1/s] of a [gains] section: bw (odrive,
-    flux_schedule) or the slow root of s^2 + k_p s + k_i (vesc; k_p/2 where the roots are complex).
+    schedule) or the slow root of s^2 + k_p s + k_i (vesc; k_p/2 where the roots are complex).
 
     d theta_pll/dt follows the speed by (k_p s + k_i)/((s + p_1)(s + p_2)): in its step response the
     slow root p_1 has the weight p_1/(p_2 - p_1) (the PI's zero k_i/k_p nearly cancels it). Below
@@ -322,7 +322,7 @@ def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
     t = {k: e.value for k, e in gains.items()}
     law = t.get("law")
     if not isinstance(law, str):
-        raise DriveFileError(file, "gains.law", "missing key or not a string (odrive | vesc | flux_schedule)")
+        raise DriveFileError(file, "gains.law", "missing key or not a string (odrive | vesc | schedule)")
     v = parse_law(law, t, file, "gains")
     if law != "vesc":
         return float(v["pll_bandwidth"])

@@ -11,7 +11,7 @@ import argparse
 import sys
 from typing import Any
 
-from sensorless.design.family import CapabilityError
+from sensorless.design.family import CapabilityError, Drive
 from sensorless.design.registry import family_of
 from sensorless.reports.cli.common import foreign_table, load
 from sensorless.reports.family import add_family_options, hooks, refuse_foreign
@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     return 3 if out.warnings else 0  # 3: a result that does not hold (reports/cli/main.py EXIT_RESULT)
 
 
-def _whole_drive(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
+def _whole_drive(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
     """The whole sampled drive beside the family's analysis: summary lines, CSV and pole map."""
     from sensorless.design.gain_table import read_gain_table
     from sensorless.reports import drive_analysis as whole

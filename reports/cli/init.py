@@ -18,12 +18,13 @@ import argparse
 import sys
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design import registry
+from sensorless.design.capabilities import Documented, OpenLoopStart, require
 from sensorless.design.drive import load_drive_text, preset_text
 from sensorless.design.drive_file import Entry, read_text, table
-from sensorless.design.family import CapabilityError
+from sensorless.design.family import CapabilityError, Drive, ObserverFamily
 from sensorless.design.startup import DERIVED_FROM, SECTION, document_entries, optional_lines
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.common import UsageError, print_warnings
@@ -39,8 +40,11 @@ from sensorless.reports.family import (
 )
 from sensorless.reports.files import OutputFile
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.drive_file import DriveDocument
 
-def register(sub: Any) -> None:
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``init`` subcommand."""
     p = sub.add_parser(
         "init",
@@ -109,11 +113,11 @@ def run(args: argparse.Namespace) -> int:
     out = OutputFile(args.out, force=args.force)
     out.check()
     given_start = data.pop(SECTION, None)  # [startup] is read by design/drive.py for every family
-    doc = fam.document(data, file)
+    doc = require(fam, Documented).document(data, file)
     written = doc.toml()
     source = load_drive_text(text, file)  # the source loads (errors and warnings name its keys)
     drive = load_drive_text(written, str(args.out))  # and so does what is written
-    if fam.open_loop_start and _startup_section(doc, fam, drive, given_start):
+    if isinstance(fam, OpenLoopStart) and _startup_section(doc, fam, drive, given_start):
         written = doc.toml()
         try:
             drive = load_drive_text(written, str(args.out))
@@ -133,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _startup_section(doc: Any, fam: Any, drive: Any, given: Any) -> bool:
+def _startup_section(doc: DriveDocument, fam: ObserverFamily, drive: Drive, given: Any) -> bool:
     """Add the ``[startup]`` section (design/startup.py) to ``doc``: the keys given as written, the
     others by their rules at the drive's own gains; False where the observer needs no start."""
     from sensorless.design.pmsm_drive import startup_values

@@ -15,6 +15,7 @@ import sys
 import time
 from typing import Any
 
+from sensorless.design.family import Drive
 from sensorless.reports.cli.common import MIN_DAMPING, Number, UsageError, load, version
 from sensorless.reports.engine import scheduler_address
 
@@ -98,12 +99,13 @@ def register(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Check everything, run on the engine, write the set."""
     from sensorless.design import montecarlo as mc
+    from sensorless.design.capabilities import MonteCarlo, Simulatable, require
     from sensorless.design.registry import family_of
     from sensorless.reports import montecarlo as rmc
     from sensorless.reports.engine import Engine, EngineError
     from sensorless.reports.files import OutputSet
 
-    drive: Any = load(args.drive, "montecarlo")
+    drive: Drive = load(args.drive, "montecarlo")
     if args.time_domain > args.samples:
         raise UsageError(f"argument --time-domain: {args.time_domain} is more than --samples {args.samples}")
     if args.workers and args.scheduler:
@@ -113,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     fam = family_of(drive)
     if args.min_damping is None:  # the family's (ObserverFamily.required_damping)
         args.min_damping = fam.min_damping()
-    params = fam.montecarlo_parameters(drive)  # CapabilityError: one line naming the family
+    params = require(fam, MonteCarlo).montecarlo_parameters(drive)  # else one line naming the family
     try:
         plant = mc.parse_spreads(args.spread, "--spread", params, estimates=False)
         estimate = mc.parse_spreads(args.estimate_error, "--estimate-error", params, estimates=True)
@@ -136,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
         gains = fam.gains(drive, table=read_gain_table(args.gains), table_file=args.gains)
     rmc.envelope(drive)  # one line now if the drive has none
     if args.time_domain:
-        fam.perturbed(drive, {}, {})  # one line now if the family cannot simulate draws
+        require(fam, Simulatable)  # one line now if the family cannot simulate draws
         rmc.time_scenarios(drive)
     scheduler = args.scheduler
     t0 = time.perf_counter()

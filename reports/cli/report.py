@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING
 
-from sensorless.design.family import CapabilityError
+from sensorless.design.capabilities import MonteCarlo, require
+from sensorless.design.family import CapabilityError, Drive, ObserverFamily
 from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.registry import family_of
 from sensorless.reports.cli import many
-from sensorless.reports.cli.common import MIN_DAMPING, Number, foreign_table, load, version
+from sensorless.reports.cli.common import MIN_DAMPING, Number, UsageError, foreign_table, load, version
 from sensorless.reports.document import report_json
 from sensorless.reports.drive_analysis import add_to_report as add_drive_analysis
 from sensorless.reports.family import hooks
@@ -20,8 +22,12 @@ from sensorless.reports.files import OutputSet
 from sensorless.reports.html import render
 from sensorless.reports.low_speed import add_to_report
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.gain_table import GainTable
+    from sensorless.reports.document import Report
 
-def register(sub: Any) -> None:
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``report`` subcommand."""
     p = sub.add_parser(
         "report",
@@ -67,6 +73,13 @@ def register(sub: Any) -> None:
         "linearized over the envelope (sensorless montecarlo for more); default 0: none",
     )
     p.add_argument("--quick", action="store_true", help="coarser grids (for previews and tests)")
+    p.add_argument(
+        "--precision",
+        choices=("double", "fixed"),
+        default="double",
+        help="the observer step the time-domain checks judge: double, or the fixed-point step of "
+        "`codegen --precision fixed` (the report then also gives the quantization's effect on the poles)",
+    )
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     many.add_engine_options(p)
     p.set_defaults(func=run)
@@ -101,22 +114,40 @@ def run(args: argparse.Namespace) -> int:
     for path in args.scenario:  # each loads for this drive: one line naming the file if not
         load_scenario(path, drive)
     if args.montecarlo:
-        fam.montecarlo_parameters(drive)  # one line now if the family has no Monte-Carlo
+        require(fam, MonteCarlo)  # one line now if the family has no Monte-Carlo
     out = OutputSet(args.out, force=args.force, names=("report.html", "report.json"))
     out.check()  # before minutes of work
     t0 = time.perf_counter()
-    rep = compute(
-        drive,
-        table,
-        args.gains or "",
-        min_damping=args.min_damping,
-        resolution="quick" if args.quick else "normal",
-        progress=lambda msg: print(msg, file=sys.stderr, flush=True),
-        scenarios=tuple(args.scenario),
-    )
     gains = fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
+    judged = contextlib.nullcontext()
+    if args.precision == "fixed":
+        from sensorless.reports.codegen.fixed_generate import fixed_model
+        from sensorless.reports.fixed_review import judged_with
+
+        setup = fam.runtime(drive, gains)
+        try:
+            model = fixed_model(drive, gains if table is not None else None, setup)
+        except (NotImplementedError, ValueError) as e:  # a step the fixed-point lowering does not take
+            raise UsageError(f"argument --precision fixed: {e}") from None
+        judged = judged_with(model.variant)
+    with judged:
+        rep = compute(
+            drive,
+            table,
+            args.gains or "",
+            min_damping=args.min_damping,
+            resolution="quick" if args.quick else "normal",
+            progress=lambda msg: print(msg, file=sys.stderr, flush=True),
+            scenarios=tuple(args.scenario),
+        )
     rep = add_to_report(rep, drive, gains, args.min_damping, math.radians(args.max_bias), args.quick)
     rep = add_drive_analysis(rep, drive, gains, args.quick)
+    if args.precision == "fixed":
+        from sensorless.reports.fixed_review import add_to_report as add_fixed_review
+
+        rep = add_fixed_review(rep, drive, gains, setup, model, args.quick)
+    else:
+        rep.data.setdefault("inputs", {})["precision"] = "double"
     if foreign:  # said in the report too: its numbers are for this drive, its gains from another
         rep.data["inputs"]["gain_table_warning"] = foreign
     if args.montecarlo:
@@ -126,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
     out.add_text("report.html", render(rep, v))
     for p in out.commit():
         print(f"wrote {p}")
+    print(f"observer step judged: {args.precision} precision")
     print(f"verdict: {rep.verdict.status}; report computed in {time.perf_counter() - t0:.1f} s")
     failed = [
         f"time-domain check {item['name']} failed: {line}"
@@ -144,7 +176,9 @@ def run(args: argparse.Namespace) -> int:
     return 3 if failed else 0
 
 
-def _with_montecarlo(rep: Any, drive: Any, fam: Any, table: Any, args: argparse.Namespace) -> Any:
+def _with_montecarlo(
+    rep: Report, drive: Drive, fam: ObserverFamily, table: GainTable | None, args: argparse.Namespace
+) -> Report:
     """The report with a Monte-Carlo section at the end (reports/montecarlo.py), in this process."""
     import dataclasses
 
@@ -153,7 +187,7 @@ def _with_montecarlo(rep: Any, drive: Any, fam: Any, table: Any, args: argparse.
 
     print(f"      Monte-Carlo: {args.montecarlo} draws", file=sys.stderr, flush=True)
     gains = fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
-    params = fam.montecarlo_parameters(drive)
+    params = require(fam, MonteCarlo).montecarlo_parameters(drive)
     with Engine(SYNCHRONOUS, quiet=True) as engine:
         res = rmc.run(
             drive, gains, params, rmc.typical_spreads(params), {}, args.montecarlo, 0, 0,

@@ -28,9 +28,9 @@ import math
 import os
 import sys
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from sensorless.design.family import CapabilityError
+from sensorless.design.family import CapabilityError, Drive
 from sensorless.design.registry import families, family_of
 from sensorless.reports import interrupts
 from sensorless.reports.cli import many
@@ -41,6 +41,11 @@ from sensorless.reports.gain_csv import pareto_csv, speeds_csv, table_csv
 from sensorless.reports.low_speed import tune_line
 from sensorless.tuning.family import all_tunables, estimate_errors, tunable_for
 from sensorless.tuning.nlp import TuningError
+
+if TYPE_CHECKING:  # typed by name only
+    from collections.abc import Callable
+
+    from sensorless.tuning.family import TuneOutcome, TuneSettings
 
 UNCHECKED_ENV = "SENSORLESS_TUNE_UNCHECKED"  # set: --unchecked by default (the test suite's other tests)
 
@@ -58,7 +63,7 @@ class _OldFlag(argparse.Action):
 TIME_LIMIT = 900.0
 
 
-def register(sub: Any) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``tune`` subcommand."""
     laws = all_tunables()
     old = {o: n for fam in families() for o, n in fam.law_aliases.items()}
@@ -220,7 +225,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _proved(drive: Any, r: Any, settings: Any, table_file: str, progress: Any) -> tuple[Any, list[str]]:
+def _proved(
+    drive: Drive, r: TuneOutcome, settings: TuneSettings, table_file: str, progress: Callable[[str], None]
+) -> tuple[TuneOutcome | None, list[str]]:
     """(the result whose table is written, lines saying its proof) or (None, lines ending with what the
     last candidate does worse): the tuned gains and then the tuner's fallbacks (tuning/tune.py), each
     against the drive file's gains (reports/tune_proof.py)."""
@@ -232,7 +239,7 @@ def _proved(drive: Any, r: Any, settings: Any, table_file: str, progress: Any) -
     progress(f"proof: the drive file's and the tuned gains, {len(runs)} time-domain checks, +-T_max")
     base = tune_proof.prove(drive, None, "drive file", runs, tune_proof.ANALYSIS, progress)
     lines = [f"proof (linear analysis over +-T_max, {len(runs)} time-domain checks): {base.line()}"]
-    cands: list[tuple[str, Any]] = [("tuned", r)]
+    cands: list[tuple[str, TuneOutcome]] = [("tuned", r)]
     i = 0
     while i < len(cands):
         label, res = cands[i]

@@ -14,7 +14,14 @@ import json
 import re
 from typing import Any
 
-from sensorless.reports.codegen.fixed_ops import CORDIC_ANGLES, INT_MAX, NOMINAL_BITS, SIN_COEF, SIN_F, Ins
+from sensorless.reports.codegen.fixed_ops import (
+    CORDIC_ANGLES,
+    INT_MAX,
+    NOMINAL_BITS,
+    SIN_COEF,
+    SIN_F,
+    Ins,
+)
 from sensorless.reports.codegen.fixed_program import FixedStep
 
 HELPERS = """static int32_t fx_sat(int64_t v)
@@ -53,7 +60,7 @@ static int32_t fx_div(int64_t n, int32_t d) /* floor(n / d), d > 0 */
 
 static const int32_t fx_atan_table[%(n_cordic)d] = {%(cordic)s};
 
-static int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vectoring CORDIC */
+static FX_NOINLINE int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vectoring CORDIC */
 {
     int32_t x = x0 >> 2, y = y0 >> 2;
     uint32_t z = 0;
@@ -81,20 +88,27 @@ static int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vectoring CORDI
     return (int32_t)z;
 }
 
-static int32_t fx_sin(int32_t a) /* sin of a binary angle, Q%(sin_f)d */
+static int32_t fx_sin(int32_t a) /* sin of a binary angle, Q%(sin_f)d; 32-bit products only */
 {
-    int64_t t = a, x, x2, p;
-    if (t > 0x40000000l) {
-        t = 0x80000000l - t;
-    } else if (t < -0x40000000l) {
-        t = -0x80000000l - t;
+    int32_t t = a, x, x2, p;
+    if (t > 0x40000000l || t < -0x40000000l) { /* pi - t, or -pi - t: the same modulo 2^32 */
+        t = (int32_t)(0x80000000ul - (uint32_t)t);
     }
     x = t >> %(sin_shift)d;
-    x2 = (x * x) >> %(sin_f)d;
+    x2 = %(x2)s;
 %(horner)s
-    return (int32_t)((p * x) >> %(sin_f)d);
+    return %(px)s;
 }
 """
+
+
+def mulw(a: str, b: str, s: int) -> str:
+    """C of fixed_ops.mulw: a b 2^-s (16 <= s <= 32) from four 32-bit products of 16-bit halves."""
+    hh = f"(({a} >> 16) * ({b} >> 16))" + (f" * {1 << (32 - s)}" if s < 32 else "")
+    return (
+        f"({hh} + ((({a} >> 16) * ({b} & 0xFFFF)) >> {s - 16}) + ((({a} & 0xFFFF) * ({b} >> 16)) >> {s - 16})"
+        f" + (int32_t)(((uint32_t)({a} & 0xFFFF) * (uint32_t)({b} & 0xFFFF)) >> {s}))"
+    )
 
 
 def lit(v: int) -> str:
@@ -108,21 +122,34 @@ def helpers(used: str) -> str:
     """The helper functions that the step text ``used`` calls (an unused static function is a warning)."""
     text = HELPERS % {
         "n_cordic": len(CORDIC_ANGLES),
+        "x2": mulw("x", "x", SIN_F),
+        "px": mulw("p", "x", SIN_F),
         "cordic": ", ".join(str(a) for a in CORDIC_ANGLES),
         "sin_f": SIN_F,
         "sin_shift": 30 - SIN_F,
         "horner": "\n".join(
-            [f"    p = INT64_C({SIN_COEF[-1]});"]
-            + [f"    p = ((p * x2) >> {SIN_F}) + INT64_C({c});" for c in reversed(SIN_COEF[:-1])]
+            [f"    p = {lit(SIN_COEF[-1])};"]
+            + [f"    p = {mulw('p', 'x2', SIN_F)} + {lit(c)};" for c in reversed(SIN_COEF[:-1])]
         ),
     }
     blocks = ["static " + b if k else b for k, b in enumerate(text.split("\n\nstatic "))]
     keep = []
     for b in blocks:
-        name = re.match(r"static (?:const )?int32_t (\w+)", b).group(1)
+        name = re.match(r"static (?:const )?(?:FX_NOINLINE )?int32_t (\w+)", b).group(1)
         if name in used or (name == "fx_atan_table" and "fx_atan2" in used):
             keep.append(b)
+    if "fx_atan2" in used:
+        # the CORDIC as a call, not inlined: inlined into the step (GCC at -Os), its loop's registers
+        # spilled the step's around it and cost outrunner270 ~60 cycles more than the call (M0+)
+        keep.insert(0, NOINLINE)
     return "\n\n".join(keep).rstrip() + "\n"
+
+
+NOINLINE = """#if defined(__GNUC__)
+#define FX_NOINLINE __attribute__((noinline))
+#else
+#define FX_NOINLINE
+#endif"""
 
 
 def _sh(a: str, k: int, wide: bool) -> str:
@@ -135,22 +162,25 @@ def _sh(a: str, k: int, wide: bool) -> str:
     return w
 
 
-def _rnd(a: str, k: int, ceil: int, wide: bool) -> str:
-    """a 2^k, rounded up where ``ceil`` (fixed_ops._rounded)."""
+def _rnd(a: str, k: int, ceil: int, wide: bool, neg32: bool = False) -> str:
+    """a 2^k, rounded up where ``ceil`` (fixed_ops._rounded); ``neg32``: -a cannot overflow int32."""
     if ceil and k < 0:
-        return f"(-((-(int64_t){a}) >> {-k}))"
+        return f"(-((-{a}) >> {-k}))" if neg32 else f"(-((-(int64_t){a}) >> {-k}))"
     return _sh(a, k, wide)
 
 
 def _q15(prog: list[Ins], wr: list[float], k: int, ins: Ins) -> tuple[int, str] | None:
     """(slot, literal) of a product by a 16-bit constant whose parts stay within int32, else None."""
     s = ins.imm[0]
-    if ins.op != "MUL" or s < 1 or ins.sat or (s < 16 and wr[k] >= 2.0**30):
+    # s < 16: the high part shifted left is within |a c| 2^-s + 2^(31-s) (fixed_program.exact_q15)
+    if ins.op != "MUL" or s < 1 or ins.sat or (s < 16 and wr[k] + 2.0 ** (32 - s) >= 2.0**31):
         return None
     a, b = ins.args
     for x, k in ((a, b), (b, a)):
-        if prog[k].op == "CONST" and abs(prog[k].imm[0]) < 2**15 and prog[x].op != "CONST":
-            return x, lit(prog[k].imm[0])
+        if prog[k].op in ("CONST", "PARAM") and wr[k] < 2**15 and prog[x].op not in ("CONST", "PARAM"):
+            if wr[x] * wr[k] < INT_MAX:
+                return None  # one 32-bit product holds it
+            return x, lit(prog[k].imm[0]) if prog[k].op == "CONST" else f"s{k}"
     return None
 
 
@@ -159,9 +189,9 @@ def _wide(prog: list[Ins], wr: list[float], ins: Ins, ks: tuple[int, ...], args:
     return ins.sat or any(k > 0 and wr[a] * 2.0**k > INT_MAX / 2 for a, k in zip(args, ks, strict=False))
 
 
-def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str]:
+def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = "obs->prm") -> list[str]:
     """The step's statements: slots s0.. from ``x``/``inp`` fields, then the state and outputs."""
-    lines: list[str] = []
+    exprs: list[str] = []
     for k, ins in enumerate(fx.prog):
         a = [f"s{j}" for j in ins.args]
         m, op = ins.imm, ins.op
@@ -176,11 +206,26 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
             )
         elif op == "CONST":
             e = lit(m[0])
+        elif op == "PARAM":
+            e = f"{prm}.{fx.params[m[0]]['name']}"
+        elif op == "TOANGP":  # as TOANG below, the factor a parameter of at most 15 bits
+            v, c = f"s{ins.args[0]}", f"s{ins.args[1]}"
+            if m[0] >= 16:
+                e = f"((({v} >> 16) * {c}) + ((({v} & 0xFFFF) * {c}) >> 16)) >> {m[0] - 16}"
+            else:
+                e = (
+                    f"(int32_t)(((uint32_t)(({v} >> 16) * {c}) << {16 - m[0]}) "
+                    f"+ (uint32_t)((({v} & 0xFFFF) * {c}) >> {m[0]}))"
+                )
+        elif op == "CLAMP":
+            e = f"({a[0]} < {lit(m[0])} ? {lit(m[0])} : ({a[0]} > {lit(m[1])} ? {lit(m[1])} : {a[0]}))"
+        elif op == "MULW":
+            e = mulw(a[0], a[1], m[0])
         elif op == "ALIGN":
             w = _wide(fx.prog, wr, ins, m, ins.args)
             e = f"{fin}({_sh(a[0], m[0], True)})" if w else _sh(a[0], m[0], False)
         elif op in ("ADD", "SUB", "MIN", "MAX"):
-            w = _wide(fx.prog, wr, ins, m, ins.args) or wr[k] > INT_MAX / 2
+            w = _wide(fx.prog, wr, ins, m, ins.args)  # else the result is within int32 (not saturated)
             p, q = _sh(a[0], m[0], w), _sh(a[1], m[1], w)
             if op in ("ADD", "SUB"):
                 e = f"({p} {'+' if op == 'ADD' else '-'} {q})"
@@ -209,7 +254,10 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
         elif op in ("LT", "LE", "EQ", "NE"):
             w = any(kk > 0 for kk in m[:2])
             c = {"LT": "<", "LE": "<=", "EQ": "==", "NE": "!="}[op]
-            p, q = (_rnd(x, k, r, w) for x, k, r in ((a[0], m[0], m[2]), (a[1], m[1], m[3])))
+            p, q = (
+                _rnd(x, k, r, w, wr[j] <= INT_MAX and k > -32)
+                for x, k, r, j in ((a[0], m[0], m[2], ins.args[0]), (a[1], m[1], m[3], ins.args[1]))
+            )
             e = f"({p} {c} {q})"
         elif op in ("AND", "OR"):
             e = f"({a[0]} {'&&' if op == 'AND' else '||'} {a[1]})"
@@ -232,34 +280,149 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float]) -> list[str
         elif op == "SIN":
             e = f"fx_sin({a[0]})"
         elif op == "COS":
-            e = f"fx_sin(fx_wrap((int64_t){a[0]} + INT64_C(1073741824)))"
+            e = f"fx_sin((int32_t)((uint32_t){a[0]} + 0x40000000ul))"
         elif op in ("TOANG", "ANG2LIN") and abs(m[0]) < 2**15 and m[1] >= 16:
             # floor(a K 2^-s) from two 32-bit products; within int32 (|a K| < 2^46), so no wrap is needed
             v = f"s{ins.args[0]}"
             e = f"((((({v} >> 16) * {m[0]}) + ((({v} & 0xFFFF) * {m[0]}) >> 16)) >> {m[1] - 16}))"
+        elif op == "TOANG" and abs(m[0]) < 2**15 and 0 <= m[1] < 16:
+            # floor(a K 2^-s) modulo 2^32 from two 32-bit products: a K 2^-s = (a >> 16) K 2^(16-s)
+            # + (a & 0xFFFF) K 2^-s, the first an integer; unsigned arithmetic wraps
+            v = f"s{ins.args[0]}"
+            e = (
+                f"(int32_t)(((uint32_t)(({v} >> 16) * {m[0]}) << {16 - m[1]}) "
+                f"+ (uint32_t)((({v} & 0xFFFF) * {m[0]}) >> {m[1]}))"
+            )
         elif op == "TOANG":
             e = f"fx_wrap(((int64_t){a[0]} * INT64_C({m[0]})) >> {m[1]})"
         elif op in ("ANGADD", "ANGSUB"):
-            e = f"fx_wrap((int64_t){a[0]} {'+' if op == 'ANGADD' else '-'} {a[1]})"
+            e = f"(int32_t)((uint32_t){a[0]} {'+' if op == 'ANGADD' else '-'} (uint32_t){a[1]})"
         elif op == "ANG2LIN":
             e = f"(int32_t)(((int64_t){a[0]} * INT64_C({m[0]})) >> {m[1]})"
         else:
             raise NotImplementedError(f"fixed-point op {op} has no C spelling")
-        decl = "int" if ins.kind == "bool" else "int32_t"
-        note = f" /* {ins.what} */" if ins.what else ""
-        lines.append(f"const {decl} s{k} = {e};{note}")
+        exprs.append(e)
+    need = guards(fx.prog, [*fx.state_out, *(o["slot"] for o in fx.outputs)])
+    lines: list[str] = []
+    k = 0
+    while k < len(fx.prog):
+        ins = fx.prog[k]
+        if need[k] is None:  # dead (a folded branch's leftovers)
+            k += 1
+            continue
+        if need[k] == ALWAYS:
+            decl = "int" if ins.kind == "bool" else "int32_t"
+            note = f" /* {ins.what} */" if ins.what else ""
+            lines.append(f"const {decl} s{k} = {exprs[k]};{note}")
+            k += 1
+            continue
+        # a run of slots needed only under one condition: computed only when it holds (the coasting
+        # branch's sin/cos on a rejected sample, not every sample); zero-initialized, never read else
+        g, run = need[k], []
+        while k < len(fx.prog) and need[k] in (g, None):
+            if need[k] == g:
+                run.append(k)
+            k += 1
+        c, pol = g
+        if len(run) == 1:  # one slot: a conditional expression (no zeroed variable to keep)
+            j = run[0]
+            decl = "int" if fx.prog[j].kind == "bool" else "int32_t"
+            note = f" /* {fx.prog[j].what} */" if fx.prog[j].what else ""
+            lines.append(f"const {decl} s{j} = {'' if pol else '!'}s{c} ? {exprs[j]} : 0;{note}")
+            continue
+        lines.append(f"int32_t {', '.join(f's{j} = 0' for j in run)};")
+        lines.append(f"if ({'' if pol else '!'}s{c}) {{")
+        for j in run:
+            note = f" /* {fx.prog[j].what} */" if fx.prog[j].what else ""
+            lines.append(f"    s{j} = {exprs[j]};{note}")
+        lines.append("}")
     n_x = len(fx.state_out)
     lines += [f"{x}.{d['name']} = s{s};" for d, s in zip(fx.inputs[:n_x], fx.state_out, strict=True)]
     lines += [f"{out}->{o['name']} = s{o['slot']};" for o in fx.outputs]
     # a constant that every reader spells as a literal (the 16-bit products) is not declared
     text = "\n".join(lines)
-    used = {int(t) for t in re.findall(r"\bs(\d+)\b", text)} if text else set()
-    counts = {k: len(re.findall(rf"\bs{k}\b", text)) for k in used}
+    counts: dict[str, int] = {}
+    for t in re.findall(r"\bs(\d+)\b", text):
+        counts[t] = counts.get(t, 0) + 1
     return [
         line
-        for k, line in enumerate(lines[: len(fx.prog)])
-        if not (fx.prog[k].op == "CONST" and counts.get(k, 0) <= 1)
-    ] + lines[len(fx.prog) :]
+        for line in lines
+        if not (
+            (m := re.match(r"const int32_t s(\d+) = ", line))
+            and fx.prog[int(m.group(1))].op == "CONST"
+            and counts.get(m.group(1), 0) <= 1
+        )
+    ]
+
+
+ALWAYS = "always"
+HEAVY = {"ATAN2", "SIN", "COS", "SQRT", "DIV"}
+
+
+def guards(prog: list[Ins], roots: list[int]) -> list[Any]:
+    """When each slot is needed: ALWAYS, None (never: dead), or (c, pol): only when slot c is nonzero
+    (pol True) or zero (pol False), c itself always computed. A branch of a selection on c, or the
+    second operand of ``c && x`` (C's && does not read x when c is 0), is needed under that condition
+    only; a slot needed under two different conditions is needed always."""
+    banned: set[tuple[int, bool]] = set()
+    while True:
+        need = _needs(prog, roots, banned)
+        bad = {g for g in need if g not in (None, ALWAYS) and need[g[0]] != ALWAYS}
+        if not bad:  # a constant is a literal wherever it is read
+            return [ALWAYS if g is not None and prog[k].op == "CONST" else g for k, g in enumerate(need)]
+        banned |= bad
+
+
+def _needs(prog: list[Ins], roots: list[int], banned: set[tuple[int, bool]]) -> list[Any]:
+    need: list[Any] = [None] * len(prog)
+
+    def implies(g: Any, h: Any) -> bool:
+        """Condition g implies condition h: equal, or g is (c && ...) true with h among its terms."""
+        if g == h:
+            return True
+        if g in (None, ALWAYS) or h in (None, ALWAYS) or not g[1] or prog[g[0]].op != "AND":
+            return False
+        return any(implies((a, True), h) for a in prog[g[0]].args)
+
+    heavy: list[bool] = []  # a call (atan2, sin, cos, sqrt, division) or a slot that reads one
+    for ins in prog:
+        heavy.append(ins.op in HEAVY or any(heavy[a] for a in ins.args))
+
+    def merge(k: int, g: Any) -> None:
+        # needed under g and under h, g implying h: needed under h (the weaker), not always. Only
+        # for heavy slots (an atan2 that a sample rejected before it does not need is skipped); a
+        # cheap one is computed always (a branch and a zeroed variable cost more than it saves)
+        h = need[k]
+        if h is None or h == g:
+            need[k] = g
+        elif heavy[k] and implies(h, g):
+            need[k] = g
+        elif heavy[k] and implies(g, h):
+            need[k] = h
+        else:
+            need[k] = ALWAYS
+
+    def cond(c: int, pol: bool, outer: Any) -> Any:
+        if prog[c].op == "NOT":
+            c, pol = prog[c].args[0], not pol
+        return outer if (c, pol) in banned else (c, pol)
+
+    for r in roots:
+        merge(r, ALWAYS)
+    for k in reversed(range(len(prog))):
+        if need[k] is None:
+            continue
+        if need[k] != ALWAYS and need[k][0] >= k:
+            need[k] = ALWAYS  # its condition is computed after it
+        ins = prog[k]
+        for pos, a in enumerate(ins.args):
+            g = need[k]
+            if ins.op == "SEL" and pos > 0 and ins.args[1] != ins.args[2]:
+                g = cond(ins.args[0], pos == 1, g)
+            elif ins.op == "AND" and pos == 1 and ins.args[0] != a:
+                g = cond(ins.args[0], True, g)
+            merge(a, g)
+    return need
 
 
 def format_text(kind: str, f: int) -> str:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TypeAlias
 
 import casadi as ca
 import numpy as np
@@ -29,16 +29,20 @@ import numpy as np
 INT_MAX = 2**31 - 1
 INT_MIN = -(2**31)
 NOMINAL_BITS = 26  # a signal at the top of its range is 2^26 (5 bits of headroom below 2^31)
-CORDIC_STEPS = 16  # atan2: error <= atan(2^-15) + rounding (docs/codegen.md, "Fixed point")
+# Error bounds matched to where the value goes: atan2's angle is an output read once per sample
+# (1.2e-4 rad = 0.007 deg, 1/30 of the 0.2 deg the fixed-point step may differ from the double one by),
+# so 14 CORDIC steps; sin/cos rotate states that are integrated (the adaptive observer's frame), where
+# a 1e-4 error biased piippo2008's angle by 0.27 deg (measured), so they keep 26 bits and degree 7 (1e-6).
+CORDIC_STEPS = 14  # atan2: error <= atan(2^-13) = 1.22e-4 rad + rounding (docs/codegen.md, "Fixed point")
 # binary angle: an int32 word, pi <-> 2^31 (wraps: angle arithmetic is modulo 2 pi for free)
 CORDIC_ANGLES = tuple(round(math.atan(2.0**-i) * 2**31 / math.pi) for i in range(CORDIC_STEPS))
 SIN_F = NOMINAL_BITS  # format of sin/cos results
-SIN_TERMS = 5  # odd powers 1..9
+SIN_TERMS = 4  # odd powers 1..7
 
 
 def _sin_coefficients() -> tuple[int, ...]:
-    """Odd polynomial c1 x + c3 x^3 + ... + c9 x^9 ~ sin(pi x / 2) on [-1, 1] (least squares on
-    Chebyshev nodes, max error 5.3e-8 with rounding), as Q26 integers."""
+    """Odd polynomial c1 x + c3 x^3 + c5 x^5 + c7 x^7 ~ sin(pi x / 2) on [-1, 1] (least squares on
+    Chebyshev nodes; with the products of :func:`mulw` the error is <= 1e-6), as Q26 integers."""
     x = np.cos(np.pi * (np.arange(400) + 0.5) / 400)
     a = np.stack([x ** (2 * k + 1) for k in range(SIN_TERMS)], axis=1)
     c = np.linalg.lstsq(a, np.sin(np.pi * x / 2), rcond=None)[0]
@@ -46,6 +50,9 @@ def _sin_coefficients() -> tuple[int, ...]:
 
 
 SIN_COEF = _sin_coefficients()
+
+# a program's value: int64 words (the numpy backend) or doubles holding integers (the SX backend)
+Word: TypeAlias = np.ndarray | ca.SX
 
 
 @dataclass(frozen=True)
@@ -66,98 +73,98 @@ class Ins:
 class NumpyBackend:
     """int64 numpy arithmetic (exact for 32-bit operands)."""
 
-    def const(self, v: int, like: Any) -> Any:
+    def const(self, v: int, like: Word) -> Word:
         return np.full_like(like, v, dtype=np.int64)
 
-    def mul(self, a: Any, b: Any) -> Any:
+    def mul(self, a: Word, b: Word) -> Word:
         return a * b
 
-    def shift(self, a: Any, k: int) -> Any:  # a 2^k, floored
+    def shift(self, a: Word, k: int) -> Word:  # a 2^k, floored
         return a * (1 << k) if k >= 0 else a >> (-k)
 
-    def clip(self, a: Any, lo: int, hi: int) -> Any:
+    def clip(self, a: Word, lo: int, hi: int) -> Word:
         return np.clip(a, lo, hi)
 
-    def where(self, c: Any, a: Any, b: Any) -> Any:
+    def where(self, c: Word, a: Word, b: Word) -> Word:
         return np.where(c != 0, a, b)
 
-    def cmp(self, op: str, a: Any, b: Any) -> Any:
+    def cmp(self, op: str, a: Word, b: Word) -> Word:
         return {"LT": a < b, "LE": a <= b, "EQ": a == b, "NE": a != b}[op].astype(np.int64)
 
-    def logic(self, op: str, a: Any, b: Any = None) -> Any:
+    def logic(self, op: str, a: Word, b: Word | None = None) -> Word:
         if op == "NOT":
             return (a == 0).astype(np.int64)
         return (((a != 0) & (b != 0)) if op == "AND" else ((a != 0) | (b != 0))).astype(np.int64)
 
-    def wrap(self, a: Any) -> Any:  # to int32, modulo 2^32
+    def wrap(self, a: Word) -> Word:  # to int32, modulo 2^32
         return ((a + 2**31) & 0xFFFFFFFF) - 2**31
 
-    def isqrt(self, v: Any) -> Any:  # floor(sqrt(v)), 0 <= v < 2^32
+    def isqrt(self, v: Word) -> Word:  # floor(sqrt(v)), 0 <= v < 2^32
         r = np.floor(np.sqrt(v.astype(np.float64))).astype(np.int64)
         r = np.where(r * r > v, r - 1, r)
         return np.where((r + 1) * (r + 1) <= v, r + 1, r)
 
-    def absval(self, a: Any) -> Any:
+    def absval(self, a: Word) -> Word:
         return np.abs(a)
 
-    def div(self, n: Any, d: Any) -> Any:  # floor division, d > 0
+    def div(self, n: Word, d: Word) -> Word:  # floor division, d > 0
         return n // d
 
-    def minmax(self, op: str, a: Any, b: Any) -> Any:
+    def minmax(self, op: str, a: Word, b: Word) -> Word:
         return np.minimum(a, b) if op == "MIN" else np.maximum(a, b)
 
 
 class SxBackend(NumpyBackend):
     """CasADi SX: doubles holding integers (exact below 2^53)."""
 
-    def const(self, v: int, like: Any) -> Any:
+    def const(self, v: int, like: Word) -> Word:
         return ca.SX(float(v))
 
-    def shift(self, a: Any, k: int) -> Any:
+    def shift(self, a: Word, k: int) -> Word:
         return a * float(2**k) if k >= 0 else ca.floor(a * 2.0**k)
 
-    def clip(self, a: Any, lo: int, hi: int) -> Any:
+    def clip(self, a: Word, lo: int, hi: int) -> Word:
         return ca.fmin(ca.fmax(a, float(lo)), float(hi))
 
-    def where(self, c: Any, a: Any, b: Any) -> Any:
+    def where(self, c: Word, a: Word, b: Word) -> Word:
         return ca.if_else(c, a, b)
 
-    def cmp(self, op: str, a: Any, b: Any) -> Any:
+    def cmp(self, op: str, a: Word, b: Word) -> Word:
         return {"LT": a < b, "LE": a <= b, "EQ": a == b, "NE": a != b}[op]
 
-    def logic(self, op: str, a: Any, b: Any = None) -> Any:
+    def logic(self, op: str, a: Word, b: Word | None = None) -> Word:
         if op == "NOT":
             return ca.logic_not(a)
         return ca.logic_and(a, b) if op == "AND" else ca.logic_or(a, b)
 
-    def wrap(self, a: Any) -> Any:
+    def wrap(self, a: Word) -> Word:
         return a - 2.0**32 * ca.floor((a + 2.0**31) * 2.0**-32)
 
-    def isqrt(self, v: Any) -> Any:
+    def isqrt(self, v: Word) -> Word:
         r = ca.floor(ca.sqrt(v))
         r = ca.if_else(r * r > v, r - 1, r)
         return ca.if_else((r + 1) * (r + 1) <= v, r + 1, r)
 
-    def absval(self, a: Any) -> Any:
+    def absval(self, a: Word) -> Word:
         return ca.fabs(a)
 
-    def div(self, n: Any, d: Any) -> Any:  # exact for |n| < 2^53
+    def div(self, n: Word, d: Word) -> Word:  # exact for |n| < 2^53
         q = ca.floor(n / d)
         q = ca.if_else(q * d > n, q - 1, q)
         return ca.if_else((q + 1) * d <= n, q + 1, q)
 
-    def minmax(self, op: str, a: Any, b: Any) -> Any:
+    def minmax(self, op: str, a: Word, b: Word) -> Word:
         return ca.fmin(a, b) if op == "MIN" else ca.fmax(a, b)
 
 
 NUMPY = NumpyBackend()
 
 
-def _sat(B: Any, v: Any, ins: Ins) -> Any:
+def _sat(B: NumpyBackend, v: Word, ins: Ins) -> Word:
     return B.clip(v, INT_MIN, INT_MAX) if ins.sat else v
 
 
-def cordic_atan2(B: Any, y: Any, x: Any) -> Any:
+def cordic_atan2(B: NumpyBackend, y: Word, x: Word) -> Word:
     """atan2(y, x) as a binary angle: vectoring CORDIC, CORDIC_STEPS steps (inputs int32 words)."""
     x, y = B.shift(x, -2), B.shift(y, -2)  # headroom for the CORDIC gain (1.65) and sqrt(2)
     zero = B.logic("AND", B.cmp("EQ", x, B.const(0, x)), B.cmp("EQ", y, B.const(0, y)))
@@ -172,28 +179,45 @@ def cordic_atan2(B: Any, y: Any, x: Any) -> Any:
     return B.where(zero, B.const(0, z), B.wrap(z))
 
 
-def sin_binary(B: Any, a: Any) -> Any:
-    """sin of a binary angle (int32), Q26: folded to [-pi/2, pi/2], odd polynomial of degree 9."""
+def mulw(B: NumpyBackend, a: Word, b: Word, s: int) -> Word:
+    """a b 2^-s (16 <= s <= 32) from four 32 x 32 -> 32-bit products of the words' 16-bit halves,
+    each term floored on its own (within 3 LSB of the exact floor): what a Cortex-M0+ computes in
+    ~16 cycles where a 64-bit product is a libgcc call of ~45. ``ah bh`` and the cross terms fit int32
+    for any int32 words; ``al bl`` is unsigned."""
+    ah, bh = B.shift(a, -16), B.shift(b, -16)
+    al, bl = a - B.shift(ah, 16), b - B.shift(bh, 16)
+    return (
+        B.shift(B.mul(ah, bh), 32 - s)
+        + B.shift(B.mul(ah, bl), 16 - s)
+        + B.shift(B.mul(al, bh), 16 - s)
+        + B.shift(B.mul(al, bl), -s)
+    )
+
+
+def sin_binary(B: NumpyBackend, a: Word) -> Word:
+    """sin of a binary angle (int32), Q26: folded to [-pi/2, pi/2], odd polynomial of degree 7, its
+    products by :func:`mulw` (no 64-bit product)."""
     half = 2**30
     a = B.where(B.cmp("LT", B.const(half, a), a), B.const(2**31, a) - a, a)
     a = B.where(B.cmp("LT", a, B.const(-half, a)), B.const(-(2**31), a) - a, a)
     x = B.shift(a, SIN_F - 30)  # Q26, |x| <= 1
-    x2 = B.shift(B.mul(x, x), -SIN_F)
+    x2 = mulw(B, x, x, SIN_F)
     p = B.const(SIN_COEF[-1], x)
     for c in reversed(SIN_COEF[:-1]):
-        p = B.shift(B.mul(p, x2), -SIN_F) + c
-    return B.shift(B.mul(p, x), -SIN_F)
+        p = mulw(B, p, x2, SIN_F) + c
+    return mulw(B, p, x, SIN_F)
 
 
-def _rounded(B: Any, a: Any, k: int, ceil: int) -> Any:
+def _rounded(B: NumpyBackend, a: Word, k: int, ceil: int) -> Word:
     """a 2^k, floored (or, with ``ceil``, rounded up: x <= y 2^k exactly when ceil(x 2^-k) <= y)."""
     return -B.shift(-a, k) if ceil and k < 0 else B.shift(a, k)
 
 
-def run(prog: list[Ins], B: Any, inputs: list[Any]) -> list[Any]:
-    """Execute ``prog``; ``inputs[j]`` is the value of input j (an 'IN' op with imm (j,)). Returns
+def run(prog: list[Ins], B: NumpyBackend, inputs: list[Word], params: list[int] | None = None) -> list[Word]:
+    """Execute ``prog``; ``inputs[j]`` is the value of input j (an 'IN' op with imm (j,)); ``params``
+    the parameter struct's raw words (default: the drive's, each 'PARAM' op's imm (j, raw)). Returns
     every slot's value (outputs are slots named by the program)."""
-    v: list[Any] = []
+    v: list[Word] = []
     for ins in prog:
         a = [v[j] for j in ins.args]
         op, m = ins.op, ins.imm
@@ -203,8 +227,16 @@ def run(prog: list[Ins], B: Any, inputs: list[Any]) -> list[Any]:
                 r = B.clip(r, m[1], m[2])
         elif op == "CONST":
             r = B.const(m[0], inputs[0])
+        elif op == "PARAM":
+            r = B.const(m[1] if params is None else params[m[0]], inputs[0])
+        elif op == "TOANGP":  # a K 2^-s modulo 2^32, K a parameter
+            r = B.wrap(B.shift(B.mul(a[0], a[1]), -m[0]))
         elif op == "ALIGN":
             r = _sat(B, B.shift(a[0], m[0]), ins)
+        elif op == "CLAMP":
+            r = B.clip(a[0], m[0], m[1])
+        elif op == "MULW":  # a b 2^-s by four 32-bit products (mulw)
+            r = mulw(B, a[0], a[1], m[0])
         elif op in ("ADD", "SUB"):
             p, q = B.shift(a[0], m[0]), B.shift(a[1], m[1])
             r = _sat(B, p + q if op == "ADD" else p - q, ins)

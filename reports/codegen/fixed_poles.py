@@ -33,6 +33,8 @@ _SX = {
     "COS": ca.cos,
     "TAN": ca.tan,
     "ATAN2": ca.atan2,
+    "ASIN": ca.asin,
+    "SIGN": ca.sign,
     "FABS": ca.fabs,
     "FMIN": ca.fmin,
     "FMAX": ca.fmax,
@@ -99,3 +101,42 @@ def pole_shift(
         shift = max(shift, float(d.min(axis=1).max()))
         rho_d, rho_q = max(rho_d, float(np.abs(ea).max())), max(rho_q, float(np.abs(eb).max()))
     return {"max_pole_shift": shift, "spectral_radius_double": rho_d, "spectral_radius_stored": rho_q}
+
+
+def stored_step(setup: Any, fx: FixedStep) -> ca.Function:
+    """The double step with its constants as the fixed-point program stores them (gains, filter and
+    discretization coefficients in their Q formats), in double arithmetic: what the discrete analyses
+    re-run on to show the quantization's effect on the poles (design/runtime.step_variant). Same
+    signature as the step; its p and gain inputs are not read (the constants are the set-up's)."""
+    obs = setup.observer
+    law = setup.schedule.law if setup.schedule is not None else None
+    f = scheduled_step(obs, setup.discretization, law)
+    nodes, outs = build_graph(f, {2, 3})
+    live = live_nodes(nodes, [n for _, n in outs])
+    params = {i for i in live if nodes[i].param}
+    exact = {
+        i: float(v) for i, v in evaluate(nodes, {2: setup.p, 3: setup.gain}, params).items() if i in params
+    }
+    consts = {**exact, **fx.stored}
+    x, m = ca.SX.sym("x", len(obs.state)), ca.SX.sym("meas", len(obs.meas))
+    val: dict[int, Any] = {}
+
+    def get(i: int) -> Any:
+        if i not in val:
+            nd = nodes[i]
+            if i in consts:
+                val[i] = ca.SX(consts[i])
+            elif nd.op == "CONST":
+                val[i] = ca.SX(nd.const)
+            elif nd.op == "INPUT":
+                val[i] = (x if nd.source[0] == 0 else m)[nd.source[1]]
+            else:
+                val[i] = _SX[nd.op](*[get(a) for a in nd.args])
+        return val[i]
+
+    x_next = ca.vertcat(*[get(n) for (o, _), n in sorted(outs) if o == 0])
+    y = ca.vertcat(*[get(n) for (o, _), n in sorted(outs) if o == 1])
+    pp, gg = ca.SX.sym("p", f.size1_in(2)), ca.SX.sym("gain", f.size1_in(3))
+    return ca.Function(
+        f"{obs.name}_stored", [x, m, pp, gg], [x_next, y], ["x", "meas", "p", "gain"], ["x_next", "y"]
+    )

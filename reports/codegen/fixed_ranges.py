@@ -18,11 +18,17 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
+from sensorless.design.family import Drive, GainSet, ObserverFamily, require
 from sensorless.reports.codegen.c_graph import Node
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.runtime import RuntimeSetup
+    from sensorless.design.scenario import Scenario
+    from sensorless.design.simulate import LoopSetup
 
 MARGIN = 2.0  # simulated ranges are doubled (and inputs clamped at twice their range)
 
@@ -41,6 +47,7 @@ _F = {
     "TAN": np.tan,
     "ATAN": np.arctan,
     "ATAN2": np.arctan2,
+    "ASIN": np.arcsin,
     "EXP": np.exp,
     "LOG": np.log,
     "FABS": np.abs,
@@ -154,6 +161,10 @@ def interval(
             r = (-1.0, 1.0)
         elif op == "ATAN2":
             r = (-math.pi, math.pi)
+        elif op == "ASIN":
+            r = (-math.pi / 2, math.pi / 2)
+        elif op == "SIGN":
+            r = (-1.0, 1.0)
         elif op in ("FMIN", "FMAX"):
             f = min if op == "FMIN" else max
             r = (f(a[0][0], a[1][0]), f(a[0][1], a[1][1]))
@@ -203,7 +214,7 @@ def _states(loop: ca.Function, n: int, native: bool = True) -> ca.Function:
 
 
 def probe_runs(
-    drive: Any, gains: Any, scenarios: list[Any], compile: bool = True
+    drive: Drive, gains: GainSet, scenarios: list[Scenario], compile: bool = True
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """{observer name: (x, meas)} of every sample of the closed-loop runs of ``scenarios`` with the
     double step: the observer's state before each step and its measurements (columns are samples), by
@@ -238,7 +249,9 @@ def probe_runs(
     return {k: (np.hstack([x for x, _ in v]), np.hstack([m for _, m in v])) for k, v in runs.items()}
 
 
-def _probe_setup(fam: Any, drive: Any, sc: Any, gains: Any) -> tuple[Any, str, int]:
+def _probe_setup(
+    fam: ObserverFamily, drive: Drive, sc: Scenario, gains: GainSet
+) -> tuple[LoopSetup, str, int]:
     """(the loop set-up of ``sc`` whose observer step carries its measurements in its state
     (:func:`_probe`), the observer's name, its state's length).
 
@@ -248,25 +261,28 @@ def _probe_setup(fam: Any, drive: Any, sc: Any, gains: Any) -> tuple[Any, str, i
     states are the observer's). The scenario's step is the last one its set-up asks for, so a first
     set-up with the double step counts the requests and the second puts the probe in the last."""
     from sensorless.design.runtime import step_variant
+    from sensorless.design.simulate import Simulatable
 
-    asked: list[tuple[Any, ca.Function]] = []
+    sim = require(fam, Simulatable)  # one line where the family has no simulation
 
-    def count(setup: Any, step: ca.Function) -> ca.Function:
+    asked: list[tuple[RuntimeSetup, ca.Function]] = []
+
+    def count(setup: RuntimeSetup, step: ca.Function) -> ca.Function:
         asked.append((setup, step))
         return step
 
     with step_variant(count):
-        plain = fam.simulation(drive, sc, gains)
+        plain = sim.simulation(drive, sc, gains)
     last = len(asked) - 1
     setup, step = asked[last]
     asked.clear()
 
-    def probe(s: Any, st: ca.Function) -> ca.Function:
+    def probe(s: RuntimeSetup, st: ca.Function) -> ca.Function:
         asked.append((s, st))
         return _probe(st) if len(asked) - 1 == last else st
 
     with step_variant(probe):
-        ls = fam.simulation(drive, sc, gains)
+        ls = sim.simulation(drive, sc, gains)
     same = len(asked) == last + 1 and asked[last][1].name() == step.name()
     if not same or not np.array_equal(ls.z0, plain.z0):
         raise RuntimeError(f"{sc.name}: the set-up of the probe run is not that of the scenario's run")

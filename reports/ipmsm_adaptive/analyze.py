@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
@@ -22,6 +22,9 @@ from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
 from sensorless.reports.ipmsm_adaptive import discrete
 from sensorless.reports.options import Number, Renamed, UsageError, parse_torques
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 OPTIONS = (
     Option(
@@ -57,7 +60,7 @@ OPTIONS = (
 )
 
 
-def gain_choices(drive: Any, args: argparse.Namespace) -> dict[str, Any]:
+def gain_choices(drive: IpmsmDrive, args: argparse.Namespace) -> dict[str, Any]:
     """Label -> GainSet of the gains to analyse (a table's, or the drive file's named ones)."""
     if args.gains:
         from sensorless.design.gain_table import read_gain_table
@@ -70,7 +73,7 @@ def gain_choices(drive: Any, args: argparse.Namespace) -> dict[str, Any]:
     return {n: FAMILY.gains(drive, name=n) for n in names}
 
 
-def check(drive: Any, args: argparse.Namespace) -> None:
+def check(drive: IpmsmDrive, args: argparse.Namespace) -> None:
     """The options against the drive, before anything is computed: gains, table, torques, injection."""
     gain_choices(drive, args)
     if args.injection and not drive.injection.enabled:
@@ -79,7 +82,7 @@ def check(drive: Any, args: argparse.Namespace) -> None:
     discrete.scheme(drive, args)
 
 
-def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
+def analyze(drive: IpmsmDrive, args: argparse.Namespace, out: OutputSet) -> None:
     """Print the bands and worst damping per gain and torque; stage CSV and figures into ``out``."""
     choices = gain_choices(drive, args)
     torques = parse_torques(args.torque, drive.T_N)

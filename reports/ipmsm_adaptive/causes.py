@@ -15,13 +15,16 @@ verdict may say of the checks through zero speed.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive import FAMILY
 from sensorless.design.ipmsm_adaptive.carrier import coupling_limit
 from sensorless.reports.causes import CLOSED_LOOP, Failure, Named, operating_torque_pu
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 
 def crossings(td: Sequence[dict[str, Any]]) -> str:
@@ -47,7 +50,7 @@ def crossings(td: Sequence[dict[str, Any]]) -> str:
     )
 
 
-def failure_cause(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
+def failure_cause(drive: IpmsmDrive, gains: GainSet, failure: Failure) -> Named | None:
     """The cause of a failed check in the adaptive observer's own analysis (reports/causes.py): a closed-loop
     failure regenerating where the HF injection runs, above the speed below which its correction (20) holds
     (design/ipmsm_adaptive/carrier.py ``coupling_limit``), is the injection's coupling band; one where the

@@ -12,7 +12,7 @@ import argparse
 import functools
 import io
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.ipmsm_adaptive import FAMILY, with_alpha_fo
@@ -31,6 +31,9 @@ from sensorless.reports.family import Option
 from sensorless.reports.options import UsageError
 from sensorless.reports.svg_render import svg_later
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 OPTIONS = (
     Option(
@@ -54,7 +57,7 @@ OPTIONS = (
 )
 
 
-def scheme(drive: Any, args: argparse.Namespace) -> str | None:
+def scheme(drive: IpmsmDrive, args: argparse.Namespace) -> str | None:
     """The scheme to analyse in discrete time (None: continuous only); refuses what cannot be done."""
     if not (args.discrete or args.discretization):
         return None
@@ -127,7 +130,7 @@ def discrete_csv(a: DiscretePoleSweep, w_base: float) -> str:
     return buf.getvalue()
 
 
-def analyze_output(drive: Any, sweeps: list[tuple[str, float, Any, Any]], out: Any) -> None:
+def analyze_output(drive: IpmsmDrive, sweeps: list[tuple[str, float, Any, Any]], out: Any) -> None:
     """Print the discrete results of ``sweeps`` ((label, torque, sweep, low-speed sweep), each a
     DiscretePoleSweep); stage their CSV and pole maps of ln(z)/T_s."""
     import matplotlib.pyplot as plt
@@ -161,7 +164,9 @@ def analyze_output(drive: Any, sweeps: list[tuple[str, float, Any, Any]], out: A
         plt.close(fig)
 
 
-def study_output(drive: Any, choices: dict[str, Any], out: Any, progress: Callable[[str], None]) -> None:
+def study_output(
+    drive: IpmsmDrive, choices: dict[str, Any], out: Any, progress: Callable[[str], None]
+) -> None:
     """Print the discretization study for the gain choices and stage its CSV."""
     print(
         "discretization study (injection off): every scheme at "
@@ -175,7 +180,9 @@ def study_output(drive: Any, choices: dict[str, Any], out: Any, progress: Callab
     out.add_text("discretization_study.csv", study_csv(rows, drive.w_base))
 
 
-def study(drive: Any, choices: dict[str, Any], progress: Callable[[str], None]) -> dict[str, list[StudyRow]]:
+def study(
+    drive: IpmsmDrive, choices: dict[str, Any], progress: Callable[[str], None]
+) -> dict[str, list[StudyRow]]:
     """The study for each gain choice: every scheme at STUDY_SAMPLING, |w| in STUDY_SPEEDS, +-T_N."""
     sp = np.array(STUDY_SPEEDS)
     w = np.concatenate([-sp[::-1], sp]) * drive.w_base
@@ -232,7 +239,7 @@ def study_csv(rows: dict[str, list[StudyRow]], w_base: float) -> str:
     return "\n".join(lines) + "\n"
 
 
-def angle_error_figure(drive: Any, g: Any, w: np.ndarray) -> Any:
+def angle_error_figure(drive: IpmsmDrive, g: Any, w: np.ndarray) -> Any:
     """Steady position error of each scheme over speed at +-T_N, the drive's T_s (log scale)."""
     import matplotlib.pyplot as plt
 
@@ -253,7 +260,7 @@ def angle_error_figure(drive: Any, g: Any, w: np.ndarray) -> Any:
 
 def report_section(
     number: int,
-    drive: Any,
+    drive: IpmsmDrive,
     choices: dict[str, Any],
     review: str,
     fine: bool,

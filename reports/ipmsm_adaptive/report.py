@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -40,16 +40,19 @@ from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_f
 from sensorless.reports.review import Review, opening, settle, time_domain_checks, verdict_box
 from sensorless.reports.svg_render import svg_later
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
+
 TIME_DOMAIN = ("fig9b", "fig10", "fig6b")  # built-in scenarios re-run with the gains under review
 
 
-def drive_label(drive: Any, name: str) -> str:
+def drive_label(drive: IpmsmDrive, name: str) -> str:
     """The label of the drive file's gain ``name``: "paper <name>" for a preset (its gains are the
     paper's, Fig. 4), else "drive file's <name>" (a user's drive: the baseline, not the paper's)."""
     return f"paper {name}" if drive.file.startswith("preset:") else f"drive file's {name}"
 
 
-def gain_choices(drive: Any, table: Any | None, table_file: str) -> tuple[dict[str, GainSet], str]:
+def gain_choices(drive: IpmsmDrive, table: Any | None, table_file: str) -> tuple[dict[str, GainSet], str]:
     """Label -> gains: the drive file's gain choices, plus the table's; and the label under review."""
     choices = {drive_label(drive, name): FAMILY.gains(drive, name=name) for name in drive.observer.gains}
     if table is None:
@@ -74,7 +77,7 @@ def _worst_point(s: PoleSweep, w_min: float, w_base: float) -> dict[str, Any]:
 
 
 def compute(
-    drive: Any,
+    drive: IpmsmDrive,
     table: Any | None = None,
     table_file: str = "",
     min_damping: float = MIN_DAMPING,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.ipmsm_adaptive.law_settings import BREAKPOINTS
 from sensorless.design.units import DriveFileError, parse_quantity
@@ -17,6 +17,9 @@ from sensorless.reports import envelope_options
 from sensorless.reports.envelope_options import ENVELOPE_OPTIONS, NOISE_OPTIONS, tune_settings
 from sensorless.reports.family import Option
 from sensorless.reports.options import Number, option_error
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 OPTIONS = (
     *ENVELOPE_OPTIONS,
@@ -34,7 +37,7 @@ OPTIONS = (
 )
 
 
-def law_options(drive: Any, args: argparse.Namespace, law: Any) -> Any:
+def law_options(drive: IpmsmDrive, args: argparse.Namespace, law: Any) -> Any:
     """The gain laws' own settings (design/ipmsm_adaptive/law_settings.py) with the options given."""
     new: dict[str, Any] = {}
     if args.lambda_max is not None:

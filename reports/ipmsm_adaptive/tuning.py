@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -25,9 +25,12 @@ from sensorless.design.ipmsm_adaptive import FAMILY
 from sensorless.reports.document import Figure, Paragraph, Section, Table, arr, f, num
 from sensorless.reports.svg_render import svg_later
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
+
 
 def compute(
-    drive: Any,
+    drive: IpmsmDrive,
     table: Any | None,
     choices: dict[str, GainSet],
     review: str,

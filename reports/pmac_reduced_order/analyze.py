@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.pmac_reduced_order import FAMILY
@@ -19,6 +19,9 @@ from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
 from sensorless.reports.options import RELATIVE_LIMIT, option_error, quantities
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 OPTIONS = (
     Option(
@@ -45,7 +48,7 @@ STUDY_SPEEDS = (250.0, 1000.0)  # [r/min]
 STUDY_LOADS = (5.0,)  # [N m]
 
 
-def _print_block(r: ObserverPoles, drive: Any, title: str) -> None:
+def _print_block(r: ObserverPoles, drive: PmacDrive, title: str) -> None:
     from sensorless.reports.pmac_reduced_order.figures import format_poles
 
     print(title)
@@ -72,7 +75,7 @@ def _print_block(r: ObserverPoles, drive: Any, title: str) -> None:
         )
 
 
-def options(drive: Any, args: argparse.Namespace) -> tuple[list[float], list[float], str]:
+def options(drive: PmacDrive, args: argparse.Namespace) -> tuple[list[float], list[float], str]:
     """(speeds [r/min], loads [N m], scheme) from the options or the drive, checked (one-line errors)."""
     rpm_max = drive.w_to_rpm(RELATIVE_LIMIT * drive.w_base)
     rpm = quantities(
@@ -102,13 +105,13 @@ def options(drive: Any, args: argparse.Namespace) -> tuple[list[float], list[flo
     return rpm, loads, method
 
 
-def check(drive: Any, args: argparse.Namespace) -> None:
+def check(drive: PmacDrive, args: argparse.Namespace) -> None:
     """The options and the gain table against the drive, before anything is computed."""
     FAMILY.gains(drive, table=_table(args), table_file=args.gains or "")
     options(drive, args)
 
 
-def analyze(drive: Any, args: argparse.Namespace, out: OutputSet) -> None:
+def analyze(drive: PmacDrive, args: argparse.Namespace, out: OutputSet) -> None:
     """Poles at the operating points, with and without load-torque estimation; stage CSV and figures."""
     gains = FAMILY.gains(drive, table=_table(args), table_file=args.gains or "")
     rpm, loads, method = options(drive, args)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -14,6 +14,9 @@ import numpy as np
 from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
 from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
 
@@ -35,7 +38,7 @@ def format_poles(poles: np.ndarray, digits: int = 4) -> str:
     return ", ".join(out)
 
 
-def poles_csv(r: ObserverPoles, drive: Any) -> str:
+def poles_csv(r: ObserverPoles, drive: PmacDrive) -> str:
     """One row per operating point; poles as re/im pairs [1/s]; units and settings in the header."""
     n_c, n_m = r.poles.shape[1], r.memory_z.shape[1]
     head = ["speed_rpm", "w_rad_s", "T_L_Nm"]
@@ -63,7 +66,7 @@ def poles_csv(r: ObserverPoles, drive: Any) -> str:
     return buf.getvalue()
 
 
-def study_csv(rows: Sequence[Any], drive: Any) -> str:
+def study_csv(rows: Sequence[Any], drive: PmacDrive) -> str:
     """The discretization study (design/pmac_reduced_order/discretization.py) as CSV."""
     buf = io.StringIO()
     buf.write(
@@ -91,7 +94,7 @@ def study_csv(rows: Sequence[Any], drive: Any) -> str:
     return buf.getvalue()
 
 
-def plot_poles(results: dict[str, ObserverPoles], drive: Any, title: str) -> matplotlib.figure.Figure:
+def plot_poles(results: dict[str, ObserverPoles], drive: PmacDrive, title: str) -> matplotlib.figure.Figure:
     """Per variant (column): real parts of the poles vs speed, continuous (o) and discrete ln(z)/T_s (x),
     and the discrete observer's steady speed and load-torque errors vs speed; colored by load."""
     cols = len(results)

@@ -8,7 +8,7 @@ steady errors; the paper's experiments re-run (Figs. 3 and 5(b)); and a verdict.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.pmac_reduced_order import FAMILY
@@ -35,6 +35,9 @@ from sensorless.reports.review import (
     verdict_box,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
+
 TIME_DOMAIN = ("fig3", "fig5b")
 
 
@@ -43,7 +46,7 @@ def _pole_list(p: np.ndarray) -> list[list[Any]]:
 
 
 def compute(
-    drive: Any,
+    drive: PmacDrive,
     table: Any | None = None,
     table_file: str = "",
     min_damping: float = MIN_DAMPING,

@@ -8,13 +8,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.reports.envelope_options import ENVELOPE_OPTIONS, NOISE_OPTIONS
 from sensorless.reports.family import Option
 from sensorless.reports.options import Number, UsageError, parse_max_noise
 from sensorless.tuning.nlp import TuningError
-from sensorless.tuning.pmac_reduced_order.settings import DeAngeloSettings, default_settings
+from sensorless.tuning.pmac_reduced_order.settings import ConstantGainSettings, default_settings
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 DENSE_FACTOR = next(o for o in ENVELOPE_OPTIONS if o.dest == "dense_factor")
 MAX_NOISE = next(o for o in NOISE_OPTIONS if o.dest == "max_noise")
@@ -43,7 +46,7 @@ OPTIONS = (
 )
 
 
-def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> DeAngeloSettings:
+def settings(drive: PmacDrive, args: argparse.Namespace, tunable: Any) -> ConstantGainSettings:
     """Constant-gain settings: the drive's [envelope] and default bounds, with the overrides."""
     s = default_settings(drive)
     out: dict[str, Any] = {}
@@ -61,7 +64,7 @@ def settings(drive: Any, args: argparse.Namespace, tunable: Any) -> DeAngeloSett
     return s
 
 
-def describe(drive: Any, settings: DeAngeloSettings) -> str:
+def describe(drive: PmacDrive, settings: ConstantGainSettings) -> str:
     """One line: the envelope."""
     return (
         f"envelope: speeds {', '.join(f'{v:g}' for v in settings.speeds_rpm)} r/min x loads "

@@ -38,6 +38,21 @@ def pll_roots(gains: GainSet) -> tuple[complex, complex]:
     return complex(-k_p / 2, im), complex(-k_p / 2, -im)
 
 
+def pll_fixed(gains: GainSet, alpha_s: float) -> GainSet | None:
+    """The gains with the PLL :func:`pll_finding` names (a double root at PLL_SPEED_LOOP x ``alpha_s``
+    or faster, in the values written: VESC's k_i = k_p^2/4 to 6 digits, ODrive's bandwidth); None where
+    the PLL already settles fast enough."""
+    min_decay = PLL_SPEED_LOOP * alpha_s
+    if -pll_roots(gains)[0].real >= min_decay * (1 - 1e-9):
+        return None
+    if gains.law == "vesc":
+        kp = float(f"{max(pll_gains(gains)[0], 2 * min_decay):.6g}")
+        new = {"foc_pll_kp": kp, "foc_pll_ki": float(f"{kp**2 / 4:.6g}")}
+    else:
+        new = {"pll_bandwidth": float(f"{min_decay:.6g}")}
+    return dataclasses.replace(gains, values={**gains.values, **new}, source=f"{gains.source}, the PLL's fix")
+
+
 def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str:
     """Empty where the PLL's speed estimate settles at PLL_SPEED_LOOP x the speed loop's bandwidth
     ``alpha_s`` [rad/s] or faster; else why, and what to do."""
@@ -49,9 +64,11 @@ def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str
     k_p, k_i = pll_gains(gains)
     if gains.law == "vesc":
         names = f"foc_pll_kp = {k_p:.6g} 1/s, foc_pll_ki = {k_i:.6g} 1/s^2"
-        kp = max(k_p, 2 * min_decay)  # a double root at -kp/2, at least min_decay
+        fixed = pll_fixed(gains, alpha_s)
+        assert fixed is not None
+        kp, ki = fixed.values["foc_pll_kp"], fixed.values["foc_pll_ki"]  # a double root at -kp/2
         todo = (
-            f"foc_pll_kp = {kp:.6g} 1/s, foc_pll_ki = foc_pll_kp^2/4 = {kp**2 / 4:.4g} 1/s^2 (a double root "
+            f"foc_pll_kp = {kp:.6g} 1/s, foc_pll_ki = foc_pll_kp^2/4 = {ki:.6g} 1/s^2 (a double root "
             f"at {-kp / 2:.4g} 1/s), a slower speed loop ([control] alpha_s at most "
             f"{sigma / PLL_SPEED_LOOP:.4g} rad/s), or sensorless tune --law vesc"
         )

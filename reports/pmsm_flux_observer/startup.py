@@ -15,8 +15,10 @@ def startup_findings(drive: Any, gains: GainSet) -> tuple[list[str], dict[str, A
     value that does not hold, naming the firmware's field and the value that fixes it, and the data of
     report.json; nothing where the drive needs no start or has no minimum-speed analysis."""
     from sensorless.design.family import CapabilityError
+    from sensorless.design.pmsm_flux_observer.firmware import stored
     from sensorless.design.pmsm_flux_observer.firmware.startup import change_lines, fields
     from sensorless.design.startup_check import judge_startup
+    from sensorless.reports.pmsm_flux_observer.findings import pll_fixed
 
     try:
         judged = judge_startup(drive, gains)
@@ -25,7 +27,19 @@ def startup_findings(drive: Any, gains: GainSet) -> tuple[list[str], dict[str, A
     if judged is None:
         return [], None
     fw = drive.observer.firmware
+    lead: list[str] = []
+    fixed = None if judged.fixable else pll_fixed(gains, drive.control.alpha_s)
+    again = None if fixed is None else judge_startup(drive, fixed)
+    if again is not None and again.fixable:  # the PLL holds w_min at rated speed: the start at its fix
+        lead = [x for x in change_lines(fw, judged, drive.w_base) if "no start-up value fixes it" in x]
+        named = ", ".join(
+            f"{k} = {stored(float(v))}" for k, v in fixed.values.items() if v != gains.values[k]
+        )
+        judged = again
+        if judged.shortfalls:
+            lead.append(f"start-up with the PLL's fix ({named}; the PLL's finding):")
     data = {
+        "at_gains": "the PLL's fix" if lead else "under review",
         "w_min_rad_s": f(judged.w_min),
         "values": {k: f(v) for k, v in sorted(judged.values.items())},
         "firmware_fields": {k: f(v) for k, (v, _) in fields(fw, judged.values).items()}
@@ -36,7 +50,7 @@ def startup_findings(drive: Any, gains: GainSet) -> tuple[list[str], dict[str, A
             for s in judged.shortfalls
         ],
     }
-    return change_lines(fw, judged, drive.w_base), data
+    return lead + change_lines(fw, judged, drive.w_base), data
 
 
 def reversal_finding(drive: Any, runs: Sequence[Any], td: Sequence[dict[str, Any]]) -> list[str]:

@@ -9,7 +9,7 @@ import subprocess
 
 import numpy as np
 import pytest
-from helpers.fuzz import CC
+from helpers.fuzz import CC, pmsm_steady_segments, steady_rows
 from sensorless.design.drive import load_drive
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import run_trajectory, step_variant
@@ -18,6 +18,7 @@ from sensorless.design.simulate import simulate
 from sensorless.reports.codegen import fixed_ops
 from sensorless.reports.codegen.fixed_generate import fixed_model, generate_fixed
 from sensorless.reports.codegen.fixed_model import run_raw
+from sensorless.reports.codegen.fixed_params import params_from_si
 from sensorless.reports.codegen.generate import Provenance
 
 pytestmark = pytest.mark.skipif(CC is None, reason="no host C compiler (gcc/cc) on PATH")
@@ -45,17 +46,21 @@ def built(tmp_path_factory):
     return d, setup, model, model.program(setup), out, exe
 
 
-def replay(exe, out, raw, x0=None):
-    """The C on raw samples, from *_init or from the raw state ``x0``."""
+def replay(exe, out, raw, x0=None, params=None, code=0):
+    """The C on raw samples, from *_init or from the raw state ``x0``, with the drive's parameter
+    struct or the raw words ``params``; ``code``: the exit status expected."""
     f = out / "samples.bin"
     np.ascontiguousarray(raw, dtype="<i4").tofile(f)
     args = [str(exe), str(f)]
     if x0 is not None:
         np.ascontiguousarray(x0, dtype="<i4").tofile(out / "x0.bin")
         args.append(str(out / "x0.bin"))
+    if params is not None:
+        np.ascontiguousarray(params, dtype="<i4").tofile(out / "params.bin")
+        args.append(str(out / "params.bin"))
     r = subprocess.run(args, capture_output=True)
-    assert r.returncode == 0
-    return np.frombuffer(r.stdout, "<i4").reshape(len(raw), -1)
+    assert r.returncode == code, r.stderr
+    return np.frombuffer(r.stdout, "<i4").reshape(len(raw), -1) if code == 0 else r.stderr.decode()
 
 
 def test_c_equals_the_integer_model_and_recovers_from_a_glitch(built):
@@ -130,13 +135,13 @@ def test_integer_methods_within_their_stated_bounds():
     rng = np.random.default_rng(0)
     a = rng.integers(-(2**31), 2**31, size=20000)
     s = fixed_ops.sin_binary(B, a) * 2.0**-fixed_ops.SIN_F
-    assert np.abs(s - np.sin(a * np.pi / 2**31)).max() < 1e-7
+    assert np.abs(s - np.sin(a * np.pi / 2**31)).max() < 1e-6  # the stated bound
     r = 2.0 ** rng.uniform(8, 30.9, size=20000)  # any magnitude of an int32 vector from 2^8 up
     th = rng.uniform(-np.pi, np.pi, size=20000)
     x, y = np.round(r * np.cos(th)).astype(np.int64), np.round(r * np.sin(th)).astype(np.int64)
     z = fixed_ops.cordic_atan2(B, y, x) * np.pi / 2**31
     err = np.abs(np.angle(np.exp(1j * (z - np.arctan2(y, x)))))
-    assert np.all(err <= 3.1e-5 + 24 / r)  # the stated bound: atan(2^-15) + 24 LSB / |v|
+    assert np.all(err <= 1.23e-4 + 24 / r)  # the stated bound: atan(2^-13) + 24 LSB / |v|
     v = rng.integers(0, 2**32, size=20000)
     q = B.isqrt(v)
     assert np.all(q * q <= v) and np.all((q + 1) * (q + 1) > v)
@@ -234,3 +239,211 @@ def test_adaptive_observer_closed_loop_within_0p2_deg_of_the_double_step():
     e = np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
     assert np.abs(e).max() <= 0.2, np.abs(e).max()
     assert not fix.problems()
+
+
+def test_a_long_burst_resets_the_step_as_the_double_step_does(built):
+    """More rejected samples in a row than the guard allows: the fixed-point step resets itself on the
+    same sample as the double step (its counter counts: a format from runs that never reject would
+    not), and the C equals the model through it."""
+    _d, setup, model, fx, out, exe = built
+    x0_si, meas = model.data(setup)[0][:, 1000], model.data(setup)[1][:, 1000:1300].copy()
+    meas[:, 40:200] *= 50.0  # implausible: every one rejected
+    raw = fx.to_raw(meas, "meas").T
+    x0 = fx.to_raw(x0_si, "x")
+    c = replay(exe, out, raw, x0)
+    xs, ys = run_raw(fx, raw, x0)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    names = [o["name"] for o in fx.outputs]
+    _, ys_d = run_trajectory(setup, meas.T, x0_si)
+    fixed_resets = np.nonzero(ys[:, names.index("reset")])[0]
+    double_resets = np.nonzero(ys_d[:, names.index("reset")])[0]
+    assert len(double_resets) > 0 and np.array_equal(fixed_resets, double_resets)
+
+
+def test_gains_are_read_from_the_parameter_struct_at_run_time(built):
+    """The gains and motor constants are fields of <prefix>_params (Q formats in the header): the PLL's
+    gain doubled at run time changes the step, the C equals the model with that struct; init names a
+    field beyond twice the drive's value (the range the formats are proven for) and refuses it."""
+    _d, setup, model, fx, out, exe = built
+    names = [p["name"] for p in fx.params]
+    header = (out / f"{_d.name}.h").read_text()
+    assert all(f"int32_t {n}; /* " in header for n in names)
+    j = next(k for k, p in enumerate(fx.params) if p["expr"] == "T_s * k_p")
+    x0, meas = fx.to_raw(model.data(setup)[0][:, 1000], "x"), model.data(setup)[1][:, 1000:1200]
+    raw = fx.to_raw(meas, "meas").T
+    prm = [p["raw"] for p in fx.params]
+    prm[j] *= 2
+    c = replay(exe, out, raw, x0, prm)
+    xs, ys = run_raw(fx, raw, x0, prm)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    assert int((c != replay(exe, out, raw, x0)).sum()) > 0  # the gain took effect
+    prm[j] = 3 * fx.params[j]["raw"]
+    err = replay(exe, out, raw, x0, prm, code=2)
+    assert f"field {j + 1} out of its range" in err
+
+
+def test_params_from_si_fills_the_struct_from_si_values(built):
+    """The host-side helper: at the drive's values it gives the generated defaults; with psi_pm x 1.1
+    and k_p x 1.5 each field equals its expression typed here from the SI values (the flux family's
+    fields), the C runs that struct equal to the model; a field beyond its proven range is refused."""
+    _d, setup, model, fx, out, exe = built
+    assert params_from_si(setup, fx) == [p["raw"] for p in fx.params]
+    names = [f.name for f in setup.observer.params]
+    si = dict(zip(names, (float(v) for v in np.ravel(setup.p)), strict=True))
+    new = {"psi_pm": 1.1 * si["psi_pm"], "k_p": 1.5 * si["k_p"]}
+    prm = params_from_si(setup, fx, new)
+    v = {**si, **new}
+    typed = {  # the field's expression (the header's comment), typed from the parameters
+        "T_s * k_p": v["T_s"] * v["k_p"],
+        "6 * psi_pm": 6 * v["psi_pm"],
+        "2.5 * psi_pm": 2.5 * v["psi_pm"],
+        "psi_pm": v["psi_pm"],
+        "T_s * 1/psi_pm^2": v["T_s"] / v["psi_pm"] ** 2,
+        "T_s * k_i": v["T_s"] * v["k_i"],
+    }
+    seen = 0
+    for d, raw in zip(fx.params, prm, strict=True):
+        if d["expr"] in typed:
+            assert raw == round(typed[d["expr"]] * 2.0 ** d["f"]), d["expr"]
+            seen += 1
+    assert seen == len(typed)
+    x0, meas = fx.to_raw(model.data(setup)[0][:, 1000], "x"), model.data(setup)[1][:, 1000:1100]
+    raw = fx.to_raw(meas, "meas").T
+    c = replay(exe, out, raw, x0, prm)
+    xs, ys = run_raw(fx, raw, x0, prm)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    with pytest.raises(ValueError, match=r"psi_pm.*regenerate"):
+        params_from_si(setup, fx, {"psi_pm": 3 * si["psi_pm"]})
+    with pytest.raises(ValueError, match="unknown parameter"):
+        params_from_si(setup, fx, {"psi": 1.0})
+
+
+def test_fuzz_the_fixed_c_under_sanitizers(built):
+    """The fuzz of tests/helpers/fuzz.py for the fixed-point C: hostile bursts (any int32 words,
+    plausible-looking garbage within 3x the clean samples' words, the extreme words, one channel
+    extreme) between clean steady-state segments of the motor, ~8 10^4 steps through the replayer built
+    with -fsanitize=address,undefined (a signed overflow, which the worst-case analysis rules out,
+    would end it); every step keeps the header's promises (valid and reset 0 or 1, the counter within
+    its bound, the bounded state within its bounds) and every clean segment recovers within the flux
+    family's documented 200 periods (0.1 rad, 2 % of the base speed), as the float C does."""
+    d, setup, _model, fx, out, _exe = built
+    exe = out / "fuzz"
+    cmd = [CC, *STRICT[:-4], "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
+    r = subprocess.run(
+        [*cmd, "-o", str(exe), str(out / "main.c"), str(out / f"{d.name}.c")], capture_output=True, text=True
+    )
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    m, recover = d.motor, 200
+    rng = np.random.default_rng(11)
+    rows = steady_rows(rng, 120, (0.3, 1.0), d.w_base, d.T_N)
+    seg = pmsm_steady_segments((m.R_s, m.L_d, m.L_q, m.psi_pm, m.p), d.T_s, rows, recover + 300)
+    clean = [fx.to_raw(s[:, :4].T, "meas").T for s in seg]
+    top = int(np.abs(np.vstack(clean)).max())
+    parts, truth, starts, n = [], [], [], 0
+    for k, c in enumerate(clean):
+        kind, length = k % 4, int(rng.choice([1, 5, 20, 150, 400]))
+        if kind == 0:
+            b = rng.integers(-(2**31), 2**31, size=(length, 4))
+        elif kind == 1:
+            b = rng.integers(-3 * top, 3 * top + 1, size=(length, 4))
+        elif kind == 2:
+            b = rng.choice([-(2**31), 2**31 - 1, 0, -1], size=(length, 4))
+        else:
+            b = np.repeat(c[:1], length, axis=0)
+            b[:, rng.integers(4)] = rng.choice([-(2**31), 2**31 - 1])
+        parts += [b, c]
+        truth.append(np.full((length, 2), np.nan))
+        truth.append(seg[k][:, 4:6])
+        starts.append(n + length)
+        n += length + len(c)
+    raw = np.vstack(parts)
+    y = replay(exe, out, raw)
+    names = [o["name"] for o in fx.outputs]
+    n_y = len(names)
+    assert set(np.unique(y[:, names.index("valid")])) <= {0, 1}
+    assert set(np.unique(y[:, names.index("reset")])) <= {0, 1}
+    assert len(raw) > 60_000 and (y[:, names.index("valid")] == 0).sum() > 5000  # the bursts were rejected
+    assert y[:, names.index("reset")].sum() > 0  # and the long ones reset the step
+    bounds = np.asarray(setup.observer.bounds()(setup.p), float).ravel()
+    for j, (f, i) in enumerate(zip(setup.observer.state, fx.inputs, strict=False)):
+        if f.bound and i["kind"] == "fix":
+            assert np.abs(y[:, n_y + j]).max() <= bounds[j] * 2.0 ** i["f"] * (1 + 1e-6) + 1, f.name
+    th = y[:, names.index("theta_hat")] * np.pi / 2**31
+    w = y[:, names.index("w_hat")] * 2.0 ** -fx.outputs[names.index("w_hat")]["f"]
+    tr = np.vstack(truth)
+    for s0 in starts:
+        late = slice(s0 + recover, s0 + recover + 300)
+        assert y[late, names.index("valid")].min() == 1
+        assert np.abs(np.angle(np.exp(1j * (th[late] - tr[late, 0])))).max() < 0.1
+        assert np.abs(w[late] - tr[late, 1]).max() < 0.02 * d.w_base
+
+
+def test_report_judges_the_fixed_step_and_reruns_the_poles_with_stored_constants(built):
+    """`report --precision fixed`'s parts (reports/fixed_review.py): the time-domain checks run the
+    step given to ``judged_with`` (and only they: the analyses that set a run up keep the double
+    step); the whole drive's slow poles re-run with the stored constants move, but little."""
+    import dataclasses
+
+    from sensorless.reports import time_domain
+    from sensorless.reports.fixed_review import _drive_poles, judged_with
+
+    d, _setup, model, *_ = built
+    ran = []
+
+    def spy(setup, step):
+        ran.append(setup.observer.name)
+        return model.variant(setup, step)
+
+    sc = dataclasses.replace(load_scenario("torque_steps", d), duration=0.05)
+    with judged_with(spy):
+        td, _ = time_domain.checks(d, None, [sc], "drive file", lambda m: None)
+    assert ran and td[0]["name"] == "torque_steps"
+    ran.clear()
+    time_domain.checks(d, None, [sc], "drive file", lambda m: None)
+    assert not ran  # outside the block the checks run the double step
+    poles = _drive_poles(d, family_of(d).gains(d), model, quick=True)
+    assert poles["points"] > 0 and 0 < poles["max_relative_pole_shift"] < 0.01
+    assert abs(poles["worst_damping_stored"] - poles["worst_damping_double"]) < 1e-3
+
+
+def test_the_i_f_start_in_fixed_point(tmp_path):
+    """The I-f start (symbolic/startup.py) lowered: asin as the CORDIC atan2 of (v, sqrt(1 - v^2)),
+    sign as two comparisons; thresholds a ramp reaches by its own rounding are reached (the handover at
+    w_on). outrunner270's start (0.12 s, the handover at ~0.05 s): the C equals the model bit for bit
+    on its samples with a hostile burst, and in closed loop the angle error ends within 0.2 deg of the
+    double step's, the handover within 10 periods of its."""
+    import dataclasses
+
+    from sensorless.design.pmsm_drive import startup_setup
+    from sensorless.reports.codegen.fixed_model import FixedModel
+
+    d = load_drive("outrunner270")
+    fam = family_of(d)
+    setup, _ = startup_setup(d, fam.runtime(d, fam.gains(d)))
+    sc = dataclasses.replace(load_scenario("start", d), duration=0.12)
+    model = FixedModel.of(d, None, [sc], compile=False)
+    fx = model.program(setup)
+    files = generate_fixed(setup, model, Provenance(d.name, d.file, d.digest, "sensorless test"), d.name)
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    exe = tmp_path / "replay"
+    r = subprocess.run(
+        [CC, *STRICT, "-o", str(exe), str(tmp_path / "main.c"), str(tmp_path / f"{d.name}.c")],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    x, meas = model.data(setup)
+    raw = fx.to_raw(meas[:, 100:900], "meas").T
+    raw[300:330] = np.random.default_rng(9).integers(-(2**31), 2**31, size=(30, raw.shape[1]))
+    x0 = fx.to_raw(x[:, 100], "x")
+    c = replay(exe, tmp_path, raw, x0)
+    xs, ys = run_raw(fx, raw, x0)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    ref = simulate(d, sc, compile=False)
+    with step_variant(model.variant):
+        fix = simulate(d, sc, compile=False)
+    e = np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
+    assert np.abs(e[-100:]).max() <= 0.2, np.abs(e[-100:]).max()
+    hand = [int(np.flatnonzero(np.diff(tr["startup_mode"]) < 0)[0]) for tr in (ref, fix)]
+    assert abs(hand[0] - hand[1]) <= 10, hand  # the handover within 10 periods of the double step's

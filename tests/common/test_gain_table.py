@@ -196,3 +196,63 @@ def test_format_1_tables_and_former_law_names_still_read(tmp_path, capsys):
     with pytest.raises(GainTableError, match="key 'law': unknown law None"):
         read_gain_table(write(tmp_path, "bad", bad))
     assert json.loads(new.to_json())["format"] == "sensorless-gain-table/2"
+
+
+FLUX_SCHEDULE = {
+    "format": "sensorless-gain-table/2",
+    "drive": {"name": "outrunner270", "kind": "pmsm-flux-observer"},
+    "law": "schedule",
+    "gains": {"speeds": [100.0, 1000.0], "observer_gain": [500.0, 2000.0], "pll_bandwidth": 600.0},
+}
+
+
+def test_law_names_are_each_familys_own(tmp_path, capsys):
+    """Two families may name a law alike (the adaptive and the flux observer's "schedule"): a table
+    is read with its drive kind's law and keys, the other family's keys are refused, and each family
+    takes only its own table. The flux law's former name flux_schedule still reads, with a note."""
+    flux, adaptive = load_drive("outrunner270"), load_drive("piippo2008")
+    t = read_gain_table(write(tmp_path, "flux", FLUX_SCHEDULE))
+    g = family_of(flux).gains(flux, table=t)
+    assert (g.law, g.values["speeds"]) == ("schedule", [100.0, 1000.0])
+    s = read_gain_table(write(tmp_path, "adaptive", SCHEDULE))
+    assert family_of(adaptive).gains(adaptive, table=s).values["lambda1"] == [1.0, 2.0, 1.0]
+    with pytest.raises(GainTableError, match=r"key 'drive\.kind'"):  # the other family's table
+        family_of(flux).gains(flux, table=s)
+    crossed = {**FLUX_SCHEDULE, "gains": SCHEDULE["gains"]}  # the adaptive keys under the flux kind
+    with pytest.raises(GainTableError, match=r"key 'gains.speeds': missing for law schedule"):
+        read_gain_table(write(tmp_path, "crossed", crossed))
+    old = read_gain_table(write(tmp_path, "old", {**FLUX_SCHEDULE, "law": "flux_schedule"}))
+    assert "law 'flux_schedule' is now called 'schedule'" in capsys.readouterr().err
+    assert family_of(flux).gains(flux, table=old).values == g.values
+
+
+def test_dumps_is_the_standard_librarys_indented_json():
+    """design/gain_table.py ``dumps`` against ``json.dumps(indent=1, sort_keys=True, allow_nan=False)``
+    on the value kinds a table holds (and non-ASCII text), and on a tuned table's document."""
+    import json as _json
+
+    from sensorless.design.gain_table import clean, dumps
+
+    doc = {
+        "b": [
+            1,
+            -0.0,
+            1e-300,
+            2.5e16,
+            True,
+            False,
+            None,
+            '\u00e9\u2013"x\\',
+            [],
+            {},
+            [[1.5], {"z": 1, "a": [2]}],
+        ],
+        "a": {"k": 3, "nested": {"empty": [], "v": -7.125}},
+        "\u00fc": 12345678901234567890,
+    }
+    ref = _json.dumps(doc, indent=1, sort_keys=True, allow_nan=False)
+    assert dumps(doc) == ref
+    with pytest.raises(ValueError):
+        dumps({"x": [float("nan")]})
+    table = clean({"points": [{"w": 0.1 * k, "poles": [[-1.0 * k, 2.0]], "n": k} for k in range(50)]})
+    assert dumps(table) == _json.dumps(table, indent=1, sort_keys=True, allow_nan=False)

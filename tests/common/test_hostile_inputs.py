@@ -186,11 +186,11 @@ def deangelo_table():
 
     from sensorless.design.drive import load_drive
     from sensorless.tuning.pmac_reduced_order.settings import default_settings
-    from sensorless.tuning.pmac_reduced_order.tuner import tune_deangelo
+    from sensorless.tuning.pmac_reduced_order.tuner import tune_constant_gains
 
     drive = load_drive("deangelo2006")
     small = dataclasses.replace(default_settings(drive), speeds_rpm=(250.0, 1000.0), loads_Nm=(0.0, 5.0))
-    return json.loads(tune_deangelo(drive, small).table.to_json())
+    return json.loads(tune_constant_gains(drive, small).table.to_json())
 
 
 def test_gain_table_errors_name_the_file_and_the_key(tmp_path, capsys, deangelo_table):

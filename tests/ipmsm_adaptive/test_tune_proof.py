@@ -74,7 +74,7 @@ def test_nlp_start_at_its_own_decay_floor_is_feasible_and_ends_feasible(drive, m
     assert figures(model, sol.theta, W, T).worst_damping() >= f0.worst_damping() - 1e-6
 
 
-def _proof(label, stable, passed, w_base=100.0):
+def _proof(label, stable, passed, w_base=100.0, untested=""):
     w = np.array([-1.0, 1.0]) * w_base
     return tune_proof.Proof(
         label,
@@ -89,6 +89,7 @@ def _proof(label, stable, passed, w_base=100.0):
                 "failed": [] if passed else ["rotor lost"],
                 "problems": [],
                 "metrics": {},
+                "untested": untested,
             },
         ),
     )
@@ -105,6 +106,24 @@ def test_worse_names_the_point_and_the_check():
         tune_proof.worse(_proof("tuned", [False, True], False), _proof("b", [False, True], False), 100.0)
         == []
     )
+
+
+def test_not_tested_sensorless_is_worse_than_a_sensorless_pass():
+    """A check the tuned gains pass only with the I-f start in the loop (a warn) is worse than the drive
+    file's sensorless pass; no worse than the drive file's own warn, better than its fail."""
+    why = "the open-loop I-f start had the loop for 72 % of the run (0.9 s), the observer for 28 %"
+    base = _proof("drive file", [True, True], True)
+    warned = _proof("tuned", [True, True], True, untested=why)
+    bad = tune_proof.worse(warned, base, 100.0)
+    assert len(bad) == 1 and bad[0].startswith("time-domain check fig9b: not tested sensorless: the open")
+    assert "the drive file's gains pass it" in bad[0]
+    assert "warn (not tested sensorless)" in warned.line()
+    assert tune_proof.worse(warned, _proof("b", [True, True], True, untested=why), 100.0) == []
+    assert tune_proof.worse(warned, _proof("b", [True, True], False), 100.0) == []
+    failed = tune_proof.worse(
+        _proof("tuned", [True, True], False), _proof("b", [True, True], True, untested=why), 100.0
+    )
+    assert failed and "only without the observer in the loop" in failed[0]
 
 
 def test_tune_refuses_a_table_worse_than_the_drive_files(tmp_path, monkeypatch, capsys):

@@ -35,6 +35,33 @@ def test_draws_reproduce_the_familys_linearization():
     assert not np.allclose(lin.theta_err[3:], lin.theta_err[:3])  # the estimate error shows
 
 
+def test_draws_judge_the_sampled_observer_of_each_drawn_motor():
+    """A draw's discrete poles are the family's sampled-observer poles of the drive with that motor:
+    the drawn plant (R_s and psi_pm off) through the per-draw zero-order hold equals the single-drive
+    analysis of a drive file whose motor has those values."""
+    import dataclasses
+
+    d = load_drive("outrunner270")
+    fam = family_of(d)
+    params = fam.montecarlo_parameters(d)
+    g = fam.gains(d)
+    w = np.array([0.3, 1.0]) * d.w_base
+    T = np.array([d.T_N, -d.T_N])
+    nominal = np.array([p.plant for p in params])
+    est = np.array([p.estimate if p.estimate is not None else p.plant for p in params])
+    drawn = nominal.copy()
+    drawn[0] *= 1.3  # the true R_s 30 % high
+    drawn[3] *= 0.95  # the magnets' flux 5 % low
+    lin = fam.linearize_draws(d, g, np.vstack([nominal, drawn]), np.vstack([est, est]), w, T)
+    ref = fam.linearize(d, g, w, T)
+    moved = dataclasses.replace(d, motor=dataclasses.replace(d.motor, R_s=drawn[0], psi_pm=drawn[3]))
+    ref_drawn = fam.linearize(moved, g, w, T)
+    for k, r in ((0, ref), (1, ref_drawn)):
+        for a, b in zip(lin.poles_discrete[2 * k : 2 * k + 2], r.poles_discrete, strict=True):
+            assert np.allclose(np.sort_complex(a), np.sort_complex(b), rtol=1e-7, atol=1e-5)
+    assert not np.allclose(lin.poles_discrete[2:], lin.poles_discrete[:2])  # the drawn motor shows
+
+
 def test_montecarlo_command_defaults_to_the_typical_spread(tmp_path, capsys):
     # the preset with a start its user gives: the drive runs open loop below the hand-back speed w_off
     # = 0.2 p.u., so the draws are judged only from there up (the preset's own start hands back below

@@ -224,3 +224,20 @@ def test_a_start_without_a_w_min_is_still_never_written_beyond_reach():
     d = load_drive_text(im.text, "h.xml")
     files, _ = EXPORTERS["vesc"].export(d, family_of(d).gains(d))
     assert "foc_openloop_rpm" not in files["vesc.xml"]
+
+
+def test_an_odrive_drive_is_checked_as_odrive_runs_it(d5065):
+    """ODrive spins up once and never returns to open loop (odriverobotics/ODrive axis.cpp): the
+    report checks the start and the speed steps above zero, no run through zero speed, and says why."""
+    from sensorless.design.scenario import ZERO_SPEED_LOW_PU, crosses_zero
+    from sensorless.reports import time_domain
+
+    d, _ = d5065
+    runs = {sc.name: sc for sc in time_domain.scenarios(d, ())}
+    assert set(runs) == {"speed_steps", "load_steps", "start"}
+    assert not any(crosses_zero(sc) for sc in runs.values()) and runs["start"].startup
+    assert min(runs["speed_steps"].speed_reference.value) == pytest.approx(ZERO_SPEED_LOW_PU * d.w_base)
+    (why,) = time_domain.limitations(d)
+    assert "never returns to open loop" in why and "AXIS_STATE_IDLE" in why and "start from" not in why
+    vesc_drive = drive_of(vesc, "skate_2017_mcconf.xml", {"pole_pairs": 7})
+    assert "reversal" in {sc.name for sc in time_domain.scenarios(vesc_drive, ())}

@@ -48,7 +48,7 @@ def test_baselines_are_the_firmware_defaults(tuned, drive):
     assert (v["foc_pll_kp"], v["foc_pll_ki"]) == (2000.0, 30000.0)
 
 
-def test_flux_schedule_table_runs_as_a_schedule_over_the_pll_speed(drive):
+def test_schedule_table_runs_as_a_schedule_over_the_pll_speed(drive):
     from sensorless.tuning.pmsm_flux_observer import tune_schedule
 
     out = tune_schedule(drive, FluxTuneSettings())
@@ -75,7 +75,20 @@ def test_default_law_on_a_drive_of_ones_own_is_its_files(tmp_path):
     own.write_text(text)
     assert tunable_for(load_drive(str(own))).name == "vesc"
     assert tunable_for(load_drive("hubmotor48"), None).name == "odrive"  # a preset: the first law
-    assert tunable_for(load_drive(str(own)), "flux_schedule").name == "flux_schedule"
+    assert tunable_for(load_drive(str(own)), "schedule").name == "schedule"
+
+
+def test_the_schedule_laws_former_name_reads_from_drive_files(capsys):
+    """``flux_schedule``, the flux law's name before law names were each family's own, reads for one
+    release as ``schedule``, with one note per file."""
+    from sensorless.design.pmsm_flux_observer.gains import parse_law
+
+    t = {"speeds": [100.0, 1000.0], "observer_gain": [500.0, 2000.0], "pll_bandwidth": 600.0}
+    old = parse_law("flux_schedule", {"law": "flux_schedule", **t}, "old.toml", "gains")
+    assert old == parse_law("schedule", {"law": "schedule", **t}, "new.toml", "gains")
+    parse_law("flux_schedule", t, "old.toml", "gains")
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["old.toml: note: key 'gains.law': law 'flux_schedule' is now called 'schedule'"]
 
 
 def test_noise_limit_holds_and_front_trades_damping_for_bias(drive, tuned):
@@ -109,7 +122,7 @@ def test_angle_noise_scales_with_the_sensor_noise(drive):
     assert fin.any() and np.allclose(a4.noise[fin], 2 * a3.noise[fin])
 
 
-def test_flux_schedule_is_held_below_its_lowest_holding_speed(drive):
+def test_schedule_is_held_below_its_lowest_holding_speed(drive):
     """Where no candidate holds (every one lacks an equilibrium under some error corner) the criterion
     ties; the schedule keeps the lowest holding speed's gain there rather than the grid's smallest."""
     from sensorless.tuning.pmsm_flux_observer import assess, odrive_candidate, tune_schedule

@@ -9,10 +9,13 @@ Piippo, Hinkkanen, Luomi (2008). Builders of the TuningModels: laws.py. Settings
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.tuning.family import Tunable, TuningHooks
 from sensorless.tuning.ipmsm_adaptive.laws import build_schedule, build_speed_dependent
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 _POINTS = (
     ("w_m_pu", "w_m_pu"),
@@ -24,7 +27,7 @@ _POINTS = (
 _BASELINE = (("lambda1_ohm", "lambda1"), ("lambda2_ohm", "lambda2"))
 
 
-def _full_range(drive: Any) -> Any:
+def _full_range(drive: IpmsmDrive) -> Any:
     """The drive's [tuning] settings, their torques widened to the drive's torque limit +-T_max where
     they stop short of it: the speed loop applies +-T_max in every acceleration (motoring and
     regenerating), and gains tuned at +-T_N only were unstable just beyond it (piippo2008's schedule:
@@ -33,7 +36,7 @@ def _full_range(drive: Any) -> Any:
     return dataclasses.replace(s, envelope=s.envelope.widened(drive.control.T_max))
 
 
-def _paper_or_full(drive: Any) -> Any:
+def _paper_or_full(drive: IpmsmDrive) -> Any:
     """The paper's law on its own preset keeps the preset's envelope (it reproduces Piippo et al. 2008,
     tuned at +-T_N); on any other drive it tunes over the full range too (``_full_range``)."""
     return dataclasses.replace(drive.tuning, envelope=drive.envelope)

@@ -28,7 +28,7 @@ when ``tune_alpha_fo`` is set.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -39,11 +39,14 @@ from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law, schedule_
 from sensorless.tuning.ipmsm_adaptive.model import law_model, law_values
 from sensorless.tuning.model import TuningModel
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
+
 GAIN_BOX = 20.0  # default search box |lambda| <= 20 R̂s when no lambda_max is given
 LAMBDA1_MIN = -0.9  # lambda1 > -R̂s (Section IV-B): the box keeps lambda1 >= -0.9 R̂s
 
 
-def _model(drive: Any, gain_law: GainLaw, settings: TuningSettings, **kw: Any) -> TuningModel:
+def _model(drive: IpmsmDrive, gain_law: GainLaw, settings: TuningSettings, **kw: Any) -> TuningModel:
     """The law's TuningModel, whose pointwise model (of the bound, tuning/bound.py) is build_pointwise."""
     return law_model(drive, gain_law, settings, pointwise=lambda: build_pointwise(drive, settings), **kw)
 
@@ -67,7 +70,7 @@ def _alpha_reg(th: ca.SX, law: GainLaw, settings: TuningSettings, a0: float) -> 
 
 
 def build_speed_dependent(
-    drive: Any, settings: TuningSettings, seed: np.ndarray | None = None
+    drive: IpmsmDrive, settings: TuningSettings, seed: np.ndarray | None = None
 ) -> TuningModel:
     """Law speed-dependent: eq. (16) with lambda' and omega_lambda free."""
     law = get_law("speed")
@@ -120,7 +123,7 @@ def _ohm(v: float) -> float:
 
 
 def schedule_breakpoints(
-    drive: Any, settings: TuningSettings, kinks: tuple[float, ...] = ()
+    drive: IpmsmDrive, settings: TuningSettings, kinks: tuple[float, ...] = ()
 ) -> tuple[float, ...]:
     """Breakpoints [rad/s]: zero, ``breakpoints`` speeds per direction over the envelope, and +-each
     of ``kinks`` [rad/s] that lies inside the envelope and not within 1e-3 p.u. of another."""
@@ -142,7 +145,7 @@ def _speed_dependent_at(grid: tuple[float, ...], params: np.ndarray) -> np.ndarr
     return np.concatenate([np.asarray(l1).ravel(), np.asarray(l2).ravel()])
 
 
-def pinned_in_band(drive: Any, grid: tuple[float, ...]) -> np.ndarray:
+def pinned_in_band(drive: IpmsmDrive, grid: tuple[float, ...]) -> np.ndarray:
     """(K,) bool: the breakpoints [rad/s] of ``grid`` inside the injection band (|w_hat| <= w_Delta)
     where the drive injects; none without injection."""
     inj = drive.injection
@@ -151,7 +154,9 @@ def pinned_in_band(drive: Any, grid: tuple[float, ...]) -> np.ndarray:
     return np.abs(np.array(grid)) <= inj.w_Delta * (1 + 1e-9)
 
 
-def build_schedule(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
+def build_schedule(
+    drive: IpmsmDrive, settings: TuningSettings, seed: np.ndarray | None = None
+) -> TuningModel:
     """Family schedule: free (lambda1, lambda2) at each breakpoint, linear in between; started from
     ``seed``, the tuned speed-dependent parameters (lambda', omega_lambda[, alpha_fo]), when given.
     In the injection band the breakpoints keep the seed's gains (the drive file's without a seed):
@@ -272,7 +277,9 @@ def _signed_log(lo: float, hi: float, R: float, n: int) -> np.ndarray:
     return np.unique(np.clip(out, lo, hi))
 
 
-def build_pointwise(drive: Any, settings: TuningSettings, seed: np.ndarray | None = None) -> TuningModel:
+def build_pointwise(
+    drive: IpmsmDrive, settings: TuningSettings, seed: np.ndarray | None = None
+) -> TuningModel:
     """The free gains at one operating point: theta = [lambda1, lambda2] (constant law, eq. (7)), in the
     box of the schedule; the model of the pointwise bound (tuning/bound.py)."""
     law = get_law("constant")
@@ -301,7 +308,7 @@ def build_pointwise(drive: Any, settings: TuningSettings, seed: np.ndarray | Non
     )
 
 
-def with_estimate(drive: Any, estimate: np.ndarray) -> Any:
+def with_estimate(drive: IpmsmDrive, estimate: np.ndarray) -> Any:
     """The drive with other parameter estimates (for analysis of the error scenarios)."""
     e = dataclasses.replace(
         drive.estimate, R_s=estimate[0], L_d=estimate[1], L_q=estimate[2], psi_pm=estimate[3]

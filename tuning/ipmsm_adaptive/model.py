@@ -10,7 +10,7 @@ evaluates. theta is the law's parameter vector, plus alpha_fo (10) when ``tune_a
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -23,11 +23,16 @@ from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, taylor_law
 from sensorless.tuning.ipmsm_adaptive.size import gain_size_function
 from sensorless.tuning.model import TuningModel
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
+
 POINT_NAMES = ("w_m", "T_e", "R_s_hat", "L_d_hat", "L_q_hat", "psi_pm_hat")
 N_PHI = 6  # local gain data: lambda1, lambda2, their slopes in w_hat, w_m, alpha_fo
 
 
-def _closed_loop(drive: Any, law: GainLaw, tune_alpha: bool) -> tuple[ca.Function, ca.Function, ca.Function]:
+def _closed_loop(
+    drive: IpmsmDrive, law: GainLaw, tune_alpha: bool
+) -> tuple[ca.Function, ca.Function, ca.Function]:
     """(local, linearization, noise) Functions of the law.
 
     local(theta, point) -> phi = [lambda1, lambda2, dlambda1/dw_hat, dlambda2/dw_hat, w_m, alpha_fo]:
@@ -90,7 +95,7 @@ def law_values(law: GainLaw) -> ca.Function:
 
 
 def law_model(
-    drive: Any,
+    drive: IpmsmDrive,
     gain_law: GainLaw,
     settings: TuningSettings,
     theta0: ArrayLike,

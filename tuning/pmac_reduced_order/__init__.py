@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from sensorless.tuning.family import Tunable, TuningHooks
 from sensorless.tuning.pmac_reduced_order.settings import default_settings
-from sensorless.tuning.pmac_reduced_order.tuner import tune_deangelo
+from sensorless.tuning.pmac_reduced_order.tuner import tune_constant_gains
 
 HOOKS = TuningHooks(
     tunables=(
@@ -17,7 +17,7 @@ HOOKS = TuningHooks(
             "constant gains g, Gamma of the reduced-order EMF/load-torque observer, eqs. (9)-(10) of "
             "De Angelo et al. (2006)",
             default_settings,
-            tuner=tune_deangelo,
+            tuner=tune_constant_gains,
             columns=(
                 (
                     ("n_rpm", "n_rpm"),

@@ -4,22 +4,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.gain_table import GainTable
-from sensorless.tuning.pmac_reduced_order.objective import Figures
+from sensorless.tuning.pmac_reduced_order.objective import FEEDFORWARD, GAIN_MARGIN, Figures
 from sensorless.tuning.pmac_reduced_order.settings import (
-    DeAngeloSettings,
+    ConstantGainSettings,
     grid,
     limits_text,
     load_grid,
     speed_grid,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
+
 
 @dataclass(frozen=True)
-class DeAngeloResult:
+class ConstantGainResult:
     """What ``sensorless tune`` reports for the constant law."""
 
     law: str
@@ -33,11 +36,11 @@ class DeAngeloResult:
     grid: Figures
     evaluations: int
     note: str  # which candidate was kept and why
-    settings: DeAngeloSettings
+    settings: ConstantGainSettings
     table: GainTable
     seconds: float
 
-    def summary_lines(self, drive: Any = None) -> list[str]:
+    def summary_lines(self, drive: PmacDrive = None) -> list[str]:
         """The terminal summary."""
         s = self.table.summary
         env = self.table.envelope
@@ -63,7 +66,13 @@ class DeAngeloResult:
             f"  (worst RMS over the dense grid for {self.table.summary['noise']['sigma_A']:.4g} A rms "
             "current noise per axis and sample)",
             f"constraints: noise {limits_text(self.settings)}; damping >= {self.settings.min_damping:.3f}; "
-            f"search box g in [{self.settings.g_min:g}, {self.settings.g_max:g}] 1/s, Gamma in "
+            + (
+                "the whole sampled drive stable with the load-torque feedforward off and on, also at "
+                f"{GAIN_MARGIN:g} x the gains; "
+                if self.settings.whole_drive
+                else "the observer's poles alone (no whole-drive constraint); "
+            )
+            + f"search box g in [{self.settings.g_min:g}, {self.settings.g_max:g}] 1/s, Gamma in "
             f"[{self.settings.Gamma_min:g}, {self.settings.Gamma_max:g}] A^2 s^2; sinusoidal closed form "
             f"(at the g the noise limit allows): g = {self.closed_form[0]:.5g}, "
             f"Gamma = {self.closed_form[1]:.5g}",
@@ -80,7 +89,7 @@ def _pairs(p: np.ndarray) -> list[list[float]]:
     return [[float(z.real), float(z.imag)] for z in p]
 
 
-def gain_table(drive: Any, r: DeAngeloResult) -> GainTable:
+def gain_table(drive: PmacDrive, r: ConstantGainResult) -> GainTable:
     """The gain table of a result: every dense-grid point with the tuned and the drive's gains."""
     st = r.settings
     d, d0 = r.dense, r.dense_baseline
@@ -150,7 +159,13 @@ def gain_table(drive: Any, r: DeAngeloResult) -> GainTable:
         "dense_points": int(nd.size),
         "T_s_s": float(drive.control.T_s),
         "discretization": drive.control.discretization,
-        "constraints": {"min_damping": st.min_damping, "max_noise": dict(st.max_noise)},
+        "constraints": {
+            "min_damping": st.min_damping,
+            "max_noise": dict(st.max_noise),
+            "whole_drive_stable": (
+                {"feedforward": list(FEEDFORWARD), "gain_margin": GAIN_MARGIN} if st.whole_drive else None
+            ),
+        },
         "bounds": {"g": [st.g_min, st.g_max], "Gamma": [st.Gamma_min, st.Gamma_max]},
     }
     return GainTable(

@@ -9,11 +9,14 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 from sensorless.design.envelope import SpeedRule
 from sensorless.tuning.nlp import TuningError
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 G_MAX_FACTOR = 100.0  # search box g <= 100 g (drive): the noise limit decides, not this
 NOISE_FACTOR = 2.0  # default noise limit: the position noise of the drive's gains times this
@@ -21,7 +24,7 @@ MIN_FACTOR = 0.01  # default lower bounds: 1 % of the drive's g (and of its Gamm
 
 
 @dataclass(frozen=True)
-class DeAngeloSettings:
+class ConstantGainSettings:
     """Envelope, bounds and constraint of the constant law."""
 
     speeds_rpm: tuple[float, ...]  # mechanical speeds [r/min], nonzero
@@ -34,6 +37,9 @@ class DeAngeloSettings:
     dense_factor: int = 4
     # (output, limit SI) pairs; None: NOISE_FACTOR x the drive's gains' position noise; (): no limit
     max_noise: tuple[tuple[str, float], ...] | None = None
+    # the whole sampled drive's constraint (objective.py drive_check); False: the observer's poles alone
+    # (what the paper's analysis judges; the tests of the observer-only search use it)
+    whole_drive: bool = True
     # the tuner of its own computes neither a pointwise bound nor a damping-versus-noise front
     bound: ClassVar[bool] = False
     pareto: ClassVar[int] = 0
@@ -62,12 +68,12 @@ class DeAngeloSettings:
             raise TuningError(f"{file}: [envelope]: need nonzero speeds and at least one load")
 
 
-def critical_gamma(drive: Any, g: float) -> float:
+def critical_gamma(drive: PmacDrive, g: float) -> float:
     """Gamma that makes s^2 + g s + Gamma (Phi_1/J)^2 critically damped: (g J / (2 Phi_1))^2."""
     return (g * drive.estimate.J / (2 * drive.estimate.Phi[0])) ** 2
 
 
-def gamma_box(drive: Any, g_min: float, g_max: float, Gamma0: float) -> tuple[float, float]:
+def gamma_box(drive: PmacDrive, g_min: float, g_max: float, Gamma0: float) -> tuple[float, float]:
     """Default Gamma bounds for g in [g_min, g_max] (docs/families/pmac_reduced_order.md, "Tuning").
 
     Gamma acts through c = Gamma (Phi_1/J)^2 against g^2 (the quadratic s^2 + g s + c), so its
@@ -81,12 +87,12 @@ def gamma_box(drive: Any, g_min: float, g_max: float, Gamma0: float) -> tuple[fl
     return lo, max(4 * critical_gamma(drive, g_max), Gamma0)
 
 
-def default_settings(drive: Any) -> DeAngeloSettings:
+def default_settings(drive: PmacDrive) -> ConstantGainSettings:
     """The drive's [envelope], bounds around its [observer] gains (g) and their scale (Gamma)."""
     o = drive.observer
     g_min, g_max = MIN_FACTOR * o.g, G_MAX_FACTOR * o.g
     Gamma_min, Gamma_max = gamma_box(drive, g_min, g_max, float(o.Gamma))
-    return DeAngeloSettings(
+    return ConstantGainSettings(
         speeds_rpm=tuple(float(s) for s in drive.envelope.rule.listed),
         loads_Nm=tuple(float(t) for t in drive.envelope.torque_values),
         g_min=g_min,
@@ -110,20 +116,20 @@ def load_grid(loads_Nm: tuple[float, ...], factor: int = 1) -> np.ndarray:
     return np.concatenate([*(np.linspace(a, b, factor + 1)[:-1] for a, b in itertools.pairwise(T)), T[-1:]])
 
 
-def grid(settings: DeAngeloSettings, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def grid(settings: ConstantGainSettings, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Flat (speed [r/min], load [N m]) of the speed x load grid (load-major)."""
     n, T = np.meshgrid(speed_grid(settings.speeds_rpm, factor), load_grid(settings.loads_Nm, factor))
     return n.ravel(), T.ravel()
 
 
-def closed_form(drive: Any, g_max: float, Gamma_max: float) -> tuple[float, float]:
+def closed_form(drive: PmacDrive, g_max: float, Gamma_max: float) -> tuple[float, float]:
     """(g*, Gamma*) of the sinusoidal continuous-time model (tuner.py docstring, step 1)."""
     k = drive.estimate.Phi[0] / drive.estimate.J  # Phi_1 / J: c = Gamma k^2
     g = min(g_max, 2 * math.sqrt(Gamma_max) * k)
     return g, (g / (2 * k)) ** 2
 
 
-def limits_text(st: DeAngeloSettings) -> str:
+def limits_text(st: ConstantGainSettings) -> str:
     """The noise limits for messages: 'position <= 0.1 deg el.'."""
     parts = []
     for name, v in st.max_noise:

@@ -46,28 +46,40 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.tuning.nlp import TuningError
-from sensorless.tuning.pmac_reduced_order.objective import compass_search, figures, rank
-from sensorless.tuning.pmac_reduced_order.result import DeAngeloResult, gain_table
+from sensorless.tuning.pmac_reduced_order.objective import (
+    compass_search,
+    drive_check,
+    drive_shortfall,
+    figures,
+    rank,
+)
+from sensorless.tuning.pmac_reduced_order.result import ConstantGainResult, gain_table
 from sensorless.tuning.pmac_reduced_order.settings import (
     NOISE_FACTOR,
-    DeAngeloSettings,
+    ConstantGainSettings,
     closed_form,
     default_settings,
     grid,
     limits_text,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.schema import PmacDrive
+
 DENSE_TRIES = 6  # candidates re-verified densely at most
+DENSE_SPREAD = 0.1  # least distance in ln g or ln Gamma between two of them
 
 
-def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | None = None) -> DeAngeloResult:
+def tune_constant_gains(
+    drive: PmacDrive, settings: Any, progress: Callable[[str], None] | None = None
+) -> ConstantGainResult:
     """Tune g and Gamma of a drive of this family (this module's docstring)."""
     t0 = time.perf_counter()
-    st: DeAngeloSettings = settings or default_settings(drive)
+    st: ConstantGainSettings = settings or default_settings(drive)
     st.check(drive.file)
     say = progress or (lambda s: None)
     g0, G0 = float(drive.observer.g), float(drive.observer.Gamma)
@@ -93,6 +105,12 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
         f"g = {gc:.5g} 1/s, Gamma = {Gc:.5g} A^2 s^2"
     )
 
+    # the whole sampled drive (feedforward off and on) must stay stable where the drive file's gains give it
+    # a fixed point (objective.py, FEEDFORWARD)
+    if st.whole_drive:
+        say("the whole sampled drive's constraint: its poles at the drive file's gains over +-T_N")
+    check = drive_check(drive, g0, G0) if st.whole_drive else None
+
     def evaluate(x: np.ndarray) -> tuple:
         score = rank(figures(drive, math.exp(x[0]), math.exp(x[1]), n, T), st.min_damping, lim)
         say(
@@ -101,11 +119,27 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
         )
         return score
 
+    whole: dict[tuple[float, float], str] = {}  # (ln g, ln Gamma) -> the whole drive's shortfall ('': none)
+
+    def drive_ok(x: tuple[float, float] | np.ndarray) -> bool:
+        key = (round(float(x[0]), 12), round(float(x[1]), 12))
+        if check is None:
+            return True
+        if key not in whole:
+            whole[key] = drive_shortfall(drive, math.exp(key[0]), math.exp(key[1]), check)
+            if whole[key]:
+                say(f"  g = {math.exp(key[0]):9.5g} 1/s, Gamma = {math.exp(key[1]):11.5g}: {whole[key]}")
+        return not whole[key]
+
+    def refine(x: np.ndarray, score: tuple) -> tuple:
+        # the whole drive's constraint (1-2 s) only where the observer's poles would improve the search
+        return score if not score[0] or drive_ok(x) else (False, *score[1:])
+
     starts = [np.log([gc, Gc])]
     if G0 > 0:
         starts.append(np.log([g0, G0]))
     say("compass search on the discrete-time poles at the sampling period")
-    _, best, seen = compass_search(evaluate, starts, lower, upper)
+    _, best, seen = compass_search(evaluate, starts, lower, upper, refine)
     if not best[0]:
         raise TuningError(
             f"{drive.file}: the envelope is infeasible: no g, Gamma within the bounds give damping >= "
@@ -114,13 +148,25 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     say(f"re-verifying on the {st.dense_factor}x denser grid")
     nd, Td = grid(st, st.dense_factor)
     dense0 = figures(drive, g0, G0, nd, Td)
+
     # The grid optimum sits on the damping floor, which the poles may cross between grid speeds:
     # verify the best candidates densely, in grid-rank order, and keep the first feasible one.
     ranked = sorted(seen.items(), key=lambda kv: kv[1], reverse=True)
     chosen, tried = None, []
-    for key, r in ranked[:DENSE_TRIES]:
-        if not r[0]:
+    # distinct candidates (DENSE_SPREAD apart in ln g or ln Gamma): the search's last steps cluster on one
+    # ridge of the grid, which the dense grid may reject as a whole (EMF harmonics at speeds between the
+    # grid's, the whole drive's margin)
+    picks: list[tuple[float, float]] = []
+    looked = 0  # candidates checked on the whole drive here (1-2 s each): at most 3 DENSE_TRIES
+    for key, r in list(ranked):
+        if not r[0] or len(picks) == DENSE_TRIES or looked == 3 * DENSE_TRIES:
             break
+        if any(max(abs(key[0] - k[0]), abs(key[1] - k[1])) < DENSE_SPREAD for k in picks):
+            continue
+        looked += 1
+        if not drive_ok(key):  # (held already where the search refined it)
+            continue
+        picks.append(key)
         f = figures(drive, math.exp(key[0]), math.exp(key[1]), nd, Td)
         tried.append((key, f))
         if rank(f, st.min_damping, lim)[0]:
@@ -134,7 +180,7 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
             k2 = (key[0] - math.log(over * 1.01), key[1] - 2 * math.log(over * 1.01))
             f2 = figures(drive, math.exp(k2[0]), math.exp(k2[1]), nd, Td)
             tried.append((k2, f2))
-            if rank(f2, st.min_damping, lim)[0]:
+            if rank(f2, st.min_damping, lim)[0] and drive_ok(k2):
                 say(
                     f"  g = {math.exp(key[0]):.5g}: {100 * (over - 1):.2g} % too noisy between the grid "
                     f"points; scaled to g = {math.exp(k2[0]):.5g}, Gamma = {math.exp(k2[1]):.5g}"
@@ -145,8 +191,8 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
                 break
         say(
             f"  g = {math.exp(key[0]):.5g}, Gamma = {math.exp(key[1]):.5g}: damping {f.worst()[0]:.4f}, "
-            f"slowest decay {f.worst()[1]:.4g} 1/s on the dense grid: below the floor, unstable or too noisy "
-            "between the grid points; next candidate"
+            f"slowest decay {f.worst()[1]:.4g} 1/s on the dense grid: below the floor, unstable, too noisy "
+            "between the grid points or the whole drive unstable; next candidate"
         )
     if chosen is None:
         if not rank(dense0, st.min_damping, lim)[0]:
@@ -155,8 +201,8 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
                 f"{st.min_damping:.3f} on the dense grid"
             )
         note = (
-            f"kept the drive's gains: the {len(tried)} best tuned candidates violate the damping floor or "
-            "the noise limit between the optimization grid points"
+            f"kept the drive's gains: the {len(tried)} best distinct tuned candidates violate the damping "
+            "floor, the noise limit or the whole drive's stability between the optimization grid points"
         )
         chosen = ((math.log(g0), math.log(G0)), dense0)
     else:
@@ -175,7 +221,7 @@ def tune_deangelo(drive: Any, settings: Any, progress: Callable[[str], None] | N
     on_grid = figures(drive, g, Gamma, n, T)
     evals = len(seen)
     seconds = time.perf_counter() - t0
-    result = DeAngeloResult(
+    result = ConstantGainResult(
         law="constant",
         g=g,
         Gamma=Gamma,

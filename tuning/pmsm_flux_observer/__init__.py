@@ -1,4 +1,4 @@
-"""Tuning of the flux observer + PLL in each firmware's terms: the laws odrive, vesc and flux_schedule.
+"""Tuning of the flux observer + PLL in each firmware's terms: the laws odrive, vesc and schedule.
 
 Each law is tuned by a search of its own (tuning/family.py ``tuner``): its gains have one or two free
 numbers, so every candidate of a grid is judged on the whole envelope at once (one batched evaluation
@@ -15,7 +15,7 @@ Limits: T gamma lambda^2 < 2 is in the poles (the Euler bound), T k_p <= KP_T (O
 drive's speed loop closes on the PLL's speed: its root at least that multiple of the loop's bandwidth,
 the drive file's rule for alpha_s): a double pole at -bw, twice the
 observer's decay rate k/2, within the limit (the PLL does not feed back into the observer).
-``flux_schedule`` picks the gain per speed by the criterion at that speed alone.
+``schedule`` picks the gain per speed by the criterion at that speed alone.
 """
 
 from __future__ import annotations
@@ -37,9 +37,9 @@ from sensorless.tuning.pmsm_flux_observer.assessment import (
     low_limit,
 )
 from sensorless.tuning.pmsm_flux_observer.criterion import best, judged, requirements, shortfalls
-from sensorless.tuning.pmsm_flux_observer.flux_schedule import tune_schedule
 from sensorless.tuning.pmsm_flux_observer.odrive import tune_odrive
 from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome
+from sensorless.tuning.pmsm_flux_observer.schedule import tune_schedule
 from sensorless.tuning.pmsm_flux_observer.settings import (
     FluxTuneSettings,
     check_variant,
@@ -109,7 +109,7 @@ HOOKS = TuningHooks(
             columns=(_LEAD, ()),
         ),
         Tunable(
-            "flux_schedule",
+            "schedule",
             "flux observer: gamma lambda^2 free over speed, with the PLL",
             default_settings,
             tuner=tune_schedule,

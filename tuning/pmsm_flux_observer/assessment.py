@@ -238,9 +238,9 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
 
 
 def assess_any(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
-    """:func:`assess` of gain sets of any law: the scheduled ones (flux_schedule) through
+    """:func:`assess` of gain sets of any law: the scheduled ones (schedule) through
     :func:`assess_linearized` (no noise figure), the others in one batch; in the order given."""
-    sched = [j for j, g in enumerate(cands) if g.law == "flux_schedule"]
+    sched = [j for j, g in enumerate(cands) if g.law == "schedule"]
     if not sched:
         return assess(drive, cands, settings)
     rest = [j for j in range(len(cands)) if j not in sched]

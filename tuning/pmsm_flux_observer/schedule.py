@@ -1,4 +1,4 @@
-"""The ``flux_schedule`` law's tuner: gamma lambda^2 per envelope speed, by the criterion at that speed."""
+"""The ``schedule`` law's tuner: gamma lambda^2 per envelope speed, by the criterion at that speed."""
 
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
 
 
 def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
-    """The ``flux_schedule`` law: gamma lambda^2 per envelope speed, by the criterion at that speed."""
-    check_variant(drive, "flux_schedule")
+    """The ``schedule`` law: gamma lambda^2 per envelope speed, by the criterion at that speed."""
+    check_variant(drive, "schedule")
     ks = k_grid(drive)
     cands = [odrive_candidate(drive, float(k)) for k in ks]
     a = assess(drive, cands, settings)
@@ -51,12 +51,12 @@ def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) 
     # one PLL at every speed: its double pole at the geometric mean of the scheduled gains
     bw = min(max(float(np.exp(np.mean(np.log(chosen)))), pll_floor(drive)), KP_T / (2 * T))
     g = {"speeds": [float(s) for s in speeds], "observer_gain": chosen, "pll_bandwidth": bw}
-    gs = GainSet("flux_schedule", g, "tuned")
+    gs = GainSet("schedule", g, "tuned")
     a_s = assess_linearized(drive, gs, settings)  # the schedule itself, its law's derivative included
     f = figures(drive, a_s, 0)
     base_lines, base = baselines(drive, settings)
     lines = [
-        "tuned flux_schedule: observer_gain over |speed| "
+        "tuned schedule: observer_gain over |speed| "
         + ", ".join(f"{s / drive.w_base:.3g} pu: {k:.4g}" for s, k in zip(speeds, chosen, strict=True))
         + f"; pll_bandwidth = {bw:.6g} rad/s",
         summary_line("tuned", f, settings),
@@ -67,4 +67,4 @@ def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) 
     f.update(worst_decay_1_s=jd["worst_decay_1_s"], pll_root_1_s=jd["pll_root_1_s"])
     summary = {**f, "baselines": base, "errors": settings.errors, "bias_max_deg": settings.bias_max_deg}
     missed = shortfalls(drive, gs, jd, settings)
-    return FluxOutcome("flux_schedule", gain_table(drive, "flux_schedule", g, a_s, 0, summary), lines, missed)
+    return FluxOutcome("schedule", gain_table(drive, "schedule", g, a_s, 0, summary), lines, missed)

@@ -1,0 +1,98 @@
+"""The family contract type-checks: mypy over the contract (design/family.py, design/capabilities.py,
+design/registry.py), the registered families' records and the shared modules that ask for a capability.
+
+One mypy run (settings: pyproject.toml [tool.mypy]) also checks two scratch files written here:
+- ``conformance.py``: every registered family assigned to every capability Protocol it has at run time
+  (``isinstance``), typed with its own drive dataclass: a family whose method signatures do not match
+  the Protocol's (a runtime check sees only the names) fails here;
+- ``offence.py``: a family that breaks the contract on purpose, which mypy must report (so the check
+  can fail).
+"""
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from sensorless.design import capabilities
+from sensorless.design.registry import families
+
+ROOT = Path(__file__).resolve().parents[2]
+CAPABILITIES = [getattr(capabilities, name) for name in capabilities.__all__ if name != "require"]
+CHECKED = [
+    "sensorless.design.family",
+    "sensorless.design.capabilities",
+    "sensorless.design.registry",
+    "sensorless.design.simulate",
+    "sensorless.design.low_speed",
+    "sensorless.design.startup_check",
+    "sensorless.design.drive",
+    "sensorless.design.pmsm_drive",
+    "sensorless.reports.montecarlo",
+    "sensorless.reports.tune_proof",
+]
+OFFENCE = """
+from collections.abc import Mapping
+from typing import Any
+
+from sensorless.design.capabilities import Linearizable
+from sensorless.design.family import GainSet, ObserverFamily
+from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
+
+
+class Wrong(ObserverFamily[IpmsmDrive]):
+    def load(self, data: Mapping[str, Any], file: str, digest: str) -> IpmsmDrive:
+        raise NotImplementedError
+
+    def linearize(self, drive: IpmsmDrive, gains: GainSet) -> int:  # not the Protocol's signature
+        return 0
+
+
+wrong: Linearizable[IpmsmDrive] = Wrong()
+"""
+
+
+def _drive_type(fam: object) -> type:
+    """The drive dataclass a family states: the type argument of its ObserverFamily base."""
+    for base in getattr(type(fam), "__orig_bases__", ()):
+        if getattr(base, "__args__", None):
+            return base.__args__[0]
+    raise AssertionError(f"{fam!r} does not state its drive type (ObserverFamily[ItsDrive])")
+
+
+def _conformance() -> str:
+    lines = ["from sensorless.design import capabilities"]
+    for i, fam in enumerate(families()):
+        drive = _drive_type(fam)
+        lines += [
+            f"from {type(fam).__module__} import FAMILY as F{i}",
+            f"from {drive.__module__} import {drive.__name__}",
+        ]
+        for cap in CAPABILITIES:
+            if isinstance(fam, cap):
+                arg = f"[{drive.__name__}]" if getattr(cap, "__parameters__", ()) else ""
+                lines.append(f"c{i}_{cap.__name__}: capabilities.{cap.__name__}{arg} = F{i}")
+    return "\n".join(lines) + "\n"
+
+
+def test_the_contract_and_every_family_type_check(tmp_path):
+    if importlib.util.find_spec("mypy") is None:
+        pytest.skip("mypy is not installed (pip install -e '.[test]')")
+    # the package root is the repository (a PEP 420 namespace installed by a finder hook mypy does not
+    # run): mypy finds it through a link named sensorless
+    (tmp_path / "path").mkdir()
+    (tmp_path / "path" / "sensorless").symlink_to(ROOT)
+    (tmp_path / "path" / "conformance.py").write_text(_conformance())
+    (tmp_path / "path" / "offence.py").write_text(OFFENCE)
+    modules = [*CHECKED, *(type(f).__module__ for f in families()), "conformance", "offence"]
+    cmd = [sys.executable, "-m", "mypy", "--config-file", str(ROOT / "pyproject.toml")]
+    cmd += ["--cache-dir", str(tmp_path / "cache"), "--namespace-packages", "--explicit-package-bases"]
+    cmd += [a for m in modules for a in ("-m", m)]
+    env = {"MYPYPATH": str(tmp_path / "path"), "PATH": "/usr/bin:/bin"}
+    run = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, env=env, check=False)
+    out = run.stdout + run.stderr
+    errors = [line for line in out.splitlines() if ": error:" in line]
+    caught = [line for line in errors if "offence.py" in line.split(":")[0]]
+    assert caught and "Linearizable" in caught[0], out  # the deliberate offence is reported
+    assert [line for line in errors if line not in caught] == [], out
