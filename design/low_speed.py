@@ -49,7 +49,9 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
+from sensorless.design.memo import by_content
 from sensorless.design.registry import family_of
+from sensorless.design.runtime import double_step_active
 
 MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
 FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the design holds zero speed
@@ -242,14 +244,24 @@ def _analysis(
     except ValueError as e:  # CapabilityError, or a loop its scenario cannot be simulated on (said)
         return observer_only, f"the observer alone ({e})"
 
+    # the drive at REFERENCE_PU, once per torque over the whole search (the grid's blocks and every
+    # bisection step ask for the same torques; each point's Newton iteration is its own, so a point's
+    # figures do not depend on the batch it is computed in)
+    mid_of: dict[float, tuple[float, float]] = {}
+
     def whole(w: Any, T: Any) -> WholeDrive:
         obs = observer_only(w, T)
         Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
-        torques, back = np.unique(Tb, return_inverse=True)  # the drive at REFERENCE_PU: once per torque
-        mid = linearize_drive(drive, gains, REFERENCE_PU * drive.w_base, torques, dl)
+        torques, back = np.unique(Tb, return_inverse=True)
+        new = np.array([t for t in torques if float(t) not in mid_of])
+        if new.size:
+            mid = linearize_drive(drive, gains, REFERENCE_PU * drive.w_base, new, dl)
+            figs = zip(mid.worst_damping.tolist(), mid.decay.tolist(), strict=True)
+            mid_of.update(zip(new.tolist(), figs, strict=True))
+        figs = np.array([mid_of[float(t)] for t in torques]).reshape(-1, 2)
         return WholeDrive(
             linearize_drive(drive, gains, w, T, dl),
-            (mid.worst_damping[back], mid.decay[back]),
+            (figs[back, 0], figs[back, 1]),
             obs,
             acceleration,
         )
@@ -258,6 +270,9 @@ def _analysis(
     return whole, basis
 
 
+# the same drive at the same gains is analysed again within a process (the I-f start's rules at every
+# simulation set-up, the tune line and the report under the same errors): design/memo.py
+@by_content(maxsize=64, when=double_step_active)
 def minimum_speed(
     drive: Drive,
     gains: GainSet,
