@@ -16,6 +16,7 @@ import collections
 import dataclasses
 import functools
 import pickle
+import threading
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -43,6 +44,7 @@ def by_content(maxsize: int = 32, when: Callable[[], bool] = lambda: True) -> Ca
     def deco(fn: F) -> F:
         memo: collections.OrderedDict[bytes, Any] = collections.OrderedDict()
         counts = [0, 0]
+        lock = threading.Lock()  # a threaded scheduler may call it from several threads
 
         @functools.wraps(fn)
         def wrapper(*args: Any, **kwargs: Any) -> Any:
@@ -52,15 +54,17 @@ def by_content(maxsize: int = 32, when: Callable[[], bool] = lambda: True) -> Ca
                 key = pickle.dumps((args, sorted(kwargs.items())), protocol=pickle.HIGHEST_PROTOCOL)
             except (pickle.PicklingError, TypeError, AttributeError):
                 return fn(*args, **kwargs)
-            if key in memo:
-                counts[0] += 1
-                memo.move_to_end(key)
-                return memo[key]
-            counts[1] += 1
-            value = frozen_result(fn(*args, **kwargs))
-            memo[key] = value
-            if len(memo) > maxsize:
-                memo.popitem(last=False)
+            with lock:
+                if key in memo:
+                    counts[0] += 1
+                    memo.move_to_end(key)
+                    return memo[key]
+                counts[1] += 1
+            value = frozen_result(fn(*args, **kwargs))  # outside the lock: computed in parallel
+            with lock:
+                memo[key] = value
+                if len(memo) > maxsize:
+                    memo.popitem(last=False)
             return value
 
         wrapper.cache_info = lambda: tuple(counts)  # type: ignore[attr-defined]
