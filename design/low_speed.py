@@ -61,7 +61,9 @@ from sensorless.design.family import (
     Scaled,
     require,
 )
+from sensorless.design.memo import by_content
 from sensorless.design.registry import family_of
+from sensorless.design.runtime import double_step_active
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.drive_analysis import DriveLinearization
@@ -280,20 +282,35 @@ def _analysis(
     except ValueError as e:  # CapabilityError, or a loop its scenario cannot be simulated on (said)
         return observer_only, f"the observer alone ({e})"
 
+    # the drive at REFERENCE_PU, once per torque over the whole search (the grid's blocks and every
+    # bisection step ask for the same torques; each point's Newton iteration is its own, so a point's
+    # figures do not depend on the batch it is computed in)
+    mid_of: dict[float, tuple[float, float]] = {}
+
     def whole(w: np.ndarray, T: np.ndarray) -> WholeDrive:
         obs = observer_only(w, T)
         Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
-        torques, back = np.unique(Tb, return_inverse=True)  # the drive at REFERENCE_PU: once per torque
-        mid = linearize_drive(drive, gains, REFERENCE_PU * drive.w_base, torques, dl)
-        lin = linearize_drive(drive, gains, w, T, dl)
-        Tp = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
-        a = braking_acceleration(drive, Tp) if acceleration else 0.0
-        return WholeDrive(lin, (mid.worst_damping[back], mid.decay[back]), obs, a)
+        torques, back = np.unique(Tb, return_inverse=True)
+        new = np.array([t for t in torques if float(t) not in mid_of])
+        if new.size:
+            mid = linearize_drive(drive, gains, REFERENCE_PU * drive.w_base, new, dl)
+            pairs = zip(mid.worst_damping.tolist(), mid.decay.tolist(), strict=True)
+            mid_of.update(zip(new.tolist(), pairs, strict=True))
+        figs = np.array([mid_of[float(t)] for t in torques]).reshape(-1, 2)
+        return WholeDrive(
+            linearize_drive(drive, gains, w, T, dl),
+            (figs[back, 0], figs[back, 1]),
+            obs,
+            braking_acceleration(drive, Tb) if acceleration else 0.0,
+        )
 
     basis = "the whole sampled drive (design/drive_analysis.py)" + (f"; {dl.note}" if dl.note else "")
     return whole, basis
 
 
+# the same drive at the same gains is analysed again within a process (the I-f start's rules at every
+# simulation set-up, the tune line and the report under the same errors): design/memo.py
+@by_content(maxsize=64, when=double_step_active)
 def minimum_speed(
     drive: Drive,
     gains: GainSet,

@@ -101,6 +101,11 @@ def step_variant(variant: StepVariant | None) -> Iterator[None]:
         _STEP_VARIANT.reset(token)
 
 
+def double_step_active() -> bool:
+    """Whether ``RuntimeSetup.step_function()`` gives the double step here (no :func:`step_variant`)."""
+    return _STEP_VARIANT.get() is None
+
+
 @functools.cache
 def scheduled_step(observer: RuntimeObserver, discretization: str, law: ca.Function | None) -> ca.Function:
     """(x, meas, p, gain) -> (x_next, y): the observer's core step with lam = law(x[schedule_state], gain).

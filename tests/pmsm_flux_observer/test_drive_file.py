@@ -101,10 +101,10 @@ def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys):
     assert "ODrive defaults" in out and "VESC detection" in out
     table = tmp_path / "t" / "gains_odrive.json"
     assert main(["codegen", str(full), "--gains", str(table), "--out", str(tmp_path / "c")]) == 0
-    assert main(["report", str(full), "--gains", str(table), "--out", str(tmp_path / "r")]) in (
-        0,
-        3,
-    )
+    # --quick: the report's coarser low-speed grid (design/low_speed.py QUICK); the analyses it holds
+    # are the same, and the full grid under every corner of the estimate errors is half this test's CPU
+    r = ["report", str(full), "--gains", str(table), "--quick", "--out", str(tmp_path / "r")]
+    assert main(r) in (0, 3)
     rep = json.loads((tmp_path / "r" / "report.json").read_text())
     assert {"ODrive defaults", "VESC detection", "drive file", "tuned"} <= set(rep["analysis"])
     # box clamp: analysis refused in one line, simulation runs

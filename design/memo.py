@@ -1,0 +1,74 @@
+"""An in-process memo of analyses keyed on the content of their (frozen, unhashable) arguments.
+
+A drive and its gains are frozen dataclasses, but hold dicts and arrays, so ``functools.cache`` cannot
+key on them, and an analysis of the same drive at the same gains recurs within one process: the I-f
+start's rules ask for the whole drive's minimum speed at every simulation set-up (each time-domain
+check of a report, the start-up check, codegen --startup), the tune line and the report ask for it
+under the same estimate errors. :func:`by_content` keys on the pickled arguments: equal bytes rebuild
+equal objects, so a hit is the same computation (a miss where two equal objects pickle differently
+costs only the recomputation). Only results that are immutable (frozen dataclasses whose arrays are
+made read-only here) are memoized, so no caller can change what another one gets.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import functools
+import pickle
+import threading
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import numpy as np
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def frozen_result(value: Any) -> Any:
+    """``value`` with the arrays of its dataclass fields made read-only (in place; returned)."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for f in dataclasses.fields(value):
+            a = getattr(value, f.name)
+            if isinstance(a, np.ndarray):
+                a.flags.writeable = False
+    return value
+
+
+def by_content(maxsize: int = 32, when: Callable[[], bool] = lambda: True) -> Callable[[F], F]:
+    """Memoize a function on the pickled bytes of its arguments (module docstring), the ``maxsize``
+    most recent results; ``when()`` False: computed and not memoized (a state outside the arguments
+    that the result depends on, e.g. a step variant). Arguments that cannot be pickled: not memoized.
+    ``fn.cache_info()`` gives (hits, misses)."""
+
+    def deco(fn: F) -> F:
+        memo: collections.OrderedDict[bytes, Any] = collections.OrderedDict()
+        counts = [0, 0]
+        lock = threading.Lock()  # a threaded scheduler may call it from several threads
+
+        @functools.wraps(fn)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            if not when():
+                return fn(*args, **kwargs)
+            try:
+                key = pickle.dumps((args, sorted(kwargs.items())), protocol=pickle.HIGHEST_PROTOCOL)
+            except (pickle.PicklingError, TypeError, AttributeError):
+                return fn(*args, **kwargs)
+            with lock:
+                if key in memo:
+                    counts[0] += 1
+                    memo.move_to_end(key)
+                    return memo[key]
+                counts[1] += 1
+            value = frozen_result(fn(*args, **kwargs))  # outside the lock: computed in parallel
+            with lock:
+                memo[key] = value
+                if len(memo) > maxsize:
+                    memo.popitem(last=False)
+            return value
+
+        wrapper.cache_info = lambda: tuple(counts)  # type: ignore[attr-defined]
+        wrapper.cache_clear = lambda: (memo.clear(), counts.__setitem__(slice(None), [0, 0]))  # type: ignore[attr-defined]
+        return wrapper  # type: ignore[return-value]
+
+    return deco

@@ -1,0 +1,60 @@
+"""The content-keyed memo of analyses (design/memo.py): a hit only on equal content, results no caller
+can change, nothing memoized where the state outside the arguments says so."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from sensorless.design.memo import by_content
+
+
+@dataclasses.dataclass(frozen=True)
+class Result:
+    values: np.ndarray
+
+
+def counted(maxsize=2, when=lambda: True):
+    calls = []
+
+    @by_content(maxsize=maxsize, when=when)
+    def f(spec, scale=1.0):
+        calls.append(spec)
+        return Result(np.array(spec["x"], float) * scale)
+
+    return f, calls
+
+
+def test_equal_content_is_one_computation_and_different_content_another():
+    f, calls = counted()
+    a = f({"x": [1.0, 2.0]})
+    assert f({"x": [1.0, 2.0]}) is a  # another dict, the same content
+    assert f({"x": [1.0, 2.0]}, scale=2.0).values.tolist() == [2.0, 4.0]  # a keyword is content too
+    assert f({"x": [1.0, 3.0]}).values.tolist() == [1.0, 3.0]
+    assert len(calls) == 3 and f.cache_info() == (1, 3)
+
+
+def test_the_oldest_result_is_dropped_past_maxsize():
+    f, calls = counted(maxsize=2)
+    for x in (1.0, 2.0, 3.0, 1.0):
+        f({"x": [x]})
+    assert len(calls) == 4  # 1.0 was dropped when 3.0 came
+
+
+def test_a_memoized_result_is_read_only():
+    f, _ = counted()
+    r = f({"x": [1.0]})
+    with pytest.raises(ValueError):
+        r.values[0] = 5.0
+
+
+def test_nothing_is_memoized_where_when_says_no_or_the_arguments_do_not_pickle():
+    f, calls = counted(when=lambda: False)
+    f({"x": [1.0]})
+    f({"x": [1.0]})
+    assert len(calls) == 2
+    g, calls = counted()
+    g({"x": [1.0], "fn": lambda: 0})  # a lambda does not pickle
+    g({"x": [1.0], "fn": lambda: 0})
+    assert len(calls) == 2
