@@ -1,14 +1,19 @@
-"""Operating envelope and tuning constraints of a PMSM observer: the optional ``[tuning]`` section of a drive.
+"""The operating envelope of every drive (:class:`Envelope`, SI) and the ``[tuning]`` section of a drive.
 
-Shared by the families whose tunables go through the max-min damping NLP (tuning/tune.py): a grid of
-speeds (p.u. of the drive's base, per direction) x torques (multiples of T_N), constraints, and errors
-of the PMSM estimates (R̂s, L̂d, L̂q, ψ̂pm) to stay stable under.
+:class:`Envelope` is the one record of a drive's operating points that analyze, tune, report and
+Monte-Carlo read: electrical speeds [rad/s] x torques [N m], with the per-unit bases for display. Each
+family's schema translates its own drive-file keys into it (:class:`SpeedRule` keeps the arithmetic
+the family has always used, so no grid value moves).
+
+The ``[tuning]`` section is shared by the families whose tunables go through the max-min damping NLP
+(tuning/tune.py): a grid of speeds (p.u. of the drive's base, per direction) x torques (multiples of
+T_N), constraints, and errors of the PMSM estimates (R̂s, L̂d, L̂q, ψ̂pm) to stay stable under.
 
 Defaults: |w_m| in [0.05, 1] p.u. in both directions x T_e in
 {-T_N, 0, T_N}, no decay-rate constraint, no parameter-error scenarios, no noise limit. Loading is
 strict like the rest of the drive file: unknown keys, wrong units or types and inconsistent values
-raise DriveFileError naming the file and the key. Speeds are stored in p.u. of the drive's base
-speed (the edge unit of the command line and the tables) and converted by :meth:`Envelope.speeds`.
+raise DriveFileError naming the file and the key. Its speeds are given in p.u. of the drive's base
+speed (the edge unit of the command line and the tables); :func:`tuning_envelope` makes them SI.
 
 What a family's gain laws add (bounds of their own gains, options of their parameterization) is not
 here: the family declares those ``[tuning]`` keys and their reader (:class:`LawKeys`), and the loaded
@@ -18,9 +23,10 @@ values ride along as ``TuningSettings.law`` (:class:`LawSettings`), read only by
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -46,20 +52,48 @@ RANGES = {
 
 
 @dataclass(frozen=True)
-class Envelope:
-    """Operating points to tune over: speeds (p.u., per direction) x torques (N m)."""
+class SpeedRule:
+    """How a drive file gives its speeds, kept so that the SI grid and its refinements come out of the
+    family's own arithmetic, bit for bit: either ``count`` evenly spaced magnitudes from ``lo`` to ``hi``
+    per direction, or (``count`` 0) the ``listed`` signed speeds, sorted and distinct, refined only
+    between speeds of one sign (never across standstill); in the file's unit, times the factors
+    ``to_si`` in that order (none: already electrical rad/s)."""
 
-    speed_min: float = 0.05  # smallest |w_m| [p.u.]
-    speed_max: float = 1.0  # largest |w_m| [p.u.]
-    speeds: int = 20  # grid points per direction
+    lo: float = 0.0
+    hi: float = 0.0
+    count: int = 0
+    listed: tuple[float, ...] = ()
+    to_si: tuple[float, ...] = ()
     directions: str = "both"
-    torques_TN: tuple[float, ...] = (-1.0, 0.0, 1.0)  # torques as multiples of T_N
-    dense_factor: int = 4  # the re-verification grid is this many times denser (>= 4)
 
-    def speed_grid(self, w_base: float, factor: int = 1) -> np.ndarray:
-        """Electrical speeds [rad/s], sorted; ``factor`` > 1 refines each interval that many times."""
-        n = (self.speeds - 1) * factor + 1
-        mag = np.linspace(self.speed_min, self.speed_max, n) * w_base
+    def native(self, factor: int = 1) -> np.ndarray:
+        """The grid in the file's unit, sorted; ``factor`` > 1 refines each interval that many times."""
+        if self.count:
+            mag = np.linspace(self.lo, self.hi, (self.count - 1) * factor + 1)
+            return self._directions(mag)
+        s = np.unique(np.asarray(self.listed, float))
+        out = [s[:1]]
+        for a, b in itertools.pairwise(s):
+            if factor > 1 and a * b > 0:
+                out.append(np.linspace(a, b, factor + 1)[1:])
+            else:
+                out.append(np.array([b]))
+        return np.concatenate(out)
+
+    def at(self, factor: int = 1) -> np.ndarray:
+        """The grid in electrical rad/s, sorted (the unit conversion applied before the mirroring, as the
+        families have always computed it)."""
+        if self.count:
+            mag = np.linspace(self.lo, self.hi, (self.count - 1) * factor + 1)
+            for k in self.to_si:
+                mag = mag * k
+            return self._directions(mag)
+        s = self.native(factor)
+        for k in self.to_si:
+            s = s * k
+        return s
+
+    def _directions(self, mag: np.ndarray) -> np.ndarray:
         parts = []
         if self.directions in ("both", "negative"):
             parts.append(-mag[::-1])
@@ -67,27 +101,122 @@ class Envelope:
             parts.append(mag)
         return np.concatenate(parts)
 
-    def torque_grid(self, T_N: float, factor: int = 1) -> np.ndarray:
+
+@dataclass(frozen=True)
+class Envelope:
+    """The operating points of a drive, SI: electrical speeds [rad/s] x torques [N m] (``speeds``,
+    ``torques``: sorted explicit grids), their refinements, and the bases of the per-unit display.
+
+    Each family's schema translates its own drive-file keys into this record at load (``speeds`` from
+    its :class:`SpeedRule`, ``torques`` the distinct ``torque_values`` times ``torque_unit``), so the grid
+    values are the ones it has always computed; analyze, tune, report and Monte-Carlo read only this."""
+
+    rule: SpeedRule
+    torque_values: tuple[float, ...]  # torques in the file's unit (``torque_unit`` N m each)
+    w_base: float  # per-unit speed base [rad/s electrical] (display at the edges)
+    T_N: float  # nominal torque [N m] (display at the edges)
+    torque_unit: float = 1.0  # N m per unit of ``torque_values`` (T_N for torques given in T_N)
+    dense_factor: int = 4  # the re-verification grid is this many times denser (>= 4)
+    # the section's keys as the file gives them (a dataclass; the drive-data table shows it), or None
+    given: Any = field(default=None, compare=False, repr=False)
+
+    @functools.cached_property
+    def speeds(self) -> tuple[float, ...]:
+        """Electrical speeds [rad/s], sorted."""
+        return tuple(self.rule.at().tolist())
+
+    @functools.cached_property
+    def torques(self) -> tuple[float, ...]:
+        """Torques [N m], sorted and distinct."""
+        return tuple(self.torque_grid().tolist())
+
+    def speed_grid(self, factor: int = 1) -> np.ndarray:
+        """Electrical speeds [rad/s], sorted; ``factor`` > 1 refines each interval that many times."""
+        return self.rule.at(factor)
+
+    def torque_grid(self, factor: int = 1) -> np.ndarray:
         """Torques [N m], sorted; ``factor`` > 1 inserts points in each interval between them."""
-        T = np.unique(np.asarray(self.torques_TN, float)) * T_N
+        T = np.unique(np.asarray(self.torque_values, float))
+        if self.torque_unit != 1.0:
+            T = T * self.torque_unit
         if factor == 1 or T.size == 1:
             return T
         pieces = [np.linspace(a, b, factor + 1)[:-1] for a, b in itertools.pairwise(T)]
         return np.concatenate([*pieces, T[-1:]])
 
-    def grid(self, w_base: float, T_N: float, factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        """Flat (w_m [rad/s], T_e [N m]) of the speed x torque grid (torque-major)."""
-        W, T = np.meshgrid(self.speed_grid(w_base, factor), self.torque_grid(T_N, factor))
+    def grid(self, factor: int = 1, torque_factor: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Flat (w [rad/s], T_e [N m]) of the speed x torque grid (torque-major), speeds refined
+        ``factor`` times and torques ``torque_factor`` times."""
+        W, T = np.meshgrid(self.speed_grid(factor), self.torque_grid(torque_factor))
         return W.ravel(), T.ravel()
 
+    @property
+    def speed_max(self) -> float:
+        """The largest |speed| [rad/s electrical]."""
+        return float(np.max(np.abs(self.rule.at())))
+
+    def widened(self, T_max: float) -> Envelope:
+        """This envelope with its torques widened to +-``T_max`` where they stop short of it (added in
+        the file's unit, as ``torque_values``)."""
+        k = T_max / self.torque_unit
+        tq = self.torque_values
+        if max(abs(t) for t in tq) >= k * (1 - 1e-9):
+            return self
+        return dataclasses.replace(self, torque_values=tuple(sorted({*tq, -k, k})))
+
     def describe(self) -> str:
-        """One line for the terminal."""
+        """One line for the terminal (speeds in p.u. of ``w_base``, torques in T_N)."""
+        r = self.rule
+        if r.count and r.to_si == (self.w_base,):
+            lo, hi, n = r.lo, r.hi, r.count
+        else:
+            mag = np.abs(self.rule.at())
+            lo, hi, n = float(mag.min()) / self.w_base, float(mag.max()) / self.w_base, len(self.speeds)
         dirs = {"both": "both directions", "positive": "positive speeds", "negative": "negative speeds"}
-        tq = ", ".join(f"{t:g}" for t in self.torques_TN)
+        scale = self.torque_unit / self.T_N
+        tq = ", ".join(f"{t * scale:g}" for t in self.torque_values)
         return (
-            f"|w_m| in [{self.speed_min:g}, {self.speed_max:g}] p.u. ({self.speeds} speeds, "
-            f"{dirs[self.directions]}) x T_e in {{{tq}}} T_N"
+            f"|w_m| in [{lo:g}, {hi:g}] p.u. ({n} speeds, "
+            f"{dirs.get(r.directions, r.directions)}) x T_e in {{{tq}}} T_N"
         )
+
+
+# the [tuning] envelope keys and their defaults (p.u. of the drive's base speed; torques in T_N)
+TUNING_ENVELOPE = {
+    "speed_min": 0.05,  # smallest |w_m| [p.u.]
+    "speed_max": 1.0,  # largest |w_m| [p.u.]
+    "speeds": 20,  # grid points per direction
+    "directions": "both",
+    "torques_TN": (-1.0, 0.0, 1.0),  # torques as multiples of T_N
+    "dense_factor": 4,
+}
+
+
+def tuning_envelope(w_base: float, T_N: float, **keys: Any) -> Envelope:
+    """The :class:`Envelope` of the ``[tuning]`` keys (``TUNING_ENVELOPE``; absent ones keep their
+    defaults): ``speeds`` speeds per direction evenly spaced in p.u. times ``w_base``, torques in T_N."""
+    k = {**TUNING_ENVELOPE, **keys}
+    rule = SpeedRule(k["speed_min"], k["speed_max"], k["speeds"], to_si=(w_base,), directions=k["directions"])
+    torques = tuple(k["torques_TN"])
+    return Envelope(rule, torques, w_base, T_N, torque_unit=T_N, dense_factor=k["dense_factor"])
+
+
+def with_tuning_keys(env: Envelope, **keys: Any) -> Envelope:
+    """``env`` (made by :func:`tuning_envelope`) with the given ``[tuning]`` keys replaced."""
+    return tuning_envelope(env.w_base, env.T_N, **{**tuning_keys(env), **keys})
+
+
+def tuning_keys(env: Envelope) -> dict[str, Any]:
+    """The ``[tuning]`` keys of an envelope made by :func:`tuning_envelope` (to apply overrides)."""
+    r = env.rule
+    return {
+        "speed_min": r.lo,
+        "speed_max": r.hi,
+        "speeds": r.count,
+        "directions": r.directions,
+        "torques_TN": env.torque_values,
+        "dense_factor": env.dense_factor,
+    }
 
 
 class LawSettings(Protocol):
@@ -127,7 +256,7 @@ class LawKeys:
 class TuningSettings:
     """Envelope, constraints and options of ``sensorless tune`` (drive TOML ``[tuning]``)."""
 
-    envelope: Envelope = Envelope()
+    envelope: Envelope | None = None  # the [tuning] envelope (tuning_envelope); None: not resolved yet
     min_decay: float = 0.0  # required decay rate -max Re(p) at every envelope point [1/s]; 0: off
     errors: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # relative errors of the estimates
     smoothing: float = 1e-3  # weight of the law's regularizer (if it has one) against damping
@@ -151,22 +280,13 @@ class TuningSettings:
 
     def check(self, file: str, prefix: str = "tuning.") -> None:
         """Raise DriveFileError for inconsistent values (the key named with ``prefix``)."""
-        e = self.envelope
 
         def bad(key: str, why: str) -> DriveFileError:
             return DriveFileError(file, f"{prefix}{key}", why)
 
-        if not 0 < e.speed_min < e.speed_max:
-            raise bad("speed_min", f"need 0 < speed_min < speed_max, got {e.speed_min:g}, {e.speed_max:g}")
-        if e.speed_max > RANGES["speed"][1]:
-            raise bad(
-                "speed_max", f"must be <= {RANGES['speed'][1]:g} p.u. (as --speed-max), got {e.speed_max:g}"
-            )
-        for key, v in (("speeds", e.speeds), ("dense_factor", e.dense_factor)):
-            lo, hi = RANGES[key]
-            if not lo <= v <= hi:
-                opt = "--" + key.replace("_", "-")
-                raise bad(key, f"must be an integer in {lo}..{hi} (as {opt}), got {v}")
+        if self.envelope is not None:
+            check_envelope(tuning_keys(self.envelope), bad)
+
         if not RANGES["min_decay"][0] <= self.min_decay <= RANGES["min_decay"][1]:
             raise bad(
                 "min_decay",
@@ -177,14 +297,6 @@ class TuningSettings:
                 "pareto",
                 f"need 0 (none) or {RANGES['pareto'][0]}..{RANGES['pareto'][1]} points, got {self.pareto}",
             )
-        if e.speeds < 2:
-            raise bad("speeds", f"need at least 2 speed points per direction, got {e.speeds}")
-        if e.directions not in DIRECTIONS:
-            raise bad("directions", f"{e.directions!r} is not one of {', '.join(DIRECTIONS)}")
-        if not e.torques_TN:
-            raise bad("torques", "need at least one torque")
-        if e.dense_factor < 4:
-            raise bad("dense_factor", f"the re-verification grid must be >= 4x denser, got {e.dense_factor}")
         if self.min_decay < 0:
             raise bad("min_decay", f"must be >= 0, got {self.min_decay:g}")
         for k, v in zip(ESTIMATE_KEYS, self.errors, strict=True):
@@ -202,6 +314,29 @@ class TuningSettings:
         if self.pareto_output and self.pareto_output not in NOISE_OUTPUTS:
             raise bad("pareto_output", f"unknown noise output (allowed: {', '.join(NOISE_OUTPUTS)})")
         self.law.check(file, prefix)
+
+
+def check_envelope(e: Mapping[str, Any], bad: Callable[[str, str], DriveFileError]) -> None:
+    """Raise ``bad(key, why)`` for inconsistent ``[tuning]`` envelope keys (``TUNING_ENVELOPE``)."""
+    speed_min, speed_max, speeds = e["speed_min"], e["speed_max"], e["speeds"]
+    directions, torques_TN, dense_factor = e["directions"], e["torques_TN"], e["dense_factor"]
+    if not 0 < speed_min < speed_max:
+        raise bad("speed_min", f"need 0 < speed_min < speed_max, got {speed_min:g}, {speed_max:g}")
+    if speed_max > RANGES["speed"][1]:
+        raise bad("speed_max", f"must be <= {RANGES['speed'][1]:g} p.u. (as --speed-max), got {speed_max:g}")
+    for key, v in (("speeds", speeds), ("dense_factor", dense_factor)):
+        lo, hi = RANGES[key]
+        if not lo <= v <= hi:
+            opt = "--" + key.replace("_", "-")
+            raise bad(key, f"must be an integer in {lo}..{hi} (as {opt}), got {v}")
+    if speeds < 2:
+        raise bad("speeds", f"need at least 2 speed points per direction, got {speeds}")
+    if directions not in DIRECTIONS:
+        raise bad("directions", f"{directions!r} is not one of {', '.join(DIRECTIONS)}")
+    if not torques_TN:
+        raise bad("torques", "need at least one torque")
+    if dense_factor < 4:
+        raise bad("dense_factor", f"the re-verification grid must be >= 4x denser, got {dense_factor}")
 
 
 _KEYS = (
@@ -301,6 +436,6 @@ def load_tuning(
         out["max_noise"] = tuple(lims)
     if law is not None:
         out["law"] = law.load(table, file, rel)
-    settings = TuningSettings(envelope=dataclasses.replace(Envelope(), **env), **out)
+    settings = TuningSettings(envelope=tuning_envelope(w_base, T_N, **env), **out)
     settings.check(file)
     return settings

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+from sensorless.design.envelope import Envelope
 from sensorless.design.family import Drive, PerUnitBases
 from sensorless.design.gain_table import GainTable
 
@@ -215,6 +216,8 @@ def drive_tables(
     tables: dict[str, list[dict[str, Any]]] = {}
     for sf in dataclasses.fields(drive):
         obj = getattr(drive, sf.name)
+        if isinstance(obj, Envelope) and obj.given is not None:
+            obj = obj.given  # the envelope as its file gives it (the file's units)
         if not dataclasses.is_dataclass(obj) or sf.name in skip:
             continue
         rows = _rows(obj, pu)

@@ -13,7 +13,14 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
-from sensorless.design.envelope import DIRECTIONS, ESTIMATE_KEYS, NOISE_OUTPUTS, RANGES, TuningSettings
+from sensorless.design.envelope import (
+    DIRECTIONS,
+    ESTIMATE_KEYS,
+    NOISE_OUTPUTS,
+    RANGES,
+    TuningSettings,
+    with_tuning_keys,
+)
 from sensorless.design.family import Drive
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.reports.family import Option
@@ -89,7 +96,7 @@ def apply_options(s: TuningSettings, drive: Drive, args: argparse.Namespace) -> 
             env[key] = v
     if getattr(args, "torque", None):
         env["torques_TN"] = tuple(t / drive.T_N for t in parse_torques(args.torque, drive.T_N))
-    out: dict[str, Any] = {"envelope": dataclasses.replace(s.envelope, **env)}
+    out: dict[str, Any] = {"envelope": with_tuning_keys(s.envelope, **env)}
     if getattr(args, "min_decay", None) is not None:
         out["min_decay"] = args.min_decay
     if getattr(args, "errors", None):

@@ -2,9 +2,9 @@
 
 A family that has a linearization (``ObserverFamily.linearize``) gets both by naming them in its report
 hooks (``ReportHooks(analyze=analyze, report=report)``) and declares nothing more. The operating
-points are the shared envelope (design/envelope.py) of its default tunable's settings (the drive's own
-envelope; the shared defaults for a family with nothing to tune): its speeds, refined in speed, times
-its torques. The poles are the linearization's continuous ones and, where it has them, the sampled
+points are the drive's envelope (design/envelope.py ``Envelope``, the one record tune and Monte-Carlo
+read too): its speeds, refined in speed, times its torques. The poles are the linearization's
+continuous ones and, where it has them, the sampled
 observer's ln(z)/T_s, which the figures of merit then take (what runs is the sampled observer).
 
 - :func:`analyze`: a summary per torque on the terminal, ``poles.csv`` (and ``poles_discrete.csv``)
@@ -31,7 +31,7 @@ from typing import Any, Protocol
 
 import numpy as np
 from sensorless.design.envelope import Envelope
-from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.family import Drive, GainSet
 from sensorless.design.gain_table import read_gain_table
 from sensorless.design.linearization import Linearization
 from sensorless.design.poles import MIN_DAMPING
@@ -52,25 +52,19 @@ from sensorless.reports.document import (
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
 from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
-from sensorless.tuning.family import hooks as tuning_hooks
 
 ANALYZE_REFINE = 4  # analyze and the normal report refine the envelope's speeds this many times
 
 
 def envelope(drive: Drive) -> Envelope:
-    """The envelope of the drive: its family's default tunable's, else the shared defaults."""
-    fam = family_of(drive)
-    try:
-        return tuning_hooks(fam).tunables[0].settings(drive).envelope
-    except CapabilityError:
-        return Envelope()
+    """The envelope of the drive (design/envelope.py: the one analyze, tune, report and Monte-Carlo
+    read)."""
+    return drive.envelope
 
 
 def points(drive: Drive, refine: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Flat (speed [rad/s], torque [N m]) of the envelope's speeds (refined) x its torques."""
-    env = envelope(drive)
-    W, T = np.meshgrid(env.speed_grid(drive.w_base, refine), env.torque_grid(drive.T_N))
-    return W.ravel(), T.ravel()
+    return envelope(drive).grid(refine)
 
 
 @dataclass(frozen=True)

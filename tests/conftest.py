@@ -2,8 +2,11 @@
 of the test files on the pytest-xdist workers.
 
 Scheduling: a file's tests run on one worker (so its module fixtures are built once, as with
-``--dist loadfile``), except the groups of :data:`SHARED`, whose tests from several files run on one
-worker to share a session fixture (the README run: the suite's longest step). Files marked
+``--dist loadfile``), except the groups of :data:`SHARED`: tests (from one file or several) that run
+together on one worker to share a session fixture. The README's commands form independent chains (the
+commands of one drive, tests/helpers/readme.py): each chain is a group of its own, so that the workers
+run them in parallel (in one sequence they were the suite's longest step), and the servo's chain is
+shared with the own-motor tests. Files marked
 ``pytest.mark.long(cpu_seconds)`` start first, longest first (pyproject.toml passes
 ``--no-loadscope-reorder`` so that this order holds), so that a long file does not start last and
 bound the wall time alone. (``--dist loadgroup`` would say the groups with markers, but pytest-xdist
@@ -20,12 +23,22 @@ from sensorless.design.drive import load_drive
 # the tests of that proof ask for it (tests/ipmsm_adaptive/test_tune_proof.py), the others tune as before
 os.environ.setdefault("SENSORLESS_TUNE_UNCHECKED", "1")
 
-# group -> the node ids of its tests (from several files: one worker runs them all)
+# the node ids of a group's tests -> the group (one worker runs them all); \1 is the README chain
 SHARED = {
-    "readme": re.compile(
-        r"tests/common/test_readme\.py::.*|tests/ipmsm_adaptive/test_any_motor\.py::.*\[servo\]"
+    re.compile(r"tests/common/test_readme\.py::test_every_readme_command_runs_as_written\[(.+)\]"): (
+        "readme-\\1"
     ),
+    re.compile(r"tests/ipmsm_adaptive/test_any_motor\.py::.*\[(servo)\]"): "readme-\\1",
 }
+
+
+def group(nodeid: str) -> str | None:
+    """The group of :data:`SHARED` a test belongs to, if any."""
+    for ids, name in SHARED.items():
+        m = ids.fullmatch(nodeid)
+        if m:
+            return m.expand(name)
+    return None
 
 
 def pytest_configure(config):
@@ -42,8 +55,7 @@ def pytest_xdist_make_scheduler(config, log):
         """--dist loadfile, with the groups of SHARED."""
 
         def _split_scope(self, nodeid: str) -> str:
-            group = next((g for g, ids in SHARED.items() if ids.fullmatch(nodeid)), None)
-            return group or super()._split_scope(nodeid)
+            return group(nodeid) or super()._split_scope(nodeid)
 
     return Scheduling(config, log)
 
@@ -68,8 +80,16 @@ def deangelo2006():
 
 @pytest.fixture(scope="session")
 def readme_run(tmp_path_factory):
-    """Every README command run once as written (tests/helpers/readme.py); the README test checks it,
-    the own-motor servo tests read its servo's outputs (group ``readme`` of SHARED: one worker)."""
+    """``readme_run(chain)``: the README commands of one chain run once as written, in a directory of
+    their own (tests/helpers/readme.py); the README test checks each chain, the own-motor servo tests
+    read the servo chain's outputs (group ``readme-servo`` of SHARED: one worker)."""
     from helpers.readme import run_readme
 
-    return run_readme(tmp_path_factory.mktemp("readme"))
+    runs = {}
+
+    def run(chain):
+        if chain not in runs:
+            runs[chain] = run_readme(tmp_path_factory.mktemp(f"readme-{chain}"), chain)
+        return runs[chain]
+
+    return run

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
+from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings, tuning_keys
 from sensorless.design.family import Drive
 from sensorless.design.gain_table import GainTable
 from sensorless.tuning import nlp
@@ -326,19 +326,20 @@ def gain_table(drive: Drive, settings: TuningSettings, r: TuneResult, scale: flo
         summary["law_note"] = m.note
     if r.pareto is not None:
         summary["pareto"] = r.pareto
-    W, _ = env.grid(wb, drive.T_N)
-    Wd, _ = env.grid(wb, drive.T_N, env.dense_factor)
+    W, _ = env.grid()
+    Wd, _ = env.grid(env.dense_factor, env.dense_factor)
+    keys = tuning_keys(env)
     envelope = {
         "speed_base_rad_s": wb,
-        "speed_min_pu": env.speed_min,
-        "speed_max_pu": env.speed_max,
-        "directions": env.directions,
-        "speeds_rad_s": env.speed_grid(wb),
-        "torques_Nm": env.torque_grid(drive.T_N),
+        "speed_min_pu": keys["speed_min"],
+        "speed_max_pu": keys["speed_max"],
+        "directions": keys["directions"],
+        "speeds_rad_s": env.speed_grid(),
+        "torques_Nm": env.torque_grid(),
         "optimization_points": int(W.size),
         "dense_factor": env.dense_factor,
-        "dense_speeds_rad_s": env.speed_grid(wb, env.dense_factor),
-        "dense_torques_Nm": env.torque_grid(drive.T_N, env.dense_factor),
+        "dense_speeds_rad_s": env.speed_grid(env.dense_factor),
+        "dense_torques_Nm": env.torque_grid(env.dense_factor),
         "dense_points": int(Wd.size),
         "constraints": {
             "min_decay_1_s": settings.min_decay,

@@ -37,8 +37,8 @@ def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> s
             f"no {model.law} gains found that are {what} at every envelope point: the best of "
             f"{ranked.evaluated} candidates fails at {worst} (margin {ranked.margin[0]:.3g})"
         )
-    speeds = env.speed_grid(wb)
-    torques = env.torque_grid(drive.T_N)
+    speeds = env.speed_grid()
+    torques = env.torque_grid()
     say("no feasible candidate: is any gain at all feasible at each envelope speed?")
     b = pointwise_bound(model.pointwise(), speeds, torques, settings.min_decay, scale, max_noise, coarse=1)
     bad = np.flatnonzero(~b.feasible)

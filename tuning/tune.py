@@ -79,9 +79,9 @@ def tune(
         seed_res = tune(drive, seed_name, seed_set, progress=lambda m: say(f"  [{seed_name}] {m}"))
     model = tunable.build(drive, settings, None if seed_res is None else seed_res.theta)
     env = settings.envelope
-    wb, T_N = drive.w_base, drive.T_N
-    W, T = env.grid(wb, T_N)
-    Wd, Td = env.grid(wb, T_N, env.dense_factor)
+    wb = drive.w_base
+    W, T = env.grid()
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     # the baseline as the drive file gives it (reported, and the pole scale); a start in the box (a law
     # may hold some parameters at one value, which the drive file's gains need not have)
     theta0 = np.asarray(model.theta0, float)
@@ -301,8 +301,8 @@ def _bound(drive, model, settings, floor, scale, max_noise, others, say, reuse=N
         say("pointwise bound: the seed's (same decay floor)")
         return reuse
     pw = model.pointwise()
-    speeds = env.speed_grid(drive.w_base, env.dense_factor)
-    torques = env.torque_grid(drive.T_N, env.dense_factor)
+    speeds = env.speed_grid(env.dense_factor)
+    torques = env.torque_grid(env.dense_factor)
     extra = [model.pointwise_gains(th, speeds) for th in thetas]
     extra += [o.model.pointwise_gains(o.theta, speeds) for o in others]
     say(f"pointwise bound on {speeds.size} speeds x {torques.size} torques, decay >= {floor:.4g} 1/s")
@@ -412,8 +412,8 @@ def fallbacks(drive: Drive, result: TuneOutcome, settings: TuneSettings) -> list
         return []
     st = dataclasses.replace(settings, min_decay=result.floor)
     env = st.envelope
-    W, T = env.grid(drive.w_base, drive.T_N)
-    Wd, Td = env.grid(drive.w_base, drive.T_N, env.dense_factor)
+    W, T = env.grid()
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     grid = figures(m, theta, W, T)
     dense = figures(m, theta, Wd, Td, noise=m.noise is not None)
     scale = float(np.abs(figures(m, result.theta0, W, T).poles).max())

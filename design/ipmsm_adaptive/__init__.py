@@ -199,8 +199,9 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
     def envelope_points(
         self, drive: schema.IpmsmDrive, gains: GainSet | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Its [tuning] envelope's grid (design/envelope.py)."""
-        return drive.tuning.envelope.grid(drive.w_base, drive.T_N)
+        """The drive's range (``drive.envelope``: its [tuning] envelope, widened to +-T_max on a drive of
+        the user's own), the points tune and the report judge too."""
+        return drive.envelope.grid()
 
 
 def with_alpha_fo(drive: schema.IpmsmDrive, gains: GainSet) -> Any:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
-from sensorless.design.envelope import TuningSettings, load_tuning
+from sensorless.design.envelope import Envelope, TuningSettings, load_tuning, tuning_envelope
 from sensorless.design.ipmsm_adaptive.law_settings import LAW_KEYS, AdaptiveLawSettings
 from sensorless.design.plausibility import plausibility, warning_lines
 from sensorless.design.pmsm_schema import (
@@ -228,6 +228,17 @@ class IpmsmDrive:
         return self.motor.p
 
     @property
+    def envelope(self) -> Envelope:
+        """The drive's operating range, read by analyze, tune, report and Monte-Carlo: the ``[tuning]``
+        envelope with its torques widened to the torque limit +-T_max where they stop short of it (the
+        speed loop applies +-T_max in every acceleration, motoring and regenerating; gains tuned at +-T_N
+        only were unstable just beyond it: piippo2008's schedule, max Re +1.5 .. +11 1/s at
+        T_max = 1.57 T_N for |w| >= 0.3 p.u.). A preset keeps its own: piippo2008 reproduces Piippo,
+        Hinkkanen, Luomi (2008), tuned at +-T_N."""
+        env = self.tuning.envelope
+        return env if str(self.file).startswith("preset:") else env.widened(self.control.T_max)
+
+    @property
     def T_s(self) -> float:
         """Sampling period [s]."""
         return self.control.T_s
@@ -315,7 +326,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     observer = dataclasses.replace(observer, gains=gains)
     injection = load_section(Injection, table(data, "injection", file), file, "injection", rel)
     runtime = _load_runtime(data, file, rel)
-    tuning = TuningSettings(law=AdaptiveLawSettings())
+    tuning = TuningSettings(envelope=tuning_envelope(base.w, rating.T_N), law=AdaptiveLawSettings())
     if "tuning" in data:
         tuning = load_tuning(table(data, "tuning", file), file, {**rel, "T_N": rating.T_N}, LAW_KEYS)
     return IpmsmDrive(

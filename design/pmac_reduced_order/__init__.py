@@ -150,11 +150,9 @@ class ReducedOrderObserver(ObserverFamily[schema.PmacDrive]):
     def envelope_points(
         self, drive: schema.PmacDrive, gains: GainSet | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Its drive file's [envelope]: mechanical speeds (electrical here) x load torques."""
-        import numpy as np
-
-        W, T = np.meshgrid(drive.rpm_to_w(drive.envelope.speeds), np.asarray(drive.envelope.loads, float))
-        return W.ravel(), T.ravel()
+        """Its drive file's [envelope] (design/envelope.py, the grid its tuner reads): electrical
+        speeds, sorted and distinct, x load torques, sorted and distinct."""
+        return drive.envelope.grid()
 
     def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
         """No HF injection: said as the traces' header has always said it (the same trace files)."""

@@ -40,6 +40,7 @@ import textwrap
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
 from sensorless.design.drive_file import (
     DriveDocument,
     Entry,
@@ -274,7 +275,7 @@ def check_plausibility(drive: PmacDrive, context: Mapping[str, Any]) -> list[str
         f_N=r.f_N if given["f_N"] else None,
         u_dc=c.u_dc or math.inf,
         T_s=c.T_s,
-        w_max=float(max(abs(drive.rpm_to_w(n)) for n in drive.envelope.speeds)),
+        w_max=float(np.max(np.abs(drive.envelope.speed_grid()))),
         keys=keys,
     )
     return warning_lines(findings, drive.file)

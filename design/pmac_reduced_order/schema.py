@@ -31,6 +31,7 @@ from sensorless.design.drive_file import (
     quantities,
     table,
 )
+from sensorless.design.envelope import Envelope, SpeedRule
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS, param_names
@@ -115,15 +116,16 @@ class PmacControl:
     u_dc: float = q("voltage", doc="DC-link voltage [V]", default=0.0)
 
 
-I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N, base speed
-
-
 @dataclass(frozen=True)
-class Envelope:
-    """Operating points analysed by default: mechanical speeds (r/min, nonzero) x load torques (N m)."""
+class EnvelopeKeys:
+    """[envelope] as the file gives it: mechanical speeds (r/min, nonzero) x load torques (N m); made the
+    drive's :class:`~sensorless.design.envelope.Envelope` at load."""
 
     speeds: tuple[float, ...] = field(default=(), metadata={"dim": "mech_speed"})
     loads: tuple[float, ...] = field(default=(), metadata={"dim": "torque"})
+
+
+I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N, base speed
 
 
 @dataclass(frozen=True)
@@ -139,6 +141,8 @@ class PmacDrive:
     estimate: PmacEstimate
     observer: PmacObserver
     control: PmacControl
+    # [envelope], SI (design/envelope.py): its speeds listed in r/min (``rule.listed``, the file's
+    # order) x its loads in N m (``torque_values``)
     envelope: Envelope
     digest: str = ""
     warnings: tuple[str, ...] = ()  # plausibility warnings (design/plausibility.py), printed by every command
@@ -292,15 +296,19 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
         )
     env_t = table(data, "envelope", file)
     check_keys(env_t, ("speeds", "loads"), file, "envelope.")
-    envelope = Envelope(
-        speeds=quantities(env_t, "speeds", "mech_speed", file, "envelope"),
-        loads=quantities(env_t, "loads", "torque", file, "envelope"),
-    )
-    for k, n in enumerate(envelope.speeds):
+    speeds_rpm = quantities(env_t, "speeds", "mech_speed", file, "envelope")
+    loads = quantities(env_t, "loads", "torque", file, "envelope")
+    for k, n in enumerate(speeds_rpm):
         if n == 0:
             raise DriveFileError(
                 file, f"envelope.speeds[{k}]", "zero speed: the EMF observer is undefined at standstill"
             )
+    # mechanical r/min -> electrical rad/s as PmacDrive.rpm_to_w computes it (x pi/30, then x p)
+    to_w = (math.pi / 30, motor.p)
+    w_base = float(np.asarray(rating.n_N, float) * to_w[0] * to_w[1])
+    T_N = rating.P_N / (rating.n_N * math.pi / 30)
+    given = EnvelopeKeys(tuple(speeds_rpm), tuple(loads))
+    envelope = Envelope(SpeedRule(listed=given.speeds, to_si=to_w), given.loads, w_base, T_N, given=given)
     drive = PmacDrive(
         name=head["name"],
         kind=kind,
@@ -318,7 +326,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
         x = I_NOISE_DEFAULT * nominal_current(drive)
         drive = dataclasses.replace(drive, control=dataclasses.replace(control, i_noise=float(x)))
     # The speed sign (14) reads the angle step modulo pi: |w| T_s must stay below pi/2.
-    w_max = float(np.max(np.abs(drive.rpm_to_w(envelope.speeds))))
+    w_max = float(np.max(np.abs(envelope.speed_grid())))
     if w_max * control.T_s >= math.pi / 2:
         raise DriveFileError(
             file,

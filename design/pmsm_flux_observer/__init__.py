@@ -244,7 +244,7 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
         import numpy as np
         from sensorless.design.pmsm_drive import startup_values
 
-        W, T = drive.grid()
+        W, T = drive.envelope.grid()
         if gains is None:
             return W, T
         try:

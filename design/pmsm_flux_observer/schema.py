@@ -38,6 +38,7 @@ from sensorless.design.drive_file import (
     quantities,
     table,
 )
+from sensorless.design.envelope import Envelope, SpeedRule
 from sensorless.design.motor_data import mtpa_torque, read_motor
 from sensorless.design.plausibility import plausibility, warning_lines
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, PmsmRating
@@ -81,7 +82,10 @@ class ObserverSettings:
 
 
 @dataclass(frozen=True)
-class Envelope:
+class EnvelopeKeys:
+    """[envelope] as the file gives it (speeds in both directions), made the drive's
+    :class:`~sensorless.design.envelope.Envelope` at load."""
+
     speed_min: float = q("angular", doc="smallest |speed| [rad/s]")
     speed_max: float = q("angular", doc="largest |speed| [rad/s]")
     speeds: int = q("integer", doc="speeds per direction")
@@ -102,7 +106,7 @@ class FluxObserverDrive:
     control: PmsmControl
     observer: ObserverSettings
     gains_table: Mapping[str, Any]  # the [gains] section as written (read by gains.py)
-    envelope: Envelope
+    envelope: Envelope  # [envelope], SI (design/envelope.py)
     digest: str = ""
     warnings: tuple[str, ...] = ()
     i_noise: float = 0.0  # [control] i_noise, the current-sensor noise [A rms per axis]; 0: the default
@@ -123,19 +127,6 @@ class FluxObserverDrive:
     @property
     def T_s(self) -> float:
         return self.control.T_s
-
-    def speed_grid(self, factor: int = 1) -> Any:
-        import numpy as np
-
-        e = self.envelope
-        s = np.linspace(e.speed_min, e.speed_max, (e.speeds - 1) * factor + 1)
-        return np.concatenate([-s[::-1], s])
-
-    def grid(self, factor: int = 1) -> tuple[Any, Any]:
-        import numpy as np
-
-        W, T = np.meshgrid(self.speed_grid(factor), np.asarray(self.envelope.torques, float))
-        return W.ravel(), T.ravel()
 
 
 def _choice(t: Mapping[str, Any], k: str, allowed: tuple[str, ...], default: str, file: str) -> str:
@@ -389,14 +380,17 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
     )
     w_base = rating.n_N * math.pi / 30 * motor.p
     env_t = d["envelope"]
-    env = load_section(Envelope, env_t, file, "envelope", {"pu": w_base}, skip=("torques",))
-    env = Envelope(
-        env.speed_min, env.speed_max, env.speeds, quantities(env_t, "torques", "torque", file, "envelope")
-    )
-    if env.speeds < 2 or not env.speed_min < env.speed_max:
+    keys = load_section(EnvelopeKeys, env_t, file, "envelope", {"pu": w_base}, skip=("torques",))
+    torques = quantities(env_t, "torques", "torque", file, "envelope")
+    if keys.speeds < 2 or not keys.speed_min < keys.speed_max:
         raise DriveFileError(file, "envelope", "need speeds >= 2 and 0 < speed_min < speed_max")
-    if env.speed_max * observer.T_obs >= math.pi / 2:
-        raise DriveFileError(file, _speed_keys(data, m), _too_fast(env.speed_max, observer.T_obs))
+    if keys.speed_max * observer.T_obs >= math.pi / 2:
+        raise DriveFileError(file, _speed_keys(data, m), _too_fast(keys.speed_max, observer.T_obs))
+    # speeds evenly spaced in rad/s from speed_min to speed_max, both directions
+    given = dataclasses.replace(keys, torques=tuple(torques))
+    env = Envelope(
+        SpeedRule(keys.speed_min, keys.speed_max, keys.speeds), given.torques, w_base, rating.T_N, given=given
+    )
     drive = FluxObserverDrive(
         name=head["name"],
         kind=kind,

@@ -7,9 +7,10 @@ the estimates from the drive's current-sensor noise (design/noise.py) against th
 the damping-versus-noise front of ``sensorless tune --pareto`` when the table has one.
 
 From a gain table of ``sensorless tune`` the bound and the front are the table's (the same decay
-floor as the tuning); without one, the bound is computed here on the drive's ``[tuning]`` envelope
-with the drive file's gains' own slowest decay as the floor (what any gain reaches while decaying at
-least as fast), and there is no front.
+floor as the tuning); without one, the bound is computed here on the drive's envelope
+(``drive.envelope``: its ``[tuning]`` keys, widened to +-T_max on a drive of the user's own) with the
+drive file's gains' own slowest decay as the floor (what any gain reaches while decaying at least as
+fast), and there is no front.
 """
 
 from __future__ import annotations
@@ -42,10 +43,10 @@ def compute(
     from sensorless.tuning.ipmsm_adaptive.laws import build_pointwise
 
     settings = drive.tuning
-    env = settings.envelope
-    wb, T_N = drive.w_base, drive.T_N
-    speeds = env.speed_grid(wb, env.dense_factor)
-    torques = env.torque_grid(T_N, env.dense_factor)
+    env = drive.envelope  # the drive's range, the one tune judges (+-T_max on a drive of the user's own)
+    wb = drive.w_base
+    speeds = env.speed_grid(env.dense_factor)
+    torques = env.torque_grid(env.dense_factor)
     W, T = np.meshgrid(speeds, torques)
     sigma, T_s = drive.control.i_noise, drive.control.T_s
     summary = table.summary if table is not None else {}

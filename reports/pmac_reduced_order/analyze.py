@@ -83,11 +83,11 @@ def options(drive: PmacDrive, args: argparse.Namespace) -> tuple[list[float], li
         "mech_speed",
         "--speed",
         (rpm_max, f"|speed| <= {RELATIVE_LIMIT:g} p.u. = {rpm_max:.4g} r/min"),
-    ) or list(drive.envelope.speeds)
+    ) or list(drive.envelope.rule.listed)
     T_max = RELATIVE_LIMIT * drive.T_N
     loads = quantities(
         args.load, "torque", "--load", (T_max, f"|load| <= {RELATIVE_LIMIT:g} T_N = {T_max:.4g} N m")
-    ) or list(drive.envelope.loads)
+    ) or list(drive.envelope.torque_values)
     if any(n == 0 for n in rpm):
         raise option_error("--speed", "zero speed: the EMF observer is undefined there")
     n_max = max(abs(n) for n in rpm)

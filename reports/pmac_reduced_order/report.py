@@ -58,8 +58,8 @@ def compute(
     from sensorless.reports.pmac_reduced_order.figures import plot_poles
 
     env = drive.envelope
-    rpm = np.array(env.speeds, float)
-    loads = np.array(env.loads, float)
+    rpm = np.array(env.rule.listed, float)  # the file's speeds [r/min] and loads, in its order
+    loads = np.array(env.torque_values, float)
     w = drive.rpm_to_w(rpm)
     rev = gains_under_review(FAMILY, drive, table, table_file, "paper gains")
     choices, review = rev.choices, rev.label

@@ -115,8 +115,8 @@ def describe(drive: Any, settings: FluxTuneSettings) -> str:
     e = drive.envelope
     err = settings.errors
     return (
-        f"envelope: |speed| {e.speed_min / drive.w_base:.3g}..{e.speed_max / drive.w_base:.3g} p.u. "
-        f"({e.speeds} per direction) x torques {', '.join(f'{t:.4g}' for t in e.torques)} N m; "
+        f"envelope: |speed| {e.rule.lo / drive.w_base:.3g}..{e.rule.hi / drive.w_base:.3g} p.u. "
+        f"({e.rule.count} per direction) x torques {', '.join(f'{t:.4g}' for t in e.torque_values)} N m; "
         "estimate errors "
         f"R_s +-{100 * err['R_s']:g} %, psi_pm +-{100 * err['psi_pm']:g} %, L +-{100 * err['L']:g} %; "
         f"angle bias at most {settings.bias_max_deg:g} deg"

@@ -49,7 +49,7 @@ def bias_figure(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Any:
     import matplotlib.pyplot as plt
 
     plt.rcParams["svg.hashsalt"] = "sensorless"
-    s = drive.speed_grid(2)
+    s = drive.envelope.speed_grid(2)
     s = s[s > 0]
     T = np.full(s.size, drive.T_N)
     e = drive.estimate

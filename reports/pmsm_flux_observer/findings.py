@@ -137,7 +137,7 @@ def holds_nowhere_finding(drive: Any, gains: GainSet, settings: FluxTuneSettings
 
 def damping_finding(drive: Any, a: Assessment, c: int, min_damping: float, law: str) -> str:
     """Where candidate ``c``'s worst damping over the speeds it holds is, and why it is low there."""
-    W, T = drive.grid()
+    W, T = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     lim = low_limit(a.holds[c : c + 1], speeds)[0]
     sel = np.abs(W) >= lim if math.isfinite(lim) else np.ones(W.size, bool)

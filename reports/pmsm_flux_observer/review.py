@@ -59,7 +59,7 @@ class FluxJudge:
     """The family's :class:`~sensorless.reports.envelope_review.Judge` (module docstring)."""
 
     def points(self, drive: Any, refine: int) -> tuple[np.ndarray, np.ndarray]:
-        return drive.grid(refine)
+        return drive.envelope.grid(refine)
 
     def choices(self, drive: Any) -> dict[str, GainSet] | None:
         mine = FAMILY.gains(drive)

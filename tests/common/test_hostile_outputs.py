@@ -47,7 +47,7 @@ def test_a_flux_preset_point_without_a_sampled_fixed_point_is_said_not_written_a
     from sensorless.reports.pole_map import NO_POLES, pole_csv
 
     drive = load_drive("hubmotor48")
-    W, T = drive.grid(2)
+    W, T = drive.envelope.grid(2)
     k = np.flatnonzero(np.isclose(W / drive.w_base, 0.95682, atol=1e-5) & (T == drive.T_N))
     lin = FAMILY.linearize(drive, FAMILY.gains(drive), W[k], T[k])
     assert not np.isfinite(lin.worst_damping_discrete).all()  # the case: no value there

@@ -8,10 +8,23 @@ from __future__ import annotations
 import json
 
 import pytest
-from helpers.readme import README, blocks, commands
+from helpers.readme import README, blocks, chain_commands, chains, commands
 
-# the README's commands run once per session (tests/conftest.py readme_run), on this file's worker
+# each chain of the README's commands runs once per session (tests/conftest.py readme_run), the chains
+# on different workers (groups readme-CHAIN of tests/conftest.py)
 pytestmark = pytest.mark.long(70)
+
+# what each chain's lines write (checked beside their exit status)
+WRITES = {
+    "servo": ["servo.toml", "servo-drive.toml", "c-servo/servo400.c", "report-servo/report.json"],
+    # both firmwares' settings, and reports with the tuned gains beside the firmwares' defaults
+    "skate-vesc": ["firmware-skate-vesc/vesc.xml", "report-skate-vesc/report.json"],
+    "skate-odrive": [
+        "firmware-skate-odrive/odrive.json",
+        "tune-skate-odrive/pareto_odrive.csv",
+        "report-skate-odrive/report.json",
+    ],
+}
 
 
 def test_the_readme_has_the_quick_start_and_your_own_motor():
@@ -21,23 +34,23 @@ def test_the_readme_has_the_quick_start_and_your_own_motor():
     assert "python3 -m venv" in blocks("sh")[0]
 
 
-def test_every_readme_command_runs_as_written(readme_run):
-    assert [argv for argv, _, _ in readme_run.results] == commands()  # all of them, in order
-    for argv, code, err in readme_run.results:
+def test_the_chains_are_all_the_readme_commands_in_order():
+    # each command in exactly one chain, and each chain a run of consecutive lines: running the chains
+    # one after the other is running the README in its order
+    assert [argv for c in chains() for argv in chain_commands(c)] == commands()
+    assert set(WRITES) < set(chains())
+
+
+@pytest.mark.parametrize("chain", chains())
+def test_every_readme_command_runs_as_written(readme_run, chain):
+    run = readme_run(chain)
+    assert [argv for argv, _, _ in run.results] == chain_commands(chain)  # all of them, in order
+    for argv, code, err in run.results:
         assert code == 0, (argv, err[-2000:])
-    where = readme_run.dir
-    assert (where / "servo.toml").is_file()
-    # what the own-motor lines wrote
-    assert (where / "servo-drive.toml").is_file()
-    assert (where / "c-servo" / "servo400.c").is_file()
-    assert (where / "report-servo" / "report.json").is_file()
-    # what the firmware lines wrote: both firmwares' settings, and reports with the tuned gains beside
-    # the firmwares' defaults
-    assert (where / "firmware-skate-vesc" / "vesc.xml").is_file()
-    assert (where / "firmware-skate-odrive" / "odrive.json").is_file()
-    assert (where / "tune-skate-odrive" / "pareto_odrive.csv").is_file()
-    for fw in ("vesc", "odrive"):
-        rep = json.loads((where / f"report-skate-{fw}" / "report.json").read_text())
+    for file in WRITES.get(chain, []):
+        assert (run.dir / file).is_file(), file
+    if chain in ("skate-vesc", "skate-odrive"):
+        rep = json.loads((run.dir / f"report-{chain}" / "report.json").read_text())
         assert {"tuned", "ODrive defaults", "VESC detection"} <= set(rep["analysis"])
 
 

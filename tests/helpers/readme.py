@@ -1,5 +1,6 @@
-"""The README's command lines and example files, and one run of all of them (the README test and the
-own-motor tests share that run: it is the suite's longest step)."""
+"""The README's command lines and example files, split into their independent chains (the commands of
+one drive), and one run of a chain (the README test and the own-motor tests share the servo's run; the
+chains run on different pytest-xdist workers: together they were the suite's longest step)."""
 
 from __future__ import annotations
 
@@ -30,6 +31,23 @@ def commands() -> list[list[str]]:
     return out
 
 
+def chain_of(argv: list[str]) -> str:
+    """The chain a README command belongs to: the drive it works on (``init`` names the drive file it
+    writes with ``--out``; the other commands name it first), without ``-drive.toml`` or ``.toml``."""
+    drive = argv[argv.index("--out") + 1] if argv[0] == "init" else argv[1]
+    return re.sub(r"(-drive)?\.toml$", "", Path(drive).name)
+
+
+def chains() -> list[str]:
+    """The README's chains, in the order of their first command."""
+    return list(dict.fromkeys(chain_of(argv) for argv in commands()))
+
+
+def chain_commands(chain: str) -> list[list[str]]:
+    """The README's commands of one chain, in the README's order."""
+    return [argv for argv in commands() if chain_of(argv) == chain]
+
+
 @dataclass(frozen=True)
 class ReadmeRun:
     """Where the README's commands ran, and each command's argv, exit status and standard error."""
@@ -42,9 +60,11 @@ class ReadmeRun:
         return next(c for argv, c, _ in self.results if argv[0] == command and file in argv)
 
 
-def run_readme(where: Path) -> ReadmeRun:
-    """Run every README command as written, in order, in ``where`` holding the README's example files
-    (``toml`` blocks that start with a ``# NAME.toml`` line) and the repository's docs/examples."""
+def run_readme(where: Path, chain: str | None = None) -> ReadmeRun:
+    """Run the README commands of ``chain`` (default: all of them) as written, in order, in ``where``
+    holding the README's example files (``toml`` blocks that start with a ``# NAME.toml`` line) and the
+    repository's docs/examples. A chain runs in a directory of its own: that it succeeds there shows it
+    needs no other chain's outputs."""
     from sensorless.reports.cli.main import main
 
     for body in blocks("toml"):
@@ -56,7 +76,7 @@ def run_readme(where: Path) -> ReadmeRun:
     cwd = os.getcwd()
     os.chdir(where)
     try:
-        for argv in commands():
+        for argv in commands() if chain is None else chain_commands(chain):
             err, out = io.StringIO(), io.StringIO()
             with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
                 code = main(argv)

@@ -31,7 +31,7 @@ def run(argv, capsys):
 
 
 # the servo is the README's own motor (its servo.toml: the same motor in its datasheet's terms), whose
-# commands the README test runs once for both (one worker: group "readme" of tests/conftest.py); the
+# commands the README test runs once for both (one worker: group "readme-servo" of tests/conftest.py); the
 # traction motor runs here
 pytestmark = pytest.mark.long(40)
 
@@ -42,7 +42,7 @@ def flow(request, tmp_path_factory):
     (name, minimal file, written drive file, {step: output directory}, {step: exit status})."""
     name = request.param
     if name == "servo":
-        r = request.getfixturevalue("readme_run")
+        r = request.getfixturevalue("readme_run")("servo")
         drive = r.dir / "servo-drive.toml"
         dirs = {"tune": r.dir / "tune-servo", "codegen": r.dir / "c-servo", "report": r.dir / "report-servo"}
         codes = {"init": r.code("init", "servo.toml"), **{k: r.code(k, str(drive.name)) for k in dirs}}

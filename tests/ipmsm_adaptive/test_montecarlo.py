@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from sensorless.design import montecarlo as mc
 from sensorless.design.drive import load_drive
+from sensorless.design.envelope import with_tuning_keys
 from sensorless.design.registry import family_of
 from sensorless.reports import montecarlo as rmc
 from sensorless.reports.engine import SYNCHRONOUS, Engine
@@ -21,7 +22,7 @@ from sensorless.reports.engine import SYNCHRONOUS, Engine
 def small():
     """The preset with a coarse envelope (6 speeds per direction x 3 torques), its family and gains."""
     d = load_drive("piippo2008")
-    env = dataclasses.replace(d.tuning.envelope, speeds=6)
+    env = with_tuning_keys(d.tuning.envelope, speeds=6)
     d = dataclasses.replace(d, tuning=dataclasses.replace(d.tuning, envelope=env))
     fam = family_of(d)
     return d, fam, fam.gains(d)
@@ -73,7 +74,7 @@ def test_marginal_yield_is_the_normal_cdf_beyond_the_direct_boundary(small):
     estimate (a direct sweep with family.linearize), so the draws that meet the required damping are
     those below the factor r* where it crosses it, and the yield is Phi((r* - 1) / 0.05)."""
     d, fam, g = small
-    env = dataclasses.replace(d.tuning.envelope, speeds=3)  # 18 points: the test's time is the draws'
+    env = with_tuning_keys(d.tuning.envelope, speeds=3)  # 18 points: the test's time is the draws'
     d = dataclasses.replace(d, tuning=dataclasses.replace(d.tuning, envelope=env))
     w, T = rmc.envelope(d)
     required = 0.375

@@ -30,7 +30,7 @@ def _prius(tmp_path: Path, control: str = "") -> Path:
 
 
 def _torques_Nm(d) -> list[float]:
-    return sorted(t * d.T_N for t in d.tuning.envelope.torques_TN)
+    return sorted(t * d.T_N for t in d.tuning.envelope.torque_values)
 
 
 def test_the_envelope_reaches_the_torque_limit(tmp_path):
@@ -48,7 +48,7 @@ def test_a_given_torque_limit_sets_the_envelope(tmp_path):
 
 
 def test_the_preset_keeps_its_envelope():
-    assert load_drive("piippo2008").tuning.envelope.torques_TN == (-1.0, 0.0, 1.0)
+    assert load_drive("piippo2008").tuning.envelope.torque_values == (-1.0, 0.0, 1.0)
 
 
 def test_tuned_schedule_writes_rounding_residues_as_zero(tmp_path):

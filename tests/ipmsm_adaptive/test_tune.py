@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from helpers.closed_form_ipmsm import mtpa_reference, paper_gain, paper_matrices
-from sensorless.design.envelope import Envelope
+from sensorless.design.envelope import tuning_envelope
 from sensorless.design.ipmsm_adaptive.linearize import linearize
 from sensorless.reports.cli.main import main
 from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law
@@ -22,7 +22,14 @@ pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: schedul
 
 
 def small(drive, **kw):
-    env = Envelope(speed_min=0.05, speed_max=1.0, speeds=8, torques_TN=(-1.0, 1.0))
+    env = tuning_envelope(
+        drive.w_base,
+        drive.T_N,
+        speed_min=0.05,
+        speed_max=1.0,
+        speeds=8,
+        torques_TN=(-1.0, 1.0),
+    )
     return dataclasses.replace(drive.tuning, envelope=env, **kw)
 
 
@@ -87,7 +94,7 @@ def speed_dependent(drive):
 
 def test_speed_dependent_at_least_as_good_as_brute_force(drive, speed_dependent):
     """The NLP optimum beats (within 0.002) a coarse independent grid search on the same envelope."""
-    W, T = small(drive).envelope.grid(drive.base.w, drive.T_N)
+    W, T = small(drive).envelope.grid()
     R, wb = drive.estimate.R_s, drive.base.w
     best = max(
         closed_form_worst_damping(drive, W, T, lp * R, wl * wb)
@@ -102,13 +109,10 @@ def test_speed_dependent_at_least_as_good_as_brute_force(drive, speed_dependent)
 def test_table_reports_dense_reverification(drive, speed_dependent):
     s = speed_dependent.table.summary
     env = small(drive).envelope
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
-    wb, TN = drive.base.w, drive.T_N
-    w_opt, w_den = env.speed_grid(wb)[env.speeds :], env.speed_grid(wb, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
+    w_opt, w_den = env.speed_grid()[env.rule.count :], env.speed_grid(env.dense_factor)
     assert np.diff(w_den[w_den > 0]).max() <= np.diff(w_opt).max() / 4 + 1e-9  # >= 4x denser per axis
-    assert (
-        np.diff(env.torque_grid(TN, env.dense_factor)).max() <= np.diff(env.torque_grid(TN)).max() / 4 + 1e-9
-    )
+    assert np.diff(env.torque_grid(env.dense_factor)).max() <= np.diff(env.torque_grid()).max() / 4 + 1e-9
     pts = speed_dependent.table.points
     assert len(pts) == Wd.size
     assert s["worst_damping"] == min(p["damping"] for p in pts)
@@ -126,7 +130,7 @@ def test_paper_defaults_reproduce(drive, speed_dependent):
     assert b["lambda_p"] == pytest.approx(2 * drive.estimate.R_s)
     assert b["w_lambda"] == pytest.approx(drive.base.w)
     env = small(drive).envelope
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     ref = linearize(drive, Wd, Td, gain="speed")
     assert speed_dependent.table.summary["baseline_worst_damping"] == pytest.approx(
         np.nanmin(ref.worst_damping), abs=1e-9
@@ -143,7 +147,7 @@ def test_schedule_at_least_as_good_as_speed_dependent(drive, speed_dependent, sc
     path; its start reproduces the tuned law (16) exactly (a kink breakpoint at omega_lambda)."""
     s = schedule.table.summary
     env = small(drive).envelope
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     g = schedule.table.gains
     law = schedule_law(tuple(g["w_hat"]))
     ref = linearize(drive, Wd, Td, gain=(law, np.concatenate([g["lambda1"], g["lambda2"]])))
@@ -156,7 +160,7 @@ def test_schedule_at_least_as_good_as_speed_dependent(drive, speed_dependent, sc
     # +-omega_lambda are breakpoints where they lie inside the envelope (outside it law (16) is linear
     # over each direction of the envelope and the schedule reproduces it anyway)
     e = small(drive).envelope
-    inside = e.speed_min * drive.base.w < speed_dependent.theta[1] < e.speed_max * drive.base.w
+    inside = e.rule.lo * drive.base.w < speed_dependent.theta[1] < e.rule.hi * drive.base.w
     assert np.isclose(np.abs(g["w_hat"]), speed_dependent.theta[1]).sum() == (2 if inside else 0)
     assert s["worst_damping"] > speed_dependent.table.summary["worst_damping"] + 0.03  # and it does improve
     # without giving up decay rate (a pole creeping to the origin has damping 1)
@@ -171,9 +175,8 @@ def test_dense_reverification_rejects_between_grid_instability(drive, speed_depe
     st = small(drive, law=dataclasses.replace(drive.tuning.law, breakpoints=11))
     m = build_schedule(drive, st, speed_dependent.theta)
     env = st.envelope
-    wb, TN = drive.base.w, drive.T_N
-    W, T = env.grid(wb, TN)
-    Wd, Td = env.grid(wb, TN, env.dense_factor)
+    W, T = env.grid()
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     w = np.array(m.table_gains(m.start)["w_hat"])
     K = w.size
     G = np.array([np.interp(x, w, np.eye(K)[k]) for x in np.unique(W) for k in range(K)]).reshape(-1, K)
@@ -199,12 +202,19 @@ def test_stable_under_stated_estimate_errors(drive):
     """Tuned with R̂s +-20 % and L̂q +-10 % stated, the gains keep every corner stable on the dense
     grid, checked through the analysis path with the drive's estimates replaced. (From 0.3 p.u.:
     lower, the equilibrium itself is lost, see the next test.)"""
-    env = Envelope(speed_min=0.3, speed_max=1.0, speeds=8, torques_TN=(-1.0, 1.0))
+    env = tuning_envelope(
+        drive.w_base,
+        drive.T_N,
+        speed_min=0.3,
+        speed_max=1.0,
+        speeds=8,
+        torques_TN=(-1.0, 1.0),
+    )
     st = dataclasses.replace(drive.tuning, envelope=env, errors=(0.2, 0.0, 0.1, 0.0))
     r = tune(drive, "speed-dependent", st)
     assert len(r.robust) == 4 and all(x["stable"] for x in r.robust)
     env = st.envelope
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     nom = np.array(drive.estimate.vector())
     for s1 in (1, -1):
         for s3 in (1, -1):

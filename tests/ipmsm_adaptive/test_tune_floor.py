@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from sensorless.design.drive import load_drive
-from sensorless.design.envelope import Envelope
+from sensorless.design.envelope import tuning_envelope
 from sensorless.tuning import search
 from sensorless.tuning.candidates import FEASIBILITY_TOL, meets_floor
 from sensorless.tuning.conditions import candidates
@@ -45,10 +45,17 @@ def test_global_phase_and_selection_judge_the_floor_alike(below):
     phase (search.rank) and the selection (selection.select) give the same verdict on the same points,
     met at 0.5, not met at 2 (before, the selection refused at 0.5 what the global phase accepted)."""
     d = load_drive(PRIUS)
-    env = Envelope(speed_min=0.2, speed_max=1.0, speeds=4, torques_TN=(-1.5, 0.0, 1.5))
+    env = tuning_envelope(
+        d.w_base,
+        d.T_N,
+        speed_min=0.2,
+        speed_max=1.0,
+        speeds=4,
+        torques_TN=(-1.5, 0.0, 1.5),
+    )
     st = dataclasses.replace(d.tuning, envelope=env)
     model = tunable_for(d, "speed-dependent").build(d, st, None)
-    W, T = env.grid(d.w_base, d.T_N)
+    W, T = env.grid()
     theta = np.array([10 * d.estimate.R_s, 0.5 * d.w_base])  # stable on this envelope
     f = figures(model, theta, W, T)
     assert np.isfinite(f.damping).all() and f.decay.min() > 0

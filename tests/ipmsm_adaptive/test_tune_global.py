@@ -10,7 +10,7 @@ import pytest
 import scipy.linalg
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.drive import load_drive
-from sensorless.design.envelope import Envelope
+from sensorless.design.envelope import tuning_envelope
 from sensorless.design.ipmsm_adaptive.linearize import (
     drive_arguments,
     linearize,
@@ -30,13 +30,20 @@ SALIENT = str(Path(__file__).parent / "drives" / "salient_traction.toml")
 
 
 def small(drive, **kw):
-    env = Envelope(speed_min=0.05, speed_max=1.0, speeds=8, torques_TN=(-1.0, 1.0))
+    env = tuning_envelope(
+        drive.w_base,
+        drive.T_N,
+        speed_min=0.05,
+        speed_max=1.0,
+        speeds=8,
+        torques_TN=(-1.0, 1.0),
+    )
     return dataclasses.replace(drive.tuning, envelope=env, **kw)
 
 
 def dense_worst(drive, env, gain):
     """Worst damping and slowest decay on the dense grid through the analysis path."""
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     s = linearize(drive, Wd, Td, gain=gain)
     return float(np.min(s.worst_damping)), float(np.min(s.decay_rate))
 
@@ -68,7 +75,14 @@ def test_infeasible_envelope_reports_its_evidence():
     drive = load_drive("piippo2008")
     st = dataclasses.replace(
         drive.tuning,
-        envelope=Envelope(speed_min=0.1, speed_max=1.0, speeds=3, torques_TN=(-1.0, 1.0)),
+        envelope=tuning_envelope(
+            drive.w_base,
+            drive.T_N,
+            speed_min=0.1,
+            speed_max=1.0,
+            speeds=3,
+            torques_TN=(-1.0, 1.0),
+        ),
         min_decay=5000.0,
     )
     with pytest.raises(TuningError) as e:
@@ -113,7 +127,7 @@ def test_bound_at_a_speed_equals_a_brute_force_search(drive, w_pu):
     """The pointwise bound at one speed (nine torques, decay floor 10 1/s) is the brute-force maximum
     there to 0.005, and never far below it (it is attained by the gains it reports)."""
     env = drive.tuning.envelope
-    torques = env.torque_grid(drive.T_N, env.dense_factor)
+    torques = env.torque_grid(env.dense_factor)
     w = w_pu * drive.base.w
     b = pointwise_bound(build_pointwise(drive, drive.tuning), np.array([w]), torques, 10.0, 500.0)
     ref = brute_force(drive, w, torques, 10.0)
@@ -242,8 +256,15 @@ def test_max_noise_limit_holds_on_the_dense_grid_and_the_front(drive, tmp_path, 
 
     doc = json.loads((out / "gains_speed-dependent.json").read_text())
     g = doc["gains"]
-    env = Envelope(speed_min=0.05, speed_max=1.0, speeds=5, torques_TN=(-1.0, 1.0))
-    Wd, Td = env.grid(drive.base.w, drive.T_N, env.dense_factor)
+    env = tuning_envelope(
+        drive.w_base,
+        drive.T_N,
+        speed_min=0.05,
+        speed_max=1.0,
+        speeds=5,
+        torques_TN=(-1.0, 1.0),
+    )
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     s = linearize(drive, Wd, Td, gain=("speed", [g["lambda_p"], g["w_lambda"]]), noise=True)
     nz = s.noise_rms(drive.control.i_noise, drive.control.T_s)
     assert np.degrees(np.max(nz[:, 0])) <= lim_deg * (1 + 1e-6)

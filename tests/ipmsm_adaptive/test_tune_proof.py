@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 from sensorless.design.drive import load_drive, preset_text
+from sensorless.design.envelope import with_tuning_keys
 from sensorless.reports import tune_proof
 from sensorless.reports.cli.main import main
 from sensorless.tuning import nlp
@@ -21,17 +22,17 @@ from sensorless.tuning.result import figures
 
 def test_envelope_reaches_the_torque_limit_except_the_papers_law_on_its_preset(drive, tmp_path):
     k = drive.control.T_max / drive.T_N  # 22 N m / 14 N m
-    sched = tunable_for(drive, "schedule").settings(drive).envelope.torques_TN
+    sched = tunable_for(drive, "schedule").settings(drive).envelope.torque_values
     assert min(sched) == pytest.approx(-k) and max(sched) == pytest.approx(k)
     assert {-1.0, 0.0, 1.0} <= set(sched)  # the preset's own torques stay
     # the paper's law on the paper's preset: its envelope as the paper (the reproduction)
-    assert tunable_for(drive, "speed-dependent").settings(drive).envelope.torques_TN == (-1.0, 0.0, 1.0)
+    assert tunable_for(drive, "speed-dependent").settings(drive).envelope.torque_values == (-1.0, 0.0, 1.0)
     # the same drive as a file of the user's own: every law reaches +-T_max
     f = tmp_path / "mine.toml"
     f.write_text(preset_text("piippo2008"))
     mine = load_drive(str(f))
     for law in ("speed-dependent", "schedule"):
-        tq = tunable_for(mine, law).settings(mine).envelope.torques_TN
+        tq = tunable_for(mine, law).settings(mine).envelope.torque_values
         assert max(abs(t) for t in tq) == pytest.approx(k), law
 
 
@@ -39,10 +40,10 @@ def test_nlp_start_at_its_own_decay_floor_is_feasible_and_ends_feasible(drive, m
     """Every NLP keeps its start's slowest decay as a floor, so the point that sets it has a shifted
     root at zero: the slot scale collapsed there and the start violated the factor equalities by
     0.27..13 (IPOPT: Infeasible_Problem_Detected from gains that meet every constraint)."""
-    env = dataclasses.replace(drive.tuning.envelope, speeds=4, torques_TN=(-1.5, 0.0, 1.5))
+    env = with_tuning_keys(drive.tuning.envelope, speeds=4, torques_TN=(-1.5, 0.0, 1.5))
     st = dataclasses.replace(drive.tuning, envelope=env)
     model = build_speed_dependent(drive, st)
-    W, T = env.grid(drive.w_base, drive.T_N)
+    W, T = env.grid()
     theta = np.asarray(model.theta0, float)
     f0 = figures(model, theta, W, T)
     scale = float(np.abs(f0.poles).max())

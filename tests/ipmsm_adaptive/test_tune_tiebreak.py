@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from sensorless.design.drive import load_drive
-from sensorless.design.envelope import Envelope
+from sensorless.design.envelope import tuning_envelope
 from sensorless.design.ipmsm_adaptive.linearize import linearize
 from sensorless.tuning.tiebreak import TIE_TOL
 from sensorless.tuning.tune import tune
@@ -32,11 +32,18 @@ def speed_dependent_size(lp, wl, R, wb, w_max):
 @pytest.fixture(scope="module")
 def case():
     drive = load_drive(str(IND5K5))
-    env = Envelope(speed_min=0.05, speed_max=1.0, speeds=4, torques_TN=(-1.0, 1.0))
+    env = tuning_envelope(
+        drive.w_base,
+        drive.T_N,
+        speed_min=0.05,
+        speed_max=1.0,
+        speeds=4,
+        torques_TN=(-1.0, 1.0),
+    )
     st = dataclasses.replace(drive.tuning, envelope=env, bound=False)
     r = tune(drive, "speed-dependent", st)
     R, wb = drive.estimate.R_s, drive.base.w
-    Wd, Td = env.grid(wb, drive.T_N, env.dense_factor)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     # the brute force: worst damping and slowest decay on the dense grid, through the analysis path
     lps = np.geomspace(0.25, 20.0, 25) * R  # the box's cap is 20 R_s_hat
     wls = np.geomspace(0.01, 10.0, 25) * wb

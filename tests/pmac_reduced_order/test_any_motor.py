@@ -130,5 +130,5 @@ def test_derived_values_follow_their_documented_rules(src, f_s, p, psi_pm):
     assert c.alpha_s == pytest.approx(min(5 / tau_m, g / 10), rel=1e-5)
     assert c.T_max == pytest.approx(2 * d.T_N, rel=1e-5)
     n = d.rating.n_N
-    assert d.envelope.speeds == pytest.approx([-0.25 * n, 0.025 * n, 0.1 * n, 0.25 * n, n], rel=1e-5)
-    assert d.envelope.loads == pytest.approx([0, d.T_N, -d.T_N], rel=1e-5)
+    assert d.envelope.rule.listed == pytest.approx([-0.25 * n, 0.025 * n, 0.1 * n, 0.25 * n, n], rel=1e-5)
+    assert d.envelope.torque_values == pytest.approx([0, d.T_N, -d.T_N], rel=1e-5)

@@ -39,4 +39,4 @@ def test_montecarlo_command_defaults_to_the_typical_spread(tmp_path):
     d = load_drive("deangelo2006")
     params = family_of(d).montecarlo_parameters(d)
     assert s["spread"] == {p.name: f"{100 * p.typical:g}%" for p in params}
-    assert s["samples"] == 3 and s["envelope_points"] == len(d.envelope.speeds) * len(d.envelope.loads)
+    assert s["samples"] == 3 and s["envelope_points"] == len(d.envelope.speeds) * len(d.envelope.torques)

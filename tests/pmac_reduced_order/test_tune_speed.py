@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from sensorless.design.drive import load_drive
+from sensorless.design.envelope import Envelope, SpeedRule
 from sensorless.design.pmac_reduced_order.linearize import analyze
 from sensorless.tuning.pmac_reduced_order.settings import closed_form, default_settings
 
@@ -21,7 +22,7 @@ def fake_drive(J, Phi1, g, Gamma):
     return SimpleNamespace(
         estimate=SimpleNamespace(J=J, Phi=(Phi1,)),
         observer=SimpleNamespace(g=g, Gamma=Gamma),
-        envelope=SimpleNamespace(speeds=(100.0,), loads=(0.0,)),
+        envelope=Envelope(SpeedRule(listed=(100.0,)), (0.0,), 1.0, 1.0),
     )
 
 

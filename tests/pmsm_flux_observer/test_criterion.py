@@ -25,17 +25,23 @@ from sensorless.tuning.pmsm_flux_observer import (
 )
 
 
+def with_speeds(d, n):
+    """``d`` with ``n`` speeds per direction in its envelope."""
+    env = dataclasses.replace(d.envelope, rule=dataclasses.replace(d.envelope.rule, count=n))
+    return dataclasses.replace(d, envelope=env)
+
+
 @pytest.fixture(scope="module")
 def drive():
     """The ODrive-class preset on a coarser envelope (6 speeds per direction): the same criterion, a
     quarter of the points."""
     d = load_drive("outrunner270")
-    return dataclasses.replace(d, envelope=dataclasses.replace(d.envelope, speeds=6))
+    return with_speeds(d, 6)
 
 
 def _rank(drive, a, c):
     """The criterion typed from its doc: (misses decay or PLL, low-speed limit, -worst decay)."""
-    W, _ = drive.grid()
+    W, _ = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     lim = math.inf
     for j in range(len(speeds) - 1, -1, -1):  # the lowest speed from which every higher one holds
@@ -89,7 +95,7 @@ def test_tuned_is_never_worse_than_the_better_firmware_default_on_a_brute_force_
 
 
 def test_shortfalls_name_the_cause_when_the_gains_hold_nowhere_or_only_at_the_top(drive):
-    d = dataclasses.replace(drive, envelope=dataclasses.replace(drive.envelope, speeds=4))  # 4 speeds
+    d = with_speeds(drive, 4)  # 4 speeds
     s = FluxTuneSettings()
     ks = np.geomspace(2000.0, 1.9 / d.observer.T_obs, 8)
     a = assess(d, [odrive_candidate(d, float(k)) for k in ks], s)

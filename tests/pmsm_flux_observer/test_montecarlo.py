@@ -91,7 +91,7 @@ def test_montecarlo_command_defaults_to_the_typical_spread(tmp_path, capsys):
     assert s["spread"] == {p.name: f"{100 * p.typical:g}%" for p in params if p.typical > 0}
     assert s["min_damping"] == 0.0  # the family's: stable (its damping falls with speed by design)
     # the points the gains run sensorless: from the I-f start's hand-back speed up
-    W, _ = d.grid()
+    W, _ = d.envelope.grid()
     above = int(np.count_nonzero(np.abs(W) >= 0.2 * d.w_base * (1 - 1e-12)))
     assert 0 < above < W.size
     assert s["samples"] == 3 and s["envelope_points"] == above

@@ -33,18 +33,13 @@ def _full_range(drive: IpmsmDrive) -> Any:
     regenerating), and gains tuned at +-T_N only were unstable just beyond it (piippo2008's schedule:
     max Re +1.5 .. +11 1/s at T_max = 1.57 T_N for |w| >= 0.3 p.u., the rotor lost in fig9b)."""
     s = drive.tuning
-    k = drive.control.T_max / drive.T_N
-    tq = s.envelope.torques_TN
-    if max(abs(t) for t in tq) >= k * (1 - 1e-9):
-        return s
-    env = dataclasses.replace(s.envelope, torques_TN=tuple(sorted({*tq, -k, k})))
-    return dataclasses.replace(s, envelope=env)
+    return dataclasses.replace(s, envelope=s.envelope.widened(drive.control.T_max))
 
 
 def _paper_or_full(drive: IpmsmDrive) -> Any:
     """The paper's law on its own preset keeps the preset's envelope (it reproduces Piippo et al. 2008,
     tuned at +-T_N); on any other drive it tunes over the full range too (``_full_range``)."""
-    return drive.tuning if str(drive.file).startswith("preset:") else _full_range(drive)
+    return dataclasses.replace(drive.tuning, envelope=drive.envelope)
 
 
 HOOKS = TuningHooks(

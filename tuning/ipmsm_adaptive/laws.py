@@ -129,10 +129,11 @@ def schedule_breakpoints(
     of ``kinks`` [rad/s] that lies inside the envelope and not within 1e-3 p.u. of another."""
     e = settings.envelope
     wb = drive.base.w
-    mag = list(np.linspace(e.speed_min, e.speed_max, law_settings(settings).breakpoints) * wb)
+    lo, hi = e.rule.lo, e.rule.hi  # [p.u.], the [tuning] keys
+    mag = list(np.linspace(lo, hi, law_settings(settings).breakpoints) * wb)
     for k in kinks:
         k = abs(float(k))
-        if e.speed_min * wb < k < e.speed_max * wb and min(abs(k - m) for m in mag) > 1e-3 * wb:
+        if lo * wb < k < hi * wb and min(abs(k - m) for m in mag) > 1e-3 * wb:
             mag.append(k)
     mag = np.sort(mag)
     return tuple(float(v) for v in np.concatenate([-mag[::-1], [0.0], mag]))

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
+from sensorless.design.envelope import SpeedRule
 from sensorless.tuning.nlp import TuningError
 
 if TYPE_CHECKING:  # typed by name only
@@ -92,8 +93,8 @@ def default_settings(drive: PmacDrive) -> ConstantGainSettings:
     g_min, g_max = MIN_FACTOR * o.g, G_MAX_FACTOR * o.g
     Gamma_min, Gamma_max = gamma_box(drive, g_min, g_max, float(o.Gamma))
     return ConstantGainSettings(
-        speeds_rpm=tuple(float(s) for s in drive.envelope.speeds),
-        loads_Nm=tuple(float(t) for t in drive.envelope.loads),
+        speeds_rpm=tuple(float(s) for s in drive.envelope.rule.listed),
+        loads_Nm=tuple(float(t) for t in drive.envelope.torque_values),
         g_min=g_min,
         g_max=g_max,
         Gamma_min=Gamma_min,
@@ -104,14 +105,7 @@ def default_settings(drive: PmacDrive) -> ConstantGainSettings:
 def speed_grid(speeds_rpm: tuple[float, ...], factor: int = 1) -> np.ndarray:
     """Sorted speeds [r/min]; ``factor`` > 1 refines each interval between speeds of the same sign
     (never across standstill, where the EMF observer is undefined)."""
-    s = np.unique(np.asarray(speeds_rpm, float))
-    out = [s[:1]]
-    for a, b in itertools.pairwise(s):
-        if factor > 1 and a * b > 0:
-            out.append(np.linspace(a, b, factor + 1)[1:])
-        else:
-            out.append(np.array([b]))
-    return np.concatenate(out)
+    return SpeedRule(listed=speeds_rpm).native(factor)
 
 
 def load_grid(loads_Nm: tuple[float, ...], factor: int = 1) -> np.ndarray:

@@ -42,7 +42,7 @@ class Assessment:
 
 def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
     """The sampled observer with each candidate's gains on the envelope x the error corners."""
-    W, T = drive.grid()
+    W, T = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     cs = corners(settings.errors)
     names = [f.name for f in PARAMS]
@@ -133,7 +133,7 @@ def low_limit(holds: np.ndarray, speeds: np.ndarray) -> np.ndarray:
 def figures(drive: Any, a: Assessment, c: int, w_from: float | None = None) -> dict[str, float]:
     """Worst damping and bias over the speeds from ``w_from`` (None: its own low-speed limit) up, and
     the low-speed limit."""
-    W, _ = drive.grid()
+    W, _ = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     lim = low_limit(a.holds[c : c + 1], speeds)[0]
     sel = np.abs(W) >= (lim if w_from is None else w_from)
@@ -155,7 +155,7 @@ def front(
     """The damping-versus-bias front of the candidates (``tune --pareto N``): of those that hold down
     to the hold speed, the ones no other beats in both worst damping and worst angle bias over the
     speeds from it up, at most ``n`` of them evenly over the front, by increasing bias."""
-    W, _ = drive.grid()
+    W, _ = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     lim = low_limit(a.holds, speeds)
     sel = np.abs(W) >= w_hold
@@ -207,7 +207,7 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
     from sensorless.design.registry import family_of
 
     fam = family_of(drive)
-    W, T = drive.grid()
+    W, T = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     e = drive.estimate
     zs, bs, st, poles, decay = [], [], [], None, None

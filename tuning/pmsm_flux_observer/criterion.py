@@ -62,7 +62,7 @@ def requirements(drive: Any, settings: FluxTuneSettings) -> dict[str, float]:
 def judged(drive: Any, a: Assessment, c: int, settings: FluxTuneSettings) -> dict[str, Any]:
     """Candidate ``c``'s figures (assessment.figures from its own limit, or from the hold speed where
     one is given and lower) and which requirement it meets."""
-    W, _ = drive.grid()
+    W, _ = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     lim = float(low_limit(a.holds[c : c + 1], speeds)[0])
     w_from = lim if settings.hold_speed is None else max(lim, settings.hold_speed)
@@ -110,7 +110,7 @@ def shortfalls(
     """What ``gains`` (judged ``j``) miss of the criterion, one line each with the cause and the change
     that fixes it; empty where they meet it. ``pll`` False: leave the PLL's lag out (the report says
     it in its own finding)."""
-    W, _ = drive.grid()
+    W, _ = drive.envelope.grid()
     top = float(np.max(np.abs(W)))
     wb = drive.w_base
     ok, need = j["meets"], j["requirements"]
@@ -171,7 +171,7 @@ def shortfalls(
 def lost_cause(drive: Any, gains: GainSet, settings: FluxTuneSettings, speed: float) -> str:
     """Why ``gains`` do not hold at ``speed`` [rad/s]: each estimate error alone, judged as the criterion
     judges it (stable, bias, noise), named where it alone loses the speed."""
-    W, _ = drive.grid()
+    W, _ = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     j = int(np.argmin(np.abs(speeds - speed)))
     alone = []

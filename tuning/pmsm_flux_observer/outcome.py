@@ -56,7 +56,7 @@ def baselines(drive: Any, settings: FluxTuneSettings) -> tuple[list[str], dict[s
 
 
 def top_speed(drive: Any) -> float:
-    W, _ = drive.grid()
+    W, _ = drive.envelope.grid()
     return float(np.max(np.abs(W))) * (1 - 1e-9)
 
 
@@ -105,7 +105,7 @@ def noise_clause(f: dict[str, float]) -> str:
 def gain_table(
     drive: Any, law: str, gains: dict[str, Any], a: Assessment, c: int, summary: dict[str, Any]
 ) -> GainTable:
-    W, T = drive.grid()
+    W, T = drive.envelope.grid()
     base = assess(drive, [drive_gains_or_none(drive)], FluxTuneSettings())
     points = []
     for j in range(W.size):

@@ -31,7 +31,7 @@ from sensorless.design.discrete import (
     pmsm_zoh_sample,
 )
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
-from sensorless.design.envelope import TuningSettings, load_tuning
+from sensorless.design.envelope import Envelope, TuningSettings, load_tuning
 from sensorless.design.family import CapabilityError, GainSet, ObserverFamily
 from sensorless.design.law_gains import section_gains, table_gains
 from sensorless.design.linearization import Linearization
@@ -89,6 +89,11 @@ class PllDrive(PmsmDriveProperties):
     tuning: TuningSettings
     digest: str = ""
     warnings: tuple[str, ...] = ()  # no plausibility checks of its own
+
+    @property
+    def envelope(self) -> Envelope:
+        """The operating range: the [tuning] envelope."""
+        return self.tuning.envelope
 
 
 def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> PllDrive:
