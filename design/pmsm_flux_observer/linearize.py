@@ -50,7 +50,11 @@ from sensorless.symbolic.frames import J, rot, wrap_angle
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS, rhs_function, runtime_observer
 
-DAMPED_STEPS = 40  # the sampled observer's damped Newton (discrete_analysis)
+# the sampled observer's damped Newton (discrete_analysis): each halved step costs an iteration; 40
+# left NaN at three estimate-error corners of outrunner270 (0.24-1 p.u., the continuous equilibrium
+# 0.2-0.5 rad from the sampled one) where plain Newton converges, and the flux tuner then judged the
+# ODrive default as holding nowhere; 100 finds every one, the same fixed points to 1e-6
+DAMPED_STEPS = 200
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N
 _IX = {f.name: k for k, f in enumerate(PARAMS)}
 
