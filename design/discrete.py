@@ -191,6 +191,7 @@ def fixed_points(
     theta: float | np.ndarray = 0.0,
     scale: np.ndarray | None = None,
     iterations: int = 12,
+    damped: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Newton's method on y_next(y) = y from ``y0`` (N, n_y): (fixed points y, Jacobians J there).
 
@@ -200,7 +201,7 @@ def fixed_points(
     1e-9 of its scale), or that starts from NaN, gets NaN.
     """
     args = _args(loop, theta, w, plant, p, gain)
-    return newton(map_function(loop), args, y0, loop.angles, scale, iterations)[:2]
+    return newton(map_function(loop), args, y0, loop.angles, scale, iterations, damped)[:2]
 
 
 def newton(
@@ -210,12 +211,15 @@ def newton(
     angles: Sequence[int] = (),
     scale: np.ndarray | None = None,
     iterations: int = 12,
+    damped: bool = False,
 ) -> tuple[np.ndarray, ...]:
     """Newton's method on the fixed point of any one-step map ``fn`` (y, *args) -> (y_next, Jy, ...)
     from ``y0`` (N, n_y), batched (evaluate_batch): (y, Jy, the map's other outputs there), each
     (N, ...); ``angles`` the entries of y whose residual is taken modulo 2 pi. A point whose iteration
     does not settle (a residual above 1e-9 of its ``scale``, default 1 + |y0|), or that starts from
-    NaN, gets NaN."""
+    NaN, gets NaN. ``damped``: a step that leaves a larger scaled residual is halved instead (a full
+    step from a start outside the fixed point's basin, near a slow mode where the map is nearly
+    singular, may land on another fixed point of a nonlinear map)."""
     n, n_y = y0.shape
     bad = ~np.isfinite(y0).all(axis=1)
     y = np.where(bad[:, None], 0.0, y0)
@@ -243,20 +247,32 @@ def newton(
         return out
 
     todo = np.arange(n)  # the points still iterating (only they are evaluated)
+    size = np.full(n, np.inf)  # damped: the scaled residual at each point's last accepted iterate
+    last = np.zeros((n, n_y))  # damped: the step that led to the iterate
     for _ in range(iterations):
         y_next, Jy, *_ = evaluate_batch(fn, todo.size, [y[todo].T, *at(todo)])
         r = y_next[:, :, 0] - y[todo]
         for j in angles:
             r[:, j] = np.angle(np.exp(1j * r[:, j]))
-        go = ~(np.abs(r) <= 1e-13 * scale[todo]).all(axis=1) & np.isfinite(Jy).all(axis=(1, 2))
-        if not go.any():
+        if damped:  # a step that left a larger residual is halved (back along it), not followed
+            now = np.max(np.abs(r) / scale[todo], axis=1)
+            back = now > size[todo]
+            last[todo[back]] /= 2
+            y[todo[back]] += last[todo[back]]
+            size[todo[~back]] = now[~back]
+        else:
+            back = np.zeros(todo.size, bool)
+        go = ~back & ~(np.abs(r) <= 1e-13 * scale[todo]).all(axis=1) & np.isfinite(Jy).all(axis=(1, 2))
+        if not (go | back).any():
             break
         A = Jy[go] - eye
         with np.errstate(over="ignore", invalid="ignore"):  # a huge determinant is no singular one
             ok = np.abs(np.linalg.det(A)) > 1e-300
         step = np.linalg.solve(A[ok], r[go][ok][:, :, None])[:, :, 0]
-        todo = todo[go][ok]
-        y[todo] -= step
+        stepped = todo[go][ok]
+        y[stepped] -= step
+        last[stepped] = step
+        todo = np.concatenate([stepped, todo[back]])
         if todo.size == 0:
             break
     y_next, Jy, *more = evaluate_batch(fn, n, [y.T, *args])

@@ -54,7 +54,9 @@ Per sampling period T_s:
   not find it back by itself (a seed on every arrival at w_on put it 90 deg off a rotor swinging at
   the edge, in simulation);
 - closed loop (mode 0): the observer's estimates pass through, ``i_f`` = ``i_f_q`` = 0; back to open
-  loop when |w_hat| < w_off (< w_on: the hysteresis), at the observer's speed, the frame placed ahead
+  loop when |w_hat + w_lag| < w_off (< w_on: the hysteresis), at that speed (w_lag: the observer's
+  angle rate less its speed estimate, low-passed: the lag of a PLL's speed, a k_p / k_i under an
+  acceleration a, which its angle's rate has not), the frame placed ahead
   of the observer's angle by the load angle that carries the current the open loop needs: delta =
   asin(i_n / i_if), i_n = i_q - k_a (dw - a_f), i_q the measured current on the observer's q axis,
   dw the observer's acceleration (low-passed), a_f = +-a the frame's towards the command and k_a =
@@ -102,6 +104,8 @@ STATE = (
     Field("if_t", "s", "I-f start: time at the handover speed with the observer agreeing (to if_t_dwell)"),
     Field("if_w_obs", "rad/s", "I-f start: the observer's speed estimate of the previous period"),
     Field("if_dw", "rad/s^2", "I-f start: the observer's acceleration, low-passed (corner if_w_hp)"),
+    Field("if_th_obs", "rad", "I-f start: the observer's angle of the previous period", bound="pi"),
+    Field("if_w_lag", "rad/s", "I-f start: the observer's angle rate less its speed estimate, low-passed"),
     Field("startup_mode_x", "1", "1: open-loop I-f start; 0: observer", bound="1"),
 )
 OUTPUTS = (
@@ -142,7 +146,7 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             lam_in = lam if lam is not None else ca.SX(0, 1)
             x_in_next, y_in = inner(x[:n_x], meas[: len(obs.meas)], p[:n_p], lam_in)
             w_cmd = meas[len(obs.meas)]
-            th, w_r, d_lp, t_on, w_prev, dw, mode = (x[n_x + k] for k in range(7))
+            th, w_r, d_lp, t_on, w_prev, dw, th_prev, w_lag, mode = (x[n_x + k] for k in range(9))
             theta_obs, w_obs = y_in[k_th], y_in[k_w]
             # the load angle by the observer and its swing: about the steady load angle, the low-passed
             # load's share (d_lp) plus the frame's own acceleration's (k_a a_r / i_if in sine), so that
@@ -184,16 +188,26 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             # the current the open loop needs: the load's (the closed loop's current less what its
             # acceleration takes) and what the frame's acceleration towards the command takes
             dw_next = dw + P["if_w_hp"] * T_s * ((w_obs - w_prev) / T_s - dw)
-            a_f = P["if_acc"] * ca.sign(target - w_obs)
+            # the speed estimate's lag behind the rotor: its angle's rate less the estimate (a PLL's speed
+            # lags by a k_p / k_i under acceleration a while its angle's rate does not: braking at the
+            # torque limit through zero, VESC's PLL read +0.035 p.u. with the rotor at -0.062 p.u. on the
+            # 2017 VESC motor, and the frame started there slipped), low-passed: constant under a
+            # constant acceleration, so the low-pass adds no lag of its own; each sample within +-w_on
+            # (the first period after a reset has no previous angle)
+            lag_k = wrap_angle(theta_obs - th_prev) / T_s - w_obs
+            lag_k = ca.fmin(ca.fmax(lag_k, -P["if_w_on"]), P["if_w_on"])
+            w_lag_next = w_lag + P["if_w_hp"] * T_s * (lag_k - w_lag)
+            w_fb = w_obs + w_lag  # the rotor's speed by the observer's angle: the fall-back's
+            a_f = P["if_acc"] * ca.sign(target - w_fb)
             i_need = i_q - P["if_k_a"] * (dw - a_f)
             d_drop = ca.asin(ca.fmin(ca.fmax(i_need / i_if, -s_max), s_max))
             # the steady load angle's load share there (the frame's acceleration's is added per period)
             d_load = ca.asin(ca.fmin(ca.fmax(ca.sin(d_drop) - P["if_k_a"] * a_f / i_if, -1), 1))
-            drop = ca.fabs(w_obs) < P["if_w_off"]
+            drop = ca.fabs(w_fb) < P["if_w_off"]
             open_now = mode > 0.5
             mode_next = ca.if_else(open_now, ca.if_else(handover, 0, 1), ca.if_else(drop, 1, 0))
             th_next = ca.if_else(open_now, th_ol, wrap_angle(theta_obs + d_drop))
-            w_next = ca.if_else(open_now, w_r_next, w_obs)
+            w_next = ca.if_else(open_now, w_r_next, w_fb)
             d_next = ca.if_else(open_now, d_lp_next, d_load)
             y_out = [y_in[k] for k in range(len(outs))]
             y_out[k_th] = ca.if_else(open_now, th, theta_obs)
@@ -209,11 +223,15 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
                 reseed = ca.logic_and(open_now, ca.logic_and(at_w_on, ca.fabs(delta) > LOST))
                 seed = obs.steady_state()(p[:n_p], ca.vertcat(th_ol, w_r_next, P["if_i"], 0))
                 x_in_next = ca.if_else(reseed, seed, x_in_next)
-            x_if = ca.vertcat(th_next, w_next, d_next, t_next, w_obs, dw_next, mode_next)
+            x_if = ca.vertcat(
+                th_next, w_next, d_next, t_next, w_obs, dw_next, theta_obs, w_lag_next, mode_next
+            )
             cand = (ca.vertcat(x_in_next, x_if), ca.vertcat(*y_out, *y_if))
-            x_coast = ca.vertcat(x[:n_x], wrap_angle(th + w_r * T_s), w_r, d_lp, t_on, w_prev, dw, mode)
+            x_coast = ca.vertcat(
+                x[:n_x], wrap_angle(th + w_r * T_s), w_r, d_lp, t_on, w_prev, dw, th_prev, w_lag, mode
+            )
             coast = (x_coast, ca.vertcat(*y_out, *y_if))
-            reset = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 0, 0, 1, 0)
+            reset = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 0, 0, 0, 0, 1, 0)
             # the wrapped step's own verdict counts: its sample rejected, the wrapper coasts too
             ok = y_in[len(obs.outputs) - 2] > 0.5
             return guarded(x, p, state, params, cand=cand, coast=coast, reset=reset, ok=ok)
@@ -222,7 +240,7 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
 
     def initial() -> ca.Function:
         p = ca.SX.sym("p", len(params))
-        x0 = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 0, 0, 1, 0)  # at rest, open loop
+        x0 = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 0, 0, 0, 0, 1, 0)  # at rest, open loop
         return ca.Function(f"{obs.name}_if_init", [p], [x0], ["p"], ["x0"])
 
     steady = None
@@ -234,10 +252,12 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             w_on = p[n_p + 2]
             mode = ca.if_else(ca.fabs(op[1]) >= w_on, 0, 1)  # running above w_on: the observer
             w0 = op[1]  # in open loop below w_on: the frame turning with the rotor, parked on it
+            prev = wrap_angle(op[0] - op[1] * p[[f.name for f in obs.params].index("T_s")])
             return ca.Function(
                 f"{obs.name}_if_steady",
                 [p, op],
-                [ca.vertcat(x_in[:-1], x_in[-1], op[0], w0, 0, 0, op[1], 0, mode, 0)],
+                # the previous angle one period back at the speed: no lag in the steady state
+                [ca.vertcat(x_in[:-1], x_in[-1], op[0], w0, 0, 0, op[1], 0, prev, 0, mode, 0)],
             )
 
         steady = steady_fn

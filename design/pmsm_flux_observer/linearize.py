@@ -50,6 +50,11 @@ from sensorless.symbolic.frames import J, rot, wrap_angle
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS, rhs_function, runtime_observer
 
+# the sampled observer's damped Newton (discrete_analysis): each halved step costs an iteration; 40
+# left NaN at three estimate-error corners of outrunner270 (0.24-1 p.u., the continuous equilibrium
+# 0.2-0.5 rad from the sampled one) where plain Newton converges, and the flux tuner then judged the
+# ODrive default as holding nowhere; 100 finds every one, the same fixed points to 1e-6
+DAMPED_STEPS = 200
 I_NOISE_DEFAULT = 0.003  # default current-sensor noise: 0.3 % of the current amplitude at T_N
 _IX = {f.name: k for k, f in enumerate(PARAMS)}
 
@@ -174,7 +179,9 @@ def discrete_analysis(
     m = drive.motor
     i_r = pmsm_steady_current(T, pmsm_plant(m))
     plant = pmsm_zoh_plant(m.vector(), W, i_r, drive.observer.T_obs)
-    y, Jd = fixed_points(loop, y0, W, plant, p, gain)
+    # damped: the continuous equilibrium may lie outside the sampled one's Newton basin near a slow
+    # observer mode (hubmotor48 at rated load near 1 p.u.: a full step landed on another fixed point)
+    y, Jd = fixed_points(loop, y0, W, plant, p, gain, iterations=DAMPED_STEPS, damped=True)
     poles = discrete_poles(Jd, drive.observer.T_obs, loop.n_y)[0]
     sens = sensitivities(loop, y, W, plant, p, gain)
     err = -sens["out"][:, loop.observer.index("outputs", "theta_hat")]  # atan2's range: no wrap

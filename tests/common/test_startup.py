@@ -184,3 +184,41 @@ def test_the_ramps_end_is_no_swing_the_handover_follows_the_dwell():
     assert w_hat[a - 1] < 0 and b > a
     by_hand = (abs(w_hat[a - 1]) + v["if_w_on"]) / v["if_acc"] + v["if_t_dwell"]
     assert by_hand <= t[b] - t[a] < by_hand + 1 / (0.5 * v["if_k_d"])
+
+
+def test_the_drop_back_starts_the_frame_at_the_rotor_speed_not_a_lagging_speed_estimate():
+    # closed loop, the observer's angle turning at 10 rad/s while its speed estimate reads 40 rad/s (a
+    # PLL's speed lags its angle's rate under braking): the wrapper's low-passed lag converges to -30
+    # rad/s (first order, corner 1000 rad/s: after 30 ms, e^-30 of it left), so the frame would start at
+    # the angle's 10 rad/s (the frame's speed is kept ready in closed loop); then, the angle at 3 rad/s
+    # (below w_off = 5 rad/s) and the estimate still at 40, the drive drops back, at under w_off
+    drive = load_drive(MOTORS / "servo400.toml")
+    fam = family_of(drive)
+    base = fam.runtime(drive, fam.gains(drive))
+    values = {"if_i": 6.0, "if_acc": 1500.0, "if_w_on": 50.0, "if_w_off": 5.0, "if_k_d": 0.0}
+    setup = with_if_start(base, {**values, "if_w_hp": 1000.0, "if_t_dwell": 0.0, "if_k_a": 2e-3})
+    obs = setup.observer
+    state = [f.name for f in obs.state]
+    T_s = drive.T_s
+    step = setup.step_function()
+    x = np.asarray(setup.initial_state(), float).ravel()
+    x[state.index("startup_mode_x")] = 0.0  # closed loop
+    meas = np.zeros(len(obs.meas))
+    meas[-1] = 10.0  # w_cmd
+    x[state.index("w_hat")] = x[state.index("w_i")] = 40.0
+    inner = x[: state.index("if_theta")].copy()  # the observer's state, its angle set each period
+    theta, modes = 0.0, []
+    for w_rotor, t in ((10.0, 0.03), (3.0, 0.005)):
+        for _ in range(int(t / T_s)):
+            x[: inner.size] = inner  # the speed estimate stays at 40 rad/s
+            theta = math.remainder(theta + w_rotor * T_s, 2 * math.pi)
+            x[state.index("theta")] = theta
+            x = np.asarray(step(x, meas, setup.p, setup.gain)[0]).ravel()
+            modes.append(x[state.index("startup_mode_x")])
+            if modes[-1] == 1:
+                break
+        if w_rotor == 10.0:
+            assert max(modes) == 0  # 10 rad/s by the angle: above w_off, no drop
+            assert x[state.index("if_w")] == pytest.approx(w_rotor, abs=0.01)
+    assert modes[-1] == 1  # dropped back, although the speed estimate stayed at 40 > w_off
+    assert abs(x[state.index("if_w")]) < 5.0
