@@ -26,7 +26,9 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
   (L_q + L_d) >= SALIENCY_MIN and the current sensor sees it; carrier f_s/6 (833 Hz at 5 kHz) and u_c
   from the saliency, the sensor's noise and resolution, the inverter's voltage margin and the sampling
   rate (carrier.py: 32 V on the paper's motor, which uses 40 V), alpha_i = f_s/1000 (5 Hz), w_Delta
-  = 0.13 p.u.; off (u_c = 0 V, with a warning where the sensor is the reason) otherwise.
+  1.3 x the speed up to which the observer alone (the file's gains) is unstable motoring at +-T_max
+  (``_fade_out``; the paper's 0.13 p.u. where it is stable throughout); off (u_c = 0 V, with a warning
+  where the sensor is the reason) otherwise.
 - ``[tuning]``: torques -T_max, -T_N, 0, T_N, T_max (the torques the drive applies: gains tuned at
   +-T_N only were unstable just beyond it); the rest the documented defaults (design/envelope.py).
 - ``[runtime]``: the documented defaults (schema.RUNTIME_DEFAULTS).
