@@ -82,8 +82,8 @@ W_DELTA_EDGE = 1.3  # otherwise this much above the observer-alone stability edg
 W_DELTA_MAX_PU = 0.5
 FADE_RULE = (
     "1.3 x {:.3g} p.u., where the observer alone (the file's gains) turns stable motoring at T_max "
-    "(design/ipmsm_adaptive/derive.py _fade_out; Piippo et al.: 0.13 p.u.): the HF correction's angle error grows with speed under load, "
-    "so it fades out as soon as the observer holds ({:.3g} p.u.)"
+    "(design/ipmsm_adaptive/derive.py _fade_out; Piippo et al.: 0.13 p.u.): the HF correction's angle "
+    "error grows with speed under load, so it fades out as soon as the observer holds ({:.3g} p.u.)"
 )
 ALPHA_I_FO = 1 / 10
 T_MAX_TN = 1.5
