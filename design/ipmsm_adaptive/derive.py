@@ -26,7 +26,9 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
   (L_q + L_d) >= SALIENCY_MIN and the current sensor sees it; carrier f_s/6 (833 Hz at 5 kHz) and u_c
   from the saliency, the sensor's noise and resolution, the inverter's voltage margin and the sampling
   rate (carrier.py: 32 V on the paper's motor, which uses 40 V), alpha_i = f_s/1000 (5 Hz), w_Delta
-  = 0.13 p.u.; off (u_c = 0 V, with a warning where the sensor is the reason) otherwise.
+  1.3 x the speed up to which the observer alone (the file's gains) is unstable motoring at +-T_max
+  (``_fade_out``; the paper's 0.13 p.u. where it is stable throughout); off (u_c = 0 V, with a warning
+  where the sensor is the reason) otherwise.
 - ``[tuning]``: torques -T_max, -T_N, 0, T_N, T_max (the torques the drive applies: gains tuned at
   +-T_N only were unstable just beyond it); the rest the documented defaults (design/envelope.py).
 - ``[runtime]``: the documented defaults (schema.RUNTIME_DEFAULTS).
@@ -75,7 +77,14 @@ ALPHA_FO_S = 5.0  # the speed estimate (adaptation bandwidth alpha_fo) at least 
 ALPHA_FO_TAU = 50.0  # alpha_fo x tau_m at least (Piippo et al.: 2 pi 50 Hz x 0.168 s = 53)
 ALPHA_FO_MAX_FS = 1 / 20  # alpha_fo at most f_s/20
 ALPHA_FO_FS = 1 / 100
-W_DELTA_PU = 0.13  # injection fade-out speed (Piippo et al.)
+W_DELTA_PU = 0.13  # injection fade-out speed (Piippo et al.), where the observer alone holds at +-T_max
+W_DELTA_EDGE = 1.3  # otherwise this much above the observer-alone stability edge at T_max (_fade_out)
+W_DELTA_MAX_PU = 0.5
+FADE_RULE = (
+    "1.3 x {:.3g} p.u., where the observer alone (the file's gains) turns stable motoring at T_max "
+    "(design/ipmsm_adaptive/derive.py _fade_out; Piippo et al.: 0.13 p.u.): the HF correction's angle "
+    "error grows with speed under load, so it fades out as soon as the observer holds ({:.3g} p.u.)"
+)
 ALPHA_I_FO = 1 / 10
 T_MAX_TN = 1.5
 W_MAX_PU, W_MAX_MIN_PU = 2.0, 1.2  # the runtime top speed [p.u.]: default, and least where the voltage limits
@@ -117,9 +126,10 @@ class _Reader:
         return positive(self.data[section], key, dim, self.file, section)
 
 
-def document(data: Mapping[str, Any], file: str) -> DriveDocument:
+def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None) -> DriveDocument:
     """The complete drive document of ``data`` (module docstring); DriveFileError naming the key for
-    what is missing or wrong. Each key given is kept as written; each derived one carries its rule."""
+    what is missing or wrong. Each key given is kept as written; each derived one carries its rule.
+    ``w_delta_pu``: the injection's fade-out speed [p.u.] the second pass places (:func:`_fade_out`)."""
     check_keys(data, SECTIONS, file, "")
     doc = derived_document(data, file, "docs/families/ipmsm_adaptive.md")
     r = _Reader(data, file)
@@ -305,7 +315,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             return r.value(section, key, "angular") if key in t else default
 
         alpha_i = rate("injection", "alpha_i", 2 * math.pi * ALPHA_I_FO * ALPHA_FO_FS * f_s, inj_t)
-        w_delta = rate("injection", "w_Delta", W_DELTA_PU * w_N, inj_t)
+        w_delta = rate("injection", "w_Delta", (w_delta_pu or W_DELTA_PU) * w_N, inj_t)
         w_c = rate("injection", "w_c", 2 * math.pi * CARRIER_FS * f_s, inj_t)
         i_noise = r.value("control", "i_noise", "current") if "i_noise" in ctl_t else I_NOISE_DEFAULT * i_base
         i_res = r.value("control", "i_resolution", "current") if "i_resolution" in ctl_t else 0.0
@@ -332,8 +342,13 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             "f_s/1000 (Piippo et al.: 5 Hz at 5 kHz), eq. (22)",
         ),
         "w_Delta": (
-            f"{W_DELTA_PU:g} pu",
-            "Piippo et al.: fades out at 0.13 p.u." + _coupling(m, T_N, w_N, on),
+            f"{g6(w_delta_pu or W_DELTA_PU)} pu",
+            (
+                FADE_RULE.format(w_delta_pu / W_DELTA_EDGE, w_delta_pu)
+                if w_delta_pu
+                else "Piippo et al.: fades out at 0.13 p.u."
+            )
+            + _coupling(m, T_N, w_N, on, w_delta_pu or W_DELTA_PU),
         ),
     }
     for k, (v, rule) in derived_inj.items():
@@ -378,18 +393,49 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
         "w_max": "runtime.w_max",
     }
     doc.context["given"] = {"I_N": "I_N" in rating_t and "T_N" in rating_t, "f_N": "f_N" in rating_t}
+    if cw is not None and cw.u_c > 0 and "w_Delta" not in inj_t and w_delta_pu is None:
+        T_max = r.value("control", "T_max", "torque") if "T_max" in ctl_t else T_MAX_TN * T_N
+        edge = _fade_out(doc, file, T_max, w_N)
+        if edge > 0:
+            return document(data, file, w_delta_pu=min(W_DELTA_MAX_PU, W_DELTA_EDGE * edge))
     return doc
 
 
-def _coupling(m: Any, T_N: float, w_N: float, on: bool) -> str:
+def _fade_out(doc: DriveDocument, file: str, T_max: float, w_N: float) -> float:
+    """The speed [p.u.] below which the observer alone, with the drive file's gains, has a right-half-
+    plane pole motoring at T_max (0 if none up to W_DELTA_MAX_PU): the injection must carry it there.
+
+    Why (issue 28, measured on the start check, 0 to 0.5 p.u. against T_N accelerating at ~T_max): the
+    HF correction's angle error grows with speed under that load (the observer's answer to it goes with
+    psi_d, near 0 at T_max on a strongly salient motor), so fading out later hands the observer a
+    larger error (prius of docs/examples/motors: w_Delta 0.13 p.u. lost the rotor, 0.06-0.09 p.u.
+    held it within 2.6 deg); fading out before this edge hands it over where it is unstable (the test
+    traction motor: edge 0.12 p.u., lost at 0.13 p.u.)."""
+    import numpy as np
+    from sensorless.design.ipmsm_adaptive.linearize import linearize, unstable_bands
+
+    data = doc.data()
+    drive = load_complete(data, file, "", str(data["drive"]["kind"]))
+    w = np.linspace(0.0, W_DELTA_MAX_PU * w_N, 201)  # 0.0025 p.u. steps: the rule needs no finer edge
+    # motoring both ways: (w, +T_max) and (-w, -T_max), one linearization
+    s = linearize(drive, np.concatenate([w, -w]), np.repeat([T_max, -T_max], w.size))
+    edge = 0.0
+    for half in (s.max_real[: w.size], s.max_real[w.size :]):
+        tol = 1e-9 * float(np.nanmax(np.abs(s.poles)))
+        for _lo, hi in unstable_bands(w, half, tol):
+            edge = max(edge, hi / w_N)
+    return edge
+
+
+def _coupling(m: Any, T_N: float, w_N: float, on: bool, w_delta_pu: float = W_DELTA_PU) -> str:
     """The w_Delta rule's note where the HF correction turns sign regenerating at T_N inside the band
     (carrier.py ``coupling_limit``)."""
     w1 = coupling_limit(m, T_N) / w_N
-    if not on or w1 >= W_DELTA_PU:
+    if not on or w1 >= w_delta_pu:
         return ""
     return (
         f"; regenerating at T_N the HF correction (20) holds only below (R_s psi_d)/(L_d L_q i_q) = "
-        f"{w1:.3g} p.u. (carrier.py coupling_limit): crossing zero passes {w1:.3g}-{W_DELTA_PU:g} p.u. "
+        f"{w1:.3g} p.u. (carrier.py coupling_limit): crossing zero passes {w1:.3g}-{w_delta_pu:.3g} p.u. "
         "in a transient, but a regenerating speed held there under load drifts off (its growth rate: "
         "`sensorless report`)"
     )

@@ -26,9 +26,10 @@ def _with(text: str, extra: str) -> str:
     return text.replace("[inverter]", f"[control]\n{extra}\n[inverter]") if extra else text
 
 
-def _drive(tmp_path: Path, extra: str = ""):
+def _drive(tmp_path: Path, extra: str = "", tail: str = ""):
     f = tmp_path / "prius.toml"
-    f.write_text(_with((MOTORS / "prius.toml").read_text(encoding="utf-8"), extra), encoding="utf-8")
+    text = _with((MOTORS / "prius.toml").read_text(encoding="utf-8"), extra) + tail
+    f.write_text(text, encoding="utf-8")
     return load_drive(f)
 
 
@@ -82,8 +83,9 @@ def test_the_hf_correction_turns_sign_regenerating_at_the_coupling_limit(tmp_pat
     """Hand calculation: regenerating, N = (R_s + lambda1) psi_d + w L_d L_q i_q changes sign at
     |w_1| = (R_s + lambda1) psi_d / (L_d L_q |i_q|) (lambda2 = 0); the averaged loop with the injection
     (the Jacobian of the coupled system) has its real pole cross zero there, from stable below to
-    unstable above, on the traction IPMSM whose |w_1| (0.012 p.u. at T_N) lies far inside w_Delta."""
-    d = _drive(tmp_path)
+    unstable above, on the traction IPMSM whose |w_1| (0.012 p.u. at T_N) lies far inside w_Delta (the
+    paper's 0.13 p.u., given: the 0.073 p.u. of lambda1 = 5 R_s lies beyond the rule's 0.075 p.u.)."""
+    d = _drive(tmp_path, tail='\n[injection]\nw_Delta = "0.13 pu"\n')
     m = d.motor
     T = load * 300.0
     i_d, i_q = _mtpa(T, m)
@@ -130,3 +132,21 @@ def test_the_verdict_names_the_coupling_limit_where_the_injections_band_is_regen
     motoring = {"+300": [[0.01, 0.02]], "-300": []}  # not this mechanism: the plain statement
     v = verdict(_verdict_data(motoring), "g", 0.2, (0.0122, 23.0))
     assert v["reasons"] == ["RHP pole below 0.03 p.u. remains even with the injection."]
+
+
+def test_the_injection_fades_out_above_the_observers_own_stability_edge_at_the_torque_limit(tmp_path):
+    """The fade-out rule (derive.py ``_fade_out``) on the prius example: below w_Delta/1.3 the observer
+    alone (the file's gains, no injection) has a right-half-plane pole motoring at T_max, above it not
+    (probed 0.01 p.u. either side, both directions); a w_Delta the file gives is kept."""
+    d = _drive(tmp_path)
+    fam = registry.family_of(d)
+    w_N, T_max = d.base.w, d.control.T_max
+    edge = d.injection.w_Delta / 1.3
+    assert 0.02 * w_N < edge < 0.13 * w_N  # prius: 0.0575 p.u., the paper's 0.13 p.u. would be too late
+    w = np.array([edge - 0.01 * w_N, edge + 0.01 * w_N])
+    for sign in (1.0, -1.0):
+        ps = fam.linearize(d, fam.gains(d), sign * w, np.full(2, sign * T_max), injection=False)
+        worst = np.max(np.real(ps.poles), axis=1)
+        assert worst[0] > 0 > worst[1]
+    given = _drive(tmp_path, tail='\n[injection]\nw_Delta = "0.2 pu"\n')
+    assert math.isclose(given.injection.w_Delta, 0.2 * w_N, rel_tol=1e-9)
