@@ -42,7 +42,10 @@ def test_montecarlo_draws_without_equilibrium_have_an_empty_cell_and_a_reason():
 
 
 def test_a_flux_preset_point_without_a_sampled_fixed_point_is_said_not_written_as_nan():
-    # analyze hubmotor48 wrote nan in the discrete columns of this row, silently (exit 0)
+    # analyze hubmotor48 wrote nan in the discrete columns of a row where Newton's method found no
+    # sampled fixed point, silently (exit 0). The damped Newton now finds that point's fixed point, so
+    # the case is made here: the same point's analysis with its sampled poles missing (NaN, as the
+    # analysis leaves a point without a fixed point) must give empty cells and the row's reason.
     from sensorless.design.pmsm_flux_observer import FAMILY
     from sensorless.reports.pole_map import NO_POLES, pole_csv
 
@@ -50,8 +53,9 @@ def test_a_flux_preset_point_without_a_sampled_fixed_point_is_said_not_written_a
     W, T = drive.envelope.grid(2)
     k = np.flatnonzero(np.isclose(W / drive.w_base, 0.95682, atol=1e-5) & (T == drive.T_N))
     lin = FAMILY.linearize(drive, FAMILY.gains(drive), W[k], T[k])
-    assert not np.isfinite(lin.worst_damping_discrete).all()  # the case: no value there
-    for poles, reason in ((lin.poles_discrete, NO_POLES), (lin.poles, "")):
+    assert np.isfinite(lin.poles).all() and np.isfinite(lin.poles_discrete).all()  # found (damped Newton)
+    missing = np.full_like(lin.poles_discrete, np.nan)
+    for poles, reason in ((missing, NO_POLES), (lin.poles, "")):
         text = pole_csv(dataclasses.replace(lin, poles=poles), drive.w_base)
         assert "nan" not in text and "inf" not in text, text
         row = next(csv.DictReader(io.StringIO(text.split("\n", 1)[1])))
