@@ -79,6 +79,28 @@ def deangelo2006():
 
 
 @pytest.fixture(scope="session")
+def speed_dependent_small(drive):
+    """piippo2008's speed-dependent law tuned on the small envelope (tests/helpers/tuning.py), once per
+    worker: tests/ipmsm_adaptive/test_tune.py and test_tune_global.py read it (read only)."""
+    from helpers.tuning import small
+    from sensorless.tuning.tune import tune
+
+    return tune(drive, "speed-dependent", small(drive))
+
+
+@pytest.fixture(scope="session")
+def report_deangelo_quick(tmp_path_factory):
+    """``sensorless report deangelo2006 --quick``, run once per worker: its output directory (read only;
+    tests/common/test_report.py and test_outputs.py read it, and run it again where they check that a
+    second run gives the same bytes)."""
+    from sensorless.reports.cli.main import main
+
+    out = tmp_path_factory.mktemp("report_deangelo_quick") / "report"
+    assert main(["report", "deangelo2006", "--quick", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="session")
 def readme_run(tmp_path_factory):
     """``readme_run(chain)``: the README commands of one chain run once as written, in a directory of
     their own (tests/helpers/readme.py); the README test checks each chain, the own-motor servo tests

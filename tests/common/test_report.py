@@ -132,10 +132,8 @@ def test_time_domain_section_reruns_the_paper_experiments(report):
 
 
 @pytest.fixture(scope="module")
-def report_pmac(tmp_path_factory):
-    out = tmp_path_factory.mktemp("report_pmac")
-    assert main(["report", "deangelo2006", "--quick", "--out", str(out)]) == 0
-    return out
+def report_pmac(report_deangelo_quick):
+    return report_deangelo_quick  # one run per worker, shared with tests/common/test_outputs.py
 
 
 def test_pmac_report_numbers_equal_the_api(report_pmac, tmp_path):

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 from helpers.closed_form_ipmsm import mtpa_reference, paper_gain, paper_matrices
+from helpers.tuning import small
 from sensorless.design.envelope import tuning_envelope
 from sensorless.design.ipmsm_adaptive.linearize import linearize
 from sensorless.reports.cli.main import main
@@ -19,18 +20,6 @@ from sensorless.tuning.selection import select
 from sensorless.tuning.tune import tune
 
 pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
-
-
-def small(drive, **kw):
-    env = tuning_envelope(
-        drive.w_base,
-        drive.T_N,
-        speed_min=0.05,
-        speed_max=1.0,
-        speeds=8,
-        torques_TN=(-1.0, 1.0),
-    )
-    return dataclasses.replace(drive.tuning, envelope=env, **kw)
 
 
 def test_sector_factor_conditions_match_eigenvalues():
@@ -88,8 +77,8 @@ def closed_form_damping(drive, w, t, l1, l2):
 
 
 @pytest.fixture(scope="module")
-def speed_dependent(drive):
-    return tune(drive, "speed-dependent", small(drive))
+def speed_dependent(speed_dependent_small):
+    return speed_dependent_small  # one run per worker, shared with test_tune_global.py (tests/conftest.py)
 
 
 def test_speed_dependent_at_least_as_good_as_brute_force(drive, speed_dependent):

@@ -29,18 +29,6 @@ pytestmark = pytest.mark.long(66)  # CPU seconds of this file, measured: schedul
 SALIENT = str(Path(__file__).parent / "drives" / "salient_traction.toml")
 
 
-def small(drive, **kw):
-    env = tuning_envelope(
-        drive.w_base,
-        drive.T_N,
-        speed_min=0.05,
-        speed_max=1.0,
-        speeds=8,
-        torques_TN=(-1.0, 1.0),
-    )
-    return dataclasses.replace(drive.tuning, envelope=env, **kw)
-
-
 def dense_worst(drive, env, gain):
     """Worst damping and slowest decay on the dense grid through the analysis path."""
     Wd, Td = env.grid(env.dense_factor, env.dense_factor)
@@ -186,10 +174,10 @@ def test_cli_prints_the_bound_and_writes_the_speeds_table(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------------------- ridges
-def test_speed_dependent_ridge_is_explained(drive):
+def test_speed_dependent_ridge_is_explained(drive, speed_dependent_small):
     """The speed-dependent law's worst point does not move with lambda' or omega_lambda (a ridge): the
     summary says which point it is, that the law cannot improve it, and what other gains reach there."""
-    r = tune(drive, "speed-dependent", small(drive))
+    r = speed_dependent_small  # tune(drive, "speed-dependent", small(drive)), shared (tests/conftest.py)
     ridge = r.table.summary["ridge"]
     assert "cannot improve it" in ridge["text"] and "the pointwise bound" in ridge["text"]
     assert max(abs(v) for v in ridge["gradient"].values()) < 1e-2
