@@ -109,7 +109,9 @@ def start_too_slow(drive: Any, gains: GainSet, failure: Failure) -> Named | None
     """A run's end the I-f start's time made miss (reports/causes.py ``ramp_slower_than_reference``) with
     the change that fits it: the ``[startup] acceleration`` and the firmware's fields at it
     (design/startup_check.py ``faster_start``), or, where no acceleration the current carries fits, one
-    line saying so and naming the gains' tune (a lower w_min, an earlier handover). None: not this case."""
+    line saying so and naming the gains' tune (a lower w_min, an earlier handover), as where the gains
+    hold at no envelope speed under the estimate errors (the review's verdict fails then whatever the
+    start: :func:`holds_nowhere_finding`). None: not this case."""
     from sensorless.design.family import CapabilityError
     from sensorless.design.pmsm_flux_observer.firmware import stored
     from sensorless.design.pmsm_flux_observer.firmware.startup import fields
@@ -125,6 +127,16 @@ def start_too_slow(drive: Any, gains: GainSet, failure: Failure) -> Named | None
     if judged is None or judged.shortfalls:
         return None  # the start's own shortfalls come first (the start-up findings name their values)
     named = shared_cause(failure)
+    if (
+        drive.observer.correction != "box-clamp"
+        and not assess(drive, [gains], FluxTuneSettings()).holds.any()
+    ):
+        return Named(
+            named.cause,
+            f"{named.detail}; no start-up value fixes it: the gains under review hold at no envelope speed "
+            "under the estimate errors (their finding above), so the verdict fails whatever the start; "
+            f"the fix is the gains: sensorless tune --law {gains.law}",
+        )
     a = faster_start(drive, judged, failure.open_s, failure.avail_s, failure.need_s)
     if math.isnan(a):
         top = largest_acceleration(drive, judged.values["if_i"])
