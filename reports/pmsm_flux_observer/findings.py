@@ -133,26 +133,28 @@ def start_too_slow(drive: Any, gains: GainSet, failure: Failure) -> Named | None
     ):
         return Named(
             named.cause,
-            f"{named.detail}; no start-up value fixes it: the gains under review hold at no envelope speed "
-            "under the estimate errors (their finding above), so the verdict fails whatever the start; "
-            f"the fix is the gains: sensorless tune --law {gains.law}",
+            named.detail,
+            "no start-up value fixes it: the gains under review hold at no envelope speed under the "
+            "estimate errors (their finding above), so the verdict fails whatever the start; the gains "
+            f"must change: sensorless tune --law {gains.law}",
         )
     a = faster_start(drive, judged, failure.open_s, failure.avail_s, failure.need_s)
     if math.isnan(a):
         top = largest_acceleration(drive, judged.values["if_i"])
         return Named(
             named.cause,
-            f"{named.detail}; no start-up value fixes it: even the largest acceleration the I-f current "
-            f"carries against rated load ({stored(top)} rad/s^2) leaves the start too long; the handover "
-            f"must come earlier, below w_min = {judged.w_min:.4g} rad/s at these gains: sensorless tune "
-            f"--law {gains.law}",
+            named.detail,
+            "no start-up value fixes it: even the largest acceleration the I-f current carries against "
+            f"rated load ({stored(top)} rad/s^2) leaves the start too long; an earlier handover needs gains "
+            f"with a lower w_min than these {judged.w_min:.4g} rad/s: sensorless tune --law {gains.law}",
         )
     fw = drive.observer.firmware
     old, new = fields(fw, judged.values), fields(fw, {**judged.values, "if_acc": a})
     write = ", ".join(f"{k} = {stored(v)} {u}" for k, (v, u) in new.items() if stored(v) != stored(old[k][0]))
     return Named(
         named.cause,
-        f"{named.detail}; to do: [startup] acceleration = {stored(a)} rad/s^2 (was "
+        named.detail,
+        f"[startup] acceleration = {stored(a)} rad/s^2 (was "
         f"{stored(judged.values['if_acc'])}; the largest the I-f current carries against rated load at "
         f"the start-up check's load angle)" + (f", i.e. write {write}" if write else ""),
     )

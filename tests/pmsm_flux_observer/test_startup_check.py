@@ -270,9 +270,9 @@ def test_a_speed_step_the_start_made_miss_names_the_acceleration_that_fits_or_th
     fits = Failure("tracking", "ended away", open_s=dwell + ramp, avail_s=avail, need_s=need)
     named = failure_cause(d, gains, fits)
     assert named is not None and named.cause == "ramp_slower_than_reference"
-    a_new = float(re.search(r"to do: \[startup\] acceleration = ([0-9.e+]+) rad/s\^2", named.detail)[1])
+    a_new = float(re.search(r"^\[startup\] acceleration = ([0-9.e+]+) rad/s\^2", named.fix)[1])
     assert a < a_new <= a_top and dwell + ramp * a / a_new + need <= avail
-    assert "sensorless tune" not in named.detail
+    assert "sensorless tune" not in named.fix
     d_new = drive_of(
         odrive,
         "d5065_odrive.json",
@@ -282,6 +282,6 @@ def test_a_speed_step_the_start_made_miss_names_the_acceleration_that_fits_or_th
     assert not judge_startup(d_new, gains).shortfalls  # the current still carries it
     no_room = Failure("tracking", "ended away", open_s=dwell + ramp, avail_s=dwell + need, need_s=need)
     named = failure_cause(d, gains, no_room)
-    assert named is not None and "to do: [startup]" not in named.detail
-    assert "no start-up value fixes it" in named.detail and "sensorless tune" in named.detail
+    assert named is not None and "[startup] acceleration =" not in named.fix
+    assert named.fix.startswith("no start-up value fixes it") and "sensorless tune" in named.fix
     assert "\n" not in named.sentence()
