@@ -47,6 +47,7 @@ if TYPE_CHECKING:  # pmsm_drive imports this module's rules
 
 LOAD_ANGLE_MAX = DROP_MAX  # the largest steady load angle a start may need (symbolic/startup.py)
 REFERENCE_PU = 0.5  # the drive's own start: 0.5 p.u. in t_seg (design/scenario.py generic_scenarios)
+SWING_ALLOWANCE = 2.0  # faster_start: the ramp's cut, over the shortfall it must make up
 KEYS = {"current": "if_i", "acceleration": "if_acc", "w_on": "if_w_on", "w_off": "if_w_off"}
 
 
@@ -221,3 +222,36 @@ def judge_startup(drive: OnPmsm, gains: GainSet) -> StartJudgement | None:
                 f"the drive must fall back to open loop at w_min = {w_min:.4g} rad/s, below w_on",
             )
     return StartJudgement(v, frozenset(k for k, n in KEYS.items() if n in given), tuple(out), w_min)
+
+
+def largest_acceleration(drive: OnPmsm, current: float) -> float:
+    """The largest I-f acceleration [rad/s^2] ``current`` [A, peak] gives against rated load at the load
+    angle LOAD_ANGLE_MAX: p (k_t i_if sin(LOAD_ANGLE_MAX) - T_N) / J (the bound the acceleration is
+    judged against above); at most 0 where the current cannot carry the rated load."""
+    m, c = drive.motor, drive.control
+    k_t = c.T_max / math.hypot(*mtpa_torque_current(c.T_max, m))
+    return m.p * (k_t * current * math.sin(LOAD_ANGLE_MAX) - drive.T_N) / m.J
+
+
+def faster_start(
+    drive: OnPmsm, judged: StartJudgement, open_s: float, avail_s: float, need_s: float
+) -> float:
+    """The ``[startup] acceleration`` [rad/s^2] with which a check's end that the I-f start's time made
+    miss (reports/causes.py ``ramp_slower_than_reference``: the start had the loop ``open_s`` of the
+    ``avail_s`` after the reference's last step; the rest of the step needs ``need_s`` at the torque
+    limit) fits: the start's ramp (its time less the dwell at w_on, which the acceleration does not
+    shorten) scales as 1/a, the speed it covers is the same, and it must shrink by SWING_ALLOWANCE times
+    the shortfall (the swing at a faster ramp's end lengthens the wait for the handover). The largest
+    the I-f current carries (:func:`largest_acceleration`, 3 digits down) where that fits; nan where
+    even it does not (no start-up acceleration fixes it: the handover, i.e. the gains' w_min, must)."""
+    a = judged.values["if_acc"]
+    a_max = _down(largest_acceleration(drive, judged.values["if_i"]))
+    ramp = open_s - judged.values.get("if_t_dwell", 0.0)
+    # the ramp's time that fits, cutting twice the shortfall: a faster ramp ends in a larger swing about
+    # the current vector, which the handover waits out (the hub motor of tests/pmsm_flux_observer/drives:
+    # 4390 -> 6430 rad/s^2 cut the ramp by 26 ms and the swing took 40 ms more: within the allowance, no
+    # value is named there; a heuristic, not a simulation of the start)
+    room = ramp - SWING_ALLOWANCE * (open_s + need_s - avail_s)
+    if ramp <= 0 or room <= 0 or a_max <= a or a * ramp / room > a_max:
+        return math.nan
+    return a_max

@@ -167,6 +167,7 @@ class Named:
 
     cause: str
     detail: str = ""
+    change: str = ""  # the change that fixes this case, where the finder knows it (else the catalogue's)
 
     def __post_init__(self) -> None:
         if self.cause not in CATALOGUE:
@@ -179,8 +180,8 @@ class Named:
 
     @property
     def fix(self) -> str:
-        """The change that fixes it."""
-        return CATALOGUE[self.cause].fix
+        """The change that fixes it: the finder's for this case, else the catalogue's."""
+        return self.change or CATALOGUE[self.cause].fix
 
     def sentence(self) -> str:
         """One clause for a finding: "cause: title (detail); fix: ..."."""

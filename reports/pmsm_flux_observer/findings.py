@@ -94,11 +94,70 @@ def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str
 def failure_cause(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
     """The cause of a failed time-domain check in the flux observer's own analysis (reports/causes.py):
     a final speed-estimation error where the PLL's slower root is slower than the speed loop needs
-    (:func:`pll_finding`) is the PLL's lag ("pll_root"); None for anything else (the shared rules)."""
+    (:func:`pll_finding`) is the PLL's lag ("pll_root"); a run's end that the I-f start's time made miss
+    names the start-up acceleration that fits it (:func:`start_too_slow`); None for anything else (the
+    shared rules)."""
+    if failure.kind == "tracking":
+        return start_too_slow(drive, gains, failure)
     if failure.kind != "speed_estimate":
         return None
     why = pll_finding(gains, drive.control.alpha_s, [])
     return Named("pll_root", why) if why else None
+
+
+def start_too_slow(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
+    """A run's end the I-f start's time made miss (reports/causes.py ``ramp_slower_than_reference``) with
+    the change that fits it: the ``[startup] acceleration`` and the firmware's fields at it
+    (design/startup_check.py ``faster_start``), or, where no acceleration the current carries fits, one
+    line saying so and naming the gains' tune (a lower w_min, an earlier handover), as where the gains
+    hold at no envelope speed under the estimate errors (the review's verdict fails then whatever the
+    start: :func:`holds_nowhere_finding`). None: not this case."""
+    from sensorless.design.family import CapabilityError
+    from sensorless.design.pmsm_flux_observer.firmware import stored
+    from sensorless.design.pmsm_flux_observer.firmware.startup import fields
+    from sensorless.design.startup_check import faster_start, judge_startup, largest_acceleration
+    from sensorless.reports.causes import shared_cause
+
+    if not failure.open_loop_took_it:
+        return None
+    try:
+        judged = judge_startup(drive, gains)
+    except CapabilityError:
+        return None
+    if judged is None or judged.shortfalls:
+        return None  # the start's own shortfalls come first (the start-up findings name their values)
+    named = shared_cause(failure)
+    if (
+        drive.observer.correction != "box-clamp"
+        and not assess(drive, [gains], FluxTuneSettings()).holds.any()
+    ):
+        return Named(
+            named.cause,
+            named.detail,
+            "no start-up value fixes it: the gains under review hold at no envelope speed under the "
+            "estimate errors (their finding above), so the verdict fails whatever the start; the gains "
+            f"must change: sensorless tune --law {gains.law}",
+        )
+    a = faster_start(drive, judged, failure.open_s, failure.avail_s, failure.need_s)
+    if math.isnan(a):
+        top = largest_acceleration(drive, judged.values["if_i"])
+        return Named(
+            named.cause,
+            named.detail,
+            "no start-up value fixes it: even the largest acceleration the I-f current carries against "
+            f"rated load ({stored(top)} rad/s^2) leaves the start too long; an earlier handover needs gains "
+            f"with a lower w_min than these {judged.w_min:.4g} rad/s: sensorless tune --law {gains.law}",
+        )
+    fw = drive.observer.firmware
+    old, new = fields(fw, judged.values), fields(fw, {**judged.values, "if_acc": a})
+    write = ", ".join(f"{k} = {stored(v)} {u}" for k, (v, u) in new.items() if stored(v) != stored(old[k][0]))
+    return Named(
+        named.cause,
+        named.detail,
+        f"[startup] acceleration = {stored(a)} rad/s^2 (was "
+        f"{stored(judged.values['if_acc'])}; the largest the I-f current carries against rated load at "
+        f"the start-up check's load angle)" + (f", i.e. write {write}" if write else ""),
+    )
 
 
 def holds_nowhere_finding(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> str:

@@ -241,3 +241,47 @@ def test_an_odrive_drive_is_checked_as_odrive_runs_it(d5065):
     assert "never returns to open loop" in why and "AXIS_STATE_IDLE" in why and "start from" not in why
     vesc_drive = drive_of(vesc, "skate_2017_mcconf.xml", {"pole_pairs": 7})
     assert "reversal" in {sc.name for sc in time_domain.scenarios(vesc_drive, ())}
+
+
+def test_a_speed_step_the_start_made_miss_names_the_acceleration_that_fits_or_the_tune(d5065):
+    """A run's end that the I-f start's time made miss (the rest of the step fits at the torque limit,
+    with the start's time added it does not) names ``[startup] acceleration`` with a value: the start's
+    ramp (its time less the dwell) scales as 1/a, so with the named value dwell + ramp a/a_new + need
+    fits the time there is, and the value is within what the current carries against rated load at
+    60 deg (typed here: p (k_t i sin 60 deg - T_N) / J, k_t = 1.5 p psi_pm); the start judged with it
+    holds. Where even the dwell and the rest of the step do not fit, it says in one line that no
+    start-up value fixes it and names sensorless tune."""
+    from sensorless.reports.causes import Failure
+    from sensorless.reports.pmsm_flux_observer.findings import failure_cause
+
+    _, j0 = d5065
+    held = {"current": "if_i", "acceleration": "if_acc", "w_on": "if_w_on", "w_off": "if_w_off"}
+    unit = {"current": "A", "acceleration": "rad/s2", "w_on": "rad/s", "w_off": "rad/s"}
+    v = {**j0.values, "if_acc": 0.7 * j0.values["if_acc"]}  # the named start, a slower ramp
+    start = "\n".join(f'{k} = "{v[n]!r} {unit[k]}"' for k, n in held.items())
+    d = drive_of(odrive, "d5065_odrive.json", {"u_dc": 24.0}, startup=start)
+    gains = family_of(d).gains(d)
+    j = judge_startup(d, gains)
+    assert not j.shortfalls
+    a, dwell, ramp, need = j.values["if_acc"], j.values["if_t_dwell"], 0.05, 0.03
+    a_top = d.motor.p * (k_t(d) * j.values["if_i"] * math.sin(math.radians(60)) - d.T_N) / d.motor.J
+    assert a_top > 1.2 * a  # room to go faster
+    avail = dwell + ramp + need - 0.1 * ramp  # the ramp must shrink by a tenth
+    fits = Failure("tracking", "ended away", open_s=dwell + ramp, avail_s=avail, need_s=need)
+    named = failure_cause(d, gains, fits)
+    assert named is not None and named.cause == "ramp_slower_than_reference"
+    a_new = float(re.search(r"^\[startup\] acceleration = ([0-9.e+]+) rad/s\^2", named.fix)[1])
+    assert a < a_new <= a_top and dwell + ramp * a / a_new + need <= avail
+    assert "sensorless tune" not in named.fix
+    d_new = drive_of(
+        odrive,
+        "d5065_odrive.json",
+        {"u_dc": 24.0},
+        startup=start.replace(f'acceleration = "{a!r} rad/s2"', f'acceleration = "{a_new!r} rad/s2"'),
+    )
+    assert not judge_startup(d_new, gains).shortfalls  # the current still carries it
+    no_room = Failure("tracking", "ended away", open_s=dwell + ramp, avail_s=dwell + need, need_s=need)
+    named = failure_cause(d, gains, no_room)
+    assert named is not None and "[startup] acceleration =" not in named.fix
+    assert named.fix.startswith("no start-up value fixes it") and "sensorless tune" in named.fix
+    assert "\n" not in named.sentence()
