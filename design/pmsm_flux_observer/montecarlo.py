@@ -106,9 +106,7 @@ def linearize_draws(
     sampled = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, setup.schedule.law)
     zoh = pmsm_zoh_plant(motors, W, i_r, o.T_obs)
     y0 = np.where(ok[:, None], eq.x, np.nan)
-    _, Jd = fixed_points(
-        sampled, y0, W, zoh, rep(P), rep(gain), iterations=DAMPED_STEPS, damped=True
-    )
+    _, Jd = fixed_points(sampled, y0, W, zoh, rep(P), rep(gain), iterations=DAMPED_STEPS, damped=True)
     poles_d = discrete_poles(Jd, o.T_obs, sampled.n_y)[0]
     if not complete:
         bad = np.isnan(poles_d).all(axis=1).reshape(n_d, n_p).any(axis=1)
