@@ -13,10 +13,8 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.runtime import scheduled_step
-from sensorless.reports.codegen.c_emit import build_graph
 from sensorless.reports.codegen.c_graph import Node, live_nodes
-from sensorless.reports.codegen.fixed_program import FixedStep
+from sensorless.reports.codegen.fixed_program import FixedStep, step_graph
 from sensorless.reports.codegen.fixed_ranges import evaluate
 
 _SX = {
@@ -53,8 +51,21 @@ _SX = {
 }
 
 
-def _function(nodes: list[Node], outs: list, consts: dict[int, float], n_x: int, n_m: int) -> ca.Function:
-    x, m = ca.SX.sym("x", n_x), ca.SX.sym("m", n_m)
+def _graph(setup: Any) -> tuple[list[Node], list, dict[int, float]]:
+    """The double step's graph (fixed_program.step_graph) and its parameter-derived constants as
+    computed in double (node -> value)."""
+    nodes, outs = step_graph(setup)
+    live = live_nodes(nodes, [n for _, n in outs])
+    params = {i for i in live if nodes[i].param}
+    exact = {
+        i: float(v) for i, v in evaluate(nodes, {2: setup.p, 3: setup.gain}, params).items() if i in params
+    }
+    return nodes, outs, exact
+
+
+def _rebuild(nodes: list[Node], outs: list, consts: dict[int, float], x: Any, m: Any) -> tuple[Any, Any]:
+    """(x_next, y) of the graph as SX of the state ``x`` and measurements ``m``, the nodes in
+    ``consts`` replaced by their values."""
     val: dict[int, Any] = {}
 
     def get(i: int) -> Any:
@@ -71,6 +82,14 @@ def _function(nodes: list[Node], outs: list, consts: dict[int, float], n_x: int,
         return val[i]
 
     x_next = ca.vertcat(*[get(n) for (o, _), n in sorted(outs) if o == 0])
+    y = ca.vertcat(*[get(n) for (o, _), n in sorted(outs) if o == 1])
+    return x_next, y
+
+
+def _jacobian(nodes: list[Node], outs: list, consts: dict[int, float], n_x: int, n_m: int) -> ca.Function:
+    """d x_next / d x of the graph with ``consts`` as a Function of (x, meas)."""
+    x, m = ca.SX.sym("x", n_x), ca.SX.sym("m", n_m)
+    x_next, _ = _rebuild(nodes, outs, consts, x, m)
     return ca.Function("step", [x, m], [ca.jacobian(x_next, x)])
 
 
@@ -80,17 +99,11 @@ def pole_shift(
     """Largest pole displacement and spectral radii (double, stored constants) over ``samples``
     evenly spaced samples of the runs (columns of ``x``, ``meas``); the counter of the guard excluded."""
     obs = setup.observer
-    law = setup.schedule.law if setup.schedule is not None else None
-    nodes, outs = build_graph(scheduled_step(obs, setup.discretization, law), {2, 3})
-    live = live_nodes(nodes, [n for _, n in outs])
-    params = {i for i in live if nodes[i].param}
-    exact = {
-        i: float(v) for i, v in evaluate(nodes, {2: setup.p, 3: setup.gain}, params).items() if i in params
-    }
+    nodes, outs, exact = _graph(setup)
     stored = {**exact, **fx.stored}
     n_x, n_m = len(obs.state), len(obs.meas)
-    jd = _function(nodes, outs, exact, n_x, n_m)
-    jq = _function(nodes, outs, stored, n_x, n_m)
+    jd = _jacobian(nodes, outs, exact, n_x, n_m)
+    jq = _jacobian(nodes, outs, stored, n_x, n_m)
     k = n_x - 1  # the guard's counter is not a dynamic state of the observer
     shift, rho_d, rho_q = 0.0, 0.0, 0.0
     for j in np.linspace(0, x.shape[1] - 1, samples).astype(int):
@@ -109,34 +122,10 @@ def stored_step(setup: Any, fx: FixedStep) -> ca.Function:
     re-run on to show the quantization's effect on the poles (design/runtime.step_variant). Same
     signature as the step; its p and gain inputs are not read (the constants are the set-up's)."""
     obs = setup.observer
-    law = setup.schedule.law if setup.schedule is not None else None
-    f = scheduled_step(obs, setup.discretization, law)
-    nodes, outs = build_graph(f, {2, 3})
-    live = live_nodes(nodes, [n for _, n in outs])
-    params = {i for i in live if nodes[i].param}
-    exact = {
-        i: float(v) for i, v in evaluate(nodes, {2: setup.p, 3: setup.gain}, params).items() if i in params
-    }
-    consts = {**exact, **fx.stored}
+    nodes, outs, exact = _graph(setup)
     x, m = ca.SX.sym("x", len(obs.state)), ca.SX.sym("meas", len(obs.meas))
-    val: dict[int, Any] = {}
-
-    def get(i: int) -> Any:
-        if i not in val:
-            nd = nodes[i]
-            if i in consts:
-                val[i] = ca.SX(consts[i])
-            elif nd.op == "CONST":
-                val[i] = ca.SX(nd.const)
-            elif nd.op == "INPUT":
-                val[i] = (x if nd.source[0] == 0 else m)[nd.source[1]]
-            else:
-                val[i] = _SX[nd.op](*[get(a) for a in nd.args])
-        return val[i]
-
-    x_next = ca.vertcat(*[get(n) for (o, _), n in sorted(outs) if o == 0])
-    y = ca.vertcat(*[get(n) for (o, _), n in sorted(outs) if o == 1])
-    pp, gg = ca.SX.sym("p", f.size1_in(2)), ca.SX.sym("gain", f.size1_in(3))
+    x_next, y = _rebuild(nodes, outs, {**exact, **fx.stored}, x, m)
+    pp, gg = ca.SX.sym("p", np.size(setup.p)), ca.SX.sym("gain", np.size(setup.gain))  # unread
     return ca.Function(
         f"{obs.name}_stored", [x, m, pp, gg], [x_next, y], ["x", "meas", "p", "gain"], ["x_next", "y"]
     )
