@@ -26,14 +26,10 @@ STRICT = ["-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 ARM = shutil.which("arm-none-eabi-gcc")
 
 
-@pytest.fixture(scope="module")
-def built(tmp_path_factory):
-    d = load_drive("outrunner270")
-    fam = family_of(d)
-    setup = fam.runtime(d, fam.gains(d))
-    model = fixed_model(d, None, setup)
+def compile_replay(d, setup, model, out):
+    """The generated fixed-point files of ``setup`` written to ``out`` and its replay program built
+    warning-free (STRICT); returns the executable."""
     files = generate_fixed(setup, model, Provenance(d.name, d.file, d.digest, "sensorless test"), d.name)
-    out = tmp_path_factory.mktemp("fixed")
     for name, text in files.items():
         (out / name).write_text(text)
     exe = out / "replay"
@@ -43,6 +39,17 @@ def built(tmp_path_factory):
         text=True,
     )
     assert r.returncode == 0 and r.stderr == "", r.stderr
+    return exe
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    d = load_drive("outrunner270")
+    fam = family_of(d)
+    setup = fam.runtime(d, fam.gains(d))
+    model = fixed_model(d, None, setup)
+    out = tmp_path_factory.mktemp("fixed")
+    exe = compile_replay(d, setup, model, out)
     return d, setup, model, model.program(setup), out, exe
 
 
@@ -175,16 +182,7 @@ def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
         d, None, [dataclasses.replace(load_scenario(scenario, d), duration=0.3)], compile=False
     )
     fx = model.program(setup)
-    files = generate_fixed(setup, model, Provenance(d.name, d.file, d.digest, "sensorless test"), d.name)
-    for name, text in files.items():
-        (tmp_path / name).write_text(text)
-    exe = tmp_path / "replay"
-    r = subprocess.run(
-        [CC, *STRICT, "-o", str(exe), str(tmp_path / "main.c"), str(tmp_path / f"{d.name}.c")],
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 0 and r.stderr == "", r.stderr
+    exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
     raw = fx.to_raw(meas[:, 500:650], "meas").T
     raw[50:80] = np.random.default_rng(5).integers(-(2**31), 2**31, size=(30, raw.shape[1]))
@@ -423,16 +421,7 @@ def test_the_i_f_start_in_fixed_point(tmp_path):
     sc = dataclasses.replace(load_scenario("start", d), duration=0.12)
     model = FixedModel.of(d, None, [sc], compile=False)
     fx = model.program(setup)
-    files = generate_fixed(setup, model, Provenance(d.name, d.file, d.digest, "sensorless test"), d.name)
-    for name, text in files.items():
-        (tmp_path / name).write_text(text)
-    exe = tmp_path / "replay"
-    r = subprocess.run(
-        [CC, *STRICT, "-o", str(exe), str(tmp_path / "main.c"), str(tmp_path / f"{d.name}.c")],
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 0 and r.stderr == "", r.stderr
+    exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
     raw = fx.to_raw(meas[:, 100:900], "meas").T
     raw[300:330] = np.random.default_rng(9).integers(-(2**31), 2**31, size=(30, raw.shape[1]))
