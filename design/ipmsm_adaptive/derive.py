@@ -405,7 +405,7 @@ def _fade_out(doc: DriveDocument, file: str, T_max: float, w_N: float) -> float:
     """The speed [p.u.] below which the observer alone, with the drive file's gains, has a right-half-
     plane pole motoring at T_max (0 if none up to W_DELTA_MAX_PU): the injection must carry it there.
 
-    Why (issue 28, measured on the start check, 0 to 0.5 p.u. against T_N accelerating at ~T_max): the
+    Why (measured on the start check, 0 to 0.5 p.u. against T_N accelerating at ~T_max): the
     HF correction's angle error grows with speed under that load (the observer's answer to it goes with
     psi_d, near 0 at T_max on a strongly salient motor), so fading out later hands the observer a
     larger error (prius of docs/examples/motors: w_Delta 0.13 p.u. lost the rotor, 0.06-0.09 p.u.

@@ -204,14 +204,20 @@ def test_each_drive_kind_string_is_written_in_one_registering_module():
         assert _kind_modules(fam.kind, sources) == [ROOT / "design" / fam.name / "__init__.py"], fam.kind
 
 
-def test_no_name_is_a_paper_storage_number():
-    """No file, module, function or scenario is named by a paper's file number (000, 002)."""
+def _tracked() -> list[str]:
+    """The repository's files (git's list; the tree where this is not a git checkout)."""
     tracked = subprocess.run(
         ["git", "ls-files"], capture_output=True, text=True, cwd=ROOT, check=False
     ).stdout.split()
     if not tracked:  # not a git checkout: walk the tree
         tracked = [str(p.relative_to(ROOT)) for p in ROOT.rglob("*") if p.is_file() and ".git" not in p.parts]
     assert tracked
+    return tracked
+
+
+def test_no_name_is_a_paper_storage_number():
+    """No file, module, function or scenario is named by a paper's file number (000, 002)."""
+    tracked = _tracked()
     bad = [f for f in tracked if re.search(r"(?<!\d)00[02](?!\d)", Path(f).name)]
     assert not bad, bad
     ident = re.compile(r"\b\w*(paper|drive|runtime|family|step)_?00[02]\w*\b", re.I)
@@ -223,6 +229,21 @@ def test_no_name_is_a_paper_storage_number():
                 f,
                 (ident.search(text) or prose.search(text)).group(),
             )
+
+
+def test_no_issue_number_and_no_file_outside_the_repository_is_cited():
+    """Code and docs stand on their own: no "issue 28" (the tracker is not part of the repository) and
+    no path into the workplace's shared folder (its facts are carried with their public sources)."""
+    tracked = _tracked()
+    issue = re.compile(r"\bissues? ?#?\d+", re.I)
+    outside = re.compile(r"shared/(references|papers)/")
+    here = str(Path(__file__).relative_to(ROOT))
+    bad = []
+    for f in tracked:
+        if f != here and f.endswith((".py", ".md", ".toml", ".j2", ".c", ".h", ".txt", ".html")):
+            text = (ROOT / f).read_text(encoding="utf-8", errors="replace")
+            bad += [(f, m.group()) for m in (issue.search(text), outside.search(text)) if m]
+    assert not bad, bad
 
 
 # --------------------------------------------------------------------------------------------------

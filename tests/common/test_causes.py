@@ -311,7 +311,7 @@ def test_the_coupling_reason_never_says_crossings_pass_where_a_crossing_check_fa
 
 
 def test_a_drive_short_of_its_reference_after_the_open_loop_start_had_the_time():
-    """Issue 28 (e-bike hub, speed steps): the reference steps from -0.5 to +0.5 p.u. at 10 ms; the I-f
+    """The e-bike hub's speed steps: the reference steps from -0.5 to +0.5 p.u. at 10 ms; the I-f
     start has the loop for 70 ms and moves the rotor 0.1 p.u.; then the drive accelerates at its torque
     limit and ends short. By hand: the rest of the step, 0.9 p.u., needs 900 / 30000 = 30 ms at the
     limit, 85 ms lie between the step and the judged tail (the last 5 %): the limit alone fits, with

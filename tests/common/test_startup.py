@@ -162,7 +162,7 @@ def test_a_non_salient_motor_starts_from_standstill_against_rated_load_through_t
 
 
 def test_the_ramps_end_is_no_swing_the_handover_follows_the_dwell():
-    # issue 28: the e-bike hub's speed steps (-0.5 to 0.5 p.u. at rated load) drop to open loop near
+    # the e-bike hub's speed steps (-0.5 to 0.5 p.u. at rated load) drop to open loop near
     # zero speed while the drive accelerates; the frame ramps to w_on at a and the steady load angle
     # falls there from asin((T_N + k_t k_a a) / T_max) to asin(T_N / T_max) (56 to 42 deg): no swing
     # of the rotor, so the handover must come a dwell after the ramp's arrival at w_on, give or take
