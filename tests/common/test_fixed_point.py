@@ -258,6 +258,37 @@ def test_a_long_burst_resets_the_step_as_the_double_step_does(built):
     assert len(double_resets) > 0 and np.array_equal(fixed_resets, double_resets)
 
 
+def test_a_pll_speed_at_its_bound_is_clamped_in_fixed_point_as_in_double(built):
+    """The flux family clamps its PLL speed at the bound (symbolic/pmsm_flux_observer/observer.py): from
+    the run's state with the speed at its bound and the PLL angle 2 rad behind, the C equals the model,
+    every sample is used (the clamped word passes the guard's exact comparison with the same bound),
+    the speed word is held at the bound (within 1 LSB) where the double step's is, and the estimates
+    are back with the double step's within 200 periods (0.1 rad, 2 % of the base speed)."""
+    d, setup, model, fx, out, exe = built
+    obs = setup.observer
+    j_th, j_w = obs.index("state", "theta_pll"), obs.index("state", "w_pll")
+    b, T = float(np.asarray(obs.bounds()(setup.p)).ravel()[j_w]), setup.params["T_s"]
+    x0_si, meas = model.data(setup)[0][:, 1000].copy(), model.data(setup)[1][:, 1000:1300]
+    s = 1.0 if x0_si[j_w] >= 0 else -1.0
+    x0_si[j_th] = (x0_si[j_th] - s * 2.0 - T * (s * b - x0_si[j_w]) + np.pi) % (2 * np.pi) - np.pi
+    x0_si[j_w] = s * b
+    raw, x0 = fx.to_raw(meas, "meas").T, fx.to_raw(x0_si, "x")
+    c = replay(exe, out, raw, x0)
+    xs, ys = run_raw(fx, raw, x0)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    names = [o["name"] for o in fx.outputs]
+    xs_d, ys_d = run_trajectory(setup, meas.T, x0_si)
+    assert ys[:, names.index("valid")].all() and ys_d[:, names.index("valid")].all()
+    at_d = np.abs(xs_d[:, j_w]) == b
+    held = np.abs(xs[:, j_w])  # the bound as the program stores it: within 1 LSB of the state's word
+    assert at_d.sum() >= 1 and np.array_equal(held == held.max(), at_d) and abs(held.max() - s * x0[j_w]) <= 1
+    th = c[:, names.index("theta_hat")] * np.pi / 2**31
+    w = c[:, names.index("w_hat")] * 2.0 ** -fx.outputs[names.index("w_hat")]["f"]
+    late = slice(200, None)
+    assert np.abs(np.angle(np.exp(1j * (th[late] - ys_d[late, names.index("theta_hat")])))).max() < 0.1
+    assert np.abs(w[late] - ys_d[late, names.index("w_hat")]).max() < 0.02 * d.w_base
+
+
 def test_gains_are_read_from_the_parameter_struct_at_run_time(built):
     """The gains and motor constants are fields of <prefix>_params (Q formats in the header): the PLL's
     gain doubled at run time changes the step, the C equals the model with that struct; init names a
