@@ -289,6 +289,56 @@ def test_a_pll_speed_at_its_bound_is_clamped_in_fixed_point_as_in_double(built):
     assert np.abs(w[late] - ys_d[late, names.index("w_hat")]).max() < 0.02 * d.w_base
 
 
+def test_a_tuned_gain_table_is_lowered_with_its_values_in_the_parameter_struct(built, tmp_path):
+    """`codegen --precision fixed --gains TABLE` (the flux family's `schedule`: k_0 piecewise linear
+    over |w_pll| on the table's speeds, held beyond them): the table's values are fields of the
+    parameter struct (each proven for 0..2x, as every gain), the C equals the model bit for bit, the
+    gain in effect (output k_obs) is the table interpolated at the stored PLL speed (numpy's interp)
+    within 0.1 %, and the values doubled at run time double it. The formats come from the drive's own
+    runs (the lowering, not the ranges, is under test here)."""
+    import json
+
+    from sensorless.design.gain_table import read_gain_table
+    from sensorless.reports.codegen.fixed_model import FixedModel
+
+    d, _setup, model, _fx, _out, _exe = built
+    grid, vals = [100.0, 1500.0, 3050.0, 3800.0], [400.0, 600.0, 1000.0, 1500.0]
+    doc = {
+        "format": "sensorless-gain-table/2",
+        "drive": {"name": d.name, "kind": d.kind, "sha256": d.digest},
+        "law": "schedule",
+        "gains": {"speeds": grid, "observer_gain": vals, "pll_bandwidth": 1000.0},
+        "envelope": {},
+        "points": [],
+        "summary": {},
+    }
+    (tmp_path / "table.json").write_text(json.dumps(doc))
+    fam = family_of(d)
+    gains = fam.gains(d, table=read_gain_table(tmp_path / "table.json"), table_file="table.json")
+    setup = fam.runtime(d, gains)
+    tm = FixedModel(model.runs)
+    fx = tm.program(setup)
+    assert [p["name"] for p in fx.params if p["name"].startswith("k_0_")] == [f"k_0_{j}" for j in range(4)]
+    exe = compile_replay(d, setup, tm, tmp_path)
+    x0, meas = fx.to_raw(model.data(setup)[0][:, 1000], "x"), model.data(setup)[1][:, 1000:1300]
+    raw = fx.to_raw(meas, "meas").T
+    c = replay(exe, tmp_path, raw, x0)
+    xs, ys = run_raw(fx, raw, x0)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    names = [o["name"] for o in fx.outputs]
+    j_w = setup.observer.index("state", "w_pll")
+    w_prev = np.r_[x0[j_w], xs[:-1, j_w]] * 2.0 ** -fx.inputs[j_w]["f"]
+    k_obs = ys[:, names.index("k_obs")] * 2.0 ** -fx.outputs[names.index("k_obs")]["f"]
+    assert np.abs(w_prev).min() < grid[2] < np.abs(w_prev).max()  # the samples cross a breakpoint
+    assert np.allclose(k_obs, np.interp(np.abs(w_prev), grid, vals), rtol=1e-3)
+    prm = [p["raw"] for p in fx.params]
+    for j, p in enumerate(fx.params):
+        if p["name"].startswith("k_0_"):
+            prm[j] *= 2
+    k2 = replay(exe, tmp_path, raw, x0, prm)[:, names.index("k_obs")]
+    assert abs(int(k2[0]) - 2 * int(c[0, names.index("k_obs")])) <= 2  # the same first sample: doubled
+
+
 def test_gains_are_read_from_the_parameter_struct_at_run_time(built):
     """The gains and motor constants are fields of <prefix>_params (Q formats in the header): the PLL's
     gain doubled at run time changes the step, the C equals the model with that struct; init names a
