@@ -203,17 +203,25 @@ def test_stored_constants_move_the_poles_little(built):
     assert abs(poles["spectral_radius_stored"] - poles["spectral_radius_double"]) < 1e-4
 
 
-def test_cli_writes_the_fixed_point_files_together(tmp_path, capsys):
+def test_cli_writes_the_fixed_point_files_together(built, tmp_path, capsys):
+    """The files, and with --param the parameter struct's words for SI values (params_from_si's, in
+    the formats of the C written beside them); a wrong --param is one line before anything is run."""
     import json
 
     from sensorless.reports.cli.main import main
 
+    _d, setup, _model, fx, _out, _exe = built
     out = tmp_path / "c"
-    assert main(["codegen", "outrunner270", "--precision", "fixed", "--out", str(out)]) == 0
+    args = ["codegen", "outrunner270", "--precision", "fixed", "--out", str(out), "--param", "k_p=3000"]
+    assert main(args) == 0
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted(
-        ["Makefile", "main.c", "outrunner270.c", "outrunner270.h", "outrunner270_formats.json"]
-    )
+    P = "outrunner270"
+    assert names == sorted(["Makefile", "main.c", f"{P}.c", f"{P}.h", f"{P}_formats.json", f"{P}_params.bin"])
+    words = np.fromfile(out / "outrunner270_params.bin", "<i4").tolist()
+    assert words == params_from_si(setup, fx, {"k_p": 3000.0}) != [p["raw"] for p in fx.params]
+    for bad, why in [("psi=1", "unknown parameter 'psi'"), ("k_p", "not NAME=VALUE")]:
+        assert main([*args[:-1], bad, "--force"]) == 2
+        assert f"argument --param: {why}" in capsys.readouterr().err
     data = json.loads((out / "outrunner270_formats.json").read_text())
     assert [d["name"] for d in data["inputs"]][:2] == ["x_alpha", "x_beta"]
     assert all(d["reason"] for d in data["inputs"])
