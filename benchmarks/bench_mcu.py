@@ -1,15 +1,20 @@
 """Instructions and estimated cycles per observer step on an emulated Cortex-M0+ (fixed point) and
-Cortex-M4F (float), with the step's flash and RAM.
+Cortex-M4F (float), with the step's flash and RAM, per path of the step.
 
     python benchmarks/bench_mcu.py [PRESET ...]     (needs arm-none-eabi-gcc and `pip install .[bench]`)
 
 For each preset the generated C (``codegen --precision fixed`` for the M0+, ``--precision float``
-for the M4F) is linked bare-metal with a harness that steps the observer on 64 recorded closed-loop
+for the M4F) is linked bare-metal with a harness that steps the observer on 80 recorded closed-loop
 samples; unicorn (a QEMU-based instruction-set emulator) runs the Thumb code and counts the
 instructions between two markers around each step call (the call, the step and everything it calls:
-libgcc's 64-bit multiply, newlib's libm). Printed: the mean over the first 48 samples (plausible
-ones) and the most cycles of any step ("worst"): the last 16 samples are scaled x 50, so the guard
-rejects them and the coasting branch runs. Cycles are estimated per instruction from the cores'
+libgcc's 64-bit multiply, newlib's libm). Three paths, each printed as its mean and its most cycles:
+"accepted", the first 48 samples (plausible ones); "glitch", 16 samples scaled x 50, which the guard
+rejects (the coasting branch runs); "at bound", the first 16 plausible samples again, the observer set to
+the run's state before them but with its speed state(s) at their bound (the state field the gain
+schedule reads, else the last bounded one in rad/s, and every field with the same bound; the sign of
+the run's speed) and its angle estimates 0.5 rad behind, so that the samples push the speed beyond
+its bound: what happens then is the family's step's choice (the flux observer clamps its PLL speed:
+docs/families/pmsm_flux_observer.md). Cycles are estimated per instruction from the cores'
 published timings (Cortex-M0+ TRM / Cortex-M4 TRM, table "Instruction timings"): M0+ (single-cycle
 multiplier) 1 cycle, loads/stores 2, taken branches 2 (BL 3), PUSH/POP/LDM/STM 1 + N (POP with PC
 3 + N); M4F 1 cycle, loads/stores 2, taken branches 2 (BL 3; pipelining is ignored: an upper
@@ -24,10 +29,19 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 FLASH, RAM = 0x0, 0x20000000
-N_STEPS = 64
-N_CLEAN = 48  # the first 48 samples are closed-loop ones; the last 16 are rejected (x 50)
+N_CLEAN, N_GLITCH, N_BOUND = 48, 16, 16  # closed-loop samples; the same x 50; plausible ones at the bound
+N_STEPS = N_CLEAN + N_GLITCH + N_BOUND
+BEHIND = 0.5  # rad: the "at bound" path's angle estimates behind the run's, so the speed is pushed out
+PATHS = {
+    "accepted": (0, N_CLEAN),
+    "glitch": (N_CLEAN, N_CLEAN + N_GLITCH),
+    "at bound": (N_CLEAN + N_GLITCH, N_STEPS),
+}
 
 HARNESS = """#include "%(P)s.h"
 extern const %(P)s_input bench_in[%(N)d];
@@ -40,6 +54,10 @@ void bench_main(void)
     int k;
     %(init)s;
     for (k = 0; k < %(N)d; ++k) {
+        if (k == %(N_at)d) {
+            %(init)s;
+%(at_bound)s
+        }
         mark_begin();
         %(P)s_step(&bench_obs, &bench_in[k], &bench_out);
         mark_end();
@@ -93,10 +111,13 @@ def _cycles_m4(ins: str, taken: bool) -> int:
     return 1
 
 
-def build(work: Path, P: str, files: dict[str, str], samples: str, init: str, cpu: list[str]) -> Path:
+def build(
+    work: Path, P: str, files: dict[str, str], samples: str, init: str, at_bound: str, cpu: list[str]
+) -> Path:
     for name, text in files.items():
         (work / name).write_text(text)
-    (work / "harness.c").write_text(HARNESS % {"P": P, "N": N_STEPS, "init": init})
+    at = {"P": P, "N": N_STEPS, "N_at": PATHS["at bound"][0], "init": init, "at_bound": at_bound}
+    (work / "harness.c").write_text(HARNESS % at)
     (work / "samples.c").write_text(samples)
     (work / "link.ld").write_text(LINK)
     flags = [*cpu, "-mthumb", "-Os", "-std=c99", "-ffreestanding", "-fstack-usage"]
@@ -127,10 +148,8 @@ def build(work: Path, P: str, files: dict[str, str], samples: str, init: str, cp
     return elf
 
 
-def emulate(elf: Path, model: str, n_clean: int = N_STEPS) -> tuple[float, float, float]:
-    """(instructions, estimated cycles) per step, the mean over the harness's first ``n_clean`` steps
-    (plausible samples), and the most cycles of any step (the rest are rejected samples: the
-    coasting branch runs)."""
+def emulate(elf: Path, model: str) -> tuple[list[int], list[int]]:
+    """(instructions, estimated cycles) of each of the harness's steps."""
     import unicorn
     from unicorn import arm_const as A
 
@@ -161,7 +180,9 @@ def emulate(elf: Path, model: str, n_clean: int = N_STEPS) -> tuple[float, float
     if data:
         uc.mem_write(syms.get("__data_start__", RAM), data)  # .data is empty here (const tables in flash)
     begin, end = syms["mark_begin"], syms["mark_end"]
-    count = {"on": False, "ins": 0, "cyc": 0, "steps": 0, "prev": None, "c0": 0, "worst": 0, "clean": None}
+    count = {"on": False, "ins": 0, "cyc": 0, "prev": None, "i0": 0, "c0": 0}
+    ins_steps: list[int] = []
+    cyc_steps: list[int] = []
     cyc = _cycles_m0 if model == "M0" else _cycles_m4
 
     def hook(uc, address, size, _):
@@ -175,12 +196,10 @@ def emulate(elf: Path, model: str, n_clean: int = N_STEPS) -> tuple[float, float
             count["on"] = True
         elif address == end:
             count["on"] = False
-            count["steps"] += 1
-            count["worst"] = max(count["worst"], count["cyc"] - count["c0"])
-            count["c0"] = count["cyc"]
-            if count["steps"] == n_clean:
-                count["clean"] = (count["ins"] / n_clean, count["cyc"] / n_clean)
-            if count["steps"] == N_STEPS:
+            ins_steps.append(count["ins"] - count["i0"])
+            cyc_steps.append(count["cyc"] - count["c0"])
+            count["i0"], count["c0"] = count["ins"], count["cyc"]
+            if len(cyc_steps) == N_STEPS:
                 uc.emu_stop()
         count["prev"] = (address, size, dis.get(address, ""))
 
@@ -192,7 +211,7 @@ def emulate(elf: Path, model: str, n_clean: int = N_STEPS) -> tuple[float, float
     except unicorn.UcError as e:
         pc = uc.reg_read(A.UC_ARM_REG_PC)
         raise SystemExit(f"{model}: {e} at 0x{pc:x}: {dis.get(pc, '?')} (after {count['prev']})") from None
-    return (*count["clean"], count["worst"])
+    return ins_steps, cyc_steps
 
 
 def sizes(work: Path, P: str, cpu: list[str]) -> tuple[int, int]:
@@ -224,16 +243,29 @@ def sizes(work: Path, P: str, cpu: list[str]) -> tuple[int, int]:
     return text + data, frame
 
 
+def speed_fields(obs: Any) -> list[int]:
+    """The state fields the "at bound" path sets at their bound (module docstring)."""
+    bounded = [k for k, f in enumerate(obs.state) if f.bound and f.unit == "rad/s"]
+    if obs.schedule_state is not None:
+        k = obs.index("state", obs.schedule_state)
+    elif bounded:
+        k = bounded[-1]
+    else:
+        return []
+    return [j for j in bounded if obs.state[j].bound == obs.state[k].bound]
+
+
 def main(presets: list[str]) -> None:
     from sensorless.design.drive import load_drive
     from sensorless.design.registry import family_of
     from sensorless.reports.codegen.fixed_generate import fixed_model, generate_fixed
     from sensorless.reports.codegen.generate import Provenance, generate
 
+    cols = "".join(f" {p + ' mean':>14s} {p + ' worst':>14s}" for p in PATHS)
     print(
-        f"{'preset':14s} {'core':5s} {'precision':9s} {'instr/step':>10s} {'cycles/step':>11s} "
-        f"{'worst cyc':>9s} {'flash B':>8s} {'RAM B':>6s}"
+        f"{'preset':14s} {'core':5s} {'precision':9s} {'instr/step':>10s}{cols} {'flash B':>8s} {'RAM B':>6s}"
     )
+    print("(instr/step: mean over the accepted samples; the other columns: estimated cycles per step)")
     for name in presets:
         d = load_drive(name)
         fam = family_of(d)
@@ -242,33 +274,60 @@ def main(presets: list[str]) -> None:
         fx = model.program(setup)
         prov = Provenance(d.name, d.file, d.digest, "bench")
         P = d.name
-        n_x = len(setup.observer.state)
-        meas = model.meas[:, -N_STEPS * 50 :: 50].copy()
-        meas[:, N_CLEAN:] *= 50.0  # implausible samples: rejected, the step coasts
+        obs = setup.observer
+        n_x = len(obs.state)
+        meas = model.meas[:, -N_CLEAN * 50 :: 50].copy()
+        # x 50: rejected, the step coasts; then plausible samples again, the speed at its bound
+        meas = np.hstack([meas, 50.0 * meas[:, :N_GLITCH], meas[:, :N_BOUND]])
         raw = fx.to_raw(meas, "meas").T
+        at = speed_fields(obs)
+        b = np.asarray(obs.bounds()(setup.p)).ravel()
+        x_run = model.data(setup)[0]
+        x_at = np.asarray(x_run[:, x_run.shape[1] - N_CLEAN * 50], float).copy()  # before the first sample
+        sign = 1.0 if not at or x_at[at[0]] >= 0 else -1.0
+        x_at[at] = sign * b[at]
+        ang = [k for k, f in enumerate(obs.state) if f.bound.strip() == "pi"]
+        # behind by BEHIND after the period's prediction at the excess speed
+        behind = sign * BEHIND + d.T_s * (
+            x_at[at[0]] - x_run[at[0], x_run.shape[1] - N_CLEAN * 50] if at else 0.0
+        )
+        x_at[ang] = (x_at[ang] - behind + np.pi) % (2 * np.pi) - np.pi
+        x_raw = fx.to_raw(x_at[:, None], "x").ravel()
         for core, prec in (("M0", "fixed"), ("M4", "float")):
             with tempfile.TemporaryDirectory() as tmp:
                 work = Path(tmp)
                 if prec == "fixed":
                     files = generate_fixed(setup, model, prov, P)
                     rows = ", ".join("{" + ", ".join(str(int(v)) for v in r) + "}" for r in raw)
+                    at_bound = "".join(
+                        f"            bench_obs.x.{f.name} = {int(x_raw[j])};\n"
+                        for j, f in enumerate(obs.state)
+                    )
                     init = f"(void){P}_init(&bench_obs, &{P}_default_params)"
                     ram_struct = 4 * (n_x + len(fx.params))  # the state and the parameter struct
                     cpu = ["-mcpu=cortex-m0plus"]
                 else:
                     files = generate(setup, prov, precision="float", prefix=P)
                     rows = ", ".join("{" + ", ".join(f"{v:.9g}f" for v in r) + "}" for r in meas.T)
+                    at_bound = "".join(
+                        f"            bench_obs.x.{f.name} = {float(x_at[j])!r}f;\n"
+                        for j, f in enumerate(obs.state)
+                    )
                     init = f"(void){P}_init(&bench_obs, &{P}_default_params)"
                     m = re.search(rf"#define {P.upper()}_N_COEF (\d+)", files[f"{P}.h"])
                     ram_struct = 4 * (n_x + (int(m.group(1)) if m else 0))
                     cpu = ["-mcpu=cortex-m4", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"]
                 samples = f'#include "{P}.h"\nconst {P}_input bench_in[{N_STEPS}] = {{{rows}}};\n'
-                elf = build(work, P, files, samples, init, cpu)
-                ins, cycles, worst = emulate(elf, core, N_CLEAN)
+                elf = build(work, P, files, samples, init, at_bound, cpu)
+                ins, cyc = emulate(elf, core)
                 flash, frame = sizes(work, P, cpu)
                 label = core + ("+" if core == "M0" else "F")
+                per_path = ""
+                for path, (lo, hi) in PATHS.items():
+                    c = cyc[lo:hi] if path != "at bound" or at else []
+                    per_path += f" {np.mean(c):14.0f} {max(c):14d}" if c else f" {'-':>14s} {'-':>14s}"
                 print(
-                    f"{name:14s} {label:5s} {prec:9s} {ins:10.0f} {cycles:11.0f} {worst:9.0f} {flash:8d} "
+                    f"{name:14s} {label:5s} {prec:9s} {np.mean(ins[:N_CLEAN]):10.0f}{per_path} {flash:8d} "
                     f"{ram_struct + frame:6d}",
                     flush=True,
                 )

@@ -64,7 +64,8 @@ void ref_flux_step(ref_flux_observer *o, const double in[4], double out[8])
     const double th_obs = atan2(eb, ea);
     const double th_pred = x->th + c->T * x->w;
     const double err = wrap(th_obs - th_pred);
-    const double th_n = wrap(th_pred + c->Tkp * err), w_n = x->w + c->Tki * err;
+    const double th_n = wrap(th_pred + c->Tkp * err);
+    const double w_n = fmin(fmax(x->w + c->Tki * err, -c->b_w), c->b_w); /* clamped, not rejected */
     const int valid = fabs(xa) <= c->b_x && fabs(xb) <= c->b_x && fabs(lam_n) <= c->b_lam &&
                       fabs(in[2]) <= c->b_u && fabs(in[3]) <= c->b_u && fabs(th_n) <= PI_ &&
                       fabs(w_n) <= c->b_w;

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
+import struct
 import sys
 from typing import Any
 
@@ -67,10 +69,38 @@ def register(sub: Any) -> None:
         help="wrap the observer in the open-loop I-f start below the design's minimum sensorless speed "
         "(symbolic/startup.py; its parameters in the struct, a mode output, the speed command an input)",
     )
+    p.add_argument(
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="with --precision fixed: a runtime parameter's SI value (repeatable; e.g. psi_pm=3.2e-3): "
+        "also writes <prefix>_params.bin, the parameter struct's raw words for these values in the "
+        "formats the C is proven for (the example's third argument), and prints its initializer",
+    )
     p.add_argument("--prefix", default=None, help="C name prefix (default: the drive name)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
     p.set_defaults(func=run)
+
+
+def _param_values(items: list[str], fixed: bool) -> dict[str, float]:
+    """--param NAME=VALUE items as {name: SI value}; one line naming the option where one is wrong."""
+    if items and not fixed:
+        raise UsageError(
+            "argument --param: needs --precision fixed (the float and double P_params take SI values)"
+        )
+    values = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if not sep or not name.strip() or not math.isfinite(v):
+            raise UsageError(f"argument --param: {item!r} is not NAME=VALUE with a finite SI value")
+        values[name.strip()] = v
+    return values
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,15 +136,28 @@ def run(args: argparse.Namespace) -> int:
         setup, line = startup_setup(drive, setup)
         setup = dataclasses.replace(setup, notes=(*setup.notes, line)) if "no I-f" in line else setup
     fixed = args.precision == "fixed"
+    values = _param_values(args.param, fixed)
     names = (*output_names(prefix), f"{prefix}_formats.json") if fixed else output_names(prefix)
+    names = (*names, f"{prefix}_params.bin") if values else names
+    known = [f.name for f in setup.observer.params]
+    unknown = [k for k in values if k not in known]
+    if unknown:  # before the C is generated
+        raise UsageError(f"argument --param: unknown parameter {unknown[0]!r} (known: {', '.join(known)})")
     out = OutputSet(args.out, force=args.force, names=names)
     out.check()  # before the C is generated
+    words: list[int] = []
     try:
         if fixed:
             from sensorless.reports.codegen.fixed_generate import fixed_model, generate_fixed
+            from sensorless.reports.codegen.fixed_params import params_from_si
 
             prov = Provenance(drive.name, drive.file, drive.digest, f"sensorless {version()}")
-            files = generate_fixed(setup, fixed_model(drive, gains, setup), prov, prefix)
+            model = fixed_model(drive, gains, setup)
+            files = generate_fixed(setup, model, prov, prefix)
+            try:
+                words = params_from_si(setup, model.program(setup), values) if values else []
+            except ValueError as e:
+                raise UsageError(f"argument --param: {str(e).removeprefix('params_from_si: ')}") from None
         else:
             files = generate(
                 setup,
@@ -126,6 +169,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(e)) from None
     for name, text in files.items():
         out.add_text(name, text)
+    if values:
+        out.add_bytes(f"{prefix}_params.bin", struct.pack(f"<{len(words)}i", *words))
     written = out.commit()
     print(f"{drive.name}: {setup.observer.title}")
     print(
@@ -140,6 +185,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {p}")
     if fixed:
         print(f"formats: {prefix}_formats.json; Cortex-M0+ object: make -C {args.out} {prefix}-m0.o")
+    if values:
+        given = ", ".join(f"{k} = {v:g}" for k, v in values.items())
+        print(f"params ({given}): const {prefix}_params prm = {{{', '.join(str(w) for w in words)}}};")
     else:
         print(f"build the example: make -C {args.out}; Cortex-M4F object: make -C {args.out} {prefix}-m4.o")
     return 0

@@ -58,7 +58,18 @@ class FixedStep:
         return np.stack([_si(r, i["kind"], i["f"]) for r, i in zip(raw, fmts, strict=True)])
 
 
+def word(c: float, kind: str, f: int) -> int:
+    """The raw word of the value ``c`` in format Qf (``kind`` "fix") or as a binary angle ("ang"):
+    rounded half up, floor(c 2^f + 0.5), angles modulo 2^32. The one rounding of every value the
+    program stores (constants, parameter fields, the initial state) and of the samples it is given
+    (:meth:`FixedStep.to_raw`; fixed_model's SX twin spells the same floor); not clipped."""
+    if kind == "ang":
+        return ((math.floor(c * (2.0**31 / _PI) + 0.5) + 2**31) & 0xFFFFFFFF) - 2**31
+    return math.floor(c * 2.0**f + 0.5)
+
+
 def _raw(v: np.ndarray, kind: str, f: int) -> np.ndarray:
+    """:func:`word` of every element, fixed-point words clipped to int32."""
     scale = 2.0**31 / _PI if kind == "ang" else 2.0**f
     r = np.floor(v * scale + 0.5)
     if kind == "ang":

@@ -15,6 +15,7 @@ from sensorless.design.family import Drive, GainSet
 from sensorless.reports.codegen.fixed_c import body, format_text, formats_json, helpers, lit
 from sensorless.reports.codegen.fixed_model import FixedModel
 from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS
+from sensorless.reports.codegen.fixed_params import params_from_si
 from sensorless.reports.codegen.fixed_poles import pole_shift
 from sensorless.reports.codegen.fixed_ranges import MARGIN
 
@@ -125,7 +126,12 @@ def generate_fixed(
     init.append("    obs->prm = *prm;")
     init += [f"    obs->x.{d['name']} = {lit(v)};" for d, v in zip(fx.inputs[:n_x], fx.x0, strict=True)]
     init.append("    return 0;")
-    defaults = ", ".join(lit(d["raw"]) for d in fx.params) or "0"
+    # the defaults as a user's commissioning computes them (fixed_params: from the drive's SI values,
+    # through the same graph): what the program was proven with, word for word
+    words = params_from_si(setup, fx)
+    if words != [d["raw"] for d in fx.params]:
+        raise RuntimeError(f"{P}: params_from_si disagrees with the program's parameter words (a bug)")
+    defaults = ", ".join(lit(w) for w in words) or "0"
     step = ["    " + line for line in body(fx, "obs->x", "in", "out", fx.wr)]
     c = [
         banner,

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from sensorless.reports.codegen.c_graph import Node
 from sensorless.reports.codegen.fixed_angles import AngleLowering
-from sensorless.reports.codegen.fixed_format import _PI, COEF_BITS, Q15_FACTORS, RANGE_FLOOR, format_of
+from sensorless.reports.codegen.fixed_format import _PI, COEF_BITS, Q15_FACTORS, RANGE_FLOOR, format_of, word
 from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, NUMPY, SIN_F, Ins, run
 from sensorless.reports.codegen.fixed_ranges import MARGIN
 
@@ -172,7 +172,7 @@ class Lowering(AngleLowering):
         f = 31 if kind == "ang" else format_of(2 * abs(c)) if f is None else f
         if (key, f) in self.param_c:
             return self.param_c[(key, f)]
-        raw = round(c * 2.0**f) if kind == "fix" else ((round(c * 2**31 / _PI) + 2**31) & 0xFFFFFFFF) - 2**31
+        raw = word(c, kind, f)
         if kind == "fix" and 2 * abs(raw) > INT_MAX:
             raise ValueError(f"parameter {name} = {c!r} does not fit format Q{f}")
         j = len(self.params)
@@ -201,10 +201,10 @@ class Lowering(AngleLowering):
 
     def const_slot(self, c: float, f: int | None = None, kind: str = "fix") -> int:
         if kind == "ang":
-            raw = ((round(c * 2**31 / _PI) + 2**31) & 0xFFFFFFFF) - 2**31
+            raw = word(c, "ang", 31)
             return self.add(Ins("CONST", (), "ang", 31, (raw,), what=f"{c:.9g} rad"), abs(raw))
         f = format_of(abs(c)) if f is None else f
-        raw = round(c * 2.0**f)
+        raw = word(c, "fix", f)
         if abs(raw) > INT_MAX:
             raise ValueError(f"constant {c!r} does not fit format Q{f}")
         return self.add(Ins("CONST", (), "fix", f, (raw,), what=f"{c:.9g}"), abs(raw))

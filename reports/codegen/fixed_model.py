@@ -77,7 +77,12 @@ class FixedModel:
         return next(iter(self.runs.values()))[1]
 
     def program(self, setup: RuntimeSetup) -> FixedStep:
-        return fixed_step(setup, *self.data(setup))
+        """The lowered step of ``setup`` (one per set-up's constants: the lowering takes seconds)."""
+        grid = setup.schedule.grid if setup.schedule is not None else ()
+        key = ("program", setup.observer.name, setup.discretization, tuple(setup.p), tuple(setup.gain), grid)
+        if key not in self._cache:
+            self._cache[key] = fixed_step(setup, *self.data(setup))
+        return self._cache[key]
 
     def function(self, setup: RuntimeSetup) -> ca.Function:
         """The step as a CasADi Function (the module docstring); one per set-up's constants."""

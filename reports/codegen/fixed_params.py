@@ -14,10 +14,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from sensorless.reports.codegen.fixed_format import word
 from sensorless.reports.codegen.fixed_program import FixedStep, step_graph
 from sensorless.reports.codegen.fixed_ranges import evaluate
-
-_PI = np.pi
 
 
 def params_from_si(
@@ -44,10 +43,7 @@ def params_from_si(
         node, scale, inverse = d["recipe"]
         v = float(np.asarray(val[node]).ravel()[0])
         c = scale / v if inverse else scale * v
-        if d["kind"] == "ang":
-            raw = ((round(c * 2**31 / _PI) + 2**31) & 0xFFFFFFFF) - 2**31
-        else:
-            raw = round(c * 2.0 ** d["f"])
+        raw = word(c, d["kind"], d["f"])
         if not d["lo"] <= raw <= d["hi"]:
             raise ValueError(
                 f"params_from_si: field {d['name']} = {d['expr']} = {c:.6g} is outside the range the "

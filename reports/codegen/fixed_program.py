@@ -119,7 +119,7 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
         if not math.isfinite(rng[i]):
             raise ValueError(f"{obs.name}: no range for a signal (node {i}, {nodes[i].op})")
     low = Lowering(nodes, const, rng, angle_fields)
-    low.rt, low.expr = runtime_parameters(nodes, obs)
+    low.rt, low.expr = runtime_parameters(nodes, obs, setup.schedule.fields if setup.schedule else ())
     for i, v in sim.items():
         if i in runtime:
             v = np.broadcast_to(v, x.shape[1:])
@@ -171,11 +171,12 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
 _INFIX = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/"}
 
 
-def runtime_parameters(nodes: list[Node], obs: Any) -> tuple[set[int], Any]:
+def runtime_parameters(nodes: list[Node], obs: Any, gain_fields: tuple = ()) -> tuple[set[int], Any]:
     """(the parameter-derived nodes that depend on a parameter or gain other than the variant's flags:
     the step reads them from the parameter struct at run time; a function giving a node's expression
-    in the parameters' names). Flags (``Field.check == "flag"``) select the variant's code, so what
-    derives from them alone stays a literal (and folds)."""
+    in the parameters' names, the gain vector's by ``gain_fields``: the schedule's, a tabulated
+    schedule's values at its breakpoints included). Flags (``Field.check == "flag"``) select the
+    variant's code, so what derives from them alone stays a literal (and folds)."""
     flags = {(2, j) for j, f in enumerate(obs.params) if f.check == "flag"}
     deps: dict[int, frozenset] = {}
 
@@ -195,7 +196,7 @@ def runtime_parameters(nodes: list[Node], obs: Any) -> tuple[set[int], Any]:
             return f"{nd.const:.6g}"
         if nd.op == "INPUT":
             v, j = nd.source
-            return (obs.params if v == 2 else obs.lam)[j].name
+            return (obs.params if v == 2 else gain_fields)[j].name
         if depth > 6:
             return "..."
         a = [expr(x, depth + 1) for x in nd.args]

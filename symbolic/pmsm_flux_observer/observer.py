@@ -37,8 +37,10 @@ Discretization (the firmwares'): forward Euler at the observer period T. At samp
 current i_k and the voltage u_{k-1} applied over the previous period (stored in the state: the loop
 gives the voltage of the coming period); it predicts ``x' = x + T (u_{k-1} - R i_k)``, then corrects
 ``x_k = x' + T corr(eta(x'))`` (ODrive's order), and the PLL takes ``theta_obs`` of x_k as ODrive
-does: ``th' = th + T w``, ``e = wrap(theta_obs - th')``, ``th_k = th' + T k_p e``, ``w_k = w + T k_i e``.
-The outputs are the raw observer angle (the firmwares commutate on it) and the PLL speed w_k.
+does: ``th' = th + T w``, ``e = wrap(theta_obs - th')``, ``th_k = th' + T k_p e``, ``w_k = w + T k_i e``,
+w_k clamped to its runtime bound +-min(w_max, pi/(2T)) (a sample that would carry it beyond is used,
+the speed held at the bound, not rejected). The outputs are the raw observer angle (the firmwares
+commutate on it) and the PLL speed w_k.
 """
 
 from __future__ import annotations
@@ -50,7 +52,16 @@ from typing import NamedTuple
 import casadi as ca
 from sensorless.symbolic.frames import Sym, rot, wrap_angle
 from sensorless.symbolic.pmsm_drive import MEAS_FIELDS
-from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, core_function, guarded
+from sensorless.symbolic.runtime import (
+    REJECTS,
+    RESET,
+    VALID,
+    Field,
+    RuntimeObserver,
+    bound_expression,
+    core_function,
+    guarded,
+)
 
 NAME = "pmsm_flux_observer"
 DISCRETIZATIONS = ("euler",)
@@ -223,7 +234,13 @@ def _step(kind: str, rule: str, x: Sym, meas: Sym, p_vec: Sym, lam_in: Sym) -> t
     # the observer's angle (at t_k), and its speed integrated
     th_pred = th + T * w
     e = wrap_angle(theta_obs - th_pred)
-    th_new, w_new = wrap_angle(th_pred + T * p.k_p * e), w + T * p.k_i * e
+    # the PLL speed is clamped to its bound (an integrator held at its limit), not rejected: neither
+    # firmware bounds it and both keep every sample (docs/families/pmsm_flux_observer.md, "C code,
+    # bounds and recovery"). By comparisons, not fmin/fmax: a NaN stays NaN for the guard to reject,
+    # and the C calls no libm function for it
+    w_bound = bound_expression(_W_BOUND, PARAMS, p_vec)
+    th_new, w_raw = wrap_angle(th_pred + T * p.k_p * e), w + T * p.k_i * e
+    w_new = ca.if_else(w_raw > w_bound, w_bound, ca.if_else(w_raw < -w_bound, -w_bound, w_raw))
     x_cand = ca.vertcat(x_new, lam_new, u, th_new, w_new)
     y_cand = ca.vertcat(w_new, theta_obs, th_new, eta, k)
     # coasting (nothing of the rejected sample used): the flux state turns at the PLL speed, the PLL

@@ -203,22 +203,30 @@ def test_stored_constants_move_the_poles_little(built):
     assert abs(poles["spectral_radius_stored"] - poles["spectral_radius_double"]) < 1e-4
 
 
-def test_cli_writes_the_fixed_point_files_together(tmp_path, capsys):
+def test_cli_writes_the_fixed_point_files_together(built, tmp_path, capsys):
+    """The files, and with --param the parameter struct's words for SI values (params_from_si's, in
+    the formats of the C written beside them); a wrong --param is one line before anything is run."""
     import json
 
     from sensorless.reports.cli.main import main
 
+    _d, setup, _model, fx, _out, _exe = built
     out = tmp_path / "c"
-    assert main(["codegen", "outrunner270", "--precision", "fixed", "--out", str(out)]) == 0
+    args = ["codegen", "outrunner270", "--precision", "fixed", "--out", str(out), "--param", "k_p=3000"]
+    assert main(args) == 0
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted(
-        ["Makefile", "main.c", "outrunner270.c", "outrunner270.h", "outrunner270_formats.json"]
-    )
+    P = "outrunner270"
+    assert names == sorted(["Makefile", "main.c", f"{P}.c", f"{P}.h", f"{P}_formats.json", f"{P}_params.bin"])
+    words = np.fromfile(out / "outrunner270_params.bin", "<i4").tolist()
+    assert words == params_from_si(setup, fx, {"k_p": 3000.0}) != [p["raw"] for p in fx.params]
     data = json.loads((out / "outrunner270_formats.json").read_text())
     assert [d["name"] for d in data["inputs"]][:2] == ["x_alpha", "x_beta"]
     assert all(d["reason"] for d in data["inputs"])
     assert "no floating point" in (out / "outrunner270.h").read_text()
     assert "Cortex-M0+" in capsys.readouterr().out
+    for bad, why in [("psi=1", "unknown parameter 'psi'"), ("k_p", "'k_p' is not NAME=VALUE")]:
+        assert main([*args[:-1], bad, "--force"]) == 2
+        assert f"argument --param: {why}" in capsys.readouterr().err
 
 
 def test_adaptive_observer_closed_loop_within_0p2_deg_of_the_double_step():
@@ -258,6 +266,87 @@ def test_a_long_burst_resets_the_step_as_the_double_step_does(built):
     assert len(double_resets) > 0 and np.array_equal(fixed_resets, double_resets)
 
 
+def test_a_pll_speed_at_its_bound_is_clamped_in_fixed_point_as_in_double(built):
+    """The flux family clamps its PLL speed at the bound (symbolic/pmsm_flux_observer/observer.py): from
+    the run's state with the speed at its bound and the PLL angle 2 rad behind, the C equals the model,
+    every sample is used (the clamped word passes the guard's exact comparison with the same bound),
+    the speed word is held at the bound (within 1 LSB) where the double step's is, and the estimates
+    are back with the double step's within 200 periods (0.1 rad, 2 % of the base speed)."""
+    d, setup, model, fx, out, exe = built
+    obs = setup.observer
+    j_th, j_w = obs.index("state", "theta_pll"), obs.index("state", "w_pll")
+    b, T = float(np.asarray(obs.bounds()(setup.p)).ravel()[j_w]), setup.params["T_s"]
+    x0_si, meas = model.data(setup)[0][:, 1000].copy(), model.data(setup)[1][:, 1000:1300]
+    s = 1.0 if x0_si[j_w] >= 0 else -1.0
+    x0_si[j_th] = (x0_si[j_th] - s * 2.0 - T * (s * b - x0_si[j_w]) + np.pi) % (2 * np.pi) - np.pi
+    x0_si[j_w] = s * b
+    raw, x0 = fx.to_raw(meas, "meas").T, fx.to_raw(x0_si, "x")
+    c = replay(exe, out, raw, x0)
+    xs, ys = run_raw(fx, raw, x0)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    names = [o["name"] for o in fx.outputs]
+    xs_d, ys_d = run_trajectory(setup, meas.T, x0_si)
+    assert ys[:, names.index("valid")].all() and ys_d[:, names.index("valid")].all()
+    at_d = np.abs(xs_d[:, j_w]) == b
+    held = np.abs(xs[:, j_w])  # the bound as the program stores it: within 1 LSB of the state's word
+    assert at_d.sum() >= 1 and np.array_equal(held == held.max(), at_d) and abs(held.max() - s * x0[j_w]) <= 1
+    th = c[:, names.index("theta_hat")] * np.pi / 2**31
+    w = c[:, names.index("w_hat")] * 2.0 ** -fx.outputs[names.index("w_hat")]["f"]
+    late = slice(200, None)
+    assert np.abs(np.angle(np.exp(1j * (th[late] - ys_d[late, names.index("theta_hat")])))).max() < 0.1
+    assert np.abs(w[late] - ys_d[late, names.index("w_hat")]).max() < 0.02 * d.w_base
+
+
+def test_a_tuned_gain_table_is_lowered_with_its_values_in_the_parameter_struct(built, tmp_path):
+    """`codegen --precision fixed --gains TABLE` (the flux family's `schedule`: k_0 piecewise linear
+    over |w_pll| on the table's speeds, held beyond them): the table's values are fields of the
+    parameter struct (each proven for 0..2x, as every gain), the C equals the model bit for bit, the
+    gain in effect (output k_obs) is the table interpolated at the stored PLL speed (numpy's interp)
+    within 0.1 %, and the values doubled at run time double it. The formats come from the drive's own
+    runs (the lowering, not the ranges, is under test here)."""
+    import json
+
+    from sensorless.design.gain_table import read_gain_table
+    from sensorless.reports.codegen.fixed_model import FixedModel
+
+    d, _setup, model, _fx, _out, _exe = built
+    grid, vals = [100.0, 1500.0, 3050.0, 3800.0], [400.0, 600.0, 1000.0, 1500.0]
+    doc = {
+        "format": "sensorless-gain-table/2",
+        "drive": {"name": d.name, "kind": d.kind, "sha256": d.digest},
+        "law": "schedule",
+        "gains": {"speeds": grid, "observer_gain": vals, "pll_bandwidth": 1000.0},
+        "envelope": {},
+        "points": [],
+        "summary": {},
+    }
+    (tmp_path / "table.json").write_text(json.dumps(doc))
+    fam = family_of(d)
+    gains = fam.gains(d, table=read_gain_table(tmp_path / "table.json"), table_file="table.json")
+    setup = fam.runtime(d, gains)
+    tm = FixedModel(model.runs)
+    fx = tm.program(setup)
+    assert [p["name"] for p in fx.params if p["name"].startswith("k_0_")] == [f"k_0_{j}" for j in range(4)]
+    exe = compile_replay(d, setup, tm, tmp_path)
+    x0, meas = fx.to_raw(model.data(setup)[0][:, 1000], "x"), model.data(setup)[1][:, 1000:1300]
+    raw = fx.to_raw(meas, "meas").T
+    c = replay(exe, tmp_path, raw, x0)
+    xs, ys = run_raw(fx, raw, x0)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    names = [o["name"] for o in fx.outputs]
+    j_w = setup.observer.index("state", "w_pll")
+    w_prev = np.r_[x0[j_w], xs[:-1, j_w]] * 2.0 ** -fx.inputs[j_w]["f"]
+    k_obs = ys[:, names.index("k_obs")] * 2.0 ** -fx.outputs[names.index("k_obs")]["f"]
+    assert np.abs(w_prev).min() < grid[2] < np.abs(w_prev).max()  # the samples cross a breakpoint
+    assert np.allclose(k_obs, np.interp(np.abs(w_prev), grid, vals), rtol=1e-3)
+    prm = [p["raw"] for p in fx.params]
+    for j, p in enumerate(fx.params):
+        if p["name"].startswith("k_0_"):
+            prm[j] *= 2
+    k2 = replay(exe, tmp_path, raw, x0, prm)[:, names.index("k_obs")]
+    assert abs(int(k2[0]) - 2 * int(c[0, names.index("k_obs")])) <= 2  # the same first sample: doubled
+
+
 def test_gains_are_read_from_the_parameter_struct_at_run_time(built):
     """The gains and motor constants are fields of <prefix>_params (Q formats in the header): the PLL's
     gain doubled at run time changes the step, the C equals the model with that struct; init names a
@@ -281,9 +370,10 @@ def test_gains_are_read_from_the_parameter_struct_at_run_time(built):
 
 
 def test_params_from_si_fills_the_struct_from_si_values(built):
-    """The host-side helper: at the drive's values it gives the generated defaults; with psi_pm x 1.1
-    and k_p x 1.5 each field equals its expression typed here from the SI values (the flux family's
-    fields), the C runs that struct equal to the model; a field beyond its proven range is refused."""
+    """The host-side helper (the generator's defaults come through it): at the drive's values it gives
+    the generated defaults; with psi_pm x 1.1 and k_p x 1.5 each field equals its expression typed
+    here from the SI values (the flux family's fields), the C runs that struct equal to the model; a
+    field beyond its proven range is refused."""
     _d, setup, model, fx, out, exe = built
     assert params_from_si(setup, fx) == [p["raw"] for p in fx.params]
     names = [f.name for f in setup.observer.params]
@@ -302,7 +392,7 @@ def test_params_from_si_fills_the_struct_from_si_values(built):
     seen = 0
     for d, raw in zip(fx.params, prm, strict=True):
         if d["expr"] in typed:
-            assert raw == round(typed[d["expr"]] * 2.0 ** d["f"]), d["expr"]
+            assert raw == np.floor(typed[d["expr"]] * 2.0 ** d["f"] + 0.5), d["expr"]
             seen += 1
     assert seen == len(typed)
     x0, meas = fx.to_raw(model.data(setup)[0][:, 1000], "x"), model.data(setup)[1][:, 1000:1100]
@@ -310,6 +400,12 @@ def test_params_from_si_fills_the_struct_from_si_values(built):
     c = replay(exe, out, raw, x0, prm)
     xs, ys = run_raw(fx, raw, x0, prm)
     assert int((c != np.hstack([ys, xs])).sum()) == 0
+    # one rounding (fixed_format.word: half up, as the samples and the initial state are rounded) for
+    # the generated defaults and the host's words: a value on a tie goes up to the odd word, where
+    # Python's round() goes to the even one
+    j = next(k for k, d in enumerate(fx.params) if d["expr"] == "psi_pm")
+    f, k = fx.params[j]["f"], fx.params[j]["raw"] // 2 * 2
+    assert params_from_si(setup, fx, {"psi_pm": (k + 0.5) * 2.0**-f})[j] == k + 1
     with pytest.raises(ValueError, match=r"psi_pm.*regenerate"):
         params_from_si(setup, fx, {"psi_pm": 3 * si["psi_pm"]})
     with pytest.raises(ValueError, match="unknown parameter"):

@@ -101,3 +101,36 @@ def test_flux_adaptation_recovers_a_flux_error(correction):
     assert lam[-1] == pytest.approx(m.psi_pm, rel=0.01)
     err = np.degrees(np.angle(np.exp(1j * (seg[:, 4] - ys[:, 1]))))
     assert np.abs(err[-500:]).max() < 2.0
+
+
+def test_a_pll_speed_at_its_bound_is_clamped_not_rejected_and_the_observer_recovers():
+    """The PLL speed at its bound min(w_max, pi/(2T)) and the PLL angle 2 rad behind the rotor, so
+    that the samples push the speed beyond it: every sample is used (valid; a rejecting guard coasts
+    here), each period's speed is the PI's update clamped to the bound, typed here from the state and
+    the observer angle, and the estimates come back to the motor's within the family's documented 200
+    periods (0.1 rad, 2 % of the base speed; docs/families/pmsm_flux_observer.md)."""
+    from helpers.fuzz import pmsm_steady_segments
+
+    d = load_drive("outrunner270")
+    fam = family_of(d)
+    setup = fam.runtime(d, fam.gains(d))
+    obs, P, m = setup.observer, setup.params, d.motor
+    T, b = P["T_s"], min(P["w_max"], np.pi / (2 * P["T_s"]))
+    w, T_e = -0.8 * d.w_base, 0.5 * d.T_N
+    seg = pmsm_steady_segments((m.R_s, m.L_d, m.L_q, m.psi_pm, m.p), T, [(w, T_e, 0.3)], 400)[0]
+    x0 = np.asarray(obs.steady_state()(setup.p, [0.3 - w * T, w, 0.0, T_e / (1.5 * m.p * m.psi_pm)])).ravel()
+    j_th, j_w = obs.index("state", "theta_pll"), obs.index("state", "w_pll")
+    x0[j_w] = -b  # the direction of rotation; its predicted angle 2 rad behind the first sample's
+    x0[j_th] = (0.3 + 2.0 - T * x0[j_w] + np.pi) % (2 * np.pi) - np.pi
+    xs, ys = run_trajectory(setup, seg[:, :4], x0)
+    Y = {f.name: k for k, f in enumerate(obs.outputs)}
+    assert ys[:, Y["valid"]].all() and not ys[:, Y["reset"]].any()
+    prev = np.vstack([x0, xs[:-1]])
+    th_pred = prev[:, j_th] + T * prev[:, j_w]
+    e = (ys[:, Y["theta_hat"]] - th_pred + np.pi) % (2 * np.pi) - np.pi
+    w_pi = prev[:, j_w] + T * P["k_i"] * e
+    assert (np.abs(w_pi) > b).sum() >= 3  # the PI alone would leave the bound: the clamp acts
+    assert np.allclose(xs[:, j_w], np.clip(w_pi, -b, b), rtol=1e-12, atol=1e-9)
+    late = slice(200, None)
+    assert np.abs(np.angle(np.exp(1j * (ys[late, Y["theta_hat"]] - seg[late, 4])))).max() < 0.1
+    assert np.abs(ys[late, Y["w_hat"]] - w).max() < 0.02 * d.w_base
