@@ -16,9 +16,11 @@ observer's ln(z)/T_s, which the figures of merit then take (what runs is the sam
 
 A family that judges its gains by a criterion of its own keeps this frame and gives a :class:`Judge`
 (``report_with(judge)``, ``analyze_with(judge)``): its envelope's points, the gain sets it reviews, its
-sections and figures of the analysis, and its verdict's status and findings; the frame does the rest
-(gains under review, poles figure and tables, time-domain checks, verdict box, report.json).
-:data:`POLES` is the judge of the poles alone, the default.
+sections and figures of the analysis (before the time-domain checks and after them), its verdict's
+status and findings, and the form its verdict takes in report.json and the verdict box (the shared
+form, :func:`conclude`, or the family's own); the frame does the rest (gains under review, opening data,
+the time-domain checks of its scenarios, the verdict's status with those checks, the sections' order,
+report.json). :data:`POLES` is the judge of the poles alone, the default.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from typing import Any, Protocol
 import numpy as np
 from sensorless.design.envelope import Envelope
 from sensorless.design.family import Drive, GainSet
-from sensorless.design.gain_table import read_gain_table
+from sensorless.design.gain_table import GainTable, read_gain_table
 from sensorless.design.linearization import Linearization
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.design.registry import family_of
@@ -44,6 +46,7 @@ from sensorless.reports.document import (
     Report,
     Section,
     Table,
+    Verdict,
     drive_section,
     f,
     num,
@@ -71,10 +74,12 @@ def points(drive: Drive, refine: int = 1) -> tuple[np.ndarray, np.ndarray]:
 class Analysis:
     """What a judge found over the envelope, before the time-domain checks."""
 
-    analysis: dict[str, Any]  # report.json "analysis": per gain set label
+    analysis: dict[str, Any] | None  # report.json "analysis": per gain set label (None: no such key)
     sections: tuple[Section, ...]  # the report's sections between the drive data and the time-domain checks
     data: dict[str, Any] = field(default_factory=dict)  # more report.json keys
     context: Any = None  # what the judge's verdict needs of it
+    later: tuple[Section, ...] = ()  # the report's sections after the time-domain checks
+    steps: int = 1  # the progress steps the analysis took (the time-domain checks and verdict follow)
 
 
 @dataclass(frozen=True)
@@ -82,7 +87,7 @@ class Judgement:
     """A judge's verdict before the time-domain checks' own findings (reports/review.py ``settle``)."""
 
     status: str  # pass | warn | fail
-    findings: list[str]  # before the time-domain checks' findings
+    findings: list[Any]  # before the time-domain checks' findings (text; records in a family's own form)
     text: str  # the verdict's paragraph
     after: list[str] = field(default_factory=list)  # findings after the time-domain checks'
     data: dict[str, Any] = field(default_factory=dict)  # more report.json "verdict" keys
@@ -96,8 +101,9 @@ class Judge(Protocol):
         """Flat (speed [rad/s], torque [N m]) of the envelope, speeds refined ``refine`` times."""
         ...
 
-    def choices(self, drive: Drive) -> dict[str, GainSet] | None:
-        """The gain sets reviewed, the drive file's last; None: the drive file's alone."""
+    def review(self, drive: Drive, table: GainTable | None, table_file: str) -> Review:
+        """The gain sets reviewed and the one under review (reports/review.py ``gains_under_review``:
+        with a gain ``table``, the table's)."""
         ...
 
     def notes(self, drive: Drive) -> tuple[str, ...]:
@@ -125,6 +131,24 @@ class Judge(Protocol):
     ) -> Judgement:
         """The status and findings of the analysis, with the time-domain checks ``td`` of ``runs``."""
         ...
+
+    def conclude(
+        self, drive: Drive, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+    ) -> tuple[dict[str, Any], Verdict]:
+        """report.json "verdict" and the verdict box of the judgement ``v`` settled with the time-domain
+        checks (``status``, their findings ``td_findings``) and what the checks leave out (``limits``)."""
+        ...
+
+
+def conclude(
+    v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+) -> tuple[dict[str, Any], Verdict]:
+    """The shared form of a verdict: its findings as text (the judgement's, the time-domain checks', the
+    judgement's after them), its paragraph, the limitations as notes."""
+    findings = [*v.findings, *(x["text"] for x in td_findings), *v.after]
+    data = {"status": status, **v.data, "findings": findings, "limitations": limits}
+    box = verdict_box(status, Paragraph(v.text, status_class(status)), notes=limits, findings=findings)
+    return data, box
 
 
 def figures(lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
@@ -260,8 +284,8 @@ class PolesJudge:
     def points(self, drive: Drive, refine: int) -> tuple[np.ndarray, np.ndarray]:
         return points(drive, refine)
 
-    def choices(self, drive: Drive) -> dict[str, GainSet] | None:
-        return None
+    def review(self, drive: Drive, table: GainTable | None, table_file: str) -> Review:
+        return gains_under_review(family_of(drive), drive, table, table_file)
 
     def notes(self, drive: Drive) -> tuple[str, ...]:
         return ()
@@ -303,7 +327,7 @@ class PolesJudge:
         td: Sequence[dict[str, Any]],
         min_damping: float,
     ) -> Judgement:
-        a = found.analysis[rev.label]
+        a = (found.analysis or {})[rev.label]
         damped = a["worst_damping"] is not None and a["worst_damping"] >= min_damping
         status = "fail" if not a["stable"] else "pass" if damped else "warn"
         findings = [] if damped else [f"worst damping {num(a['worst_damping'])} < required {min_damping:g}"]
@@ -315,6 +339,11 @@ class PolesJudge:
         )
         return Judgement(status, findings, text, data={"damped": damped})
 
+    def conclude(
+        self, drive: Drive, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+    ) -> tuple[dict[str, Any], Verdict]:
+        return conclude(v, status, td_findings, limits)
+
 
 POLES = PolesJudge()
 
@@ -324,44 +353,45 @@ def report_with(judge: Judge) -> Callable[..., Report]:
 
     def report(
         drive: Drive,
-        table: Any | None = None,
+        table: GainTable | None = None,
         table_file: str = "",
         min_damping: float = MIN_DAMPING,
         resolution: str = "normal",
         progress: Callable[[str], None] = lambda s: None,
         scenarios: Sequence[str] = (),
     ) -> Report:
-        """The stability report (module docstring)."""
+        """The stability report (module docstring); ``scenarios``: the user's scenario files, checked
+        in the time domain besides the judge's built-in ones (reports/time_domain.py)."""
         fam = family_of(drive)
-        rev = gains_under_review(fam, drive, table, table_file, choices=judge.choices(drive))
+        rev = judge.review(drive, table, table_file)
         found = judge.analyse(drive, rev, min_damping, resolution, progress)
-        progress("[2/3] time-domain checks")
+        k = found.steps + 1
         runs = time_domain.scenarios(drive, judge.scenarios(drive), scenarios)
+        progress(f"[{k}/{k + 1}] time-domain checks ({len(runs)} scenarios)")
         td, td_figs = time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
-        progress("[3/3] verdict")
+        progress(f"[{k + 1}/{k + 1}] verdict")
         limits = time_domain.limitations(drive)
         v = judge.verdict(drive, rev, found, runs, td, min_damping)
         status, td_findings = settle(v.status, td)
-        findings = [*v.findings, *(x["text"] for x in td_findings), *v.after]
+        verdict, box = judge.conclude(drive, v, status, td_findings, limits)
+        analysis = {} if found.analysis is None else {"analysis": found.analysis}
         data = {
             **opening(fam, drive, table, min_damping, rev.label),
             **found.data,
-            "analysis": found.analysis,
+            **analysis,
             "time_domain": td,
             **v.more,
             # limitations: what the generic checks leave out (e.g. an ODrive drive's zero speed)
-            "verdict": {"status": status, **v.data, "findings": findings, "limitations": limits},
+            "verdict": verdict,
         }
         n = len(found.sections) + 2
         sections = (
             drive_section(1, data["drive"], fam.bases(drive)),
             *found.sections,
             time_domain.section(n, td, td_figs, limits),
+            *found.later,
         )
-        verdict = verdict_box(
-            status, Paragraph(v.text, status_class(status)), notes=limits, findings=findings
-        )
-        return Report(drive.name, rev.label, data, verdict, sections)
+        return Report(drive.name, rev.label, data, box, sections)
 
     return report
 

@@ -17,10 +17,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sensorless.design.family import GainSet
+from sensorless.design.gain_table import GainTable
 from sensorless.design.pmsm_flux_observer import FAMILY
-from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num, svg_uri
-from sensorless.reports.envelope_review import Analysis, Judgement, poles_section_figure
+from sensorless.reports.document import Figure, Paragraph, Section, Table, Verdict, f, num, svg_uri
+from sensorless.reports.envelope_review import Analysis, Judgement, conclude, poles_section_figure
 from sensorless.reports.pmsm_flux_observer.figures import bias_caption, bias_figure, front_figure
 from sensorless.reports.pmsm_flux_observer.findings import (
     damping_finding,
@@ -28,7 +28,7 @@ from sensorless.reports.pmsm_flux_observer.findings import (
     pll_finding,
 )
 from sensorless.reports.pmsm_flux_observer.startup import reversal_finding, startup_findings
-from sensorless.reports.review import Review
+from sensorless.reports.review import Review, gains_under_review
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
     assess_any,
@@ -61,9 +61,10 @@ class FluxJudge:
     def points(self, drive: Any, refine: int) -> tuple[np.ndarray, np.ndarray]:
         return drive.envelope.grid(refine)
 
-    def choices(self, drive: Any) -> dict[str, GainSet] | None:
+    def review(self, drive: Any, table: GainTable | None, table_file: str) -> Review:
         mine = FAMILY.gains(drive)
-        return {DEFAULTS[0]: odrive_gains(), DEFAULTS[1]: vesc_gains(drive), "drive file": mine}
+        choices = {DEFAULTS[0]: odrive_gains(), DEFAULTS[1]: vesc_gains(drive), "drive file": mine}
+        return gains_under_review(FAMILY, drive, table, table_file, choices=choices)
 
     def notes(self, drive: Any) -> tuple[str, ...]:
         o = drive.observer
@@ -168,7 +169,7 @@ class FluxJudge:
         # the closed-loop error (None: a run the observer never had: not tested sensorless, said by its check)
         untested = [item["name"] for item in td if item.get("untested")]
         tracks = all((item["metrics"]["rms_theta_err_deg"] or 0.0) < MAX_RMS_THETA_DEG for item in td)
-        mine = found.analysis.get(rev.label, {})
+        mine = (found.analysis or {}).get(rev.label, {})
         damped = not linearizable or (
             mine.get("worst_damping") is not None and mine["worst_damping"] >= min_damping
         )
@@ -225,6 +226,11 @@ class FluxJudge:
             data={"damped": damped, "tracks": tracks},
             more={"startup": start_data},
         )
+
+    def conclude(
+        self, drive: Any, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+    ) -> tuple[dict[str, Any], Verdict]:
+        return conclude(v, status, td_findings, limits)
 
 
 JUDGE = FluxJudge()
