@@ -25,6 +25,7 @@ from sensorless.design.discrete import discrete_poles, fixed_points, pmsm_zoh_pl
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.montecarlo import Uncertain
 from sensorless.design.montecarlo import perturbed as shared_perturbed
+from sensorless.design.pmsm_drive import startup_values
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.pmsm_flux_observer.linearize import (
     DAMPED_STEPS,
@@ -55,6 +56,25 @@ def parameters(drive: Any) -> tuple[Uncertain, ...]:
 perturbed = (
     shared_perturbed  # design/montecarlo.py: the same for every family with motor and estimate records
 )
+
+
+def envelope_points(drive: Any, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Its drive file's [envelope] (speeds in both directions x torques); with ``gains``, the points
+    where they run the drive sensorless: from the open-loop I-f start's hand-back speed w_off up (its
+    [startup], else its rules at the gains: design/pmsm_drive.py ``startup_values``), since below it the
+    drive runs open loop (no equilibrium there under an estimate error is no failure)."""
+    W, T = drive.envelope.grid()
+    if gains is None:
+        return W, T
+    try:
+        values, _, _ = startup_values(drive, gains)
+    except CapabilityError:
+        return W, T
+    w_off = (values or {}).get("if_w_off")
+    if not w_off:
+        return W, T
+    keep = np.abs(W) >= float(w_off) * (1 - 1e-12)
+    return (W[keep], T[keep]) if keep.any() else (W, T)
 
 
 def linearize_draws(
