@@ -29,7 +29,7 @@ import argparse
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 from sensorless.design.envelope import Envelope
@@ -56,6 +56,7 @@ from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
 from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
 
+J = TypeVar("J", bound=Drive, contravariant=True)  # the drive a judge takes: its family's
 ANALYZE_REFINE = 4  # analyze and the normal report refine the envelope's speeds this many times
 
 
@@ -94,35 +95,35 @@ class Judgement:
     more: dict[str, Any] = field(default_factory=dict)  # more report.json keys
 
 
-class Judge(Protocol):
+class Judge(Protocol[J]):
     """How a family judges its gains over its envelope on the shared frame (module docstring)."""
 
-    def points(self, drive: Drive, refine: int) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, drive: J, refine: int) -> tuple[np.ndarray, np.ndarray]:
         """Flat (speed [rad/s], torque [N m]) of the envelope, speeds refined ``refine`` times."""
         ...
 
-    def review(self, drive: Drive, table: GainTable | None, table_file: str) -> Review:
+    def review(self, drive: J, table: GainTable | None, table_file: str) -> Review:
         """The gain sets reviewed and the one under review (reports/review.py ``gains_under_review``:
         with a gain ``table``, the table's)."""
         ...
 
-    def notes(self, drive: Drive) -> tuple[str, ...]:
+    def notes(self, drive: J) -> tuple[str, ...]:
         """Lines ``analyze`` prints of the drive's own settings under the gains (e.g. its variant)."""
         ...
 
-    def scenarios(self, drive: Drive) -> Sequence[str]:
+    def scenarios(self, drive: J) -> Sequence[str]:
         """The built-in scenarios the report checks in the time domain."""
         ...
 
     def analyse(
-        self, drive: Drive, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
+        self, drive: J, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
     ) -> Analysis:
         """The gain sets judged over the envelope: report.json data and sections."""
         ...
 
     def verdict(
         self,
-        drive: Drive,
+        drive: J,
         rev: Review,
         found: Analysis,
         runs: Sequence[Any],
@@ -133,7 +134,7 @@ class Judge(Protocol):
         ...
 
     def conclude(
-        self, drive: Drive, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, drive: J, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         """report.json "verdict" and the verdict box of the judgement ``v`` settled with the time-domain
         checks (``status``, their findings ``td_findings``) and what the checks leave out (``limits``)."""
@@ -204,7 +205,7 @@ CAPTION = (
 )
 
 
-def analyze_with(judge: Judge) -> Callable[[Drive, argparse.Namespace, OutputSet], None]:
+def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, OutputSet], None]:
     """The ``analyze`` hook of a family judged by ``judge`` (its envelope's points)."""
 
     def analyze(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
@@ -348,7 +349,7 @@ class PolesJudge:
 POLES = PolesJudge()
 
 
-def report_with(judge: Judge) -> Callable[..., Report]:
+def report_with(judge: Judge[Any]) -> Callable[..., Report]:
     """The ``report`` hook of a family judged by ``judge``: the stability report on the shared frame."""
 
     def report(

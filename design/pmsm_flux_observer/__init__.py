@@ -24,6 +24,7 @@ from sensorless.design.family import (
 from sensorless.design.law_gains import table_gains
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_flux_observer import gains as _gains
+from sensorless.design.pmsm_flux_observer import laws as _laws
 from sensorless.design.pmsm_flux_observer import linearize as _linearize
 from sensorless.design.pmsm_flux_observer import montecarlo as _montecarlo
 from sensorless.design.pmsm_flux_observer import schema
@@ -106,8 +107,8 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
     scenarios = "sensorless.design.pmsm_flux_observer.scenarios"
     tuning = "sensorless.tuning.pmsm_flux_observer"
     report = "sensorless.reports.pmsm_flux_observer"
-    laws = _gains.TABLE_LAWS
-    law_aliases = _gains.LAW_ALIASES
+    laws = _laws.TABLE_LAWS
+    law_aliases = _laws.LAW_ALIASES
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
     # its damping k/(2|w|) falls with speed by design (its error does not oscillate in the stationary
@@ -188,7 +189,7 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
         m = drive.motor
         return DriveScales(drive.T_N, c.T_max, m.J, m.p, drive.w_base, c.alpha_s, why, spin)
 
-    def drive_loop(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+    def drive_loop(self, drive: schema.FluxObserverDrive, scenario: Any, gains: GainSet | None) -> Any:
         """The loop as run, except the clamped gradient observer (VESC's ORTEGA_ORIGINAL): analysed on its
         active side, the gradient observer, as its observer-only linearization is (linearize.py). At
         exact estimates its fixed point lies on the clamp's kink (|eta| = lambda), where the one-sided

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -49,6 +49,9 @@ from sensorless.design.rotor_frame import (
 from sensorless.symbolic.frames import J, rot, wrap_angle
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS, rhs_function, runtime_observer
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 # the sampled observer's damped Newton (discrete_analysis): each halved step costs an iteration; 40
 # left NaN at three estimate-error corners of outrunner270 (0.24-1 p.u., the continuous equilibrium
@@ -89,7 +92,7 @@ class FluxLinearization(Linearization):
         return self.theta_err_discrete
 
 
-def motor_vector(drive: Any) -> np.ndarray:
+def motor_vector(drive: FluxObserverDrive) -> np.ndarray:
     """[R_s, L_d, L_q, psi_pm, p] of the true motor: the loop's ``plant`` (design/rotor_frame.py)."""
     return pmsm_plant(drive.motor)
 
@@ -160,7 +163,7 @@ def sampled_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> Sampled
 
 
 def discrete_analysis(
-    drive: Any,
+    drive: FluxObserverDrive,
     loop: SampledLoop,
     y0: np.ndarray,
     W: np.ndarray,
@@ -214,7 +217,7 @@ def _sampled_observer_decay(Jd: np.ndarray, poles: np.ndarray, T: float) -> np.n
     return out
 
 
-def current_noise(drive: Any) -> float:
+def current_noise(drive: FluxObserverDrive) -> float:
     """The current-sensor noise [A rms per axis and sample]: ``[control] i_noise``, or I_NOISE_DEFAULT
     of the current amplitude at rated torque (the other families' default)."""
     if drive.i_noise > 0:
@@ -234,7 +237,9 @@ def _inductance_at(rule: str, i_r: Any, p: Any) -> Any:
     return L_d + (L_q - L_d) * i_r[1] ** 2 / (ca.sumsqr(i_r) + 1e-9)
 
 
-def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = None) -> FluxLinearization:
+def linearize(
+    drive: FluxObserverDrive, gains: GainSet, w: Any, torque: Any, estimate: Any = None
+) -> FluxLinearization:
     """Continuous and discrete poles at speeds ``w`` [rad/s] x torques [N m] (broadcast together).
 
     ``estimate``: an optional dict of runtime parameter overrides (R_s, L_d, L_q, psi_pm) to study

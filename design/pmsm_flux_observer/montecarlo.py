@@ -17,7 +17,7 @@ design) at every point of the envelope (design/montecarlo.py ``chunk_damping`` j
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
@@ -39,6 +39,9 @@ from sensorless.design.rotor_frame import equilibrium_points
 from sensorless.symbolic.pmsm import PmsmParams, mtpa_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+
 ELECTRICAL = ("R_s", "L_d", "L_q", "psi_pm")
 # the plant's typical spread (1 sigma) a run assumes without --spread: the winding's resistance with its
 # temperature, inductance tolerance, the magnets' flux; the load's inertia
@@ -46,7 +49,7 @@ TYPICAL = {"R_s": 0.10, "L_d": 0.10, "L_q": 0.10, "psi_pm": 0.05, "J": 0.30}
 UNITS = {"R_s": "ohm", "L_d": "H", "L_q": "H", "psi_pm": "V s"}
 
 
-def parameters(drive: Any) -> tuple[Uncertain, ...]:
+def parameters(drive: FluxObserverDrive) -> tuple[Uncertain, ...]:
     m, e = drive.motor, drive.estimate
     out = [Uncertain(k, getattr(m, k), getattr(e, k), UNITS[k], True, TYPICAL[k]) for k in ELECTRICAL]
     out.append(Uncertain("J", m.J, None, "kg m^2", False, TYPICAL["J"]))
@@ -58,7 +61,7 @@ perturbed = (
 )
 
 
-def envelope_points(drive: Any, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+def envelope_points(drive: FluxObserverDrive, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Its drive file's [envelope] (speeds in both directions x torques); with ``gains``, the points
     where they run the drive sensorless: from the open-loop I-f start's hand-back speed w_off up (its
     [startup], else its rules at the gains: design/pmsm_drive.py ``startup_values``), since below it the
@@ -78,7 +81,7 @@ def envelope_points(drive: Any, gains: GainSet | None = None) -> tuple[np.ndarra
 
 
 def linearize_draws(
-    drive: Any,
+    drive: FluxObserverDrive,
     gains: GainSet,
     plant: np.ndarray,
     estimate: np.ndarray,

@@ -3,12 +3,15 @@ steady angle bias over speed under each estimate error."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer import FAMILY, corner_estimate
 from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, corners
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 
 def front_figure(pf: dict[str, Any], mine: dict[str, Any]) -> Any:
@@ -42,7 +45,7 @@ def bias_caption(settings: FluxTuneSettings) -> str:
     )
 
 
-def bias_figure(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Any:
+def bias_figure(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings) -> Any:
     import matplotlib
 
     matplotlib.use("Agg")

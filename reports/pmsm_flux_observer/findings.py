@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -24,6 +24,9 @@ from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF, base_gain, pl
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 from sensorless.reports.causes import Failure, Named
 from sensorless.tuning.pmsm_flux_observer import Assessment, FluxTuneSettings, assess, low_limit
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 
 def pll_roots(gains: GainSet) -> tuple[complex, complex]:
@@ -91,7 +94,7 @@ def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str
     )
 
 
-def failure_cause(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
+def failure_cause(drive: FluxObserverDrive, gains: GainSet, failure: Failure) -> Named | None:
     """The cause of a failed time-domain check in the flux observer's own analysis (reports/causes.py):
     a final speed-estimation error where the PLL's slower root is slower than the speed loop needs
     (:func:`pll_finding`) is the PLL's lag ("pll_root"); a run's end that the I-f start's time made miss
@@ -105,7 +108,7 @@ def failure_cause(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
     return Named("pll_root", why) if why else None
 
 
-def start_too_slow(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
+def start_too_slow(drive: FluxObserverDrive, gains: GainSet, failure: Failure) -> Named | None:
     """A run's end the I-f start's time made miss (reports/causes.py ``ramp_slower_than_reference``) with
     the change that fits it: the ``[startup] acceleration`` and the firmware's fields at it
     (design/startup_check.py ``faster_start``), or, where no acceleration the current carries fits, one
@@ -160,7 +163,7 @@ def start_too_slow(drive: Any, gains: GainSet, failure: Failure) -> Named | None
     )
 
 
-def holds_nowhere_finding(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> str:
+def holds_nowhere_finding(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings) -> str:
     """Why the gains hold at no envelope speed under the estimate errors: which error alone already
     loses the motor, the gain's ratio to the speed at the top, and what to do."""
     errors = settings.errors
@@ -194,7 +197,7 @@ def holds_nowhere_finding(drive: Any, gains: GainSet, settings: FluxTuneSettings
     )
 
 
-def damping_finding(drive: Any, a: Assessment, c: int, min_damping: float, law: str) -> str:
+def damping_finding(drive: FluxObserverDrive, a: Assessment, c: int, min_damping: float, law: str) -> str:
     """Where candidate ``c``'s worst damping over the speeds it holds is, and why it is low there."""
     W, T = drive.envelope.grid()
     speeds = np.unique(np.abs(W))

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.drive_file import name_problem
 from sensorless.design.family import CapabilityError, Drive, GainSet
@@ -29,6 +29,9 @@ from sensorless.design.pmsm_flux_observer.firmware import (
 from sensorless.design.pmsm_flux_observer.firmware.startup import change_lines
 from sensorless.reports.family import Exporter, Importer, Option
 from sensorless.reports.options import Number, UsageError, drive_name
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 POLE_PAIRS = Option(
     ("--pole-pairs",),
@@ -127,7 +130,7 @@ def exporters(record: Callable[[Drive, GainSet], FirmwareDrive]) -> dict[str, Ex
     }
 
 
-def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
+def firmware_record(drive: FluxObserverDrive, gains: GainSet) -> FirmwareDrive:
     """What an export writes: the drive's estimates (what the firmware is given), loop and gains, and its
     I-f start judged at the gains (design/startup_check.py): the drive file's values kept where they
     hold, each one that does not replaced by the value that fixes it, with one line saying why."""

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.gain_table import GainTable
@@ -40,6 +40,9 @@ from sensorless.tuning.pmsm_flux_observer import (
     vesc_gains,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+
 TIME_DOMAIN = ("torque_steps",)
 MAX_RMS_THETA_DEG = 10.0
 DEFAULTS = ("ODrive defaults", "VESC detection")
@@ -58,24 +61,29 @@ class Found:
 class FluxJudge:
     """The family's :class:`~sensorless.reports.envelope_review.Judge` (module docstring)."""
 
-    def points(self, drive: Any, refine: int) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, drive: FluxObserverDrive, refine: int) -> tuple[np.ndarray, np.ndarray]:
         return drive.envelope.grid(refine)
 
-    def review(self, drive: Any, table: GainTable | None, table_file: str) -> Review:
+    def review(self, drive: FluxObserverDrive, table: GainTable | None, table_file: str) -> Review:
         mine = FAMILY.gains(drive)
         choices = {DEFAULTS[0]: odrive_gains(), DEFAULTS[1]: vesc_gains(drive), "drive file": mine}
         return gains_under_review(FAMILY, drive, table, table_file, choices=choices)
 
-    def notes(self, drive: Any) -> tuple[str, ...]:
+    def notes(self, drive: FluxObserverDrive) -> tuple[str, ...]:
         o = drive.observer
         T_us = o.T_obs * 1e6
         return (f"{o.firmware}: {o.correction}, {o.inductance_rule} inductance; T_obs = {T_us:g} us",)
 
-    def scenarios(self, drive: Any) -> Sequence[str]:
+    def scenarios(self, drive: FluxObserverDrive) -> Sequence[str]:
         return TIME_DOMAIN
 
     def analyse(
-        self, drive: Any, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
+        self,
+        drive: FluxObserverDrive,
+        rev: Review,
+        min_damping: float,
+        resolution: str,
+        progress: Callable[[str], None],
     ) -> Analysis:
         settings = FluxTuneSettings()
         data = {"observer_period_s": f(drive.observer.T_obs)}
@@ -157,7 +165,7 @@ class FluxJudge:
 
     def verdict(
         self,
-        drive: Any,
+        drive: FluxObserverDrive,
         rev: Review,
         found: Analysis,
         runs: Sequence[Any],
@@ -228,7 +236,12 @@ class FluxJudge:
         )
 
     def conclude(
-        self, drive: Any, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self,
+        drive: FluxObserverDrive,
+        v: Judgement,
+        status: str,
+        td_findings: list[dict[str, Any]],
+        limits: list[str],
     ) -> tuple[dict[str, Any], Verdict]:
         return conclude(v, status, td_findings, limits)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -26,6 +26,9 @@ from sensorless.design.rotor_frame import equilibrium_points
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 from sensorless.tuning.pmsm_flux_observer.settings import CHUNK, NOISE_INDEX, FluxTuneSettings, corners
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+
 
 @dataclass
 class Assessment:
@@ -40,7 +43,7 @@ class Assessment:
     pll: np.ndarray | None = None  # (C,) the PLL's slower root [1/s] (its speed estimate's lag)
 
 
-def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
+def assess(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
     """The sampled observer with each candidate's gains on the envelope x the error corners."""
     W, T = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
@@ -130,7 +133,7 @@ def low_limit(holds: np.ndarray, speeds: np.ndarray) -> np.ndarray:
     return out
 
 
-def figures(drive: Any, a: Assessment, c: int, w_from: float | None = None) -> dict[str, float]:
+def figures(drive: FluxObserverDrive, a: Assessment, c: int, w_from: float | None = None) -> dict[str, float]:
     """Worst damping and bias over the speeds from ``w_from`` (None: its own low-speed limit) up, and
     the low-speed limit."""
     W, _ = drive.envelope.grid()
@@ -150,7 +153,7 @@ def figures(drive: Any, a: Assessment, c: int, w_from: float | None = None) -> d
 
 
 def front(
-    drive: Any, a: Assessment, cands: list[GainSet], w_hold: float, n: int, limit_deg: float
+    drive: FluxObserverDrive, a: Assessment, cands: list[GainSet], w_hold: float, n: int, limit_deg: float
 ) -> dict[str, Any]:
     """The damping-versus-bias front of the candidates (``tune --pareto N``): of those that hold down
     to the hold speed, the ones no other beats in both worst damping and worst angle bias over the
@@ -192,7 +195,7 @@ def front(
     }
 
 
-def hold_speed(drive: Any, settings: FluxTuneSettings, base: dict[str, Any]) -> float:
+def hold_speed(drive: FluxObserverDrive, settings: FluxTuneSettings, base: dict[str, Any]) -> float:
     """The hold speed of the criterion (package docstring) [rad/s]."""
     if settings.hold_speed is not None:
         return settings.hold_speed
@@ -201,7 +204,7 @@ def hold_speed(drive: Any, settings: FluxTuneSettings, base: dict[str, Any]) -> 
     return min(finite) if finite else float(drive.envelope.speed_max)
 
 
-def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Assessment:
+def assess_linearized(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings) -> Assessment:
     """:func:`assess` of one gain set of any law through the family's linearization (a scheduled
     gain with its derivative in the PLL speed), one call per estimate corner."""
     from sensorless.design.registry import family_of
@@ -237,7 +240,7 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
     )
 
 
-def assess_any(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
+def assess_any(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
     """:func:`assess` of gain sets of any law: the scheduled ones (schedule) through
     :func:`assess_linearized` (no noise figure), the others in one batch; in the order given."""
     sched = [j for j, g in enumerate(cands) if g.law == "schedule"]
