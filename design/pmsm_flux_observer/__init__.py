@@ -34,7 +34,6 @@ if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
     from sensorless.design.capabilities import MonteCarloModule
     from sensorless.design.drive_file import DriveDocument
-    from sensorless.design.linearization import Linearization
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -146,7 +145,7 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
 
     def linearize(
         self, drive: schema.FluxObserverDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
-    ) -> Linearization:
+    ) -> _linearize.FluxLinearization:
         unknown = set(options) - {"estimate"}
         if unknown:
             raise CapabilityError(

@@ -134,7 +134,7 @@ def runtime_setup(
         raise ValueError(f"unknown discretization {disc!r} (known: {', '.join(obs.discretizations)})")
     params = runtime_params(drive, gains)
     obs.check_params(params)
-    notes = ()
+    notes: tuple[str, ...] = ()
     if o.correction == "box-clamp":
         notes = ("box-clamp: the observer gain is unused (pure integration, each axis clamped to +-lambda)",)
     return RuntimeSetup(obs, disc, params, gains, schedule_of(gains, drive.estimate.psi_pm), notes)

@@ -62,7 +62,7 @@ def parse_law(law: str, t: Mapping[str, Any], file: str, section: str) -> dict[s
             raise DriveFileError(
                 file, f"{section}.{k}", f"unknown key (law {law}: {', '.join(TABLE_LAWS[law])})"
             )
-    out = {
+    out: dict[str, Any] = {
         k: _number(t, k, dim, file, section, k == "foc_observer_gain_slow")
         for k, dim in LAW_KEYS[law].items()
     }

@@ -82,7 +82,8 @@ class FluxLinearization(Linearization):
         return self.decay_rate if self.observer_decay is None else self.observer_decay
 
     def point_columns(self) -> dict[str, np.ndarray]:
-        return {"theta_err_deg": np.degrees(self.theta_err_discrete)}
+        err = self.theta_err_discrete
+        return {} if err is None else {"theta_err_deg": np.degrees(err)}
 
     def notes(self) -> tuple[str, ...]:
         return (f"gain law: {self.law}",)
@@ -113,9 +114,11 @@ def rotor_frame_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> Rot
     lam = x_r[2] if adapt else p[_IX["psi_pm"]]
     delta, w_p = x_r[n - 2], x_r[n - 1]
     dx = rhs_function(kind, rule)(ca.vertcat(x_r[0:2], lam, -delta, w_p), i_r, u_r, p, law(w_p, gain))
-    G = ca.vertcat(*([dx[0:2] - w * (J @ x_r[0:2])] + ([dx[2]] if adapt else []) + [w - dx[3], dx[4]]))
+    parts: list[Any] = [dx[0:2] - w * (J @ x_r[0:2])] + ([dx[2]] if adapt else []) + [w - dx[3], dx[4]]
+    G = ca.vertcat(*parts)
     psi_r = flux_from_current(i_r, PmsmParams(m[0], m[1], m[2], m[3]))
-    x0 = ca.vertcat(*([psi_r] + ([p[_IX["psi_pm"]]] if adapt else []) + [0, w]))
+    start: list[Any] = [psi_r] + ([p[_IX["psi_pm"]]] if adapt else []) + [0, w]
+    x0 = ca.vertcat(*start)
     eta = x_r[0:2] - _inductance_at(rule, i_r, p) * i_r
     args, names = [x_r, w, T_e, m, pg], ["x_r", "w", "torque", "plant", "p"]
     return RotorFrameLoop(
@@ -153,9 +156,9 @@ def sampled_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> Sampled
         return ca.vertcat(rot(theta) @ y[0:2], lam, u_prev, theta - y[n - 2], y[n - 1])
 
     def rotor(x: Any, theta: Any) -> Any:
-        return ca.vertcat(
-            *([rot(theta).T @ x[0:2]] + ([x[2]] if adapt else []) + [wrap_angle(theta - x[5]), x[6]])
-        )
+        turn: Any = rot(theta)  # of an SX angle: an SX matrix
+        back = turn.T
+        return ca.vertcat(*([back @ x[0:2]] + ([x[2]] if adapt else []) + [wrap_angle(theta - x[5]), x[6]]))
 
     names = ("x_d", "x_q", *(("lambda_hat",) if adapt else ()), "delta", "w_pll")
     obs = runtime_observer(kind, rule)
@@ -258,6 +261,7 @@ def linearize(
     if estimate:
         params.update(estimate)
     p = setup.observer.pack_params(params)
+    assert setup.schedule is not None  # the family's runtime set-up always has its schedule (gains.py)
     law = setup.schedule.law
     rule, adapt = o.inductance_rule, o.lambda_adaptation
     eq = equilibrium_points(
@@ -279,7 +283,7 @@ def linearize(
         poles_discrete=poles_d,
         T_s=o.T_obs,
         torque_name="T_e",
-        theta_err=eq.y[:, 0],
+        theta_err=None if eq.y is None else eq.y[:, 0],
         theta_err_discrete=err_d,
         law=gains.law,
         observer_decay=own,

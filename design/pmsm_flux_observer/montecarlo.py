@@ -17,7 +17,7 @@ design) at every point of the envelope (design/montecarlo.py ``chunk_damping`` j
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -100,6 +100,7 @@ def linearize_draws(
     n_d, n_p = plant.shape[0], w.size
     k = len(ELECTRICAL)
     setup = runtime_setup(drive, gains)
+    assert setup.schedule is not None  # the family's runtime set-up always has its schedule (gains.py)
     names = [f.name for f in PARAMS]
     base = dict(setup.params)
     P = np.empty((len(names), n_d))
@@ -141,7 +142,7 @@ def linearize_draws(
         poles_discrete=poles_d,
         T_s=o.T_obs,
         torque_name="T_e",
-        theta_err=np.where(ok, eq.y[:, 0], np.nan),
+        theta_err=None if eq.y is None else np.where(ok, eq.y[:, 0], np.nan),
         theta_err_discrete=np.full(W.size, np.nan),
         law=gains.law,
     )
@@ -151,4 +152,5 @@ def linearize_draws(
 def _mtpa_map(n: int) -> ca.Function:
     """The MTPA current (symbolic/pmsm.py) mapped over n points, one motor [R_s, L_d, L_q, psi_pm] each."""
     T, m, pp = ca.SX.sym("T"), ca.SX.sym("m", 4), ca.SX.sym("p")
-    return ca.Function("mtpa", [T, m, pp], [mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), pp)]).map(n)
+    i_mtpa: Any = mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), pp)  # SX of SX symbols
+    return ca.Function("mtpa", [T, m, pp], [i_mtpa]).map(n)

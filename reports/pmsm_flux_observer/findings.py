@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -56,7 +57,7 @@ def pll_fixed(gains: GainSet, alpha_s: float) -> GainSet | None:
     return dataclasses.replace(gains, values={**gains.values, **new}, source=f"{gains.source}, the PLL's fix")
 
 
-def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str:
+def pll_finding(gains: GainSet, alpha_s: float, td: Sequence[dict[str, Any]]) -> str:
     """Empty where the PLL's speed estimate settles at PLL_SPEED_LOOP x the speed loop's bandwidth
     ``alpha_s`` [rad/s] or faster; else why, and what to do."""
     min_decay = PLL_SPEED_LOOP * alpha_s
@@ -141,7 +142,8 @@ def start_too_slow(drive: FluxObserverDrive, gains: GainSet, failure: Failure) -
             "estimate errors (their finding above), so the verdict fails whatever the start; the gains "
             f"must change: sensorless tune --law {gains.law}",
         )
-    a = faster_start(drive, judged, failure.open_s, failure.avail_s, failure.need_s)
+    assert failure.open_s is not None and failure.avail_s is not None and failure.need_s is not None
+    a = faster_start(drive, judged, failure.open_s, failure.avail_s, failure.need_s)  # open_loop_took_it
     if math.isnan(a):
         top = largest_acceleration(drive, judged.values["if_i"])
         return Named(

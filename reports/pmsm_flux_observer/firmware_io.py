@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sensorless.design.drive_file import name_problem
-from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.family import CapabilityError, DriveT, GainSet
 from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.pmsm_flux_observer.firmware import (
@@ -108,11 +108,11 @@ def importers(kind: str) -> dict[str, Importer]:
     }
 
 
-def exporters(record: Callable[[Drive, GainSet], FirmwareDrive]) -> dict[str, Exporter]:
+def exporters(record: Callable[[DriveT, GainSet], FirmwareDrive]) -> dict[str, Exporter[DriveT]]:
     """The exporters; ``record`` makes the typed record of a drive and its gains (the family's)."""
 
     def writer(export: Callable[[FirmwareDrive], tuple[dict[str, str], list[str]]]) -> Callable[..., Any]:
-        def run(drive: Drive, gains: GainSet) -> tuple[dict[str, str], list[str]]:
+        def run(drive: DriveT, gains: GainSet) -> tuple[dict[str, str], list[str]]:
             d = record(drive, gains)
             files, notes = export(d)
             return files, [*d.notes, *notes]

@@ -128,7 +128,13 @@ class FluxJudge:
             )
             for k, x in analysis.items()
         )
-        head = ("gains", "law", "worst damping", "worst angle bias (deg)", "holds down to (p.u.)")
+        head: tuple[str, ...] = (
+            "gains",
+            "law",
+            "worst damping",
+            "worst angle bias (deg)",
+            "holds down to (p.u.)",
+        )
         head += ("observer decay (1/s)", "PLL slow root (1/s)")
         caption = "each gain set under every estimate error (sampled observer)"
         cmp_table = Table(head, rows, caption, frozenset({2, 3, 4, 5, 6}))

@@ -33,7 +33,7 @@ def startup_findings(drive: FluxObserverDrive, gains: GainSet) -> tuple[list[str
     lead: list[str] = []
     fixed = None if judged.fixable else pll_fixed(gains, drive.control.alpha_s)
     again = None if fixed is None else judge_startup(drive, fixed)
-    if again is not None and again.fixable:  # the PLL holds w_min at rated speed: the start at its fix
+    if fixed is not None and again is not None and again.fixable:  # the PLL holds w_min at rated speed
         lead = [x for x in change_lines(fw, judged, drive.w_base) if "no start-up value fixes it" in x]
         named = ", ".join(
             f"{k} = {stored(float(v))}" for k, v in fixed.values.items() if v != gains.values[k]

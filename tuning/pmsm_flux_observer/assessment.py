@@ -74,7 +74,8 @@ def assess(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTuneSet
     loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
     m = motor_vector(drive)
     s = np.full((n, loop.n_y), np.nan + 0j)
-    zmax, err, noise = np.full(n, np.nan), np.full(n, np.nan), np.full((n, 2), np.nan)
+    zmax, err = np.full(n, np.nan), np.full(n, np.nan)
+    noise: np.ndarray = np.full((n, 2), np.nan)
     own = np.full(n, np.nan)
     sigma = current_noise(drive)
     for j in range(0, n, CHUNK):
@@ -169,9 +170,9 @@ def front(
         pts.append((fg["worst_bias_deg"], -fg["worst_damping"], decay, fg["worst_noise_deg"], int(c)))
     pts.sort()
     kept, best_z = [], -np.inf
-    for b, mz, decay, nz, c in pts:  # by increasing bias: kept where better damped than all before
+    for b, mz, decay, nz, j in pts:  # by increasing bias: kept where better damped than all before
         if -mz > best_z:
-            kept.append((b, -mz, decay, nz, c))
+            kept.append((b, -mz, decay, nz, j))
             best_z = -mz
     if len(kept) > n:
         kept = [kept[round(i)] for i in np.linspace(0, len(kept) - 1, n)]
@@ -207,9 +208,8 @@ def hold_speed(drive: FluxObserverDrive, settings: FluxTuneSettings, base: dict[
 def assess_linearized(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings) -> Assessment:
     """:func:`assess` of one gain set of any law through the family's linearization (a scheduled
     gain with its derivative in the PLL speed), one call per estimate corner."""
-    from sensorless.design.registry import family_of
+    from sensorless.design.pmsm_flux_observer import FAMILY as fam
 
-    fam = family_of(drive)
     W, T = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     e = drive.estimate
@@ -217,18 +217,21 @@ def assess_linearized(drive: FluxObserverDrive, gains: GainSet, settings: FluxTu
     for c in corners(settings.errors):
         est = corner_estimate(e, c)
         lin = fam.linearize(drive, gains, W, T, estimate=est)
+        pd, err = lin.poles_discrete, lin.theta_err_discrete
+        assert pd is not None and err is not None  # the family's linearization is of the sampled observer
         if poles is None:
-            poles = lin.poles_discrete
+            poles = pd
             # the scheduled gain couples the observer to the PLL's speed: the slowest of all modes
             decay = np.where(np.isfinite(lin.decay_rate_discrete), lin.decay_rate_discrete, np.nan)
-        ok = np.isfinite(lin.poles_discrete).all(axis=1)
+        ok = np.isfinite(pd).all(axis=1)
         zs.append(np.where(ok, lin.worst_damping_discrete, -1.0))
-        bs.append(np.where(ok, np.abs(lin.theta_err_discrete), np.inf))
+        bs.append(np.where(ok, np.abs(err), np.inf))
         st.append(ok & (lin.decay_rate_discrete > 0))
     zeta, bias, stable = np.array(zs), np.array(bs), np.array(st)
-    good = (stable & (bias <= math.radians(settings.bias_max_deg))).all(axis=0)
+    good = np.asarray((stable & (bias <= math.radians(settings.bias_max_deg))).all(axis=0))
     holds = np.array([[good[np.abs(W) == sp].all() for sp in speeds]])
     worst = np.where(stable.all(axis=0), zeta.min(axis=0), -1.0)
+    assert poles is not None and decay is not None  # from the first corner (the nominal estimates)
     return Assessment(
         worst[None],
         bias.max(axis=0)[None],
@@ -258,8 +261,8 @@ def assess_any(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTun
                 a.holds[i : i + 1],
                 a.poles[i : i + 1],
                 noise,
-                a.decay[i : i + 1],
-                a.pll[i : i + 1],
+                None if a.decay is None else a.decay[i : i + 1],
+                None if a.pll is None else a.pll[i : i + 1],
             )
     rows = [parts[j] for j in range(len(cands))]
     nan = np.full((*rows[0].damping.shape, 2), np.nan)

@@ -38,7 +38,6 @@ def baselines(drive: FluxObserverDrive, settings: FluxTuneSettings) -> tuple[lis
     from sensorless.tuning.pmsm_flux_observer.criterion import judged
 
     cands = [odrive_gains(), vesc_gains(drive), drive_gains_or_none(drive)]
-    cands = [c for c in cands if c is not None]
     a = assess(drive, cands, settings)
     lines, out = [], {}
     for j, (label, g) in enumerate(
@@ -76,7 +75,7 @@ def same_law(drive: FluxObserverDrive, law: str) -> list[GainSet]:
     return [g] if g is not None and g.law == law else []
 
 
-def drive_gains_or_none(drive: FluxObserverDrive) -> GainSet | None:
+def drive_gains_or_none(drive: FluxObserverDrive) -> GainSet:
     from sensorless.design.pmsm_flux_observer.gains import drive_gains
 
     return drive_gains(drive)

@@ -32,6 +32,7 @@ def tune_schedule(drive: FluxObserverDrive, settings: FluxTuneSettings, progress
     speeds = np.unique(np.abs(W))
     need = requirements(drive, settings)["decay"]
     chosen = []
+    assert a.decay is not None  # assess gives every candidate its decay
     for j, sp in enumerate(speeds):
         sel = np.abs(W) == sp
         hold = a.holds[:, j]
