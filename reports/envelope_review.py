@@ -29,11 +29,11 @@ import argparse
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 from sensorless.design.envelope import Envelope
-from sensorless.design.family import Drive, GainSet
+from sensorless.design.family import Drive, DriveT, GainSet
 from sensorless.design.gain_table import GainTable, read_gain_table
 from sensorless.design.linearization import Linearization
 from sensorless.design.poles import MIN_DAMPING
@@ -278,21 +278,32 @@ def poles_section_figure(drive: Drive, lin: Linearization, label: str) -> Figure
     return Figure(svg_uri(poles_figure(lin, drive.w_base, f"{drive.name}: poles, gains {label}")), CAPTION)
 
 
-class PolesJudge:
-    """The judge of the poles alone: every gain set linearized over the shared envelope, stable and
-    damped as required (the module docstring's report)."""
+class Judging(Generic[DriveT]):
+    """What most judges share, to subclass: the envelope's points, the drive file's gains under review
+    (or a table's), no notes, the family's built-in scenarios, the shared form of the verdict. Generic
+    in the drive type: ``class MyJudge(Judging[MyDrive])``."""
 
-    def points(self, drive: Drive, refine: int) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, drive: DriveT, refine: int) -> tuple[np.ndarray, np.ndarray]:
         return points(drive, refine)
 
-    def review(self, drive: Drive, table: GainTable | None, table_file: str) -> Review:
+    def review(self, drive: DriveT, table: GainTable | None, table_file: str) -> Review:
         return gains_under_review(family_of(drive), drive, table, table_file)
 
-    def notes(self, drive: Drive) -> tuple[str, ...]:
+    def notes(self, drive: DriveT) -> tuple[str, ...]:
         return ()
 
-    def scenarios(self, drive: Drive) -> Sequence[str]:
+    def scenarios(self, drive: DriveT) -> Sequence[str]:
         return builtin_names(drive.kind)
+
+    def conclude(
+        self, drive: DriveT, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+    ) -> tuple[dict[str, Any], Verdict]:
+        return conclude(v, status, td_findings, limits)
+
+
+class PolesJudge(Judging[Drive]):
+    """The judge of the poles alone: every gain set linearized over the shared envelope, stable and
+    damped as required (the module docstring's report)."""
 
     def analyse(
         self, drive: Drive, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
@@ -339,11 +350,6 @@ class PolesJudge:
             f"decay {num(a['min_decay_rate'])} 1/s."
         )
         return Judgement(status, findings, text, data={"damped": damped})
-
-    def conclude(
-        self, drive: Drive, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
-    ) -> tuple[dict[str, Any], Verdict]:
-        return conclude(v, status, td_findings, limits)
 
 
 POLES = PolesJudge()

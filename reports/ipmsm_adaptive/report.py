@@ -32,7 +32,7 @@ from sensorless.reports.document import (
     f,
     num,
 )
-from sensorless.reports.envelope_review import Analysis, Judgement, report_with
+from sensorless.reports.envelope_review import Analysis, Judgement, Judging, report_with
 from sensorless.reports.ipmsm_adaptive import tuning
 from sensorless.reports.ipmsm_adaptive.causes import crossings
 from sensorless.reports.ipmsm_adaptive.discrete import report_section as discrete_section
@@ -76,18 +76,12 @@ def _worst_point(s: PoleSweep, w_min: float, w_base: float) -> dict[str, Any]:
     }
 
 
-class AdaptiveJudge:
+class AdaptiveJudge(Judging["IpmsmDrive"]):
     """The family's :class:`~sensorless.reports.envelope_review.Judge` (module docstring)."""
-
-    def points(self, drive: IpmsmDrive, refine: int) -> tuple[np.ndarray, np.ndarray]:
-        return drive.envelope.grid(refine)
 
     def review(self, drive: IpmsmDrive, table: GainTable | None, table_file: str) -> Review:
         choices, review = gain_choices(drive, table, table_file)
         return Review(choices, review, table is not None, table)
-
-    def notes(self, drive: IpmsmDrive) -> tuple[str, ...]:
-        return ()
 
     def scenarios(self, drive: IpmsmDrive) -> Sequence[str]:
         return TIME_DOMAIN

@@ -17,7 +17,7 @@ import numpy as np
 from sensorless.design.gain_table import GainTable
 from sensorless.design.pmac_reduced_order import FAMILY
 from sensorless.reports.document import Figure, Paragraph, Section, Table, Verdict, f, num, svg_uri
-from sensorless.reports.envelope_review import Analysis, Judgement, report_with
+from sensorless.reports.envelope_review import Analysis, Judgement, Judging, report_with
 from sensorless.reports.review import Review, gains_under_review, status_class, verdict_box
 
 if TYPE_CHECKING:  # typed by name only
@@ -30,17 +30,11 @@ def _pole_list(p: np.ndarray) -> list[list[Any]]:
     return [[f(z.real), f(z.imag)] for z in p]
 
 
-class PmacJudge:
+class PmacJudge(Judging["PmacDrive"]):
     """The family's :class:`~sensorless.reports.envelope_review.Judge` (module docstring)."""
-
-    def points(self, drive: PmacDrive, refine: int) -> tuple[np.ndarray, np.ndarray]:
-        return drive.envelope.grid(refine)
 
     def review(self, drive: PmacDrive, table: GainTable | None, table_file: str) -> Review:
         return gains_under_review(FAMILY, drive, table, table_file, "paper gains")
-
-    def notes(self, drive: PmacDrive) -> tuple[str, ...]:
-        return ()
 
     def scenarios(self, drive: PmacDrive) -> Sequence[str]:
         return TIME_DOMAIN

@@ -16,11 +16,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from sensorless.design.gain_table import GainTable
 from sensorless.design.pmsm_flux_observer import FAMILY
-from sensorless.reports.document import Figure, Paragraph, Section, Table, Verdict, f, num, svg_uri
-from sensorless.reports.envelope_review import Analysis, Judgement, conclude, poles_section_figure
+from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num, svg_uri
+from sensorless.reports.envelope_review import Analysis, Judgement, Judging, poles_section_figure
 from sensorless.reports.pmsm_flux_observer.figures import bias_caption, bias_figure, front_figure
 from sensorless.reports.pmsm_flux_observer.findings import (
     damping_finding,
@@ -58,11 +57,8 @@ class Found:
     labels: tuple[str, ...]
 
 
-class FluxJudge:
+class FluxJudge(Judging["FluxObserverDrive"]):
     """The family's :class:`~sensorless.reports.envelope_review.Judge` (module docstring)."""
-
-    def points(self, drive: FluxObserverDrive, refine: int) -> tuple[np.ndarray, np.ndarray]:
-        return drive.envelope.grid(refine)
 
     def review(self, drive: FluxObserverDrive, table: GainTable | None, table_file: str) -> Review:
         mine = FAMILY.gains(drive)
@@ -240,16 +236,6 @@ class FluxJudge:
             data={"damped": damped, "tracks": tracks},
             more={"startup": start_data},
         )
-
-    def conclude(
-        self,
-        drive: FluxObserverDrive,
-        v: Judgement,
-        status: str,
-        td_findings: list[dict[str, Any]],
-        limits: list[str],
-    ) -> tuple[dict[str, Any], Verdict]:
-        return conclude(v, status, td_findings, limits)
 
 
 JUDGE = FluxJudge()
