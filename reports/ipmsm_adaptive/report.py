@@ -83,8 +83,7 @@ class AdaptiveJudge(Judging["IpmsmDrive"]):
         choices, review = gain_choices(drive, table, table_file)
         return Review(choices, review, table is not None, table)
 
-    def scenarios(self, drive: IpmsmDrive) -> Sequence[str]:
-        return TIME_DOMAIN
+    time_domain = TIME_DOMAIN
 
     def analyse(
         self,

@@ -36,8 +36,7 @@ class PmacJudge(Judging["PmacDrive"]):
     def review(self, drive: PmacDrive, table: GainTable | None, table_file: str) -> Review:
         return gains_under_review(FAMILY, drive, table, table_file, "paper gains")
 
-    def scenarios(self, drive: PmacDrive) -> Sequence[str]:
-        return TIME_DOMAIN
+    time_domain = TIME_DOMAIN
 
     def analyse(
         self,

@@ -70,8 +70,7 @@ class FluxJudge(Judging["FluxObserverDrive"]):
         T_us = o.T_obs * 1e6
         return (f"{o.firmware}: {o.correction}, {o.inductance_rule} inductance; T_obs = {T_us:g} us",)
 
-    def scenarios(self, drive: FluxObserverDrive) -> Sequence[str]:
-        return TIME_DOMAIN
+    time_domain = TIME_DOMAIN
 
     def analyse(
         self,
