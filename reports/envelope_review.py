@@ -84,6 +84,15 @@ class Analysis:
 
 
 @dataclass(frozen=True)
+class Checks:
+    """The time-domain checks a verdict reads: the scenarios run and each one's judged result
+    (reports/time_domain.py ``checks``)."""
+
+    runs: Sequence[Any]  # the scenarios (built-in names or the user's files)
+    td: Sequence[dict[str, Any]]  # report.json "time_domain": one entry per scenario
+
+
+@dataclass(frozen=True)
 class Judgement:
     """A judge's verdict before the time-domain checks' own findings (reports/review.py ``settle``)."""
 
@@ -122,19 +131,13 @@ class Judge(Protocol[J]):
         ...
 
     def verdict(
-        self,
-        drive: J,
-        rev: Review,
-        found: Analysis,
-        runs: Sequence[Any],
-        td: Sequence[dict[str, Any]],
-        min_damping: float,
+        self, drive: J, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
-        """The status and findings of the analysis, with the time-domain checks ``td`` of ``runs``."""
+        """The status and findings of the analysis, with the time-domain ``checks``."""
         ...
 
     def conclude(
-        self, drive: J, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         """report.json "verdict" and the verdict box of the judgement ``v`` settled with the time-domain
         checks (``status``, their findings ``td_findings``) and what the checks leave out (``limits``)."""
@@ -298,7 +301,7 @@ class Judging(Generic[DriveT]):
         return builtin_names(drive.kind) if self.time_domain is None else self.time_domain
 
     def conclude(
-        self, drive: DriveT, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         return conclude(v, status, td_findings, limits)
 
@@ -333,13 +336,7 @@ class PolesJudge(Judging[Drive]):
         return Analysis(analysis, (section,), {"sampling_period_s": f(drive.T_s)})
 
     def verdict(
-        self,
-        drive: Drive,
-        rev: Review,
-        found: Analysis,
-        runs: Sequence[Any],
-        td: Sequence[dict[str, Any]],
-        min_damping: float,
+        self, drive: Drive, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
         a = (found.analysis or {})[rev.label]
         damped = a["worst_damping"] is not None and a["worst_damping"] >= min_damping
@@ -380,9 +377,9 @@ def report_with(judge: Judge[Any]) -> Callable[..., Report]:
         td, td_figs = time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
         progress(f"[{k + 1}/{k + 1}] verdict")
         limits = time_domain.limitations(drive)
-        v = judge.verdict(drive, rev, found, runs, td, min_damping)
+        v = judge.verdict(drive, rev, found, Checks(runs, td), min_damping)
         status, td_findings = settle(v.status, td)
-        verdict, box = judge.conclude(drive, v, status, td_findings, limits)
+        verdict, box = judge.conclude(v, status, td_findings, limits)
         analysis = {} if found.analysis is None else {"analysis": found.analysis}
         data = {
             **opening(fam, drive, table, min_damping, rev.label),

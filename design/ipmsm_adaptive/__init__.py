@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
     from sensorless.design.capabilities import MonteCarloModule
     from sensorless.design.drive_file import DriveDocument
-    from sensorless.design.linearization import Linearization
+    from sensorless.design.ipmsm_adaptive.linearize import PoleSweep
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -96,7 +96,7 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
 
     def linearize(
         self, drive: schema.IpmsmDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
-    ) -> Linearization:
+    ) -> PoleSweep:
         """Closed-loop poles (design/ipmsm_adaptive/linearize.py); options: injection, estimate, and
         discretization (with T_s): also the discrete-time observer that runs (discrete.py)."""
         if options.get("injection") and not drive.injection.enabled:

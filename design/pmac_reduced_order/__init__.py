@@ -26,7 +26,6 @@ if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
     from sensorless.design.capabilities import MonteCarloModule
     from sensorless.design.drive_file import DriveDocument
-    from sensorless.design.linearization import Linearization
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -83,7 +82,7 @@ class ReducedOrderObserver(ObserverFamily[schema.PmacDrive]):
 
     def linearize(
         self, drive: schema.PmacDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
-    ) -> Linearization:
+    ) -> _linearize.ObserverPoles:
         """Observer poles, continuous and discrete (linearize.analyze); ``torque`` is the load T_L.
 
         Options: load_estimation, method, T_s, settle_time, n_angles."""

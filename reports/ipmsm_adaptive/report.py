@@ -12,7 +12,7 @@ of the drive file's gain choices) and the verdict's form are this family's.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -32,7 +32,7 @@ from sensorless.reports.document import (
     f,
     num,
 )
-from sensorless.reports.envelope_review import Analysis, Judgement, Judging, report_with
+from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, report_with
 from sensorless.reports.ipmsm_adaptive import tuning
 from sensorless.reports.ipmsm_adaptive.causes import crossings
 from sensorless.reports.ipmsm_adaptive.discrete import report_section as discrete_section
@@ -234,23 +234,12 @@ class AdaptiveJudge(Judging["IpmsmDrive"]):
         return Analysis(None, sections, data, (w1, growth), later, STEPS)
 
     def verdict(
-        self,
-        drive: IpmsmDrive,
-        rev: Review,
-        found: Analysis,
-        runs: Sequence[Any],
-        td: Sequence[dict[str, Any]],
-        min_damping: float,
+        self, drive: IpmsmDrive, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
-        return judgement({**found.data, "time_domain": td}, rev.label, min_damping, found.context)
+        return judgement({**found.data, "time_domain": checks.td}, rev.label, min_damping, found.context)
 
     def conclude(
-        self,
-        drive: IpmsmDrive,
-        v: Judgement,
-        status: str,
-        td_findings: list[dict[str, Any]],
-        limits: list[str],
+        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         data = {**verdict_data(v, status, td_findings), "limitations": limits}
         return data, verdict_block(data)

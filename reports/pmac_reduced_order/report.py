@@ -10,14 +10,14 @@ load-torque estimate as a reason).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.gain_table import GainTable
 from sensorless.design.pmac_reduced_order import FAMILY
 from sensorless.reports.document import Figure, Paragraph, Section, Table, Verdict, f, num, svg_uri
-from sensorless.reports.envelope_review import Analysis, Judgement, Judging, report_with
+from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, report_with
 from sensorless.reports.review import Review, gains_under_review, status_class, verdict_box
 
 if TYPE_CHECKING:  # typed by name only
@@ -110,13 +110,7 @@ class PmacJudge(Judging["PmacDrive"]):
         return Analysis(analysis, (section,), data)
 
     def verdict(
-        self,
-        drive: PmacDrive,
-        rev: Review,
-        found: Analysis,
-        runs: Sequence[Any],
-        td: Sequence[dict[str, Any]],
-        min_damping: float,
+        self, drive: PmacDrive, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
         """Stable and damped over the envelope with load-torque estimation (the discrete observer), and
         where the steady load-torque estimate is biased by more than 1 N m, why."""
@@ -155,12 +149,7 @@ class PmacJudge(Judging["PmacDrive"]):
         return Judgement(status, [], text, data=data)
 
     def conclude(
-        self,
-        drive: PmacDrive,
-        v: Judgement,
-        status: str,
-        td_findings: list[dict[str, Any]],
-        limits: list[str],
+        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         """Its form: the time-domain checks' findings as records, their text among the reasons, shown
         as reasons in the box."""

@@ -12,14 +12,14 @@ simulation alone.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from sensorless.design.gain_table import GainTable
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num, svg_uri
-from sensorless.reports.envelope_review import Analysis, Judgement, Judging, poles_section_figure
+from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, poles_section_figure
 from sensorless.reports.pmsm_flux_observer.figures import bias_caption, bias_figure, front_figure
 from sensorless.reports.pmsm_flux_observer.findings import (
     damping_finding,
@@ -165,14 +165,9 @@ class FluxJudge(Judging["FluxObserverDrive"]):
         return Analysis(analysis, sections, data, Found(True, settings, a, labels))
 
     def verdict(
-        self,
-        drive: FluxObserverDrive,
-        rev: Review,
-        found: Analysis,
-        runs: Sequence[Any],
-        td: Sequence[dict[str, Any]],
-        min_damping: float,
+        self, drive: FluxObserverDrive, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
+        runs, td = checks.runs, checks.td
         ctx: Found = found.context
         linearizable, settings = ctx.linearizable, ctx.settings
         # the closed-loop error (None: a run the observer never had: not tested sensorless, said by its check)
