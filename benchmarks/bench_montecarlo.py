@@ -61,7 +61,7 @@ def main() -> None:
     d = load_drive("piippo2008")
     fam = family_of(d)
     g = fam.gains(d)
-    params = fam.montecarlo_parameters(d)
+    params = fam.montecarlo.parameters(d)
     plant = mc.parse_spreads(SPREAD, "--spread", params, False)
     est = mc.parse_spreads(ESTIMATE, "--estimate-error", params, True)
     w, T = rmc.envelope(d)
@@ -93,7 +93,7 @@ def main() -> None:
         def loop():
             out = np.empty(m)
             for i in range(m):
-                di = fam.perturbed(d, dict(zip(draws.names, draws.plant[i], strict=True)), {})
+                di = fam.montecarlo.perturbed(d, dict(zip(draws.names, draws.plant[i], strict=True)), {})
                 wd = fam.linearize(di, g, w, T, estimate=draws.estimate[i, :4]).worst_damping
                 out[i] = -np.inf if np.isnan(wd).any() else wd.min()
             return out

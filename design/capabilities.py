@@ -2,7 +2,8 @@
 
 The core every family has is :class:`~sensorless.design.family.ObserverFamily` (its drive files, its
 gains, its runtime observer). Everything else a command may ask is one capability here, a
-``runtime_checkable`` Protocol a family has by defining its methods: shared code asks for it by the
+``runtime_checkable`` Protocol a family has by defining its methods (or, for Monte-Carlo, by naming the
+module that does it: ``montecarlo``, a :class:`MonteCarloModule`): shared code asks for it by the
 Protocol (``isinstance(fam, Linearizable)``, or :func:`require` where the command needs it and says so
 in one line), never by calling and catching. A family that has the capability may still refuse one
 drive (e.g. a firmware variant that is not linearizable): that refusal stays a
@@ -64,10 +65,12 @@ class Documented(Protocol):
 
 
 @runtime_checkable
-class MonteCarlo(Protocol[E]):
-    """Spreads its drive's parameters over draws (design/montecarlo.py, ``sensorless montecarlo``)."""
+class MonteCarloModule(Protocol[E]):
+    """What spreads a family's drive parameters over draws: the functions of its Monte-Carlo module
+    (design/<family>/montecarlo.py satisfies this Protocol as a module: one place per family, no
+    forwarding methods on the family)."""
 
-    def montecarlo_parameters(self, drive: E) -> tuple[Uncertain, ...]:
+    def parameters(self, drive: E) -> tuple[Uncertain, ...]:
         """The parameters a run may spread, in the column order of the draws."""
         ...
 
@@ -93,6 +96,13 @@ class MonteCarlo(Protocol[E]):
     def perturbed(self, drive: E, plant: Mapping[str, float], estimate: Mapping[str, float]) -> E:
         """``drive`` with the true motor's and the observer's parameters replaced (SI values)."""
         ...
+
+
+@runtime_checkable
+class MonteCarlo(Protocol[E]):
+    """Spreads its drive's parameters over draws (design/montecarlo.py, ``sensorless montecarlo``)."""
+
+    montecarlo: MonteCarloModule[E]  # its Monte-Carlo module (design/<family>/montecarlo.py)
 
 
 @runtime_checkable

@@ -187,7 +187,7 @@ def fixed_points(
     w: np.ndarray,
     plant: np.ndarray,
     p: np.ndarray,
-    gain: Sequence[float] = (),
+    gain: Sequence[float] | np.ndarray = (),
     theta: float | np.ndarray = 0.0,
     scale: np.ndarray | None = None,
     iterations: int = 12,
@@ -337,7 +337,9 @@ def pole_distance(poles_c: np.ndarray, poles_d: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 # The PMSM under ideal current control, fed through an inverter's zero-order hold
 # --------------------------------------------------------------------------------------------------
-def zoh_voltage(motor: Sequence[float], w_m: np.ndarray, i_s0: np.ndarray, T_s: float) -> np.ndarray:
+def zoh_voltage(
+    motor: Sequence[float] | np.ndarray, w_m: np.ndarray, i_s0: np.ndarray, T_s: float
+) -> np.ndarray:
     """(N, 2) rotor-frame voltage u_z at the start of a period that keeps the sampled current at i_s0.
 
     ``motor`` = [R_s, L_d, L_q, psi_pm] (the true motor; or (N, 4), one motor per point), ``w_m`` (N,)
@@ -374,7 +376,9 @@ def pmsm_zoh_sample(theta: Sym, w: Sym, plant: Sym, p: Sym) -> Sym:
     return ca.vertcat(T @ plant[0:2], T @ plant[2:4])
 
 
-def pmsm_zoh_plant(motor: Sequence[float], w: np.ndarray, i_s0: np.ndarray, T_s: float) -> np.ndarray:
+def pmsm_zoh_plant(
+    motor: Sequence[float] | np.ndarray, w: np.ndarray, i_s0: np.ndarray, T_s: float
+) -> np.ndarray:
     """(N, 4) plant vectors [i_s0, u_z] of :func:`pmsm_zoh_sample` at speeds ``w`` with currents
     ``i_s0`` (N, 2) in the rotor frame."""
     i_s0 = np.asarray(i_s0, float).reshape(-1, 2)

@@ -21,9 +21,9 @@ registered in :mod:`sensorless.design.registry`, which is the only place that ma
 Beyond the core, each capability is a typed Protocol of design/capabilities.py that a family has by
 defining its methods: a minimal drive file's completion (``Documented``), its linearization
 (``Linearizable``), estimate errors (``EstimateScaling``), simulation (``Simulatable``, ``Scaled``,
-``AnalysedLoop``), Monte-Carlo (``MonteCarlo``) and the open-loop start (``OpenLoopStart``). Shared code
-asks for one by its Protocol; a command that needs one the family lacks says so in one line
-(:class:`CapabilityError`, ``capabilities.require``).
+``AnalysedLoop``), Monte-Carlo (``MonteCarlo``: its ``montecarlo`` module) and the open-loop start
+(``OpenLoopStart``). Shared code asks for one by its Protocol; a command that needs one the family
+lacks says so in one line (:class:`CapabilityError`, ``capabilities.require``).
 """
 
 from __future__ import annotations

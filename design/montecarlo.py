@@ -1,11 +1,12 @@
 """Monte-Carlo robustness of a design: draws of the true motor and of its estimates, their linearized
 closed loops over the envelope, yield, worst draws and a sensitivity ranking.
 
-The family declares what can be spread (``ObserverFamily.montecarlo_parameters``: each parameter's
-nominal plant value, its estimate if the observer has one, and whether it enters the linearization),
-evaluates many draws at once (``linearize_draws``: one batched linearization over draws x operating
-points) and builds a perturbed drive for the time domain (``perturbed``). This module knows no
-family's parameters: it reads the names the family declares.
+The family's Monte-Carlo module (its ``montecarlo``, design/capabilities.py ``MonteCarloModule``)
+declares what can be spread (``parameters``: each parameter's nominal plant value, its estimate if the
+observer has one, and whether it enters the linearization), evaluates many draws at once
+(``linearize_draws``: one batched linearization over draws x operating points), names the points they
+are judged at (``envelope_points``) and builds a perturbed drive for the time domain (``perturbed``).
+This module knows no family's parameters: it reads the names the family declares.
 
 Spreads (``--spread``, ``--estimate-error``): ``NAME=X%`` draws NAME = nominal x (1 + X/100 z) with z
 standard normal (X is one standard deviation); ``NAME=X%u`` with z uniform in [-1, 1] (X is the half
@@ -174,7 +175,7 @@ def draw(
 
 
 def chunk_damping(
-    family: Any,  # a MonteCarlo family (design/capabilities.py imports this module's Uncertain)
+    model: Any,  # a family's MonteCarloModule (design/capabilities.py imports this module's Uncertain)
     drive: Drive,
     gains: GainSet,
     plant: np.ndarray,
@@ -186,7 +187,7 @@ def chunk_damping(
     counted as a failure) and the index of the worst point. One batched linearization; of the sampled
     observer that runs where the family's gives its poles (``poles_discrete``)."""
     w, torque = np.asarray(w, float), np.asarray(torque, float)
-    lin = family.linearize_draws(drive, gains, plant, estimate, w, torque, complete=False)
+    lin = model.linearize_draws(drive, gains, plant, estimate, w, torque, complete=False)
     z = lin.worst_damping_discrete if lin.poles_discrete is not None else lin.worst_damping
     wd = z.reshape(plant.shape[0], w.size)
     worst = np.where(np.isnan(wd), -np.inf, wd)

@@ -16,9 +16,11 @@ observer's ln(z)/T_s, which the figures of merit then take (what runs is the sam
 
 A family that judges its gains by a criterion of its own keeps this frame and gives a :class:`Judge`
 (``report_with(judge)``, ``analyze_with(judge)``): its envelope's points, the gain sets it reviews, its
-sections and figures of the analysis, and its verdict's status and findings; the frame does the rest
-(gains under review, poles figure and tables, time-domain checks, verdict box, report.json).
-:data:`POLES` is the judge of the poles alone, the default.
+sections and figures of the analysis (before the time-domain checks and after them), its verdict's
+status and findings, and the form its verdict takes in report.json and the verdict box (the shared
+form, :func:`conclude`, or the family's own); the frame does the rest (gains under review, opening data,
+the time-domain checks of its scenarios, the verdict's status with those checks, the sections' order,
+report.json). :data:`POLES` is the judge of the poles alone, the default.
 """
 
 from __future__ import annotations
@@ -27,12 +29,12 @@ import argparse
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 from sensorless.design.envelope import Envelope
-from sensorless.design.family import Drive, GainSet
-from sensorless.design.gain_table import read_gain_table
+from sensorless.design.family import Drive, DriveT, GainSet
+from sensorless.design.gain_table import GainTable, read_gain_table
 from sensorless.design.linearization import Linearization
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.design.registry import family_of
@@ -44,6 +46,7 @@ from sensorless.reports.document import (
     Report,
     Section,
     Table,
+    Verdict,
     drive_section,
     f,
     num,
@@ -53,6 +56,7 @@ from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
 from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
 
+J = TypeVar("J", bound=Drive, contravariant=True)  # the drive a judge takes: its family's
 ANALYZE_REFINE = 4  # analyze and the normal report refine the envelope's speeds this many times
 
 
@@ -71,10 +75,21 @@ def points(drive: Drive, refine: int = 1) -> tuple[np.ndarray, np.ndarray]:
 class Analysis:
     """What a judge found over the envelope, before the time-domain checks."""
 
-    analysis: dict[str, Any]  # report.json "analysis": per gain set label
+    analysis: dict[str, Any] | None  # report.json "analysis": per gain set label (None: no such key)
     sections: tuple[Section, ...]  # the report's sections between the drive data and the time-domain checks
     data: dict[str, Any] = field(default_factory=dict)  # more report.json keys
     context: Any = None  # what the judge's verdict needs of it
+    later: tuple[Section, ...] = ()  # the report's sections after the time-domain checks
+    steps: int = 1  # the progress steps the analysis took (the time-domain checks and verdict follow)
+
+
+@dataclass(frozen=True)
+class Checks:
+    """The time-domain checks a verdict reads: the scenarios run and each one's judged result
+    (reports/time_domain.py ``checks``)."""
+
+    runs: Sequence[Any]  # the scenarios (built-in names or the user's files)
+    td: Sequence[dict[str, Any]]  # report.json "time_domain": one entry per scenario
 
 
 @dataclass(frozen=True)
@@ -82,49 +97,62 @@ class Judgement:
     """A judge's verdict before the time-domain checks' own findings (reports/review.py ``settle``)."""
 
     status: str  # pass | warn | fail
-    findings: list[str]  # before the time-domain checks' findings
+    findings: list[Any]  # before the time-domain checks' findings (text; records in a family's own form)
     text: str  # the verdict's paragraph
     after: list[str] = field(default_factory=list)  # findings after the time-domain checks'
     data: dict[str, Any] = field(default_factory=dict)  # more report.json "verdict" keys
     more: dict[str, Any] = field(default_factory=dict)  # more report.json keys
 
 
-class Judge(Protocol):
+class Judge(Protocol[J]):
     """How a family judges its gains over its envelope on the shared frame (module docstring)."""
 
-    def points(self, drive: Drive, refine: int) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, drive: J, refine: int) -> tuple[np.ndarray, np.ndarray]:
         """Flat (speed [rad/s], torque [N m]) of the envelope, speeds refined ``refine`` times."""
         ...
 
-    def choices(self, drive: Drive) -> dict[str, GainSet] | None:
-        """The gain sets reviewed, the drive file's last; None: the drive file's alone."""
+    def review(self, drive: J, table: GainTable | None, table_file: str) -> Review:
+        """The gain sets reviewed and the one under review (reports/review.py ``gains_under_review``:
+        with a gain ``table``, the table's)."""
         ...
 
-    def notes(self, drive: Drive) -> tuple[str, ...]:
+    def notes(self, drive: J) -> tuple[str, ...]:
         """Lines ``analyze`` prints of the drive's own settings under the gains (e.g. its variant)."""
         ...
 
-    def scenarios(self, drive: Drive) -> Sequence[str]:
+    def scenarios(self, drive: J) -> Sequence[str]:
         """The built-in scenarios the report checks in the time domain."""
         ...
 
     def analyse(
-        self, drive: Drive, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
+        self, drive: J, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
     ) -> Analysis:
         """The gain sets judged over the envelope: report.json data and sections."""
         ...
 
     def verdict(
-        self,
-        drive: Drive,
-        rev: Review,
-        found: Analysis,
-        runs: Sequence[Any],
-        td: Sequence[dict[str, Any]],
-        min_damping: float,
+        self, drive: J, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
-        """The status and findings of the analysis, with the time-domain checks ``td`` of ``runs``."""
+        """The status and findings of the analysis, with the time-domain ``checks``."""
         ...
+
+    def conclude(
+        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+    ) -> tuple[dict[str, Any], Verdict]:
+        """report.json "verdict" and the verdict box of the judgement ``v`` settled with the time-domain
+        checks (``status``, their findings ``td_findings``) and what the checks leave out (``limits``)."""
+        ...
+
+
+def conclude(
+    v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+) -> tuple[dict[str, Any], Verdict]:
+    """The shared form of a verdict: its findings as text (the judgement's, the time-domain checks', the
+    judgement's after them), its paragraph, the limitations as notes."""
+    findings = [*v.findings, *(x["text"] for x in td_findings), *v.after]
+    data = {"status": status, **v.data, "findings": findings, "limitations": limits}
+    box = verdict_box(status, Paragraph(v.text, status_class(status)), notes=limits, findings=findings)
+    return data, box
 
 
 def figures(lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
@@ -180,7 +208,7 @@ CAPTION = (
 )
 
 
-def analyze_with(judge: Judge) -> Callable[[Drive, argparse.Namespace, OutputSet], None]:
+def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, OutputSet], None]:
     """The ``analyze`` hook of a family judged by ``judge`` (its envelope's points)."""
 
     def analyze(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
@@ -253,21 +281,34 @@ def poles_section_figure(drive: Drive, lin: Linearization, label: str) -> Figure
     return Figure(svg_uri(poles_figure(lin, drive.w_base, f"{drive.name}: poles, gains {label}")), CAPTION)
 
 
-class PolesJudge:
-    """The judge of the poles alone: every gain set linearized over the shared envelope, stable and
-    damped as required (the module docstring's report)."""
+class Judging(Generic[DriveT]):
+    """What most judges share, to subclass: the envelope's points, the drive file's gains under review
+    (or a table's), no notes, the family's built-in scenarios, the shared form of the verdict. Generic
+    in the drive type: ``class MyJudge(Judging[MyDrive])``."""
 
-    def points(self, drive: Drive, refine: int) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, drive: DriveT, refine: int) -> tuple[np.ndarray, np.ndarray]:
         return points(drive, refine)
 
-    def choices(self, drive: Drive) -> dict[str, GainSet] | None:
-        return None
+    def review(self, drive: DriveT, table: GainTable | None, table_file: str) -> Review:
+        return gains_under_review(family_of(drive), drive, table, table_file)
 
-    def notes(self, drive: Drive) -> tuple[str, ...]:
+    def notes(self, drive: DriveT) -> tuple[str, ...]:
         return ()
 
-    def scenarios(self, drive: Drive) -> Sequence[str]:
-        return builtin_names(drive.kind)
+    time_domain: tuple[str, ...] | None = None  # the built-in scenarios checked; None: all the family's
+
+    def scenarios(self, drive: DriveT) -> Sequence[str]:
+        return builtin_names(drive.kind) if self.time_domain is None else self.time_domain
+
+    def conclude(
+        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+    ) -> tuple[dict[str, Any], Verdict]:
+        return conclude(v, status, td_findings, limits)
+
+
+class PolesJudge(Judging[Drive]):
+    """The judge of the poles alone: every gain set linearized over the shared envelope, stable and
+    damped as required (the module docstring's report)."""
 
     def analyse(
         self, drive: Drive, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
@@ -295,15 +336,9 @@ class PolesJudge:
         return Analysis(analysis, (section,), {"sampling_period_s": f(drive.T_s)})
 
     def verdict(
-        self,
-        drive: Drive,
-        rev: Review,
-        found: Analysis,
-        runs: Sequence[Any],
-        td: Sequence[dict[str, Any]],
-        min_damping: float,
+        self, drive: Drive, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
-        a = found.analysis[rev.label]
+        a = (found.analysis or {})[rev.label]
         damped = a["worst_damping"] is not None and a["worst_damping"] >= min_damping
         status = "fail" if not a["stable"] else "pass" if damped else "warn"
         findings = [] if damped else [f"worst damping {num(a['worst_damping'])} < required {min_damping:g}"]
@@ -319,49 +354,50 @@ class PolesJudge:
 POLES = PolesJudge()
 
 
-def report_with(judge: Judge) -> Callable[..., Report]:
+def report_with(judge: Judge[Any]) -> Callable[..., Report]:
     """The ``report`` hook of a family judged by ``judge``: the stability report on the shared frame."""
 
     def report(
         drive: Drive,
-        table: Any | None = None,
+        table: GainTable | None = None,
         table_file: str = "",
         min_damping: float = MIN_DAMPING,
         resolution: str = "normal",
         progress: Callable[[str], None] = lambda s: None,
         scenarios: Sequence[str] = (),
     ) -> Report:
-        """The stability report (module docstring)."""
+        """The stability report (module docstring); ``scenarios``: the user's scenario files, checked
+        in the time domain besides the judge's built-in ones (reports/time_domain.py)."""
         fam = family_of(drive)
-        rev = gains_under_review(fam, drive, table, table_file, choices=judge.choices(drive))
+        rev = judge.review(drive, table, table_file)
         found = judge.analyse(drive, rev, min_damping, resolution, progress)
-        progress("[2/3] time-domain checks")
+        k = found.steps + 1
         runs = time_domain.scenarios(drive, judge.scenarios(drive), scenarios)
+        progress(f"[{k}/{k + 1}] time-domain checks ({len(runs)} scenarios)")
         td, td_figs = time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
-        progress("[3/3] verdict")
+        progress(f"[{k + 1}/{k + 1}] verdict")
         limits = time_domain.limitations(drive)
-        v = judge.verdict(drive, rev, found, runs, td, min_damping)
+        v = judge.verdict(drive, rev, found, Checks(runs, td), min_damping)
         status, td_findings = settle(v.status, td)
-        findings = [*v.findings, *(x["text"] for x in td_findings), *v.after]
+        verdict, box = judge.conclude(v, status, td_findings, limits)
+        analysis = {} if found.analysis is None else {"analysis": found.analysis}
         data = {
             **opening(fam, drive, table, min_damping, rev.label),
             **found.data,
-            "analysis": found.analysis,
+            **analysis,
             "time_domain": td,
             **v.more,
             # limitations: what the generic checks leave out (e.g. an ODrive drive's zero speed)
-            "verdict": {"status": status, **v.data, "findings": findings, "limitations": limits},
+            "verdict": verdict,
         }
         n = len(found.sections) + 2
         sections = (
             drive_section(1, data["drive"], fam.bases(drive)),
             *found.sections,
             time_domain.section(n, td, td_figs, limits),
+            *found.later,
         )
-        verdict = verdict_box(
-            status, Paragraph(v.text, status_class(status)), notes=limits, findings=findings
-        )
-        return Report(drive.name, rev.label, data, verdict, sections)
+        return Report(drive.name, rev.label, data, box, sections)
 
     return report
 

@@ -17,9 +17,9 @@ import argparse
 import importlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Generic
 
-from sensorless.design.family import CapabilityError, Drive, GainSet, ObserverFamily
+from sensorless.design.family import CapabilityError, DriveT, GainSet, ObserverFamily
 from sensorless.design.registry import families
 from sensorless.design.scenario import Scenario
 from sensorless.reports.causes import Failure, Named
@@ -57,43 +57,44 @@ class Importer:
 
 
 @dataclass(frozen=True)
-class Exporter:
+class Exporter(Generic[DriveT]):
     """A firmware's configuration written by ``sensorless export --target NAME``: ``export(drive,
     gains)`` -> ({file name: text}, notes), the names among ``files``; a DriveFileError (one line naming
     the gain or drive key) where the gains break the firmware's own limits."""
 
     title: str
     files: tuple[str, ...]
-    export: Callable[[Drive, GainSet], tuple[Mapping[str, str], Sequence[str]]]
+    export: Callable[[DriveT, GainSet], tuple[Mapping[str, str], Sequence[str]]]
 
 
 @dataclass(frozen=True)
-class ReportHooks:
-    """What a family contributes to the commands (each callable is optional)."""
+class ReportHooks(Generic[DriveT]):
+    """What a family contributes to the commands (each callable is optional), generic in its drive type
+    (its callables take its own drive)."""
 
     # sensorless analyze: options, and (drive, args, out: OutputSet) -> None (prints, stages files);
     # analyze_check (drive, args) -> None checks the options against the drive before anything is
     # computed or written (one-line errors; analyze may then trust them)
     analyze_options: tuple[Option, ...] = ()
-    analyze: Callable[[Drive, argparse.Namespace, OutputSet], None] | None = None
-    analyze_check: Callable[[Drive, argparse.Namespace], None] | None = None
+    analyze: Callable[[DriveT, argparse.Namespace, OutputSet], None] | None = None
+    analyze_check: Callable[[DriveT, argparse.Namespace], None] | None = None
     # sensorless tune: options, (drive, args, tunable) -> settings, (drive, settings) -> one line
     tune_options: tuple[Option, ...] = ()
-    tune_settings: Callable[[Drive, argparse.Namespace, Tunable], TuneSettings] | None = None
-    describe_envelope: Callable[[Drive, TuneSettings], str] | None = None
+    tune_settings: Callable[[DriveT, argparse.Namespace, Tunable[DriveT]], TuneSettings] | None = None
+    describe_envelope: Callable[[DriveT, Any], str] | None = None  # (drive, the tunable's own settings)
     # (drive, tuned gains) -> the lines tune says of the drive's start-up at the tuned gains (the values
     # it proposes, the drive file's kept where they hold, each change with why)
-    startup_lines: Callable[[Drive, GainSet], list[str]] | None = None
+    startup_lines: Callable[[DriveT, GainSet], list[str]] | None = None
     # sensorless simulate: options, and (drive, args, scenario) -> the scenario with them applied
     # (one-line errors naming the option or the drive file)
     simulate_options: tuple[Option, ...] = ()
-    simulate_scenario: Callable[[Drive, argparse.Namespace, Scenario], Scenario] | None = None
+    simulate_scenario: Callable[[DriveT, argparse.Namespace, Scenario], Scenario] | None = None
     # sensorless report: (drive, table or None, table file, min_damping, resolution, progress) -> Report
     report: Callable[..., Report] | None = None
     # the cause of a failed time-domain check in the family's own analysis (reports/causes.py): (drive,
     # the gains under review, the failure with its evidence) -> a Named catalogue id, or None where the
     # shared rules judge (a PLL's root, an HF injection's coupling band: causes shared code cannot name)
-    failure_cause: Callable[[Drive, GainSet, Failure], Named | None] | None = None
+    failure_cause: Callable[[DriveT, GainSet, Failure], Named | None] | None = None
     # drive sections that hold settings of other commands, not drive data: left out of the report's
     # drive-data tables (reports/review.py opening)
     settings_sections: tuple[str, ...] = ()
@@ -104,13 +105,13 @@ class ReportHooks:
     init_data: Callable[[Mapping[str, Any], argparse.Namespace, str], Mapping[str, Any]] | None = None
     # sensorless init --from NAME FILE and sensorless export --target NAME: firmware formats by name
     importers: Mapping[str, Importer] = field(default_factory=dict)
-    exporters: Mapping[str, Exporter] = field(default_factory=dict)
+    exporters: Mapping[str, Exporter[DriveT]] = field(default_factory=dict)
 
 
-def hooks(family: ObserverFamily) -> ReportHooks:
+def hooks(family: ObserverFamily) -> ReportHooks[Any]:
     """The report hooks of ``family`` (empty hooks if it names none)."""
     if family.report is None:
-        return ReportHooks()
+        return ReportHooks[Any]()
     h = getattr(importlib.import_module(family.report), "HOOKS", None)
     if not isinstance(h, ReportHooks):
         raise CapabilityError(f"{family.report} defines no ReportHooks HOOKS")

@@ -3,8 +3,8 @@ the worst draws, the sensitivity ranking, and their tables and figures.
 
 The linear part: every draw's linearized closed loop over the design's envelope (the drive's
 ``[tuning]`` envelope), in chunks of design/montecarlo.CHUNK draws, each chunk one batched call of
-the family's ``linearize_draws`` (no loop over draws); a draw passes when its worst damping over the
-envelope is at least the required damping (a point without equilibrium fails it). The time domain:
+the family's Monte-Carlo ``linearize_draws`` (no loop over draws); a draw passes when its worst damping
+over the envelope is at least the required damping (a point without equilibrium fails it). The time domain:
 the first K draws (a random sample of the draws, so their pass fraction estimates the population's)
 simulated on the drive's generic scenarios (design/scenario.py, scaled to the nominal drive, so every
 draw runs the same test) and judged by reports/time_domain.py; a simulation that raises is a failed
@@ -48,15 +48,16 @@ class Result:
 
 def envelope(drive: Drive, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The design's envelope: the operating points the tuner held the gains to, where ``gains`` run the
-    drive (the family's ``envelope_points``)."""
-    return require(family_of(drive), MonteCarlo).envelope_points(drive, gains)
+    drive (the family's Monte-Carlo ``envelope_points``)."""
+    return require(family_of(drive), MonteCarlo).montecarlo.envelope_points(drive, gains)
 
 
 def linear_task(
     drive: Drive, gains: GainSet, plant: np.ndarray, estimate: np.ndarray, w: np.ndarray, T: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """One chunk on a worker: (worst damping, worst point) per draw."""
-    return mc.chunk_damping(require(family_of(drive), MonteCarlo), drive, gains, plant, estimate, w, T)
+    model = require(family_of(drive), MonteCarlo).montecarlo
+    return mc.chunk_damping(model, drive, gains, plant, estimate, w, T)
 
 
 def time_task(
@@ -70,11 +71,11 @@ def time_task(
     from sensorless.design.simulate import simulate
     from sensorless.reports.time_domain import judge
 
-    fam = require(family_of(drive), MonteCarlo)
+    model = require(family_of(drive), MonteCarlo).montecarlo
     out = []
     for sc in scenarios:
         try:
-            tr = simulate(fam.perturbed(drive, plant, estimate), sc, gains)
+            tr = simulate(model.perturbed(drive, plant, estimate), sc, gains)
             _, failed, _ = judge(tr, sc, drive.w_base)
         except Exception as e:  # a crashing draw is a failed check, recorded with its reason
             failed = [f"simulation raised {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"]

@@ -8,6 +8,7 @@ right-half-plane pole of the motoring mode lives. Both panels are drawn here sid
 from __future__ import annotations
 
 import io
+from collections.abc import Mapping
 
 import matplotlib
 
@@ -58,10 +59,10 @@ def _zoom_window(sweep: Linearization, w_base: float) -> float:
 
 
 def plot_pole_maps(
-    sweeps: dict[str, Linearization],
+    sweeps: Mapping[str, Linearization],
     w_base: float,
     title: str,
-    low_speed: dict[str, Linearization] | None = None,
+    low_speed: Mapping[str, Linearization] | None = None,
 ) -> matplotlib.figure.Figure:
     """One row per sweep: full map (Fig. 4) and magnified origin (Fig. 5), colored by speed.
 

@@ -14,9 +14,9 @@ import dataclasses
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
-from sensorless.design.family import CapabilityError, Drive, EstimateErrors, ObserverFamily
+from sensorless.design.family import CapabilityError, Drive, DriveT, EstimateErrors, ObserverFamily
 from sensorless.design.registry import families, family_of
 
 if TYPE_CHECKING:  # typed by name only
@@ -24,15 +24,17 @@ if TYPE_CHECKING:  # typed by name only
     from sensorless.tuning.model import TuningModel
 
 Progress = Callable[[str], None]
+O = TypeVar("O", bound=Drive, contravariant=True)  # the drive an outcome speaks of
 
 
-class TuneOutcome(Protocol):
-    """What a tuner returns: the gain table and the lines of its terminal summary."""
+class TuneOutcome(Protocol[O]):
+    """What a tuner returns: the gain table and the lines of its terminal summary (of the family's own
+    drive type)."""
 
     law: str
     table: GainTable
 
-    def summary_lines(self, drive: Drive) -> list[str]:
+    def summary_lines(self, drive: O) -> list[str]:
         """Parameters before -> after, worst figures and where, what was kept and why."""
         ...
 
@@ -58,7 +60,7 @@ class TuneSettings(Protocol):
 
 
 @dataclass(frozen=True)
-class Tunable:
+class Tunable(Generic[DriveT]):
     """A tunable gain law: its name (the gain table's ``law``) and how it is tuned.
 
     Exactly one of ``build`` (drive, settings, seed) -> TuningModel for the shared NLP, and ``tuner``
@@ -66,15 +68,15 @@ class Tunable:
     parameters start this one (a rich law started from a tuned simpler one). ``settings`` (drive) ->
     the default settings (envelope, constraints; the law's own part in ``law``) of this tunable.
     ``columns`` are the leading per-point columns of its CSV table, (heading, point key), and those
-    of the baseline.
+    of the baseline. Generic in the family's drive type (its callables take its own drive).
     """
 
     name: str
     description: str
-    settings: Callable[[Drive], TuneSettings]
+    settings: Callable[[DriveT], TuneSettings]
     # (drive, settings, seed): the family's own drive and settings types
     build: Callable[..., TuningModel] | None = None
-    tuner: Callable[..., TuneOutcome] | None = None  # (drive, settings, progress)
+    tuner: Callable[..., TuneOutcome[DriveT]] | None = None  # (drive, settings, progress)
     seed: str | None = None
     columns: tuple[tuple[tuple[str, str], ...], tuple[tuple[str, str], ...]] = ((), ())
 
@@ -84,21 +86,22 @@ class Tunable:
 
 
 @dataclass(frozen=True)
-class TuningHooks:
+class TuningHooks(Generic[DriveT]):
     """A family's tunables; the first is the default of ``sensorless tune`` on a built-in preset (the
     paper's law, to reproduce the paper), ``own_default`` the default on a drive of the user's own: a
     name (the family's best law), or (drive) -> name (e.g. the law the drive file's own gains are of;
     None from it or no ``own_default``: the first)."""
 
-    tunables: tuple[Tunable, ...]
-    own_default: str | Callable[[Drive], str | None] | None = None
+    tunables: tuple[Tunable[DriveT], ...]
+    own_default: str | Callable[[DriveT], str | None] | None = None
     # (drive, settings) -> the estimate errors its tuners of their own judge the gains under, from their
-    # settings; None: the family's estimate_errors(drive) (:func:`estimate_errors`)
-    estimate_errors: Callable[[Drive, TuneSettings], EstimateErrors] | None = None
+    # settings (the tunable's own settings type); None: the family's estimate_errors(drive)
+    # (:func:`estimate_errors`)
+    estimate_errors: Callable[[DriveT, Any], EstimateErrors] | None = None
 
     def tunable(
-        self, name: str | None, family: ObserverFamily, preset: bool = True, drive: Drive = None
-    ) -> Tunable:
+        self, name: str | None, family: ObserverFamily, preset: bool = True, drive: DriveT = None
+    ) -> Tunable[DriveT]:
         """The tunable called ``name`` (None: the default for a preset or a drive of the user's own);
         CapabilityError naming what exists."""
         if name is None and not preset:
@@ -116,7 +119,7 @@ class TuningHooks:
         )
 
 
-def hooks(family: ObserverFamily) -> TuningHooks:
+def hooks(family: ObserverFamily) -> TuningHooks[Any]:
     """The tuning hooks of ``family``; CapabilityError if it has none."""
     if family.tuning is None:
         raise CapabilityError(f"observer family {family.name!r} has nothing to tune")

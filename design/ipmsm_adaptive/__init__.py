@@ -15,7 +15,6 @@ import dataclasses
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from sensorless.design.family import (
     CapabilityError,
     DriveScales,
@@ -27,14 +26,16 @@ from sensorless.design.family import (
 )
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.ipmsm_adaptive import derive, discrete, schema, simulation
+from sensorless.design.ipmsm_adaptive import montecarlo as _montecarlo
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
+from sensorless.design.ipmsm_adaptive.runtime import with_alpha_fo
 from sensorless.design.ipmsm_adaptive.simulation import injection_off
 
 if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
+    from sensorless.design.capabilities import MonteCarloModule
     from sensorless.design.drive_file import DriveDocument
-    from sensorless.design.linearization import Linearization
-    from sensorless.design.montecarlo import Uncertain
+    from sensorless.design.ipmsm_adaptive.linearize import PoleSweep
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -57,6 +58,9 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
     scenario_options = simulation.SCENARIO_OPTIONS
     estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
     panels = simulation.PANELS
+
+    # Monte-Carlo: the electrical parameters and J, spread in one batched linearization
+    montecarlo: MonteCarloModule[schema.IpmsmDrive] = _montecarlo
 
     def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.IpmsmDrive:
         return derive.load(data, file, digest, self.kind)
@@ -92,7 +96,7 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
 
     def linearize(
         self, drive: schema.IpmsmDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
-    ) -> Linearization:
+    ) -> PoleSweep:
         """Closed-loop poles (design/ipmsm_adaptive/linearize.py); options: injection, estimate, and
         discretization (with T_s): also the discrete-time observer that runs (discrete.py)."""
         if options.get("injection") and not drive.injection.enabled:
@@ -161,55 +165,12 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
         """The run's HF-injection switch (simulation.build puts it in the provenance)."""
         return (f"HF injection {'on' if meta['injection'] else 'off'}",)
 
-    # Monte-Carlo (montecarlo.py): the electrical parameters and J, spread in one batched linearization
-    def montecarlo_parameters(self, drive: schema.IpmsmDrive) -> tuple[Uncertain, ...]:
-        from sensorless.design.ipmsm_adaptive.montecarlo import parameters
-
-        return parameters(drive)
-
-    def linearize_draws(
-        self,
-        drive: schema.IpmsmDrive,
-        gains: GainSet,
-        plant: np.ndarray,
-        estimate: np.ndarray,
-        w: np.ndarray,
-        torque: np.ndarray,
-        complete: bool = True,
-    ) -> Linearization:
-        from sensorless.design.ipmsm_adaptive.montecarlo import linearize_draws
-
-        drive = with_alpha_fo(drive, gains)
-        return linearize_draws(drive, _runtime.law_of(gains), plant, estimate, w, torque, complete)
-
-    def perturbed(
-        self, drive: schema.IpmsmDrive, plant: Mapping[str, float], estimate: Mapping[str, float]
-    ) -> schema.IpmsmDrive:
-        from sensorless.design.ipmsm_adaptive.montecarlo import perturbed
-
-        return perturbed(drive, plant, estimate)
-
     # the open-loop I-f start (design/startup.py): its drive files' optional [startup] section
     def startup(self, drive: schema.IpmsmDrive) -> StartupSettings | None:
         return drive.startup
 
     def with_startup(self, drive: schema.IpmsmDrive, startup: StartupSettings | None) -> schema.IpmsmDrive:
         return dataclasses.replace(drive, startup=startup)
-
-    def envelope_points(
-        self, drive: schema.IpmsmDrive, gains: GainSet | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The drive's range (``drive.envelope``: its [tuning] envelope, widened to +-T_max on a drive of
-        the user's own), the points tune and the report judge too."""
-        return drive.envelope.grid()
-
-
-def with_alpha_fo(drive: schema.IpmsmDrive, gains: GainSet) -> Any:
-    """The drive with the adaptation bandwidth (10) of ``gains`` (a tuned table may carry its own)."""
-    a = gains.values.get("alpha_fo", drive.observer.alpha_fo)
-    if a == drive.observer.alpha_fo:
-        return drive
-    return dataclasses.replace(drive, observer=dataclasses.replace(drive.observer, alpha_fo=float(a)))
 
 
 FAMILY = AdaptiveFluxObserver()

@@ -38,12 +38,14 @@ import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.compiled import compiled
+from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive.linearize import PoleSweep, drive_arguments, linearization_function
 from sensorless.design.ipmsm_adaptive.operating_point import (
     PARAM_NAMES,
     nominal_equilibrium_function,
     residual_function,
 )
+from sensorless.design.ipmsm_adaptive.runtime import law_of, with_alpha_fo
 from sensorless.design.montecarlo import Uncertain
 from sensorless.design.montecarlo import perturbed as shared_perturbed
 from sensorless.design.poles import eigvals_batched, sort_poles
@@ -234,6 +236,26 @@ def _sweep_parts(out: list[np.ndarray], good: np.ndarray) -> tuple[np.ndarray, n
 
 def linearize_draws(
     drive: IpmsmDrive,
+    gains: GainSet,
+    plant: np.ndarray,
+    estimate: np.ndarray,
+    w: np.ndarray,
+    torque: np.ndarray,
+    complete: bool = True,
+) -> PoleSweep:
+    """Every draw at every point, draw-major (design/capabilities.py ``MonteCarloModule``): the drive
+    with the adaptation bandwidth of ``gains``, their law as :func:`law_draws` takes it."""
+    return law_draws(with_alpha_fo(drive, gains), law_of(gains), plant, estimate, w, torque, complete)
+
+
+def envelope_points(drive: IpmsmDrive, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The drive's range (``drive.envelope``: its [tuning] envelope, widened to +-T_max on a drive of the
+    user's own), the points tune and the report judge too."""
+    return drive.envelope.grid()
+
+
+def law_draws(
+    drive: IpmsmDrive,
     gain: Any,
     plant: np.ndarray,
     estimate: np.ndarray,
@@ -242,7 +264,7 @@ def linearize_draws(
     complete: bool = True,
 ) -> PoleSweep:
     """The closed loop of each draw (rows of ``plant``/``estimate``, columns in :func:`parameters`'
-    order; J ignored) at each operating point, draw-major: N = draws x points (family.linearize_draws).
+    order; J ignored) at each operating point, draw-major: N = draws x points (:func:`linearize_draws`).
     ``gain``: (law, parameters) as linearize.linearize takes it; ``drive`` carries the gains' alpha_fo.
     ``complete`` False: a draw with a point without equilibrium is NaN at all its points.
 

@@ -9,6 +9,7 @@ come from the drive file; the gain law (7)/(16) is scheduled at the stored speed
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from typing import TYPE_CHECKING, Any
@@ -178,3 +179,11 @@ def runtime_setup(drive: IpmsmDrive, gains: GainSet, discretization: str | None 
     _check_sampling(drive, params)
     OBSERVER.check_params(params)
     return RuntimeSetup(OBSERVER, disc, params, gains, schedule_of(gains))
+
+
+def with_alpha_fo(drive: IpmsmDrive, gains: GainSet) -> IpmsmDrive:
+    """The drive with the adaptation bandwidth (10) of ``gains`` (a tuned table may carry its own)."""
+    a = gains.values.get("alpha_fo", drive.observer.alpha_fo)
+    if a == drive.observer.alpha_fo:
+        return drive
+    return dataclasses.replace(drive, observer=dataclasses.replace(drive.observer, alpha_fo=float(a)))

@@ -15,18 +15,17 @@ import dataclasses
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from sensorless.design.family import CapabilityError, DriveScales, GainSet, GainTableData, ObserverFamily
 from sensorless.design.law_gains import table_gains
 from sensorless.design.pmac_reduced_order import derive, schema, simulation
 from sensorless.design.pmac_reduced_order import linearize as _linearize
+from sensorless.design.pmac_reduced_order import montecarlo as _montecarlo
 from sensorless.design.pmac_reduced_order import runtime as _runtime
 
 if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
+    from sensorless.design.capabilities import MonteCarloModule
     from sensorless.design.drive_file import DriveDocument
-    from sensorless.design.linearization import Linearization
-    from sensorless.design.montecarlo import Uncertain
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -48,6 +47,9 @@ class ReducedOrderObserver(ObserverFamily[schema.PmacDrive]):
     scenario_options = simulation.SCENARIO_OPTIONS
     estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
     panels = simulation.PANELS
+
+    # Monte-Carlo: its motor's and estimates' parameters, linearized on the exact-estimate orbit
+    montecarlo: MonteCarloModule[schema.PmacDrive] = _montecarlo
 
     def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.PmacDrive:
         return derive.load(data, file, digest, self.kind)
@@ -80,7 +82,7 @@ class ReducedOrderObserver(ObserverFamily[schema.PmacDrive]):
 
     def linearize(
         self, drive: schema.PmacDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
-    ) -> Linearization:
+    ) -> _linearize.ObserverPoles:
         """Observer poles, continuous and discrete (linearize.analyze); ``torque`` is the load T_L.
 
         Options: load_estimation, method, T_s, settle_time, n_angles."""
@@ -119,40 +121,6 @@ class ReducedOrderObserver(ObserverFamily[schema.PmacDrive]):
 
     def drive_loop(self, drive: schema.PmacDrive, scenario: Scenario, gains: GainSet | None) -> LoopSetup:
         return simulation.analysed_loop(drive, scenario, gains)
-
-    # Monte-Carlo (design/pmac_reduced_order/montecarlo.py)
-    def montecarlo_parameters(self, drive: schema.PmacDrive) -> tuple[Uncertain, ...]:
-        from sensorless.design.pmac_reduced_order import montecarlo
-
-        return montecarlo.parameters(drive)
-
-    def linearize_draws(
-        self,
-        drive: schema.PmacDrive,
-        gains: GainSet,
-        plant: np.ndarray,
-        estimate: np.ndarray,
-        w: np.ndarray,
-        torque: np.ndarray,
-        complete: bool = True,
-    ) -> Linearization:
-        from sensorless.design.pmac_reduced_order import montecarlo
-
-        return montecarlo.linearize_draws(drive, gains, plant, estimate, w, torque, complete)
-
-    def perturbed(
-        self, drive: schema.PmacDrive, plant: Mapping[str, float], estimate: Mapping[str, float]
-    ) -> schema.PmacDrive:
-        from sensorless.design.pmac_reduced_order import montecarlo
-
-        return montecarlo.perturbed(drive, plant, estimate)
-
-    def envelope_points(
-        self, drive: schema.PmacDrive, gains: GainSet | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Its drive file's [envelope] (design/envelope.py, the grid its tuner reads): electrical
-        speeds, sorted and distinct, x load torques, sorted and distinct."""
-        return drive.envelope.grid()
 
     def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
         """No HF injection: said as the traces' header has always said it (the same trace files)."""

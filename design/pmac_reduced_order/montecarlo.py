@@ -50,7 +50,13 @@ def _replaced(record: Any, values: Mapping[str, float]) -> Any:
     return dataclasses.replace(record, **new)
 
 
-def perturbed(drive: PmacDrive, plant: Mapping[str, float], estimate: Mapping[str, float]) -> Any:
+def envelope_points(drive: PmacDrive, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Its drive file's [envelope] (design/envelope.py, the grid its tuner reads): electrical speeds,
+    sorted and distinct, x load torques, sorted and distinct."""
+    return drive.envelope.grid()
+
+
+def perturbed(drive: PmacDrive, plant: Mapping[str, float], estimate: Mapping[str, float]) -> PmacDrive:
     return dataclasses.replace(
         drive, motor=_replaced(drive.motor, plant), estimate=_replaced(drive.estimate, estimate)
     )

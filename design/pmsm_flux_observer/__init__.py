@@ -13,7 +13,6 @@ import dataclasses
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from sensorless.design.family import (
     CapabilityError,
     DriveScales,
@@ -25,15 +24,16 @@ from sensorless.design.family import (
 from sensorless.design.law_gains import table_gains
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_flux_observer import gains as _gains
+from sensorless.design.pmsm_flux_observer import laws as _laws
 from sensorless.design.pmsm_flux_observer import linearize as _linearize
+from sensorless.design.pmsm_flux_observer import montecarlo as _montecarlo
 from sensorless.design.pmsm_flux_observer import schema
 from sensorless.design.simulate import StateFrames
 
 if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
+    from sensorless.design.capabilities import MonteCarloModule
     from sensorless.design.drive_file import DriveDocument
-    from sensorless.design.linearization import Linearization
-    from sensorless.design.montecarlo import Uncertain
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -106,14 +106,17 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
     scenarios = "sensorless.design.pmsm_flux_observer.scenarios"
     tuning = "sensorless.tuning.pmsm_flux_observer"
     report = "sensorless.reports.pmsm_flux_observer"
-    laws = _gains.TABLE_LAWS
-    law_aliases = _gains.LAW_ALIASES
+    laws = _laws.TABLE_LAWS
+    law_aliases = _laws.LAW_ALIASES
     estimate_keys = ESTIMATE_KEYS
     panels = (CURRENT_PANEL,)
     # its damping k/(2|w|) falls with speed by design (its error does not oscillate in the stationary
     # frame): stable is all it asks of damping; its criterion is decay, angle bias and noise, the PLL's
     # lag (tuning/pmsm_flux_observer/criterion.py)
     required_damping = 0.0
+
+    # Monte-Carlo: the electrical parameters and J, each draw's sampled observer in one batch
+    montecarlo: MonteCarloModule[schema.FluxObserverDrive] = _montecarlo
 
     def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.FluxObserverDrive:
         return schema.load(data, file, digest, self.kind)
@@ -142,7 +145,7 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
 
     def linearize(
         self, drive: schema.FluxObserverDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
-    ) -> Linearization:
+    ) -> _linearize.FluxLinearization:
         unknown = set(options) - {"estimate"}
         if unknown:
             raise CapabilityError(
@@ -185,7 +188,7 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
         m = drive.motor
         return DriveScales(drive.T_N, c.T_max, m.J, m.p, drive.w_base, c.alpha_s, why, spin)
 
-    def drive_loop(self, drive: Any, scenario: Any, gains: GainSet | None) -> Any:
+    def drive_loop(self, drive: schema.FluxObserverDrive, scenario: Any, gains: GainSet | None) -> Any:
         """The loop as run, except the clamped gradient observer (VESC's ORTEGA_ORIGINAL): analysed on its
         active side, the gradient observer, as its observer-only linearization is (linearize.py). At
         exact estimates its fixed point lies on the clamp's kink (|eta| = lambda), where the one-sided
@@ -213,56 +216,6 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
         self, drive: schema.FluxObserverDrive, scenario: Scenario, gains: GainSet | None
     ) -> LoopSetup:
         return simulation(drive, scenario, gains)
-
-    # Monte-Carlo (design/pmsm_flux_observer/montecarlo.py)
-    def montecarlo_parameters(self, drive: schema.FluxObserverDrive) -> tuple[Uncertain, ...]:
-        from sensorless.design.pmsm_flux_observer import montecarlo
-
-        return montecarlo.parameters(drive)
-
-    def linearize_draws(
-        self,
-        drive: schema.FluxObserverDrive,
-        gains: GainSet,
-        plant: np.ndarray,
-        estimate: np.ndarray,
-        w: np.ndarray,
-        torque: np.ndarray,
-        complete: bool = True,
-    ) -> Linearization:
-        from sensorless.design.pmsm_flux_observer import montecarlo
-
-        return montecarlo.linearize_draws(drive, gains, plant, estimate, w, torque, complete)
-
-    def envelope_points(
-        self, drive: schema.FluxObserverDrive, gains: GainSet | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Its drive file's [envelope] (speeds in both directions x torques); with ``gains``, the points
-        where they run the drive sensorless: from the open-loop I-f start's hand-back speed w_off up
-        (its [startup], else its rules at the gains: design/pmsm_drive.py ``startup_values``), since
-        below it the drive runs open loop (no equilibrium there under an estimate error is no failure)."""
-        import numpy as np
-        from sensorless.design.pmsm_drive import startup_values
-
-        W, T = drive.envelope.grid()
-        if gains is None:
-            return W, T
-        try:
-            values, _, _ = startup_values(drive, gains)
-        except CapabilityError:
-            return W, T
-        w_off = (values or {}).get("if_w_off")
-        if not w_off:
-            return W, T
-        keep = np.abs(W) >= float(w_off) * (1 - 1e-12)
-        return (W[keep], T[keep]) if keep.any() else (W, T)
-
-    def perturbed(
-        self, drive: schema.FluxObserverDrive, plant: Mapping[str, float], estimate: Mapping[str, float]
-    ) -> schema.FluxObserverDrive:
-        from sensorless.design.pmsm_flux_observer import montecarlo
-
-        return montecarlo.perturbed(drive, plant, estimate)
 
     # the open-loop I-f start (design/startup.py): its drive files' optional [startup] section
     def startup(self, drive: schema.FluxObserverDrive) -> StartupSettings | None:

@@ -10,99 +10,36 @@ Laws (docs/families/pmsm_flux_observer.md "Gains"):
   between, held beyond the ends), and pll_bandwidth. (Law names are each family's own: the adaptive
   observer's ``schedule`` is another law. Its former name ``flux_schedule`` is read from drive files,
   gain tables and ``tune --law`` for one release, with a note.)
+
+The laws' keys and their reader are laws.py (the drive file's schema reads its [gains] there).
 """
 
 from __future__ import annotations
 
 import functools
-import itertools
 import math
-import sys
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTableError
+from sensorless.design.pmsm_flux_observer.laws import parse_law, section_gains
 from sensorless.design.runtime import GainSchedule, RuntimeSetup
-from sensorless.design.units import DriveFileError, parse_quantity
+from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_flux_observer.observer import runtime_observer
 from sensorless.symbolic.runtime import Field
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+
 VESC_GAIN_FACTOR = 4.0  # gamma = 4 foc_observer_gain max(slow, |duty| V_bus / 40 V) (factor 5 before 2020)
 VESC_U_REF = 40.0 / math.sqrt(3)  # [V]: |duty| V_bus / 40 V = |u| / this
-LAW_KEYS: dict[str, dict[str, str]] = {
-    "odrive": {"observer_gain": "rate", "pll_bandwidth": "angular"},
-    "vesc": {
-        "foc_observer_gain": "dimensionless",
-        "foc_observer_gain_slow": "dimensionless",
-        "foc_pll_kp": "rate",
-        "foc_pll_ki": "rate_squared",
-    },
-    "schedule": {"pll_bandwidth": "angular"},  # plus the lists speeds [rad/s], observer_gain [1/s]
-}
-LAW_ALIASES = {"flux_schedule": "schedule"}  # former name -> name now (read for one release)
-TABLE_LAWS: dict[str, tuple[str, ...]] = {
-    "odrive": ("observer_gain", "pll_bandwidth"),
-    "vesc": ("foc_observer_gain", "foc_observer_gain_slow", "foc_pll_kp", "foc_pll_ki"),
-    "schedule": ("speeds", "observer_gain", "pll_bandwidth"),
-}
 
 
-def _number(
-    t: Mapping[str, Any], k: str, dim: str, file: str, section: str, allow_zero: bool = False
-) -> float:
-    if k not in t:
-        raise DriveFileError(file, f"{section}.{k}", "missing key")
-    x, rel = parse_quantity(t[k], dim, file=file, key=f"{section}.{k}")
-    if rel is not None or not math.isfinite(x) or not (x > 0 or (allow_zero and x == 0)):
-        raise DriveFileError(file, f"{section}.{k}", f"non-physical value {t[k]!r}: must be > 0")
-    return x
-
-
-def parse_law(law: str, t: Mapping[str, Any], file: str, section: str) -> dict[str, Any]:
-    """The SI gains of ``law`` from a table of quantities; DriveFileError naming the key."""
-    if law in LAW_ALIASES:  # its former name: read, and said once per file
-        _renamed(file, f"{section}.law", law)
-        law = LAW_ALIASES[law]
-    if law not in LAW_KEYS:
-        raise DriveFileError(file, f"{section}.law", f"{law!r} is not one of: {', '.join(LAW_KEYS)}")
-    for k in t:
-        if k != "law" and k not in TABLE_LAWS[law]:
-            raise DriveFileError(
-                file, f"{section}.{k}", f"unknown key (law {law}: {', '.join(TABLE_LAWS[law])})"
-            )
-    out = {
-        k: _number(t, k, dim, file, section, k == "foc_observer_gain_slow")
-        for k, dim in LAW_KEYS[law].items()
-    }
-    if law == "schedule":
-        for k, dim in (("speeds", "angular"), ("observer_gain", "rate")):
-            v = t.get(k)
-            if not isinstance(v, list) or len(v) < 2:
-                raise DriveFileError(file, f"{section}.{k}", "expected a list of at least two values")
-            out[k] = [_number({k: x}, k, dim, file, section) for x in v]
-        if len(out["speeds"]) != len(out["observer_gain"]):
-            raise DriveFileError(file, f"{section}.observer_gain", "one value per speed")
-        if any(b <= a for a, b in itertools.pairwise(out["speeds"])):
-            raise DriveFileError(file, f"{section}.speeds", "must increase strictly")
-    return out
-
-
-@functools.cache
-def _renamed(file: str, key: str, law: str) -> None:
-    print(f"{file}: note: key '{key}': law {law!r} is now called {LAW_ALIASES[law]!r}", file=sys.stderr)
-
-
-def drive_gains(drive: Any) -> GainSet:
+def drive_gains(drive: FluxObserverDrive) -> GainSet:
     """The drive file's [gains]."""
-    t = drive.gains_table
-    law = t.get("law")
-    if not isinstance(law, str):
-        raise DriveFileError(
-            drive.file, "gains.law", "missing key or not a string (odrive | vesc | schedule)"
-        )
-    return GainSet(LAW_ALIASES.get(law, law), parse_law(law, t, drive.file, "gains"), f"{drive.file} [gains]")
+    return section_gains(drive.gains_table, drive.file)
 
 
 def table_values(law: str, gains: Mapping[str, Any], where: str) -> dict[str, Any]:
@@ -164,7 +101,7 @@ def schedule_of(gains: GainSet, psi_hat: float) -> GainSchedule:
     return GainSchedule(gains.law, constant_law(), (k_0,), (Field("k_0", "1/s", "observer gain"),), (), text)
 
 
-def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:
+def runtime_params(drive: FluxObserverDrive, gains: GainSet) -> dict[str, float]:
     """The parameters of the runtime step (symbolic PARAMS)."""
     e = drive.estimate
     k_p, k_i = pll_gains(gains)
@@ -186,7 +123,9 @@ def runtime_params(drive: Any, gains: GainSet) -> dict[str, float]:
     }
 
 
-def runtime_setup(drive: Any, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
+def runtime_setup(
+    drive: FluxObserverDrive, gains: GainSet, discretization: str | None = None
+) -> RuntimeSetup:
     """The runtime observer of ``drive`` (its variant) with ``gains``."""
     o = drive.observer
     obs = runtime_observer(o.correction, o.inductance_rule)
@@ -195,13 +134,13 @@ def runtime_setup(drive: Any, gains: GainSet, discretization: str | None = None)
         raise ValueError(f"unknown discretization {disc!r} (known: {', '.join(obs.discretizations)})")
     params = runtime_params(drive, gains)
     obs.check_params(params)
-    notes = ()
+    notes: tuple[str, ...] = ()
     if o.correction == "box-clamp":
         notes = ("box-clamp: the observer gain is unused (pure integration, each axis clamped to +-lambda)",)
     return RuntimeSetup(obs, disc, params, gains, schedule_of(gains, drive.estimate.psi_pm), notes)
 
 
-def law_misfit(drive: Any, law: str) -> str:
+def law_misfit(drive: FluxObserverDrive, law: str) -> str:
     """Why gains of ``law`` cannot be tuned for the drive's observer variant ("" where they can): the
     box clamp has no observer gain and no linearization (nothing for a tuner to judge), and the vesc
     law's gain is VESC's ORTEGA_ORIGINAL (the clamped gradient), which its export writes and the other

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -49,6 +49,9 @@ from sensorless.design.rotor_frame import (
 from sensorless.symbolic.frames import J, rot, wrap_angle
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS, rhs_function, runtime_observer
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 # the sampled observer's damped Newton (discrete_analysis): each halved step costs an iteration; 40
 # left NaN at three estimate-error corners of outrunner270 (0.24-1 p.u., the continuous equilibrium
@@ -79,7 +82,8 @@ class FluxLinearization(Linearization):
         return self.decay_rate if self.observer_decay is None else self.observer_decay
 
     def point_columns(self) -> dict[str, np.ndarray]:
-        return {"theta_err_deg": np.degrees(self.theta_err_discrete)}
+        err = self.theta_err_discrete
+        return {} if err is None else {"theta_err_deg": np.degrees(err)}
 
     def notes(self) -> tuple[str, ...]:
         return (f"gain law: {self.law}",)
@@ -89,7 +93,7 @@ class FluxLinearization(Linearization):
         return self.theta_err_discrete
 
 
-def motor_vector(drive: Any) -> np.ndarray:
+def motor_vector(drive: FluxObserverDrive) -> np.ndarray:
     """[R_s, L_d, L_q, psi_pm, p] of the true motor: the loop's ``plant`` (design/rotor_frame.py)."""
     return pmsm_plant(drive.motor)
 
@@ -110,9 +114,11 @@ def rotor_frame_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> Rot
     lam = x_r[2] if adapt else p[_IX["psi_pm"]]
     delta, w_p = x_r[n - 2], x_r[n - 1]
     dx = rhs_function(kind, rule)(ca.vertcat(x_r[0:2], lam, -delta, w_p), i_r, u_r, p, law(w_p, gain))
-    G = ca.vertcat(*([dx[0:2] - w * (J @ x_r[0:2])] + ([dx[2]] if adapt else []) + [w - dx[3], dx[4]]))
+    parts: list[Any] = [dx[0:2] - w * (J @ x_r[0:2])] + ([dx[2]] if adapt else []) + [w - dx[3], dx[4]]
+    G = ca.vertcat(*parts)
     psi_r = flux_from_current(i_r, PmsmParams(m[0], m[1], m[2], m[3]))
-    x0 = ca.vertcat(*([psi_r] + ([p[_IX["psi_pm"]]] if adapt else []) + [0, w]))
+    start: list[Any] = [psi_r] + ([p[_IX["psi_pm"]]] if adapt else []) + [0, w]
+    x0 = ca.vertcat(*start)
     eta = x_r[0:2] - _inductance_at(rule, i_r, p) * i_r
     args, names = [x_r, w, T_e, m, pg], ["x_r", "w", "torque", "plant", "p"]
     return RotorFrameLoop(
@@ -150,9 +156,9 @@ def sampled_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> Sampled
         return ca.vertcat(rot(theta) @ y[0:2], lam, u_prev, theta - y[n - 2], y[n - 1])
 
     def rotor(x: Any, theta: Any) -> Any:
-        return ca.vertcat(
-            *([rot(theta).T @ x[0:2]] + ([x[2]] if adapt else []) + [wrap_angle(theta - x[5]), x[6]])
-        )
+        turn: Any = rot(theta)  # of an SX angle: an SX matrix
+        back = turn.T
+        return ca.vertcat(*([back @ x[0:2]] + ([x[2]] if adapt else []) + [wrap_angle(theta - x[5]), x[6]]))
 
     names = ("x_d", "x_q", *(("lambda_hat",) if adapt else ()), "delta", "w_pll")
     obs = runtime_observer(kind, rule)
@@ -160,7 +166,7 @@ def sampled_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> Sampled
 
 
 def discrete_analysis(
-    drive: Any,
+    drive: FluxObserverDrive,
     loop: SampledLoop,
     y0: np.ndarray,
     W: np.ndarray,
@@ -214,7 +220,7 @@ def _sampled_observer_decay(Jd: np.ndarray, poles: np.ndarray, T: float) -> np.n
     return out
 
 
-def current_noise(drive: Any) -> float:
+def current_noise(drive: FluxObserverDrive) -> float:
     """The current-sensor noise [A rms per axis and sample]: ``[control] i_noise``, or I_NOISE_DEFAULT
     of the current amplitude at rated torque (the other families' default)."""
     if drive.i_noise > 0:
@@ -234,7 +240,9 @@ def _inductance_at(rule: str, i_r: Any, p: Any) -> Any:
     return L_d + (L_q - L_d) * i_r[1] ** 2 / (ca.sumsqr(i_r) + 1e-9)
 
 
-def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = None) -> FluxLinearization:
+def linearize(
+    drive: FluxObserverDrive, gains: GainSet, w: Any, torque: Any, estimate: Any = None
+) -> FluxLinearization:
     """Continuous and discrete poles at speeds ``w`` [rad/s] x torques [N m] (broadcast together).
 
     ``estimate``: an optional dict of runtime parameter overrides (R_s, L_d, L_q, psi_pm) to study
@@ -253,6 +261,7 @@ def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = N
     if estimate:
         params.update(estimate)
     p = setup.observer.pack_params(params)
+    assert setup.schedule is not None  # the family's runtime set-up always has its schedule (gains.py)
     law = setup.schedule.law
     rule, adapt = o.inductance_rule, o.lambda_adaptation
     eq = equilibrium_points(
@@ -274,7 +283,7 @@ def linearize(drive: Any, gains: GainSet, w: Any, torque: Any, estimate: Any = N
         poles_discrete=poles_d,
         T_s=o.T_obs,
         torque_name="T_e",
-        theta_err=eq.y[:, 0],
+        theta_err=None if eq.y is None else eq.y[:, 0],
         theta_err_discrete=err_d,
         law=gains.law,
         observer_decay=own,

@@ -17,7 +17,7 @@ design) at every point of the envelope (design/montecarlo.py ``chunk_damping`` j
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -25,6 +25,7 @@ from sensorless.design.discrete import discrete_poles, fixed_points, pmsm_zoh_pl
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.montecarlo import Uncertain
 from sensorless.design.montecarlo import perturbed as shared_perturbed
+from sensorless.design.pmsm_drive import startup_values
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.pmsm_flux_observer.linearize import (
     DAMPED_STEPS,
@@ -38,6 +39,9 @@ from sensorless.design.rotor_frame import equilibrium_points
 from sensorless.symbolic.pmsm import PmsmParams, mtpa_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+
 ELECTRICAL = ("R_s", "L_d", "L_q", "psi_pm")
 # the plant's typical spread (1 sigma) a run assumes without --spread: the winding's resistance with its
 # temperature, inductance tolerance, the magnets' flux; the load's inertia
@@ -45,7 +49,7 @@ TYPICAL = {"R_s": 0.10, "L_d": 0.10, "L_q": 0.10, "psi_pm": 0.05, "J": 0.30}
 UNITS = {"R_s": "ohm", "L_d": "H", "L_q": "H", "psi_pm": "V s"}
 
 
-def parameters(drive: Any) -> tuple[Uncertain, ...]:
+def parameters(drive: FluxObserverDrive) -> tuple[Uncertain, ...]:
     m, e = drive.motor, drive.estimate
     out = [Uncertain(k, getattr(m, k), getattr(e, k), UNITS[k], True, TYPICAL[k]) for k in ELECTRICAL]
     out.append(Uncertain("J", m.J, None, "kg m^2", False, TYPICAL["J"]))
@@ -57,8 +61,27 @@ perturbed = (
 )
 
 
+def envelope_points(drive: FluxObserverDrive, gains: GainSet | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Its drive file's [envelope] (speeds in both directions x torques); with ``gains``, the points
+    where they run the drive sensorless: from the open-loop I-f start's hand-back speed w_off up (its
+    [startup], else its rules at the gains: design/pmsm_drive.py ``startup_values``), since below it the
+    drive runs open loop (no equilibrium there under an estimate error is no failure)."""
+    W, T = drive.envelope.grid()
+    if gains is None:
+        return W, T
+    try:
+        values, _, _ = startup_values(drive, gains)
+    except CapabilityError:
+        return W, T
+    w_off = (values or {}).get("if_w_off")
+    if not w_off:
+        return W, T
+    keep = np.abs(W) >= float(w_off) * (1 - 1e-12)
+    return (W[keep], T[keep]) if keep.any() else (W, T)
+
+
 def linearize_draws(
-    drive: Any,
+    drive: FluxObserverDrive,
     gains: GainSet,
     plant: np.ndarray,
     estimate: np.ndarray,
@@ -77,6 +100,7 @@ def linearize_draws(
     n_d, n_p = plant.shape[0], w.size
     k = len(ELECTRICAL)
     setup = runtime_setup(drive, gains)
+    assert setup.schedule is not None  # the family's runtime set-up always has its schedule (gains.py)
     names = [f.name for f in PARAMS]
     base = dict(setup.params)
     P = np.empty((len(names), n_d))
@@ -118,7 +142,7 @@ def linearize_draws(
         poles_discrete=poles_d,
         T_s=o.T_obs,
         torque_name="T_e",
-        theta_err=np.where(ok, eq.y[:, 0], np.nan),
+        theta_err=None if eq.y is None else np.where(ok, eq.y[:, 0], np.nan),
         theta_err_discrete=np.full(W.size, np.nan),
         law=gains.law,
     )
@@ -128,4 +152,5 @@ def linearize_draws(
 def _mtpa_map(n: int) -> ca.Function:
     """The MTPA current (symbolic/pmsm.py) mapped over n points, one motor [R_s, L_d, L_q, psi_pm] each."""
     T, m, pp = ca.SX.sym("T"), ca.SX.sym("m", 4), ca.SX.sym("p")
-    return ca.Function("mtpa", [T, m, pp], [mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), pp)]).map(n)
+    i_mtpa: Any = mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), pp)  # SX of SX symbols
+    return ca.Function("mtpa", [T, m, pp], [i_mtpa]).map(n)

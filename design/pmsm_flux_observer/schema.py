@@ -41,6 +41,7 @@ from sensorless.design.drive_file import (
 from sensorless.design.envelope import Envelope, SpeedRule
 from sensorless.design.motor_data import mtpa_torque, read_motor
 from sensorless.design.plausibility import plausibility, warning_lines
+from sensorless.design.pmsm_flux_observer.laws import parse_law, section_gains
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, PmsmRating
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_flux_observer.observer import CORRECTIONS, INDUCTANCES
@@ -317,8 +318,6 @@ def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
     PLL_CANCELLED (VESC's defaults 2000/30000: 0.8 %) the rule takes the fast root p_2. The runtime's
     speed output is the integrator w_pll, k_i/((s + p_1)(s + p_2)), which shows p_1 in full: the report
     says so where p_1 is below a tenth of alpha_s (reports/pmsm_flux_observer/findings.py)."""
-    from sensorless.design.pmsm_flux_observer.gains import parse_law
-
     t = {k: e.value for k, e in gains.items()}
     law = t.get("law")
     if not isinstance(law, str):
@@ -406,9 +405,7 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
         digest=digest,
         i_noise=positive(ctl, "i_noise", "current", file, "control") if "i_noise" in ctl else 0.0,
     )
-    from sensorless.design.pmsm_flux_observer.gains import drive_gains
-
-    drive_gains(drive)  # the [gains] section checked at load time
+    section_gains(drive.gains_table, file)  # the [gains] section checked at load time
     r_t = table(data, "rating", file) if "rating" in data else {}
     keys = {
         "n_N": "rating.n_N" if "n_N" in r_t else "inverter.u_dc",

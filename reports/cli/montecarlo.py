@@ -115,13 +115,13 @@ def run(args: argparse.Namespace) -> int:
     fam = family_of(drive)
     if args.min_damping is None:  # the family's (ObserverFamily.required_damping)
         args.min_damping = fam.min_damping()
-    params = require(fam, MonteCarlo).montecarlo_parameters(drive)  # else one line naming the family
+    params = require(fam, MonteCarlo).montecarlo.parameters(drive)  # else one line naming the family
     try:
         plant = mc.parse_spreads(args.spread, "--spread", params, estimates=False)
         estimate = mc.parse_spreads(args.estimate_error, "--estimate-error", params, estimates=True)
     except mc.SpreadError as e:
         raise UsageError(str(e)) from None
-    if args.spread is None:  # the family's typical spread of the true motor (montecarlo_parameters)
+    if args.spread is None:  # the family's typical spread of the true motor (its Monte-Carlo parameters)
         plant = rmc.typical_spreads(params)
         if not args.quiet:
             typical = ", ".join(f"{k}={v.text()}" for k, v in plant.items())

@@ -187,7 +187,7 @@ def _with_montecarlo(
 
     print(f"      Monte-Carlo: {args.montecarlo} draws", file=sys.stderr, flush=True)
     gains = fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
-    params = require(fam, MonteCarlo).montecarlo_parameters(drive)
+    params = require(fam, MonteCarlo).montecarlo.parameters(drive)
     with Engine(SYNCHRONOUS, quiet=True) as engine:
         res = rmc.run(
             drive, gains, params, rmc.typical_spreads(params), {}, args.montecarlo, 0, 0,

@@ -1,43 +1,43 @@
-"""Stability report of the adaptive observer: pole maps, damping maps, robustness, time-domain checks.
+"""How the adaptive observer judges its gains on the shared report frame (reports/envelope_review.py).
 
 Piippo, Hinkkanen, Luomi (2008): pole maps over speed at +-T_N for each gain (Figs. 4-5 style) and with
 the averaged HF injection (19)-(22); worst damping and decay rate over the speed x torque plane;
 robustness maps under misestimated R̂s, L̂d, L̂q, ψ̂pm; the paper's experiments re-run (Figs. 9(b), 10,
 6(b)); the discrete-time observer that runs (discrete.py); and a verdict that states where the gains
-under review meet the required damping and where not.
+under review meet the required damping and where not. The frame (opening data, time-domain checks, the
+verdict's status with them, the sections' order) is the shared one; the analysis, the gain sets (each
+of the drive file's gain choices) and the verdict's form are this family's.
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
+from sensorless.design.gain_table import GainTable
 from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
 from sensorless.design.ipmsm_adaptive.carrier import coupling_limit
 from sensorless.design.ipmsm_adaptive.linearize import PoleSweep, unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
-from sensorless.design.poles import MIN_DAMPING
-from sensorless.reports import time_domain
 from sensorless.reports.document import (
     Figure,
     Paragraph,
-    Report,
     Section,
     Table,
     Verdict,
     arr,
-    drive_section,
     f,
     num,
 )
+from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, report_with
 from sensorless.reports.ipmsm_adaptive import tuning
 from sensorless.reports.ipmsm_adaptive.causes import crossings
 from sensorless.reports.ipmsm_adaptive.discrete import report_section as discrete_section
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
-from sensorless.reports.review import Review, opening, settle, time_domain_checks, verdict_box
+from sensorless.reports.review import Review, settle, verdict_box
 from sensorless.reports.svg_render import svg_later
 
 if TYPE_CHECKING:  # typed by name only
@@ -76,162 +76,173 @@ def _worst_point(s: PoleSweep, w_min: float, w_base: float) -> dict[str, Any]:
     }
 
 
-def compute(
-    drive: IpmsmDrive,
-    table: Any | None = None,
-    table_file: str = "",
-    min_damping: float = MIN_DAMPING,
-    resolution: str = "normal",
-    progress: Callable[[str], None] = lambda s: None,
-    scenarios: Sequence[str] = (),
-) -> Report:
-    """All numbers (JSON-ready), figures and sections of the report; ``scenarios``: the user's scenario
-    files, checked in the time domain besides the built-in ones (reports/time_domain.py)."""
-    from sensorless.reports.pole_map import plot_pole_maps
+class AdaptiveJudge(Judging["IpmsmDrive"]):
+    """The family's :class:`~sensorless.reports.envelope_review.Judge` (module docstring)."""
 
-    wb, T_N = drive.w_base, drive.T_N
-    fine = resolution == "normal"
-    w = np.linspace(-1, 1, 801 if fine else 201) * wb
-    w_low = np.linspace(-0.05, 0.05, 401 if fine else 101) * wb
-    w_env = 0.05 * wb  # where the tuning envelope starts by default
-    choices, review = gain_choices(drive, table, table_file)
-    rev = Review(choices, review, table is not None)
-    data: dict[str, Any] = opening(FAMILY, drive, table, min_damping, review)
-    pole_figs: list[Figure] = []
+    def review(self, drive: IpmsmDrive, table: GainTable | None, table_file: str) -> Review:
+        choices, review = gain_choices(drive, table, table_file)
+        return Review(choices, review, table is not None, table)
 
-    def bands(g: GainSet, T: float, s: PoleSweep, injection: bool) -> list[list[Any]]:
-        d = with_alpha_fo(drive, g)
-        out = unstable_speed_bands(d, w, T, gain=law_of(g), injection=injection, sweep=s)
-        return [[f(a / wb), f(b / wb)] for a, b in out]
+    time_domain = TIME_DOMAIN
 
-    # 1. pole maps over speed at +-T_N, each gain; then the gain under review with injection
-    steps = 7
-    progress(f"[1/{steps}] pole maps over speed ({len(choices)} gains x 2 torques, {w.size} speeds)")
-    pm: dict[str, Any] = {}
-    for T in (T_N, -T_N):
-        sweeps, lows = {}, {}
-        for label, g in choices.items():
-            s = FAMILY.linearize(drive, g, w, T)
-            sweeps[label], lows[label] = s, FAMILY.linearize(drive, g, w_low, T)
-            pm.setdefault(label, {})[f"{T:+g}"] = {
-                "T_Nm": f(T),
-                "rhp_bands_pu": bands(g, T, s, False),
-                "worst": _worst_point(s, w_env, wb),
-            }
-        title = f"{drive.name}: closed-loop poles at T_e = {T:g} N m"
-        pole_figs.append(
-            Figure(
-                svg_later(functools.partial(plot_pole_maps, sweeps, wb, title, lows)),
-                f"Closed-loop poles of G_c(s), eq. (15), at T_e = {T:+g} N m while the speed sweeps "
-                "-1…1 p.u. "
-                "(left, Fig. 4 style; upper half-plane), and magnified near the origin with a dense "
-                "low-speed sweep (right, Fig. 5 style). Crosses: right-half-plane poles; the RHP is shaded.",
-            )
-        )
-    g_rev = choices[review]
-    if drive.injection.enabled:
-        progress(f"[2/{steps}] pole maps with HF injection ({review})")
-        inj_sweeps, inj_lows = {}, {}
+    def analyse(
+        self,
+        drive: IpmsmDrive,
+        rev: Review,
+        min_damping: float,
+        resolution: str,
+        progress: Callable[[str], None],
+    ) -> Analysis:
+        """Pole maps over speed, the damping maps over speed x torque, the robustness maps, the
+        discrete-time observer that runs and the tuning's bound (sections 2-4, then 6 and 7)."""
+        from sensorless.reports.pole_map import plot_pole_maps
+
+        wb, T_N = drive.w_base, drive.T_N
+        fine = resolution == "normal"
+        w = np.linspace(-1, 1, 801 if fine else 201) * wb
+        w_low = np.linspace(-0.05, 0.05, 401 if fine else 101) * wb
+        w_env = 0.05 * wb  # where the tuning envelope starts by default
+        choices, review = rev.choices, rev.label
+        data: dict[str, Any] = {}
+        pole_figs: list[Figure] = []
+
+        def bands(g: GainSet, T: float, s: PoleSweep, injection: bool) -> list[list[Any]]:
+            d = with_alpha_fo(drive, g)
+            out = unstable_speed_bands(d, w, T, gain=law_of(g), injection=injection, sweep=s)
+            return [[f(a / wb), f(b / wb)] for a, b in out]
+
+        # 1. pole maps over speed at +-T_N, each gain; then the gain under review with injection
+        steps = STEPS + 2  # and the time-domain checks and the verdict (reports/envelope_review.py)
+        progress(f"[1/{steps}] pole maps over speed ({len(choices)} gains x 2 torques, {w.size} speeds)")
+        pm: dict[str, Any] = {}
         for T in (T_N, -T_N):
-            s = FAMILY.linearize(drive, g_rev, w, T, injection=True)
-            key = f"T = {T:+g} N m"
-            inj_sweeps[key] = s
-            inj_lows[key] = FAMILY.linearize(drive, g_rev, w_low, T, injection=True)
-            pm.setdefault(f"{review} + injection", {})[f"{T:+g}"] = {
-                "T_Nm": f(T),
-                "rhp_bands_pu": bands(g_rev, T, s, True),
+            sweeps, lows = {}, {}
+            for label, g in choices.items():
+                s = FAMILY.linearize(drive, g, w, T)
+                sweeps[label], lows[label] = s, FAMILY.linearize(drive, g, w_low, T)
+                pm.setdefault(label, {})[f"{T:+g}"] = {
+                    "T_Nm": f(T),
+                    "rhp_bands_pu": bands(g, T, s, False),
+                    "worst": _worst_point(s, w_env, wb),
+                }
+            title = f"{drive.name}: closed-loop poles at T_e = {T:g} N m"
+            pole_figs.append(
+                Figure(
+                    svg_later(functools.partial(plot_pole_maps, sweeps, wb, title, lows)),
+                    f"Closed-loop poles of G_c(s), eq. (15), at T_e = {T:+g} N m while the speed sweeps "
+                    "-1…1 p.u. "
+                    "(left, Fig. 4 style; upper half-plane), and magnified near the origin with a dense "
+                    "low-speed sweep (right, Fig. 5 style). Crosses: right-half-plane poles; the RHP is "
+                    "shaded.",
+                )
+            )
+        g_rev = choices[review]
+        if drive.injection.enabled:
+            progress(f"[2/{steps}] pole maps with HF injection ({review})")
+            inj_sweeps, inj_lows = {}, {}
+            for T in (T_N, -T_N):
+                s = FAMILY.linearize(drive, g_rev, w, T, injection=True)
+                key = f"T = {T:+g} N m"
+                inj_sweeps[key] = s
+                inj_lows[key] = FAMILY.linearize(drive, g_rev, w_low, T, injection=True)
+                pm.setdefault(f"{review} + injection", {})[f"{T:+g}"] = {
+                    "T_Nm": f(T),
+                    "rhp_bands_pu": bands(g_rev, T, s, True),
+                    "worst": _worst_point(s, w_env, wb),
+                }
+            # the fastest growth with the injection (its RHP band, if any, is named in the verdict)
+            growth = max(float(np.nanmax(np.real(x.poles))) for x in inj_sweeps.values())
+            inj_title = f"{drive.name}: {review} with HF injection (averaged (19)-(22))"
+            inj_block: Any = Figure(
+                svg_later(functools.partial(plot_pole_maps, inj_sweeps, wb, inj_title, inj_lows)),
+                "The gains under review with the averaged HF injection (19)-(22), at ±T_N, active for "
+                "|ω| < ω_Δ: compare the right-half-plane bands with and without it in the table above.",
+            )
+        else:
+            growth = float("nan")
+            progress(f"[2/{steps}] no HF injection: {injection_off(drive)}")
+            inj_block = Paragraph(
+                f"No pole maps with HF injection: {injection_off(drive)}. Without it, a right-half-plane "
+                "band at low speed (if the table above shows one) is where the drive cannot run sustained."
+            )
+        data["pole_maps"] = pm
+
+        # 3. worst damping / decay rate over speed x torque: the drive file's default gains vs the review
+        progress(f"[3/{steps}] damping and decay-rate maps over speed x torque")
+        w_map = np.linspace(-1, 1, 161 if fine else 41) * wb
+        T_map = np.linspace(-1.5, 1.5, 31 if fine else 7) * T_N
+        default = drive_label(drive, drive.observer.gain)
+        maps: dict[str, Any] = {}
+        for label in dict.fromkeys([default, review]):
+            s = FAMILY.linearize(drive, choices[label], w_map[:, None], T_map[None, :])
+            maps[label] = {
+                "damping": arr(s.worst_damping.reshape(w_map.size, T_map.size)),
+                "decay_rate": arr(s.decay_rate.reshape(w_map.size, T_map.size)),
                 "worst": _worst_point(s, w_env, wb),
+                "unstable_points": int(np.sum(s.max_real > 0)),
             }
-        # the fastest growth with the injection (its RHP band, if any, is named in the verdict)
-        growth = max(float(np.nanmax(np.real(x.poles))) for x in inj_sweeps.values())
-        inj_title = f"{drive.name}: {review} with HF injection (averaged (19)-(22))"
-        inj_block: Any = Figure(
-            svg_later(functools.partial(plot_pole_maps, inj_sweeps, wb, inj_title, inj_lows)),
-            "The gains under review with the averaged HF injection (19)-(22), at ±T_N, active for "
-            "|ω| < ω_Δ: compare the right-half-plane bands with and without it in the table above.",
+        data["plane"] = {"w_pu": arr(w_map / wb), "T_Nm": arr(T_map), "maps": maps}
+        plane_fig = Figure(
+            svg_later(functools.partial(plane_figure, maps, w_map / wb, T_map, T_N)),
+            "Worst damping ratio (top) and decay rate (bottom) of the linearized closed loop over the speed "
+            "× torque plane; hatched with a black outline: unstable; star: least-damped point with |ω| ≥ "
+            "0.05 p.u.",
         )
-    else:
-        growth = float("nan")
-        progress(f"[2/{steps}] no HF injection: {injection_off(drive)}")
-        inj_block = Paragraph(
-            f"No pole maps with HF injection: {injection_off(drive)}. Without it, a right-half-plane band "
-            "at low speed (if the table above shows one) is where the drive cannot run sustained."
+
+        # 4. robustness under estimation errors (gains under review, nominal motoring torque)
+        progress(f"[4/{steps}] robustness maps under parameter-estimate errors")
+        errs = {"R_s": 50.0, "L_d": 20.0, "L_q": 20.0, "psi_pm": 20.0}
+        idx = {"R_s": 0, "L_d": 1, "L_q": 2, "psi_pm": 3}
+        w_rob = np.linspace(-1, 1, 121 if fine else 31) * wb
+        rob: dict[str, Any] = {"T_Nm": f(T_N), "w_pu": arr(w_rob / wb), "params": {}}
+        true = np.array(drive.motor.vector())
+        for name, span in errs.items():
+            e = np.linspace(-span, span, 21 if fine else 5)
+            est = np.broadcast_to(true, (e.size, 1, 4)).copy()
+            est[:, 0, idx[name]] *= 1 + e / 100
+            s = FAMILY.linearize(drive, g_rev, w_rob[None, :], T_N, estimate=est)
+            Z = s.worst_damping.reshape(e.size, w_rob.size)
+            ok = np.isfinite(Z) & (Z > 0)
+            rob["params"][name] = {
+                "error_pct": arr(e),
+                "damping": arr(Z),
+                "stable_fraction": f(ok.mean()),
+                "no_equilibrium_fraction": f(np.isnan(Z).mean()),
+            }
+        data["robustness"] = rob
+        rob_fig = Figure(
+            svg_later(functools.partial(robustness_figure, rob, w_rob / wb, review)),
+            f"Worst damping of the gains under review at T_e = {num(rob['T_Nm'])} N m when one estimate "
+            "(R̂s, L̂d, L̂q, ψ̂pm) is off by the given percentage; the equilibrium is followed from the exact "
+            "estimates by continuation. Black outline: unstable; grey: no equilibrium (the observer cannot "
+            "hold the rotor).",
         )
-    data["pole_maps"] = pm
 
-    # 3. worst damping / decay rate over speed x torque: the drive file's default gains vs the review
-    progress(f"[3/{steps}] damping and decay-rate maps over speed x torque")
-    w_map = np.linspace(-1, 1, 161 if fine else 41) * wb
-    T_map = np.linspace(-1.5, 1.5, 31 if fine else 7) * T_N
-    default = drive_label(drive, drive.observer.gain)
-    maps: dict[str, Any] = {}
-    for label in dict.fromkeys([default, review]):
-        s = FAMILY.linearize(drive, choices[label], w_map[:, None], T_map[None, :])
-        maps[label] = {
-            "damping": arr(s.worst_damping.reshape(w_map.size, T_map.size)),
-            "decay_rate": arr(s.decay_rate.reshape(w_map.size, T_map.size)),
-            "worst": _worst_point(s, w_env, wb),
-            "unstable_points": int(np.sum(s.max_real > 0)),
-        }
-    data["plane"] = {"w_pu": arr(w_map / wb), "T_Nm": arr(T_map), "maps": maps}
-    plane_fig = Figure(
-        svg_later(functools.partial(plane_figure, maps, w_map / wb, T_map, T_N)),
-        "Worst damping ratio (top) and decay rate (bottom) of the linearized closed loop over the speed × "
-        "torque plane; hatched with a black outline: unstable; star: least-damped point with |ω| ≥ 0.05 p.u.",
-    )
+        # 6. and 7., after the time-domain checks (section 5)
+        progress(f"[5/{steps}] the discrete-time observer that runs ({drive.runtime.discretization})")
+        data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
+        progress(f"[6/{steps}] tuning: the pointwise bound and noise over the envelope")
+        tuning_data, tuning_section = tuning.compute(drive, rev.table, choices, review, progress, default)
+        data["tuning"] = tuning_data
+        sections = (
+            Section("2. Pole maps over speed", (_pole_table(pm), *pole_figs, inj_block)),
+            Section("3. Damping and decay rate over speed × torque", (plane_fig, _plane_table(maps))),
+            Section("4. Robustness to parameter-estimate errors", (rob_fig, _robustness_table(rob))),
+        )
+        later = (disc_section, *([tuning_section] if tuning_section is not None else []))
+        w1 = coupling_limit(drive.motor, T_N) / wb  # where the HF correction turns sign, regenerating
+        return Analysis(None, sections, data, (w1, growth), later, STEPS)
 
-    # 4. robustness under estimation errors (gains under review, nominal motoring torque)
-    progress(f"[4/{steps}] robustness maps under parameter-estimate errors")
-    errs = {"R_s": 50.0, "L_d": 20.0, "L_q": 20.0, "psi_pm": 20.0}
-    idx = {"R_s": 0, "L_d": 1, "L_q": 2, "psi_pm": 3}
-    w_rob = np.linspace(-1, 1, 121 if fine else 31) * wb
-    rob: dict[str, Any] = {"T_Nm": f(T_N), "w_pu": arr(w_rob / wb), "params": {}}
-    true = np.array(drive.motor.vector())
-    for name, span in errs.items():
-        e = np.linspace(-span, span, 21 if fine else 5)
-        est = np.broadcast_to(true, (e.size, 1, 4)).copy()
-        est[:, 0, idx[name]] *= 1 + e / 100
-        s = FAMILY.linearize(drive, g_rev, w_rob[None, :], T_N, estimate=est)
-        Z = s.worst_damping.reshape(e.size, w_rob.size)
-        ok = np.isfinite(Z) & (Z > 0)
-        rob["params"][name] = {
-            "error_pct": arr(e),
-            "damping": arr(Z),
-            "stable_fraction": f(ok.mean()),
-            "no_equilibrium_fraction": f(np.isnan(Z).mean()),
-        }
-    data["robustness"] = rob
-    rob_fig = Figure(
-        svg_later(functools.partial(robustness_figure, rob, w_rob / wb, review)),
-        f"Worst damping of the gains under review at T_e = {num(rob['T_Nm'])} N m when one estimate "
-        "(R̂s, L̂d, L̂q, ψ̂pm) is off by the given percentage; the equilibrium is followed from the exact "
-        "estimates by continuation. Black outline: unstable; grey: no equilibrium (the observer cannot "
-        "hold the rotor).",
-    )
+    def verdict(
+        self, drive: IpmsmDrive, rev: Review, found: Analysis, checks: Checks, min_damping: float
+    ) -> Judgement:
+        return judgement({**found.data, "time_domain": checks.td}, rev.label, min_damping, found.context)
 
-    runs = time_domain.scenarios(drive, TIME_DOMAIN, scenarios)
-    what = "paper experiments" if drive.file.startswith("preset:") else "generic scenarios, per unit"
-    progress(f"[5/{steps}] time-domain checks ({what}{' and yours' if scenarios else ''})")
-    td, td_figs = time_domain_checks(drive, rev, runs, progress)
-    data["time_domain"] = td
-    progress(f"[6/{steps}] the discrete-time observer that runs ({drive.runtime.discretization})")
-    data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
-    progress(f"[7/{steps}] tuning: the pointwise bound and noise over the envelope")
-    tuning_data, tuning_section = tuning.compute(drive, table, choices, review, progress, default)
-    data["tuning"] = tuning_data
-    limits = time_domain.limitations(drive)  # what the generic checks leave out, said in the verdict
-    w1 = coupling_limit(drive.motor, T_N) / wb  # where the HF correction turns sign, regenerating
-    data["verdict"] = {**verdict(data, review, min_damping, (w1, growth)), "limitations": limits}
-    sections = (
-        drive_section(1, data["drive"], FAMILY.bases(drive)),
-        Section("2. Pole maps over speed", (_pole_table(pm), *pole_figs, inj_block)),
-        Section("3. Damping and decay rate over speed × torque", (plane_fig, _plane_table(maps))),
-        Section("4. Robustness to parameter-estimate errors", (rob_fig, _robustness_table(rob))),
-        time_domain.section(5, td, td_figs, limits),
-        disc_section,
-        *([tuning_section] if tuning_section is not None else []),
-    )
-    return Report(drive.name, review, data, verdict_block(data["verdict"]), sections)
+    def conclude(
+        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+    ) -> tuple[dict[str, Any], Verdict]:
+        data = {**verdict_data(v, status, td_findings), "limitations": limits}
+        return data, verdict_block(data)
 
 
 def _pole_table(pm: dict[str, Any]) -> Table:
@@ -301,12 +312,12 @@ def _robustness_table(rob: dict[str, Any]) -> Table:
     )
 
 
-def verdict(
+def judgement(
     data: dict[str, Any],
     label: str,
     min_damping: float,
     coupling: tuple[float, float] = (float("inf"), float("nan")),
-) -> dict[str, Any]:
+) -> Judgement:
     """Where the reviewed gains are stable with the required damping, where not, and why;
     ``coupling``: the speed [p.u.] below which the HF correction holds regenerating at T_N with zero
     gain (design/ipmsm_adaptive/carrier.py ``coupling_limit``) and the fastest growth [1/s] with the
@@ -374,18 +385,32 @@ def verdict(
         status = "warn"
     else:
         status = "fail"
-    status, td_findings = settle(status, data.get("time_domain") or [])
-    findings += td_findings
-    return {
-        "status": status,
+    more = {
         "gains": label,
         "min_damping": min_damping,
         "envelope": envelope,
-        "findings": findings,
         "reasons": reasons,
         "rhp_bands_pu": rhp,
         "rhp_bands_pu_injection": rhp_inj,
     }
+    return Judgement(status, findings, "", data=more)
+
+
+def verdict_data(v: Judgement, status: str, td_findings: list[dict[str, Any]]) -> dict[str, Any]:
+    """report.json "verdict" (without its limitations) of the judgement ``v`` settled with the
+    time-domain checks: the findings as records, the analysis's first."""
+    return {"status": status, **v.data, "findings": [*v.findings, *td_findings]}
+
+
+def verdict(
+    data: dict[str, Any],
+    label: str,
+    min_damping: float,
+    coupling: tuple[float, float] = (float("inf"), float("nan")),
+) -> dict[str, Any]:
+    """The verdict data (:func:`judgement`) settled with the time-domain checks of ``data``."""
+    v = judgement(data, label, min_damping, coupling)
+    return verdict_data(v, *settle(v.status, data.get("time_domain") or []))
 
 
 def _regenerating_only(rhp: dict[str, list[list[float]]]) -> bool:
@@ -421,3 +446,8 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
         for x in v["findings"]
     )
     return verdict_box(v["status"], summary, v["reasons"], v["limitations"], findings)
+
+
+STEPS = 6  # the progress steps of the analysis (AdaptiveJudge.analyse)
+JUDGE = AdaptiveJudge()
+compute = report_with(JUDGE)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.pmsm_flux_observer import FAMILY
@@ -29,9 +29,12 @@ from sensorless.reports.pmsm_flux_observer.review import JUDGE
 from sensorless.reports.pmsm_flux_observer.startup import tune_startup
 from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, check_variant
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+
 
 # ------------------------------------------------------------------------------------------ analyze
-def analyze_check(drive: Any, args: argparse.Namespace) -> None:
+def analyze_check(drive: FluxObserverDrive, args: argparse.Namespace) -> None:
     """The box clamp has no linearization: its CapabilityError, before anything is written."""
     if drive.observer.correction == "box-clamp":
         FAMILY.linearize(drive, FAMILY.gains(drive), np.array([drive.w_base]), np.zeros(1))
@@ -86,7 +89,7 @@ TUNE_OPTIONS = (
 )
 
 
-def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> FluxTuneSettings:
+def tune_settings(drive: FluxObserverDrive, args: argparse.Namespace, tunable: Any) -> FluxTuneSettings:
     check_variant(drive, tunable.name)  # up front: a law the drive's observer variant cannot run
     s = tunable.settings(drive)
     errors = dict(s.errors)
@@ -111,7 +114,7 @@ def tune_settings(drive: Any, args: argparse.Namespace, tunable: Any) -> FluxTun
     return s
 
 
-def describe(drive: Any, settings: FluxTuneSettings) -> str:
+def describe(drive: FluxObserverDrive, settings: FluxTuneSettings) -> str:
     e = drive.envelope
     err = settings.errors
     return (

@@ -3,12 +3,15 @@ steady angle bias over speed under each estimate error."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer import FAMILY, corner_estimate
 from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, corners
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 
 def front_figure(pf: dict[str, Any], mine: dict[str, Any]) -> Any:
@@ -42,7 +45,7 @@ def bias_caption(settings: FluxTuneSettings) -> str:
     )
 
 
-def bias_figure(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Any:
+def bias_figure(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings) -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -62,13 +65,15 @@ def bias_figure(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Any:
         cases[f"L {sign * 100 * settings.errors['L']:+g} %"] = {"L_d": e.L_d * r, "L_q": e.L_q * r}
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     for label, est in cases.items():
-        lin = FAMILY.linearize(drive, gains, s, T, estimate=est)
-        ax.plot(s / drive.w_base, np.degrees(lin.theta_err_discrete), label=label)
+        err = FAMILY.linearize(drive, gains, s, T, estimate=est).theta_err_discrete
+        assert err is not None  # the family's linearization is of the sampled observer
+        ax.plot(s / drive.w_base, np.degrees(err), label=label)
     worst = np.zeros(s.size)
     for c in corners(settings.errors)[1:]:
         est = corner_estimate(e, c)
-        lin = FAMILY.linearize(drive, gains, s, T, estimate=est)
-        worst = np.fmax(worst, np.abs(np.degrees(lin.theta_err_discrete)))
+        err = FAMILY.linearize(drive, gains, s, T, estimate=est).theta_err_discrete
+        assert err is not None
+        worst = np.fmax(worst, np.abs(np.degrees(err)))
     ax.plot(s / drive.w_base, worst, "k--", label="worst corner |bias|")
     ax.set_ylim(-45, 45)
     ax.set_xlabel("speed (p.u.)")

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -24,6 +25,9 @@ from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF, base_gain, pl
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 from sensorless.reports.causes import Failure, Named
 from sensorless.tuning.pmsm_flux_observer import Assessment, FluxTuneSettings, assess, low_limit
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 
 def pll_roots(gains: GainSet) -> tuple[complex, complex]:
@@ -53,7 +57,7 @@ def pll_fixed(gains: GainSet, alpha_s: float) -> GainSet | None:
     return dataclasses.replace(gains, values={**gains.values, **new}, source=f"{gains.source}, the PLL's fix")
 
 
-def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str:
+def pll_finding(gains: GainSet, alpha_s: float, td: Sequence[dict[str, Any]]) -> str:
     """Empty where the PLL's speed estimate settles at PLL_SPEED_LOOP x the speed loop's bandwidth
     ``alpha_s`` [rad/s] or faster; else why, and what to do."""
     min_decay = PLL_SPEED_LOOP * alpha_s
@@ -91,7 +95,7 @@ def pll_finding(gains: GainSet, alpha_s: float, td: list[dict[str, Any]]) -> str
     )
 
 
-def failure_cause(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
+def failure_cause(drive: FluxObserverDrive, gains: GainSet, failure: Failure) -> Named | None:
     """The cause of a failed time-domain check in the flux observer's own analysis (reports/causes.py):
     a final speed-estimation error where the PLL's slower root is slower than the speed loop needs
     (:func:`pll_finding`) is the PLL's lag ("pll_root"); a run's end that the I-f start's time made miss
@@ -105,7 +109,7 @@ def failure_cause(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
     return Named("pll_root", why) if why else None
 
 
-def start_too_slow(drive: Any, gains: GainSet, failure: Failure) -> Named | None:
+def start_too_slow(drive: FluxObserverDrive, gains: GainSet, failure: Failure) -> Named | None:
     """A run's end the I-f start's time made miss (reports/causes.py ``ramp_slower_than_reference``) with
     the change that fits it: the ``[startup] acceleration`` and the firmware's fields at it
     (design/startup_check.py ``faster_start``), or, where no acceleration the current carries fits, one
@@ -138,7 +142,8 @@ def start_too_slow(drive: Any, gains: GainSet, failure: Failure) -> Named | None
             "estimate errors (their finding above), so the verdict fails whatever the start; the gains "
             f"must change: sensorless tune --law {gains.law}",
         )
-    a = faster_start(drive, judged, failure.open_s, failure.avail_s, failure.need_s)
+    assert failure.open_s is not None and failure.avail_s is not None and failure.need_s is not None
+    a = faster_start(drive, judged, failure.open_s, failure.avail_s, failure.need_s)  # open_loop_took_it
     if math.isnan(a):
         top = largest_acceleration(drive, judged.values["if_i"])
         return Named(
@@ -160,7 +165,7 @@ def start_too_slow(drive: Any, gains: GainSet, failure: Failure) -> Named | None
     )
 
 
-def holds_nowhere_finding(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> str:
+def holds_nowhere_finding(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings) -> str:
     """Why the gains hold at no envelope speed under the estimate errors: which error alone already
     loses the motor, the gain's ratio to the speed at the top, and what to do."""
     errors = settings.errors
@@ -194,7 +199,7 @@ def holds_nowhere_finding(drive: Any, gains: GainSet, settings: FluxTuneSettings
     )
 
 
-def damping_finding(drive: Any, a: Assessment, c: int, min_damping: float, law: str) -> str:
+def damping_finding(drive: FluxObserverDrive, a: Assessment, c: int, min_damping: float, law: str) -> str:
     """Where candidate ``c``'s worst damping over the speeds it holds is, and why it is low there."""
     W, T = drive.envelope.grid()
     speeds = np.unique(np.abs(W))

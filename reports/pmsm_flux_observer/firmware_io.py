@@ -11,10 +11,10 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.drive_file import name_problem
-from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.family import CapabilityError, DriveT, GainSet
 from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.pmsm_flux_observer.firmware import (
@@ -29,6 +29,9 @@ from sensorless.design.pmsm_flux_observer.firmware import (
 from sensorless.design.pmsm_flux_observer.firmware.startup import change_lines
 from sensorless.reports.family import Exporter, Importer, Option
 from sensorless.reports.options import Number, UsageError, drive_name
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 POLE_PAIRS = Option(
     ("--pole-pairs",),
@@ -105,11 +108,11 @@ def importers(kind: str) -> dict[str, Importer]:
     }
 
 
-def exporters(record: Callable[[Drive, GainSet], FirmwareDrive]) -> dict[str, Exporter]:
+def exporters(record: Callable[[DriveT, GainSet], FirmwareDrive]) -> dict[str, Exporter[DriveT]]:
     """The exporters; ``record`` makes the typed record of a drive and its gains (the family's)."""
 
     def writer(export: Callable[[FirmwareDrive], tuple[dict[str, str], list[str]]]) -> Callable[..., Any]:
-        def run(drive: Drive, gains: GainSet) -> tuple[dict[str, str], list[str]]:
+        def run(drive: DriveT, gains: GainSet) -> tuple[dict[str, str], list[str]]:
             d = record(drive, gains)
             files, notes = export(d)
             return files, [*d.notes, *notes]
@@ -127,7 +130,7 @@ def exporters(record: Callable[[Drive, GainSet], FirmwareDrive]) -> dict[str, Ex
     }
 
 
-def firmware_record(drive: Any, gains: GainSet) -> FirmwareDrive:
+def firmware_record(drive: FluxObserverDrive, gains: GainSet) -> FirmwareDrive:
     """What an export writes: the drive's estimates (what the firmware is given), loop and gains, and its
     I-f start judged at the gains (design/startup_check.py): the drive file's values kept where they
     hold, each one that does not replaced by the value that fixes it, with one line saying why."""

@@ -12,15 +12,14 @@ simulation alone.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-from sensorless.design.family import GainSet
+from sensorless.design.gain_table import GainTable
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num, svg_uri
-from sensorless.reports.envelope_review import Analysis, Judgement, poles_section_figure
+from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, poles_section_figure
 from sensorless.reports.pmsm_flux_observer.figures import bias_caption, bias_figure, front_figure
 from sensorless.reports.pmsm_flux_observer.findings import (
     damping_finding,
@@ -28,7 +27,7 @@ from sensorless.reports.pmsm_flux_observer.findings import (
     pll_finding,
 )
 from sensorless.reports.pmsm_flux_observer.startup import reversal_finding, startup_findings
-from sensorless.reports.review import Review
+from sensorless.reports.review import Review, gains_under_review
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
     assess_any,
@@ -39,6 +38,9 @@ from sensorless.tuning.pmsm_flux_observer import (
     shortfalls,
     vesc_gains,
 )
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 TIME_DOMAIN = ("torque_steps",)
 MAX_RMS_THETA_DEG = 10.0
@@ -55,26 +57,28 @@ class Found:
     labels: tuple[str, ...]
 
 
-class FluxJudge:
+class FluxJudge(Judging["FluxObserverDrive"]):
     """The family's :class:`~sensorless.reports.envelope_review.Judge` (module docstring)."""
 
-    def points(self, drive: Any, refine: int) -> tuple[np.ndarray, np.ndarray]:
-        return drive.envelope.grid(refine)
-
-    def choices(self, drive: Any) -> dict[str, GainSet] | None:
+    def review(self, drive: FluxObserverDrive, table: GainTable | None, table_file: str) -> Review:
         mine = FAMILY.gains(drive)
-        return {DEFAULTS[0]: odrive_gains(), DEFAULTS[1]: vesc_gains(drive), "drive file": mine}
+        choices = {DEFAULTS[0]: odrive_gains(), DEFAULTS[1]: vesc_gains(drive), "drive file": mine}
+        return gains_under_review(FAMILY, drive, table, table_file, choices=choices)
 
-    def notes(self, drive: Any) -> tuple[str, ...]:
+    def notes(self, drive: FluxObserverDrive) -> tuple[str, ...]:
         o = drive.observer
         T_us = o.T_obs * 1e6
         return (f"{o.firmware}: {o.correction}, {o.inductance_rule} inductance; T_obs = {T_us:g} us",)
 
-    def scenarios(self, drive: Any) -> Sequence[str]:
-        return TIME_DOMAIN
+    time_domain = TIME_DOMAIN
 
     def analyse(
-        self, drive: Any, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
+        self,
+        drive: FluxObserverDrive,
+        rev: Review,
+        min_damping: float,
+        resolution: str,
+        progress: Callable[[str], None],
     ) -> Analysis:
         settings = FluxTuneSettings()
         data = {"observer_period_s": f(drive.observer.T_obs)}
@@ -119,7 +123,13 @@ class FluxJudge:
             )
             for k, x in analysis.items()
         )
-        head = ("gains", "law", "worst damping", "worst angle bias (deg)", "holds down to (p.u.)")
+        head: tuple[str, ...] = (
+            "gains",
+            "law",
+            "worst damping",
+            "worst angle bias (deg)",
+            "holds down to (p.u.)",
+        )
         head += ("observer decay (1/s)", "PLL slow root (1/s)")
         caption = "each gain set under every estimate error (sampled observer)"
         cmp_table = Table(head, rows, caption, frozenset({2, 3, 4, 5, 6}))
@@ -155,20 +165,15 @@ class FluxJudge:
         return Analysis(analysis, sections, data, Found(True, settings, a, labels))
 
     def verdict(
-        self,
-        drive: Any,
-        rev: Review,
-        found: Analysis,
-        runs: Sequence[Any],
-        td: Sequence[dict[str, Any]],
-        min_damping: float,
+        self, drive: FluxObserverDrive, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
+        runs, td = checks.runs, checks.td
         ctx: Found = found.context
         linearizable, settings = ctx.linearizable, ctx.settings
         # the closed-loop error (None: a run the observer never had: not tested sensorless, said by its check)
         untested = [item["name"] for item in td if item.get("untested")]
         tracks = all((item["metrics"]["rms_theta_err_deg"] or 0.0) < MAX_RMS_THETA_DEG for item in td)
-        mine = found.analysis.get(rev.label, {})
+        mine = (found.analysis or {}).get(rev.label, {})
         damped = not linearizable or (
             mine.get("worst_damping") is not None and mine["worst_damping"] >= min_damping
         )

@@ -4,13 +4,16 @@ and where its firmware cannot run a check (ODrive through zero speed)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.family import GainSet
 from sensorless.reports.document import f
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
-def startup_findings(drive: Any, gains: GainSet) -> tuple[list[str], dict[str, Any] | None]:
+
+def startup_findings(drive: FluxObserverDrive, gains: GainSet) -> tuple[list[str], dict[str, Any] | None]:
     """The drive's I-f start judged at the gains under review (design/startup_check.py): one finding per
     value that does not hold, naming the firmware's field and the value that fixes it, and the data of
     report.json; nothing where the drive needs no start or has no minimum-speed analysis."""
@@ -30,7 +33,7 @@ def startup_findings(drive: Any, gains: GainSet) -> tuple[list[str], dict[str, A
     lead: list[str] = []
     fixed = None if judged.fixable else pll_fixed(gains, drive.control.alpha_s)
     again = None if fixed is None else judge_startup(drive, fixed)
-    if again is not None and again.fixable:  # the PLL holds w_min at rated speed: the start at its fix
+    if fixed is not None and again is not None and again.fixable:  # the PLL holds w_min at rated speed
         lead = [x for x in change_lines(fw, judged, drive.w_base) if "no start-up value fixes it" in x]
         named = ", ".join(
             f"{k} = {stored(float(v))}" for k, v in fixed.values.items() if v != gains.values[k]
@@ -53,7 +56,9 @@ def startup_findings(drive: Any, gains: GainSet) -> tuple[list[str], dict[str, A
     return lead + change_lines(fw, judged, drive.w_base), data
 
 
-def reversal_finding(drive: Any, runs: Sequence[Any], td: Sequence[dict[str, Any]]) -> list[str]:
+def reversal_finding(
+    drive: FluxObserverDrive, runs: Sequence[Any], td: Sequence[dict[str, Any]]
+) -> list[str]:
     """Where the firmware cannot run a failed check: ODrive's sensorless mode "does not support stopping
     or changing direction" (ODrive's documentation, sensorless mode), so a check through zero speed
     judges the I-f start's fall-back below w_off, which ODrive does not have."""
@@ -73,7 +78,7 @@ def reversal_finding(drive: Any, runs: Sequence[Any], td: Sequence[dict[str, Any
     ]
 
 
-def tune_startup(drive: Any, gains: GainSet) -> list[str]:
+def tune_startup(drive: FluxObserverDrive, gains: GainSet) -> list[str]:
     """What ``tune`` says of the start at the tuned gains: the firmware's start-up fields it proposes
     (``export`` writes them), and one line per value of the drive file's that it changes, with why."""
     from sensorless.design.family import CapabilityError

@@ -46,7 +46,7 @@ def test_reduced_order_montecarlo_judges_the_tuners_grid():
 
     d = load_drive("deangelo2006")
     n, T = grid(default_settings(d))
-    W_mc, T_mc = family_of(d).envelope_points(d)
+    W_mc, T_mc = family_of(d).montecarlo.envelope_points(d)
     assert np.array_equal(W_mc, d.rpm_to_w(n)) and np.array_equal(T_mc, T)
 
 
@@ -58,7 +58,7 @@ def test_adaptive_readers_agree_on_the_range_of_a_users_drive(tmp_path):
     for spec, top in ((str(f), "T_max"), ("piippo2008", "T_N")):
         d = load_drive(spec)
         assert max(abs(t) for t in d.tuning.envelope.torques) == pytest.approx(d.T_N)  # the file's
-        W, T = family_of(d).envelope_points(d)
+        W, T = family_of(d).montecarlo.envelope_points(d)
         W_r, T_r = envelope_review.points(d, 1)
         W_t, T_t = tunable_for(d, "speed-dependent").settings(d).envelope.grid()
         assert np.array_equal(W, W_r) and np.array_equal(T, T_r)

@@ -1,5 +1,7 @@
 """The family contract type-checks: mypy over the contract (design/family.py, design/capabilities.py,
-design/registry.py), the registered families' records and the shared modules that ask for a capability.
+design/registry.py), the registered families' records and the shared modules that ask for a capability,
+and every module of the families whose code is typed throughout (``TYPED``: their drive dataclass in
+every signature, so the hook records' and the capabilities' types hold them to the contract).
 
 One mypy run (settings: pyproject.toml [tool.mypy]) also checks two scratch files written here:
 - ``conformance.py``: every registered family assigned to every capability Protocol it has at run time
@@ -10,6 +12,7 @@ One mypy run (settings: pyproject.toml [tool.mypy]) also checks two scratch file
 """
 
 import importlib.util
+import pkgutil
 import subprocess
 import sys
 from pathlib import Path
@@ -32,6 +35,7 @@ CHECKED = [
     "sensorless.reports.montecarlo",
     "sensorless.reports.tune_proof",
 ]
+TYPED = ("pmsm_flux_observer",)  # the families all of whose modules are checked (the others: their records)
 OFFENCE = """
 from collections.abc import Mapping
 from typing import Any
@@ -61,6 +65,23 @@ def _drive_type(fam: object) -> type:
     raise AssertionError(f"{fam!r} does not state its drive type (ObserverFamily[ItsDrive])")
 
 
+def _typed_modules() -> list[str]:
+    """Every module of the ``TYPED`` families: their design package and their hook packages (the
+    family record names them), with all their submodules."""
+    out = []
+    for fam in families():
+        if fam.name not in TYPED:
+            continue
+        for root in (type(fam).__module__, fam.tuning, fam.report):
+            if root is None:
+                continue
+            pkg = importlib.import_module(root)
+            out.append(root)
+            out += [m.name for m in pkgutil.walk_packages(pkg.__path__, root + ".")]
+    assert out, f"no registered family is one of {TYPED}"
+    return out
+
+
 def _conformance() -> str:
     lines = ["from sensorless.design import capabilities"]
     for i, fam in enumerate(families()):
@@ -85,7 +106,8 @@ def test_the_contract_and_every_family_type_check(tmp_path):
     (tmp_path / "path" / "sensorless").symlink_to(ROOT)
     (tmp_path / "path" / "conformance.py").write_text(_conformance())
     (tmp_path / "path" / "offence.py").write_text(OFFENCE)
-    modules = [*CHECKED, *(type(f).__module__ for f in families()), "conformance", "offence"]
+    own = [type(f).__module__ for f in families()]
+    modules = list(dict.fromkeys([*CHECKED, *own, *_typed_modules(), "conformance", "offence"]))
     cmd = [sys.executable, "-m", "mypy", "--config-file", str(ROOT / "pyproject.toml")]
     cmd += ["--cache-dir", str(tmp_path / "cache"), "--namespace-packages", "--explicit-package-bases"]
     cmd += [a for m in modules for a in ("-m", m)]

@@ -30,7 +30,7 @@ def small():
 
 def test_batched_draws_equal_the_family_linearization(small):
     d, fam, g = small
-    params = fam.montecarlo_parameters(d)
+    params = fam.montecarlo.parameters(d)
     spreads = mc.parse_spreads("R_s=10%,L_d=10%,L_q=10%,psi_pm=3%", "--spread", params, False)
     est = mc.parse_spreads("R_s=10%,L_q=5%u", "--estimate-error", params, True)
     draws = mc.draw(params, 6, 3, spreads, est)
@@ -42,11 +42,11 @@ def test_batched_draws_equal_the_family_linearization(small):
     w = np.concatenate([-mag[::-1], mag]) * d.w_base
     T = np.array([-1.0, 0.3, 1.0]) * d.T_N
     W, TT = (a.ravel() for a in np.meshgrid(w, T))
-    lin = fam.linearize_draws(d, g, draws.plant, draws.estimate, W, TT)
+    lin = fam.montecarlo.linearize_draws(d, g, draws.plant, draws.estimate, W, TT)
     k = len(W)
     compared = 0
     for i in range(6):
-        di = fam.perturbed(d, dict(zip(draws.names, draws.plant[i], strict=True)), {})
+        di = fam.montecarlo.perturbed(d, dict(zip(draws.names, draws.plant[i], strict=True)), {})
         ref = fam.linearize(di, g, W, TT, estimate=draws.estimate[i, :4])
         got = lin.poles[i * k : (i + 1) * k]
         assert np.array_equal(np.isnan(got), np.isnan(ref.poles))
@@ -89,7 +89,7 @@ def test_marginal_yield_is_the_normal_cdf_beyond_the_direct_boundary(small):
     r_star = 0.5 * (lo + hi)
     expected = 0.5 * (1 + math.erf((r_star - 1) / 0.05 / math.sqrt(2)))
     assert 0.1 < expected < 0.9  # a marginal design, not a trivially sure one
-    params = fam.montecarlo_parameters(d)
+    params = fam.montecarlo.parameters(d)
     est = mc.parse_spreads("L_q=5%", "--estimate-error", params, True)
     n = 2000
     with Engine(SYNCHRONOUS, quiet=True) as engine:
@@ -103,7 +103,7 @@ def test_marginal_yield_is_the_normal_cdf_beyond_the_direct_boundary(small):
 
 def test_two_worker_local_cluster_equals_the_synchronous_engine(small):
     d, fam, g = small
-    params = fam.montecarlo_parameters(d)
+    params = fam.montecarlo.parameters(d)
     spreads = mc.parse_spreads("R_s=10%,L_q=10%,psi_pm=3%,J=30%", "--spread", params, False)
     est = mc.parse_spreads("R_s=10%u", "--estimate-error", params, True)
     n = 2 * mc.CHUNK - 17  # two chunks, the last one short
@@ -122,7 +122,7 @@ def test_report_section_states_the_yield_of_the_typical_spreads(small):
     from sensorless.reports.document import Section, Table
 
     d, fam, g = small
-    params = fam.montecarlo_parameters(d)
+    params = fam.montecarlo.parameters(d)
     spreads = rmc.typical_spreads(params)
     assert set(spreads) == {p.name for p in params}  # the family declares a typical spread for each
     with Engine(SYNCHRONOUS, quiet=True) as engine:

@@ -16,17 +16,17 @@ from sensorless.reports.cli.main import main
 def test_draws_reproduce_the_linearization_of_the_perturbed_drive():
     d = load_drive("deangelo2006")
     fam = family_of(d)
-    params = fam.montecarlo_parameters(d)
+    params = fam.montecarlo.parameters(d)
     g = fam.gains(d)
     w = d.rpm_to_w(np.array([100.0, 400.0, -250.0]))
     T = np.array([0.0, 5.0, -7.0])
     nominal = np.array([p.plant for p in params])
     est = np.array([p.estimate for p in params])
     drawn = nominal * np.array([1.2, 0.9, 1.3, 1.05])  # R, L, J, Phi of another motor
-    lin = fam.linearize_draws(d, g, np.vstack([nominal, drawn]), np.vstack([est, est]), w, T)
+    lin = fam.montecarlo.linearize_draws(d, g, np.vstack([nominal, drawn]), np.vstack([est, est]), w, T)
     over = {"g": g.values["g"], "Gamma": g.values["Gamma"]}
     np.testing.assert_allclose(lin.poles[:3], fam.linearize(d, g, w, T).poles, rtol=1e-9, atol=1e-9)
-    other = fam.perturbed(d, dict(zip([p.name for p in params], drawn, strict=True)), {})
+    other = fam.montecarlo.perturbed(d, dict(zip([p.name for p in params], drawn, strict=True)), {})
     np.testing.assert_allclose(lin.poles[3:], continuous_poles(other, w, T, **over), rtol=1e-9, atol=1e-9)
     assert not np.allclose(lin.poles[3:], lin.poles[:3])
 
@@ -37,6 +37,6 @@ def test_montecarlo_command_defaults_to_the_typical_spread(tmp_path):
     assert main([*argv, "--out", str(out), "--quiet"]) in (0, 3)
     s = json.loads((out / "summary.json").read_text())
     d = load_drive("deangelo2006")
-    params = family_of(d).montecarlo_parameters(d)
+    params = family_of(d).montecarlo.parameters(d)
     assert s["spread"] == {p.name: f"{100 * p.typical:g}%" for p in params}
     assert s["samples"] == 3 and s["envelope_points"] == len(d.envelope.speeds) * len(d.envelope.torques)

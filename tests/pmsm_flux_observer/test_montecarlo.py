@@ -16,7 +16,7 @@ from sensorless.reports.cli.main import main
 def test_draws_reproduce_the_familys_linearization():
     d = load_drive("outrunner270")
     fam = family_of(d)
-    params = fam.montecarlo_parameters(d)
+    params = fam.montecarlo.parameters(d)
     g = fam.gains(d)
     w = np.array([0.3, 0.7, 1.0]) * d.w_base
     T = np.array([0.0, d.T_N, d.T_N])
@@ -24,7 +24,7 @@ def test_draws_reproduce_the_familys_linearization():
     est = np.array([p.estimate if p.estimate is not None else p.plant for p in params])
     off = est.copy()
     off[0] *= 1.2  # the R_s estimate 20 % high
-    lin = fam.linearize_draws(d, g, np.vstack([nominal, nominal]), np.vstack([est, off]), w, T)
+    lin = fam.montecarlo.linearize_draws(d, g, np.vstack([nominal, nominal]), np.vstack([est, off]), w, T)
     ref = fam.linearize(d, g, w, T)
     ref_off = fam.linearize(d, g, w, T, estimate={"R_s": off[0]})
     for k, r in ((0, ref), (1, ref_off)):
@@ -43,7 +43,7 @@ def test_draws_judge_the_sampled_observer_of_each_drawn_motor():
 
     d = load_drive("outrunner270")
     fam = family_of(d)
-    params = fam.montecarlo_parameters(d)
+    params = fam.montecarlo.parameters(d)
     g = fam.gains(d)
     w = np.array([0.3, 1.0]) * d.w_base
     T = np.array([d.T_N, -d.T_N])
@@ -52,7 +52,7 @@ def test_draws_judge_the_sampled_observer_of_each_drawn_motor():
     drawn = nominal.copy()
     drawn[0] *= 1.3  # the true R_s 30 % high
     drawn[3] *= 0.95  # the magnets' flux 5 % low
-    lin = fam.linearize_draws(d, g, np.vstack([nominal, drawn]), np.vstack([est, est]), w, T)
+    lin = fam.montecarlo.linearize_draws(d, g, np.vstack([nominal, drawn]), np.vstack([est, est]), w, T)
     ref = fam.linearize(d, g, w, T)
     moved = dataclasses.replace(d, motor=dataclasses.replace(d.motor, R_s=drawn[0], psi_pm=drawn[3]))
     ref_drawn = fam.linearize(moved, g, w, T)
@@ -87,7 +87,7 @@ def test_montecarlo_command_defaults_to_the_typical_spread(tmp_path, capsys):
     assert rc in (0, 3)
     s = json.loads((out / "summary.json").read_text())
     d = load_drive("outrunner270")
-    params = family_of(d).montecarlo_parameters(d)
+    params = family_of(d).montecarlo.parameters(d)
     assert s["spread"] == {p.name: f"{100 * p.typical:g}%" for p in params if p.typical > 0}
     assert s["min_damping"] == 0.0  # the family's: stable (its damping falls with speed by design)
     # the points the gains run sensorless: from the I-f start's hand-back speed up

@@ -81,7 +81,7 @@ def test_default_law_on_a_drive_of_ones_own_is_its_files(tmp_path):
 def test_the_schedule_laws_former_name_reads_from_drive_files(capsys):
     """``flux_schedule``, the flux law's name before law names were each family's own, reads for one
     release as ``schedule``, with one note per file."""
-    from sensorless.design.pmsm_flux_observer.gains import parse_law
+    from sensorless.design.pmsm_flux_observer.laws import parse_law
 
     t = {"speeds": [100.0, 1000.0], "observer_gain": [500.0, 2000.0], "pll_bandwidth": 600.0}
     old = parse_law("flux_schedule", {"law": "flux_schedule", **t}, "old.toml", "gains")

@@ -20,11 +20,11 @@ observer's decay rate k/2, within the limit (the PLL does not feed back into the
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 from sensorless.design.family import EstimateErrors
 from sensorless.design.pmsm_flux_observer import ERROR_KEYS
-from sensorless.design.pmsm_flux_observer.gains import TABLE_LAWS
+from sensorless.design.pmsm_flux_observer.laws import TABLE_LAWS
 from sensorless.tuning.family import Tunable, TuningHooks
 from sensorless.tuning.pmsm_flux_observer.assessment import (
     Assessment,
@@ -51,6 +51,9 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
     vesc_gains,
 )
 from sensorless.tuning.pmsm_flux_observer.vesc import tune_vesc
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 __all__ = [
     "HOOKS",
@@ -82,7 +85,7 @@ __all__ = [
 ]
 
 
-def own_law(drive: Any) -> str | None:
+def own_law(drive: FluxObserverDrive) -> str | None:
     """The default law on a drive of the user's own: the law of its file's [gains] (a VESC user's drive
     tunes the vesc law), where it is a tunable one."""
     law = drive.gains_table.get("law")

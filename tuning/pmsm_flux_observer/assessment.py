@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -26,6 +26,9 @@ from sensorless.design.rotor_frame import equilibrium_points
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 from sensorless.tuning.pmsm_flux_observer.settings import CHUNK, NOISE_INDEX, FluxTuneSettings, corners
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+
 
 @dataclass
 class Assessment:
@@ -40,7 +43,7 @@ class Assessment:
     pll: np.ndarray | None = None  # (C,) the PLL's slower root [1/s] (its speed estimate's lag)
 
 
-def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
+def assess(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
     """The sampled observer with each candidate's gains on the envelope x the error corners."""
     W, T = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
@@ -71,7 +74,8 @@ def assess(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Asse
     loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
     m = motor_vector(drive)
     s = np.full((n, loop.n_y), np.nan + 0j)
-    zmax, err, noise = np.full(n, np.nan), np.full(n, np.nan), np.full((n, 2), np.nan)
+    zmax, err = np.full(n, np.nan), np.full(n, np.nan)
+    noise: np.ndarray = np.full((n, 2), np.nan)
     own = np.full(n, np.nan)
     sigma = current_noise(drive)
     for j in range(0, n, CHUNK):
@@ -130,7 +134,7 @@ def low_limit(holds: np.ndarray, speeds: np.ndarray) -> np.ndarray:
     return out
 
 
-def figures(drive: Any, a: Assessment, c: int, w_from: float | None = None) -> dict[str, float]:
+def figures(drive: FluxObserverDrive, a: Assessment, c: int, w_from: float | None = None) -> dict[str, float]:
     """Worst damping and bias over the speeds from ``w_from`` (None: its own low-speed limit) up, and
     the low-speed limit."""
     W, _ = drive.envelope.grid()
@@ -150,7 +154,7 @@ def figures(drive: Any, a: Assessment, c: int, w_from: float | None = None) -> d
 
 
 def front(
-    drive: Any, a: Assessment, cands: list[GainSet], w_hold: float, n: int, limit_deg: float
+    drive: FluxObserverDrive, a: Assessment, cands: list[GainSet], w_hold: float, n: int, limit_deg: float
 ) -> dict[str, Any]:
     """The damping-versus-bias front of the candidates (``tune --pareto N``): of those that hold down
     to the hold speed, the ones no other beats in both worst damping and worst angle bias over the
@@ -166,9 +170,9 @@ def front(
         pts.append((fg["worst_bias_deg"], -fg["worst_damping"], decay, fg["worst_noise_deg"], int(c)))
     pts.sort()
     kept, best_z = [], -np.inf
-    for b, mz, decay, nz, c in pts:  # by increasing bias: kept where better damped than all before
+    for b, mz, decay, nz, j in pts:  # by increasing bias: kept where better damped than all before
         if -mz > best_z:
-            kept.append((b, -mz, decay, nz, c))
+            kept.append((b, -mz, decay, nz, j))
             best_z = -mz
     if len(kept) > n:
         kept = [kept[round(i)] for i in np.linspace(0, len(kept) - 1, n)]
@@ -192,7 +196,7 @@ def front(
     }
 
 
-def hold_speed(drive: Any, settings: FluxTuneSettings, base: dict[str, Any]) -> float:
+def hold_speed(drive: FluxObserverDrive, settings: FluxTuneSettings, base: dict[str, Any]) -> float:
     """The hold speed of the criterion (package docstring) [rad/s]."""
     if settings.hold_speed is not None:
         return settings.hold_speed
@@ -201,12 +205,11 @@ def hold_speed(drive: Any, settings: FluxTuneSettings, base: dict[str, Any]) -> 
     return min(finite) if finite else float(drive.envelope.speed_max)
 
 
-def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) -> Assessment:
+def assess_linearized(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings) -> Assessment:
     """:func:`assess` of one gain set of any law through the family's linearization (a scheduled
     gain with its derivative in the PLL speed), one call per estimate corner."""
-    from sensorless.design.registry import family_of
+    from sensorless.design.pmsm_flux_observer import FAMILY as fam
 
-    fam = family_of(drive)
     W, T = drive.envelope.grid()
     speeds = np.unique(np.abs(W))
     e = drive.estimate
@@ -214,18 +217,21 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
     for c in corners(settings.errors):
         est = corner_estimate(e, c)
         lin = fam.linearize(drive, gains, W, T, estimate=est)
+        pd, err = lin.poles_discrete, lin.theta_err_discrete
+        assert pd is not None and err is not None  # the family's linearization is of the sampled observer
         if poles is None:
-            poles = lin.poles_discrete
+            poles = pd
             # the scheduled gain couples the observer to the PLL's speed: the slowest of all modes
             decay = np.where(np.isfinite(lin.decay_rate_discrete), lin.decay_rate_discrete, np.nan)
-        ok = np.isfinite(lin.poles_discrete).all(axis=1)
+        ok = np.isfinite(pd).all(axis=1)
         zs.append(np.where(ok, lin.worst_damping_discrete, -1.0))
-        bs.append(np.where(ok, np.abs(lin.theta_err_discrete), np.inf))
+        bs.append(np.where(ok, np.abs(err), np.inf))
         st.append(ok & (lin.decay_rate_discrete > 0))
     zeta, bias, stable = np.array(zs), np.array(bs), np.array(st)
-    good = (stable & (bias <= math.radians(settings.bias_max_deg))).all(axis=0)
+    good = np.asarray((stable & (bias <= math.radians(settings.bias_max_deg))).all(axis=0))
     holds = np.array([[good[np.abs(W) == sp].all() for sp in speeds]])
     worst = np.where(stable.all(axis=0), zeta.min(axis=0), -1.0)
+    assert poles is not None and decay is not None  # from the first corner (the nominal estimates)
     return Assessment(
         worst[None],
         bias.max(axis=0)[None],
@@ -237,7 +243,7 @@ def assess_linearized(drive: Any, gains: GainSet, settings: FluxTuneSettings) ->
     )
 
 
-def assess_any(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
+def assess_any(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTuneSettings) -> Assessment:
     """:func:`assess` of gain sets of any law: the scheduled ones (schedule) through
     :func:`assess_linearized` (no noise figure), the others in one batch; in the order given."""
     sched = [j for j, g in enumerate(cands) if g.law == "schedule"]
@@ -255,8 +261,8 @@ def assess_any(drive: Any, cands: list[GainSet], settings: FluxTuneSettings) -> 
                 a.holds[i : i + 1],
                 a.poles[i : i + 1],
                 noise,
-                a.decay[i : i + 1],
-                a.pll[i : i + 1],
+                None if a.decay is None else a.decay[i : i + 1],
+                None if a.pll is None else a.pll[i : i + 1],
             )
     rows = [parts[j] for j in range(len(cands))]
     nan = np.full((*rows[0].damping.shape, 2), np.nan)

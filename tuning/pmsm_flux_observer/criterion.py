@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -37,11 +37,14 @@ from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 from sensorless.tuning.pmsm_flux_observer.assessment import Assessment, assess, figures, low_limit
 from sensorless.tuning.pmsm_flux_observer.settings import FluxTuneSettings
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+
 LAG_LIMIT_DEG = 30.0  # deg electrical: the angle the observer may lag the full acceleration
 TOL = 1e-9  # relative: a requirement met to rounding is met (a double root k_p/2 at exactly the floor)
 
 
-def requirements(drive: Any, settings: FluxTuneSettings) -> dict[str, float]:
+def requirements(drive: FluxObserverDrive, settings: FluxTuneSettings) -> dict[str, float]:
     """The criterion's numbers on this drive: decay [1/s], PLL root [1/s], full acceleration [rad/s^2]."""
     a_s = float(drive.control.alpha_s)
     m, c = drive.motor, drive.control
@@ -59,7 +62,7 @@ def requirements(drive: Any, settings: FluxTuneSettings) -> dict[str, float]:
     }
 
 
-def judged(drive: Any, a: Assessment, c: int, settings: FluxTuneSettings) -> dict[str, Any]:
+def judged(drive: FluxObserverDrive, a: Assessment, c: int, settings: FluxTuneSettings) -> dict[str, Any]:
     """Candidate ``c``'s figures (assessment.figures from its own limit, or from the hold speed where
     one is given and lower) and which requirement it meets."""
     W, _ = drive.envelope.grid()
@@ -99,13 +102,13 @@ def rank_key(j: dict[str, Any], c: int) -> tuple[Any, ...]:
     return (0 if met else 1, lim, -(dec if math.isfinite(dec) else -math.inf), c)
 
 
-def best(drive: Any, a: Assessment, settings: FluxTuneSettings) -> int:
+def best(drive: FluxObserverDrive, a: Assessment, settings: FluxTuneSettings) -> int:
     """The index of the best candidate by the criterion."""
     return min(rank_key(judged(drive, a, c, settings), c) for c in range(a.holds.shape[0]))[-1]
 
 
 def shortfalls(
-    drive: Any, gains: GainSet, j: dict[str, Any], settings: FluxTuneSettings, pll: bool = True
+    drive: FluxObserverDrive, gains: GainSet, j: dict[str, Any], settings: FluxTuneSettings, pll: bool = True
 ) -> list[str]:
     """What ``gains`` (judged ``j``) miss of the criterion, one line each with the cause and the change
     that fixes it; empty where they meet it. ``pll`` False: leave the PLL's lag out (the report says
@@ -168,7 +171,7 @@ def shortfalls(
     return out
 
 
-def lost_cause(drive: Any, gains: GainSet, settings: FluxTuneSettings, speed: float) -> str:
+def lost_cause(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings, speed: float) -> str:
     """Why ``gains`` do not hold at ``speed`` [rad/s]: each estimate error alone, judged as the criterion
     judges it (stable, bias, noise), named where it alone loses the speed."""
     W, _ = drive.envelope.grid()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.tuning.pmsm_flux_observer.assessment import assess, front
@@ -18,8 +18,11 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
     odrive_gains,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
-def tune_odrive(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
+
+def tune_odrive(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``odrive`` law: one observer_gain and pll_bandwidth over the envelope (package docstring)."""
     check_variant(drive, "odrive")
     ks = k_grid(drive)

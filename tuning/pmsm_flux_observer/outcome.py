@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -13,6 +13,9 @@ from sensorless.design.gain_table import GainTable
 from sensorless.design.poles import worst_damping
 from sensorless.tuning.pmsm_flux_observer.assessment import Assessment, assess, figures
 from sensorless.tuning.pmsm_flux_observer.settings import FluxTuneSettings, odrive_gains, vesc_gains
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 
 @dataclass
@@ -22,20 +25,19 @@ class FluxOutcome:
     lines: list[str]
     missed: list[str] = field(default_factory=list)  # the family criterion's shortfalls (criterion.py)
 
-    def summary_lines(self, drive: Any) -> list[str]:
+    def summary_lines(self, drive: FluxObserverDrive) -> list[str]:
         return self.lines
 
-    def shortfalls(self, drive: Any) -> list[str]:
+    def shortfalls(self, drive: FluxObserverDrive) -> list[str]:
         """What the tuned gains miss of the family's own criterion (tuning/pmsm_flux_observer/
         criterion.py), one line each with cause and change: ``tune`` exits 3 where there is any."""
         return self.missed
 
 
-def baselines(drive: Any, settings: FluxTuneSettings) -> tuple[list[str], dict[str, Any]]:
+def baselines(drive: FluxObserverDrive, settings: FluxTuneSettings) -> tuple[list[str], dict[str, Any]]:
     from sensorless.tuning.pmsm_flux_observer.criterion import judged
 
     cands = [odrive_gains(), vesc_gains(drive), drive_gains_or_none(drive)]
-    cands = [c for c in cands if c is not None]
     a = assess(drive, cands, settings)
     lines, out = [], {}
     for j, (label, g) in enumerate(
@@ -55,7 +57,7 @@ def baselines(drive: Any, settings: FluxTuneSettings) -> tuple[list[str], dict[s
     return lines, out
 
 
-def top_speed(drive: Any) -> float:
+def top_speed(drive: FluxObserverDrive) -> float:
     W, _ = drive.envelope.grid()
     return float(np.max(np.abs(W))) * (1 - 1e-9)
 
@@ -67,13 +69,13 @@ def criterion_clause(j: dict[str, Any], met: bool) -> str:
     return f"; {dec}, PLL root {j['pll_root_1_s']:.4g} 1/s: {'meets' if met else 'misses'} the criterion"
 
 
-def same_law(drive: Any, law: str) -> list[GainSet]:
+def same_law(drive: FluxObserverDrive, law: str) -> list[GainSet]:
     """The drive file's gains where they are of ``law``."""
     g = drive_gains_or_none(drive)
     return [g] if g is not None and g.law == law else []
 
 
-def drive_gains_or_none(drive: Any) -> GainSet | None:
+def drive_gains_or_none(drive: FluxObserverDrive) -> GainSet:
     from sensorless.design.pmsm_flux_observer.gains import drive_gains
 
     return drive_gains(drive)
@@ -103,7 +105,7 @@ def noise_clause(f: dict[str, float]) -> str:
 
 
 def gain_table(
-    drive: Any, law: str, gains: dict[str, Any], a: Assessment, c: int, summary: dict[str, Any]
+    drive: FluxObserverDrive, law: str, gains: dict[str, Any], a: Assessment, c: int, summary: dict[str, Any]
 ) -> GainTable:
     W, T = drive.envelope.grid()
     base = assess(drive, [drive_gains_or_none(drive)], FluxTuneSettings())
@@ -138,7 +140,7 @@ def summary_limits(settings: FluxTuneSettings, pf: dict[str, Any] | None) -> dic
 
 
 def outcome(
-    drive: Any,
+    drive: FluxObserverDrive,
     law: str,
     header: Any,
     cands: list[Any],

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -18,8 +18,11 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
     pll_floor,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
-def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
+
+def tune_schedule(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``schedule`` law: gamma lambda^2 per envelope speed, by the criterion at that speed."""
     check_variant(drive, "schedule")
     ks = k_grid(drive)
@@ -29,6 +32,7 @@ def tune_schedule(drive: Any, settings: FluxTuneSettings, progress: Any = None) 
     speeds = np.unique(np.abs(W))
     need = requirements(drive, settings)["decay"]
     chosen = []
+    assert a.decay is not None  # assess gives every candidate its decay
     for j, sp in enumerate(speeds):
         sel = np.abs(W) == sp
         hold = a.holds[:, j]

@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.pmsm_flux_observer import ERRORS  # default estimate errors (+-)
 from sensorless.design.pmsm_flux_observer.gains import law_misfit
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 KP_T = 0.5  # T k_p at most (ODrive flags T k_p >= 1 as unstable; half of it leaves a margin)
 
@@ -68,7 +71,7 @@ class FluxTuneSettings:
     min_damping: float = 0.0  # worst damping required (``--min-damping``); 0: none (not the criterion's)
 
 
-def default_settings(drive: Any) -> FluxTuneSettings:
+def default_settings(drive: FluxObserverDrive) -> FluxTuneSettings:
     return FluxTuneSettings()
 
 
@@ -82,7 +85,7 @@ def corners(errors: dict[str, float]) -> list[dict[str, float]]:
     return out
 
 
-def vesc_gains(drive: Any) -> GainSet:
+def vesc_gains(drive: FluxObserverDrive) -> GainSet:
     """VESC Tool's detection on this motor: gain 1e-3/lambda^2 stored x1e6, its PLL and slow gain."""
     raw = 1e3 / drive.estimate.psi_pm**2
     return GainSet("vesc", {"foc_observer_gain": raw, **VESC_DEFAULT}, "VESC Tool detection defaults")
@@ -92,22 +95,22 @@ def odrive_gains() -> GainSet:
     return GainSet("odrive", dict(ODRIVE_DEFAULT), "ODrive defaults")
 
 
-def odrive_candidate(drive: Any, k: float) -> GainSet:
+def odrive_candidate(drive: FluxObserverDrive, k: float) -> GainSet:
     T = drive.observer.T_obs
     bw = min(max(k, pll_floor(drive)), KP_T / (2 * T))
     return GainSet("odrive", {"observer_gain": k, "pll_bandwidth": bw}, "candidate")
 
 
-def pll_floor(drive: Any) -> float:
+def pll_floor(drive: FluxObserverDrive) -> float:
     """The slowest PLL root [1/s] the drive's speed loop allows: PLL_SPEED_LOOP x its bandwidth."""
     return PLL_SPEED_LOOP * float(drive.control.alpha_s)
 
 
-def k_grid(drive: Any) -> np.ndarray:
+def k_grid(drive: FluxObserverDrive) -> np.ndarray:
     return np.geomspace(K_MIN, K_T_MAX / drive.observer.T_obs, K_GRID)
 
 
-def check_variant(drive: Any, law: str) -> None:
+def check_variant(drive: FluxObserverDrive, law: str) -> None:
     """CapabilityError (one line, before any work) where ``law`` cannot be tuned for the drive's observer
     variant (design/pmsm_flux_observer/gains.py ``law_misfit``): never a table its export refuses."""
     why = law_misfit(drive, law)

@@ -3,7 +3,7 @@ with its PLL."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
@@ -24,8 +24,11 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
     vesc_gains,
 )
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
-def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
+
+def tune_vesc(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``vesc`` law: foc_observer_gain and foc_observer_gain_slow under VESC's run-time schedule."""
     check_variant(drive, "vesc")
     psi = drive.estimate.psi_pm
@@ -86,7 +89,7 @@ def tune_vesc(drive: Any, settings: FluxTuneSettings, progress: Any = None) -> F
     )
 
 
-def odrive_in_vesc_terms(drive: Any) -> GainSet:
+def odrive_in_vesc_terms(drive: FluxObserverDrive) -> GainSet:
     """ODrive's defaults (k = 1000 1/s, a PLL double root at 1000 1/s) as VESC gains: the slow gain 1
     keeps k = 4 raw lambda^2 constant up to |u| = u_ref (23.1 V), and above it k grows with |u|."""
     k, bw = ODRIVE_DEFAULT["observer_gain"], ODRIVE_DEFAULT["pll_bandwidth"]

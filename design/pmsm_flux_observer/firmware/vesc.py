@@ -255,7 +255,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         x = by_name.get(word)
         if x is None:
             x = f.number("foc_observer_type", positive=False)
-        code = int(x) if x == int(x) else -1
+        code = int(x) if x is not None and x == int(x) else -1
         if code not in OBSERVER_TYPES:
             raise f.error("foc_observer_type", f"{kind_raw}: not one of {sorted(OBSERVER_TYPES)}")
     name, correction, adapt = OBSERVER_TYPES[code]
