@@ -34,15 +34,18 @@ from dataclasses import dataclass
 import casadi as ca
 from sensorless.tuning.model import TuningModel
 from sensorless.tuning.sector import damping_inequalities, factor_equalities
+from sensorless.tuning.slot_derivatives import assemble, regularizer_hessian, slot_kind
 
 T_MAX = 0.995  # upper bound of the damping variable (asin is singular at 1)
 # Each round starts from a good primal point (the previous round's gains, the factors of their
 # poles, the exact equilibria): a small bound push keeps IPOPT there instead of pushing the start
 # into the interior, and the adaptive barrier update converges in far fewer iterations than the
 # monotone one (26 instead of 212 iterations on a two-parameter law, benchmarks/bench_tune.py).
-# expand: the MX graph becomes SX, faster to evaluate for these small slots.
+# expand off: the constraints' Jacobian and the Lagrangian's Hessian are one slot's mapped over the
+# slots (tuning/slot_derivatives.py), so the graph is not expanded and differentiated as a whole (an
+# expanded 128-slot layout took 4.1 s to build, against 0.05 s; its IPOPT iterations cost the same).
 SOLVER_OPTIONS = {
-    "expand": True,
+    "expand": False,
     "ipopt.print_level": 0,
     "print_time": False,
     # near a degenerate optimum IPOPT can sit at a 1e-9-ish error and then jump away: accept a point
@@ -179,76 +182,83 @@ def _nlpsol_one_thread(*args: object) -> ca.Function:
 
 
 @functools.cache
+def slot_rows(model: TuningModel, kind: str) -> ca.Function:
+    """One slot of ``kind`` (free, fixed or noise) as the NLP sees it: (shared, v, s) -> (g_phi, g_eq,
+    g_ineq), with shared = [theta/typical, t] (the variables every slot shares), v the slot's own
+    variables (phi/phi_typ, then x/x_typ for a free slot, f, then P~ for a noise slot) and s its
+    parameters (point, condition, sigma, scale, then x for a fixed slot; for a noise slot point, scale,
+    s, x, c1, c2). g_phi ties phi to local(theta, point); g_ineq >= 0."""
+    nth = model.n_theta
+    n, nphi, npt, nP = sizes(model)
+    no = len(model.noise_outputs)
+    per = {"free": nphi + 2 * n, "fixed": nphi + n, "noise": nphi + n + nP}[kind]
+    width = {"free": npt + 3, "fixed": npt + 3 + n, "noise": npt + 1 + 2 * n + 2 * no}[kind]
+    sh, v, s = ca.SX.sym("shared", nth + 1), ca.SX.sym("v", per), ca.SX.sym("s", width)
+    theta, t = sh[:nth] * ca.DM(model.typical), sh[nth]
+    phi_typ = ca.DM(model.phi_typical)
+    Phi = v[:nphi] * phi_typ
+    g_phi = (model.local(theta, s[:npt]) - Phi) / phi_typ
+    if kind == "noise":
+        o = npt + 1
+        e, d = _noise_function(model)(
+            Phi,
+            s[o + n : o + 2 * n],
+            s[:npt],
+            s[npt],
+            s[o : o + n],
+            s[o + 2 * n : o + 2 * n + no],
+            s[o + 2 * n + no :],
+            v[nphi : nphi + n],
+            v[nphi + n :],
+        )
+        d = -d  # >= 0
+    else:
+        free = kind == "free"
+        # the equilibrium: unknowns of the slot (scaled) where it moves with the gains, else data
+        X = v[nphi : nphi + n] * ca.DM(model.x_typical) if free else s[npt + 3 :]
+        e, d = _slot_function(model, free)(
+            Phi, t, X, s[:npt], s[npt], s[npt + 1], s[npt + 2], v[nphi + (n if free else 0) :]
+        )
+    return ca.Function(
+        f"slot_{kind}", [sh, v, s], [g_phi, e, d], ["shared", "v", "s"], ["g_phi", "g_eq", "g_ineq"]
+    )
+
+
+@functools.cache
 def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
     """IPOPT solver for the slot layout L. Variables z = [theta/typical, t, free slots (phi/phi_typ,
     x/x_typ, f), fixed slots (phi/phi_typ, f), noise slots (phi/phi_typ, f, P~)]; parameters
     p = [w_t, w_reg, free (point, condition, sigma, scale), fixed (point, condition, sigma, scale, x), noise
     (point, scale, s, x, c1, c2)]. Each slot's local data phi is a variable tied to theta by
     phi = local(theta, point): the slots' derivatives stay small and block-diagonal whatever the
-    number of parameters."""
+    number of parameters. The constraints' Jacobian and the Lagrangian's Hessian are one slot's,
+    mapped over the slots (tuning/slot_derivatives.py)."""
     nth = model.n_theta
-    n, nphi, npt, nP = sizes(model)
-    no = len(model.noise_outputs)
-    per_free, per_fixed, per_noise = nphi + 2 * n, nphi + n, nphi + n + nP
-    nz = nth + 1 + per_free * L.free + per_fixed * L.fixed + per_noise * L.noise
-    pf, px, pn = npt + 3, npt + 3 + n, npt + 1 + 2 * n + 2 * no
-    npar = 2 + pf * L.free + px * L.fixed + pn * L.noise
-    z = ca.MX.sym("z", nz)
-    p = ca.MX.sym("p", npar)
-    theta = z[:nth] * ca.DM(model.typical)
-    t = z[nth]
-    w_t, w_reg = p[0], p[1]
-    g_phi, g_eq, g_ineq = [], [], []
-    phi_typ = ca.DM(model.phi_typical)
     zi, pi = nth + 1, 2
-
-    def take(v, k, rows, M):
-        return ca.reshape(v[k : k + rows * M], rows, M), k + rows * M
-
-    def tie(Vphi, S, M):
-        Phi = Vphi * ca.repmat(phi_typ, 1, M)
-        g_phi.append(ca.vec((model.local.map(M)(theta, S[:npt, :]) - Phi) / ca.repmat(phi_typ, 1, M)))
-        return Phi
-
-    for free, M, per, width in ((True, L.free, per_free, pf), (False, L.fixed, per_fixed, px)):
+    kinds = []
+    for kind, M in (("free", L.free), ("fixed", L.fixed), ("noise", L.noise)):
         if not M:
             continue
-        V, zi = take(z, zi, per, M)
-        S, pi = take(p, pi, width, M)
-        Phi = tie(V[:nphi, :], S, M)
-        # the equilibrium: unknowns of the slot (scaled) where it moves with the gains, else data
-        X = V[nphi : nphi + n, :] * ca.repmat(ca.DM(model.x_typical), 1, M) if free else S[npt + 3 :, :]
-        e, d = _slot_function(model, free).map(M)(
-            Phi, t, X, S[:npt, :], S[npt, :], S[npt + 1, :], S[npt + 2, :], V[nphi + (n if free else 0) :, :]
-        )
-        g_eq.append(ca.vec(e))
-        g_ineq.append(ca.vec(d))
-    if L.noise:
-        V, zi = take(z, zi, per_noise, L.noise)
-        S, pi = take(p, pi, pn, L.noise)
-        Phi = tie(V[:nphi, :], S, L.noise)
-        o = npt + 1
-        e, d = _noise_function(model).map(L.noise)(
-            Phi,
-            S[o + n : o + 2 * n, :],
-            S[:npt, :],
-            S[npt, :],
-            S[o : o + n, :],
-            S[o + 2 * n : o + 2 * n + no, :],
-            S[o + 2 * n + no :, :],
-            V[nphi : nphi + n, :],
-            V[nphi + n :, :],
-        )
-        g_eq.append(ca.vec(e))
-        g_ineq.append(ca.vec(-d))  # >= 0
+        sk = slot_kind(slot_rows(model, kind))
+        kinds.append((sk, M, zi, pi))
+        zi, pi = zi + sk.per * M, pi + sk.width * M
     th_sx = ca.SX.sym("th", nth)
     r = model.regularizer(th_sx) if model.regularizer is not None else 0
     reg = ca.Function("reg", [th_sx], [r])
-    f = -w_t * t + w_reg * reg(theta)
-    g = ca.vertcat(*g_phi, *g_eq, *g_ineq)
+
+    def objective(z: ca.MX, p: ca.MX) -> ca.MX:
+        return -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical))
+
+    nlp, jac_g, hess_lag = assemble(kinds, nth + 1, zi, pi, objective, regularizer_hessian(model))
+    exact = model.hessian == "exact"
     return _nlpsol_one_thread(
         f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",
         "ipopt",
-        {"x": z, "p": p, "f": f, "g": g},
-        {**SOLVER_OPTIONS, "ipopt.hessian_approximation": model.hessian},
+        nlp,
+        {
+            **SOLVER_OPTIONS,
+            "ipopt.hessian_approximation": model.hessian,
+            "jac_g": jac_g,
+            **({"hess_lag": hess_lag} if exact else {}),
+        },
     )
