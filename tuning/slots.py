@@ -41,9 +41,10 @@ T_MAX = 0.995  # upper bound of the damping variable (asin is singular at 1)
 # poles, the exact equilibria): a small bound push keeps IPOPT there instead of pushing the start
 # into the interior, and the adaptive barrier update converges in far fewer iterations than the
 # monotone one (26 instead of 212 iterations on a two-parameter law, benchmarks/bench_tune.py).
-# expand off: the constraints' Jacobian and the Lagrangian's Hessian are one slot's mapped over the
-# slots (tuning/slot_derivatives.py), so the graph is not expanded and differentiated as a whole (an
-# expanded 128-slot layout took 4.1 s to build, against 0.05 s; its IPOPT iterations cost the same).
+# expand off for an assembled solver: its constraints' Jacobian and Lagrangian's Hessian are one slot's
+# mapped over the slots (tuning/slot_derivatives.py), the graph is not expanded and differentiated as a
+# whole (an expanded 128-slot layout took 4.1 s to build, against 0.05 s; IPOPT iterations cost the
+# same); on for a small layout's (ipopt_solver): the MX graph becomes SX, faster for these small slots.
 SOLVER_OPTIONS = {
     "expand": False,
     "ipopt.print_level": 0,
@@ -224,6 +225,13 @@ def slot_rows(model: TuningModel, kind: str) -> ca.Function:
     )
 
 
+# Layouts of at most this many slots in all keep the solver CasADi builds by differentiating the whole
+# expanded graph (0.05-0.15 s to build): the same derivatives to the last bit as before, hence the same
+# tables (law (16) of the presets runs 8-16 slots; its optimum lies on a ridge, where rounding moves the
+# point found). Larger ones (a 50-gain schedule: 46-128 slots, 1.4-4.1 s each) are assembled.
+WHOLE_GRAPH_SLOTS = 16
+
+
 @functools.cache
 def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
     """IPOPT solver for the slot layout L. Variables z = [theta/typical, t, free slots (phi/phi_typ,
@@ -231,8 +239,16 @@ def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
     p = [w_t, w_reg, free (point, condition, sigma, scale), fixed (point, condition, sigma, scale, x), noise
     (point, scale, s, x, c1, c2)]. Each slot's local data phi is a variable tied to theta by
     phi = local(theta, point): the slots' derivatives stay small and block-diagonal whatever the
-    number of parameters. The constraints' Jacobian and the Lagrangian's Hessian are one slot's,
-    mapped over the slots (tuning/slot_derivatives.py)."""
+    number of parameters."""
+    if L.free + L.fixed + L.noise <= WHOLE_GRAPH_SLOTS:
+        return _whole_graph_solver(model, L)
+    return _assembled_solver(model, L)
+
+
+def _assembled_solver(model: TuningModel, L: Layout) -> ca.Function:
+    """The solver of :func:`_whole_graph_solver`'s NLP (same variables, parameters and constraints in
+    the same order) whose constraints' Jacobian and Lagrangian's Hessian are one slot's, mapped over
+    the slots (tuning/slot_derivatives.py): built in milliseconds whatever the layout."""
     nth = model.n_theta
     zi, pi = nth + 1, 2
     kinds = []
@@ -261,4 +277,80 @@ def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
             "jac_g": jac_g,
             **({"hess_lag": hess_lag} if exact else {}),
         },
+    )
+
+
+def _whole_graph_solver(model: TuningModel, L: Layout) -> ca.Function:
+    """IPOPT solver for the slot layout L. Variables z = [theta/typical, t, free slots (phi/phi_typ,
+    x/x_typ, f), fixed slots (phi/phi_typ, f), noise slots (phi/phi_typ, f, P~)]; parameters
+    p = [w_t, w_reg, free (point, condition, sigma, scale), fixed (point, condition, sigma, scale, x), noise
+    (point, scale, s, x, c1, c2)]. Each slot's local data phi is a variable tied to theta by
+    phi = local(theta, point): the slots' derivatives stay small and block-diagonal whatever the
+    number of parameters. The graph is expanded and CasADi differentiates it whole (the solver of a
+    small layout, as before :func:`_assembled_solver`: the same results to the last bit)."""
+    nth = model.n_theta
+    n, nphi, npt, nP = sizes(model)
+    no = len(model.noise_outputs)
+    per_free, per_fixed, per_noise = nphi + 2 * n, nphi + n, nphi + n + nP
+    nz = nth + 1 + per_free * L.free + per_fixed * L.fixed + per_noise * L.noise
+    pf, px, pn = npt + 3, npt + 3 + n, npt + 1 + 2 * n + 2 * no
+    npar = 2 + pf * L.free + px * L.fixed + pn * L.noise
+    z = ca.MX.sym("z", nz)
+    p = ca.MX.sym("p", npar)
+    theta = z[:nth] * ca.DM(model.typical)
+    t = z[nth]
+    w_t, w_reg = p[0], p[1]
+    g_phi, g_eq, g_ineq = [], [], []
+    phi_typ = ca.DM(model.phi_typical)
+    zi, pi = nth + 1, 2
+
+    def take(v, k, rows, M):
+        return ca.reshape(v[k : k + rows * M], rows, M), k + rows * M
+
+    def tie(Vphi, S, M):
+        Phi = Vphi * ca.repmat(phi_typ, 1, M)
+        g_phi.append(ca.vec((model.local.map(M)(theta, S[:npt, :]) - Phi) / ca.repmat(phi_typ, 1, M)))
+        return Phi
+
+    for free, M, per, width in ((True, L.free, per_free, pf), (False, L.fixed, per_fixed, px)):
+        if not M:
+            continue
+        V, zi = take(z, zi, per, M)
+        S, pi = take(p, pi, width, M)
+        Phi = tie(V[:nphi, :], S, M)
+        # the equilibrium: unknowns of the slot (scaled) where it moves with the gains, else data
+        X = V[nphi : nphi + n, :] * ca.repmat(ca.DM(model.x_typical), 1, M) if free else S[npt + 3 :, :]
+        e, d = _slot_function(model, free).map(M)(
+            Phi, t, X, S[:npt, :], S[npt, :], S[npt + 1, :], S[npt + 2, :], V[nphi + (n if free else 0) :, :]
+        )
+        g_eq.append(ca.vec(e))
+        g_ineq.append(ca.vec(d))
+    if L.noise:
+        V, zi = take(z, zi, per_noise, L.noise)
+        S, pi = take(p, pi, pn, L.noise)
+        Phi = tie(V[:nphi, :], S, L.noise)
+        o = npt + 1
+        e, d = _noise_function(model).map(L.noise)(
+            Phi,
+            S[o + n : o + 2 * n, :],
+            S[:npt, :],
+            S[npt, :],
+            S[o : o + n, :],
+            S[o + 2 * n : o + 2 * n + no, :],
+            S[o + 2 * n + no :, :],
+            V[nphi : nphi + n, :],
+            V[nphi + n :, :],
+        )
+        g_eq.append(ca.vec(e))
+        g_ineq.append(ca.vec(-d))  # >= 0
+    th_sx = ca.SX.sym("th", nth)
+    r = model.regularizer(th_sx) if model.regularizer is not None else 0
+    reg = ca.Function("reg", [th_sx], [r])
+    f = -w_t * t + w_reg * reg(theta)
+    g = ca.vertcat(*g_phi, *g_eq, *g_ineq)
+    return _nlpsol_one_thread(
+        f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",
+        "ipopt",
+        {"x": z, "p": p, "f": f, "g": g},
+        {**SOLVER_OPTIONS, "expand": True, "ipopt.hessian_approximation": model.hessian},
     )
