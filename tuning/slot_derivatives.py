@@ -5,11 +5,12 @@ The NLP of tuning/slots.py is a sum of slots that share only the law's parameter
 variable t: each slot's constraints (its tie phi = local(theta, point), its factor equalities, its
 sector inequalities) depend on the shared variables and on the slot's own unknowns. Left to CasADi,
 the derivatives are generated from the whole expanded graph by graph colouring, at a cost that grows
-faster than the number of slots (4.1 s for the 128 slots of a 50-gain schedule, the better part of
-tuning the README servo). Here they are generated once per slot kind (free, fixed, noise) on the slot
+faster than the number of slots (4.1 s for the 128 slots of a 50-gain schedule, 5.5 s of the README
+servo's 19 s ``tune``). Here they are generated once per slot kind (free, fixed, noise) on the slot
 alone, mapped over the layout's slots with ``Function.map``, and scattered into the NLP's sparse
 matrices by a constant sparse matrix (the entries that several slots share, of theta and t, summed):
-the same derivatives, a layout's solver built in milliseconds.
+the same derivatives up to rounding, a layout's solver built in milliseconds. Small layouts keep the
+whole-graph solver (tuning/slots.py ``WHOLE_GRAPH_SLOTS``), whose rounding the presets' tables carry.
 """
 
 from __future__ import annotations
