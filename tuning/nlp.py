@@ -25,7 +25,7 @@ from sensorless.design.noise import lyapunov
 from sensorless.tuning.candidates import DAMPING, NOISE, STABILITY, Candidates, fixed_points, margins
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.sector import factors_from_poles, n_quadratic
-from sensorless.tuning.slots import T_MAX, Layout, ipopt_solver, sizes
+from sensorless.tuning.slots import T_MAX, WHOLE_GRAPH_SLOTS, Layout, ipopt_solver, sizes
 
 
 class TuningError(RuntimeError):
@@ -202,13 +202,17 @@ def _spread(m: np.ndarray, cand: Candidates, group: np.ndarray) -> list[int]:
 
 
 def _slots(n: int, least: int = 4) -> int:
-    """Slot counts are 0 or powers of two, at least ``least`` (a solver is built once per layout)."""
+    """Slot counts are 0, powers of two from ``least`` up to WHOLE_GRAPH_SLOTS (the small layouts, as
+    before: the same solvers, tuning/slots.py), then multiples of 8: a larger layout's solver is
+    assembled in milliseconds (tuning/slot_derivatives.py), so its slots follow the active set closely.
+    Powers of two, as before, left up to half of them switched off but evaluated and factorized in every
+    IPOPT iteration (67 active points in 128 slots on a drone-class motor)."""
     if n == 0:
         return 0
     M = least
-    while M < n:
+    while M < n and M < WHOLE_GRAPH_SLOTS:
         M *= 2
-    return M
+    return M if M >= n else 8 * -(-n // 8)
 
 
 def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothing, max_noise):

@@ -34,15 +34,19 @@ from dataclasses import dataclass
 import casadi as ca
 from sensorless.tuning.model import TuningModel
 from sensorless.tuning.sector import damping_inequalities, factor_equalities
+from sensorless.tuning.slot_derivatives import assemble, regularizer_hessian, slot_kind
 
 T_MAX = 0.995  # upper bound of the damping variable (asin is singular at 1)
 # Each round starts from a good primal point (the previous round's gains, the factors of their
 # poles, the exact equilibria): a small bound push keeps IPOPT there instead of pushing the start
 # into the interior, and the adaptive barrier update converges in far fewer iterations than the
 # monotone one (26 instead of 212 iterations on a two-parameter law, benchmarks/bench_tune.py).
-# expand: the MX graph becomes SX, faster to evaluate for these small slots.
+# expand off for an assembled solver: its constraints' Jacobian and Lagrangian's Hessian are one slot's
+# mapped over the slots (tuning/slot_derivatives.py), the graph is not expanded and differentiated as a
+# whole (an expanded 128-slot layout took 4.1 s to build, against 0.05 s; IPOPT iterations cost the
+# same); on for a small layout's (ipopt_solver): the MX graph becomes SX, faster for these small slots.
 SOLVER_OPTIONS = {
-    "expand": True,
+    "expand": False,
     "ipopt.print_level": 0,
     "print_time": False,
     # near a degenerate optimum IPOPT can sit at a 1e-9-ish error and then jump away: accept a point
@@ -179,6 +183,56 @@ def _nlpsol_one_thread(*args: object) -> ca.Function:
 
 
 @functools.cache
+def slot_rows(model: TuningModel, kind: str) -> ca.Function:
+    """One slot of ``kind`` (free, fixed or noise) as the NLP sees it: (shared, v, s) -> (g_phi, g_eq,
+    g_ineq), with shared = [theta/typical, t] (the variables every slot shares), v the slot's own
+    variables (phi/phi_typ, then x/x_typ for a free slot, f, then P~ for a noise slot) and s its
+    parameters (point, condition, sigma, scale, then x for a fixed slot; for a noise slot point, scale,
+    s, x, c1, c2). g_phi ties phi to local(theta, point); g_ineq >= 0."""
+    nth = model.n_theta
+    n, nphi, npt, nP = sizes(model)
+    no = len(model.noise_outputs)
+    per = {"free": nphi + 2 * n, "fixed": nphi + n, "noise": nphi + n + nP}[kind]
+    width = {"free": npt + 3, "fixed": npt + 3 + n, "noise": npt + 1 + 2 * n + 2 * no}[kind]
+    sh, v, s = ca.SX.sym("shared", nth + 1), ca.SX.sym("v", per), ca.SX.sym("s", width)
+    theta, t = sh[:nth] * ca.DM(model.typical), sh[nth]
+    phi_typ = ca.DM(model.phi_typical)
+    Phi = v[:nphi] * phi_typ
+    g_phi = (model.local(theta, s[:npt]) - Phi) / phi_typ
+    if kind == "noise":
+        o = npt + 1
+        e, d = _noise_function(model)(
+            Phi,
+            s[o + n : o + 2 * n],
+            s[:npt],
+            s[npt],
+            s[o : o + n],
+            s[o + 2 * n : o + 2 * n + no],
+            s[o + 2 * n + no :],
+            v[nphi : nphi + n],
+            v[nphi + n :],
+        )
+        d = -d  # >= 0
+    else:
+        free = kind == "free"
+        # the equilibrium: unknowns of the slot (scaled) where it moves with the gains, else data
+        X = v[nphi : nphi + n] * ca.DM(model.x_typical) if free else s[npt + 3 :]
+        e, d = _slot_function(model, free)(
+            Phi, t, X, s[:npt], s[npt], s[npt + 1], s[npt + 2], v[nphi + (n if free else 0) :]
+        )
+    return ca.Function(
+        f"slot_{kind}", [sh, v, s], [g_phi, e, d], ["shared", "v", "s"], ["g_phi", "g_eq", "g_ineq"]
+    )
+
+
+# Layouts of at most this many slots in all keep the solver CasADi builds by differentiating the whole
+# expanded graph (0.05-0.15 s to build): the same derivatives to the last bit as before, hence the same
+# tables (law (16) of the presets runs 8-16 slots; its optimum lies on a ridge, where rounding moves the
+# point found). Larger ones (a 50-gain schedule: 46-128 slots, 1.4-4.1 s each) are assembled.
+WHOLE_GRAPH_SLOTS = 16
+
+
+@functools.cache
 def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
     """IPOPT solver for the slot layout L. Variables z = [theta/typical, t, free slots (phi/phi_typ,
     x/x_typ, f), fixed slots (phi/phi_typ, f), noise slots (phi/phi_typ, f, P~)]; parameters
@@ -186,6 +240,54 @@ def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
     (point, scale, s, x, c1, c2)]. Each slot's local data phi is a variable tied to theta by
     phi = local(theta, point): the slots' derivatives stay small and block-diagonal whatever the
     number of parameters."""
+    if L.free + L.fixed + L.noise <= WHOLE_GRAPH_SLOTS:
+        return _whole_graph_solver(model, L)
+    return _assembled_solver(model, L)
+
+
+def _assembled_solver(model: TuningModel, L: Layout) -> ca.Function:
+    """The solver of :func:`_whole_graph_solver`'s NLP (same variables, parameters and constraints in
+    the same order) whose constraints' Jacobian and Lagrangian's Hessian are one slot's, mapped over
+    the slots (tuning/slot_derivatives.py): built in milliseconds whatever the layout."""
+    nth = model.n_theta
+    zi, pi = nth + 1, 2
+    kinds = []
+    for kind, M in (("free", L.free), ("fixed", L.fixed), ("noise", L.noise)):
+        if not M:
+            continue
+        sk = slot_kind(slot_rows(model, kind))
+        kinds.append((sk, M, zi, pi))
+        zi, pi = zi + sk.per * M, pi + sk.width * M
+    th_sx = ca.SX.sym("th", nth)
+    r = model.regularizer(th_sx) if model.regularizer is not None else 0
+    reg = ca.Function("reg", [th_sx], [r])
+
+    def objective(z: ca.MX, p: ca.MX) -> ca.MX:
+        return -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical))
+
+    nlp, jac_g, hess_lag = assemble(kinds, nth + 1, zi, pi, objective, regularizer_hessian(model))
+    exact = model.hessian == "exact"
+    return _nlpsol_one_thread(
+        f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",
+        "ipopt",
+        nlp,
+        {
+            **SOLVER_OPTIONS,
+            "ipopt.hessian_approximation": model.hessian,
+            "jac_g": jac_g,
+            **({"hess_lag": hess_lag} if exact else {}),
+        },
+    )
+
+
+def _whole_graph_solver(model: TuningModel, L: Layout) -> ca.Function:
+    """IPOPT solver for the slot layout L. Variables z = [theta/typical, t, free slots (phi/phi_typ,
+    x/x_typ, f), fixed slots (phi/phi_typ, f), noise slots (phi/phi_typ, f, P~)]; parameters
+    p = [w_t, w_reg, free (point, condition, sigma, scale), fixed (point, condition, sigma, scale, x), noise
+    (point, scale, s, x, c1, c2)]. Each slot's local data phi is a variable tied to theta by
+    phi = local(theta, point): the slots' derivatives stay small and block-diagonal whatever the
+    number of parameters. The graph is expanded and CasADi differentiates it whole (the solver of a
+    small layout, as before :func:`_assembled_solver`: the same results to the last bit)."""
     nth = model.n_theta
     n, nphi, npt, nP = sizes(model)
     no = len(model.noise_outputs)
@@ -250,5 +352,5 @@ def ipopt_solver(model: TuningModel, L: Layout) -> ca.Function:
         f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",
         "ipopt",
         {"x": z, "p": p, "f": f, "g": g},
-        {**SOLVER_OPTIONS, "ipopt.hessian_approximation": model.hessian},
+        {**SOLVER_OPTIONS, "expand": True, "ipopt.hessian_approximation": model.hessian},
     )
