@@ -29,6 +29,8 @@ SHARED = {
         "readme-\\1"
     ),
     re.compile(r"tests/ipmsm_adaptive/test_any_motor\.py::.*\[(servo)\]"): "readme-\\1",
+    # the session fixtures speed_dependent_small and tune_cli_small (tests/ipmsm_adaptive/conftest.py)
+    re.compile(r"tests/ipmsm_adaptive/test_tune(_global)?\.py::.*"): "tune-ipmsm",
 }
 
 

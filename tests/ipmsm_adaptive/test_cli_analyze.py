@@ -1,5 +1,10 @@
 """`sensorless analyze` end to end: outputs, determinism, clear errors, nothing half-written."""
 
+import contextlib
+import io
+import shutil
+
+import pytest
 from sensorless.reports.cli.main import main
 
 
@@ -9,13 +14,44 @@ def run(args, capsys):
     return code, out.out, out.err
 
 
-def test_analyze_preset_writes_csv_and_figures(tmp_path, capsys):
-    out = tmp_path / "a"
-    code, stdout, _ = run(
-        ["analyze", "piippo2008", "--gain-set", "all", "--points", "401", "--out", str(out)], capsys
-    )
+def quiet_run(args):
+    """``main(args)`` with its stdout and stderr captured (for module fixtures: capsys is per test)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(args)
+    return code, out.getvalue(), err.getvalue()
+
+
+ALL = ["analyze", "piippo2008", "--gain-set", "all", "--points", "401"]
+
+
+@pytest.fixture(scope="module")
+def preset_all(tmp_path_factory):
+    """``analyze piippo2008 --gain-set all --points 401``, run once for this module: (directory, exit
+    status, stdout, {file name: bytes})."""
+    out = tmp_path_factory.mktemp("analyze") / "a"
+    code, stdout, _ = quiet_run([*ALL, "--out", str(out)])
+    return out, code, stdout, {p.name: p.read_bytes() for p in out.iterdir()}
+
+
+@pytest.fixture(scope="module")
+def rerun(preset_all, tmp_path_factory):
+    """The same analysis again over a copy of its outputs: first with another --torque (refused: the
+    outputs exist), then with --force, spelling --gain-set as it was (--gain). The second run is both
+    the --force run and the determinism check (the same bytes as the first run's)."""
+    out = tmp_path_factory.mktemp("analyze") / "b"
+    shutil.copytree(preset_all[0], out)
+    args = ["analyze", "piippo2008", "--gain", "all", "--points", "401", "--out", str(out)]
+    refused = quiet_run([*args, "--torque", "14"])
+    after_refused = {p.name: p.read_bytes() for p in out.iterdir()}
+    forced = quiet_run([*args, "--force"])
+    return refused, after_refused, forced, {p.name: p.read_bytes() for p in out.iterdir()}
+
+
+def test_analyze_preset_writes_csv_and_figures(preset_all, rerun):
+    _, code, stdout, files = preset_all
     assert code == 0
-    names = sorted(p.name for p in out.iterdir())
+    names = sorted(files)
     assert names == sorted(
         [
             "poles_zero_T+14Nm.csv",
@@ -28,27 +64,24 @@ def test_analyze_preset_writes_csv_and_figures(tmp_path, capsys):
     for g in ("zero", "constant", "speed"):
         line = next(ln for ln in stdout.splitlines() if ln.startswith(g))
         assert "(motoring)" in line and "+0.0000.." in line
-    head = (out / "poles_speed_T+14Nm.csv").read_text().splitlines()[:2]
+    head = files["poles_speed_T+14Nm.csv"].decode().splitlines()[:2]
     assert "speed base" in head[0] and head[1].startswith("w_m_pu,w_m_rad_s,T_e_Nm")
-    # deterministic: a second run produces identical bytes; it spells --gain-set as it was (--gain),
-    # which still works for one release, with a note naming the new spelling
-    out2 = tmp_path / "b"
-    code, _, err = run(
-        ["analyze", "piippo2008", "--gain", "all", "--points", "401", "--out", str(out2)], capsys
-    )
+    # deterministic: a second run (module fixture rerun: with --force over a copy of the first run's
+    # outputs) produces identical bytes; it spells --gain-set as it was (--gain), which still works for
+    # one release, with a note naming the new spelling
+    _, _, (code, _, err), again = rerun
     assert code == 0 and "note: --gain is now --gain-set" in err
-    for p in out.iterdir():
-        assert (out2 / p.name).read_bytes() == p.read_bytes(), p.name
+    assert again.keys() == files.keys()
+    for name, data in files.items():
+        assert again[name] == data, name
 
 
-def test_existing_outputs_are_not_overwritten(tmp_path, capsys):
-    args = ["analyze", "piippo2008", "--points", "51", "--out", str(tmp_path)]
-    assert run(args, capsys)[0] == 0
-    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
-    code, _, err = run([*args, "--torque", "14"], capsys)
+def test_existing_outputs_are_not_overwritten(preset_all, rerun):
+    # the module fixture rerun: the analysis of preset_all again into a copy of its outputs
+    (code, _, err), after_refused, (forced, _, _), _ = rerun
     assert code == 2 and "output exists" in err and "--force" in err
-    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
-    assert run([*args, "--force"], capsys)[0] == 0
+    assert after_refused == preset_all[3]
+    assert forced == 0
 
 
 def test_injection_and_torque_options(tmp_path, capsys):

@@ -265,12 +265,13 @@ def test_former_flag_and_law_names_still_work_and_say_their_new_names(tmp_path, 
         main(["tune", "piippo2008", "--law", "law17", "--out", str(tmp_path / "y")])
 
 
-def test_cli_tune_writes_tables_deterministically(tmp_path, capsys):
-    args = ["tune", "piippo2008", "--speeds", "6", "--torque=-1T_N,1T_N", "--quiet"]
-    assert main([*args, "--out", str(tmp_path / "a")]) == 0
-    stdout = capsys.readouterr().out
+def test_cli_tune_writes_tables_deterministically(tmp_path, capsys, tune_cli_small):
+    # the first run: the session fixture (tune piippo2008 --speeds 5 --torque=-1T_N,1T_N), shared with
+    # test_tune_global.py; the second here
+    args, a, code, stdout = tune_cli_small
+    assert code == 0
     assert "worst damping" in stdout and "wrote" in stdout
     assert main([*args, "--out", str(tmp_path / "b")]) == 0
     for name in ("gains_speed-dependent.json", "gains_speed-dependent.csv"):
-        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
-    assert main([*args, "--out", str(tmp_path / "a")]) == 2  # refuses to overwrite
+        assert a.joinpath(name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+    assert main([*args, "--out", str(tmp_path / "b")]) == 2  # refuses to overwrite

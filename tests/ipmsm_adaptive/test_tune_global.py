@@ -159,11 +159,10 @@ def test_schedule_reaches_the_bound_and_speed_dependent_beats_the_drive_file(dri
             assert row["bound"] >= row["baseline"] - 1e-6
 
 
-def test_cli_prints_the_bound_and_writes_the_speeds_table(tmp_path, capsys):
-    out = tmp_path / "o"
-    args = ["tune", "piippo2008", "--speeds", "5", "--torque=-1T_N,1T_N", "--quiet", "--out", str(out)]
-    assert main(args) == 0
-    stdout = capsys.readouterr().out
+def test_cli_prints_the_bound_and_writes_the_speeds_table(tune_cli_small):
+    # tune piippo2008 --speeds 5 --torque=-1T_N,1T_N (the session fixture, shared with test_tune.py)
+    _, out, code, stdout = tune_cli_small
+    assert code == 0
     line = next(ln for ln in stdout.splitlines() if "bound" in ln and "worst" in ln)
     assert "p.u." in line and "below it" in line
     rows = (out / "speeds_speed-dependent.csv").read_text().splitlines()

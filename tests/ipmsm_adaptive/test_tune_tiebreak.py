@@ -10,9 +10,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sensorless.design.batch import evaluate_batch
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import tuning_envelope
-from sensorless.design.ipmsm_adaptive.linearize import linearize
+from sensorless.design.ipmsm_adaptive.linearize import (
+    drive_arguments,
+    linearize,
+    nominal_linearization_function,
+)
+from sensorless.design.ipmsm_adaptive.operating_point import PARAM_NAMES
+from sensorless.design.poles import eigvals_batched, max_real, worst_damping
 from sensorless.tuning.tiebreak import TIE_TOL
 from sensorless.tuning.tune import tune
 
@@ -47,12 +54,35 @@ def case():
     # the brute force: worst damping and slowest decay on the dense grid, through the analysis path
     lps = np.geomspace(0.25, 20.0, 25) * R  # the box's cap is 20 R_s_hat
     wls = np.geomspace(0.01, 10.0, 25) * wb
-    D, C = np.empty((lps.size, wls.size)), np.empty((lps.size, wls.size))
-    for i, lp in enumerate(lps):
-        for j, wl in enumerate(wls):
-            s = linearize(drive, Wd, Td, gain=("speed", [lp, wl]))
-            D[i, j], C[i, j] = np.min(s.worst_damping), np.min(s.decay_rate)
+    D, C = brute_force(drive, Wd, Td, lps, wls)
+    # the batch is linearize's own path: the same figures as linearize, pair by pair (three pairs)
+    for i, j in ((0, 0), (12, 7), (24, 24)):
+        s = linearize(drive, Wd, Td, gain=("speed", [lps[i], wls[j]]))
+        assert D[i, j] == pytest.approx(np.min(s.worst_damping), abs=1e-9)
+        assert C[i, j] == pytest.approx(np.min(s.decay_rate), rel=1e-9)
     return drive, r, (Wd, Td), (lps, wls, D, C)
+
+
+def brute_force(drive, Wd, Td, lps, wls):
+    """Worst damping and slowest decay over the points (Wd, Td) for every pair (lps[i], wls[j]) of eq. (16):
+    the analysis Function linearize evaluates at exact estimates, here once for all pairs and points
+    (the pair a per-point gain input), and the poles of its matrices as linearize finds them."""
+    law, args = drive_arguments(drive, ("speed", [lps[0], wls[0]]))
+    assert np.array_equal(args["motor"], args["estimate"])  # linearize's exact-estimate path
+    fn = nominal_linearization_function(law, False)
+    LP, WL = (a.ravel() for a in np.meshgrid(lps, wls, indexing="ij"))
+    K, N = LP.size, Wd.size
+    gain = np.zeros((args["gain"].size, K * N))
+    gain[0], gain[1] = np.repeat(LP, N), np.repeat(WL, N)
+    a = dict(args, w_m=np.tile(Wd, K)[None], T_e=np.tile(Td, K)[None], gain=gain)
+    out = evaluate_batch(fn, K * N, [a[k] for k in PARAM_NAMES])
+    A, charpoly = out[0], out[7][:, :, 0]
+    poles = np.full(A.shape[:2], np.nan + 0j)
+    ok = np.isfinite(A).all(axis=(1, 2))
+    poles[ok] = eigvals_batched(A[ok], charpoly[ok])
+    D = np.min(worst_damping(poles).reshape(K, N), axis=1)  # np.min: a NaN (no equilibrium) stays NaN
+    C = np.min(-max_real(poles).reshape(K, N), axis=1)
+    return D.reshape(lps.size, wls.size), C.reshape(lps.size, wls.size)
 
 
 def test_tie_break_keeps_the_smallest_gains_within_the_tolerance(case):

@@ -1,0 +1,22 @@
+"""Session fixtures of the adaptive observer's tests."""
+
+import contextlib
+import io
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def tune_cli_small(tmp_path_factory):
+    """``sensorless tune piippo2008 --speeds 5 --torque=-1T_N,1T_N --quiet``, run once per worker: (argv
+    without --out, output directory, exit status, stdout). test_tune.py (determinism: it runs the
+    command again) and test_tune_global.py (the bound's line and table) read it, read only; both files
+    run on one worker (group "tune-ipmsm" of tests/conftest.py's SHARED)."""
+    from sensorless.reports.cli.main import main
+
+    argv = ["tune", "piippo2008", "--speeds", "5", "--torque=-1T_N,1T_N", "--quiet"]
+    out = tmp_path_factory.mktemp("tune_cli_small") / "o"
+    stdout = io.StringIO()
+    with contextlib.redirect_stdout(stdout):
+        code = main([*argv, "--out", str(out)])
+    return argv, out, code, stdout.getvalue()
