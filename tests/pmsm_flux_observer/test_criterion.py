@@ -136,8 +136,11 @@ def test_tune_exits_3_with_one_line_per_shortfall_and_writes_the_table(tmp_path,
     drive = tmp_path / "d.toml"
     drive.write_text(text + "\n[envelope]\nspeeds = 4\n")  # a coarse envelope: a quick tune
     out = tmp_path / "t"
-    rc = main(["tune", str(drive), "--law", "odrive", "--bias-max", "0.5", "--out", str(out), "--quiet"])
+    # the R_s error alone (the others 0): the same shortfall, and tune's w_min line under 3 cases, not 9
+    alone = ["--flux-error", "0", "--l-error", "0", "--quiet"]
+    rc = main(["tune", str(drive), "--law", "odrive", "--bias-max", "0.5", *alone, "--out", str(out)])
     err = [x for x in capsys.readouterr().err.splitlines() if "sensorless tune: warning: the tuned" in x]
     assert rc == 3 and len(err) == 1
     assert "hold at no envelope speed" in err[0] and "alone" in err[0] and "change:" in err[0]
+    assert "R_s +-30 % alone" in err[0]  # the one error given is the one named
     assert (out / "gains_odrive.json").is_file()  # the result is written
