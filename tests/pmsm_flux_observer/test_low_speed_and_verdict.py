@@ -5,6 +5,7 @@ closed-form decay (s^2 + k s + w^2 with VESC's voltage-scheduled k)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from importlib.resources import files
 from pathlib import Path
@@ -25,7 +26,8 @@ pytestmark = pytest.mark.long(24)  # CPU seconds of this file, measured: schedul
 
 FAST_PLL = 'foc_pll_ki = "1000000 1/s2"'  # foc_pll_kp^2/4: a double root at -1000 1/s
 # the drives' envelopes at 4 speeds per direction (the presets': 12): tuning and the report's review judge
-# every envelope point, the same criteria on a third of them
+# every envelope point, the same criteria on a third of them (a drive file's [envelope], or the preset's
+# envelope replaced: a preset keeps its report's own scenarios)
 COARSE = "\n[envelope]\nspeeds = 4\n"
 
 
@@ -35,8 +37,10 @@ def hub_text() -> str:
 
 @pytest.fixture(scope="module")
 def hub():
-    """hubmotor48 on the coarse envelope."""
-    return load_drive_text(hub_text() + COARSE, "hubmotor48.toml")
+    """The preset hubmotor48 (its report's scenarios: the preset's own) on the coarse envelope."""
+    d = load_drive("hubmotor48")
+    env = dataclasses.replace(d.envelope, rule=dataclasses.replace(d.envelope.rule, count=4))
+    return dataclasses.replace(d, envelope=env)
 
 
 def test_the_final_speed_error_is_the_lag_of_vescs_default_pll(hub):
