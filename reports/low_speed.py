@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import Any
 
-import numpy as np
 from sensorless.design.capabilities import OpenLoopStart
 from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
 from sensorless.design.low_speed import (
@@ -143,7 +143,8 @@ def tune_line(drive: Drive, gains: GainSet, min_damping: float, errors: Estimate
     """The tune summary's line (the tuned gains under the ``errors`` tuned under, the grid of ``report
     --quick``), or "" where the family has no linearization."""
     try:
-        kw = {"min_damping": min_damping, "max_bias": np.radians(MAX_BIAS_DEG), **QUICK}
+        # a float, as `report` passes it: the same analysis, the same memo key (design/memo.py)
+        kw = {"min_damping": min_damping, "max_bias": math.radians(MAX_BIAS_DEG), **QUICK}
         return headline(under_errors(drive, gains, errors, **kw))
     except CapabilityError:
         return ""

@@ -5,6 +5,7 @@ closed-form decay (s^2 + k s + w^2 with VESC's voltage-scheduled k)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from importlib.resources import files
 from pathlib import Path
@@ -24,6 +25,10 @@ from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings
 pytestmark = pytest.mark.long(24)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
 
 FAST_PLL = 'foc_pll_ki = "1000000 1/s2"'  # foc_pll_kp^2/4: a double root at -1000 1/s
+# the drives' envelopes at 4 speeds per direction (the presets': 12): tuning and the report's review judge
+# every envelope point, the same criteria on a third of them (a drive file's [envelope], or the preset's
+# envelope replaced: a preset keeps its report's own scenarios)
+COARSE = "\n[envelope]\nspeeds = 4\n"
 
 
 def hub_text() -> str:
@@ -32,7 +37,10 @@ def hub_text() -> str:
 
 @pytest.fixture(scope="module")
 def hub():
-    return load_drive("hubmotor48")
+    """The preset hubmotor48 (its report's scenarios: the preset's own) on the coarse envelope."""
+    d = load_drive("hubmotor48")
+    env = dataclasses.replace(d.envelope, rule=dataclasses.replace(d.envelope.rule, count=4))
+    return dataclasses.replace(d, envelope=env)
 
 
 def test_the_final_speed_error_is_the_lag_of_vescs_default_pll(hub):
@@ -62,7 +70,7 @@ def test_the_verdict_names_the_pll_root_and_the_fix_that_passes(hub):
     assert "roots -15.11 and -1985 1/s" in text
     assert "foc_pll_kp = 2000 1/s, foc_pll_ki = foc_pll_kp^2/4 = 1e+06 1/s^2" in text
     assert "R_s +-30 %" in text or "psi_pm +-10 %" in text  # which error loses it, not only that
-    fast = load_drive_text(hub_text().replace('foc_pll_ki = "30000 1/s2"', FAST_PLL), "fast.toml")
+    fast = load_drive_text(hub_text().replace('foc_pll_ki = "30000 1/s2"', FAST_PLL) + COARSE, "fast.toml")
     fixed = HOOKS.report(fast, resolution="quick")
     assert not any("PLL" in x for x in fixed.data["verdict"]["findings"])
     # the generic checks of a user's file: the final speed error is within the limit with the fix, where
@@ -104,10 +112,11 @@ def test_a_users_flux_drive_starts_and_reverses_through_the_i_f_start(tmp_path):
     from sensorless.reports.cli.main import main
 
     src = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors" / "drone.toml"
-    text = src.read_text().replace('kind = "ipmsm-adaptive"', 'kind = "pmsm-flux-observer"')
+    text = src.read_text().replace('kind = "ipmsm-adaptive"', 'kind = "pmsm-flux-observer"') + COARSE
     (tmp_path / "min.toml").write_text(text)
     assert main(["init", str(tmp_path / "min.toml"), "--out", str(tmp_path / "d.toml")]) == 0
     drive = load_drive(tmp_path / "d.toml")
+    assert drive.envelope.rule.count == 4  # init keeps the coarse envelope
     rep = HOOKS.report(drive, resolution="quick")
     td = {c["name"]: c for c in rep.data["time_domain"]}
     assert set(td) == {"speed_steps", "load_steps", "reversal", "start"}
