@@ -123,7 +123,7 @@ def test_tuned_gains_below_the_report_threshold_warn_with_exit_3(tmp_path, capsy
     """|lambda1|, |lambda2| <= 0.01 ohm leaves the observer barely damped: the best gains reach 0.12.
     The tables are written (they are the result), with a warning line and exit status 3."""
     out = tmp_path / "t"
-    args = ["tune", "piippo2008", "--lambda-max", "0.01", "--speeds", "6", "--quiet", "--out", out]
+    args = ["tune", "piippo2008", "--lambda-max", "0.01", "--speeds", "3", "--quiet", "--out", out]
     code, stdout, err = run(args, capsys)
     assert code == 3 and err.count("\n") == 1, err
     assert err.startswith("sensorless tune: warning: the tuned gains' worst damping (0.1")
