@@ -120,10 +120,14 @@ def test_curve_is_one_batched_grid_and_its_data_is_json_ready():
     assert np.all(strict.w_min >= ls.w_min - 1e-9)
 
 
-def test_tune_states_the_errors_it_tuned_under():
+def test_tune_states_the_errors_it_tuned_under(monkeypatch):
     """tune's line takes the errors of the run: the family's own where the options leave them (said
-    where they are stated), the options' where they differ; the shared NLP's TuningSettings alike."""
+    where they are stated), the options' where they differ; the shared NLP's TuningSettings alike.
+    The line's words are checked, not its speed: the minimum speed on a coarse grid."""
+    from sensorless.reports import low_speed
     from sensorless.reports.low_speed import tune_line
+
+    monkeypatch.setattr(low_speed, "QUICK", {"n_speeds": 8, "n_torques": 3, "bisections": 4})
     from sensorless.tuning.family import estimate_errors, tunable_for
 
     flux = load_drive("outrunner270")

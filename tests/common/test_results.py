@@ -59,7 +59,10 @@ def test_a_lost_rotor_is_a_warning_with_exit_3(tmp_path, capsys):
     drive = tmp_path / "drive.toml"
     drive.write_text(PRESET[:i] + PRESET[i:].replace('R_s = "3.59 ohm"', 'R_s = "1 ohm"', 1))
     out = tmp_path / "o"
-    code, _, err = run(["simulate", drive, "--scenario", "fig9a", "--quiet", "--out", out], capsys)
+    # the first 1.2 s: standstill under rated load from 0.5 s, where the estimate is lost, and the
+    # first speed step
+    short = ["--duration", "1.2", "--quiet"]
+    code, _, err = run(["simulate", drive, "--scenario", "fig9a", *short, "--out", out], capsys)
     assert code == 3 and err.count("\n") == 1, err
     assert err.startswith(
         "sensorless simulate: warning: the position estimate was lost: its error reached 90 deg"
@@ -67,7 +70,7 @@ def test_a_lost_rotor_is_a_warning_with_exit_3(tmp_path, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["fig9a.png", "fig9a.svg", "traces.csv"]
     # the paper's drive, same scenario: no warning
     code, _, err = run(
-        ["simulate", "piippo2008", "--scenario", "fig9a", "--quiet", "--out", tmp_path / "p"], capsys
+        ["simulate", "piippo2008", "--scenario", "fig9a", *short, "--out", tmp_path / "p"], capsys
     )
     assert code == 0 and err == ""
 
@@ -123,7 +126,7 @@ def test_tuned_gains_below_the_report_threshold_warn_with_exit_3(tmp_path, capsy
     """|lambda1|, |lambda2| <= 0.01 ohm leaves the observer barely damped: the best gains reach 0.12.
     The tables are written (they are the result), with a warning line and exit status 3."""
     out = tmp_path / "t"
-    args = ["tune", "piippo2008", "--lambda-max", "0.01", "--speeds", "6", "--quiet", "--out", out]
+    args = ["tune", "piippo2008", "--lambda-max", "0.01", "--speeds", "3", "--quiet", "--out", out]
     code, stdout, err = run(args, capsys)
     assert code == 3 and err.count("\n") == 1, err
     assert err.startswith("sensorless tune: warning: the tuned gains' worst damping (0.1")
