@@ -197,6 +197,15 @@ class OutputSet:
         differ between runs (dates, software strings) is left out so files are byte-identical."""
         fmt = Path(name).suffix[1:]
         meta = {"Date": None} if fmt == "svg" else {"Software": None} if fmt == "png" else {}
+        from sensorless.reports.document import pyplot
+
+        pyplot()  # the report figures' settings (deterministic SVG ids)
+        engine = fig.get_layout_engine()
+        if engine is not None:
+            # a layout engine lays the figure out again at every save (a second draw each): once here,
+            # and the positions kept for every format staged (add_figures: PNG and SVG)
+            engine.execute(fig)
+            fig.set_layout_engine(None)
         buf = io.BytesIO()
         fig.savefig(buf, format=fmt, metadata=meta, **kwargs)
         self.add_bytes(name, buf.getvalue())

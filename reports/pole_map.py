@@ -9,20 +9,19 @@ from __future__ import annotations
 
 import io
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 from sensorless.design.linearization import Linearization
 from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
+from sensorless.reports.document import pyplot
+
+if TYPE_CHECKING:  # typed by name only
+    from matplotlib.figure import Figure
 
 # why a pole table's row has empty cells (the linearization's values there are not finite)
 NO_POLES = "no finite poles here: no equilibrium found or the linearized observer overflows"
-
-plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
 
 
 def pole_csv(sweep: Linearization, w_base: float) -> str:
@@ -63,11 +62,14 @@ def plot_pole_maps(
     w_base: float,
     title: str,
     low_speed: Mapping[str, Linearization] | None = None,
-) -> matplotlib.figure.Figure:
+) -> Figure:
     """One row per sweep: full map (Fig. 4) and magnified origin (Fig. 5), colored by speed.
 
     ``low_speed`` (same keys) are denser sweeps of the low-speed range drawn in the magnified panel.
     """
+    import matplotlib
+
+    plt = pyplot()
     rows = len(sweeps)
     fig, axes = plt.subplots(rows, 2, figsize=(11, 4.2 * rows), squeeze=False, layout="constrained")
     cmap = plt.get_cmap("turbo")  # no white at zero speed: low-speed poles stay visible

@@ -27,6 +27,10 @@ from typing import NoReturn
 
 from sensorless.reports import interrupts
 
+# Figures are files here, never windows: matplotlib, imported only by the commands that draw
+# (reports/document.py ``pyplot``), starts on Agg without probing for a display.
+os.environ.setdefault("MPLBACKEND", "Agg")
+
 # The subcommands (each module's register(subparsers) sets ``func``); imported by main() once Ctrl-C
 # is handled, since importing CasADi and the families takes a moment.
 COMMAND_NAMES = ("init", "analyze", "tune", "simulate", "codegen", "export", "report", "montecarlo")

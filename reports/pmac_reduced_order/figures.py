@@ -6,19 +6,15 @@ import io
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
 from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
+from sensorless.reports.document import pyplot
 
 if TYPE_CHECKING:  # typed by name only
+    from matplotlib.figure import Figure
     from sensorless.design.pmac_reduced_order.schema import PmacDrive
-
-plt.rcParams["svg.hashsalt"] = "sensorless"  # deterministic SVG element ids
 
 
 # why a row has empty cells (its values there are not finite)
@@ -94,9 +90,10 @@ def study_csv(rows: Sequence[Any], drive: PmacDrive) -> str:
     return buf.getvalue()
 
 
-def plot_poles(results: dict[str, ObserverPoles], drive: PmacDrive, title: str) -> matplotlib.figure.Figure:
+def plot_poles(results: dict[str, ObserverPoles], drive: PmacDrive, title: str) -> Figure:
     """Per variant (column): real parts of the poles vs speed, continuous (o) and discrete ln(z)/T_s (x),
     and the discrete observer's steady speed and load-torque errors vs speed; colored by load."""
+    plt = pyplot()
     cols = len(results)
     fig, axes = plt.subplots(
         3, cols, figsize=(5.6 * cols, 9.0), squeeze=False, layout="constrained", sharex=True
