@@ -49,6 +49,10 @@ def test_every_readme_command_runs_as_written(readme_run, chain):
         assert code == 0, (argv, err[-2000:])
     for file in WRITES.get(chain, []):
         assert (run.dir / file).is_file(), file
+    if chain == "servo":  # the line the README quotes is the line its tune prints
+        quoted = [b.strip() for b in blocks("text") if b.startswith("sensorless down to")]
+        tune = next(k for k, (argv, _, _) in enumerate(run.results) if argv[0] == "tune")
+        assert quoted and quoted[0] in run.outputs[tune] + run.results[tune][2], run.outputs[tune][-2000:]
     if chain in ("skate-vesc", "skate-odrive"):
         rep = json.loads((run.dir / f"report-{chain}" / "report.json").read_text())
         assert {"tuned", "ODrive defaults", "VESC detection"} <= set(rep["analysis"])

@@ -50,10 +50,12 @@ def chain_commands(chain: str) -> list[list[str]]:
 
 @dataclass(frozen=True)
 class ReadmeRun:
-    """Where the README's commands ran, and each command's argv, exit status and standard error."""
+    """Where the README's commands ran, and each command's argv, exit status and standard error (and,
+    in the same order, each command's standard output)."""
 
     dir: Path
     results: tuple[tuple[list[str], int, str], ...]
+    outputs: tuple[str, ...] = ()
 
     def code(self, command: str, file: str) -> int:
         """The exit status of the first ``command`` whose arguments name ``file``."""
@@ -72,7 +74,7 @@ def run_readme(where: Path, chain: str | None = None) -> ReadmeRun:
         if m:
             (where / m.group(1)).write_text(body, encoding="utf-8")
     shutil.copytree(README.parent / "docs" / "examples", where / "docs" / "examples")
-    results = []
+    results, outputs = [], []
     cwd = os.getcwd()
     os.chdir(where)
     try:
@@ -81,6 +83,7 @@ def run_readme(where: Path, chain: str | None = None) -> ReadmeRun:
             with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
                 code = main(argv)
             results.append((argv, code, err.getvalue()))
+            outputs.append(out.getvalue())
     finally:
         os.chdir(cwd)
-    return ReadmeRun(where, tuple(results))
+    return ReadmeRun(where, tuple(results), tuple(outputs))
