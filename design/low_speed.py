@@ -61,13 +61,13 @@ from sensorless.design.family import (
     Scaled,
     require,
 )
+from sensorless.design.linearization import Linearization
 from sensorless.design.memo import by_content
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import double_step_active
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.drive_analysis import DriveLinearization
-    from sensorless.design.linearization import Linearization
 
 MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
 FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the design holds zero speed
@@ -286,9 +286,15 @@ def _analysis(
     # bisection step ask for the same torques; each point's Newton iteration is its own, so a point's
     # figures do not depend on the batch it is computed in)
     mid_of: dict[float, tuple[float, float]] = {}
+    # the observer-only linearization serves only the noise criterion: where the family's linearization
+    # (its class, the same at every call) keeps the base class's angle_noise, which gives none, it is
+    # not computed again (the pmsm_flux_observer family: more than half of this analysis' time)
+    noise: list[bool] = []
 
     def whole(w: np.ndarray, T: np.ndarray) -> WholeDrive:
-        obs = observer_only(w, T)
+        obs = observer_only(w, T) if not noise or noise[0] else None
+        if not noise:
+            noise.append(type(obs).angle_noise is not Linearization.angle_noise)
         Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
         torques, back = np.unique(Tb, return_inverse=True)
         new = np.array([t for t in torques if float(t) not in mid_of])
