@@ -26,15 +26,19 @@ estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over t
   motor) is not applied, and the result says which were;
 - w_min(T) = the lowest speed from which every speed up to the highest one that meets all four (at
   most 1 p.u.) meets all four (w_min = 1 p.u. where no speed does): a dense logarithmic grid
-  (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds), then bisection
-  of the highest failing grid interval (one batched call per step over all torques). Speeds are
+  (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds, walked from the top
+  speed down: a torque is left at the first failure below its first pass, whose speeds below cannot
+  change its w_min), then bisection of the highest failing grid interval (one batched call per step
+  over the torques). Speeds are
   positive; the torques take both signs, so motoring (T > 0) and regenerating (T < 0) are both
   covered, as an observer of a PMSM is symmetric under (w, T) -> (-w, -T).
 
 :func:`minimum_speed_under` judges a design under the estimate errors its family states for it
 (``ObserverFamily.estimate_errors``, a box of +- errors): every criterion at the drive file's
 estimates, and at every corner a stable equilibrium (damping, decay >= 0) with the bias and noise
-within their limits; w_min is the highest of the cases.
+within their limits; w_min is the highest of the cases (a corner's search leaves a torque once its w_min
+is shown to be no higher than the cases' before it: it cannot change the highest, nor, ties going to
+the earlier case, what limits it).
 
 The rated-load value (``w_min_rated``) is the larger of the two at +T_N and -T_N. Where the criteria
 hold down to the grid's floor (:data:`FLOOR_PU`), w_min = 0: no lower limit found (the headline says
