@@ -26,15 +26,19 @@ estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over t
   motor) is not applied, and the result says which were;
 - w_min(T) = the lowest speed from which every speed up to the highest one that meets all four (at
   most 1 p.u.) meets all four (w_min = 1 p.u. where no speed does): a dense logarithmic grid
-  (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds), then bisection
-  of the highest failing grid interval (one batched call per step over all torques). Speeds are
+  (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds, walked from the top
+  speed down: a torque is left at the first failure below its first pass, whose speeds below cannot
+  change its w_min), then bisection of the highest failing grid interval (one batched call per step
+  over the torques). Speeds are
   positive; the torques take both signs, so motoring (T > 0) and regenerating (T < 0) are both
   covered, as an observer of a PMSM is symmetric under (w, T) -> (-w, -T).
 
 :func:`minimum_speed_under` judges a design under the estimate errors its family states for it
 (``ObserverFamily.estimate_errors``, a box of +- errors): every criterion at the drive file's
 estimates, and at every corner a stable equilibrium (damping, decay >= 0) with the bias and noise
-within their limits; w_min is the highest of the cases.
+within their limits; w_min is the highest of the cases (a corner's search leaves a torque once its w_min
+is shown to be no higher than the cases' before it: it cannot change the highest, nor, ties going to
+the earlier case, what limits it).
 
 The rated-load value (``w_min_rated``) is the larger of the two at +T_N and -T_N. Where the criteria
 hold down to the grid's floor (:data:`FLOOR_PU`), w_min = 0: no lower limit found (the headline says
@@ -61,13 +65,13 @@ from sensorless.design.family import (
     Scaled,
     require,
 )
+from sensorless.design.linearization import Linearization
 from sensorless.design.memo import by_content
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import double_step_active
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.drive_analysis import DriveLinearization
-    from sensorless.design.linearization import Linearization
 
 MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
 FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the design holds zero speed
@@ -286,9 +290,15 @@ def _analysis(
     # bisection step ask for the same torques; each point's Newton iteration is its own, so a point's
     # figures do not depend on the batch it is computed in)
     mid_of: dict[float, tuple[float, float]] = {}
+    # the observer-only linearization serves only the noise criterion: where the family's linearization
+    # (its class, the same at every call) keeps the base class's angle_noise, which gives none, it is
+    # not computed again (the pmsm_flux_observer family: more than half of this analysis' time)
+    noise: list[bool] = []
 
     def whole(w: np.ndarray, T: np.ndarray) -> WholeDrive:
-        obs = observer_only(w, T)
+        obs = observer_only(w, T) if not noise or noise[0] else None
+        if not noise:
+            noise.append(type(obs).angle_noise is not Linearization.angle_noise)
         Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
         torques, back = np.unique(Tb, return_inverse=True)
         new = np.array([t for t in torques if float(t) not in mid_of])
@@ -306,6 +316,103 @@ def _analysis(
 
     basis = "the whole sampled drive (design/drive_analysis.py)" + (f"; {dl.note}" if dl.note else "")
     return whole, basis
+
+
+def _search(
+    analyse: Any,
+    w: np.ndarray,
+    T: np.ndarray,
+    crit: Mapping[str, float],
+    bisections: int,
+    bound: np.ndarray | None = None,
+    known: frozenset[str] = frozenset(),
+) -> tuple[np.ndarray, np.ndarray, set[str]]:
+    """(w_min, index of the limiting criterion (-1: none), criteria applied) per torque on the grid
+    ``w`` x ``T`` (module docstring: the highest passing grid speed, the highest failing one below it,
+    bisection between them).
+
+    The grid is walked from the top speed down, one batched call per block of speeds over the torques
+    still searched: a torque is done at the first failure below its first pass, so the speeds below it,
+    where the drive's fixed points are the slowest to find, are not analysed for it (they cannot change
+    its w_min). ``bound`` (per torque): a w_min at or below it is not needed (the caller keeps a higher
+    or equal one: :func:`minimum_speed_under`), so a torque whose w_min is shown to be at or below it is
+    left (its w_min then is some value at or below ``bound``). The criteria applied are those some
+    analysed grid point gives; where one of them, not in ``known`` (applied already by the caller's
+    other cases), is missing, the grid is completed, so that the set is the full grid's.
+    """
+    n_speeds, n_torques = w.size, T.size
+    need = {c for c in CRITERIA if c in crit or c in ("damping", "decay")} - set(known)
+    bound = np.full(n_torques, -np.inf) if bound is None else bound
+    top = np.full(n_torques, -1)  # the grid's top speed's first failing criterion
+    k_pass = np.full(n_torques, -1)  # the highest passing grid speed
+    k = np.full(n_torques, -1)  # the highest failing grid speed below it
+    cause = np.full(n_torques, -1)
+    left = np.zeros(n_torques, bool)  # w_min shown to be at or below bound
+    seen = np.zeros((n_speeds, n_torques), bool)
+    given: set[str] = set()
+    # blocks of speeds: a family that simulates its discrete observer over a window growing as 1/w (the
+    # reduced-order family's steady errors) runs every point of a call as long as its slowest one
+    blocks = np.array_split(np.arange(n_speeds), SPEED_BLOCKS)[::-1]
+
+    def run(blk: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        first, applied = _failing(analyse(w[blk, None], T[None, cols]), crit)
+        given.update(applied)
+        seen[np.ix_(blk, cols)] = True
+        return first.reshape(blk.size, cols.size)
+
+    for blk in blocks:
+        cols = np.flatnonzero((k < 0) & ~left)
+        if cols.size == 0:
+            break
+        first = run(blk, cols)
+        for jj, j in enumerate(cols):
+            for ii in range(blk.size - 1, -1, -1):
+                i, f = blk[ii], first[ii, jj]
+                if i == n_speeds - 1:
+                    top[j] = f
+                if k_pass[j] < 0:
+                    if f < 0:
+                        k_pass[j] = i
+                elif f >= 0:
+                    k[j], cause[j] = i, f
+                    break
+            # passing down to this block's lowest speed: w_min <= w[blk[0]] (bisection's exp(log(.)),
+            # within a rounding: the margin)
+            if k[j] < 0 <= k_pass[j] and w[blk[0]] * (1 + 1e-12) <= bound[j]:
+                left[j] = True
+    if not need <= given:  # criteria the analysed points do not give: the rest of the grid
+        for blk in blocks:
+            cols = np.flatnonzero(~seen[blk].all(axis=0))
+            if cols.size and not need <= given:
+                run(blk, cols)
+    none = k_pass < 0  # no speed meets the criteria at this torque
+    k = np.where(none, n_speeds - 1, k)
+    cause = np.where(none, top, cause)
+    w_min = np.zeros(n_torques)
+    w_min[none] = w[-1]
+    ref = (k >= 0) & ~none & ~left
+    if ref.any():
+        idx = np.flatnonzero(ref)
+        lo, hi = np.log(w[k[ref]]), np.log(w[k[ref] + 1])
+        c = cause[ref]
+        act = np.ones(idx.size, bool)  # still bisected (not shown at or below bound)
+        for _ in range(bisections):
+            act &= ~(np.exp(hi) <= bound[idx])
+            if not act.any():
+                break
+            mid = 0.5 * (lo + hi)
+            f_mid, _ = _failing(analyse(np.exp(mid[act]), T[idx[act]]), crit)
+            fails = np.zeros(idx.size, bool)
+            fails[act] = f_mid >= 0
+            f_all = np.full(idx.size, -1)
+            f_all[act] = f_mid
+            c = np.where(fails, f_all, c)
+            lo = np.where(act & fails, mid, lo)
+            hi = np.where(act & ~fails, mid, hi)
+        w_min[ref] = np.exp(hi)
+        cause[ref] = c
+    w_min[left] = np.minimum(w_min[left], bound[left])
+    return w_min, cause, given
 
 
 # the same drive at the same gains is analysed again within a process (the I-f start's rules at every
@@ -332,6 +439,39 @@ def minimum_speed(
     (:func:`braking_acceleration`) is judged too (the handover's w_min, design/startup.py);
     ``observer_only``: the family's observer-only linearization (the paper's analysis) instead of the
     whole drive."""
+    return _minimum_speed(
+        drive,
+        gains,
+        min_damping=min_damping,
+        max_bias=max_bias,
+        min_decay=min_decay,
+        errors=errors,
+        n_speeds=n_speeds,
+        n_torques=n_torques,
+        bisections=bisections,
+        acceleration=acceleration,
+        observer_only=observer_only,
+    )
+
+
+def _minimum_speed(
+    drive: Drive,
+    gains: GainSet,
+    *,
+    min_damping: float,
+    max_bias: float = np.radians(MAX_BIAS_DEG),
+    min_decay: float | None = None,
+    errors: Mapping[str, float] | None = None,
+    n_speeds: int = N_SPEEDS,
+    n_torques: int = N_TORQUES,
+    bisections: int = BISECTIONS,
+    acceleration: bool = False,
+    observer_only: bool = False,
+    bound: np.ndarray | None = None,
+    known: frozenset[str] = frozenset(),
+) -> LowSpeed:
+    """:func:`minimum_speed`; ``bound``, ``known``: see :func:`_search` (w_min at or below ``bound``
+    is any value there, the criteria applied leave out ``known``'s)."""
     fam = family_of(drive)
     if errors:
         drive = require(fam, EstimateScaling).with_estimate_errors(drive, errors)
@@ -348,44 +488,11 @@ def minimum_speed(
     wb, TN = drive.w_base, drive.T_N
     w = wb * np.logspace(np.log10(FLOOR_PU), 0.0, n_speeds)
     T = TN * np.linspace(-1.0, 1.0, n_torques)
-    # one batched call per block of speeds: a family that simulates its discrete observer over a
-    # window growing as 1/w (the reduced-order family's steady errors) runs every point of a call as
-    # long as its slowest one
-    rows, given = [], set()
-    for blk in np.array_split(np.arange(n_speeds), SPEED_BLOCKS):
-        first, applied = _failing(analyse(w[blk, None], T[None, :]), crit)
-        rows.append(first.reshape(blk.size, n_torques))
-        given.update(applied)
-    first = np.vstack(rows)
-    bad = first >= 0
-    # per torque: the highest passing grid speed (a failure above it is no low-speed limit: the
-    # report's other sections judge it), and below it the highest failing one; the bracket
-    # (w[k], w[k+1]) holds the edge
-    idx = np.arange(n_speeds)[:, None]
-    k_pass = np.where(~bad, idx, -1).max(axis=0)
-    k = np.where(bad & (idx < k_pass), idx, -1).max(axis=0)
-    none = k_pass < 0  # no speed meets the criteria at this torque
-    k = np.where(none, n_speeds - 1, k)
-    any_bad = k >= 0
-    cause = np.array([first[k[j], j] if any_bad[j] else -1 for j in range(n_torques)])
-    w_min = np.zeros(n_torques)
-    w_min[none] = wb
-    ref = any_bad & ~none
-    if ref.any():
-        lo, hi = np.log(w[k[ref]]), np.log(w[k[ref] + 1])
-        c = cause[ref]
-        for _ in range(bisections):
-            mid = 0.5 * (lo + hi)
-            f_mid, _ = _failing(analyse(np.exp(mid), T[ref]), crit)
-            fails = f_mid >= 0
-            c = np.where(fails, f_mid, c)
-            lo, hi = np.where(fails, mid, lo), np.where(fails, hi, mid)
-        w_min[ref] = np.exp(hi)
-        cause[ref] = c
+    w_min, cause, given = _search(analyse, w, T, crit, bisections, bound, known)
     return LowSpeed(
         torque=T,
         w_min=w_min,
-        limited_by=tuple(CRITERIA[i] if i >= 0 else "" for i in cause),
+        limited_by=tuple(CRITERIA[int(i)] if i >= 0 else "" for i in cause),
         w_base=wb,
         T_N=TN,
         pole_pairs=drive.pole_pairs,
@@ -401,6 +508,8 @@ def minimum_speed(
     )
 
 
+# the tune line and the report ask for the same drive under the same errors (design/memo.py)
+@by_content(maxsize=16, when=double_step_active)
 def minimum_speed_under(
     drive: Drive, gains: GainSet, errors: EstimateErrors, *, min_damping: float, **kw: Any
 ) -> LowSpeed:
@@ -413,7 +522,13 @@ def minimum_speed_under(
     where a corner has no stable equilibrium)."""
     runs = [minimum_speed(drive, gains, min_damping=min_damping, **kw)]
     corner = {**kw, "min_decay": 0.0}
-    runs += [minimum_speed(drive, gains, min_damping=0.0, errors=c, **corner) for c in errors.cases()[1:]]
+    # a corner matters only where its w_min is above every earlier case's (ties: the earlier case), and
+    # for the criteria applied only where it gives one no earlier case gives: its search leaves a torque
+    # once its w_min is shown to be at or below the cases' so far (_search), with the same max and argmax
+    for c in errors.cases()[1:]:
+        top = np.max([r.w_min for r in runs], axis=0)
+        known = frozenset(a for r in runs for a in r.applied)
+        runs.append(_minimum_speed(drive, gains, min_damping=0.0, errors=c, bound=top, known=known, **corner))
     w = np.stack([r.w_min for r in runs])
     worst = np.argmax(w, axis=0)  # ties: the first, the drive file's estimates
 
