@@ -296,9 +296,12 @@ def _analysis(
     noise: list[bool] = []
 
     def whole(w: np.ndarray, T: np.ndarray) -> WholeDrive:
-        obs = observer_only(w, T) if not noise or noise[0] else None
+        obs: Linearization | None
         if not noise:
+            obs = observer_only(w, T)
             noise.append(type(obs).angle_noise is not Linearization.angle_noise)
+        else:
+            obs = observer_only(w, T) if noise[0] else None
         Tb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[1].ravel()
         torques, back = np.unique(Tb, return_inverse=True)
         new = np.array([t for t in torques if float(t) not in mid_of])
