@@ -25,7 +25,9 @@ from sensorless.reports.cli import codegen as codegen_cli
 from sensorless.reports.cli.main import main
 from sensorless.reports.files import OutputError, OutputSet
 
-pytestmark = pytest.mark.long(50)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+# CPU seconds, measured, of this file with test_report.py (group report-runs of tests/conftest.py: the
+# session fixtures of tests/common/conftest.py, which this file builds first): scheduled first
+pytestmark = pytest.mark.long(60)
 
 SCRIPT = Path(sys.executable).parent / "sensorless"  # the installed console script
 OLD = {"a.txt": b"old a\n", "b.txt": b"old b\n"}

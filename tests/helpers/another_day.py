@@ -82,13 +82,14 @@ class AnotherDay:
         (root / "clock" / "sitecustomize.py").write_text(textwrap.dedent(FAKE_CLOCK))
         env = {k: v for k, v in os.environ.items() if k != "SOURCE_DATE_EPOCH"}
         env["PYTHONPATH"] = os.pathsep.join([str(root / "clock"), *filter(None, [env.get("PYTHONPATH")])])
-        self.process = subprocess.Popen(
-            [sys.executable, "-c", LATER.format(runs=runs(str(root / "later")))],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
+        self.stderr = root / "stderr.txt"  # a file, not a pipe: nobody reads it while the process runs
+        with self.stderr.open("w") as err:
+            self.process = subprocess.Popen(
+                [sys.executable, "-c", LATER.format(runs=runs(str(root / "later")))],
+                env=env,
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+            )
         probe = "import datetime, time; print(datetime.date.today().isoformat(), time.strftime('%Y'))"
         out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True).stdout
         self.date, self.year = out.split()  # what the faked clock says in such a process
@@ -97,7 +98,7 @@ class AnotherDay:
     def outputs(self) -> Path:
         """The directory of the later day's outputs, once they are all made."""
         if not self._done:
-            assert self.process.wait(timeout=600) == 0, self.process.stderr.read()[-2000:]
+            assert self.process.wait(timeout=600) == 0, self.stderr.read_text()[-2000:]
             self._done = True
         return self.root / "later"
 
@@ -109,4 +110,3 @@ class AnotherDay:
         if self.process.poll() is None:
             self.process.kill()
         self.process.wait()
-        self.process.stderr.close()
