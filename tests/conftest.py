@@ -31,6 +31,8 @@ SHARED = {
     re.compile(r"tests/ipmsm_adaptive/test_any_motor\.py::.*\[(servo)\]"): "readme-\\1",
     # the session fixtures speed_dependent_small and tune_cli_small (tests/ipmsm_adaptive/conftest.py)
     re.compile(r"tests/ipmsm_adaptive/test_tune(_global)?\.py::.*"): "tune-ipmsm",
+    # the session fixtures report_piippo_quick, report_deangelo_quick, another_day (tests/common/conftest.py)
+    re.compile(r"tests/common/test_(report|outputs)\.py::.*"): "report-runs",
 }
 
 
@@ -88,18 +90,6 @@ def speed_dependent_small(drive):
     from sensorless.tuning.tune import tune
 
     return tune(drive, "speed-dependent", small(drive))
-
-
-@pytest.fixture(scope="session")
-def report_deangelo_quick(tmp_path_factory):
-    """``sensorless report deangelo2006 --quick``, run once per worker: its output directory (read only;
-    tests/common/test_report.py and test_outputs.py read it, and run it again where they check that a
-    second run gives the same bytes)."""
-    from sensorless.reports.cli.main import main
-
-    out = tmp_path_factory.mktemp("report_deangelo_quick") / "report"
-    assert main(["report", "deangelo2006", "--quick", "--out", str(out)]) == 0
-    return out
 
 
 @pytest.fixture(scope="session")

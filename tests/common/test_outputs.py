@@ -14,18 +14,20 @@ import shutil
 import signal
 import subprocess
 import sys
-import textwrap
 import time
 from datetime import date
 from pathlib import Path
 
 import pytest
+from helpers.another_day import runs
 from sensorless.reports import files, interrupts
 from sensorless.reports.cli import codegen as codegen_cli
 from sensorless.reports.cli.main import main
 from sensorless.reports.files import OutputError, OutputSet
 
-pytestmark = pytest.mark.long(50)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+# CPU seconds, measured, of this file with test_report.py (group report-runs of tests/conftest.py: the
+# session fixtures of tests/common/conftest.py, which this file builds first): scheduled first
+pytestmark = pytest.mark.long(60)
 
 SCRIPT = Path(sys.executable).parent / "sensorless"  # the installed console script
 OLD = {"a.txt": b"old a\n", "b.txt": b"old b\n"}
@@ -399,103 +401,36 @@ def test_a_closed_stdout_is_quiet(tmp_path):
 
 
 # ------------------------------------------------------------------------------- another day
-FAKE_CLOCK = """
-import datetime, time
-SHIFT = 400 * 86400.0 + 3 * 3600 + 17
-_time = time.time
-time.time = lambda: _time() + SHIFT
-time.time_ns = lambda: int((_time() + SHIFT) * 1e9)
-_localtime, _gmtime, _strftime, _ctime = time.localtime, time.gmtime, time.strftime, time.ctime
-time.localtime = lambda t=None: _localtime(time.time() if t is None else t)
-time.gmtime = lambda t=None: _gmtime(time.time() if t is None else t)
-time.strftime = lambda f, t=None: _strftime(f, time.localtime() if t is None else t)
-time.ctime = lambda t=None: _ctime(time.time() if t is None else t)
-class _DT(datetime.datetime):
-    @classmethod
-    def now(cls, tz=None):
-        return datetime.datetime.fromtimestamp(time.time(), tz)
-    @classmethod
-    def today(cls):
-        return datetime.datetime.fromtimestamp(time.time())
-    @classmethod
-    def utcnow(cls):
-        return datetime.datetime.fromtimestamp(time.time(), datetime.timezone.utc).replace(tzinfo=None)
-class _D(datetime.date):
-    @classmethod
-    def today(cls):
-        return datetime.date.fromtimestamp(time.time())
-datetime.datetime, datetime.date = _DT, _D
-"""
-
-
-def runs(out: str) -> list[list[str]]:
-    """One run of every command, into ``out``."""
-    return [
-        ["codegen", "deangelo2006", "--out", f"{out}/codegen"],
-        ["analyze", "deangelo2006", "--speed", "250rpm", "--load", "5", "--out", f"{out}/analyze"],
-        [
-            "simulate",
-            "deangelo2006",
-            "--scenario",
-            "fig3",
-            "--duration",
-            "0.2",
-            "--quiet",
-            "--out",
-            f"{out}/sim",
-        ],
-        ["tune", "piippo2008", "--speeds", "3", "--torque=1T_N", "--quiet", "--out", f"{out}/tune"],
-        ["report", "deangelo2006", "--quick", "--out", f"{out}/report"],
-    ]
-
-
-LATER = """
-import sys
-from sensorless.reports.cli.main import main
-for args in {runs}:
-    assert main(args) == 0, args
-"""
-
-
-def test_outputs_are_byte_identical_on_another_day(tmp_path, capsys, report_deangelo_quick):
+def test_outputs_are_byte_identical_on_another_day(
+    another_day, tmp_path, capsys, report_piippo_quick, report_deangelo_quick
+):  # another_day first: its process runs while this one makes today's outputs
     """Every command's outputs, made today (here) and another day (a fresh process with the clock
-    moved 400 days on), are the same bytes; and no output holds either date. Today's report is the
-    session's run of the same command (tests/conftest.py), made in this process today."""
-    (tmp_path / "clock").mkdir()
-    (tmp_path / "clock" / "sitecustomize.py").write_text(textwrap.dedent(FAKE_CLOCK))
-    env = {k: v for k, v in os.environ.items() if k != "SOURCE_DATE_EPOCH"}
-    env["PYTHONPATH"] = os.pathsep.join([str(tmp_path / "clock"), *filter(None, [env.get("PYTHONPATH")])])
-    probe = "import datetime, time; print(datetime.date.today().isoformat(), time.strftime('%Y'))"
-    d1, y1 = subprocess.run(
-        [sys.executable, "-c", probe], env=env, capture_output=True, text=True
-    ).stdout.split()
-    later = subprocess.Popen(
-        [sys.executable, "-c", LATER.format(runs=runs(str(tmp_path / "later")))],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    moved 400 days on: tests/helpers/another_day.py), are the same bytes; and no output holds either
+    date. Today's reports are the session's runs of the same commands (tests/common/conftest.py), made
+    in this process today; tests/common/test_report.py reads this same other day's reports as the
+    second run of its "two runs give identical JSON"."""
+    today_reports = {"piippo2008": report_piippo_quick, "deangelo2006": report_deangelo_quick}
     for args in runs(str(tmp_path / "today")):
         if args[0] == "report":  # the same command, already run once in this process today
-            assert args[1:] == ["deangelo2006", "--quick", "--out", f"{tmp_path / 'today'}/report"]
-            shutil.copytree(report_deangelo_quick, tmp_path / "today" / "report")
+            preset = args[1]
+            assert args[2:] == ["--quick", "--out", f"{tmp_path / 'today'}/report-{preset}"]
+            shutil.copytree(today_reports[preset], tmp_path / "today" / f"report-{preset}")
             continue
         assert main(args) == 0, args
     capsys.readouterr()
-    assert later.wait(timeout=600) == 0, later.stderr.read()[-2000:]
+    later = another_day.outputs()
+    d1, y1 = another_day.date, another_day.year
     d0, y0 = date.today().isoformat(), time.strftime("%Y")
     assert d0 != d1 and y0 != y1  # the clock did move, to another year even
 
-    def outputs(day: str) -> dict[Path, bytes]:
-        return {
-            p.relative_to(tmp_path / day): p.read_bytes() for p in (tmp_path / day).rglob("*") if p.is_file()
-        }
+    def outputs(root: Path) -> dict[Path, bytes]:
+        return {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()}
 
-    today, other = outputs("today"), outputs("later")
-    assert len(today) >= 14 and set(today) == set(other)
+    today, other = outputs(tmp_path / "today"), outputs(later)
+    assert len(today) >= 16 and set(today) == set(other)
     for name, data in today.items():
         assert data == other[name], f"{name} differs between days"
         for day in (d0, d1, d0.replace("-", ""), d1.replace("-", "")):
             assert day.encode() not in data, f"{name} holds the date {day}"
-    assert json.loads(today[Path("report/report.json")])["format"] == "sensorless-report/1"
+    for preset in today_reports:
+        assert json.loads(today[Path(f"report-{preset}/report.json")])["format"] == "sensorless-report/1"

@@ -1,5 +1,6 @@
 """`sensorless report`: the JSON holds what the API computes, the HTML is valid, self-contained, and
-renders; two runs give identical JSON."""
+renders; two runs give identical JSON (the second run: tests/common/conftest.py's ``another_day``, which
+tests/common/test_outputs.py compares on every command's outputs)."""
 
 import json
 import re
@@ -11,16 +12,13 @@ import numpy as np
 import pytest
 from sensorless.design.ipmsm_adaptive.discrete import linearize
 from sensorless.reports.cli.common import version
-from sensorless.reports.cli.main import main
 
 pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory):
-    out = tmp_path_factory.mktemp("report")
-    assert main(["report", "piippo2008", "--quick", "--out", str(out)]) == 0
-    return out
+def report(report_piippo_quick):
+    return report_piippo_quick  # one run per worker, shared with tests/common/test_outputs.py
 
 
 def test_json_numbers_equal_the_api(report, drive):
@@ -87,9 +85,11 @@ def test_html_is_well_formed_self_contained_and_captioned(report):
     assert "Verdict" in text
 
 
-def test_two_runs_give_identical_json(report, tmp_path):
-    assert main(["report", "piippo2008", "--quick", "--out", str(tmp_path)]) == 0
-    assert (tmp_path / "report.json").read_bytes() == (report / "report.json").read_bytes()
+def test_two_runs_give_identical_json(report, another_day):
+    """The second run is the one of another day, in a fresh process (tests/helpers/another_day.py):
+    byte-identical JSON from it is byte-identical JSON from two runs, whatever the day or the process."""
+    again = another_day.report("piippo2008") / "report.json"
+    assert again.read_bytes() == (report / "report.json").read_bytes()
 
 
 def test_report_renders_in_headless_chromium(report, tmp_path):
@@ -136,7 +136,7 @@ def report_pmac(report_deangelo_quick):
     return report_deangelo_quick  # one run per worker, shared with tests/common/test_outputs.py
 
 
-def test_pmac_report_numbers_equal_the_api(report_pmac, tmp_path):
+def test_pmac_report_numbers_equal_the_api(report_pmac, another_day):
     from sensorless.design.drive import load_drive
     from sensorless.design.pmac_reduced_order.linearize import analyze
 
@@ -150,5 +150,6 @@ def test_pmac_report_numbers_equal_the_api(report_pmac, tmp_path):
     text = (report_pmac / "report.html").read_text()
     ET.fromstring(text[len("<!DOCTYPE html>") :])
     assert "Verdict" in text and [c["name"] for c in data["time_domain"]] == ["fig3", "fig5b"]
-    assert main(["report", "deangelo2006", "--quick", "--out", str(tmp_path)]) == 0
-    assert (tmp_path / "report.json").read_bytes() == (report_pmac / "report.json").read_bytes()
+    # two runs give identical JSON: the second is another day's, in a fresh process (as above)
+    again = another_day.report("deangelo2006") / "report.json"
+    assert again.read_bytes() == (report_pmac / "report.json").read_bytes()
