@@ -7,11 +7,10 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 
 import numpy as np
 import pytest
-from helpers.hash_seed import other_hash_seed
+from helpers.hash_seed import here_and_fresh
 from helpers.runtime_loop import TRAJECTORY_SEGMENTS, profile_from_segments, simulate
 from sensorless.design.gain_table import GainTable, read_gain_table
 from sensorless.design.ipmsm_adaptive import FAMILY
@@ -324,20 +323,7 @@ def test_cortex_m4f_float_object_has_no_double_arithmetic(tmp_path):
 def test_codegen_is_deterministic_across_processes(tmp_path):
     """Two runs (separate processes, different hash seeds) give byte-identical files: this process's
     run (its module caches warm from the tests before) and a fresh process's, with another hash seed."""
-    outs = []
-    for d in (tmp_path / "here", tmp_path / "fresh"):
-        argv = ["codegen", "piippo2008", "--out", str(d)]
-        if d.name == "here":
-            assert main(argv) == 0
-        else:
-            env = {**os.environ, "PYTHONHASHSEED": other_hash_seed()}
-            subprocess.run(
-                [sys.executable, "-m", "sensorless.reports.cli.main", *argv],
-                check=True,
-                env=env,
-                capture_output=True,
-            )
-        outs.append({p.name: p.read_bytes() for p in sorted(d.iterdir())})
+    outs = here_and_fresh(tmp_path, ["codegen", "piippo2008"])
     assert outs[0] == outs[1]
     assert sorted(outs[0]) == ["Makefile", "main.c", "piippo2008.c", "piippo2008.h"]
     assert b"casadi" not in outs[0]["piippo2008.c"] + outs[0]["piippo2008.h"]

@@ -9,11 +9,10 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 
 import numpy as np
 import pytest
-from helpers.hash_seed import other_hash_seed
+from helpers.hash_seed import here_and_fresh
 from helpers.plant_pmac import codegen_trajectory
 from sensorless.design.gain_table import GainTable, read_gain_table
 from sensorless.design.pmac_reduced_order import FAMILY
@@ -496,20 +495,7 @@ def test_cortex_m4f_float_object_has_no_double_arithmetic(tmp_path):
 def test_codegen_is_deterministic_across_processes(tmp_path, tuned_table):
     """Two runs (separate processes, different hash seeds) give byte-identical files: this process's
     run (its module caches warm from the tests before) and a fresh process's, with another hash seed."""
-    outs = []
-    for d in (tmp_path / "here", tmp_path / "fresh"):
-        argv = ["codegen", P, "--out", str(d), "--gains", str(tuned_table)]
-        if d.name == "here":
-            assert main(argv) == 0
-        else:
-            env = {**os.environ, "PYTHONHASHSEED": other_hash_seed()}
-            subprocess.run(
-                [sys.executable, "-m", "sensorless.reports.cli.main", *argv],
-                check=True,
-                env=env,
-                capture_output=True,
-            )
-        outs.append({p.name: p.read_bytes() for p in sorted(d.iterdir())})
+    outs = here_and_fresh(tmp_path, ["codegen", P, "--gains", str(tuned_table)])
     assert outs[0] == outs[1]
     assert sorted(outs[0]) == sorted(["Makefile", "main.c", f"{P}.c", f"{P}.h"])
     assert b"casadi" not in outs[0][f"{P}.c"] + outs[0][f"{P}.h"]
