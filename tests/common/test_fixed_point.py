@@ -70,24 +70,34 @@ def replay(exe, out, raw, x0=None, params=None, code=0):
     return np.frombuffer(r.stdout, "<i4").reshape(len(raw), -1) if code == 0 else r.stderr.decode()
 
 
+def glitched_replay(exe, out, fx, x, meas, start, stop, burst, seed):
+    """The C and the integer model on samples ``start:stop`` of a run (states ``x``, measurements
+    ``meas``) from its state at ``start``, rows ``burst`` replaced by any int32 words: they agree bit
+    for bit; returns the C's rows."""
+    raw = fx.to_raw(meas[:, start:stop], "meas").T
+    n = burst.stop - burst.start
+    raw[burst] = np.random.default_rng(seed).integers(-(2**31), 2**31, size=(n, raw.shape[1]))
+    x0 = fx.to_raw(x[:, start], "x")
+    c = replay(exe, out, raw, x0)
+    xs, ys = run_raw(fx, raw, x0)
+    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    return c
+
+
 def test_c_equals_the_integer_model_and_recovers_from_a_glitch(built):
     """A hostile burst (any int32 words) amid 400 consecutive closed-loop samples: the C equals the
     model bit for bit, the guard keeps its meaning (rejects, flags 0/1), and the estimates are back
     with the double step's within the flux observer's documented recovery (200 periods: 0.1 rad, 2 %
     of the base speed; docs/families/pmsm_flux_observer.md)."""
     d, setup, model, fx, out, exe = built
-    meas = model.data(setup)[1][:, 1000:1700]
-    raw = fx.to_raw(meas, "meas").T
-    raw[150:210] = np.random.default_rng(3).integers(-(2**31), 2**31, size=(60, raw.shape[1]))
-    x0 = fx.to_raw(model.data(setup)[0][:, 1000], "x")
-    c = replay(exe, out, raw, x0)
-    xs, ys = run_raw(fx, raw, x0)
-    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    x, meas_all = model.data(setup)
+    c = glitched_replay(exe, out, fx, x, meas_all, 1000, 1700, slice(150, 210), 3)
+    meas = meas_all[:, 1000:1700]
     names = [o["name"] for o in fx.outputs]
     valid = c[:, names.index("valid")]
     assert set(np.unique(valid).tolist()) <= {0, 1}
     assert valid[150:210].min() == 0 and valid[:150].min() == 1
-    _, ys_d = run_trajectory(setup, meas.T, model.data(setup)[0][:, 1000])
+    _, ys_d = run_trajectory(setup, meas.T, x[:, 1000])
     th = c[:, names.index("theta_hat")] * np.pi / 2**31
     w = c[:, names.index("w_hat")] * 2.0 ** -fx.outputs[names.index("w_hat")]["f"]
     late = slice(210 + 200, None)
@@ -184,12 +194,7 @@ def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
     fx = model.program(setup)
     exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
-    raw = fx.to_raw(meas[:, 500:650], "meas").T
-    raw[50:80] = np.random.default_rng(5).integers(-(2**31), 2**31, size=(30, raw.shape[1]))
-    x0 = fx.to_raw(x[:, 500], "x")
-    c = replay(exe, tmp_path, raw, x0)
-    xs, ys = run_raw(fx, raw, x0)
-    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    glitched_replay(exe, tmp_path, fx, x, meas, 500, 650, slice(50, 80), 5)
 
 
 def test_stored_constants_move_the_poles_little(built):
@@ -519,12 +524,7 @@ def test_the_i_f_start_in_fixed_point(tmp_path):
     fx = model.program(setup)
     exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
-    raw = fx.to_raw(meas[:, 100:900], "meas").T
-    raw[300:330] = np.random.default_rng(9).integers(-(2**31), 2**31, size=(30, raw.shape[1]))
-    x0 = fx.to_raw(x[:, 100], "x")
-    c = replay(exe, tmp_path, raw, x0)
-    xs, ys = run_raw(fx, raw, x0)
-    assert int((c != np.hstack([ys, xs])).sum()) == 0
+    glitched_replay(exe, tmp_path, fx, x, meas, 100, 900, slice(300, 330), 9)
     ref = simulate(d, sc, compile=False)
     with step_variant(model.variant):
         fix = simulate(d, sc, compile=False)
