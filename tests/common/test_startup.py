@@ -10,6 +10,7 @@ seeing no motion, the mode return to open loop in the next period (|w_hat| < w_o
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -20,6 +21,15 @@ from sensorless.design.registry import family_of
 from sensorless.design.startup import if_values, with_if_start
 
 MOTORS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors"
+
+
+@functools.cache
+def servo():
+    """servo400 of docs/examples/motors (non-salient: the start's motor here) and its runtime setup at
+    the drive file's gains (read only: frozen records)."""
+    drive = load_drive(MOTORS / "servo400.toml")
+    fam = family_of(drive)
+    return drive, fam.runtime(drive, fam.gains(drive))
 
 
 def test_the_rules():
@@ -43,9 +53,7 @@ def test_the_rules():
 
 @pytest.mark.parametrize("dwell", [0, 7])
 def test_the_wrapped_step_ramps_hands_over_and_falls_back(dwell):
-    drive = load_drive(MOTORS / "servo400.toml")
-    fam = family_of(drive)
-    base = fam.runtime(drive, fam.gains(drive))
+    drive, base = servo()
     a, T_s, w_on = 2000.0, drive.T_s, 30.0
     # no damping; the load angle's low-pass one period behind (its swing: one period's turn, settled)
     values = {"if_i": 3.0, "if_acc": a, "if_w_on": w_on, "if_w_off": 20.0, "if_k_d": 0.0, "if_w_hp": 1 / T_s}
@@ -92,9 +100,7 @@ def test_the_drop_back_places_the_frame_at_the_load_angle_the_open_loop_needs():
     # loop, the frame ahead of the observer's angle (0) by asin(i_n / i_if), i_n = i_q - k_a (dw - a_f)
     # = k_a a (no current, no acceleration; the frame accelerates at +a towards the command): by hand,
     # asin(2e-3 * 1500 / 6) = 30 deg
-    drive = load_drive(MOTORS / "servo400.toml")
-    fam = family_of(drive)
-    base = fam.runtime(drive, fam.gains(drive))
+    _drive, base = servo()
     values = {"if_i": 6.0, "if_acc": 1500.0, "if_w_on": 30.0, "if_w_off": 20.0, "if_k_d": 0.0}
     setup = with_if_start(base, {**values, "if_w_hp": 100.0, "if_t_dwell": 0.0, "if_k_a": 2e-3})
     obs = setup.observer
@@ -192,9 +198,7 @@ def test_the_drop_back_starts_the_frame_at_the_rotor_speed_not_a_lagging_speed_e
     # rad/s (first order, corner 1000 rad/s: after 30 ms, e^-30 of it left), so the frame would start at
     # the angle's 10 rad/s (the frame's speed is kept ready in closed loop); then, the angle at 3 rad/s
     # (below w_off = 5 rad/s) and the estimate still at 40, the drive drops back, at under w_off
-    drive = load_drive(MOTORS / "servo400.toml")
-    fam = family_of(drive)
-    base = fam.runtime(drive, fam.gains(drive))
+    drive, base = servo()
     values = {"if_i": 6.0, "if_acc": 1500.0, "if_w_on": 50.0, "if_w_off": 5.0, "if_k_d": 0.0}
     setup = with_if_start(base, {**values, "if_w_hp": 1000.0, "if_t_dwell": 0.0, "if_k_a": 2e-3})
     obs = setup.observer
