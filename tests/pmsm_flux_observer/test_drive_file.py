@@ -10,6 +10,7 @@ import math
 import pytest
 from sensorless.design import registry
 from sensorless.design.drive import load_drive
+from sensorless.design.low_speed import minimum_speed_under
 from sensorless.design.pmsm_drive import startup_values
 from sensorless.reports.cli.main import main
 
@@ -90,7 +91,7 @@ def test_errors_name_file_and_key(tmp_path, capsys, edit, key):
     assert not (tmp_path / "o").exists()
 
 
-def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys, monkeypatch):
+def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys):
     # a coarse envelope (4 speeds per direction, kept by init): the same commands on a third of the points
     text = MINIMAL.replace('firmware = "vesc"', 'firmware = "odrive"') + "\n[envelope]\nspeeds = 4\n"
     minimal.write_text(text)
@@ -105,12 +106,12 @@ def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys, mo
     assert main(["codegen", str(full), "--gains", str(table), "--out", str(tmp_path / "c")]) == 0
     # --quick: the report's coarser low-speed grid (design/low_speed.py QUICK); the analyses it holds
     # are the same, and the full grid under every corner of the estimate errors is half this test's CPU.
-    # The table named as tune named it (from its directory): the report's w_min of the tuned gains under
-    # the errors is then the one tune's summary line computed in this process (design/memo.py), not
-    # computed a second time
-    monkeypatch.chdir(tmp_path / "t")
-    r = ["report", str(full), "--gains", table.name, "--quick", "--out", str(tmp_path / "r")]
+    # The report's w_min of the tuned gains under the errors is the one tune's summary line computed in
+    # this process, under another name of the table (design/memo.py: not keyed on it), not a second time
+    hits, misses = minimum_speed_under.cache_info()
+    r = ["report", str(full), "--gains", str(table), "--quick", "--out", str(tmp_path / "r")]
     assert main(r) in (0, 3)
+    assert minimum_speed_under.cache_info() == (hits + 1, misses)
     rep = json.loads((tmp_path / "r" / "report.json").read_text())
     assert {"ODrive defaults", "VESC detection", "drive file", "tuned"} <= set(rep["analysis"])
     # box clamp: analysis refused in one line, simulation runs
