@@ -55,6 +55,12 @@ def frozen_result(value: Any) -> Any:
     return value
 
 
+def uncached(fn: F) -> F:
+    """The function a :func:`by_content` memo wraps, for a call whose result is asked for once (not
+    worth a place in the memo)."""
+    return fn.__wrapped__  # type: ignore[attr-defined,no-any-return]
+
+
 def by_content(maxsize: int = 32, when: Callable[[], bool] = lambda: True) -> Callable[[F], F]:
     """Memoize a function on the pickled bytes of its arguments, their labels left out (module
     docstring), the ``maxsize`` most recent results; ``when()`` False: computed and not memoized (a

@@ -174,7 +174,8 @@ def test_floors_of_a_drive_unstable_at_the_reference_speed_ask_for_stability():
     the figure itself (every speed failing, w_min 1 p.u.) and would pass points unstable by less."""
     from types import SimpleNamespace
 
-    from sensorless.design.low_speed import FLOOR_SHARE, WholeDrive, _failing
+    from sensorless.design.low_speed import FLOOR_SHARE, WholeDrive
+    from sensorless.design.low_speed_search import failing
 
     mid = (np.array([0.5, -0.1, np.nan]), np.array([40.0, -3.0, np.nan]))
     wd = WholeDrive(SimpleNamespace(), mid, None, 0.0)
@@ -189,7 +190,7 @@ def test_floors_of_a_drive_unstable_at_the_reference_speed_ask_for_stability():
         lag=lambda a: np.zeros(3),
     )
     crit = {"damping": 0.2, "decay": 10.0, "bias": np.radians(30), "noise": np.radians(10)}
-    first, _ = _failing(WholeDrive(lin, mid, None, 0.0), crit)
+    first, _ = failing(WholeDrive(lin, mid, None, 0.0), crit)
     # unstable at an unstable reference: fails on damping (a floor of 0.9 x -0.1 = -0.09 failed it too,
     # but passed -0.085, and failed the reference speed itself); damping 0.3 and decay 30 meet the
     # required 0.2 and 10 (below 0.9 of the reference's 0.5 and 40); stable at a reference with no
