@@ -10,8 +10,10 @@ import math
 import pytest
 from sensorless.design import registry
 from sensorless.design.drive import load_drive
+from sensorless.design.gain_table import GainTable, GainTableError
 from sensorless.design.low_speed import minimum_speed_under
 from sensorless.design.pmsm_drive import startup_values
+from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.main import main
 
 MINIMAL = """
@@ -142,3 +144,33 @@ def test_init_of_a_box_clamp_leaves_the_handover_speeds_to_give(minimal, tmp_pat
     values, line, _ = startup_values(with_speeds, fam.gains(with_speeds))  # other keys: rules; no analysis
     assert values["if_w_on"] == pytest.approx(0.2 * drive.w_base) and values["if_i"] > 0, line
     assert not fam.scales(with_speeds).zero_speed  # the checks go through zero
+
+
+def test_an_observer_gain_past_the_euler_limit_is_refused_naming_the_keys(tmp_path, capsys):
+    """k T_obs >= 2 (laws.py EULER_LIMIT: the forward-Euler step of the flux amplitude's error, 1 - k T_obs
+    per period, diverges): a drive file's [gains] gives one line naming the file, the gain and the key of
+    the period, with the largest gain to give; 1.9 / T_obs (the tuner's largest) loads; a schedule names
+    its offending speed; a gain table gets the same check against the drive it is used with."""
+    T = 1e-4  # f_s = 10 kHz
+    odrive = 'firmware = "vesc"\n[gains]\nlaw = "odrive"\npll_bandwidth = "1000 rad/s"\n'
+    odrive += 'observer_gain = "{} 1/s"'
+    p = tmp_path / "bad.toml"
+    p.write_text(MINIMAL.replace('firmware = "vesc"', odrive.format(2.1 / T)))
+    assert main(["analyze", str(p), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Traceback" not in err[0] and not (tmp_path / "o").exists()
+    assert "bad.toml" in err[0] and "gains.observer_gain" in err[0] and "(inverter.f_s)" in err[0]
+    assert "k T_obs = 2.1," in err[0] and f"at most {1.9 / T:.4g} 1/s" in err[0]
+    p.write_text(MINIMAL.replace('firmware = "vesc"', odrive.format(1.9 / T)))
+    drive = load_drive(str(p))
+    assert drive.observer.T_obs == pytest.approx(T)
+    schedule = (
+        'firmware = "vesc"\nT_obs = "50 us"\n[gains]\nlaw = "schedule"\npll_bandwidth = "1000 rad/s"\n'
+        'speeds = ["100 rad/s", "900 rad/s"]\nobserver_gain = ["1000 1/s", "50000 1/s"]'
+    )
+    p.write_text(MINIMAL.replace('firmware = "vesc"', schedule))
+    with pytest.raises(DriveFileError, match=r"observer_gain.*its value at 900 rad/s.*\(observer\.T_obs\)"):
+        load_drive(str(p))
+    table = GainTable("odrive", {"kind": drive.kind}, {"observer_gain": 2.1 / T, "pll_bandwidth": 1000.0})
+    with pytest.raises(GainTableError, match=r"^t\.json: key 'gains\.observer_gain': 21000 1/s"):
+        registry.family_of(drive).gains(drive, table=table, table_file="t.json")
