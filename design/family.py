@@ -33,6 +33,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
 
+from sensorless.design.memo import LABEL
+
 if TYPE_CHECKING:  # the result types below import this module: typed by name only where no cycle
     from numpy.typing import ArrayLike
     from sensorless.design.linearization import Linearization
@@ -111,7 +113,9 @@ class GainSet:
 
     law: str  # gain law: e.g. "speed-dependent", "schedule", "constant", "zero"
     values: Mapping[str, Any] = field(default_factory=dict)  # SI; lists for tables
-    source: str = ""  # for headers and messages: the drive file's section or the table file
+    # for headers and messages: the drive file's section or the table file, as the caller named it (a
+    # label, not content: analyses memoized on the gains do not key on it, design/memo.py)
+    source: str = field(default="", metadata=LABEL)
 
 
 @dataclass(frozen=True)

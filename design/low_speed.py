@@ -26,12 +26,10 @@ estimate grows as 1/w). :func:`minimum_speed` finds that speed, w_min(T), over t
   motor) is not applied, and the result says which were;
 - w_min(T) = the lowest speed from which every speed up to the highest one that meets all four (at
   most 1 p.u.) meets all four (w_min = 1 p.u. where no speed does): a dense logarithmic grid
-  (batched linearizations over speeds x torques, in SPEED_BLOCKS blocks of speeds, walked from the top
-  speed down: a torque is left at the first failure below its first pass, whose speeds below cannot
-  change its w_min), then bisection of the highest failing grid interval (one batched call per step
-  over the torques). Speeds are
-  positive; the torques take both signs, so motoring (T > 0) and regenerating (T < 0) are both
-  covered, as an observer of a PMSM is symmetric under (w, T) -> (-w, -T).
+  (batched linearizations over speeds x torques, walked from the top speed down), then bisection of
+  the highest failing grid interval (design/low_speed_search.py). Speeds are positive; the torques
+  take both signs, so motoring (T > 0) and regenerating (T < 0) are both covered, as an observer of a
+  PMSM is symmetric under (w, T) -> (-w, -T).
 
 :func:`minimum_speed_under` judges a design under the estimate errors its family states for it
 (``ObserverFamily.estimate_errors``, a box of +- errors): every criterion at the drive file's
@@ -66,7 +64,8 @@ from sensorless.design.family import (
     require,
 )
 from sensorless.design.linearization import Linearization
-from sensorless.design.memo import by_content
+from sensorless.design.low_speed_search import CRITERIA, search
+from sensorless.design.memo import by_content, uncached
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import double_step_active
 
@@ -77,10 +76,8 @@ MAX_BIAS_DEG = 30.0  # default angle-bias limit [deg electrical]
 FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the design holds zero speed
 N_SPEEDS = 40  # logarithmic grid FLOOR_PU .. 1 p.u.
 N_TORQUES = 9  # -T_N .. T_N
-SPEED_BLOCKS = 8  # the grid in this many batched linearizations (see minimum_speed)
 BISECTIONS = 8  # each halves the bracket in log speed: 3/39 decade (19 %) / 2^8, about 0.07 %
 QUICK = {"n_speeds": 16, "n_torques": 5, "bisections": 6}  # `sensorless report --quick`
-CRITERIA = ("damping", "decay", "bias", "noise", "acceleration")
 DECAY_SHARE = 0.1  # default required decay: this share of the speed-loop bandwidth
 REFERENCE_PU = 0.5  # the whole drive's own damping and decay, away from low speed, are taken here
 FLOOR_SHARE = 0.9  # a point fails below this share of them
@@ -157,44 +154,6 @@ class LowSpeed:
             "declared_limit": self.declared,
             "estimate_errors": {"box": self.errors, "source": self.errors_source},
         }
-
-
-def _failing(lin: Linearization | WholeDrive, crit: Mapping[str, float]) -> tuple[np.ndarray, list[str]]:
-    """(N,) index of the first failed criterion per point (-1: all met) and the criteria applied."""
-    zeta = np.where(np.isnan(lin.worst_damping), -np.inf, lin.worst_damping)
-    decay = lin.low_speed_decay()
-    decay = np.where(np.isnan(decay), -np.inf, decay)
-    # the whole drive: no less than required, or than the controllers give with a sensor where they
-    # give less (a loop the observer does not make worse is no low-speed limit of the observer)
-    floor = getattr(lin, "floors", lambda: None)()
-    need_z, need_d = (
-        (crit["damping"], crit["decay"])
-        if floor is None
-        else (
-            np.minimum(crit["damping"], floor[0]),
-            np.minimum(crit["decay"], floor[1]),
-        )
-    )
-    tests = [zeta < need_z, decay < need_d]
-    applied = ["damping", "decay"]
-    bias, noise = lin.angle_bias(), lin.angle_noise()
-    lag = getattr(lin, "angle_lag", lambda: None)() if "acceleration" in crit else None
-    for name, val in (("bias", bias), ("noise", noise)):
-        if val is None or np.isnan(np.asarray(val, float)).all():  # not given here
-            tests.append(np.zeros(zeta.shape, bool))
-        else:
-            applied.append(name)
-            v = np.abs(np.asarray(val, float))
-            tests.append(np.where(np.isnan(v), False, v > crit[name]))
-    if lag is None:
-        tests.append(np.zeros(zeta.shape, bool))
-    else:  # the bias and the lag under the full acceleration (or braking) together within the limit
-        applied.append("acceleration")
-        v = np.abs(np.asarray(bias, float)) + np.abs(np.asarray(lag, float))
-        tests.append(np.where(np.isnan(v), True, v > crit["bias"]))
-    bad = np.stack(tests)  # (5, N)
-    first = np.where(bad.any(axis=0), np.argmax(bad, axis=0), -1)
-    return first, applied
 
 
 @dataclass(frozen=True)
@@ -321,103 +280,6 @@ def _analysis(
     return whole, basis
 
 
-def _search(
-    analyse: Any,
-    w: np.ndarray,
-    T: np.ndarray,
-    crit: Mapping[str, float],
-    bisections: int,
-    bound: np.ndarray | None = None,
-    known: frozenset[str] = frozenset(),
-) -> tuple[np.ndarray, np.ndarray, set[str]]:
-    """(w_min, index of the limiting criterion (-1: none), criteria applied) per torque on the grid
-    ``w`` x ``T`` (module docstring: the highest passing grid speed, the highest failing one below it,
-    bisection between them).
-
-    The grid is walked from the top speed down, one batched call per block of speeds over the torques
-    still searched: a torque is done at the first failure below its first pass, so the speeds below it,
-    where the drive's fixed points are the slowest to find, are not analysed for it (they cannot change
-    its w_min). ``bound`` (per torque): a w_min at or below it is not needed (the caller keeps a higher
-    or equal one: :func:`minimum_speed_under`), so a torque whose w_min is shown to be at or below it is
-    left (its w_min then is some value at or below ``bound``). The criteria applied are those some
-    analysed grid point gives; where one of them, not in ``known`` (applied already by the caller's
-    other cases), is missing, the grid is completed, so that the set is the full grid's.
-    """
-    n_speeds, n_torques = w.size, T.size
-    need = {c for c in CRITERIA if c in crit or c in ("damping", "decay")} - set(known)
-    bound = np.full(n_torques, -np.inf) if bound is None else bound
-    top = np.full(n_torques, -1)  # the grid's top speed's first failing criterion
-    k_pass = np.full(n_torques, -1)  # the highest passing grid speed
-    k = np.full(n_torques, -1)  # the highest failing grid speed below it
-    cause = np.full(n_torques, -1)
-    left = np.zeros(n_torques, bool)  # w_min shown to be at or below bound
-    seen = np.zeros((n_speeds, n_torques), bool)
-    given: set[str] = set()
-    # blocks of speeds: a family that simulates its discrete observer over a window growing as 1/w (the
-    # reduced-order family's steady errors) runs every point of a call as long as its slowest one
-    blocks = np.array_split(np.arange(n_speeds), SPEED_BLOCKS)[::-1]
-
-    def run(blk: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        first, applied = _failing(analyse(w[blk, None], T[None, cols]), crit)
-        given.update(applied)
-        seen[np.ix_(blk, cols)] = True
-        return first.reshape(blk.size, cols.size)
-
-    for blk in blocks:
-        cols = np.flatnonzero((k < 0) & ~left)
-        if cols.size == 0:
-            break
-        first = run(blk, cols)
-        for jj, j in enumerate(cols):
-            for ii in range(blk.size - 1, -1, -1):
-                i, f = blk[ii], first[ii, jj]
-                if i == n_speeds - 1:
-                    top[j] = f
-                if k_pass[j] < 0:
-                    if f < 0:
-                        k_pass[j] = i
-                elif f >= 0:
-                    k[j], cause[j] = i, f
-                    break
-            # passing down to this block's lowest speed: w_min <= w[blk[0]] (bisection's exp(log(.)),
-            # within a rounding: the margin)
-            if k[j] < 0 <= k_pass[j] and w[blk[0]] * (1 + 1e-12) <= bound[j]:
-                left[j] = True
-    if not need <= given:  # criteria the analysed points do not give: the rest of the grid
-        for blk in blocks:
-            cols = np.flatnonzero(~seen[blk].all(axis=0))
-            if cols.size and not need <= given:
-                run(blk, cols)
-    none = k_pass < 0  # no speed meets the criteria at this torque
-    k = np.where(none, n_speeds - 1, k)
-    cause = np.where(none, top, cause)
-    w_min = np.zeros(n_torques)
-    w_min[none] = w[-1]
-    ref = (k >= 0) & ~none & ~left
-    if ref.any():
-        idx = np.flatnonzero(ref)
-        lo, hi = np.log(w[k[ref]]), np.log(w[k[ref] + 1])
-        c = cause[ref]
-        act = np.ones(idx.size, bool)  # still bisected (not shown at or below bound)
-        for _ in range(bisections):
-            act &= ~(np.exp(hi) <= bound[idx])
-            if not act.any():
-                break
-            mid = 0.5 * (lo + hi)
-            f_mid, _ = _failing(analyse(np.exp(mid[act]), T[idx[act]]), crit)
-            fails = np.zeros(idx.size, bool)
-            fails[act] = f_mid >= 0
-            f_all = np.full(idx.size, -1)
-            f_all[act] = f_mid
-            c = np.where(fails, f_all, c)
-            lo = np.where(act & fails, mid, lo)
-            hi = np.where(act & ~fails, mid, hi)
-        w_min[ref] = np.exp(hi)
-        cause[ref] = c
-    w_min[left] = np.minimum(w_min[left], bound[left])
-    return w_min, cause, given
-
-
 # the same drive at the same gains is analysed again within a process (the I-f start's rules at every
 # simulation set-up, the tune line and the report under the same errors): design/memo.py
 @by_content(maxsize=64, when=double_step_active)
@@ -434,6 +296,8 @@ def minimum_speed(
     bisections: int = BISECTIONS,
     acceleration: bool = False,
     observer_only: bool = False,
+    bound: np.ndarray | None = None,
+    known: frozenset[str] = frozenset(),
 ) -> LowSpeed:
     """w_min(T) of ``drive`` with ``gains`` (module docstring); ``max_bias`` [rad], ``errors``: factors
     on the family's estimate keys (None: the drive file's estimates); the grid (``n_speeds`` x
@@ -441,40 +305,9 @@ def minimum_speed(
     ``acceleration``: the angle error under the drive's largest speed change at each load
     (:func:`braking_acceleration`) is judged too (the handover's w_min, design/startup.py);
     ``observer_only``: the family's observer-only linearization (the paper's analysis) instead of the
-    whole drive."""
-    return _minimum_speed(
-        drive,
-        gains,
-        min_damping=min_damping,
-        max_bias=max_bias,
-        min_decay=min_decay,
-        errors=errors,
-        n_speeds=n_speeds,
-        n_torques=n_torques,
-        bisections=bisections,
-        acceleration=acceleration,
-        observer_only=observer_only,
-    )
-
-
-def _minimum_speed(
-    drive: Drive,
-    gains: GainSet,
-    *,
-    min_damping: float,
-    max_bias: float = np.radians(MAX_BIAS_DEG),
-    min_decay: float | None = None,
-    errors: Mapping[str, float] | None = None,
-    n_speeds: int = N_SPEEDS,
-    n_torques: int = N_TORQUES,
-    bisections: int = BISECTIONS,
-    acceleration: bool = False,
-    observer_only: bool = False,
-    bound: np.ndarray | None = None,
-    known: frozenset[str] = frozenset(),
-) -> LowSpeed:
-    """:func:`minimum_speed`; ``bound``, ``known``: see :func:`_search` (w_min at or below ``bound``
-    is any value there, the criteria applied leave out ``known``'s)."""
+    whole drive; ``bound``, ``known``: a caller's pruning (:func:`minimum_speed_under`'s corners; see
+    design/low_speed_search.py ``search``: w_min at or below ``bound`` is any value there, the
+    criteria applied leave out ``known``'s)."""
     fam = family_of(drive)
     if errors:
         drive = require(fam, EstimateScaling).with_estimate_errors(drive, errors)
@@ -491,7 +324,7 @@ def _minimum_speed(
     wb, TN = drive.w_base, drive.T_N
     w = wb * np.logspace(np.log10(FLOOR_PU), 0.0, n_speeds)
     T = TN * np.linspace(-1.0, 1.0, n_torques)
-    w_min, cause, given = _search(analyse, w, T, crit, bisections, bound, known)
+    w_min, cause, given = search(analyse, w, T, crit, bisections, bound, known)
     return LowSpeed(
         torque=T,
         w_min=w_min,
@@ -527,11 +360,13 @@ def minimum_speed_under(
     corner = {**kw, "min_decay": 0.0}
     # a corner matters only where its w_min is above every earlier case's (ties: the earlier case), and
     # for the criteria applied only where it gives one no earlier case gives: its search leaves a torque
-    # once its w_min is shown to be at or below the cases' so far (_search), with the same max and argmax
+    # once its w_min is shown to be at or below the cases' so far (search), with the same max and argmax.
+    # Not memoized: a corner's search, pruned by the cases before it, is asked for once
+    corner_speed = uncached(minimum_speed)
     for c in errors.cases()[1:]:
         top = np.max([r.w_min for r in runs], axis=0)
         known = frozenset(a for r in runs for a in r.applied)
-        runs.append(_minimum_speed(drive, gains, min_damping=0.0, errors=c, bound=top, known=known, **corner))
+        runs.append(corner_speed(drive, gains, min_damping=0.0, errors=c, bound=top, known=known, **corner))
     w = np.stack([r.w_min for r in runs])
     worst = np.argmax(w, axis=0)  # ties: the first, the drive file's estimates
 

@@ -8,6 +8,13 @@ under the same estimate errors. :func:`by_content` keys on the pickled arguments
 equal objects, so a hit is the same computation (a miss where two equal objects pickle differently
 costs only the recomputation). Only results that are immutable (frozen dataclasses whose arrays are
 made read-only here) are memoized, so no caller can change what another one gets.
+
+A dataclass field marked :data:`LABEL` in its metadata (a gain set's ``source``: the table's file as
+the caller named it) says where an argument comes from, not what it is: it is left out of the key, so
+the same gains read as ``tune/gains.json`` and as ``/abs/tune/gains.json`` are one computation. A
+memoized function must therefore not quote a label in its result (the first caller's would reach
+every later one): the callers put their own label into what they print (e.g. reports/low_speed.py's
+section takes the report's ``review``).
 """
 
 from __future__ import annotations
@@ -24,6 +31,19 @@ import numpy as np
 
 F = TypeVar("F", bound=Callable[..., Any])
 
+LABEL = {"memo": "label"}  # a dataclass field's metadata: a label for messages, not content (not keyed)
+
+
+def _content(value: Any) -> Any:
+    """``value`` as keyed: a dataclass instance with :data:`LABEL` fields as its type and the values of
+    its other fields (an argument's own fields only: labels nested deeper stay in the key)."""
+    if not dataclasses.is_dataclass(value) or isinstance(value, type):
+        return value
+    kept = [f.name for f in dataclasses.fields(value) if f.metadata.get("memo") != LABEL["memo"]]
+    if len(kept) == len(dataclasses.fields(value)):
+        return value
+    return (type(value), tuple((name, getattr(value, name)) for name in kept))
+
 
 def frozen_result(value: Any) -> Any:
     """``value`` with the arrays of its dataclass fields made read-only (in place; returned)."""
@@ -35,11 +55,17 @@ def frozen_result(value: Any) -> Any:
     return value
 
 
+def uncached(fn: F) -> F:
+    """The function a :func:`by_content` memo wraps, for a call whose result is asked for once (not
+    worth a place in the memo)."""
+    return fn.__wrapped__  # type: ignore[attr-defined,no-any-return]
+
+
 def by_content(maxsize: int = 32, when: Callable[[], bool] = lambda: True) -> Callable[[F], F]:
-    """Memoize a function on the pickled bytes of its arguments (module docstring), the ``maxsize``
-    most recent results; ``when()`` False: computed and not memoized (a state outside the arguments
-    that the result depends on, e.g. a step variant). Arguments that cannot be pickled: not memoized.
-    ``fn.cache_info()`` gives (hits, misses)."""
+    """Memoize a function on the pickled bytes of its arguments, their labels left out (module
+    docstring), the ``maxsize`` most recent results; ``when()`` False: computed and not memoized (a
+    state outside the arguments that the result depends on, e.g. a step variant). Arguments that
+    cannot be pickled: not memoized. ``fn.cache_info()`` gives (hits, misses)."""
 
     def deco(fn: F) -> F:
         memo: collections.OrderedDict[bytes, Any] = collections.OrderedDict()
@@ -51,7 +77,8 @@ def by_content(maxsize: int = 32, when: Callable[[], bool] = lambda: True) -> Ca
             if not when():
                 return fn(*args, **kwargs)
             try:
-                key = pickle.dumps((args, sorted(kwargs.items())), protocol=pickle.HIGHEST_PROTOCOL)
+                content = (tuple(map(_content, args)), sorted((k, _content(v)) for k, v in kwargs.items()))
+                key = pickle.dumps(content, protocol=pickle.HIGHEST_PROTOCOL)
             except (pickle.PicklingError, TypeError, AttributeError):
                 return fn(*args, **kwargs)
             with lock:

@@ -47,6 +47,14 @@ ENVELOPE_OPTIONS = (
         ("--min-decay",),
         {"type": Number(*RANGES["min_decay"], unit="1/s"), "help": "minimum decay rate -max Re(p) [1/s]"},
     ),
+    Option(
+        ("--no-bound",),
+        {
+            "action": "store_true",
+            "help": "skip the pointwise bound (the optimality certificate and speeds_<law>.csv; about a "
+            "quarter of the tuning's time)",
+        },
+    ),
 )
 NOISE_OPTIONS = (
     Option(
@@ -99,6 +107,8 @@ def apply_options(s: TuningSettings, drive: Drive, args: argparse.Namespace) -> 
     out: dict[str, Any] = {"envelope": with_tuning_keys(s.envelope, **env)}
     if getattr(args, "min_decay", None) is not None:
         out["min_decay"] = args.min_decay
+    if getattr(args, "no_bound", None):
+        out["bound"] = False
     if getattr(args, "errors", None):
         errs = [0.0] * 4
         for item in args.errors.split(","):

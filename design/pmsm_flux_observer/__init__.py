@@ -136,7 +136,12 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
             raise CapabilityError(f"{drive.file}: one [gains] section; there is no [gains.{name}] to choose")
         if table is None:
             return _gains.drive_gains(drive)
-        return table_gains(self, drive, table, table_file, values=_gains.table_values)
+        T_obs = drive.observer.T_obs
+
+        def values(law: str, gains: Mapping[str, Any], where: str) -> dict[str, Any]:
+            return _gains.table_values(law, gains, where, T_obs)
+
+        return table_gains(self, drive, table, table_file, values=values)
 
     def runtime(
         self, drive: schema.FluxObserverDrive, gains: GainSet, *, discretization: str | None = None

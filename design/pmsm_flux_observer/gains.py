@@ -42,10 +42,13 @@ def drive_gains(drive: FluxObserverDrive) -> GainSet:
     return section_gains(drive.gains_table, drive.file)
 
 
-def table_values(law: str, gains: Mapping[str, Any], where: str) -> dict[str, Any]:
-    """The SI gains of a gain table of ``law`` (design/law_gains.py ``table_gains`` checks kind and law)."""
+def table_values(
+    law: str, gains: Mapping[str, Any], where: str, T_obs: float | None = None
+) -> dict[str, Any]:
+    """The SI gains of a gain table of ``law`` (design/law_gains.py ``table_gains`` checks kind and law);
+    ``T_obs``: the drive's observer period, which the observer gain must suit (laws.py ``check_euler``)."""
     try:
-        return parse_law(law, {"law": law, **gains}, where, "gains")
+        return parse_law(law, {"law": law, **gains}, where, "gains", T_obs, "the drive's observer.T_obs")
     except DriveFileError as e:
         raise GainTableError(f"{where}: key '{e.key}': {e.problem}") from None
 

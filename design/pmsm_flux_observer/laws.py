@@ -34,6 +34,12 @@ TABLE_LAWS: dict[str, tuple[str, ...]] = {
 }
 
 
+# k T_obs below this (k = gamma lambda^2 [1/s], T_obs the observer period): linearized, the flux
+# estimate's amplitude error decays at the rate k (d|eta|/dt = -k (|eta| - lambda)), and the firmwares'
+# forward-Euler step multiplies it by 1 - k T_obs per period, which leaves the unit circle at k T_obs = 2
+EULER_LIMIT = 2.0
+
+
 @functools.cache
 def _renamed(file: str, key: str, law: str) -> None:
     print(f"{file}: note: key '{key}': law {law!r} is now called {LAW_ALIASES[law]!r}", file=sys.stderr)
@@ -50,8 +56,17 @@ def _number(
     return x
 
 
-def parse_law(law: str, t: Mapping[str, Any], file: str, section: str) -> dict[str, Any]:
-    """The SI gains of ``law`` from a table of quantities; DriveFileError naming the key."""
+def parse_law(
+    law: str,
+    t: Mapping[str, Any],
+    file: str,
+    section: str,
+    T_obs: float | None = None,
+    period: str = "observer.T_obs",
+) -> dict[str, Any]:
+    """The SI gains of ``law`` from a table of quantities; DriveFileError naming the key. Given the
+    observer period ``T_obs`` [s] (named ``period`` in messages), each observer gain within the Euler
+    limit too (:func:`check_euler`)."""
     if law in LAW_ALIASES:  # its former name: read, and said once per file
         _renamed(file, f"{section}.law", law)
         law = LAW_ALIASES[law]
@@ -76,12 +91,37 @@ def parse_law(law: str, t: Mapping[str, Any], file: str, section: str) -> dict[s
             raise DriveFileError(file, f"{section}.observer_gain", "one value per speed")
         if any(b <= a for a, b in itertools.pairwise(out["speeds"])):
             raise DriveFileError(file, f"{section}.speeds", "must increase strictly")
+    if T_obs is not None:
+        check_euler(out, T_obs, file, section, period)
     return out
 
 
-def section_gains(t: Mapping[str, Any], file: str) -> GainSet:
-    """The gains of a drive file's [gains] section ``t``."""
+def check_euler(values: Mapping[str, Any], T_obs: float, file: str, section: str, period: str) -> None:
+    """DriveFileError naming ``section``.observer_gain where a gain k [1/s] of the laws that give it
+    (odrive; each of a schedule's) has k T_obs at or above :data:`EULER_LIMIT`: the observer diverges
+    at every speed, whatever the rest of the drive."""
+    ks = values.get("observer_gain")
+    if ks is None:  # vesc: its run-time gain follows the duty
+        return
+    for i, k in enumerate(ks if isinstance(ks, list) else [ks]):
+        if k * T_obs >= EULER_LIMIT:
+            at = f" (its value at {values['speeds'][i]:.4g} rad/s)" if isinstance(ks, list) else ""
+            raise DriveFileError(
+                file,
+                f"{section}.observer_gain",
+                f"{k:.6g} 1/s{at} with the observer period {T_obs:.4g} s ({period}) gives k T_obs = "
+                f"{k * T_obs:.3g}, at or above {EULER_LIMIT:g}, where the observer's forward-Euler step "
+                f"diverges: give at most {0.95 * EULER_LIMIT / T_obs:.4g} 1/s (k T_obs = "
+                f"{0.95 * EULER_LIMIT:g}, as the tuner does), or run `sensorless tune`",
+            )
+
+
+def section_gains(
+    t: Mapping[str, Any], file: str, T_obs: float | None = None, period: str = "observer.T_obs"
+) -> GainSet:
+    """The gains of a drive file's [gains] section ``t`` (``T_obs``, ``period``: :func:`parse_law`)."""
     law = t.get("law")
     if not isinstance(law, str):
         raise DriveFileError(file, "gains.law", "missing key or not a string (odrive | vesc | schedule)")
-    return GainSet(LAW_ALIASES.get(law, law), parse_law(law, t, file, "gains"), f"{file} [gains]")
+    values = parse_law(law, t, file, "gains", T_obs, period)
+    return GainSet(LAW_ALIASES.get(law, law), values, f"{file} [gains]")

@@ -290,15 +290,20 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
 def _speed_keys(data: Mapping[str, Any], m: Any) -> str:
     """The keys the user wrote that set the highest speed and the observer's period (a derived
     value's error names them, not ``envelope.speed_max`` of a file that does not give it)."""
-    env, rating, obs = (data.get(s, {}) for s in ("envelope", "rating", "observer"))
+    env, rating = (data.get(s, {}) for s in ("envelope", "rating"))
     speed = ["envelope.speed_max"] if isinstance(env, Mapping) and "speed_max" in env else []
     if isinstance(rating, Mapping) and "n_N" in rating:
         speed.append("rating.n_N")
     else:  # n_N from the no-load speed u_dc/(sqrt(3) psi_pm p)
         speed += ["inverter.u_dc", m.source.get("psi_pm", "motor.psi_pm")]
     speed.append(m.source.get("p", "motor.p"))
-    period = "observer.T_obs" if isinstance(obs, Mapping) and "T_obs" in obs else "inverter.f_s"
-    return ", ".join(dict.fromkeys([*speed, period]))
+    return ", ".join(dict.fromkeys([*speed, _period_key(data)]))
+
+
+def _period_key(data: Mapping[str, Any]) -> str:
+    """The key the user wrote that sets the observer's period."""
+    obs = data.get("observer", {})
+    return "observer.T_obs" if isinstance(obs, Mapping) and "T_obs" in obs else "inverter.f_s"
 
 
 def _too_fast(w_max: float, T_obs: float) -> str:
@@ -405,7 +410,8 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
         digest=digest,
         i_noise=positive(ctl, "i_noise", "current", file, "control") if "i_noise" in ctl else 0.0,
     )
-    section_gains(drive.gains_table, file)  # the [gains] section checked at load time
+    # the [gains] section checked at load time, its observer gain against the period
+    section_gains(drive.gains_table, file, observer.T_obs, _period_key(data))
     r_t = table(data, "rating", file) if "rating" in data else {}
     keys = {
         "n_N": "rating.n_N" if "n_N" in r_t else "inverter.u_dc",

@@ -419,6 +419,11 @@ def _shared_vocabulary() -> set[str]:
         for group in (loop.LOOP_STATE, loop.INPUTS, loop.PARAMS, loop.RECORD, loop.MEAS_FIELDS)
         for f in group
     }
+    # the shared tune options of the shared envelope and constraints (reports/envelope_options.py), which
+    # families declare among theirs: defined once there, no one family's
+    from sensorless.reports import envelope_options
+
+    out |= {o.dest for o in (*envelope_options.ENVELOPE_OPTIONS, *envelope_options.NOISE_OPTIONS)}
     return out
 
 

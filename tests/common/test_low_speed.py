@@ -20,6 +20,7 @@ over four speeds 0.5..2 w_min and needed a tolerance of -25 %/+33 %.
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +31,7 @@ from sensorless.design.low_speed import headline, minimum_speed, minimum_speed_u
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import drive_units, load_scenario_text
 from sensorless.design.simulate import simulate
+from sensorless.reports.low_speed import section
 
 MOTORS = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors"
 LIMIT = 30.0  # deg, the default max_bias
@@ -108,6 +110,24 @@ def test_w_min_under_an_error_box_is_its_worst_corner(case):
     assert np.all(nominal.w_min <= under.w_min + 1e-12)
 
 
+def test_the_same_gains_under_two_labels_are_one_analysis_and_each_caller_names_its_own(case):
+    """The memo (design/memo.py) keys on the gains' values, not on the name their table was read under
+    (a gain set's ``source``): the table as tune names it and as an absolute path are one analysis,
+    whose result quotes neither name (else the first caller's would reach the second), so each report
+    section built on it names its caller's."""
+    drive, gains, r_scale, _ = case
+    kw = {"min_damping": 0.2, "errors": {"R_s": r_scale}, "observer_only": True}
+    names = ("tune/gains_schedule.json", "/abs/tune/gains_schedule.json")
+    first = minimum_speed(drive, dataclasses.replace(gains, source=names[0]), **kw)
+    hits, misses = minimum_speed.cache_info()
+    second = minimum_speed(drive, dataclasses.replace(gains, source=names[1]), **kw)
+    assert second is first and minimum_speed.cache_info() == (hits + 1, misses)
+    assert not any(n in repr(first) or n in json.dumps(first.data()) for n in names)
+    for n in names:
+        text = section(1, second, drive, n).blocks[0].text
+        assert f"(gains: {n})" in text and all(f"(gains: {m})" not in text for m in names if m != n)
+
+
 def test_curve_is_one_batched_grid_and_its_data_is_json_ready():
     drive = load_drive(MOTORS / "servo400.toml")
     ls = minimum_speed(drive, family_of(drive).gains(drive), min_damping=0.2)
@@ -154,7 +174,8 @@ def test_floors_of_a_drive_unstable_at_the_reference_speed_ask_for_stability():
     the figure itself (every speed failing, w_min 1 p.u.) and would pass points unstable by less."""
     from types import SimpleNamespace
 
-    from sensorless.design.low_speed import FLOOR_SHARE, WholeDrive, _failing
+    from sensorless.design.low_speed import FLOOR_SHARE, WholeDrive
+    from sensorless.design.low_speed_search import failing
 
     mid = (np.array([0.5, -0.1, np.nan]), np.array([40.0, -3.0, np.nan]))
     wd = WholeDrive(SimpleNamespace(), mid, None, 0.0)
@@ -169,7 +190,7 @@ def test_floors_of_a_drive_unstable_at_the_reference_speed_ask_for_stability():
         lag=lambda a: np.zeros(3),
     )
     crit = {"damping": 0.2, "decay": 10.0, "bias": np.radians(30), "noise": np.radians(10)}
-    first, _ = _failing(WholeDrive(lin, mid, None, 0.0), crit)
+    first, _ = failing(WholeDrive(lin, mid, None, 0.0), crit)
     # unstable at an unstable reference: fails on damping (a floor of 0.9 x -0.1 = -0.09 failed it too,
     # but passed -0.085, and failed the reference speed itself); damping 0.3 and decay 30 meet the
     # required 0.2 and 10 (below 0.9 of the reference's 0.5 and 40); stable at a reference with no

@@ -1,6 +1,6 @@
-"""The low-speed search's shortcuts (design/low_speed.py ``_search``) against the full-grid search.
+"""The low-speed search's shortcuts (design/low_speed_search.py ``search``) against the full-grid search.
 
-``_search`` walks the grid from the top speed down and leaves a torque at its first failure below its
+``search`` walks the grid from the top speed down and leaves a torque at its first failure below its
 first pass, and, given a bound, once its w_min is shown to be at or below it. Here a synthetic analysis
 (damping a function of speed and torque with several failing bands, bias NaN in some blocks) is searched
 both ways: the reference evaluates every grid point (the search as it was before the shortcuts, typed
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from sensorless.design.low_speed import CRITERIA, _failing, _search
+from sensorless.design.low_speed_search import CRITERIA, failing, search
 
 CRIT = {"damping": 0.5, "decay": 0.0, "bias": 0.5, "noise": 0.2}
 
@@ -63,7 +63,7 @@ def analysis(seed: int, nan_below: float):
 
 def reference(analyse, w, T, bisections):
     """Every grid point, then bisection of the highest failing interval below the highest pass."""
-    first, given = _failing(analyse(w[:, None], T[None, :]), CRIT)
+    first, given = failing(analyse(w[:, None], T[None, :]), CRIT)
     first = first.reshape(w.size, T.size)
     bad = first >= 0
     idx = np.arange(w.size)[:, None]
@@ -77,7 +77,7 @@ def reference(analyse, w, T, bisections):
             lo, hi, c = np.log(w[k[j]]), np.log(w[k[j] + 1]), first[k[j], j]
             for _ in range(bisections):
                 mid = 0.5 * (lo + hi)
-                f, _ = _failing(analyse(np.exp(np.array([mid])), T[j : j + 1]), CRIT)
+                f, _ = failing(analyse(np.exp(np.array([mid])), T[j : j + 1]), CRIT)
                 lo, hi, c = (mid, hi, f[0]) if f[0] >= 0 else (lo, mid, c)
             w_min[j], cause[j] = np.exp(hi), c
     return w_min, cause, set(given)
@@ -92,7 +92,7 @@ def test_top_down_search_is_the_full_grid_search(seed):
     nan_below = (0.0, 0.5, -0.003)[seed % 3]  # bias given everywhere, at high speed, at low speed only
     ref = reference(analysis(seed, nan_below)[0], W, TQ, 6)
     analyse, calls = analysis(seed, nan_below)
-    w_min, cause, given = _search(analyse, W, TQ, CRIT, 6)
+    w_min, cause, given = search(analyse, W, TQ, CRIT, 6)
     assert np.array_equal(w_min, ref[0]) and np.array_equal(cause, ref[1]) and given == ref[2]
     assert given <= set(CRITERIA)
     assert sum(calls) <= W.size * TQ.size + 6 * TQ.size  # never more points than the full grid's
@@ -102,7 +102,7 @@ def test_top_down_search_is_the_full_grid_search(seed):
 def test_a_bounded_search_keeps_the_max_and_what_limits_it(seed):
     base = reference(analysis(seed + 100, 0.0)[0], W, TQ, 6)
     full = reference(analysis(seed, 0.0)[0], W, TQ, 6)
-    w_min, cause, _ = _search(analysis(seed, 0.0)[0], W, TQ, CRIT, 6, bound=base[0])
+    w_min, cause, _ = search(analysis(seed, 0.0)[0], W, TQ, CRIT, 6, bound=base[0])
     got, want = np.stack([base[0], w_min]), np.stack([base[0], full[0]])
     assert np.array_equal(got.max(axis=0), want.max(axis=0))
     worst = np.argmax(want, axis=0)

@@ -7,7 +7,13 @@ import dataclasses
 
 import numpy as np
 import pytest
-from sensorless.design.memo import by_content
+from sensorless.design.memo import LABEL, by_content
+
+
+@dataclasses.dataclass(frozen=True)
+class Labelled:
+    values: tuple
+    source: str = dataclasses.field(default="", metadata=LABEL)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,3 +64,20 @@ def test_nothing_is_memoized_where_when_says_no_or_the_arguments_do_not_pickle()
     g({"x": [1.0], "fn": lambda: 0})  # a lambda does not pickle
     g({"x": [1.0], "fn": lambda: 0})
     assert len(calls) == 2
+
+
+def test_a_label_field_is_not_content_as_an_argument_or_a_keyword():
+    calls = []
+
+    @by_content()
+    def total(g, scale=Labelled((1.0,))):
+        calls.append(g)
+        return Result(np.array(g.values) * scale.values[0])
+
+    a = total(Labelled((1.0, 2.0), "tune/gains.json"))
+    assert total(Labelled((1.0, 2.0), "/abs/tune/gains.json")) is a  # the same values, another name
+    assert total(Labelled((1.0, 2.0), "x"), scale=Labelled((2.0,), "a")) is total(
+        Labelled((1.0, 2.0), "y"), scale=Labelled((2.0,), "b")
+    )
+    assert total(Labelled((1.0, 3.0), "tune/gains.json")) is not a  # other values under the same name
+    assert len(calls) == 3 and total.cache_info() == (2, 3)

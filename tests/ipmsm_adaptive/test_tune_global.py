@@ -228,26 +228,20 @@ def test_noise_gain_grows_with_lambda_p_in_the_speed_estimate(drive):
     assert np.all(np.diff(out[:, :, 0], axis=0) < 0)
 
 
-def test_max_noise_limit_holds_on_the_dense_grid_and_the_front(drive, tmp_path, capsys, monkeypatch):
+def test_max_noise_limit_holds_on_the_dense_grid_and_the_front(drive, tmp_path, capsys):
     """--max-noise on the position: the tuned gains meet it on the dense grid (analysis path); --pareto
-    writes the front, its damping falling as the noise limit tightens."""
-    import sensorless.tuning.tune as tune_module
-
-    def tune_without_bound(drive, law=None, settings=None, progress=None):
-        # the pointwise bound (a quarter of this tuning's time) is not what this test checks (it is
-        # checked above and by test_cli_prints_the_bound_and_writes_the_speeds_table): the same CLI
-        # command, its tuning with TuningSettings.bound off
-        return tune(drive, law, dataclasses.replace(settings, bound=False), progress)
-
-    monkeypatch.setattr(tune_module, "tune", tune_without_bound)  # reports/cli/tune.py imports it per run
+    writes the front, its damping falling as the noise limit tightens. --no-bound: the pointwise bound
+    (a quarter of this tuning's time) is not what this test checks (it is checked above and by
+    test_cli_prints_the_bound_and_writes_the_speeds_table), and the run writes no speeds table."""
     out = tmp_path / "n"
     lim_deg = 0.029
     args = [
         "tune", "piippo2008", "--speeds", "5", "--torque=-1T_N,1T_N", "--quiet", "--out", str(out),
-        "--max-noise", f"{lim_deg}deg", "--pareto", "3",
+        "--max-noise", f"{lim_deg}deg", "--pareto", "3", "--no-bound",
     ]  # fmt: skip
     assert main(args) == 0
-    capsys.readouterr()
+    assert "bound" not in capsys.readouterr().out
+    assert not (out / "speeds_speed-dependent.csv").exists() and (out / "gains_speed-dependent.json").exists()
     import json
 
     doc = json.loads((out / "gains_speed-dependent.json").read_text())

@@ -10,7 +10,10 @@ import math
 import pytest
 from sensorless.design import registry
 from sensorless.design.drive import load_drive
+from sensorless.design.gain_table import GainTable, GainTableError
+from sensorless.design.low_speed import minimum_speed_under
 from sensorless.design.pmsm_drive import startup_values
+from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.main import main
 
 MINIMAL = """
@@ -90,7 +93,7 @@ def test_errors_name_file_and_key(tmp_path, capsys, edit, key):
     assert not (tmp_path / "o").exists()
 
 
-def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys, monkeypatch):
+def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys):
     # a coarse envelope (4 speeds per direction, kept by init): the same commands on a third of the points
     text = MINIMAL.replace('firmware = "vesc"', 'firmware = "odrive"') + "\n[envelope]\nspeeds = 4\n"
     minimal.write_text(text)
@@ -105,12 +108,12 @@ def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys, mo
     assert main(["codegen", str(full), "--gains", str(table), "--out", str(tmp_path / "c")]) == 0
     # --quick: the report's coarser low-speed grid (design/low_speed.py QUICK); the analyses it holds
     # are the same, and the full grid under every corner of the estimate errors is half this test's CPU.
-    # The table named as tune named it (from its directory): the report's w_min of the tuned gains under
-    # the errors is then the one tune's summary line computed in this process (design/memo.py), not
-    # computed a second time
-    monkeypatch.chdir(tmp_path / "t")
-    r = ["report", str(full), "--gains", table.name, "--quick", "--out", str(tmp_path / "r")]
+    # The report's w_min of the tuned gains under the errors is the one tune's summary line computed in
+    # this process, under another name of the table (design/memo.py: not keyed on it), not a second time
+    hits, misses = minimum_speed_under.cache_info()
+    r = ["report", str(full), "--gains", str(table), "--quick", "--out", str(tmp_path / "r")]
     assert main(r) in (0, 3)
+    assert minimum_speed_under.cache_info() == (hits + 1, misses)
     rep = json.loads((tmp_path / "r" / "report.json").read_text())
     assert {"ODrive defaults", "VESC detection", "drive file", "tuned"} <= set(rep["analysis"])
     # box clamp: analysis refused in one line, simulation runs
@@ -141,3 +144,33 @@ def test_init_of_a_box_clamp_leaves_the_handover_speeds_to_give(minimal, tmp_pat
     values, line, _ = startup_values(with_speeds, fam.gains(with_speeds))  # other keys: rules; no analysis
     assert values["if_w_on"] == pytest.approx(0.2 * drive.w_base) and values["if_i"] > 0, line
     assert not fam.scales(with_speeds).zero_speed  # the checks go through zero
+
+
+def test_an_observer_gain_past_the_euler_limit_is_refused_naming_the_keys(tmp_path, capsys):
+    """k T_obs >= 2 (laws.py EULER_LIMIT: the forward-Euler step of the flux amplitude's error, 1 - k T_obs
+    per period, diverges): a drive file's [gains] gives one line naming the file, the gain and the key of
+    the period, with the largest gain to give; 1.9 / T_obs (the tuner's largest) loads; a schedule names
+    its offending speed; a gain table gets the same check against the drive it is used with."""
+    T = 1e-4  # f_s = 10 kHz
+    odrive = 'firmware = "vesc"\n[gains]\nlaw = "odrive"\npll_bandwidth = "1000 rad/s"\n'
+    odrive += 'observer_gain = "{} 1/s"'
+    p = tmp_path / "bad.toml"
+    p.write_text(MINIMAL.replace('firmware = "vesc"', odrive.format(2.1 / T)))
+    assert main(["analyze", str(p), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Traceback" not in err[0] and not (tmp_path / "o").exists()
+    assert "bad.toml" in err[0] and "gains.observer_gain" in err[0] and "(inverter.f_s)" in err[0]
+    assert "k T_obs = 2.1," in err[0] and f"at most {1.9 / T:.4g} 1/s" in err[0]
+    p.write_text(MINIMAL.replace('firmware = "vesc"', odrive.format(1.9 / T)))
+    drive = load_drive(str(p))
+    assert drive.observer.T_obs == pytest.approx(T)
+    schedule = (
+        'firmware = "vesc"\nT_obs = "50 us"\n[gains]\nlaw = "schedule"\npll_bandwidth = "1000 rad/s"\n'
+        'speeds = ["100 rad/s", "900 rad/s"]\nobserver_gain = ["1000 1/s", "50000 1/s"]'
+    )
+    p.write_text(MINIMAL.replace('firmware = "vesc"', schedule))
+    with pytest.raises(DriveFileError, match=r"observer_gain.*its value at 900 rad/s.*\(observer\.T_obs\)"):
+        load_drive(str(p))
+    table = GainTable("odrive", {"kind": drive.kind}, {"observer_gain": 2.1 / T, "pll_bandwidth": 1000.0})
+    with pytest.raises(GainTableError, match=r"^t\.json: key 'gains\.observer_gain': 21000 1/s"):
+        registry.family_of(drive).gains(drive, table=table, table_file="t.json")
