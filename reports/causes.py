@@ -10,7 +10,14 @@ acceleration before it, whether the I-f start had the loop). :func:`classify` na
 2. then the shared rules, from the evidence alone (:func:`shared_cause`): a start that never handed
    over is ``not_tested_sensorless``; a rotor that slipped against the I-f current vector is
    ``if_current_below_load`` (the current's torque, at most what the run shows it produced, did not
-   carry the load and the acceleration); a drive that ended away from its reference is
+   carry the load and the acceleration), unless the current already produced the torque limit's and the
+   open loop began as a drop back while the drive braked or accelerated at ACCEL_SHARE of its full
+   acceleration or more: then ``observer_lag_acceleration`` (the frame starts at the observer's lagging
+   speed and no I-f current within the limit catches the rotor; the gimbal motor of docs/examples/motors,
+   braking at p (T_max + T_N) / J, 10 times the start's ramp, dropped back 0.11 p.u. off the rotor's
+   speed with its tuned gains, 0.20 p.u. with its file's, and slipped; its reference ramped at the
+   start's acceleration, it ran through); a drive that
+   ended away from its reference is
    ``ramp_slower_than_reference`` where the I-f start's time since the reference's last step made
    the difference (the rest of the step at the torque limit fits the time to the judged end, with the
    start's time added it does not), else ``torque_limit`` where its torque command sat at T_max, else
@@ -136,6 +143,10 @@ class Failure:
     limit_pu: float | None = None  # the drive's torque limit T_max [p.u. of T_N]
     accel_share: float | None = None  # mean |dw/dt| just before, over the full acceleration p T_max / J
     open_loop: bool = False  # the I-f start had the loop there
+    # a slip whose open-loop run began as a drop back from closed loop: the drive's mean |dw/dt| over the
+    # window before it, over p T_max / J, and the rotor's speed less the open-loop frame's there [p.u.]
+    drop_accel_share: float | None = None
+    drop_speed_err_pu: float | None = None
     # a run's end (tracking): since the reference's last step, the time the I-f start had the loop, the
     # time to the judged tail, and the time the rest of the step needs at the torque limit [s]
     open_s: float | None = None
@@ -216,6 +227,28 @@ def shared_cause(f: Failure, unstable: Callable[[Failure], bool | None] = lambda
         return Named("not_tested_sensorless", "the open-loop start ran throughout")
     if f.kind == "slip":
         carried = f.torque_pu
+        if (
+            f.drop_accel_share is not None
+            and f.drop_accel_share >= ACCEL_SHARE
+            and carried is not None
+            and f.limit_pu is not None
+            and carried >= AT_LIMIT * f.limit_pu
+        ):  # more current cannot help: it gave the torque limit's; the frame started off the rotor
+            err = (
+                f" with the open-loop frame {f.drop_speed_err_pu:+.3g} p.u. off the rotor's speed"
+                if (f.drop_speed_err_pu is not None)
+                else ""
+            )
+            return Named(
+                "observer_lag_acceleration",
+                f"the drive dropped back to the open-loop start while its speed changed at "
+                f"{f.drop_accel_share:.2g} of the full acceleration p T_max / J{err}; the I-f current "
+                f"already produced {carried:.3g} T_N, its torque limit's {f.limit_pu:.3g} T_N",
+                "the open loop cannot catch a rotor braking at the torque limit: ramp the speed reference "
+                "below the handover ([startup] w_on) at the start's acceleration ([startup] acceleration) "
+                "or lower [control] T_max, so that the drive drops back at the start's rate; an observer "
+                "that holds the full acceleration lower (sensorless tune) lowers w_on",
+            )
         if carried is not None and f.load_pu is not None and abs(f.load_pu) >= LOAD_SHARE * carried:
             why = f"load {abs(f.load_pu):.3g} T_N against at most {carried:.3g} T_N the current produced"
         elif carried is not None:
@@ -281,5 +314,9 @@ def classify_all(
     when = f" at t = {loss.t:.4g} s" if loss.t is not None else ""
     for i, f in enumerate(failures):
         if f.kind in {"tracking", "speed_estimate"}:
-            out[i] = Named(named.cause, f"a consequence of the rotor lost{when}: {named.detail}".rstrip(": "))
+            out[i] = Named(
+                named.cause,
+                f"a consequence of the rotor lost{when}: {named.detail}".rstrip(": "),
+                named.change,
+            )
     return out

@@ -193,6 +193,18 @@ def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None =
                 out["limit_pu"] = scales.T_max / T_N
         return Failure(kind, text, **{**out, **kw})
 
+    def drop_back(a: int) -> dict[str, float]:
+        # an open-loop run that began as a drop back from closed loop (sample a): how fast the drive's
+        # speed changed over the window before it, and how far the open-loop frame started off the rotor
+        if a <= 0 or w_m is None or scales is None or not has("w_hat"):
+            return {}
+        a0 = max(0, a - n_w)
+        a_max = scales.pole_pairs * scales.T_max / scales.J
+        return {
+            "drop_accel_share": float(abs(w_m[a] - w_m[a0]) / (tr.t[a] - tr.t[a0]) / a_max),
+            "drop_speed_err_pu": float((w_m[a] - tr["w_hat"][a]) / base_w),
+        }
+
     def open_time(k_tail: int) -> dict[str, float]:
         # since the reference's last step: the I-f start's time, the time to the judged tail, and what
         # the rest of the step (outside the start's speeds) needs at the torque limit against the load
@@ -273,7 +285,7 @@ def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None =
             # what the current carried: the peak |T_e| of the open-loop run up to the slip
             a = next(r[0] for r in _runs(open_loop) if r[0] <= slip[1] < r[1])
             carried = float(np.max(np.abs(tr["T_e"][a : slip[1] + 1])) / T_N) if T_N and has("T_e") else None
-            failures.append(evidence("slip", text, slip[1], lo=a, torque_pu=carried))
+            failures.append(evidence("slip", text, slip[1], lo=a, torque_pu=carried, **drop_back(a)))
     if theta is not None:
         th = _wrap(theta)
         closed = ~open_loop if open_loop is not None else np.ones(th.size, bool)

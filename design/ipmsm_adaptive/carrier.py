@@ -38,6 +38,10 @@ plane (the linearization's crossing equals w_1: tests/ipmsm_adaptive/test_carrie
 motor has |w_1| = 0.38 p.u. at T_N, beyond its w_Delta = 0.13 p.u.; a motor of small R_s and strong
 reluctance torque (small psi_d under load, large L_d L_q i_q) has it far below: zero-speed crossings
 pass the band in a transient, but holding a regenerating speed inside it under load loses the rotor.
+|w_1| falls as the regenerating torque grows (|i_q| up, psi_d down), so :func:`coupling_torque` gives the
+largest regenerating torque at which the correction still holds up to a speed (w_Delta: the band closes):
+what a drive may regenerate there (the Prius-class traction motor of docs/examples/motors: 73 N m, 0.24
+T_N, against its rated 300 N m).
 """
 
 from __future__ import annotations
@@ -131,3 +135,17 @@ def coupling_limit(m: PmsmMotor, T: float, lambda1: float = 0.0, lambda2_per_w: 
     if den <= 0:
         return math.inf if rho_psi > 0 else 0.0
     return max(rho_psi / den, 0.0)
+
+
+def coupling_torque(m: PmsmMotor, w: float, T_max: float, bisections: int = 60) -> float:
+    """The largest |T| <= ``T_max`` [N m] at which the HF correction still holds regenerating up to the speed
+    ``w`` [rad/s, electrical] with zero gain (:func:`coupling_limit` >= |w|; it falls as |T| grows): the
+    regenerating torque a drive may hold below w_Delta where :func:`coupling_limit` lies inside its band;
+    ``T_max`` where it holds up to there, 0 where at no torque."""
+    if coupling_limit(m, T_max) >= abs(w):
+        return T_max
+    lo, hi = 0.0, T_max
+    for _ in range(bisections):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if coupling_limit(m, mid) >= abs(w) else (lo, mid)
+    return lo

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive import FAMILY
-from sensorless.design.ipmsm_adaptive.carrier import coupling_limit
+from sensorless.design.ipmsm_adaptive.carrier import coupling_limit, coupling_torque
 from sensorless.reports.causes import CLOSED_LOOP, Failure, Named, operating_torque_pu
 
 if TYPE_CHECKING:  # typed by name only
@@ -50,6 +50,16 @@ def crossings(td: Sequence[dict[str, Any]]) -> str:
     )
 
 
+def _coupling_fix(drive: IpmsmDrive, w: float, T: float) -> str:
+    """The change for a failure in the coupling band at |w| [rad/s], |T| [N m]: the regenerating torque at
+    which the correction holds there (carrier.py ``coupling_torque``), or a position sensor."""
+    t_c = coupling_torque(drive.motor, w, T)
+    return (
+        f"keep the regenerating torque at this speed within {t_c:.4g} N m ({t_c / drive.T_N:.3g} T_N), where "
+        "the HF correction holds, or run on a position sensor below the injection's fade-out"
+    )
+
+
 def failure_cause(drive: IpmsmDrive, gains: GainSet, failure: Failure) -> Named | None:
     """The cause of a failed check in the adaptive observer's own analysis (reports/causes.py): a closed-loop
     failure regenerating where the HF injection runs, above the speed below which its correction (20) holds
@@ -70,6 +80,7 @@ def failure_cause(drive: IpmsmDrive, gains: GainSet, failure: Failure) -> Named 
                 f"regenerating at {failure.w_pu:+.3g} p.u., T_e = {torque:+.3g} T_N: above the HF "
                 f"correction's coupling limit {w1 / wb:.3g} p.u. at this torque, below the injection's "
                 f"fade-out {drive.injection.w_Delta / wb:.3g} p.u. (design/ipmsm_adaptive/carrier.py)",
+                _coupling_fix(drive, abs(w), abs(T)),
             )
     s = FAMILY.linearize(drive, gains, np.array([w]), T, injection=inj)
     if np.nanmax(s.max_real) > 0:

@@ -19,7 +19,7 @@ import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTable
 from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
-from sensorless.design.ipmsm_adaptive.carrier import coupling_limit
+from sensorless.design.ipmsm_adaptive.carrier import coupling_limit, coupling_torque
 from sensorless.design.ipmsm_adaptive.linearize import PoleSweep, unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.reports.document import (
@@ -231,7 +231,11 @@ class AdaptiveJudge(Judging["IpmsmDrive"]):
         )
         later = (disc_section, *([tuning_section] if tuning_section is not None else []))
         w1 = coupling_limit(drive.motor, T_N) / wb  # where the HF correction turns sign, regenerating
-        return Analysis(None, sections, data, (w1, growth), later, STEPS)
+        # the regenerating torque at which it holds up to the fade-out (the band closes), and w_Delta
+        t_c = coupling_torque(drive.motor, drive.injection.w_Delta, T_N)
+        return Analysis(
+            None, sections, data, (w1, growth, t_c, T_N, drive.injection.w_Delta / wb), later, STEPS
+        )
 
     def verdict(
         self, drive: IpmsmDrive, rev: Review, found: Analysis, checks: Checks, min_damping: float
@@ -316,12 +320,14 @@ def judgement(
     data: dict[str, Any],
     label: str,
     min_damping: float,
-    coupling: tuple[float, float] = (float("inf"), float("nan")),
+    coupling: tuple[float, ...] = (float("inf"), float("nan")),
 ) -> Judgement:
     """Where the reviewed gains are stable with the required damping, where not, and why;
     ``coupling``: the speed [p.u.] below which the HF correction holds regenerating at T_N with zero
     gain (design/ipmsm_adaptive/carrier.py ``coupling_limit``) and the fastest growth [1/s] with the
-    injection, named where the injection's RHP band is regenerating only."""
+    injection, named where the injection's RHP band is regenerating only; optionally then the
+    regenerating torque [N m] at which the correction holds up to the fade-out (``coupling_torque``),
+    T_N [N m] and w_Delta [p.u.]: what to change, said with the reason."""
     plane = data["plane"]
     m = plane["maps"][label]
     w_pu = np.array(plane["w_pu"], float)
@@ -369,6 +375,7 @@ def judgement(
                 "answer to the HF correction (20) turns sign (below (R̂s + λ1) ψ_d / (L_d L_q |i_q|) = "
                 f"{coupling[0]:.3g} p.u. at T_N with λ1 = 0: "
                 f"design/ipmsm_adaptive/carrier.py); {crossings(data.get('time_domain') or [])}"
+                f"{_coupling_change(coupling)}"
             )
         else:
             reasons.append(f"RHP pole below {edge:.3g} p.u. remains even with the injection.")
@@ -396,6 +403,19 @@ def judgement(
     return Judgement(status, findings, "", data=more)
 
 
+def _coupling_change(coupling: tuple[float, ...]) -> str:
+    """What to change where the injection's coupling band is regenerating (``judgement``'s ``coupling``
+    with its torque, T_N and w_Delta; "" without them)."""
+    if len(coupling) < 5 or not coupling[2] < coupling[3]:
+        return ""
+    t_c, T_N, w_d = coupling[2], coupling[3], coupling[4]
+    return (
+        f" To hold a regenerating speed below ω_Δ = {w_d:.3g} p.u.: keep the regenerating torque there "
+        f"within {t_c:.4g} N m ({t_c / T_N:.3g} T_N), where the correction (with zero gain near zero "
+        "speed, as law (16) has) holds up to ω_Δ, or run on a position sensor there."
+    )
+
+
 def verdict_data(v: Judgement, status: str, td_findings: list[dict[str, Any]]) -> dict[str, Any]:
     """report.json "verdict" (without its limitations) of the judgement ``v`` settled with the
     time-domain checks: the findings as records, the analysis's first."""
@@ -406,7 +426,7 @@ def verdict(
     data: dict[str, Any],
     label: str,
     min_damping: float,
-    coupling: tuple[float, float] = (float("inf"), float("nan")),
+    coupling: tuple[float, ...] = (float("inf"), float("nan")),
 ) -> dict[str, Any]:
     """The verdict data (:func:`judgement`) settled with the time-domain checks of ``data``."""
     v = judgement(data, label, min_damping, coupling)
