@@ -255,6 +255,31 @@ def speed_fields(obs: Any) -> list[int]:
     return [j for j in bounded if obs.state[j].bound == obs.state[k].bound]
 
 
+TABLE = {"speeds": [100.0, 1500.0, 3050.0, 3800.0], "observer_gain": [400.0, 600.0, 1000.0, 1500.0]}
+
+
+def table_gains(d: Any, fam: Any) -> Any:
+    """The flux family's 4-breakpoint gain table of tests/common/test_fixed_point.py (a tuned table's
+    layout: `codegen --gains TABLE`), for the "PRESET+table" rows."""
+    import json
+
+    from sensorless.design.gain_table import read_gain_table
+
+    doc = {
+        "format": "sensorless-gain-table/2",
+        "drive": {"name": d.name, "kind": d.kind, "sha256": d.digest},
+        "law": "schedule",
+        "gains": {**TABLE, "pll_bandwidth": 1000.0},
+        "envelope": {},
+        "points": [],
+        "summary": {},
+    }
+    with tempfile.TemporaryDirectory() as tmp:
+        f = Path(tmp) / "table.json"
+        f.write_text(json.dumps(doc))
+        return fam.gains(d, table=read_gain_table(f), table_file="table.json")
+
+
 def main(presets: list[str]) -> None:
     from sensorless.design.drive import load_drive
     from sensorless.design.registry import family_of
@@ -267,10 +292,11 @@ def main(presets: list[str]) -> None:
     )
     print("(instr/step: mean over the accepted samples; the other columns: estimated cycles per step)")
     for name in presets:
-        d = load_drive(name)
+        d = load_drive(name.removesuffix("+table"))
         fam = family_of(d)
-        setup = fam.runtime(d, fam.gains(d))
-        model = fixed_model(d, None, setup)
+        gains = table_gains(d, fam) if name.endswith("+table") else None
+        setup = fam.runtime(d, gains if gains is not None else fam.gains(d))
+        model = fixed_model(d, gains, setup)
         fx = model.program(setup)
         prov = Provenance(d.name, d.file, d.digest, "bench")
         P = d.name
@@ -334,4 +360,4 @@ def main(presets: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["outrunner270", "piippo2008", "deangelo2006"])
+    main(sys.argv[1:] or ["outrunner270", "outrunner270+table", "hubmotor48", "piippo2008", "deangelo2006"])

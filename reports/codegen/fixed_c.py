@@ -58,13 +58,86 @@ static int32_t fx_div(int64_t n, int32_t d) /* floor(n / d), d > 0 */
     return (int32_t)(n >= 0 ? n / d : -((-n + d - 1) / d));
 }
 
-static const int32_t fx_atan_table[%(n_cordic)d] = {%(cordic)s};
+static int32_t fx_div32(int32_t n, int32_t d) /* floor(n / d), d > 0: a 32-bit unsigned division */
+{
+    if (n >= 0) {
+        return (int32_t)((uint32_t)n / (uint32_t)d);
+    }
+    return (int32_t)(0u - ((0u - (uint32_t)n) + (uint32_t)d - 1u) / (uint32_t)d);
+}
+
+static int32_t fx_divc(int32_t n, int k, int32_t d, int32_t lim) /* floor(n 2^k / d) in [-lim, lim], d > 0 */
+{ /* n / d by one 32-bit division, then k quotient bits by long division: no 64-bit division */
+    const uint32_t u = n < 0 ? 0u - (uint32_t)n : (uint32_t)n, ud = (uint32_t)d;
+    uint32_t q = u / ud, r = u - q * ud;
+    int i;
+    if (q > ((uint32_t)lim >> k)) {
+        return n < 0 ? -lim : lim;
+    }
+    for (i = 0; i < k; ++i) { /* r < d < 2^31: 2 r fits */
+        r <<= 1;
+        q <<= 1;
+        if (r >= ud) {
+            r -= ud;
+            q |= 1u;
+        }
+    }
+    if (n < 0 && r != 0) { /* floor of a negative quotient */
+        q += 1u;
+    }
+    if (q > (uint32_t)lim) {
+        return n < 0 ? -lim : lim;
+    }
+    return n < 0 ? -(int32_t)q : (int32_t)q;
+}
+
+static int32_t fx_divc64(int64_t n, int32_t d, int32_t lim) /* floor(n / d), d > 0, clamped to [-lim, lim] */
+{
+    const int64_t q = n >= 0 ? n / d : -((-n + d - 1) / d);
+    return q > lim ? lim : (q < -lim ? -lim : (int32_t)q);
+}
+
+static int64_t fx_mul64(int32_t a, int32_t b) /* a b exactly from four 32-bit products (no libgcc call) */
+{
+    const int32_t ah = a >> 16, bh = b >> 16, al = a & 0xFFFF, bl = b & 0xFFFF;
+    return (int64_t)(ah * bh) * INT64_C(4294967296) + ((int64_t)(ah * bl) + (int64_t)(al * bh)) * 65536
+        + (int64_t)((uint32_t)al * (uint32_t)bl);
+}
+
+static FX_NOINLINE int32_t fx_table(int32_t u, const int32_t *v, const int32_t *g, const uint16_t *r,
+                                    const uint8_t *sh, int n)
+{ /* v at the breakpoints g, linear in between (a Q15 fraction), held beyond the ends; bisection */
+    int lo = 0, hi = n - 1;
+    uint32_t d, t;
+    int32_t dv;
+    if (u <= g[0]) {
+        return v[0];
+    }
+    if (u >= g[hi]) {
+        return v[hi];
+    }
+    while (hi - lo > 1) { /* g[lo] <= u < g[hi] */
+        const int mid = (lo + hi) >> 1;
+        if (u < g[mid]) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    d = (uint32_t)u - (uint32_t)g[lo]; /* 0 <= d < g[hi] - g[lo] */
+    if (sh[lo] >= 16) { /* floor(d r 2^-sh), exact in 32-bit products */
+        t = (((d >> 16) * r[lo]) + (((d & 0xFFFF) * r[lo]) >> 16)) >> (sh[lo] - 16);
+    } else {
+        t = (d * r[lo]) >> sh[lo];
+    }
+    dv = v[hi] - v[lo];
+    return v[lo] + (dv >> 16) * (int32_t)t * 2 + (int32_t)(((uint32_t)(dv & 0xFFFF) * t) >> 15);
+}
 
 static FX_NOINLINE int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vectoring CORDIC */
 {
-    int32_t x = x0 >> 2, y = y0 >> 2;
+    int32_t x = x0 >> 2, y = y0 >> 2, xs;
     uint32_t z = 0;
-    int i;
     if (x == 0 && y == 0) {
         return 0;
     }
@@ -73,18 +146,7 @@ static FX_NOINLINE int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vec
         y = -y;
         z = 0x80000000ul;
     }
-    for (i = 0; i < %(n_cordic)d; ++i) {
-        const int32_t xs = x >> i, ys = y >> i;
-        if (0 < y) {
-            x += ys;
-            y -= xs;
-            z += (uint32_t)fx_atan_table[i];
-        } else {
-            x -= ys;
-            y += xs;
-            z -= (uint32_t)fx_atan_table[i];
-        }
-    }
+%(cordic_steps)s
     return (int32_t)z;
 }
 
@@ -111,6 +173,17 @@ def mulw(a: str, b: str, s: int) -> str:
     )
 
 
+def _cordic_step(i: int, a: int) -> str:
+    """Step i of the vectoring CORDIC (fixed_ops.cordic_atan2), unrolled: shifts and the angle are
+    literals (a loop's variable shifts, table load and counter cost ~7 of its ~19 cycles a step on a
+    Cortex-M0+)."""
+    sx, sy = (f"x >> {i}", f"y >> {i}") if i else ("x", "y")
+    return (
+        f"    xs = {sx};\n    if (0 < y) {{\n        x += {sy};\n        y -= xs;\n        z += {a}ul;\n"
+        f"    }} else {{\n        x -= {sy};\n        y += xs;\n        z -= {a}ul;\n    }}"
+    )
+
+
 def lit(v: int) -> str:
     """An int32 literal (INT32_MIN spelled without overflow)."""
     if v == -(2**31):
@@ -124,7 +197,7 @@ def helpers(used: str) -> str:
         "n_cordic": len(CORDIC_ANGLES),
         "x2": mulw("x", "x", SIN_F),
         "px": mulw("p", "x", SIN_F),
-        "cordic": ", ".join(str(a) for a in CORDIC_ANGLES),
+        "cordic_steps": "\n".join(_cordic_step(i, a) for i, a in enumerate(CORDIC_ANGLES)),
         "sin_f": SIN_F,
         "sin_shift": 30 - SIN_F,
         "horner": "\n".join(
@@ -135,10 +208,10 @@ def helpers(used: str) -> str:
     blocks = ["static " + b if k else b for k, b in enumerate(text.split("\n\nstatic "))]
     keep = []
     for b in blocks:
-        name = re.match(r"static (?:const )?(?:FX_NOINLINE )?int32_t (\w+)", b).group(1)
-        if name in used or (name == "fx_atan_table" and "fx_atan2" in used):
+        name = re.match(r"static (?:const )?(?:FX_NOINLINE )?int(?:32|64)_t (\w+)", b).group(1)
+        if re.search(rf"\b{name}\b", used):
             keep.append(b)
-    if "fx_atan2" in used:
+    if re.search(r"\b(fx_atan2|fx_table)\(", used):
         # the CORDIC as a call, not inlined: inlined into the step (GCC at -Os), its loop's registers
         # spilled the step's around it and cost outrunner270 ~60 cycles more than the call (M0+)
         keep.insert(0, NOINLINE)
@@ -150,6 +223,17 @@ NOINLINE = """#if defined(__GNUC__)
 #else
 #define FX_NOINLINE
 #endif"""
+
+
+def _clamp(v: str, lo: int, hi: int) -> str:
+    """v clamped to [lo, hi]; a symmetric range (the inputs' and products' clamps) by one unsigned
+    comparison: v + hi within [0, 2 hi] modulo 2^32 exactly when |v| <= hi (hi < 2^31)."""
+    if lo == -hi and 0 < hi < 2**31:
+        return (
+            f"((uint32_t)((uint32_t){v} + UINT32_C({hi})) <= UINT32_C({2 * hi}) ? {v} : "
+            f"({v} < 0 ? {lit(lo)} : {lit(hi)}))"
+        )
+    return f"({v} < {lit(lo)} ? {lit(lo)} : ({v} > {lit(hi)} ? {lit(hi)} : {v}))"
 
 
 def _sh(a: str, k: int, wide: bool) -> str:
@@ -192,6 +276,7 @@ def _wide(prog: list[Ins], wr: list[float], ins: Ins, ks: tuple[int, ...], args:
 def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = "obs->prm") -> list[str]:
     """The step's statements: slots s0.. from ``x``/``inp`` fields, then the state and outputs."""
     exprs: list[str] = []
+    tables: list[str] = []  # a gain table's breakpoints and spacings: const data of the step
     for k, ins in enumerate(fx.prog):
         a = [f"s{j}" for j in ins.args]
         m, op = ins.imm, ins.op
@@ -199,11 +284,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
         if op == "IN":
             d = fx.inputs[m[0]]
             src = f"{x}.{d['name']}" if d["vector"] == "x" else f"{inp}->{d['name']}"
-            e = (
-                src
-                if len(m) == 1
-                else f"({src} < {lit(m[1])} ? {lit(m[1])} : ({src} > {lit(m[2])} ? {lit(m[2])} : {src}))"
-            )
+            e = src if len(m) == 1 else _clamp(src, m[1], m[2])
         elif op == "CONST":
             e = lit(m[0])
         elif op == "PARAM":
@@ -218,7 +299,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
                     f"+ (uint32_t)((({v} & 0xFFFF) * {c}) >> {m[0]}))"
                 )
         elif op == "CLAMP":
-            e = f"({a[0]} < {lit(m[0])} ? {lit(m[0])} : ({a[0]} > {lit(m[1])} ? {lit(m[1])} : {a[0]}))"
+            e = _clamp(a[0], m[0], m[1])
         elif op == "MULW":
             e = mulw(a[0], a[1], m[0])
         elif op == "ALIGN":
@@ -243,7 +324,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
                 e = f"(((s{v} >> 16) * {c} * {1 << (16 - m[0])}) + {lo})"
         elif op == "MUL":
             small = wr[ins.args[0]] * wr[ins.args[1]] < INT_MAX and not ins.sat and m[0] < 31
-            prod = f"({a[0]} * {a[1]})" if small else f"((int64_t){a[0]} * {a[1]})"
+            prod = f"({a[0]} * {a[1]})" if small else f"fx_mul64({a[0]}, {a[1]})"
             e = f"({prod} >> {m[0]})" if m[0] >= 0 else f"({prod} * {1 << -m[0]})"
             e = e if small else f"{fin}{e}"
         elif op in ("NEG", "ABS"):
@@ -271,12 +352,28 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
             e = _sh(a[0], -m[0], False)
         elif op == "CEIL":
             e = f"(int32_t)(-({_sh('(-(int64_t)' + a[0] + ')', -m[0], False)}))"
+        elif op == "DIV" and len(m) == 1 and wr[ins.args[0]] * 2.0 ** m[0] <= INT_MAX:  # within int32
+            e = f"fx_div32({_sh(a[0], m[0], False)}, {a[1]})"
+        elif op == "DIV" and len(m) > 1 and 0 <= m[0] < 31:
+            e = f"fx_divc({a[0]}, {m[0]}, {a[1]}, {lit(m[1])})"
         elif op == "DIV":
-            e = f"fx_div({_sh(a[0], m[0], True)}, {a[1]})"
+            n64 = _sh(a[0], m[0], True)
+            e = f"fx_div({n64}, {a[1]})" if len(m) == 1 else f"fx_divc64({n64}, {a[1]}, {lit(m[1])})"
         elif op == "SQRT":
             e = f"fx_isqrt({_sh(a[0], m[0], True)})"
         elif op == "ATAN2":
             e = f"fx_atan2({_sh(a[0], m[0], False)}, {_sh(a[1], m[1], False)})"
+        elif op == "TABLE":
+            n = m[1]
+            G, R, S = m[2 : 2 + n], m[2 + n : 1 + 2 * n], m[1 + 2 * n : 3 * n]
+            tables += [
+                f"static const int32_t fx_g{k}[{n}] = {{{', '.join(lit(g) for g in G)}}};",
+                f"static const uint16_t fx_r{k}[{n - 1}] = {{{', '.join(str(r) for r in R)}}};",
+                f"static const uint8_t fx_s{k}[{n - 1}] = {{{', '.join(str(v) for v in S)}}};",
+            ]
+            u = f"({a[0]} < 0 ? -{a[0]} : {a[0]})" if m[0] else a[0]
+            v = f"(const int32_t[{n}]){{{', '.join(a[1:])}}}"
+            e = f"fx_table({u}, {v}, fx_g{k}, fx_r{k}, fx_s{k}, {n})"
         elif op == "SIN":
             e = f"fx_sin({a[0]})"
         elif op == "COS":
@@ -303,7 +400,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
             raise NotImplementedError(f"fixed-point op {op} has no C spelling")
         exprs.append(e)
     need = guards(fx.prog, [*fx.state_out, *(o["slot"] for o in fx.outputs)])
-    lines: list[str] = []
+    lines: list[str] = list(tables)
     k = 0
     while k < len(fx.prog):
         ins = fx.prog[k]

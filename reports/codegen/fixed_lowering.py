@@ -45,6 +45,9 @@ class Lowering(AngleLowering):
         self.param_c: dict[tuple, int] = {}
         self.sim_lo: dict[int, float] = {}  # smallest and largest simulated value of each node
         self.sim_hi: dict[int, float] = {}
+        # a tabulated schedule's output node -> (schedule state's node, grid, gain nodes, their
+        # values, over |value|)
+        self.tables: dict[int, tuple[int, tuple[float, ...], tuple[int, ...], tuple[float, ...], bool]] = {}
 
     # ----------------------------------------------------------------------------------- helpers
     def add(self, ins: Ins, wr: float, nom: float | None = None) -> int:
@@ -273,9 +276,15 @@ class Lowering(AngleLowering):
             Ins("MAX", (b, self.const_slot(floor_raw * 2.0**-fb, fb)), "fix", fb, (0, 0)), self.wr[b]
         )
         k = fo - fa + fb
-        while self.wr[a] * 2.0**k > 2.0**52 or self.wr[a] * 2.0**k / floor_raw > INT_MAX:
-            k, fo = k - 1, fo - 1  # the numerator within 53 bits, the quotient within int32
-        return self.add(Ins("DIV", (a, bc), "fix", fo, (k,), what="divisor clamped positive"), 2.0**26)
+        while self.wr[a] * 2.0**k > 2.0**52:
+            k, fo = k - 1, fo - 1  # the numerator within 53 bits
+        # the quotient in its range's format (a hostile sample near the divisor's floor saturates at
+        # twice the range, as a product's operand is clamped): a format that held the worst case
+        # instead left hubmotor48's inductance share (within 0..1) two bits, 0.35 deg off the double step
+        worst = self.wr[a] * 2.0**k / floor_raw
+        lim = min(INT_MAX, math.ceil(2 * 2.0**NOMINAL_BITS))
+        imm = (k, lim) if worst > lim else (k,)
+        return self.add(Ins("DIV", (a, bc), "fix", fo, imm, what="divisor clamped positive"), min(worst, lim))
 
     # ------------------------------------------------------------------------------- linear values
     def lin(self, n: int) -> int:
@@ -311,7 +320,38 @@ class Lowering(AngleLowering):
                 return self.const_slot(1.0, 0)
         return None
 
+    def table(self, n: int) -> int:
+        """A tabulated schedule's gain (fixed_ops.table_lerp; the C bisects): the values at the
+        breakpoints are parameter fields in one format that holds twice the largest; the breakpoints
+        literals in the schedule state's format; one Q15 reciprocal of each spacing."""
+        src, grid, gnodes, vals, ab = self.tables[n]
+        a = self.lin(src)
+        if self.prog[a].kind != "fix" or self.wr[a] >= INT_MAX:
+            raise ValueError(f"tabulated schedule: its state (node {src}) is not a bounded fixed-point word")
+        fa = self.fmt(a)[1]
+        top = max(abs(v) for v in vals)
+        fo = format_of(max(self.rng.get(n, 0.0), 2 * top, RANGE_FLOOR))
+        G = [word(g, "fix", fa) for g in grid]
+        if any(abs(g) > INT_MAX for g in G) or any(h < 2 for h in np.diff(G)):
+            raise ValueError(f"tabulated schedule: breakpoints {grid} do not fit Q{fa} two LSB apart")
+        R, S = [], []
+        for h in np.diff(G).tolist():
+            s = math.floor(math.log2(h))
+            if round(2.0 ** (15 + s) / h) >= 2**15:
+                s -= 1
+            R.append(round(2.0 ** (15 + s) / h))
+            S.append(s)
+        V = []
+        for g, v in zip(gnodes, vals, strict=True):
+            V.append(self.param_slot(("table", g), v, self.expr(g), fo, recipe=(g, 1.0, False)))
+            self.stored[g] = self.prog[V[-1]].imm[-1] * 2.0**-fo
+        wr = max(self.wr[v] for v in V) * (1 + 2.0**-12) + 2
+        imm = (int(ab), len(G), *G, *R, *S)
+        return self.add(Ins("TABLE", (a, *V), "fix", fo, imm, what="gain table (bisection)"), wr)
+
     def _lin(self, n: int) -> int:
+        if n in self.tables:
+            return self.table(n)
         nd = self.nodes[n]
         c = self.cval(n)
         if c is not None:
@@ -364,6 +404,12 @@ class Lowering(AngleLowering):
             c, x = (a, b) if consts[0] else (b, a)
             if any(consts) and self.exact_q15(c, x, s, wr):
                 return self.add(Ins("MUL", (a, b), "fix", fo, (s,)), wr)
+            lim = min(self.wr[x], math.ceil(2 * self.nom[x]))
+            if any(consts) and not same and self.exact_q15(c, x, s, self.wr[c] * lim * 2.0**-s):
+                # the signal clamped at twice its range, as a product's operand below: the product by a
+                # Q15 constant is then two 32-bit products, not a 64-bit one and a saturation
+                x = self.clamped(x)
+                return self.add(Ins("MUL", (c, x), "fix", fo, (s,)), self.wr[c] * self.wr[x] * 2.0**-s)
             if 16 <= s <= 32 and not self.mulw_fits(a, b, s):
                 a, b = self.clamped(a), self.clamped(b)
                 b = a if same else b

@@ -208,6 +208,25 @@ def sin_binary(B: NumpyBackend, a: Word) -> Word:
     return mulw(B, p, x, SIN_F)
 
 
+def table_lerp(B: NumpyBackend, u: Word, vals: list[Word], imm: tuple[int, ...]) -> Word:
+    """A tabulated schedule (op TABLE): ``vals`` at the breakpoints G (raw words in u's format),
+    linear in between, held beyond the ends. ``imm`` = (abs, n, G_0..G_n-1, R_0..R_n-2, S_0..S_n-2):
+    u taken as |u| where ``abs``; on the segment G_k <= u < G_k+1, t = floor(d R_k 2^-S_k) with
+    d = u - G_k (R_k 2^-S_k ~ 2^15 / (G_k+1 - G_k), R_k in [2^14, 2^15): t a Q15 fraction, within
+    2^-13 of the exact one) and the value V_k + floor((V_k+1 - V_k) t 2^-15), 32-bit products only.
+    The C finds the segment by bisection; the model evaluates every segment and selects one."""
+    ab, n = imm[0], imm[1]
+    G, R, S = imm[2 : 2 + n], imm[2 + n : 1 + 2 * n], imm[1 + 2 * n : 3 * n]
+    u = B.absval(u) if ab else u
+    out = vals[0]
+    for k in range(n - 1):
+        inside = B.logic("AND", B.cmp("LE", B.const(G[k], u), u), B.cmp("LT", u, B.const(G[k + 1], u)))
+        d = B.clip(u - G[k], 0, G[k + 1] - G[k])
+        t = B.shift(B.mul(d, B.const(R[k], u)), -S[k])
+        out = B.where(inside, vals[k] + B.shift(B.mul(vals[k + 1] - vals[k], t), -15), out)
+    return B.where(B.cmp("LE", B.const(G[n - 1], u), u), vals[n - 1], out)
+
+
 def _rounded(B: NumpyBackend, a: Word, k: int, ceil: int) -> Word:
     """a 2^k, floored (or, with ``ceil``, rounded up: x <= y 2^k exactly when ceil(x 2^-k) <= y)."""
     return -B.shift(-a, k) if ceil and k < 0 else B.shift(a, k)
@@ -260,12 +279,15 @@ def run(prog: list[Ins], B: NumpyBackend, inputs: list[Word], params: list[int] 
             r = B.shift(a[0], -m[0])
         elif op == "CEIL":
             r = -B.shift(-a[0], -m[0])
-        elif op == "DIV":  # floor(a 2^k / b), b > 0
+        elif op == "DIV":  # floor(a 2^k / b), b > 0; clamped to +-m[1] where given
             r = B.div(B.shift(a[0], m[0]), a[1])
+            r = B.clip(r, -m[1], m[1]) if len(m) > 1 else r
         elif op == "SQRT":
             r = B.isqrt(B.clip(B.shift(a[0], m[0]), 0, 2**32 - 1))
         elif op == "ATAN2":
             r = cordic_atan2(B, B.shift(a[0], m[0]), B.shift(a[1], m[1]))
+        elif op == "TABLE":
+            r = table_lerp(B, a[0], a[1:], m)
         elif op == "SIN":
             r = sin_binary(B, a[0])
         elif op == "COS":
