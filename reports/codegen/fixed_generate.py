@@ -12,7 +12,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from sensorless.design.family import Drive, GainSet
-from sensorless.reports.codegen.fixed_c import body, format_text, formats_json, helpers, lit
+from sensorless.reports.codegen.fixed_c import body, format_text, formats_json
+from sensorless.reports.codegen.fixed_helpers import helpers, lit
 from sensorless.reports.codegen.fixed_model import FixedModel
 from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS
 from sensorless.reports.codegen.fixed_params import params_from_si

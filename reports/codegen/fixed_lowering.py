@@ -446,6 +446,15 @@ class Lowering(AngleLowering):
             pos = self.add(Ins("LT", (zero, x), "bool", 0, (0, 0, 0, 0)), 1)  # 0 is 0 in any format
             neg = self.add(Ins("LT", (x, zero), "bool", 0, (0, 0, 0, 0)), 1)
             return self.add(Ins("SUB", (pos, neg), "fix", 0, (0, 0)), 1)
+        if op in ("SIN", "COS") and self.nodes[nd.args[0]].op == "ATAN2":
+            # cos and sin of an atan2: the CORDIC's rotations applied to (1/K, 0) (fixed_ops.
+            # cordic_cos_sin), one call for both, no angle and no polynomial
+            y, x, ky, kx = self.atan2_operands(nd.args[0])
+            wr = 2.0**SIN_F + 64
+            cs = self.add(Ins("CSA", (y, x), "fix", SIN_F, (ky, kx), what="cos of atan2 (CORDIC)"), wr)
+            if op == "COS":
+                return cs
+            return self.add(Ins("SNA", (cs, y, x), "fix", SIN_F, (ky, kx), what="sin of atan2 (CORDIC)"), wr)
         if op in ("SIN", "COS"):
             a = self.ang_of(nd.args[0])
             return self.add(Ins(op, (a,), "fix", SIN_F, what=f"{op.lower()} (polynomial)"), 2.0**SIN_F + 64)

@@ -50,6 +50,8 @@ def _sin_coefficients() -> tuple[int, ...]:
 
 
 SIN_COEF = _sin_coefficients()
+# 1/K of the CORDIC's CORDIC_STEPS rotations in Q26: (1/K, 0) rotated by them has magnitude 1
+CORDIC_INV_GAIN = round(2**SIN_F / math.prod(math.sqrt(1 + 2.0 ** (-2 * i)) for i in range(CORDIC_STEPS)))
 
 # a program's value: int64 words (the numpy backend) or doubles holding integers (the SX backend)
 Word: TypeAlias = np.ndarray | ca.SX
@@ -179,6 +181,25 @@ def cordic_atan2(B: NumpyBackend, y: Word, x: Word) -> Word:
     return B.where(zero, B.const(0, z), B.wrap(z))
 
 
+def cordic_cos_sin(B: NumpyBackend, y: Word, x: Word) -> tuple[Word, Word]:
+    """(cos, sin) of atan2(y, x), Q26: the vectoring CORDIC of :func:`cordic_atan2`, its rotations
+    applied in reverse to (1/K, 0), so that it ends at the angle the CORDIC found (its error: the
+    atan2's, atan(2^-13) + 24 LSB / |v|, plus < 1e-6 of the shifts' floors), without the angle and
+    the polynomial sine of it. (1, 0) for a zero vector, as cos and sin of atan2's 0."""
+    x, y = B.shift(x, -2), B.shift(y, -2)
+    zero = B.logic("AND", B.cmp("EQ", x, B.const(0, x)), B.cmp("EQ", y, B.const(0, y)))
+    neg = B.cmp("LT", x, B.const(0, x))
+    x, y = B.where(neg, -x, x), B.where(neg, -y, y)
+    c = B.where(neg, B.const(-CORDIC_INV_GAIN, x), B.const(CORDIC_INV_GAIN, x))
+    s = B.const(0, x)
+    for i in range(CORDIC_STEPS):
+        d = B.cmp("LT", B.const(0, y), y)
+        xs, ys, cs, ss = B.shift(x, -i), B.shift(y, -i), B.shift(c, -i), B.shift(s, -i)
+        x, y = B.where(d, x + ys, x - ys), B.where(d, y - xs, y + xs)
+        c, s = B.where(d, c - ss, c + ss), B.where(d, s + cs, s - cs)
+    return B.where(zero, B.const(2**SIN_F, c), c), B.where(zero, B.const(0, s), s)
+
+
 def mulw(B: NumpyBackend, a: Word, b: Word, s: int) -> Word:
     """a b 2^-s (16 <= s <= 32) from four 32 x 32 -> 32-bit products of the words' 16-bit halves,
     each term floored on its own (within 3 LSB of the exact floor): what a Cortex-M0+ computes in
@@ -288,6 +309,9 @@ def run(prog: list[Ins], B: NumpyBackend, inputs: list[Word], params: list[int] 
             r = cordic_atan2(B, B.shift(a[0], m[0]), B.shift(a[1], m[1]))
         elif op == "TABLE":
             r = table_lerp(B, a[0], a[1:], m)
+        elif op in ("CSA", "SNA"):  # cos, sin of atan2(y, x): SNA's first operand is the CSA it shares
+            y, x = (a[0], a[1]) if op == "CSA" else (a[1], a[2])
+            r = cordic_cos_sin(B, B.shift(y, m[0]), B.shift(x, m[1]))[op == "SNA"]
         elif op == "SIN":
             r = sin_binary(B, a[0])
         elif op == "COS":

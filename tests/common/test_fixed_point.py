@@ -159,6 +159,14 @@ def test_integer_methods_within_their_stated_bounds():
     z = fixed_ops.cordic_atan2(B, y, x) * np.pi / 2**31
     err = np.abs(np.angle(np.exp(1j * (z - np.arctan2(y, x)))))
     assert np.all(err <= 1.23e-4 + 24 / r)  # the stated bound: atan(2^-13) + 24 LSB / |v|
+    # cos and sin of an atan2 from the CORDIC's own rotations: the atan2's bound, and within 1e-6 of
+    # cos and sin of the angle the CORDIC returns
+    c, sn = (v * 2.0**-fixed_ops.SIN_F for v in fixed_ops.cordic_cos_sin(B, y, x))
+    t = np.arctan2(y, x)
+    assert np.all(np.abs(c - np.cos(t)) <= 1.23e-4 + 24 / r) and np.all(
+        np.abs(sn - np.sin(t)) <= 1.23e-4 + 24 / r
+    )
+    assert np.abs(c - np.cos(z)).max() < 1e-6 and np.abs(sn - np.sin(z)).max() < 1e-6
     v = rng.integers(0, 2**32, size=20000)
     q = B.isqrt(v)
     assert np.all(q * q <= v) and np.all((q + 1) * (q + 1) > v)
