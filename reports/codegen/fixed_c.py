@@ -150,7 +150,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
         elif op == "DIV" and len(m) == 1 and wr[ins.args[0]] * 2.0 ** m[0] <= INT_MAX:  # within int32
             e = f"fx_div32({_sh(a[0], m[0], False)}, {a[1]})"
         elif op == "DIV" and len(m) > 1 and 0 <= m[0] < 31:
-            e = f"fx_divc({a[0]}, {m[0]}, {a[1]}, {lit(m[1])})"
+            e = f"fx_divc{m[0]}({a[0]}, {a[1]}, {lit(m[1])})"
         elif op == "DIV":
             n64 = _sh(a[0], m[0], True)
             e = f"fx_div({n64}, {a[1]})" if len(m) == 1 else f"fx_divc64({n64}, {a[1]}, {lit(m[1])})"

@@ -19,9 +19,10 @@ from sensorless.reports.codegen.fixed_angles import AngleLowering
 from sensorless.reports.codegen.fixed_format import _PI, COEF_BITS, Q15_FACTORS, RANGE_FLOOR, format_of, word
 from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, NUMPY, SIN_F, Ins, run
 from sensorless.reports.codegen.fixed_ranges import MARGIN
+from sensorless.reports.codegen.fixed_tables import TableLowering
 
 
-class Lowering(AngleLowering):
+class Lowering(AngleLowering, TableLowering):
     """Lowers the graph's nodes on demand (memoized), tracking each slot's format and worst case."""
 
     def __init__(
@@ -320,38 +321,10 @@ class Lowering(AngleLowering):
                 return self.const_slot(1.0, 0)
         return None
 
-    def table(self, n: int) -> int:
-        """A tabulated schedule's gain (fixed_ops.table_lerp; the C bisects): the values at the
-        breakpoints are parameter fields in one format that holds twice the largest; the breakpoints
-        literals in the schedule state's format; one Q15 reciprocal of each spacing."""
-        src, grid, gnodes, vals, ab = self.tables[n]
-        a = self.lin(src)
-        if self.prog[a].kind != "fix" or self.wr[a] >= INT_MAX:
-            raise ValueError(f"tabulated schedule: its state (node {src}) is not a bounded fixed-point word")
-        fa = self.fmt(a)[1]
-        top = max(abs(v) for v in vals)
-        fo = format_of(max(self.rng.get(n, 0.0), 2 * top, RANGE_FLOOR))
-        G = [word(g, "fix", fa) for g in grid]
-        if any(abs(g) > INT_MAX for g in G) or any(h < 2 for h in np.diff(G)):
-            raise ValueError(f"tabulated schedule: breakpoints {grid} do not fit Q{fa} two LSB apart")
-        R, S = [], []
-        for h in np.diff(G).tolist():
-            s = math.floor(math.log2(h))
-            if round(2.0 ** (15 + s) / h) >= 2**15:
-                s -= 1
-            R.append(round(2.0 ** (15 + s) / h))
-            S.append(s)
-        V = []
-        for g, v in zip(gnodes, vals, strict=True):
-            V.append(self.param_slot(("table", g), v, self.expr(g), fo, recipe=(g, 1.0, False)))
-            self.stored[g] = self.prog[V[-1]].imm[-1] * 2.0**-fo
-        wr = max(self.wr[v] for v in V) * (1 + 2.0**-12) + 2
-        imm = (int(ab), len(G), *G, *R, *S)
-        return self.add(Ins("TABLE", (a, *V), "fix", fo, imm, what="gain table (bisection)"), wr)
-
     def _lin(self, n: int) -> int:
-        if n in self.tables:
-            return self.table(n)
+        t = self.table(n) if n in self.tables else None
+        if t is not None:
+            return t
         nd = self.nodes[n]
         c = self.cval(n)
         if c is not None:
