@@ -14,7 +14,11 @@ the run's state before them but with its speed state(s) at their bound (the stat
 schedule reads, else the last bounded one in rad/s, and every field with the same bound; the sign of
 the run's speed) and its angle estimates 0.5 rad behind, so that the samples push the speed beyond
 its bound: what happens then is the family's step's choice (the flux observer clamps its PLL speed:
-docs/families/pmsm_flux_observer.md). Cycles are estimated per instruction from the cores'
+docs/families/pmsm_flux_observer.md). A "where" line under each M0+ row splits the accepted steps'
+cycles by function of the image (the step, each helper it calls, libgcc's routines; a helper the
+compiler inlined counts as the step). "PRESET+table" runs the preset with the 4-breakpoint gain table
+of tests/common/test_fixed_point.py (a tuned table's layout, `codegen --gains TABLE`). Cycles are
+estimated per instruction from the cores'
 published timings (Cortex-M0+ TRM / Cortex-M4 TRM, table "Instruction timings"): M0+ (single-cycle
 multiplier) 1 cycle, loads/stores 2, taken branches 2 (BL 3), PUSH/POP/LDM/STM 1 + N (POP with PC
 3 + N); M4F 1 cycle, loads/stores 2, taken branches 2 (BL 3; pipelining is ignored: an upper
@@ -148,8 +152,10 @@ def build(
     return elf
 
 
-def emulate(elf: Path, model: str) -> tuple[list[int], list[int]]:
-    """(instructions, estimated cycles) of each of the harness's steps."""
+def emulate(elf: Path, model: str, where: dict[str, int] | None = None) -> tuple[list[int], list[int]]:
+    """(instructions, estimated cycles) of each of the harness's steps; ``where`` (if given) gets the
+    cycles of the accepted path's steps per function of the image (the step, each helper it calls
+    without inlining, libgcc's routines), for the "where" line."""
     import unicorn
     from unicorn import arm_const as A
 
@@ -180,6 +186,15 @@ def emulate(elf: Path, model: str) -> tuple[list[int], list[int]]:
     if data:
         uc.mem_write(syms.get("__data_start__", RAM), data)  # .data is empty here (const tables in flash)
     begin, end = syms["mark_begin"], syms["mark_end"]
+    starts = sorted((a & ~1, n) for n, a in syms.items() if a < RAM)
+    owner: dict[int, str] = {}
+
+    def function_of(address: int) -> str:
+        if address not in owner:
+            k = max((j for j, (a, _) in enumerate(starts) if a <= address), default=0)
+            owner[address] = starts[k][1] if starts else "?"
+        return owner[address]
+
     count = {"on": False, "ins": 0, "cyc": 0, "prev": None, "i0": 0, "c0": 0}
     ins_steps: list[int] = []
     cyc_steps: list[int] = []
@@ -190,8 +205,12 @@ def emulate(elf: Path, model: str) -> tuple[list[int], list[int]]:
         if count["on"] and prev is not None:
             pa, ps, pins = prev
             taken = address != pa + ps
-            count["cyc"] += cyc(pins, taken)
+            c = cyc(pins, taken)
+            count["cyc"] += c
             count["ins"] += 1
+            if where is not None and len(cyc_steps) < N_CLEAN:
+                f = function_of(pa)
+                where[f] = where.get(f, 0) + c
         if address == begin:
             count["on"] = True
         elif address == end:
@@ -255,6 +274,31 @@ def speed_fields(obs: Any) -> list[int]:
     return [j for j in bounded if obs.state[j].bound == obs.state[k].bound]
 
 
+TABLE = {"speeds": [100.0, 1500.0, 3050.0, 3800.0], "observer_gain": [400.0, 600.0, 1000.0, 1500.0]}
+
+
+def table_gains(d: Any, fam: Any) -> Any:
+    """The flux family's 4-breakpoint gain table of tests/common/test_fixed_point.py (a tuned table's
+    layout: `codegen --gains TABLE`), for the "PRESET+table" rows."""
+    import json
+
+    from sensorless.design.gain_table import read_gain_table
+
+    doc = {
+        "format": "sensorless-gain-table/2",
+        "drive": {"name": d.name, "kind": d.kind, "sha256": d.digest},
+        "law": "schedule",
+        "gains": {**TABLE, "pll_bandwidth": 1000.0},
+        "envelope": {},
+        "points": [],
+        "summary": {},
+    }
+    with tempfile.TemporaryDirectory() as tmp:
+        f = Path(tmp) / "table.json"
+        f.write_text(json.dumps(doc))
+        return fam.gains(d, table=read_gain_table(f), table_file="table.json")
+
+
 def main(presets: list[str]) -> None:
     from sensorless.design.drive import load_drive
     from sensorless.design.registry import family_of
@@ -267,10 +311,11 @@ def main(presets: list[str]) -> None:
     )
     print("(instr/step: mean over the accepted samples; the other columns: estimated cycles per step)")
     for name in presets:
-        d = load_drive(name)
+        d = load_drive(name.removesuffix("+table"))
         fam = family_of(d)
-        setup = fam.runtime(d, fam.gains(d))
-        model = fixed_model(d, None, setup)
+        gains = table_gains(d, fam) if name.endswith("+table") else None
+        setup = fam.runtime(d, gains if gains is not None else fam.gains(d))
+        model = fixed_model(d, gains, setup)
         fx = model.program(setup)
         prov = Provenance(d.name, d.file, d.digest, "bench")
         P = d.name
@@ -319,7 +364,8 @@ def main(presets: list[str]) -> None:
                     cpu = ["-mcpu=cortex-m4", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"]
                 samples = f'#include "{P}.h"\nconst {P}_input bench_in[{N_STEPS}] = {{{rows}}};\n'
                 elf = build(work, P, files, samples, init, at_bound, cpu)
-                ins, cyc = emulate(elf, core)
+                where: dict[str, int] = {}
+                ins, cyc = emulate(elf, core, where if prec == "fixed" else None)
                 flash, frame = sizes(work, P, cpu)
                 label = core + ("+" if core == "M0" else "F")
                 per_path = ""
@@ -331,7 +377,14 @@ def main(presets: list[str]) -> None:
                     f"{ram_struct + frame:6d}",
                     flush=True,
                 )
+                if where:  # where the accepted steps' cycles go (a helper inlined counts as the step)
+                    top = sorted(where.items(), key=lambda kv: -kv[1])
+                    print(
+                        "    where (accepted, cycles/step): "
+                        + ", ".join(f"{f} {c / N_CLEAN:.0f}" for f, c in top if c / N_CLEAN >= 1),
+                        flush=True,
+                    )
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["outrunner270", "piippo2008", "deangelo2006"])
+    main(sys.argv[1:] or ["outrunner270", "outrunner270+table", "hubmotor48", "piippo2008", "deangelo2006"])

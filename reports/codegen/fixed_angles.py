@@ -100,21 +100,8 @@ class AngleLowering:
         elif self.half_arg(n) is not None:
             s = self.ang(self.half_arg(n))
         elif nd.op in ("ATAN2", "ASIN"):
-            if nd.op == "ASIN":  # asin v = atan2(v, sqrt(1 - v^2)), |v| <= 1 (the graph clamps it)
-                y, x = self.lin(nd.args[0]), self.asin_cos(nd.args[0])
-            else:
-                y, x = self.lin(nd.args[0]), self.lin(nd.args[1])
-            F = max(self.fmt(y)[1], self.fmt(x)[1])
-            while (
-                F > min(self.fmt(y)[1], self.fmt(x)[1])
-                and max(self.wr[y] * 2.0 ** (F - self.fmt(y)[1]), self.wr[x] * 2.0 ** (F - self.fmt(x)[1]))
-                > 2.0**31
-            ):
-                F -= 1  # the common format as fine as int32 holds both operands in
-            ky, kx = max(F - self.fmt(y)[1], -31), max(F - self.fmt(x)[1], -31)
+            y, x, ky, kx = self.atan2_operands(n)
             s = self.add(Ins("ATAN2", (y, x), "ang", 31, (ky, kx), what="atan2 (CORDIC)"), 2**31)
-            if self.wr[y] * 2.0**ky > 2.0**31 or self.wr[x] * 2.0**kx > 2.0**31:
-                raise ValueError("atan2 operands of different formats beyond int32")
         elif nd.op in ("SELECT", "IF_ELSE_ZERO") and self.fixed_val(nd.args[0]) is not None:
             on = self.fixed_val(nd.args[0]) != 0
             if on or nd.op == "SELECT":
@@ -132,6 +119,26 @@ class AngleLowering:
             s = self.ang_of(n)
         self.ang_c[n] = s
         return s
+
+    def atan2_operands(self, n: int) -> tuple[int, int, int, int]:
+        """(y, x, ky, kx) of node n = atan2(y, x) (or asin v = atan2(v, sqrt(1 - v^2)), |v| <= 1, the
+        graph clamps it): the operands' slots and their shifts to a common format."""
+        nd = self.nodes[n]
+        if nd.op == "ASIN":
+            y, x = self.lin(nd.args[0]), self.asin_cos(nd.args[0])
+        else:
+            y, x = self.lin(nd.args[0]), self.lin(nd.args[1])
+        F = max(self.fmt(y)[1], self.fmt(x)[1])
+        while (
+            F > min(self.fmt(y)[1], self.fmt(x)[1])
+            and max(self.wr[y] * 2.0 ** (F - self.fmt(y)[1]), self.wr[x] * 2.0 ** (F - self.fmt(x)[1]))
+            > 2.0**31
+        ):
+            F -= 1  # the common format as fine as int32 holds both operands in
+        ky, kx = max(F - self.fmt(y)[1], -31), max(F - self.fmt(x)[1], -31)
+        if self.wr[y] * 2.0**ky > 2.0**31 or self.wr[x] * 2.0**kx > 2.0**31:
+            raise ValueError("atan2 operands of different formats beyond int32")
+        return y, x, ky, kx
 
     def ang_of(self, n: int) -> int:
         """Node n (any real signal) as a binary angle, modulo 2 pi: sums stay sums of angles."""

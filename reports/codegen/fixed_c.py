@@ -5,7 +5,8 @@ slot is a ``const int32_t``; products and aligned sums that need it are computed
 saturation (``fx_sat``) only where the program says a worst case could overflow. Right shifts of
 negative values are arithmetic (gcc, clang and arm-none-eabi-gcc define it so); conversions of
 unsigned words to int32 are modulo 2^32 (the same compilers). The helpers (CORDIC atan2, polynomial
-sine, integer square root) are ``static`` functions of the generated file.
+sine, integer square root, ...: reports/codegen/fixed_helpers.py) are ``static`` functions of the
+generated file.
 """
 
 from __future__ import annotations
@@ -14,142 +15,20 @@ import json
 import re
 from typing import Any
 
-from sensorless.reports.codegen.fixed_ops import (
-    CORDIC_ANGLES,
-    INT_MAX,
-    NOMINAL_BITS,
-    SIN_COEF,
-    SIN_F,
-    Ins,
-)
+from sensorless.reports.codegen.fixed_helpers import lit, mulw
+from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, Ins
 from sensorless.reports.codegen.fixed_program import FixedStep
 
-HELPERS = """static int32_t fx_sat(int64_t v)
-{
-    return v > INT32_MAX ? INT32_MAX : (v < INT32_MIN ? INT32_MIN : (int32_t)v);
-}
 
-static int32_t fx_wrap(int64_t v) /* modulo 2^32: binary angles */
-{
-    return (int32_t)(uint32_t)(uint64_t)v;
-}
-
-static int32_t fx_isqrt(int64_t v) /* floor(sqrt(v)), v clamped to [0, 2^32 - 1] */
-{
-    uint32_t x = v < 0 ? 0u : (v > (int64_t)UINT32_MAX ? UINT32_MAX : (uint32_t)v);
-    uint32_t r = 0, b = 1ul << 30;
-    while (b > x) {
-        b >>= 2;
-    }
-    while (b != 0) {
-        if (x >= r + b) {
-            x -= r + b;
-            r = (r >> 1) + b;
-        } else {
-            r >>= 1;
-        }
-        b >>= 2;
-    }
-    return (int32_t)r;
-}
-
-static int32_t fx_div(int64_t n, int32_t d) /* floor(n / d), d > 0 */
-{
-    return (int32_t)(n >= 0 ? n / d : -((-n + d - 1) / d));
-}
-
-static const int32_t fx_atan_table[%(n_cordic)d] = {%(cordic)s};
-
-static FX_NOINLINE int32_t fx_atan2(int32_t y0, int32_t x0) /* binary angle; vectoring CORDIC */
-{
-    int32_t x = x0 >> 2, y = y0 >> 2;
-    uint32_t z = 0;
-    int i;
-    if (x == 0 && y == 0) {
-        return 0;
-    }
-    if (x < 0) {
-        x = -x;
-        y = -y;
-        z = 0x80000000ul;
-    }
-    for (i = 0; i < %(n_cordic)d; ++i) {
-        const int32_t xs = x >> i, ys = y >> i;
-        if (0 < y) {
-            x += ys;
-            y -= xs;
-            z += (uint32_t)fx_atan_table[i];
-        } else {
-            x -= ys;
-            y += xs;
-            z -= (uint32_t)fx_atan_table[i];
-        }
-    }
-    return (int32_t)z;
-}
-
-static int32_t fx_sin(int32_t a) /* sin of a binary angle, Q%(sin_f)d; 32-bit products only */
-{
-    int32_t t = a, x, x2, p;
-    if (t > 0x40000000l || t < -0x40000000l) { /* pi - t, or -pi - t: the same modulo 2^32 */
-        t = (int32_t)(0x80000000ul - (uint32_t)t);
-    }
-    x = t >> %(sin_shift)d;
-    x2 = %(x2)s;
-%(horner)s
-    return %(px)s;
-}
-"""
-
-
-def mulw(a: str, b: str, s: int) -> str:
-    """C of fixed_ops.mulw: a b 2^-s (16 <= s <= 32) from four 32-bit products of 16-bit halves."""
-    hh = f"(({a} >> 16) * ({b} >> 16))" + (f" * {1 << (32 - s)}" if s < 32 else "")
-    return (
-        f"({hh} + ((({a} >> 16) * ({b} & 0xFFFF)) >> {s - 16}) + ((({a} & 0xFFFF) * ({b} >> 16)) >> {s - 16})"
-        f" + (int32_t)(((uint32_t)({a} & 0xFFFF) * (uint32_t)({b} & 0xFFFF)) >> {s}))"
-    )
-
-
-def lit(v: int) -> str:
-    """An int32 literal (INT32_MIN spelled without overflow)."""
-    if v == -(2**31):
-        return "INT32_MIN"
-    return f"INT32_C({v})" if abs(v) > 32767 else str(v)
-
-
-def helpers(used: str) -> str:
-    """The helper functions that the step text ``used`` calls (an unused static function is a warning)."""
-    text = HELPERS % {
-        "n_cordic": len(CORDIC_ANGLES),
-        "x2": mulw("x", "x", SIN_F),
-        "px": mulw("p", "x", SIN_F),
-        "cordic": ", ".join(str(a) for a in CORDIC_ANGLES),
-        "sin_f": SIN_F,
-        "sin_shift": 30 - SIN_F,
-        "horner": "\n".join(
-            [f"    p = {lit(SIN_COEF[-1])};"]
-            + [f"    p = {mulw('p', 'x2', SIN_F)} + {lit(c)};" for c in reversed(SIN_COEF[:-1])]
-        ),
-    }
-    blocks = ["static " + b if k else b for k, b in enumerate(text.split("\n\nstatic "))]
-    keep = []
-    for b in blocks:
-        name = re.match(r"static (?:const )?(?:FX_NOINLINE )?int32_t (\w+)", b).group(1)
-        if name in used or (name == "fx_atan_table" and "fx_atan2" in used):
-            keep.append(b)
-    if "fx_atan2" in used:
-        # the CORDIC as a call, not inlined: inlined into the step (GCC at -Os), its loop's registers
-        # spilled the step's around it and cost outrunner270 ~60 cycles more than the call (M0+)
-        keep.insert(0, NOINLINE)
-    return "\n\n".join(keep).rstrip() + "\n"
-
-
-NOINLINE = """#if defined(__GNUC__)
-#define FX_NOINLINE __attribute__((noinline))
-#else
-#define FX_NOINLINE
-#endif"""
+def _clamp(v: str, lo: int, hi: int) -> str:
+    """v clamped to [lo, hi]; a symmetric range (the inputs' and products' clamps) by one unsigned
+    comparison: v + hi within [0, 2 hi] modulo 2^32 exactly when |v| <= hi (hi < 2^31)."""
+    if lo == -hi and 0 < hi < 2**31:
+        return (
+            f"((uint32_t)((uint32_t){v} + UINT32_C({hi})) <= UINT32_C({2 * hi}) ? {v} : "
+            f"({v} < 0 ? {lit(lo)} : {lit(hi)}))"
+        )
+    return f"({v} < {lit(lo)} ? {lit(lo)} : ({v} > {lit(hi)} ? {lit(hi)} : {v}))"
 
 
 def _sh(a: str, k: int, wide: bool) -> str:
@@ -192,6 +71,7 @@ def _wide(prog: list[Ins], wr: list[float], ins: Ins, ks: tuple[int, ...], args:
 def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = "obs->prm") -> list[str]:
     """The step's statements: slots s0.. from ``x``/``inp`` fields, then the state and outputs."""
     exprs: list[str] = []
+    tables: list[str] = []  # a gain table's breakpoints and spacings: const data of the step
     for k, ins in enumerate(fx.prog):
         a = [f"s{j}" for j in ins.args]
         m, op = ins.imm, ins.op
@@ -199,11 +79,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
         if op == "IN":
             d = fx.inputs[m[0]]
             src = f"{x}.{d['name']}" if d["vector"] == "x" else f"{inp}->{d['name']}"
-            e = (
-                src
-                if len(m) == 1
-                else f"({src} < {lit(m[1])} ? {lit(m[1])} : ({src} > {lit(m[2])} ? {lit(m[2])} : {src}))"
-            )
+            e = src if len(m) == 1 else _clamp(src, m[1], m[2])
         elif op == "CONST":
             e = lit(m[0])
         elif op == "PARAM":
@@ -218,7 +94,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
                     f"+ (uint32_t)((({v} & 0xFFFF) * {c}) >> {m[0]}))"
                 )
         elif op == "CLAMP":
-            e = f"({a[0]} < {lit(m[0])} ? {lit(m[0])} : ({a[0]} > {lit(m[1])} ? {lit(m[1])} : {a[0]}))"
+            e = _clamp(a[0], m[0], m[1])
         elif op == "MULW":
             e = mulw(a[0], a[1], m[0])
         elif op == "ALIGN":
@@ -243,7 +119,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
                 e = f"(((s{v} >> 16) * {c} * {1 << (16 - m[0])}) + {lo})"
         elif op == "MUL":
             small = wr[ins.args[0]] * wr[ins.args[1]] < INT_MAX and not ins.sat and m[0] < 31
-            prod = f"({a[0]} * {a[1]})" if small else f"((int64_t){a[0]} * {a[1]})"
+            prod = f"({a[0]} * {a[1]})" if small else f"fx_mul64({a[0]}, {a[1]})"
             e = f"({prod} >> {m[0]})" if m[0] >= 0 else f"({prod} * {1 << -m[0]})"
             e = e if small else f"{fin}{e}"
         elif op in ("NEG", "ABS"):
@@ -271,12 +147,32 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
             e = _sh(a[0], -m[0], False)
         elif op == "CEIL":
             e = f"(int32_t)(-({_sh('(-(int64_t)' + a[0] + ')', -m[0], False)}))"
+        elif op == "DIV" and len(m) == 1 and wr[ins.args[0]] * 2.0 ** m[0] <= INT_MAX:  # within int32
+            e = f"fx_div32({_sh(a[0], m[0], False)}, {a[1]})"
+        elif op == "DIV" and len(m) > 1 and 0 <= m[0] < 31:
+            e = f"fx_divc{m[0]}({a[0]}, {a[1]}, {lit(m[1])})"
         elif op == "DIV":
-            e = f"fx_div({_sh(a[0], m[0], True)}, {a[1]})"
+            n64 = _sh(a[0], m[0], True)
+            e = f"fx_div({n64}, {a[1]})" if len(m) == 1 else f"fx_divc64({n64}, {a[1]}, {lit(m[1])})"
         elif op == "SQRT":
             e = f"fx_isqrt({_sh(a[0], m[0], True)})"
         elif op == "ATAN2":
             e = f"fx_atan2({_sh(a[0], m[0], False)}, {_sh(a[1], m[1], False)})"
+        elif op == "TABLE":
+            n = m[1]
+            G, R, S = m[2 : 2 + n], m[2 + n : 1 + 2 * n], m[1 + 2 * n : 3 * n]
+            tables += [
+                f"static const int32_t fx_g{k}[{n}] = {{{', '.join(lit(g) for g in G)}}};",
+                f"static const uint16_t fx_r{k}[{n - 1}] = {{{', '.join(str(r) for r in R)}}};",
+                f"static const uint8_t fx_s{k}[{n - 1}] = {{{', '.join(str(v) for v in S)}}};",
+            ]
+            u = f"({a[0]} < 0 ? -{a[0]} : {a[0]})" if m[0] else a[0]
+            v = f"(const int32_t[{n}]){{{', '.join(a[1:])}}}"
+            e = f"fx_table({u}, {v}, fx_g{k}, fx_r{k}, fx_s{k}, {n})"
+        elif op == "CSA":  # one call writes cos and sin (fx_cs<k>), SNA reads the sine
+            e = f"(fx_cossin({_sh(a[0], m[0], False)}, {_sh(a[1], m[1], False)}, fx_cs{k}), fx_cs{k}[0])"
+        elif op == "SNA":
+            e = f"((void){a[0]}, fx_cs{ins.args[0]}[1])"
         elif op == "SIN":
             e = f"fx_sin({a[0]})"
         elif op == "COS":
@@ -303,7 +199,10 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
             raise NotImplementedError(f"fixed-point op {op} has no C spelling")
         exprs.append(e)
     need = guards(fx.prog, [*fx.state_out, *(o["slot"] for o in fx.outputs)])
-    lines: list[str] = []
+    lines: list[str] = list(tables)
+    lines += [
+        f"int32_t fx_cs{k}[2];" for k, ins in enumerate(fx.prog) if ins.op == "CSA" and need[k] is not None
+    ]
     k = 0
     while k < len(fx.prog):
         ins = fx.prog[k]
@@ -356,7 +255,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
 
 
 ALWAYS = "always"
-HEAVY = {"ATAN2", "SIN", "COS", "SQRT", "DIV"}
+HEAVY = {"ATAN2", "SIN", "COS", "SQRT", "DIV", "CSA", "SNA"}
 
 
 def guards(prog: list[Ins], roots: list[int]) -> list[Any]:

@@ -12,7 +12,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from sensorless.design.family import Drive, GainSet
-from sensorless.reports.codegen.fixed_c import body, format_text, formats_json, helpers, lit
+from sensorless.reports.codegen.fixed_c import body, format_text, formats_json
+from sensorless.reports.codegen.fixed_helpers import helpers, lit
 from sensorless.reports.codegen.fixed_model import FixedModel
 from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS
 from sensorless.reports.codegen.fixed_params import params_from_si
@@ -27,7 +28,9 @@ ERRORS = (
     f"atan2: vectoring CORDIC, {CORDIC_STEPS} steps, error <= atan(2^-13) + 24 LSB / |v| rad "
     "(|v| the raw magnitude; tests/common/test_fixed_point.py); "
     "sin/cos: odd polynomial of degree 7 on the angle folded "
-    "to [-pi/2, pi/2], error <= 1e-6; sqrt: integer square root of a 32-bit word (floor, 16 bits); "
+    "to [-pi/2, pi/2], error <= 1e-6; cos/sin of an atan2: the CORDIC's rotations applied to (1/K, 0), "
+    "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits); "
+    "a gain table: bisection, its fraction in Q15 within 2^-13; "
     "products of two signals: four 32-bit products of 16-bit halves, within 3 LSB"
 )
 

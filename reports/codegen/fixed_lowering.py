@@ -19,9 +19,10 @@ from sensorless.reports.codegen.fixed_angles import AngleLowering
 from sensorless.reports.codegen.fixed_format import _PI, COEF_BITS, Q15_FACTORS, RANGE_FLOOR, format_of, word
 from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, NUMPY, SIN_F, Ins, run
 from sensorless.reports.codegen.fixed_ranges import MARGIN
+from sensorless.reports.codegen.fixed_tables import TableLowering
 
 
-class Lowering(AngleLowering):
+class Lowering(AngleLowering, TableLowering):
     """Lowers the graph's nodes on demand (memoized), tracking each slot's format and worst case."""
 
     def __init__(
@@ -45,6 +46,9 @@ class Lowering(AngleLowering):
         self.param_c: dict[tuple, int] = {}
         self.sim_lo: dict[int, float] = {}  # smallest and largest simulated value of each node
         self.sim_hi: dict[int, float] = {}
+        # a tabulated schedule's output node -> (schedule state's node, grid, gain nodes, their
+        # values, over |value|)
+        self.tables: dict[int, tuple[int, tuple[float, ...], tuple[int, ...], tuple[float, ...], bool]] = {}
 
     # ----------------------------------------------------------------------------------- helpers
     def add(self, ins: Ins, wr: float, nom: float | None = None) -> int:
@@ -273,9 +277,15 @@ class Lowering(AngleLowering):
             Ins("MAX", (b, self.const_slot(floor_raw * 2.0**-fb, fb)), "fix", fb, (0, 0)), self.wr[b]
         )
         k = fo - fa + fb
-        while self.wr[a] * 2.0**k > 2.0**52 or self.wr[a] * 2.0**k / floor_raw > INT_MAX:
-            k, fo = k - 1, fo - 1  # the numerator within 53 bits, the quotient within int32
-        return self.add(Ins("DIV", (a, bc), "fix", fo, (k,), what="divisor clamped positive"), 2.0**26)
+        while self.wr[a] * 2.0**k > 2.0**52:
+            k, fo = k - 1, fo - 1  # the numerator within 53 bits
+        # the quotient in its range's format (a hostile sample near the divisor's floor saturates at
+        # twice the range, as a product's operand is clamped): a format that held the worst case
+        # instead left hubmotor48's inductance share (within 0..1) two bits, 0.35 deg off the double step
+        worst = self.wr[a] * 2.0**k / floor_raw
+        lim = min(INT_MAX, math.ceil(2 * 2.0**NOMINAL_BITS))
+        imm = (k, lim) if worst > lim else (k,)
+        return self.add(Ins("DIV", (a, bc), "fix", fo, imm, what="divisor clamped positive"), min(worst, lim))
 
     # ------------------------------------------------------------------------------- linear values
     def lin(self, n: int) -> int:
@@ -312,6 +322,9 @@ class Lowering(AngleLowering):
         return None
 
     def _lin(self, n: int) -> int:
+        t = self.table(n) if n in self.tables else None
+        if t is not None:
+            return t
         nd = self.nodes[n]
         c = self.cval(n)
         if c is not None:
@@ -364,6 +377,12 @@ class Lowering(AngleLowering):
             c, x = (a, b) if consts[0] else (b, a)
             if any(consts) and self.exact_q15(c, x, s, wr):
                 return self.add(Ins("MUL", (a, b), "fix", fo, (s,)), wr)
+            lim = min(self.wr[x], math.ceil(2 * self.nom[x]))
+            if any(consts) and not same and self.exact_q15(c, x, s, self.wr[c] * lim * 2.0**-s):
+                # the signal clamped at twice its range, as a product's operand below: the product by a
+                # Q15 constant is then two 32-bit products, not a 64-bit one and a saturation
+                x = self.clamped(x)
+                return self.add(Ins("MUL", (c, x), "fix", fo, (s,)), self.wr[c] * self.wr[x] * 2.0**-s)
             if 16 <= s <= 32 and not self.mulw_fits(a, b, s):
                 a, b = self.clamped(a), self.clamped(b)
                 b = a if same else b
@@ -400,6 +419,15 @@ class Lowering(AngleLowering):
             pos = self.add(Ins("LT", (zero, x), "bool", 0, (0, 0, 0, 0)), 1)  # 0 is 0 in any format
             neg = self.add(Ins("LT", (x, zero), "bool", 0, (0, 0, 0, 0)), 1)
             return self.add(Ins("SUB", (pos, neg), "fix", 0, (0, 0)), 1)
+        if op in ("SIN", "COS") and self.nodes[nd.args[0]].op == "ATAN2":
+            # cos and sin of an atan2: the CORDIC's rotations applied to (1/K, 0) (fixed_ops.
+            # cordic_cos_sin), one call for both, no angle and no polynomial
+            y, x, ky, kx = self.atan2_operands(nd.args[0])
+            wr = 2.0**SIN_F + 64
+            cs = self.add(Ins("CSA", (y, x), "fix", SIN_F, (ky, kx), what="cos of atan2 (CORDIC)"), wr)
+            if op == "COS":
+                return cs
+            return self.add(Ins("SNA", (cs, y, x), "fix", SIN_F, (ky, kx), what="sin of atan2 (CORDIC)"), wr)
         if op in ("SIN", "COS"):
             a = self.ang_of(nd.args[0])
             return self.add(Ins(op, (a,), "fix", SIN_F, what=f"{op.lower()} (polynomial)"), 2.0**SIN_F + 64)

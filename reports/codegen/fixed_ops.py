@@ -50,6 +50,8 @@ def _sin_coefficients() -> tuple[int, ...]:
 
 
 SIN_COEF = _sin_coefficients()
+# 1/K of the CORDIC's CORDIC_STEPS rotations in Q26: (1/K, 0) rotated by them has magnitude 1
+CORDIC_INV_GAIN = round(2**SIN_F / math.prod(math.sqrt(1 + 2.0 ** (-2 * i)) for i in range(CORDIC_STEPS)))
 
 # a program's value: int64 words (the numpy backend) or doubles holding integers (the SX backend)
 Word: TypeAlias = np.ndarray | ca.SX
@@ -179,6 +181,25 @@ def cordic_atan2(B: NumpyBackend, y: Word, x: Word) -> Word:
     return B.where(zero, B.const(0, z), B.wrap(z))
 
 
+def cordic_cos_sin(B: NumpyBackend, y: Word, x: Word) -> tuple[Word, Word]:
+    """(cos, sin) of atan2(y, x), Q26: the vectoring CORDIC of :func:`cordic_atan2`, its rotations
+    applied in reverse to (1/K, 0), so that it ends at the angle the CORDIC found (its error: the
+    atan2's, atan(2^-13) + 24 LSB / |v|, plus < 1e-6 of the shifts' floors), without the angle and
+    the polynomial sine of it. (1, 0) for a zero vector, as cos and sin of atan2's 0."""
+    x, y = B.shift(x, -2), B.shift(y, -2)
+    zero = B.logic("AND", B.cmp("EQ", x, B.const(0, x)), B.cmp("EQ", y, B.const(0, y)))
+    neg = B.cmp("LT", x, B.const(0, x))
+    x, y = B.where(neg, -x, x), B.where(neg, -y, y)
+    c = B.where(neg, B.const(-CORDIC_INV_GAIN, x), B.const(CORDIC_INV_GAIN, x))
+    s = B.const(0, x)
+    for i in range(CORDIC_STEPS):
+        d = B.cmp("LT", B.const(0, y), y)
+        xs, ys, cs, ss = B.shift(x, -i), B.shift(y, -i), B.shift(c, -i), B.shift(s, -i)
+        x, y = B.where(d, x + ys, x - ys), B.where(d, y - xs, y + xs)
+        c, s = B.where(d, c - ss, c + ss), B.where(d, s + cs, s - cs)
+    return B.where(zero, B.const(2**SIN_F, c), c), B.where(zero, B.const(0, s), s)
+
+
 def mulw(B: NumpyBackend, a: Word, b: Word, s: int) -> Word:
     """a b 2^-s (16 <= s <= 32) from four 32 x 32 -> 32-bit products of the words' 16-bit halves,
     each term floored on its own (within 3 LSB of the exact floor): what a Cortex-M0+ computes in
@@ -206,6 +227,25 @@ def sin_binary(B: NumpyBackend, a: Word) -> Word:
     for c in reversed(SIN_COEF[:-1]):
         p = mulw(B, p, x2, SIN_F) + c
     return mulw(B, p, x, SIN_F)
+
+
+def table_lerp(B: NumpyBackend, u: Word, vals: list[Word], imm: tuple[int, ...]) -> Word:
+    """A tabulated schedule (op TABLE): ``vals`` at the breakpoints G (raw words in u's format),
+    linear in between, held beyond the ends. ``imm`` = (abs, n, G_0..G_n-1, R_0..R_n-2, S_0..S_n-2):
+    u taken as |u| where ``abs``; on the segment G_k <= u < G_k+1, t = floor(d R_k 2^-S_k) with
+    d = u - G_k (R_k 2^-S_k ~ 2^15 / (G_k+1 - G_k), R_k in [2^14, 2^15): t a Q15 fraction, within
+    2^-13 of the exact one) and the value V_k + floor((V_k+1 - V_k) t 2^-15), 32-bit products only.
+    The C finds the segment by bisection; the model evaluates every segment and selects one."""
+    ab, n = imm[0], imm[1]
+    G, R, S = imm[2 : 2 + n], imm[2 + n : 1 + 2 * n], imm[1 + 2 * n : 3 * n]
+    u = B.absval(u) if ab else u
+    out = vals[0]
+    for k in range(n - 1):
+        inside = B.logic("AND", B.cmp("LE", B.const(G[k], u), u), B.cmp("LT", u, B.const(G[k + 1], u)))
+        d = B.clip(u - G[k], 0, G[k + 1] - G[k])
+        t = B.shift(B.mul(d, B.const(R[k], u)), -S[k])
+        out = B.where(inside, vals[k] + B.shift(B.mul(vals[k + 1] - vals[k], t), -15), out)
+    return B.where(B.cmp("LE", B.const(G[n - 1], u), u), vals[n - 1], out)
 
 
 def _rounded(B: NumpyBackend, a: Word, k: int, ceil: int) -> Word:
@@ -260,12 +300,18 @@ def run(prog: list[Ins], B: NumpyBackend, inputs: list[Word], params: list[int] 
             r = B.shift(a[0], -m[0])
         elif op == "CEIL":
             r = -B.shift(-a[0], -m[0])
-        elif op == "DIV":  # floor(a 2^k / b), b > 0
+        elif op == "DIV":  # floor(a 2^k / b), b > 0; clamped to +-m[1] where given
             r = B.div(B.shift(a[0], m[0]), a[1])
+            r = B.clip(r, -m[1], m[1]) if len(m) > 1 else r
         elif op == "SQRT":
             r = B.isqrt(B.clip(B.shift(a[0], m[0]), 0, 2**32 - 1))
         elif op == "ATAN2":
             r = cordic_atan2(B, B.shift(a[0], m[0]), B.shift(a[1], m[1]))
+        elif op == "TABLE":
+            r = table_lerp(B, a[0], a[1:], m)
+        elif op in ("CSA", "SNA"):  # cos, sin of atan2(y, x): SNA's first operand is the CSA it shares
+            y, x = (a[0], a[1]) if op == "CSA" else (a[1], a[2])
+            r = cordic_cos_sin(B, B.shift(y, m[0]), B.shift(x, m[1]))[op == "SNA"]
         elif op == "SIN":
             r = sin_binary(B, a[0])
         elif op == "COS":

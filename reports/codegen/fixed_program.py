@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
+import casadi as ca
 import numpy as np
 from sensorless.design.runtime import scheduled_step
 from sensorless.reports.codegen.c_emit import build_graph
@@ -41,15 +42,72 @@ from sensorless.reports.codegen.fixed_ranges import MARGIN, evaluate, interval
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.runtime import RuntimeSetup
 
-__all__ = ["FixedStep", "fixed_step", "format_of", "runtime_parameters", "step_graph"]
+__all__ = ["FixedStep", "fixed_step", "format_of", "runtime_parameters", "step_graph", "table_nodes"]
 
 
 def step_graph(setup: Any) -> tuple[list[Node], list[tuple[tuple[int, int], int]]]:
-    """The graph of ``setup``'s double step (its parameters and gains inputs 2 and 3)."""
+    """The graph of ``setup``'s double step (its parameters and gains inputs 2 and 3). With a
+    tabulated schedule, the schedule's gains are a third output (their nodes: what the lowering
+    replaces by a table lookup, :func:`table_nodes`)."""
     obs = setup.observer
-    # the double step itself (not a variant installed by design/runtime.step_variant: that may be us)
-    f = scheduled_step(obs, setup.discretization, setup.schedule.law if setup.schedule is not None else None)
-    return build_graph(f, {2, 3})
+    sch = setup.schedule
+    if sch is None or not sch.grid:
+        # the double step itself (not a variant installed by design/runtime.step_variant: that may be us)
+        return build_graph(
+            scheduled_step(obs, setup.discretization, sch.law if sch is not None else None), {2, 3}
+        )
+    # the same step as design/runtime.scheduled_step, the gains' node shared with the step's use of it
+    x, m = ca.SX.sym("x", len(obs.state)), ca.SX.sym("meas", len(obs.meas))
+    p, g = ca.SX.sym("p", len(obs.params)), ca.SX.sym("gain", sch.law.size1_in(1))
+    lam = sch.law(x[obs.index("state", obs.schedule_state)], g)
+    x_next, y = obs.core(setup.discretization)(x, m, p, lam)
+    return build_graph(ca.Function("step_table", [x, m, p, g], [x_next, y, lam]), {2, 3})
+
+
+def table_nodes(setup: Any, nodes: list[Node], outs: list[tuple[tuple[int, int], int]]) -> dict[int, Any]:
+    """{node of a scheduled gain: (schedule state's node, grid, gain value nodes, values, over |value|)}
+    where the schedule is tabulated and its law is, checked here numerically on both signs and
+    beyond the ends, the linear interpolation of its values over the state's value or its magnitude,
+    held beyond the ends (design/runtime.GainSchedule); else {} (the law's graph is lowered as is)."""
+    obs, sch = setup.observer, setup.schedule
+    if sch is None or not sch.grid:
+        return {}
+    grid = np.asarray(sch.grid, float)
+    n, n_lam = grid.size, len(obs.lam)
+    vals = np.asarray(setup.gain, float).reshape(n_lam, n)
+    mid = (grid[1:] + grid[:-1]) / 2
+    pts = np.r_[grid, mid, grid[0] / 2, grid[0] - 1.0, grid[-1] + 1.0, 2 * grid[-1], 0.0]
+    w = np.r_[pts, -pts]
+    got = np.asarray(sch.law.map(w.size)(w[None, :], setup.gain)).reshape(n_lam, w.size)
+    ab = None
+    for cand in (False, True):
+        want = np.stack([np.interp(np.abs(w) if cand else w, grid, v) for v in vals])
+        if np.allclose(got, want, rtol=1e-12, atol=1e-12 * max(1.0, float(np.abs(vals).max()))):
+            ab = cand
+            break
+    state = next(
+        (
+            i
+            for i, nd in enumerate(nodes)
+            if nd.op == "INPUT" and nd.source == (0, obs.index("state", obs.schedule_state))
+        ),
+        None,
+    )
+    inputs = {nd.source: i for i, nd in enumerate(nodes) if nd.op == "INPUT" and nd.source[0] == 3}
+    out = dict(outs)
+    if ab is None or state is None or any((3, k) not in inputs for k in range(n * n_lam)):
+        return {}
+    return {
+        out[(2, j)]: (
+            state,
+            tuple(grid.tolist()),
+            tuple(inputs[(3, j * n + k)] for k in range(n)),
+            tuple(vals[j].tolist()),
+            ab,
+        )
+        for j in range(n_lam)
+        if (2, j) in out
+    }
 
 
 def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedStep:
@@ -119,6 +177,7 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
         if not math.isfinite(rng[i]):
             raise ValueError(f"{obs.name}: no range for a signal (node {i}, {nodes[i].op})")
     low = Lowering(nodes, const, rng, angle_fields)
+    low.tables = table_nodes(setup, nodes, outs)
     low.rt, low.expr = runtime_parameters(nodes, obs, setup.schedule.fields if setup.schedule else ())
     for i, v in sim.items():
         if i in runtime:
