@@ -40,6 +40,9 @@ class GainSchedule:
     fields: tuple[Field, ...]
     grid: tuple[float, ...] = ()  # breakpoints of a tabulated schedule [unit of the state field]
     text: str = ""  # one line for headers: what the law is
+    # a tabulated schedule over the state field's magnitude (the same gains at +-value; the grid starts
+    # at zero or above), where ``law`` reads |value|: C must look the table up at |value| too
+    magnitude: bool = False
 
 
 @dataclass(frozen=True)

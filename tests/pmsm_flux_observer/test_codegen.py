@@ -104,3 +104,53 @@ def test_hostile_samples_keep_every_bound_and_the_observer_recovers(tmp_path, pr
         work=tmp_path,
     )
     assert r["held_segments"] == 0
+
+
+def test_a_gain_table_is_looked_up_at_the_pll_speeds_magnitude_in_c(tmp_path):
+    """The `schedule` law's table is over |w_pll| (design/pmsm_flux_observer/gains.py): the double C of
+    a 4-breakpoint table replays the Python step on a run that turns both ways and crosses the
+    breakpoints. Before the C took |w_pll|, it held the first breakpoint's gain at every negative
+    speed (the k_obs output differed by the table's whole span there)."""
+    import json
+
+    from sensorless.design.gain_table import read_gain_table
+
+    path = drive_file(tmp_path, "outrunner270")
+    drive = load_drive(str(path))
+    grid = [f * drive.w_base for f in (0.1, 0.45, 0.7, 1.0)]
+    doc = {
+        "format": "sensorless-gain-table/2",
+        "drive": {"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
+        "law": "schedule",
+        "gains": {"speeds": grid, "observer_gain": [400.0, 700.0, 1100.0, 1500.0], "pll_bandwidth": 1000.0},
+        "envelope": {},
+        "points": [],
+        "summary": {},
+    }
+    table = tmp_path / "table.json"
+    table.write_text(json.dumps(doc))
+    out = tmp_path / "c"
+    assert main(["codegen", str(path), "--gains", str(table), "--out", str(out), "--precision", "double"]) == 0
+    exe = tmp_path / "replay"
+    cmd = [CC, *STRICT, "-o", str(exe), str(out / "main.c"), str(out / f"{drive.name}.c"), "-lm"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    meas = steady(drive, n=1500, seed=4)[:, :4]
+    f = tmp_path / "samples.bin"
+    np.ascontiguousarray(meas, dtype="<f8").tofile(f)
+    r = subprocess.run([str(exe), str(f)], capture_output=True)
+    assert r.returncode == 0 and r.stderr == b"", r.stderr.decode()
+    fam = family_of(drive)
+    setup = fam.runtime(drive, fam.gains(drive, table=read_gain_table(table), table_file=str(table)))
+    xs, ys = run_trajectory(setup, meas)
+    c = np.frombuffer(r.stdout, "<f8").reshape(len(meas), -1)
+    w = xs[:, setup.observer.index("state", "w_pll")]
+    assert (w < -grid[1]).any() and (w > grid[1]).any()  # both ways, past a breakpoint
+    names = [o.name for o in setup.observer.outputs]
+    k = names.index("k_obs")
+    assert np.allclose(c[:, k], ys[:, k], rtol=1e-9), np.abs(c[:, k] - ys[:, k]).max()
+    ref = np.hstack([ys, xs])
+    d = np.abs(c - ref)
+    for j in (1, 2, ys.shape[1] + 5):  # angles modulo 2 pi
+        d[:, j] = np.abs(np.angle(np.exp(1j * (c[:, j] - ref[:, j]))))
+    assert (d.max(axis=0) / np.maximum(np.abs(ref).max(axis=0), 1e-9)).max() < 1e-9
