@@ -130,7 +130,9 @@ def test_a_gain_table_is_looked_up_at_the_pll_speeds_magnitude_in_c(tmp_path):
     table = tmp_path / "table.json"
     table.write_text(json.dumps(doc))
     out = tmp_path / "c"
-    assert main(["codegen", str(path), "--gains", str(table), "--out", str(out), "--precision", "double"]) == 0
+    assert (
+        main(["codegen", str(path), "--gains", str(table), "--out", str(out), "--precision", "double"]) == 0
+    )
     exe = tmp_path / "replay"
     cmd = [CC, *STRICT, "-o", str(exe), str(out / "main.c"), str(out / f"{drive.name}.c"), "-lm"]
     r = subprocess.run(cmd, capture_output=True, text=True)
