@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar, run
 
 if TYPE_CHECKING:  # the result types below import this module: typed by name only where no cycle
     from numpy.typing import ArrayLike
+    from sensorless.design.envelope import Envelope
     from sensorless.design.linearization import Linearization
 
 
@@ -88,17 +89,29 @@ class Drive(Protocol):
         """Sampling period of the runtime observer [s]."""
         ...
 
+    @property
+    def envelope(self) -> Envelope:
+        """The operating envelope analyze, tune, report and Monte-Carlo read (design/envelope.py)."""
+        ...
+
 
 class GainTableData(Protocol):
     """What a family reads of a gain table (design/gain_table.GainTable, which imports the registry)."""
 
-    law: str
-    drive: dict[str, str]
-    gains: dict[str, Any]
-    envelope: dict[str, Any]
-    points: list[dict[str, Any]]
-    summary: dict[str, Any]
-    file: str
+    @property
+    def law(self) -> str: ...
+    @property
+    def drive(self) -> dict[str, str]: ...
+    @property
+    def gains(self) -> dict[str, Any]: ...
+    @property
+    def envelope(self) -> dict[str, Any]: ...
+    @property
+    def points(self) -> list[dict[str, Any]]: ...
+    @property
+    def summary(self) -> dict[str, Any]: ...
+    @property
+    def file(self) -> str: ...
 
     def where(self, table_file: str = "") -> str:
         """How messages name the table."""

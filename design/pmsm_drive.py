@@ -44,7 +44,7 @@ from sensorless.symbolic.startup import W_CMD
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.family import GainSet
-    from sensorless.design.low_speed import LowSpeed
+    from sensorless.design.low_speed import LowSpeed, SpeedOptions
     from sensorless.symbolic.runtime import RuntimeObserver
 
 # the parameter-error factors of a scenario's [estimate_scale] that the loop applies to the
@@ -206,7 +206,8 @@ def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, flo
             # the analysis behind the start's values is the design's (double) step, whatever step the
             # run itself is given (design/runtime.py step_variant: e.g. the fixed-point step)
             with step_variant(None):
-                ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, acceleration=True, **QUICK)  # type: ignore[arg-type]
+                opts: SpeedOptions = {**QUICK, "acceleration": True}
+                ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **opts)
         except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
             if startup is None or startup.needs_w_min:
                 raise

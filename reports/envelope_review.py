@@ -29,11 +29,11 @@ import argparse
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 import numpy as np
 from sensorless.design.envelope import Envelope
-from sensorless.design.family import Drive, DriveT, GainSet
+from sensorless.design.family import Drive, DriveT, GainSet, Linearizable, require
 from sensorless.design.gain_table import GainTable, read_gain_table
 from sensorless.design.linearization import Linearization
 from sensorless.design.poles import MIN_DAMPING
@@ -55,6 +55,9 @@ from sensorless.reports.document import (
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
 from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure as MplFigure
 
 J = TypeVar("J", bound=Drive, contravariant=True)  # the drive a judge takes: its family's
 ANALYZE_REFINE = 4  # analyze and the normal report refine the envelope's speeds this many times
@@ -162,7 +165,7 @@ def figures(lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
     return lin.worst_damping, lin.decay_rate
 
 
-def poles_figure(lin: Linearization, w_base: float, title: str) -> Any:
+def poles_figure(lin: Linearization, w_base: float, title: str) -> MplFigure:
     """Real parts of the poles (continuous o, sampled x) and the worst damping over speed, per torque;
     below, the steady angle error where the linearization gives it (``angle_bias``)."""
     import matplotlib
@@ -219,7 +222,7 @@ def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, Outp
             fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
         )
         W, T = judge.points(drive, ANALYZE_REFINE)
-        lin = fam.linearize(drive, gains, W, T)
+        lin = require(fam, Linearizable).linearize(drive, gains, W, T)
         sampled = lin.poles_discrete is not None
         print(f"{drive.name}: {drive.source}")
         print(f"{fam.title} ({fam.citation}); gains: {gains.source}")
@@ -240,7 +243,7 @@ def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, Outp
         print(f"worst over {lin.w.size} points: {worst} ({kind})")
         out.add_text("poles.csv", pole_csv(lin, drive.w_base))
         lost = ~np.isfinite(lin.poles).all(axis=1)
-        if sampled:
+        if lin.poles_discrete is not None:
             lost |= ~np.isfinite(lin.poles_discrete).all(axis=1)
         if lost.any():  # not a result: every written number finite or said (exit status 3)
             out.warnings.append(
@@ -248,7 +251,7 @@ def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, Outp
                 "their rows): no equilibrium found there, or the linearized observer overflows; check the "
                 "drive's units and the gains"
             )
-        if sampled:
+        if lin.poles_discrete is not None:
             out.add_text(
                 "poles_discrete.csv",
                 pole_csv(dataclasses.replace(lin, poles=lin.poles_discrete), drive.w_base),
@@ -316,7 +319,9 @@ class PolesJudge(Judging[Drive]):
         fam = family_of(drive)
         W, T = self.points(drive, 1 if resolution == "quick" else ANALYZE_REFINE)
         progress(f"[1/3] poles over the envelope ({W.size} points)")
-        lins = {label: fam.linearize(drive, g, W, T) for label, g in rev.choices.items()}
+        lins = {
+            label: require(fam, Linearizable).linearize(drive, g, W, T) for label, g in rev.choices.items()
+        }
         analysis = {label: summary(lin, rev.choices[label], drive.w_base) for label, lin in lins.items()}
         torque_key = f"{lins[rev.label].torque_name}_Nm"
         rows = tuple(

@@ -31,7 +31,7 @@ class Review:
     choices: dict[str, GainSet]
     label: str
     tuned: bool  # the gains under review are a gain table's
-    table: Any = None  # that gain table (design/gain_table.py GainTable), None without
+    table: GainTable | None = None  # that gain table, None without
 
     @property
     def gains(self) -> GainSet:

@@ -37,8 +37,8 @@ from sensorless.design.scenario import Scenario, builtin_names
 from sensorless.design.simulate import simulate
 from sensorless.reports import time_domain
 
-# (drive, gains, w [rad/s electrical], torque [N m]) -> a Linearization (design/linearization.py)
-Analysis = Callable[[Drive, GainSet, np.ndarray, np.ndarray], Any]
+# (drive, gains, w [rad/s electrical], torque [N m]) -> the figures (a Linearization, design/linearization.py)
+Analysis = Callable[[Drive, GainSet, np.ndarray, np.ndarray], "Linearization | Combined"]
 ANALYSIS: Analysis  # the analysis ``sensorless tune`` proves with (set below: drive_analysis)
 SPEEDS = 20  # per direction, from SPEED_MIN to 1 p.u.
 SPEED_MIN = 0.05  # p.u.

@@ -41,6 +41,21 @@ CHECKED = [
     "sensorless.design.poles",
     "sensorless.design.discrete",
     "sensorless.design.runtime",
+    "sensorless.reports.cli.analyze",
+    "sensorless.reports.cli.export",
+    "sensorless.reports.cli.montecarlo",
+    "sensorless.reports.cli.tune",
+    "sensorless.reports.cli.common",
+    "sensorless.reports.options",
+    "sensorless.reports.review",
+    "sensorless.reports.gain_csv",
+    "sensorless.reports.traces",
+    "sensorless.reports.csv_cells",
+    "sensorless.reports.interrupts",
+    "sensorless.reports.sim_figure",
+    "sensorless.reports.low_speed",
+    "sensorless.reports.drive_analysis",
+    "sensorless.reports.envelope_review",
 ]
 TYPED = ("pmsm_flux_observer",)  # the families all of whose modules are checked (the others: their records)
 OFFENCE = """
