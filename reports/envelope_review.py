@@ -38,7 +38,7 @@ from sensorless.design.gain_table import GainTable, read_gain_table
 from sensorless.design.linearization import Linearization
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.design.registry import family_of
-from sensorless.design.scenario import builtin_names
+from sensorless.design.scenario import Scenario, builtin_names
 from sensorless.reports import time_domain
 from sensorless.reports.document import (
     Figure,
@@ -55,6 +55,7 @@ from sensorless.reports.document import (
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
 from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
+from sensorless.reports.time_domain import Check, Finding
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
@@ -91,8 +92,8 @@ class Checks:
     """The time-domain checks a verdict reads: the scenarios run and each one's judged result
     (reports/time_domain.py ``checks``)."""
 
-    runs: Sequence[Any]  # the scenarios (built-in names or the user's files)
-    td: Sequence[dict[str, Any]]  # report.json "time_domain": one entry per scenario
+    runs: Sequence[Scenario | str]  # the scenarios (built-in names or the user's files)
+    td: Sequence[Check]  # report.json "time_domain": one entry per scenario
 
 
 @dataclass(frozen=True)
@@ -140,7 +141,7 @@ class Judge(Protocol[J]):
         ...
 
     def conclude(
-        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         """report.json "verdict" and the verdict box of the judgement ``v`` settled with the time-domain
         checks (``status``, their findings ``td_findings``) and what the checks leave out (``limits``)."""
@@ -148,7 +149,7 @@ class Judge(Protocol[J]):
 
 
 def conclude(
-    v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+    v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
 ) -> tuple[dict[str, Any], Verdict]:
     """The shared form of a verdict: its findings as text (the judgement's, the time-domain checks', the
     judgement's after them), its paragraph, the limitations as notes."""
@@ -304,7 +305,7 @@ class Judging(Generic[DriveT]):
         return builtin_names(drive.kind) if self.time_domain is None else self.time_domain
 
     def conclude(
-        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         return conclude(v, status, td_findings, limits)
 

@@ -39,6 +39,7 @@ from sensorless.reports.ipmsm_adaptive.discrete import report_section as discret
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
 from sensorless.reports.review import Review, settle, verdict_box
 from sensorless.reports.svg_render import svg_later
+from sensorless.reports.time_domain import Finding
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
@@ -239,7 +240,7 @@ class AdaptiveJudge(Judging["IpmsmDrive"]):
         return judgement({**found.data, "time_domain": checks.td}, rev.label, min_damping, found.context)
 
     def conclude(
-        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         data = {**verdict_data(v, status, td_findings), "limitations": limits}
         return data, verdict_block(data)
@@ -396,7 +397,7 @@ def judgement(
     return Judgement(status, findings, "", data=more)
 
 
-def verdict_data(v: Judgement, status: str, td_findings: list[dict[str, Any]]) -> dict[str, Any]:
+def verdict_data(v: Judgement, status: str, td_findings: list[Finding]) -> dict[str, Any]:
     """report.json "verdict" (without its limitations) of the judgement ``v`` settled with the
     time-domain checks: the findings as records, the analysis's first."""
     return {"status": status, **v.data, "findings": [*v.findings, *td_findings]}

@@ -41,6 +41,8 @@ CHECKED = [
     "sensorless.design.poles",
     "sensorless.design.discrete",
     "sensorless.design.runtime",
+    "sensorless.reports.time_domain",
+    "sensorless.reports.document",
     "sensorless.reports.cli.analyze",
     "sensorless.reports.cli.export",
     "sensorless.reports.cli.montecarlo",
