@@ -27,6 +27,7 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -40,11 +41,12 @@ from sensorless.reports.codegen.fixed_ranges import MARGIN, evaluate, interval
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.runtime import RuntimeSetup
+    from sensorless.symbolic.runtime import RuntimeObserver
 
 __all__ = ["FixedStep", "fixed_step", "format_of", "runtime_parameters", "step_graph"]
 
 
-def step_graph(setup: Any) -> tuple[list[Node], list[tuple[tuple[int, int], int]]]:
+def step_graph(setup: RuntimeSetup) -> tuple[list[Node], list[tuple[tuple[int, int], int]]]:
     """The graph of ``setup``'s double step (its parameters and gains inputs 2 and 3)."""
     obs = setup.observer
     # the double step itself (not a variant installed by design/runtime.step_variant: that may be us)
@@ -171,7 +173,9 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
 _INFIX = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/"}
 
 
-def runtime_parameters(nodes: list[Node], obs: Any, gain_fields: tuple = ()) -> tuple[set[int], Any]:
+def runtime_parameters(
+    nodes: list[Node], obs: RuntimeObserver, gain_fields: tuple = ()
+) -> tuple[set[int], Callable[[int], str]]:
     """(the parameter-derived nodes that depend on a parameter or gain other than the variant's flags:
     the step reads them from the parameter struct at run time; a function giving a node's expression
     in the parameters' names, the gain vector's by ``gain_fields``: the schedule's, a tabulated
