@@ -119,7 +119,7 @@ class TuningHooks(Generic[DriveT]):
         )
 
 
-def hooks(family: ObserverFamily) -> TuningHooks[Any]:
+def hooks(family: ObserverFamily[DriveT]) -> TuningHooks[DriveT]:
     """The tuning hooks of ``family``; CapabilityError if it has none."""
     if family.tuning is None:
         raise CapabilityError(f"observer family {family.name!r} has nothing to tune")

@@ -41,6 +41,7 @@ CHECKED = [
     "sensorless.design.poles",
     "sensorless.design.discrete",
     "sensorless.design.runtime",
+    "sensorless.reports.fixed_review",
     "sensorless.reports.time_domain",
     "sensorless.reports.document",
     "sensorless.reports.cli.analyze",
