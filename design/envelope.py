@@ -27,11 +27,14 @@ import functools
 import itertools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from sensorless.design.family import EstimateErrors
 from sensorless.design.units import DriveFileError, check_magnitude, parse_number, parse_quantity
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 ESTIMATE_KEYS = ("R_s", "L_d", "L_q", "psi_pm")  # order of the estimate vector
 # noise outputs of the PMSM observers: the position estimate [rad, electrical] and the speed estimate
@@ -118,7 +121,7 @@ class Envelope:
     torque_unit: float = 1.0  # N m per unit of ``torque_values`` (T_N for torques given in T_N)
     dense_factor: int = 4  # the re-verification grid is this many times denser (>= 4)
     # the section's keys as the file gives them (a dataclass; the drive-data table shows it), or None
-    given: Any = field(default=None, compare=False, repr=False)
+    given: DataclassInstance | None = field(default=None, compare=False, repr=False)
 
     @functools.cached_property
     def speeds(self) -> tuple[float, ...]:

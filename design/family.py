@@ -37,6 +37,7 @@ if TYPE_CHECKING:  # the result types below import this module: typed by name on
     from numpy.typing import ArrayLike
     from sensorless.design.envelope import Envelope
     from sensorless.design.linearization import Linearization
+    from sensorless.design.runtime import RuntimeSetup
 
 
 class CapabilityError(ValueError):
@@ -277,7 +278,7 @@ class ObserverFamily(Generic[DriveT]):
         raise CapabilityError(f"observer family {self.name!r} has no gains to choose")
 
     # ------------------------------------------------------------------------------------- runtime
-    def runtime(self, drive: DriveT, gains: GainSet, *, discretization: str | None = None) -> Any:
+    def runtime(self, drive: DriveT, gains: GainSet, *, discretization: str | None = None) -> RuntimeSetup:
         """The runtime set-up (design/runtime.RuntimeSetup, which imports this module: each family's
         override states it): observer step, parameters, schedule."""
         raise CapabilityError(f"observer family {self.name!r} has no runtime observer")

@@ -41,6 +41,8 @@ CHECKED = [
     "sensorless.design.poles",
     "sensorless.design.discrete",
     "sensorless.design.runtime",
+    "sensorless.tuning.conditions",
+    "sensorless.design.envelope",
     "sensorless.reports.fixed_review",
     "sensorless.reports.time_domain",
     "sensorless.reports.document",
