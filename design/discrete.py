@@ -290,7 +290,7 @@ def sensitivities(
     w: np.ndarray,
     plant: np.ndarray,
     p: np.ndarray,
-    gain: Sequence[float] = (),
+    gain: ArrayLike = (),
     theta: float | np.ndarray = 0.0,
 ) -> dict[str, np.ndarray]:
     """:func:`sensitivity_function` at the points y (N, n_y) (NaN rows stay NaN): out (N, n_out),

@@ -270,6 +270,13 @@ class TuningSettings:
     bound: bool = True  # compute the pointwise bound (the certificate) on the dense grid
     law: LawSettings = NoLawSettings()  # what the family's gain laws add (LawKeys)
 
+    @property
+    def resolved(self) -> Envelope:
+        """``envelope``, resolved (a loaded drive's settings have it; ValueError where not yet)."""
+        if self.envelope is None:
+            raise ValueError("tuning settings without their envelope (not resolved yet: tuning_envelope)")
+        return self.envelope
+
     def estimate_errors(self, source: str = "the drive file's [tuning] errors") -> EstimateErrors:
         """``errors`` as the box the design is tuned and reviewed for (design/family.py)."""
         return EstimateErrors(dict(zip(ESTIMATE_KEYS, self.errors, strict=True)), source=source)

@@ -220,7 +220,7 @@ class AdaptiveJudge(Judging["IpmsmDrive"]):
         )
 
         # 6. and 7., after the time-domain checks (section 5)
-        progress(f"[5/{steps}] the discrete-time observer that runs ({drive.runtime.discretization})")
+        progress(f"[5/{steps}] the discrete-time observer that runs ({drive.run.discretization})")
         data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
         progress(f"[6/{steps}] tuning: the pointwise bound and noise over the envelope")
         tuning_data, tuning_section = tuning.compute(drive, rev.table, choices, review, progress, default)
