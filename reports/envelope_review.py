@@ -212,10 +212,10 @@ CAPTION = (
 )
 
 
-def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, OutputSet], None]:
+def analyze_with(judge: Judge[DriveT]) -> Callable[[DriveT, argparse.Namespace, OutputSet], None]:
     """The ``analyze`` hook of a family judged by ``judge`` (its envelope's points)."""
 
-    def analyze(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
+    def analyze(drive: DriveT, args: argparse.Namespace, out: OutputSet) -> None:
         """Poles over the envelope (speeds refined ANALYZE_REFINE times): terminal summary, CSV, figure."""
         fam = family_of(drive)
         table = read_gain_table(args.gains) if args.gains else None
@@ -360,11 +360,11 @@ class PolesJudge(Judging[Drive]):
 POLES = PolesJudge()
 
 
-def report_with(judge: Judge[Any]) -> Callable[..., Report]:
+def report_with(judge: Judge[DriveT]) -> Callable[..., Report]:
     """The ``report`` hook of a family judged by ``judge``: the stability report on the shared frame."""
 
     def report(
-        drive: Drive,
+        drive: DriveT,
         table: GainTable | None = None,
         table_file: str = "",
         min_damping: float = MIN_DAMPING,
