@@ -27,10 +27,10 @@ import functools
 import itertools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
-from sensorless.design.family import EstimateErrors
+from sensorless.design.family import Drive, EstimateErrors
 from sensorless.design.units import DriveFileError, check_magnitude, parse_number, parse_quantity
 
 if TYPE_CHECKING:
@@ -253,6 +253,17 @@ class LawKeys:
     keys: tuple[str, ...]
     # (the [tuning] table, file, relative units as in load_tuning) -> the law's settings; reads only ``keys``
     load: Callable[[Mapping[str, Any], str, Mapping[str, float]], LawSettings]
+
+
+class Enveloped(Drive, Protocol):
+    """A drive with its operating envelope (every family's: the one analyze, tune, report and
+    Monte-Carlo read)."""
+
+    @property
+    def envelope(self) -> Envelope: ...
+
+
+EnvelopedT = TypeVar("EnvelopedT", bound=Enveloped)  # a family's drive, with its envelope
 
 
 @dataclass(frozen=True)

@@ -35,9 +35,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar, run
 
 if TYPE_CHECKING:  # the result types below import this module: typed by name only where no cycle
     from numpy.typing import ArrayLike
-    from sensorless.design.envelope import Envelope
     from sensorless.design.linearization import Linearization
-    from sensorless.design.runtime import RuntimeSetup
 
 
 class CapabilityError(ValueError):
@@ -88,11 +86,6 @@ class Drive(Protocol):
     @property
     def T_s(self) -> float:
         """Sampling period of the runtime observer [s]."""
-        ...
-
-    @property
-    def envelope(self) -> Envelope:
-        """The operating envelope analyze, tune, report and Monte-Carlo read (design/envelope.py)."""
         ...
 
 
@@ -278,7 +271,7 @@ class ObserverFamily(Generic[DriveT]):
         raise CapabilityError(f"observer family {self.name!r} has no gains to choose")
 
     # ------------------------------------------------------------------------------------- runtime
-    def runtime(self, drive: DriveT, gains: GainSet, *, discretization: str | None = None) -> RuntimeSetup:
+    def runtime(self, drive: DriveT, gains: GainSet, *, discretization: str | None = None) -> Any:
         """The runtime set-up (design/runtime.RuntimeSetup, which imports this module: each family's
         override states it): observer step, parameters, schedule."""
         raise CapabilityError(f"observer family {self.name!r} has no runtime observer")

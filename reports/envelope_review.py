@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 import numpy as np
-from sensorless.design.envelope import Envelope
+from sensorless.design.envelope import Envelope, Enveloped, EnvelopedT
 from sensorless.design.family import Drive, DriveT, GainSet, Linearizable, require
 from sensorless.design.gain_table import GainTable, read_gain_table
 from sensorless.design.linearization import Linearization
@@ -64,13 +64,13 @@ J = TypeVar("J", bound=Drive, contravariant=True)  # the drive a judge takes: it
 ANALYZE_REFINE = 4  # analyze and the normal report refine the envelope's speeds this many times
 
 
-def envelope(drive: Drive) -> Envelope:
+def envelope(drive: Enveloped) -> Envelope:
     """The envelope of the drive (design/envelope.py: the one analyze, tune, report and Monte-Carlo
     read)."""
     return drive.envelope
 
 
-def points(drive: Drive, refine: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def points(drive: Enveloped, refine: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Flat (speed [rad/s], torque [N m]) of the envelope's speeds (refined) x its torques."""
     return envelope(drive).grid(refine)
 
@@ -285,23 +285,23 @@ def poles_section_figure(drive: Drive, lin: Linearization, label: str) -> Figure
     return Figure(svg_uri(poles_figure(lin, drive.w_base, f"{drive.name}: poles, gains {label}")), CAPTION)
 
 
-class Judging(Generic[DriveT]):
+class Judging(Generic[EnvelopedT]):
     """What most judges share, to subclass: the envelope's points, the drive file's gains under review
     (or a table's), no notes, the family's built-in scenarios, the shared form of the verdict. Generic
     in the drive type: ``class MyJudge(Judging[MyDrive])``."""
 
-    def points(self, drive: DriveT, refine: int) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, drive: EnvelopedT, refine: int) -> tuple[np.ndarray, np.ndarray]:
         return points(drive, refine)
 
-    def review(self, drive: DriveT, table: GainTable | None, table_file: str) -> Review:
+    def review(self, drive: EnvelopedT, table: GainTable | None, table_file: str) -> Review:
         return gains_under_review(family_of(drive), drive, table, table_file)
 
-    def notes(self, drive: DriveT) -> tuple[str, ...]:
+    def notes(self, drive: EnvelopedT) -> tuple[str, ...]:
         return ()
 
     time_domain: tuple[str, ...] | None = None  # the built-in scenarios checked; None: all the family's
 
-    def scenarios(self, drive: DriveT) -> Sequence[str]:
+    def scenarios(self, drive: EnvelopedT) -> Sequence[str]:
         return builtin_names(drive.kind) if self.time_domain is None else self.time_domain
 
     def conclude(
@@ -310,12 +310,17 @@ class Judging(Generic[DriveT]):
         return conclude(v, status, td_findings, limits)
 
 
-class PolesJudge(Judging[Drive]):
+class PolesJudge(Judging[Enveloped]):
     """The judge of the poles alone: every gain set linearized over the shared envelope, stable and
     damped as required (the module docstring's report)."""
 
     def analyse(
-        self, drive: Drive, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
+        self,
+        drive: Enveloped,
+        rev: Review,
+        min_damping: float,
+        resolution: str,
+        progress: Callable[[str], None],
     ) -> Analysis:
         fam = family_of(drive)
         W, T = self.points(drive, 1 if resolution == "quick" else ANALYZE_REFINE)
@@ -342,7 +347,7 @@ class PolesJudge(Judging[Drive]):
         return Analysis(analysis, (section,), {"sampling_period_s": f(drive.T_s)})
 
     def verdict(
-        self, drive: Drive, rev: Review, found: Analysis, checks: Checks, min_damping: float
+        self, drive: Enveloped, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
         a = (found.analysis or {})[rev.label]
         damped = a["worst_damping"] is not None and a["worst_damping"] >= min_damping
