@@ -374,7 +374,7 @@ _KEYS = (
 )
 
 
-def parse_relative(value: Any, dim: str, rel: Mapping[str, float], file: str, key: str) -> float:
+def parse_relative(value: object, dim: str, rel: Mapping[str, float], file: str, key: str) -> float:
     """A quantity that may carry a relative unit (``T_N``, or a unit of ``rel``: ``pu``, ...); returns SI."""
     if dim == "torque" and isinstance(value, str) and value.strip().endswith("T_N"):
         num = value.strip()[:-3].strip() or "1"
@@ -387,7 +387,7 @@ def parse_relative(value: Any, dim: str, rel: Mapping[str, float], file: str, ke
     return x
 
 
-def read_int(value: Any, file: str, key: str) -> int:
+def read_int(value: object, file: str, key: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise DriveFileError(file, key, f"expected an integer, got {value!r}")
     return value
