@@ -30,10 +30,11 @@ import functools
 import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TypeAlias
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.expm import expm_batched
 from sensorless.design.poles import sort_poles
@@ -41,7 +42,7 @@ from sensorless.design.runtime import scheduled_step
 from sensorless.symbolic.frames import rot, wrap_angle
 from sensorless.symbolic.runtime import RuntimeObserver
 
-Sym = ca.SX
+Sym: TypeAlias = ca.SX
 INPUTS = ("y", "theta", "w", "plant", "p", "gain")
 
 
@@ -175,7 +176,7 @@ def _args(loop: SampledLoop, theta, w, plant, p, gain) -> list[np.ndarray]:
     ]
 
 
-def _gain_columns(gain: Any) -> np.ndarray:
+def _gain_columns(gain: ArrayLike) -> np.ndarray:
     """One gain vector for every point (any shape, flattened), or (n_gain, N): one column per point."""
     g = np.asarray(gain, float)
     return g if g.ndim == 2 else g.ravel()
@@ -201,7 +202,8 @@ def fixed_points(
     1e-9 of its scale), or that starts from NaN, gets NaN.
     """
     args = _args(loop, theta, w, plant, p, gain)
-    return newton(map_function(loop), args, y0, loop.angles, scale, iterations, damped)[:2]
+    y, J = newton(map_function(loop), args, y0, loop.angles, scale, iterations, damped)[:2]
+    return y, J
 
 
 def newton(
@@ -288,7 +290,7 @@ def sensitivities(
     w: np.ndarray,
     plant: np.ndarray,
     p: np.ndarray,
-    gain: Sequence[float] = (),
+    gain: ArrayLike = (),
     theta: float | np.ndarray = 0.0,
 ) -> dict[str, np.ndarray]:
     """:func:`sensitivity_function` at the points y (N, n_y) (NaN rows stay NaN): out (N, n_out),

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import tomllib
 from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
 
@@ -20,9 +21,9 @@ from sensorless.design.family import Drive, ObserverFamily
 from sensorless.design.units import DriveFileError
 
 
-def _preset_files() -> dict[str, Any]:
+def _preset_files() -> dict[str, Traversable]:
     """Preset name -> resource, over every family's presets package."""
-    out: dict[str, Any] = {}
+    out: dict[str, Traversable] = {}
     for fam in registry.families():
         if fam.presets is None:
             continue

@@ -30,10 +30,10 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.compiled import compiled
 from sensorless.design.discrete import newton
@@ -207,8 +207,8 @@ class DriveLinearization:
 def linearize_drive(
     drive: Drive,
     gains: GainSet | None,
-    w: Any,
-    torque: Any,
+    w: ArrayLike,
+    torque: ArrayLike,
     loop: DriveLoop | None = None,
 ) -> DriveLinearization:
     """The whole drive of ``drive`` at ``gains`` (None: the drive file's) at the operating points (``w``
@@ -219,6 +219,7 @@ def linearize_drive(
     n = W.size
     V = np.zeros((s.inputs.shape[0], n))
     V[c.w_ref], V[c.load] = W, T
+    assert c.start is not None  # drive_loop's check
     Z0 = c.start(V, W)
     kept = dl.kept
     y0 = Z0[kept].T.copy()
@@ -241,7 +242,7 @@ def linearize_drive(
     M = A - eye
     ok = np.isfinite(M).all(axis=(1, 2))
     lag = np.full(n, np.nan)
-    solvable = ok.copy()
+    solvable = np.array(ok)  # a copy
     with np.errstate(over="ignore", invalid="ignore"):  # a pole at z = 1: no steady lag
         solvable[ok] = np.abs(np.linalg.det(M[ok])) > 1e-300
     if solvable.any():

@@ -313,7 +313,7 @@ def g6(x: float) -> str:
     return f"{x:.6g}"
 
 
-def toml_value(v: Any) -> str:
+def toml_value(v: object) -> str:
     """A value as TOML text (strings quoted, lists and inline tables written out)."""
     import json
 

@@ -27,11 +27,14 @@ import functools
 import itertools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
-from sensorless.design.family import EstimateErrors
+from sensorless.design.family import Drive, EstimateErrors
 from sensorless.design.units import DriveFileError, check_magnitude, parse_number, parse_quantity
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 ESTIMATE_KEYS = ("R_s", "L_d", "L_q", "psi_pm")  # order of the estimate vector
 # noise outputs of the PMSM observers: the position estimate [rad, electrical] and the speed estimate
@@ -118,7 +121,7 @@ class Envelope:
     torque_unit: float = 1.0  # N m per unit of ``torque_values`` (T_N for torques given in T_N)
     dense_factor: int = 4  # the re-verification grid is this many times denser (>= 4)
     # the section's keys as the file gives them (a dataclass; the drive-data table shows it), or None
-    given: Any = field(default=None, compare=False, repr=False)
+    given: DataclassInstance | None = field(default=None, compare=False, repr=False)
 
     @functools.cached_property
     def speeds(self) -> tuple[float, ...]:
@@ -252,6 +255,17 @@ class LawKeys:
     load: Callable[[Mapping[str, Any], str, Mapping[str, float]], LawSettings]
 
 
+class Enveloped(Drive, Protocol):
+    """A drive with its operating envelope (every family's: the one analyze, tune, report and
+    Monte-Carlo read)."""
+
+    @property
+    def envelope(self) -> Envelope: ...
+
+
+EnvelopedT = TypeVar("EnvelopedT", bound=Enveloped)  # a family's drive, with its envelope
+
+
 @dataclass(frozen=True)
 class TuningSettings:
     """Envelope, constraints and options of ``sensorless tune`` (drive TOML ``[tuning]``)."""
@@ -266,6 +280,13 @@ class TuningSettings:
     pareto_output: str = ""  # noise output of the front ("": the first limited one, else the family's first)
     bound: bool = True  # compute the pointwise bound (the certificate) on the dense grid
     law: LawSettings = NoLawSettings()  # what the family's gain laws add (LawKeys)
+
+    @property
+    def resolved(self) -> Envelope:
+        """``envelope``, resolved (a loaded drive's settings have it; ValueError where not yet)."""
+        if self.envelope is None:
+            raise ValueError("tuning settings without their envelope (not resolved yet: tuning_envelope)")
+        return self.envelope
 
     def estimate_errors(self, source: str = "the drive file's [tuning] errors") -> EstimateErrors:
         """``errors`` as the box the design is tuned and reviewed for (design/family.py)."""
@@ -353,7 +374,7 @@ _KEYS = (
 )
 
 
-def parse_relative(value: Any, dim: str, rel: Mapping[str, float], file: str, key: str) -> float:
+def parse_relative(value: object, dim: str, rel: Mapping[str, float], file: str, key: str) -> float:
     """A quantity that may carry a relative unit (``T_N``, or a unit of ``rel``: ``pu``, ...); returns SI."""
     if dim == "torque" and isinstance(value, str) and value.strip().endswith("T_N"):
         num = value.strip()[:-3].strip() or "1"
@@ -366,7 +387,7 @@ def parse_relative(value: Any, dim: str, rel: Mapping[str, float], file: str, ke
     return x
 
 
-def read_int(value: Any, file: str, key: str) -> int:
+def read_int(value: object, file: str, key: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise DriveFileError(file, key, f"expected an integer, got {value!r}")
     return value

@@ -94,13 +94,20 @@ class Drive(Protocol):
 class GainTableData(Protocol):
     """What a family reads of a gain table (design/gain_table.GainTable, which imports the registry)."""
 
-    law: str
-    drive: dict[str, str]
-    gains: dict[str, Any]
-    envelope: dict[str, Any]
-    points: list[dict[str, Any]]
-    summary: dict[str, Any]
-    file: str
+    @property
+    def law(self) -> str: ...
+    @property
+    def drive(self) -> dict[str, str]: ...
+    @property
+    def gains(self) -> dict[str, Any]: ...
+    @property
+    def envelope(self) -> dict[str, Any]: ...
+    @property
+    def points(self) -> list[dict[str, Any]]: ...
+    @property
+    def summary(self) -> dict[str, Any]: ...
+    @property
+    def file(self) -> str: ...
 
     def where(self, table_file: str = "") -> str:
         """How messages name the table."""

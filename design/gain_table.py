@@ -29,7 +29,7 @@ import sys
 from dataclasses import dataclass, field
 from json.encoder import encode_basestring_ascii
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any, NoReturn, TypeAlias
 
 from sensorless.design.family import ObserverFamily
 from sensorless.design.registry import families
@@ -60,6 +60,10 @@ def _families_of(kind: str | None) -> list[ObserverFamily]:
     fams = families()
     own = [f for f in fams if f.kind == kind]
     return own or fams
+
+
+# JSON data: what json.loads gives and :func:`dumps` writes (:func:`clean` makes any value so)
+JsonValue: TypeAlias = "str | int | float | bool | list[JsonValue] | dict[str, JsonValue] | None"
 
 
 class GainTableError(ValueError):
@@ -96,7 +100,7 @@ class GainTable:
         return dumps(clean(doc)) + "\n"
 
 
-def dumps(doc: Any) -> str:
+def dumps(doc: JsonValue) -> str:
     """``json.dumps(doc, indent=1, sort_keys=True, allow_nan=False)`` of JSON data (dicts with str keys,
     lists, str, int, float, bool, None; :func:`clean`'s output), the same text, built by joins: the
     standard library's indented encoder is its pure-Python generator chain (0.48 s CPU for a servo's
@@ -105,7 +109,7 @@ def dumps(doc: Any) -> str:
     put = out.append
     frepr, irepr = float.__repr__, int.__repr__
 
-    def enc(x: Any, level: int) -> None:
+    def enc(x: JsonValue, level: int) -> None:
         t = type(x)
         if t is str:
             put(encode_basestring_ascii(x))
@@ -143,7 +147,7 @@ def dumps(doc: Any) -> str:
     return "".join(out)
 
 
-def clean(x: Any) -> Any:
+def clean(x: object) -> JsonValue:
     """JSON-safe copy: numpy scalars/arrays to lists, non-finite floats to None."""
     if isinstance(x, dict):
         return {str(k): clean(v) for k, v in x.items()}

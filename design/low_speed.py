@@ -49,11 +49,12 @@ floor is no verified minimum speed and quotes the family (``LowSpeed.declared``)
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict, Unpack
 
 import numpy as np
+from numpy.typing import ArrayLike
 from sensorless.design.family import (
     Drive,
     EstimateErrors,
@@ -77,7 +78,25 @@ FLOOR_PU = 1e-3  # lowest speed analysed [p.u.]; criteria met down to it: the de
 N_SPEEDS = 40  # logarithmic grid FLOOR_PU .. 1 p.u.
 N_TORQUES = 9  # -T_N .. T_N
 BISECTIONS = 8  # each halves the bracket in log speed: 3/39 decade (19 %) / 2^8, about 0.07 %
-QUICK = {"n_speeds": 16, "n_torques": 5, "bisections": 6}  # `sensorless report --quick`
+
+
+class SpeedOptions(TypedDict, total=False):
+    """The keywords of :func:`minimum_speed` that :func:`minimum_speed_under` passes on to each case."""
+
+    max_bias: float
+    min_decay: float | None
+    n_speeds: int
+    n_torques: int
+    bisections: int
+    acceleration: bool
+    observer_only: bool
+
+
+# (w, T) -> the figures the criteria judge at those points
+Analyse = Callable[[np.ndarray, np.ndarray], "Linearization | WholeDrive"]
+
+
+QUICK: SpeedOptions = {"n_speeds": 16, "n_torques": 5, "bisections": 6}  # `sensorless report --quick`
 DECAY_SHARE = 0.1  # default required decay: this share of the speed-loop bandwidth
 REFERENCE_PU = 0.5  # the whole drive's own damping and decay, away from low speed, are taken here
 FLOOR_SHARE = 0.9  # a point fails below this share of them
@@ -210,7 +229,7 @@ def full_acceleration(drive: Drive) -> float:
     return float(sc.pole_pairs * max(0.0, sc.T_max - sc.T_N) / sc.J)
 
 
-def braking_acceleration(drive: Drive, torque: Any) -> np.ndarray:
+def braking_acceleration(drive: Drive, torque: ArrayLike) -> np.ndarray:
     """The largest speed change [rad/s^2 electrical] of the drive running at load ``torque`` [N m]: its
     speed loop at the torque limit against the load's direction, the load helping, p (T_max + |T|) / J
     (braking a motoring load, or driving against a regenerating one: the speed steps' approach to zero
@@ -224,7 +243,7 @@ def braking_acceleration(drive: Drive, torque: Any) -> np.ndarray:
 
 def _analysis(
     drive: Drive, gains: GainSet, opts: Mapping[str, Any], acceleration: bool, observer: bool = False
-) -> tuple[Any, str]:
+) -> tuple[Analyse, str]:
     """(w, T) -> the figures the criteria judge, and what is linearized (one line)."""
     from sensorless.design.drive_analysis import drive_loop, linearize_drive
 
@@ -347,7 +366,7 @@ def minimum_speed(
 # the tune line and the report ask for the same drive under the same errors (design/memo.py)
 @by_content(maxsize=16, when=double_step_active)
 def minimum_speed_under(
-    drive: Drive, gains: GainSet, errors: EstimateErrors, *, min_damping: float, **kw: Any
+    drive: Drive, gains: GainSet, errors: EstimateErrors, *, min_damping: float, **kw: Unpack[SpeedOptions]
 ) -> LowSpeed:
     """:func:`minimum_speed` (keywords ``kw``) under the estimate errors ``errors`` (the family's
     ``estimate_errors``): every criterion at the drive file's estimates, and at every corner of the box
@@ -357,7 +376,7 @@ def minimum_speed_under(
     tuner's "holds"). Per torque the highest w_min of the cases and what limits it there ("stability"
     where a corner has no stable equilibrium)."""
     runs = [minimum_speed(drive, gains, min_damping=min_damping, **kw)]
-    corner = {**kw, "min_decay": 0.0}
+    corner: SpeedOptions = {**kw, "min_decay": 0.0}
     # a corner matters only where its w_min is above every earlier case's (ties: the earlier case), and
     # for the criteria applied only where it gives one no earlier case gives: its search leaves a torque
     # once its w_min is shown to be at or below the cases' so far (search), with the same max and argmax.

@@ -25,11 +25,12 @@ import functools
 import pickle
 import threading
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
-F = TypeVar("F", bound=Callable[..., Any])
+P = ParamSpec("P")  # the memoized function's arguments
+R = TypeVar("R")  # its result
 
 LABEL = {"memo": "label"}  # a dataclass field's metadata: a label for messages, not content (not keyed)
 
@@ -45,7 +46,7 @@ def _content(value: Any) -> Any:
     return (type(value), tuple((name, getattr(value, name)) for name in kept))
 
 
-def frozen_result(value: Any) -> Any:
+def frozen_result(value: R) -> R:
     """``value`` with the arrays of its dataclass fields made read-only (in place; returned)."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         for f in dataclasses.fields(value):
@@ -55,25 +56,27 @@ def frozen_result(value: Any) -> Any:
     return value
 
 
-def uncached(fn: F) -> F:
+def uncached(fn: Callable[P, R]) -> Callable[P, R]:
     """The function a :func:`by_content` memo wraps, for a call whose result is asked for once (not
     worth a place in the memo)."""
     return fn.__wrapped__  # type: ignore[attr-defined,no-any-return]
 
 
-def by_content(maxsize: int = 32, when: Callable[[], bool] = lambda: True) -> Callable[[F], F]:
+def by_content(
+    maxsize: int = 32, when: Callable[[], bool] = lambda: True
+) -> Callable[[Callable[P, R]], Callable[P, R]]:
     """Memoize a function on the pickled bytes of its arguments, their labels left out (module
     docstring), the ``maxsize`` most recent results; ``when()`` False: computed and not memoized (a
     state outside the arguments that the result depends on, e.g. a step variant). Arguments that
     cannot be pickled: not memoized. ``fn.cache_info()`` gives (hits, misses)."""
 
-    def deco(fn: F) -> F:
-        memo: collections.OrderedDict[bytes, Any] = collections.OrderedDict()
+    def deco(fn: Callable[P, R]) -> Callable[P, R]:
+        memo: collections.OrderedDict[bytes, R] = collections.OrderedDict()
         counts = [0, 0]
         lock = threading.Lock()  # a threaded scheduler may call it from several threads
 
         @functools.wraps(fn)
-        def wrapper(*args: Any, **kwargs: Any) -> Any:
+        def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
             if not when():
                 return fn(*args, **kwargs)
             try:
@@ -95,7 +98,12 @@ def by_content(maxsize: int = 32, when: Callable[[], bool] = lambda: True) -> Ca
             return value
 
         wrapper.cache_info = lambda: tuple(counts)  # type: ignore[attr-defined]
-        wrapper.cache_clear = lambda: (memo.clear(), counts.__setitem__(slice(None), [0, 0]))  # type: ignore[attr-defined]
-        return wrapper  # type: ignore[return-value]
+
+        def cache_clear() -> None:
+            memo.clear()
+            counts[:] = [0, 0]
+
+        wrapper.cache_clear = cache_clear  # type: ignore[attr-defined]
+        return wrapper
 
     return deco

@@ -26,7 +26,7 @@ import dataclasses
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -213,13 +213,22 @@ def spearman(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.corrcoef(ra, rb)[0, 1])
 
 
+class Sensitivity(TypedDict):
+    """How one spread parameter explains the failures (:func:`sensitivity`)."""
+
+    parameter: str  # "plant NAME" or "estimate NAME"
+    spearman_rho: float | None  # rank correlation of its relative deviation with the worst damping
+    mean_deviation_failed: float | None  # over the failed draws (its sign: which way fails)
+    mean_deviation_passed: float | None
+
+
 def sensitivity(
     draws: Draws, params: Sequence[Uncertain], spread_names: Sequence[str], worst: np.ndarray, ok: np.ndarray
-) -> list[dict[str, Any]]:
+) -> list[Sensitivity]:
     """Which spread parameter explains the failures: Spearman's rank correlation of each drawn relative
     deviation with the draw's worst damping, ranked by its magnitude; with the mean deviation of the
     failed draws (its sign says which way fails)."""
-    rows = []
+    rows: list[Sensitivity] = []
     for label in spread_names:
         which, name = label.split(" ", 1)
         j = draws.names.index(name)

@@ -11,6 +11,7 @@ inputs.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -44,7 +45,7 @@ from sensorless.symbolic.startup import W_CMD
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.family import GainSet
-    from sensorless.design.low_speed import LowSpeed
+    from sensorless.design.low_speed import LowSpeed, SpeedOptions
     from sensorless.symbolic.runtime import RuntimeObserver
 
 # the parameter-error factors of a scenario's [estimate_scale] that the loop applies to the
@@ -136,11 +137,11 @@ def inputs(sc: Scenario, T_s: float) -> np.ndarray:
 # set (tune's proof: 4 checks x 2 gain sets; report: its checks), and each build of a run with the start
 # asked for the same whole-drive w_min (design/low_speed.py) again, 0.3-0.6 s each. Keyed by the drive's
 # identity (frozen; the entry holds it, so its id is not reused) and the gains' values; a few entries.
-_STARTUP_CACHE: dict[tuple[int, str, tuple], tuple[Any, tuple]] = {}
+_STARTUP_CACHE: dict[tuple[int, str, tuple], tuple[OnPmsm, tuple[dict[str, float] | None, str, float]]] = {}
 _STARTUP_CACHE_SIZE = 8
 
 
-def _gains_key(gains: Any) -> tuple:
+def _gains_key(gains: GainSet | None) -> tuple:
     """A hashable, exact key of a gain set's law and values (arrays by their bytes)."""
     if gains is None:
         return (None,)
@@ -206,7 +207,8 @@ def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, flo
             # the analysis behind the start's values is the design's (double) step, whatever step the
             # run itself is given (design/runtime.py step_variant: e.g. the fixed-point step)
             with step_variant(None):
-                ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, acceleration=True, **QUICK)  # type: ignore[arg-type]
+                opts: SpeedOptions = {**QUICK, "acceleration": True}
+                ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **opts)
         except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
             if startup is None or startup.needs_w_min:
                 raise
@@ -265,7 +267,7 @@ def _handover_decay(drive: OnPmsm, gains: GainSet, ls: LowSpeed) -> float:
 
 
 def _startup_line(
-    values: dict[str, float], given: Any, w_base: float, warn: str
+    values: dict[str, float], given: Mapping[str, float], w_base: float, warn: str
 ) -> tuple[dict[str, float], str]:
     """(values, the one line that says the start's numbers)."""
     line = (

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import functools
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -40,7 +40,7 @@ def damping_ratio(poles: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(poles), np.nan, z)
 
 
-def nan_reduce(fn: Any, a: np.ndarray) -> np.ndarray:
+def nan_reduce(fn: Callable[..., np.ndarray], a: np.ndarray) -> np.ndarray:
     """Row-wise nanmin/nanmax that returns NaN (silently) for all-NaN rows."""
     out = np.full(a.shape[0], np.nan)
     has = ~np.isnan(a).all(axis=1)

@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.pmsm_schema import PmsmMotor
 from sensorless.design.poles import eigvals_batched
@@ -89,11 +89,15 @@ class Equilibria:
     y: np.ndarray | None  # (N, l) the loop's ``output`` there, None without one
 
 
-def equilibrium_points(loop: RotorFrameLoop, w: Any, torque: Any, plant: Any, p: Any) -> Equilibria:
+def equilibrium_points(
+    loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
+) -> Equilibria:
     """The equilibria at the N points (w, torque), batched: ``plant`` one vector or one column per
     point, ``p`` likewise."""
     W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
-    out = evaluate_batch(equilibrium_function(loop), W.size, [W, T, np.asarray(plant, float), p])
+    out = evaluate_batch(
+        equilibrium_function(loop), W.size, [W, T, np.asarray(plant, float), np.asarray(p, float)]
+    )
     x, A, res = out[0][:, :, 0], out[1], out[2]
     ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0))
     y = np.where(ok[:, None], out[3][:, :, 0], np.nan) if len(out) > 3 else None
@@ -101,7 +105,7 @@ def equilibrium_points(loop: RotorFrameLoop, w: Any, torque: Any, plant: Any, p:
 
 
 def equilibria(
-    loop: RotorFrameLoop, w: Any, torque: Any, plant: Any, p: Any
+    loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(x_r* (N, n), A (N, n, n), converged (N,)) at the N points (w, torque), batched; a point where
     Newton's method does not converge has NaN in x_r* and A."""
@@ -110,7 +114,7 @@ def equilibria(
 
 
 def continuous_poles(
-    loop: RotorFrameLoop, w: Any, torque: Any, plant: Any, p: Any
+    loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
 ) -> tuple[np.ndarray, np.ndarray]:
     """(poles (N, n), x_r* (N, n)): the eigenvalues of the Jacobian at each point's equilibrium; a NaN
     row where there is none."""

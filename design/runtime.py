@@ -15,7 +15,6 @@ import contextvars
 import functools
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -124,6 +123,7 @@ def scheduled_step(observer: RuntimeObserver, discretization: str, law: ca.Funct
         lam = ca.SX(0, 1)
     else:
         gain = ca.SX.sym("gain", law.size1_in(1))
+        assert observer.schedule_state is not None  # a scheduled law reads the observer's schedule state
         lam = law(x[observer.index("state", observer.schedule_state)], gain)
     x_next, y = core(x, meas, p, lam)
     name = f"{core.name()}_{law.name() if law is not None else 'fixed'}"
@@ -135,7 +135,9 @@ def _mapaccum(fn: ca.Function, n: int) -> ca.Function:
     return fn.mapaccum(n)
 
 
-def run_trajectory(setup: RuntimeSetup, meas: np.ndarray, x0: np.ndarray | None = None) -> tuple[Any, Any]:
+def run_trajectory(
+    setup: RuntimeSetup, meas: np.ndarray, x0: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Run the step over ``meas`` (N x n_meas, one row per sample): (states N x n_x, outputs N x n_y).
 
     ``states[k]`` is the state *after* step k. One ``mapaccum`` call, no Python loop.

@@ -201,7 +201,7 @@ def _value(raw: Any, dim: str, file: str, key: str, rel: Mapping[str, float]) ->
     return x
 
 
-def _panels(raw: Any, allowed: tuple[str, ...], file: str, key: str) -> tuple[str, ...]:
+def _panels(raw: object, allowed: tuple[str, ...], file: str, key: str) -> tuple[str, ...]:
     """A figure's list of panels, each one of ``allowed`` (``panel_names`` of the scenario's kind)."""
     if not isinstance(raw, list) or not raw or any(p not in allowed for p in raw):
         raise DriveFileError(file, key, f"expected a list of panels from: {', '.join(allowed)}")

@@ -227,7 +227,7 @@ def check_length(scenario: Scenario, T_s: float, source: str = "") -> int:
     return samples(scenario, T_s)
 
 
-def provenance(drive: Drive, sc: Scenario) -> dict[str, Any]:
+def provenance(drive: Drive, sc: Scenario) -> dict[str, str]:
     """What a run describes: the drive (and its TOML hash) and the scenario; shared by every kind."""
     return {
         "drive": drive.name,

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import Any
+from typing import SupportsFloat
 
 REASON = "no_value_reason"
 
 
-def finite(v: Any) -> bool:
+def finite(v: SupportsFloat | str | None) -> bool:
     """Whether ``v`` is a finite number (None is not)."""
     try:
         return v is not None and math.isfinite(float(v))
@@ -23,12 +23,12 @@ def finite(v: Any) -> bool:
         return False
 
 
-def cell(v: Any, spec: str = ".10g") -> str:
+def cell(v: SupportsFloat | None, spec: str = ".10g") -> str:
     """``v`` formatted with ``spec``, or an empty cell where it is not a finite number."""
-    return format(float(v), spec) if finite(v) else ""
+    return format(float(v), spec) if v is not None and finite(v) else ""
 
 
-def row(values: Iterable[Any], why: str, spec: str = ".10g") -> str:
+def row(values: Iterable[SupportsFloat | None], why: str, spec: str = ".10g") -> str:
     """A CSV line of ``values`` (each :func:`cell`) ending with the reason column: ``why`` where a value
     is missing, else empty. ``why`` must hold no comma or quote (one cell)."""
     vals = list(values)

@@ -19,7 +19,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from types import ModuleType
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, SupportsFloat
 
 import numpy as np
 from sensorless.design.envelope import Envelope
@@ -72,7 +72,10 @@ class Figure:
 class Row:
     """Blocks side by side (e.g. small tables)."""
 
-    blocks: tuple[Any, ...]
+    blocks: tuple[Block, ...]
+
+
+Block = Paragraph | Table | Figure | Row  # what a section holds (reports/html.py draws each)
 
 
 @dataclass(frozen=True)
@@ -80,7 +83,7 @@ class Section:
     """A numbered section of the report."""
 
     title: str
-    blocks: tuple[Any, ...]
+    blocks: tuple[Block, ...]
 
 
 @dataclass(frozen=True)
@@ -106,10 +109,10 @@ class Report:
 # --------------------------------------------------------------------------------------------------
 # Numbers and figures
 # --------------------------------------------------------------------------------------------------
-def f(x: Any) -> Any:
+def f(x: SupportsFloat) -> float | None:
     """JSON-safe float (None for NaN/inf), rounded to 12 significant digits for stable text."""
-    x = float(x)
-    return float(f"{x:.12g}") if np.isfinite(x) else None
+    v = float(x)
+    return float(f"{v:.12g}") if np.isfinite(v) else None
 
 
 def arr(a: np.ndarray) -> list:
@@ -117,7 +120,7 @@ def arr(a: np.ndarray) -> list:
     return [[f(v) for v in row] for row in np.atleast_2d(a)] if np.ndim(a) == 2 else [f(v) for v in a]
 
 
-def num(v: Any, digits: int = 4) -> str:
+def num(v: float | None, digits: int = 4) -> str:
     """A number for a table cell ('–' for none)."""
     return "–" if v is None else f"{v:.{digits}g}"
 
@@ -233,6 +236,7 @@ def drive_tables(
     """
     pu = dict(bases.values) if bases is not None else {}
     tables: dict[str, list[dict[str, Any]]] = {}
+    assert dataclasses.is_dataclass(drive), drive  # every family's drive is a frozen dataclass
     for sf in dataclasses.fields(drive):
         obj = getattr(drive, sf.name)
         if isinstance(obj, Envelope) and obj.given is not None:

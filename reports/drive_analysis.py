@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import functools
 import io
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.drive_analysis import DriveLinearization, linearize_drive
@@ -18,6 +18,9 @@ from sensorless.design.family import Drive, GainSet
 from sensorless.design.low_speed import full_acceleration
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
 from sensorless.reports.svg_render import svg_later
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure as MplFigure
 
 N_SPEEDS = 40  # -1 .. 1 p.u. (no point at exactly zero speed); QUICK_SPEEDS for `report --quick`
 QUICK_SPEEDS = 20
@@ -82,7 +85,7 @@ def csv(lin: DriveLinearization, drive: Drive) -> str:
     return buf.getvalue()
 
 
-def figure(lin: DriveLinearization, drive: Drive, title: str) -> Any:
+def figure(lin: DriveLinearization, drive: Drive, title: str) -> MplFigure:
     """Pole map of the slow poles (upper half-plane), one panel per torque, coloured by speed."""
     import matplotlib.pyplot as plt
 

@@ -18,13 +18,15 @@ from sensorless.design.envelope import (
     ESTIMATE_KEYS,
     NOISE_OUTPUTS,
     RANGES,
+    LawSettings,
     TuningSettings,
     with_tuning_keys,
 )
-from sensorless.design.family import Drive
+from sensorless.design.family import Drive, DriveT
 from sensorless.design.units import DriveFileError, parse_quantity
 from sensorless.reports.family import Option
 from sensorless.reports.options import Number, UsageError, option_error, parse_max_noise, parse_torques
+from sensorless.tuning.family import Tunable
 
 # the same ranges as the drive file's [tuning] keys (design/envelope.py RANGES)
 SPEED = Number(*RANGES["speed"], lo_open=True, unit="p.u.")
@@ -91,7 +93,7 @@ NOISE_OPTIONS = (
 )
 
 # (drive, args, the law's settings) -> its settings with the law's own options applied
-LawOptions = Callable[[Drive, argparse.Namespace, Any], Any]
+LawOptions = Callable[[DriveT, argparse.Namespace, LawSettings], LawSettings]
 
 
 def apply_options(s: TuningSettings, drive: Drive, args: argparse.Namespace) -> TuningSettings:
@@ -143,13 +145,15 @@ def checked(s: TuningSettings) -> TuningSettings:
 
 
 def tune_settings(
-    law_options: LawOptions | None = None,
-) -> Callable[[Drive, argparse.Namespace, Any], TuningSettings]:
+    law_options: LawOptions[DriveT] | None = None,
+) -> Callable[[DriveT, argparse.Namespace, Tunable[DriveT]], TuningSettings]:
     """A ``tune_settings`` hook (reports/family.py): the tunable's default settings (``Tunable.settings``)
     with the shared options and the law's own (``law_options``) applied, checked."""
 
-    def settings(drive: Drive, args: argparse.Namespace, tunable: Any) -> TuningSettings:
-        s = apply_options(tunable.settings(drive), drive, args)
+    def settings(drive: DriveT, args: argparse.Namespace, tunable: Tunable[DriveT]) -> TuningSettings:
+        own = tunable.settings(drive)
+        assert isinstance(own, TuningSettings), own  # a tunable on the shared envelope's settings
+        s = apply_options(own, drive, args)
         if law_options is not None:
             s = dataclasses.replace(s, law=law_options(drive, args, s.law))
         return checked(s)

@@ -29,16 +29,16 @@ import argparse
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 import numpy as np
-from sensorless.design.envelope import Envelope
-from sensorless.design.family import Drive, DriveT, GainSet
+from sensorless.design.envelope import Envelope, Enveloped, EnvelopedT
+from sensorless.design.family import Drive, DriveT, GainSet, Linearizable, require
 from sensorless.design.gain_table import GainTable, read_gain_table
 from sensorless.design.linearization import Linearization
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.design.registry import family_of
-from sensorless.design.scenario import builtin_names
+from sensorless.design.scenario import Scenario, builtin_names
 from sensorless.reports import time_domain
 from sensorless.reports.document import (
     Figure,
@@ -55,18 +55,22 @@ from sensorless.reports.document import (
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
 from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
+from sensorless.reports.time_domain import Check, Finding
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure as MplFigure
 
 J = TypeVar("J", bound=Drive, contravariant=True)  # the drive a judge takes: its family's
 ANALYZE_REFINE = 4  # analyze and the normal report refine the envelope's speeds this many times
 
 
-def envelope(drive: Drive) -> Envelope:
+def envelope(drive: Enveloped) -> Envelope:
     """The envelope of the drive (design/envelope.py: the one analyze, tune, report and Monte-Carlo
     read)."""
     return drive.envelope
 
 
-def points(drive: Drive, refine: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def points(drive: Enveloped, refine: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Flat (speed [rad/s], torque [N m]) of the envelope's speeds (refined) x its torques."""
     return envelope(drive).grid(refine)
 
@@ -88,8 +92,8 @@ class Checks:
     """The time-domain checks a verdict reads: the scenarios run and each one's judged result
     (reports/time_domain.py ``checks``)."""
 
-    runs: Sequence[Any]  # the scenarios (built-in names or the user's files)
-    td: Sequence[dict[str, Any]]  # report.json "time_domain": one entry per scenario
+    runs: Sequence[Scenario | str]  # the scenarios (built-in names or the user's files)
+    td: Sequence[Check]  # report.json "time_domain": one entry per scenario
 
 
 @dataclass(frozen=True)
@@ -137,7 +141,7 @@ class Judge(Protocol[J]):
         ...
 
     def conclude(
-        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         """report.json "verdict" and the verdict box of the judgement ``v`` settled with the time-domain
         checks (``status``, their findings ``td_findings``) and what the checks leave out (``limits``)."""
@@ -145,7 +149,7 @@ class Judge(Protocol[J]):
 
 
 def conclude(
-    v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+    v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
 ) -> tuple[dict[str, Any], Verdict]:
     """The shared form of a verdict: its findings as text (the judgement's, the time-domain checks', the
     judgement's after them), its paragraph, the limitations as notes."""
@@ -162,7 +166,7 @@ def figures(lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
     return lin.worst_damping, lin.decay_rate
 
 
-def poles_figure(lin: Linearization, w_base: float, title: str) -> Any:
+def poles_figure(lin: Linearization, w_base: float, title: str) -> MplFigure:
     """Real parts of the poles (continuous o, sampled x) and the worst damping over speed, per torque;
     below, the steady angle error where the linearization gives it (``angle_bias``)."""
     import matplotlib
@@ -208,10 +212,10 @@ CAPTION = (
 )
 
 
-def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, OutputSet], None]:
+def analyze_with(judge: Judge[DriveT]) -> Callable[[DriveT, argparse.Namespace, OutputSet], None]:
     """The ``analyze`` hook of a family judged by ``judge`` (its envelope's points)."""
 
-    def analyze(drive: Drive, args: argparse.Namespace, out: OutputSet) -> None:
+    def analyze(drive: DriveT, args: argparse.Namespace, out: OutputSet) -> None:
         """Poles over the envelope (speeds refined ANALYZE_REFINE times): terminal summary, CSV, figure."""
         fam = family_of(drive)
         table = read_gain_table(args.gains) if args.gains else None
@@ -219,7 +223,7 @@ def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, Outp
             fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
         )
         W, T = judge.points(drive, ANALYZE_REFINE)
-        lin = fam.linearize(drive, gains, W, T)
+        lin = require(fam, Linearizable).linearize(drive, gains, W, T)
         sampled = lin.poles_discrete is not None
         print(f"{drive.name}: {drive.source}")
         print(f"{fam.title} ({fam.citation}); gains: {gains.source}")
@@ -240,7 +244,7 @@ def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, Outp
         print(f"worst over {lin.w.size} points: {worst} ({kind})")
         out.add_text("poles.csv", pole_csv(lin, drive.w_base))
         lost = ~np.isfinite(lin.poles).all(axis=1)
-        if sampled:
+        if lin.poles_discrete is not None:
             lost |= ~np.isfinite(lin.poles_discrete).all(axis=1)
         if lost.any():  # not a result: every written number finite or said (exit status 3)
             out.warnings.append(
@@ -248,7 +252,7 @@ def analyze_with(judge: Judge[Any]) -> Callable[[Drive, argparse.Namespace, Outp
                 "their rows): no equilibrium found there, or the linearized observer overflows; check the "
                 "drive's units and the gains"
             )
-        if sampled:
+        if lin.poles_discrete is not None:
             out.add_text(
                 "poles_discrete.csv",
                 pole_csv(dataclasses.replace(lin, poles=lin.poles_discrete), drive.w_base),
@@ -281,42 +285,49 @@ def poles_section_figure(drive: Drive, lin: Linearization, label: str) -> Figure
     return Figure(svg_uri(poles_figure(lin, drive.w_base, f"{drive.name}: poles, gains {label}")), CAPTION)
 
 
-class Judging(Generic[DriveT]):
+class Judging(Generic[EnvelopedT]):
     """What most judges share, to subclass: the envelope's points, the drive file's gains under review
     (or a table's), no notes, the family's built-in scenarios, the shared form of the verdict. Generic
     in the drive type: ``class MyJudge(Judging[MyDrive])``."""
 
-    def points(self, drive: DriveT, refine: int) -> tuple[np.ndarray, np.ndarray]:
+    def points(self, drive: EnvelopedT, refine: int) -> tuple[np.ndarray, np.ndarray]:
         return points(drive, refine)
 
-    def review(self, drive: DriveT, table: GainTable | None, table_file: str) -> Review:
+    def review(self, drive: EnvelopedT, table: GainTable | None, table_file: str) -> Review:
         return gains_under_review(family_of(drive), drive, table, table_file)
 
-    def notes(self, drive: DriveT) -> tuple[str, ...]:
+    def notes(self, drive: EnvelopedT) -> tuple[str, ...]:
         return ()
 
     time_domain: tuple[str, ...] | None = None  # the built-in scenarios checked; None: all the family's
 
-    def scenarios(self, drive: DriveT) -> Sequence[str]:
+    def scenarios(self, drive: EnvelopedT) -> Sequence[str]:
         return builtin_names(drive.kind) if self.time_domain is None else self.time_domain
 
     def conclude(
-        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         return conclude(v, status, td_findings, limits)
 
 
-class PolesJudge(Judging[Drive]):
+class PolesJudge(Judging[Enveloped]):
     """The judge of the poles alone: every gain set linearized over the shared envelope, stable and
     damped as required (the module docstring's report)."""
 
     def analyse(
-        self, drive: Drive, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
+        self,
+        drive: Enveloped,
+        rev: Review,
+        min_damping: float,
+        resolution: str,
+        progress: Callable[[str], None],
     ) -> Analysis:
         fam = family_of(drive)
         W, T = self.points(drive, 1 if resolution == "quick" else ANALYZE_REFINE)
         progress(f"[1/3] poles over the envelope ({W.size} points)")
-        lins = {label: fam.linearize(drive, g, W, T) for label, g in rev.choices.items()}
+        lins = {
+            label: require(fam, Linearizable).linearize(drive, g, W, T) for label, g in rev.choices.items()
+        }
         analysis = {label: summary(lin, rev.choices[label], drive.w_base) for label, lin in lins.items()}
         torque_key = f"{lins[rev.label].torque_name}_Nm"
         rows = tuple(
@@ -336,7 +347,7 @@ class PolesJudge(Judging[Drive]):
         return Analysis(analysis, (section,), {"sampling_period_s": f(drive.T_s)})
 
     def verdict(
-        self, drive: Drive, rev: Review, found: Analysis, checks: Checks, min_damping: float
+        self, drive: Enveloped, rev: Review, found: Analysis, checks: Checks, min_damping: float
     ) -> Judgement:
         a = (found.analysis or {})[rev.label]
         damped = a["worst_damping"] is not None and a["worst_damping"] >= min_damping
@@ -354,11 +365,11 @@ class PolesJudge(Judging[Drive]):
 POLES = PolesJudge()
 
 
-def report_with(judge: Judge[Any]) -> Callable[..., Report]:
+def report_with(judge: Judge[DriveT]) -> Callable[..., Report]:
     """The ``report`` hook of a family judged by ``judge``: the stability report on the shared frame."""
 
     def report(
-        drive: Drive,
+        drive: DriveT,
         table: GainTable | None = None,
         table_file: str = "",
         min_damping: float = MIN_DAMPING,

@@ -108,10 +108,10 @@ class ReportHooks(Generic[DriveT]):
     exporters: Mapping[str, Exporter[DriveT]] = field(default_factory=dict)
 
 
-def hooks(family: ObserverFamily) -> ReportHooks[Any]:
+def hooks(family: ObserverFamily[DriveT]) -> ReportHooks[DriveT]:
     """The report hooks of ``family`` (empty hooks if it names none)."""
     if family.report is None:
-        return ReportHooks[Any]()
+        return ReportHooks()
     h = getattr(importlib.import_module(family.report), "HOOKS", None)
     if not isinstance(h, ReportHooks):
         raise CapabilityError(f"{family.report} defines no ReportHooks HOOKS")

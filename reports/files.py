@@ -38,9 +38,12 @@ import stat
 import tempfile
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from sensorless.reports import interrupts
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure as MplFigure
 
 STAGE_TAG = ".sensorless-"
 INNER_STAGE = re.compile(r"^\.sensorless-stage-(\d+)-[A-Za-z0-9_]+$")  # inside a mount point
@@ -192,7 +195,7 @@ class OutputSet:
         """Stage a UTF-8 text file (LF line ends)."""
         self.add_bytes(name, text.encode("utf-8"))
 
-    def add_figure(self, name: str, fig: Any, **kwargs: Any) -> None:
+    def add_figure(self, name: str, fig: MplFigure, **kwargs: float) -> None:
         """Stage a matplotlib figure; the format follows the name's suffix. Metadata that would
         differ between runs (dates, software strings) is left out so files are byte-identical."""
         fmt = Path(name).suffix[1:]
@@ -210,7 +213,7 @@ class OutputSet:
         fig.savefig(buf, format=fmt, metadata=meta, **kwargs)
         self.add_bytes(name, buf.getvalue())
 
-    def add_figures(self, stem: str, fig: Any) -> None:
+    def add_figures(self, stem: str, fig: MplFigure) -> None:
         """Stage ``fig`` as ``stem.png`` (110 dpi, to look at) and ``stem.svg`` (to zoom and print)."""
         self.add_figure(f"{stem}.png", fig, dpi=110)
         self.add_figure(f"{stem}.svg", fig)

@@ -13,18 +13,22 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from collections.abc import Iterator
-from typing import Any
+from collections.abc import Iterator, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.family import Drive, GainSet
-from sensorless.design.runtime import step_variant
+from sensorless.design.runtime import StepVariant, step_variant
 from sensorless.reports import time_domain
 from sensorless.reports.document import Paragraph, Report, Section, Table, num
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.runtime import RuntimeSetup
+    from sensorless.reports.codegen.fixed_model import FixedModel
+
 
 @contextlib.contextmanager
-def judged_with(variant: Any) -> Iterator[None]:
+def judged_with(variant: StepVariant) -> Iterator[None]:
     """The time-domain checks within the block run ``variant`` (design/runtime.step_variant's)."""
     token = time_domain.JUDGED_STEP.set(variant)
     try:
@@ -33,7 +37,7 @@ def judged_with(variant: Any) -> Iterator[None]:
         time_domain.JUDGED_STEP.reset(token)
 
 
-def _drive_poles(drive: Drive, gains: GainSet, model: Any, quick: bool) -> dict[str, Any]:
+def _drive_poles(drive: Drive, gains: GainSet, model: FixedModel, quick: bool) -> dict[str, float | None]:
     """The whole drive's poles with the double step and with the stored constants' step, compared."""
     from sensorless.reports.codegen.fixed_poles import stored_step
     from sensorless.reports.drive_analysis import N_SPEEDS, QUICK_SPEEDS, sweep
@@ -62,13 +66,17 @@ def _drive_poles(drive: Drive, gains: GainSet, model: Any, quick: bool) -> dict[
     }
 
 
-def add_to_report(rep: Report, drive: Drive, gains: GainSet, setup: Any, model: Any, quick: bool) -> Report:
+def add_to_report(
+    rep: Report, drive: Drive, gains: GainSet, setup: RuntimeSetup, model: FixedModel, quick: bool
+) -> Report:
     """``rep`` with ``precision`` "fixed" and ``fixed_point`` (module docstring) and a section."""
     from sensorless.reports.codegen.fixed_poles import pole_shift
 
     obs = pole_shift(setup, model.program(setup), *model.data(setup))
+    poles: dict[str, float | None] | None = None
     try:
-        drv: dict[str, Any] = _drive_poles(drive, gains, model, quick)
+        poles = _drive_poles(drive, gains, model, quick)
+        drv: Mapping[str, float | str | None] = poles
     except ValueError as e:  # no drive loop for this family or drive (said)
         drv = {"not_analysed": str(e)}
     data = {"observer_poles": obs, "drive_poles": drv}
@@ -85,17 +93,17 @@ def add_to_report(rep: Report, drive: Drive, gains: GainSet, setup: Any, model: 
             f"{obs['spectral_radius_double']:.6f} / {obs['spectral_radius_stored']:.6f}",
         ),
     ]
-    if "max_pole_shift_per_s" in drv:
+    if poles is not None:
         rows += [
-            ("whole drive: largest shift of a slow pole (1/s)", num(drv["max_pole_shift_per_s"], 3)),
-            ("whole drive: largest relative shift of a slow pole", num(drv["max_relative_pole_shift"], 3)),
+            ("whole drive: largest shift of a slow pole (1/s)", num(poles["max_pole_shift_per_s"], 3)),
+            ("whole drive: largest relative shift of a slow pole", num(poles["max_relative_pole_shift"], 3)),
             (
                 "whole drive: worst damping, double / stored",
-                f"{num(drv['worst_damping_double'], 4)} / {num(drv['worst_damping_stored'], 4)}",
+                f"{num(poles['worst_damping_double'], 4)} / {num(poles['worst_damping_stored'], 4)}",
             ),
         ]
     else:
-        rows.append(("whole drive", drv["not_analysed"]))
+        rows.append(("whole drive", str(drv["not_analysed"])))
     sec = Section(
         f"{len(rep.sections) + 1}. Fixed point: what was judged, the quantization's effect on the poles",
         (Paragraph(text), Table(("quantity", "value"), tuple(rows))),

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from typing import Any
+from collections.abc import Sequence
 
 from sensorless.design.gain_table import GainTable, clean
 from sensorless.reports.csv_cells import REASON
@@ -15,7 +15,7 @@ NO_SPEED_VALUE = "no gain of this column reaches a finite figure at this speed"
 NO_LIMIT = "no limit on this front point"
 
 
-def table_csv(table: GainTable, columns: tuple[Any, Any]) -> str:
+def table_csv(table: GainTable, columns: tuple[Sequence[tuple[str, str]], Sequence[tuple[str, str]]]) -> str:
     """CSV text; ``columns`` = (leading per-point columns, baseline columns), each (heading, point key)."""
     env = table.envelope
     lead, base = columns

@@ -32,7 +32,8 @@ import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from types import FrameType
+from typing import Any, TextIO
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 BUDGET = signal.SIGALRM  # a command's time budget ran out (:func:`budget`)
@@ -53,7 +54,7 @@ class Interrupted(KeyboardInterrupt):
         super().__init__(signal.Signals(signum).name)
 
 
-def _handler(signum: int, frame: Any) -> None:
+def _handler(signum: int, frame: FrameType | None) -> None:
     global _received, _cancel
     if _received is None:
         _received = signum
@@ -78,9 +79,11 @@ def _watch(signum: int, done: threading.Event) -> None:
         if done.wait(GRACE):
             return
         text, code = line(signum)
+        err = sys.__stderr__  # None: no stderr to write to
         try:
-            sys.__stderr__.write(text + "\n")
-            sys.__stderr__.flush()
+            if err is not None:
+                err.write(text + "\n")
+                err.flush()
         except (OSError, ValueError, AttributeError):
             pass
         kill_children()
@@ -112,7 +115,7 @@ class _CasadiInterruptFilter:
     """sys.stderr without CasADi's own report of an interrupt it caught (IPOPT's callback prints
     ``CasADi - <date> WARNING("KeyboardInterruptException") [...]``): the command prints its one line."""
 
-    def __init__(self, stream: Any) -> None:
+    def __init__(self, stream: TextIO) -> None:
         self._stream = stream
         self._held = ""  # a CasADi line being written in pieces, until its end shows what it is
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Unpack
 
 from sensorless.design.capabilities import OpenLoopStart
 from sensorless.design.family import CapabilityError, Drive, EstimateErrors, GainSet
@@ -19,6 +19,7 @@ from sensorless.design.low_speed import (
     MAX_BIAS_DEG,
     QUICK,
     LowSpeed,
+    SpeedOptions,
     headline,
     minimum_speed,
     minimum_speed_under,
@@ -28,8 +29,11 @@ from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
 from sensorless.reports.svg_render import svg_later
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure as MplFigure
 
-def _figure(ls: LowSpeed, title: str) -> Any:
+
+def _figure(ls: LowSpeed, title: str) -> MplFigure:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.0, 3.4))
@@ -77,9 +81,10 @@ def add_to_report(
     """``rep`` with report.json's ``low_speed``, its section (last) and the headline in the verdict;
     ``quick``: the coarser grid of ``sensorless report --quick``."""
     try:
-        grid = QUICK if quick else {}
+        grid: SpeedOptions = QUICK if quick else {}
         errors = family_of(drive).estimate_errors(drive)
-        ls = under_errors(drive, gains, errors, min_damping=min_damping, max_bias=max_bias, **grid)
+        opts: SpeedOptions = {**grid, "max_bias": max_bias}
+        ls = under_errors(drive, gains, errors, min_damping=min_damping, **opts)
     except CapabilityError:
         return rep
     line = headline(ls)
@@ -126,15 +131,17 @@ def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float,
     return ON_FACTOR * ls.w_min_rated, ls.w_min_rated, ""
 
 
-def under_errors(drive: Drive, gains: GainSet, errors: EstimateErrors, **kw: Any) -> LowSpeed:
+def under_errors(
+    drive: Drive, gains: GainSet, errors: EstimateErrors, *, min_damping: float, **kw: Unpack[SpeedOptions]
+) -> LowSpeed:
     """w_min under ``errors`` (design/low_speed.py ``minimum_speed_under``); where the family's analysis
     takes no estimate errors, at the drive file's estimates, saying so."""
     try:
-        return minimum_speed_under(drive, gains, errors, **kw)
+        return minimum_speed_under(drive, gains, errors, min_damping=min_damping, **kw)
     except CapabilityError:
         if not errors:
             raise
-    ls = minimum_speed(drive, gains, **kw)
+    ls = minimum_speed(drive, gains, min_damping=min_damping, **kw)
     why = f"its family's analysis takes no estimate errors, not the stated {errors.text()}"
     return dataclasses.replace(ls, errors_source=why)
 
@@ -144,7 +151,7 @@ def tune_line(drive: Drive, gains: GainSet, min_damping: float, errors: Estimate
     --quick``), or "" where the family has no linearization."""
     try:
         # a float, as `report` passes it: the same analysis, the same memo key (design/memo.py)
-        kw = {"min_damping": min_damping, "max_bias": math.radians(MAX_BIAS_DEG), **QUICK}
-        return headline(under_errors(drive, gains, errors, **kw))
+        kw: SpeedOptions = {"max_bias": math.radians(MAX_BIAS_DEG), **QUICK}
+        return headline(under_errors(drive, gains, errors, min_damping=min_damping, **kw))
     except CapabilityError:
         return ""

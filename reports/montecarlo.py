@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 from sensorless.design import montecarlo as mc
@@ -33,6 +33,22 @@ if TYPE_CHECKING:  # typed by name only
 WORST = 10  # worst draws listed
 
 
+class DrawCheck(TypedDict):
+    """The time-domain checks of one draw (summary JSON ``time_domain``)."""
+
+    draw: int
+    passed: bool
+    failed: list[str]  # "<scenario>: <what failed>"
+
+
+class Fraction(TypedDict):
+    """A share of the draws with its standard error (None: no draws)."""
+
+    value: float | None
+    draws: int
+    standard_error: float | None
+
+
 @dataclass(frozen=True)
 class Result:
     """A Monte-Carlo run: the draws, their per-draw results and the summary (the JSON written)."""
@@ -42,7 +58,7 @@ class Result:
     at: np.ndarray  # (n,) index of the worst operating point
     w: np.ndarray  # envelope speeds [rad/s]
     torque: np.ndarray  # envelope torques [N m]
-    td: list[dict[str, Any]]  # per time-domain draw: {"draw", "passed", "failed": [...]}
+    td: list[DrawCheck]  # per time-domain draw
     summary: dict[str, Any]
 
 
@@ -128,7 +144,7 @@ def run(
     parts, sims = engine.map_groups([(linear_task, chunks), (time_task, items)], label)
     worst = np.concatenate([p[0] for p in parts])
     at = np.concatenate([p[1] for p in parts])
-    td: list[dict[str, Any]] = []
+    td: list[DrawCheck] = []
     for i, res in enumerate(sims):
         failed = [f"{name}: {line}" for name, lines in res for line in lines]
         td.append({"draw": i, "passed": not failed, "failed": failed})
@@ -140,7 +156,7 @@ def _estimated(params: Sequence[mc.Uncertain], row: np.ndarray) -> dict[str, flo
     return {p.name: float(v) for p, v in zip(params, row, strict=True) if p.estimate is not None}
 
 
-def _fraction(ok: np.ndarray) -> dict[str, Any]:
+def _fraction(ok: np.ndarray) -> Fraction:
     n = int(ok.size)
     if n == 0:
         return {"value": None, "draws": 0, "standard_error": None}
@@ -160,7 +176,7 @@ def summarise(
     at: np.ndarray,
     w: np.ndarray,
     T: np.ndarray,
-    td: Sequence[dict[str, Any]],
+    td: Sequence[DrawCheck],
     min_damping: float,
 ) -> dict[str, Any]:
     """The JSON summary: inputs, yield, worst draws, sensitivity."""

@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from sensorless.design.envelope import NOISE_DIMS, NOISE_OUTPUTS
 from sensorless.design.units import MAGNITUDE, DriveFileError, check_magnitude, parse_number, parse_quantity
@@ -203,7 +203,7 @@ class Renamed(argparse.Action):
         self,
         parser: argparse.ArgumentParser,
         namespace: argparse.Namespace,
-        values: Any,
+        values: str | Sequence[str] | None,
         option: str | None = None,
     ) -> None:
         if option in RENAMED:

@@ -22,6 +22,7 @@ from sensorless.design.scenario import Scenario
 from sensorless.reports import time_domain
 from sensorless.reports.document import Figure, Paragraph, Verdict, drive_tables, report_inputs
 from sensorless.reports.family import hooks
+from sensorless.reports.time_domain import Check, Finding
 
 
 @dataclass(frozen=True)
@@ -31,7 +32,7 @@ class Review:
     choices: dict[str, GainSet]
     label: str
     tuned: bool  # the gains under review are a gain table's
-    table: Any = None  # that gain table (design/gain_table.py GainTable), None without
+    table: GainTable | None = None  # that gain table, None without
 
     @property
     def gains(self) -> GainSet:
@@ -74,13 +75,13 @@ def opening(
 
 def time_domain_checks(
     drive: Drive, rev: Review, runs: Sequence[Scenario | str], progress: Callable[[str], None]
-) -> tuple[list[dict[str, Any]], list[Figure]]:
+) -> tuple[list[Check], list[Figure]]:
     """The scenarios ``runs`` (reports/time_domain.py ``scenarios``) simulated with the gains under
     review and judged: (checks, figures)."""
     return time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
 
 
-def settle(status: str, td: Sequence[dict[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
+def settle(status: str, td: Sequence[Check]) -> tuple[str, list[Finding]]:
     """A verdict's status with the time-domain checks ``td`` (one rule: a failed check makes it "fail", a
     check not tested sensorless at best "warn") and the findings of those checks, each failure with its
     cause and fix (reports/causes.py)."""

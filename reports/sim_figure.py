@@ -27,7 +27,7 @@ drives, design/pmsm_drive.py; mechanical r/min for the reduced-order-observer dr
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design import registry
@@ -35,6 +35,7 @@ from sensorless.design.family import Panel
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
+    from matplotlib.figure import Figure as MplFigure
     from sensorless.design.simulate import Traces
 
 
@@ -115,7 +116,7 @@ def open_loop_intervals(traces: Traces) -> list[tuple[float, float]]:
 MAX_POINTS = 20000  # per line: more is invisible at figure resolution and bloats the SVG
 
 
-def plot_traces(traces: Traces, panels: tuple[str, ...], title: str) -> Any:
+def plot_traces(traces: Traces, panels: tuple[str, ...], title: str) -> MplFigure:
     """A matplotlib Figure with the given panels stacked over a shared time axis.
 
     Long runs are thinned to at most MAX_POINTS samples per line (every k-th sample).

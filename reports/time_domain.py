@@ -32,13 +32,13 @@ import dataclasses
 import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, TypedDict, Unpack
 
 import numpy as np
 from sensorless.design.capabilities import Linearizable, Scaled
 from sensorless.design.family import CapabilityError, Drive, DriveScales, GainSet
 from sensorless.design.registry import family_of
-from sensorless.design.runtime import step_variant
+from sensorless.design.runtime import StepVariant, step_variant
 from sensorless.design.scenario import (
     ZERO_SPEED_LOW_PU,
     Scenario,
@@ -51,7 +51,7 @@ from sensorless.design.scenario import (
 from sensorless.design.simulate import simulate
 from sensorless.design.startup import ACCELERATION_LIMIT
 from sensorless.reports.causes import CATALOGUE, Failure, Named, classify_all, operating_torque_pu
-from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
+from sensorless.reports.document import Block, Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.svg_render import svg_later
 
 if TYPE_CHECKING:  # typed by name only
@@ -68,7 +68,7 @@ MAX_OPEN_LOOP_SHARE = 0.5
 
 # the observer step the checks run (design/runtime.step_variant's variant), None: the double one;
 # set by `report --precision fixed` (reports/fixed_review.py judged_with)
-JUDGED_STEP: contextvars.ContextVar[Any] = contextvars.ContextVar("judged_step", default=None)
+JUDGED_STEP: contextvars.ContextVar[StepVariant | None] = contextvars.ContextVar("judged_step", default=None)
 
 
 def scenarios(drive: Drive, paper: Sequence[str], user: Sequence[str] = ()) -> list[Scenario]:
@@ -105,12 +105,77 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return np.angle(np.exp(1j * np.asarray(a, float)))
 
 
+# a check's figures (report.json ``metrics``): seconds, shares, errors; None where a run gives none
+Metrics = dict[str, float | None]
+# a failure of a check (report.json ``failures``): reports/causes.py ``Failure``'s fields and its cause
+FailureRecord = dict[str, str | float | bool | None]
+
+
+class Status(TypedDict):
+    """What a check's status is read from (:func:`check_status`)."""
+
+    passed: bool
+    untested: str  # why the run did not test the observer ("" where it did)
+
+
+class Check(Status):
+    """The check of one scenario, as report.json's ``time_domain`` holds it (:func:`entry`)."""
+
+    name: str
+    title: str
+    source: str
+    crosses_zero: bool
+    status: str  # "pass", "warn" (not tested sensorless) or "fail"
+    sensorless: bool
+    failed: list[str]
+    failures: list[FailureRecord]
+    causes: list[str]
+    problems: list[str]
+    metrics: Metrics
+    limits: dict[str, float]
+    caption: str
+
+
+class Evidence(TypedDict, total=False):
+    """Where a failure happened: the evidence fields of reports/causes.py ``Failure``."""
+
+    t: float | None
+    w_pu: float | None
+    load_pu: float | None
+    torque_e_pu: float | None
+    torque_pu: float | None
+    limit_pu: float | None
+    accel_share: float | None
+    open_loop: bool
+    open_s: float | None
+    avail_s: float | None
+    need_s: float | None
+    drop_accel_share: float | None
+    drop_speed_err_pu: float | None
+
+
+class DropBack(TypedDict, total=False):
+    """How an open-loop run that began as a drop back from closed loop began (Evidence's drop_*)."""
+
+    drop_accel_share: float | None
+    drop_speed_err_pu: float | None
+
+
+class Finding(TypedDict):
+    """A verdict finding of a check that failed or did not test the observer (:func:`findings`)."""
+
+    issue: str
+    check: str
+    causes: list[str]
+    text: str
+
+
 @dataclass(frozen=True)
 class Judged:
     """One simulated scenario judged: its metrics, what failed (with the evidence where: reports/causes.py
     ``Failure``), what makes the run not hold, and why it did not test the observer ("" where it did)."""
 
-    metrics: dict[str, Any]
+    metrics: Metrics
     failures: list[Failure]
     problems: list[str]
     untested: str
@@ -121,7 +186,7 @@ class Judged:
         return [x.text for x in self.failures]
 
 
-def judge(tr: Traces, sc: Scenario, base_w: float) -> tuple[dict[str, Any], list[str], list[str]]:
+def judge(tr: Traces, sc: Scenario, base_w: float) -> tuple[Metrics, list[str], list[str]]:
     """(metrics, what failed, problems) of one simulated scenario against :data:`LIMITS`."""
     j = assess(tr, sc, base_w)
     return j.metrics, j.failed, j.problems
@@ -156,7 +221,7 @@ def untested_reason(open_loop: np.ndarray | None, dt: float) -> str:
 def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None = None) -> Judged:
     """One simulated scenario judged against :data:`LIMITS`, each failure with its evidence (the torque
     limit and full acceleration from ``scales``, where given)."""
-    m: dict[str, Any] = {"duration_s": f(tr.t[-1]), "samples": int(tr.t.size)}
+    m: Metrics = {"duration_s": f(tr.t[-1]), "samples": int(tr.t.size)}
     dt = float(tr.t[1] - tr.t[0]) if tr.t.size > 1 else 0.0
     T_N = float(tr.meta.get("T_N") or (scales.T_N if scales is not None else 0.0)) or None
     has = tr.data.__contains__
@@ -168,12 +233,14 @@ def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None =
     if scales is not None and dt > 0:
         n_w = max(n_w, int(0.2 * scales.J * scales.w_base / (scales.pole_pairs * scales.T_max) / dt))
 
-    def evidence(kind: str, text: str, k: int | None, lo: int | None = None, **kw: Any) -> Failure:
+    def evidence(
+        kind: str, text: str, k: int | None, lo: int | None = None, **kw: Unpack[Evidence]
+    ) -> Failure:
         if k is None:
             return Failure(kind, text, **kw)
         k = int(min(max(k, 0), tr.t.size - 1))
         a = max(0, k - n_w) if lo is None else lo
-        out: dict[str, Any] = {
+        out: Evidence = {
             "t": float(tr.t[k]),
             "open_loop": bool(open_loop[k]) if open_loop is not None else False,
         }
@@ -191,9 +258,10 @@ def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None =
                 out["torque_pu"] = float(np.max(np.abs(tr["T_ref"][a : k + 1])) / T_N)
             if scales is not None:
                 out["limit_pu"] = scales.T_max / T_N
-        return Failure(kind, text, **{**out, **kw})
+        out.update(kw)
+        return Failure(kind, text, **out)
 
-    def drop_back(a: int) -> dict[str, float]:
+    def drop_back(a: int) -> DropBack:
         # an open-loop run that began as a drop back from closed loop (sample a): how fast the drive's
         # speed changed over the window before it, and how far the open-loop frame started off the rotor
         if a <= 0 or w_m is None or scales is None or not has("w_hat"):
@@ -205,7 +273,7 @@ def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None =
             "drop_speed_err_pu": float((w_m[a] - tr["w_hat"][a]) / base_w),
         }
 
-    def open_time(k_tail: int) -> dict[str, float]:
+    def open_time(k_tail: int) -> Evidence:
         # since the reference's last step: the I-f start's time, the time to the judged tail, and what
         # the rest of the step (outside the start's speeds) needs at the torque limit against the load
         if open_loop is None or w_m is None or scales is None or not has("w_ref") or dt <= 0:
@@ -391,7 +459,7 @@ def finders(
     return family, unstable
 
 
-def entry(sc: Scenario, j: Judged, causes: Sequence[Named], label: str) -> dict[str, Any]:
+def entry(sc: Scenario, j: Judged, causes: Sequence[Named], label: str) -> Check:
     """The check of one judged scenario (report.json ``time_domain``), its failures with their causes."""
     cap = f"{sc.title} ({sc.source}), re-run with the gains under review ({label})."
     if j.untested:
@@ -400,7 +468,7 @@ def entry(sc: Scenario, j: Judged, causes: Sequence[Named], label: str) -> dict[
         cap += " Failed: " + "; ".join(j.failed) + "."
     if open_loop_in(j.metrics):
         cap += " Grey: the open-loop I-f start has the loop."
-    failures = [
+    failures: list[FailureRecord] = [
         {
             **{k: v for k, v in dataclasses.asdict(x).items() if v is not None},
             "cause": c.cause,
@@ -429,7 +497,7 @@ def entry(sc: Scenario, j: Judged, causes: Sequence[Named], label: str) -> dict[
     }
 
 
-def open_loop_in(metrics: dict[str, Any]) -> bool:
+def open_loop_in(metrics: Metrics) -> bool:
     """Whether a run had the open-loop I-f start in the loop at some time."""
     return bool(metrics.get("open_loop_s"))
 
@@ -440,7 +508,7 @@ def checks(
     runs: Sequence[Scenario | str],
     label: str,
     progress: Callable[[str], None],
-) -> tuple[list[dict[str, Any]], list[Figure]]:
+) -> tuple[list[Check], list[Figure]]:
     """Simulate each scenario (a Scenario, or a built-in name or file) with ``gains`` (None: each
     scenario's own choice) and judge it, each failure with its cause (reports/causes.py); (checks,
     figures)."""
@@ -449,7 +517,7 @@ def checks(
     fam = family_of(drive)
     scales: DriveScales | None = fam.scales(drive) if isinstance(fam, Scaled) else None
     family, unstable = finders(drive, gains)
-    out: list[dict[str, Any]] = []
+    out: list[Check] = []
     figs: list[Figure] = []
     for item in runs:
         sc = item if isinstance(item, Scenario) else load_scenario(item, drive)
@@ -468,10 +536,10 @@ def checks(
     return out, figs
 
 
-def findings(td: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+def findings(td: Sequence[Check]) -> list[Finding]:
     """Verdict findings of the checks that failed (what, where, its cause and the change that fixes it)
     and of those that did not test the observer (why)."""
-    out = []
+    out: list[Finding] = []
     for c in td:
         if not c["passed"]:
             why = [cause_clause(x) for x in c["failures"]]
@@ -497,13 +565,13 @@ def findings(td: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-def cause_clause(x: dict[str, Any]) -> str:
+def cause_clause(x: FailureRecord) -> str:
     """A failure of a check (report.json ``failures``) with its cause and fix, for a finding."""
     detail = f": {x['detail']}" if x.get("detail") else ""
     return f"{x['text']} ({x['cause_title']}{detail}; fix: {x['fix']})"
 
 
-def lost(td: Sequence[dict[str, Any]]) -> bool:
+def lost(td: Sequence[Check]) -> bool:
     """Whether a check did not hold at all (diverged or lost the rotor position)."""
     return any(c["problems"] for c in td)
 
@@ -511,21 +579,19 @@ def lost(td: Sequence[dict[str, Any]]) -> bool:
 STATUS_ORDER = ("pass", "warn", "fail")
 
 
-def check_status(c: dict[str, Any]) -> str:
+def check_status(c: Status) -> str:
     """A check's own status: "fail" where it failed, "warn" where it passed without testing the observer
     (not tested sensorless), else "pass"."""
     return "fail" if not c["passed"] else "warn" if c.get("untested") else "pass"
 
 
-def status_with(status: str, td: Sequence[dict[str, Any]]) -> str:
+def status_with(status: str, td: Sequence[Check]) -> str:
     """A verdict's status with the checks (one rule): any failed check makes it "fail", a check not
     tested sensorless at best "warn"."""
     return max([status, *(check_status(c) for c in td)], key=STATUS_ORDER.index)
 
 
-def section(
-    number: int, td: Sequence[dict[str, Any]], figs: list[Figure], left_out: Sequence[str] = ()
-) -> Section:
+def section(number: int, td: Sequence[Check], figs: list[Figure], left_out: Sequence[str] = ()) -> Section:
     """The report section of the checks; ``left_out``: what they do not check (:func:`limitations`)."""
     title = f"{number}. Time-domain checks"
     notes = tuple(Paragraph(x) for x in left_out)
@@ -572,7 +638,7 @@ def section(
         "the change that fixes it."
     )
     table = Table(header, tuple(rows), numeric=frozenset({2, 4, 5, 6, 7}))
-    blocks: list[Any] = [Paragraph(limits), *notes, table]
+    blocks: list[Block] = [Paragraph(limits), *notes, table]
     for c in findings(td):
         blocks.append(Paragraph(c["text"] + ".", "bad" if c["issue"] != "not tested sensorless" else ""))
     return Section(title, (*blocks, *figs))

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import zipfile
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design import registry
@@ -76,7 +77,7 @@ def npz_bytes(traces: Traces, every: int = 1) -> bytes:
     return out.getvalue()
 
 
-def read_csv(path: Any) -> dict[str, np.ndarray]:
+def read_csv(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
     """Read a traces CSV back: {name: column} (units dropped from the headings)."""
     with open(path, encoding="utf-8") as f:
         lines = [ln for ln in f if not ln.startswith("#")]

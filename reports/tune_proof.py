@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from sensorless.design.capabilities import Linearizable, Scaled, require
@@ -37,8 +36,8 @@ from sensorless.design.scenario import Scenario, builtin_names
 from sensorless.design.simulate import simulate
 from sensorless.reports import time_domain
 
-# (drive, gains, w [rad/s electrical], torque [N m]) -> a Linearization (design/linearization.py)
-Analysis = Callable[[Drive, GainSet, np.ndarray, np.ndarray], Any]
+# (drive, gains, w [rad/s electrical], torque [N m]) -> the figures (a Linearization, design/linearization.py)
+Analysis = Callable[[Drive, GainSet, np.ndarray, np.ndarray], "Linearization | Combined"]
 ANALYSIS: Analysis  # the analysis ``sensorless tune`` proves with (set below: drive_analysis)
 SPEEDS = 20  # per direction, from SPEED_MIN to 1 p.u.
 SPEED_MIN = 0.05  # p.u.
@@ -107,6 +106,15 @@ def envelope(drive: Drive) -> tuple[np.ndarray, np.ndarray] | None:
     return W.ravel(), T.ravel()
 
 
+class ProofCheck(time_domain.Status):
+    """One time-domain check of a proof: a scenario judged (reports/time_domain.py ``assess``)."""
+
+    name: str
+    failed: list[str]
+    problems: list[str]
+    metrics: time_domain.Metrics
+
+
 @dataclass(frozen=True)
 class Proof:
     """One gain set's figures: per envelope point (max Re [1/s], NaN: no equilibrium) and per check."""
@@ -116,7 +124,7 @@ class Proof:
     torque: np.ndarray = field(default_factory=lambda: np.zeros(0))
     max_real: np.ndarray = field(default_factory=lambda: np.zeros(0))
     worst_damping: float = float("nan")
-    checks: tuple[dict[str, Any], ...] = ()
+    checks: tuple[ProofCheck, ...] = ()
 
     def stable(self) -> np.ndarray:
         """(N,) bool: an equilibrium exists and every pole has Re < 0."""
@@ -168,7 +176,7 @@ def prove(
         d = np.asarray(lin.worst_damping, float)
         wd = float(np.nanmin(d)) if np.isfinite(d).any() else float("nan")
     scales = fam.scales(drive) if isinstance(fam, Scaled) else None
-    checks = []
+    checks: list[ProofCheck] = []
     for sc in scenarios:
         progress(f"checking {label} gains: simulating {sc.name}")
         tr = simulate(drive, sc, gains)

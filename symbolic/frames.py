@@ -9,16 +9,18 @@ Luomi (2008) eq. (1); ``rot(theta)`` rotates by +theta (their Appendix, eq. (24)
 from __future__ import annotations
 
 import math
+from typing import TypeAlias
 
 import casadi as ca
 
-Sym = ca.SX | ca.MX | ca.DM | float
+Sym: TypeAlias = ca.SX | ca.MX | ca.DM | float  # an argument: a CasADi expression or a number
+Expr: TypeAlias = ca.SX | ca.MX | ca.DM  # a result: a CasADi expression
 
 J = ca.DM([[0.0, -1.0], [1.0, 0.0]])
 I2 = ca.DM.eye(2)
 
 
-def rot(theta: Sym) -> Sym:
+def rot(theta: Sym) -> Expr:
     """T = cos(theta) I + sin(theta) J: rotates a vector by +theta."""
     c, s = ca.cos(theta), ca.sin(theta)
     return ca.vertcat(ca.horzcat(c, -s), ca.horzcat(s, c))

@@ -5,14 +5,13 @@ gains hold under the stated estimate errors (tuning/tune.py)."""
 from __future__ import annotations
 
 import itertools
-from typing import Any
 
 import numpy as np
 from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings
 from sensorless.tuning import nlp
 from sensorless.tuning.candidates import NOISE, Candidates
 from sensorless.tuning.model import TuningModel
-from sensorless.tuning.result import figures
+from sensorless.tuning.result import RobustCase, figures
 
 # Under estimate errors the gains must be strictly stable: max Re(p) <= -ROBUST_MARGIN * scale (the pole
 # scale), a margin far above the NLP's tolerance (search.FEASIBILITY_TOL = 1e-7) so that "stable" is not
@@ -48,10 +47,10 @@ def label(w: float, T: float, w_base: float, extra: str = "") -> str:
     return f"w_m = {w / w_base:+.3f} p.u., T_e = {T:+.3g} N m{extra}"
 
 
-def robust(model, settings, theta, Wd, Td, wb) -> list[dict[str, Any]]:
+def robust(model, settings, theta, Wd, Td, wb) -> list[RobustCase]:
     """Per estimate-error scenario the worst max Re of the poles on the dense grid, and where; raises
     TuningError if the gains are unstable under one."""
-    out = []
+    out: list[RobustCase] = []
     for name, est in error_scenarios(settings, model):
         f = figures(model, theta, Wd, Td, est)
         mr = np.where(np.isfinite(f.decay), -f.decay, np.inf)

@@ -31,8 +31,10 @@ class TuneOutcome(Protocol[O]):
     """What a tuner returns: the gain table and the lines of its terminal summary (of the family's own
     drive type)."""
 
-    law: str
-    table: GainTable
+    @property
+    def law(self) -> str: ...
+    @property
+    def table(self) -> GainTable: ...
 
     def summary_lines(self, drive: O) -> list[str]:
         """Parameters before -> after, worst figures and where, what was kept and why."""
@@ -119,7 +121,7 @@ class TuningHooks(Generic[DriveT]):
         )
 
 
-def hooks(family: ObserverFamily) -> TuningHooks[Any]:
+def hooks(family: ObserverFamily[DriveT]) -> TuningHooks[DriveT]:
     """The tuning hooks of ``family``; CapabilityError if it has none."""
     if family.tuning is None:
         raise CapabilityError(f"observer family {family.name!r} has nothing to tune")

@@ -8,8 +8,9 @@ assembled here from the pipeline's numbers (tuning/tune.py).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings, tuning_keys
@@ -60,6 +61,17 @@ class Figures:
         )
 
 
+class RobustCase(TypedDict):
+    """The tuned gains under one corner of the estimate-error box (tuning/conditions.py ``robust``)."""
+
+    scenario: str  # e.g. "R_s+30%,psi_pm-10%"
+    estimate: np.ndarray  # the law's estimates there
+    max_real_1_s: float  # the worst max Re of the poles on the dense grid
+    at_w_m_pu: float
+    at_T_e_Nm: float
+    stable: bool
+
+
 @dataclass(frozen=True)
 class TuneResult:
     """Everything ``sensorless tune`` reports."""
@@ -72,7 +84,7 @@ class TuneResult:
     grid: Figures  # tuned gains on the optimization grid
     dense: Figures  # tuned gains on the re-verification grid
     dense_baseline: Figures  # the drive file's gains on the re-verification grid
-    robust: list[dict[str, Any]]  # per error scenario: worst max Re on the dense grid
+    robust: list[RobustCase]  # per error scenario: worst max Re on the dense grid
     table: GainTable
     seconds: float
     selection: dict[str, Any]  # which dense-verified candidate was kept and why
@@ -110,7 +122,7 @@ class TuneResult:
             elif self.model.n_theta <= 6:
                 out.append(f"{n + ' [' + u + ']':<22}{v0:>18.4g}{'':>{18 * seeded}}{v:>18.4g}")
 
-        def where(a: dict[str, Any]) -> str:
+        def where(a: Mapping[str, float]) -> str:
             return f"at {a['w_m_pu']:+.3f} p.u., {a['T_e_Nm']:+.3g} N m"
 
         sd = s.get("seed", {})

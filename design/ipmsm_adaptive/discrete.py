@@ -35,7 +35,7 @@ import dataclasses
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
 import casadi as ca
 import numpy as np
@@ -96,6 +96,8 @@ class DiscretePoleSweep(PoleSweep):
     ``poles_discrete`` = ln(z)/T_s of the four largest |z| of the one-step map at its fixed point, and
     what the discretization leaves in steady state (NaN where no fixed point is found)."""
 
+    poles_discrete: np.ndarray  # always here (Linearization's, required)
+    T_s: float  # its sampling period [s]
     discretization: str
     y_d: np.ndarray  # (N, 5) fixed point of the one-step map (STATE_NAMES)
     J_d: np.ndarray  # (N, 5, 5) Jacobian of the one-step map there
@@ -168,6 +170,31 @@ def discrete_sweep(
         feedthrough=feedthrough,
         u_z=plant[:, 2:4],
     )
+
+
+@overload
+def linearize(
+    drive: IpmsmDrive,
+    w_m: Any,
+    T_e: Any,
+    gain: str | tuple | None = None,
+    discretization: None = None,
+    T_s: float | None = None,
+    **options: Any,
+) -> PoleSweep: ...
+
+
+@overload
+def linearize(
+    drive: IpmsmDrive,
+    w_m: Any,
+    T_e: Any,
+    gain: str | tuple | None = None,
+    *,
+    discretization: str,
+    T_s: float | None = None,
+    **options: Any,
+) -> DiscretePoleSweep: ...
 
 
 def linearize(

@@ -137,7 +137,7 @@ def schedule_of(gains: GainSet) -> GainSchedule:
 
 def runtime_params(drive: IpmsmDrive, alpha_fo: float | None = None) -> dict[str, float]:
     """Parameters of the runtime step (step.PARAMS) from a drive of this family."""
-    e, inj, rt = drive.estimate, drive.injection, drive.runtime
+    e, inj, rt = drive.estimate, drive.injection, drive.run
     return {
         "R_s": e.R_s,
         "L_d": e.L_d,
@@ -172,7 +172,7 @@ def _check_sampling(drive: IpmsmDrive, params: dict[str, float]) -> None:
 
 def runtime_setup(drive: IpmsmDrive, gains: GainSet, discretization: str | None = None) -> RuntimeSetup:
     """The runtime observer of ``drive`` with ``gains`` (discretization: the drive's ``[runtime]``)."""
-    disc = discretization or drive.runtime.discretization
+    disc = discretization or drive.run.discretization
     if disc not in OBSERVER.discretizations:
         raise ValueError(f"unknown discretization {disc!r} (known: {', '.join(OBSERVER.discretizations)})")
     params = runtime_params(drive, gains.values.get("alpha_fo"))

@@ -235,13 +235,20 @@ class IpmsmDrive:
         only were unstable just beyond it: piippo2008's schedule, max Re +1.5 .. +11 1/s at
         T_max = 1.57 T_N for |w| >= 0.3 p.u.). A preset keeps its own: piippo2008 reproduces Piippo,
         Hinkkanen, Luomi (2008), tuned at +-T_N."""
-        env = self.tuning.envelope
+        env = self.tuning.resolved
         return env if str(self.file).startswith("preset:") else env.widened(self.control.T_max)
 
     @property
     def T_s(self) -> float:
         """Sampling period [s]."""
         return self.control.T_s
+
+    @property
+    def run(self) -> Runtime:
+        """The ``[runtime]`` section (the loader fills its defaults: a loaded drive always has it)."""
+        if self.runtime is None:
+            raise ValueError(f"{self.file}: the drive has no [runtime] section (load it with load_drive)")
+        return self.runtime
 
     def pu_speed(self, w: Any) -> Any:
         """Electrical rad/s -> per unit of ``base.w``."""
@@ -259,7 +266,7 @@ def check_plausibility(drive: IpmsmDrive, context: Mapping[str, Any]) -> list[st
         f_N=drive.rating.f_N if given["f_N"] else None,
         u_dc=drive.control.u_dc,
         T_s=drive.control.T_s,
-        w_max=drive.runtime.w_max,
+        w_max=drive.run.w_max,
         keys=keys,
     )
     out = warning_lines(findings, file)

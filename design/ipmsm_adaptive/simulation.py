@@ -89,7 +89,7 @@ def build(drive: IpmsmDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
         sc,
         setup,
         meta={"injection": bool(sc.options["injection"])},
-        carrier=(drive.injection.w_c, drive.runtime.w_bp),
+        carrier=(drive.injection.w_c, drive.run.w_bp),
         notch=bool(sc.options["injection"]),
         frames=FRAMES,
     )

@@ -184,7 +184,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     # ------------------------------------------------------------------ control
     alpha_s = min(ALPHA_S_TAU / tau_m, ALPHA_S_G * g)
     sec = doc.section("control", "sampling, discretization and the speed loop of Fig. 1")
-    derived_ctl = {
+    derived_ctl: dict[str, tuple[object, str]] = {
         "T_s": (f"{g6(1e6 / f_s)} us", f"1/f_s, f_s = {g6(f_s / 1e3)} kHz"),
         "discretization": ("rk2-model", "the family's default (docs/families/pmac_reduced_order.md)"),
         "alpha_s": (

@@ -127,6 +127,8 @@ class ObserverPoles(Linearization):
     (imaginary parts modulo 2 pi / period); for a sinusoidal EMF they are plain eigenvalues.
     """
 
+    poles_discrete: np.ndarray  # always: the observer that runs is sampled (Linearization's, required)
+    T_s: float  # its sampling period [s]
     load_estimation: bool
     method: str  # discretization
     memory_z: np.ndarray  # (N, n_d - n) |z| of the other one-step eigenvalues (largest along the window)
@@ -254,7 +256,7 @@ def analyze(
         raise ValueError("zero speed: the EMF observer is undefined at standstill")
     n = w_f.size
     om, oo, motor, params = analysis_arguments(drive, **over)
-    poles_c = continuous_poles(drive, w_f, T_f, load_estimation, n_angles, **over)
+    poles_c = continuous_poles(drive, w_f, T_f, load_estimation, n_angles, T_s=T_s, g=g, Gamma=Gamma)
     n_c = poles_c.shape[1]
     # per point, so that a point's result does not depend on the others analysed with it
     slow = np.nanmax(poles_c.real, axis=1)

@@ -43,7 +43,7 @@ def parameters(drive: PmacDrive) -> tuple[Uncertain, ...]:
 
 
 def _replaced(record: Any, values: Mapping[str, float]) -> Any:
-    new = {k: float(v) for k, v in values.items() if k != "Phi"}
+    new: dict[str, float | tuple[float, ...]] = {k: float(v) for k, v in values.items() if k != "Phi"}
     if "Phi" in values:  # the EMF's harmonics scale with its fundamental
         r = float(values["Phi"]) / record.Phi[0]
         new["Phi"] = tuple(x * r for x in record.Phi)

@@ -64,7 +64,8 @@ class PmacMotor:
     """The true motor, eqs. (2)-(5)."""
 
     p: int = q("integer", check="pole_pairs", doc="pole pairs")
-    reading: str = field(metadata={"dim": "choice", "doc": "reading of eq. (2): mechanical|electrical"})
+    # q() is a field specifier mypy does not see: the fields before are required too
+    reading: str = field(metadata={"dim": "choice", "doc": "reading of eq. (2): mechanical|electrical"})  # type: ignore[misc]
     R: float = q("resistance", doc="stator resistance [ohm]")
     L: float = q("inductance", doc="stator inductance [H]")
     J: float = q("inertia", doc="inertia [kg m^2]")
@@ -106,7 +107,7 @@ class PmacControl:
     """Sampling, discretization, and the speed loop of Fig. 1 (its gains are not given in the paper)."""
 
     T_s: float = q("time", doc="sampling period [s]")
-    discretization: str = field(metadata={"dim": "choice", "doc": "observer discretization scheme"})
+    discretization: str = field(metadata={"dim": "choice", "doc": "observer discretization scheme"})  # type: ignore[misc]
     alpha_s: float = q("angular", doc="speed-loop bandwidth [rad/s]")
     T_max: float = q("torque", doc="torque reference limit [N m]; bounds the runtime observer's load state")
     # optional: the current sensor's noise, per axis, rms, in each sample at T_s (design/noise.py)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
 
 from sensorless.design.family import CapabilityError, Drive
 from sensorless.design.registry import family_of
@@ -18,7 +17,7 @@ from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 
 
-def register(sub: Any) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``analyze`` subcommand."""
     p = sub.add_parser(
         "analyze",

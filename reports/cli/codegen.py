@@ -12,7 +12,6 @@ import dataclasses
 import math
 import struct
 import sys
-from typing import Any
 
 from sensorless.design.family import CapabilityError
 from sensorless.design.gain_table import GainTableError, read_gain_table
@@ -31,7 +30,7 @@ from sensorless.reports.files import OutputSet
 from sensorless.reports.options import Renamed
 
 
-def register(sub: Any) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``codegen`` subcommand."""
     p = sub.add_parser(
         "codegen",

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _version
-from typing import Any
 
 from sensorless.design.family import Drive
+from sensorless.design.gain_table import GainTable
 from sensorless.design.poles import MIN_DAMPING  # noqa: F401  (re-exported: the commands read it here)
 from sensorless.reports.options import (  # noqa: F401  (re-exported: the commands read them here)
     COUNT,
@@ -52,7 +52,7 @@ def load(spec: str, command: str) -> Drive:
     return drive
 
 
-def foreign_table(table: Any, table_file: str, drive: Drive) -> str | None:
+def foreign_table(table: GainTable, table_file: str, drive: Drive) -> str | None:
     """Why a gain table does not belong to ``drive`` (tuned for another drive, or another version of its
     file), or None: the gains may still be valid for it, so commands warn and go on."""
     tuned_for = table.drive.get("name")

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
 
 from sensorless.design.family import CapabilityError
 from sensorless.design.gain_table import read_gain_table
@@ -22,7 +21,7 @@ from sensorless.reports.files import OutputSet
 from sensorless.reports.options import Renamed
 
 
-def register(sub: Any) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``export`` subcommand."""
     names = exporter_names()
     p = sub.add_parser(

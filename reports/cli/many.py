@@ -31,7 +31,7 @@ import sys
 import tempfile
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from sensorless.reports import interrupts
 from sensorless.reports.cli.common import Number, UsageError
@@ -154,7 +154,26 @@ def run(command: str, args: argparse.Namespace, files: list[str]) -> int:
     return next((c for c in (1, 2, 3) if c in codes), 0)
 
 
-def one(command: str, base: dict[str, Any], file: str, out: str) -> dict[str, Any]:
+class Run(TypedDict):
+    """One drive's command as run on a worker (:func:`one`)."""
+
+    code: int  # its exit status
+    stdout: str
+    stderr: str
+
+
+class Row(TypedDict):
+    """One drive's line of the summary (SUMMARY, :func:`_row`)."""
+
+    drive: str
+    file: str
+    exit_status: int
+    result: str
+    message: str
+    out: str
+
+
+def one(command: str, base: dict[str, Any], file: str, out: str) -> Run:
     """One drive on a worker: the one-drive command with its output captured; its exit status as the
     command line would give it (a user error: 2 and its line; a bug: 1 and its last line)."""
     from sensorless.reports.cli.main import _exit_status
@@ -185,7 +204,7 @@ def one(command: str, base: dict[str, Any], file: str, out: str) -> dict[str, An
     return {"code": code, "stdout": stdout.getvalue(), "stderr": stderr.getvalue()}
 
 
-def _row(command: str, name: str, file: str, out: Path, res: dict[str, Any]) -> dict[str, Any]:
+def _row(command: str, name: str, file: str, out: Path, res: Run) -> Row:
     # the line that says why: a run that ends in an error gives the error, not an earlier warning
     err = res["stderr"].splitlines()
     lines = [ln for ln in err if ": error: " in ln or ": bug: " in ln] if res["code"] else []
@@ -211,7 +230,7 @@ def _row(command: str, name: str, file: str, out: Path, res: dict[str, Any]) -> 
     }
 
 
-def _csv(rows: list[dict[str, Any]]) -> str:
+def _csv(rows: list[Row]) -> str:
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(rows[0]), lineterminator="\n")
     w.writeheader()
@@ -219,7 +238,7 @@ def _csv(rows: list[dict[str, Any]]) -> str:
     return buf.getvalue()
 
 
-def _table(rows: list[dict[str, Any]]) -> str:
+def _table(rows: list[Row]) -> str:
     cols = ("drive", "exit_status", "result", "message")
     cells = [[str(r[c]) for c in cols] for r in rows]
     width = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(cols)]

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from typing import Any
 
 from sensorless.design.family import Drive
 from sensorless.reports.cli.common import MIN_DAMPING, Number, UsageError, load, version
@@ -34,7 +33,7 @@ SPREAD_HELP = (
 )
 
 
-def register(sub: Any) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``montecarlo`` subcommand."""
     p = sub.add_parser(
         "montecarlo",

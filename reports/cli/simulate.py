@@ -13,7 +13,7 @@ import argparse
 import dataclasses
 import sys
 import time
-from typing import Any
+from typing import TextIO
 
 import numpy as np
 from sensorless.design.family import CapabilityError
@@ -25,7 +25,7 @@ from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 
 
-def register(sub: Any) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Add the ``simulate`` subcommand."""
     p = sub.add_parser(
         "simulate",
@@ -66,7 +66,7 @@ def register(sub: Any) -> None:
 class Progress:
     """Progress of a long run on stderr: a bar on a terminal, a line per 10 % otherwise."""
 
-    def __init__(self, label: str, T_s: float, stream: Any = None) -> None:
+    def __init__(self, label: str, T_s: float, stream: TextIO | None = None) -> None:
         self.label, self.T_s = label, T_s
         self.stream = stream or sys.stderr
         self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()

@@ -28,7 +28,8 @@ import math
 import os
 import sys
 import time
-from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from sensorless.design.family import CapabilityError, Drive
 from sensorless.design.registry import families, family_of
@@ -53,7 +54,13 @@ UNCHECKED_ENV = "SENSORLESS_TUNE_UNCHECKED"  # set: --unchecked by default (the 
 class _OldFlag(argparse.Action):
     """``--family``, the former name of ``--law``: works, and says its new name (for one release)."""
 
-    def __call__(self, parser: Any, namespace: Any, values: Any, option_string: Any = None) -> None:
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: str | Sequence[str] | None,
+        option_string: str | None = None,
+    ) -> None:
         print("sensorless tune: note: --family is now called --law", file=sys.stderr)
         setattr(namespace, self.dest, values)
 

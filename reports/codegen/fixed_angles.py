@@ -9,8 +9,9 @@ T_s w) and the cosine of an arcsine.
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
 
+from sensorless.reports.codegen.c_graph import Node
 from sensorless.reports.codegen.fixed_format import _PI, COEF_BITS, _close
 from sensorless.reports.codegen.fixed_ops import NOMINAL_BITS, Ins
 
@@ -18,13 +19,13 @@ from sensorless.reports.codegen.fixed_ops import NOMINAL_BITS, Ins
 class AngleLowering:
     """The angle methods of the lowering (its state: nodes, const, angle, ang_c, ang_of_c, rt...)."""
 
-    nodes: Any
+    nodes: list[Node]
     prog: list[Ins]
     angle: dict[int, bool]
     ang_c: dict[int, int]
     ang_of_c: dict[int, int]
     rt: set[int]
-    expr: Any
+    expr: Callable[[int], str]  # node -> its expression in the parameters' names
     angle_fields: set[int]
     in_slot: dict[int, int]
     wr: list[float]

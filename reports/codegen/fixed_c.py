@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import json
 import re
-from typing import Any
+from collections.abc import Mapping
+from typing import Literal, TypeAlias
 
 from sensorless.reports.codegen.fixed_helpers import lit, mulw
 from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, Ins
@@ -254,11 +255,14 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
     ]
 
 
-ALWAYS = "always"
+ALWAYS: Literal["always"] = "always"
+# when a slot is needed: ALWAYS, None (never: dead) or (c, pol): only when slot c is nonzero (pol True)
+# or zero (pol False)
+Guard: TypeAlias = Literal["always"] | tuple[int, bool] | None
 HEAVY = {"ATAN2", "SIN", "COS", "SQRT", "DIV", "CSA", "SNA"}
 
 
-def guards(prog: list[Ins], roots: list[int]) -> list[Any]:
+def guards(prog: list[Ins], roots: list[int]) -> list[Guard]:
     """When each slot is needed: ALWAYS, None (never: dead), or (c, pol): only when slot c is nonzero
     (pol True) or zero (pol False), c itself always computed. A branch of a selection on c, or the
     second operand of ``c && x`` (C's && does not read x when c is 0), is needed under that condition
@@ -272,10 +276,10 @@ def guards(prog: list[Ins], roots: list[int]) -> list[Any]:
         banned |= bad
 
 
-def _needs(prog: list[Ins], roots: list[int], banned: set[tuple[int, bool]]) -> list[Any]:
-    need: list[Any] = [None] * len(prog)
+def _needs(prog: list[Ins], roots: list[int], banned: set[tuple[int, bool]]) -> list[Guard]:
+    need: list[Guard] = [None] * len(prog)
 
-    def implies(g: Any, h: Any) -> bool:
+    def implies(g: Guard, h: Guard) -> bool:
         """Condition g implies condition h: equal, or g is (c && ...) true with h among its terms."""
         if g == h:
             return True
@@ -287,7 +291,7 @@ def _needs(prog: list[Ins], roots: list[int], banned: set[tuple[int, bool]]) -> 
     for ins in prog:
         heavy.append(ins.op in HEAVY or any(heavy[a] for a in ins.args))
 
-    def merge(k: int, g: Any) -> None:
+    def merge(k: int, g: Guard) -> None:
         # needed under g and under h, g implying h: needed under h (the weaker), not always. Only
         # for heavy slots (an atan2 that a sample rejected before it does not need is skipped); a
         # cheap one is computed always (a branch and a zeroed variable cost more than it saves)
@@ -301,7 +305,7 @@ def _needs(prog: list[Ins], roots: list[int], banned: set[tuple[int, bool]]) -> 
         else:
             need[k] = ALWAYS
 
-    def cond(c: int, pol: bool, outer: Any) -> Any:
+    def cond(c: int, pol: bool, outer: Guard) -> Guard:
         if prog[c].op == "NOT":
             c, pol = prog[c].args[0], not pol
         return outer if (c, pol) in banned else (c, pol)
@@ -332,7 +336,7 @@ def format_text(kind: str, f: int) -> str:
     )
 
 
-def formats_json(fx: FixedStep, header: dict[str, Any]) -> str:
+def formats_json(fx: FixedStep, header: Mapping[str, object]) -> str:
     """The machine-readable formats (beside the C): every field's format, range and reason."""
     data = {
         **header,

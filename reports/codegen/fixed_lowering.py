@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable, Hashable
 from typing import Any
 
 import numpy as np
@@ -41,7 +42,9 @@ class Lowering(AngleLowering, TableLowering):
         self.angle: dict[int, bool] = {}
         self.stored: dict[int, float] = {}  # constant node -> the value the program stores
         self.rt: set[int] = set()  # parameter-derived nodes read from the parameter struct at run time
-        self.expr: Any = str  # node -> its expression in the parameters' names (the header's comment)
+        self.expr: Callable[[int], str] = (
+            str  # node -> its expression in the parameters' names (the header's comment)
+        )
         self.params: list[dict[str, Any]] = []  # the parameter struct's fields
         self.param_c: dict[tuple, int] = {}
         self.sim_lo: dict[int, float] = {}  # smallest and largest simulated value of each node
@@ -161,7 +164,7 @@ class Lowering(AngleLowering, TableLowering):
 
     def param_slot(
         self,
-        key: Any,
+        key: Hashable,
         c: float,
         name: str,
         f: int | None = None,

@@ -11,16 +11,19 @@ refused with the field named: regenerate the C for that drive instead.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.reports.codegen.fixed_format import word
 from sensorless.reports.codegen.fixed_program import FixedStep, step_graph
 from sensorless.reports.codegen.fixed_ranges import evaluate
 
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.runtime import RuntimeSetup
+
 
 def params_from_si(
-    setup: Any, fx: FixedStep, values: dict[str, float] | None = None, gain: np.ndarray | None = None
+    setup: RuntimeSetup, fx: FixedStep, values: dict[str, float] | None = None, gain: np.ndarray | None = None
 ) -> list[int]:
     """The raw words of ``fx``'s parameter struct (struct order) for the parameters of ``setup`` with
     ``values`` (SI, by the observer's parameter names) replacing the drive's, and the schedule's gain

@@ -9,13 +9,16 @@ checks' closed-loop runs: the largest distance between matched poles and the spe
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 from sensorless.reports.codegen.c_graph import Node, live_nodes
 from sensorless.reports.codegen.fixed_program import FixedStep, step_graph
 from sensorless.reports.codegen.fixed_ranges import evaluate
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.runtime import RuntimeSetup
 
 _SX = {
     "ADD": lambda a, b: a + b,
@@ -51,7 +54,7 @@ _SX = {
 }
 
 
-def _graph(setup: Any) -> tuple[list[Node], list, dict[int, float]]:
+def _graph(setup: RuntimeSetup) -> tuple[list[Node], list, dict[int, float]]:
     """The double step's graph (fixed_program.step_graph) and its parameter-derived constants as
     computed in double (node -> value)."""
     nodes, outs = step_graph(setup)
@@ -63,12 +66,14 @@ def _graph(setup: Any) -> tuple[list[Node], list, dict[int, float]]:
     return nodes, outs, exact
 
 
-def _rebuild(nodes: list[Node], outs: list, consts: dict[int, float], x: Any, m: Any) -> tuple[Any, Any]:
+def _rebuild(
+    nodes: list[Node], outs: list, consts: dict[int, float], x: ca.SX, m: ca.SX
+) -> tuple[ca.SX, ca.SX]:
     """(x_next, y) of the graph as SX of the state ``x`` and measurements ``m``, the nodes in
     ``consts`` replaced by their values."""
-    val: dict[int, Any] = {}
+    val: dict[int, ca.SX] = {}
 
-    def get(i: int) -> Any:
+    def get(i: int) -> ca.SX:
         if i not in val:
             nd = nodes[i]
             if i in consts:
@@ -94,7 +99,7 @@ def _jacobian(nodes: list[Node], outs: list, consts: dict[int, float], n_x: int,
 
 
 def pole_shift(
-    setup: Any, fx: FixedStep, x: np.ndarray, meas: np.ndarray, samples: int = 40
+    setup: RuntimeSetup, fx: FixedStep, x: np.ndarray, meas: np.ndarray, samples: int = 40
 ) -> dict[str, float]:
     """Largest pole displacement and spectral radii (double, stored constants) over ``samples``
     evenly spaced samples of the runs (columns of ``x``, ``meas``); the counter of the guard excluded."""
@@ -116,7 +121,7 @@ def pole_shift(
     return {"max_pole_shift": shift, "spectral_radius_double": rho_d, "spectral_radius_stored": rho_q}
 
 
-def stored_step(setup: Any, fx: FixedStep) -> ca.Function:
+def stored_step(setup: RuntimeSetup, fx: FixedStep) -> ca.Function:
     """The double step with its constants as the fixed-point program stores them (gains, filter and
     discretization coefficients in their Q formats), in double arithmetic: what the discrete analyses
     re-run on to show the quantization's effect on the poles (design/runtime.step_variant). Same

@@ -27,6 +27,7 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import casadi as ca
@@ -41,11 +42,12 @@ from sensorless.reports.codegen.fixed_ranges import MARGIN, evaluate, interval
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.runtime import RuntimeSetup
+    from sensorless.symbolic.runtime import RuntimeObserver
 
 __all__ = ["FixedStep", "fixed_step", "format_of", "runtime_parameters", "step_graph", "table_nodes"]
 
 
-def step_graph(setup: Any) -> tuple[list[Node], list[tuple[tuple[int, int], int]]]:
+def step_graph(setup: RuntimeSetup) -> tuple[list[Node], list[tuple[tuple[int, int], int]]]:
     """The graph of ``setup``'s double step (its parameters and gains inputs 2 and 3). With a
     tabulated schedule, the schedule's gains are a third output (their nodes: what the lowering
     replaces by a table lookup, :func:`table_nodes`)."""
@@ -230,7 +232,9 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
 _INFIX = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/"}
 
 
-def runtime_parameters(nodes: list[Node], obs: Any, gain_fields: tuple = ()) -> tuple[set[int], Any]:
+def runtime_parameters(
+    nodes: list[Node], obs: RuntimeObserver, gain_fields: tuple = ()
+) -> tuple[set[int], Callable[[int], str]]:
     """(the parameter-derived nodes that depend on a parameter or gain other than the variant's flags:
     the step reads them from the parameter struct at run time; a function giving a node's expression
     in the parameters' names, the gain vector's by ``gain_fields``: the schedule's, a tabulated

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
@@ -73,15 +73,15 @@ _F = {
 
 def evaluate(
     nodes: list[Node], inputs: dict[int, np.ndarray], want: set[int] | None = None
-) -> dict[int, Any]:
+) -> dict[int, np.ndarray | float]:
     """Every node's value (float64, vectorized over samples) with input ``i`` = ``inputs[i]`` (rows:
     nonzeros). Only the nodes ``want`` depends on, if given."""
     from sensorless.reports.codegen.c_graph import live_nodes
 
     idx = sorted(live_nodes(nodes, list(want))) if want is not None else range(len(nodes))
-    val: dict[int, Any] = {}
+    val: dict[int, np.ndarray | float] = {}
 
-    def get(i: int) -> Any:
+    def get(i: int) -> np.ndarray | float:
         if i not in val:
             nd = nodes[i]
             if nd.op == "CONST":

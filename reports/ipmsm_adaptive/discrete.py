@@ -62,7 +62,7 @@ def scheme(drive: IpmsmDrive, args: argparse.Namespace) -> str | None:
     """The scheme to analyse in discrete time (None: continuous only); refuses what cannot be done."""
     if not (args.discrete or args.discretization):
         return None
-    name = args.discretization or drive.runtime.discretization
+    name = args.discretization or drive.run.discretization
     if name not in DISCRETIZATIONS:
         raise UsageError(f"--discretization: unknown scheme {name!r} (known: {', '.join(DISCRETIZATIONS)})")
     if args.injection:
@@ -261,6 +261,7 @@ def angle_error_figure(drive: IpmsmDrive, g: Any, w: np.ndarray) -> Any:
     for ax, T in zip(axes, (drive.T_N, -drive.T_N), strict=True):
         for m in DISCRETIZATIONS:
             a = FAMILY.linearize(drive, g, w, T, discretization=m)
+            assert isinstance(a, DiscretePoleSweep)  # with a discretization
             ax.semilogy(w / wb, np.abs(np.degrees(a.err_theta)), label=m, lw=1.2)
         ax.axhline(0.1, color="0.4", ls=":", lw=0.8)
         ax.set_xlabel("rotor speed ω_m (p.u.)")
@@ -283,13 +284,14 @@ def report_section(
     """The report's section: each gain choice at the drive's scheme and T_s over -1..1 p.u. at +-T_N,
     the study of every scheme over T_s for the gains under review, and the steady-angle-error figure."""
     wb = drive.w_base
-    disc, T_s = drive.runtime.discretization, drive.control.T_s
+    disc, T_s = drive.run.discretization, drive.control.T_s
     w = np.linspace(-1, 1, 201 if fine else 41) * wb
     per_gain: dict[str, Any] = {}
     rows = []
     for label, g in choices.items():
         for T in (drive.T_N, -drive.T_N):
             a = FAMILY.linearize(drive, g, w, T, discretization=disc)
+            assert isinstance(a, DiscretePoleSweep)  # with a discretization
             env = np.abs(w) >= 0.05 * wb  # below: the low-speed unstable band and its edge
             k = int(np.nanargmax(np.where(env, np.abs(a.err_theta), -1)))
             entry = {

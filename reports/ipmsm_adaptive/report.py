@@ -39,6 +39,7 @@ from sensorless.reports.ipmsm_adaptive.discrete import report_section as discret
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
 from sensorless.reports.review import Review, settle, verdict_box
 from sensorless.reports.svg_render import svg_later
+from sensorless.reports.time_domain import Finding
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
@@ -219,7 +220,7 @@ class AdaptiveJudge(Judging["IpmsmDrive"]):
         )
 
         # 6. and 7., after the time-domain checks (section 5)
-        progress(f"[5/{steps}] the discrete-time observer that runs ({drive.runtime.discretization})")
+        progress(f"[5/{steps}] the discrete-time observer that runs ({drive.run.discretization})")
         data["discrete"], disc_section = discrete_section(6, drive, choices, review, fine, progress)
         progress(f"[6/{steps}] tuning: the pointwise bound and noise over the envelope")
         tuning_data, tuning_section = tuning.compute(drive, rev.table, choices, review, progress, default)
@@ -243,7 +244,7 @@ class AdaptiveJudge(Judging["IpmsmDrive"]):
         return judgement({**found.data, "time_domain": checks.td}, rev.label, min_damping, found.context)
 
     def conclude(
-        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         data = {**verdict_data(v, status, td_findings), "limitations": limits}
         return data, verdict_block(data)
@@ -416,7 +417,7 @@ def _coupling_change(coupling: tuple[float, ...]) -> str:
     )
 
 
-def verdict_data(v: Judgement, status: str, td_findings: list[dict[str, Any]]) -> dict[str, Any]:
+def verdict_data(v: Judgement, status: str, td_findings: list[Finding]) -> dict[str, Any]:
     """report.json "verdict" (without its limitations) of the judgement ``v`` settled with the
     time-domain checks: the findings as records, the analysis's first."""
     return {"status": status, **v.data, "findings": [*v.findings, *td_findings]}

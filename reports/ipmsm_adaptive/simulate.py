@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from sensorless.design.family import Drive
 from sensorless.design.ipmsm_adaptive import FAMILY
+from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 from sensorless.design.scenario import Scenario
 from sensorless.reports.family import Option
 from sensorless.reports.options import Renamed
@@ -34,7 +34,7 @@ OPTIONS = (
 )
 
 
-def scenario(drive: Drive, args: argparse.Namespace, sc: Scenario) -> Scenario:
+def scenario(drive: IpmsmDrive, args: argparse.Namespace, sc: Scenario) -> Scenario:
     """``sc`` with the options given; a gain the drive file does not define is one line naming it."""
     options = dict(sc.options)
     if args.gain_set is not None:

@@ -135,7 +135,7 @@ def compute(
     )
     blocks: list[Any] = [fig1, tab]
     pf = summary.get("pareto")
-    if pf:
+    if pf and table is not None:  # a front only in a table's summary
         blocks.append(
             Figure(
                 svg_later(functools.partial(_pareto_figure, pf, figs)),

@@ -19,6 +19,7 @@ from sensorless.design.pmac_reduced_order import FAMILY
 from sensorless.reports.document import Figure, Paragraph, Section, Table, Verdict, f, num, svg_uri
 from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, report_with
 from sensorless.reports.review import Review, gains_under_review, status_class, verdict_box
+from sensorless.reports.time_domain import Finding
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmac_reduced_order.schema import PmacDrive
@@ -149,7 +150,7 @@ class PmacJudge(Judging["PmacDrive"]):
         return Judgement(status, [], text, data=data)
 
     def conclude(
-        self, v: Judgement, status: str, td_findings: list[dict[str, Any]], limits: list[str]
+        self, v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
         """Its form: the time-domain checks' findings as records, their text among the reasons, shown
         as reasons in the box."""

@@ -17,13 +17,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF, base_gain, pll_gains
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 from sensorless.reports.causes import Failure, Named
+from sensorless.reports.time_domain import Check
 from sensorless.tuning.pmsm_flux_observer import Assessment, FluxTuneSettings, assess, low_limit
 
 if TYPE_CHECKING:  # typed by name only
@@ -57,7 +58,7 @@ def pll_fixed(gains: GainSet, alpha_s: float) -> GainSet | None:
     return dataclasses.replace(gains, values={**gains.values, **new}, source=f"{gains.source}, the PLL's fix")
 
 
-def pll_finding(gains: GainSet, alpha_s: float, td: Sequence[dict[str, Any]]) -> str:
+def pll_finding(gains: GainSet, alpha_s: float, td: Sequence[Check]) -> str:
     """Empty where the PLL's speed estimate settles at PLL_SPEED_LOOP x the speed loop's bandwidth
     ``alpha_s`` [rad/s] or faster; else why, and what to do."""
     min_decay = PLL_SPEED_LOOP * alpha_s

@@ -149,7 +149,7 @@ class FluxJudge(Judging["FluxObserverDrive"]):
         items: tuple[Any, ...] = (Paragraph(text), cmp_table)
         table = rev.table
         pf = table.summary.get("pareto") if table is not None else None
-        if pf is not None and pf.get("metric") == "bias":
+        if table is not None and pf is not None and pf.get("metric") == "bias":
             items += (
                 Figure(
                     svg_uri(front_figure(pf, analysis.get(rev.label, {}))),

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 from sensorless.design.family import GainSet
 from sensorless.reports.document import f
+from sensorless.reports.time_domain import Check
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
@@ -56,9 +57,7 @@ def startup_findings(drive: FluxObserverDrive, gains: GainSet) -> tuple[list[str
     return lead + change_lines(fw, judged, drive.w_base), data
 
 
-def reversal_finding(
-    drive: FluxObserverDrive, runs: Sequence[Any], td: Sequence[dict[str, Any]]
-) -> list[str]:
+def reversal_finding(drive: FluxObserverDrive, runs: Sequence[Any], td: Sequence[Check]) -> list[str]:
     """Where the firmware cannot run a failed check: ODrive's sensorless mode "does not support stopping
     or changing direction" (ODrive's documentation, sensorless mode), so a check through zero speed
     judges the I-f start's fall-back below w_off, which ODrive does not have."""

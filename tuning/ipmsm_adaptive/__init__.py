@@ -33,7 +33,7 @@ def _full_range(drive: IpmsmDrive) -> Any:
     regenerating), and gains tuned at +-T_N only were unstable just beyond it (piippo2008's schedule:
     max Re +1.5 .. +11 1/s at T_max = 1.57 T_N for |w| >= 0.3 p.u., the rotor lost in fig9b)."""
     s = drive.tuning
-    return dataclasses.replace(s, envelope=s.envelope.widened(drive.control.T_max))
+    return dataclasses.replace(s, envelope=s.resolved.widened(drive.control.T_max))
 
 
 def _paper_or_full(drive: IpmsmDrive) -> Any:

@@ -127,7 +127,7 @@ def schedule_breakpoints(
 ) -> tuple[float, ...]:
     """Breakpoints [rad/s]: zero, ``breakpoints`` speeds per direction over the envelope, and +-each
     of ``kinks`` [rad/s] that lies inside the envelope and not within 1e-3 p.u. of another."""
-    e = settings.envelope
+    e = settings.resolved
     wb = drive.base.w
     lo, hi = e.rule.lo, e.rule.hi  # [p.u.], the [tuning] keys
     mag = list(np.linspace(lo, hi, law_settings(settings).breakpoints) * wb)
@@ -135,8 +135,8 @@ def schedule_breakpoints(
         k = abs(float(k))
         if lo * wb < k < hi * wb and min(abs(k - m) for m in mag) > 1e-3 * wb:
             mag.append(k)
-    mag = np.sort(mag)
-    return tuple(float(v) for v in np.concatenate([-mag[::-1], [0.0], mag]))
+    ordered = np.sort(mag)
+    return tuple(float(v) for v in np.concatenate([-ordered[::-1], [0.0], ordered]))
 
 
 def _speed_dependent_at(grid: tuple[float, ...], params: np.ndarray) -> np.ndarray:
@@ -212,6 +212,7 @@ def build_schedule(
         }
 
     if start is not None and law_settings(settings).tune_alpha_fo:
+        assert seed is not None  # start is the seed's
         start = np.append(start, seed[2])
 
     def from_pointwise(speeds: np.ndarray, optima: np.ndarray) -> np.ndarray:

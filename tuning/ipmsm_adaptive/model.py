@@ -194,7 +194,7 @@ def law_model(
         noise_sigma=drive.control.i_noise,
         T_s=drive.control.T_s,
         pointwise_gains=pointwise_gains,
-        gain_size=gain_size_function(law, R, wb, settings.envelope.rule.hi * wb),
+        gain_size=gain_size_function(law, R, wb, settings.resolved.rule.hi * wb),
         gain_size_unit="R_s_hat",
         gain_size_meaning="RMS over the speed range of the gain and its slope per p.u., in R̂s",
         **kw,

@@ -51,6 +51,7 @@ def figures(drive: PmacDrive, g: float, Gamma: float, n_rpm: np.ndarray, T_L: np
     """Poles of the observer with gains (g, Gamma) at the points, by linearize.analyze."""
     w = drive.rpm_to_w(n_rpm)
     r = analyze(drive, w, T_L, g=float(g), Gamma=float(Gamma), noise=True, errors=False)
+    assert r.noise is not None  # noise=True
     ok = np.isfinite(r.poles_discrete).all(axis=1)
     with np.errstate(invalid="ignore"):
         zeta = np.where(ok, np.nanmin(np.where(ok[:, None], r.damping_discrete, 0.0), axis=1), -np.inf)
@@ -78,15 +79,16 @@ class DriveCheck:
     where: np.ndarray  # (2 scales, len(scenarios), N) bool
 
 
-def drive_check(drive: Any, g0: float, Gamma0: float) -> DriveCheck:
+def drive_check(drive: PmacDrive, g0: float, Gamma0: float) -> DriveCheck:
     """The constraint of a drive, from its drive file's gains (g0, Gamma0)."""
+    from sensorless.design.capabilities import Scaled, require
     from sensorless.design.drive_analysis import analysis_scenario
     from sensorless.design.registry import family_of
 
     scs = tuple(
         analysis_scenario(drive, f"[control]\nfeedforward = {str(ff).lower()}\n") for ff in FEEDFORWARD
     )
-    sc = family_of(drive).scales(drive)
+    sc = require(family_of(drive), Scaled).scales(drive)
     mag = np.linspace(0.05, 1.0, DRIVE_SPEEDS) * sc.w_base
     W, T = np.meshgrid(np.concatenate([-mag[::-1], mag]), np.array([-sc.T_N, 0.0, sc.T_N]))
     w, t = W.ravel(), T.ravel()

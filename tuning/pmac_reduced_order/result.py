@@ -40,7 +40,7 @@ class ConstantGainResult:
     table: GainTable
     seconds: float
 
-    def summary_lines(self, drive: PmacDrive = None) -> list[str]:
+    def summary_lines(self, drive: PmacDrive | None = None) -> list[str]:
         """The terminal summary."""
         s = self.table.summary
         env = self.table.envelope
@@ -149,6 +149,7 @@ def gain_table(drive: PmacDrive, r: ConstantGainResult) -> GainTable:
         "parameters": {"g": r.g, "Gamma": r.Gamma},
         "baseline_parameters": {"g": r.g0, "Gamma": r.Gamma0},
     }
+    assert st.max_noise is not None, "resolved settings"  # default_settings resolves it
     envelope = {
         "speeds_rpm": speed_grid(st.speeds_rpm).tolist(),
         "loads_Nm": load_grid(st.loads_Nm).tolist(),

@@ -132,6 +132,7 @@ def closed_form(drive: PmacDrive, g_max: float, Gamma_max: float) -> tuple[float
 def limits_text(st: ConstantGainSettings) -> str:
     """The noise limits for messages: 'position <= 0.1 deg el.'."""
     parts = []
+    assert st.max_noise is not None, "resolved settings"  # default_settings resolves it
     for name, v in st.max_noise:
         parts.append(
             f"{name} <= {math.degrees(v):.4g} deg el." if name == "position" else f"{name} <= {v:.4g} rad/s"
