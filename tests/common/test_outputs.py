@@ -25,9 +25,9 @@ from sensorless.reports.cli import codegen as codegen_cli
 from sensorless.reports.cli.main import main
 from sensorless.reports.files import OutputError, OutputSet
 
-# CPU seconds, measured, of this file with test_report.py (group report-runs of tests/conftest.py: the
-# session fixtures of tests/common/conftest.py, which this file builds first): scheduled first
-pytestmark = pytest.mark.long(60)
+# CPU seconds of this file's tests, measured, beside the another-day test (which runs in group report-runs
+# of tests/conftest.py with test_report.py: the session fixtures of tests/common/conftest.py)
+pytestmark = pytest.mark.long(10)
 
 SCRIPT = Path(sys.executable).parent / "sensorless"  # the installed console script
 OLD = {"a.txt": b"old a\n", "b.txt": b"old b\n"}
@@ -401,6 +401,9 @@ def test_a_closed_stdout_is_quiet(tmp_path):
 
 
 # ------------------------------------------------------------------------------- another day
+# CPU seconds, measured, of group report-runs (this test with test_report.py, and the other day's process
+# it starts): the group that builds the session fixtures of tests/common/conftest.py starts first
+@pytest.mark.long(60)
 def test_outputs_are_byte_identical_on_another_day(
     another_day, tmp_path, capsys, report_piippo_quick, report_deangelo_quick
 ):  # another_day first: its process runs while this one makes today's outputs

@@ -54,7 +54,7 @@ def runs(out: str) -> list[list[str]]:
             "--scenario",
             "fig3",
             "--duration",
-            "0.2",
+            "0.05",
             "--quiet",
             "--out",
             f"{out}/sim",
