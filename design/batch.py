@@ -47,13 +47,17 @@ def _mapped(fn: ca.Function, n: int, threads: int) -> ca.Function:
     return fn.map(n, "thread", threads) if threads > 1 else fn.map(n)
 
 
-def evaluate_batch(fn: ca.Function, n: int, args: Sequence[np.ndarray]) -> list[np.ndarray]:
+def evaluate_batch(
+    fn: ca.Function, n: int, args: Sequence[np.ndarray], jit: bool | None = None
+) -> list[np.ndarray]:
     """Evaluate ``fn`` at ``n`` points; returns each output as an array (n, rows, cols).
 
     Each argument is either one instance (broadcast to all points: shape (rows,) or (rows, 1) or a
-    scalar) or all points (shape (rows, n), or (n,) for a scalar input).
+    scalar) or all points (shape (rows, n), or (n,) for a scalar input). ``jit``: compile ``fn``
+    whatever ``n`` (a caller that evaluates one Function again and again, on batches below
+    JIT_MIN_POINTS: the library is compiled once per machine); None: from JIT_MIN_POINTS points.
     """
-    big = n >= JIT_MIN_POINTS
+    big = n >= JIT_MIN_POINTS if jit is None else jit
     f = _compiled(fn) if big else fn
     fm = _mapped(f, n, min(4, os.cpu_count() or 1) if big else 1)
     buf, run = fm.buffer()

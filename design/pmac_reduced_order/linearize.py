@@ -337,7 +337,8 @@ def analyze(
             )
             mean[:, ~ok] = np.nan
             ptp = np.where(ok, 0.0, np.nan) * np.ones((3, 1))
-    Jy = evaluate_batch(map_function(loop), n * mj, [y_w, th_w, *ctx_w])[1]
+    # compiled whatever the batch size (a tuner evaluates these two Functions at every candidate)
+    Jy = evaluate_batch(map_function(loop), n * mj, [y_w, th_w, *ctx_w], jit=True)[1]
     nd = Jy.shape[1]
     Jy = Jy.reshape(n, mj, nd, nd)
     Jy = np.where(keep[:, :, None, None], Jy, np.eye(nd))
@@ -345,7 +346,7 @@ def analyze(
     Jy[~ok] = np.eye(nd)
     noise_rms = None
     if noise:
-        sens = evaluate_batch(sensitivity_function(loop), n * mj, [y_w, th_w, *ctx_w])
+        sens = evaluate_batch(sensitivity_function(loop), n * mj, [y_w, th_w, *ctx_w], jit=True)
         # noise on the new current sample (meas) and on the stored previous one (state i_prev)
         G1 = sens[2][:, :, 0:2].reshape(n, mj, nd, 2)
         G0 = sens[1][:, :, 5:7].reshape(n, mj, nd, 2)
