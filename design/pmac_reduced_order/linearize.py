@@ -40,8 +40,8 @@ from sensorless.design.discrete import (
     discrete_poles,
     fixed_points,
     map_function,
-    orbit_function,
     rotor_function,
+    run_orbit,
     sensitivities,
     sensitivity_function,
 )
@@ -283,7 +283,7 @@ def analyze(
     # the runtime step on the sampled motor (through the buffer interface: converting a long orbit
     # through casadi.DM costs more than running it)
     x0 = np.vstack([x0, np.zeros((1, n))])  # the contract's counter of rejected samples: 0
-    xs, ths, outs = evaluate_batch(orbit_function(loop, n_steps), n, [x0, theta0, *ctx])
+    xs, ths, outs = run_orbit(loop, n_steps, n, [x0, theta0, *ctx])
     out_of = {f.name: k for k, f in enumerate(loop.observer.outputs)}
     T_e = evaluate_batch(torque_function(om), n, [w_f, T_f, motor])[0][:, 0, 0]  # T_L + B omega
     err = np.stack(
