@@ -107,10 +107,14 @@ def solve(
             status = sol.stats()["return_status"]
             if sol.stats()["success"] or status == "Solved_To_Acceptable_Level" or _usable(sol.stats()):
                 break
-            # the budget holds across a round's retries too: no retry that could take it beyond
-            # max_iterations (a drone-class motor's schedule ran 417 and 708 iterations for a result
-            # its start beat)
-            spent = total_it + int(SOLVER_OPTIONS["ipopt.max_iter"]) > max_iterations
+            # the budget holds across the retries of a large layout's round (1-2.5 s each) too: no
+            # retry that could take the method beyond max_iterations (a drone-class motor's schedule
+            # ran 417 and 708 iterations for a result its start beat); a small layout's (0.05-0.3 s,
+            # law (16)) retries as before, whose last one may still find the presets' optimum
+            spent = (
+                len(active) > WHOLE_GRAPH_SLOTS
+                and total_it + int(SOLVER_OPTIONS["ipopt.max_iter"]) > max_iterations
+            )
             if radius < min_radius or spent:
                 if spent and best is None:
                     raise TuningError(
