@@ -20,6 +20,7 @@ import numpy as np
 from sensorless.design.compiled import compiled
 
 JIT_MIN_POINTS = 4096  # below this the ~0.3 s compile does not pay off
+_POINTS: dict[ca.Function, int] = {}  # points evaluated so far, per Function (evaluate_batch)
 
 
 @functools.cache
@@ -47,15 +48,25 @@ def _mapped(fn: ca.Function, n: int, threads: int) -> ca.Function:
     return fn.map(n, "thread", threads) if threads > 1 else fn.map(n)
 
 
-def evaluate_batch(fn: ca.Function, n: int, args: Sequence[np.ndarray]) -> list[np.ndarray]:
+def evaluate_batch(
+    fn: ca.Function, n: int, args: Sequence[np.ndarray], jit: bool | None = None
+) -> list[np.ndarray]:
     """Evaluate ``fn`` at ``n`` points; returns each output as an array (n, rows, cols).
 
     Each argument is either one instance (broadcast to all points: shape (rows,) or (rows, 1) or a
-    scalar) or all points (shape (rows, n), or (n,) for a scalar input).
+    scalar) or all points (shape (rows, n), or (n,) for a scalar input). ``jit``: compile ``fn``
+    whatever ``n`` (a caller that evaluates one Function again and again, on batches below
+    JIT_MIN_POINTS: the library is compiled once per machine); None: once this process has evaluated
+    ``fn`` at JIT_MIN_POINTS points in all. Large batches (JIT_MIN_POINTS) run on several threads.
     """
-    big = n >= JIT_MIN_POINTS
-    f = _compiled(fn) if big else fn
-    fm = _mapped(f, n, min(4, os.cpu_count() or 1) if big else 1)
+    if jit is None:
+        # compiled once the Function has been asked for JIT_MIN_POINTS points in all, in one batch or
+        # many (a search, a Newton solve, a tuner calls one Function hundreds of times on a few dozen
+        # points each: on CasADi's VM 7x the CPU of the compiled library)
+        _POINTS[fn] = _POINTS.get(fn, 0) + n
+        jit = _POINTS[fn] >= JIT_MIN_POINTS
+    f = _compiled(fn) if jit and fn.is_a("SXFunction") else fn  # (an External is compiled already)
+    fm = _mapped(f, n, min(4, os.cpu_count() or 1) if n >= JIT_MIN_POINTS else 1)
     buf, run = fm.buffer()
     keep = []
     for i, a in enumerate(args):

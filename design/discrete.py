@@ -36,6 +36,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 from sensorless.design.batch import evaluate_batch
+from sensorless.design.compiled import compiled
 from sensorless.design.expm import expm_batched
 from sensorless.design.poles import sort_poles
 from sensorless.design.runtime import scheduled_step
@@ -149,7 +150,11 @@ def orbit_function(loop: SampledLoop, n_steps: int) -> ca.Function:
     x_next, out = loop.step()(x, loop.sample(theta, w, plant, p), p, gain)
     par = ca.vertcat(w, plant, p, gain)
     xc_next = ca.vertcat(x_next, wrap_angle(theta + w * T_s))  # the angle wrapped: long runs stay exact
-    one = ca.Function("period", [ca.vertcat(x, theta), par], [xc_next, out])
+    # the step compiled (design/compiled.py, cached on disk by its C source, which depends neither on
+    # n_steps nor on the drive's numbers): the orbit is thousands of steps at each point, 3.5x faster
+    # than on CasADi's virtual machine, the same bits (tests/common/test_compiled_paths.py)
+    name = f"{loop.observer.name}_period"
+    one = compiled(ca.Function(name, [ca.vertcat(x, theta), par], [xc_next, out]))
     F = one.mapaccum(n_steps)
     ins = [ca.MX.sym(k, v.size1()) for k, v in [("x0", x), *((k, s[k]) for k in INPUTS[1:])]]
     xc, outs = F(ca.vertcat(ins[0], ins[1]), ca.repmat(ca.vertcat(*ins[2:]), 1, n_steps))
@@ -161,6 +166,32 @@ def orbit_function(loop: SampledLoop, n_steps: int) -> ca.Function:
         ["x0", *INPUTS[1:]],
         ["x", "theta_k", "out"],
     )
+
+
+ORBIT_CHUNK = 1024  # steps of the longest orbit Function run_orbit builds
+
+
+def run_orbit(
+    loop: SampledLoop, n_steps: int, n: int, args: Sequence[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``evaluate_batch(orbit_function(loop, n_steps), n, args)``: (x (n, n_x, n_steps), theta_k (n, 1,
+    n_steps), out (n, n_out, n_steps)), run as consecutive orbits of ORBIT_CHUNK steps and then of
+    powers of two, each from where the last ended: the same steps, so the same bits, from at most a
+    dozen Functions a process builds and maps once (an orbit Function per length, as before, cost a
+    build and a map of ~0.1 s at every new settling time: a third of the reduced-order tuner's CPU)."""
+    x, theta, *ctx = args
+    parts: list[list[np.ndarray]] = [[], [], []]
+    left = int(n_steps)
+    while left > 0:
+        k = ORBIT_CHUNK if left >= ORBIT_CHUNK else 1 << (left.bit_length() - 1)
+        xs, ths, outs = evaluate_batch(orbit_function(loop, k), n, [x, theta, *ctx])
+        for part, a in zip(parts, (xs, ths, outs), strict=True):
+            part.append(a)
+        x = np.ascontiguousarray(xs[:, :, -1].T)  # the runtime state (its counter included)
+        theta = ths[:, 0, -1]
+        left -= k
+    xs, ths, outs = (np.concatenate(p, axis=2) for p in parts)
+    return xs, ths, outs
 
 
 def _args(loop: SampledLoop, theta, w, plant, p, gain) -> list[np.ndarray]:
@@ -214,6 +245,7 @@ def newton(
     scale: np.ndarray | None = None,
     iterations: int = 12,
     damped: bool = False,
+    jit: bool | None = None,
 ) -> tuple[np.ndarray, ...]:
     """Newton's method on the fixed point of any one-step map ``fn`` (y, *args) -> (y_next, Jy, ...)
     from ``y0`` (N, n_y), batched (evaluate_batch): (y, Jy, the map's other outputs there), each
@@ -221,7 +253,8 @@ def newton(
     does not settle (a residual above 1e-9 of its ``scale``, default 1 + |y0|), or that starts from
     NaN, gets NaN. ``damped``: a step that leaves a larger scaled residual is halved instead (a full
     step from a start outside the fixed point's basin, near a slow mode where the map is nearly
-    singular, may land on another fixed point of a nonlinear map)."""
+    singular, may land on another fixed point of a nonlinear map). ``jit``: evaluate_batch's (compile
+    ``fn`` whatever the batch size)."""
     n, n_y = y0.shape
     bad = ~np.isfinite(y0).all(axis=1)
     y = np.where(bad[:, None], 0.0, y0)
@@ -252,7 +285,7 @@ def newton(
     size = np.full(n, np.inf)  # damped: the scaled residual at each point's last accepted iterate
     last = np.zeros((n, n_y))  # damped: the step that led to the iterate
     for _ in range(iterations):
-        y_next, Jy, *_ = evaluate_batch(fn, todo.size, [y[todo].T, *at(todo)])
+        y_next, Jy, *_ = evaluate_batch(fn, todo.size, [y[todo].T, *at(todo)], jit=jit)
         r = y_next[:, :, 0] - y[todo]
         for j in angles:
             r[:, j] = np.angle(np.exp(1j * r[:, j]))
@@ -277,7 +310,7 @@ def newton(
         todo = np.concatenate([stepped, todo[back]])
         if todo.size == 0:
             break
-    y_next, Jy, *more = evaluate_batch(fn, n, [y.T, *args])
+    y_next, Jy, *more = evaluate_batch(fn, n, [y.T, *args], jit=jit)
     bad |= ~(np.abs(residual(y_next)) <= 1e-9 * scale).all(axis=1)
     y[bad] = np.nan
     nan = lambda a: np.where(bad.reshape(-1, *([1] * (a.ndim - 1))), np.nan, a)  # noqa: E731

@@ -210,9 +210,13 @@ def linearize_drive(
     w: ArrayLike,
     torque: ArrayLike,
     loop: DriveLoop | None = None,
+    jit: bool | None = None,
 ) -> DriveLinearization:
     """The whole drive of ``drive`` at ``gains`` (None: the drive file's) at the operating points (``w``
-    [rad/s], ``torque`` [N m], broadcast together): one batched evaluation per Newton step."""
+    [rad/s], ``torque`` [N m], broadcast together): one batched evaluation per Newton step. ``jit``: the
+    one-step map compiled whatever the number of points (design/batch.py; the same bits): for a caller
+    that linearizes one drive loop again and again (a tuner's constraint), where the first run's
+    compilation (a few seconds, once per machine and loop structure) pays off."""
     dl = loop or drive_loop(drive, gains)
     s, c = dl.setup, dl.coordinates
     W, T = (np.asarray(a, float).ravel() for a in np.broadcast_arrays(np.asarray(w, float), torque))
@@ -228,7 +232,7 @@ def linearize_drive(
     i_err = [f.name for f in s.record].index("theta_err")
     fn = map_function(s.loop, c.key(), Z0.shape[0], i_err)
     args = [V, Z0, s.q, s.p_obs, s.gain]
-    y, A, Jw, e, De = newton(fn, args, y0, dl.angles)
+    y, A, Jw, e, De = newton(fn, args, y0, dl.angles, jit=jit)
     lost = ~np.isfinite(y).all(axis=1)
     if lost.any():  # Newton from rest left the basin: run the loop from rest first (where it is stable)
         sub = [a[:, lost] if np.ndim(a) == 2 and a.shape[1] == n and n > 1 else a for a in args]

@@ -149,6 +149,13 @@ def dumps(doc: JsonValue) -> str:
 
 def clean(x: object) -> JsonValue:
     """JSON-safe copy: numpy scalars/arrays to lists, non-finite floats to None."""
+    t = type(x)  # the common leaves first (a servo's table has 145 000 of them)
+    if t is float:
+        return x if math.isfinite(x) else None
+    if t is str or t is int or t is bool or x is None:
+        return x
+    if t is list:
+        return [clean(v) for v in x]
     if isinstance(x, dict):
         return {str(k): clean(v) for k, v in x.items()}
     if isinstance(x, list | tuple):

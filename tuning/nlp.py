@@ -25,7 +25,7 @@ from sensorless.design.noise import lyapunov
 from sensorless.tuning.candidates import DAMPING, NOISE, STABILITY, Candidates, fixed_points, margins
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.sector import factors_from_poles, n_quadratic
-from sensorless.tuning.slots import T_MAX, WHOLE_GRAPH_SLOTS, Layout, ipopt_solver, sizes
+from sensorless.tuning.slots import SOLVER_OPTIONS, T_MAX, WHOLE_GRAPH_SLOTS, Layout, ipopt_solver, sizes
 
 
 class TuningError(RuntimeError):
@@ -107,7 +107,20 @@ def solve(
             status = sol.stats()["return_status"]
             if sol.stats()["success"] or status == "Solved_To_Acceptable_Level" or _usable(sol.stats()):
                 break
-            if radius < min_radius:
+            # the budget holds across the retries of a large layout's round (1-2.5 s each) too: no
+            # retry that could take the method beyond max_iterations (a drone-class motor's schedule
+            # ran 417 and 708 iterations for a result its start beat); a small layout's (0.05-0.3 s,
+            # law (16)) retries as before, whose last one may still find the presets' optimum
+            spent = (
+                len(active) > WHOLE_GRAPH_SLOTS
+                and total_it + int(SOLVER_OPTIONS["ipopt.max_iter"]) > max_iterations
+            )
+            if radius < min_radius or spent:
+                if spent and best is None:
+                    raise TuningError(
+                        f"IPOPT {status} in round {rnd} with {total_it} of {max_iterations} iterations "
+                        "(the budget) spent and no round meeting every grid point"
+                    )
                 if best is not None:  # a verified feasible solution exists: keep it
                     if progress:
                         progress(f"round {rnd}: IPOPT {status}; keeping round {best.rounds}")

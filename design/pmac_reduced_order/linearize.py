@@ -40,8 +40,8 @@ from sensorless.design.discrete import (
     discrete_poles,
     fixed_points,
     map_function,
-    orbit_function,
     rotor_function,
+    run_orbit,
     sensitivities,
     sensitivity_function,
 )
@@ -285,7 +285,7 @@ def analyze(
     # the runtime step on the sampled motor (through the buffer interface: converting a long orbit
     # through casadi.DM costs more than running it)
     x0 = np.vstack([x0, np.zeros((1, n))])  # the contract's counter of rejected samples: 0
-    xs, ths, outs = evaluate_batch(orbit_function(loop, n_steps), n, [x0, theta0, *ctx])
+    xs, ths, outs = run_orbit(loop, n_steps, n, [x0, theta0, *ctx])
     out_of = {f.name: k for k, f in enumerate(loop.observer.outputs)}
     T_e = evaluate_batch(torque_function(om), n, [w_f, T_f, motor])[0][:, 0, 0]  # T_L + B omega
     err = np.stack(
@@ -339,7 +339,8 @@ def analyze(
             )
             mean[:, ~ok] = np.nan
             ptp = np.where(ok, 0.0, np.nan) * np.ones((3, 1))
-    Jy = evaluate_batch(map_function(loop), n * mj, [y_w, th_w, *ctx_w])[1]
+    # compiled whatever the batch size (a tuner evaluates these two Functions at every candidate)
+    Jy = evaluate_batch(map_function(loop), n * mj, [y_w, th_w, *ctx_w], jit=True)[1]
     nd = Jy.shape[1]
     Jy = Jy.reshape(n, mj, nd, nd)
     Jy = np.where(keep[:, :, None, None], Jy, np.eye(nd))
@@ -347,7 +348,7 @@ def analyze(
     Jy[~ok] = np.eye(nd)
     noise_rms = None
     if noise:
-        sens = evaluate_batch(sensitivity_function(loop), n * mj, [y_w, th_w, *ctx_w])
+        sens = evaluate_batch(sensitivity_function(loop), n * mj, [y_w, th_w, *ctx_w], jit=True)
         # noise on the new current sample (meas) and on the stored previous one (state i_prev)
         G1 = sens[2][:, :, 0:2].reshape(n, mj, nd, 2)
         G0 = sens[1][:, :, 5:7].reshape(n, mj, nd, 2)
