@@ -34,8 +34,6 @@ from sensorless.reports.cli.common import Number
 from sensorless.reports.family import all_options
 from sensorless.reports.files import OutputFile, OutputSet
 
-pytestmark = pytest.mark.long(27)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
-
 PLL_DRIVE = str(Path(__file__).resolve().parents[1] / "families" / "pll" / "presets" / "pll_servo.toml")
 BAD = ("nan", "inf", "-inf", "1e300", "-1e300", "0", "-1")
 FAMILY_KINDS = ("analyze", "tune")  # commands with family options (reports/family.py)
