@@ -25,7 +25,7 @@ from sensorless.tuning.ipmsm_adaptive.laws import build_pointwise
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.tune import tune
 
-pytestmark = pytest.mark.long(66)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+pytestmark = pytest.mark.long(37)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
 
 SALIENT = str(Path(__file__).parent / "drives" / "salient_traction.toml")
 
