@@ -318,8 +318,22 @@ def mtpa_torque_current(T: float, motor: PmsmMotor) -> tuple[float, float]:
     return float(i[0]), float(i[1])
 
 
+_MTPA_TORQUE: dict[tuple[float, ...], float] = {}
+
+
 def mtpa_torque(i_peak: float, motor: PmsmMotor) -> float:
-    """MTPA torque [N m] at the current amplitude ``i_peak`` [A] (bisection on the torque)."""
+    """MTPA torque [N m] at the current amplitude ``i_peak`` [A] (bisection on the torque). Memoized on
+    the numbers it reads: its 80 evaluations are most of the time a drive file takes to load, and each
+    command loads its drive again."""
+    key = (float(i_peak), float(motor.p), motor.psi_pm, motor.L_d, motor.L_q, *map(float, motor.vector()))
+    if key not in _MTPA_TORQUE:
+        if len(_MTPA_TORQUE) >= 256:
+            _MTPA_TORQUE.clear()
+        _MTPA_TORQUE[key] = _mtpa_torque(i_peak, motor)
+    return _MTPA_TORQUE[key]
+
+
+def _mtpa_torque(i_peak: float, motor: PmsmMotor) -> float:
     hi = 1.5 * motor.p * motor.psi_pm * i_peak * 4 + 1e-12
     if abs(motor.L_q - motor.L_d) > 0:
         hi += 1.5 * motor.p * abs(motor.L_q - motor.L_d) * i_peak**2

@@ -6,6 +6,7 @@ command line).
 
 from __future__ import annotations
 
+import functools
 from importlib.metadata import PackageNotFoundError
 from importlib.metadata import version as _version
 
@@ -27,6 +28,7 @@ from sensorless.reports.options import (  # noqa: F401  (re-exported: the comman
 )
 
 
+@functools.cache  # the package metadata is read once per process (every parser build asks)
 def version() -> str:
     """Installed package version."""
     try:

@@ -168,26 +168,38 @@ def _fold(node: ast.AST) -> str | None:
     return None
 
 
-def _docstrings(tree: ast.AST) -> set[int]:
-    return {
+def _docstrings(nodes: tuple[ast.AST, ...]) -> frozenset[int]:
+    return frozenset(
         id(node.body[0].value)
-        for node in ast.walk(tree)
+        for node in nodes
         if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
         and node.body
         and isinstance(node.body[0], ast.Expr)
         and isinstance(node.body[0].value, ast.Constant)
-    }
+    )
 
 
-def _strings(tree: ast.AST) -> set[str]:
+@functools.cache
+def _parsed(text: str) -> tuple[tuple[ast.AST, ...], frozenset[int]]:
+    """A module's nodes (ast.walk's order) and its docstrings (node ids), once per source text: the
+    checks below each read every shared module (the tree is kept alive by its nodes)."""
+    nodes = tuple(ast.walk(ast.parse(text)))
+    return nodes, _docstrings(nodes)
+
+
+def _source(path: Path, text: str | None = None) -> str:
+    return path.read_text(encoding="utf-8") if text is None else text
+
+
+def _strings(text: str) -> set[str]:
     """Every string value a module writes, however quoted or pieced together (docstrings left out)."""
-    skip = _docstrings(tree)
-    return {s for node in ast.walk(tree) if id(node) not in skip and (s := _fold(node)) is not None}
+    nodes, skip = _parsed(text)
+    return {s for node in nodes if id(node) not in skip and (s := _fold(node)) is not None}
 
 
 @functools.cache
 def _file_strings(path: Path) -> frozenset[str]:
-    return frozenset(_strings(ast.parse(path.read_text(encoding="utf-8"))))
+    return frozenset(_strings(path.read_text(encoding="utf-8")))
 
 
 def _kind_modules(kind: str, paths: list[Path]) -> list[Path]:
@@ -273,22 +285,22 @@ def _names_used(path: Path, text: str | None = None) -> set[str]:
     words (not docstrings; pieced-together strings folded, any quoting), attribute names, keyword-argument
     names, class-level field names, and the names it binds (variables, parameters, functions, classes).
     ``text`` stands for the file's content (the self-tests inject offences into a copy)."""
-    tree = ast.parse(path.read_text(encoding="utf-8") if text is None else text)
+    nodes, docstrings = _parsed(_source(path, text))
     # format specs ("{x:g}") are not names; nor are the members of imported modules (tomllib.loads)
-    skip = _docstrings(tree) | {
+    skip = docstrings | {
         id(c)
-        for node in ast.walk(tree)
+        for node in nodes
         if isinstance(node, ast.FormattedValue) and node.format_spec
         for c in ast.walk(node.format_spec)
     }
     modules = {
         (a.asname or a.name).split(".")[0]
-        for node in ast.walk(tree)
+        for node in nodes
         if isinstance(node, ast.Import)
         for a in node.names
     }
     out: set[str] = set()
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in modules:
             continue
         if id(node) not in skip and (value := _fold(node)) is not None:
@@ -320,12 +332,11 @@ def _family_references(path: Path, text: str | None = None) -> set[str]:
     string naming one of its packages (``importlib.import_module("sensorless.design.<family>.x")``), its
     name or kind in a string however written or pieced together (``fam.name == 'pmsm_flux_observer'``),
     an attribute or variable of that name. Returns the offending names."""
-    tree = ast.parse(path.read_text(encoding="utf-8") if text is None else text)
+    nodes, skip = _parsed(_source(path, text))
     idents = {f.name for f in families()} | {f.kind for f in families()}
     idents |= {i.replace("-", "_") for i in idents}
-    skip = _docstrings(tree)
     out: set[str] = set()
-    for node in ast.walk(tree):
+    for node in nodes:
         words: list[str] = []
         if isinstance(node, ast.Import):
             words = [p for a in node.names for p in a.name.split(".")]

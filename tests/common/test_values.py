@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import json
 import re
 import tomllib
@@ -32,8 +33,6 @@ from sensorless.reports.cli import main as cli
 from sensorless.reports.cli.common import Number
 from sensorless.reports.family import all_options
 from sensorless.reports.files import OutputFile, OutputSet
-
-pytestmark = pytest.mark.long(27)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
 
 PLL_DRIVE = str(Path(__file__).resolve().parents[1] / "families" / "pll" / "presets" / "pll_servo.toml")
 BAD = ("nan", "inf", "-inf", "1e300", "-1e300", "0", "-1")
@@ -103,6 +102,7 @@ REQUIRED = {  # what each command needs besides the option under test (built-in 
 }
 
 
+@functools.cache
 def _scenario(drive: str) -> str:
     from sensorless.design.scenario import builtin_names
 
@@ -111,7 +111,16 @@ def _scenario(drive: str) -> str:
 
 @pytest.fixture(scope="module", autouse=True)
 def pll_registered():
-    with _with_pll():
+    """The test-tree family registered; the command line's parser built once and each preset loaded
+    once for the whole matrix (main() builds its parser on every call, and each command loads its
+    drive: ~90 % of a call's time here; neither is what this file checks, and both stay as they are
+    for the whole module: the registry does not change in it)."""
+    import sensorless.design.drive as drive_module
+
+    with _with_pll(), pytest.MonkeyPatch.context() as mp:
+        parser = cli.build_parser()
+        mp.setattr(cli, "build_parser", lambda: parser)
+        mp.setattr(drive_module, "load_drive", functools.cache(drive_module.load_drive))
         yield
 
 

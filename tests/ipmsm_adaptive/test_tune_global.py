@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.linalg
+from helpers.tuning import small
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import tuning_envelope
@@ -24,7 +25,7 @@ from sensorless.tuning.ipmsm_adaptive.laws import build_pointwise
 from sensorless.tuning.nlp import TuningError
 from sensorless.tuning.tune import tune
 
-pytestmark = pytest.mark.long(66)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+pytestmark = pytest.mark.long(37)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
 
 SALIENT = str(Path(__file__).parent / "drives" / "salient_traction.toml")
 
@@ -43,11 +44,11 @@ def test_salient_motor_unstable_drive_gains_tuned_to_stable():
     gains stable on the dense grid (checked through the analysis path), better than the reference
     lambda' = 4 R_s_hat, omega_lambda = 0.1 p.u."""
     drive = load_drive(SALIENT)
-    env = drive.tuning.envelope
+    st = small(drive, min_decay=5.0, bound=False)  # 8 speeds per direction, -T_N and +T_N
+    env = st.envelope
     R, wb = drive.estimate.R_s, drive.base.w
     z0, d0 = dense_worst(drive, env, "speed")
     assert z0 < 0 and d0 < 0  # the drive file's gains: unstable
-    st = dataclasses.replace(drive.tuning, min_decay=5.0, bound=False)
     r = tune(drive, "speed-dependent", st)
     z, d = dense_worst(drive, env, ("speed", r.theta))
     assert z == pytest.approx(r.table.summary["worst_damping"], abs=1e-9)
@@ -128,17 +129,18 @@ def test_bound_at_a_speed_equals_a_brute_force_search(drive, w_pu):
 
 
 @pytest.fixture(scope="module")
-def schedule_default(drive):
-    """The schedule on the default envelope with its default decay floor (its speed-dependent seed's)."""
-    return tune(drive, "schedule", drive.tuning)
+def schedule_small(drive):
+    """The schedule on the small envelope (tests/helpers/tuning.py) with the default decay floor (its
+    speed-dependent seed's)."""
+    return tune(drive, "schedule", small(drive))
 
 
-def test_schedule_reaches_the_bound_and_speed_dependent_beats_the_drive_file(drive, schedule_default):
-    """Default envelope, dense grid, analysis path: schedule >= speed-dependent >= drive file, and the
+def test_schedule_reaches_the_bound_and_speed_dependent_beats_the_drive_file(drive, schedule_small):
+    """Small envelope, dense grid, analysis path: schedule >= speed-dependent >= drive file, and the
     schedule within 0.01 of the pointwise bound's worst (no gain law does better than that bound)."""
-    r = schedule_default
+    r = schedule_small
     s = r.table.summary
-    env = drive.tuning.envelope
+    env = small(drive).envelope
     g = r.table.gains
     z_s, d_s = dense_worst(
         drive, env, (schedule_law(tuple(g["w_hat"])), np.concatenate([g["lambda1"], g["lambda2"]]))
