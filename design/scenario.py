@@ -373,7 +373,13 @@ def speed_filter_of(sc: Scenario, alpha_s: float) -> float:
     """The speed-feedback low-pass bandwidth [rad/s] of ``sc`` in a speed loop of bandwidth ``alpha_s``:
     the scenario's, else 10 alpha_s and at least 2 pi 50 rad/s (a filter near the loop's own bandwidth
     makes a fast servo's speed loop limit-cycle)."""
-    return sc.speed_filter if sc.speed_filter is not None else max(SPEED_FILTER_MIN, 10 * alpha_s)
+    return sc.speed_filter if sc.speed_filter is not None else default_speed_filter(alpha_s)
+
+
+def default_speed_filter(alpha_s: float) -> float:
+    """The speed-feedback low-pass bandwidth [rad/s] a scenario that gives none runs: 10 alpha_s, at least
+    2 pi 50 rad/s."""
+    return max(SPEED_FILTER_MIN, 10 * alpha_s)
 
 
 # --------------------------------------------------------------------------------------------------
