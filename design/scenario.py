@@ -344,8 +344,11 @@ def load_scenario(spec: str | Path, drive: Drive) -> Scenario:
     rel = drive_units(drive)
     if path.suffix != ".toml" and "/" not in spec_s:
         res = _builtin(drive.kind).get(spec_s)
+        generic = {}
         if res is None and spec_s in GENERIC:
-            return {sc.name: sc for sc in generic_scenarios(drive)}[spec_s]
+            generic = {sc.name: sc for sc in generic_scenarios(drive)}
+        if spec_s in generic:
+            return generic[spec_s]
         if res is None:
             have = ", ".join(builtin_names(drive.kind) + list(GENERIC)) or "none"
             raise FileNotFoundError(
@@ -385,7 +388,8 @@ def default_speed_filter(alpha_s: float) -> float:
 # --------------------------------------------------------------------------------------------------
 # Generic scenarios, scaled to a drive
 # --------------------------------------------------------------------------------------------------
-GENERIC = ("speed_steps", "load_steps", "reversal", "start")
+GENERIC = ("speed_steps", "load_steps", "reversal", "start", "low_hold")  # low_hold: DriveScales.hold_speed
+HOLD_ERROR_DEG = 5.0  # low_hold starts this far off the rotor [deg, electrical]
 
 
 def generic_times(sc: DriveScales) -> dict[str, float]:
@@ -497,6 +501,15 @@ def generic_scenarios(drive: Drive) -> list[Scenario]:
             f'[load_torque]\ninterpolation = "linear"\nt = [0, {g(r)}]\nvalue = ["0 Nm", "1 T_N"]\n',
         ),
     }
+    if scales.hold_speed > 0:  # the observer's own low-speed mechanism (an HF injection) in the loop
+        w_h = g(-scales.hold_speed / scales.w_base)
+        texts["low_hold"] = (
+            f"Unloaded hold at {w_h} p.u., inside the observer's own low-speed range",
+            scales.hold_time,
+            '["speed", "torque", "theta_error"]',
+            f'[initial]\nw_m = "{w_h} pu"\ntheta_error = "{HOLD_ERROR_DEG:g} deg"\n'
+            f'[speed_reference]\nt = [0]\nvalue = ["{w_h} pu"]\n',
+        )
     rel = drive_units(drive)
     out = []
     for name, (title, duration, figure, body) in texts.items():
