@@ -82,10 +82,10 @@ def speed_loop(drive: IpmsmDrive) -> tuple[float, float]:
 
 def _speed_loop_named(drive: IpmsmDrive, failure: Failure, g: float, alpha_s_max: float) -> Named:
     hz, a_s = 2 * math.pi, drive.control.alpha_s
+    w_asked = failure.w_ref_pu if failure.w_ref_pu is not None else failure.w_pu
     return Named(
         "injection_speed_loop",
-        f"asked for {failure.w_ref_pu if failure.w_ref_pu is not None else failure.w_pu:+.3g} p.u., inside the "
-        f"injection's fade-out "
+        f"asked for {w_asked:+.3g} p.u., inside the injection's fade-out "
         f"{drive.injection.w_Delta / drive.w_base:.3g} p.u.: the speed loop (alpha_s = "
         f"{a_s / hz:.3g} Hz, speed filter {default_speed_filter(a_s) / hz:.3g} Hz) feeds back G = {g:.3g} of "
         "the HF error signal (19) against it"
