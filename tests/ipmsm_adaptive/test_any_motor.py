@@ -110,10 +110,12 @@ def test_derived_values_follow_their_documented_rules(flow):
 
 
 def test_the_verdict_agrees_with_its_checks(flow):
-    _, _, _, d, codes = flow
+    _, _, drive, d, codes = flow
     data = verdict_agrees_with_checks(d["report"], codes["report"])
     v, td = data["verdict"], data["time_domain"]
-    assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal", "start"]  # generic, scaled
+    # generic, scaled; low_hold where the drive injects (its own low-speed range: DriveScales.hold_speed)
+    hold = ["low_hold"] if load_drive(drive).injection.enabled else []
+    assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal", "start", *hold]
     assert v["limitations"] == []  # this observer runs through zero speed: nothing left out
     # a user's gains are not the paper's
     assert "paper speed" not in (d["report"] / "report.html").read_text()
