@@ -427,7 +427,7 @@ def crosses_zero(sc: Scenario) -> bool:
     return bool(w.min() < 0 < w.max())
 
 
-def generic_scenarios(drive: Drive) -> list[Scenario]:
+def generic_scenarios(drive: Drive, hold: bool = True) -> list[Scenario]:
     """The built-in generic scenarios of any drive whose family gives its scales, in per unit of its
     own rating, with times scaled by :func:`generic_times` (docs/simulation.md, "Generic scenarios"):
 
@@ -445,6 +445,9 @@ def generic_scenarios(drive: Drive) -> list[Scenario]:
     - ``start``: from standstill, rated load applied in ``t_rise``, then a ramp to 0.5 p.u. in
       ``t_seg``, through the open-loop I-f start where the design does not hold zero speed
       (``[control] startup``: design/pmsm_drive.py ``startup_setup``).
+    - ``low_hold`` (``hold``, and only where the family names a low-speed mechanism of its own:
+      ``DriveScales.hold_speed``): unloaded at -hold_speed from a HOLD_ERROR_DEG angle error for
+      ``hold_time``, the speed loop closed on the estimate.
     """
     fam = require(registry.family_of(drive), Scaled)
     scales = fam.scales(drive)
@@ -501,7 +504,7 @@ def generic_scenarios(drive: Drive) -> list[Scenario]:
             f'[load_torque]\ninterpolation = "linear"\nt = [0, {g(r)}]\nvalue = ["0 Nm", "1 T_N"]\n',
         ),
     }
-    if scales.hold_speed > 0:  # the observer's own low-speed mechanism (an HF injection) in the loop
+    if hold and scales.hold_speed > 0:  # the observer's own low-speed mechanism (an HF injection) in the loop
         w_h = g(-scales.hold_speed / scales.w_base)
         texts["low_hold"] = (
             f"Unloaded hold at {w_h} p.u., inside the observer's own low-speed range",

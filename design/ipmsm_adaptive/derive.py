@@ -15,7 +15,9 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
 - ``[control]``: T_s = 1/f_s; bandwidths as fractions of the sampling rate, those of Piippo et al.
   (2008) Table II at 5 kHz: alpha_c = f_s/12.5 (400 Hz); speed control
   alpha_s = min(5/tau_m, alpha_fo/5), tau_m = J w_N / (p T_N) the mechanical time constant (the
-  paper: 5 Hz at tau_m = 0.168 s, 5.3/tau_m), slower than the speed estimate;
+  paper: 5 Hz at tau_m = 0.168 s, 5.3/tau_m), slower than the speed estimate; with HF injection also at
+  most the speed loop that feeds back half of the injection's error signal (carrier.py
+  ``speed_loop_limit``: faster, its carrier feedback turns the error signal's sign);
   T_max = 1.5 T_N (the paper 1.57 T_N).
 - ``[observer]``: alpha_fo = max(f_s/100, 50/tau_m), at most f_s/20: the paper's 50 Hz at 5 kHz
   (= 53/tau_m), and fast enough for a light rotor, whose speed changes by 2.5/tau_m p.u./s at the torque
