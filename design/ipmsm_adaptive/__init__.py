@@ -174,7 +174,13 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
 
     def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
         """The run's HF-injection switch (simulation.build puts it in the provenance)."""
-        return (f"HF injection {'on' if meta['injection'] else 'off'}",)
+        notch = meta.get("speed_notch")
+        band = (
+            f", speed feedback band-stopped at the carrier (its loop would feed back G = {notch})"
+            if notch
+            else ""
+        )
+        return (f"HF injection {'on' if meta['injection'] else 'off'}{band}",)
 
     # the open-loop I-f start (design/startup.py): its drive files' optional [startup] section
     def startup(self, drive: schema.IpmsmDrive) -> StartupSettings | None:

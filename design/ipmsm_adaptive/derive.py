@@ -15,9 +15,11 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
 - ``[control]``: T_s = 1/f_s; bandwidths as fractions of the sampling rate, those of Piippo et al.
   (2008) Table II at 5 kHz: alpha_c = f_s/12.5 (400 Hz); speed control
   alpha_s = min(5/tau_m, alpha_fo/5), tau_m = J w_N / (p T_N) the mechanical time constant (the
-  paper: 5 Hz at tau_m = 0.168 s, 5.3/tau_m), slower than the speed estimate; with HF injection also at
-  most the speed loop that feeds back half of the injection's error signal (carrier.py
-  ``speed_loop_limit``: faster, its carrier feedback turns the error signal's sign);
+  paper: 5 Hz at tau_m = 0.168 s, 5.3/tau_m), slower than the speed estimate, and with HF injection at
+  most alpha_i (the injection's PI gives the estimate at low speed: the paper's 5 Hz = alpha_i); where
+  that speed loop feeds back more than half of the injection's error signal (carrier.py
+  ``speed_loop_feedback``), the drive band-stops its speed feedback at the carrier (simulation.py) and
+  the file says so in a comment of ``[injection]``;
   T_max = 1.5 T_N (the paper 1.57 T_N).
 - ``[observer]``: alpha_fo = max(f_s/100, 50/tau_m), at most f_s/20: the paper's 50 Hz at 5 kHz
   (= 53/tau_m), and fast enough for a light rotor, whose speed changes by 2.5/tau_m p.u./s at the torque
@@ -274,24 +276,37 @@ def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None
         f"speed control min({ALPHA_S_TAU:g}/tau_m, alpha_fo/{ALPHA_FO_S:g}), tau_m = J w_N/(p T_N) = "
         f"{g6(tau_m)} s (Piippo et al.: 5 Hz, tau_m 0.17 s)"
     )
+    if on and cw is not None and alpha_i < alpha_s:
+        # inside the injection's band the angle and speed come through its PI (21)-(22): a speed loop
+        # faster than it loses the rotor (docs/families/ipmsm_adaptive.md, "The speed loop against ...")
+        alpha_s_rule = (
+            f"speed control min({ALPHA_S_TAU:g}/tau_m, alpha_fo/{ALPHA_FO_S:g}, alpha_i): no faster than the "
+            "injection's PI (21)-(22), which gives the estimate at low speed (Piippo et al.: 5 Hz = "
+            f"alpha_i); tau_m = J w_N/(p T_N) = {g6(tau_m)} s; the first two: "
+            f"{g6(alpha_s / (2 * math.pi))} Hz"
+        )
+        alpha_s = alpha_i
     alpha_c = (
         r.value("control", "alpha_c", "angular") if "alpha_c" in ctl_t else 2 * math.pi * ALPHA_C_FS * f_s
     )
+    speed_notch = ""
     if on and cw is not None:
         # the speed loop feeds the carrier back into the error signal (19): carrier.py speed_loop_feedback
         obs_given = r.table("observer") or {}
         a_fo = r.value("observer", "alpha_fo", "angular") if "alpha_fo" in obs_given else alpha_fo
+        a_s = r.value("control", "alpha_s", "angular") if "alpha_s" in ctl_t else alpha_s
         loop = (a_fo, m.L_q, m.psi_pm, m.J, m.p, alpha_c, 2 * math.pi * cw.f_c, 1 / f_s)
-        alpha_s_inj = speed_loop_limit(*loop, default_speed_filter)
-        if alpha_s_inj < alpha_s:
-            g_was = speed_loop_feedback(*loop, alpha_s, default_speed_filter(alpha_s))
-            alpha_s_rule = (
-                f"HF injection: the speed loop's share G of the error signal (19) at most {FEEDBACK_MAX:g} "
-                f"(carrier.py speed_loop_feedback, speed filter max(50 Hz, 10 alpha_s)); min({ALPHA_S_TAU:g}/"
-                f"tau_m, alpha_fo/{ALPHA_FO_S:g}) = {g6(alpha_s / (2 * math.pi))} Hz gives G = {g_was:.3g} "
-                "(above 1 the injection pushes the angle away)"
+        share = speed_loop_feedback(*loop, a_s, default_speed_filter(a_s))
+        if share > FEEDBACK_MAX:
+            speed_notch = (
+                f"the drive band-stops its speed feedback at w_c (as its current feedback): else its "
+                f"speed loop ({g6(a_s / (2 * math.pi))} Hz, filter max(50 Hz, 10 alpha_s)) feeds back "
+                f"G = {share:.3g} "
+                f"of the error signal (19) against it (carrier.py speed_loop_feedback; above 1 the injection "
+                f"pushes the angle away); without one, alpha_s <= "
+                f"{g6(speed_loop_limit(*loop, default_speed_filter) / (2 * math.pi))} Hz keeps G <= "
+                f"{FEEDBACK_MAX:g}"
             )
-            alpha_s = alpha_s_inj
     sec = doc.section("control", "control system; bandwidths as fractions of the sampling rate f_s")
     derived_ctl = {
         "T_s": (f"{g6(1e6 / f_s)} us", f"1/f_s, f_s = {g6(f_s / 1e3)} kHz"),
@@ -384,6 +399,8 @@ def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None
     for k, (v, rule) in derived_inj.items():
         sec[k] = Entry(inj_t[k], given=True) if k in inj_t else Entry(v, rule)
     _extra(sec, inj_t, derived_inj)
+    if speed_notch:
+        doc.optional.setdefault("injection", []).append(speed_notch)
 
     # ------------------------------------------------------------------ runtime, tuning
     rt_t = r.table("runtime") or {}

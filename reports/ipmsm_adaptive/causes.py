@@ -21,14 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive import FAMILY
-from sensorless.design.ipmsm_adaptive.carrier import (
-    FEEDBACK_MAX,
-    coupling_limit,
-    coupling_torque,
-    speed_loop_feedback,
-    speed_loop_limit,
-)
-from sensorless.design.scenario import default_speed_filter
+from sensorless.design.ipmsm_adaptive.carrier import coupling_limit, coupling_torque
 from sensorless.reports.causes import CLOSED_LOOP, Failure, Named, operating_torque_pu
 
 if TYPE_CHECKING:  # typed by name only
@@ -68,31 +61,17 @@ def _coupling_fix(drive: IpmsmDrive, w: float, T: float) -> str:
     )
 
 
-def speed_loop(drive: IpmsmDrive) -> tuple[float, float]:
-    """(G, alpha_s_max): the share of the HF error signal (19) the drive's speed loop feeds back against it
-    with the default speed filter, and the fastest speed loop [rad/s] that keeps it within FEEDBACK_MAX
-    (design/ipmsm_adaptive/carrier.py ``speed_loop_feedback``); (0, inf) without injection."""
-    inj, c, e = drive.injection, drive.control, drive.estimate
-    if not inj.enabled:
-        return 0.0, float("inf")
-    loop = (drive.observer.alpha_fo, e.L_q, e.psi_pm, drive.motor.J, drive.motor.p, c.alpha_c, inj.w_c, c.T_s)
-    g = speed_loop_feedback(*loop, c.alpha_s, default_speed_filter(c.alpha_s))
-    return g, speed_loop_limit(*loop, default_speed_filter)
-
-
-def _speed_loop_named(drive: IpmsmDrive, failure: Failure, g: float, alpha_s_max: float) -> Named:
-    hz, a_s = 2 * math.pi, drive.control.alpha_s
+def _speed_loop_named(drive: IpmsmDrive, failure: Failure) -> Named:
+    hz, a_s, a_i = 2 * math.pi, drive.control.alpha_s, drive.injection.alpha_i
     w_asked = failure.w_ref_pu if failure.w_ref_pu is not None else failure.w_pu
     return Named(
         "injection_speed_loop",
         f"asked for {w_asked:+.3g} p.u., inside the injection's fade-out "
-        f"{drive.injection.w_Delta / drive.w_base:.3g} p.u.: the speed loop (alpha_s = "
-        f"{a_s / hz:.3g} Hz, speed filter {default_speed_filter(a_s) / hz:.3g} Hz) feeds back G = {g:.3g} of "
-        "the HF error signal (19) against it"
-        + (" (above 1: its sign turns, the injection pushes the angle away)" if g >= 1 else "")
-        + " (design/ipmsm_adaptive/carrier.py speed_loop_feedback)",
-        f"a speed loop of at most {alpha_s_max / hz:.3g} Hz ([control] alpha_s; G = {FEEDBACK_MAX:g} with "
-        "the speed filter max(50 Hz, 10 alpha_s)), or a narrower speed filter",
+        f"{drive.injection.w_Delta / drive.w_base:.3g} p.u., where the angle and speed estimates come "
+        f"through the injection's PI (21)-(22) of alpha_i = {a_i / hz:.3g} Hz: the speed loop (alpha_s = "
+        f"{a_s / hz:.3g} Hz) is faster than it (design/ipmsm_adaptive/derive.py)",
+        f"a speed loop no faster than the injection's PI ([control] alpha_s <= {a_i / hz:.3g} Hz, the rule "
+        "of sensorless init), or a faster PI ([injection] alpha_i)",
     )
 
 
@@ -108,12 +87,11 @@ def failure_cause(drive: IpmsmDrive, gains: GainSet, failure: Failure) -> Named 
     wb, T_N = drive.w_base, drive.T_N
     w, T = failure.w_pu * wb, torque * T_N
     inj = bool(drive.injection.enabled)
-    g_loop, alpha_s_max = speed_loop(drive)
     # asked to run where the injection runs (a loss there runs off at the torque limit before it is seen)
     w_ref = w if failure.w_ref_pu is None else failure.w_ref_pu * wb
     in_band = inj and min(abs(w), abs(w_ref)) < drive.injection.w_Delta
-    if in_band and g_loop >= 1:
-        return _speed_loop_named(drive, failure, g_loop, alpha_s_max)
+    if in_band and drive.control.alpha_s > drive.injection.alpha_i * (1 + 1e-6):
+        return _speed_loop_named(drive, failure)
     if inj and abs(w) < drive.injection.w_Delta and w * T < 0:
         w1 = coupling_limit(drive.motor, T)
         if abs(w) > w1:
@@ -124,8 +102,6 @@ def failure_cause(drive: IpmsmDrive, gains: GainSet, failure: Failure) -> Named 
                 f"fade-out {drive.injection.w_Delta / wb:.3g} p.u. (design/ipmsm_adaptive/carrier.py)",
                 _coupling_fix(drive, abs(w), abs(T)),
             )
-    if in_band and g_loop > FEEDBACK_MAX:
-        return _speed_loop_named(drive, failure, g_loop, alpha_s_max)
     s = FAMILY.linearize(drive, gains, np.array([w]), T, injection=inj)
     if np.nanmax(s.max_real) > 0:
         return Named(

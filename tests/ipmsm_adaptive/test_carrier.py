@@ -207,39 +207,44 @@ def _error_gain(d, alpha_s: float, speed_filter: float | None = None) -> float:
     return float(np.mean(tr["eps"][late]) / (K * math.sin(2 * np.mean(tr["theta_err"][late]))))
 
 
-def test_the_speed_loop_feeds_the_carrier_back_against_the_error_signal(tmp_path):
-    """carrier.py ``speed_loop_feedback`` G against the simulated drive: the error signal (19) with the
-    speed loop closed on the estimate, over the same with a speed loop too slow to feed anything back, is
-    1 - G (within 10 % of G on the traction IPMSM); above G = 1 its sign turns. The derived speed loop
-    keeps G at 0.5 (it was 32 with min(5/tau_m, alpha_fo/5) = 33.8 Hz)."""
-    from sensorless.design.ipmsm_adaptive.carrier import FEEDBACK_MAX, speed_loop_feedback
-    from sensorless.design.scenario import default_speed_filter
+def test_the_speed_loop_feeds_the_carrier_back_against_the_error_signal(tmp_path, monkeypatch):
+    """carrier.py ``speed_loop_feedback`` G against the simulated drive: without the band-stop on the speed
+    feedback, the error signal (19) with the speed loop closed on the estimate, over the same with a speed
+    loop too slow to feed anything back, is 1 - G (within 10 % of G on the traction IPMSM), its sign turned
+    above G = 1; with the band-stop the drive applies where G > FEEDBACK_MAX, it keeps its sign."""
+    import sensorless.design.ipmsm_adaptive.simulation as simulation
+    from sensorless.design.ipmsm_adaptive.carrier import speed_loop_feedback
 
     d = _drive(tmp_path)
     c, e, inj = d.control, d.estimate, d.injection
     loop = (d.observer.alpha_fo, e.L_q, e.psi_pm, d.motor.J, d.motor.p, c.alpha_c, inj.w_c, c.T_s)
-    G = speed_loop_feedback(*loop, c.alpha_s, default_speed_filter(c.alpha_s))
-    assert G == pytest.approx(FEEDBACK_MAX, rel=1e-4)  # the drive file rounds alpha_s to 6 digits
+    monkeypatch.setattr(simulation, "FEEDBACK_MAX", math.inf)  # a drive without the band-stop
     ref = _error_gain(d, 2 * math.pi * 0.01)  # G ~ 1e-4
-    for alpha_s, w_f in ((c.alpha_s, None), (2 * math.pi * 5, 2 * math.pi * 338)):
-        G = speed_loop_feedback(*loop, alpha_s, w_f or default_speed_filter(alpha_s))
+    for alpha_s, w_f in (
+        (2 * math.pi * 33.7737, 2 * math.pi * 337.737),
+        (2 * math.pi * 5, 2 * math.pi * 338),
+    ):
+        G = speed_loop_feedback(*loop, alpha_s, w_f)
         reduction = 1 - _error_gain(d, alpha_s, w_f) / ref
         assert 0.9 * G < reduction < 1.1 * G, (alpha_s, G, reduction)
-    assert G > 4 and _error_gain(d, alpha_s, w_f) < 0  # the sign turned
+    assert G > 4 and reduction > 1  # the sign turned
+    monkeypatch.undo()
+    assert _error_gain(d, alpha_s, w_f) / ref > 0.5  # band-stopped: its sign kept
 
 
-def test_the_low_hold_check_fails_the_speed_loop_that_turns_the_error_signal(tmp_path):
+def test_the_low_hold_check_fails_a_speed_loop_faster_than_the_injection(tmp_path):
     """The generic low_hold (unloaded, a third of w_Delta, from 5 deg) with the speed loop the rule gave
-    before (33.8 Hz, G = 32): lost, the cause named with the speed loop that fixes it; the derived one
-    holds."""
+    before (min(5/tau_m, alpha_fo/5) = 33.8 Hz, against alpha_i = 10 Hz; band-stopped, G = 32 without):
+    lost, the cause named with the speed loop that fixes it; the derived one (10 Hz) holds."""
     from sensorless.design.scenario import load_scenario
     from sensorless.reports import time_domain
 
     for extra, ok in (("", True), ('alpha_s = "33.7737 Hz"', False)):
         d = _drive(tmp_path, extra)
+        assert math.isclose(d.control.alpha_s, 2 * math.pi * (10 if ok else 33.7737), rel_tol=1e-6)
         gains = registry.family_of(d).gains(d)
         (chk,), _ = time_domain.checks(d, gains, [load_scenario("low_hold", d)], "drive file", lambda s: None)
         assert chk["passed"] is ok and chk["status"] == ("pass" if ok else "fail")
         if not ok:
             assert set(chk["causes"]) == {"injection_speed_loop"}
-            assert "at most 3.49 Hz" in chk["failures"][0]["fix"]
+            assert "alpha_s <= 10 Hz" in chk["failures"][0]["fix"]
