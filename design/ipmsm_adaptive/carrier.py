@@ -188,7 +188,8 @@ def speed_loop_feedback(
 
     G > 1 reverses its sign and the injection pushes the angle away: the traction IPMSM of
     docs/examples/motors (prius) had G = 32 with its 33.8-Hz speed loop and lost the rotor held at
-    -0.04 p.u. unloaded. Simulated error-signal gains against 1 - G: tests/ipmsm_adaptive/test_carrier.py.
+    -0.04 p.u. unloaded. Where G > FEEDBACK_MAX the drive band-stops its speed feedback at w_c, which takes
+    G to 0 (simulation.py). Simulated error-signal gains against 1 - G: tests/ipmsm_adaptive/test_carrier.py.
     """
     k_p_obs = 2 * alpha_fo / psi_pm_hat  # eq. (10)
     a = math.exp(-w_f * T_s)
