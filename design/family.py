@@ -175,6 +175,11 @@ class DriveScales:
     # where zero_speed is given: whether the drive still starts once from standstill by its open-loop
     # start (a firmware that spins up and never returns to open loop): the generic start stays a check
     spins_up: bool = False
+    # a speed [rad/s] the observer holds by a low-speed mechanism of its own (an HF injection), and for how
+    # long [s]: the generic ``low_hold`` holds it unloaded, speed loop closed on the estimate, from an angle
+    # error of HOLD_ERROR (design/scenario.py); 0: none
+    hold_speed: float = 0.0
+    hold_time: float = 0.0
 
     @property
     def t_acc(self) -> float:

@@ -89,7 +89,9 @@ class OnPmsm(Drive, Protocol):
     def w_base(self) -> float: ...
 
 
-def _params(drive: OnPmsm, sc: Scenario, carrier: tuple[float, float], notch: bool) -> np.ndarray:
+def _params(
+    drive: OnPmsm, sc: Scenario, carrier: tuple[float, float], notch: bool, speed_notch: bool = False
+) -> np.ndarray:
     m, e, c = drive.motor, drive.estimate, drive.control
     k = {key: sc.estimate_scale.get(key, 1.0) for key in ESTIMATE_KEYS}
     w_c, band = carrier
@@ -116,6 +118,7 @@ def _params(drive: OnPmsm, sc: Scenario, carrier: tuple[float, float], notch: bo
         "stiff": 1.0 if sc.stiff_load else 0.0,
         "alpha_w": speed_filter_of(sc, c.alpha_s),
         "notch": 1.0 if notch and w_c > 0 else 0.0,
+        "speed_notch": 1.0 if notch and speed_notch and w_c > 0 else 0.0,
         "w_n": w_c if w_c > 0 else math.pi / c.T_s / 2,  # unused without the notch
         "B_n": band if band > 0 else 1.0,
     }
@@ -296,12 +299,14 @@ def loop_setup(
     carrier: tuple[float, float] = (0.0, 0.0),
     notch: bool = False,
     frames: StateFrames | None = None,
+    speed_notch: bool = False,
 ) -> LoopSetup:
     """The loop set-up of ``sc`` on a PMSM drive with the runtime observer ``setup``.
 
     ``carrier``: (frequency, band-stop bandwidth) [rad/s] of the carrier an observer injects (its
     output ``u_c_d``; 0: none); ``notch``: it injects in this run, so the current control must not see
-    the carrier. ``meta`` adds the family's own lines (gains, injection, ...) to the provenance.
+    the carrier; ``speed_notch``: nor the speed loop (a band-stop on its speed feedback too). ``meta``
+    adds the family's own lines (gains, injection, ...) to the provenance.
     ``frames``: how the observer's state turns with the rotor (its family's declaration), which gives
     the set-up its rotor coordinates (the whole-drive linearization) where it runs without injection
     and without the I-f start.
@@ -324,7 +329,7 @@ def loop_setup(
     step = setup.step_function()
     loop = loop_function(step, tuple(f.name for f in obs.outputs))
     T_s = drive.control.T_s
-    q = _params(drive, sc, carrier, notch)
+    q = _params(drive, sc, carrier, notch, speed_notch)
     v = inputs(sc, T_s)
     z_loop, op = initial_loop_state_function()(q, v[:, 0], sc.w_m0, sc.theta_m0)
     op = np.asarray(op).ravel()
@@ -391,7 +396,7 @@ def _coordinates(
         angles=tuple(ix(a) for a in frames.angles),
         vectors=((_Z["u_a"], _Z["u_b"]), *((ix(a), ix(b)) for a, b in frames.vectors)),
         held=(
-            *(_Z[k] for k in ("nf_d1", "nf_d2", "nf_q1", "nf_q2")),
+            *(_Z[k] for k in ("nf_d1", "nf_d2", "nf_q1", "nf_q2", "nf_w1", "nf_w2")),
             *(ix(h) for h in frames.held),
             n + len(names) - 1,  # the runtime contract's counter: 0 in steady state
         ),

@@ -344,8 +344,11 @@ def load_scenario(spec: str | Path, drive: Drive) -> Scenario:
     rel = drive_units(drive)
     if path.suffix != ".toml" and "/" not in spec_s:
         res = _builtin(drive.kind).get(spec_s)
+        generic = {}
         if res is None and spec_s in GENERIC:
-            return {sc.name: sc for sc in generic_scenarios(drive)}[spec_s]
+            generic = {sc.name: sc for sc in generic_scenarios(drive)}
+        if spec_s in generic:
+            return generic[spec_s]
         if res is None:
             have = ", ".join(builtin_names(drive.kind) + list(GENERIC)) or "none"
             raise FileNotFoundError(
@@ -373,13 +376,20 @@ def speed_filter_of(sc: Scenario, alpha_s: float) -> float:
     """The speed-feedback low-pass bandwidth [rad/s] of ``sc`` in a speed loop of bandwidth ``alpha_s``:
     the scenario's, else 10 alpha_s and at least 2 pi 50 rad/s (a filter near the loop's own bandwidth
     makes a fast servo's speed loop limit-cycle)."""
-    return sc.speed_filter if sc.speed_filter is not None else max(SPEED_FILTER_MIN, 10 * alpha_s)
+    return sc.speed_filter if sc.speed_filter is not None else default_speed_filter(alpha_s)
+
+
+def default_speed_filter(alpha_s: float) -> float:
+    """The speed-feedback low-pass bandwidth [rad/s] a scenario that gives none runs: 10 alpha_s, at least
+    2 pi 50 rad/s."""
+    return max(SPEED_FILTER_MIN, 10 * alpha_s)
 
 
 # --------------------------------------------------------------------------------------------------
 # Generic scenarios, scaled to a drive
 # --------------------------------------------------------------------------------------------------
-GENERIC = ("speed_steps", "load_steps", "reversal", "start")
+GENERIC = ("speed_steps", "load_steps", "reversal", "start", "low_hold")  # low_hold: DriveScales.hold_speed
+HOLD_ERROR_DEG = 5.0  # low_hold starts this far off the rotor [deg, electrical]
 
 
 def generic_times(sc: DriveScales) -> dict[str, float]:
@@ -417,7 +427,7 @@ def crosses_zero(sc: Scenario) -> bool:
     return bool(w.min() < 0 < w.max())
 
 
-def generic_scenarios(drive: Drive) -> list[Scenario]:
+def generic_scenarios(drive: Drive, hold: bool = True) -> list[Scenario]:
     """The built-in generic scenarios of any drive whose family gives its scales, in per unit of its
     own rating, with times scaled by :func:`generic_times` (docs/simulation.md, "Generic scenarios"):
 
@@ -435,6 +445,9 @@ def generic_scenarios(drive: Drive) -> list[Scenario]:
     - ``start``: from standstill, rated load applied in ``t_rise``, then a ramp to 0.5 p.u. in
       ``t_seg``, through the open-loop I-f start where the design does not hold zero speed
       (``[control] startup``: design/pmsm_drive.py ``startup_setup``).
+    - ``low_hold`` (``hold``, and only where the family names a low-speed mechanism of its own:
+      ``DriveScales.hold_speed``): unloaded at -hold_speed from a HOLD_ERROR_DEG angle error for
+      ``hold_time``, the speed loop closed on the estimate.
     """
     fam = require(registry.family_of(drive), Scaled)
     scales = fam.scales(drive)
@@ -491,6 +504,15 @@ def generic_scenarios(drive: Drive) -> list[Scenario]:
             f'[load_torque]\ninterpolation = "linear"\nt = [0, {g(r)}]\nvalue = ["0 Nm", "1 T_N"]\n',
         ),
     }
+    if hold and scales.hold_speed > 0:  # the observer's own low-speed mechanism (an HF injection) in the loop
+        w_h = g(-scales.hold_speed / scales.w_base)
+        texts["low_hold"] = (
+            f"Unloaded hold at {w_h} p.u., inside the observer's own low-speed range",
+            scales.hold_time,
+            '["speed", "torque", "theta_error"]',
+            f'[initial]\nw_m = "{w_h} pu"\ntheta_error = "{HOLD_ERROR_DEG:g} deg"\n'
+            f'[speed_reference]\nt = [0]\nvalue = ["{w_h} pu"]\n',
+        )
     rel = drive_units(drive)
     out = []
     for name, (title, duration, figure, body) in texts.items():

@@ -92,6 +92,12 @@ CATALOGUE: dict[str, Cause] = {
             "of it under load, or observer gains that keep it stable there (sensorless tune)",
         ),
         Cause(
+            "injection_speed_loop",
+            "speed loop against the HF injection",
+            "the speed loop feeds the carrier's speed-estimate ripple back as a carrier current against the "
+            "injection's error signal: a slower speed loop ([control] alpha_s) or a narrower speed filter",
+        ),
+        Cause(
             "rhp_band",
             "RHP band",
             "the linearized drive has a right-half-plane pole at this speed and load: gains that are stable "
@@ -137,6 +143,7 @@ class Failure:
     text: str
     t: float | None = None  # [s]
     w_pu: float | None = None  # rotor speed there [p.u.]
+    w_ref_pu: float | None = None  # speed reference there [p.u.]: where the drive was asked to run
     load_pu: float | None = None  # load torque there [p.u. of T_N]
     torque_e_pu: float | None = None  # electromagnetic torque there [p.u. of T_N] (its sign: motoring or not)
     torque_pu: float | None = None  # peak |torque command| just before (slip: peak |T_e| in open loop) [p.u.]

@@ -246,6 +246,8 @@ def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None =
         }
         if w_m is not None:
             out["w_pu"] = float(w_m[k] / base_w)
+            if has("w_ref"):
+                out["w_ref_pu"] = float(tr["w_ref"][k] / base_w)
             if scales is not None and k > a:
                 a_max = scales.pole_pairs * scales.T_max / scales.J
                 out["accel_share"] = float(abs(w_m[k] - w_m[a]) / (tr.t[k] - tr.t[a]) / a_max)

@@ -69,6 +69,8 @@ LOOP_STATE = (
     Field("nf_d2", "A", "carrier notch filter state, controller-frame d current"),
     Field("nf_q1", "A", "carrier notch filter state, controller-frame q current"),
     Field("nf_q2", "A", "carrier notch filter state, controller-frame q current"),
+    Field("nf_w1", "rad/s", "carrier notch filter state, speed feedback"),
+    Field("nf_w2", "rad/s", "carrier notch filter state, speed feedback"),
 )
 
 # per-sample inputs
@@ -104,6 +106,7 @@ PARAMS = (
     Field("stiff", "1", "1: speed prescribed by a stiff load machine (w_ref); 0: inertia"),
     Field("alpha_w", "rad/s", "bandwidth of the low-pass filter on the controllers' speed feedback"),
     Field("notch", "1", "1: remove the carrier from the current-controller feedback (band-stop)"),
+    Field("speed_notch", "1", "1: remove the carrier from the speed feedback too (band-stop)"),
     Field("w_n", "rad/s", "band-stop centre (the carrier frequency w_c)"),
     Field("B_n", "rad/s", "band-stop -3 dB bandwidth"),
 )
@@ -167,7 +170,7 @@ def loop_function(
     x_plant = z[0:4]
     u_now = z[4:6]
     u_i = z[6:8]
-    nf_d, nf_q = z[10:12], z[12:14]
+    nf_d, nf_q, nf_w = z[10:12], z[12:14], z[14:16]
     x_obs = z[len(LOOP_STATE) :]
 
     # motor at t_k: current measured (with noise), torque
@@ -190,7 +193,11 @@ def loop_function(
 
     sensor = Q["sensor"]
     theta_c = sensor * Z["theta_m"] + (1 - sensor) * theta_hat  # controller frame angle
-    w_f_next = low_pass_step(Z["w_f"], w_hat, Q["alpha_w"], T_s)
+    # the carrier's speed-estimate ripple is the observer's signal too: the speed loop would feed it back
+    # as a carrier current against the injection's error signal (docs/simulation.md, "Speed control")
+    bp = band_pass(Q["w_n"], Q["B_n"], T_s)
+    hf_w = biquad_step(bp, nf_w, w_hat)
+    w_f_next = low_pass_step(Z["w_f"], w_hat - Q["speed_notch"] * hf_w.y, Q["alpha_w"], T_s)
     w_c = sensor * Z["w_m"] + (1 - sensor) * w_f_next
 
     # speed control (IP) or torque control, torque limit, MTPA references [12]
@@ -213,7 +220,6 @@ def loop_function(
     # current control in the controller frame; carrier (17) on its d axis; delay-compensated output
     i_c = rot(theta_c).T @ i_meas
     # the carrier response is the observer's signal, not a current error: band-stop it (d and q)
-    bp = band_pass(Q["w_n"], Q["B_n"], T_s)
     hf_d, hf_q = biquad_step(bp, nf_d, i_c[0]), biquad_step(bp, nf_q, i_c[1])
     i_fb = i_c - Q["notch"] * ca.vertcat(hf_d.y, hf_q.y)
     cc = pi_current_control(i_ref, i_fb, u_i, w_c, est, Q["alpha_c"], T_s, Q["u_max"])
@@ -226,7 +232,15 @@ def loop_function(
     x_plant_next = plant_period(x_in, u_now, V["T_L"], motor, mech, Q["stiff"], T_s, n_sub)
 
     z_next = ca.vertcat(
-        x_plant_next, u_next, cc.u_i_next, x_s_next, w_f_next, hf_d.z_next, hf_q.z_next, x_obs_next
+        x_plant_next,
+        u_next,
+        cc.u_i_next,
+        x_s_next,
+        w_f_next,
+        hf_d.z_next,
+        hf_q.z_next,
+        hf_w.z_next,
+        x_obs_next,
     )
     T_e_hat = torque(flux_from_current(i_c, est), i_c, Q["p"])
     rec = ca.vertcat(
@@ -298,6 +312,7 @@ def initial_loop_state_function() -> ca.Function:
     u_r = stator_voltage(i0, 0, psi0, w0, motor.R_s)  # eq. (29)
     u_i0 = u_r - w0 * (J @ flux_from_current(i0, est))  # the current PI at rest, minus its decoupling
     k_p, _ = speed_gains(Q["alpha_s"], Q["J_hat"], Q["p"])
+    bp = band_pass(Q["w_n"], Q["B_n"], Q["T_s"])
     Z = {s.name: ca.SX(0) for s in LOOP_STATE}
     u_ab = rot(th0) @ u_r
     Z.update(
@@ -311,6 +326,9 @@ def initial_loop_state_function() -> ca.Function:
         u_i_q=u_i0[1],
         x_s=speed_mode * (T0 + k_p * w0),
         w_f=w0,
+        # the speed notch's band-pass at rest on the constant w0 (its output 0: zero gain at DC)
+        nf_w1=-bp.b0 * w0,
+        nf_w2=bp.b2 * w0,
     )
     z0 = ca.vertcat(*[Z[s.name] for s in LOOP_STATE])
     op = ca.vertcat(th0, w0, i0)

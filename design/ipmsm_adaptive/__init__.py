@@ -152,8 +152,19 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
         return PerUnitBases(values, note)
 
     def scales(self, drive: schema.IpmsmDrive) -> DriveScales:
-        c = drive.control
-        return DriveScales(drive.T_N, c.T_max, drive.motor.J, drive.motor.p, drive.w_base, c.alpha_s)
+        c, inj = drive.control, drive.injection
+        # with injection: hold a third of its fade-out (carrier at 2/3) for 20 / alpha_i (the PI (21)-(22))
+        hold_speed, hold_time = (inj.w_Delta / 3, 20 / inj.alpha_i) if inj.enabled else (0.0, 0.0)
+        return DriveScales(
+            drive.T_N,
+            c.T_max,
+            drive.motor.J,
+            drive.motor.p,
+            drive.w_base,
+            c.alpha_s,
+            hold_speed=hold_speed,
+            hold_time=hold_time,
+        )
 
     def simulation(self, drive: schema.IpmsmDrive, scenario: Scenario, gains: GainSet | None) -> LoopSetup:
         return simulation.build(drive, scenario, gains)
@@ -163,7 +174,13 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
 
     def trace_notes(self, meta: Mapping[str, Any]) -> tuple[str, ...]:
         """The run's HF-injection switch (simulation.build puts it in the provenance)."""
-        return (f"HF injection {'on' if meta['injection'] else 'off'}",)
+        notch = meta.get("speed_notch")
+        band = (
+            f", speed feedback band-stopped at the carrier (its loop would feed back G = {notch})"
+            if notch
+            else ""
+        )
+        return (f"HF injection {'on' if meta['injection'] else 'off'}{band}",)
 
     # the open-loop I-f start (design/startup.py): its drive files' optional [startup] section
     def startup(self, drive: schema.IpmsmDrive) -> StartupSettings | None:

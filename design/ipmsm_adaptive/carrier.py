@@ -47,6 +47,7 @@ T_N, against its rated 300 N m).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from sensorless.design.motor_data import mtpa_torque_current, steady_voltage
@@ -148,4 +149,84 @@ def coupling_torque(m: PmsmMotor, w: float, T_max: float, bisections: int = 60) 
     for _ in range(bisections):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if coupling_limit(m, mid) >= abs(w) else (lo, mid)
+    return lo
+
+
+# the speed loop's carrier feedback (speed_loop_feedback): at most this share of the error signal (19)
+# may the speed loop cancel (the injection PI (21)-(22) then runs at >= half its alpha_i, damping >= 0.61)
+FEEDBACK_MAX = 0.5
+
+
+def speed_loop_feedback(
+    alpha_fo: float,
+    L_q_hat: float,
+    psi_pm_hat: float,
+    J_hat: float,
+    p: int,
+    alpha_c: float,
+    w_c: float,
+    T_s: float,
+    alpha_s: float,
+    w_f: float,
+) -> float:
+    """G: the carrier current the speed loop feeds back, over the saliency's own i_qc (at zero torque).
+
+    At an angle error the carrier leaves i_qc (module docstring) in the measured q current; the observer's
+    model (aligned with its own frame) does not predict it, so it is a current error, and the adaptation
+    (9)-(10) turns it into a speed-estimate ripple k_p L̂_q i_qc at w_c. Through the speed feedback's
+    low-pass F (design/pmsm_drive.py, sampled exactly), the speed PI's k_p = 2 alpha_s Ĵ/p, the MTPA
+    reference (di_q/dT = 1/(1.5 p ψ̂_pm) at T = 0) and the current PI (k_p = alpha_c L̂_q; its feedback is
+    band-stopped at the carrier, so the reference passes) it returns as a q voltage at w_c, whose current
+    (u / (w_c L_q), times the sampled response's Delta / (2 sin(Delta/2)), Delta = w_c T_s) the
+    demodulation (18) reads beside i_qc, nearly in antiphase (the 1.5-sample delay the carrier's own
+    response is demodulated with acts on the fed-back path twice). So the error signal (19) is scaled by
+    about 1 - G:
+
+        G = (2 alpha_fo L̂_q / ψ̂_pm) |F(e^{j w_c T_s})| (2 alpha_s Ĵ / p) / (1.5 p ψ̂_pm)
+            (alpha_c / w_c) Delta / (2 sin(Delta / 2)),
+        |F| = (1 - a) / |1 - a e^{-j w_c T_s}|,   a = e^{-w_f T_s}.
+
+    G > 1 reverses its sign and the injection pushes the angle away: the traction IPMSM of
+    docs/examples/motors (prius) had G = 32 with its 33.8-Hz speed loop and lost the rotor held at
+    -0.04 p.u. unloaded. Where G > FEEDBACK_MAX the drive band-stops its speed feedback at w_c, which takes
+    G to 0 (simulation.py). Simulated error-signal gains against 1 - G: tests/ipmsm_adaptive/test_carrier.py.
+    """
+    k_p_obs = 2 * alpha_fo / psi_pm_hat  # eq. (10)
+    a = math.exp(-w_f * T_s)
+    delta = w_c * T_s
+    filt = (1 - a) / abs(1 - a * complex(math.cos(delta), -math.sin(delta)))
+    k_p_speed = 2 * alpha_s * J_hat / p  # design/pmsm_drive.py speed PI, electrical speed
+    di_dT = 1 / (1.5 * p * psi_pm_hat)
+    plant = alpha_c / w_c * delta / (2 * math.sin(delta / 2))
+    return k_p_obs * L_q_hat * filt * k_p_speed * di_dT * plant
+
+
+def speed_loop_limit(
+    alpha_fo: float,
+    L_q_hat: float,
+    psi_pm_hat: float,
+    J_hat: float,
+    p: int,
+    alpha_c: float,
+    w_c: float,
+    T_s: float,
+    speed_filter: Callable[[float], float],
+    bisections: int = 60,
+) -> float:
+    """The fastest speed loop alpha_s [rad/s] whose carrier feedback :func:`speed_loop_feedback` is at most
+    FEEDBACK_MAX, with the speed filter ``speed_filter(alpha_s)`` [rad/s] the drive runs (G grows with
+    both)."""
+
+    def g(alpha_s: float) -> float:
+        return speed_loop_feedback(
+            alpha_fo, L_q_hat, psi_pm_hat, J_hat, p, alpha_c, w_c, T_s, alpha_s, speed_filter(alpha_s)
+        )
+
+    hi = 1.0
+    while g(hi) < FEEDBACK_MAX:
+        hi *= 2
+    lo = 0.0
+    for _ in range(bisections):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if g(mid) <= FEEDBACK_MAX else (lo, mid)
     return lo

@@ -15,7 +15,11 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
 - ``[control]``: T_s = 1/f_s; bandwidths as fractions of the sampling rate, those of Piippo et al.
   (2008) Table II at 5 kHz: alpha_c = f_s/12.5 (400 Hz); speed control
   alpha_s = min(5/tau_m, alpha_fo/5), tau_m = J w_N / (p T_N) the mechanical time constant (the
-  paper: 5 Hz at tau_m = 0.168 s, 5.3/tau_m), slower than the speed estimate;
+  paper: 5 Hz at tau_m = 0.168 s, 5.3/tau_m), slower than the speed estimate, and with HF injection at
+  most alpha_i (the injection's PI gives the estimate at low speed: the paper's 5 Hz = alpha_i); where
+  that speed loop feeds back more than half of the injection's error signal (carrier.py
+  ``speed_loop_feedback``), the drive band-stops its speed feedback at the carrier (simulation.py) and
+  the file says so in a comment of ``[injection]``;
   T_max = 1.5 T_N (the paper 1.57 T_N).
 - ``[observer]``: alpha_fo = max(f_s/100, 50/tau_m), at most f_s/20: the paper's 50 Hz at 5 kHz
   (= 53/tau_m), and fast enough for a light rotor, whose speed changes by 2.5/tau_m p.u./s at the torque
@@ -55,7 +59,14 @@ from sensorless.design.drive_file import (
     table,
     toml_value,
 )
-from sensorless.design.ipmsm_adaptive.carrier import CARRIER_FS, carrier, coupling_limit
+from sensorless.design.ipmsm_adaptive.carrier import (
+    CARRIER_FS,
+    FEEDBACK_MAX,
+    carrier,
+    coupling_limit,
+    speed_loop_feedback,
+    speed_loop_limit,
+)
 from sensorless.design.ipmsm_adaptive.schema import (
     I_NOISE_DEFAULT,
     RUNTIME_DEFAULTS,
@@ -68,6 +79,7 @@ from sensorless.design.ipmsm_adaptive.schema import (
 )
 from sensorless.design.motor_data import mtpa_torque, mtpa_torque_current, read_motor, steady_voltage
 from sensorless.design.pmsm_schema import saliency
+from sensorless.design.scenario import default_speed_filter
 from sensorless.design.units import DriveFileError, parse_quantity
 
 # the rules (module docstring); fractions of the sampling frequency f_s
@@ -228,12 +240,73 @@ def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None
         )
     _extra(sec, est_t, ("R_s", "L_d", "L_q", "psi_pm"))
 
+    # ------------------------------------------------------------------ injection: on or off (the speed
+    # loop's rule below depends on it; its section is written after the observer's)
+    inj_t = r.table("injection") or {}
+    xi = saliency(m.L_d, m.L_q)
+    usable = xi >= SALIENCY_MIN
+    cw = None
+    if usable and "u_c" not in inj_t:  # a drive file that gives u_c keeps it (a preset is complete)
+
+        def rate(section: str, key: str, default: float, t: Mapping[str, Any]) -> float:
+            raw = t.get(key)
+            if isinstance(raw, str) and raw.strip().endswith("pu"):  # per unit of the rated speed
+                return (
+                    parse_quantity(raw.strip()[:-2], "dimensionless", file=file, key=f"{section}.{key}")[0]
+                    * w_N
+                )
+            return r.value(section, key, "angular") if key in t else default
+
+        alpha_i = rate("injection", "alpha_i", 2 * math.pi * ALPHA_I_FO * ALPHA_FO_FS * f_s, inj_t)
+        w_delta = rate("injection", "w_Delta", (w_delta_pu or W_DELTA_PU) * w_N, inj_t)
+        w_c = rate("injection", "w_c", 2 * math.pi * CARRIER_FS * f_s, inj_t)
+        i_noise = r.value("control", "i_noise", "current") if "i_noise" in ctl_t else I_NOISE_DEFAULT * i_base
+        i_res = r.value("control", "i_resolution", "current") if "i_resolution" in ctl_t else 0.0
+        cw = carrier(m, f_s, u_dc, T_N, w_delta, alpha_i, i_noise, i_res, i_base, w_c / (2 * math.pi))
+    if cw is not None and cw.warning:
+        doc.context["carrier_warning"] = f"{file}: injection.u_c: {cw.warning}"
+    on = cw.u_c > 0 if cw is not None else usable
     # ------------------------------------------------------------------ control
     tau_m = m.J * w_N / m.p / T_N  # rated speed at rated torque: the mechanical time constant
     alpha_fo = min(
         max(2 * math.pi * ALPHA_FO_FS * f_s, ALPHA_FO_TAU / tau_m), 2 * math.pi * ALPHA_FO_MAX_FS * f_s
     )
     alpha_s = min(ALPHA_S_TAU / tau_m, alpha_fo / ALPHA_FO_S)
+    alpha_s_rule = (
+        f"speed control min({ALPHA_S_TAU:g}/tau_m, alpha_fo/{ALPHA_FO_S:g}), tau_m = J w_N/(p T_N) = "
+        f"{g6(tau_m)} s (Piippo et al.: 5 Hz, tau_m 0.17 s)"
+    )
+    if on and cw is not None and alpha_i < alpha_s:
+        # inside the injection's band the angle and speed come through its PI (21)-(22): a speed loop
+        # faster than it loses the rotor (docs/families/ipmsm_adaptive.md, "The speed loop against ...")
+        alpha_s_rule = (
+            f"speed control min({ALPHA_S_TAU:g}/tau_m, alpha_fo/{ALPHA_FO_S:g}, alpha_i): no faster than the "
+            "injection's PI (21)-(22), which gives the estimate at low speed (Piippo et al.: 5 Hz = "
+            f"alpha_i); tau_m = J w_N/(p T_N) = {g6(tau_m)} s; the first two: "
+            f"{g6(alpha_s / (2 * math.pi))} Hz"
+        )
+        alpha_s = alpha_i
+    alpha_c = (
+        r.value("control", "alpha_c", "angular") if "alpha_c" in ctl_t else 2 * math.pi * ALPHA_C_FS * f_s
+    )
+    speed_notch = ""
+    if on and cw is not None:
+        # the speed loop feeds the carrier back into the error signal (19): carrier.py speed_loop_feedback
+        obs_given = r.table("observer") or {}
+        a_fo = r.value("observer", "alpha_fo", "angular") if "alpha_fo" in obs_given else alpha_fo
+        a_s = r.value("control", "alpha_s", "angular") if "alpha_s" in ctl_t else alpha_s
+        loop = (a_fo, m.L_q, m.psi_pm, m.J, m.p, alpha_c, 2 * math.pi * cw.f_c, 1 / f_s)
+        share = speed_loop_feedback(*loop, a_s, default_speed_filter(a_s))
+        if share > FEEDBACK_MAX:
+            speed_notch = (
+                f"the drive band-stops its speed feedback at w_c (as its current feedback): else its "
+                f"speed loop ({g6(a_s / (2 * math.pi))} Hz, filter max(50 Hz, 10 alpha_s)) feeds back "
+                f"G = {share:.3g} "
+                f"of the error signal (19) against it (carrier.py speed_loop_feedback; above 1 the injection "
+                f"pushes the angle away); without one, alpha_s <= "
+                f"{g6(speed_loop_limit(*loop, default_speed_filter) / (2 * math.pi))} Hz keeps G <= "
+                f"{FEEDBACK_MAX:g}"
+            )
     sec = doc.section("control", "control system; bandwidths as fractions of the sampling rate f_s")
     derived_ctl = {
         "T_s": (f"{g6(1e6 / f_s)} us", f"1/f_s, f_s = {g6(f_s / 1e3)} kHz"),
@@ -241,11 +314,7 @@ def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None
             f"{g6(ALPHA_C_FS * f_s)} Hz",
             "current control f_s/12.5 (Piippo et al.: 400 Hz at 5 kHz)",
         ),
-        "alpha_s": (
-            f"{g6(alpha_s / (2 * math.pi))} Hz",
-            f"speed control min({ALPHA_S_TAU:g}/tau_m, alpha_fo/{ALPHA_FO_S:g}), tau_m = J w_N/(p T_N) = "
-            f"{g6(tau_m)} s (Piippo et al.: 5 Hz, tau_m 0.17 s)",
-        ),
+        "alpha_s": (f"{g6(alpha_s / (2 * math.pi))} Hz", alpha_s_rule),
         "T_max": (f"{g6(T_MAX_TN * T_N)} Nm", "1.5 T_N (Piippo et al.: 1.57 T_N)"),
         "u_dc": (u_dc_raw, u_dc_rule),
     }
@@ -298,31 +367,7 @@ def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None
             lambda_p=Entry("2 R_s_hat", "Fig. 4(c), eq. (16)"), w_lambda=Entry("1 pu", "Fig. 4(c)")
         )
 
-    # ------------------------------------------------------------------ injection
-    inj_t = r.table("injection") or {}
-    xi = saliency(m.L_d, m.L_q)
-    usable = xi >= SALIENCY_MIN
-    cw = None
-    if usable and "u_c" not in inj_t:  # a drive file that gives u_c keeps it (a preset is complete)
-
-        def rate(section: str, key: str, default: float, t: Mapping[str, Any]) -> float:
-            raw = t.get(key)
-            if isinstance(raw, str) and raw.strip().endswith("pu"):  # per unit of the rated speed
-                return (
-                    parse_quantity(raw.strip()[:-2], "dimensionless", file=file, key=f"{section}.{key}")[0]
-                    * w_N
-                )
-            return r.value(section, key, "angular") if key in t else default
-
-        alpha_i = rate("injection", "alpha_i", 2 * math.pi * ALPHA_I_FO * ALPHA_FO_FS * f_s, inj_t)
-        w_delta = rate("injection", "w_Delta", (w_delta_pu or W_DELTA_PU) * w_N, inj_t)
-        w_c = rate("injection", "w_c", 2 * math.pi * CARRIER_FS * f_s, inj_t)
-        i_noise = r.value("control", "i_noise", "current") if "i_noise" in ctl_t else I_NOISE_DEFAULT * i_base
-        i_res = r.value("control", "i_resolution", "current") if "i_resolution" in ctl_t else 0.0
-        cw = carrier(m, f_s, u_dc, T_N, w_delta, alpha_i, i_noise, i_res, i_base, w_c / (2 * math.pi))
-    if cw is not None and cw.warning:
-        doc.context["carrier_warning"] = f"{file}: injection.u_c: {cw.warning}"
-    on = cw.u_c > 0 if cw is not None else usable
+    # ------------------------------------------------------------------ injection (section below)
     note = f"HF injection, Section V: saliency 2|L_q - L_d|/(L_q + L_d) = {xi:.3g} " + (
         f">= {SALIENCY_MIN:g}: " + ("on" if on else "but too small for the current sensor: off")
         if usable
@@ -354,6 +399,8 @@ def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None
     for k, (v, rule) in derived_inj.items():
         sec[k] = Entry(inj_t[k], given=True) if k in inj_t else Entry(v, rule)
     _extra(sec, inj_t, derived_inj)
+    if speed_notch:
+        doc.optional.setdefault("injection", []).append(speed_notch)
 
     # ------------------------------------------------------------------ runtime, tuning
     rt_t = r.table("runtime") or {}

@@ -11,11 +11,12 @@ import dataclasses
 from typing import TYPE_CHECKING
 
 from sensorless.design.family import GainSet, Panel, TraceLine
+from sensorless.design.ipmsm_adaptive.carrier import FEEDBACK_MAX, speed_loop_feedback
 from sensorless.design.ipmsm_adaptive.runtime import drive_gains, runtime_setup
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_schema import saliency
 from sensorless.design.runtime import RuntimeSetup
-from sensorless.design.scenario import Scenario
+from sensorless.design.scenario import Scenario, speed_filter_of
 from sensorless.design.simulate import LoopSetup, SimulationError, StateFrames
 
 if TYPE_CHECKING:  # typed by name only
@@ -84,15 +85,29 @@ def build(drive: IpmsmDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     sc = with_injection(drive, sc)
     gains = gains or drive_gains(drive, sc.options.get("gain"))
     setup = scaled_setup(runtime_setup(drive, gains, sc.discretization), sc)
+    inj = bool(sc.options["injection"])
+    share = speed_loop_share(drive, speed_filter_of(sc, drive.control.alpha_s))
+    notch_w = inj and share > FEEDBACK_MAX
     return loop_setup(
         drive,
         sc,
         setup,
-        meta={"injection": bool(sc.options["injection"])},
+        meta={"injection": inj, "speed_notch": f"{share:.3g}" if notch_w else ""},
         carrier=(drive.injection.w_c, drive.run.w_bp),
-        notch=bool(sc.options["injection"]),
+        notch=inj,
         frames=FRAMES,
+        speed_notch=notch_w,
     )
+
+
+def speed_loop_share(drive: IpmsmDrive, w_f: float, alpha_s: float | None = None) -> float:
+    """G: the share of the HF error signal (19) the drive's speed loop (``alpha_s``, default the drive's)
+    with the speed filter ``w_f`` [rad/s] feeds back against it (carrier.py ``speed_loop_feedback``).
+    Where it is above FEEDBACK_MAX the drive band-stops its speed feedback at the carrier, as its current
+    feedback (G then 0: the band-stop's zero at w_c); the paper's drive (G = 0.24) runs as published."""
+    inj, c, e = drive.injection, drive.control, drive.estimate
+    loop = (drive.observer.alpha_fo, e.L_q, e.psi_pm, drive.motor.J, drive.motor.p, c.alpha_c, inj.w_c, c.T_s)
+    return speed_loop_feedback(*loop, c.alpha_s if alpha_s is None else alpha_s, w_f)
 
 
 # how the observer's state turns with the rotor (the whole-drive linearization, design/drive_analysis.py):

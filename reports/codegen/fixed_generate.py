@@ -43,7 +43,9 @@ def fixed_model(drive: Drive, gains: GainSet, setup: RuntimeSetup) -> FixedModel
 
     scenarios = [load_scenario(n, drive) for n in builtin_names(drive.kind)]
     if isinstance(family_of(drive), Scaled):  # the generic checks where the family gives their scales
-        scenarios += generic_scenarios(drive)
+        # without the unloaded low_hold: the formats stay sized (and their pole-shift figures taken) on the
+        # runs they were before it (the preset's fixed-point data unchanged)
+        scenarios += generic_scenarios(drive, hold=False)
     model = FixedModel.of(drive, gains, scenarios)
     model.data(setup)  # ValueError if no run ran this observer
     return model

@@ -14,6 +14,7 @@ verdict may say of the checks through zero speed.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -60,6 +61,20 @@ def _coupling_fix(drive: IpmsmDrive, w: float, T: float) -> str:
     )
 
 
+def _speed_loop_named(drive: IpmsmDrive, failure: Failure) -> Named:
+    hz, a_s, a_i = 2 * math.pi, drive.control.alpha_s, drive.injection.alpha_i
+    w_asked = failure.w_ref_pu if failure.w_ref_pu is not None else failure.w_pu
+    return Named(
+        "injection_speed_loop",
+        f"asked for {w_asked:+.3g} p.u., inside the injection's fade-out "
+        f"{drive.injection.w_Delta / drive.w_base:.3g} p.u., where the angle and speed estimates come "
+        f"through the injection's PI (21)-(22) of alpha_i = {a_i / hz:.3g} Hz: the speed loop (alpha_s = "
+        f"{a_s / hz:.3g} Hz) is faster than it (design/ipmsm_adaptive/derive.py)",
+        f"a speed loop no faster than the injection's PI ([control] alpha_s <= {a_i / hz:.3g} Hz, the rule "
+        "of sensorless init), or a faster PI ([injection] alpha_i)",
+    )
+
+
 def failure_cause(drive: IpmsmDrive, gains: GainSet, failure: Failure) -> Named | None:
     """The cause of a failed check in the adaptive observer's own analysis (reports/causes.py): a closed-loop
     failure regenerating where the HF injection runs, above the speed below which its correction (20) holds
@@ -72,6 +87,11 @@ def failure_cause(drive: IpmsmDrive, gains: GainSet, failure: Failure) -> Named 
     wb, T_N = drive.w_base, drive.T_N
     w, T = failure.w_pu * wb, torque * T_N
     inj = bool(drive.injection.enabled)
+    # asked to run where the injection runs (a loss there runs off at the torque limit before it is seen)
+    w_ref = w if failure.w_ref_pu is None else failure.w_ref_pu * wb
+    in_band = inj and min(abs(w), abs(w_ref)) < drive.injection.w_Delta
+    if in_band and drive.control.alpha_s > drive.injection.alpha_i * (1 + 1e-6):
+        return _speed_loop_named(drive, failure)
     if inj and abs(w) < drive.injection.w_Delta and w * T < 0:
         w1 = coupling_limit(drive.motor, T)
         if abs(w) > w1:

@@ -107,6 +107,7 @@ def test_the_catalogue_holds_the_ids_other_modules_use():
         "observer_lag_acceleration",
         "pll_root",
         "injection_coupling_band",
+        "injection_speed_loop",
         "rhp_band",
         "estimate_error",
         "speed_unreachable",

@@ -100,7 +100,9 @@ def test_derived_values_follow_their_documented_rules(flow):
     alpha_fo = min(max(2 * math.pi * f_s / 100, 50 / tau_m), 2 * math.pi * f_s / 20)
     assert c.T_s == pytest.approx(1 / f_s)
     assert d.observer.alpha_fo == pytest.approx(alpha_fo, rel=1e-5)
-    assert c.alpha_s == pytest.approx(min(5 / tau_m, alpha_fo / 5), rel=1e-5)
+    # no faster than the injection's PI where the drive injects (it gives the estimate at low speed)
+    alpha_i = d.injection.alpha_i if d.injection.enabled else math.inf
+    assert c.alpha_s == pytest.approx(min(5 / tau_m, alpha_fo / 5, alpha_i), rel=1e-5)
     assert c.alpha_c == pytest.approx(2 * math.pi * f_s / 12.5, rel=1e-5)
     assert c.T_max == pytest.approx(1.5 * d.T_N, rel=1e-5)
     assert d.w_base == pytest.approx(w_N, rel=1e-5)
@@ -110,10 +112,12 @@ def test_derived_values_follow_their_documented_rules(flow):
 
 
 def test_the_verdict_agrees_with_its_checks(flow):
-    _, _, _, d, codes = flow
+    _, _, drive, d, codes = flow
     data = verdict_agrees_with_checks(d["report"], codes["report"])
     v, td = data["verdict"], data["time_domain"]
-    assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal", "start"]  # generic, scaled
+    # generic, scaled; low_hold where the drive injects (its own low-speed range: DriveScales.hold_speed)
+    hold = ["low_hold"] if load_drive(drive).injection.enabled else []
+    assert [c["name"] for c in td] == ["speed_steps", "load_steps", "reversal", "start", *hold]
     assert v["limitations"] == []  # this observer runs through zero speed: nothing left out
     # a user's gains are not the paper's
     assert "paper speed" not in (d["report"] / "report.html").read_text()

@@ -176,3 +176,75 @@ def test_the_injection_fades_out_above_the_observers_own_stability_edge_at_the_t
         assert worst[0] > 0 > worst[1]
     given = _drive(tmp_path, tail='\n[injection]\nw_Delta = "0.2 pu"\n')
     assert math.isclose(given.injection.w_Delta, 0.2 * w_N, rel_tol=1e-9)
+
+
+# ------------------------------------------------------------------ the speed loop against the error signal
+
+
+def _error_gain(d, alpha_s: float, speed_filter: float | None = None) -> float:
+    """eps / (K_eps sin 2 theta) simulated at -0.04 p.u. from a 3-deg angle error, the injection PI frozen
+    (alpha_i tiny) so the angle stays put while the chain settles (40 ms: its low-pass is 100 Hz)."""
+    from sensorless.design.scenario import load_scenario
+    from sensorless.design.simulate import simulate
+    from sensorless.symbolic.ipmsm_adaptive.injection import injection_gain
+
+    d = dataclasses.replace(
+        d,
+        control=dataclasses.replace(d.control, alpha_s=alpha_s),
+        injection=dataclasses.replace(d.injection, alpha_i=1e-3),
+    )
+    filt = "" if speed_filter is None else f'[control]\nspeed_filter = "{speed_filter} rad/s"\n'
+    f = Path(d.file).with_name("gain.toml")
+    f.write_text(
+        '[scenario]\nname = "gain"\ntitle = "g"\nsource = "t"\nkind = "ipmsm-adaptive"\nduration = "0.04 s"\n'
+        f'[observer]\ninjection = true\n{filt}[initial]\nw_m = "-0.04 pu"\ntheta_error = "3 deg"\n'
+        '[speed_reference]\nt = [0]\nvalue = ["-0.04 pu"]\n',
+        encoding="utf-8",
+    )
+    tr = simulate(d, load_scenario(f, d))
+    late = tr.t > 0.025
+    K = float(injection_gain(d.injection.u_c, d.injection.w_c, d.estimate))
+    return float(np.mean(tr["eps"][late]) / (K * math.sin(2 * np.mean(tr["theta_err"][late]))))
+
+
+def test_the_speed_loop_feeds_the_carrier_back_against_the_error_signal(tmp_path, monkeypatch):
+    """carrier.py ``speed_loop_feedback`` G against the simulated drive: without the band-stop on the speed
+    feedback, the error signal (19) with the speed loop closed on the estimate, over the same with a speed
+    loop too slow to feed anything back, is 1 - G (within 10 % of G on the traction IPMSM), its sign turned
+    above G = 1; with the band-stop the drive applies where G > FEEDBACK_MAX, it keeps its sign."""
+    import sensorless.design.ipmsm_adaptive.simulation as simulation
+    from sensorless.design.ipmsm_adaptive.carrier import speed_loop_feedback
+
+    d = _drive(tmp_path)
+    c, e, inj = d.control, d.estimate, d.injection
+    loop = (d.observer.alpha_fo, e.L_q, e.psi_pm, d.motor.J, d.motor.p, c.alpha_c, inj.w_c, c.T_s)
+    monkeypatch.setattr(simulation, "FEEDBACK_MAX", math.inf)  # a drive without the band-stop
+    ref = _error_gain(d, 2 * math.pi * 0.01)  # G ~ 1e-4
+    for alpha_s, w_f in (
+        (2 * math.pi * 33.7737, 2 * math.pi * 337.737),
+        (2 * math.pi * 5, 2 * math.pi * 338),
+    ):
+        G = speed_loop_feedback(*loop, alpha_s, w_f)
+        reduction = 1 - _error_gain(d, alpha_s, w_f) / ref
+        assert 0.9 * G < reduction < 1.1 * G, (alpha_s, G, reduction)
+    assert G > 4 and reduction > 1  # the sign turned
+    monkeypatch.undo()
+    assert _error_gain(d, alpha_s, w_f) / ref > 0.5  # band-stopped: its sign kept
+
+
+def test_the_low_hold_check_fails_a_speed_loop_faster_than_the_injection(tmp_path):
+    """The generic low_hold (unloaded, a third of w_Delta, from 5 deg) with the speed loop the rule gave
+    before (min(5/tau_m, alpha_fo/5) = 33.8 Hz, against alpha_i = 10 Hz; band-stopped, G = 32 without):
+    lost, the cause named with the speed loop that fixes it; the derived one (10 Hz) holds."""
+    from sensorless.design.scenario import load_scenario
+    from sensorless.reports import time_domain
+
+    for extra, ok in (("", True), ('alpha_s = "33.7737 Hz"', False)):
+        d = _drive(tmp_path, extra)
+        assert math.isclose(d.control.alpha_s, 2 * math.pi * (10 if ok else 33.7737), rel_tol=1e-6)
+        gains = registry.family_of(d).gains(d)
+        (chk,), _ = time_domain.checks(d, gains, [load_scenario("low_hold", d)], "drive file", lambda s: None)
+        assert chk["passed"] is ok and chk["status"] == ("pass" if ok else "fail")
+        if not ok:
+            assert set(chk["causes"]) == {"injection_speed_loop"}
+            assert "alpha_s <= 10 Hz" in chk["failures"][0]["fix"]
