@@ -150,6 +150,7 @@ class Evidence(TypedDict, total=False):
     open_s: float | None
     avail_s: float | None
     need_s: float | None
+    w_ref_pu: float | None
     drop_accel_share: float | None
     drop_speed_err_pu: float | None
 
