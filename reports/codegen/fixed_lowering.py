@@ -83,8 +83,16 @@ class Lowering(AngleLowering, TableLowering):
             return self.add(Ins("CONST", (), ins.kind, ins.f, (v,), what="folded"), abs(v))
         if ins.op == "MUL" and any(c and P[a].imm[0] == 0 for a, c in zip(ins.args, is_c, strict=True)):
             return self.add(Ins("CONST", (), ins.kind, ins.f, (0,), what="0"), 0)
-        if ins.op in ("ADD", "SUB") and is_c[1] and P[ins.args[1]].imm[0] == 0:  # x + 0
-            src, k = ins.args[0], ins.imm[0]
+        # x + 0, also where the constant is below the sum's LSB (CURRENT_EPS in A^2 added to a
+        # square of currents: it shifts to 0, and the sum is the other operand aligned)
+        zero = [False, False]
+        if ins.op in ("ADD", "SUB"):
+            zero = [
+                c and _shifted(P[a].imm[0], k) == 0 for a, c, k in zip(ins.args, is_c, ins.imm, strict=True)
+            ]
+        if zero[1] or (ins.op == "ADD" and zero[0]):
+            j = 0 if zero[1] else 1
+            src, k = ins.args[j], ins.imm[j]
             if k == 0 and P[src].f == ins.f and P[src].kind == ins.kind:
                 return src
             return self.add(Ins("ALIGN", (src,), ins.kind, ins.f, (k,), ins.sat), self.wr[src] * 2.0**k)
@@ -434,3 +442,8 @@ class Lowering(AngleLowering, TableLowering):
         raise NotImplementedError(
             f"fixed point: operation {op} on runtime values (node {n}) is not supported"
         )
+
+
+def _shifted(raw: int, k: int) -> int:
+    """raw 2^k floored, as the model's shift (fixed_ops.NumpyBackend.shift)."""
+    return raw * (1 << k) if k >= 0 else raw >> (-k)
