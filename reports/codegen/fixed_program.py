@@ -183,6 +183,7 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
         if i in runtime:
             v = np.broadcast_to(v, x.shape[1:])
             low.sim_lo[i], low.sim_hi[i] = float(np.nanmin(v)), float(np.nanmax(v))
+            low.sim_typ[i] = float(np.nanmedian(np.abs(v)))
     for j, d in enumerate(inputs):
         imm = (j,) if d["kind"] == "ang" else (j, -(2 ** (NOMINAL_BITS + 1)), 2 ** (NOMINAL_BITS + 1))
         wr = 2.0**31 if d["kind"] == "ang" else 2.0 ** (NOMINAL_BITS + 1)
