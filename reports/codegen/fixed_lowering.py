@@ -333,8 +333,9 @@ class Lowering(AngleLowering, TableLowering):
         a, b = self.lin(an), self.lin(bn)
         fa, fb = self.fmt(a)[1], self.fmt(b)[1]
         # the quotient to QUOT_BITS at its range (a Q15 constant factor's precision): each bit is
-        # one step of the C's long division (~7 cycles on a Cortex-M0+)
-        fo -= NOMINAL_BITS - QUOT_BITS
+        # one step of the C's long division (~7 cycles on a Cortex-M0+); no fewer than none (a
+        # negative step count is a 64-bit division: deangelo2006's went from ~490 to ~1100 cycles)
+        fo -= min(NOMINAL_BITS - QUOT_BITS, max(0, fo - fa + fb))
         floor_raw = max(1, math.floor(lo / MARGIN * 2.0**fb))
         bc = self.add(
             Ins("MAX", (b, self.const_slot(floor_raw * 2.0**-fb, fb)), "fix", fb, (0, 0)), self.wr[b]
@@ -347,7 +348,10 @@ class Lowering(AngleLowering, TableLowering):
         # instead left hubmotor48's inductance share (within 0..1) two bits, 0.35 deg off the double step
         worst = self.wr[a] * 2.0**k / floor_raw
         lim = min(INT_MAX, math.ceil(2 * 2.0**NOMINAL_BITS))
-        imm = (k, lim) if worst > lim else (k,)
+        # with its bound given, the C divides by fixed_c's 32-bit long division (fx_divc<k>) where the
+        # shifted numerator exceeds int32, not by a 64-bit division (libgcc, ~3x the cycles)
+        wide = self.wr[a] * 2.0**k > INT_MAX and 0 <= k < 31
+        imm = (k, lim) if worst > lim or wide else (k,)
         return self.add(Ins("DIV", (a, bc), "fix", fo, imm, what="divisor clamped positive"), min(worst, lim))
 
     # ------------------------------------------------------------------------------- linear values
