@@ -6,9 +6,11 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
 
 - **formats**: a signal of range R (fixed_ranges.py) is stored as raw = value 2^f with the largest f
   such that R 2^f <= 2^26: 26 bits of precision, 5 bits of headroom. Products by a constant (Q15)
-  are two 32-bit products (exact); products of two signals four 32-bit products of their 16-bit
-  halves (fixed_ops.mulw, within 3 LSB; operands clamped at twice their range where a glitch could
-  overflow), 64-bit only where neither form holds; sums are aligned by shifts; comparisons are exact;
+  are two 32-bit products (exact); products of two signals that fill their range one 32-bit product
+  of operands rounded to 15 bits (Lowering.short_product), the others four 32-bit products of their
+  16-bit halves (fixed_ops.mulw, within 3 LSB); operands clamped at twice their range where a glitch
+  could overflow; 64-bit only where no form holds; quotients to 16 significant bits; sums are
+  aligned by shifts; comparisons are exact;
 - **folded and shared**: a variant's flags select their branch in the program (a product by 0, a
   sum with 0, |binary angle| <= pi are constants); an operation on the same slots is computed once;
 - **saturation** where a worst-case input (measurements and unbounded state fields clamped at twice
