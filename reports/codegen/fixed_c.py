@@ -119,8 +119,13 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
             else:
                 e = f"(((s{v} >> 16) * {c} * {1 << (16 - m[0])}) + {lo})"
         elif op == "MUL":
-            small = wr[ins.args[0]] * wr[ins.args[1]] < INT_MAX and not ins.sat and m[0] < 31
+            fits = wr[ins.args[0]] * wr[ins.args[1]] < INT_MAX
+            small = fits and not ins.sat and m[0] < 31
+            # a 32-bit product scaled up with saturation (a short product, fixed_lowering) needs no
+            # 64-bit product, only a 64-bit shift
             prod = f"({a[0]} * {a[1]})" if small else f"fx_mul64({a[0]}, {a[1]})"
+            if fits and not small and m[0] <= 0:
+                prod = f"(int64_t)({a[0]} * {a[1]})"
             e = f"({prod} >> {m[0]})" if m[0] >= 0 else f"({prod} * {1 << -m[0]})"
             e = e if small else f"{fin}{e}"
         elif op in ("NEG", "ABS"):

@@ -31,7 +31,10 @@ ERRORS = (
     "to [-pi/2, pi/2], error <= 1e-6; cos/sin of an atan2: the CORDIC's rotations applied to (1/K, 0), "
     "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits); "
     "a gain table: bisection, its fraction in Q15 within 2^-13; "
-    "products of two signals: four 32-bit products of 16-bit halves, within 3 LSB"
+    "products of two signals: where both fill their range (median over the runs >= 2^-4 of it) one "
+    "32-bit product of operands rounded to 15 bits of twice their range (relative error <= 2^-13 "
+    "each), else four 32-bit products of 16-bit halves, within 3 LSB; a quotient by a runtime "
+    "divisor: 16 significant bits at its range"
 )
 
 

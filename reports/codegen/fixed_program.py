@@ -6,9 +6,11 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
 
 - **formats**: a signal of range R (fixed_ranges.py) is stored as raw = value 2^f with the largest f
   such that R 2^f <= 2^26: 26 bits of precision, 5 bits of headroom. Products by a constant (Q15)
-  are two 32-bit products (exact); products of two signals four 32-bit products of their 16-bit
-  halves (fixed_ops.mulw, within 3 LSB; operands clamped at twice their range where a glitch could
-  overflow), 64-bit only where neither form holds; sums are aligned by shifts; comparisons are exact;
+  are two 32-bit products (exact); products of two signals that fill their range one 32-bit product
+  of operands rounded to 15 bits (Lowering.short_product), the others four 32-bit products of their
+  16-bit halves (fixed_ops.mulw, within 3 LSB); operands clamped at twice their range where a glitch
+  could overflow; 64-bit only where no form holds; quotients to 16 significant bits; sums are
+  aligned by shifts; comparisons are exact;
 - **folded and shared**: a variant's flags select their branch in the program (a product by 0, a
   sum with 0, |binary angle| <= pi are constants); an operation on the same slots is computed once;
 - **saturation** where a worst-case input (measurements and unbounded state fields clamped at twice
@@ -185,6 +187,7 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
         if i in runtime:
             v = np.broadcast_to(v, x.shape[1:])
             low.sim_lo[i], low.sim_hi[i] = float(np.nanmin(v)), float(np.nanmax(v))
+            low.sim_typ[i] = float(np.nanmedian(np.abs(v)))
     for j, d in enumerate(inputs):
         imm = (j,) if d["kind"] == "ang" else (j, -(2 ** (NOMINAL_BITS + 1)), 2 ** (NOMINAL_BITS + 1))
         wr = 2.0**31 if d["kind"] == "ang" else 2.0 ** (NOMINAL_BITS + 1)

@@ -20,7 +20,7 @@ Firmware variants (runtime options, docs/families/pmsm_flux_observer.md):
   of eta clamped to +-lambda;
 - inductance rule ``fixed`` (one L = (L_d + L_q)/2), ``q-axis`` (L = L_q: the "active flux" of
   Boldea, exact angle on a salient motor) or ``interpolated`` (VESC: L_d + (L_q - L_d) i_q^2/|i|^2, i_q in
-  the frame of the observer's last angle);
+  the frame of the observer's last angle, the direction of x - L_q i);
 - online flux adaptation (optional): lambda_hat follows |eta| by the gradient of the same cost:
   ``d lambda_hat/dt = a (gamma/2) lambda_hat (|eta|^2 - lambda_hat^2)``, gamma = k/lambda^2, with
   a = 0.2 (gradient corrections) or 0.1 (box clamp), lambda_hat within 0.3 .. 2.5 lambda (the rates
@@ -70,6 +70,9 @@ INDUCTANCES = ("fixed", "q-axis", "interpolated")
 ADAPT_RATE = {"gradient": 0.2, "clamped-gradient": 0.2, "box-clamp": 0.1}  # x (k/2), VESC's rates
 LAMBDA_RANGE = (0.3, 2.5)  # lambda_hat within these multiples of the nominal flux (VESC's limits)
 CURRENT_EPS = 1e-9  # A^2 added to |i|^2 in the interpolated rule (no division by zero at no current)
+# (V s A)^2 added to the share's divisor (a zero frame): relative 1e-30 / (lambda^2 CURRENT_EPS) < 1e-16
+# on any motor with lambda > 1e-6 V s, so below double rounding wherever the frame is not zero
+FRAME_EPS = 1e-30
 
 _X_BOUND = "6 * psi_pm"  # flux state: |eta| ~ lambda plus L i (L i < 5 lambda on any SPM drive)
 _W_BOUND = "min(w_max, pi / (2 * T_s))"
@@ -137,16 +140,21 @@ class Params(NamedTuple):
         return cls(*(p[k] for k in range(len(PARAMS))))
 
 
-def inductance(rule: str, i: Sym, theta: Sym, p: Params) -> Sym:
-    """The one inductance of (6) by the firmware's rule (module docstring); ``theta`` the observer's
-    angle the interpolated rule takes i_q in."""
+def inductance(rule: str, i: Sym, frame: Sym, p: Params) -> Sym:
+    """The one inductance of (6) by the firmware's rule (module docstring); ``frame`` a vector (any
+    length) along the angle the interpolated rule takes i_q in.
+
+    With ``frame`` = r [cos theta, sin theta], i_q = -sin(theta) i_alpha + cos(theta) i_beta is
+    (frame x i) / r, so the share i_q^2 / |i|^2 is (frame x i)^2 / (r^2 |i|^2): the same number
+    with no angle, cosine or sine (a fixed-point step needs neither a CORDIC nor a polynomial for
+    it). FRAME_EPS keeps the degenerate frame (r = 0, where atan2 gave angle 0) a finite share."""
     if rule == "fixed":
         return (p.L_d + p.L_q) / 2
     if rule == "q-axis":
         return p.L_q
     if rule == "interpolated":
-        i_q = -ca.sin(theta) * i[0] + ca.cos(theta) * i[1]
-        share = i_q**2 / (ca.sumsqr(i) + CURRENT_EPS)
+        cross = frame[0] * i[1] - frame[1] * i[0]
+        share = cross**2 / (ca.sumsqr(frame) * (ca.sumsqr(i) + CURRENT_EPS) + FRAME_EPS)
         return p.L_d + (p.L_q - p.L_d) * share
     raise ValueError(f"unknown inductance rule {rule!r} (known: {', '.join(INDUCTANCES)})")
 
@@ -183,7 +191,7 @@ def observer_rhs(kind: str, rule: str, x: Sym, i: Sym, u: Sym, p: Params, k_0: S
     """Continuous-time observer (8) with the PLL: x = [x (2), lambda_hat, theta_pll, w_pll] -> dx/dt.
     (The box clamp is a discrete map with no continuous form: ValueError.)"""
     lam = x[2]
-    L = inductance(rule, i, ca.atan2(x[1] - p.L_q * i[1], x[0] - p.L_q * i[0]), p)
+    L = inductance(rule, i, x[0:2] - p.L_q * i, p)
     eta = x[0:2] - L * i
     k = observer_gain(k_0, u, p)
     dx = u - p.R_s * i + correction(kind, eta, lam, k, p.psi_pm)
@@ -217,7 +225,7 @@ def _step(kind: str, rule: str, x: Sym, meas: Sym, p_vec: Sym, lam_in: Sym) -> t
     lam, u_prev, th, w = x[2], x[3:5], x[5], x[6]
     k = observer_gain(lam_in[0], u_prev, p)
     # the inductance of the interpolated rule in the frame of the last angle estimate
-    L = inductance(rule, i, ca.atan2(x[1] - p.L_q * i[1], x[0] - p.L_q * i[0]), p)
+    L = inductance(rule, i, x[0:2] - p.L_q * i, p)
     x_pred = x[0:2] + T * (u_prev - p.R_s * i)  # prediction with the previous period's voltage
     eta_pred = x_pred - L * i
     if kind == "box-clamp":
@@ -282,7 +290,7 @@ def steady_state_function(rule: str) -> ca.Function:
     p = Params.of(p_vec)
     th, w, i_r = op[0], op[1], op[2:4]
     i = rot(th) @ i_r
-    L = inductance(rule, i, th, p)
+    L = inductance(rule, i, ca.vertcat(ca.cos(th), ca.sin(th)), p)
     eta = p.psi_pm * ca.vertcat(ca.cos(th), ca.sin(th))
     psi_r = ca.vertcat(p.L_d * i_r[0] + p.psi_pm, p.L_q * i_r[1])
     u_r = p.R_s * i_r + w * ca.vertcat(-psi_r[1], psi_r[0])

@@ -606,3 +606,30 @@ def test_a_gain_table_lookup_is_the_linear_interpolation():
     tol = np.abs(np.diff(V))[k] * 2.0**-13 + 2
     assert np.all(np.abs(got - want) <= tol)
     assert np.all(got[np.abs(u) >= G[-1]] == V[-1]) and np.all(got[np.abs(u) <= G[0]] == V[0])
+
+
+def test_the_interpolated_share_needs_no_angle():
+    """symbolic/pmsm_flux_observer/observer.py `inductance` writes VESC's i_q^2/|i|^2 as (a x i)^2 /
+    (|a|^2 (|i|^2 + eps)) (no atan2, cos or sin for the fixed-point step): against the form typed here
+    with the angle, i_q = -sin(theta) i_alpha + cos(theta) i_beta, theta = atan2(a), on random frames
+    and currents over six decades, within double rounding; a zero frame gives a finite inductance."""
+    import casadi as ca
+    from sensorless.symbolic.pmsm_flux_observer import observer as ob
+
+    rng = np.random.default_rng(3)
+    n = 2000
+    a = rng.normal(size=(2, n)) * 10.0 ** rng.uniform(-4, 0, n)
+    i = rng.normal(size=(2, n)) * 10.0 ** rng.uniform(-3, 3, n)
+    L_d, L_q = 1.3e-4, 2.1e-4
+    p = ob.Params(*([1.0, L_d, L_q] + [1.0] * (len(ob.PARAMS) - 3)))
+    fr, cur = ca.SX.sym("a", 2), ca.SX.sym("i", 2)
+    f = ca.Function("L", [fr, cur], [ob.inductance("interpolated", cur, fr, p)]).map(n)
+    got = np.asarray(f(a, i)).ravel()
+    th = np.arctan2(a[1], a[0])
+    i_q = -np.sin(th) * i[0] + np.cos(th) * i[1]
+    want = L_d + (L_q - L_d) * i_q**2 / (i[0] ** 2 + i[1] ** 2 + ob.CURRENT_EPS)
+    assert np.abs(got - want).max() <= 1e-15 * L_q
+    zero = float(
+        ca.Function("L0", [cur], [ob.inductance("interpolated", cur, ca.DM.zeros(2), p)])([1.0, 2.0])
+    )
+    assert zero == L_d
