@@ -108,6 +108,9 @@ def _axis_room(axis: Axis, metrics: _Metrics, along: float) -> _AxisRoom:
     """The room an axis' tick labels need; ``along`` [in] is the axis' length."""
     dpi = axis.axes.get_figure(root=True).dpi
     vertical = axis.axis_name == "y"
+    shown = _shown_ticks(axis, "major") + _shown_ticks(axis, "minor")
+    if not shown:  # e.g. a colorbar's short axis
+        return _AxisRoom(0.0, 0.0, 0.0, 0.0, 0.0)
     tick = axis.majorTicks[0]  # made once: the draw reuses it
     on1, on2 = tick.label1.get_visible(), tick.label2.get_visible()
     if not (on1 or on2):
@@ -116,15 +119,14 @@ def _axis_room(axis: Axis, metrics: _Metrics, along: float) -> _AxisRoom:
     _, h_lp, d_lp = metrics("lp", prop)
     to_frac = axis.axes.transScale + axis.axes.transLimits
     across = low = high = 0.0
-    for which in ("major", "minor"):
-        for v, s in _shown_ticks(axis, which):
-            w, h, d = metrics(s, prop)
-            h = max(h - d, h_lp - d_lp) + max(d, d_lp)  # a line's height as matplotlib's text layout has it
-            across = max(across, (w if vertical else h) / dpi)
-            half = (h if vertical else w) / dpi / 2
-            frac = to_frac.transform((0.0, v) if vertical else (v, 0.0))[1 if vertical else 0]
-            low = max(low, half - frac * along)
-            high = max(high, half - (1 - frac) * along)
+    for v, s in shown:
+        w, h, d = metrics(s, prop)
+        h = max(h - d, h_lp - d_lp) + max(d, d_lp)  # a line's height as matplotlib's text layout has it
+        across = max(across, (w if vertical else h) / dpi)
+        half = (h if vertical else w) / dpi / 2  # a label is centred on its tick
+        frac = to_frac.transform((0.0, v) if vertical else (v, 0.0))[1 if vertical else 0]
+        low = max(low, half - frac * along)
+        high = max(high, half - (1 - frac) * along)
     extent = (tick.get_pad() + tick.get_tick_padding()) / 72 + across if across else 0.0
     offset = 0.0
     if text := axis.major.formatter.get_offset():
