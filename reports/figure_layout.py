@@ -19,15 +19,19 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 if TYPE_CHECKING:  # typed by name only
     from matplotlib.axes import Axes
     from matplotlib.axis import Axis
+    from matplotlib.backend_bases import RendererBase
+    from matplotlib.cm import ScalarMappable
     from matplotlib.colorbar import Colorbar
     from matplotlib.figure import Figure
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.text import Text
 
 PAD = 3 / 72  # [in] around each axes with its decorations (constrained layout's w_pad and h_pad)
 BAR_PAD = 0.05  # a colorbar's gap to its axes, in widths of that axes (matplotlib's default)
@@ -39,7 +43,7 @@ class Bar:
     """A vertical colorbar right of grid column ``col`` over the rows ``rows``; its width is its
     height over ``aspect`` (matplotlib's default 20 for a colorbar beside one axes)."""
 
-    mappable: Any
+    mappable: ScalarMappable
     col: int
     rows: slice
     label: str = ""
@@ -90,11 +94,11 @@ class _AxisRoom:
 class _Metrics:
     """Text extents (width, height, descent) [px] on a renderer, each string measured once per layout."""
 
-    def __init__(self, renderer: Any) -> None:
+    def __init__(self, renderer: RendererBase) -> None:
         self.renderer = renderer
-        self._seen: dict[tuple[str, Any], tuple[float, float, float]] = {}
+        self._seen: dict[tuple[str, FontProperties], tuple[float, float, float]] = {}
 
-    def __call__(self, s: str, prop: Any) -> tuple[float, float, float]:
+    def __call__(self, s: str, prop: FontProperties) -> tuple[float, float, float]:
         from matplotlib import cbook
 
         key = (s, prop)
@@ -145,7 +149,7 @@ def room(ax: Axes, metrics: _Metrics, size: tuple[float, float]) -> Room:
     left, right = max(y.side1, x.low), max(y.side2, x.high)
     bottom, top = max(x.side1 + x.offset, y.low), max(x.side2, y.high, y.offset)
 
-    def extent(text: Any) -> tuple[float, float]:
+    def extent(text: Text) -> tuple[float, float]:
         if not text.get_visible() or not text.get_text():
             return 0.0, 0.0
         bb = text.get_window_extent(renderer)
@@ -179,7 +183,7 @@ def _pin_labels(ax: Axes, r: Room, size: tuple[float, float]) -> None:
 
 def lay_out(
     fig: Figure,
-    axes: Any,
+    axes: np.ndarray | Sequence[Sequence[Axes]],
     bars: Sequence[Bar] = (),
     title: str | None = None,
     title_size: float = 10.0,
