@@ -23,6 +23,7 @@ law; the laws' former names) is still read, for one release, with a note on stde
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import sys
@@ -81,6 +82,10 @@ class GainTable:
     points: list[dict[str, Any]] = field(default_factory=list)
     summary: dict[str, Any] = field(default_factory=dict)
     file: str = field(default="", compare=False)  # the file it was read from ("": built in memory)
+    # sha256 of that file's bytes (format /2; "": built in memory or upgraded from /1): what a report
+    # names the table by, without serializing megabytes again; for a table tune wrote, the digest of
+    # its canonical JSON (to_json) since that is the file's text
+    file_sha256: str = field(default="", compare=False)
 
     def where(self, table_file: str = "") -> str:
         """How messages name this table: ``table_file`` if given, else the file it was read from."""
@@ -207,7 +212,8 @@ def read_gain_table(path: str | Path) -> GainTable:
     if not p.is_file():
         raise FileNotFoundError(f"{p}: no such gain table")
     try:
-        text = p.read_bytes().decode("utf-8")
+        raw = p.read_bytes()
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
         raise GainTableError(f"{p}: not a gain table: not UTF-8 text (byte {e.start})") from None
     except OSError as e:
@@ -275,6 +281,7 @@ def read_gain_table(path: str | Path) -> GainTable:
         points=doc.get("points", []),
         summary=doc.get("summary", {}),
         file=str(p),
+        file_sha256=hashlib.sha256(raw).hexdigest() if key == "law" else "",
     )
 
 

@@ -146,7 +146,7 @@ def pyplot() -> ModuleType:
 
 def svg_uri(fig: MplFigure) -> str:
     """A matplotlib figure as an SVG data URI (closed afterwards; no date inside)."""
-    plt = pyplot()
+    plt = pyplot()  # STYLE set here, where the SVG is written: its element ids hash with svg.hashsalt
     buf = io.BytesIO()
     engine = fig.get_layout_engine()
     if engine is not None:
@@ -176,8 +176,11 @@ def report_inputs(drive: Drive, table: GainTable | None, min_damping: float) -> 
 
 
 def table_digest(table: GainTable | None) -> str | None:
-    """sha256 of a gain table's canonical JSON, or None."""
-    return None if table is None else hashlib.sha256(table.to_json().encode()).hexdigest()
+    """sha256 of a gain table: of the file it was read from (as ``sha256sum`` gives it, like the drive
+    file's; for a table tune wrote, its canonical JSON), else of its canonical JSON; None for none."""
+    if table is None:
+        return None
+    return table.file_sha256 or hashlib.sha256(table.to_json().encode()).hexdigest()
 
 
 # --------------------------------------------------------------------------------------------------

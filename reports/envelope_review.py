@@ -52,6 +52,7 @@ from sensorless.reports.document import (
     num,
     svg_uri,
 )
+from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
 from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
@@ -199,8 +200,7 @@ def poles_figure(lin: Linearization, w_base: float, title: str) -> MplFigure:
     axes[-1].set_xlabel("speed (p.u.)")
     for a in axes:
         a.grid(True, lw=0.3, color="0.8")
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+    lay_out(fig, axes[:, None], title=title, title_size=9, gap=0.15)
     return fig
 
 

@@ -27,6 +27,7 @@ from sensorless.design.low_speed import (
 from sensorless.design.registry import family_of
 from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
+from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.svg_render import svg_later
 
 if TYPE_CHECKING:
@@ -45,7 +46,7 @@ def _figure(ls: LowSpeed, title: str) -> MplFigure:
     ax.set_ylim(bottom=0)
     ax.grid(True, color="0.9")
     ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
+    lay_out(fig, [[ax]])
     return fig
 
 

@@ -16,6 +16,7 @@ from sensorless.design.linearization import Linearization
 from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
 from sensorless.reports.document import pyplot
+from sensorless.reports.figure_layout import Bar, lay_out
 
 if TYPE_CHECKING:  # typed by name only
     from matplotlib.figure import Figure
@@ -71,7 +72,7 @@ def plot_pole_maps(
 
     plt = pyplot()
     rows = len(sweeps)
-    fig, axes = plt.subplots(rows, 2, figsize=(11, 4.2 * rows), squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(rows, 2, figsize=(11, 4.2 * rows), squeeze=False)
     cmap = plt.get_cmap("turbo")  # no white at zero speed: low-speed poles stay visible
 
     def shown(label: str, c: int) -> Linearization:
@@ -83,6 +84,7 @@ def plot_pole_maps(
     # One colorbar per column where every row's speed range is the same (the usual case): the same
     # information as one per panel, and each colorbar is an axes that layout and drawing pay for.
     shared = [len({speed_max(shown(label, c)) for label in sweeps}) == 1 for c in range(2)]
+    bars = []
     for r, (label, full) in enumerate(sweeps.items()):
         zoom = _zoom_window(full, w_base)
         for c, ax in enumerate(axes[r]):
@@ -124,8 +126,8 @@ def plot_pole_maps(
             ax.axvspan(0, xl[1], color="tab:red", alpha=0.06, lw=0)
             ax.set_xlim(xl)
             if not shared[c]:
-                fig.colorbar(sc, ax=ax, label="rotor speed ω_m0 (p.u.)")
+                bars.append(Bar(sc, c, slice(r, r + 1), "rotor speed ω_m0 (p.u.)"))
             elif r == 0:
-                fig.colorbar(sc, ax=axes[:, c], label="rotor speed ω_m0 (p.u.)", aspect=20 * rows)
-    fig.suptitle(title, fontsize=10)
+                bars.append(Bar(sc, c, slice(0, rows), "rotor speed ω_m0 (p.u.)", aspect=20 * rows))
+    lay_out(fig, axes, bars, title)
     return fig

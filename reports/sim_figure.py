@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from sensorless.design import registry
 from sensorless.design.family import Panel
+from sensorless.reports.figure_layout import lay_out
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -148,6 +149,5 @@ def plot_traces(traces: Traces, panels: tuple[str, ...], title: str) -> MplFigur
             ax.legend(loc="best", fontsize=8, frameon=False, ncol=len(ax.get_lines()))
     axes[-1].set_xlabel("time (s)")
     axes[-1].set_xlim(traces.t[0], traces.t[-1])
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+    lay_out(fig, axes[:, None], title=title, title_size=9, gap=0.15)
     return fig

@@ -12,7 +12,7 @@ import argparse
 import functools
 import io
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -29,6 +29,7 @@ from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.family import Option
+from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.options import UsageError
 from sensorless.reports.svg_render import svg_later
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
@@ -251,18 +252,25 @@ def _decade(x: float, _pos: object = None) -> str:
     return "" if e is None or abs(math.log10(x) - e) > 1e-9 else "10" + str(e).translate(_SUPERSCRIPT)
 
 
-def angle_error_figure(drive: IpmsmDrive, g: Any, w: np.ndarray) -> Any:
-    """Steady position error of each scheme over speed at +-T_N, the drive's T_s (log scale)."""
+def angle_error_figure(
+    drive: IpmsmDrive, g: Any, w: np.ndarray, known: Mapping[tuple[str, float], np.ndarray] | None = None
+) -> Any:
+    """Steady position error of each scheme over speed at +-T_N, the drive's T_s (log scale).
+
+    ``known``: steady angle errors [rad] over ``w`` already linearized, by (scheme, torque)."""
     import matplotlib.pyplot as plt
     from matplotlib.ticker import FuncFormatter
 
     wb = drive.w_base
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), layout="constrained", sharey=True)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharey=True)
     for ax, T in zip(axes, (drive.T_N, -drive.T_N), strict=True):
         for m in DISCRETIZATIONS:
-            a = FAMILY.linearize(drive, g, w, T, discretization=m)
-            assert isinstance(a, DiscretePoleSweep)  # with a discretization
-            ax.semilogy(w / wb, np.abs(np.degrees(a.err_theta)), label=m, lw=1.2)
+            err = (known or {}).get((m, T))
+            if err is None:
+                a = FAMILY.linearize(drive, g, w, T, discretization=m)
+                assert isinstance(a, DiscretePoleSweep)  # with a discretization
+                err = a.err_theta
+            ax.semilogy(w / wb, np.abs(np.degrees(err)), label=m, lw=1.2)
         ax.axhline(0.1, color="0.4", ls=":", lw=0.8)
         ax.set_xlabel("rotor speed ω_m (p.u.)")
         ax.set_title(f"T_e = {T:+g} N m, T_s = {drive.control.T_s * 1e6:g} µs", fontsize=9)
@@ -270,6 +278,7 @@ def angle_error_figure(drive: IpmsmDrive, g: Any, w: np.ndarray) -> Any:
         ax.yaxis.set_major_formatter(FuncFormatter(_decade))
     axes[0].set_ylabel("|steady position error| (electrical deg)")
     axes[0].legend(fontsize=8)
+    lay_out(fig, [axes])
     return fig
 
 
@@ -288,10 +297,13 @@ def report_section(
     w = np.linspace(-1, 1, 201 if fine else 41) * wb
     per_gain: dict[str, Any] = {}
     rows = []
+    known: dict[tuple[str, float], np.ndarray] = {}  # the figure's, not linearized again
     for label, g in choices.items():
         for T in (drive.T_N, -drive.T_N):
             a = FAMILY.linearize(drive, g, w, T, discretization=disc)
             assert isinstance(a, DiscretePoleSweep)  # with a discretization
+            if label == review:
+                known[disc, T] = a.err_theta
             env = np.abs(w) >= 0.05 * wb  # below: the low-speed unstable band and its edge
             k = int(np.nanargmax(np.where(env, np.abs(a.err_theta), -1)))
             entry = {
@@ -336,7 +348,7 @@ def report_section(
         ],
     }
     fig = Figure(
-        svg_later(functools.partial(angle_error_figure, drive, choices[review], w)),
+        svg_later(functools.partial(angle_error_figure, drive, choices[review], w, known)),
         f"Steady position error at the sampling instants that each discretization of the runtime step "
         f"leaves ({review}, injection off): the fixed point of its one-step map on the motor sampled "
         "under zero-order hold. Dotted: 0.1 electrical degree.",

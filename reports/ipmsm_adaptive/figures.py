@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from sensorless.reports.figure_layout import Bar, lay_out
 
 
 def plane_figure(maps: dict[str, dict[str, Any]], w_pu: np.ndarray, T: np.ndarray, T_N: float) -> Any:
@@ -12,9 +13,8 @@ def plane_figure(maps: dict[str, dict[str, Any]], w_pu: np.ndarray, T: np.ndarra
     import matplotlib.pyplot as plt
 
     cols = list(maps)
-    fig, axes = plt.subplots(
-        2, len(cols), figsize=(5.2 * len(cols), 7.4), squeeze=False, layout="constrained"
-    )
+    fig, axes = plt.subplots(2, len(cols), figsize=(5.2 * len(cols), 7.4), squeeze=False)
+    bars = []
     for c, label in enumerate(cols):
         m = maps[label]
         for r, (key, name, cmap, vmin, vmax) in enumerate(
@@ -45,7 +45,8 @@ def plane_figure(maps: dict[str, dict[str, Any]], w_pu: np.ndarray, T: np.ndarra
             ax.set_xlabel("speed ω_m (p.u.)")
             ax.set_ylabel("torque T_e / T_N")
             ax.set_title(f"{label}: {name}", fontsize=9)
-            fig.colorbar(pc, ax=ax)
+            bars.append(Bar(pc, c, slice(r, r + 1)))
+    lay_out(fig, axes, bars)
     return fig
 
 
@@ -54,7 +55,7 @@ def robustness_figure(rob: dict[str, Any], w_pu: np.ndarray, label: str) -> Any:
     import matplotlib.pyplot as plt
 
     names = list(rob["params"])
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7.4), squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.4), squeeze=False)
     cm = plt.get_cmap("RdYlGn").with_extremes(bad="0.6")  # no equilibrium: grey
     pc = None
     for ax, name in zip(axes.ravel(), names, strict=False):
@@ -69,6 +70,7 @@ def robustness_figure(rob: dict[str, Any], w_pu: np.ndarray, label: str) -> Any:
         ax.set_xlabel("speed ω_m (p.u.)")
         ax.set_ylabel(f"error of estimate {name} (%)")
         ax.set_title(f"{label}: worst damping, {name} misestimated", fontsize=9)
-    if pc is not None:  # one colorbar: every panel has the same colour scale
-        fig.colorbar(pc, ax=axes, label="ζ (grey: no equilibrium)", aspect=40)
+    # one colorbar: every panel has the same colour scale
+    bars = [] if pc is None else [Bar(pc, 1, slice(0, 2), "ζ (grey: no equilibrium)", aspect=40)]
+    lay_out(fig, axes, bars)
     return fig

@@ -23,6 +23,7 @@ import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.ipmsm_adaptive import FAMILY
 from sensorless.reports.document import Figure, Paragraph, Section, Table, arr, f, num
+from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.svg_render import svg_later
 
 if TYPE_CHECKING:  # typed by name only
@@ -167,7 +168,7 @@ def _bound_figure(
         k = np.flatnonzero(np.diff(np.sign(w)) != 0) + 1
         return np.insert(w.astype(float), k, np.nan), np.insert(np.asarray(z, float), k, np.nan)
 
-    fig, ax = plt.subplots(figsize=(8.5, 4.2), layout="constrained")
+    fig, ax = plt.subplots(figsize=(8.5, 4.2))
     ax.plot(*gap(w_b, bound), color="k", lw=2.2, label="pointwise bound (any gain)")
     for label, v in figs.items():
         ax.plot(*gap(w_pu, v["per_speed"]), lw=1.3, label=label)
@@ -176,6 +177,7 @@ def _bound_figure(
     ax.set_ylim(min(0.0, float(np.nanmin([np.min(v["per_speed"]) for v in figs.values()]))) - 0.02, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="lower center")
+    lay_out(fig, [[ax]])
     return fig
 
 
@@ -183,7 +185,7 @@ def _pareto_figure(pf: dict[str, Any], figs: dict[str, Any]) -> Any:
     import matplotlib.pyplot as plt
 
     key = "noise_position_rad" if pf["output"] == "position" else "noise_speed_rad_s"
-    fig, ax = plt.subplots(figsize=(6.5, 4.2), layout="constrained")
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
     pts = sorted(pf["points"], key=lambda p: p["noise"])
     ax.plot([p["noise"] for p in pts], [p["worst_damping"] for p in pts], "o-", color="k", label="front")
     for (label, v), mk in zip(figs.items(), ("s", "^", "D", "v"), strict=False):
@@ -192,4 +194,5 @@ def _pareto_figure(pf: dict[str, Any], figs: dict[str, Any]) -> Any:
     ax.set_ylabel("worst damping")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
+    lay_out(fig, [[ax]])
     return fig

@@ -11,6 +11,7 @@ from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
 from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
 from sensorless.reports.document import pyplot
+from sensorless.reports.figure_layout import lay_out
 
 if TYPE_CHECKING:  # typed by name only
     from matplotlib.figure import Figure
@@ -95,9 +96,7 @@ def plot_poles(results: dict[str, ObserverPoles], drive: PmacDrive, title: str) 
     and the discrete observer's steady speed and load-torque errors vs speed; colored by load."""
     plt = pyplot()
     cols = len(results)
-    fig, axes = plt.subplots(
-        3, cols, figsize=(5.6 * cols, 9.0), squeeze=False, layout="constrained", sharex=True
-    )
+    fig, axes = plt.subplots(3, cols, figsize=(5.6 * cols, 9.0), squeeze=False, sharex=True)
     loads = np.unique(np.concatenate([r.T_L for r in results.values()]))
     colors = {T: plt.get_cmap("tab10")(k % 10) for k, T in enumerate(loads)}
     for c, (label, r) in enumerate(results.items()):
@@ -125,5 +124,5 @@ def plot_poles(results: dict[str, ObserverPoles], drive: PmacDrive, title: str) 
             ax.grid(True, lw=0.3)
             ax.set_xscale("symlog", linthresh=100)
         ax_p.legend(loc="lower left", fontsize=8)
-    fig.suptitle(title, fontsize=10)
+    lay_out(fig, axes, title=title)
     return fig

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer import FAMILY, corner_estimate
+from sensorless.reports.figure_layout import lay_out
 from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, corners
 
 if TYPE_CHECKING:  # typed by name only
@@ -31,7 +32,7 @@ def front_figure(pf: dict[str, Any], mine: dict[str, Any]) -> Any:
     ax.set_ylabel("worst damping")
     ax.grid(True, lw=0.3, color="0.8")
     ax.legend(fontsize=8, frameon=False)
-    fig.tight_layout()
+    lay_out(fig, [[ax]])
     return fig
 
 
@@ -80,5 +81,5 @@ def bias_figure(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSett
     ax.set_ylabel("angle bias (deg)")
     ax.grid(True, lw=0.3, color="0.8")
     ax.legend(fontsize=7, frameon=False, ncol=2)
-    fig.tight_layout()
+    lay_out(fig, [[ax]])
     return fig
