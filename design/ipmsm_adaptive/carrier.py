@@ -157,18 +157,23 @@ def coupling_torque(m: PmsmMotor, w: float, T_max: float, bisections: int = 60) 
 FEEDBACK_MAX = 0.5
 
 
-def speed_loop_feedback(
-    alpha_fo: float,
-    L_q_hat: float,
-    psi_pm_hat: float,
-    J_hat: float,
-    p: int,
-    alpha_c: float,
-    w_c: float,
-    T_s: float,
-    alpha_s: float,
-    w_f: float,
-) -> float:
+@dataclass(frozen=True)
+class SpeedLoopPath:
+    """The path the speed loop feeds the carrier back through (:func:`speed_loop_feedback`): the
+    adaptation's alpha_fo [rad/s] and the estimates L̂_q [H], ψ̂_pm [V s], Ĵ [kg m^2], the pole pairs,
+    the current loop's alpha_c [rad/s], the carrier w_c [rad/s] and the sampling period T_s [s]."""
+
+    alpha_fo: float
+    L_q_hat: float
+    psi_pm_hat: float
+    J_hat: float
+    p: int
+    alpha_c: float
+    w_c: float
+    T_s: float
+
+
+def speed_loop_feedback(path: SpeedLoopPath, alpha_s: float, w_f: float) -> float:
     """G: the carrier current the speed loop feeds back, over the saliency's own i_qc (at zero torque).
 
     At an angle error the carrier leaves i_qc (module docstring) in the measured q current; the observer's
@@ -191,36 +196,26 @@ def speed_loop_feedback(
     -0.04 p.u. unloaded. Where G > FEEDBACK_MAX the drive band-stops its speed feedback at w_c, which takes
     G to 0 (simulation.py). Simulated error-signal gains against 1 - G: tests/ipmsm_adaptive/test_carrier.py.
     """
-    k_p_obs = 2 * alpha_fo / psi_pm_hat  # eq. (10)
-    a = math.exp(-w_f * T_s)
-    delta = w_c * T_s
+    q = path
+    k_p_obs = 2 * q.alpha_fo / q.psi_pm_hat  # eq. (10)
+    a = math.exp(-w_f * q.T_s)
+    delta = q.w_c * q.T_s
     filt = (1 - a) / abs(1 - a * complex(math.cos(delta), -math.sin(delta)))
-    k_p_speed = 2 * alpha_s * J_hat / p  # design/pmsm_drive.py speed PI, electrical speed
-    di_dT = 1 / (1.5 * p * psi_pm_hat)
-    plant = alpha_c / w_c * delta / (2 * math.sin(delta / 2))
-    return k_p_obs * L_q_hat * filt * k_p_speed * di_dT * plant
+    k_p_speed = 2 * alpha_s * q.J_hat / q.p  # design/pmsm_drive.py speed PI, electrical speed
+    di_dT = 1 / (1.5 * q.p * q.psi_pm_hat)
+    plant = q.alpha_c / q.w_c * delta / (2 * math.sin(delta / 2))
+    return k_p_obs * q.L_q_hat * filt * k_p_speed * di_dT * plant
 
 
 def speed_loop_limit(
-    alpha_fo: float,
-    L_q_hat: float,
-    psi_pm_hat: float,
-    J_hat: float,
-    p: int,
-    alpha_c: float,
-    w_c: float,
-    T_s: float,
-    speed_filter: Callable[[float], float],
-    bisections: int = 60,
+    path: SpeedLoopPath, speed_filter: Callable[[float], float], bisections: int = 60
 ) -> float:
     """The fastest speed loop alpha_s [rad/s] whose carrier feedback :func:`speed_loop_feedback` is at most
     FEEDBACK_MAX, with the speed filter ``speed_filter(alpha_s)`` [rad/s] the drive runs (G grows with
     both)."""
 
     def g(alpha_s: float) -> float:
-        return speed_loop_feedback(
-            alpha_fo, L_q_hat, psi_pm_hat, J_hat, p, alpha_c, w_c, T_s, alpha_s, speed_filter(alpha_s)
-        )
+        return speed_loop_feedback(path, alpha_s, speed_filter(alpha_s))
 
     hi = 1.0
     while g(hi) < FEEDBACK_MAX:

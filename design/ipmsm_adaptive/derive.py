@@ -62,6 +62,7 @@ from sensorless.design.drive_file import (
 from sensorless.design.ipmsm_adaptive.carrier import (
     CARRIER_FS,
     FEEDBACK_MAX,
+    SpeedLoopPath,
     carrier,
     coupling_limit,
     speed_loop_feedback,
@@ -295,8 +296,8 @@ def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None
         obs_given = r.table("observer") or {}
         a_fo = r.value("observer", "alpha_fo", "angular") if "alpha_fo" in obs_given else alpha_fo
         a_s = r.value("control", "alpha_s", "angular") if "alpha_s" in ctl_t else alpha_s
-        loop = (a_fo, m.L_q, m.psi_pm, m.J, m.p, alpha_c, 2 * math.pi * cw.f_c, 1 / f_s)
-        share = speed_loop_feedback(*loop, a_s, default_speed_filter(a_s))
+        loop = SpeedLoopPath(a_fo, m.L_q, m.psi_pm, m.J, m.p, alpha_c, 2 * math.pi * cw.f_c, 1 / f_s)
+        share = speed_loop_feedback(loop, a_s, default_speed_filter(a_s))
         if share > FEEDBACK_MAX:
             speed_notch = (
                 f"the drive band-stops its speed feedback at w_c (as its current feedback): else its "
@@ -304,7 +305,7 @@ def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None
                 f"G = {share:.3g} "
                 f"of the error signal (19) against it (carrier.py speed_loop_feedback; above 1 the injection "
                 f"pushes the angle away); without one, alpha_s <= "
-                f"{g6(speed_loop_limit(*loop, default_speed_filter) / (2 * math.pi))} Hz keeps G <= "
+                f"{g6(speed_loop_limit(loop, default_speed_filter) / (2 * math.pi))} Hz keeps G <= "
                 f"{FEEDBACK_MAX:g}"
             )
     sec = doc.section("control", "control system; bandwidths as fractions of the sampling rate f_s")

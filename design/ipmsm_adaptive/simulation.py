@@ -11,7 +11,7 @@ import dataclasses
 from typing import TYPE_CHECKING
 
 from sensorless.design.family import GainSet, Panel, TraceLine
-from sensorless.design.ipmsm_adaptive.carrier import FEEDBACK_MAX, speed_loop_feedback
+from sensorless.design.ipmsm_adaptive.carrier import FEEDBACK_MAX, SpeedLoopPath, speed_loop_feedback
 from sensorless.design.ipmsm_adaptive.runtime import drive_gains, runtime_setup
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
 from sensorless.design.pmsm_schema import saliency
@@ -105,9 +105,23 @@ def speed_loop_share(drive: IpmsmDrive, w_f: float, alpha_s: float | None = None
     with the speed filter ``w_f`` [rad/s] feeds back against it (carrier.py ``speed_loop_feedback``).
     Where it is above FEEDBACK_MAX the drive band-stops its speed feedback at the carrier, as its current
     feedback (G then 0: the band-stop's zero at w_c); the paper's drive (G = 0.24) runs as published."""
-    inj, c, e = drive.injection, drive.control, drive.estimate
-    loop = (drive.observer.alpha_fo, e.L_q, e.psi_pm, drive.motor.J, drive.motor.p, c.alpha_c, inj.w_c, c.T_s)
-    return speed_loop_feedback(*loop, c.alpha_s if alpha_s is None else alpha_s, w_f)
+    c = drive.control
+    return speed_loop_feedback(speed_loop_path(drive), c.alpha_s if alpha_s is None else alpha_s, w_f)
+
+
+def speed_loop_path(drive: IpmsmDrive) -> SpeedLoopPath:
+    """The drive's path of the speed loop's carrier feedback (carrier.py ``speed_loop_feedback``)."""
+    c, e = drive.control, drive.estimate
+    return SpeedLoopPath(
+        drive.observer.alpha_fo,
+        e.L_q,
+        e.psi_pm,
+        drive.motor.J,
+        drive.motor.p,
+        c.alpha_c,
+        drive.injection.w_c,
+        c.T_s,
+    )
 
 
 # how the observer's state turns with the rotor (the whole-drive linearization, design/drive_analysis.py):

@@ -216,15 +216,14 @@ def test_the_speed_loop_feeds_the_carrier_back_against_the_error_signal(tmp_path
     from sensorless.design.ipmsm_adaptive.carrier import speed_loop_feedback
 
     d = _drive(tmp_path)
-    c, e, inj = d.control, d.estimate, d.injection
-    loop = (d.observer.alpha_fo, e.L_q, e.psi_pm, d.motor.J, d.motor.p, c.alpha_c, inj.w_c, c.T_s)
+    loop = simulation.speed_loop_path(d)
     monkeypatch.setattr(simulation, "FEEDBACK_MAX", math.inf)  # a drive without the band-stop
     ref = _error_gain(d, 2 * math.pi * 0.01)  # G ~ 1e-4
     for alpha_s, w_f in (
         (2 * math.pi * 33.7737, 2 * math.pi * 337.737),
         (2 * math.pi * 5, 2 * math.pi * 338),
     ):
-        G = speed_loop_feedback(*loop, alpha_s, w_f)
+        G = speed_loop_feedback(loop, alpha_s, w_f)
         reduction = 1 - _error_gain(d, alpha_s, w_f) / ref
         assert 0.9 * G < reduction < 1.1 * G, (alpha_s, G, reduction)
     assert G > 4 and reduction > 1  # the sign turned
