@@ -23,11 +23,14 @@ from sensorless.reports.codegen.fixed_ranges import MARGIN
 from sensorless.reports.codegen.fixed_tables import TableLowering
 
 # products of two signals as one 32-bit product of SHORT_BITS-bit operands (Lowering.short_product);
-# False: fixed_ops.mulw's four products (within 3 LSB)
-SHORT_PRODUCTS = True
+# False: fixed_ops.mulw's four products (within 3 LSB). Off: with the presets' own formats (every
+# scenario's and check's ranges) short products and 16-bit quotients left piippo2008's fig6b 3.9 deg
+# and deangelo2006's fig2 0.70 deg off the double step at steady state (limit 0.2; long: 0.066 and
+# 0.042 deg), for ~250 of hubmotor48's M0+ cycles (docs/codegen.md "Verification")
+SHORT_PRODUCTS = False
 SHORT_BITS = 15  # each short operand below 2^15: their product within int32
 SHORT_SPAN = 4  # a short operand's median magnitude at least 2^-SHORT_SPAN of its range
-QUOT_BITS = 16  # significant bits of a quotient by a runtime divisor at the top of its range
+QUOT_BITS = 26  # significant bits of a quotient by a runtime divisor at the top of its range
 
 
 class Lowering(AngleLowering, TableLowering):
