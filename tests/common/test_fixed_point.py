@@ -99,6 +99,15 @@ def model_equals_c(fx, c, raw, x0, params=None):
     return xs, ys
 
 
+def against_double(d, sc, model):
+    """``sc`` on ``d`` with the double step and with ``model``'s fixed-point step: (the double run, the
+    fixed run, the difference of their angle errors [deg electrical], wrapped)."""
+    ref = simulate(d, sc, compile=False)
+    with step_variant(model.variant):
+        fix = simulate(d, sc, compile=False)
+    return ref, fix, np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
+
+
 def test_c_equals_the_integer_model_and_recovers_from_a_glitch(built):
     """A hostile burst (any int32 words) amid 400 consecutive closed-loop samples: the C equals the
     model bit for bit, the guard keeps its meaning (rejects, flags 0/1), and the estimates are back
@@ -190,10 +199,7 @@ def test_integer_methods_within_their_stated_bounds():
 def test_closed_loop_angle_error_within_0p2_deg_of_the_double_step(built):
     d, _setup, model, *_ = built
     sc = load_scenario("torque_steps", d)
-    ref = simulate(d, sc, compile=False)
-    with step_variant(model.variant):
-        fix = simulate(d, sc, compile=False)
-    e = np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
+    _ref, fix, e = against_double(d, sc, model)
     steady = fix.t > 0.8 * fix.t[-1]
     assert np.abs(e[steady]).max() <= 0.2, np.abs(e[steady]).max()
     assert not fix.problems()
@@ -267,10 +273,7 @@ def test_adaptive_observer_closed_loop_within_0p2_deg_of_the_double_step():
     d = load_drive("piippo2008")
     sc = dataclasses.replace(load_scenario("fig9b", d), duration=0.8)
     model = FixedModel.of(d, None, [sc], compile=False)
-    ref = simulate(d, sc, compile=False)
-    with step_variant(model.variant):
-        fix = simulate(d, sc, compile=False)
-    e = np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
+    _ref, fix, e = against_double(d, sc, model)
     assert np.abs(e).max() <= 0.2, np.abs(e).max()
     assert not fix.problems()
 
@@ -284,10 +287,7 @@ def test_with_the_formats_codegen_generates_the_closed_loop_holds_0p2_deg():
     fam = family_of(d)
     model = fixed_model(d, None, fam.runtime(d, fam.gains(d)))
     sc = load_scenario("fig6c", d)
-    ref = simulate(d, sc, compile=False)
-    with step_variant(model.variant):
-        fix = simulate(d, sc, compile=False)
-    e = np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
+    _ref, fix, e = against_double(d, sc, model)
     steady = fix.t > 0.8 * fix.t[-1]
     assert np.abs(e[steady]).max() <= 0.2, np.abs(e[steady]).max()
 
@@ -564,10 +564,7 @@ def test_the_i_f_start_in_fixed_point(tmp_path):
     exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
     glitched_replay(exe, tmp_path, fx, x, meas, 100, 900, slice(300, 330), 9)
-    ref = simulate(d, sc, compile=False)
-    with step_variant(model.variant):
-        fix = simulate(d, sc, compile=False)
-    e = np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
+    ref, fix, e = against_double(d, sc, model)
     assert np.abs(e[-100:]).max() <= 0.2, np.abs(e[-100:]).max()
     hand = [int(np.flatnonzero(np.diff(tr["startup_mode"]) < 0)[0]) for tr in (ref, fix)]
     assert abs(hand[0] - hand[1]) <= 10, hand  # the handover within 10 periods of the double step's
@@ -593,10 +590,7 @@ def test_the_vesc_variant_equals_its_model_and_stays_within_0p2_deg(tmp_path):
     exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
     glitched_replay(exe, tmp_path, fx, x, meas, 1000, 1400, slice(150, 210), 7)
-    ref = simulate(d, sc, compile=False)
-    with step_variant(model.variant):
-        fix = simulate(d, sc, compile=False)
-    e = np.degrees(np.angle(np.exp(1j * (fix["theta_err"] - ref["theta_err"]))))
+    _ref, fix, e = against_double(d, sc, model)
     steady = fix.t > 0.8 * fix.t[-1]
     assert np.abs(e[steady]).max() <= 0.2, np.abs(e[steady]).max()
     assert not fix.problems()
