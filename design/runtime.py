@@ -39,9 +39,26 @@ class GainSchedule:
     fields: tuple[Field, ...]
     grid: tuple[float, ...] = ()  # breakpoints of a tabulated schedule [unit of the state field]
     text: str = ""  # one line for headers: what the law is
-    # a tabulated schedule over the state field's magnitude (the same gains at +-value; the grid starts
-    # at zero or above), where ``law`` reads |value|: C must look the table up at |value| too
-    magnitude: bool = False
+
+    def interpolation(self) -> bool | None:
+        """How ``law`` reads a tabulated schedule, checked numerically on both signs, between the
+        breakpoints and beyond the ends: False, the linear interpolation of ``params`` over the state's
+        value, held beyond the ends; True, the same over its magnitude |value|; None, neither (or not
+        tabulated): a table lookup would not be this law."""
+        if not self.grid:
+            return None
+        grid = np.asarray(self.grid, float)
+        n = grid.size
+        vals = np.asarray(self.params, float).reshape(-1, n)
+        mid = (grid[1:] + grid[:-1]) / 2
+        pts = np.r_[grid, mid, grid[0] / 2, grid[0] - 1.0, grid[-1] + 1.0, 2 * grid[-1], 0.0]
+        w = np.r_[pts, -pts]
+        got = np.asarray(self.law.map(w.size)(w[None, :], self.params)).reshape(vals.shape[0], w.size)
+        for over_abs in (False, True):
+            want = np.stack([np.interp(np.abs(w) if over_abs else w, grid, v) for v in vals])
+            if np.allclose(got, want, rtol=1e-12, atol=1e-12 * max(1.0, float(np.abs(vals).max()))):
+                return over_abs
+        return None
 
 
 @dataclass(frozen=True)

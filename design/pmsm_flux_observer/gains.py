@@ -98,9 +98,7 @@ def schedule_of(gains: GainSet, psi_hat: float) -> GainSchedule:
         fields = tuple(
             Field(f"k_0_{j}", "1/s", f"observer gain at |w_pll| = {w:.6g} rad/s") for j, w in enumerate(grid)
         )
-        return GainSchedule(
-            "schedule", table_law(grid), vals, fields, grid, "gamma lambda^2 over |w_pll|", magnitude=True
-        )
+        return GainSchedule("schedule", table_law(grid), vals, fields, grid, "gamma lambda^2 over |w_pll|")
     k_0 = base_gain(gains, psi_hat)
     text = "constant gamma lambda^2" if gains.law == "odrive" else "4 gain lambda^2 (x VESC's factor)"
     return GainSchedule(gains.law, constant_law(), (k_0,), (Field("k_0", "1/s", "observer gain"),), (), text)

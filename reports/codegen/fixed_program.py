@@ -79,16 +79,7 @@ def table_nodes(setup: Any, nodes: list[Node], outs: list[tuple[tuple[int, int],
     grid = np.asarray(sch.grid, float)
     n, n_lam = grid.size, len(obs.lam)
     vals = np.asarray(setup.gain, float).reshape(n_lam, n)
-    mid = (grid[1:] + grid[:-1]) / 2
-    pts = np.r_[grid, mid, grid[0] / 2, grid[0] - 1.0, grid[-1] + 1.0, 2 * grid[-1], 0.0]
-    w = np.r_[pts, -pts]
-    got = np.asarray(sch.law.map(w.size)(w[None, :], setup.gain)).reshape(n_lam, w.size)
-    ab = None
-    for cand in (False, True):
-        want = np.stack([np.interp(np.abs(w) if cand else w, grid, v) for v in vals])
-        if np.allclose(got, want, rtol=1e-12, atol=1e-12 * max(1.0, float(np.abs(vals).max()))):
-            ab = cand
-            break
+    ab = sch.interpolation()
     state = next(
         (
             i

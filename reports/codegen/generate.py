@@ -131,7 +131,7 @@ def _table(setup: RuntimeSetup, P: str, prec: Precision, n_lam: int) -> dict[str
     arrays = [arr(f"{P}_gain_w", grid, unit)]
     arrays += [arr(f"{P}_gain_l{j + 1}", vals[j], setup.observer.lam[j].unit) for j in range(n_lam)]
     arrays.append(arr(f"{P}_gain_inv_dw", 1.0 / np.diff(grid), f"1/({unit}); 1 / (w[j+1] - w[j])", inv=True))
-    return {"n": n, "arrays": arrays, "magnitude": sch.magnitude, "fabs": prec.fn("fabs")}
+    return {"n": n, "arrays": arrays, "magnitude": sch.interpolation() is True, "fabs": prec.fn("fabs")}
 
 
 def generate(
