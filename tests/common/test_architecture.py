@@ -10,6 +10,7 @@ import ast
 import functools
 import importlib.util
 import pkgutil
+import posixpath
 import re
 import subprocess
 import sys
@@ -289,7 +290,30 @@ def test_no_issue_number_and_no_file_outside_the_repository_is_cited():
         if f != here and f.endswith((".py", ".md", ".toml", ".j2", ".c", ".h", ".txt", ".html")):
             text = (ROOT / f).read_text(encoding="utf-8", errors="replace")
             bad += [(f, m.group()) for m in (issue.search(text), outside.search(text)) if m]
+            bad += [(f, name) for name in _missing_pages(f, text, tracked)]
     assert not bad, bad
+
+
+# a Markdown page a text names (``docs/x.md``, ``../x.md``, ``x.md``), not inside a web address
+PAGE = re.compile(r"(?<![\w./:-])([\w.-]+(?:/[\w.-]+)*\.md)\b")
+
+
+def _missing_pages(f: str, text: str, tracked: list[str]) -> list[str]:
+    """The Markdown pages ``text`` (of the tracked file ``f``) names that the repository does not hold: a
+    path from the root or from ``f``'s folder, or a page's name alone (a fact sheet outside the
+    repository, cited by its name, is one). A web address and a quoted file name (a file a test writes:
+    ``out / "x.md"``) are not citations."""
+    pages = {t for t in tracked if t.endswith(".md")}
+    out = []
+    for m in PAGE.finditer(text):
+        name = m.group(1)
+        before = text[text.rfind("\n", 0, m.start()) + 1 : m.start()]
+        if re.search(r"(https?://|github\.com/)\S*$", before) or before.endswith(("'", '"')):
+            continue
+        near = posixpath.normpath(posixpath.join(posixpath.dirname(f), name))
+        if not (name in pages or near in pages or any(p.endswith("/" + name) for p in pages)):
+            out.append(name)
+    return out
 
 
 # --------------------------------------------------------------------------------------------------
