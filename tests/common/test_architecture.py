@@ -294,8 +294,9 @@ def test_no_issue_number_and_no_file_outside_the_repository_is_cited():
     assert not bad, bad
 
 
-# a Markdown page a text names (``docs/x.md``, ``../x.md``, ``x.md``), not inside a web address
-PAGE = re.compile(r"(?<![\w./:-])([\w.-]+(?:/[\w.-]+)*\.md)\b")
+# a Markdown page a text names (``docs/x.md``, ``../x.md``, ``x.md``): found by its ending, then read back
+PAGE_END = re.compile(r"\.md\b")
+PAGE_NAME = re.compile(r"[\w.-]+(?:/[\w.-]+)*$")
 
 
 def _missing_pages(f: str, text: str, tracked: list[str]) -> list[str]:
@@ -304,14 +305,17 @@ def _missing_pages(f: str, text: str, tracked: list[str]) -> list[str]:
     repository, cited by its name, is one). A web address and a quoted file name (a file a test writes:
     ``out / "x.md"``) are not citations."""
     pages = {t for t in tracked if t.endswith(".md")}
+    tails = {p.split("/", k)[-1] for p in pages for k in range(p.count("/") + 1)}  # "families/x.md", ...
     out = []
-    for m in PAGE.finditer(text):
-        name = m.group(1)
-        before = text[text.rfind("\n", 0, m.start()) + 1 : m.start()]
-        if re.search(r"(https?://|github\.com/)\S*$", before) or before.endswith(("'", '"')):
+    for m in PAGE_END.finditer(text):
+        head = text[text.rfind("\n", 0, m.start()) + 1 : m.start()]
+        if not (found := PAGE_NAME.search(head)):
+            continue
+        name, before = found.group() + ".md", head[: found.start()]
+        if re.search(r"(https?://|github\.com/)\S*$", before) or before.endswith(("'", '"', "/")):
             continue
         near = posixpath.normpath(posixpath.join(posixpath.dirname(f), name))
-        if not (name in pages or near in pages or any(p.endswith("/" + name) for p in pages)):
+        if not (name in tails or near in pages):
             out.append(name)
     return out
 
