@@ -141,34 +141,42 @@ def test_sx_twin_equals_the_integer_model(built):
         assert np.array_equal(ys[k], ys_r[:, k] * scale), o["name"]
 
 
+# what an integer-only object may call on a Cortex-M0+ (no divide instruction, no 64-bit shifts or
+# multiply in the core): libgcc's integer routines; a soft-float call (__aeabi_f*, __aeabi_d*) or a libm
+# function (sinf, sqrt, ...) is anything else
+INTEGER_CALLS = {
+    "__aeabi_idiv", "__aeabi_idivmod", "__aeabi_uidiv", "__aeabi_uidivmod", "__aeabi_ldivmod",
+    "__aeabi_uldivmod", "__aeabi_lmul", "__aeabi_llsl", "__aeabi_llsr", "__aeabi_lasr", "__divsi3",
+    "__udivsi3", "__modsi3", "__umodsi3", "memcpy", "memset",
+}  # fmt: skip
+
+
+def m0plus_calls(c_file, obj, strict=True):
+    """The undefined symbols (the calls out) of ``c_file`` compiled for a Cortex-M0+ (-Os, Thumb), read
+    from its symbol table (arm-none-eabi-nm -u); ``strict``: warning-free under STRICT, asserted."""
+    cmd = [ARM, *(STRICT if strict else []), "-Os", "-mcpu=cortex-m0plus", "-mthumb", "-c", "-o", str(obj)]
+    r = subprocess.run([*cmd, str(c_file)], capture_output=True, text=True)
+    assert r.returncode == 0 and (r.stderr == "" or not strict), r.stderr
+    return set(
+        subprocess.run(["arm-none-eabi-nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
+    ) - {"U"}
+
+
 @pytest.mark.skipif(ARM is None, reason="arm-none-eabi-gcc not installed")
 def test_no_floating_point_on_cortex_m0plus(built, tmp_path):
-    d, *_, out, _ = built
-    obj = tmp_path / "m0.o"
-    cmd = [
-        ARM,
-        *STRICT,
-        "-Os",
-        "-mcpu=cortex-m0plus",
-        "-mthumb",
-        "-c",
-        "-o",
-        str(obj),
-        str(out / f"{d.name}.c"),
-    ]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    assert r.returncode == 0 and r.stderr == "", r.stderr
-    syms = subprocess.run(["arm-none-eabi-nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
-    assert not [s for s in syms if s.startswith(("__aeabi_f", "__aeabi_d")) or s in ("sqrtf", "atan2f")], syms
-    # the same check fails on the float C of the same step (it can fail)
-    obj_f = tmp_path / "f.o"
-    src = tmp_path / "f.c"
-    src.write_text("float g(float a, float b) { return a * b + 1.5f; }\n")
-    subprocess.run(
-        [ARM, "-Os", "-mcpu=cortex-m0plus", "-mthumb", "-c", "-o", str(obj_f), str(src)], check=True
-    )
-    syms_f = subprocess.run(["arm-none-eabi-nm", "-u", str(obj_f)], capture_output=True, text=True).stdout
-    assert "__aeabi_f" in syms_f
+    """outrunner270's fixed-point C builds warning-free for a Cortex-M0+ and calls nothing but libgcc's
+    integer routines (no __aeabi_f*/__aeabi_d* soft-float call, no libm); the float C of the same drive,
+    compiled the same way, calls soft-float routines (the check can fail). piippo2008 and deangelo2006:
+    test_the_other_families_c_equals_the_model."""
+    from sensorless.reports.codegen.generate import generate
+
+    d, setup, *_, out, _ = built
+    calls = m0plus_calls(out / f"{d.name}.c", tmp_path / "m0.o")
+    assert calls <= INTEGER_CALLS, calls - INTEGER_CALLS
+    for name, text in generate(setup, Provenance(d.name, d.file, d.digest, "t"), precision="float").items():
+        (tmp_path / name).write_text(text)
+    float_calls = m0plus_calls(tmp_path / f"{d.name}.c", tmp_path / "f.o", strict=False)
+    assert any(c.startswith("__aeabi_f") for c in float_calls) and not float_calls <= INTEGER_CALLS
 
 
 def test_integer_methods_within_their_stated_bounds():
@@ -209,7 +217,8 @@ def test_closed_loop_angle_error_within_0p2_deg_of_the_double_step(built):
 def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
     """The adaptive observer (sin/cos, filters with unbounded states) and the reduced-order one (its
     harmonic EMF, a division by a magnitude proven positive): C == model on 150 closed-loop samples
-    and 30 hostile words; ranges from 0.3 s of one scenario to keep the test short."""
+    and 30 hostile words; ranges from 0.3 s of one scenario to keep the test short. The C builds
+    warning-free for a Cortex-M0+ and calls only libgcc's integer routines (no float operation)."""
     import dataclasses
 
     from sensorless.reports.codegen.fixed_model import FixedModel
@@ -224,6 +233,9 @@ def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
     exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
     glitched_replay(exe, tmp_path, fx, x, meas, 500, 650, slice(50, 80), 5)
+    if ARM is not None:  # warning-free on a Cortex-M0+, no soft-float call (test_no_floating_point_...)
+        calls = m0plus_calls(tmp_path / f"{d.name}.c", tmp_path / "m0.o")
+        assert calls <= INTEGER_CALLS, calls - INTEGER_CALLS
 
 
 def test_stored_constants_move_the_poles_little(built):
