@@ -275,6 +275,29 @@ def test_cli_writes_the_fixed_point_files_together(built, tmp_path, capsys):
         assert f"argument --param: {why}" in capsys.readouterr().err
 
 
+def test_simulate_runs_the_fixed_point_step_and_says_so(built, tmp_path, capsys):
+    """`sensorless simulate --precision fixed`: the run is the fixed-point step of `codegen --precision
+    fixed` (its traces those of the step variant of the same formats, not the double step's), the
+    command says which step ran and the traces' metadata carry it."""
+    import dataclasses
+    import json
+
+    from sensorless.reports.cli.main import main
+
+    d, _setup, model, *_ = built
+    out = tmp_path / "s"
+    args = ["simulate", "outrunner270", "--scenario", "torque_steps", "--duration", "0.03", "--format", "npz"]
+    assert main([*args, "--quiet", "--out", str(out), "--precision", "fixed"]) == 0
+    assert "observer step: fixed precision" in capsys.readouterr().out
+    z = np.load(out / "traces.npz")
+    assert json.loads(str(z["meta"]))["precision"] == "fixed"
+    got = z["theta_hat"]
+    sc = dataclasses.replace(load_scenario("torque_steps", d), duration=0.03)
+    ref, fix, _e = against_double(d, sc, model)
+    assert np.allclose(got, fix["theta_hat"], rtol=0, atol=1e-9)
+    assert np.abs(got - ref["theta_hat"]).max() > 1e-6  # not the double step
+
+
 def test_adaptive_observer_closed_loop_within_0p2_deg_of_the_double_step():
     """piippo2008's fig9b, first 0.8 s (a load step at 0.5 s): the fixed-point step in the loop, its
     ranges from this run alone; the angle error within 0.2 deg of the double step's, no rejection."""
