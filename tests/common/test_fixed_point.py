@@ -202,6 +202,13 @@ def test_integer_methods_within_their_stated_bounds():
     v = rng.integers(0, 2**32, size=20000)
     q = B.isqrt(v)
     assert np.all(q * q <= v) and np.all((q + 1) * (q + 1) > v)
+    # a product of two signals (fixed_ops.mulw, four 32-bit products of 16-bit halves): within 3 LSB
+    # of the exact floor(a b 2^-s), any int32 words (the header's stated bound)
+    a, b = rng.integers(-(2**31), 2**31, size=(2, 20000))
+    for sh in (16, 21, 26, 31, 32):
+        exact = (a * b) >> sh  # |a b| < 2^62: exact in int64, >> floors
+        err = exact - fixed_ops.mulw(B, a, b, sh)
+        assert err.min() >= -3 and err.max() <= 3, (sh, err.min(), err.max())
 
 
 def test_closed_loop_angle_error_within_0p2_deg_of_the_double_step(built):
