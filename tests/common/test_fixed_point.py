@@ -240,6 +240,14 @@ def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
     exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
     glitched_replay(exe, tmp_path, fx, x, meas, 500, 650, slice(50, 80), 5)
+    # no division but by a divisor proven non-zero: each DIV's divisor is clamped below by a positive
+    # constant (half the runs' smallest divisor); the reduced-order observer has three
+    divs = [i for i in fx.prog if i.op == "DIV"]
+    for i in divs:
+        dv = fx.prog[i.args[1]]
+        floor = [fx.prog[a].imm[0] for a in dv.args if fx.prog[a].op == "CONST"]
+        assert dv.op == "MAX" and len(floor) == 1 and floor[0] > 0, (i, dv)
+    assert len(divs) >= (1 if preset == "deangelo2006" else 0)
     if ARM is not None:  # warning-free on a Cortex-M0+, no soft-float call (test_no_floating_point_...)
         calls = m0plus_calls(tmp_path / f"{d.name}.c", tmp_path / "m0.o")
         assert calls <= INTEGER_CALLS, calls - INTEGER_CALLS
