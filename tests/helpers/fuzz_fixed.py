@@ -10,7 +10,8 @@ extreme with the others clean. An int32 word has no NaN or Inf: the float fuzz's
 are the extreme words here (what a saturated ADC or a wrong scale gives). It checks on every step the
 header's promises (valid and reset 0 or 1, the state's bounded fields within their bounds) and in every
 clean segment, from ``recover`` samples on to its end, valid = 1 with the angle and the speed back
-(not required where a ``held`` state field starts the segment beyond its threshold, as in fuzz.py).
+(not required where a ``held`` state field starts the segment beyond its threshold, as in fuzz.py);
+and that the C equals the integer model (fixed_model.step_raw) bit for bit on the whole run.
 
 :func:`segment_model`: the fixed-point model whose formats come from the double step's run over the
 clean segments (fixed_ranges: the runs' ranges x 2, the state bounds), a cheap stand-in for the
@@ -26,6 +27,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.design.runtime import run_trajectory
+from sensorless.reports.codegen.fixed_model import step_raw
 
 from helpers.fuzz import CC
 
@@ -97,6 +99,11 @@ def fixed_fuzz(
     y = np.frombuffer(r.stdout, "<i4").reshape(len(raw), -1)
     names = [o["name"] for o in fx.outputs]
     n_y = len(names)
+    # the C is the integer model bit for bit on the whole hostile trajectory: each of its steps, from
+    # its own previous state (fx.x0, *_init's, first), is the model's step (all at once, vectorized)
+    prev = np.vstack([np.asarray(fx.x0, np.int64)[None], y[:-1, n_y:]]).T
+    xn, yn = step_raw(fx, prev, np.asarray(raw, np.int64).T)
+    assert int((y != np.hstack([yn.T, xn.T])).sum()) == 0, "the C differs from the integer model"
     valid, reset = y[:, names.index("valid")], y[:, names.index("reset")]
     assert set(np.unique(valid).tolist()) <= {0, 1} and set(np.unique(reset).tolist()) <= {0, 1}
     bounds = np.asarray(setup.observer.bounds()(setup.p), float).ravel()
