@@ -359,12 +359,12 @@ def test_the_adaptive_observers_fixed_c_keeps_its_promises_under_hostile_samples
     C): piippo2008's C as `codegen --precision fixed` generates it, fuzzed by tests/helpers/fuzz_fixed.py
     (any int32 words, garbage within 3x the clean words, the extreme words, one channel extreme; under
     -fsanitize=address,undefined) between 12 clean steady-state segments of the motor (0.3-1 p.u. both
-    ways, -T_N..T_N; the float fuzz's seed), the injection on (the drive's default): every step keeps the
-    header's promises, and every clean segment is back within the float fuzz's RECOVER = 1000 samples
-    (angle 0.1 rad, speed 5 % of base), x_eps held as there. (With formats from the segments' runs
-    alone, one segment's recovery transient left those ranges and was clamped, and the step locked on
-    the wrong speed sign where the double step recovered: the formats must come from runs that
-    contain transients, as codegen's do.)"""
+    ways, -T_N..T_N; the float fuzz's seed), the injection on (the drive's default) and off: every step
+    keeps the header's promises, and every clean segment is back within the float fuzz's RECOVER = 1000
+    samples (angle 0.1 rad, speed 5 % of base), x_eps held as there with the injection on. (With
+    formats from the segments' runs alone, one segment's recovery transient left those ranges and was
+    clamped, and the step locked on the wrong speed sign where the double step recovered: the formats
+    must come from runs that contain transients, as codegen's do.)"""
     from helpers.fuzz_fixed import fixed_fuzz
 
     d, setup, model = piippo_codegen
@@ -385,6 +385,12 @@ def test_the_adaptive_observers_fixed_c_keeps_its_promises_under_hostile_samples
         held={"x_eps": 10.0},
     )
     assert r["rejected"] > 0 and r["resets"] > 0 and r["held_segments"] <= 0.3 * r["segments"], r
+    # the injection off at run time (a parameter: its fields in the struct, params_from_si): every
+    # segment recovers, as the float fuzz without the injection requires
+    off = params_from_si(setup, model.program(setup), {"injection": 0.0})
+    r = fixed_fuzz(d, setup, model.program(setup), tmp_path, seg, recover=1000, tol_theta=0.1,
+                   tol_w=0.05 * d.base.w, seed=6, params=off)  # fmt: skip
+    assert r["rejected"] > 0 and r["held_segments"] == 0, r
 
 
 def test_a_long_burst_resets_the_step_as_the_double_step_does(built):

@@ -59,18 +59,22 @@ def fixed_fuzz(
     tol_w: float,
     seed: int,
     held: dict[str, float] | None = None,
+    params: list[int] | None = None,
 ) -> dict[str, Any]:
     """Fuzz the fixed-point C written to ``src`` (the program ``fx`` of ``setup``) with ``segments``
     (module docstring); returns {"segments", "held_segments", "steps", "rejected", "resets",
-    "worst_recovery"}. Asserts every promise; a segment not held must recover."""
+    "worst_recovery"}. Asserts every promise; a segment not held must recover. ``params``: the
+    parameter struct's raw words (the replayer's third file; default the drive's). The replayer is
+    built once per directory."""
     P = drive.name
     exe = src / "fuzz"
-    r = subprocess.run(
-        [CC, *STRICT, *SANITIZE, "-o", str(exe), str(src / "main.c"), str(src / f"{P}.c")],
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 0 and r.stderr == "", r.stderr
+    if not exe.exists():
+        r = subprocess.run(
+            [CC, *STRICT, *SANITIZE, "-o", str(exe), str(src / "main.c"), str(src / f"{P}.c")],
+            capture_output=True,
+            text=True,
+        )
+        assert r.returncode == 0 and r.stderr == "", r.stderr
     rng = np.random.default_rng(seed)
     clean = [fx.to_raw(s[:, :4].T, "meas").T for s in segments]
     top = int(np.abs(np.vstack(clean)).max())
@@ -94,7 +98,12 @@ def fixed_fuzz(
     raw = np.vstack(parts)
     f = src / "fuzz.bin"
     np.ascontiguousarray(raw, dtype="<i4").tofile(f)
-    r = subprocess.run([str(exe), str(f)], capture_output=True)
+    args = [str(exe), str(f)]
+    if params is not None:  # the initial state (*_init's) and the struct
+        np.ascontiguousarray(fx.x0, dtype="<i4").tofile(src / "fuzz_x0.bin")
+        np.ascontiguousarray(params, dtype="<i4").tofile(src / "fuzz_params.bin")
+        args += [str(src / "fuzz_x0.bin"), str(src / "fuzz_params.bin")]
+    r = subprocess.run(args, capture_output=True)
     assert r.returncode == 0, r.stderr.decode()[-3000:]
     y = np.frombuffer(r.stdout, "<i4").reshape(len(raw), -1)
     names = [o["name"] for o in fx.outputs]
@@ -102,7 +111,7 @@ def fixed_fuzz(
     # the C is the integer model bit for bit on the whole hostile trajectory: each of its steps, from
     # its own previous state (fx.x0, *_init's, first), is the model's step (all at once, vectorized)
     prev = np.vstack([np.asarray(fx.x0, np.int64)[None], y[:-1, n_y:]]).T
-    xn, yn = step_raw(fx, prev, np.asarray(raw, np.int64).T)
+    xn, yn = step_raw(fx, prev, np.asarray(raw, np.int64).T, params)
     assert int((y != np.hstack([yn.T, xn.T])).sum()) == 0, "the C differs from the integer model"
     valid, reset = y[:, names.index("valid")], y[:, names.index("reset")]
     assert set(np.unique(valid).tolist()) <= {0, 1} and set(np.unique(reset).tolist()) <= {0, 1}
