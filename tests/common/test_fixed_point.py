@@ -153,21 +153,24 @@ INTEGER_CALLS = {
 
 def m0plus_calls(c_file, obj, strict=True):
     """The undefined symbols (the calls out) of ``c_file`` compiled for a Cortex-M0+ (-Os, Thumb), read
-    from its symbol table (arm-none-eabi-nm -u); ``strict``: warning-free under STRICT, asserted."""
+    from its symbol table (arm-none-eabi-nm); ``strict``: warning-free under STRICT and no writable
+    static data (no data, bss or common symbol: instances share nothing), asserted."""
     cmd = [ARM, *(STRICT if strict else []), "-Os", "-mcpu=cortex-m0plus", "-mthumb", "-c", "-o", str(obj)]
     r = subprocess.run([*cmd, str(c_file)], capture_output=True, text=True)
     assert r.returncode == 0 and (r.stderr == "" or not strict), r.stderr
-    return set(
-        subprocess.run(["arm-none-eabi-nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
-    ) - {"U"}
+    table = subprocess.run(["arm-none-eabi-nm", str(obj)], capture_output=True, text=True).stdout.splitlines()
+    kinds = [line.split()[-2:] for line in table]
+    if strict:
+        assert not [n for k, n in kinds if k in "DdBbCcGgSs"], table  # no global or static state
+    return {n for k, n in kinds if k == "U"}
 
 
 @pytest.mark.skipif(ARM is None, reason="arm-none-eabi-gcc not installed")
 def test_no_floating_point_on_cortex_m0plus(built, tmp_path):
-    """outrunner270's fixed-point C builds warning-free for a Cortex-M0+ and calls nothing but libgcc's
-    integer routines (no __aeabi_f*/__aeabi_d* soft-float call, no libm); the float C of the same drive,
-    compiled the same way, calls soft-float routines (the check can fail). piippo2008 and deangelo2006:
-    test_the_other_families_c_equals_the_model."""
+    """outrunner270's fixed-point C builds warning-free for a Cortex-M0+, has no writable static data and
+    calls nothing but libgcc's integer routines (no __aeabi_f*/__aeabi_d* soft-float call, no libm); the
+    float C of the same drive, compiled the same way, calls soft-float routines (the check can fail).
+    piippo2008 and deangelo2006: test_the_other_families_c_equals_the_model."""
     from sensorless.reports.codegen.generate import generate
 
     d, setup, *_, out, _ = built
