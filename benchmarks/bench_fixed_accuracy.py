@@ -15,8 +15,8 @@ peak angle error 30 deg, final speed error 2 % of base, no rejection, position h
 |theta_err|. A scenario on which the double step itself fails a check is marked: the comparison there
 is between two runs that lost the position.
 
-This is where every scenario is covered: a full deangelo2006 scenario costs 8-10 s CPU per step
-variant, too much for the suite (150 s); the suite's closed-loop tests run one scenario (or a segment)
+This is where every scenario is covered: a deangelo2006 paper scenario costs 2-8 s CPU (the two
+runs), too much for the suite (150 s); the suite's closed-loop tests run one scenario (or a segment)
 per family. CPU (measured, warm compile cache): the built-in scenarios piippo2008 ~20 s, deangelo2006
 ~25 s, outrunner270 ~2 s; --generic adds ~5 s, ~65 s and ~2 s.
 """
