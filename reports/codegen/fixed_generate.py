@@ -14,8 +14,9 @@ from typing import TYPE_CHECKING, Any
 from sensorless.design.family import Drive, GainSet
 from sensorless.reports.codegen.fixed_c import body, format_text, formats_json
 from sensorless.reports.codegen.fixed_helpers import helpers, lit
+from sensorless.reports.codegen.fixed_lowering import QUOT_BITS, SHORT_PRODUCTS, SHORT_SPAN
 from sensorless.reports.codegen.fixed_model import FixedModel
-from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS
+from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS, NOMINAL_BITS
 from sensorless.reports.codegen.fixed_params import params_from_si
 from sensorless.reports.codegen.fixed_poles import pole_shift
 from sensorless.reports.codegen.fixed_ranges import MARGIN
@@ -24,17 +25,24 @@ if TYPE_CHECKING:  # typed by name only
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.reports.codegen.generate import Provenance
 
+# the product and quotient sentences follow fixed_lowering's switches (the header and the JSON state
+# the methods the C uses: with the short products off, no product is a short one)
+_PRODUCTS = (
+    "products of two signals: where both fill their range (median over the runs >= "
+    f"2^-{SHORT_SPAN} of it) one 32-bit product of operands rounded to 15 bits of twice their range "
+    "(relative error <= 2^-13 each), else four 32-bit products of 16-bit halves, within 3 LSB"
+    if SHORT_PRODUCTS
+    else "products of two signals: four 32-bit products of 16-bit halves, within 3 LSB"
+)
 ERRORS = (
     f"atan2: vectoring CORDIC, {CORDIC_STEPS} steps, error <= atan(2^-13) + 24 LSB / |v| rad "
     "(|v| the raw magnitude; tests/common/test_fixed_point.py); "
     "sin/cos: odd polynomial of degree 7 on the angle folded "
     "to [-pi/2, pi/2], error <= 1e-6; cos/sin of an atan2: the CORDIC's rotations applied to (1/K, 0), "
     "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits); "
-    "a gain table: bisection, its fraction in Q15 within 2^-13; "
-    "products of two signals: where both fill their range (median over the runs >= 2^-4 of it) one "
-    "32-bit product of operands rounded to 15 bits of twice their range (relative error <= 2^-13 "
-    "each), else four 32-bit products of 16-bit halves, within 3 LSB; a quotient by a runtime "
-    "divisor: 16 significant bits at its range"
+    f"a gain table: bisection, its fraction in Q15 within 2^-13; {_PRODUCTS}; a quotient by a runtime "
+    f"divisor (clamped at half its smallest simulated value): floor, {min(QUOT_BITS, NOMINAL_BITS)} "
+    "significant bits at its range"
 )
 
 
