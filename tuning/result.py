@@ -106,6 +106,9 @@ class TuneResult:
             if g.get("certified")
             else f"NLP from {g.get('starts', 1)} of them"
         )
+        failed = g.get("nlp_failed") or []
+        if failed:  # said here too: --quiet hides the progress line that said it first
+            nlp_from += f"; the NLP failed from {len(failed)} of them ({failed[0]}): the best start is kept"
         out = [
             f"global phase: {g.get('candidates', 0)} candidate gains, {g.get('feasible', 0)} meeting every "
             f"constraint; {nlp_from}",
@@ -160,7 +163,13 @@ class TuneResult:
         nlp_t = s["nlp_worst_damping"]
         out.append(
             f"worst damping on the optimization grid {s['optimization_grid_worst_damping']:.4f} "
-            + (f"(NLP: {nlp_t:.4f})" if np.isfinite(nlp_t) else "(no NLP run)")
+            + (
+                f"(NLP: {nlp_t:.4f})"
+                if np.isfinite(nlp_t)
+                else "(the NLP failed, above)"
+                if failed
+                else "(no NLP run)"
+            )
             + "; the table reports the dense re-verification"
         )
         if s.get("selection"):

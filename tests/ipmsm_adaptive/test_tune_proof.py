@@ -180,3 +180,26 @@ def test_the_proof_analyses_the_whole_drive_below_the_torque_limit_the_observer_
     # the drive has slow modes the observer alone has not (the speed loop, the mechanics): the proof
     # now sees them
     assert (both.max_real[~sat] > np.asarray(obs.max_real, float)[~sat] + 1.0).any()
+
+
+def test_an_nlp_that_fails_is_said_in_the_summary_and_the_table(tmp_path, monkeypatch, capsys):
+    """A failed NLP run was said only in a progress line (hidden by --quiet) while the summary read "0
+    exchange rounds (0 IPOPT iterations)" and "(no NLP run)" (the drone motor of docs/examples/motors:
+    IPOPT Maximum_Iterations_Exceeded after 283 iterations)."""
+    import json
+
+    why = "IPOPT found no gains meeting the constraints from this start (Infeasible_Problem_Detected)"
+
+    def failing(*a, **k):
+        raise nlp.TuningError(why)
+
+    monkeypatch.setattr(nlp, "solve", failing)
+    out = tmp_path / "o"
+    args = ["tune", "piippo2008", "--speeds", "2", "--torque=-1T_N,1T_N", "--quiet", "--unchecked"]
+    args += ["--no-bound"]
+    assert main([*args, "--law", "speed-dependent", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert f"the NLP failed from 3 of them (start 1: {why}): the best start is kept" in text
+    assert "(the NLP failed, above)" in text and "(no NLP run)" not in text
+    table = json.loads((out / "gains_speed-dependent.json").read_text())
+    assert table["summary"]["global_phase"]["nlp_failed"] == [f"start {i}: {why}" for i in (1, 2, 3)]
