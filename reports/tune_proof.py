@@ -140,6 +140,12 @@ class Proof:
                 if isinstance(c["metrics"].get("max_abs_theta_err_deg"), int | float)
                 else ""
             )
+            # the closed loop's error above, the open-loop I-f start's part apart (as the report's table)
+            + (
+                f" ({100 * c['metrics']['open_loop_fraction']:.0f} % open loop)"
+                if c["metrics"].get("open_loop_fraction")
+                else ""
+            )
             for c in self.checks
         )
         lin = (

@@ -118,6 +118,10 @@ def test_not_tested_sensorless_is_worse_than_a_sensorless_pass():
     assert len(bad) == 1 and bad[0].startswith("time-domain check fig9b: not tested sensorless: the open")
     assert "the drive file's gains pass it" in bad[0]
     assert "warn (not tested sensorless)" in warned.line()
+    # the closed loop's error and the open-loop start's share apart, as in the report's table
+    c = {**warned.checks[0], "metrics": {"max_abs_theta_err_deg": 3.0, "open_loop_fraction": 0.72}}
+    line = tune_proof.Proof("t", checks=(c,)).line()
+    assert "fig9b warn (not tested sensorless) 3 deg (72 % open loop)" in line
     assert tune_proof.worse(warned, _proof("b", [True, True], True, untested=why), 100.0) == []
     assert tune_proof.worse(warned, _proof("b", [True, True], False), 100.0) == []
     failed = tune_proof.worse(
