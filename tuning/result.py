@@ -94,6 +94,9 @@ class TuneResult:
     ridge: dict[str, Any] | None = None  # the worst point, if no parameter of the law moves it
     pareto: list[dict[str, Any]] | None = None  # damping-versus-noise front
     global_phase: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # IPOPT runs that failed within an NLP run and were retried with half the trust region (said in the
+    # summary: a feasible start that ends Infeasible_Problem_Detected is not left unreported)
+    nlp_retried: tuple[str, ...] = ()
 
     def summary_lines(self, drive: Drive) -> list[str]:
         """The terminal summary: parameters and worst damping before -> after, and where."""
@@ -172,6 +175,12 @@ class TuneResult:
             )
             + "; the table reports the dense re-verification"
         )
+        for res, whose in ((self.seed, f" ({self.seed.law}, the start)" if self.seed else ""), (self, "")):
+            if res is not None and res.nlp_retried:
+                out.append(
+                    f"IPOPT failed and was retried with half the trust region{whose}: "
+                    + "; ".join(res.nlp_retried)
+                )
         if s.get("selection"):
             out.append(f"kept: {s['selection']['text']}")
             if s["selection"].get("tie_break"):

@@ -165,6 +165,7 @@ def tune(
         seed=seed_res,
         ridge=ridge,
         pareto=pareto,
+        nlp_retried=opt.nlp_retried,
         global_phase={
             "candidates": int(ranked.evaluated),
             "feasible": int(ranked.feasible.sum()),
@@ -206,6 +207,7 @@ class _Optimum:
     starts: list[np.ndarray]
     certified: bool
     nlp_failed: tuple[str, ...] = ()  # why each NLP run that gave no gains failed
+    nlp_retried: tuple[str, ...] = ()  # the IPOPT runs that failed within the others, retried
 
 
 def _optimize(
@@ -228,6 +230,7 @@ def _optimize(
     starts = ranked.starts(k, model.typical)
     sols: list[nlp.Solution] = []
     failed: list[str] = []  # the NLP runs that gave no gains (said in the summary, not only in progress)
+    retried: list[str] = []  # their IPOPT runs that failed and were retried (the same)
     certified = False
     if bound is not None and max_noise is None:
         # the certificate: no gain law exceeds the bound's worst on the dense grid; a start that is
@@ -262,6 +265,7 @@ def _optimize(
                     progress=lambda m, i=i: say(f"start {i + 1}: {m}"),
                 )
             )
+            retried += [f"start {i + 1}: {a}" for a in sols[-1].failed_attempts]
         except nlp.TuningError as e:
             say(f"start {i + 1}: the NLP failed ({e}); its start stays a candidate")
             failed.append(f"start {i + 1}: {e}")
@@ -295,7 +299,7 @@ def _optimize(
             model, theta, dense, note["best_worst_damping"], others, grids, pb.floor, conditions, say, pb.wb
         )
         theta, dense, note = tb.theta, tb.dense, {**note, "tie_break": tb.note}
-    return _Optimum(theta, dense, note, best_sol, ranked, starts, certified, tuple(failed))
+    return _Optimum(theta, dense, note, best_sol, ranked, starts, certified, tuple(failed), tuple(retried))
 
 
 def _bound(drive, model, settings, floor, scale, max_noise, others, say, reuse=None, *thetas) -> Bound:
