@@ -25,7 +25,7 @@ from sensorless.design.low_speed import (
     minimum_speed_under,
 )
 from sensorless.design.registry import family_of
-from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR
+from sensorless.design.startup import ACCELERATION_LIMIT, HANDOVER_CAPPED, ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
 from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.svg_render import svg_later
@@ -99,11 +99,18 @@ def add_to_report(
             f"start, 0 to {on / ls.w_base:.3g} p.u. (handover; back below {off / ls.w_base:.3g} p.u.: "
             f"design/startup.py){limit}"
         )
+        w = ls.w_min_rated / ls.w_base
         if off < ls.w_min_rated * (1 - 1e-3):  # the start's rules take w_min at the drive's estimates
+            # the handover never above the rated speed (design/startup.py refuses a [startup] w_on above
+            # 1 pu): advised only where w_off = w_min stays below it (by the printed digits)
             start += (
-                f"; that is below w_min = {ls.w_min_rated / ls.w_base:.3g} p.u. under the estimate errors: "
-                f"give [startup] w_on = {ON_FACTOR * ls.w_min_rated / ls.w_base:.3g} pu and w_off = "
-                f"{ls.w_min_rated / ls.w_base:.3g} pu to hand over only where they allow it"
+                f"; that is below w_min = {w:.3g} p.u. under the estimate errors: give [startup] w_on = "
+                f"{min(ON_FACTOR * w, 1.0):.3g} pu and w_off = {w:.3g} pu to hand over only where they "
+                "allow it"
+                if w < 0.995
+                else f"; that is below w_min = {w:.3g} p.u. under the estimate errors, at the rated speed or "
+                "above: no handover (at most 1 p.u.) is where they allow it: gains with a lower w_min "
+                "(sensorless tune)"
             )
     data = {**rep.data, "low_speed": {**ls.data(), "headline": line, "startup": start}}
     if isinstance(data.get("verdict"), dict):
@@ -127,7 +134,9 @@ def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float,
         except CapabilityError:
             values, sline = None, ""
         if values is not None:
-            limit = f"; {sline[sline.index(ACCELERATION_LIMIT) :]}" if ACCELERATION_LIMIT in sline else ""
+            # why the handover is high, where the start's line says it (design/startup.py handover_reason)
+            at = [sline.index(k) for k in (ACCELERATION_LIMIT, HANDOVER_CAPPED) if k in sline]
+            limit = f"; {sline[min(at) :]}" if at else ""
             return values["if_w_on"], values["if_w_off"], limit
     return ON_FACTOR * ls.w_min_rated, ls.w_min_rated, ""
 
