@@ -19,9 +19,9 @@ The rules (each with its reason; :func:`if_values`):
   J the drive dropped back at 0.087 p.u. and lost the rotor at 0.11 p.u., braking at 4.9 times that;
   judged at p (T_max + T_N) / J it drops back at 0.18 p.u. and holds 19 deg). Below that speed the
   observer loses the rotor when the speed controller it takes over from the start accelerates or
-  brakes at the torque limit; where the handover must be high (the acceleration limits it, or no
-  speed up to 1 p.u. meets the criteria) the start's line says why with the numbers
-  (:func:`handover_reason`); the band between w_off and w_on is the hysteresis;
+  brakes at the torque limit; where the handover must be high (the acceleration limits it, or the
+  rule's 2 w_min reaches 1 p.u. and is capped there) the start's line says why with the numbers
+  (:func:`handover_reason`; the report quotes it); the band between w_off and w_on is the hysteresis;
 - damping gain k_d = 2 ZETA w_n (ZETA = 0.5), w_n = sqrt(p T_max cos(delta_N) / J) the rotor's swing
   about the current vector at rated load (sin(delta_N) = T_N / T_max; symbolic/startup.py): a swing
   decays within about a period instead of lasting until the rotor slips;
