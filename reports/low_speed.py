@@ -99,19 +99,8 @@ def add_to_report(
             f"start, 0 to {on / ls.w_base:.3g} p.u. (handover; back below {off / ls.w_base:.3g} p.u.: "
             f"design/startup.py){limit}"
         )
-        w = ls.w_min_rated / ls.w_base
         if off < ls.w_min_rated * (1 - 1e-3):  # the start's rules take w_min at the drive's estimates
-            # the handover never above the rated speed (design/startup.py refuses a [startup] w_on above
-            # 1 pu): advised only where w_off = w_min stays below it (by the printed digits)
-            start += (
-                f"; that is below w_min = {w:.3g} p.u. under the estimate errors: give [startup] w_on = "
-                f"{min(ON_FACTOR * w, 1.0):.3g} pu and w_off = {w:.3g} pu to hand over only where they "
-                "allow it"
-                if w < 0.995
-                else f"; that is below w_min = {w:.3g} p.u. under the estimate errors, at the rated speed or "
-                "above: no handover (at most 1 p.u.) is where they allow it: gains with a lower w_min "
-                "(sensorless tune)"
-            )
+            start += handover_advice(ls.w_min_rated / ls.w_base)
     data = {**rep.data, "low_speed": {**ls.data(), "headline": line, "startup": start}}
     if isinstance(data.get("verdict"), dict):
         data["verdict"] = {**data["verdict"], "low_speed": line}
@@ -120,6 +109,23 @@ def add_to_report(
     verdict = dataclasses.replace(rep.verdict, lines=(*lines[:1], *extra, *lines[1:]))
     sec = section(len(rep.sections) + 1, ls, drive, rep.review)
     return dataclasses.replace(rep, data=data, verdict=verdict, sections=(*rep.sections, sec))
+
+
+def handover_advice(w: float) -> str:
+    """What the start's line adds where its handover is below ``w`` [p.u.], the w_min under the estimate
+    errors: the [startup] speeds that hand over only where they allow it, never a w_on above 1 pu (the
+    drive file's loader refuses one: the open loop hands over below the rated speed); advised only where
+    w_off = w_min stays below it by the printed digits."""
+    head = f"; that is below w_min = {w:.3g} p.u. under the estimate errors"
+    if w < 0.995:
+        return (
+            f"{head}: give [startup] w_on = {min(ON_FACTOR * w, 1.0):.3g} pu and w_off = {w:.3g} pu to hand "
+            "over only where they allow it"
+        )
+    return (
+        f"{head}, at the rated speed or above: no handover (at most 1 p.u.) is where they allow it: gains "
+        "with a lower w_min (sensorless tune)"
+    )
 
 
 def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float, str]:
