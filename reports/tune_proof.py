@@ -141,11 +141,7 @@ class Proof:
                 else ""
             )
             # the closed loop's error above, the open-loop I-f start's part apart (as the report's table)
-            + (
-                f" ({100 * c['metrics']['open_loop_fraction']:.0f} % open loop)"
-                if c["metrics"].get("open_loop_fraction")
-                else ""
-            )
+            + _open_loop(c["metrics"].get("open_loop_fraction"))
             for c in self.checks
         )
         lin = (
@@ -155,6 +151,12 @@ class Proof:
             else "no linear analysis"
         )
         return f"{self.label}: {lin}; {td or 'no time-domain checks'}"
+
+
+def _open_loop(share: float | None) -> str:
+    """A check's open-loop share, apart from its closed loop's error ("" where the observer had the loop
+    throughout)."""
+    return f" ({100 * share:.0f} % open loop)" if share else ""
 
 
 def runs(drive: Drive) -> list[Scenario]:
