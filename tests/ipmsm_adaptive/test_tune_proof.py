@@ -90,6 +90,7 @@ def _proof(label, stable, passed, w_base=100.0, untested=""):
                 "problems": [],
                 "metrics": {},
                 "untested": untested,
+                "causes": [] if passed else ["observer_lag_acceleration"],
             },
         ),
     )
@@ -100,7 +101,7 @@ def test_worse_names_the_point_and_the_check():
     assert tune_proof.worse(_proof("tuned", [True, True], True), base, 100.0) == []
     bad = tune_proof.worse(_proof("tuned", [True, False], False), base, 100.0)
     assert "w = +1.000 p.u., T = -22 N m (max Re +3 1/s)" in bad[0]
-    assert bad[1].startswith("time-domain check fig9b: rotor lost")
+    assert bad[1].startswith("time-domain check fig9b: rotor lost (cause: observer_lag_acceleration)")
     # no worse where the drive file's gains are unstable or fail too
     assert (
         tune_proof.worse(_proof("tuned", [False, True], False), _proof("b", [False, True], False), 100.0)
