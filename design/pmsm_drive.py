@@ -220,7 +220,11 @@ def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, flo
             return (*_startup_line({**rules, **given}, given, drive.w_base, ""), 0.0)
         with step_variant(None):
             sigma = _handover_decay(drive, gains, ls)
-        if ls.w_min_rated >= drive.w_base * (1 - 1e-9) or ls.rated_limited_by == "acceleration":
+        # the rule's handover (ON_FACTOR w_min) capped at 1 p.u. where the file gives no w_on: said why
+        capped = ON_FACTOR * ls.w_min_rated >= drive.w_base * (1 - 1e-9) and (
+            startup is None or startup.w_on is None
+        )
+        if capped or ls.w_min_rated >= drive.w_base * (1 - 1e-9) or ls.rated_limited_by == "acceleration":
             warn = "; " + handover_reason(ls)
         w_min = ls.w_min_rated
         if w_min <= 0:

@@ -19,9 +19,9 @@ The rules (each with its reason; :func:`if_values`):
   J the drive dropped back at 0.087 p.u. and lost the rotor at 0.11 p.u., braking at 4.9 times that;
   judged at p (T_max + T_N) / J it drops back at 0.18 p.u. and holds 19 deg). Below that speed the
   observer loses the rotor when the speed controller it takes over from the start accelerates or
-  brakes at the torque limit; where the handover must be high (the acceleration limits it, or no
-  speed up to 1 p.u. meets the criteria) the start's line says why with the numbers
-  (:func:`handover_reason`); the band between w_off and w_on is the hysteresis;
+  brakes at the torque limit; where the handover must be high (the acceleration limits it, or the
+  rule's 2 w_min reaches 1 p.u. and is capped there) the start's line says why with the numbers
+  (:func:`handover_reason`; the report quotes it); the band between w_off and w_on is the hysteresis;
 - damping gain k_d = 2 ZETA w_n (ZETA = 0.5), w_n = sqrt(p T_max cos(delta_N) / J) the rotor's swing
   about the current vector at rated load (sin(delta_N) = T_N / T_max; symbolic/startup.py): a swing
   decays within about a period instead of lasting until the rotor slips;
@@ -59,6 +59,9 @@ ACC_SHARE = 0.5
 # how the start's line says that the observer cannot follow the drive's full acceleration (the failed
 # checks of reports/time_domain.py quote it)
 ACCELERATION_LIMIT = "the whole drive's angle error under the full acceleration exceeds its limit below"
+# how the start's line says that the rule's handover (ON_FACTOR w_min) was capped at the rated speed where
+# w_min itself is not limited by the acceleration (reports/low_speed.py quotes it, as the one above)
+HANDOVER_CAPPED = "the handover is capped at the rated speed"
 ON_FACTOR = 2.0
 ZETA = 0.5
 DWELL = 1.5
@@ -81,7 +84,8 @@ def swing_frequency(T_N: float, T_max: float, J: float, p: int) -> float:
 def handover_reason(ls: LowSpeed) -> str:
     """Why the handover is high, in one line with the numbers (a LowSpeed of design/low_speed.py with
     the acceleration criterion): what limits w_min at rated load, and that the handover stays at 1 p.u.
-    at most."""
+    at most: where the acceleration limits it, or where the rule's ON_FACTOR w_min reaches 1 p.u. (the
+    handover capped there: a gimbal motor's drive file handed over at 1 p.u. without a word)."""
     w = ls.w_min_rated / ls.w_base
     why = ls.rated_limited_by
     if why == "acceleration":
@@ -89,9 +93,19 @@ def handover_reason(ls: LowSpeed) -> str:
             f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg braking at p (T_max + "
             f"T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated load, the whole drive's lag to a speed ramp)"
         )
-    else:
-        head = f"the whole drive's w_min at rated load is {w:.3g} p.u. (limited by {why})"
-    cap = " (above 1 p.u.: handover at 1 p.u.)" if w >= 1 - 1e-9 else ""
+    else:  # the rule's ON_FACTOR w_min reaches the rated speed: the handover is capped there
+        return (
+            f"{HANDOVER_CAPPED} (1 p.u.): the whole drive's w_min at rated load is {w:.3g} p.u. (limited by "
+            f"{why}), {ON_FACTOR:g} w_min = {ON_FACTOR * w:.3g} p.u.: below w_min the observer does not meet "
+            "its criteria (gains with a lower w_min: sensorless tune)"
+        )
+    cap = (
+        " (above 1 p.u.: handover at 1 p.u.)"
+        if w >= 1 - 1e-9
+        else f" ({ON_FACTOR:g} w_min = {ON_FACTOR * w:.3g} p.u., above 1 p.u.: handover at 1 p.u.)"
+        if ON_FACTOR * w >= 1 - 1e-9
+        else ""
+    )
     return (
         f"{head}{cap}: a full-torque acceleration or braking below it may lose the rotor (limit the "
         "acceleration: ramp the speed reference or lower T_max; or raise the observer's gains)"

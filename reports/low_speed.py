@@ -25,7 +25,7 @@ from sensorless.design.low_speed import (
     minimum_speed_under,
 )
 from sensorless.design.registry import family_of
-from sensorless.design.startup import ACCELERATION_LIMIT, ON_FACTOR
+from sensorless.design.startup import ACCELERATION_LIMIT, HANDOVER_CAPPED, ON_FACTOR
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
 from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.svg_render import svg_later
@@ -100,11 +100,7 @@ def add_to_report(
             f"design/startup.py){limit}"
         )
         if off < ls.w_min_rated * (1 - 1e-3):  # the start's rules take w_min at the drive's estimates
-            start += (
-                f"; that is below w_min = {ls.w_min_rated / ls.w_base:.3g} p.u. under the estimate errors: "
-                f"give [startup] w_on = {ON_FACTOR * ls.w_min_rated / ls.w_base:.3g} pu and w_off = "
-                f"{ls.w_min_rated / ls.w_base:.3g} pu to hand over only where they allow it"
-            )
+            start += handover_advice(ls.w_min_rated / ls.w_base)
     data = {**rep.data, "low_speed": {**ls.data(), "headline": line, "startup": start}}
     if isinstance(data.get("verdict"), dict):
         data["verdict"] = {**data["verdict"], "low_speed": line}
@@ -113,6 +109,23 @@ def add_to_report(
     verdict = dataclasses.replace(rep.verdict, lines=(*lines[:1], *extra, *lines[1:]))
     sec = section(len(rep.sections) + 1, ls, drive, rep.review)
     return dataclasses.replace(rep, data=data, verdict=verdict, sections=(*rep.sections, sec))
+
+
+def handover_advice(w: float) -> str:
+    """What the start's line adds where its handover is below ``w`` [p.u.], the w_min under the estimate
+    errors: the [startup] speeds that hand over only where they allow it, never a w_on above 1 pu (the
+    drive file's loader refuses one: the open loop hands over below the rated speed); advised only where
+    w_off = w_min stays below it by the printed digits."""
+    head = f"; that is below w_min = {w:.3g} p.u. under the estimate errors"
+    if w < 0.995:
+        return (
+            f"{head}: give [startup] w_on = {min(ON_FACTOR * w, 1.0):.3g} pu and w_off = {w:.3g} pu to hand "
+            "over only where they allow it"
+        )
+    return (
+        f"{head}, at the rated speed or above: no handover (at most 1 p.u.) is where they allow it: gains "
+        "with a lower w_min (sensorless tune)"
+    )
 
 
 def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float, str]:
@@ -127,7 +140,9 @@ def _handover(drive: Drive, gains: GainSet, ls: LowSpeed) -> tuple[float, float,
         except CapabilityError:
             values, sline = None, ""
         if values is not None:
-            limit = f"; {sline[sline.index(ACCELERATION_LIMIT) :]}" if ACCELERATION_LIMIT in sline else ""
+            # why the handover is high, where the start's line says it (design/startup.py handover_reason)
+            at = [sline.index(k) for k in (ACCELERATION_LIMIT, HANDOVER_CAPPED) if k in sline]
+            limit = f"; {sline[min(at) :]}" if at else ""
             return values["if_w_on"], values["if_w_off"], limit
     return ON_FACTOR * ls.w_min_rated, ls.w_min_rated, ""
 

@@ -35,6 +35,7 @@ from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario, builtin_names
 from sensorless.design.simulate import simulate
 from sensorless.reports import time_domain
+from sensorless.reports.causes import classify_all
 
 # (drive, gains, w [rad/s electrical], torque [N m]) -> the figures (a Linearization, design/linearization.py)
 Analysis = Callable[[Drive, GainSet, np.ndarray, np.ndarray], "Linearization | Combined"]
@@ -113,6 +114,7 @@ class ProofCheck(time_domain.Status):
     failed: list[str]
     problems: list[str]
     metrics: time_domain.Metrics
+    causes: list[str]  # the failures' causes (reports/causes.py), as the report names them
 
 
 @dataclass(frozen=True)
@@ -140,6 +142,8 @@ class Proof:
                 if isinstance(c["metrics"].get("max_abs_theta_err_deg"), int | float)
                 else ""
             )
+            # the closed loop's error above, the open-loop I-f start's part apart (as the report's table)
+            + _open_loop(c["metrics"].get("open_loop_fraction"))
             for c in self.checks
         )
         lin = (
@@ -149,6 +153,12 @@ class Proof:
             else "no linear analysis"
         )
         return f"{self.label}: {lin}; {td or 'no time-domain checks'}"
+
+
+def _open_loop(share: float | None) -> str:
+    """A check's open-loop share, apart from its closed loop's error ("" where the observer had the loop
+    throughout)."""
+    return f" ({100 * share:.0f} % open loop)" if share else ""
 
 
 def runs(drive: Drive) -> list[Scenario]:
@@ -176,11 +186,13 @@ def prove(
         d = np.asarray(lin.worst_damping, float)
         wd = float(np.nanmin(d)) if np.isfinite(d).any() else float("nan")
     scales = fam.scales(drive) if isinstance(fam, Scaled) else None
+    family, unstable = time_domain.finders(drive, gains)
     checks: list[ProofCheck] = []
     for sc in scenarios:
         progress(f"checking {label} gains: simulating {sc.name}")
         tr = simulate(drive, sc, gains)
         j = time_domain.assess(tr, sc, drive.w_base, scales)  # as the report judges it
+        named = classify_all(j.failures, family, unstable) if j.failures else []
         checks.append(
             {
                 "name": sc.name,
@@ -189,6 +201,7 @@ def prove(
                 "problems": j.problems,
                 "metrics": j.metrics,
                 "untested": j.untested,
+                "causes": sorted({n.cause for n in named}),
             }
         )
     return Proof(label, w, t, mr, wd, tuple(checks))
@@ -218,8 +231,9 @@ def worse(tuned: Proof, base: Proof, w_base: float) -> list[str]:
             continue
         st, bst = RANK[time_domain.check_status(c)], RANK[time_domain.check_status(b)]
         if st > bst or (c["problems"] and not b["problems"]):
+            why = f" (cause: {', '.join(c['causes'])})" if c.get("causes") else ""
             what = (
-                "; ".join(c["failed"])
+                "; ".join(c["failed"]) + why
                 if c["failed"]
                 else f"not tested sensorless: {c['untested']}"
                 if c.get("untested")

@@ -52,6 +52,8 @@ class Solution:
     rounds: int
     iterations: int  # IPOPT iterations, all rounds
     verified: tuple[np.ndarray, ...] = ()  # theta of every round with no violated grid point, in order
+    # IPOPT runs that failed and were retried with half the trust region (:func:`attempt_note`)
+    failed_attempts: tuple[str, ...] = ()
 
 
 def solve(
@@ -95,6 +97,7 @@ def solve(
     best: Solution | None = None  # last round with no violated grid point
     verified: list[np.ndarray] = []  # every such round's theta (the caller re-verifies them densely)
     fixed = fixed_points(model, cand.P)
+    attempts: list[str] = []  # the failed IPOPT runs of the rounds (said, and kept with the solution)
     for rnd in range(1, 100):
         # start each round feasible: below the worst damping of the active points at theta
         damp_act = [m[i] + t_now for i in active if cand.condition[i] == DAMPING and np.isfinite(m[i])]
@@ -102,7 +105,8 @@ def solve(
         while True:
             lo = np.maximum(model.lower, theta - radius * model.typical)
             hi = np.minimum(model.upper, theta + radius * model.typical)
-            z, sol = _run(model, cand, active, fixed, theta, t_now, scale, lo, hi, smoothing, max_noise)
+            args = (model, cand, active, fixed, theta, t_now, scale, lo, hi, smoothing, max_noise)
+            z, sol, start = _run(*args)
             total_it += sol.stats()["iter_count"]
             status = sol.stats()["return_status"]
             if sol.stats()["success"] or status == "Solved_To_Acceptable_Level" or _usable(sol.stats()):
@@ -115,6 +119,8 @@ def solve(
                 len(active) > WHOLE_GRAPH_SLOTS
                 and total_it + int(SOLVER_OPTIONS["ipopt.max_iter"]) > max_iterations
             )
+            note = attempt_note(rnd, sol.stats(), start)
+            attempts.append(note)
             if radius < min_radius or spent:
                 if spent and best is None:
                     raise TuningError(
@@ -124,8 +130,10 @@ def solve(
                 if best is not None:  # a verified feasible solution exists: keep it
                     if progress:
                         progress(f"round {rnd}: IPOPT {status}; keeping round {best.rounds}")
-                    return dataclasses.replace(best, iterations=total_it)
+                    return dataclasses.replace(best, iterations=total_it, failed_attempts=tuple(attempts))
                 raise TuningError(_failure(status, cand, active))
+            if progress:
+                progress(f"{note}; retrying with half the trust region")
             radius /= 2
         radius = min(2 * radius, radius0)  # a solved round restores the trust region
         new = np.asarray(z[:nth]).ravel() * model.typical
@@ -147,14 +155,14 @@ def solve(
         if bad.size == 0:
             gain = t_now - best.t if best is not None else np.inf
             verified.append(theta)
-            best = Solution(theta, t_now, tuple(active), rnd, total_it, tuple(verified))
+            best = Solution(theta, t_now, tuple(active), rnd, total_it, tuple(verified), tuple(attempts))
             if not at_edge or gain < CREEP:  # creeping along a ridge: the worst damping barely moves
                 return best
         if total_it >= max_iterations:
             if best is not None:
                 if progress:
                     progress(f"{total_it} IPOPT iterations (the budget): keeping round {best.rounds}")
-                return dataclasses.replace(best, iterations=total_it)
+                return dataclasses.replace(best, iterations=total_it, failed_attempts=tuple(attempts))
             raise TuningError(
                 f"no round met every grid point within {max_iterations} IPOPT iterations (the budget); "
                 f"{bad.size} grid points violate the last (worst: {cand.labels[int(np.argmin(m))]})"
@@ -162,6 +170,20 @@ def solve(
         if bad.size:
             active = _pick(m, cand, active, max(2, min(bad.size, n0)))
     raise TuningError("the exchange method did not converge in 100 rounds")
+
+
+def attempt_note(rnd: int, stats: dict, start: float) -> str:
+    """A failed IPOPT run of round ``rnd``: its status, iterations and whether its start met the NLP's
+    constraints (``start``: their largest violation there, as built; at most FEASIBLE_IPOPT: met), with
+    IPOPT's own primal infeasibility at its first iterate (after its bound push): a feasible start that
+    ends ``Infeasible_Problem_Detected`` is a fault of the formulation, not of the envelope, and is said."""
+    inf_pr = (stats.get("iterations") or {}).get("inf_pr") or []
+    met = "meeting" if start <= FEASIBLE_IPOPT else "violating"
+    first = f"; IPOPT's first iterate {inf_pr[0]:.1g}" if inf_pr else ""
+    return (
+        f"round {rnd}: IPOPT {stats['return_status']} after {stats['iter_count']} iterations from a start "
+        f"{met} its constraints (violation {start:.1g}{first})"
+    )
 
 
 def _usable(stats: dict) -> bool:
@@ -326,15 +348,13 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
     lbg = np.concatenate([np.zeros(n_eq), *ineqs])
     ubg = np.concatenate([np.zeros(n_eq), np.full(sum(a.size for a in ineqs), np.inf)])
     solver = ipopt_solver(model, L)
-    sol = solver(
-        x0=np.concatenate(z0),
-        p=np.concatenate(par),
-        lbx=np.concatenate(lbx),
-        ubx=np.concatenate(ubx),
-        lbg=lbg,
-        ubg=ubg,
-    )
-    return np.asarray(sol["x"]).ravel(), solver
+    x0, p = np.concatenate(z0), np.concatenate(par)
+    sol = solver(x0=x0, p=p, lbx=np.concatenate(lbx), ubx=np.concatenate(ubx), lbg=lbg, ubg=ubg)
+    start = float("nan")  # where IPOPT failed: the start's violation of the constraints, as built
+    if not solver.stats()["success"]:
+        g = np.asarray(solver.get_function("nlp_g")(x0, p)).ravel()
+        start = float(np.max(np.maximum(lbg - g, 0.0) + np.maximum(g - ubg, 0.0), initial=0.0))
+    return np.asarray(sol["x"]).ravel(), solver, start
 
 
 def _pole_scale(poles: np.ndarray, scale: float) -> np.ndarray:

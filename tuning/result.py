@@ -94,6 +94,9 @@ class TuneResult:
     ridge: dict[str, Any] | None = None  # the worst point, if no parameter of the law moves it
     pareto: list[dict[str, Any]] | None = None  # damping-versus-noise front
     global_phase: dict[str, Any] = dataclasses.field(default_factory=dict)
+    # IPOPT runs that failed within an NLP run and were retried with half the trust region (said in the
+    # summary: a feasible start that ends Infeasible_Problem_Detected is not left unreported)
+    nlp_retried: tuple[str, ...] = ()
 
     def summary_lines(self, drive: Drive) -> list[str]:
         """The terminal summary: parameters and worst damping before -> after, and where."""
@@ -106,6 +109,9 @@ class TuneResult:
             if g.get("certified")
             else f"NLP from {g.get('starts', 1)} of them"
         )
+        failed = g.get("nlp_failed") or []
+        if failed:  # said here too: --quiet hides the progress line that said it first
+            nlp_from += f"; the NLP failed from {len(failed)} of them ({failed[0]}): the best start is kept"
         out = [
             f"global phase: {g.get('candidates', 0)} candidate gains, {g.get('feasible', 0)} meeting every "
             f"constraint; {nlp_from}",
@@ -160,9 +166,21 @@ class TuneResult:
         nlp_t = s["nlp_worst_damping"]
         out.append(
             f"worst damping on the optimization grid {s['optimization_grid_worst_damping']:.4f} "
-            + (f"(NLP: {nlp_t:.4f})" if np.isfinite(nlp_t) else "(no NLP run)")
+            + (
+                f"(NLP: {nlp_t:.4f})"
+                if np.isfinite(nlp_t)
+                else "(the NLP failed, above)"
+                if failed
+                else "(no NLP run)"
+            )
             + "; the table reports the dense re-verification"
         )
+        for res, whose in ((self.seed, f" ({self.seed.law}, the start)" if self.seed else ""), (self, "")):
+            if res is not None and res.nlp_retried:
+                out.append(
+                    f"IPOPT failed and was retried with half the trust region{whose}: "
+                    + "; ".join(res.nlp_retried)
+                )
         if s.get("selection"):
             out.append(f"kept: {s['selection']['text']}")
             if s["selection"].get("tie_break"):

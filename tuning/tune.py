@@ -165,11 +165,14 @@ def tune(
         seed=seed_res,
         ridge=ridge,
         pareto=pareto,
+        nlp_retried=opt.nlp_retried,
         global_phase={
             "candidates": int(ranked.evaluated),
             "feasible": int(ranked.feasible.sum()),
             "starts": len(starts),
             "certified": certified,
+            # only where a run failed: the tables of runs that did not fail stay as they were
+            **({"nlp_failed": list(opt.nlp_failed)} if opt.nlp_failed else {}),
         },
     )
     table = gain_table(drive, settings, result, scale)
@@ -203,6 +206,8 @@ class _Optimum:
     ranked: search.Ranked
     starts: list[np.ndarray]
     certified: bool
+    nlp_failed: tuple[str, ...] = ()  # why each NLP run that gave no gains failed
+    nlp_retried: tuple[str, ...] = ()  # the IPOPT runs that failed within the others, retried
 
 
 def _optimize(
@@ -224,6 +229,8 @@ def _optimize(
     k = N_STARTS if model.n_theta <= search.MAX_PATTERN_PARAMETERS else 1
     starts = ranked.starts(k, model.typical)
     sols: list[nlp.Solution] = []
+    failed: list[str] = []  # the NLP runs that gave no gains (said in the summary, not only in progress)
+    retried: list[str] = []  # their IPOPT runs that failed and were retried (the same)
     certified = False
     if bound is not None and max_noise is None:
         # the certificate: no gain law exceeds the bound's worst on the dense grid; a start that is
@@ -258,8 +265,10 @@ def _optimize(
                     progress=lambda m, i=i: say(f"start {i + 1}: {m}"),
                 )
             )
+            retried += [f"start {i + 1}: {a}" for a in sols[-1].failed_attempts]
         except nlp.TuningError as e:
             say(f"start {i + 1}: the NLP failed ({e}); its start stays a candidate")
+            failed.append(f"start {i + 1}: {e}")
     say(f"re-verifying on the {pb.settings.envelope.dense_factor}x denser grid")
     boxed = not np.array_equal(pb.theta0, model.theta0)
     pool = [(DRIVE_FILE + (" in the law's box" if boxed else ""), pb.theta0)]
@@ -290,7 +299,7 @@ def _optimize(
             model, theta, dense, note["best_worst_damping"], others, grids, pb.floor, conditions, say, pb.wb
         )
         theta, dense, note = tb.theta, tb.dense, {**note, "tie_break": tb.note}
-    return _Optimum(theta, dense, note, best_sol, ranked, starts, certified)
+    return _Optimum(theta, dense, note, best_sol, ranked, starts, certified, tuple(failed), tuple(retried))
 
 
 def _bound(drive, model, settings, floor, scale, max_noise, others, say, reuse=None, *thetas) -> Bound:

@@ -226,3 +226,42 @@ def test_the_drop_back_starts_the_frame_at_the_rotor_speed_not_a_lagging_speed_e
             assert x[state.index("if_w")] == pytest.approx(w_rotor, abs=0.01)
     assert modes[-1] == 1  # dropped back, although the speed estimate stayed at 40 > w_off
     assert abs(x[state.index("if_w")]) < 5.0
+
+
+def test_a_handover_capped_at_the_rated_speed_says_why_and_no_handover_above_it_is_advised(tmp_path):
+    """The rule's handover 2 w_min is capped at 1 p.u.; where it was (a gimbal motor's drive file, the
+    hubmotor48 preset) the report said nothing, and for hubmotor48 it advised "[startup] w_on = 2 pu",
+    which the drive file's loader refuses (the open loop hands over below the rated speed)."""
+    from types import SimpleNamespace
+
+    from sensorless.design.drive import preset_text
+    from sensorless.design.pmsm_drive import startup_values
+    from sensorless.design.startup import ACCELERATION_LIMIT, HANDOVER_CAPPED, handover_reason
+    from sensorless.design.units import DriveFileError
+    from sensorless.reports.low_speed import _handover, handover_advice
+
+    def ls(w, why):
+        return SimpleNamespace(w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4)
+
+    assert handover_reason(ls(0.6, "decay")).startswith(f"{HANDOVER_CAPPED} (1 p.u.)")
+    assert "w_min at rated load is 0.6 p.u. (limited by decay), 2 w_min = 1.2 p.u." in handover_reason(
+        ls(0.6, "decay")
+    )
+    fast = handover_reason(ls(0.6, "acceleration"))
+    assert fast.startswith(ACCELERATION_LIMIT) and "(2 w_min = 1.2 p.u., above 1 p.u.: handover at 1" in fast
+    assert "above 1 p.u." not in handover_reason(ls(0.3, "acceleration"))
+
+    drive = load_drive("hubmotor48")
+    gains = family_of(drive).gains(drive)
+    _, line, w_min = startup_values(drive, gains)
+    assert "handover at 1 p.u." in line and HANDOVER_CAPPED in line and w_min >= 0.5 * drive.w_base
+    on, _, why = _handover(drive, gains, None)
+    assert on == drive.w_base and why.startswith(f"; {HANDOVER_CAPPED}")  # the report says why, as the start
+    # the advice where the handover is below w_min under the estimate errors: never a w_on above 1 pu
+    assert "w_on = 0.684 pu and w_off = 0.342 pu" in handover_advice(0.342)
+    assert "w_on = 1 pu and w_off = 0.6 pu" in handover_advice(0.6)
+    assert "w_on" not in handover_advice(1.0) and "no handover (at most 1 p.u.)" in handover_advice(1.0)
+    # the advice of before: refused by the loader
+    (tmp_path / "hub.toml").write_text(preset_text("hubmotor48") + '\n[startup]\nw_on = "2 pu"\n')
+    with pytest.raises(DriveFileError, match="below the rated speed"):
+        load_drive(str(tmp_path / "hub.toml"))
