@@ -182,6 +182,13 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
     for j, d in enumerate(inputs):
         imm = (j,) if d["kind"] == "ang" else (j, -(2 ** (NOMINAL_BITS + 1)), 2 ** (NOMINAL_BITS + 1))
         wr = 2.0**31 if d["kind"] == "ang" else 2.0 ** (NOMINAL_BITS + 1)
+        if d["kind"] == "fix" and d["vector"] == "x" and d["reason"].endswith("(guard)"):
+            # a bounded state field is the step's own output: init writes x0 and the step only what
+            # the guard accepted within the bound (or the coasting state it checked, or x0), so it
+            # enters unclamped. Its word is within the bound's, at most twice the drive's value with
+            # the parameters init accepts, plus the roundings of the bound's parameter and of the
+            # stored format (the fuzz test checks the stored state within the bound + 1 LSB)
+            imm, wr = (j,), math.ceil(2 * d["range"] * 2.0 ** d["f"]) + 2
         s = low.add(Ins("IN", (), d["kind"], d["f"], imm, what=f"{d['vector']}.{d['name']}"), wr)
         if d["node"] is not None:
             low.in_slot[d["node"]] = s
