@@ -30,6 +30,8 @@ from sensorless.reports.codegen.fixed_tables import TableLowering
 SHORT_PRODUCTS = False
 SHORT_BITS = 15  # each short operand below 2^15: their product within int32
 SHORT_SPAN = 4  # a short operand's median magnitude at least 2^-SHORT_SPAN of its range
+COARSE_QUOT_BITS = 18  # a quotient of short products: bits at its median magnitude
+COARSE_ROOT_BITS = 12  # a root of short products
 QUOT_BITS = 26  # significant bits of a quotient by a runtime divisor at the top of its range
 
 
@@ -63,6 +65,9 @@ class Lowering(AngleLowering, TableLowering):
         # a tabulated schedule's output node -> (schedule state's node, grid, gain nodes, their
         # values, over |value|)
         self.tables: dict[int, tuple[int, tuple[float, ...], tuple[int, ...], tuple[float, ...], bool]] = {}
+        # products whose result only reaches a division's operands or a square root's radicand
+        # (coarse_nodes): short products (their consumers' results carry fewer bits anyway)
+        self.coarse: set[int] = set()
 
     # ----------------------------------------------------------------------------------- helpers
     def add(self, ins: Ins, wr: float, nom: float | None = None) -> int:
@@ -159,6 +164,31 @@ class Lowering(AngleLowering, TableLowering):
             and wr <= INT_MAX
             and (s >= 16 or wr + 2.0 ** (32 - s) < 2.0**31)  # (x >> 16) c 2^(16-s) within int32
         )
+
+    def short_made(self, n: int) -> bool:
+        """Whether node n is a short product by the coarse rule (fixed_program.coarse_nodes: a product of
+        signals whose result only reaches a division's operands or a square root), or a sum of them."""
+        nd = self.nodes[n]
+        if n not in self.coarse or any(self.fixed_val(a) is not None for a in nd.args):
+            return False
+        return nd.op in ("MUL", "SQ") or all(self.short_made(a) for a in nd.args)
+
+    def and_terms(self, n: int) -> list[int]:
+        """The terms of the && chain at node n, in the graph's order."""
+        nd = self.nodes[n]
+        if nd.op != "AND" or self.folded(n) is not None:
+            return [n]
+        return self.and_terms(nd.args[0]) + self.and_terms(nd.args[1])
+
+    def on_inputs(self, n: int, depth: int = 3) -> bool:
+        """Whether node n is a comparison, |.| or sign of step inputs and parameters within ``depth``
+        operations (no product, no call)."""
+        nd = self.nodes[n]
+        if nd.op == "INPUT" or nd.param:
+            return True
+        if depth == 0 or nd.op not in ("LE", "LT", "FABS", "NEG", "NOT"):
+            return False
+        return all(self.on_inputs(a, depth - 1) for a in nd.args)
 
     def fills_range(self, n: int) -> bool:
         """Whether node n's median magnitude over the runs is within 2^SHORT_SPAN of its range: an
@@ -341,7 +371,14 @@ class Lowering(AngleLowering, TableLowering):
         # the quotient to QUOT_BITS at its range (a Q15 constant factor's precision): each bit is
         # one step of the C's long division (~7 cycles on a Cortex-M0+); no fewer than none (a
         # negative step count is a 64-bit division: deangelo2006's went from ~490 to ~1100 cycles)
-        fo -= min(NOMINAL_BITS - QUOT_BITS, max(0, fo - fa + fb))
+        # a quotient of short products (their precision): COARSE_QUOT_BITS at its median magnitude
+        # over the runs (deangelo2006's, at 1/10 of their range, held 16 bits at the range badly:
+        # 0.47 deg off the double step on fig2)
+        bits = QUOT_BITS
+        typ, r = self.sim_typ.get(n, 0.0), self.rng.get(n, 0.0)
+        if (self.short_made(an) or self.short_made(bn)) and 0 < typ <= r:
+            bits = min(QUOT_BITS, COARSE_QUOT_BITS + math.ceil(math.log2(r / typ)))
+        fo -= min(NOMINAL_BITS - bits, max(0, fo - fa + fb))
         floor_raw = max(1, math.floor(lo / MARGIN * 2.0**fb))
         bc = self.add(
             Ins("MAX", (b, self.const_slot(floor_raw * 2.0**-fb, fb)), "fix", fb, (0, 0)), self.wr[b]
@@ -425,7 +462,16 @@ class Lowering(AngleLowering, TableLowering):
             return self.lin(nd.args[0])
         if op in ("LT", "LE", "EQ", "NE"):
             return self.add(Ins(op, *self.compare(op, nd.args)), 1)
-        if op in ("AND", "OR"):
+        if op == "AND":
+            # a chain of && with the terms on the sample's own words first (a glitch's first
+            # victims, and a few instructions each): the C computes what the later terms read only
+            # when the first hold (fixed_c.guards), so a rejected sample skips the candidate
+            terms = sorted(self.and_terms(n), key=lambda t: not self.on_inputs(t))
+            s = self.lin(terms[0])
+            for t in terms[1:]:
+                s = self.add(Ins("AND", (s, self.lin(t)), "bool", 0), 1)
+            return s
+        if op == "OR":
             return self.add(Ins(op, (self.lin(nd.args[0]), self.lin(nd.args[1])), "bool", 0), 1)
         if op == "NOT":
             return self.add(Ins(op, (self.lin(nd.args[0]),), "bool", 0), 1)
@@ -456,7 +502,9 @@ class Lowering(AngleLowering, TableLowering):
                 # Q15 constant is then two 32-bit products, not a 64-bit one and a saturation
                 x = self.clamped(x)
                 return self.add(Ins("MUL", (c, x), "fix", fo, (s,)), self.wr[c] * self.wr[x] * 2.0**-s)
-            if not any(consts) and all(self.fills_range(x) for x in nd.args[: 1 if same else 2]):
+            if not any(consts) and (
+                self.short_made(n) or all(self.fills_range(x) for x in nd.args[: 1 if same else 2])
+            ):
                 return self.short_product(a, b, same, fo, s)
             if 16 <= s <= 32 and not self.mulw_fits(a, b, s):
                 a, b = self.clamped(a), self.clamped(b)
@@ -486,6 +534,13 @@ class Lowering(AngleLowering, TableLowering):
             a = self.lin(nd.args[0])
             fa = self.fmt(a)[1]
             k = 6 if (fa + 6) % 2 == 0 else 5  # the radicand below 2^32 at the top of its range
+            if self.short_made(nd.args[0]):
+                # a radicand of short products (within 2^-13 of its range): a 24-bit radicand and a
+                # 12-bit root, 4 steps fewer (floor; within 1 LSB of the root at 2^12, 2^-12 of its range)
+                k -= 2 * (16 - COARSE_ROOT_BITS)
+                return self.add(
+                    Ins("SQRT", (a,), "fix", (fa + k) // 2, (k, COARSE_ROOT_BITS)), 2.0**COARSE_ROOT_BITS
+                )
             return self.add(Ins("SQRT", (a,), "fix", (fa + k) // 2, (k,)), 2.0**16)
         if op == "DIV":
             return self.divide(n, fo)

@@ -173,6 +173,7 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
             raise ValueError(f"{obs.name}: no range for a signal (node {i}, {nodes[i].op})")
     low = Lowering(nodes, const, rng, angle_fields)
     low.tables = table_nodes(setup, nodes, outs)
+    low.coarse = coarse_nodes(nodes, live, {n for _, n in outs})
     low.rt, low.expr = runtime_parameters(nodes, obs, setup.schedule.fields if setup.schedule else ())
     for i, v in sim.items():
         if i in runtime:
@@ -228,6 +229,36 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
         signals,
         low.params,
     )
+
+
+COARSE_OPS = ("MUL", "SQ", "ADD", "SUB", "TWICE")
+
+
+def coarse_nodes(nodes: list[Node], live: set[int], roots: set[int]) -> set[int]:
+    """The live nodes whose every use is a division's operand, a square root's radicand, or a sum or
+    product that is itself coarse (and none is an output)."""
+    users: dict[int, set[int]] = {}
+    for u in live:
+        for a in nodes[u].args:
+            users.setdefault(a, set()).add(u)
+    memo: dict[int, bool] = {}
+
+    def coarse(n: int) -> bool:
+        if n not in memo:
+            memo[n] = False  # (acyclic; a guard against recursion through itself)
+            us = users.get(n, set())
+            memo[n] = (
+                n not in roots
+                and bool(us)
+                and all(
+                    nodes[u].op in ("SQRT", "DIV")
+                    or (nodes[u].op in ("MUL", "SQ", "ADD", "SUB", "TWICE") and coarse(u))
+                    for u in us
+                )
+            )
+        return memo[n]
+
+    return {n for n in live if not nodes[n].param and nodes[n].op in COARSE_OPS and coarse(n)}
 
 
 _INFIX = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/"}
