@@ -58,7 +58,7 @@ def _q15(prog: list[Ins], wr: list[float], k: int, ins: Ins) -> tuple[int, str] 
         return None
     a, b = ins.args
     for x, k in ((a, b), (b, a)):
-        if prog[k].op in ("CONST", "PARAM") and wr[k] < 2**15 and prog[x].op not in ("CONST", "PARAM"):
+        if wr[k] < 2**15 and prog[x].op not in ("CONST", "PARAM"):
             if wr[x] * wr[k] < INT_MAX:
                 return None  # one 32-bit product holds it
             return x, lit(prog[k].imm[0]) if prog[k].op == "CONST" else f"s{k}"
@@ -215,10 +215,16 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
     lines += [
         f"int32_t fx_cs{k}[2];" for k, ins in enumerate(fx.prog) if ins.op == "CSA" and need[k] is not None
     ]
+    # the constants first: a literal between two slots under one condition would split their block
+    lines += [
+        f"const int32_t s{k} = {exprs[k]};" + (f" /* {ins.what} */" if ins.what else "")
+        for k, ins in enumerate(fx.prog)
+        if ins.op == "CONST"
+    ]
     k = 0
     while k < len(fx.prog):
         ins = fx.prog[k]
-        if need[k] is None:  # dead (a folded branch's leftovers)
+        if need[k] is None or ins.op == "CONST":  # dead (a folded branch's leftovers), or above
             k += 1
             continue
         if need[k] == ALWAYS:
@@ -230,8 +236,8 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
         # a run of slots needed only under one condition: computed only when it holds (the coasting
         # branch's sin/cos on a rejected sample, not every sample); zero-initialized, never read else
         g, run = need[k], []
-        while k < len(fx.prog) and need[k] in (g, None):
-            if need[k] == g:
+        while k < len(fx.prog) and (need[k] in (g, None) or fx.prog[k].op == "CONST"):
+            if need[k] == g and fx.prog[k].op != "CONST":
                 run.append(k)
             k += 1
         if len(run) == 1:  # one slot: a conditional expression (no zeroed variable to keep)

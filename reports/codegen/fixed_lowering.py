@@ -32,6 +32,7 @@ SHORT_BITS = 15  # each short operand below 2^15: their product within int32
 SHORT_SPAN = 4  # a short operand's median magnitude at least 2^-SHORT_SPAN of its range
 COARSE_QUOT_BITS = 18  # a quotient of short products: bits at its median magnitude
 COARSE_ROOT_BITS = 12  # a root of short products
+LIMITED_BITS = 16  # an operand carrying at most these bits is rounded to 15 (Lowering.limited_product)
 QUOT_BITS = 26  # significant bits of a quotient by a runtime divisor at the top of its range
 
 
@@ -68,6 +69,7 @@ class Lowering(AngleLowering, TableLowering):
         # products whose result only reaches a division's operands or a square root's radicand
         # (coarse_nodes): short products (their consumers' results carry fewer bits anyway)
         self.coarse: set[int] = set()
+        self.bits: dict[int, float] = {}  # node -> significant bits its value carries (a root, a quotient)
 
     # ----------------------------------------------------------------------------------- helpers
     def add(self, ins: Ins, wr: float, nom: float | None = None) -> int:
@@ -158,8 +160,7 @@ class Lowering(AngleLowering, TableLowering):
         two-32-bit-product form of reports/codegen/fixed_c.py (``_q15``): no saturation, and the
         high part within int32."""
         return (
-            self.prog[c].op in ("CONST", "PARAM")
-            and self.wr[c] < 2**15
+            self.wr[c] < 2**15
             and s >= 1
             and wr <= INT_MAX
             and (s >= 16 or wr + 2.0 ** (32 - s) < 2.0**31)  # (x >> 16) c 2^(16-s) within int32
@@ -189,6 +190,47 @@ class Lowering(AngleLowering, TableLowering):
         if depth == 0 or nd.op not in ("LE", "LT", "FABS", "NEG", "NOT"):
             return False
         return all(self.on_inputs(a, depth - 1) for a in nd.args)
+
+    def sig_bits(self, n: int) -> float:
+        """The significant bits node n's value carries at its range: a root's or a quotient's, through
+        products by constants (a Q15 factor's 16 bits at most) and bounds by constants; else
+        NOMINAL_BITS (a signal as precise as its word)."""
+        nd = self.nodes[n]
+        if n in self.bits:
+            return self.bits[n]
+        cv = [self.cval(a) is not None for a in nd.args]
+        if nd.op in ("MUL", "FMAX", "FMIN") and len(cv) == 2 and sum(cv) == 1:
+            other = self.sig_bits(nd.args[cv.index(False)])
+            return min(COEF_BITS + 1, other) if nd.op == "MUL" else other
+        if nd.op == "MUL" and not any(cv):  # a product is as precise as its coarser factor
+            return min(self.sig_bits(nd.args[0]), self.sig_bits(nd.args[1]))
+        return NOMINAL_BITS
+
+    def limited_product(self, a: int, b: int, fo: int, s: int) -> int | None:
+        """a b 2^-s where a carries at most LIMITED_BITS bits (sig_bits): a clamped at twice its range
+        and rounded to nearest to 15 bits of that (at least 14 bits at its range), then multiplied
+        with b exactly by two 32-bit products (a Q15 factor's form, fixed_c._q15). None where the
+        product would not stay within int32."""
+        a = self.clamped(a)
+        bits = math.ceil(math.log2(self.wr[a] + 1))
+        ka = max(0, bits - 15)
+        if ka:
+            fa = self.fmt(a)[1]
+            half = self.const_slot(2.0 ** (ka - 1 - fa), fa)
+            ar = self.add(Ins("ADD", (a, half), "fix", fa, (0, 0)), self.wr[a] + 2.0 ** (ka - 1), self.nom[a])
+            a = self.add(
+                Ins("ALIGN", (ar,), "fix", fa - ka, (-ka,), what="product operand, 15 bits"),
+                self.wr[ar] * 2.0**-ka + 1,
+                self.nom[a] * 2.0**-ka,
+            )
+        s -= ka
+        wr = self.wr[a] * self.wr[b] * 2.0**-s
+        if not self.exact_q15(a, b, s, wr):
+            b = self.clamped(b)
+            wr = self.wr[a] * self.wr[b] * 2.0**-s
+            if not self.exact_q15(a, b, s, wr):
+                return None
+        return self.add(Ins("MUL", (a, b), "fix", fo, (s,)), wr)
 
     def fills_range(self, n: int) -> bool:
         """Whether node n's median magnitude over the runs is within 2^SHORT_SPAN of its range: an
@@ -378,19 +420,21 @@ class Lowering(AngleLowering, TableLowering):
         typ, r = self.sim_typ.get(n, 0.0), self.rng.get(n, 0.0)
         if (self.short_made(an) or self.short_made(bn)) and 0 < typ <= r:
             bits = min(QUOT_BITS, COARSE_QUOT_BITS + math.ceil(math.log2(r / typ)))
-        fo -= min(NOMINAL_BITS - bits, max(0, fo - fa + fb))
+        cut = min(NOMINAL_BITS - bits, max(0, fo - fa + fb))
+        fo -= cut
+        self.bits[n] = NOMINAL_BITS - cut
         floor_raw = max(1, math.floor(lo / MARGIN * 2.0**fb))
         bc = self.add(
             Ins("MAX", (b, self.const_slot(floor_raw * 2.0**-fb, fb)), "fix", fb, (0, 0)), self.wr[b]
         )
         k = fo - fa + fb
         while self.wr[a] * 2.0**k > 2.0**52:
-            k, fo = k - 1, fo - 1  # the numerator within 53 bits
+            k, fo, cut = k - 1, fo - 1, cut + 1  # the numerator within 53 bits
         # the quotient in its range's format (a hostile sample near the divisor's floor saturates at
         # twice the range, as a product's operand is clamped): a format that held the worst case
         # instead left hubmotor48's inductance share (within 0..1) two bits, 0.35 deg off the double step
         worst = self.wr[a] * 2.0**k / floor_raw
-        lim = min(INT_MAX, math.ceil(2 * 2.0**NOMINAL_BITS))
+        lim = min(INT_MAX, math.ceil(2 * 2.0 ** (NOMINAL_BITS - cut)))  # twice the range, in format fo
         # with its bound given, the C divides by fixed_c's 32-bit long division (fx_divc<k>) where the
         # shifted numerator exceeds int32, not by a 64-bit division (libgcc, ~3x the cycles)
         wide = self.wr[a] * 2.0**k > INT_MAX and 0 <= k < 31
@@ -502,6 +546,12 @@ class Lowering(AngleLowering, TableLowering):
                 # Q15 constant is then two 32-bit products, not a 64-bit one and a saturation
                 x = self.clamped(x)
                 return self.add(Ins("MUL", (c, x), "fix", fo, (s,)), self.wr[c] * self.wr[x] * 2.0**-s)
+            lb = [self.sig_bits(x) for x in nd.args[:2]]
+            if not any(consts) and not same and min(lb) <= LIMITED_BITS and not self.short_made(n):
+                j = lb.index(min(lb))
+                p = self.limited_product(*((a, b) if j == 0 else (b, a)), fo, s)
+                if p is not None:
+                    return p
             if not any(consts) and (
                 self.short_made(n) or all(self.fills_range(x) for x in nd.args[: 1 if same else 2])
             ):
@@ -538,6 +588,7 @@ class Lowering(AngleLowering, TableLowering):
                 # a radicand of short products (within 2^-13 of its range): a 24-bit radicand and a
                 # 12-bit root, 4 steps fewer (floor; within 1 LSB of the root at 2^12, 2^-12 of its range)
                 k -= 2 * (16 - COARSE_ROOT_BITS)
+                self.bits[n] = COARSE_ROOT_BITS
                 return self.add(
                     Ins("SQRT", (a,), "fix", (fa + k) // 2, (k, COARSE_ROOT_BITS)), 2.0**COARSE_ROOT_BITS
                 )
