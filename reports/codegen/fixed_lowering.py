@@ -191,6 +191,29 @@ class Lowering(AngleLowering, TableLowering):
             return False
         return all(self.on_inputs(a, depth - 1) for a in nd.args)
 
+    def angle_times_constant(self, m: int, c: int, fo: int) -> int | None:
+        """m c with m an angle (a binary angle read as rad) and c a constant or parameter, as the binary
+        angle's word times c pi / 2^31 in Q15 (two 32-bit products), not the word converted to rad
+        first (ANG2LIN's product, then c's); None where m is no angle, its rad value is lowered
+        already, or the product does not hold that form."""
+        cv = self.cval(c)
+        if cv is None or cv == 0 or not self.is_angle(m) or m in self.lin_c:
+            return None
+        v = cv * _PI * 2.0**-31
+        f = COEF_BITS - math.ceil(math.log2(abs(v) * (1 + 2.0**-20)))
+        if c in self.rt:
+            name = f"{self.expr(c)} * pi / 2^31"
+            k = self.param_slot(("ang", c), v, name, f - 1, recipe=(c, _PI * 2.0**-31, False))
+        else:
+            k = self.const_slot(v, f)
+        self.stored.setdefault(c, self.prog[k].imm[-1] * 2.0 ** -self.prog[k].f / (_PI * 2.0**-31))
+        a = self.ang(m)
+        s = self.fmt(k)[1] - fo
+        wr = self.wr[a] * self.wr[k] * 2.0**-s
+        if not self.exact_q15(k, a, s, wr):
+            return None
+        return self.add(Ins("MUL", (a, k), "fix", fo, (s,)), wr)
+
     def sig_bits(self, n: int) -> float:
         """The significant bits node n's value carries at its range: a root's or a quotient's, through
         products by constants (a Q15 factor's 16 bits at most) and bounds by constants; else
@@ -533,6 +556,10 @@ class Lowering(AngleLowering, TableLowering):
                 return self.const_slot(0.0, fo)
             same = op == "SQ" or nd.args[0] == nd.args[1]
             consts = [self.cval(x) is not None for x in nd.args[: 1 if same else 2]]
+            if not same and sum(consts) == 1:
+                p = self.angle_times_constant(nd.args[consts.index(False)], nd.args[consts.index(True)], fo)
+                if p is not None:
+                    return p
             a = self.factor(nd.args[0])
             b = a if same else self.factor(nd.args[1])
             s = self.fmt(a)[1] + self.fmt(b)[1] - fo

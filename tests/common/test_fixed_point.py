@@ -432,7 +432,7 @@ def test_params_from_si_fills_the_struct_from_si_values(built):
         "2.5 * psi_pm": 2.5 * v["psi_pm"],
         "psi_pm": v["psi_pm"],
         "T_s * 1/psi_pm^2": v["T_s"] / v["psi_pm"] ** 2,
-        "T_s * k_i": v["T_s"] * v["k_i"],
+        "T_s * k_i * pi / 2^31": v["T_s"] * v["k_i"] * np.pi / 2**31,  # per LSB of the binary angle
     }
     seen = 0
     for d, raw in zip(fx.params, prm, strict=True):
