@@ -29,12 +29,15 @@ ERRORS = (
     "(|v| the raw magnitude; tests/common/test_fixed_point.py); "
     "sin/cos: odd polynomial of degree 7 on the angle folded "
     "to [-pi/2, pi/2], error <= 1e-6; cos/sin of an atan2: the CORDIC's rotations applied to (1/K, 0), "
-    "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits); "
+    "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits), of a "
+    "radicand of short products a 24-bit word (floor, 12 bits: within 2^-12 of the root's range); "
     "a gain table: bisection, its fraction in Q15 within 2^-13; "
-    "products of two signals: where both fill their range (median over the runs >= 2^-4 of it) one "
+    "products of two signals: where the product only reaches a division or a square root, one "
     "32-bit product of operands rounded to 15 bits of twice their range (relative error <= 2^-13 "
-    "each), else four 32-bit products of 16-bit halves, within 3 LSB; a quotient by a runtime "
-    "divisor: 16 significant bits at its range"
+    "each); where one operand carries at most 16 bits (a root's, a quotient's), that one rounded to "
+    "15 bits and the product exact; else four 32-bit products of 16-bit halves, within 3 LSB; a "
+    "quotient by a runtime divisor: 26 significant bits at its range, 18 at its median where its "
+    "operands are short products"
 )
 
 
@@ -91,7 +94,8 @@ def generate_fixed(
             " * names a field outside its range); the variant's flags are compiled in.",
             " * Formats: raw int32 words; Qf: value = raw * 2^-f; binary angle: value = raw * pi / 2^31.",
             f" * Ranges: the state's bounds (runtime guard) and the checks' closed-loop runs x {MARGIN:g};",
-            " * measurements and unbounded state are clamped at twice their range where they enter; results",
+            " * measurements and unbounded state are clamped at twice their range where they enter (bounded",
+            " * state is the step's own: P_step writes only what its guard accepted, within them); results",
             f" * that a worst case could overflow saturate. Every format: {P}_formats.json. {ERRORS}.",
             " */",
         ]
