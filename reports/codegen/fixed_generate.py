@@ -34,7 +34,7 @@ ERRORS = (
     "a gain table: bisection, its fraction in Q15 within 2^-13; "
     "products of two signals: where the product only reaches a division or a square root, one "
     "32-bit product of operands rounded to 15 bits of twice their range (relative error <= 2^-13 "
-    "each); where one operand carries at most 16 bits (a root's, a quotient's), that one rounded to "
+    "each); where one operand carries at most 12 bits (the 12-bit root's), that one rounded to "
     "15 bits and the product exact; else four 32-bit products of 16-bit halves, within 3 LSB; a "
     "quotient by a runtime divisor: 26 significant bits at its range, 18 at its median where its "
     "operands are short products"
