@@ -6,10 +6,12 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
 
 - **formats**: a signal of range R (fixed_ranges.py) is stored as raw = value 2^f with the largest f
   such that R 2^f <= 2^26: 26 bits of precision, 5 bits of headroom. Products by a constant (Q15)
-  are two 32-bit products (exact); products of two signals that fill their range one 32-bit product
-  of operands rounded to 15 bits (Lowering.short_product), the others four 32-bit products of their
-  16-bit halves (fixed_ops.mulw, within 3 LSB); operands clamped at twice their range where a glitch
-  could overflow; 64-bit only where no form holds; quotients to 16 significant bits; sums are
+  are two 32-bit products (exact); products of two signals that only reach a division or a square
+  root (coarse_nodes) one 32-bit product of operands rounded to 15 bits (Lowering.short_product), a
+  signal of at most 12 bits (a 12-bit root's) times another rounded to 15 bits and exact by two,
+  the others four 32-bit products of their 16-bit halves (fixed_ops.mulw, within 3 LSB); operands
+  clamped at twice their range where a glitch could overflow; 64-bit only where no form holds;
+  quotients to 26 significant bits (a quotient of short products 18 at its median); sums are
   aligned by shifts; comparisons are exact;
 - **folded and shared**: a variant's flags select their branch in the program (a product by 0, a
   sum with 0, |binary angle| <= pi are constants); an operation on the same slots is computed once;
@@ -21,7 +23,8 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
   is the integer's own overflow. ``wrap_angle(a + b)`` becomes a wrapping sum of the operands
   converted to binary angles (one multiplication by a constant for a product such as T_s w);
 - **atan2** by CORDIC (14 steps), **sin/cos** by an odd polynomial of degree 7 on the folded angle,
-  **sqrt** as an integer square root of a 32-bit word: bounds in docs/codegen.md ("Fixed point");
+  **sqrt** as an integer square root of a 32-bit word (of a radicand of short products a 24-bit
+  one: 12 bits): bounds in docs/codegen.md ("Fixed point");
 - no division: the graph's divisions by parameters are multiplications by constants already (c_graph);
   a division by a runtime value is refused (NotImplementedError) until it is proven non-zero.
 """
