@@ -145,6 +145,7 @@ def _steady_current() -> ca.Function:
 
 
 def pmsm_steady_current(torque: np.ndarray, plant: np.ndarray) -> np.ndarray:
-    """(N, 2) rotor-frame MTPA currents for the torques (N,) [N m] of the motor ``plant``."""
+    """(N, 2) rotor-frame MTPA currents for the torques (N,) [N m] of the motor ``plant`` (one vector,
+    or one column per point: e.g. a Monte-Carlo draw's motor)."""
     T = np.ravel(torque).astype(float)
     return evaluate_batch(_steady_current(), T.size, [T, plant])[0][:, :, 0]

@@ -24,12 +24,12 @@ from sensorless.design.family import (
     ObserverFamily,
     PerUnitBases,
 )
-from sensorless.design.gain_table import GainTableError
 from sensorless.design.ipmsm_adaptive import derive, discrete, schema, simulation
 from sensorless.design.ipmsm_adaptive import montecarlo as _montecarlo
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
 from sensorless.design.ipmsm_adaptive.runtime import with_alpha_fo
 from sensorless.design.ipmsm_adaptive.simulation import injection_off
+from sensorless.design.law_gains import table_gains
 
 if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
@@ -81,13 +81,7 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
             return _runtime.drive_gains(drive, name)
         if name is not None:
             raise CapabilityError("a gain table holds the gains: name no [observer.gains.*] with it")
-        kind = table.drive.get("kind")
-        if kind is not None and kind != drive.kind:
-            where = table.where(table_file)
-            raise GainTableError(
-                f"{where}: key 'drive.kind': {kind!r} does not match the drive ({drive.kind})"
-            )
-        return _runtime.table_gains(table, table.where(table_file))
+        return table_gains(self, drive, table, table_file, values=_runtime.table_values)
 
     def runtime(
         self, drive: schema.IpmsmDrive, gains: GainSet, *, discretization: str | None = None

@@ -12,11 +12,12 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.family import GainSet, GainTableData
+from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTableError
 from sensorless.design.runtime import GainSchedule, RuntimeSetup
 from sensorless.design.units import DriveFileError
@@ -63,21 +64,16 @@ def drive_gains(drive: IpmsmDrive, name: str | None = None) -> GainSet:
     return GainSet(law, values, f"{drive.file} [observer.gains.{name}]")
 
 
-def table_gains(table: GainTableData, where: str) -> GainSet:
-    """The gains of a ``speed-dependent`` or ``schedule`` table; ``where`` names the table in errors."""
-    if table.law not in TABLE_LAWS:
-        raise GainTableError(
-            f"{where}: key 'law': {table.law!r} gains are not for the speed-adaptive observer "
-            f"(use a {' or '.join(TABLE_LAWS)} table)"
-        )
-    g = table.gains
-    scalars = TABLE_LAWS["speed-dependent"] if table.law == "speed-dependent" else ("alpha_fo",)
-    for k in TABLE_LAWS[table.law]:
+def table_values(law: str, g: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """The SI gains of a ``speed-dependent`` or ``schedule`` table's ``gains`` (design/law_gains.py
+    ``table_gains`` checks the table's kind and law first); ``where`` names the table in errors."""
+    scalars = TABLE_LAWS["speed-dependent"] if law == "speed-dependent" else ("alpha_fo",)
+    for k in TABLE_LAWS[law]:
         if isinstance(g[k], list) == (k in scalars):
             what = "a number" if k in scalars else "a list of numbers, one per breakpoint"
             raise GainTableError(f"{where}: key 'gains.{k}': expected {what}, got {g[k]!r}")
     try:
-        if table.law == "speed-dependent":
+        if law == "speed-dependent":
             values: dict[str, Any] = {k: float(g[k]) for k in TABLE_LAWS["speed-dependent"]}
         else:
             n = len(g["w_hat"])
@@ -104,7 +100,7 @@ def table_gains(table: GainTableData, where: str) -> GainSet:
     for k in ("lambda_p", "w_lambda", "alpha_fo"):  # as in the drive file: eq. (16) and (10) need them > 0
         if k in values and not values[k] > 0:
             raise GainTableError(f"{where}: key 'gains.{k}': non-physical value {values[k]!r}: must be > 0")
-    return GainSet(table.law, values, f"{table.law} table {where} (tuned for {table.drive.get('name')})")
+    return values
 
 
 def law_of(gains: GainSet) -> tuple[GainLaw, tuple[float, ...]]:

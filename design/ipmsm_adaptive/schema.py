@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.drive_file import check_keys, drive_header, load_section, q, table
 from sensorless.design.envelope import Envelope, TuningSettings, load_tuning, tuning_envelope
@@ -30,6 +30,9 @@ from sensorless.design.pmsm_schema import (
 )
 from sensorless.design.units import DriveFileError, UnknownName
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.startup import StartupSettings
 
 
 @dataclass(frozen=True)
@@ -201,7 +204,7 @@ class IpmsmDrive:
     )
     digest: str = ""  # sha256 of the TOML text: identifies the inputs in generated outputs
     warnings: tuple[str, ...] = ()  # plausibility warnings (design/plausibility.py), printed by every command
-    startup: Any = None  # [startup] of the file (design/startup.StartupSettings) or None: the rules
+    startup: StartupSettings | None = None  # [startup] of the file (design/startup.py) or None: the rules
 
     def gain(self, name: str | None = None) -> Any:
         """The gain settings named ``name`` (default: ``[observer] gain``)."""

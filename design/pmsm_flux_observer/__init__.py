@@ -40,7 +40,7 @@ if TYPE_CHECKING:  # typed by name only
     from sensorless.design.startup import StartupSettings
 
 
-def simulation(drive: schema.FluxObserverDrive, sc: Any, gains: GainSet | None) -> Any:
+def simulation(drive: schema.FluxObserverDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """The loop set-up of ``sc``: the scenario's estimate errors scale the observer's model as the
     controllers'."""
     k = sc.estimate_scale
@@ -180,7 +180,7 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
         the start's speed rules (design/pmsm_drive.py ``startup_values``)."""
         c = drive.control
         why = ""
-        start = getattr(drive, "startup", None)
+        start = drive.startup
         if drive.observer.correction == "box-clamp" and (start is None or start.needs_w_min):
             why = (
                 "The box-clamp observer (MXLEMMING) has no linearization, so no minimum sensorless speed "
@@ -193,7 +193,9 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
         m = drive.motor
         return DriveScales(drive.T_N, c.T_max, m.J, m.p, drive.w_base, c.alpha_s, why, spin)
 
-    def drive_loop(self, drive: schema.FluxObserverDrive, scenario: Any, gains: GainSet | None) -> Any:
+    def drive_loop(
+        self, drive: schema.FluxObserverDrive, scenario: Scenario, gains: GainSet | None
+    ) -> LoopSetup:
         """The loop as run, except the clamped gradient observer (VESC's ORTEGA_ORIGINAL): analysed on its
         active side, the gradient observer, as its observer-only linearization is (linearize.py). At
         exact estimates its fixed point lies on the clamp's kink (|eta| = lambda), where the one-sided

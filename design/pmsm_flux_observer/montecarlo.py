@@ -16,10 +16,8 @@ design) at every point of the envelope (design/montecarlo.py ``chunk_damping`` j
 
 from __future__ import annotations
 
-import functools
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-import casadi as ca
 import numpy as np
 from sensorless.design.discrete import discrete_poles, fixed_points, pmsm_zoh_plant
 from sensorless.design.family import CapabilityError, GainSet
@@ -35,8 +33,7 @@ from sensorless.design.pmsm_flux_observer.linearize import (
     with_gain,
 )
 from sensorless.design.poles import eigvals_batched
-from sensorless.design.rotor_frame import equilibrium_points
-from sensorless.symbolic.pmsm import PmsmParams, mtpa_current
+from sensorless.design.rotor_frame import equilibrium_points, pmsm_steady_current
 from sensorless.symbolic.pmsm_flux_observer.observer import PARAMS
 
 if TYPE_CHECKING:  # typed by name only
@@ -126,7 +123,7 @@ def linearize_draws(
     # the sampled observer from the continuous equilibria: each draw's true motor, its MTPA current at
     # each torque and the voltage that holds it under zero-order hold
     motors = rep(plant[:, :k].T).T  # (N, 4) R_s, L_d, L_q, psi_pm per point
-    i_r = np.asarray(_mtpa_map(W.size)(T[None, :], motors.T, float(drive.motor.p))).T
+    i_r = pmsm_steady_current(T, rep(M))
     sampled = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, setup.schedule.law)
     zoh = pmsm_zoh_plant(motors, W, i_r, o.T_obs)
     y0 = np.where(ok[:, None], eq.x, np.nan)
@@ -146,11 +143,3 @@ def linearize_draws(
         theta_err_discrete=np.full(W.size, np.nan),
         law=gains.law,
     )
-
-
-@functools.cache
-def _mtpa_map(n: int) -> ca.Function:
-    """The MTPA current (symbolic/pmsm.py) mapped over n points, one motor [R_s, L_d, L_q, psi_pm] each."""
-    T, m, pp = ca.SX.sym("T"), ca.SX.sym("m", 4), ca.SX.sym("p")
-    i_mtpa: Any = mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), pp)  # SX of SX symbols
-    return ca.Function("mtpa", [T, m, pp], [i_mtpa]).map(n)

@@ -24,7 +24,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sensorless.design.drive_file import (
     DriveDocument,
@@ -42,9 +42,18 @@ from sensorless.design.envelope import Envelope, SpeedRule
 from sensorless.design.motor_data import mtpa_torque, read_motor
 from sensorless.design.plausibility import plausibility, warning_lines
 from sensorless.design.pmsm_flux_observer.laws import parse_law, section_gains
-from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor, PmsmRating
+from sensorless.design.pmsm_schema import (
+    PmsmControl,
+    PmsmDriveProperties,
+    PmsmEstimate,
+    PmsmMotor,
+    PmsmRating,
+)
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_flux_observer.observer import CORRECTIONS, INDUCTANCES
+
+if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.startup import StartupSettings
 
 PAGE = "docs/families/pmsm_flux_observer.md"
 SECTIONS = ("drive", "motor", "rating", "inverter", "observer", "estimate", "gains", "control", "envelope")
@@ -94,8 +103,9 @@ class EnvelopeKeys:
 
 
 @dataclass(frozen=True)
-class FluxObserverDrive:
-    """A drive of the flux-observer family (SI; speeds electrical)."""
+class FluxObserverDrive(PmsmDriveProperties):
+    """A drive of the flux-observer family (SI; speeds electrical); its ``Drive`` properties are the shared
+    PMSM drive's (design/pmsm_schema.py)."""
 
     name: str
     kind: str
@@ -111,23 +121,7 @@ class FluxObserverDrive:
     digest: str = ""
     warnings: tuple[str, ...] = ()
     i_noise: float = 0.0  # [control] i_noise, the current-sensor noise [A rms per axis]; 0: the default
-    startup: Any = None  # [startup] of the file (design/startup.StartupSettings) or None: the rules
-
-    @property
-    def T_N(self) -> float:
-        return self.rating.T_N
-
-    @property
-    def w_base(self) -> float:
-        return self.rating.n_N * math.pi / 30 * self.motor.p
-
-    @property
-    def pole_pairs(self) -> int:
-        return self.motor.p
-
-    @property
-    def T_s(self) -> float:
-        return self.control.T_s
+    startup: StartupSettings | None = None  # [startup] of the file (design/startup.py) or None: the rules
 
 
 def _choice(t: Mapping[str, Any], k: str, allowed: tuple[str, ...], default: str, file: str) -> str:

@@ -14,30 +14,52 @@ from typing import TYPE_CHECKING, Any
 from sensorless.design.family import Drive, GainSet
 from sensorless.reports.codegen.fixed_c import body, format_text, formats_json
 from sensorless.reports.codegen.fixed_helpers import helpers, lit
+from sensorless.reports.codegen.fixed_lowering import QUOT_BITS
 from sensorless.reports.codegen.fixed_model import FixedModel
-from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS
+from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS, NOMINAL_BITS
 from sensorless.reports.codegen.fixed_params import params_from_si
 from sensorless.reports.codegen.fixed_poles import pole_shift
+from sensorless.reports.codegen.fixed_products import (
+    COARSE_QUOT_BITS,
+    COARSE_ROOT_BITS,
+    LIMITED_BITS,
+    SHORT_PRODUCTS,
+    SHORT_SPAN,
+)
 from sensorless.reports.codegen.fixed_ranges import MARGIN
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.reports.codegen.generate import Provenance
 
+# the product and quotient sentences follow the lowering's switches (the header and the JSON state
+# the methods the C uses: with the short products off, no product is a short one by the range rule)
+_PRODUCTS = (
+    "products of two signals: "
+    + (
+        f"where both fill their range (median over the runs >= 2^-{SHORT_SPAN} of it) or "
+        if SHORT_PRODUCTS
+        else ""
+    )
+    + (
+        "where the product only reaches a division or a square root, one 32-bit product of operands "
+        "rounded to 15 bits of twice their range (relative error <= 2^-13 each); where one operand "
+        f"carries at most {LIMITED_BITS} bits (a {COARSE_ROOT_BITS}-bit root's), that one rounded to 15 "
+        "bits and the product exact; else four 32-bit products of 16-bit halves, within 3 LSB"
+    )
+)
 ERRORS = (
     f"atan2: vectoring CORDIC, {CORDIC_STEPS} steps, error <= atan(2^-13) + 24 LSB / |v| rad "
     "(|v| the raw magnitude; tests/common/test_fixed_point.py); "
     "sin/cos: odd polynomial of degree 7 on the angle folded "
     "to [-pi/2, pi/2], error <= 1e-6; cos/sin of an atan2: the CORDIC's rotations applied to (1/K, 0), "
     "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits), of a "
-    "radicand of short products a 24-bit word (floor, 12 bits: within 2^-12 of the root's range); "
-    "a gain table: bisection, its fraction in Q15 within 2^-13; "
-    "products of two signals: where the product only reaches a division or a square root, one "
-    "32-bit product of operands rounded to 15 bits of twice their range (relative error <= 2^-13 "
-    "each); where one operand carries at most 12 bits (the 12-bit root's), that one rounded to "
-    "15 bits and the product exact; else four 32-bit products of 16-bit halves, within 3 LSB; a "
-    "quotient by a runtime divisor: 26 significant bits at its range, 18 at its median where its "
-    "operands are short products"
+    f"radicand of short products a {2 * COARSE_ROOT_BITS}-bit word (floor, {COARSE_ROOT_BITS} bits: "
+    f"within 2^-{COARSE_ROOT_BITS} of the root's range); "
+    f"a gain table: bisection, its fraction in Q15 within 2^-13; {_PRODUCTS}; a quotient by a runtime "
+    f"divisor (clamped at half its smallest simulated value): floor, {min(QUOT_BITS, NOMINAL_BITS)} "
+    f"significant bits at its range, {COARSE_QUOT_BITS} at its median where its operands are short "
+    "products"
 )
 
 

@@ -102,7 +102,9 @@ def pole_shift(
     setup: RuntimeSetup, fx: FixedStep, x: np.ndarray, meas: np.ndarray, samples: int = 40
 ) -> dict[str, float]:
     """Largest pole displacement and spectral radii (double, stored constants) over ``samples``
-    evenly spaced samples of the runs (columns of ``x``, ``meas``); the counter of the guard excluded."""
+    evenly spaced samples of the runs (columns of ``x``, ``meas``); the counter of the guard excluded.
+    A sample where the step has no finite derivative (a magnitude's at zero: a run's initial state with
+    no current) is passed over."""
     obs = setup.observer
     nodes, outs, exact = _graph(setup)
     stored = {**exact, **fx.stored}
@@ -114,6 +116,8 @@ def pole_shift(
     for j in np.linspace(0, x.shape[1] - 1, samples).astype(int):
         a = np.asarray(jd(x[:, j], meas[:, j]))[:k, :k]
         b = np.asarray(jq(x[:, j], meas[:, j]))[:k, :k]
+        if not (np.isfinite(a).all() and np.isfinite(b).all()):
+            continue
         ea, eb = np.linalg.eigvals(a), np.linalg.eigvals(b)
         d = np.abs(ea[:, None] - eb[None, :])
         shift = max(shift, float(d.min(axis=1).max()))

@@ -10,6 +10,7 @@ import ast
 import functools
 import importlib.util
 import pkgutil
+import posixpath
 import re
 import subprocess
 import sys
@@ -143,12 +144,25 @@ def _package_sources() -> list[Path]:
 
 def _fold(node: ast.AST) -> str | None:
     """The string a expression always evaluates to, where the parser leaves it in pieces: a constant,
-    a sum of such (``"pmsm_flux" + "_observer"``), an f-string of such, ``"".join`` of such; else None."""
+    a sum of such (``"pmsm_flux" + "_observer"``), an f-string of such, ``"".join`` of such, a
+    %-format or ``str.format`` of such (numbers allowed as arguments); else None."""
     if isinstance(node, ast.Constant) and isinstance(node.value, str):
         return node.value
     if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add):
         a, b = _fold(node.left), _fold(node.right)
         return a + b if a is not None and b is not None else None
+    if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mod) and (fmt := _fold(node.left)) is not None:
+        args = _fold_args(node.right.elts if isinstance(node.right, ast.Tuple) else [node.right])
+        return _formatted(lambda: fmt % tuple(args)) if args is not None else None
+    if (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Attribute)
+        and node.func.attr == "format"
+        and not node.keywords
+        and (fmt := _fold(node.func.value)) is not None
+        and (args := _fold_args(node.args)) is not None
+    ):
+        return _formatted(lambda: fmt.format(*args))
     if isinstance(node, ast.JoinedStr):
         parts = [
             _fold(v.value) if isinstance(v, ast.FormattedValue) and v.format_spec is None else _fold(v)
@@ -166,6 +180,26 @@ def _fold(node: ast.AST) -> str | None:
         parts = [_fold(e) for e in node.args[0].elts]
         return sep.join(parts) if all(x is not None for x in parts) else None  # type: ignore[arg-type]
     return None
+
+
+def _fold_args(nodes: list[ast.expr]) -> list[object] | None:
+    """The values of a format's arguments where each is a string as :func:`_fold` reads it or a number."""
+    out: list[object] = []
+    for a in nodes:
+        if isinstance(a, ast.Constant) and isinstance(a.value, int | float) and not isinstance(a.value, bool):
+            out.append(a.value)
+        elif (s := _fold(a)) is not None:
+            out.append(s)
+        else:
+            return None
+    return out
+
+
+def _formatted(make) -> str | None:
+    try:
+        return make()
+    except (TypeError, ValueError, IndexError, KeyError):
+        return None
 
 
 def _docstrings(nodes: tuple[ast.AST, ...]) -> frozenset[int]:
@@ -244,10 +278,11 @@ def test_no_name_is_a_paper_storage_number():
 
 
 def test_no_issue_number_and_no_file_outside_the_repository_is_cited():
-    """Code and docs stand on their own: no "issue 28" (the tracker is not part of the repository) and
-    no path into the workplace's shared folder (its facts are carried with their public sources)."""
+    """Code and docs stand on their own: no "issue 28" nor "the issue" (the tracker is not part of the
+    repository) and no path into the workplace's shared folder (its facts are carried with their public
+    sources)."""
     tracked = _tracked()
-    issue = re.compile(r"\bissues? ?#?\d+", re.I)
+    issue = re.compile(r"\bissues? ?#?\d+|\b(the|this|that) issue\b", re.I)
     outside = re.compile(r"shared/(references|papers)/")
     here = str(Path(__file__).relative_to(ROOT))
     bad = []
@@ -255,7 +290,34 @@ def test_no_issue_number_and_no_file_outside_the_repository_is_cited():
         if f != here and f.endswith((".py", ".md", ".toml", ".j2", ".c", ".h", ".txt", ".html")):
             text = (ROOT / f).read_text(encoding="utf-8", errors="replace")
             bad += [(f, m.group()) for m in (issue.search(text), outside.search(text)) if m]
+            bad += [(f, name) for name in _missing_pages(f, text, tracked)]
     assert not bad, bad
+
+
+# a Markdown page a text names (``docs/x.md``, ``../x.md``, ``x.md``): found by its ending, then read back
+PAGE_END = re.compile(r"\.md\b")
+PAGE_NAME = re.compile(r"[\w.-]+(?:/[\w.-]+)*$")
+
+
+def _missing_pages(f: str, text: str, tracked: list[str]) -> list[str]:
+    """The Markdown pages ``text`` (of the tracked file ``f``) names that the repository does not hold: a
+    path from the root or from ``f``'s folder, or a page's name alone (a fact sheet outside the
+    repository, cited by its name, is one). A web address and a quoted file name (a file a test writes:
+    ``out / "x.md"``) are not citations."""
+    pages = {t for t in tracked if t.endswith(".md")}
+    tails = {p.split("/", k)[-1] for p in pages for k in range(p.count("/") + 1)}  # "families/x.md", ...
+    out = []
+    for m in PAGE_END.finditer(text):
+        head = text[text.rfind("\n", 0, m.start()) + 1 : m.start()]
+        if not (found := PAGE_NAME.search(head)):
+            continue
+        name, before = found.group() + ".md", head[: found.start()]
+        if re.search(r"(https?://|github\.com/)\S*$", before) or before.endswith(("'", '"', "/")):
+            continue
+        near = posixpath.normpath(posixpath.join(posixpath.dirname(f), name))
+        if not (name in tails or near in pages):
+            out.append(name)
+    return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -438,13 +500,19 @@ def _shared_vocabulary() -> set[str]:
     return out
 
 
-def _family_drive(fam) -> object:
+def _preset_names(fam) -> list[str]:
+    """The names of ``fam``'s presets (none where it has no presets package)."""
     from importlib import resources
 
+    if fam.presets is None:
+        return []
+    return sorted(p.name[:-5] for p in resources.files(fam.presets).iterdir() if p.name.endswith(".toml"))
+
+
+def _family_drive(fam) -> object:
     from sensorless.design.drive import load_drive
 
-    names = sorted(p.name[:-5] for p in resources.files(fam.presets).iterdir() if p.name.endswith(".toml"))
-    return load_drive(names[0])
+    return load_drive(_preset_names(fam)[0])
 
 
 def _vocabulary(fam) -> dict[str, str]:
@@ -458,6 +526,7 @@ def _vocabulary(fam) -> dict[str, str]:
         out.update({k: f"scenario option [{section}]" for k in keys})
     out.update({k: "[estimate_scale] key" for k in fam.estimate_keys})
     out.update({p.name: "trace panel" for p in fam.panels})
+    out.update({name: "preset" for name in _preset_names(fam)})
     out.update({dest: what for dest, what in _cli_options(fam).items() if dest not in out})
     if fam.presets is not None:
         out.update({k: "drive field" for k in _fields(_family_drive(fam)) if k not in out})
@@ -529,7 +598,7 @@ def _offences() -> dict[str, dict[str, set[str]]]:
 
 def test_shared_modules_name_no_family_vocabulary():
     """No shared module names a family (its packages, name or kind), its gain laws, gains, scenario
-    options, [estimate_scale] keys, trace panels, command-line options or drive fields (string values
+    options, [estimate_scale] keys, trace panels, presets, command-line options or drive fields (string values
     however written, attribute, keyword, variable, parameter and definition names; whole words), for
     every registered family and the test family."""
     found = _offences()
@@ -566,6 +635,9 @@ OFFENCES = {
     "string built by concatenation": "def f(opts):\n    return opts['inj' + 'ection']\n",
     "string built as an f-string": "def f(opts):\n    return opts[f\"{'w'}_eps\"]\n",
     "family name built by concatenation": "def f(fam):\n    return fam.name == 'pmsm_flux' + '_observer'\n",
+    "kind string built by a %-format": "def f(d):\n    return d.kind == 'pmsm-%s-observer' % 'flux'\n",
+    "family gain built by str.format": "def f(gains):\n    return gains['{}_{}'.format('w', 'eps')]\n",
+    "a family's preset named": "def f(load):\n    return load('hubmotor48')\n",
 }
 SCRATCH = ROOT / "design" / "simulate.py"  # a real shared module, copied with one offence appended
 
@@ -684,13 +756,9 @@ def test_the_cycle_check_can_fail(tmp_path):
 def test_the_readme_and_the_architecture_name_every_family_and_preset():
     """README.md and docs/architecture.md name every registered family and each of its presets (a new
     family or preset is not left out of the two pages a reader starts from)."""
-    from importlib import resources
-
     for doc in (ROOT / "README.md", ROOT / "docs" / "architecture.md"):
         text = doc.read_text(encoding="utf-8")
         for fam in families():
-            presets = sorted(
-                p.name[:-5] for p in resources.files(fam.presets).iterdir() if p.name.endswith(".toml")
-            )
-            missing = [n for n in (fam.name, *presets) if not re.search(rf"`{re.escape(n)}`", text)]
+            names = (fam.name, *_preset_names(fam))
+            missing = [n for n in names if not re.search(rf"`{re.escape(n)}`", text)]
             assert not missing, (doc.name, missing)

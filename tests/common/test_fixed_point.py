@@ -141,34 +141,45 @@ def test_sx_twin_equals_the_integer_model(built):
         assert np.array_equal(ys[k], ys_r[:, k] * scale), o["name"]
 
 
+# what an integer-only object may call on a Cortex-M0+ (no divide instruction, no 64-bit shifts or
+# multiply in the core): libgcc's integer routines; a soft-float call (__aeabi_f*, __aeabi_d*) or a libm
+# function (sinf, sqrt, ...) is anything else
+INTEGER_CALLS = {
+    "__aeabi_idiv", "__aeabi_idivmod", "__aeabi_uidiv", "__aeabi_uidivmod", "__aeabi_ldivmod",
+    "__aeabi_uldivmod", "__aeabi_lmul", "__aeabi_llsl", "__aeabi_llsr", "__aeabi_lasr", "__divsi3",
+    "__udivsi3", "__modsi3", "__umodsi3", "memcpy", "memset",
+}  # fmt: skip
+
+
+def m0plus_calls(c_file, obj, strict=True):
+    """The undefined symbols (the calls out) of ``c_file`` compiled for a Cortex-M0+ (-Os, Thumb), read
+    from its symbol table (arm-none-eabi-nm); ``strict``: warning-free under STRICT and no writable
+    static data (no data, bss or common symbol: instances share nothing), asserted."""
+    cmd = [ARM, *(STRICT if strict else []), "-Os", "-mcpu=cortex-m0plus", "-mthumb", "-c", "-o", str(obj)]
+    r = subprocess.run([*cmd, str(c_file)], capture_output=True, text=True)
+    assert r.returncode == 0 and (r.stderr == "" or not strict), r.stderr
+    table = subprocess.run(["arm-none-eabi-nm", str(obj)], capture_output=True, text=True).stdout.splitlines()
+    kinds = [line.split()[-2:] for line in table]
+    if strict:
+        assert not [n for k, n in kinds if k in "DdBbCcGgSs"], table  # no global or static state
+    return {n for k, n in kinds if k == "U"}
+
+
 @pytest.mark.skipif(ARM is None, reason="arm-none-eabi-gcc not installed")
 def test_no_floating_point_on_cortex_m0plus(built, tmp_path):
-    d, *_, out, _ = built
-    obj = tmp_path / "m0.o"
-    cmd = [
-        ARM,
-        *STRICT,
-        "-Os",
-        "-mcpu=cortex-m0plus",
-        "-mthumb",
-        "-c",
-        "-o",
-        str(obj),
-        str(out / f"{d.name}.c"),
-    ]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    assert r.returncode == 0 and r.stderr == "", r.stderr
-    syms = subprocess.run(["arm-none-eabi-nm", "-u", str(obj)], capture_output=True, text=True).stdout.split()
-    assert not [s for s in syms if s.startswith(("__aeabi_f", "__aeabi_d")) or s in ("sqrtf", "atan2f")], syms
-    # the same check fails on the float C of the same step (it can fail)
-    obj_f = tmp_path / "f.o"
-    src = tmp_path / "f.c"
-    src.write_text("float g(float a, float b) { return a * b + 1.5f; }\n")
-    subprocess.run(
-        [ARM, "-Os", "-mcpu=cortex-m0plus", "-mthumb", "-c", "-o", str(obj_f), str(src)], check=True
-    )
-    syms_f = subprocess.run(["arm-none-eabi-nm", "-u", str(obj_f)], capture_output=True, text=True).stdout
-    assert "__aeabi_f" in syms_f
+    """outrunner270's fixed-point C builds warning-free for a Cortex-M0+, has no writable static data and
+    calls nothing but libgcc's integer routines (no __aeabi_f*/__aeabi_d* soft-float call, no libm); the
+    float C of the same drive, compiled the same way, calls soft-float routines (the check can fail).
+    piippo2008 and deangelo2006: test_the_other_families_c_equals_the_model."""
+    from sensorless.reports.codegen.generate import generate
+
+    d, setup, *_, out, _ = built
+    calls = m0plus_calls(out / f"{d.name}.c", tmp_path / "m0.o")
+    assert calls <= INTEGER_CALLS, calls - INTEGER_CALLS
+    for name, text in generate(setup, Provenance(d.name, d.file, d.digest, "t"), precision="float").items():
+        (tmp_path / name).write_text(text)
+    float_calls = m0plus_calls(tmp_path / f"{d.name}.c", tmp_path / "f.o", strict=False)
+    assert any(c.startswith("__aeabi_f") for c in float_calls) and not float_calls <= INTEGER_CALLS
 
 
 def test_integer_methods_within_their_stated_bounds():
@@ -194,6 +205,13 @@ def test_integer_methods_within_their_stated_bounds():
     v = rng.integers(0, 2**32, size=20000)
     q = B.isqrt(v)
     assert np.all(q * q <= v) and np.all((q + 1) * (q + 1) > v)
+    # a product of two signals (fixed_ops.mulw, four 32-bit products of 16-bit halves): within 3 LSB
+    # of the exact floor(a b 2^-s), any int32 words (the header's stated bound)
+    a, b = rng.integers(-(2**31), 2**31, size=(2, 20000))
+    for sh in (16, 21, 26, 31, 32):
+        exact = (a * b) >> sh  # |a b| < 2^62: exact in int64, >> floors
+        err = exact - fixed_ops.mulw(B, a, b, sh)
+        assert err.min() >= -3 and err.max() <= 3, (sh, err.min(), err.max())
 
 
 def test_closed_loop_angle_error_within_0p2_deg_of_the_double_step(built):
@@ -209,7 +227,8 @@ def test_closed_loop_angle_error_within_0p2_deg_of_the_double_step(built):
 def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
     """The adaptive observer (sin/cos, filters with unbounded states) and the reduced-order one (its
     harmonic EMF, a division by a magnitude proven positive): C == model on 150 closed-loop samples
-    and 30 hostile words; ranges from 0.3 s of one scenario to keep the test short."""
+    and 30 hostile words; ranges from 0.3 s of one scenario to keep the test short. The C builds
+    warning-free for a Cortex-M0+ and calls only libgcc's integer routines (no float operation)."""
     import dataclasses
 
     from sensorless.reports.codegen.fixed_model import FixedModel
@@ -224,6 +243,17 @@ def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
     exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
     glitched_replay(exe, tmp_path, fx, x, meas, 500, 650, slice(50, 80), 5)
+    # no division but by a divisor proven non-zero: each DIV's divisor is clamped below by a positive
+    # constant (half the runs' smallest divisor); the reduced-order observer has three
+    divs = [i for i in fx.prog if i.op == "DIV"]
+    for i in divs:
+        dv = fx.prog[i.args[1]]
+        floor = [fx.prog[a].imm[0] for a in dv.args if fx.prog[a].op == "CONST"]
+        assert dv.op == "MAX" and len(floor) == 1 and floor[0] > 0, (i, dv)
+    assert len(divs) >= (1 if preset == "deangelo2006" else 0)
+    if ARM is not None:  # warning-free on a Cortex-M0+, no soft-float call (test_no_floating_point_...)
+        calls = m0plus_calls(tmp_path / f"{d.name}.c", tmp_path / "m0.o")
+        assert calls <= INTEGER_CALLS, calls - INTEGER_CALLS
 
 
 def test_stored_constants_move_the_poles_little(built):
@@ -263,6 +293,29 @@ def test_cli_writes_the_fixed_point_files_together(built, tmp_path, capsys):
         assert f"argument --param: {why}" in capsys.readouterr().err
 
 
+def test_simulate_runs_the_fixed_point_step_and_says_so(built, tmp_path, capsys):
+    """`sensorless simulate --precision fixed`: the run is the fixed-point step of `codegen --precision
+    fixed` (its traces those of the step variant of the same formats, not the double step's), the
+    command says which step ran and the traces' metadata carry it."""
+    import dataclasses
+    import json
+
+    from sensorless.reports.cli.main import main
+
+    d, _setup, model, *_ = built
+    out = tmp_path / "s"
+    args = ["simulate", "outrunner270", "--scenario", "torque_steps", "--duration", "0.03", "--format", "npz"]
+    assert main([*args, "--quiet", "--out", str(out), "--precision", "fixed"]) == 0
+    assert "observer step: fixed precision" in capsys.readouterr().out
+    z = np.load(out / "traces.npz")
+    assert json.loads(str(z["meta"]))["precision"] == "fixed"
+    got = z["theta_hat"]
+    sc = dataclasses.replace(load_scenario("torque_steps", d), duration=0.03)
+    ref, fix, _e = against_double(d, sc, model)
+    assert np.allclose(got, fix["theta_hat"], rtol=0, atol=1e-9)
+    assert np.abs(got - ref["theta_hat"]).max() > 1e-6  # not the double step
+
+
 def test_adaptive_observer_closed_loop_within_0p2_deg_of_the_double_step():
     """piippo2008's fig9b, first 0.8 s (a load step at 0.5 s): the fixed-point step in the loop, its
     ranges from this run alone; the angle error within 0.2 deg of the double step's, no rejection."""
@@ -278,18 +331,69 @@ def test_adaptive_observer_closed_loop_within_0p2_deg_of_the_double_step():
     assert not fix.problems()
 
 
-def test_with_the_formats_codegen_generates_the_closed_loop_holds_0p2_deg():
+@pytest.fixture(scope="module")
+def piippo_codegen():
+    """piippo2008 with the fixed-point model `codegen --precision fixed` builds (ranges from every
+    scenario and check, fixed_model): (drive, set-up, model), shared by the two tests that need the
+    preset's own formats."""
+    d = load_drive("piippo2008")
+    fam = family_of(d)
+    setup = fam.runtime(d, fam.gains(d))
+    return d, setup, fixed_model(d, None, setup)
+
+
+def test_with_the_formats_codegen_generates_the_closed_loop_holds_0p2_deg(piippo_codegen):
     """piippo2008's fig6c with the formats `codegen --precision fixed` generates (ranges from every
     scenario and check, fixed_model): the angle error at steady state (the last 20 %) within 0.2 deg
     of the double step's. A run's own ranges (the test above) are tighter than these; 32-bit products
-    of 15-bit operands with these formats left it 1.08 deg off (3.9 deg on fig6b)."""
-    d = load_drive("piippo2008")
-    fam = family_of(d)
-    model = fixed_model(d, None, fam.runtime(d, fam.gains(d)))
+    of 15-bit operands with these formats left it 1.08 deg off (3.9 deg on fig6b). Every scenario of
+    the three presets: benchmarks/bench_fixed_accuracy.py (a full scenario costs seconds per step)."""
+    d, _setup, model = piippo_codegen
     sc = load_scenario("fig6c", d)
     _ref, fix, e = against_double(d, sc, model)
     steady = fix.t > 0.8 * fix.t[-1]
     assert np.abs(e[steady]).max() <= 0.2, np.abs(e[steady]).max()
+
+
+def test_the_adaptive_observers_fixed_c_keeps_its_promises_under_hostile_samples_and_recovers(
+    piippo_codegen, tmp_path
+):
+    """The fixed-point counterpart of tests/ipmsm_adaptive/test_codegen_fuzz.py (the float and double
+    C): piippo2008's C as `codegen --precision fixed` generates it, fuzzed by tests/helpers/fuzz_fixed.py
+    (any int32 words, garbage within 3x the clean words, the extreme words, one channel extreme; under
+    -fsanitize=address,undefined) between 12 clean steady-state segments of the motor (0.3-1 p.u. both
+    ways, -T_N..T_N; the float fuzz's seed), the injection on (the drive's default) and off: every step
+    keeps the header's promises, and every clean segment is back within the float fuzz's RECOVER = 1000
+    samples (angle 0.1 rad, speed 5 % of base), x_eps held as there with the injection on. (With
+    formats from the segments' runs alone, one segment's recovery transient left those ranges and was
+    clamped, and the step locked on the wrong speed sign where the double step recovered: the formats
+    must come from runs that contain transients, as codegen's do.)"""
+    from helpers.fuzz_fixed import fixed_fuzz
+
+    d, setup, model = piippo_codegen
+    m = d.motor
+    rows = steady_rows(np.random.default_rng(20080201), 40, (0.3, 1.0), d.base.w, d.T_N)[:12]
+    seg = pmsm_steady_segments((m.R_s, m.L_d, m.L_q, m.psi_pm, m.p), d.T_s, rows, 2000)
+    compile_replay(d, setup, model, tmp_path)
+    r = fixed_fuzz(
+        d,
+        setup,
+        model.program(setup),
+        tmp_path,
+        seg,
+        recover=1000,
+        tol_theta=0.1,
+        tol_w=0.05 * d.base.w,
+        seed=5,
+        held={"x_eps": 10.0},
+    )
+    assert r["rejected"] > 0 and r["resets"] > 0 and r["held_segments"] <= 0.3 * r["segments"], r
+    # the injection off at run time (a parameter: its fields in the struct, params_from_si): every
+    # segment recovers, as the float fuzz without the injection requires
+    off = params_from_si(setup, model.program(setup), {"injection": 0.0})
+    r = fixed_fuzz(d, setup, model.program(setup), tmp_path, seg, recover=1000, tol_theta=0.1,
+                   tol_w=0.05 * d.base.w, seed=6, params=off)  # fmt: skip
+    assert r["rejected"] > 0 and r["held_segments"] == 0, r
 
 
 def test_a_long_burst_resets_the_step_as_the_double_step_does(built):
@@ -457,63 +561,23 @@ def test_params_from_si_fills_the_struct_from_si_values(built):
 
 
 def test_fuzz_the_fixed_c_under_sanitizers(built):
-    """The fuzz of tests/helpers/fuzz.py for the fixed-point C: hostile bursts (any int32 words,
+    """The fuzz of tests/helpers/fuzz_fixed.py for the fixed-point C (the counterpart of
+    tests/pmsm_flux_observer/test_codegen.py's float and double fuzz): hostile bursts (any int32 words,
     plausible-looking garbage within 3x the clean samples' words, the extreme words, one channel
     extreme) between clean steady-state segments of the motor, ~8 10^4 steps through the replayer built
     with -fsanitize=address,undefined (a signed overflow, which the worst-case analysis rules out,
-    would end it); every step keeps the header's promises (valid and reset 0 or 1, the counter within
-    its bound, the bounded state within its bounds) and every clean segment recovers within the flux
-    family's documented 200 periods (0.1 rad, 2 % of the base speed), as the float C does."""
+    would end it); every step keeps the header's promises (valid and reset 0 or 1, the bounded state
+    within its bounds) and every clean segment recovers within the flux family's documented 200
+    periods (0.1 rad, 2 % of the base speed), as the float C does."""
+    from helpers.fuzz_fixed import fixed_fuzz
+
     d, setup, _model, fx, out, _exe = built
-    exe = out / "fuzz"
-    cmd = [CC, *STRICT[:-4], "-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
-    r = subprocess.run(
-        [*cmd, "-o", str(exe), str(out / "main.c"), str(out / f"{d.name}.c")], capture_output=True, text=True
-    )
-    assert r.returncode == 0 and r.stderr == "", r.stderr
-    m, recover = d.motor, 200
-    rng = np.random.default_rng(11)
-    rows = steady_rows(rng, 120, (0.3, 1.0), d.w_base, d.T_N)
-    seg = pmsm_steady_segments((m.R_s, m.L_d, m.L_q, m.psi_pm, m.p), d.T_s, rows, recover + 300)
-    clean = [fx.to_raw(s[:, :4].T, "meas").T for s in seg]
-    top = int(np.abs(np.vstack(clean)).max())
-    parts, truth, starts, n = [], [], [], 0
-    for k, c in enumerate(clean):
-        kind, length = k % 4, int(rng.choice([1, 5, 20, 150, 400]))
-        if kind == 0:
-            b = rng.integers(-(2**31), 2**31, size=(length, 4))
-        elif kind == 1:
-            b = rng.integers(-3 * top, 3 * top + 1, size=(length, 4))
-        elif kind == 2:
-            b = rng.choice([-(2**31), 2**31 - 1, 0, -1], size=(length, 4))
-        else:
-            b = np.repeat(c[:1], length, axis=0)
-            b[:, rng.integers(4)] = rng.choice([-(2**31), 2**31 - 1])
-        parts += [b, c]
-        truth.append(np.full((length, 2), np.nan))
-        truth.append(seg[k][:, 4:6])
-        starts.append(n + length)
-        n += length + len(c)
-    raw = np.vstack(parts)
-    y = replay(exe, out, raw)
-    names = [o["name"] for o in fx.outputs]
-    n_y = len(names)
-    assert set(np.unique(y[:, names.index("valid")])) <= {0, 1}
-    assert set(np.unique(y[:, names.index("reset")])) <= {0, 1}
-    assert len(raw) > 60_000 and (y[:, names.index("valid")] == 0).sum() > 5000  # the bursts were rejected
-    assert y[:, names.index("reset")].sum() > 0  # and the long ones reset the step
-    bounds = np.asarray(setup.observer.bounds()(setup.p), float).ravel()
-    for j, (f, i) in enumerate(zip(setup.observer.state, fx.inputs, strict=False)):
-        if f.bound and i["kind"] == "fix":
-            assert np.abs(y[:, n_y + j]).max() <= bounds[j] * 2.0 ** i["f"] * (1 + 1e-6) + 1, f.name
-    th = y[:, names.index("theta_hat")] * np.pi / 2**31
-    w = y[:, names.index("w_hat")] * 2.0 ** -fx.outputs[names.index("w_hat")]["f"]
-    tr = np.vstack(truth)
-    for s0 in starts:
-        late = slice(s0 + recover, s0 + recover + 300)
-        assert y[late, names.index("valid")].min() == 1
-        assert np.abs(np.angle(np.exp(1j * (th[late] - tr[late, 0])))).max() < 0.1
-        assert np.abs(w[late] - tr[late, 1]).max() < 0.02 * d.w_base
+    m = d.motor
+    rows = steady_rows(np.random.default_rng(11), 120, (0.3, 1.0), d.w_base, d.T_N)
+    seg = pmsm_steady_segments((m.R_s, m.L_d, m.L_q, m.psi_pm, m.p), d.T_s, rows, 200 + 300)
+    r = fixed_fuzz(d, setup, fx, out, seg, recover=200, tol_theta=0.1, tol_w=0.02 * d.w_base, seed=11)
+    # the bursts were rejected, and the long ones reset the step
+    assert r["steps"] > 60_000 and r["rejected"] > 5000 and r["resets"] > 0, r
 
 
 def test_report_judges_the_fixed_step_and_reruns_the_poles_with_stored_constants(built):

@@ -24,6 +24,8 @@ def report(report_piippo_quick):
 def test_json_numbers_equal_the_api(report, drive):
     data = json.loads((report / "report.json").read_text())
     assert data["inputs"]["drive_sha256"] == drive.digest
+    # which observer step the checks judged (`report --precision fixed` says "fixed", reports/fixed_review.py)
+    assert data["inputs"]["precision"] == "double" and "fixed_point" not in data
     wb = drive.base.w
     # pole-map table: worst damping of the paper speed gain at +T_N equals a direct computation
     w = np.linspace(-1, 1, 201) * wb  # the --quick grid

@@ -2,8 +2,8 @@
 
 Not a drive simulator (that is `sensorless simulate`): the motor's speed is prescribed, its voltage is
 open loop (the steady-state voltage (29) of the MTPA current for a prescribed torque, at the true angle)
-plus the observer's own carrier (17) on its estimated d axis. Timing as docs/runtime.md: a command
-computed at t_k is applied over [t_k+1, t_k+2] (one-sample computation delay, zero-order hold). The
+plus the observer's own carrier (17) on its estimated d axis. Timing as docs/simulation.md ("Timing"): a
+command computed at t_k is applied over [t_k+1, t_k+2] (one-sample computation delay, zero-order hold). The
 motor's flux ODE (1)-(2) is integrated by RK4 substeps in the rotor frame from symbolic/pmsm.py; the
 whole loop is one CasADi ``mapaccum`` (no Python loop).
 """

@@ -54,3 +54,37 @@ def test_hostile_samples_keep_every_range_and_bound_and_the_observer_recovers(
         work=tmp_path,
     )
     assert r["held_segments"] == 0
+
+
+def test_the_fixed_point_c_keeps_its_promises_under_hostile_samples_and_recovers(
+    deangelo2006, segments, tmp_path
+):
+    """The fixed-point C's counterpart of the test above (tests/helpers/fuzz_fixed.py: any int32 words,
+    garbage within 3x the clean words, the extreme words, one channel extreme; -fsanitize=address,
+    undefined): every step keeps the header's promises and every clean segment recovers within RECOVER
+    samples to the same tolerances. Formats from the double step over the segments' first 800 samples
+    (helpers.fuzz_fixed.segment_model: each segment's jump from the last and its steady state; cheaper
+    than the scenarios' runs `codegen` takes)."""
+    from helpers.fuzz_fixed import fixed_fuzz, segment_model
+    from sensorless.reports.codegen.fixed_generate import generate_fixed
+    from sensorless.reports.codegen.generate import Provenance
+
+    d = deangelo2006
+    setup = FAMILY.runtime(d, FAMILY.gains(d))
+    seg = segments[:12]  # 12 segments: each of the four burst kinds three times
+    model = segment_model(setup, seg[:, :800])  # the jumps' transients and the steady states
+    fx = model.program(setup)
+    for name, text in generate_fixed(setup, model, Provenance(d.name, d.file, d.digest, "t"), d.name).items():
+        (tmp_path / name).write_text(text)
+    r = fixed_fuzz(
+        d,
+        setup,
+        fx,
+        tmp_path,
+        seg,
+        recover=RECOVER,
+        tol_theta=0.1,
+        tol_w=float(d.rpm_to_w(10.0)),
+        seed=13,
+    )
+    assert r["rejected"] > 0 and r["held_segments"] == 0, r

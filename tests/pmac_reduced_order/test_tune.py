@@ -100,7 +100,7 @@ def test_constant_table_round_trip(tmp_path, deangelo):
     assert len(csv) == 3 + len(deangelo.table.points)
 
 
-def test_cli_tune_deangelo_refuses_foreign_options(tmp_path, capsys):
+def test_cli_tune_refuses_another_familys_options(tmp_path, capsys):
     out = tmp_path / "o"
     assert main(["tune", "deangelo2006", "--lambda-max", "5R_s_hat", "--out", str(out)]) == 2
     assert "--lambda-max" in capsys.readouterr().err

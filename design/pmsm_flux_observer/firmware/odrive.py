@@ -3,7 +3,8 @@
 ``odrivetool backup-config`` writes nested JSON (``axis0.motor.config.pole_pairs``,
 ``axis0.sensorless_estimator.config.observer_gain``, ...) with ``Infinity`` and ``NaN`` literals; the
 export writes the same attributes as a flat JSON of paths and as odrivetool lines, and both read back.
-The conventions converted here (firmware_flux_observer.md, ODrive v3):
+The conventions converted here (ODrive v3: github.com/odriverobotics/ODrive,
+``Firmware/MotorControl/sensorless_estimator.cpp``, and its documentation):
 
 - ``motor.config.pole_pairs`` is pole pairs; ``phase_resistance``, ``phase_inductance`` are per phase
   of the equivalent wye, one inductance (no saliency);

@@ -1,7 +1,8 @@
 """VESC: VESC Tool's motor configuration XML read into a drive file, and tuned values written back.
 
 The file is ``<MCConfiguration>`` with one element per configuration field, values in SI (VESC Tool's
-"save motor configuration XML"). The conventions converted here (firmware_flux_observer.md, VESC):
+"save motor configuration XML"). The conventions converted here (VESC Tool's and the VESC firmware's
+documented settings: github.com/vedderb/vesc_tool, github.com/vedderb/bldc ``motor/foc_math.c``):
 
 - ``si_motor_poles`` is the number of magnet poles (p = poles / 2); older files lack it (--pole-pairs);
 - ``foc_motor_l`` = (L_d + L_q) / 2 and ``foc_motor_ld_lq_diff`` = L_q - L_d, both as detection
