@@ -2,7 +2,7 @@
 
     python benchmarks/bench_fixed_accuracy.py [PRESET ...] [--generic] [--compile]
 
-(default: piippo2008 deangelo2006 outrunner270). For each preset the fixed-point model is built as
+(default: piippo2008 deangelo2006 outrunner270 hubmotor48). For each preset the fixed-point model is built as
 ``codegen --precision fixed`` builds it (reports/codegen/fixed_generate.fixed_model: the formats from
 every scenario and the generic checks), and every built-in scenario of the drive's kind
 (``--generic``: the generic scenarios too) runs twice in closed loop, with the double step and with
@@ -18,7 +18,8 @@ is between two runs that lost the position.
 This is where every scenario is covered: a deangelo2006 paper scenario costs 2-8 s CPU (the two
 runs), too much for the suite (150 s); the suite's closed-loop tests run one scenario (or a segment)
 per family. CPU (measured, warm compile cache): the built-in scenarios piippo2008 ~20 s, deangelo2006
-~25 s, outrunner270 ~2 s; --generic adds ~5 s, ~65 s and ~2 s.
+~25 s, outrunner270 ~2 s, hubmotor48 ~2 s; --generic adds ~5 s, ~65 s and ~2 s (piippo2008,
+deangelo2006, outrunner270).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from sensorless.design.simulate import simulate
 from sensorless.reports.codegen.fixed_generate import fixed_model
 from sensorless.reports.time_domain import judge
 
-PRESETS = ["piippo2008", "deangelo2006", "outrunner270"]
+PRESETS = ["piippo2008", "deangelo2006", "outrunner270", "hubmotor48"]
 STEADY = 0.8  # steady state: t > STEADY * t_end
 LIMIT = 0.2  # deg electrical: the fixed-point step's stated accuracy (docs/codegen.md)
 

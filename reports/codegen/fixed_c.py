@@ -12,6 +12,7 @@ generated file.
 from __future__ import annotations
 
 import json
+import math
 import re
 from collections.abc import Mapping
 from typing import Literal, TypeAlias
@@ -57,7 +58,7 @@ def _q15(prog: list[Ins], wr: list[float], k: int, ins: Ins) -> tuple[int, str] 
         return None
     a, b = ins.args
     for x, k in ((a, b), (b, a)):
-        if prog[k].op in ("CONST", "PARAM") and wr[k] < 2**15 and prog[x].op not in ("CONST", "PARAM"):
+        if wr[k] < 2**15 and prog[x].op not in ("CONST", "PARAM"):
             if wr[x] * wr[k] < INT_MAX:
                 return None  # one 32-bit product holds it
             return x, lit(prog[k].imm[0]) if prog[k].op == "CONST" else f"s{k}"
@@ -156,12 +157,17 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
         elif op == "DIV" and len(m) == 1 and wr[ins.args[0]] * 2.0 ** m[0] <= INT_MAX:  # within int32
             e = f"fx_div32({_sh(a[0], m[0], False)}, {a[1]})"
         elif op == "DIV" and len(m) > 1 and 0 <= m[0] < 31:
-            e = f"fx_divc{m[0]}({a[0]}, {a[1]}, {lit(m[1])})"
+            # the numerator's magnitude shifted up as far as 32 bits hold it: those quotient bits come
+            # from the one 32-bit division (libgcc's, ~3 cycles a bit), not a long-division step (~7)
+            j = min(m[0], max(0, math.floor(math.log2((2.0**32 - 1) / max(wr[ins.args[0]], 1)))))
+            e = f"fx_divc{m[0]}{f'_{j}' if j else ''}({a[0]}, {a[1]}, {lit(m[1])})"
         elif op == "DIV":
             n64 = _sh(a[0], m[0], True)
             e = f"fx_div({n64}, {a[1]})" if len(m) == 1 else f"fx_divc64({n64}, {a[1]}, {lit(m[1])})"
         elif op == "SQRT":
             e = f"fx_isqrt({_sh(a[0], m[0], True)})"
+            if len(m) > 1 and m[0] <= 0:  # a 32-bit radicand: the root's bits by fx_isqrt<bits>
+                e = f"fx_isqrt{m[1]}({_sh(a[0], m[0], False)})"
         elif op == "ATAN2":
             e = f"fx_atan2({_sh(a[0], m[0], False)}, {_sh(a[1], m[1], False)})"
         elif op == "TABLE":
@@ -209,10 +215,16 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
     lines += [
         f"int32_t fx_cs{k}[2];" for k, ins in enumerate(fx.prog) if ins.op == "CSA" and need[k] is not None
     ]
+    # the constants first: a literal between two slots under one condition would split their block
+    lines += [
+        f"const int32_t s{k} = {exprs[k]};" + (f" /* {ins.what} */" if ins.what else "")
+        for k, ins in enumerate(fx.prog)
+        if ins.op == "CONST"
+    ]
     k = 0
     while k < len(fx.prog):
         ins = fx.prog[k]
-        if need[k] is None:  # dead (a folded branch's leftovers)
+        if need[k] is None or ins.op == "CONST":  # dead (a folded branch's leftovers), or above
             k += 1
             continue
         if need[k] == ALWAYS:
@@ -224,19 +236,19 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
         # a run of slots needed only under one condition: computed only when it holds (the coasting
         # branch's sin/cos on a rejected sample, not every sample); zero-initialized, never read else
         g, run = need[k], []
-        while k < len(fx.prog) and need[k] in (g, None):
-            if need[k] == g:
+        while k < len(fx.prog) and (need[k] in (g, None) or fx.prog[k].op == "CONST"):
+            if need[k] == g and fx.prog[k].op != "CONST":
                 run.append(k)
             k += 1
-        c, pol = g
         if len(run) == 1:  # one slot: a conditional expression (no zeroed variable to keep)
             j = run[0]
             decl = "int" if fx.prog[j].kind == "bool" else "int32_t"
             note = f" /* {fx.prog[j].what} */" if fx.prog[j].what else ""
-            lines.append(f"const {decl} s{j} = {'' if pol else '!'}s{c} ? {exprs[j]} : 0;{note}")
+            c = condition(g) if len(g) == 1 else f"({condition(g)})"
+            lines.append(f"const {decl} s{j} = {c} ? {exprs[j]} : 0;{note}")
             continue
         lines.append(f"int32_t {', '.join(f's{j} = 0' for j in run)};")
-        lines.append(f"if ({'' if pol else '!'}s{c}) {{")
+        lines.append(f"if ({condition(g)}) {{")
         for j in run:
             note = f" /* {fx.prog[j].what} */" if fx.prog[j].what else ""
             lines.append(f"    s{j} = {exprs[j]};{note}")
@@ -261,67 +273,72 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
 
 
 ALWAYS: Literal["always"] = "always"
-# when a slot is needed: ALWAYS, None (never: dead) or (c, pol): only when slot c is nonzero (pol True)
-# or zero (pol False)
-Guard: TypeAlias = Literal["always"] | tuple[int, bool] | None
-HEAVY = {"ATAN2", "SIN", "COS", "SQRT", "DIV", "CSA", "SNA"}
+# when a slot is needed: ALWAYS, None (never: dead) or a conjunction of literals ((c, pol), ...) in
+# slot order: only when each slot c is nonzero (pol True) or zero (pol False)
+Guard: TypeAlias = Literal["always"] | tuple[tuple[int, bool], ...] | None
 
 
 def guards(prog: list[Ins], roots: list[int]) -> list[Guard]:
-    """When each slot is needed: ALWAYS, None (never: dead), or (c, pol): only when slot c is nonzero
-    (pol True) or zero (pol False), c itself always computed. A branch of a selection on c, or the
-    second operand of ``c && x`` (C's && does not read x when c is 0), is needed under that condition
-    only; a slot needed under two different conditions is needed always."""
+    """When each slot is needed: ALWAYS, None (never: dead), or a conjunction of conditions on slots
+    computed before it. A branch of a selection on c, or the second operand of ``c && x`` (C's &&
+    does not read x when c is 0), is needed under that condition and the selection's own; a slot
+    needed under two conditions is needed under what both imply (always if nothing). A condition on
+    a slot that is itself needed under a condition the guard does not contain is dropped."""
     banned: set[tuple[int, bool]] = set()
     while True:
         need = _needs(prog, roots, banned)
-        bad = {g for g in need if g not in (None, ALWAYS) and need[g[0]] != ALWAYS}
+        bad = {
+            lit
+            for g in need
+            if g not in (None, ALWAYS)
+            for lit in g
+            if need[lit[0]] != ALWAYS and not set(need[lit[0]]) <= set(g)
+        }
         if not bad:  # a constant is a literal wherever it is read
             return [ALWAYS if g is not None and prog[k].op == "CONST" else g for k, g in enumerate(need)]
         banned |= bad
 
 
+def condition(g: tuple[tuple[int, bool], ...]) -> str:
+    """The C condition of a guard."""
+    return " && ".join(f"{'' if pol else '!'}s{c}" for c, pol in g)
+
+
 def _needs(prog: list[Ins], roots: list[int], banned: set[tuple[int, bool]]) -> list[Guard]:
     need: list[Guard] = [None] * len(prog)
 
-    def implies(g: Guard, h: Guard) -> bool:
-        """Condition g implies condition h: equal, or g is (c && ...) true with h among its terms."""
-        if g == h:
-            return True
-        if g in (None, ALWAYS) or h in (None, ALWAYS) or not g[1] or prog[g[0]].op != "AND":
-            return False
-        return any(implies((a, True), h) for a in prog[g[0]].args)
+    def holds(g: tuple[tuple[int, bool], ...], lit: tuple[int, bool]) -> bool:
+        """Conjunction g implies the literal: it contains it, or (a && ...) true with lit among its terms."""
+        return any(x == lit or (x[1] and prog[x[0]].op == "AND" and _and_holds(x[0], lit)) for x in g)
 
-    heavy: list[bool] = []  # a call (atan2, sin, cos, sqrt, division) or a slot that reads one
-    for ins in prog:
-        heavy.append(ins.op in HEAVY or any(heavy[a] for a in ins.args))
+    def _and_holds(a: int, lit: tuple[int, bool]) -> bool:
+        return any((b, True) == lit or (prog[b].op == "AND" and _and_holds(b, lit)) for b in prog[a].args)
 
     def merge(k: int, g: Guard) -> None:
-        # needed under g and under h, g implying h: needed under h (the weaker), not always. Only
-        # for heavy slots (an atan2 that a sample rejected before it does not need is skipped); a
-        # cheap one is computed always (a branch and a zeroed variable cost more than it saves)
         h = need[k]
         if h is None or h == g:
             need[k] = g
-        elif heavy[k] and implies(h, g):
-            need[k] = g
-        elif heavy[k] and implies(g, h):
-            need[k] = h
-        else:
+        elif h == ALWAYS or g == ALWAYS:
             need[k] = ALWAYS
+        else:  # what both imply
+            both = {x for x in h if holds(g, x)} | {x for x in g if holds(h, x)}
+            need[k] = tuple(sorted(both)) if both else ALWAYS
 
     def cond(c: int, pol: bool, outer: Guard) -> Guard:
         if prog[c].op == "NOT":
             c, pol = prog[c].args[0], not pol
-        return outer if (c, pol) in banned else (c, pol)
+        if (c, pol) in banned:
+            return outer
+        return tuple(sorted({*(outer if outer != ALWAYS else ()), (c, pol)}))
 
     for r in roots:
         merge(r, ALWAYS)
     for k in reversed(range(len(prog))):
-        if need[k] is None:
+        g = need[k]
+        if g is None:
             continue
-        if need[k] != ALWAYS and need[k][0] >= k:
-            need[k] = ALWAYS  # its condition is computed after it
+        if g != ALWAYS and any(c >= k for c, _ in g):
+            need[k] = ALWAYS  # a condition computed after it
         ins = prog[k]
         for pos, a in enumerate(ins.args):
             g = need[k]

@@ -14,35 +14,52 @@ from typing import TYPE_CHECKING, Any
 from sensorless.design.family import Drive, GainSet
 from sensorless.reports.codegen.fixed_c import body, format_text, formats_json
 from sensorless.reports.codegen.fixed_helpers import helpers, lit
-from sensorless.reports.codegen.fixed_lowering import QUOT_BITS, SHORT_PRODUCTS, SHORT_SPAN
+from sensorless.reports.codegen.fixed_lowering import QUOT_BITS
 from sensorless.reports.codegen.fixed_model import FixedModel
 from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS, NOMINAL_BITS
 from sensorless.reports.codegen.fixed_params import params_from_si
 from sensorless.reports.codegen.fixed_poles import pole_shift
+from sensorless.reports.codegen.fixed_products import (
+    COARSE_QUOT_BITS,
+    COARSE_ROOT_BITS,
+    LIMITED_BITS,
+    SHORT_PRODUCTS,
+    SHORT_SPAN,
+)
 from sensorless.reports.codegen.fixed_ranges import MARGIN
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.reports.codegen.generate import Provenance
 
-# the product and quotient sentences follow fixed_lowering's switches (the header and the JSON state
-# the methods the C uses: with the short products off, no product is a short one)
+# the product and quotient sentences follow the lowering's switches (the header and the JSON state
+# the methods the C uses: with the short products off, no product is a short one by the range rule)
 _PRODUCTS = (
-    "products of two signals: where both fill their range (median over the runs >= "
-    f"2^-{SHORT_SPAN} of it) one 32-bit product of operands rounded to 15 bits of twice their range "
-    "(relative error <= 2^-13 each), else four 32-bit products of 16-bit halves, within 3 LSB"
-    if SHORT_PRODUCTS
-    else "products of two signals: four 32-bit products of 16-bit halves, within 3 LSB"
+    "products of two signals: "
+    + (
+        f"where both fill their range (median over the runs >= 2^-{SHORT_SPAN} of it) or "
+        if SHORT_PRODUCTS
+        else ""
+    )
+    + (
+        "where the product only reaches a division or a square root, one 32-bit product of operands "
+        "rounded to 15 bits of twice their range (relative error <= 2^-13 each); where one operand "
+        f"carries at most {LIMITED_BITS} bits (a {COARSE_ROOT_BITS}-bit root's), that one rounded to 15 "
+        "bits and the product exact; else four 32-bit products of 16-bit halves, within 3 LSB"
+    )
 )
 ERRORS = (
     f"atan2: vectoring CORDIC, {CORDIC_STEPS} steps, error <= atan(2^-13) + 24 LSB / |v| rad "
     "(|v| the raw magnitude; tests/common/test_fixed_point.py); "
     "sin/cos: odd polynomial of degree 7 on the angle folded "
     "to [-pi/2, pi/2], error <= 1e-6; cos/sin of an atan2: the CORDIC's rotations applied to (1/K, 0), "
-    "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits); "
+    "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits), of a "
+    f"radicand of short products a {2 * COARSE_ROOT_BITS}-bit word (floor, {COARSE_ROOT_BITS} bits: "
+    f"within 2^-{COARSE_ROOT_BITS} of the root's range); "
     f"a gain table: bisection, its fraction in Q15 within 2^-13; {_PRODUCTS}; a quotient by a runtime "
     f"divisor (clamped at half its smallest simulated value): floor, {min(QUOT_BITS, NOMINAL_BITS)} "
-    "significant bits at its range"
+    f"significant bits at its range, {COARSE_QUOT_BITS} at its median where its operands are short "
+    "products"
 )
 
 
@@ -99,7 +116,8 @@ def generate_fixed(
             " * names a field outside its range); the variant's flags are compiled in.",
             " * Formats: raw int32 words; Qf: value = raw * 2^-f; binary angle: value = raw * pi / 2^31.",
             f" * Ranges: the state's bounds (runtime guard) and the checks' closed-loop runs x {MARGIN:g};",
-            " * measurements and unbounded state are clamped at twice their range where they enter; results",
+            " * measurements and unbounded state are clamped at twice their range where they enter (bounded",
+            " * state is the step's own: P_step writes only what its guard accepted, within them); results",
             f" * that a worst case could overflow saturate. Every format: {P}_formats.json. {ERRORS}.",
             " */",
         ]

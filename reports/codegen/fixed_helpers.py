@@ -191,9 +191,27 @@ def _isqrt_step(b: int) -> str:
     return "\n".join("    " + r for r in rows)
 
 
-def _divc(k: int) -> str:
-    """fx_divc<k>(n, d, lim) = floor(n 2^k / d) clamped to [-lim, lim], d > 0 (op DIV with a clamp):
-    n / d by one 32-bit division, then the k bits below by long division, unrolled (32-bit words; no
+def _isqrt(bits: int) -> str:
+    """fx_isqrt<bits>(v) = floor(sqrt(v)), v clamped to [0, 2^(2 bits) - 1]: a root of ``bits`` bits in
+    as many steps (fx_isqrt's 16 for a 32-bit radicand)."""
+    top = 2 ** (2 * bits) - 1
+    return "\n".join(
+        [
+            f"static int32_t fx_isqrt{bits}(int32_t v) /* floor(sqrt(v)), v clamped to [0, {top}] */",
+            "{",
+            f"    uint32_t x = v < 0 ? 0u : (v > {lit(top)} ? {top}ul : (uint32_t)v);",
+            "    uint32_t r = 0;",
+            *(_isqrt_step(b) for b in range(2 * bits - 2, -1, -2)),
+            "    return (int32_t)r;",
+            "}",
+        ]
+    )
+
+
+def _divc(k: int, j: int = 0) -> str:
+    """fx_divc<k>[_<j>](n, d, lim) = floor(n 2^k / d) clamped to [-lim, lim], d > 0 (op DIV with a
+    clamp): |n| 2^j / d by one 32-bit division (|n| 2^j within 32 bits: fixed_c proves it from the
+    numerator's worst case), then the k - j bits below by long division, unrolled (32-bit words; no
     64-bit division, which libgcc does in ~250 cycles on a Cortex-M0+)."""
     bit = [
         "r <<= 1;",
@@ -204,15 +222,18 @@ def _divc(k: int) -> str:
         "}",
     ]
     rows = [
-        f"static int32_t fx_divc{k}(int32_t n, int32_t d, int32_t lim) /* floor(n 2^{k} / d), in +-lim */",
+        f"static int32_t fx_divc{k}{f'_{j}' if j else ''}(int32_t n, int32_t d, int32_t lim)"
+        f" /* floor(n 2^{k} / d), in +-lim */",
         "{",
-        "    const uint32_t u = n < 0 ? 0u - (uint32_t)n : (uint32_t)n, ud = (uint32_t)d;",
+        "    const uint32_t u = (n < 0 ? 0u - (uint32_t)n : (uint32_t)n)"
+        + (f" << {j}" if j else "")
+        + ", ud = (uint32_t)d;",
         "    uint32_t q = u / ud, r = u - q * ud;",
-        f"    if (q > ((uint32_t)lim >> {k})) {{",
+        f"    if (q > ((uint32_t)lim >> {k - j})) {{",
         "        return n < 0 ? -lim : lim;",
         "    }",
         "    /* one quotient bit each: r < d < 2^31, so 2 r fits */",
-        *("    " + b for _ in range(k) for b in bit),
+        *("    " + b for _ in range(k - j) for b in bit),
         "    if (n < 0 && r != 0) { /* floor of a negative quotient */",
         "        q += 1u;",
         "    }",
@@ -251,7 +272,10 @@ def helpers(used: str) -> str:
         ),
     }
     blocks = ["static " + b if k else b for k, b in enumerate(text.split("\n\nstatic "))]
-    blocks += [_divc(k) for k in sorted({int(k) for k in re.findall(r"\bfx_divc(\d+)\(", used)})]
+    blocks += [_isqrt(int(b)) for b in sorted(set(re.findall(r"\bfx_isqrt(\d+)\(", used)))]
+    blocks += [
+        _divc(int(k), int(j or 0)) for k, j in sorted(set(re.findall(r"\bfx_divc(\d+)(?:_(\d+))?\(", used)))
+    ]
     keep = []
     for b in blocks:
         name = re.match(r"static (?:const )?(?:FX_NOINLINE )?(?:int32_t|int64_t|void) (\w+)", b).group(1)

@@ -1,9 +1,10 @@
 """The fixed-point lowering: graph nodes to integer operations, each slot's format and worst case.
 
 :class:`Lowering` lowers the double step's graph node by node (memoized): constants and parameter
-fields in Q15 where they are product factors, sums aligned by shifts, exact comparisons, products
-of two signals by 16-bit halves, saturation where a worst case could exceed int32, divisions by
-proven-positive values; angles are its :class:`~fixed_angles.AngleLowering` mixin. The module
+fields in Q15 where they are product factors, sums aligned by shifts, exact comparisons,
+saturation where a worst case could exceed int32, divisions by proven-positive values; products of
+two signals are its :class:`~fixed_products.ProductLowering` mixin, angles its
+:class:`~fixed_angles.AngleLowering`, gain tables its :class:`~fixed_tables.TableLowering`. The module
 docstring of reports/codegen/fixed_program.py states the rules.
 """
 
@@ -19,21 +20,19 @@ from sensorless.reports.codegen.c_graph import Node
 from sensorless.reports.codegen.fixed_angles import AngleLowering
 from sensorless.reports.codegen.fixed_format import _PI, COEF_BITS, Q15_FACTORS, RANGE_FLOOR, format_of, word
 from sensorless.reports.codegen.fixed_ops import INT_MAX, NOMINAL_BITS, NUMPY, SIN_F, Ins, run
+from sensorless.reports.codegen.fixed_products import (
+    COARSE_QUOT_BITS,
+    COARSE_ROOT_BITS,
+    LIMITED_BITS,
+    ProductLowering,
+)
 from sensorless.reports.codegen.fixed_ranges import MARGIN
 from sensorless.reports.codegen.fixed_tables import TableLowering
 
-# products of two signals as one 32-bit product of SHORT_BITS-bit operands (Lowering.short_product);
-# False: fixed_ops.mulw's four products (within 3 LSB). Off: with the presets' own formats (every
-# scenario's and check's ranges) short products and 16-bit quotients left piippo2008's fig6b 3.9 deg
-# and deangelo2006's fig2 0.70 deg off the double step at steady state (limit 0.2; long: 0.066 and
-# 0.042 deg), for ~250 of hubmotor48's M0+ cycles (docs/codegen.md "Verification")
-SHORT_PRODUCTS = False
-SHORT_BITS = 15  # each short operand below 2^15: their product within int32
-SHORT_SPAN = 4  # a short operand's median magnitude at least 2^-SHORT_SPAN of its range
 QUOT_BITS = 26  # significant bits of a quotient by a runtime divisor at the top of its range
 
 
-class Lowering(AngleLowering, TableLowering):
+class Lowering(AngleLowering, TableLowering, ProductLowering):
     """Lowers the graph's nodes on demand (memoized), tracking each slot's format and worst case."""
 
     def __init__(
@@ -63,6 +62,10 @@ class Lowering(AngleLowering, TableLowering):
         # a tabulated schedule's output node -> (schedule state's node, grid, gain nodes, their
         # values, over |value|)
         self.tables: dict[int, tuple[int, tuple[float, ...], tuple[int, ...], tuple[float, ...], bool]] = {}
+        # products whose result only reaches a division's operands or a square root's radicand
+        # (coarse_nodes): short products (their consumers' results carry fewer bits anyway)
+        self.coarse: set[int] = set()
+        self.bits: dict[int, float] = {}  # node -> significant bits its value carries (a root, a quotient)
 
     # ----------------------------------------------------------------------------------- helpers
     def add(self, ins: Ins, wr: float, nom: float | None = None) -> int:
@@ -137,79 +140,22 @@ class Lowering(AngleLowering, TableLowering):
             return other if P[other].kind == "bool" else None
         return None
 
-    def clamped(self, s: int) -> int:
-        """Slot ``s`` clamped at twice its nominal range (four times its simulated one), where a worst
-        case goes beyond: a product's operand, so that the product stays within int32 without a
-        64-bit saturation (a glitch is clamped, as at the inputs; the guard then rejects it)."""
-        lim = math.ceil(2 * self.nom[s])
-        if self.wr[s] <= lim or self.prog[s].kind != "fix":
-            return s
-        return self.add(
-            Ins("CLAMP", (s,), "fix", self.fmt(s)[1], (-lim, lim), what="product operand"), lim, self.nom[s]
-        )
+    def and_terms(self, n: int) -> list[int]:
+        """The terms of the && chain at node n, in the graph's order."""
+        nd = self.nodes[n]
+        if nd.op != "AND" or self.folded(n) is not None:
+            return [n]
+        return self.and_terms(nd.args[0]) + self.and_terms(nd.args[1])
 
-    def exact_q15(self, c: int, x: int, s: int, wr: float) -> bool:
-        """Whether a product of the Q15 constant ``c`` and the word ``x`` shifted by ``s`` is the exact
-        two-32-bit-product form of reports/codegen/fixed_c.py (``_q15``): no saturation, and the
-        high part within int32."""
-        return (
-            self.prog[c].op in ("CONST", "PARAM")
-            and self.wr[c] < 2**15
-            and s >= 1
-            and wr <= INT_MAX
-            and (s >= 16 or wr + 2.0 ** (32 - s) < 2.0**31)  # (x >> 16) c 2^(16-s) within int32
-        )
-
-    def fills_range(self, n: int) -> bool:
-        """Whether node n's median magnitude over the runs is within 2^SHORT_SPAN of its range: an
-        operand that a short product may round to SHORT_BITS bits of its range and keep at least
-        SHORT_BITS - 1 - SHORT_SPAN bits where it typically is. A signal that is mostly near zero
-        (an estimation error, whose range its transients set) keeps the four-product mulw: rounded
-        short, the adaptive observer's speed drifted 0.27 deg off the double step."""
-        typ, r = self.sim_typ.get(n, 0.0), self.rng.get(n, 0.0)
-        return SHORT_PRODUCTS and r > 0 and typ >= r * 2.0**-SHORT_SPAN
-
-    def short_product(self, a: int, b: int, same: bool, fo: int, s: int) -> int:
-        """a b 2^-s of two signals as one 32 x 32 -> 32-bit product: both clamped at twice their range
-        (as for fixed_ops.mulw), each rounded to SHORT_BITS bits of that worst case (at least
-        SHORT_BITS - 1 bits of its range, a Q15 constant factor's precision; an operand already
-        shorter leaves its bits to the other), the product then within int32. Relative error <=
-        2^(2 - SHORT_BITS) per operand at its range; one multiplication where fixed_ops.mulw takes
-        four and their sums (~12 cycles less per product on a Cortex-M0+). Rounded to nearest, not
-        floored: a floor's bias of half the dropped bits, carried by an integrator (the adaptive
-        observer's speed), moved its angle by 1.3 deg."""
-        a = self.clamped(a)
-        b = a if same else self.clamped(b)
-        bits = [math.ceil(math.log2(self.wr[x] + 1)) for x in (a, b)]
-        k = [max(0, bits[0] - SHORT_BITS), max(0, bits[1] - SHORT_BITS)]
-        if not same and 0 in k:  # the short one leaves its bits to the other
-            j = k.index(0)
-            k[1 - j] = max(0, bits[1 - j] - (2 * SHORT_BITS - bits[j]))
-        sh = []
-        for x, kx in zip((a, b), k, strict=True):
-            if kx == 0:
-                sh.append(x)
-                continue
-            fx = self.fmt(x)[1]
-            half = self.const_slot(2.0 ** (kx - 1 - fx), fx)
-            xr = self.add(Ins("ADD", (x, half), "fix", fx, (0, 0)), self.wr[x] + 2.0 ** (kx - 1), self.nom[x])
-            sh.append(
-                self.add(
-                    Ins("ALIGN", (xr,), "fix", fx - kx, (-kx,), what="product operand, short"),
-                    self.wr[xr] * 2.0**-kx + 1,
-                    self.nom[x] * 2.0**-kx,
-                )
-            )
-        sa, sb = sh[0], sh[0] if same else sh[1]
-        s2 = s - k[0] - k[1]
-        return self.add(Ins("MUL", (sa, sb), "fix", fo, (s2,)), self.wr[sa] * self.wr[sb] * 2.0**-s2)
-
-    def mulw_fits(self, a: int, b: int, s: int) -> bool:
-        """Whether fixed_ops.mulw of slots a, b (shift s) stays within int32 in every partial sum: the
-        high term is within |a b| 2^-s + (|a| + |b|) 2^(16-s) + 2^(32-s), each cross term within
-        |a| 2^(16-s) (or |b|), the low one below 2^(32-s); doubled for safety."""
-        wa, wb = self.wr[a], self.wr[b]
-        return 16 <= s <= 32 and wa * wb * 2.0**-s + (wa + wb) * 2.0 ** (17 - s) + 2.0 ** (34 - s) < 2.0**31
+    def on_inputs(self, n: int, depth: int = 3) -> bool:
+        """Whether node n is a comparison, |.| or sign of step inputs and parameters within ``depth``
+        operations (no product, no call)."""
+        nd = self.nodes[n]
+        if nd.op == "INPUT" or nd.param:
+            return True
+        if depth == 0 or nd.op not in ("LE", "LT", "FABS", "NEG", "NOT"):
+            return False
+        return all(self.on_inputs(a, depth - 1) for a in nd.args)
 
     def fmt(self, s: int) -> tuple[str, int]:
         return self.prog[s].kind, self.prog[s].f
@@ -341,19 +287,28 @@ class Lowering(AngleLowering, TableLowering):
         # the quotient to QUOT_BITS at its range (a Q15 constant factor's precision): each bit is
         # one step of the C's long division (~7 cycles on a Cortex-M0+); no fewer than none (a
         # negative step count is a 64-bit division: deangelo2006's went from ~490 to ~1100 cycles)
-        fo -= min(NOMINAL_BITS - QUOT_BITS, max(0, fo - fa + fb))
+        # a quotient of short products (their precision): COARSE_QUOT_BITS at its median magnitude
+        # over the runs (deangelo2006's, at 1/10 of their range, held 16 bits at the range badly:
+        # 0.47 deg off the double step on fig2)
+        bits = QUOT_BITS
+        typ, r = self.sim_typ.get(n, 0.0), self.rng.get(n, 0.0)
+        if (self.short_made(an) or self.short_made(bn)) and 0 < typ <= r:
+            bits = min(QUOT_BITS, COARSE_QUOT_BITS + math.ceil(math.log2(r / typ)))
+        cut = min(NOMINAL_BITS - bits, max(0, fo - fa + fb))
+        fo -= cut
+        self.bits[n] = NOMINAL_BITS - cut
         floor_raw = max(1, math.floor(lo / MARGIN * 2.0**fb))
         bc = self.add(
             Ins("MAX", (b, self.const_slot(floor_raw * 2.0**-fb, fb)), "fix", fb, (0, 0)), self.wr[b]
         )
         k = fo - fa + fb
         while self.wr[a] * 2.0**k > 2.0**52:
-            k, fo = k - 1, fo - 1  # the numerator within 53 bits
+            k, fo, cut = k - 1, fo - 1, cut + 1  # the numerator within 53 bits
         # the quotient in its range's format (a hostile sample near the divisor's floor saturates at
         # twice the range, as a product's operand is clamped): a format that held the worst case
         # instead left hubmotor48's inductance share (within 0..1) two bits, 0.35 deg off the double step
         worst = self.wr[a] * 2.0**k / floor_raw
-        lim = min(INT_MAX, math.ceil(2 * 2.0**NOMINAL_BITS))
+        lim = min(INT_MAX, math.ceil(2 * 2.0 ** (NOMINAL_BITS - cut)))  # twice the range, in format fo
         # with its bound given, the C divides by fixed_c's 32-bit long division (fx_divc<k>) where the
         # shifted numerator exceeds int32, not by a 64-bit division (libgcc, ~3x the cycles)
         wide = self.wr[a] * 2.0**k > INT_MAX and 0 <= k < 31
@@ -425,7 +380,16 @@ class Lowering(AngleLowering, TableLowering):
             return self.lin(nd.args[0])
         if op in ("LT", "LE", "EQ", "NE"):
             return self.add(Ins(op, *self.compare(op, nd.args)), 1)
-        if op in ("AND", "OR"):
+        if op == "AND":
+            # a chain of && with the terms on the sample's own words first (a glitch's first
+            # victims, and a few instructions each): the C computes what the later terms read only
+            # when the first hold (fixed_c.guards), so a rejected sample skips the candidate
+            terms = sorted(self.and_terms(n), key=lambda t: not self.on_inputs(t))
+            s = self.lin(terms[0])
+            for t in terms[1:]:
+                s = self.add(Ins("AND", (s, self.lin(t)), "bool", 0), 1)
+            return s
+        if op == "OR":
             return self.add(Ins(op, (self.lin(nd.args[0]), self.lin(nd.args[1])), "bool", 0), 1)
         if op == "NOT":
             return self.add(Ins(op, (self.lin(nd.args[0]),), "bool", 0), 1)
@@ -443,6 +407,10 @@ class Lowering(AngleLowering, TableLowering):
                 return self.const_slot(0.0, fo)
             same = op == "SQ" or nd.args[0] == nd.args[1]
             consts = [self.cval(x) is not None for x in nd.args[: 1 if same else 2]]
+            if not same and sum(consts) == 1:
+                p = self.angle_times_constant(nd.args[consts.index(False)], nd.args[consts.index(True)], fo)
+                if p is not None:
+                    return p
             a = self.factor(nd.args[0])
             b = a if same else self.factor(nd.args[1])
             s = self.fmt(a)[1] + self.fmt(b)[1] - fo
@@ -456,7 +424,15 @@ class Lowering(AngleLowering, TableLowering):
                 # Q15 constant is then two 32-bit products, not a 64-bit one and a saturation
                 x = self.clamped(x)
                 return self.add(Ins("MUL", (c, x), "fix", fo, (s,)), self.wr[c] * self.wr[x] * 2.0**-s)
-            if not any(consts) and all(self.fills_range(x) for x in nd.args[: 1 if same else 2]):
+            lb = [self.sig_bits(x) for x in nd.args[:2]]
+            if not any(consts) and not same and min(lb) <= LIMITED_BITS and not self.short_made(n):
+                j = lb.index(min(lb))
+                p = self.limited_product(*((a, b) if j == 0 else (b, a)), fo, s)
+                if p is not None:
+                    return p
+            if not any(consts) and (
+                self.short_made(n) or all(self.fills_range(x) for x in nd.args[: 1 if same else 2])
+            ):
                 return self.short_product(a, b, same, fo, s)
             if 16 <= s <= 32 and not self.mulw_fits(a, b, s):
                 a, b = self.clamped(a), self.clamped(b)
@@ -486,6 +462,14 @@ class Lowering(AngleLowering, TableLowering):
             a = self.lin(nd.args[0])
             fa = self.fmt(a)[1]
             k = 6 if (fa + 6) % 2 == 0 else 5  # the radicand below 2^32 at the top of its range
+            if self.short_made(nd.args[0]):
+                # a radicand of short products (within 2^-13 of its range): a 24-bit radicand and a
+                # 12-bit root, 4 steps fewer (floor; within 1 LSB of the root at 2^12, 2^-12 of its range)
+                k -= 2 * (16 - COARSE_ROOT_BITS)
+                self.bits[n] = COARSE_ROOT_BITS
+                return self.add(
+                    Ins("SQRT", (a,), "fix", (fa + k) // 2, (k, COARSE_ROOT_BITS)), 2.0**COARSE_ROOT_BITS
+                )
             return self.add(Ins("SQRT", (a,), "fix", (fa + k) // 2, (k,)), 2.0**16)
         if op == "DIV":
             return self.divide(n, fo)

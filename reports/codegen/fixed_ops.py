@@ -304,7 +304,8 @@ def run(prog: list[Ins], B: NumpyBackend, inputs: list[Word], params: list[int] 
             r = B.div(B.shift(a[0], m[0]), a[1])
             r = B.clip(r, -m[1], m[1]) if len(m) > 1 else r
         elif op == "SQRT":
-            r = B.isqrt(B.clip(B.shift(a[0], m[0]), 0, 2**32 - 1))
+            bits = m[1] if len(m) > 1 else 16  # the root's bits: the radicand within 2^(2 bits) - 1
+            r = B.isqrt(B.clip(B.shift(a[0], m[0]), 0, 2 ** (2 * bits) - 1))
         elif op == "ATAN2":
             r = cordic_atan2(B, B.shift(a[0], m[0]), B.shift(a[1], m[1]))
         elif op == "TABLE":

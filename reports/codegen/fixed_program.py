@@ -6,10 +6,12 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
 
 - **formats**: a signal of range R (fixed_ranges.py) is stored as raw = value 2^f with the largest f
   such that R 2^f <= 2^26: 26 bits of precision, 5 bits of headroom. Products by a constant (Q15)
-  are two 32-bit products (exact); products of two signals that fill their range one 32-bit product
-  of operands rounded to 15 bits (Lowering.short_product), the others four 32-bit products of their
-  16-bit halves (fixed_ops.mulw, within 3 LSB); operands clamped at twice their range where a glitch
-  could overflow; 64-bit only where no form holds; quotients to 16 significant bits; sums are
+  are two 32-bit products (exact); products of two signals that only reach a division or a square
+  root (coarse_nodes) one 32-bit product of operands rounded to 15 bits (Lowering.short_product), a
+  signal of at most 12 bits (a 12-bit root's) times another rounded to 15 bits and exact by two,
+  the others four 32-bit products of their 16-bit halves (fixed_ops.mulw, within 3 LSB); operands
+  clamped at twice their range where a glitch could overflow; 64-bit only where no form holds;
+  quotients to 26 significant bits (a quotient of short products 18 at its median); sums are
   aligned by shifts; comparisons are exact;
 - **folded and shared**: a variant's flags select their branch in the program (a product by 0, a
   sum with 0, |binary angle| <= pi are constants); an operation on the same slots is computed once;
@@ -21,7 +23,8 @@ of integer operations (reports/codegen/fixed_ops.py) on 32-bit words:
   is the integer's own overflow. ``wrap_angle(a + b)`` becomes a wrapping sum of the operands
   converted to binary angles (one multiplication by a constant for a product such as T_s w);
 - **atan2** by CORDIC (14 steps), **sin/cos** by an odd polynomial of degree 7 on the folded angle,
-  **sqrt** as an integer square root of a 32-bit word: bounds in docs/codegen.md ("Fixed point");
+  **sqrt** as an integer square root of a 32-bit word (of a radicand of short products a 24-bit
+  one: 12 bits): bounds in docs/codegen.md ("Fixed point");
 - no division: the graph's divisions by parameters are multiplications by constants already (c_graph);
   a division by a runtime value is refused (NotImplementedError) until it is proven non-zero.
 """
@@ -173,6 +176,7 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
             raise ValueError(f"{obs.name}: no range for a signal (node {i}, {nodes[i].op})")
     low = Lowering(nodes, const, rng, angle_fields)
     low.tables = table_nodes(setup, nodes, outs)
+    low.coarse = coarse_nodes(nodes, live, {n for _, n in outs})
     low.rt, low.expr = runtime_parameters(nodes, obs, setup.schedule.fields if setup.schedule else ())
     for i, v in sim.items():
         if i in runtime:
@@ -182,6 +186,13 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
     for j, d in enumerate(inputs):
         imm = (j,) if d["kind"] == "ang" else (j, -(2 ** (NOMINAL_BITS + 1)), 2 ** (NOMINAL_BITS + 1))
         wr = 2.0**31 if d["kind"] == "ang" else 2.0 ** (NOMINAL_BITS + 1)
+        if d["kind"] == "fix" and d["vector"] == "x" and d["reason"].endswith("(guard)"):
+            # a bounded state field is the step's own output: init writes x0 and the step only what
+            # the guard accepted within the bound (or the coasting state it checked, or x0), so it
+            # enters unclamped. Its word is within the bound's, at most twice the drive's value with
+            # the parameters init accepts, plus the roundings of the bound's parameter and of the
+            # stored format (the fuzz test checks the stored state within the bound + 1 LSB)
+            imm, wr = (j,), math.ceil(2 * d["range"] * 2.0 ** d["f"]) + 2
         s = low.add(Ins("IN", (), d["kind"], d["f"], imm, what=f"{d['vector']}.{d['name']}"), wr)
         if d["node"] is not None:
             low.in_slot[d["node"]] = s
@@ -221,6 +232,36 @@ def fixed_step(setup: RuntimeSetup, x: np.ndarray, meas: np.ndarray) -> FixedSte
         signals,
         low.params,
     )
+
+
+COARSE_OPS = ("MUL", "SQ", "ADD", "SUB", "TWICE")
+
+
+def coarse_nodes(nodes: list[Node], live: set[int], roots: set[int]) -> set[int]:
+    """The live nodes whose every use is a division's operand, a square root's radicand, or a sum or
+    product that is itself coarse (and none is an output)."""
+    users: dict[int, set[int]] = {}
+    for u in live:
+        for a in nodes[u].args:
+            users.setdefault(a, set()).add(u)
+    memo: dict[int, bool] = {}
+
+    def coarse(n: int) -> bool:
+        if n not in memo:
+            memo[n] = False  # (acyclic; a guard against recursion through itself)
+            us = users.get(n, set())
+            memo[n] = (
+                n not in roots
+                and bool(us)
+                and all(
+                    nodes[u].op in ("SQRT", "DIV")
+                    or (nodes[u].op in ("MUL", "SQ", "ADD", "SUB", "TWICE") and coarse(u))
+                    for u in us
+                )
+            )
+        return memo[n]
+
+    return {n for n in live if not nodes[n].param and nodes[n].op in COARSE_OPS and coarse(n)}
 
 
 _INFIX = {"ADD": "+", "SUB": "-", "MUL": "*", "DIV": "/"}

@@ -536,7 +536,7 @@ def test_params_from_si_fills_the_struct_from_si_values(built):
         "2.5 * psi_pm": 2.5 * v["psi_pm"],
         "psi_pm": v["psi_pm"],
         "T_s * 1/psi_pm^2": v["T_s"] / v["psi_pm"] ** 2,
-        "T_s * k_i": v["T_s"] * v["k_i"],
+        "T_s * k_i * pi / 2^31": v["T_s"] * v["k_i"] * np.pi / 2**31,  # per LSB of the binary angle
     }
     seen = 0
     for d, raw in zip(fx.params, prm, strict=True):
@@ -636,20 +636,19 @@ def test_the_i_f_start_in_fixed_point(tmp_path):
 
 def test_the_vesc_variant_equals_its_model_and_stays_within_0p2_deg(tmp_path):
     """hubmotor48 (the flux family's VESC variant: interpolated inductance, clamped gradient): the C
-    equals the model with a hostile burst, and in closed loop (torque_steps' first 0.2 s, ranges
-    from this run)
-    its angle error stays within 0.2 deg of the double step's at steady state. Its inductance share
-    i_q^2 / |i|^2 is a division by a divisor near zero at no current: a quotient format that held
-    that worst case kept two bits of the share and left the step 0.35 deg off under load."""
+    equals the model with a hostile burst, and in closed loop (torque_steps' first 0.2 s, with the
+    formats `codegen` generates) its angle error stays within 0.2 deg of the double step's at steady
+    state. Its inductance share i_q^2 / |i|^2 is a division by a divisor near zero at no current: a
+    quotient format that held that worst case kept two bits of the share and left the step 0.35 deg
+    off under load; its products reaching only that division or the gain's square root are short
+    (fixed_program.coarse_nodes), the gain's root 12 bits."""
     import dataclasses
-
-    from sensorless.reports.codegen.fixed_model import FixedModel
 
     d = load_drive("hubmotor48")
     fam = family_of(d)
     setup = fam.runtime(d, fam.gains(d))
     sc = dataclasses.replace(load_scenario("torque_steps", d), duration=0.2)  # loaded from 0.06 s
-    model = FixedModel.of(d, None, [sc], compile=False)
+    model = fixed_model(d, None, setup)
     fx = model.program(setup)
     exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)
