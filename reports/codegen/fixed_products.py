@@ -13,7 +13,7 @@ products. Operands are clamped at twice their range where a glitch could overflo
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
 
 from sensorless.reports.codegen.c_graph import Node
 from sensorless.reports.codegen.fixed_format import _PI, COEF_BITS
@@ -50,15 +50,16 @@ class ProductLowering:
     rt: set[int]
     stored: dict[int, float]
     lin_c: dict[int, int]
-    add: Any
-    fmt: Any
-    cval: Any
-    fixed_val: Any
-    const_slot: Any
-    param_slot: Any
-    expr: Any
-    is_angle: Any
-    ang: Any
+    # the host's methods (fixed_lowering.Lowering, fixed_angles.AngleLowering)
+    add: Callable[..., int]  # (ins, wr, nom=None)
+    fmt: Callable[[int], tuple[str, int]]
+    cval: Callable[[int], float | None]
+    fixed_val: Callable[[int], float | None]
+    const_slot: Callable[..., int]  # (c, f=None, kind="fix")
+    param_slot: Callable[..., int]
+    expr: Callable[[int], str]
+    is_angle: Callable[[int], bool]
+    ang: Callable[[int], int]
 
     def clamped(self, s: int) -> int:
         """Slot ``s`` clamped at twice its nominal range (four times its simulated one), where a worst
