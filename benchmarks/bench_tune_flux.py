@@ -1,10 +1,10 @@
-"""Benchmark: ``sensorless tune --law odrive`` on the outrunner preset (target: under 3 s).
+"""Benchmark: ``sensorless tune --law constant`` on the outrunner preset (target: under 3 s).
 
 Times, as medians of repeated runs, wall clock and CPU time (the process's own, or its child's for the
 command line: on a loaded machine CPU time is the figure to compare with the target):
-- the whole command ``sensorless tune outrunner270 --law odrive`` in a fresh interpreter (imports,
+- the whole command ``sensorless tune outrunner270 --law constant`` in a fresh interpreter (imports,
   CasADi Function builds, the grid search, writing the tables);
-- ``tune(drive, "odrive")`` in this process, first call and warm;
+- ``tune(drive, "constant")`` in this process, first call and warm;
 - the baseline, in this process: one judgement of the two firmware defaults over the envelope under
   the estimate errors (``assess``, the unit the grid search repeats), and the warm tune's ratio to it.
 
@@ -41,7 +41,7 @@ def cli_once(out: str) -> tuple[float, float]:
     """(wall, CPU of the child) seconds of the command in a fresh interpreter."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     w = time.perf_counter()
-    cmd = [sys.executable, "-m", "sensorless.reports.cli.main", "tune", PRESET, "--law", "odrive"]
+    cmd = [sys.executable, "-m", "sensorless.reports.cli.main", "tune", PRESET, "--law", "constant"]
     cmd += ["--out", out, "--force"]
     subprocess.run(cmd, check=False, capture_output=True, env={**os.environ, "PYTHONHASHSEED": "0"})
     wall = time.perf_counter() - w
@@ -61,11 +61,11 @@ def main() -> None:
         cli = med([cli_once(os.path.join(tmp, "t")) for _ in range(a.repeat)])
     drive = load_drive(PRESET)
     settings = FluxTuneSettings()
-    first = timed(lambda: tune(drive, "odrive", settings))
-    warm = med([timed(lambda: tune(drive, "odrive", settings)) for _ in range(a.repeat)])
+    first = timed(lambda: tune(drive, "constant", settings))
+    warm = med([timed(lambda: tune(drive, "constant", settings)) for _ in range(a.repeat)])
     cands = [odrive_gains(), vesc_gains(drive)]
     base = med([timed(lambda: assess(drive, cands, settings)) for _ in range(a.repeat)])
-    print(f"{PRESET}, law odrive; medians of {a.repeat} runs (wall / CPU seconds)")
+    print(f"{PRESET}, law constant; medians of {a.repeat} runs (wall / CPU seconds)")
     print(f"  sensorless tune (fresh interpreter): {cli[0]:7.3f} / {cli[1]:7.3f}   target < {TARGET_S:g} s")
     print(f"  tune() first call in this process:  {first[0]:7.3f} / {first[1]:7.3f}")
     print(f"  tune() warm:                         {warm[0]:7.3f} / {warm[1]:7.3f}")

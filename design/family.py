@@ -33,11 +33,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
 
-from sensorless.design.memo import LABEL
+from sensorless.design.gain_set import GainSet  # its own module (runtime.py imports it); read here too
 
 if TYPE_CHECKING:  # the result types below import this module: typed by name only where no cycle
     from numpy.typing import ArrayLike
     from sensorless.design.linearization import Linearization
+    from sensorless.design.runtime import RuntimeSetup
 
 
 class CapabilityError(ValueError):
@@ -112,17 +113,6 @@ class GainTableData(Protocol):
     def where(self, table_file: str = "") -> str:
         """How messages name the table."""
         ...
-
-
-@dataclass(frozen=True)
-class GainSet:
-    """The gains an observer runs with: which gain law, the values (SI), and where they come from."""
-
-    law: str  # gain law: e.g. "speed-dependent", "schedule", "constant", "zero"
-    values: Mapping[str, Any] = field(default_factory=dict)  # SI; lists for tables
-    # for headers and messages: the drive file's section or the table file, as the caller named it (a
-    # label, not content: analyses memoized on the gains do not key on it, design/memo.py)
-    source: str = field(default="", metadata=LABEL)
 
 
 @dataclass(frozen=True)
@@ -280,9 +270,8 @@ class ObserverFamily(Generic[DriveT]):
         raise CapabilityError(f"observer family {self.name!r} has no gains to choose")
 
     # ------------------------------------------------------------------------------------- runtime
-    def runtime(self, drive: DriveT, gains: GainSet, *, discretization: str | None = None) -> Any:
-        """The runtime set-up (design/runtime.RuntimeSetup, which imports this module: each family's
-        override states it): observer step, parameters, schedule."""
+    def runtime(self, drive: DriveT, gains: GainSet, *, discretization: str | None = None) -> RuntimeSetup:
+        """The runtime set-up (design/runtime.py): observer step, parameters, schedule."""
         raise CapabilityError(f"observer family {self.name!r} has no runtime observer")
 
     # ------------------------------------------------------------------ low speed (design/low_speed.py)

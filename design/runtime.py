@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
-from sensorless.design.family import GainSet
+from sensorless.design.gain_set import GainSet
 from sensorless.symbolic.runtime import Field, RuntimeObserver
 
 

@@ -3,7 +3,7 @@
 This module registers the family (design/registry.py finds ``FAMILY``); the drive kind string of its
 drive files is written here and nowhere else in the code. Its pieces: schema.py (the drive file's
 sections), derive.py (a minimal drive file completed, and loading), runtime.py (gains, runtime
-set-up), operating_point.py and linearize.py (the closed loop of Section IV), discrete.py (the step
+set-up), operating_point.py and linearize.py (the closed loop of Section IV), one_step.py (the step
 that runs, by the shared discrete-time analysis of design/discrete.py), simulation.py (Fig. 7 for a
 scenario), presets/ and scenarios/ (the paper's drive and experiments).
 Equations: symbolic/ipmsm_adaptive/. Theory and choices: docs/families/ipmsm_adaptive.md.
@@ -24,7 +24,7 @@ from sensorless.design.family import (
     ObserverFamily,
     PerUnitBases,
 )
-from sensorless.design.ipmsm_adaptive import derive, discrete, schema, simulation
+from sensorless.design.ipmsm_adaptive import derive, one_step, schema, simulation
 from sensorless.design.ipmsm_adaptive import montecarlo as _montecarlo
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
 from sensorless.design.ipmsm_adaptive.runtime import with_alpha_fo
@@ -92,10 +92,10 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
         self, drive: schema.IpmsmDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
     ) -> PoleSweep:
         """Closed-loop poles (design/ipmsm_adaptive/linearize.py); options: injection, estimate, and
-        discretization (with T_s): also the discrete-time observer that runs (discrete.py)."""
+        discretization (with T_s): also the discrete-time observer that runs (one_step.py)."""
         if options.get("injection") and not drive.injection.enabled:
             raise CapabilityError(injection_off(drive))
-        return discrete.linearize(
+        return one_step.linearize(
             with_alpha_fo(drive, gains), w, torque, gain=_runtime.law_of(gains), **options
         )
 

@@ -303,7 +303,7 @@ def linearize(
     drive's ``[estimate]``), so robustness maps over parameter errors are one call. Points where no
     equilibrium exists (possible with estimation errors) get NaN. ``noise`` also evaluates the input
     from current-measurement noise (:func:`noise_function`, ``PoleSweep.noise_rms``). The discrete-time
-    observer that runs is analysed beside this by discrete.py (its ``linearize`` takes a
+    observer that runs is analysed beside this by one_step.py (its ``linearize`` takes a
     ``discretization``).
     """
     w_flat, T_flat, est = operating_points(w_m, T_e, estimate)

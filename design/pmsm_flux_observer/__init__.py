@@ -1,8 +1,8 @@
 """The nonlinear flux observer + PLL that VESC, ODrive and SimpleFOC run (Lee et al. 2010): the family.
 
 This module registers the family; the drive kind string is written here and nowhere else. Its pieces:
-schema.py (drive files: a minimal file completed by rules), gains.py (the laws odrive, vesc, schedule
-and the runtime set-up), linearize.py (continuous and discrete poles), simulation on the shared PMSM
+schema.py (drive files: a minimal file completed by rules), gains.py (the laws constant, voltage-scaled,
+schedule and the runtime set-up), linearize.py (continuous and discrete poles), simulation on the shared PMSM
 drive loop (below), presets/ and scenarios/. Equations: symbolic/pmsm_flux_observer/. Theory and
 choices: docs/families/pmsm_flux_observer.md.
 """

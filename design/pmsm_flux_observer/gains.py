@@ -1,15 +1,16 @@
 """Gains of the flux-observer family in each firmware's terms, and the runtime set-up they give.
 
-Laws (docs/families/pmsm_flux_observer.md "Gains"):
-- ``odrive``: observer_gain = gamma lambda^2 [1/s] and pll_bandwidth [rad/s], k_p = 2 bw, k_i = bw^2
-  (ODrive's sensorless_estimator: gamma = observer_gain / lambda^2, k_i = k_p^2 / 4);
-- ``vesc``: foc_observer_gain (raw as VESC stores it), foc_observer_gain_slow, foc_pll_kp, foc_pll_ki;
-  run-time k = gamma lambda^2 = 4 foc_observer_gain lambda^2 max(foc_observer_gain_slow, |duty| V_bus /
-  40 V), |duty| V_bus = sqrt(3) |u| (so u_ref = 40 V / sqrt(3));
+Laws (docs/families/pmsm_flux_observer.md "Gains"), named by what the observer gain does:
+- ``constant``: observer_gain = gamma lambda^2 [1/s] and pll_bandwidth [rad/s], k_p = 2 bw, k_i = bw^2
+  (ODrive's terms, its sensorless_estimator: gamma = observer_gain / lambda^2, k_i = k_p^2 / 4);
+- ``voltage-scaled``: foc_observer_gain (raw as VESC stores it), foc_observer_gain_slow, foc_pll_kp,
+  foc_pll_ki (VESC's terms); run-time k = gamma lambda^2 = 4 foc_observer_gain lambda^2
+  max(foc_observer_gain_slow, |duty| V_bus / 40 V), |duty| V_bus = sqrt(3) |u| (so u_ref = 40 V / sqrt(3));
 - ``schedule``: observer_gain (gamma lambda^2) a table over |PLL speed| (``speeds``, linear in
   between, held beyond the ends), and pll_bandwidth. (Law names are each family's own: the adaptive
-  observer's ``schedule`` is another law. Its former name ``flux_schedule`` is read from drive files,
-  gain tables and ``tune --law`` for one release, with a note.)
+  observer's ``schedule`` is another law.)
+Former names (``odrive``, ``vesc``, ``flux_schedule``) are read from drive files, gain tables and
+``tune --law`` for one release, with a note (laws.py ``LAW_ALIASES``).
 
 The laws' keys and their reader are laws.py (the drive file's schema reads its [gains] there).
 """
@@ -56,17 +57,17 @@ def table_values(
 def pll_gains(gains: GainSet) -> tuple[float, float]:
     """(k_p [1/s], k_i [1/s^2]) of a gain set."""
     v = gains.values
-    if gains.law == "vesc":
+    if gains.law == "voltage-scaled":
         return float(v["foc_pll_kp"]), float(v["foc_pll_ki"])
     bw = float(v["pll_bandwidth"])
     return 2 * bw, bw**2
 
 
 def base_gain(gains: GainSet, psi_hat: float) -> float:
-    """k_0 [1/s]: gamma lambda^2 before VESC's voltage factor (odrive: observer_gain; vesc: 4 raw
-    lambda^2)."""
+    """k_0 [1/s]: gamma lambda^2 before VESC's voltage factor (constant: observer_gain; voltage-scaled:
+    4 raw lambda^2)."""
     v = gains.values
-    if gains.law == "vesc":
+    if gains.law == "voltage-scaled":
         return VESC_GAIN_FACTOR * float(v["foc_observer_gain"]) * psi_hat**2
     return float(v["observer_gain"])
 
@@ -100,7 +101,7 @@ def schedule_of(gains: GainSet, psi_hat: float) -> GainSchedule:
         )
         return GainSchedule("schedule", table_law(grid), vals, fields, grid, "gamma lambda^2 over |w_pll|")
     k_0 = base_gain(gains, psi_hat)
-    text = "constant gamma lambda^2" if gains.law == "odrive" else "4 gain lambda^2 (x VESC's factor)"
+    text = "constant gamma lambda^2" if gains.law == "constant" else "4 gain lambda^2 (x VESC's factor)"
     return GainSchedule(gains.law, constant_law(), (k_0,), (Field("k_0", "1/s", "observer gain"),), (), text)
 
 
@@ -116,7 +117,7 @@ def runtime_params(drive: FluxObserverDrive, gains: GainSet) -> dict[str, float]
         "psi_pm": e.psi_pm,
         "k_slow": float(v.get("foc_observer_gain_slow", 1.0)),
         "u_ref": VESC_U_REF,
-        "scheduled": 1.0 if gains.law == "vesc" else 0.0,
+        "scheduled": 1.0 if gains.law == "voltage-scaled" else 0.0,
         "adapt": 1.0 if drive.observer.lambda_adaptation else 0.0,
         "k_p": k_p,
         "k_i": k_i,
@@ -145,9 +146,9 @@ def runtime_setup(
 
 def law_misfit(drive: FluxObserverDrive, law: str) -> str:
     """Why gains of ``law`` cannot be tuned for the drive's observer variant ("" where they can): the
-    box clamp has no observer gain and no linearization (nothing for a tuner to judge), and the vesc
-    law's gain is VESC's ORTEGA_ORIGINAL (the clamped gradient), which its export writes and the other
-    variants do not run (VESC has no unclamped gradient observer)."""
+    box clamp has no observer gain and no linearization (nothing for a tuner to judge), and the
+    voltage-scaled law's gain is VESC's ORTEGA_ORIGINAL (the clamped gradient), which its export writes
+    and the other variants do not run (VESC has no unclamped gradient observer)."""
     o = drive.observer
     where = f"{drive.file}: [observer] firmware = {o.firmware!r}, correction = {o.correction!r}"
     if o.correction == "box-clamp":
@@ -157,11 +158,11 @@ def law_misfit(drive: FluxObserverDrive, law: str) -> str:
             '"clamped-gradient" (ORTEGA_ORIGINAL, foc_observer_type 0), or judge the box clamp by '
             "sensorless report"
         )
-    if law == "vesc" and o.correction != "clamped-gradient":
+    if law == "voltage-scaled" and o.correction != "clamped-gradient":
         return (
-            f"{where}: law 'vesc' tunes VESC's clamped-gradient observer (ORTEGA_ORIGINAL), which "
+            f"{where}: law 'voltage-scaled' tunes VESC's clamped-gradient observer (ORTEGA_ORIGINAL), which "
             "`export --target vesc` writes; this drive runs the unclamped gradient observer, which VESC "
             "does not have: write the drive for VESC (sensorless init --firmware vesc, or [observer] "
-            'firmware = "vesc" with correction = "clamped-gradient"), or tune --law odrive'
+            'firmware = "vesc" with correction = "clamped-gradient"), or tune --law constant'
         )
     return ""

@@ -16,9 +16,12 @@ from typing import Any
 from sensorless.design.family import GainSet
 from sensorless.design.units import DriveFileError, parse_quantity
 
+# named by what the gain does over the operating range: ``constant`` (one gamma lambda^2, the PLL by its
+# bandwidth: ODrive's terms), ``voltage-scaled`` (gamma lambda^2 times a factor growing with
+# the applied voltage, the PLL by k_p and k_i: VESC's terms), ``schedule`` (gamma lambda^2 a table over speed)
 LAW_KEYS: dict[str, dict[str, str]] = {
-    "odrive": {"observer_gain": "rate", "pll_bandwidth": "angular"},
-    "vesc": {
+    "constant": {"observer_gain": "rate", "pll_bandwidth": "angular"},
+    "voltage-scaled": {
         "foc_observer_gain": "dimensionless",
         "foc_observer_gain_slow": "dimensionless",
         "foc_pll_kp": "rate",
@@ -26,10 +29,12 @@ LAW_KEYS: dict[str, dict[str, str]] = {
     },
     "schedule": {"pll_bandwidth": "angular"},  # plus the lists speeds [rad/s], observer_gain [1/s]
 }
-LAW_ALIASES = {"flux_schedule": "schedule"}  # former name -> name now (read for one release)
+# former name -> name now (read for one release, with a note): odrive and vesc are firmware names (export
+# targets, [observer] firmware), not what the law does
+LAW_ALIASES = {"flux_schedule": "schedule", "odrive": "constant", "vesc": "voltage-scaled"}
 TABLE_LAWS: dict[str, tuple[str, ...]] = {
-    "odrive": ("observer_gain", "pll_bandwidth"),
-    "vesc": ("foc_observer_gain", "foc_observer_gain_slow", "foc_pll_kp", "foc_pll_ki"),
+    "constant": ("observer_gain", "pll_bandwidth"),
+    "voltage-scaled": ("foc_observer_gain", "foc_observer_gain_slow", "foc_pll_kp", "foc_pll_ki"),
     "schedule": ("speeds", "observer_gain", "pll_bandwidth"),
 }
 
@@ -43,6 +48,15 @@ EULER_LIMIT = 2.0
 @functools.cache
 def _renamed(file: str, key: str, law: str) -> None:
     print(f"{file}: note: key '{key}': law {law!r} is now called {LAW_ALIASES[law]!r}", file=sys.stderr)
+
+
+def law_now(law: Any, file: str, key: str = "gains.law") -> Any:
+    """``law`` by its name now: a former name (:data:`LAW_ALIASES`) said once per file on stderr and
+    replaced; any other value as it is (the reader judges it)."""
+    if isinstance(law, str) and law in LAW_ALIASES:
+        _renamed(file, key, law)
+        return LAW_ALIASES[law]
+    return law
 
 
 def _number(
@@ -67,9 +81,7 @@ def parse_law(
     """The SI gains of ``law`` from a table of quantities; DriveFileError naming the key. Given the
     observer period ``T_obs`` [s] (named ``period`` in messages), each observer gain within the Euler
     limit too (:func:`check_euler`)."""
-    if law in LAW_ALIASES:  # its former name: read, and said once per file
-        _renamed(file, f"{section}.law", law)
-        law = LAW_ALIASES[law]
+    law = law_now(law, file, f"{section}.law")  # a former name: read, and said once per file
     if law not in LAW_KEYS:
         raise DriveFileError(file, f"{section}.law", f"{law!r} is not one of: {', '.join(LAW_KEYS)}")
     for k in t:
@@ -98,10 +110,10 @@ def parse_law(
 
 def check_euler(values: Mapping[str, Any], T_obs: float, file: str, section: str, period: str) -> None:
     """DriveFileError naming ``section``.observer_gain where a gain k [1/s] of the laws that give it
-    (odrive; each of a schedule's) has k T_obs at or above :data:`EULER_LIMIT`: the observer diverges
+    (constant; each of a schedule's) has k T_obs at or above :data:`EULER_LIMIT`: the observer diverges
     at every speed, whatever the rest of the drive."""
     ks = values.get("observer_gain")
-    if ks is None:  # vesc: its run-time gain follows the duty
+    if ks is None:  # voltage-scaled: its run-time gain follows the voltage
         return
     for i, k in enumerate(ks if isinstance(ks, list) else [ks]):
         if k * T_obs >= EULER_LIMIT:
@@ -122,6 +134,6 @@ def section_gains(
     """The gains of a drive file's [gains] section ``t`` (``T_obs``, ``period``: :func:`parse_law`)."""
     law = t.get("law")
     if not isinstance(law, str):
-        raise DriveFileError(file, "gains.law", "missing key or not a string (odrive | vesc | schedule)")
+        raise DriveFileError(file, "gains.law", f"missing key or not a string ({' | '.join(LAW_KEYS)})")
     values = parse_law(law, t, file, "gains", T_obs, period)
     return GainSet(LAW_ALIASES.get(law, law), values, f"{file} [gains]")

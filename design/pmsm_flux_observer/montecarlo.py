@@ -105,7 +105,8 @@ def linearize_draws(
         P[j] = base[name]
     for c, name in enumerate(ELECTRICAL):  # the estimates the observer runs with
         P[names.index(name)] = estimate[:, c]
-    if gains.law == "vesc":  # VESC's run-time gain is 4 raw lambda_hat^2 x its factor: scaled with it
+    # VESC's run-time gain is 4 raw lambda_hat^2 x its factor: scaled with it
+    if gains.law == "voltage-scaled":
         gain = np.asarray(setup.gain, float).reshape(-1, 1) * (estimate[:, 3] / drive.estimate.psi_pm) ** 2
     else:
         gain = np.repeat(np.asarray(setup.gain, float).reshape(-1, 1), n_d, axis=1)

@@ -41,7 +41,7 @@ from sensorless.design.drive_file import (
 from sensorless.design.envelope import Envelope, SpeedRule
 from sensorless.design.motor_data import mtpa_torque, read_motor
 from sensorless.design.plausibility import plausibility, warning_lines
-from sensorless.design.pmsm_flux_observer.laws import parse_law, section_gains
+from sensorless.design.pmsm_flux_observer.laws import LAW_KEYS, law_now, parse_law, section_gains
 from sensorless.design.pmsm_schema import (
     PmsmControl,
     PmsmDriveProperties,
@@ -63,10 +63,10 @@ FIRMWARES = ("odrive", "vesc", "simplefoc", "generic")
 # MXLEMMING_LAMBDA_COMP is the box clamp (no gain, no linearization): correction = "box-clamp" and
 # lambda_adaptation = true in the file for it
 FIRMWARE_DEFAULTS = {
-    "odrive": ("gradient", "fixed", False, "odrive"),
-    "vesc": ("clamped-gradient", "interpolated", False, "vesc"),
-    "simplefoc": ("box-clamp", "q-axis", False, "odrive"),
-    "generic": ("gradient", "fixed", False, "odrive"),
+    "odrive": ("gradient", "fixed", False, "constant"),
+    "vesc": ("clamped-gradient", "interpolated", False, "voltage-scaled"),
+    "simplefoc": ("box-clamp", "q-axis", False, "constant"),
+    "generic": ("gradient", "fixed", False, "constant"),
 }
 TAU_M = 0.1  # [s] mechanical time constant of the J rule
 N_SPEED = 0.8  # rated speed / no-load speed at the DC link
@@ -234,13 +234,15 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
     )
     psi_hat = positive(est_t, "psi_pm", "flux", file, "estimate") if "psi_pm" in est_t else m.psi_pm
 
-    gains_t = table(data, "gains", file) if "gains" in data else {}
-    sec = doc.section("gains", "the observer's gains in the firmware's terms (odrive | vesc | schedule)")
+    gains_t = dict(table(data, "gains", file)) if "gains" in data else {}
+    laws = " | ".join(LAW_KEYS)
+    sec = doc.section("gains", f"the observer's gains in the firmware's terms ({laws})")
     if "law" in gains_t:
+        gains_t["law"] = law_now(gains_t["law"], file)  # a former name written as the name now
         _keep(sec, gains_t, {})
     else:
         if gains_t:
-            raise DriveFileError(file, "gains.law", "missing key (odrive | vesc | schedule)")
+            raise DriveFileError(file, "gains.law", f"missing key ({laws})")
         for k, (v, r) in default_gains(law, psi_hat).items():
             sec[k] = Entry(v, r)
 
@@ -259,8 +261,9 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             "alpha_s": (
                 f"{g6(min(alpha_c / ALPHA_S_DIV, pll_slow / PLL_SPEED_LOOP))} rad/s",
                 f"min(alpha_c/{ALPHA_S_DIV:g}, the PLL's pole {g6(pll_slow)} 1/s / {PLL_SPEED_LOOP:g}): the "
-                "speed loop closes on the PLL's speed (vesc: the fast root where the PI's zero nearly "
-                "cancels the slow one in the angle; the report names the slow root's lag in the speed)",
+                "speed loop closes on the PLL's speed (voltage-scaled: the fast root where the PI's "
+                "zero nearly cancels the slow one in the angle; the report names the slow root's lag in the "
+                "speed)",
             ),
             "T_max": (f"{g6(T_MAX_TN * T_N)} Nm", f"{T_MAX_TN:g} T_N"),
         },
@@ -309,8 +312,8 @@ def _too_fast(w_max: float, T_obs: float) -> str:
 
 
 def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
-    """-(the PLL's slowest pole seen in its speed estimate) [1/s] of a [gains] section: bw (odrive,
-    schedule) or the slow root of s^2 + k_p s + k_i (vesc; k_p/2 where the roots are complex).
+    """-(the PLL's slowest pole seen in its speed estimate) [1/s] of a [gains] section: bw (constant,
+    schedule) or the slow root of s^2 + k_p s + k_i (voltage-scaled; k_p/2 where the roots are complex).
 
     d theta_pll/dt follows the speed by (k_p s + k_i)/((s + p_1)(s + p_2)): in its step response the
     slow root p_1 has the weight p_1/(p_2 - p_1) (the PI's zero k_i/k_p nearly cancels it). Below
@@ -318,11 +321,11 @@ def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
     speed output is the integrator w_pll, k_i/((s + p_1)(s + p_2)), which shows p_1 in full: the report
     says so where p_1 is below a tenth of alpha_s (reports/pmsm_flux_observer/findings.py)."""
     t = {k: e.value for k, e in gains.items()}
-    law = t.get("law")
+    law = law_now(t.get("law"), file)
     if not isinstance(law, str):
-        raise DriveFileError(file, "gains.law", "missing key or not a string (odrive | vesc | schedule)")
+        raise DriveFileError(file, "gains.law", f"missing key or not a string ({' | '.join(LAW_KEYS)})")
     v = parse_law(law, t, file, "gains")
-    if law != "vesc":
+    if law != "voltage-scaled":
         return float(v["pll_bandwidth"])
     kp, ki = v["foc_pll_kp"], v["foc_pll_ki"]
     disc = kp**2 - 4 * ki
@@ -334,16 +337,16 @@ def slowest_pll_pole(gains: Mapping[str, Entry], file: str) -> float:
 
 def default_gains(law: str, psi: float) -> dict[str, tuple[Any, str]]:
     """The firmware's default gains of ``law`` (their sources: docs/families/pmsm_flux_observer.md)."""
-    if law == "vesc":
+    if law == "voltage-scaled":
         return {
-            "law": ("vesc", "VESC Tool's detection"),
+            "law": ("voltage-scaled", "VESC Tool's detection"),
             "foc_observer_gain": (float(g6(1e3 / psi**2)), "detection: 1e-3/lambda^2, stored x1e6"),
             "foc_observer_gain_slow": (0.05, "VESC default"),
             "foc_pll_kp": ("2000 1/s", "VESC default"),
             "foc_pll_ki": ("30000 1/s2", "VESC default"),
         }
     return {
-        "law": ("odrive", "ODrive's defaults"),
+        "law": ("constant", "ODrive's defaults"),
         "observer_gain": ("1000 1/s", "ODrive default (gamma lambda^2)"),
         "pll_bandwidth": ("1000 rad/s", "ODrive default"),
     }

@@ -5,7 +5,7 @@ Piippo, Hinkkanen, Luomi (2008) Section IV: the linearized motor+observer closed
 injection (19)-(22). Prints the right-half-plane speed bands (edges refined by bisection) and the worst
 damping; stages the pole data (CSV) and Fig. 4-5 style pole maps (PNG, SVG). With ``--discrete`` also the
 discrete-time observer that runs, with ``--study`` every discretization over the sampling period
-(discrete.py).
+(sampled_analysis.py).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from sensorless.design.ipmsm_adaptive.linearize import unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
-from sensorless.reports.ipmsm_adaptive import discrete
+from sensorless.reports.ipmsm_adaptive import sampled_analysis
 from sensorless.reports.options import Number, Renamed, UsageError, parse_torques
 
 if TYPE_CHECKING:  # typed by name only
@@ -56,7 +56,7 @@ OPTIONS = (
         ("--points",),
         {"type": Number(3, 100_000, integer=True), "help": "speed grid points (3..100000); default 2001"},
     ),
-    *discrete.OPTIONS,
+    *sampled_analysis.OPTIONS,
 )
 
 
@@ -79,7 +79,7 @@ def check(drive: IpmsmDrive, args: argparse.Namespace) -> None:
     if args.injection and not drive.injection.enabled:
         raise UsageError(f"argument --injection: {injection_off(drive)}")
     parse_torques(args.torque, drive.T_N)
-    discrete.scheme(drive, args)
+    sampled_analysis.scheme(drive, args)
 
 
 def analyze(drive: IpmsmDrive, args: argparse.Namespace, out: OutputSet) -> None:
@@ -91,7 +91,7 @@ def analyze(drive: IpmsmDrive, args: argparse.Namespace, out: OutputSet) -> None
     wb = drive.w_base
     w = np.linspace(-speed_max, speed_max, points) * wb
     inj = bool(args.injection)
-    disc = discrete.scheme(drive, args)
+    disc = sampled_analysis.scheme(drive, args)
     opts = {"injection": inj} if disc is None else {"discretization": disc}
 
     print(f"{drive.name}: {drive.source}")
@@ -138,6 +138,8 @@ def analyze(drive: IpmsmDrive, args: argparse.Namespace, out: OutputSet) -> None
         out.add_figures(f"pole_map{suffix}_T{T:+g}Nm", fig)
         plt.close(fig)
     if discrete_sweeps:
-        discrete.analyze_output(drive, discrete_sweeps, out)
+        sampled_analysis.analyze_output(drive, discrete_sweeps, out)
     if args.study:
-        discrete.study_output(drive, choices, out, lambda t: print(f"  ... {t}", file=sys.stderr, flush=True))
+        sampled_analysis.study_output(
+            drive, choices, out, lambda t: print(f"  ... {t}", file=sys.stderr, flush=True)
+        )

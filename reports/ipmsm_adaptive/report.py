@@ -3,7 +3,7 @@
 Piippo, Hinkkanen, Luomi (2008): pole maps over speed at +-T_N for each gain (Figs. 4-5 style) and with
 the averaged HF injection (19)-(22); worst damping and decay rate over the speed x torque plane;
 robustness maps under misestimated R̂s, L̂d, L̂q, ψ̂pm; the paper's experiments re-run (Figs. 9(b), 10,
-6(b)); the discrete-time observer that runs (discrete.py); and a verdict that states where the gains
+6(b)); the discrete-time observer that runs (sampled_analysis.py); and a verdict that states where the gains
 under review meet the required damping and where not. The frame (opening data, time-domain checks, the
 verdict's status with them, the sections' order) is the shared one; the analysis, the gain sets (each
 of the drive file's gain choices) and the verdict's form are this family's.
@@ -35,8 +35,8 @@ from sensorless.reports.document import (
 from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, report_with
 from sensorless.reports.ipmsm_adaptive import tuning
 from sensorless.reports.ipmsm_adaptive.causes import crossings
-from sensorless.reports.ipmsm_adaptive.discrete import report_section as discrete_section
 from sensorless.reports.ipmsm_adaptive.figures import plane_figure, robustness_figure
+from sensorless.reports.ipmsm_adaptive.sampled_analysis import report_section as discrete_section
 from sensorless.reports.review import Review, settle, verdict_box
 from sensorless.reports.svg_render import svg_later
 from sensorless.reports.time_domain import Finding

@@ -106,9 +106,10 @@ def tune_settings(drive: FluxObserverDrive, args: argparse.Namespace, tunable: A
     if args.max_noise:
         s = dataclasses.replace(s, max_noise=parse_max_noise(args.max_noise, drive.w_base))
     if args.pareto is not None:
-        if tunable.name not in ("odrive", "vesc"):
+        if tunable.name not in ("constant", "voltage-scaled"):
             raise UsageError(
-                f"--pareto: the {tunable.name} law has no damping-versus-bias front (odrive, vesc)"
+                f"--pareto: the {tunable.name} law has no damping-versus-bias front (constant, "
+                "voltage-scaled)"
             )
         s = dataclasses.replace(s, pareto=int(args.pareto))
     return s

@@ -50,7 +50,7 @@ def pll_fixed(gains: GainSet, alpha_s: float) -> GainSet | None:
     min_decay = PLL_SPEED_LOOP * alpha_s
     if -pll_roots(gains)[0].real >= min_decay * (1 - 1e-9):
         return None
-    if gains.law == "vesc":
+    if gains.law == "voltage-scaled":
         kp = float(f"{max(pll_gains(gains)[0], 2 * min_decay):.6g}")
         new = {"foc_pll_kp": kp, "foc_pll_ki": float(f"{kp**2 / 4:.6g}")}
     else:
@@ -67,7 +67,7 @@ def pll_finding(gains: GainSet, alpha_s: float, td: Sequence[Check]) -> str:
     if sigma >= min_decay * (1 - 1e-9):  # met to rounding is met
         return ""
     k_p, k_i = pll_gains(gains)
-    if gains.law == "vesc":
+    if gains.law == "voltage-scaled":
         names = f"foc_pll_kp = {k_p:.6g} 1/s, foc_pll_ki = {k_i:.6g} 1/s^2"
         fixed = pll_fixed(gains, alpha_s)
         assert fixed is not None
@@ -75,7 +75,7 @@ def pll_finding(gains: GainSet, alpha_s: float, td: Sequence[Check]) -> str:
         todo = (
             f"foc_pll_kp = {kp:.6g} 1/s, foc_pll_ki = foc_pll_kp^2/4 = {ki:.6g} 1/s^2 (a double root "
             f"at {-kp / 2:.4g} 1/s), a slower speed loop ([control] alpha_s at most "
-            f"{sigma / PLL_SPEED_LOOP:.4g} rad/s), or sensorless tune --law vesc"
+            f"{sigma / PLL_SPEED_LOOP:.4g} rad/s), or sensorless tune --law voltage-scaled"
         )
     else:
         names = f"pll_bandwidth = {k_p / 2:.6g} rad/s"
@@ -177,14 +177,14 @@ def holds_nowhere_finding(drive: FluxObserverDrive, gains: GainSet, settings: Fl
             lost.append(f"{key} +-{100 * errors[key]:g} %")
     w_top = float(drive.envelope.speed_max)
     k = base_gain(gains, drive.estimate.psi_pm)
-    if gains.law == "vesc":
+    if gains.law == "voltage-scaled":
         k *= max(float(gains.values["foc_observer_gain_slow"]), drive.motor.psi_pm * w_top / VESC_U_REF)
     which = (
         f"{' and '.join(lost)} alone already lose{'s' if len(lost) == 1 else ''} it"
         if lost
         else "only the errors together lose it"
     )
-    vesc = ", VESC's k grows with the voltage" if gains.law == "vesc" else ""
+    vesc = ", VESC's k grows with the voltage" if gains.law == "voltage-scaled" else ""
     adapt = (
         ""
         if drive.observer.lambda_adaptation

@@ -16,7 +16,7 @@ convention and the discretizations are in docs/families/ipmsm_adaptive.md; in sh
   are sampled-data by nature (forward Euler for the integral).
 
 Discretizations (``DISCRETIZATIONS``, the first is the default), compared by the discrete-time analysis
-of design/ipmsm_adaptive/discrete.py:
+of design/ipmsm_adaptive/one_step.py:
 
 - ``zoh``: every input held over the period as the drive holds it. The voltage is constant in the
   stationary frame (the inverter's zero-order hold) and is integrated exactly there; the rotation of

@@ -244,8 +244,8 @@ def test_the_flux_observers_pll_root_against_the_speed_loop():
     d = load_drive("outrunner270")
     g = family_of(d).gains(d)
     need = PLL_SPEED_LOOP * d.control.alpha_s
-    slow = dataclasses.replace(g, law="odrive", values={**g.values, "pll_bandwidth": 0.9 * need})
-    fast = dataclasses.replace(g, law="odrive", values={**g.values, "pll_bandwidth": 1.1 * need})
+    slow = dataclasses.replace(g, law="constant", values={**g.values, "pll_bandwidth": 0.9 * need})
+    fast = dataclasses.replace(g, law="constant", values={**g.values, "pll_bandwidth": 1.1 * need})
     f = Failure("speed_estimate", "x")
     assert failure_cause(d, slow, f).cause == "pll_root"
     assert failure_cause(d, fast, f) is None

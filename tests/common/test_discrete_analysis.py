@@ -21,7 +21,7 @@ from sensorless.design.pmac_reduced_order.linearize import analyze
 from sensorless.design.runtime import run_trajectory
 
 # Reference data: the results of main at fa40de5, before the shared module (the adaptive family's
-# design/ipmsm_adaptive/discrete.py and the reduced-order family's one_step.py), printed to 12
+# design/ipmsm_adaptive/one_step.py and the reduced-order family's one_step.py), printed to 12
 # significant digits by FAMILY.linearize(drive, FAMILY.gains(drive, name=gain), w_pu * w_base, T * T_N,
 # discretization=disc) and by analyze(deangelo2006, rpm_to_w(rpm), T_L, method=method).
 ADAPTIVE_MAIN = {

@@ -151,7 +151,7 @@ def test_tune_states_the_errors_it_tuned_under(monkeypatch):
     from sensorless.tuning.family import estimate_errors, tunable_for
 
     flux = load_drive("outrunner270")
-    tunable = tunable_for(flux, "odrive")
+    tunable = tunable_for(flux, "constant")
     settings = tunable.settings(flux)
     errors = estimate_errors(flux, tunable, settings)
     assert errors.source == family_of(flux).estimate_errors(flux).source

@@ -22,7 +22,7 @@ WRITES = {
     "skate-vesc": ["firmware-skate-vesc/vesc.xml", "report-skate-vesc/report.json"],
     "skate-odrive": [
         "firmware-skate-odrive/odrive.json",
-        "tune-skate-odrive/pareto_odrive.csv",
+        "tune-skate-odrive/pareto_constant.csv",
         "report-skate-odrive/report.json",
     ],
 }

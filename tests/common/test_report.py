@@ -10,7 +10,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
-from sensorless.design.ipmsm_adaptive.discrete import linearize
+from sensorless.design.ipmsm_adaptive.one_step import linearize
 from sensorless.reports.cli.common import version
 
 pytestmark = pytest.mark.long(33)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)

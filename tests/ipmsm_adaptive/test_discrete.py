@@ -1,4 +1,4 @@
-"""Discrete-time analysis of the adaptive observer that runs (design/ipmsm_adaptive/discrete.py) and the
+"""Discrete-time analysis of the adaptive observer that runs (design/ipmsm_adaptive/one_step.py) and the
 properties of its discretizations: the sampled plant against an independent integration, the voltage
 feedthrough of Heun's method, convergence of the discrete poles, and the poles against a simulated
 transient of the runtime step."""
@@ -12,8 +12,8 @@ from helpers.simulation import matrix_pencil
 from scipy.integrate import solve_ivp
 from sensorless.design.discrete import zoh_voltage
 from sensorless.design.ipmsm_adaptive import FAMILY
-from sensorless.design.ipmsm_adaptive.discrete import STATE_NAMES
 from sensorless.design.ipmsm_adaptive.linearize import linearize
+from sensorless.design.ipmsm_adaptive.one_step import STATE_NAMES
 from sensorless.design.runtime import run_trajectory
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS, OUTPUTS, STATE
 

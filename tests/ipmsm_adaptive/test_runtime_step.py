@@ -157,7 +157,7 @@ def test_tracks_the_motor_with_the_steady_angle_error_of_its_discretization(driv
     angle error is what the discretization allows. Forward Euler takes the voltage at the angle of the
     start of the period, which lags the period's mean by w T_s / 2 (0.047 rad at 1 p.u.): an error of
     about that size. The others stay below 0.1 electrical degree at 1 p.u. (measured: zoh 0.01, heun
-    0.085, heun-model 0.032 deg); the discrete-time analysis (design/ipmsm_adaptive/discrete.py) gives
+    0.085, heun-model 0.032 deg); the discrete-time analysis (design/ipmsm_adaptive/one_step.py) gives
     the same steady error from the one-step map's fixed point, within 2 % (or 2e-4 deg)."""
     for w_pu in (0.3, -1.0, 1.0):
         prof = profile_from_segments([(0.25, w_pu, w_pu, 1.0)], 2e-4, drive.base.w, drive.T_N)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from helpers.simulation import matrix_pencil, piippo2008, run, run_text
 from scipy.integrate import solve_ivp
-from sensorless.design.ipmsm_adaptive.discrete import linearize
+from sensorless.design.ipmsm_adaptive.one_step import linearize
 from sensorless.symbolic.pmsm import Mechanics, PmsmParams, plant_period
 
 DEG = np.pi / 180
@@ -246,7 +246,7 @@ def test_small_step_decays_at_the_dominant_discrete_pole(gain, discretization):
     """The load machine holds the speed (the analysis' input w_m) and steps it by 0.01 p.u.; the
     speed-estimation error then decays through the closed loop G_c(s) of eq. (15). Its dominant
     pole, estimated from the simulated error by the matrix pencil (no model), is compared with the
-    dominant pole ln(z)/T_s of the discrete-time observer that runs (design/ipmsm_adaptive/discrete.py)
+    dominant pole ln(z)/T_s of the discrete-time observer that runs (design/ipmsm_adaptive/one_step.py)
     at 0.5 p.u., nominal torque.
 
     Tolerance: the analysis assumes ideal current control (the sampled current held on its operating

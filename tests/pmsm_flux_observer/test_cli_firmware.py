@@ -184,12 +184,12 @@ def test_tuned_table_exported_and_refused_where_it_breaks_a_limit(tmp_path, caps
     assert "[envelope]" not in drive.read_text()
     with drive.open("a") as f:  # a coarse envelope (4 speeds per direction): a third of tune's points
         f.write("\n[envelope]\nspeeds = 4\n")
-    # the table `tune --law odrive` writes (its default settings), from the tuner itself: the command's
+    # the table `tune --law constant` writes (its default settings), from the tuner itself: the command's
     # own summary lines (the tuned gains' w_min under the errors, the start) are test_drive_file.py's
     from sensorless.design.drive import load_drive
     from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, tune_odrive
 
-    table = tmp_path / "gains_odrive.json"
+    table = tmp_path / "gains_constant.json"
     table.write_text(tune_odrive(load_drive(str(drive)), FluxTuneSettings()).table.to_json())
     gains = json.loads(table.read_text())["gains"]
     code, _, err = run(

@@ -21,7 +21,7 @@ def drive():
 
 
 def gains(k: float, bw: float) -> GainSet:
-    return GainSet("odrive", {"observer_gain": k, "pll_bandwidth": bw}, "test")
+    return GainSet("constant", {"observer_gain": k, "pll_bandwidth": bw}, "test")
 
 
 def match(poles: np.ndarray, expected: np.ndarray, rtol: float) -> None:

@@ -66,7 +66,7 @@ def _rank(drive, a, c):
 def test_tuned_is_never_worse_than_the_better_firmware_default_on_a_brute_force_grid(drive):
     tuned = tune_odrive(drive, FluxTuneSettings())
     assert tuned.missed == []  # a well-tuned datasheet motor meets the defaults: no exit 3
-    g = GainSet("odrive", dict(tuned.table.gains), "tuned")
+    g = GainSet("constant", dict(tuned.table.gains), "tuned")
     T = drive.observer.T_obs
     grid = [odrive_candidate(drive, float(k)) for k in np.geomspace(20.0, 1.9 / T, 24)]
     cands = [g, odrive_gains(), vesc_gains(drive), *grid]
@@ -74,7 +74,7 @@ def test_tuned_is_never_worse_than_the_better_firmware_default_on_a_brute_force_
 
     def pll(c):
         v = c.values
-        if c.law == "vesc":
+        if c.law == "voltage-scaled":
             return v["foc_pll_kp"], v["foc_pll_ki"]
         return 2 * v["pll_bandwidth"], v["pll_bandwidth"] ** 2
 
@@ -119,7 +119,7 @@ def test_pll_double_root_at_the_limit_meets_it():
     from sensorless.reports.pmsm_flux_observer.findings import pll_finding, pll_roots
     from sensorless.tuning.pmsm_flux_observer.assessment import pll_slow_root
 
-    g = GainSet("vesc", {"foc_observer_gain": 1e7, "foc_observer_gain_slow": 0.05,
+    g = GainSet("voltage-scaled", {"foc_observer_gain": 1e7, "foc_observer_gain_slow": 0.05,
                          "foc_pll_kp": 2000.0, "foc_pll_ki": 1e6}, "t")  # fmt: skip
     assert pll_slow_root(g) == 1000.0 and pll_roots(g)[0] == complex(-1000.0, 0.0)
     assert pll_finding(g, 250.0, []) == ""
@@ -138,9 +138,9 @@ def test_tune_exits_3_with_one_line_per_shortfall_and_writes_the_table(tmp_path,
     out = tmp_path / "t"
     # the R_s error alone (the others 0): the same shortfall, and tune's w_min line under 3 cases, not 9
     alone = ["--flux-error", "0", "--l-error", "0", "--quiet"]
-    rc = main(["tune", str(drive), "--law", "odrive", "--bias-max", "0.5", *alone, "--out", str(out)])
+    rc = main(["tune", str(drive), "--law", "constant", "--bias-max", "0.5", *alone, "--out", str(out)])
     err = [x for x in capsys.readouterr().err.splitlines() if "sensorless tune: warning: the tuned" in x]
     assert rc == 3 and len(err) == 1
     assert "hold at no envelope speed" in err[0] and "alone" in err[0] and "change:" in err[0]
     assert "R_s +-30 % alone" in err[0]  # the one error given is the one named
-    assert (out / "gains_odrive.json").is_file()  # the result is written
+    assert (out / "gains_constant.json").is_file()  # the result is written

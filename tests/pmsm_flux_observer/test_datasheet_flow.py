@@ -19,12 +19,13 @@ def test_hub_motor_from_init_to_export(tmp_path, capsys):
     minimal.write_text((DRIVES / "hub500.toml").read_text() + "\n[envelope]\nspeeds = 4\n")
     drive = tmp_path / "hub.toml"
     assert main(["init", str(minimal), "--firmware", "vesc", "--out", str(drive)]) == 0
-    assert main(["tune", str(drive), "--out", str(tmp_path / "t"), "--quiet"]) == 0  # law vesc: the file's
+    # the file's law: voltage-scaled
+    assert main(["tune", str(drive), "--out", str(tmp_path / "t"), "--quiet"]) == 0
     out = capsys.readouterr().out
-    assert "tuned vesc:" in out
+    assert "tuned voltage-scaled:" in out
     # the start's analysis of the tuned gains that export and codegen ask for is the one tune's start-up
     # line computed in this process, under another name of the table (design/memo.py: not keyed on it)
-    table = tmp_path / "t" / "gains_vesc.json"
+    table = tmp_path / "t" / "gains_voltage-scaled.json"
     hits, misses = minimum_speed.cache_info()
     s = json.loads(table.read_text())["summary"]
     assert s["low_speed_limit_pu"] < 1 and s["worst_decay_1_s"] >= s["required"]["decay"] * (1 - 1e-9)

@@ -69,7 +69,7 @@ def test_rules_of_a_minimal_file(minimal):
     )
     assert o.T_obs == pytest.approx(1e-4)
     g = d.gains_table
-    assert g["law"] == "vesc" and g["foc_observer_gain"] == pytest.approx(1e3 / psi**2, rel=1e-5)
+    assert g["law"] == "voltage-scaled" and g["foc_observer_gain"] == pytest.approx(1e3 / psi**2, rel=1e-5)
 
 
 @pytest.mark.parametrize(
@@ -79,7 +79,7 @@ def test_rules_of_a_minimal_file(minimal):
         (('f_s = "10 kHz"', 'f_s = "10 kHz"\nbogus = 1'), "inverter.bogus"),
         (('f_s = "10 kHz"\n', ""), "inverter.f_s"),
         (
-            ('firmware = "vesc"', 'firmware = "vesc"\n[gains]\nlaw = "odrive"\nobserver_gain = "-3 1/s"'),
+            ('firmware = "vesc"', 'firmware = "vesc"\n[gains]\nlaw = "constant"\nobserver_gain = "-3 1/s"'),
             "gains",
         ),
     ],
@@ -101,10 +101,10 @@ def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys):
     assert main(["init", str(minimal), "--out", str(full)]) == 0
     assert load_drive(str(full)).T_N == pytest.approx(load_drive(str(minimal)).T_N)
     assert load_drive(str(full)).envelope.rule.count == 4
-    assert main(["tune", str(full), "--law", "odrive", "--out", str(tmp_path / "t"), "--quiet"]) in (0, 3)
+    assert main(["tune", str(full), "--law", "constant", "--out", str(tmp_path / "t"), "--quiet"]) in (0, 3)
     out = capsys.readouterr().out
     assert "ODrive defaults" in out and "VESC detection" in out
-    table = tmp_path / "t" / "gains_odrive.json"
+    table = tmp_path / "t" / "gains_constant.json"
     assert main(["codegen", str(full), "--gains", str(table), "--out", str(tmp_path / "c")]) == 0
     # --quick: the report's coarser low-speed grid (design/low_speed.py QUICK); the analyses it holds
     # are the same, and the full grid under every corner of the estimate errors is half this test's CPU.
@@ -152,7 +152,7 @@ def test_an_observer_gain_past_the_euler_limit_is_refused_naming_the_keys(tmp_pa
     the period, with the largest gain to give; 1.9 / T_obs (the tuner's largest) loads; a schedule names
     its offending speed; a gain table gets the same check against the drive it is used with."""
     T = 1e-4  # f_s = 10 kHz
-    odrive = 'firmware = "vesc"\n[gains]\nlaw = "odrive"\npll_bandwidth = "1000 rad/s"\n'
+    odrive = 'firmware = "vesc"\n[gains]\nlaw = "constant"\npll_bandwidth = "1000 rad/s"\n'
     odrive += 'observer_gain = "{} 1/s"'
     p = tmp_path / "bad.toml"
     p.write_text(MINIMAL.replace('firmware = "vesc"', odrive.format(2.1 / T)))
@@ -171,6 +171,6 @@ def test_an_observer_gain_past_the_euler_limit_is_refused_naming_the_keys(tmp_pa
     p.write_text(MINIMAL.replace('firmware = "vesc"', schedule))
     with pytest.raises(DriveFileError, match=r"observer_gain.*its value at 900 rad/s.*\(observer\.T_obs\)"):
         load_drive(str(p))
-    table = GainTable("odrive", {"kind": drive.kind}, {"observer_gain": 2.1 / T, "pll_bandwidth": 1000.0})
+    table = GainTable("constant", {"kind": drive.kind}, {"observer_gain": 2.1 / T, "pll_bandwidth": 1000.0})
     with pytest.raises(GainTableError, match=r"^t\.json: key 'gains\.observer_gain': 21000 1/s"):
         registry.family_of(drive).gains(drive, table=table, table_file="t.json")

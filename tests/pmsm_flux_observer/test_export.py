@@ -33,7 +33,7 @@ SKATE = FirmwareDrive(
     T_obs=50e-6,
     correction="clamped-gradient",
     lambda_adaptation=False,
-    law="vesc",
+    law="voltage-scaled",
     gains={
         "foc_observer_gain": 62064786.2,
         "foc_observer_gain_slow": 0.05,
@@ -53,7 +53,7 @@ OUTRUNNER = FirmwareDrive(
     T_obs=125e-6,
     correction="gradient",
     lambda_adaptation=False,
-    law="odrive",
+    law="constant",
     gains={"observer_gain": 1500.0, "pll_bandwidth": 800.0},
     source="gains.json",
 )
@@ -105,8 +105,8 @@ def test_vesc_euler_limit_at_full_duty():
 
 
 def test_vesc_refuses_another_law():
-    with pytest.raises(DriveFileError, match="law 'odrive'"):
-        vesc.export(dataclasses.replace(SKATE, law="odrive"))
+    with pytest.raises(DriveFileError, match="law 'constant'"):
+        vesc.export(dataclasses.replace(SKATE, law="constant"))
 
 
 def test_vesc_round_trip():
@@ -125,7 +125,7 @@ def test_vesc_round_trip():
     assert si(obs["T_obs"], "time") == pytest.approx(SKATE.T_obs, rel=REL)
     assert (obs["correction"], obs["lambda_adaptation"]) == (SKATE.correction, SKATE.lambda_adaptation)
     g = d["gains"]
-    assert g["law"] == "vesc"
+    assert g["law"] == "voltage-scaled"
     assert g["foc_observer_gain"] == pytest.approx(SKATE.gains["foc_observer_gain"], rel=REL)
     assert g["foc_observer_gain_slow"] == SKATE.gains["foc_observer_gain_slow"]
     assert si(g["foc_pll_kp"], "rate") == SKATE.gains["foc_pll_kp"]
@@ -167,7 +167,7 @@ def test_odrive_limits():
             odrive.export(dataclasses.replace(OUTRUNNER, gains=gains))
         msg = str(e.value)
         assert msg.startswith("gains.json: ") and f"'{key}'" in msg and "\n" not in msg
-    with pytest.raises(DriveFileError, match="law 'vesc'"):
+    with pytest.raises(DriveFileError, match="law 'voltage-scaled'"):
         odrive.export(SKATE)
 
 

@@ -68,7 +68,7 @@ def test_vesc_hub_motor_example_converts_each_value():
     obs = d["observer"]
     assert (obs["firmware"], obs["correction"], obs["lambda_adaptation"]) == ("vesc", "box-clamp", True)
     g = d["gains"]
-    assert g["law"] == "vesc" and g["foc_observer_gain"] == 1067965 and g["foc_pll_ki"] == 30000
+    assert g["law"] == "voltage-scaled" and g["foc_observer_gain"] == 1067965 and g["foc_pll_ki"] == 30000
     assert si(g["foc_pll_kp"], "rate") == 2000
     # l_current_max 60 A (amplitude) is the torque limit T_max = 2 T_N: rated 30 A amplitude, 21.21 A rms
     assert si(d["rating"]["I_N"], "current") == pytest.approx(30 / math.sqrt(2), rel=1e-11)
@@ -183,7 +183,7 @@ def test_odrive_outrunner_example_uses_the_torque_constant_over_the_default_flux
     assert si(m["R_s"], "resistance") == pytest.approx(0.0392, rel=1e-7)
     assert si(m["L_d"], "inductance") == si(m["L_q"], "inductance") == pytest.approx(2.37e-5, rel=1e-7)
     assert si(d["observer"]["T_obs"], "time") == pytest.approx(125e-6, rel=1e-11)  # 8 kHz, v3
-    assert d["observer"]["correction"] == "gradient" and d["gains"]["law"] == "odrive"
+    assert d["observer"]["correction"] == "gradient" and d["gains"]["law"] == "constant"
     assert si(d["gains"]["observer_gain"], "rate") == 1000
     assert si(d["gains"]["pll_bandwidth"], "angular") == 1000
     assert si(d["rating"]["I_N"], "current") == pytest.approx(40 / (2 * math.sqrt(2)), rel=1e-11)

@@ -132,19 +132,19 @@ def test_a_box_clamp_drive_without_a_start_stays_above_zero_speed_and_says_why(t
     assert "no linearization" in why and "[startup]" in why
 
 
-@pytest.mark.parametrize("law", ["odrive", "vesc", "schedule"])
+@pytest.mark.parametrize("law", ["constant", "voltage-scaled", "schedule"])
 def test_each_tuned_pll_is_four_times_the_speed_loop_and_its_table_reports(hub, law):
     """The speed loop closes on the PLL's speed: every law's tuned PLL roots lie at 4 alpha_s or
     beyond (roots of s^2 + k_p s + k_i from the table's own numbers), and the report reads the table
     (a schedule table among the firmware defaults included) without a PLL finding."""
     from sensorless.tuning.pmsm_flux_observer import tune_odrive, tune_schedule, tune_vesc
 
-    tuner = {"odrive": tune_odrive, "vesc": tune_vesc, "schedule": tune_schedule}[law]
+    tuner = {"constant": tune_odrive, "voltage-scaled": tune_vesc, "schedule": tune_schedule}[law]
     table = tuner(hub, FluxTuneSettings()).table
     g = table.gains
     k_p, k_i = (
         (g["foc_pll_kp"], g["foc_pll_ki"])
-        if law == "vesc"
+        if law == "voltage-scaled"
         else (2 * g["pll_bandwidth"], g["pll_bandwidth"] ** 2)
     )
     slowest = -max(np.roots([1.0, k_p, k_i]).real)

@@ -23,7 +23,7 @@ from sensorless.design.rotor_frame import equilibrium_points, pmsm_steady_curren
 
 def test_angle_noise_matches_a_monte_carlo_run_of_the_step():
     drive = load_drive("outrunner270")
-    g = GainSet("odrive", {"observer_gain": 400.0, "pll_bandwidth": 400.0}, "test")
+    g = GainSet("constant", {"observer_gain": 400.0, "pll_bandwidth": 400.0}, "test")
     o = drive.observer
     setup = runtime_setup(drive, g)
     p = setup.observer.pack_params(dict(setup.params))

@@ -6,11 +6,13 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import re
 
 import numpy as np
 import pytest
 from sensorless.design.drive import load_drive
 from sensorless.design.registry import family_of
+from sensorless.reports.cli.main import main
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
     assess,
@@ -77,11 +79,11 @@ def test_default_law_on_a_drive_of_ones_own_is_its_files(tmp_path):
     from sensorless.tuning.family import tunable_for
 
     text = (files("sensorless.design.pmsm_flux_observer.presets") / "hubmotor48.toml").read_text()
-    assert 'law = "vesc"' in text
+    assert 'law = "voltage-scaled"' in text
     own = tmp_path / "hub.toml"
     own.write_text(text)
-    assert tunable_for(load_drive(str(own))).name == "vesc"
-    assert tunable_for(load_drive("hubmotor48"), None).name == "odrive"  # a preset: the first law
+    assert tunable_for(load_drive(str(own))).name == "voltage-scaled"
+    assert tunable_for(load_drive("hubmotor48"), None).name == "constant"  # a preset: the first law
     assert tunable_for(load_drive(str(own)), "schedule").name == "schedule"
 
 
@@ -96,6 +98,50 @@ def test_the_schedule_laws_former_name_reads_from_drive_files(capsys):
     parse_law("flux_schedule", t, "old.toml", "gains")
     err = capsys.readouterr().err.splitlines()
     assert err == ["old.toml: note: key 'gains.law': law 'flux_schedule' is now called 'schedule'"]
+
+
+@pytest.mark.parametrize(
+    "old, new, preset",
+    [("odrive", "constant", "outrunner270"), ("vesc", "voltage-scaled", "hubmotor48")],
+)
+def test_the_laws_firmware_names_read_for_one_release(tmp_path, capsys, old, new, preset):
+    """``odrive`` and ``vesc``, the laws' names before they were named by role (the firmware names stay
+    the export targets), read for one release as ``constant`` and ``voltage-scaled`` with one note line
+    on stderr: from a drive file's [gains] (the same gains as the preset's, and ``init`` writes the name
+    now), from a gain table (the same gains as under the new name) and from ``tune --law``."""
+    from importlib.resources import files
+
+    from sensorless.design.gain_table import GainTable, read_gain_table
+
+    text = (files("sensorless.design.pmsm_flux_observer.presets") / f"{preset}.toml").read_text()
+    assert f'law = "{new}"' in text
+    own = tmp_path / "own.toml"
+    own.write_text(text.replace(f'law = "{new}"', f'law = "{old}"'))
+    mine, theirs = load_drive(str(own)), load_drive(preset)
+    note = f"key 'gains.law': law '{old}' is now called '{new}'"
+    assert capsys.readouterr().err.splitlines() == [f"{own}: note: {note}"]
+    assert mine.gains_table == theirs.gains_table
+    assert family_of(mine).gains(mine).values == family_of(theirs).gains(theirs).values
+    assert main(["init", str(own), "--out", str(tmp_path / "full.toml")]) == 0
+    full = (tmp_path / "full.toml").read_text()
+    assert f'law = "{new}"' in full and f'law = "{old}"' not in full
+
+    gains = dict(family_of(theirs).gains(theirs).values)
+    t = tmp_path / "t.json"
+    t.write_text(GainTable(old, {"name": preset, "kind": theirs.kind}, gains).to_json())
+    capsys.readouterr()
+    table = read_gain_table(t)
+    assert capsys.readouterr().err.splitlines() == [f"{t}: note: law '{old}' is now called '{new}'"]
+    assert table.law == new and family_of(theirs).gains(theirs, table=table).values == gains
+
+    # tune: the note, then the law by its name now (refused up front, before any work: the box clamp
+    # has no observer gain, whatever the law)
+    box = tmp_path / "box.toml"
+    box.write_text(re.sub(r'correction = "[a-z-]+"', 'correction = "box-clamp"', text))
+    assert main(["tune", str(box), "--law", old, "--out", str(tmp_path / "tune"), "--quiet"]) == 2
+    err = [x for x in capsys.readouterr().err.splitlines() if ": warning: " not in x]  # the drive's data
+    assert err[0] == f"sensorless tune: note: law '{old}' is now called '{new}'"
+    assert len(err) == 2 and f"law '{new}'" in err[1] and "no observer gain" in err[1]
 
 
 def test_noise_limit_holds_and_front_trades_damping_for_bias(drive, tuned):

@@ -24,9 +24,9 @@ def _init(tmp_path, text, *opts):
 @pytest.mark.parametrize(
     "firmware, variant, law",
     [
-        ("vesc", ("clamped-gradient", "interpolated", False), "vesc"),
-        ("odrive", ("gradient", "fixed", False), "odrive"),
-        ("simplefoc", ("box-clamp", "q-axis", False), "odrive"),
+        ("vesc", ("clamped-gradient", "interpolated", False), "voltage-scaled"),
+        ("odrive", ("gradient", "fixed", False), "constant"),
+        ("simplefoc", ("box-clamp", "q-axis", False), "constant"),
     ],
 )
 def test_init_writes_the_firmwares_variant(tmp_path, firmware, variant, law):
@@ -58,10 +58,10 @@ def test_init_firmware_refusals(tmp_path, capsys):
 @pytest.mark.parametrize(
     "observer, law, says",
     [
-        ("", "vesc", "unclamped gradient"),  # the generic variant: VESC has no unclamped gradient
-        ('firmware = "odrive"', "vesc", "init --firmware vesc"),
-        ('firmware = "vesc"\ncorrection = "box-clamp"', "vesc", "no observer gain"),
-        ('firmware = "simplefoc"', "odrive", "no observer gain"),
+        ("", "voltage-scaled", "unclamped gradient"),  # the generic variant: VESC has no unclamped gradient
+        ('firmware = "odrive"', "voltage-scaled", "init --firmware vesc"),
+        ('firmware = "vesc"\ncorrection = "box-clamp"', "voltage-scaled", "no observer gain"),
+        ('firmware = "simplefoc"', "constant", "no observer gain"),
     ],
 )
 def test_tune_refuses_a_law_the_variant_cannot_run_up_front(tmp_path, capsys, observer, law, says):

@@ -1,4 +1,5 @@
-"""Tuning of the flux observer + PLL in each firmware's terms: the laws odrive, vesc and schedule.
+"""Tuning of the flux observer + PLL in each firmware's terms: the laws constant (ODrive's terms),
+voltage-scaled (VESC's) and schedule.
 
 Each law is tuned by a search of its own (tuning/family.py ``tuner``): its gains have one or two free
 numbers, so every candidate of a grid is judged on the whole envelope at once (one batched evaluation
@@ -87,7 +88,7 @@ __all__ = [
 
 def own_law(drive: FluxObserverDrive) -> str | None:
     """The default law on a drive of the user's own: the law of its file's [gains] (a VESC user's drive
-    tunes the vesc law), where it is a tunable one."""
+    tunes the voltage-scaled law), where it is a tunable one (the schema writes a former name as now)."""
     law = drive.gains_table.get("law")
     return law if law in TABLE_LAWS else None
 
@@ -98,15 +99,17 @@ _LEAD = (("w_m_pu", "w_m_pu"), ("T_e_Nm", "T_e_Nm"))
 HOOKS = TuningHooks(
     tunables=(
         Tunable(
-            "odrive",
-            "flux observer: ODrive's observer_gain (gamma lambda^2) and pll_bandwidth, constant over speed",
+            "constant",
+            "flux observer: observer_gain (gamma lambda^2) and pll_bandwidth, constant over speed (ODrive's "
+            "terms)",
             default_settings,
             tuner=tune_odrive,
             columns=(_LEAD, ()),
         ),
         Tunable(
-            "vesc",
-            "flux observer: VESC's foc_observer_gain, foc_observer_gain_slow (its run-time schedule), PLL",
+            "voltage-scaled",
+            "flux observer: VESC's foc_observer_gain, foc_observer_gain_slow (scaled with the voltage at run "
+            "time), PLL",
             default_settings,
             tuner=tune_vesc,
             columns=(_LEAD, ()),

@@ -54,7 +54,7 @@ def assess(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTuneSet
         base = runtime_params(drive, g)
         k_0 = (
             4 * float(g.values["foc_observer_gain"]) * drive.estimate.psi_pm**2
-            if g.law == "vesc"
+            if g.law == "voltage-scaled"
             else float(g.values["observer_gain"])
         )
         for c in cs:

@@ -1,4 +1,4 @@
-"""The ``odrive`` law's tuner: one observer_gain and pll_bandwidth over the envelope."""
+"""The ``constant`` law's tuner (ODrive's terms): one observer_gain and pll_bandwidth over the envelope."""
 
 from __future__ import annotations
 
@@ -23,8 +23,8 @@ if TYPE_CHECKING:  # typed by name only
 
 
 def tune_odrive(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
-    """The ``odrive`` law: one observer_gain and pll_bandwidth over the envelope (package docstring)."""
-    check_variant(drive, "odrive")
+    """The ``constant`` law: one observer_gain and pll_bandwidth over the envelope (package docstring)."""
+    check_variant(drive, "constant")
     ks = k_grid(drive)
     cands = [odrive_candidate(drive, float(k)) for k in ks]
     if progress:
@@ -40,13 +40,13 @@ def tune_odrive(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: 
     # file's gains of this law as candidates too (the tuned gains are never worse than either)
     lo, hi = ks[max(c - 1, 0)], ks[min(c + 1, len(ks) - 1)]
     cands = [cands[c], *(odrive_candidate(drive, float(k)) for k in np.geomspace(lo, hi, REFINE))]
-    cands += [odrive_gains(), *same_law(drive, "odrive")]
+    cands += [odrive_gains(), *same_law(drive, "constant")]
     a = assess(drive, cands, settings)
     return outcome(
         drive,
-        "odrive",
+        "constant",
         lambda g: (
-            f"tuned odrive: observer_gain = {g['observer_gain']:.6g} 1/s, "
+            f"tuned constant: observer_gain = {g['observer_gain']:.6g} 1/s, "
             f"pll_bandwidth = {g['pll_bandwidth']:.6g} rad/s"
         ),
         cands,

@@ -1,5 +1,5 @@
 """Settings, constants and candidate gain sets of the flux-observer tuners: the estimate errors, the
-firmwares' defaults on a motor (the baselines), the ODrive-law candidates and the PLL's floor."""
+firmwares' defaults on a motor (the baselines), the constant law's candidates and the PLL's floor."""
 
 from __future__ import annotations
 
@@ -88,17 +88,18 @@ def corners(errors: dict[str, float]) -> list[dict[str, float]]:
 def vesc_gains(drive: FluxObserverDrive) -> GainSet:
     """VESC Tool's detection on this motor: gain 1e-3/lambda^2 stored x1e6, its PLL and slow gain."""
     raw = 1e3 / drive.estimate.psi_pm**2
-    return GainSet("vesc", {"foc_observer_gain": raw, **VESC_DEFAULT}, "VESC Tool detection defaults")
+    values = {"foc_observer_gain": raw, **VESC_DEFAULT}
+    return GainSet("voltage-scaled", values, "VESC Tool detection defaults")
 
 
 def odrive_gains() -> GainSet:
-    return GainSet("odrive", dict(ODRIVE_DEFAULT), "ODrive defaults")
+    return GainSet("constant", dict(ODRIVE_DEFAULT), "ODrive defaults")
 
 
 def odrive_candidate(drive: FluxObserverDrive, k: float) -> GainSet:
     T = drive.observer.T_obs
     bw = min(max(k, pll_floor(drive)), KP_T / (2 * T))
-    return GainSet("odrive", {"observer_gain": k, "pll_bandwidth": bw}, "candidate")
+    return GainSet("constant", {"observer_gain": k, "pll_bandwidth": bw}, "candidate")
 
 
 def pll_floor(drive: FluxObserverDrive) -> float:

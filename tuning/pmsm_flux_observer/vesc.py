@@ -1,5 +1,5 @@
-"""The ``vesc`` law's tuner: foc_observer_gain and foc_observer_gain_slow under VESC's run-time schedule,
-with its PLL."""
+"""The ``voltage-scaled`` law's tuner (VESC's terms): foc_observer_gain and foc_observer_gain_slow under
+VESC's run-time schedule, with its PLL."""
 
 from __future__ import annotations
 
@@ -29,8 +29,9 @@ if TYPE_CHECKING:  # typed by name only
 
 
 def tune_vesc(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
-    """The ``vesc`` law: foc_observer_gain and foc_observer_gain_slow under VESC's run-time schedule."""
-    check_variant(drive, "vesc")
+    """The ``voltage-scaled`` law: foc_observer_gain and foc_observer_gain_slow under VESC's run-time
+    schedule."""
+    check_variant(drive, "voltage-scaled")
     psi = drive.estimate.psi_pm
     T = drive.observer.T_obs
     # the schedule's factor at the top of the envelope: k there = 4 raw psi^2 max(slow, |u|/u_ref)
@@ -43,7 +44,7 @@ def tune_vesc(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: An
             kp = min(max(k, 2 * pll_floor(drive)), KP_T / T)  # a double root at -k_p/2
             cands.append(
                 GainSet(
-                    "vesc",
+                    "voltage-scaled",
                     {
                         "foc_observer_gain": raw,
                         "foc_observer_gain_slow": slow,
@@ -68,15 +69,16 @@ def tune_vesc(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: An
     for raw in np.geomspace(raw0 / step, raw0 * step, REFINE):
         g0 = dict(cands[c].values)
         g0["foc_observer_gain"] = float(raw)
-        fine.append(GainSet("vesc", g0, "candidate"))
-    cands = [cands[c], *fine, vesc_gains(drive), odrive_in_vesc_terms(drive), *same_law(drive, "vesc")]
+        fine.append(GainSet("voltage-scaled", g0, "candidate"))
+    cands = [cands[c], *fine, vesc_gains(drive), odrive_in_vesc_terms(drive)]
+    cands += same_law(drive, "voltage-scaled")
     del slow0
     a = assess(drive, cands, settings)
     return outcome(
         drive,
-        "vesc",
+        "voltage-scaled",
         lambda g: (
-            f"tuned vesc: foc_observer_gain = {g['foc_observer_gain']:.6g} "
+            f"tuned voltage-scaled: foc_observer_gain = {g['foc_observer_gain']:.6g} "
             f"({g['foc_observer_gain'] / 1e6:.4g} x1M), "
             f"foc_observer_gain_slow = {g['foc_observer_gain_slow']:.3g}, "
             f"foc_pll_kp = {g['foc_pll_kp']:.6g}, foc_pll_ki = {g['foc_pll_ki']:.6g}"
@@ -99,4 +101,4 @@ def odrive_in_vesc_terms(drive: FluxObserverDrive) -> GainSet:
         "foc_pll_kp": 2 * bw,
         "foc_pll_ki": bw**2,
     }
-    return GainSet("vesc", values, "ODrive defaults in VESC's terms")
+    return GainSet("voltage-scaled", values, "ODrive defaults in VESC's terms")

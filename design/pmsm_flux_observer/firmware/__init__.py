@@ -63,7 +63,7 @@ class FirmwareDrive:
     T_obs: float  # s: the observer and PLL period
     correction: str  # "gradient" | "clamped-gradient" | "box-clamp"
     lambda_adaptation: bool
-    law: str  # the gain law: "odrive" | "vesc" | "schedule"
+    law: str  # the gain law: "constant" | "voltage-scaled" | "schedule"
     gains: Mapping[str, float] = field(default_factory=dict)  # the law's gains, SI or firmware-raw
     source: str = ""  # where the gains come from (the drive file's [gains] or a gain table), for messages
     # the open-loop I-f start (design/startup.py): if_i [A], if_acc [rad/s^2], if_w_on, if_w_off [rad/s],

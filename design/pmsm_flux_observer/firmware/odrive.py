@@ -165,7 +165,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         "lambda_adaptation": Entry(False),
         "T_obs": Entry(quantity(1 / f_s, "s"), "1/f_s: once per current-loop period"),
     }
-    gains: dict[str, Entry] = {"law": Entry("odrive")}
+    gains: dict[str, Entry] = {"law": Entry("constant")}
     for key, unit in (("observer_gain", "1/s"), ("pll_bandwidth", "rad/s")):
         x = f.number(ESTIMATOR + key)
         if x is None:
@@ -213,13 +213,14 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
 
 def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
     """``odrive.json`` (attribute path -> value) and ``odrivetool.txt`` (the same as odrivetool lines)
-    of the drive's motor values and law ``odrive`` gains; a DriveFileError (one line) where the gains
-    break the firmware's own limits (T kp < 1 with kp = 2 pll_bandwidth; T observer_gain < 2)."""
+    of the drive's motor values and law ``constant`` gains (ODrive's terms); a DriveFileError (one line)
+    where the gains break the firmware's own limits (T kp < 1 with kp = 2 pll_bandwidth; T observer_gain
+    < 2)."""
     check_limit(
-        d.law == "odrive",
+        d.law == "constant",
         d.source,
         "law",
-        lambda: f"law {d.law!r}: the odrive target writes law 'odrive' gains",
+        lambda: f"law {d.law!r}: the odrive target writes law 'constant' gains (tune --law constant)",
     )
     gain, bw = d.gains["observer_gain"], d.gains["pll_bandwidth"]
     T = d.T_obs

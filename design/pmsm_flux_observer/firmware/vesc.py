@@ -272,7 +272,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         "T_obs": Entry(quantity(T, "s"), loop),
     }
 
-    gains: dict[str, Entry] = {"law": Entry("vesc")}
+    gains: dict[str, Entry] = {"law": Entry("voltage-scaled")}
     raw = f.number("foc_observer_gain")
     if raw is None:
         raw = observer_gain_detection(psi)
@@ -387,10 +387,15 @@ def _startup_elements(d: FirmwareDrive) -> list[str]:
 
 
 def export(d: FirmwareDrive) -> tuple[dict[str, str], list[str]]:
-    """VESC Tool XML fragment (``vesc.xml``) of the drive's motor values and law ``vesc`` gains; a
+    """VESC Tool XML fragment (``vesc.xml``) of the drive's motor values and law ``voltage-scaled`` gains; a
     DriveFileError (one line) where the drive or gains break the firmware's own limits."""
     check_limit(
-        d.law == "vesc", d.source, "law", lambda: f"law {d.law!r}: the vesc target writes law 'vesc' gains"
+        d.law == "voltage-scaled",
+        d.source,
+        "law",
+        lambda: (
+            f"law {d.law!r}: the vesc target writes law 'voltage-scaled' gains (tune --law voltage-scaled)"
+        ),
     )
     if d.correction == "gradient":
         raise DriveFileError(

@@ -1,6 +1,6 @@
 """The discrete-time observer that runs, in ``sensorless analyze`` and in the report.
 
-Piippo, Hinkkanen, Luomi (2008) analyse the continuous observer; design/ipmsm_adaptive/discrete.py
+Piippo, Hinkkanen, Luomi (2008) analyse the continuous observer; design/ipmsm_adaptive/one_step.py
 linearizes the runtime step (what simulation runs and C is printed from) on the motor sampled under
 zero-order hold. Here: the command-line options, the printed table and CSV beside the continuous
 analysis, the study of every discretization over the sampling period, and the report's section.
@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.ipmsm_adaptive import FAMILY, with_alpha_fo
-from sensorless.design.ipmsm_adaptive.discrete import (
+from sensorless.design.ipmsm_adaptive.one_step import (
     STUDY_SAMPLING,
     STUDY_SPEEDS,
     DiscretePoleSweep,
