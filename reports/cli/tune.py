@@ -244,7 +244,8 @@ def _proved(
     fam = family_of(drive)
     runs = tune_proof.runs(drive)
     progress(f"proof: the drive file's and the tuned gains, {len(runs)} time-domain checks, +-T_max")
-    base = tune_proof.prove(drive, None, "drive file", runs, tune_proof.ANALYSIS, progress)
+    # the drive file's gains as a table runs them (a scenario's own gain choice is no reference for a table)
+    base = tune_proof.prove(drive, fam.gains(drive), "drive file", runs, tune_proof.ANALYSIS, progress)
     lines = [f"proof (linear analysis over +-T_max, {len(runs)} time-domain checks): {base.line()}"]
     cands: list[tuple[str, TuneOutcome]] = [("tuned", r)]
     i = 0
