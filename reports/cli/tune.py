@@ -15,10 +15,11 @@ the exit status is 3; a tuner whose outcome judges by a criterion of its family'
 (``TuneOutcome.shortfalls``) says what its gains miss instead, one warning line each (exit 3).
 
 Before anything is written the table is proved (reports/tune_proof.py): its gains and the drive file's
-over the drive's real range (+-T_max) by the linear analysis and on the report's time-domain checks. A
-table that runs worse than the drive file's gains is not written as tuned: the tuner's fallback (a
-seeded law: its seed's optimum in this law's parameters) is proved next, and if none holds the command
-says which point and which check, writes nothing and exits 3. ``--unchecked`` skips the proof.
+over the drive's real range (+-T_max) by the linear analysis and on the report's time-domain checks
+(status, and the peak angle error of a check both pass). A table that runs worse than the drive file's
+gains is not written as tuned: the tuner's fallbacks (a seeded law: its seed's optimum in this law's
+parameters; then the kept gains pulled back toward the drive file's) are proved next, and if none holds
+the command says which point and which check, writes nothing and exits 3. ``--unchecked`` skips the proof.
 """
 
 from __future__ import annotations
