@@ -408,7 +408,7 @@ def with_noise_points(cand: Candidates) -> Candidates:
 
 
 # the kept gains pulled back toward the drive file's (in the law's parameters), in this order, as the
-# last fallbacks: 0 is the drive file's gains in the law's box, which run as the drive file's
+# last fallbacks: 0 is the drive file's gains, which run as the drive file's
 PULL_BACK = (0.5, 0.25, 0.0)
 
 
@@ -418,7 +418,7 @@ def fallbacks(drive: Drive, result: TuneOutcome, settings: TuneSettings) -> list
     shared pipeline: the law's start where it has one and it differs from the kept gains (a seeded law:
     its seed's optimum in this law's parameters, e.g. the tuned speed-dependent law (16) sampled at the
     schedule's breakpoints, which that law reproduces exactly); then the kept gains pulled back along
-    the segment to the drive file's gains in the law's box (:data:`PULL_BACK`; the objective, the worst
+    the segment to the drive file's gains (:data:`PULL_BACK`; the objective, the worst
     damping, does not see the angle error under acceleration that the time-domain checks punish, and
     the drive file's gains bound it: docs/tuning.md, "Tuned gains that run worse"); a tuner of its own
     offers none."""
@@ -431,7 +431,9 @@ def fallbacks(drive: Drive, result: TuneOutcome, settings: TuneSettings) -> list
     Wd, Td = env.grid(env.dense_factor, env.dense_factor)
     scale = float(np.abs(figures(m, result.theta0, W, T).poles).max())
     kept = np.asarray(result.theta, float)
-    theta0 = np.clip(np.asarray(m.theta0, float), m.lower, m.upper)
+    # the drive file's gains as they are, not clipped into the law's box: the box is the optimizer's (a
+    # law may hold parameters, e.g. the schedule's injection band at its seed's gains), the proof judges
+    theta0 = np.asarray(m.theta0, float)
     cands: list[tuple[str, np.ndarray, str]] = []
     if m.start is not None:
         what = m.start_label or "the law's start"
@@ -441,7 +443,7 @@ def fallbacks(drive: Drive, result: TuneOutcome, settings: TuneSettings) -> list
         what = (
             f"the tuned gains pulled back to {f:g} of the way from the drive file's"
             if f
-            else "the drive file's gains in the law's box"
+            else "the drive file's gains"
         )
         why = "every candidate before it ran worse than the drive file's gains in the command's proof"
         cands.append((what, theta0 + f * (kept - theta0), why))
