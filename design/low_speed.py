@@ -186,9 +186,7 @@ class WholeDrive:
     lin: DriveLinearization
     mid: tuple[np.ndarray, np.ndarray]  # worst damping and decay of the drive at REFERENCE_PU, same torques
     observer: Linearization | None  # the family's (for the noise)
-    # (N,) the largest angle error [rad] of the drive braking at its torque limit from 1 p.u. down to
-    # each point's speed at its load (design/brake.py); None: no acceleration criterion
-    braking: np.ndarray | None = None
+    acceleration: np.ndarray | float  # [rad/s^2], per point (or one for all)
 
     @property
     def worst_damping(self) -> np.ndarray:
@@ -217,11 +215,8 @@ class WholeDrive:
     def angle_noise(self) -> np.ndarray | None:
         return None if self.observer is None else self.observer.angle_noise()
 
-    def angle_lag(self) -> np.ndarray | None:
-        """The error under the brake beyond the bias (the criterion adds |bias|: together the brake's)."""
-        if self.braking is None:
-            return None
-        return np.maximum(self.braking - np.abs(self.lin.theta_err), 0.0)
+    def angle_lag(self) -> np.ndarray:
+        return self.lin.lag(self.acceleration)
 
 
 def full_acceleration(drive: Drive) -> float:
@@ -250,7 +245,6 @@ def _analysis(
     drive: Drive, gains: GainSet, opts: Mapping[str, Any], acceleration: bool, observer: bool = False
 ) -> tuple[Analyse, str]:
     """(w, T) -> the figures the criteria judge, and what is linearized (one line)."""
-    from sensorless.design.brake import Brake, brake
     from sensorless.design.drive_analysis import drive_loop, linearize_drive
 
     fam = family_of(drive)
@@ -278,10 +272,6 @@ def _analysis(
     # (its class, the same at every call) keeps the base class's angle_noise, which gives none, it is
     # not computed again (the pmsm_flux_observer family: more than half of this analysis' time)
     noise: list[bool] = []
-    # the brake at the torque limit from 1 p.u., once per load magnitude (the load helping it: p (T_max
-    # + |T|) / J, the largest speed change at that load; the torque during it is -T_max whatever the
-    # load's sign, so the load's magnitude is the brake's only parameter)
-    brakes: dict[float, Brake] = {}
 
     def whole(w: np.ndarray, T: np.ndarray) -> WholeDrive:
         obs: Linearization | None
@@ -298,17 +288,12 @@ def _analysis(
             pairs = zip(mid.worst_damping.tolist(), mid.decay.tolist(), strict=True)
             mid_of.update(zip(new.tolist(), pairs, strict=True))
         figs = np.array([mid_of[float(t)] for t in torques]).reshape(-1, 2)
-        braking = None
-        if acceleration:
-            Wb = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))[0].ravel()
-            braking = np.full(Wb.shape, np.nan)
-            for m in np.unique(np.abs(Tb)).tolist():
-                if m not in brakes:
-                    brakes[m] = brake(drive, gains, dl, m)
-                at = np.abs(Tb) == m
-                braking[at] = brakes[m].error_at(np.abs(Wb[at]))
-        lin = linearize_drive(drive, gains, w, T, dl)
-        return WholeDrive(lin, (figs[back, 0], figs[back, 1]), obs, braking)
+        return WholeDrive(
+            linearize_drive(drive, gains, w, T, dl),
+            (figs[back, 0], figs[back, 1]),
+            obs,
+            braking_acceleration(drive, Tb) if acceleration else 0.0,
+        )
 
     basis = "the whole sampled drive (design/drive_analysis.py)" + (f"; {dl.note}" if dl.note else "")
     return whole, basis

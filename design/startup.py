@@ -11,17 +11,13 @@ The rules (each with its reason; :func:`if_values`):
   w_min (at most w_on / ON_FACTOR), w_min the minimum speed at rated load for the handover: the whole
   sampled drive's minimum sensorless speed (design/low_speed.py on design/drive_analysis.py) with, as a
   fifth criterion, its angle error under the largest speed change at each load T within the analysis'
-  angle limit (30 deg): the largest angle error of the whole drive braking from 1 p.u. at its torque
-  limit with the load |T| helping, p (T_max + |T|) / J, until its speed estimate passes the speed
-  (design/brake.py: the loop simulated, sensorless). That is the speed loop's largest speed change (a
-  speed step towards zero under a motoring load): the drop back to open loop is below w_min, so the
-  observer must hold the rotor while the drive brakes down to it (the 2807 drone motor with its tuned
-  gains, speed steps: judged at p (T_max - T_N) / J the drive dropped back at 0.087 p.u. and lost the
-  rotor at 0.11 p.u., braking at 4.9 times that). The loop's steady lag to a speed ramp of that slope
-  (design/drive_analysis.py), which this criterion was before, is the limit of an endless ramp; a brake
-  from 1 p.u. lasts w_base J / (p (T_max + |T|)), shorter than the observer's slowest mode on a light
-  rotor, and builds only part of it (the gimbal motor of docs/examples/motors, tuned: 90 deg steady at
-  0.5 p.u., 9 deg braking, which put its handover at 1 p.u.). Below that speed the
+  angle limit (30 deg): the bias at the fixed point plus the loop's steady lag to a speed ramp of slope
+  p (T_max + |T|) / J, a linear property of the whole-drive linearization. That slope is the speed
+  loop braking at the torque limit with the load helping (a speed step towards zero under a motoring
+  load): the drop back to open loop is below w_min, so the observer must hold the rotor while the drive
+  brakes down to it (the 2807 drone motor with its tuned gains, speed steps: judged at p (T_max - T_N) /
+  J the drive dropped back at 0.087 p.u. and lost the rotor at 0.11 p.u., braking at 4.9 times that;
+  judged at p (T_max + T_N) / J it drops back at 0.18 p.u. and holds 19 deg). Below that speed the
   observer loses the rotor when the speed controller it takes over from the start accelerates or
   brakes at the torque limit; where the handover must be high (the acceleration limits it, or no
   speed up to 1 p.u. meets the criteria) the start's line says why with the numbers
@@ -91,7 +87,7 @@ def handover_reason(ls: LowSpeed) -> str:
     if why == "acceleration":
         head = (
             f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg braking at p (T_max + "
-            f"T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated load from 1 p.u., the whole drive simulated)"
+            f"T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated load, the whole drive's lag to a speed ramp)"
         )
     else:
         head = f"the whole drive's w_min at rated load is {w:.3g} p.u. (limited by {why})"
