@@ -406,8 +406,12 @@ def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None =
                     evidence("tracking", text, e.size - 1, lo=e.size - n_tail, **open_time(e.size - n_tail))
                 )
     limit = tr.meta.get("startup", "").partition(ACCELERATION_LIMIT)[2]
-    if failures and limit:  # the start said where the observer cannot follow the drive (physics)
-        note = f"; physical limit: {ACCELERATION_LIMIT}{limit}"
+    # the start said where its handover rule judges that the observer cannot follow the full
+    # acceleration: the rule's steady lag to an endless ramp, not what a brake of a few ms builds (the
+    # gimbal motor of docs/examples/motors, tuned: 90 deg steady at 0.5 p.u., 10 deg braking from 1 p.u.
+    # read at its speed estimate), so it is quoted as the rule's, not as a physical limit
+    if failures and limit:
+        note = f"; the handover rule (design/startup.py): {ACCELERATION_LIMIT}{limit}"
         failures[-1] = dataclasses.replace(failures[-1], text=failures[-1].text + note)
     return Judged(m, failures, problems, untested_reason(open_loop, dt))
 

@@ -63,7 +63,14 @@ Per sampling period T_s:
   J / (p k_t) the current per acceleration: the load's current and the frame's acceleration's (a
   drive braking at its torque limit with the load's help decelerates ten times faster than the start's
   ramp on the drone of docs/examples/motors: placed for the braking current, the rotor slipped), at
-  most ``DROP_MAX`` (60 deg, 30 deg from the edge).
+  most ``DROP_MAX`` (60 deg, 30 deg from the edge). dw and w_lag are low-passed at w_c = DROP_SETTLE
+  (3) (i_if / k_a) / (w_on - w_off), at least ``if_w_hp``, at most 1 / (2 T_s): three time constants
+  within the time the drive takes to brake from w_on to w_off at the I-f current's acceleration i_if /
+  k_a = p k_t i_if / J (the torque limit's, p T_max / J, by the rules), so that both have settled at
+  the drop-back. At the swing's corner ``if_w_hp`` alone (19.6 rad/s, 51 ms) the 7.5-ohm gimbal motor
+  of docs/examples/motors, braking from 1 to 0.5 p.u. in 8.4 ms at p (T_max + T_N) / J, dropped back
+  with 15 % of its deceleration and lag read: the frame 0.12 p.u. above the rotor and placed for the
+  braking current (-60 deg), the rotor braked on through zero and slipped half a turn.
 
 Parameters (appended to the observer's): ``if_i`` [A], ``if_acc`` [rad/s^2], ``if_w_on`` and
 ``if_w_off`` [rad/s], ``if_k_d`` [1/s], ``if_w_hp`` [rad/s], ``if_t_dwell`` [s], ``if_k_a`` [A s^2/rad];
@@ -103,7 +110,7 @@ STATE = (
     Field("if_delta_lp", "rad", "I-f start: the load's share of the load angle, low-passed", bound="pi"),
     Field("if_t", "s", "I-f start: time at the handover speed with the observer agreeing (to if_t_dwell)"),
     Field("if_w_obs", "rad/s", "I-f start: the observer's speed estimate of the previous period"),
-    Field("if_dw", "rad/s^2", "I-f start: the observer's acceleration, low-passed (corner if_w_hp)"),
+    Field("if_dw", "rad/s^2", "I-f start: the observer's acceleration, low-passed (the drop-back's corner)"),
     Field("if_th_obs", "rad", "I-f start: the observer's angle of the previous period", bound="pi"),
     Field("if_w_lag", "rad/s", "I-f start: the observer's angle rate less its speed estimate, low-passed"),
     Field("startup_mode_x", "1", "1: open-loop I-f start; 0: observer", bound="1"),
@@ -120,6 +127,11 @@ SETTLED = math.pi / 18  # handover once the load angle's swing (high-passed) is 
 SWING_MAX = math.pi / 12  # the damping acts on swings up to 15 deg (beyond: saturated)
 LOST = 2 * math.pi / 3  # an observer further off the frame than a rotor can lag: re-seeded
 DROP_MAX = math.pi / 3  # back to open loop at most 60 deg ahead of the rotor (30 deg from the edge)
+# the drop-back's estimates of the rotor's acceleration and of the speed estimate's lag settle within
+# the band w_on - w_off crossed at the start current's acceleration (module docstring): this many time
+# constants of their low-pass (at least the swing's high-pass corner; at most 1 / (2 T_s), so that
+# the first-order update's factor w_c T_s stays within 1/2)
+DROP_SETTLE = 3.0
 
 
 @functools.cache
@@ -187,7 +199,13 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             s_max = math.sin(DROP_MAX)
             # the current the open loop needs: the load's (the closed loop's current less what its
             # acceleration takes) and what the frame's acceleration towards the command takes
-            dw_next = dw + P["if_w_hp"] * T_s * ((w_obs - w_prev) / T_s - dw)
+            # low-passed at w_c: settled when the drive, braking at the I-f current's acceleration
+            # i_if / k_a = p k_t i_if / J (p T_max / J by the rules), has crossed the band from w_on to
+            # w_off (module docstring)
+            a_if = P["if_i"] / ca.fmax(P["if_k_a"], 1e-12)
+            w_c = DROP_SETTLE * a_if / ca.fmax(P["if_w_on"] - P["if_w_off"], 1e-9)
+            w_c = ca.fmin(ca.fmax(P["if_w_hp"], w_c), 0.5 / T_s)
+            dw_next = dw + w_c * T_s * ((w_obs - w_prev) / T_s - dw)
             # the speed estimate's lag behind the rotor: its angle's rate less the estimate (a PLL's speed
             # lags by a k_p / k_i under acceleration a while its angle's rate does not: braking at the
             # torque limit through zero, VESC's PLL read +0.035 p.u. with the rotor at -0.062 p.u. on the
@@ -196,7 +214,7 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
             # (the first period after a reset has no previous angle)
             lag_k = wrap_angle(theta_obs - th_prev) / T_s - w_obs
             lag_k = ca.fmin(ca.fmax(lag_k, -P["if_w_on"]), P["if_w_on"])
-            w_lag_next = w_lag + P["if_w_hp"] * T_s * (lag_k - w_lag)
+            w_lag_next = w_lag + w_c * T_s * (lag_k - w_lag)
             w_fb = w_obs + w_lag  # the rotor's speed by the observer's angle: the fall-back's
             a_f = P["if_acc"] * ca.sign(target - w_fb)
             i_need = i_q - P["if_k_a"] * (dw - a_f)

@@ -265,3 +265,47 @@ def test_a_handover_capped_at_the_rated_speed_says_why_and_no_handover_above_it_
     (tmp_path / "hub.toml").write_text(preset_text("hubmotor48") + '\n[startup]\nw_on = "2 pu"\n')
     with pytest.raises(DriveFileError, match="below the rated speed"):
         load_drive(str(tmp_path / "hub.toml"))
+
+
+def test_the_drop_back_has_read_the_braking_when_the_drive_crosses_the_band_at_the_torque_limit():
+    # closed loop, braking from w_on at a = i_if / k_a (the I-f current's acceleration: 3000 rad/s^2),
+    # the observer's angle turning 10 rad/s faster than its speed estimate (a lagging speed estimate):
+    # it drops back after (w_on - w_off) / a = 10 ms. By hand: its acceleration and lag low-passed at
+    # w_c = 3 a / (w_on - w_off) = 300 rad/s (DROP_SETTLE = 3 time constants in the band; the swing's
+    # corner if_w_hp = 20 rad/s is slower), a first-order step x_k+1 = x_k + w_c T_s (u - x_k) from 0:
+    # u (1 - (1 - w_c T_s)^k) = 95 % of -a and of the lag after k = 10 ms / T_s periods. At the swing's
+    # corner alone: 18 % (the gimbal motor of docs/examples/motors slipped so: symbolic/startup.py)
+    drive, base = servo()
+    i_if, k_a, w_on, w_off = 6.0, 2e-3, 60.0, 30.0
+    a = i_if / k_a
+    values = {"if_i": i_if, "if_acc": 1500.0, "if_w_on": w_on, "if_w_off": w_off, "if_k_d": 0.0}
+    setup = with_if_start(base, {**values, "if_w_hp": 20.0, "if_t_dwell": 0.0, "if_k_a": k_a})
+    obs = setup.observer
+    state = [f.name for f in obs.state]
+    T_s = drive.T_s
+    step = setup.step_function()
+    x = np.asarray(setup.initial_state(), float).ravel()
+    x[state.index("startup_mode_x")] = 0.0  # closed loop
+    meas = np.zeros(len(obs.meas))
+    meas[-1] = -w_on  # w_cmd: a step towards -w_on (the speed loop at its limit)
+    lag = 10.0
+    w, theta = w_on + 1.0, 0.0
+    x[state.index("if_w_obs")] = w  # the previous period's estimate: no step at the first
+    inner = x[: state.index("if_theta")].copy()
+    k = 0
+    while x[state.index("startup_mode_x")] == 0 and k < 1000:
+        dw, wl = x[state.index("if_dw")], x[state.index("if_w_lag")]
+        w -= a * T_s
+        theta = math.remainder(theta + (w + lag) * T_s, 2 * math.pi)
+        x[: inner.size] = inner
+        x[state.index("w_hat")] = x[state.index("w_i")] = w  # the speed estimate brakes at a
+        x[state.index("theta")] = theta
+        x = np.asarray(step(x, meas, setup.p, setup.gain)[0]).ravel()
+        k += 1
+    w_c = 3 * a / (w_on - w_off)
+    n = (w_on + 1.0 - (w_off - lag)) / (a * T_s)  # periods until w + lag < w_off
+    assert k == pytest.approx(n, abs=2)
+    settled = 1 - (1 - w_c * T_s) ** (k - 2)  # the first two periods see no step yet
+    assert settled > 0.9  # the low-passes of this test's numbers settled
+    assert dw == pytest.approx(-a * settled, rel=0.03)  # read before the drop-back period
+    assert wl == pytest.approx(lag * settled, rel=0.03)
