@@ -31,6 +31,7 @@ import collections
 import dataclasses
 import functools
 import hashlib
+import importlib.metadata
 import importlib.util
 import os
 import pickle
@@ -79,11 +80,14 @@ def uncached(fn: Callable[P, R]) -> Callable[P, R]:
 @functools.cache
 def fingerprint() -> bytes:
     """What a result kept on disk depends on besides its arguments: the toolbox's source (every
-    ``.py`` file of its four packages, found without importing them) and the versions of Python,
-    numpy and CasADi."""
-    import casadi
-
-    h = hashlib.sha256(f"{sys.version}|{np.__version__}|{casadi.__version__}".encode())
+    ``.py`` file of its four packages, found without importing them) and the versions of Python and
+    of the libraries that compute (numpy, scipy, CasADi)."""
+    h = hashlib.sha256(sys.version.encode())
+    for dist in ("numpy", "scipy", "casadi"):
+        try:
+            h.update(f"|{dist} {importlib.metadata.version(dist)}".encode())
+        except importlib.metadata.PackageNotFoundError:
+            h.update(f"|{dist} -".encode())
     for layer in ("symbolic", "design", "tuning", "reports"):
         spec = importlib.util.find_spec(f"sensorless.{layer}")
         for root in map(Path, (spec.submodule_search_locations or []) if spec else []):
