@@ -25,10 +25,17 @@ import casadi as ca
 CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math")
 
 
+def cache_root() -> Path:
+    """$SENSORLESS_CACHE (default ``~/.cache/sensorless``): what later processes reuse (compiled
+    libraries here, the analyses design/memo.py keeps on disk)."""
+    return Path(
+        os.environ.get("SENSORLESS_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "sensorless")
+    )
+
+
 def cache_dir() -> Path:
     """Where compiled libraries are kept."""
-    root = os.environ.get("SENSORLESS_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "sensorless")
-    return Path(root) / "jit"
+    return cache_root() / "jit"
 
 
 def compiler() -> str | None:

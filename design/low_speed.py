@@ -300,8 +300,9 @@ def _analysis(
 
 
 # the same drive at the same gains is analysed again within a process (the I-f start's rules at every
-# simulation set-up, the tune line and the report under the same errors): design/memo.py
-@by_content(maxsize=64, when=double_step_active)
+# simulation set-up, the tune line and the report under the same errors) and in the next one (the
+# README flow's report, for the gains its tune proved): design/memo.py
+@by_content(maxsize=64, when=double_step_active, disk=True)
 def minimum_speed(
     drive: Drive,
     gains: GainSet,
@@ -364,7 +365,7 @@ def minimum_speed(
 
 
 # the tune line and the report ask for the same drive under the same errors (design/memo.py)
-@by_content(maxsize=16, when=double_step_active)
+@by_content(maxsize=16, when=double_step_active, disk=True)
 def minimum_speed_under(
     drive: Drive, gains: GainSet, errors: EstimateErrors, *, min_damping: float, **kw: Unpack[SpeedOptions]
 ) -> LowSpeed:

@@ -15,6 +15,14 @@ the same gains read as ``tune/gains.json`` and as ``/abs/tune/gains.json`` are o
 memoized function must therefore not quote a label in its result (the first caller's would reach
 every later one): the callers put their own label into what they print (e.g. reports/low_speed.py's
 section takes the report's ``review``).
+
+A memo made with ``disk=True`` also keeps its results in ``$SENSORLESS_CACHE/memo`` (design/compiled.py
+``cache_root``; ``SENSORLESS_NO_DISK_MEMO=1``: in-process only), for the next process that asks: the
+README flow's ``report`` asks for the analyses its ``tune`` made (the whole drive's minimum speed of
+the tuned gains for the I-f start of every check, and under the drive's estimate errors for the tune
+line). A file is named by the SHA-256 of the function, its key and :func:`fingerprint` (the toolbox's
+source and the versions of what computes), so a result is reused only by the same code on the same
+content; a file that cannot be read is recomputed and written again (temp file + rename).
 """
 
 from __future__ import annotations
@@ -22,9 +30,16 @@ from __future__ import annotations
 import collections
 import dataclasses
 import functools
+import hashlib
+import importlib.metadata
+import importlib.util
+import os
 import pickle
+import sys
+import tempfile
 import threading
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
@@ -62,13 +77,71 @@ def uncached(fn: Callable[P, R]) -> Callable[P, R]:
     return fn.__wrapped__  # type: ignore[attr-defined,no-any-return]
 
 
+@functools.cache
+def fingerprint() -> bytes:
+    """What a result kept on disk depends on besides its arguments: the toolbox's source (every
+    ``.py`` file of its four packages, found without importing them) and the versions of Python and
+    of the libraries that compute (numpy, scipy, CasADi)."""
+    h = hashlib.sha256(sys.version.encode())
+    for dist in ("numpy", "scipy", "casadi"):
+        try:
+            h.update(f"|{dist} {importlib.metadata.version(dist)}".encode())
+        except importlib.metadata.PackageNotFoundError:
+            h.update(f"|{dist} -".encode())
+    for layer in ("symbolic", "design", "tuning", "reports"):
+        spec = importlib.util.find_spec(f"sensorless.{layer}")
+        for root in map(Path, (spec.submodule_search_locations or []) if spec else []):
+            for f in sorted(root.rglob("*.py")):
+                h.update(f"{layer}/{f.relative_to(root).as_posix()}\0".encode())
+                h.update(f.read_bytes())
+    return h.digest()
+
+
+def _disk_path(fn: Callable[..., Any], key: bytes) -> Path | None:
+    """The file of ``fn``'s result for ``key`` (None: the disk memo is off)."""
+    if os.environ.get("SENSORLESS_NO_DISK_MEMO"):
+        return None
+    from sensorless.design.compiled import cache_root
+
+    name = f"{fn.__module__}.{fn.__qualname__}"
+    digest = hashlib.sha256(fingerprint() + name.encode() + b"\0" + key).hexdigest()
+    return cache_root() / "memo" / f"{fn.__qualname__}-{digest}.pickle"
+
+
+def _disk_get(path: Path) -> tuple[bool, Any]:
+    """(found, value) of a result kept in ``path``; a file that cannot be read counts as absent."""
+    try:
+        with open(path, "rb") as fh:
+            return True, pickle.load(fh)
+    except Exception:  # absent, unreadable, truncated, or of a class since renamed: recomputed
+        return False, None
+
+
+def _disk_put(path: Path, value: Any) -> None:
+    """Keep ``value`` in ``path`` (temp file + rename: a reader never sees half a file); a cache that
+    cannot be written is no error (the next process computes it again)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".pickle")
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                pickle.dump(value, fh, protocol=pickle.HIGHEST_PROTOCOL)
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+    except (OSError, pickle.PicklingError, TypeError, AttributeError):
+        pass
+
+
 def by_content(
-    maxsize: int = 32, when: Callable[[], bool] = lambda: True
+    maxsize: int = 32, when: Callable[[], bool] = lambda: True, disk: bool = False
 ) -> Callable[[Callable[P, R]], Callable[P, R]]:
     """Memoize a function on the pickled bytes of its arguments, their labels left out (module
     docstring), the ``maxsize`` most recent results; ``when()`` False: computed and not memoized (a
     state outside the arguments that the result depends on, e.g. a step variant). Arguments that
-    cannot be pickled: not memoized. ``fn.cache_info()`` gives (hits, misses)."""
+    cannot be pickled: not memoized. ``disk``: results kept on disk for later processes too (module
+    docstring). ``fn.cache_info()`` gives (hits, misses), a result read from disk counted as a hit."""
 
     def deco(fn: Callable[P, R]) -> Callable[P, R]:
         memo: collections.OrderedDict[bytes, R] = collections.OrderedDict()
@@ -89,9 +162,16 @@ def by_content(
                     counts[0] += 1
                     memo.move_to_end(key)
                     return memo[key]
-                counts[1] += 1
-            value = frozen_result(fn(*args, **kwargs))  # outside the lock: computed in parallel
+            path = _disk_path(fn, key) if disk else None
+            found, value = _disk_get(path) if path is not None else (False, None)
+            if found:
+                value = frozen_result(value)
+            else:
+                value = frozen_result(fn(*args, **kwargs))  # outside the lock: computed in parallel
+                if path is not None:
+                    _disk_put(path, value)
             with lock:
+                counts[0 if found else 1] += 1
                 memo[key] = value
                 if len(memo) > maxsize:
                     memo.popitem(last=False)

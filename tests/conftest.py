@@ -22,6 +22,10 @@ from sensorless.design.drive import load_drive
 # `sensorless tune` proves its table in the time domain before writing it (reports/tune_proof.py): only
 # the tests of that proof ask for it (tests/ipmsm_adaptive/test_tune_proof.py), the others tune as before
 os.environ.setdefault("SENSORLESS_TUNE_UNCHECKED", "1")
+# analyses kept on disk for later processes (design/memo.py): not across the suite's processes, where a
+# test that patches what an analysis calls would leave its result for another worker (and the user's
+# cache); tests/common/test_memo.py tests the disk layer
+os.environ.setdefault("SENSORLESS_NO_DISK_MEMO", "1")
 
 # the node ids of a group's tests -> the group (one worker runs them all); \1 is the README chain
 SHARED = {

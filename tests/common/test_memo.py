@@ -81,3 +81,68 @@ def test_a_label_field_is_not_content_as_an_argument_or_a_keyword():
     )
     assert total(Labelled((1.0, 3.0), "tune/gains.json")) is not a  # other values under the same name
     assert len(calls) == 3 and total.cache_info() == (2, 3)
+
+
+def disk_counted():
+    """A disk memo as a new process makes it: a fresh wrapper of the same function (same name)."""
+    calls = []
+
+    @by_content(disk=True)
+    def kept(spec):
+        calls.append(spec)
+        return Result(np.array(spec["x"], float))
+
+    return kept, calls
+
+
+def test_a_result_kept_on_disk_serves_the_next_process_and_only_for_the_same_code(tmp_path, monkeypatch):
+    from sensorless.design import memo
+
+    monkeypatch.setenv("SENSORLESS_CACHE", str(tmp_path))
+    monkeypatch.delenv("SENSORLESS_NO_DISK_MEMO", raising=False)
+    first, calls1 = disk_counted()
+    first({"x": [1.0, 2.0]})
+    (kept,) = (tmp_path / "memo").iterdir()
+    second, calls2 = disk_counted()  # "the next process": its own memo, empty
+    b = second({"x": [1.0, 2.0]})
+    assert calls1 == [{"x": [1.0, 2.0]}] and calls2 == [] and second.cache_info() == (1, 0)
+    assert b.values.tolist() == [1.0, 2.0] and not b.values.flags.writeable
+    assert second({"x": [1.0, 3.0]}).values.tolist() == [1.0, 3.0] and len(calls2) == 1  # other content
+    kept.write_bytes(b"not a pickle")  # a damaged file: computed again, and written again
+    third, calls3 = disk_counted()
+    assert third({"x": [1.0, 2.0]}).values.tolist() == [1.0, 2.0] and len(calls3) == 1
+    assert memo._disk_get(kept)[0]
+    monkeypatch.setattr(memo, "fingerprint", lambda: b"other source")  # changed code: not reused
+    fourth, calls4 = disk_counted()
+    fourth({"x": [1.0, 2.0]})
+    assert len(calls4) == 1
+    monkeypatch.setenv("SENSORLESS_NO_DISK_MEMO", "1")
+    fifth, calls5 = disk_counted()
+    fifth({"x": [1.0, 2.0]})
+    assert len(calls5) == 1
+
+
+def test_the_fingerprint_changes_with_any_source_file(tmp_path, monkeypatch):
+    import importlib.util
+    import types
+
+    from sensorless.design import memo
+
+    for layer in ("symbolic", "design", "tuning", "reports"):
+        (tmp_path / layer / "sub").mkdir(parents=True)
+        (tmp_path / layer / "sub" / "m.py").write_text("x = 1\n")
+    spec = lambda name: types.SimpleNamespace(submodule_search_locations=[str(tmp_path / name.split(".")[1])])  # noqa: E731
+    monkeypatch.setattr(importlib.util, "find_spec", spec)
+
+    def fp():
+        memo.fingerprint.cache_clear()
+        return memo.fingerprint()
+
+    try:
+        before = fp()
+        assert fp() == before
+        (tmp_path / "tuning" / "sub" / "m.py").write_text("x = 2\n")
+        assert fp() != before
+    finally:
+        monkeypatch.undo()
+        memo.fingerprint.cache_clear()
