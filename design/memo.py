@@ -40,7 +40,7 @@ import tempfile
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, ParamSpec, TypeVar
+from typing import Any, ParamSpec, TypeVar, cast
 
 import numpy as np
 
@@ -97,7 +97,7 @@ def fingerprint() -> bytes:
     return h.digest()
 
 
-def _disk_path(fn: Callable[..., Any], key: bytes) -> Path | None:
+def _disk_path(fn: Callable[..., object], key: bytes) -> Path | None:
     """The file of ``fn``'s result for ``key`` (None: the disk memo is off)."""
     if os.environ.get("SENSORLESS_NO_DISK_MEMO"):
         return None
@@ -108,7 +108,7 @@ def _disk_path(fn: Callable[..., Any], key: bytes) -> Path | None:
     return cache_root() / "memo" / f"{fn.__qualname__}-{digest}.pickle"
 
 
-def _disk_get(path: Path) -> tuple[bool, Any]:
+def _disk_get(path: Path) -> tuple[bool, object]:
     """(found, value) of a result kept in ``path``; a file that cannot be read counts as absent."""
     try:
         with open(path, "rb") as fh:
@@ -117,7 +117,7 @@ def _disk_get(path: Path) -> tuple[bool, Any]:
         return False, None
 
 
-def _disk_put(path: Path, value: Any) -> None:
+def _disk_put(path: Path, value: object) -> None:
     """Keep ``value`` in ``path`` (temp file + rename: a reader never sees half a file); a cache that
     cannot be written is no error (the next process computes it again)."""
     try:
@@ -163,9 +163,10 @@ def by_content(
                     memo.move_to_end(key)
                     return memo[key]
             path = _disk_path(fn, key) if disk else None
-            found, value = _disk_get(path) if path is not None else (False, None)
+            found, kept = _disk_get(path) if path is not None else (False, None)
+            value: R
             if found:
-                value = frozen_result(value)
+                value = frozen_result(cast(R, kept))  # pickled by this function under this key
             else:
                 value = frozen_result(fn(*args, **kwargs))  # outside the lock: computed in parallel
                 if path is not None:
