@@ -502,8 +502,8 @@ TORQUES_RULE = (
 ALPHA_FO_TUNED_RULE = (
     "tune the speed adaptation's bandwidth alpha_fo (10) with the gains: the speed estimate lags an "
     "acceleration by about its rate over alpha_fo, which the gains alone trade against damping (tuned "
-    "with it, drone / servo400 of docs/examples/motors ran load_steps 2.38 -> 0.47, speed_steps 12 -> "
-    "4.0 deg; docs/tuning.md)"
+    "with it, ebike / servo400 of docs/examples/motors ran speed_steps 7.96 -> 1.36, 12 -> 1.59 deg; "
+    "docs/tuning.md)"
 )
 
 
