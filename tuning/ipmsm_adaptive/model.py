@@ -10,14 +10,12 @@ evaluates. theta is the law's parameter vector, plus alpha_fo (10) when ``tune_a
 from __future__ import annotations
 
 import functools
-import math
 from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
-from sensorless.design.ipmsm_adaptive.derive import ALPHA_FO_MAX_FS
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
 from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
@@ -96,16 +94,6 @@ def law_values(law: GainLaw) -> ca.Function:
     return ca.Function(f"gains_{law.name}", [w, p], [l1, l2], ["w_hat", "params"], ["lambda1", "lambda2"])
 
 
-def alpha_fo_box(drive: IpmsmDrive) -> tuple[float, float]:
-    """A tuned alpha_fo's range [rad/s]: from the drive file's, since below it the speed estimate lags an
-    acceleration more (by about its rate over alpha_fo), which the damping does not see; up to 4x, at
-    most f_s/20 (design/ipmsm_adaptive/derive.py), since beyond it the sampled drive went unstable where
-    the observer's linearization did not see it (servo400 of docs/examples/motors at 2.2 f_s/20: 120
-    of 200 points; docs/tuning.md, "alpha_fo tuned by default")."""
-    a0 = drive.observer.alpha_fo
-    return a0, max(a0, min(4.0 * a0, 2 * math.pi * ALPHA_FO_MAX_FS / drive.T_s))
-
-
 def law_model(
     drive: IpmsmDrive,
     gain_law: GainLaw,
@@ -126,8 +114,9 @@ def law_model(
     if tune_alpha:
         names, units = (*names, "alpha_fo"), (*units, "rad/s")
         theta0 = np.append(theta0, a0)
-        lo, hi = alpha_fo_box(drive)
-        lower, upper = np.append(lower, lo), np.append(upper, hi)
+        # never below the drive file's: the speed estimate lags an acceleration by about its rate over
+        # alpha_fo, which the damping does not see (docs/tuning.md, alpha_fo tuned by default)
+        lower, upper = np.append(lower, a0), np.append(upper, 4.0 * a0)
         typical = np.append(typical, a0)
     motor = np.array(drive.motor.vector())
     inj = drive.injection
