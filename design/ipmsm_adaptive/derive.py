@@ -34,10 +34,7 @@ docs/families/ipmsm_adaptive.md ("Derived drive files").
   (``_fade_out``; the paper's 0.13 p.u. where it is stable throughout); off (u_c = 0 V, with a warning
   where the sensor is the reason) otherwise.
 - ``[tuning]``: torques -T_max, -T_N, 0, T_N, T_max (the torques the drive applies: gains tuned at
-  +-T_N only were unstable just beyond it); tune_alpha_fo = true (the tuner tunes alpha_fo (10) with the
-  gains: the speed estimate's lag under acceleration goes with 1/alpha_fo, which the gains alone trade
-  against damping; the paper's preset keeps its fixed alpha_fo); the rest the documented defaults
-  (design/envelope.py).
+  +-T_N only were unstable just beyond it); the rest the documented defaults (design/envelope.py).
 - ``[runtime]``: the documented defaults (schema.RUNTIME_DEFAULTS).
 - ``w_Delta``'s rule names the HF correction's coupling limit where it lies inside the band
   (carrier.py ``coupling_limit``).
@@ -431,7 +428,6 @@ def document(data: Mapping[str, Any], file: str, w_delta_pu: float | None = None
         for k, v in TUNING_DEFAULTS.items():
             sec[k] = Entry(v, "default")
         sec["torques"] = Entry(tuning_torques(T_max / T_N), TORQUES_RULE)
-        sec["tune_alpha_fo"] = Entry(True, ALPHA_FO_TUNED_RULE)
     else:
         sec.update({k: Entry(v, given=True) for k, v in tu_t.items()})
     doc.context["motor"] = m
@@ -497,13 +493,6 @@ TORQUES_RULE = (
     "the torques the drive applies: +-T_max (the speed loop's limit, reached in every acceleration) and "
     "+-T_N, as the report judges +-1.5 T_N; gains tuned at +-T_N only were unstable just beyond it (a "
     "traction IPMSM lost the rotor at 1 p.u. after an acceleration at T_max)"
-)
-
-ALPHA_FO_TUNED_RULE = (
-    "tune the speed adaptation's bandwidth alpha_fo (10) with the gains: the speed estimate lags an "
-    "acceleration by about its rate over alpha_fo, which the gains alone trade against damping (tuned "
-    "with it, ebike / servo400 of docs/examples/motors ran speed_steps 7.96 -> 1.36, 12 -> 1.59 deg; "
-    "docs/tuning.md)"
 )
 
 

@@ -144,13 +144,10 @@ def test_the_schedule_keeps_the_seed_law_inside_the_injection_band(flow):
     np.testing.assert_allclose(l1[band], lp * np.minimum(np.abs(w[band]) / wl, 1), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(l2[band], lp * np.clip(w[band] / wl, -1, 1), rtol=1e-12, atol=1e-12)
     assert "injection band" in s["law_note"] and "Piippo" in s["law_note"]
+    # beyond the band the gains are tuned (not all the seed's)
     free = ~band
     seed1 = lp * np.minimum(np.abs(w[free]) / wl, 1)
-    kept = s["selection"]
-    if np.max(np.abs(l1[free] - seed1)) <= 1e-3 * lp:
-        # the seed's law beyond the band too: only where nothing beat the schedule's start (its NLP
-        # failed, with alpha_fo tuned on the traction motor at 6 speeds) or the proof fell back to it
-        assert kept.get("fallback") or kept["best_worst_damping"] <= kept["start_worst_damping"] + 1e-12, kept
+    assert np.max(np.abs(l1[free] - seed1)) > 1e-3 * lp
 
 
 @pytest.mark.skipif(CC is None, reason="no C compiler")

@@ -68,20 +68,3 @@ def test_tuned_schedule_writes_rounding_residues_as_zero(tmp_path):
     path = tmp_path / "gains.json"
     path.write_text(table.to_json(), encoding="utf-8")
     assert read_gain_table(path).gains["lambda2"][K // 2] == 0.0
-
-
-def test_init_tunes_alpha_fo_on_a_users_motor_not_on_the_preset(tmp_path):
-    """A user's motor: the written [tuning] turns on alpha_fo tuning, its rule (the lag under
-    acceleration) as the comment; the paper's preset keeps its fixed alpha_fo (its reproduction)."""
-    from sensorless.reports.cli.main import main
-
-    out = tmp_path / "drive.toml"
-    assert main(["init", str(_prius(tmp_path)), "--out", str(out)]) == 0
-    lines = out.read_text(encoding="utf-8").splitlines()
-    k = lines.index("tune_alpha_fo = true")
-    rule = lines[k - 1]
-    assert rule.startswith("# tune the speed adaptation's bandwidth alpha_fo") and "lags" in rule
-    assert load_drive(str(out)).tuning.law.tune_alpha_fo is True
-    assert main(["init", "piippo2008", "--out", str(tmp_path / "p.toml")]) == 0
-    assert "tune_alpha_fo" not in (tmp_path / "p.toml").read_text(encoding="utf-8")
-    assert load_drive("piippo2008").tuning.law.tune_alpha_fo is False

@@ -53,8 +53,7 @@ def test_global_phase_and_selection_judge_the_floor_alike(below):
         speeds=4,
         torques_TN=(-1.5, 0.0, 1.5),
     )
-    law = dataclasses.replace(d.tuning.law, tune_alpha_fo=False)  # theta: lambda', omega_lambda only
-    st = dataclasses.replace(d.tuning, envelope=env, law=law)
+    st = dataclasses.replace(d.tuning, envelope=env)
     model = tunable_for(d, "speed-dependent").build(d, st, None)
     W, T = env.grid()
     theta = np.array([10 * d.estimate.R_s, 0.5 * d.w_base])  # stable on this envelope

@@ -47,9 +47,7 @@ def case():
         speeds=4,
         torques_TN=(-1.0, 1.0),
     )
-    # law (16) at the drive file's alpha_fo: the brute force below spans lambda', omega_lambda only
-    law = dataclasses.replace(drive.tuning.law, tune_alpha_fo=False)
-    st = dataclasses.replace(drive.tuning, envelope=env, bound=False, law=law)
+    st = dataclasses.replace(drive.tuning, envelope=env, bound=False)
     r = tune(drive, "speed-dependent", st)
     R, wb = drive.estimate.R_s, drive.base.w
     Wd, Td = env.grid(env.dense_factor, env.dense_factor)
