@@ -262,10 +262,10 @@ def _sample(speeds: np.ndarray, v: np.ndarray, at: np.ndarray) -> np.ndarray:
 
 
 def with_alpha_fo_starts(starts: np.ndarray, settings: Any, a0: float) -> np.ndarray:
-    """The global phase's starts, each at 0.5, 1 and 2 x the drive's alpha_fo when it is tuned too."""
+    """The global phase's starts, each at 1, 2 and 4 x the drive's alpha_fo (its box) when it is tuned too."""
     if not law_settings(settings).tune_alpha_fo:
         return starts
-    return np.vstack([np.column_stack([starts, np.full(len(starts), k * a0)]) for k in (0.5, 1.0, 2.0)])
+    return np.vstack([np.column_stack([starts, np.full(len(starts), k * a0)]) for k in (1.0, 2.0, 4.0)])
 
 
 def _signed_log(lo: float, hi: float, R: float, n: int) -> np.ndarray:

@@ -114,7 +114,9 @@ def law_model(
     if tune_alpha:
         names, units = (*names, "alpha_fo"), (*units, "rad/s")
         theta0 = np.append(theta0, a0)
-        lower, upper = np.append(lower, 0.2 * a0), np.append(upper, 4.0 * a0)
+        # never below the drive file's: the speed estimate lags an acceleration by about its rate over
+        # alpha_fo, which the damping does not see (docs/tuning.md, "alpha_fo tuned")
+        lower, upper = np.append(lower, a0), np.append(upper, 4.0 * a0)
         typical = np.append(typical, a0)
     motor = np.array(drive.motor.vector())
     inj = drive.injection
