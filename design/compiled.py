@@ -5,12 +5,15 @@ runs it, but compiled C runs it an order of magnitude faster. ``compiled(fn)`` g
 (CasADi's code generator), compiles it into a shared library with the system C compiler and loads it
 with ``casadi.external``. The library is cached under ``$SENSORLESS_CACHE`` (default
 ``~/.cache/sensorless``) by the SHA-256 of the generated source and the compiler flags, so a second
-process pays nothing. Without a working compiler (or with ``SENSORLESS_NO_JIT=1``) the Function is
+process pays nothing. Processes that need the same library at once (pytest-xdist's workers on an
+empty cache) compile it once: the first takes a lock on the library's name, the others wait for it
+and load its library. Without a working compiler (or with ``SENSORLESS_NO_JIT=1``) the Function is
 returned unchanged and runs on the virtual machine: same numbers, slower.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import os
@@ -18,6 +21,7 @@ import shutil
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import casadi as ca
@@ -37,6 +41,35 @@ def compiler() -> str | None:
         if c and shutil.which(c):
             return c
     return None
+
+
+@contextlib.contextmanager
+def _claimed(lock: Path) -> Iterator[None]:
+    """Hold an exclusive lock on the file ``lock`` (created if need be) for the block; where file locks
+    do not exist (no fcntl), no lock: two processes may then compile one library, harmlessly."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    with open(lock, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)  # released when the file is closed
+        yield
+
+
+def _build(cc: str, src: str, lib: Path) -> None:
+    """Compile ``src`` into ``lib``, through a temporary file and a rename."""
+    with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
+        c_file = Path(tmp, "f.c")
+        c_file.write_text(src)
+        tmp_lib = Path(tmp, "f.so")
+        subprocess.run(
+            [cc, *CFLAGS, str(c_file), "-o", str(tmp_lib), "-lm"],
+            check=True,
+            capture_output=True,
+            text=True,
+        )
+        os.replace(tmp_lib, lib)  # atomic: concurrent processes never load half a library
 
 
 def _source(fn: ca.Function) -> str:
@@ -61,17 +94,9 @@ def compiled(fn: ca.Function) -> ca.Function:
         lib = d / f"{fn.name()}_{key}.so"
         if not lib.exists():
             d.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=d) as tmp:
-                c_file = Path(tmp, "f.c")
-                c_file.write_text(src)
-                tmp_lib = Path(tmp, "f.so")
-                subprocess.run(
-                    [cc, *CFLAGS, str(c_file), "-o", str(tmp_lib), "-lm"],
-                    check=True,
-                    capture_output=True,
-                    text=True,
-                )
-                os.replace(tmp_lib, lib)  # atomic: concurrent processes never load half a library
+            with _claimed(lib.with_suffix(".lock")):
+                if not lib.exists():  # (else another process compiled it while this one waited)
+                    _build(cc, src, lib)
         return ca.external(fn.name(), str(lib))
     except (OSError, subprocess.CalledProcessError, RuntimeError) as e:
         detail = getattr(e, "stderr", "") or str(e)

@@ -53,3 +53,57 @@ def test_reduced_order_orbit_and_maps_compiled_are_the_vm(monkeypatch):
         (fast.ripple_w, slow.ripple_w),
     ):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_library_two_processes_need_at_once_is_compiled_once(tmp_path, monkeypatch):
+    """Two callers (here threads; pytest-xdist's workers on an empty cache) need one library at once: the
+    first compiles it holding the library's lock, the second waits on that lock (seen in /proc/locks)
+    and loads the first's library. The compiler is held until the second caller has either called it
+    too or is waiting on the lock."""
+    import threading
+    import time
+    from pathlib import Path
+
+    import casadi as ca
+
+    locks = Path("/proc/locks")
+    if not locks.exists():
+        pytest.skip("no /proc/locks: the second caller's wait cannot be seen")
+    calls, release = tmp_path / "calls", tmp_path / "release"
+    cc = tmp_path / "cc"
+    hold = f'while [ ! -e "{release}" ]; do sleep 0.01; done'
+    cc.write_text(f'#!/bin/sh\necho x >> "{calls}"\n{hold}\nexec {compiler()} "$@"\n')
+    cc.chmod(0o755)
+    monkeypatch.setenv("CC", str(cc))
+    monkeypatch.setenv("SENSORLESS_CACHE", str(tmp_path / "cache"))
+    x = ca.SX.sym("x")
+    fn = ca.Function("needed_twice", [x], [2 * ca.sin(x)])
+    done = []
+    threads = [threading.Thread(target=lambda: done.append(compiled.compiled.__wrapped__(fn))) for _ in "ab"]
+
+    def until(what, ready):  # (a deadline only so that a broken build cannot hang the suite)
+        end = time.monotonic() + 120
+        while not ready():
+            assert time.monotonic() < end, what
+            time.sleep(0.01)
+
+    def n_calls():
+        return len(calls.read_text().splitlines()) if calls.exists() else 0
+
+    def waiting():  # a blocked lock request ("->") on the library's lock file
+        lock = next((tmp_path / "cache" / "jit").glob("needed_twice_*.lock"), None)
+        if lock is None:
+            return False
+        ino = f":{lock.stat().st_ino} "
+        return any("->" in ln and ino in ln for ln in locks.read_text().splitlines())
+
+    threads[0].start()
+    until("the first caller runs the compiler", lambda: n_calls() == 1)
+    threads[1].start()
+    until("the second caller compiles or waits", lambda: n_calls() == 2 or waiting())
+    release.touch()
+    for t in threads:
+        t.join()
+    assert n_calls() == 1
+    assert len(done) == 2 and all(f.is_a("External") for f in done)
+    assert [float(f(0.3)) for f in done] == [float(fn(0.3))] * 2
