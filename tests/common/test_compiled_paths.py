@@ -107,3 +107,29 @@ def test_a_library_two_processes_need_at_once_is_compiled_once(tmp_path, monkeyp
     assert n_calls() == 1
     assert len(done) == 2 and all(f.is_a("External") for f in done)
     assert [float(f(0.3)) for f in done] == [float(fn(0.3))] * 2
+
+
+def test_a_loop_runs_on_the_vm_until_compiling_pays_and_gives_the_same_bits_compiled(monkeypatch):
+    """simulate runs a loop on CasADi's VM until the process has run it for JIT_MIN_STEPS periods in
+    all (an empty cache here), then compiled: the traces are the same bits either way."""
+    import dataclasses
+
+    from sensorless.design import simulate as sim
+    from sensorless.design.scenario import load_scenario
+
+    drive = load_drive("deangelo2006")
+    sc = dataclasses.replace(load_scenario("fig3", drive), duration=0.05)
+    calls = []
+    real = sim.compiled_chunk
+    monkeypatch.setattr(sim, "compiled_chunk", lambda loop, n: calls.append(n) or real(loop, n))
+    monkeypatch.setattr(sim, "is_cached", lambda fn: False)
+    monkeypatch.setattr(sim, "_STEPS", {})
+    vm = sim.simulate(drive, sc)
+    n = vm.meta["samples"]
+    assert calls == [] and n < sim.JIT_MIN_STEPS
+    monkeypatch.setattr(sim, "JIT_MIN_STEPS", 2 * n)  # the second run reaches it
+    fast = sim.simulate(drive, sc)
+    assert calls and set(calls) == {sim.CHUNK}
+    assert np.isfinite(vm["w_hat"]).all() and set(vm.data) == set(fast.data)
+    for k in vm.data:
+        np.testing.assert_array_equal(vm[k], fast[k])
