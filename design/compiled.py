@@ -108,6 +108,24 @@ def is_cached(fn: ca.Function) -> bool:
         return False
 
 
+def wanted_elsewhere(fn: ca.Function) -> bool:
+    """Whether another process has asked for ``fn``'s library before (a file beside it names the first
+    process that did); records this process's asking if none has. A caller that compiles only where
+    that pays (design/simulate.py) compiles such a Function: its library serves the next processes."""
+    cc = compiler()
+    if os.environ.get("SENSORLESS_NO_JIT") or cc is None:
+        return False
+    try:
+        mark = _library(fn, cc)[1].with_suffix(".wanted")
+        if mark.exists():
+            return mark.read_text().strip() != str(os.getpid())
+        mark.parent.mkdir(parents=True, exist_ok=True)
+        mark.write_text(str(os.getpid()))
+    except (OSError, RuntimeError):
+        pass
+    return False
+
+
 @functools.cache
 def compiled(fn: ca.Function) -> ca.Function:
     """``fn`` compiled to native code (cached on disk), or ``fn`` itself if that is not possible."""

@@ -22,7 +22,7 @@ from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import casadi as ca
 import numpy as np
-from sensorless.design.compiled import compiled, is_cached
+from sensorless.design.compiled import compiled, is_cached, wanted_elsewhere
 from sensorless.design.family import LACKS, Drive, GainSet, require
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario
@@ -33,7 +33,8 @@ CHUNK = 2048  # samples per compiled call: progress granularity; the per-call co
 # in all, then compiled: the VM takes ~10 us more per period (10-16 us against 4-5 us, the three
 # families' loops), compiling one takes 0.5-1 s, so a short run (a test, a check, a first look) is done
 # before a compiler would be. A loop whose library is in the cache (design/compiled.py) runs compiled at
-# once. The same bits either way (tests/common/test_compiled_paths.py).
+# once, and one that another process has run before is compiled at once (its library then serves every
+# later run). The same bits either way (tests/common/test_compiled_paths.py).
 JIT_MIN_STEPS = 50_000
 _STEPS: dict[ca.Function, int] = {}  # control periods run so far, per loop (simulate)
 # Most control periods one run may have: 400 s at 200 us. The traces take about 0.2 kB per period in
@@ -325,7 +326,8 @@ def simulate(
     setup = require(family_of(drive), Simulatable).simulation(drive, scenario, gains)
     if compile:
         _STEPS[setup.loop] = _STEPS.get(setup.loop, 0) + setup.inputs.shape[1]
-        compile = _STEPS[setup.loop] >= JIT_MIN_STEPS or is_cached(chunk_function(setup.loop, CHUNK))
+        chunk = chunk_function(setup.loop, CHUNK)
+        compile = _STEPS[setup.loop] >= JIT_MIN_STEPS or is_cached(chunk) or wanted_elsewhere(chunk)
     if compile:
         compiled_chunk(setup.loop, CHUNK)  # build and compile (or load from the cache) outside the timing
     t0 = time.perf_counter()

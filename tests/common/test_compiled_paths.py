@@ -123,6 +123,7 @@ def test_a_loop_runs_on_the_vm_until_compiling_pays_and_gives_the_same_bits_comp
     real = sim.compiled_chunk
     monkeypatch.setattr(sim, "compiled_chunk", lambda loop, n: calls.append(n) or real(loop, n))
     monkeypatch.setattr(sim, "is_cached", lambda fn: False)
+    monkeypatch.setattr(sim, "wanted_elsewhere", lambda fn: False)  # (no other process has run it)
     monkeypatch.setattr(sim, "_STEPS", {})
     vm = sim.simulate(drive, sc)
     n = vm.meta["samples"]
@@ -133,3 +134,17 @@ def test_a_loop_runs_on_the_vm_until_compiling_pays_and_gives_the_same_bits_comp
     assert np.isfinite(vm["w_hat"]).all() and set(vm.data) == set(fast.data)
     for k in vm.data:
         np.testing.assert_array_equal(vm[k], fast[k])
+
+
+def test_a_function_another_process_asked_for_is_wanted_elsewhere(tmp_path, monkeypatch):
+    """The first asking is recorded with its process; asking again from that process is not another's;
+    a record left by another process is."""
+    import casadi as ca
+
+    monkeypatch.setenv("SENSORLESS_CACHE", str(tmp_path))
+    x = ca.SX.sym("x")
+    fn = ca.Function("asked_for", [x], [3 * x])
+    assert not compiled.wanted_elsewhere(fn) and not compiled.wanted_elsewhere(fn)
+    (mark,) = (tmp_path / "jit").glob("asked_for_*.wanted")
+    mark.write_text("1")  # (pid 1: init, not this process)
+    assert compiled.wanted_elsewhere(fn)
