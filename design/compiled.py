@@ -5,12 +5,15 @@ runs it, but compiled C runs it an order of magnitude faster. ``compiled(fn)`` g
 (CasADi's code generator), compiles it into a shared library with the system C compiler and loads it
 with ``casadi.external``. The library is cached under ``$SENSORLESS_CACHE`` (default
 ``~/.cache/sensorless``) by the SHA-256 of the generated source and the compiler flags, so a second
-process pays nothing. Without a working compiler (or with ``SENSORLESS_NO_JIT=1``) the Function is
+process pays nothing. Processes that need the same library at once (pytest-xdist's workers on an
+empty cache) compile it once: the first takes a lock on the library's name, the others wait for it
+and load its library. Without a working compiler (or with ``SENSORLESS_NO_JIT=1``) the Function is
 returned unchanged and runs on the virtual machine: same numbers, slower.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import os
@@ -18,11 +21,14 @@ import shutil
 import subprocess
 import tempfile
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import casadi as ca
 
-CFLAGS = ("-O2", "-fPIC", "-shared", "-fno-fast-math")
+# -O1: two thirds of -O2's compile time on the drive loops' generated C (the cost of an empty cache),
+# within a few per cent of its run time, and the same bits (IEEE arithmetic either way: no fast-math)
+CFLAGS = ("-O1", "-fPIC", "-shared", "-fno-fast-math")
 
 
 def cache_root() -> Path:
@@ -46,6 +52,35 @@ def compiler() -> str | None:
     return None
 
 
+@contextlib.contextmanager
+def _claimed(lock: Path) -> Iterator[None]:
+    """Hold an exclusive lock on the file ``lock`` (created if need be) for the block; where file locks
+    do not exist (no fcntl), no lock: two processes may then compile one library, harmlessly."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    with open(lock, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)  # released when the file is closed
+        yield
+
+
+def _build(cc: str, src: str, lib: Path) -> None:
+    """Compile ``src`` into ``lib``, through a temporary file and a rename."""
+    with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
+        c_file = Path(tmp, "f.c")
+        c_file.write_text(src)
+        tmp_lib = Path(tmp, "f.so")
+        subprocess.run(
+            [cc, *CFLAGS, str(c_file), "-o", str(tmp_lib), "-lm"],
+            check=True,
+            capture_output=True,
+            text=True,
+        )
+        os.replace(tmp_lib, lib)  # atomic: concurrent processes never load half a library
+
+
 def _source(fn: ca.Function) -> str:
     with tempfile.TemporaryDirectory() as tmp:
         name = "sensorless_jit.c"
@@ -56,29 +91,62 @@ def _source(fn: ca.Function) -> str:
 
 
 @functools.cache
+def _keyed(fn: ca.Function, cc: str) -> tuple[str, str]:
+    """(the C source of ``fn``, its library's file name: the hash of the source, flags and compiler)."""
+    src = _source(fn)
+    key = hashlib.sha256((src + "\0" + " ".join(CFLAGS) + "\0" + cc).encode()).hexdigest()[:24]
+    return src, f"{fn.name()}_{key}.so"
+
+
+def _library(fn: ca.Function, cc: str) -> tuple[str, Path]:
+    """(the C source of ``fn``, the path of its library in the cache)."""
+    src, name = _keyed(fn, cc)
+    return src, cache_dir() / name
+
+
+def is_cached(fn: ca.Function) -> bool:
+    """Whether :func:`compiled` would load ``fn``'s library from the cache (no compiler run)."""
+    cc = compiler()
+    if os.environ.get("SENSORLESS_NO_JIT") or cc is None:
+        return False
+    try:
+        return _library(fn, cc)[1].exists()
+    except (OSError, RuntimeError):
+        return False
+
+
+def wanted_elsewhere(fn: ca.Function) -> bool:
+    """Whether another process has asked for ``fn``'s library before (a file beside it names the first
+    process that did); records this process's asking if none has. A caller that compiles only where
+    that pays (design/simulate.py) compiles such a Function: its library serves the next processes."""
+    cc = compiler()
+    if os.environ.get("SENSORLESS_NO_JIT") or cc is None:
+        return False
+    try:
+        mark = _library(fn, cc)[1].with_suffix(".wanted")
+        if mark.exists():
+            return mark.read_text().strip() != str(os.getpid())
+        mark.parent.mkdir(parents=True, exist_ok=True)
+        mark.write_text(str(os.getpid()))
+    except (OSError, RuntimeError):
+        pass
+    return False
+
+
+@functools.cache
 def compiled(fn: ca.Function) -> ca.Function:
     """``fn`` compiled to native code (cached on disk), or ``fn`` itself if that is not possible."""
     cc = compiler()
     if os.environ.get("SENSORLESS_NO_JIT") or cc is None:
         return fn
     try:
-        src = _source(fn)
-        key = hashlib.sha256((src + "\0" + " ".join(CFLAGS) + "\0" + cc).encode()).hexdigest()[:24]
-        d = cache_dir()
-        lib = d / f"{fn.name()}_{key}.so"
+        src, lib = _library(fn, cc)
+        d = lib.parent
         if not lib.exists():
             d.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=d) as tmp:
-                c_file = Path(tmp, "f.c")
-                c_file.write_text(src)
-                tmp_lib = Path(tmp, "f.so")
-                subprocess.run(
-                    [cc, *CFLAGS, str(c_file), "-o", str(tmp_lib), "-lm"],
-                    check=True,
-                    capture_output=True,
-                    text=True,
-                )
-                os.replace(tmp_lib, lib)  # atomic: concurrent processes never load half a library
+            with _claimed(lib.with_suffix(".lock")):
+                if not lib.exists():  # (else another process compiled it while this one waited)
+                    _build(cc, src, lib)
         return ca.external(fn.name(), str(lib))
     except (OSError, subprocess.CalledProcessError, RuntimeError) as e:
         detail = getattr(e, "stderr", "") or str(e)

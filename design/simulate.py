@@ -3,8 +3,8 @@
 ``simulate(drive, scenario)`` asks the drive's family for its loop set-up (ObserverFamily.simulation:
 the loop step around the runtime observer step that is also generated to C, the parameter vectors,
 the initial state and the per-sample inputs) and runs the loop as ``Function.mapaccum`` over chunks of
-samples, compiled to native code (design/compiled.py). No Python code runs per sample; Python only
-moves from one chunk to the next, which is where progress is reported.
+samples, compiled to native code (design/compiled.py) once that pays (:data:`JIT_MIN_STEPS`). No Python
+code runs per sample; Python only moves from one chunk to the next, which is where progress is reported.
 
 Limits and checks (docs/simulation.md): a run has at most :data:`MAX_SAMPLES` control periods
 (:func:`check_length`, before anything is allocated); :meth:`Traces.problems` says whether a result
@@ -22,13 +22,21 @@ from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import casadi as ca
 import numpy as np
-from sensorless.design.compiled import compiled
+from sensorless.design.compiled import compiled, is_cached, wanted_elsewhere
 from sensorless.design.family import LACKS, Drive, GainSet, require
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario
 from sensorless.symbolic.runtime import Field
 
 CHUNK = 2048  # samples per compiled call: progress granularity; the per-call cost is negligible
+# A loop runs on CasADi's virtual machine until this process has run it for JIT_MIN_STEPS control periods
+# in all, then compiled: the VM takes ~10 us more per period (10-16 us against 4-5 us, the three
+# families' loops), compiling one takes 0.5-1 s, so a short run (a test, a check, a first look) is done
+# before a compiler would be. A loop whose library is in the cache (design/compiled.py) runs compiled at
+# once, and one that another process has run before is compiled at once (its library then serves every
+# later run). The same bits either way (tests/common/test_compiled_paths.py).
+JIT_MIN_STEPS = 50_000
+_STEPS: dict[ca.Function, int] = {}  # control periods run so far, per loop (simulate)
 # Most control periods one run may have: 400 s at 200 us. The traces take about 0.2 kB per period in
 # memory (and more as CSV), so the limit keeps a run within a few hundred MB.
 MAX_SAMPLES = 2_000_000
@@ -312,9 +320,14 @@ def simulate(
 ) -> Traces:
     """Simulate ``scenario`` on ``drive`` (``gains``: e.g. of a tuned table; None: the scenario's or
     the drive file's); returns the traces (see :meth:`Traces.problems`). SimulationError if the
-    scenario is longer than MAX_SAMPLES control periods."""
+    scenario is longer than MAX_SAMPLES control periods. ``compile``: the loop compiled where that pays
+    (:data:`JIT_MIN_STEPS`); False: on CasADi's virtual machine."""
     check_length(scenario, drive.T_s)
     setup = require(family_of(drive), Simulatable).simulation(drive, scenario, gains)
+    if compile:
+        _STEPS[setup.loop] = _STEPS.get(setup.loop, 0) + setup.inputs.shape[1]
+        chunk = chunk_function(setup.loop, CHUNK)
+        compile = _STEPS[setup.loop] >= JIT_MIN_STEPS or is_cached(chunk) or wanted_elsewhere(chunk)
     if compile:
         compiled_chunk(setup.loop, CHUNK)  # build and compile (or load from the cache) outside the timing
     t0 = time.perf_counter()

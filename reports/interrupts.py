@@ -20,12 +20,18 @@ command has not ended :data:`GRACE` seconds later, it prints the command's line,
 this one started (a local Dask cluster's workers) and exits with the signal's status. So SIGTERM ends
 the whole process tree within seconds (a SIGTERMed ``tune`` computed on for 8 minutes).
 
+The watchdog is the script's (``main()`` run as ``sensorless``): a caller that runs ``main([...])`` in its
+own process (a test, a notebook) is never ended by it; it gets the exit status when the command ends.
+
 :func:`budget` is a command's time budget: SIGALRM after that many seconds of wall time, handled as a
-signal (nothing written), whose line says the budget ran out, and why a run may take that long.
+signal (nothing written), whose line says the budget ran out, and why a run may take that long. The
+alarm repeats every :data:`REPEAT` seconds until the block ends: CasADi may swallow the first one (a
+tune then computed on for minutes), a later one lands in Python code and ends the block.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -38,11 +44,12 @@ from typing import Any, TextIO
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 BUDGET = signal.SIGALRM  # a command's time budget ran out (:func:`budget`)
 GRACE = 10.0  # s: how long a command may take to end after a signal before the watchdog ends it
+REPEAT = 0.25  # s: the budget's alarm again, while the block runs on after a swallowed one
 _received: int | None = None
 _defer = 0
 _prefix = "sensorless"  # the command's line prefix (the watchdog's line)
 _budget_note = ""  # what the budget's line says
-_handling = False  # inside handled() in the main thread: a signal starts the watchdog
+_handling = False  # inside handled(watchdog=True) in the main thread: a signal starts the watchdog
 _cancel: threading.Event | None = None  # the running watchdog's: set when the command ends or resets
 
 
@@ -61,8 +68,13 @@ def _handler(signum: int, frame: FrameType | None) -> None:
         if _handling:
             _cancel = threading.Event()
             _watch(signum, _cancel)
+    elif signum == BUDGET and frame is not None and frame.f_code.co_filename in _UNWINDING:
+        return  # a repeated alarm while this module or a with statement unwinds the first one's exception
     if _defer == 0:
         raise Interrupted(signum)
+
+
+_UNWINDING = frozenset({__file__, contextlib.__file__})
 
 
 def line(signum: int) -> tuple[str, int]:
@@ -135,12 +147,13 @@ class _CasadiInterruptFilter:
 
 
 @contextmanager
-def handled(prefix: str = "sensorless") -> Iterator[None]:
+def handled(prefix: str = "sensorless", watchdog: bool = True) -> Iterator[None]:
     """Record SIGINT and SIGTERM for the length of the block (the command line's whole run; ``prefix``
-    its line's start), with the watchdog of a swallowed signal (module docstring)."""
+    its line's start), with the watchdog of a swallowed signal (module docstring) if ``watchdog``: only
+    in a process that is the command (the watchdog exits the process)."""
     global _prefix, _handling
     reset()
-    _prefix, _handling = prefix, _main_thread()
+    _prefix, _handling = prefix, watchdog and _main_thread()
     old = {s: signal.signal(s, _handler) for s in SIGNALS} if _main_thread() else {}
     stderr = sys.stderr
     filtered = _CasadiInterruptFilter(stderr)
@@ -159,15 +172,16 @@ def handled(prefix: str = "sensorless") -> Iterator[None]:
 
 @contextmanager
 def budget(seconds: float | None, note: str) -> Iterator[None]:
-    """SIGALRM after ``seconds`` of wall time (None or 0: no budget) for the length of the block, handled
-    as SIGINT is; ``note``: the error line's text. Only in the main thread (elsewhere: no budget)."""
+    """SIGALRM after ``seconds`` of wall time (None or 0: no budget), then every :data:`REPEAT` s, for the
+    length of the block, handled as SIGINT is; ``note``: the error line's text. Only in the main thread
+    (elsewhere: no budget)."""
     global _budget_note
     if not seconds or not _main_thread():
         yield
         return
     _budget_note = note
     old = signal.signal(BUDGET, _handler)
-    signal.setitimer(signal.ITIMER_REAL, float(seconds))
+    signal.setitimer(signal.ITIMER_REAL, float(seconds), REPEAT)
     try:
         yield
     finally:

@@ -97,11 +97,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``sensorless`` script; returns the exit status (module docstring).
 
     ``argv`` None: the script's own arguments; the process exits next, so a Ctrl-C that arrives after
-    the work is done is ignored rather than killing it on the way out."""
+    the work is done is ignored rather than killing it on the way out, and a signal the computation
+    swallows ends the process (the watchdog, reports/interrupts.py). ``argv`` given: a caller's run in
+    its own process (a test), which the watchdog never ends."""
     words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
     command = words[0] if words and words[0] in COMMAND_NAMES else ""
     try:
-        with interrupts.handled(f"sensorless {command}".strip()):
+        with interrupts.handled(f"sensorless {command}".strip(), watchdog=argv is None):
             try:
                 args = build_parser().parse_args(argv)
                 _refuse_empty(args)

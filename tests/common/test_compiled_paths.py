@@ -53,3 +53,98 @@ def test_reduced_order_orbit_and_maps_compiled_are_the_vm(monkeypatch):
         (fast.ripple_w, slow.ripple_w),
     ):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_library_two_processes_need_at_once_is_compiled_once(tmp_path, monkeypatch):
+    """Two callers (here threads; pytest-xdist's workers on an empty cache) need one library at once: the
+    first compiles it holding the library's lock, the second waits on that lock (seen in /proc/locks)
+    and loads the first's library. The compiler is held until the second caller has either called it
+    too or is waiting on the lock."""
+    import threading
+    import time
+    from pathlib import Path
+
+    import casadi as ca
+
+    locks = Path("/proc/locks")
+    if not locks.exists():
+        pytest.skip("no /proc/locks: the second caller's wait cannot be seen")
+    calls, release = tmp_path / "calls", tmp_path / "release"
+    cc = tmp_path / "cc"
+    hold = f'while [ ! -e "{release}" ]; do sleep 0.01; done'
+    cc.write_text(f'#!/bin/sh\necho x >> "{calls}"\n{hold}\nexec {compiler()} "$@"\n')
+    cc.chmod(0o755)
+    monkeypatch.setenv("CC", str(cc))
+    monkeypatch.setenv("SENSORLESS_CACHE", str(tmp_path / "cache"))
+    x = ca.SX.sym("x")
+    fn = ca.Function("needed_twice", [x], [2 * ca.sin(x)])
+    done = []
+    threads = [threading.Thread(target=lambda: done.append(compiled.compiled.__wrapped__(fn))) for _ in "ab"]
+
+    def until(what, ready):  # (a deadline only so that a broken build cannot hang the suite)
+        end = time.monotonic() + 120
+        while not ready():
+            assert time.monotonic() < end, what
+            time.sleep(0.01)
+
+    def n_calls():
+        return len(calls.read_text().splitlines()) if calls.exists() else 0
+
+    def waiting():  # a blocked lock request ("->") on the library's lock file
+        lock = next((tmp_path / "cache" / "jit").glob("needed_twice_*.lock"), None)
+        if lock is None:
+            return False
+        ino = f":{lock.stat().st_ino} "
+        return any("->" in ln and ino in ln for ln in locks.read_text().splitlines())
+
+    threads[0].start()
+    until("the first caller runs the compiler", lambda: n_calls() == 1)
+    threads[1].start()
+    until("the second caller compiles or waits", lambda: n_calls() == 2 or waiting())
+    release.touch()
+    for t in threads:
+        t.join()
+    assert n_calls() == 1
+    assert len(done) == 2 and all(f.is_a("External") for f in done)
+    assert [float(f(0.3)) for f in done] == [float(fn(0.3))] * 2
+
+
+def test_a_loop_runs_on_the_vm_until_compiling_pays_and_gives_the_same_bits_compiled(monkeypatch):
+    """simulate runs a loop on CasADi's VM until the process has run it for JIT_MIN_STEPS periods in
+    all (an empty cache here), then compiled: the traces are the same bits either way."""
+    import dataclasses
+
+    from sensorless.design import simulate as sim
+    from sensorless.design.scenario import load_scenario
+
+    drive = load_drive("deangelo2006")
+    sc = dataclasses.replace(load_scenario("fig3", drive), duration=0.05)
+    calls = []
+    real = sim.compiled_chunk
+    monkeypatch.setattr(sim, "compiled_chunk", lambda loop, n: calls.append(n) or real(loop, n))
+    monkeypatch.setattr(sim, "is_cached", lambda fn: False)
+    monkeypatch.setattr(sim, "wanted_elsewhere", lambda fn: False)  # (no other process has run it)
+    monkeypatch.setattr(sim, "_STEPS", {})
+    vm = sim.simulate(drive, sc)
+    n = vm.meta["samples"]
+    assert calls == [] and n < sim.JIT_MIN_STEPS
+    monkeypatch.setattr(sim, "JIT_MIN_STEPS", 2 * n)  # the second run reaches it
+    fast = sim.simulate(drive, sc)
+    assert calls and set(calls) == {sim.CHUNK}
+    assert np.isfinite(vm["w_hat"]).all() and set(vm.data) == set(fast.data)
+    for k in vm.data:
+        np.testing.assert_array_equal(vm[k], fast[k])
+
+
+def test_a_function_another_process_asked_for_is_wanted_elsewhere(tmp_path, monkeypatch):
+    """The first asking is recorded with its process; asking again from that process is not another's;
+    a record left by another process is."""
+    import casadi as ca
+
+    monkeypatch.setenv("SENSORLESS_CACHE", str(tmp_path))
+    x = ca.SX.sym("x")
+    fn = ca.Function("asked_for", [x], [3 * x])
+    assert not compiled.wanted_elsewhere(fn) and not compiled.wanted_elsewhere(fn)
+    (mark,) = (tmp_path / "jit").glob("asked_for_*.wanted")
+    mark.write_text("1")  # (pid 1: init, not this process)
+    assert compiled.wanted_elsewhere(fn)

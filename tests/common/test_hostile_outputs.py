@@ -196,6 +196,58 @@ def test_tune_ends_at_its_time_budget_with_one_line_and_nothing_written(tmp_path
     assert not (tmp_path / "t").exists()
 
 
+def test_a_budget_the_computation_swallows_rings_again_and_ends_the_block():
+    # CasADi swallowed the budget's alarm inside a Function call and the tune computed on (past the
+    # watchdog's GRACE: it ended the pytest worker that ran main([...]) in-process)
+    import signal
+    import time
+
+    from sensorless.reports import interrupts
+
+    swallowed = 0
+    with pytest.raises(interrupts.Interrupted) as e:
+        with interrupts.budget(0.05, "the budget ran out"):
+            try:
+                time.sleep(30)  # the first alarm lands here and is swallowed, as CasADi does
+            except KeyboardInterrupt:
+                swallowed += 1
+            time.sleep(30)  # the computation goes on: a repeated alarm ends it
+    interrupts.reset()
+    assert swallowed == 1 and e.value.signum == interrupts.BUDGET
+    assert signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)  # no alarm left once the block ended
+
+
+def test_main_run_in_process_is_never_ended_by_the_watchdog(monkeypatch, capsys):
+    # the watchdog's os._exit is the script's: a caller of main([...]) (this test) gets the exit status
+    import argparse
+    import os
+    import signal
+    import time
+
+    from sensorless.reports import interrupts
+    from sensorless.reports.cli import main as cli
+
+    ended = []
+    monkeypatch.setattr(interrupts, "GRACE", 0.05)
+    monkeypatch.setattr(interrupts, "kill_children", lambda: ended.append("children"))
+    monkeypatch.setattr(interrupts.os, "_exit", ended.append)  # (the old code's watchdog: recorded)
+
+    def swallowing(args):  # SIGTERM swallowed, then computing on for 10 x GRACE
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(30)
+        except KeyboardInterrupt:
+            pass
+        time.sleep(0.5)
+        return 0
+
+    parser = argparse.ArgumentParser()
+    parser.set_defaults(func=swallowing)
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    assert cli.main([]) == 143
+    assert ended == [] and capsys.readouterr().err == "sensorless: terminated\n"
+
+
 ENGINE_CTRL_C = """
 import os, signal, sys
 import distributed
@@ -205,7 +257,8 @@ def started_then_ctrl_c(self, *a, **k):  # Ctrl-C at the terminal while the work
     real(self, *a, **k)
     os.killpg(0, signal.SIGINT)
 distributed.LocalCluster.__init__ = started_then_ctrl_c
-sys.exit(main(["tune", sys.argv[1], "--workers", "1", "--out", sys.argv[2]]))
+sys.argv[1:] = ["tune", sys.argv[1], "--workers", "1", "--out", sys.argv[2]]  # the script: main()
+sys.exit(main())
 """
 
 
