@@ -17,12 +17,7 @@ The tuned gains are *worse* (:func:`worse`) where the drive file's are stable at
 they are not, or where a time-domain check's status (reports/time_domain.py ``check_status``: pass, warn,
 fail) is worse with them than with the drive file's: they fail a check the drive file's pass, or pass
 it only "not tested sensorless" (the I-f start, not the observer, had the loop: a warn) where the drive
-file's pass it with the observer in the loop (or they lose the rotor where the drive file's hold it);
-or, in a check both pass, where its peak closed-loop angle error is larger than the drive file's by
-more than :data:`PEAK_TOLERANCE` (10 %) of it plus :data:`PEAK_FLOOR_DEG`. The command proves the drive
-file's gains as a table runs them (``prove`` with the family's gains of the drive file, not None): a
-scenario that chooses gains of its own (Piippo et al. 2008 Fig. 9(a): a constant gain) runs a table's
-gains instead, so only the same run is a fair reference.
+file's pass it with the observer in the loop (or they lose the rotor where the drive file's hold it).
 The command (reports/cli/tune.py) then falls back to the tuner's next candidate, or exits 3 naming the
 point and the check, and writes nothing.
 """
@@ -235,10 +230,7 @@ def worse(tuned: Proof, base: Proof, w_base: float) -> list[str]:
         if b is None:
             continue
         st, bst = RANK[time_domain.check_status(c)], RANK[time_domain.check_status(b)]
-        peak = _peak_worse(c, b) if st == bst == RANK["pass"] else ""
-        if peak:
-            out.append(f"time-domain check {c['name']}: {peak}")
-        elif st > bst or (c["problems"] and not b["problems"]):
+        if st > bst or (c["problems"] and not b["problems"]):
             why = f" (cause: {', '.join(c['causes'])})" if c.get("causes") else ""
             what = (
                 "; ".join(c["failed"]) + why
@@ -250,31 +242,6 @@ def worse(tuned: Proof, base: Proof, w_base: float) -> list[str]:
             theirs = {0: "pass it", 1: "pass it only without the observer in the loop", 2: "fail it too"}[bst]
             out.append(f"time-domain check {c['name']}: {what} (the drive file's gains {theirs})")
     return out
-
-
-# a check both gain sets pass is worse with the tuned gains where its closed-loop peak angle error
-# exceeds the drive file's by more than PEAK_TOLERANCE of it plus PEAK_FLOOR_DEG: the status alone let
-# through tables 3-7x worse in the checks' peaks (docs/tuning.md, "Tuned gains that run worse")
-# (docs/tuning.md, "Tuned gains that run worse"); 1 deg is 1/30 of the checks' 30-deg limit and costs
-# 1 - cos(1 deg) = 0.015 % of the torque per ampere: below it a larger peak is no loss worth a table
-# (servo400: 0.15 -> 1.1 deg in load_steps, bought with damping 0.15 -> 0.44 that the report requires)
-PEAK_TOLERANCE = 0.1
-PEAK_FLOOR_DEG = 1.0
-
-
-def _peak_worse(tuned: ProofCheck, base: ProofCheck) -> str:
-    """The clause saying the tuned gains' peak angle error is worse than the drive file's in a check
-    both pass ("" where it is not, or where either has no peak)."""
-    a = tuned["metrics"].get("max_abs_theta_err_deg")
-    b = base["metrics"].get("max_abs_theta_err_deg")
-    if not isinstance(a, int | float) or not isinstance(b, int | float):
-        return ""
-    if a <= b * (1 + PEAK_TOLERANCE) + PEAK_FLOOR_DEG:
-        return ""
-    return (
-        f"peak angle error {a:.3g} deg against the drive file's {b:.3g} deg (tolerance "
-        f"{100 * PEAK_TOLERANCE:.0f} % + {PEAK_FLOOR_DEG:g} deg)"
-    )
 
 
 # a check's status, worst last (reports/time_domain.py check_status): a check the tuned gains pass only

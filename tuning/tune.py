@@ -407,62 +407,34 @@ def with_noise_points(cand: Candidates) -> Candidates:
     )
 
 
-# the kept gains pulled back toward the drive file's (in the law's parameters), in this order, as the
-# last fallbacks: 0 is the drive file's gains, which run as the drive file's
-PULL_BACK = (0.5, 0.25, 0.0)
-
-
 def fallbacks(drive: Drive, result: TuneOutcome, settings: TuneSettings) -> list[tuple[str, TuneOutcome]]:
     """The tuner's next candidates where the kept gains fail their proof (reports/tune_proof.py: they
     run worse than the drive file's): (what it is, a result with its own gain table), best first. For the
     shared pipeline: the law's start where it has one and it differs from the kept gains (a seeded law:
     its seed's optimum in this law's parameters, e.g. the tuned speed-dependent law (16) sampled at the
-    schedule's breakpoints, which that law reproduces exactly); then the kept gains pulled back along
-    the segment to the drive file's gains (:data:`PULL_BACK`; the objective, the worst
-    damping, does not see the angle error under acceleration that the time-domain checks punish, and
-    the drive file's gains bound it: docs/tuning.md, "Tuned gains that run worse"); a tuner of its own
-    offers none."""
-    if not isinstance(result, TuneResult):
+    schedule's breakpoints, which that law reproduces exactly); a tuner of its own offers none."""
+    if not isinstance(result, TuneResult) or result.model.start is None:
         return []
     m = result.model
+    theta = np.clip(np.asarray(m.start, float), m.lower, m.upper)
+    if np.allclose(theta, result.theta, rtol=1e-9, atol=0.0):
+        return []
     st = dataclasses.replace(settings, min_decay=result.floor)
     env = st.envelope
     W, T = env.grid()
     Wd, Td = env.grid(env.dense_factor, env.dense_factor)
+    grid = figures(m, theta, W, T)
+    dense = figures(m, theta, Wd, Td, noise=m.noise is not None)
     scale = float(np.abs(figures(m, result.theta0, W, T).poles).max())
-    kept = np.asarray(result.theta, float)
-    # the drive file's gains as they are, not clipped into the law's box: the box is the optimizer's (a
-    # law may hold parameters, e.g. the schedule's injection band at its seed's gains), the proof judges
-    theta0 = np.asarray(m.theta0, float)
-    cands: list[tuple[str, np.ndarray, str]] = []
-    if m.start is not None:
-        what = m.start_label or "the law's start"
-        why = "the optimum ran worse than the drive file's gains in the command's proof"
-        cands.append((what, np.clip(np.asarray(m.start, float), m.lower, m.upper), why))
-    for f in PULL_BACK:
-        what = (
-            f"the tuned gains pulled back to {f:g} of the way from the drive file's"
-            if f
-            else "the drive file's gains"
-        )
-        why = "every candidate before it ran worse than the drive file's gains in the command's proof"
-        cands.append((what, theta0 + f * (kept - theta0), why))
-    out: list[tuple[str, TuneOutcome]] = []
-    seen = [kept]
-    for what, theta, why in cands:
-        if any(np.allclose(theta, t, rtol=1e-9, atol=0.0) for t in seen):
-            continue
-        seen.append(theta)
-        grid = figures(m, theta, W, T)
-        dense = figures(m, theta, Wd, Td, noise=m.noise is not None)
-        r = dataclasses.replace(
-            result,
-            theta=theta,
-            grid=grid,
-            dense=dense,
-            selection={"text": f"{what}: the fallback ({why})", "fallback": True},
-            ridge=None,
-            pareto=None,
-        )
-        out.append((what, dataclasses.replace(r, table=gain_table(drive, st, r, scale))))
-    return out
+    what = m.start_label or "the law's start"
+    text = f"{what}: the fallback (the optimum ran worse than the drive file's gains in the command's proof)"
+    r = dataclasses.replace(
+        result,
+        theta=theta,
+        grid=grid,
+        dense=dense,
+        selection={"text": text, "fallback": True},
+        ridge=None,
+        pareto=None,
+    )
+    return [(what, dataclasses.replace(r, table=gain_table(drive, st, r, scale)))]

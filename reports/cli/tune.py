@@ -15,11 +15,10 @@ the exit status is 3; a tuner whose outcome judges by a criterion of its family'
 (``TuneOutcome.shortfalls``) says what its gains miss instead, one warning line each (exit 3).
 
 Before anything is written the table is proved (reports/tune_proof.py): its gains and the drive file's
-over the drive's real range (+-T_max) by the linear analysis and on the report's time-domain checks
-(status, and the peak angle error of a check both pass). A table that runs worse than the drive file's
-gains is not written as tuned: the tuner's fallbacks (a seeded law: its seed's optimum in this law's
-parameters; then the kept gains pulled back toward the drive file's) are proved next, and if none holds
-the command says which point and which check, writes nothing and exits 3. ``--unchecked`` skips the proof.
+over the drive's real range (+-T_max) by the linear analysis and on the report's time-domain checks. A
+table that runs worse than the drive file's gains is not written as tuned: the tuner's fallback (a
+seeded law: its seed's optimum in this law's parameters) is proved next, and if none holds the command
+says which point and which check, writes nothing and exits 3. ``--unchecked`` skips the proof.
 """
 
 from __future__ import annotations
@@ -245,8 +244,7 @@ def _proved(
     fam = family_of(drive)
     runs = tune_proof.runs(drive)
     progress(f"proof: the drive file's and the tuned gains, {len(runs)} time-domain checks, +-T_max")
-    # the drive file's gains as a table runs them (a scenario's own gain choice is no reference for a table)
-    base = tune_proof.prove(drive, fam.gains(drive), "drive file", runs, tune_proof.ANALYSIS, progress)
+    base = tune_proof.prove(drive, None, "drive file", runs, tune_proof.ANALYSIS, progress)
     lines = [f"proof (linear analysis over +-T_max, {len(runs)} time-domain checks): {base.line()}"]
     cands: list[tuple[str, TuneOutcome]] = [("tuned", r)]
     i = 0
