@@ -32,6 +32,18 @@ def servo():
     return drive, fam.runtime(drive, fam.gains(drive))
 
 
+def closed_loop(base, values, w_hp, k_a, w_cmd):
+    """The servo's step wrapped with an I-f start of ``values`` (no dwell), its state names, and an
+    initial state in closed loop with the speed command ``w_cmd``."""
+    setup = with_if_start(base, {**values, "if_w_hp": w_hp, "if_t_dwell": 0.0, "if_k_a": k_a})
+    state = [f.name for f in setup.observer.state]
+    x = np.asarray(setup.initial_state(), float).ravel()
+    x[state.index("startup_mode_x")] = 0.0  # closed loop
+    meas = np.zeros(len(setup.observer.meas))
+    meas[-1] = w_cmd
+    return setup, state, x, meas
+
+
 def test_the_rules():
     v = if_values(T_N=2.0, T_max=3.0, J=1e-3, p=4, k_t=0.5, w_min=40.0, sigma=2.5)
     # the swing about the current vector at rated load: cos(delta_N) = sqrt(1 - (2/3)^2) = sqrt(5)/3
@@ -102,13 +114,8 @@ def test_the_drop_back_places_the_frame_at_the_load_angle_the_open_loop_needs():
     # asin(2e-3 * 1500 / 6) = 30 deg
     _drive, base = servo()
     values = {"if_i": 6.0, "if_acc": 1500.0, "if_w_on": 30.0, "if_w_off": 20.0, "if_k_d": 0.0}
-    setup = with_if_start(base, {**values, "if_w_hp": 100.0, "if_t_dwell": 0.0, "if_k_a": 2e-3})
+    setup, state, x, meas = closed_loop(base, values, 100.0, 2e-3, 1000.0)
     obs = setup.observer
-    state = [f.name for f in obs.state]
-    x = np.asarray(setup.initial_state(), float).ravel()
-    x[state.index("startup_mode_x")] = 0.0  # closed loop
-    meas = np.zeros(len(obs.meas))
-    meas[-1] = 1000.0  # w_cmd
     x_next, y = setup.step_function()(x, meas, setup.p, setup.gain)
     x_next = np.asarray(x_next).ravel()
     assert np.asarray(y).ravel()[[f.name for f in obs.outputs].index("startup_mode")] == 0
@@ -200,15 +207,9 @@ def test_the_drop_back_starts_the_frame_at_the_rotor_speed_not_a_lagging_speed_e
     # (below w_off = 5 rad/s) and the estimate still at 40, the drive drops back, at under w_off
     drive, base = servo()
     values = {"if_i": 6.0, "if_acc": 1500.0, "if_w_on": 50.0, "if_w_off": 5.0, "if_k_d": 0.0}
-    setup = with_if_start(base, {**values, "if_w_hp": 1000.0, "if_t_dwell": 0.0, "if_k_a": 2e-3})
-    obs = setup.observer
-    state = [f.name for f in obs.state]
+    setup, state, x, meas = closed_loop(base, values, 1000.0, 2e-3, 10.0)
     T_s = drive.T_s
     step = setup.step_function()
-    x = np.asarray(setup.initial_state(), float).ravel()
-    x[state.index("startup_mode_x")] = 0.0  # closed loop
-    meas = np.zeros(len(obs.meas))
-    meas[-1] = 10.0  # w_cmd
     x[state.index("w_hat")] = x[state.index("w_i")] = 40.0
     inner = x[: state.index("if_theta")].copy()  # the observer's state, its angle set each period
     theta, modes = 0.0, []
@@ -279,15 +280,10 @@ def test_the_drop_back_has_read_the_braking_when_the_drive_crosses_the_band_at_t
     i_if, k_a, w_on, w_off = 6.0, 2e-3, 60.0, 30.0
     a = i_if / k_a
     values = {"if_i": i_if, "if_acc": 1500.0, "if_w_on": w_on, "if_w_off": w_off, "if_k_d": 0.0}
-    setup = with_if_start(base, {**values, "if_w_hp": 20.0, "if_t_dwell": 0.0, "if_k_a": k_a})
-    obs = setup.observer
-    state = [f.name for f in obs.state]
+    # w_cmd: a step towards -w_on (the speed loop at its limit)
+    setup, state, x, meas = closed_loop(base, values, 20.0, k_a, -w_on)
     T_s = drive.T_s
     step = setup.step_function()
-    x = np.asarray(setup.initial_state(), float).ravel()
-    x[state.index("startup_mode_x")] = 0.0  # closed loop
-    meas = np.zeros(len(obs.meas))
-    meas[-1] = -w_on  # w_cmd: a step towards -w_on (the speed loop at its limit)
     lag = 10.0
     w, theta = w_on + 1.0, 0.0
     x[state.index("if_w_obs")] = w  # the previous period's estimate: no step at the first
