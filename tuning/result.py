@@ -7,6 +7,7 @@ assembled here from the pipeline's numbers (tuning/tune.py).
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -179,7 +180,10 @@ class TuneResult:
             if res is not None and res.nlp_retried:
                 out.append(
                     f"IPOPT failed and was retried with half the trust region{whose}: "
-                    + "; ".join(res.nlp_retried)
+                    + "; ".join(
+                        note if n == 1 else f"{note} ({n} times, one per halving)"
+                        for note, n in collections.Counter(res.nlp_retried).items()
+                    )
                 )
         if s.get("selection"):
             out.append(f"kept: {s['selection']['text']}")
