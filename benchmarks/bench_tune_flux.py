@@ -23,7 +23,7 @@ import tempfile
 import time
 
 from sensorless.design.drive import load_drive
-from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, assess, odrive_gains, vesc_gains
+from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, assess, odrive_defaults, vesc_detection
 from sensorless.tuning.tune import tune
 
 PRESET = "outrunner270"
@@ -63,7 +63,7 @@ def main() -> None:
     settings = FluxTuneSettings()
     first = timed(lambda: tune(drive, "constant", settings))
     warm = med([timed(lambda: tune(drive, "constant", settings)) for _ in range(a.repeat)])
-    cands = [odrive_gains(), vesc_gains(drive)]
+    cands = [odrive_defaults(), vesc_detection(drive)]
     base = med([timed(lambda: assess(drive, cands, settings)) for _ in range(a.repeat)])
     print(f"{PRESET}, law constant; medians of {a.repeat} runs (wall / CPU seconds)")
     print(f"  sensorless tune (fresh interpreter): {cli[0]:7.3f} / {cli[1]:7.3f}   target < {TARGET_S:g} s")

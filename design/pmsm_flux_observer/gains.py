@@ -34,8 +34,9 @@ from sensorless.symbolic.runtime import Field
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
-VESC_GAIN_FACTOR = 4.0  # gamma = 4 foc_observer_gain max(slow, |duty| V_bus / 40 V) (factor 5 before 2020)
-VESC_U_REF = 40.0 / math.sqrt(3)  # [V]: |duty| V_bus / 40 V = |u| / this
+# the voltage-scaled law's constants: VESC's run-time schedule (docs/families/pmsm_flux_observer.md)
+SCALED_GAIN_FACTOR = 4.0  # gamma = 4 foc_observer_gain max(slow, |duty| V_bus / 40 V) (factor 5 before 2020)
+SCALED_U_REF = 40.0 / math.sqrt(3)  # [V]: |duty| V_bus / 40 V = |u| / this
 
 
 def drive_gains(drive: FluxObserverDrive) -> GainSet:
@@ -68,7 +69,7 @@ def base_gain(gains: GainSet, psi_hat: float) -> float:
     4 raw lambda^2)."""
     v = gains.values
     if gains.law == "voltage-scaled":
-        return VESC_GAIN_FACTOR * float(v["foc_observer_gain"]) * psi_hat**2
+        return SCALED_GAIN_FACTOR * float(v["foc_observer_gain"]) * psi_hat**2
     return float(v["observer_gain"])
 
 
@@ -116,7 +117,7 @@ def runtime_params(drive: FluxObserverDrive, gains: GainSet) -> dict[str, float]
         "L_q": e.L_q,
         "psi_pm": e.psi_pm,
         "k_slow": float(v.get("foc_observer_gain_slow", 1.0)),
-        "u_ref": VESC_U_REF,
+        "u_ref": SCALED_U_REF,
         "scheduled": 1.0 if gains.law == "voltage-scaled" else 0.0,
         "adapt": 1.0 if drive.observer.lambda_adaptation else 0.0,
         "k_p": k_p,

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from sensorless.design.family import GainSet
-from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF, base_gain, pll_gains
+from sensorless.design.pmsm_flux_observer.gains import SCALED_U_REF, base_gain, pll_gains
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 from sensorless.reports.causes import Failure, Named
 from sensorless.reports.time_domain import Check
@@ -178,7 +178,7 @@ def holds_nowhere_finding(drive: FluxObserverDrive, gains: GainSet, settings: Fl
     w_top = float(drive.envelope.speed_max)
     k = base_gain(gains, drive.estimate.psi_pm)
     if gains.law == "voltage-scaled":
-        k *= max(float(gains.values["foc_observer_gain_slow"]), drive.motor.psi_pm * w_top / VESC_U_REF)
+        k *= max(float(gains.values["foc_observer_gain_slow"]), drive.motor.psi_pm * w_top / SCALED_U_REF)
     which = (
         f"{' and '.join(lost)} alone already lose{'s' if len(lost) == 1 else ''} it"
         if lost

@@ -34,9 +34,9 @@ from sensorless.tuning.pmsm_flux_observer import (
     figures,
     hold_speed,
     judged,
-    odrive_gains,
+    odrive_defaults,
     shortfalls,
-    vesc_gains,
+    vesc_detection,
 )
 
 if TYPE_CHECKING:  # typed by name only
@@ -62,7 +62,7 @@ class FluxJudge(Judging["FluxObserverDrive"]):
 
     def review(self, drive: FluxObserverDrive, table: GainTable | None, table_file: str) -> Review:
         mine = FAMILY.gains(drive)
-        choices = {DEFAULTS[0]: odrive_gains(), DEFAULTS[1]: vesc_gains(drive), "drive file": mine}
+        choices = {DEFAULTS[0]: odrive_defaults(), DEFAULTS[1]: vesc_detection(drive), "drive file": mine}
         return gains_under_review(FAMILY, drive, table, table_file, choices=choices)
 
     def notes(self, drive: FluxObserverDrive) -> tuple[str, ...]:

@@ -187,10 +187,10 @@ def test_tuned_table_exported_and_refused_where_it_breaks_a_limit(tmp_path, caps
     # the table `tune --law constant` writes (its default settings), from the tuner itself: the command's
     # own summary lines (the tuned gains' w_min under the errors, the start) are test_drive_file.py's
     from sensorless.design.drive import load_drive
-    from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, tune_odrive
+    from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, tune_constant
 
     table = tmp_path / "gains_constant.json"
-    table.write_text(tune_odrive(load_drive(str(drive)), FluxTuneSettings()).table.to_json())
+    table.write_text(tune_constant(load_drive(str(drive)), FluxTuneSettings()).table.to_json())
     gains = json.loads(table.read_text())["gains"]
     code, _, err = run(
         ["export", drive, "--gains", table, "--target", "odrive", "--out", tmp_path / "e"], capsys

@@ -16,12 +16,12 @@ from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
     assess,
+    constant_candidate,
     judged,
-    odrive_candidate,
-    odrive_gains,
+    odrive_defaults,
     shortfalls,
-    tune_odrive,
-    vesc_gains,
+    tune_constant,
+    vesc_detection,
 )
 
 
@@ -64,12 +64,12 @@ def _rank(drive, a, c):
 
 
 def test_tuned_is_never_worse_than_the_better_firmware_default_on_a_brute_force_grid(drive):
-    tuned = tune_odrive(drive, FluxTuneSettings())
+    tuned = tune_constant(drive, FluxTuneSettings())
     assert tuned.missed == []  # a well-tuned datasheet motor meets the defaults: no exit 3
     g = GainSet("constant", dict(tuned.table.gains), "tuned")
     T = drive.observer.T_obs
-    grid = [odrive_candidate(drive, float(k)) for k in np.geomspace(20.0, 1.9 / T, 24)]
-    cands = [g, odrive_gains(), vesc_gains(drive), *grid]
+    grid = [constant_candidate(drive, float(k)) for k in np.geomspace(20.0, 1.9 / T, 24)]
+    cands = [g, odrive_defaults(), vesc_detection(drive), *grid]
     a = assess(drive, cands, FluxTuneSettings())
 
     def pll(c):
@@ -98,18 +98,18 @@ def test_shortfalls_name_the_cause_when_the_gains_hold_nowhere_or_only_at_the_to
     d = drive  # 4 speeds
     s = FluxTuneSettings()
     ks = np.geomspace(2000.0, 1.9 / d.observer.T_obs, 8)
-    a = assess(d, [odrive_candidate(d, float(k)) for k in ks], s)
+    a = assess(d, [constant_candidate(d, float(k)) for k in ks], s)
     top = [c for c in range(len(ks)) if a.holds[c, -1] and not a.holds[c, -2]]
     assert top, "a gain large enough holds only at the top speed"
     c = top[0]
     j = judged(d, a, c, s)
-    lines = shortfalls(d, odrive_candidate(d, float(ks[c])), j, s)
+    lines = shortfalls(d, constant_candidate(d, float(ks[c])), j, s)
     assert any("only at the envelope's top speed 1 p.u." in x and "change:" in x for x in lines)
     # a bias limit nothing meets: held nowhere, the error that alone breaks it named
     tight = FluxTuneSettings(bias_max_deg=0.5)
-    a = assess(d, [odrive_gains()], tight)
+    a = assess(d, [odrive_defaults()], tight)
     j = judged(d, a, 0, tight)
-    (line, *_) = shortfalls(d, odrive_gains(), j, tight)
+    (line, *_) = shortfalls(d, odrive_defaults(), j, tight)
     assert "at no envelope speed" in line and "alone" in line and "--bias-max" in line
 
 

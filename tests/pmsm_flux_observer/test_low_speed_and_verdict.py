@@ -15,7 +15,7 @@ import pytest
 from sensorless.design.drive import load_drive, load_drive_text
 from sensorless.design.low_speed import DECAY_SHARE, minimum_speed
 from sensorless.design.pmsm_flux_observer import FAMILY
-from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF
+from sensorless.design.pmsm_flux_observer.gains import SCALED_U_REF
 from sensorless.design.poles import MIN_DAMPING
 from sensorless.design.scenario import load_scenario
 from sensorless.design.simulate import simulate
@@ -95,7 +95,7 @@ def test_w_min_at_no_load_is_the_observers_decay_not_the_plls(hub):
     assert -(-2000 + math.sqrt(2000**2 - 4 * 30000)) / 2 < need  # the PLL alone fails everywhere
 
     def decay(w: float) -> float:
-        k = k0 * max(g["foc_observer_gain_slow"], psi * w / VESC_U_REF)
+        k = k0 * max(g["foc_observer_gain_slow"], psi * w / SCALED_U_REF)
         return k / 2 - math.sqrt(max(k * k / 4 - w * w, 0.0))
 
     lo, hi = 1.0, hub.w_base
@@ -137,9 +137,9 @@ def test_each_tuned_pll_is_four_times_the_speed_loop_and_its_table_reports(hub, 
     """The speed loop closes on the PLL's speed: every law's tuned PLL roots lie at 4 alpha_s or
     beyond (roots of s^2 + k_p s + k_i from the table's own numbers), and the report reads the table
     (a schedule table among the firmware defaults included) without a PLL finding."""
-    from sensorless.tuning.pmsm_flux_observer import tune_odrive, tune_schedule, tune_vesc
+    from sensorless.tuning.pmsm_flux_observer import tune_constant, tune_schedule, tune_voltage_scaled
 
-    tuner = {"constant": tune_odrive, "voltage-scaled": tune_vesc, "schedule": tune_schedule}[law]
+    tuner = {"constant": tune_constant, "voltage-scaled": tune_voltage_scaled, "schedule": tune_schedule}[law]
     table = tuner(hub, FluxTuneSettings()).table
     g = table.gains
     k_p, k_i = (

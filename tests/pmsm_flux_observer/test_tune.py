@@ -16,10 +16,10 @@ from sensorless.reports.cli.main import main
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
     assess,
+    constant_candidate,
     figures,
     k_grid,
-    odrive_candidate,
-    tune_odrive,
+    tune_constant,
 )
 
 SPEEDS = 4
@@ -36,10 +36,10 @@ def drive():
 
 @pytest.fixture(scope="module")
 def tuned(drive):
-    return tune_odrive(drive, FluxTuneSettings())
+    return tune_constant(drive, FluxTuneSettings())
 
 
-def test_odrive_law_limits_and_table(drive, tuned):
+def test_constant_law_limits_and_table(drive, tuned):
     g = tuned.table.gains
     T = drive.observer.T_obs
     assert T * g["observer_gain"] < 2  # the Euler bound
@@ -147,7 +147,7 @@ def test_the_laws_firmware_names_read_for_one_release(tmp_path, capsys, old, new
 def test_noise_limit_holds_and_front_trades_damping_for_bias(drive, tuned):
     lim = 0.9 * math.radians(tuned.table.summary["worst_noise_deg"])
     s = FluxTuneSettings(max_noise=(("position", lim),), pareto=4)
-    r = tune_odrive(drive, s)
+    r = tune_constant(drive, s)
     assert math.radians(r.table.summary["worst_noise_deg"]) <= lim
     assert r.table.gains["observer_gain"] != tuned.table.gains["observer_gain"]  # the limit binds
     pts = r.table.summary["pareto"]["points"]
@@ -157,13 +157,13 @@ def test_noise_limit_holds_and_front_trades_damping_for_bias(drive, tuned):
     assert all(p["noise"] <= math.degrees(lim) * (1 + 1e-9) for p in pts)
     # each front point re-judged alone gives its figures back
     k = pts[-1]["theta"][0]
-    a = assess(drive, [odrive_candidate(drive, k)], s)
+    a = assess(drive, [constant_candidate(drive, k)], s)
     f = figures(drive, a, 0, r.table.summary["hold_speed_rad_s"])
     assert f["worst_damping"] == pytest.approx(pts[-1]["worst_damping"])
 
 
 def test_angle_noise_scales_with_the_sensor_noise(drive):
-    c = [odrive_candidate(drive, 500.0)]
+    c = [constant_candidate(drive, 500.0)]
     a1 = assess(drive, c, FluxTuneSettings())
     a2 = assess(dataclasses.replace(drive, i_noise=0.0), c, FluxTuneSettings())
     a3 = assess(dataclasses.replace(drive, i_noise=1.0), c, FluxTuneSettings())
@@ -176,10 +176,10 @@ def test_angle_noise_scales_with_the_sensor_noise(drive):
 def test_schedule_is_held_below_its_lowest_holding_speed(drive):
     """Where no candidate holds (every one lacks an equilibrium under some error corner) the criterion
     ties; the schedule keeps the lowest holding speed's gain there rather than the grid's smallest."""
-    from sensorless.tuning.pmsm_flux_observer import assess, odrive_candidate, tune_schedule
+    from sensorless.tuning.pmsm_flux_observer import assess, constant_candidate, tune_schedule
 
     s = FluxTuneSettings()
-    a = assess(drive, [odrive_candidate(drive, float(k)) for k in k_grid(drive)], s)
+    a = assess(drive, [constant_candidate(drive, float(k)) for k in k_grid(drive)], s)
     first = int(np.flatnonzero(a.holds.any(axis=0))[0])
     assert first > 0  # the outrunner has speeds where no gain holds
     ks = tune_schedule(drive, s).table.gains["observer_gain"]

@@ -37,21 +37,21 @@ from sensorless.tuning.pmsm_flux_observer.assessment import (
     hold_speed,
     low_limit,
 )
+from sensorless.tuning.pmsm_flux_observer.constant import tune_constant
 from sensorless.tuning.pmsm_flux_observer.criterion import best, judged, requirements, shortfalls
-from sensorless.tuning.pmsm_flux_observer.odrive import tune_odrive
 from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome
 from sensorless.tuning.pmsm_flux_observer.schedule import tune_schedule
 from sensorless.tuning.pmsm_flux_observer.settings import (
     FluxTuneSettings,
     check_variant,
+    constant_candidate,
     corners,
     default_settings,
     k_grid,
-    odrive_candidate,
-    odrive_gains,
-    vesc_gains,
+    odrive_defaults,
+    vesc_detection,
 )
-from sensorless.tuning.pmsm_flux_observer.vesc import tune_vesc
+from sensorless.tuning.pmsm_flux_observer.voltage_scaled import tune_voltage_scaled
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
@@ -66,6 +66,7 @@ __all__ = [
     "assess_linearized",
     "best",
     "check_variant",
+    "constant_candidate",
     "corners",
     "default_settings",
     "figures",
@@ -74,15 +75,14 @@ __all__ = [
     "judged",
     "k_grid",
     "low_limit",
-    "odrive_candidate",
-    "odrive_gains",
+    "odrive_defaults",
     "own_law",
     "requirements",
     "shortfalls",
-    "tune_odrive",
+    "tune_constant",
     "tune_schedule",
-    "tune_vesc",
-    "vesc_gains",
+    "tune_voltage_scaled",
+    "vesc_detection",
 ]
 
 
@@ -103,7 +103,7 @@ HOOKS = TuningHooks(
             "flux observer: observer_gain (gamma lambda^2) and pll_bandwidth, constant over speed (ODrive's "
             "terms)",
             default_settings,
-            tuner=tune_odrive,
+            tuner=tune_constant,
             columns=(_LEAD, ()),
         ),
         Tunable(
@@ -111,7 +111,7 @@ HOOKS = TuningHooks(
             "flux observer: VESC's foc_observer_gain, foc_observer_gain_slow (scaled with the voltage at run "
             "time), PLL",
             default_settings,
-            tuner=tune_vesc,
+            tuner=tune_voltage_scaled,
             columns=(_LEAD, ()),
         ),
         Tunable(

@@ -12,7 +12,7 @@ from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTable
 from sensorless.design.poles import worst_damping
 from sensorless.tuning.pmsm_flux_observer.assessment import Assessment, assess, figures
-from sensorless.tuning.pmsm_flux_observer.settings import FluxTuneSettings, odrive_gains, vesc_gains
+from sensorless.tuning.pmsm_flux_observer.settings import FluxTuneSettings, odrive_defaults, vesc_detection
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
@@ -37,7 +37,7 @@ class FluxOutcome:
 def baselines(drive: FluxObserverDrive, settings: FluxTuneSettings) -> tuple[list[str], dict[str, Any]]:
     from sensorless.tuning.pmsm_flux_observer.criterion import judged
 
-    cands = [odrive_gains(), vesc_gains(drive), drive_gains_or_none(drive)]
+    cands = [odrive_defaults(), vesc_detection(drive), drive_gains_or_none(drive)]
     a = assess(drive, cands, settings)
     lines, out = [], {}
     for j, (label, g) in enumerate(

@@ -13,8 +13,8 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
     KP_T,
     FluxTuneSettings,
     check_variant,
+    constant_candidate,
     k_grid,
-    odrive_candidate,
     pll_floor,
 )
 
@@ -26,7 +26,7 @@ def tune_schedule(drive: FluxObserverDrive, settings: FluxTuneSettings, progress
     """The ``schedule`` law: gamma lambda^2 per envelope speed, by the criterion at that speed."""
     check_variant(drive, "schedule")
     ks = k_grid(drive)
-    cands = [odrive_candidate(drive, float(k)) for k in ks]
+    cands = [constant_candidate(drive, float(k)) for k in ks]
     a = assess(drive, cands, settings)
     W, _ = drive.envelope.grid()
     speeds = np.unique(np.abs(W))

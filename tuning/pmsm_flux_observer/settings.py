@@ -85,18 +85,20 @@ def corners(errors: dict[str, float]) -> list[dict[str, float]]:
     return out
 
 
-def vesc_gains(drive: FluxObserverDrive) -> GainSet:
+def vesc_detection(drive: FluxObserverDrive) -> GainSet:
     """VESC Tool's detection on this motor: gain 1e-3/lambda^2 stored x1e6, its PLL and slow gain."""
     raw = 1e3 / drive.estimate.psi_pm**2
     values = {"foc_observer_gain": raw, **VESC_DEFAULT}
     return GainSet("voltage-scaled", values, "VESC Tool detection defaults")
 
 
-def odrive_gains() -> GainSet:
+def odrive_defaults() -> GainSet:
+    """ODrive's default gains (a firmware baseline), in the ``constant`` law."""
     return GainSet("constant", dict(ODRIVE_DEFAULT), "ODrive defaults")
 
 
-def odrive_candidate(drive: FluxObserverDrive, k: float) -> GainSet:
+def constant_candidate(drive: FluxObserverDrive, k: float) -> GainSet:
+    """The ``constant`` law's candidate of observer gain ``k`` [1/s], its PLL at the tuners' rule."""
     T = drive.observer.T_obs
     bw = min(max(k, pll_floor(drive)), KP_T / (2 * T))
     return GainSet("constant", {"observer_gain": k, "pll_bandwidth": bw}, "candidate")

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
-from sensorless.design.pmsm_flux_observer.gains import VESC_U_REF
+from sensorless.design.pmsm_flux_observer.gains import SCALED_U_REF
 from sensorless.tuning.pmsm_flux_observer.assessment import assess, front
 from sensorless.tuning.pmsm_flux_observer.criterion import best, judged
 from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome, baselines, outcome, same_law
@@ -21,14 +21,16 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
     FluxTuneSettings,
     check_variant,
     pll_floor,
-    vesc_gains,
+    vesc_detection,
 )
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 
-def tune_vesc(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
+def tune_voltage_scaled(
+    drive: FluxObserverDrive, settings: FluxTuneSettings, progress: Any = None
+) -> FluxOutcome:
     """The ``voltage-scaled`` law: foc_observer_gain and foc_observer_gain_slow under VESC's run-time
     schedule."""
     check_variant(drive, "voltage-scaled")
@@ -36,7 +38,7 @@ def tune_vesc(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: An
     T = drive.observer.T_obs
     # the schedule's factor at the top of the envelope: k there = 4 raw psi^2 max(slow, |u|/u_ref)
     u_top = drive.envelope.speed_max * drive.motor.psi_pm
-    top = max(u_top / VESC_U_REF, 1e-3)
+    top = max(u_top / SCALED_U_REF, 1e-3)
     cands = []
     for slow in SLOW_GRID:
         for k in np.geomspace(K_MIN, K_T_MAX / T, 16):
@@ -70,7 +72,7 @@ def tune_vesc(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: An
         g0 = dict(cands[c].values)
         g0["foc_observer_gain"] = float(raw)
         fine.append(GainSet("voltage-scaled", g0, "candidate"))
-    cands = [cands[c], *fine, vesc_gains(drive), odrive_in_vesc_terms(drive)]
+    cands = [cands[c], *fine, vesc_detection(drive), odrive_defaults_voltage_scaled(drive)]
     cands += same_law(drive, "voltage-scaled")
     del slow0
     a = assess(drive, cands, settings)
@@ -91,7 +93,7 @@ def tune_vesc(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: An
     )
 
 
-def odrive_in_vesc_terms(drive: FluxObserverDrive) -> GainSet:
+def odrive_defaults_voltage_scaled(drive: FluxObserverDrive) -> GainSet:
     """ODrive's defaults (k = 1000 1/s, a PLL double root at 1000 1/s) as VESC gains: the slow gain 1
     keeps k = 4 raw lambda^2 constant up to |u| = u_ref (23.1 V), and above it k grows with |u|."""
     k, bw = ODRIVE_DEFAULT["observer_gain"], ODRIVE_DEFAULT["pll_bandwidth"]

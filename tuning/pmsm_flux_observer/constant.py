@@ -12,21 +12,21 @@ from sensorless.tuning.pmsm_flux_observer.settings import (
     REFINE,
     FluxTuneSettings,
     check_variant,
+    constant_candidate,
     corners,
     k_grid,
-    odrive_candidate,
-    odrive_gains,
+    odrive_defaults,
 )
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
 
 
-def tune_odrive(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
+def tune_constant(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: Any = None) -> FluxOutcome:
     """The ``constant`` law: one observer_gain and pll_bandwidth over the envelope (package docstring)."""
     check_variant(drive, "constant")
     ks = k_grid(drive)
-    cands = [odrive_candidate(drive, float(k)) for k in ks]
+    cands = [constant_candidate(drive, float(k)) for k in ks]
     if progress:
         progress(
             f"{len(cands)} observer gains x the envelope x {len(corners(settings.errors))} estimate cases"
@@ -39,8 +39,8 @@ def tune_odrive(drive: FluxObserverDrive, settings: FluxTuneSettings, progress: 
     # refined between the grid's neighbours of the best, with the firmware's default and the drive
     # file's gains of this law as candidates too (the tuned gains are never worse than either)
     lo, hi = ks[max(c - 1, 0)], ks[min(c + 1, len(ks) - 1)]
-    cands = [cands[c], *(odrive_candidate(drive, float(k)) for k in np.geomspace(lo, hi, REFINE))]
-    cands += [odrive_gains(), *same_law(drive, "constant")]
+    cands = [cands[c], *(constant_candidate(drive, float(k)) for k in np.geomspace(lo, hi, REFINE))]
+    cands += [odrive_defaults(), *same_law(drive, "constant")]
     a = assess(drive, cands, settings)
     return outcome(
         drive,
