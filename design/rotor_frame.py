@@ -11,6 +11,11 @@ the eigenvalues of the Jacobians (:func:`continuous_poles`). Nothing is re-typed
 rates are differentiated by CasADi. ``plant`` is one vector for all points (e.g. the true motor's
 parameters); ``p`` the observer's parameters, one vector or one column per point.
 
+Where Newton's method from ``start`` misses the equilibrium (an observer whose steady angle error under
+wrong estimates grows to tenths of a radian), the loop declares a :class:`Continuation`: the
+parameters ``p0`` at which ``start`` is the equilibrium (e.g. exact estimates), and
+:func:`continued_equilibria` follows the branch from there along p(tau) = p0 + tau (p - p0).
+
 For an observer on a PMSM the plant is the motor in steady state at the operating point under ideal
 current control: :func:`pmsm_steady` gives its MTPA current and steady voltage in rotor coordinates
 from the shared PMSM model (symbolic/pmsm.py) for the plant vector :func:`pmsm_plant`, and
@@ -26,13 +31,31 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
-from sensorless.design.batch import evaluate_batch
+from sensorless.design.batch import evaluate_batch, mapped
+from sensorless.design.compiled import compiled
 from sensorless.design.pmsm_schema import PmsmMotor
 from sensorless.design.poles import eigvals_batched
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
 
 NEWTON_STEPS = 12
 RESIDUAL = 1e-9  # converged: |f_r|_inf at most this times max(|x_r|_inf, 1)
+# the continuation: at rest where |f_r|_inf <= AT_REST (1 + |w| + |x_r(start)|_inf); a step that moves
+# the loop's angle by JUMP or more lands on another branch; steps start at FIRST_STEP of tau, double
+# after a success (at most MAX_STEP), halve after a failure; a point whose step falls below MIN_STEP
+# has no equilibrium on the branch (a fold: e.g. the observer cannot hold the rotor's position)
+AT_REST = 1e-6
+JUMP = 0.3  # [rad]
+FIRST_STEP, MAX_STEP, MIN_STEP = 0.25, 0.5, 1e-3
+ROUNDS = 60
+
+
+@dataclass(frozen=True, eq=False)
+class Continuation:
+    """How a :class:`RotorFrameLoop` reaches equilibria that Newton's method from its ``start`` misses:
+    Newton's method continued from the parameters ``p0`` where ``start`` is the equilibrium."""
+
+    anchor: ca.Function  # (plant[m], p[k]) -> p0[k]: the loop's ``p`` where ``start`` is exact
+    angle: int  # index in x_r of the angle whose jump marks another branch (JUMP)
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,6 +69,9 @@ class RotorFrameLoop:
     # what the family reads at the equilibrium (e.g. the observer's steady angle error): (x_r[n], w,
     # torque, plant[m], p[k]) -> y[l]; None: nothing
     output: ca.Function | None = None
+    # where Newton's method from ``start`` misses the equilibrium: follow the branch from where it is
+    # exact (:func:`continued_equilibria`); None: NEWTON_STEPS from ``start``
+    continuation: Continuation | None = None
 
     @property
     def n_x(self) -> int:
@@ -89,11 +115,32 @@ class Equilibria:
     y: np.ndarray | None  # (N, l) the loop's ``output`` there, None without one
 
 
+@functools.cache
+def point_function(loop: RotorFrameLoop) -> ca.Function:
+    """(x_r, w, torque, plant, p) -> (A, res[, y]) at a given state: the Jacobian df_r/dx_r, the residual
+    |f_r|_inf and the loop's ``output``."""
+    f = loop.rates
+    x_r = ca.SX.sym("x_r", loop.n_x)
+    w, T = ca.SX.sym("w"), ca.SX.sym("torque")
+    plant, p = ca.SX.sym("plant", f.size1_in(3)), ca.SX.sym("p", f.size1_in(4))
+    G = f(x_r, w, T, plant, p)
+    y = [] if loop.output is None else [loop.output(x_r, w, T, plant, p)]
+    return ca.Function(
+        f"{loop.name}_point_c",
+        [x_r, w, T, plant, p],
+        [ca.densify(ca.jacobian(G, x_r)), ca.norm_inf(G), *y],
+        ["x_r", "w", "torque", "plant", "p"],
+        ["A", "res", *(["y"] if y else [])],
+    )
+
+
 def equilibrium_points(
     loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
 ) -> Equilibria:
     """The equilibria at the N points (w, torque), batched: ``plant`` one vector or one column per
-    point, ``p`` likewise."""
+    point, ``p`` likewise (continued where the loop declares a :class:`Continuation`)."""
+    if loop.continuation is not None:
+        return _continued_points(loop, w, torque, plant, p)
     W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
     out = evaluate_batch(
         equilibrium_function(loop), W.size, [W, T, np.asarray(plant, float), np.asarray(p, float)]
@@ -102,6 +149,25 @@ def equilibrium_points(
     ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0))
     y = np.where(ok[:, None], out[3][:, :, 0], np.nan) if len(out) > 3 else None
     return Equilibria(np.where(ok[:, None], x, np.nan), np.where(ok[:, None, None], A, np.nan), ok, y)
+
+
+def _continued_points(
+    loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
+) -> Equilibria:
+    """:func:`equilibrium_points` of a loop with a :class:`Continuation`."""
+    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
+    x = continued_equilibria(loop, W, T, plant, p)
+    ok = np.isfinite(x).all(axis=0)
+    xs = np.where(ok[None, :], x, 0.0)
+    out = evaluate_batch(
+        point_function(loop),
+        W.size,
+        [xs, W[None, :], T[None, :], _columns(plant, W.size), _columns(p, W.size)],
+    )
+    A = out[0]
+    ok &= np.isfinite(A).all(axis=(1, 2))
+    y = np.where(ok[:, None], out[2][:, :, 0], np.nan) if len(out) > 2 else None
+    return Equilibria(np.where(ok[:, None], x.T, np.nan), np.where(ok[:, None, None], A, np.nan), ok, y)
 
 
 def equilibria(
@@ -123,6 +189,79 @@ def continuous_poles(
     if ok.any():
         poles[ok] = eigvals_batched(A[ok])
     return poles, x
+
+
+@functools.cache
+def _rootfinder(loop: RotorFrameLoop) -> ca.Function:
+    """Newton's method on the loop's rates: (x_r guess, w, torque, plant, p) -> x_r."""
+    f = loop.rates
+    # Newton's steps evaluate the Jacobian the rootfinder would generate itself, compiled (cached on
+    # disk, design/compiled.py): the same operations as on CasADi's VM, so the same bits, ~3x faster.
+    jac = compiled(f.factory("jac_f_z", f.name_in(), [f"jac:{f.name_out(0)}:{f.name_in(0)}", f.name_out(0)]))
+    return ca.rootfinder(
+        f"{loop.name}_equilibrium",
+        "newton",
+        f,
+        # plain Newton: a backtracking line search stalls on badly scaled rates (rows in V and
+        # rad/s^2); the continuation keeps the starting points close instead
+        {
+            "abstol": 1e-12,
+            "max_iter": 30,
+            "error_on_fail": False,
+            "line_search": False,
+            "show_eval_warnings": False,
+            "jacobian_function": jac,
+        },
+    )
+
+
+def _columns(a: ArrayLike, n: int) -> np.ndarray:
+    """One vector, or one column per point, as (rows, n)."""
+    a = np.asarray(a, float)
+    return np.broadcast_to(a.reshape(-1, 1), (a.size, n)) if a.ndim <= 1 else a.reshape(a.shape[0], n)
+
+
+def continued_equilibria(
+    loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
+) -> np.ndarray:
+    """(n_x, N) equilibria of a loop with a :class:`Continuation` at the N points (w, torque); NaN
+    columns where the branch ends. ``plant`` and ``p`` are one vector or one column per point.
+
+    Newton's method is continued along p(tau) = p0 + tau (p - p0) from tau = 0 (``start``, exact there)
+    to tau = 1, each point with its own step (halved after a failed solve, doubled after a success),
+    the points still under way advanced together in one mapped call per round (most finish in three
+    rounds, a few near a fold take dozens). A solve counts where the rates are at rest (AT_REST) and the
+    angle moved less than JUMP (farther is another branch, not a continuation step)."""
+    cont = loop.continuation
+    if cont is None:
+        raise ValueError(f"the loop {loop.name} declares no continuation")
+    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
+    n = W.size
+    P, Q = _columns(plant, n), _columns(p, n)
+    Q0 = np.asarray(cont.anchor.map(n)(P, Q), float)
+    x = np.ascontiguousarray(evaluate_batch(loop.start, n, [W[None, :], T[None, :], P, Q])[0][:, :, 0].T)
+    root = _rootfinder(loop)
+    scale = 1.0 + np.abs(W) + np.abs(x).max(axis=0)
+    tau = np.zeros(n)
+    h = np.full(n, FIRST_STEP)
+    lost = np.zeros(n, bool)
+    for _ in range(ROUNDS):
+        act = np.flatnonzero((tau < 1) & ~lost)  # not the points done: the late rounds are a few points
+        if act.size == 0:
+            break
+        t_try = np.minimum(1.0, tau[act] + h[act])
+        ins = [W[None, act], T[None, act], P[:, act], Q0[:, act] + t_try * (Q[:, act] - Q0[:, act])]
+        x_try = np.asarray(mapped(root, act.size)(x[:, act], *ins))
+        # the rootfinder does not raise on failure (error_on_fail=False): the residual says
+        res = evaluate_batch(loop.rates, act.size, [x_try, *ins])[0][:, :, 0]
+        ok = np.isfinite(res).all(axis=1) & (np.abs(res).max(axis=1) <= AT_REST * scale[act])
+        ok &= np.abs(x_try[cont.angle] - x[cont.angle, act]) < JUMP
+        x[:, act[ok]] = x_try[:, ok]
+        tau[act[ok]] = t_try[ok]
+        h[act] = np.where(ok, np.minimum(2 * h[act], MAX_STEP), h[act] / 2)
+        lost[act] |= ~ok & (h[act] < MIN_STEP)
+    x[:, lost | (tau < 1)] = np.nan
+    return x
 
 
 def pmsm_plant(motor: PmsmMotor) -> np.ndarray:

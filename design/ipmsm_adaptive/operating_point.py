@@ -4,8 +4,9 @@ An operating point is physical: true electrical speed w_m (rad/s) and true elect
 (N m); the motor carries the MTPA current of its *true* parameters for that torque (maximum torque per
 current [12], no voltage limit, as in the paper's analysis). The observer's equilibrium at that point
 is where all its states are at rest. With exact estimates it is known in closed form (theta_tilde = 0,
-psi_hat = psi_s0, w_i = w_m); with estimation errors it is found by Newton's method (casadi
-rootfinder) started from that closed form.
+psi_hat = psi_s0, w_i = w_m); with estimation errors it is found by Newton's method continued from that
+closed form along the estimates: the coupled system is a ``RotorFrameLoop`` with a ``Continuation``
+(design/rotor_frame.py, :func:`rotor_frame_loop`).
 """
 
 from __future__ import annotations
@@ -14,13 +15,14 @@ import functools
 
 import casadi as ca
 import numpy as np
-from sensorless.design.batch import evaluate_batch, mapped
-from sensorless.design.compiled import compiled
+from sensorless.design.batch import evaluate_batch
+from sensorless.design.rotor_frame import Continuation, RotorFrameLoop, continued_equilibria
 from sensorless.symbolic.ipmsm_adaptive.closed_loop import N_INJ, closed_loop
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current
 
 N_MOTOR = 4  # [R_s, L_d, L_q, psi_pm]
+THETA_TILDE = 2  # the state's position error theta_tilde = theta_m - theta_hat [rad]
 
 
 def analysis_symbols(law: str | GainLaw, injection: bool) -> dict[str, ca.SX]:
@@ -94,26 +96,25 @@ def residual_function(law: str | GainLaw, injection: bool) -> ca.Function:
 
 
 @functools.cache
-def equilibrium_function(law: str | GainLaw, injection: bool) -> ca.Function:
-    """Rootfinder: (x_guess, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> x0 at rest."""
-    f = residual_function(law, injection)
-    # Newton's steps evaluate the Jacobian the rootfinder would generate itself, compiled (cached on
-    # disk, design/compiled.py): the same operations as on CasADi's VM, so the same bits, ~3x faster.
-    jac = compiled(f.factory("jac_f_z", f.name_in(), ["jac:x_dot:x", "x_dot"]))
-    return ca.rootfinder(
-        "equilibrium",
-        "newton",
-        f,
-        # plain Newton: its backtracking line search stalls on this badly scaled system (rows in V and
-        # rad/s^2); continuation in solve_equilibrium keeps the starting points close instead
-        {
-            "abstol": 1e-12,
-            "max_iter": 30,
-            "error_on_fail": False,
-            "line_search": False,
-            "show_eval_warnings": False,
-            "jacobian_function": jac,
-        },
+def rotor_frame_loop(law: str | GainLaw, injection: bool) -> RotorFrameLoop:
+    """The coupled system as a :class:`RotorFrameLoop` (design/rotor_frame.py): its state is already in
+    the (estimated) rotor frame; ``plant`` = [motor, p], ``p`` = [estimate, gain, alpha_fo, inj]; Newton's
+    start the closed-form equilibrium of exact estimates, continued along the estimates from it."""
+    s = analysis_symbols(law, injection)
+    cl, _ = coupled_system(law, injection, s)
+    plant = ca.vertcat(s["motor"], s["p"])
+    p = ca.vertcat(s["estimate"], s["gain"], s["alpha_fo"], s["inj"])
+    exact = ca.vertcat(s["motor"], s["gain"], s["alpha_fo"], s["inj"])  # p with exact estimates
+    x0 = nominal_equilibrium_function(injection)(s["w_m"], s["T_e"], s["motor"], s["p"])
+    args, names = [s["x"], s["w_m"], s["T_e"], plant, p], ["x_r", "w", "torque", "plant", "p"]
+    name = f"ipmsm_adaptive_{get_law(law).name}{'_inj' if injection else ''}"
+    return RotorFrameLoop(
+        name,
+        ca.Function(f"{name}_rates", args, [cl.x_dot], names, ["f_r"]),
+        ca.Function(f"{name}_start", args[1:], [x0], names[1:], ["x_r"]),
+        continuation=Continuation(
+            ca.Function(f"{name}_exact", [plant, p], [exact], ["plant", "p"], ["p0"]), THETA_TILDE
+        ),
     )
 
 
@@ -128,54 +129,23 @@ def _columns(fn: ca.Function, args: dict[str, np.ndarray], n: int) -> dict[str, 
 
 
 def solve_equilibrium(
-    law: str | GainLaw,
-    injection: bool,
-    args: dict[str, np.ndarray],
-    n: int,
-    exact: bool,
-    max_rounds: int = 60,
+    law: str | GainLaw, injection: bool, args: dict[str, np.ndarray], n: int, exact: bool
 ) -> np.ndarray:
     """Equilibria for ``n`` operating points as an (n_x, n) array; NaN columns where none is found.
 
-    With estimation errors, Newton's method is continued along the estimates
-    est(tau) = true + tau (est - true) from tau = 0 (exact estimates, closed-form equilibrium with
-    theta_tilde = 0) to tau = 1, each point with its own adaptive step (halved after a failed Newton
-    solve, enlarged after a success), the points still under way advanced together in one mapped call
-    per round (most points finish in three rounds, a few near a fold take dozens). This follows the
+    With exact estimates the closed form; with estimation errors, Newton's method continued along the
+    estimates est(tau) = true + tau (est - true) from tau = 0 (exact estimates, closed-form equilibrium
+    with theta_tilde = 0) to tau = 1 (design/rotor_frame.py ``continued_equilibria``). This follows the
     equilibrium branch that starts at the exact-estimate equilibrium; a single Newton solve from
     theta_tilde = 0 misses it once the position error grows to tenths of a radian. Where the branch
     ends (a fold: the observer cannot hold the rotor position) the point is NaN.
     """
-    ins = [np.asarray(args[k], float) for k in ("w_m", "T_e", "motor", "p")]
-    x = np.ascontiguousarray(evaluate_batch(nominal_equilibrium_function(injection), n, ins)[0][:, :, 0].T)
     if exact:
-        return x
-    root, residual = equilibrium_function(law, injection), residual_function(law, injection)
-    cols = _columns(residual, args, n)
-    true = np.broadcast_to(np.asarray(args["motor"], float).reshape(4, -1), (4, n))
-    est = cols["estimate"]
-    scale = 1.0 + np.abs(cols["w_m"][0]) + np.abs(x).max(axis=0)
-    tau = np.zeros(n)
-    h = np.full(n, 0.25)
-    lost = np.zeros(n, bool)
-    for _ in range(max_rounds):
-        act = np.flatnonzero((tau < 1) & ~lost)  # not the points done: the late rounds are a few points
-        if act.size == 0:
-            break
-        t_try = np.minimum(1.0, tau[act] + h[act])
-        a = {k: v[:, act] for k, v in cols.items()}
-        a["estimate"] = true[:, act] + t_try * (est[:, act] - true[:, act])
-        ins = [a[k] for k in PARAM_NAMES]
-        x_try = np.asarray(mapped(root, act.size)(x[:, act], *ins))
-        # The rootfinder does not raise on failure (error_on_fail=False): verify the residual.
-        res = evaluate_batch(residual, act.size, [x_try, *ins])[0][:, :, 0]
-        # x_dot is in V (flux rates) and rad/s^2; 1e-6 of the operating point's size is "at rest"
-        ok = np.isfinite(res).all(axis=1) & (np.abs(res).max(axis=1) <= 1e-6 * scale[act])
-        # a solve that jumps far in position is another branch, not a continuation step
-        ok &= np.abs(x_try[2] - x[2, act]) < 0.3
-        x[:, act[ok]] = x_try[:, ok]
-        tau[act[ok]] = t_try[ok]
-        h[act] = np.where(ok, np.minimum(2 * h[act], 0.5), h[act] / 2)
-        lost[act] |= ~ok & (h[act] < 1e-3)
-    x[:, lost | (tau < 1)] = np.nan
-    return x
+        ins = [np.asarray(args[k], float) for k in ("w_m", "T_e", "motor", "p")]
+        return np.ascontiguousarray(
+            evaluate_batch(nominal_equilibrium_function(injection), n, ins)[0][:, :, 0].T
+        )
+    c = _columns(residual_function(law, injection), args, n)
+    plant = np.vstack([c["motor"], c["p"]])
+    p = np.vstack([c["estimate"], c["gain"], c["alpha_fo"], c["inj"]])
+    return continued_equilibria(rotor_frame_loop(law, injection), c["w_m"][0], c["T_e"][0], plant, p)

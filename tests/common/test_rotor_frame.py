@@ -4,7 +4,9 @@ A rotating first-order system written in rotor coordinates, dx/dt = (-a I - w J)
 a = p[0], k = plant[0], has the equilibrium x* = (a I + w J)^-1 [k T, 0] and the poles -a +- j w, for
 any speed and torque; Newton's method starts far from it (x = [1, 1]) and meets it exactly (the
 rates are linear, so one step suffices and the rest keep it). A nonlinear rate with a known root
-checks the convergence flag. And the PMSM steady state against hand formulas: i_d = 0 on a
+checks the convergence flag. A loop whose equilibrium angle is atan(a) (every atan(a) + k pi a root too)
+is continued from a = 0 along the branch Newton's method from 0 leaves (a fold, asin(a) past a = 1, is
+NaN). And the PMSM steady state against hand formulas: i_d = 0 on a
 non-salient motor, T = 1.5 p (psi_pm i_q - (L_q - L_d) i_d i_q) on a salient one, and u = R i + w J psi.
 """
 
@@ -17,6 +19,7 @@ import numpy as np
 import pytest
 from sensorless.design.pmsm_schema import PmsmMotor
 from sensorless.design.rotor_frame import (
+    Continuation,
     RotorFrameLoop,
     continuous_poles,
     equilibria,
@@ -78,6 +81,42 @@ def test_the_loops_output_is_read_at_the_equilibrium_and_nan_where_there_is_none
     assert eq.x[0] == pytest.approx([x0, x1], rel=1e-12)
     assert eq.y[0, 0] == pytest.approx(x0**2 + x1**2, rel=1e-12)
     assert equilibrium_points(_loop(lambda *z: z[0]), [0.0], [0.0], [1.0], [1.0]).y is None
+
+
+def _angle_loop(rate_of, continued: bool) -> RotorFrameLoop:
+    """x = [angle, z]: d angle/dt = rate_of(angle, a), dz/dt = angle - z; start 0, exact at a = 0."""
+    x, w, T = ca.SX.sym("x", 2), ca.SX.sym("w"), ca.SX.sym("T")
+    plant, p = ca.SX.sym("plant", 1), ca.SX.sym("p", 1)
+    rates = ca.Function("f", [x, w, T, plant, p], [ca.vertcat(rate_of(x[0], p[0]), x[0] - x[1])])
+    start = ca.Function("s", [w, T, plant, p], [ca.DM([0.0, 0.0])])
+    anchor = ca.Function("a0", [plant, p], [ca.DM([0.0])])
+    return RotorFrameLoop("angle", rates, start, continuation=Continuation(anchor, 0) if continued else None)
+
+
+def test_the_continuation_follows_the_branch_newton_from_the_start_leaves():
+    def rate(th, a):
+        return a * ca.cos(th) - ca.sin(th)
+
+    a = np.tan([1.3, -1.2, 0.2, 0.0])  # one parameter per point
+    e = equilibrium_points(_angle_loop(rate, True), np.zeros(4), np.zeros(4), [0.0], a[None, :])
+    assert e.ok.all()
+    assert e.x[:, 0] == pytest.approx(np.arctan(a), abs=1e-12) and e.x[:, 1] == pytest.approx(np.arctan(a))
+    # d rate/d angle = -(cos + a sin) = -sqrt(1 + a^2) on this branch; dz/dt's pole -1
+    poles, _ = continuous_poles(_angle_loop(rate, True), np.zeros(4), np.zeros(4), [0.0], a[None, :])
+    want = np.sort(np.stack([-np.sqrt(1 + a**2), -np.ones(4)], axis=1), axis=1)
+    assert np.sort(poles.real, axis=1) == pytest.approx(want) and np.abs(poles.imag).max() < 1e-12
+    # without the continuation Newton's method from 0 leaves the branch at a = tan(1.3) (another root)
+    x, _, ok = equilibria(_angle_loop(rate, False), [0.0], [0.0], [0.0], a[:1])
+    assert not (ok[0] and abs(x[0, 0] - 1.3) < 1e-6)
+
+
+def test_the_continuation_ends_at_a_fold():
+    # a - sin(angle) = 0: the branch asin(a) from a = 0 ends at a = 1
+    e = equilibrium_points(
+        _angle_loop(lambda th, a: a - ca.sin(th), True), np.zeros(2), np.zeros(2), [0.0], [[0.5, 1.5]]
+    )
+    assert e.ok.tolist() == [True, False]
+    assert e.x[0, 0] == pytest.approx(np.arcsin(0.5), abs=1e-12) and np.isnan(e.x[1]).all()
 
 
 def test_pmsm_steady_state_against_hand_formulas():
