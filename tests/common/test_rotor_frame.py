@@ -93,7 +93,9 @@ def _angle_loop(rate_of, continued: bool) -> RotorFrameLoop:
     return RotorFrameLoop("angle", rates, start, continuation=Continuation(anchor, 0) if continued else None)
 
 
-def test_the_continuation_follows_the_branch_newton_from_the_start_leaves():
+def test_the_continuation_follows_the_branch_newton_from_the_start_leaves(monkeypatch):
+    monkeypatch.setenv("SENSORLESS_NO_JIT", "1")  # a toy loop: CasADi's VM, no compiler run on a cold cache
+
     def rate(th, a):
         return a * ca.cos(th) - ca.sin(th)
 
@@ -110,7 +112,8 @@ def test_the_continuation_follows_the_branch_newton_from_the_start_leaves():
     assert not (ok[0] and abs(x[0, 0] - 1.3) < 1e-6)
 
 
-def test_the_continuation_ends_at_a_fold():
+def test_the_continuation_ends_at_a_fold(monkeypatch):
+    monkeypatch.setenv("SENSORLESS_NO_JIT", "1")
     # a - sin(angle) = 0: the branch asin(a) from a = 0 ends at a = 1
     e = equilibrium_points(
         _angle_loop(lambda th, a: a - ca.sin(th), True), np.zeros(2), np.zeros(2), [0.0], [[0.5, 1.5]]
