@@ -96,13 +96,8 @@ def handover_reason(ls: LowSpeed, given_on: float | None = None) -> str:
         on = given_on / ls.w_base
         where = "below" if on < w * (1 - 1e-9) else "at or above"
         given = f" (the drive file's handover {on:.3g} p.u. is {where} it)"
-        if why != "acceleration":
-            return f"the whole drive's w_min at rated load is {w:.3g} p.u. (limited by {why}){given}" + (
-                ": the observer takes over where its criteria do not hold (gains with a lower w_min: "
-                "sensorless tune)"
-                if where == "below"
-                else ""
-            )
+        if why != "acceleration":  # no cap to explain: the file's handover runs, where w_min says
+            return f"the whole drive's w_min at rated load is {w:.3g} p.u. (limited by {why}){given}"
     if why == "acceleration":
         head = (
             f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg braking at p (T_max + "
