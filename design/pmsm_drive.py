@@ -225,7 +225,7 @@ def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, flo
             startup is None or startup.w_on is None
         )
         if capped or ls.w_min_rated >= drive.w_base * (1 - 1e-9) or ls.rated_limited_by == "acceleration":
-            warn = "; " + handover_reason(ls)
+            warn = "; " + handover_reason(ls, None if startup is None else startup.w_on)
         w_min = ls.w_min_rated
         if w_min <= 0:
             return None, "no I-f start: the design holds zero speed", 0.0

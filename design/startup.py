@@ -81,13 +81,23 @@ def swing_frequency(T_N: float, T_max: float, J: float, p: int) -> float:
     return math.sqrt(p * T_max * math.sqrt(max(0.0, 1 - (T_N / T_max) ** 2)) / J)
 
 
-def handover_reason(ls: LowSpeed) -> str:
+def handover_reason(ls: LowSpeed, given_on: float | None = None) -> str:
     """Why the handover is high, in one line with the numbers (a LowSpeed of design/low_speed.py with
     the acceleration criterion): what limits w_min at rated load, and that the handover stays at 1 p.u.
     at most: where the acceleration limits it, or where the rule's ON_FACTOR w_min reaches 1 p.u. (the
-    handover capped there: a gimbal motor's drive file handed over at 1 p.u. without a word)."""
+    handover capped there: a gimbal motor's drive file handed over at 1 p.u. without a word).
+    ``given_on`` [rad/s]: the handover the drive file fixes (``[startup] w_on`` as a speed), which the
+    start runs instead of the rule's: the line then says where it lies against w_min, never that the
+    handover is at (or capped at) 1 p.u. (a gimbal's file with w_on = 0.3 p.u. was told "handover at
+    1 p.u." in its failed checks)."""
     w = ls.w_min_rated / ls.w_base
     why = ls.rated_limited_by
+    if given_on is not None:
+        on = given_on / ls.w_base
+        where = "below" if on < w * (1 - 1e-9) else "at or above"
+        given = f" (the drive file's handover {on:.3g} p.u. is {where} it)"
+        if why != "acceleration":  # no cap to explain: the file's handover runs, where w_min says
+            return f"the whole drive's w_min at rated load is {w:.3g} p.u. (limited by {why}){given}"
     if why == "acceleration":
         head = (
             f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg braking at p (T_max + "
@@ -100,7 +110,9 @@ def handover_reason(ls: LowSpeed) -> str:
             "its criteria (gains with a lower w_min: sensorless tune)"
         )
     cap = (
-        " (above 1 p.u.: handover at 1 p.u.)"
+        given
+        if given_on is not None
+        else " (above 1 p.u.: handover at 1 p.u.)"
         if w >= 1 - 1e-9
         else f" ({ON_FACTOR:g} w_min = {ON_FACTOR * w:.3g} p.u., above 1 p.u.: handover at 1 p.u.)"
         if ON_FACTOR * w >= 1 - 1e-9

@@ -268,6 +268,37 @@ def test_a_handover_capped_at_the_rated_speed_says_why_and_no_handover_above_it_
         load_drive(str(tmp_path / "hub.toml"))
 
 
+def test_a_handover_the_drive_file_fixes_is_never_said_to_be_at_1_pu(tmp_path):
+    """Where the drive file fixes the handover (``[startup] w_on`` as a speed) the start runs it, not the
+    rule's: the line and the failed checks that quote it said "handover at 1 p.u." (the gimbal motor of
+    docs/examples/motors with w_on = 0.3 p.u., its w_min 1 p.u. by the acceleration criterion). The line
+    says where the file's handover lies against w_min, and still starts with the phrase the report
+    quotes (reports/time_domain.py, reports/low_speed.py)."""
+    from types import SimpleNamespace
+
+    from sensorless.design.drive import preset_text
+    from sensorless.design.pmsm_drive import startup_values
+    from sensorless.design.startup import ACCELERATION_LIMIT, HANDOVER_CAPPED, handover_reason
+
+    def ls(w, why):
+        return SimpleNamespace(w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4)
+
+    fast = handover_reason(ls(1.0, "acceleration"), 30.0)
+    assert fast.startswith(ACCELERATION_LIMIT) and "handover at 1 p.u." not in fast
+    assert "(the drive file's handover 0.3 p.u. is below it)" in fast
+    assert "is at or above it" in handover_reason(ls(0.2, "acceleration"), 30.0)
+    slow = handover_reason(ls(1.0, "decay"), 30.0)
+    assert HANDOVER_CAPPED not in slow and "1 p.u. (limited by decay) (the drive file's handover 0.3" in slow
+    # end to end: hubmotor48's rule caps its handover at 1 p.u. (the test above); the file's 0.4 p.u. runs
+    text = preset_text("hubmotor48") + '\n[startup]\nw_on = "0.4 pu"\nw_off = "0.2 pu"\n'
+    (tmp_path / "hub.toml").write_text(text)
+    drive = load_drive(str(tmp_path / "hub.toml"))
+    values, line, w_min = startup_values(drive, family_of(drive).gains(drive))
+    assert values is not None and values["if_w_on"] == pytest.approx(0.4 * drive.w_base)
+    assert "handover at 0.4 p.u." in line and "handover at 1 p.u." not in line and HANDOVER_CAPPED not in line
+    assert w_min > 0.4 * drive.w_base and "the drive file's handover 0.4 p.u. is below it" in line
+
+
 def test_the_drop_back_has_read_the_braking_when_the_drive_crosses_the_band_at_the_torque_limit():
     # closed loop, braking from w_on at a = i_if / k_a (the I-f current's acceleration: 3000 rad/s^2),
     # the observer's angle turning 10 rad/s faster than its speed estimate (a lagging speed estimate):
