@@ -26,10 +26,15 @@ def _clamp(v: str, lo: int, hi: int) -> str:
     """v clamped to [lo, hi]; a symmetric range (the inputs' and products' clamps) by one unsigned
     comparison: v + hi within [0, 2 hi] modulo 2^32 exactly when |v| <= hi (hi < 2^31)."""
     if lo == -hi and 0 < hi < 2**31:
-        return (
+        full = (
             f"((uint32_t)((uint32_t){v} + UINT32_C({hi})) <= UINT32_C({2 * hi}) ? {v} : "
             f"({v} < 0 ? {lit(lo)} : {lit(hi)}))"
         )
+        k = hi.bit_length() - 1
+        if k < 1:
+            return full
+        # first within [-2^k, 2^k) (2^k <= hi): a shift and one comparison, no literal to load
+        return f"((uint32_t)(({v} >> {k}) + 1) <= 1u ? {v} : {full})"
     return f"({v} < {lit(lo)} ? {lit(lo)} : ({v} > {lit(hi)} ? {lit(hi)} : {v}))"
 
 

@@ -16,7 +16,7 @@ from sensorless.reports.codegen.fixed_c import body, format_text, formats_json
 from sensorless.reports.codegen.fixed_helpers import helpers, lit
 from sensorless.reports.codegen.fixed_lowering import QUOT_BITS
 from sensorless.reports.codegen.fixed_model import FixedModel
-from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS, NOMINAL_BITS
+from sensorless.reports.codegen.fixed_ops import ATAN2_STEPS, CORDIC_STEPS, NOMINAL_BITS
 from sensorless.reports.codegen.fixed_params import params_from_si
 from sensorless.reports.codegen.fixed_poles import pole_shift
 from sensorless.reports.codegen.fixed_products import (
@@ -49,11 +49,12 @@ _PRODUCTS = (
     )
 )
 ERRORS = (
-    f"atan2: vectoring CORDIC, {CORDIC_STEPS} steps, error <= atan(2^-13) + 24 LSB / |v| rad "
+    f"atan2: vectoring CORDIC, {ATAN2_STEPS} steps, error <= atan(2^-{ATAN2_STEPS - 1}) + 24 LSB / |v| rad "
     "(|v| the raw magnitude; tests/common/test_fixed_point.py); "
     "sin/cos: odd polynomial of degree 7 on the angle folded "
     "to [-pi/2, pi/2], error <= 1e-6; cos/sin of an atan2: the CORDIC's rotations applied to (1/K, 0), "
-    "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits), of a "
+    f"{CORDIC_STEPS} steps, error <= atan(2^-{CORDIC_STEPS - 1}) + 24 LSB / |v| + 1.1e-7; "
+    "sqrt: integer square root of a 32-bit word (floor, 16 bits), of a "
     f"radicand of short products a {2 * COARSE_ROOT_BITS}-bit word (floor, {COARSE_ROOT_BITS} bits: "
     f"within 2^-{COARSE_ROOT_BITS} of the root's range); "
     f"a gain table: bisection, its fraction in Q15 within 2^-13; {_PRODUCTS}; a quotient by a runtime "
