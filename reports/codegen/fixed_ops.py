@@ -30,9 +30,10 @@ INT_MAX = 2**31 - 1
 INT_MIN = -(2**31)
 NOMINAL_BITS = 26  # a signal at the top of its range is 2^26 (5 bits of headroom below 2^31)
 # Error bounds matched to where the value goes: atan2's angle is an output read once per sample
-# (1.2e-4 rad = 0.007 deg, 1/30 of the 0.2 deg the fixed-point step may differ from the double one by),
-# so 14 CORDIC steps; sin/cos rotate states that are integrated (the adaptive observer's frame), where
-# a 1e-4 error biased piippo2008's angle by 0.27 deg (measured), so they keep 26 bits and degree 7 (1e-6).
+# (ATAN2_STEPS below: 4.9e-4 rad = 0.028 deg, 1/7 of the 0.2 deg the fixed-point step may differ from
+# the double one by); sin/cos rotate states that are integrated (the adaptive observer's frame), where
+# a 1e-4 error biased piippo2008's angle by 0.27 deg (measured), so they keep 26 bits and degree 7 (1e-6),
+# and cos/sin of an atan2 the CORDIC's 14 steps.
 CORDIC_STEPS = 14  # cos and sin of an atan2 (they rotate states): error <= atan(2^-13) = 1.22e-4 rad
 # atan2 alone (an output angle, the PLL's input): error <= atan(2^-11) = 4.9e-4 rad = 0.028 deg + rounding,
 # 1/7 of the 0.2 deg budget; each step fewer is ~11 cycles on a Cortex-M0+ (docs/codegen.md, "Fixed point")
