@@ -30,6 +30,7 @@ from sensorless.reports.codegen.fixed_ranges import MARGIN
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.runtime import RuntimeSetup
+    from sensorless.design.scenario import Scenario
     from sensorless.reports.codegen.generate import Provenance
 
 # the product and quotient sentences follow the lowering's switches (the header and the JSON state
@@ -64,8 +65,8 @@ ERRORS = (
 )
 
 
-def fixed_model(drive: Drive, gains: GainSet, setup: RuntimeSetup) -> FixedModel:
-    """The fixed-point model of ``setup`` with ranges from the family's scenarios and the generic checks."""
+def range_scenarios(drive: Drive) -> list[Scenario]:
+    """The scenarios whose runs give the fixed-point formats: the family's and the generic checks'."""
     from sensorless.design.family import Scaled
     from sensorless.design.registry import family_of
     from sensorless.design.scenario import builtin_names, generic_scenarios, load_scenario
@@ -75,7 +76,12 @@ def fixed_model(drive: Drive, gains: GainSet, setup: RuntimeSetup) -> FixedModel
         # without the unloaded low_hold: the formats stay sized (and their pole-shift figures taken) on the
         # runs they were before it (the preset's fixed-point data unchanged)
         scenarios += generic_scenarios(drive, hold=False)
-    model = FixedModel.of(drive, gains, scenarios)
+    return scenarios
+
+
+def fixed_model(drive: Drive, gains: GainSet, setup: RuntimeSetup) -> FixedModel:
+    """The fixed-point model of ``setup`` with ranges from the family's scenarios and the generic checks."""
+    model = FixedModel.of(drive, gains, range_scenarios(drive))
     model.data(setup)  # ValueError if no run ran this observer
     return model
 

@@ -709,3 +709,43 @@ def test_the_interpolated_share_needs_no_angle():
         ca.Function("L0", [cur], [ob.inductance("interpolated", cur, ca.DM.zeros(2), p)])([1.0, 2.0])
     )
     assert zero == L_d
+
+
+def test_the_whole_drive_poles_are_rerun_where_the_analysed_loop_runs_another_observer():
+    """deangelo2006's whole-drive analysis linearizes the drive without its EMF harmonics (the
+    family's AnalysedLoop), an observer no check runs, so report.json's ``fixed_point.drive_poles``
+    was ``not_analysed``. ``probe_runs(analysed=True)`` runs that loop on the scenarios (0.3 s of fig2
+    here, through CasADi's VM), and with those ranges the slow poles are re-run with the stored
+    constants: finite, on every point the double sweep has, the worst damping within 1e-3; that
+    observer's own poles move by the Q15 rounding's order (< 1e-4 in the z plane, as the simulated
+    observer's)."""
+    import dataclasses
+
+    from sensorless.design.drive_analysis import drive_loop
+    from sensorless.design.runtime import step_variant
+    from sensorless.reports.codegen.fixed_model import FixedModel
+    from sensorless.reports.codegen.fixed_poles import pole_shift
+    from sensorless.reports.codegen.fixed_ranges import probe_runs
+    from sensorless.reports.fixed_review import _drive_poles
+
+    d = load_drive("deangelo2006")
+    fam = family_of(d)
+    gains = fam.gains(d)
+    sc = [dataclasses.replace(load_scenario("fig2", d), duration=0.3)]
+    runs = probe_runs(d, gains, sc, compile=False)
+    analysed = probe_runs(d, gains, sc, compile=False, analysed=True)
+    assert set(analysed) and not set(analysed) & set(runs)  # another observer
+    model = FixedModel({**analysed, **runs})
+    poles = _drive_poles(d, gains, model, quick=True)
+    assert poles["points"] > 0 and np.isfinite(poles["max_pole_shift_per_s"])
+    assert abs(poles["worst_damping_stored"] - poles["worst_damping_double"]) < 1e-3
+    seen = []
+
+    def spy(setup, step):
+        seen.append(setup)
+        return step
+
+    with step_variant(spy):
+        drive_loop(d, gains)
+    setup = next(s for s in seen if s.observer.name in analysed)
+    assert pole_shift(setup, model.program(setup), *model.data(setup))["max_pole_shift"] < 1e-4
