@@ -23,6 +23,7 @@ from sensorless.reports import time_domain
 from sensorless.reports.document import Paragraph, Report, Section, Table, num
 
 if TYPE_CHECKING:  # typed by name only
+    import casadi as ca
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.reports.codegen.fixed_model import FixedModel
 
@@ -38,13 +39,30 @@ def judged_with(variant: StepVariant) -> Iterator[None]:
 
 
 def _drive_poles(drive: Drive, gains: GainSet, model: FixedModel, quick: bool) -> dict[str, float | None]:
-    """The whole drive's poles with the double step and with the stored constants' step, compared."""
+    """The whole drive's poles with the double step and with the stored constants' step, compared. Where
+    the analysed loop runs an observer the model has no runs of (a family's AnalysedLoop: the drive
+    without its EMF harmonics), that loop run on the model's scenarios gives its ranges."""
+    from sensorless.reports.codegen.fixed_generate import range_scenarios
+    from sensorless.reports.codegen.fixed_model import FixedModel
     from sensorless.reports.codegen.fixed_poles import stored_step
+    from sensorless.reports.codegen.fixed_ranges import probe_runs
     from sensorless.reports.drive_analysis import N_SPEEDS, QUICK_SPEEDS, sweep
 
     n = QUICK_SPEEDS if quick else N_SPEEDS
     lin_d = sweep(drive, gains, n)
-    with step_variant(lambda setup, step: stored_step(setup, model.program(setup))):
+    held = model
+
+    def stored(setup: RuntimeSetup, step: ca.Function) -> ca.Function:
+        nonlocal held
+        if setup.observer.name not in held.runs:
+            # the loop the analysis linearizes runs an observer the checks do not (the family's
+            # AnalysedLoop: the drive without its EMF harmonics): its ranges from that loop run on
+            # the same scenarios
+            runs = probe_runs(drive, gains, range_scenarios(drive), analysed=True)
+            held = FixedModel({**runs, **held.runs})
+        return stored_step(setup, held.program(setup))
+
+    with step_variant(stored):
         lin_q = sweep(drive, gains, n)
     # the slow poles (|s| below a quarter of the sampling limit, the ones the report shows and judges)
     slow_d, slow_q = lin_d.slow(), lin_q.slow()

@@ -26,10 +26,15 @@ def _clamp(v: str, lo: int, hi: int) -> str:
     """v clamped to [lo, hi]; a symmetric range (the inputs' and products' clamps) by one unsigned
     comparison: v + hi within [0, 2 hi] modulo 2^32 exactly when |v| <= hi (hi < 2^31)."""
     if lo == -hi and 0 < hi < 2**31:
-        return (
+        full = (
             f"((uint32_t)((uint32_t){v} + UINT32_C({hi})) <= UINT32_C({2 * hi}) ? {v} : "
             f"({v} < 0 ? {lit(lo)} : {lit(hi)}))"
         )
+        k = hi.bit_length() - 1
+        if k < 1:
+            return full
+        # first within [-2^k, 2^k) (2^k <= hi): a shift and one comparison, no literal to load
+        return f"((uint32_t)(({v} >> {k}) + 1) <= 1u ? {v} : {full})"
     return f"({v} < {lit(lo)} ? {lit(lo)} : ({v} > {lit(hi)} ? {lit(hi)} : {v}))"
 
 
@@ -211,6 +216,27 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
             raise NotImplementedError(f"fixed-point op {op} has no C spelling")
         exprs.append(e)
     need = guards(fx.prog, [*fx.state_out, *(o["slot"] for o in fx.outputs)])
+    n_x = len(fx.state_out)
+    stores = [f"{x}.{d['name']} = s{s};" for d, s in zip(fx.inputs[:n_x], fx.state_out, strict=True)]
+    stores += [f"{out}->{o['name']} = s{o['slot']};" for o in fx.outputs]
+    # a parameter field, and a state field that enters unclamped where the stores (which overwrite
+    # the state) do not read it, is read from the struct where it is used, not held in a variable:
+    # on a Cortex-M0+ (8 low registers) a held one was spilled to the stack and reloaded, a load
+    # as the struct's (hubmotor48's step 1191 -> 1143 cycles with the parameters)
+    held = {int(t) for t in re.findall(r"\bs(\d+)\b", "\n".join(stores))}
+    field = {
+        k: f"{prm}.{fx.params[ins.imm[0]]['name']}" for k, ins in enumerate(fx.prog) if ins.op == "PARAM"
+    }
+    field.update(
+        {
+            k: f"{x}.{fx.inputs[ins.imm[0]]['name']}"
+            for k, ins in enumerate(fx.prog)
+            if ins.op == "IN"
+            and len(ins.imm) == 1
+            and fx.inputs[ins.imm[0]]["vector"] == "x"
+            and k not in held
+        }
+    )
     lines: list[str] = list(tables)
     lines += [
         f"int32_t fx_cs{k}[2];" for k, ins in enumerate(fx.prog) if ins.op == "CSA" and need[k] is not None
@@ -224,7 +250,7 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
     k = 0
     while k < len(fx.prog):
         ins = fx.prog[k]
-        if need[k] is None or ins.op == "CONST":  # dead (a folded branch's leftovers), or above
+        if need[k] is None or ins.op == "CONST" or k in field:  # dead (a folded branch's leftovers), or above
             k += 1
             continue
         if need[k] == ALWAYS:
@@ -236,8 +262,8 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
         # a run of slots needed only under one condition: computed only when it holds (the coasting
         # branch's sin/cos on a rejected sample, not every sample); zero-initialized, never read else
         g, run = need[k], []
-        while k < len(fx.prog) and (need[k] in (g, None) or fx.prog[k].op == "CONST"):
-            if need[k] == g and fx.prog[k].op != "CONST":
+        while k < len(fx.prog) and (need[k] in (g, None) or fx.prog[k].op == "CONST" or k in field):
+            if need[k] == g and fx.prog[k].op != "CONST" and k not in field:
                 run.append(k)
             k += 1
         if len(run) == 1:  # one slot: a conditional expression (no zeroed variable to keep)
@@ -253,9 +279,8 @@ def body(fx: FixedStep, x: str, inp: str, out: str, wr: list[float], prm: str = 
             note = f" /* {fx.prog[j].what} */" if fx.prog[j].what else ""
             lines.append(f"    s{j} = {exprs[j]};{note}")
         lines.append("}")
-    n_x = len(fx.state_out)
-    lines += [f"{x}.{d['name']} = s{s};" for d, s in zip(fx.inputs[:n_x], fx.state_out, strict=True)]
-    lines += [f"{out}->{o['name']} = s{o['slot']};" for o in fx.outputs]
+    lines += stores
+    lines = [re.sub(r"\bs(\d+)\b", lambda m: field.get(int(m.group(1)), m.group(0)), ln) for ln in lines]
     # a constant that every reader spells as a literal (the 16-bit products) is not declared
     text = "\n".join(lines)
     counts: dict[str, int] = {}

@@ -16,7 +16,7 @@ from sensorless.reports.codegen.fixed_c import body, format_text, formats_json
 from sensorless.reports.codegen.fixed_helpers import helpers, lit
 from sensorless.reports.codegen.fixed_lowering import QUOT_BITS
 from sensorless.reports.codegen.fixed_model import FixedModel
-from sensorless.reports.codegen.fixed_ops import CORDIC_STEPS, NOMINAL_BITS
+from sensorless.reports.codegen.fixed_ops import ATAN2_STEPS, CORDIC_STEPS, NOMINAL_BITS
 from sensorless.reports.codegen.fixed_params import params_from_si
 from sensorless.reports.codegen.fixed_poles import pole_shift
 from sensorless.reports.codegen.fixed_products import (
@@ -30,6 +30,7 @@ from sensorless.reports.codegen.fixed_ranges import MARGIN
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.runtime import RuntimeSetup
+    from sensorless.design.scenario import Scenario
     from sensorless.reports.codegen.generate import Provenance
 
 # the product and quotient sentences follow the lowering's switches (the header and the JSON state
@@ -49,11 +50,12 @@ _PRODUCTS = (
     )
 )
 ERRORS = (
-    f"atan2: vectoring CORDIC, {CORDIC_STEPS} steps, error <= atan(2^-13) + 24 LSB / |v| rad "
+    f"atan2: vectoring CORDIC, {ATAN2_STEPS} steps, error <= atan(2^-{ATAN2_STEPS - 1}) + 24 LSB / |v| rad "
     "(|v| the raw magnitude; tests/common/test_fixed_point.py); "
     "sin/cos: odd polynomial of degree 7 on the angle folded "
     "to [-pi/2, pi/2], error <= 1e-6; cos/sin of an atan2: the CORDIC's rotations applied to (1/K, 0), "
-    "error <= the atan2's + 1.1e-7; sqrt: integer square root of a 32-bit word (floor, 16 bits), of a "
+    f"{CORDIC_STEPS} steps, error <= atan(2^-{CORDIC_STEPS - 1}) + 24 LSB / |v| + 1.1e-7; "
+    "sqrt: integer square root of a 32-bit word (floor, 16 bits), of a "
     f"radicand of short products a {2 * COARSE_ROOT_BITS}-bit word (floor, {COARSE_ROOT_BITS} bits: "
     f"within 2^-{COARSE_ROOT_BITS} of the root's range); "
     f"a gain table: bisection, its fraction in Q15 within 2^-13; {_PRODUCTS}; a quotient by a runtime "
@@ -63,8 +65,8 @@ ERRORS = (
 )
 
 
-def fixed_model(drive: Drive, gains: GainSet, setup: RuntimeSetup) -> FixedModel:
-    """The fixed-point model of ``setup`` with ranges from the family's scenarios and the generic checks."""
+def range_scenarios(drive: Drive) -> list[Scenario]:
+    """The scenarios whose runs give the fixed-point formats: the family's and the generic checks'."""
     from sensorless.design.family import Scaled
     from sensorless.design.registry import family_of
     from sensorless.design.scenario import builtin_names, generic_scenarios, load_scenario
@@ -74,7 +76,12 @@ def fixed_model(drive: Drive, gains: GainSet, setup: RuntimeSetup) -> FixedModel
         # without the unloaded low_hold: the formats stay sized (and their pole-shift figures taken) on the
         # runs they were before it (the preset's fixed-point data unchanged)
         scenarios += generic_scenarios(drive, hold=False)
-    model = FixedModel.of(drive, gains, scenarios)
+    return scenarios
+
+
+def fixed_model(drive: Drive, gains: GainSet, setup: RuntimeSetup) -> FixedModel:
+    """The fixed-point model of ``setup`` with ranges from the family's scenarios and the generic checks."""
+    model = FixedModel.of(drive, gains, range_scenarios(drive))
     model.data(setup)  # ValueError if no run ran this observer
     return model
 

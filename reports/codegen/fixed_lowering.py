@@ -416,6 +416,12 @@ class Lowering(AngleLowering, TableLowering, ProductLowering):
             s = self.fmt(a)[1] + self.fmt(b)[1] - fo
             wr = self.wr[a] * self.wr[b] * 2.0**-s
             c, x = (a, b) if consts[0] else (b, a)
+            p = self.prog[c].imm[-1] if any(consts) and not same and self.prog[c].op == "CONST" else 0
+            if p > 0 and p & (p - 1) == 0 and wr <= INT_MAX and self.prog[x].op != "PARAM":
+                # a signal by a power of two (k_obs / 2): the same floor as a shift, no product (a
+                # parameter times a literal is a parameter field of its own: Lowering.fold)
+                k = p.bit_length() - 1 - s
+                return self.add(Ins("ALIGN", (x,), "fix", fo, (k,)), self.wr[x] * 2.0**k)
             if any(consts) and self.exact_q15(c, x, s, wr):
                 return self.add(Ins("MUL", (a, b), "fix", fo, (s,)), wr)
             lim = min(self.wr[x], math.ceil(2 * self.nom[x]))

@@ -30,10 +30,14 @@ INT_MAX = 2**31 - 1
 INT_MIN = -(2**31)
 NOMINAL_BITS = 26  # a signal at the top of its range is 2^26 (5 bits of headroom below 2^31)
 # Error bounds matched to where the value goes: atan2's angle is an output read once per sample
-# (1.2e-4 rad = 0.007 deg, 1/30 of the 0.2 deg the fixed-point step may differ from the double one by),
-# so 14 CORDIC steps; sin/cos rotate states that are integrated (the adaptive observer's frame), where
-# a 1e-4 error biased piippo2008's angle by 0.27 deg (measured), so they keep 26 bits and degree 7 (1e-6).
-CORDIC_STEPS = 14  # atan2: error <= atan(2^-13) = 1.22e-4 rad + rounding (docs/codegen.md, "Fixed point")
+# (ATAN2_STEPS below: 4.9e-4 rad = 0.028 deg, 1/7 of the 0.2 deg the fixed-point step may differ from
+# the double one by); sin/cos rotate states that are integrated (the adaptive observer's frame), where
+# a 1e-4 error biased piippo2008's angle by 0.27 deg (measured), so they keep 26 bits and degree 7 (1e-6),
+# and cos/sin of an atan2 the CORDIC's 14 steps.
+CORDIC_STEPS = 14  # cos and sin of an atan2 (they rotate states): error <= atan(2^-13) = 1.22e-4 rad
+# atan2 alone (an output angle, the PLL's input): error <= atan(2^-11) = 4.9e-4 rad = 0.028 deg + rounding,
+# 1/7 of the 0.2 deg budget; each step fewer is ~11 cycles on a Cortex-M0+ (docs/codegen.md, "Fixed point")
+ATAN2_STEPS = 12
 # binary angle: an int32 word, pi <-> 2^31 (wraps: angle arithmetic is modulo 2 pi for free)
 CORDIC_ANGLES = tuple(round(math.atan(2.0**-i) * 2**31 / math.pi) for i in range(CORDIC_STEPS))
 SIN_F = NOMINAL_BITS  # format of sin/cos results
@@ -166,14 +170,14 @@ def _sat(B: NumpyBackend, v: Word, ins: Ins) -> Word:
     return B.clip(v, INT_MIN, INT_MAX) if ins.sat else v
 
 
-def cordic_atan2(B: NumpyBackend, y: Word, x: Word) -> Word:
-    """atan2(y, x) as a binary angle: vectoring CORDIC, CORDIC_STEPS steps (inputs int32 words)."""
+def cordic_atan2(B: NumpyBackend, y: Word, x: Word, steps: int = ATAN2_STEPS) -> Word:
+    """atan2(y, x) as a binary angle: vectoring CORDIC, ``steps`` steps (inputs int32 words)."""
     x, y = B.shift(x, -2), B.shift(y, -2)  # headroom for the CORDIC gain (1.65) and sqrt(2)
     zero = B.logic("AND", B.cmp("EQ", x, B.const(0, x)), B.cmp("EQ", y, B.const(0, y)))
     neg = B.cmp("LT", x, B.const(0, x))
     x, y = B.where(neg, -x, x), B.where(neg, -y, y)
     z = B.where(neg, B.const(2**31, x), B.const(0, x))
-    for i, a in enumerate(CORDIC_ANGLES):
+    for i, a in enumerate(CORDIC_ANGLES[:steps]):
         d = B.cmp("LT", B.const(0, y), y)
         xs, ys = B.shift(x, -i), B.shift(y, -i)
         x, y = B.where(d, x + ys, x - ys), B.where(d, y - xs, y + xs)

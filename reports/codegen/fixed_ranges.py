@@ -214,13 +214,15 @@ def _states(loop: ca.Function, n: int, native: bool = True) -> ca.Function:
 
 
 def probe_runs(
-    drive: Drive, gains: GainSet, scenarios: list[Scenario], compile: bool = True
+    drive: Drive, gains: GainSet, scenarios: list[Scenario], compile: bool = True, analysed: bool = False
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """{observer name: (x, meas)} of every sample of the closed-loop runs of ``scenarios`` with the
     double step: the observer's state before each step and its measurements (columns are samples), by
     the observer that ran (the I-f start's wrapper is another). A scenario that cannot run on the
     drive (a start its loop does not model) is left out. ``compile``: the runs as native code (False:
-    CasADi's virtual machine, cheaper for a short run than compiling)."""
+    CasADi's virtual machine, cheaper for a short run than compiling). ``analysed``: the loop the
+    whole-drive analysis linearizes (the family's ``AnalysedLoop.drive_loop``, whose observer can be
+    another: the drive without its EMF harmonics) run on the scenarios, not the simulation's."""
     from sensorless.design.registry import family_of
     from sensorless.design.units import DriveFileError
 
@@ -228,7 +230,7 @@ def probe_runs(
     runs: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
     for sc in scenarios:
         try:
-            ls, observer, n_x = _probe_setup(fam, drive, sc, gains)
+            ls, observer, n_x = _probe_setup(fam, drive, sc, gains, analysed)
         except (DriveFileError, ValueError):
             continue
         n = ls.inputs.shape[1]
@@ -250,7 +252,7 @@ def probe_runs(
 
 
 def _probe_setup(
-    fam: ObserverFamily, drive: Drive, sc: Scenario, gains: GainSet
+    fam: ObserverFamily, drive: Drive, sc: Scenario, gains: GainSet, analysed: bool = False
 ) -> tuple[LoopSetup, str, int]:
     """(the loop set-up of ``sc`` whose observer step carries its measurements in its state
     (:func:`_probe`), the observer's name, its state's length).
@@ -261,9 +263,12 @@ def _probe_setup(
     states are the observer's). The scenario's step is the last one its set-up asks for, so a first
     set-up with the double step counts the requests and the second puts the probe in the last."""
     from sensorless.design.runtime import step_variant
-    from sensorless.design.simulate import Simulatable
+    from sensorless.design.simulate import AnalysedLoop, Simulatable
 
-    sim = require(fam, Simulatable)  # one line where the family has no simulation
+    if analysed:
+        build = require(fam, AnalysedLoop).drive_loop
+    else:
+        build = require(fam, Simulatable).simulation  # one line where the family has no simulation
 
     asked: list[tuple[RuntimeSetup, ca.Function]] = []
 
@@ -272,7 +277,7 @@ def _probe_setup(
         return step
 
     with step_variant(count):
-        plain = sim.simulation(drive, sc, gains)
+        plain = build(drive, sc, gains)
     last = len(asked) - 1
     setup, step = asked[last]
     asked.clear()
@@ -282,7 +287,7 @@ def _probe_setup(
         return _probe(st) if len(asked) - 1 == last else st
 
     with step_variant(probe):
-        ls = sim.simulation(drive, sc, gains)
+        ls = build(drive, sc, gains)
     same = len(asked) == last + 1 and asked[last][1].name() == step.name()
     if not same or not np.array_equal(ls.z0, plain.z0):
         raise RuntimeError(f"{sc.name}: the set-up of the probe run is not that of the scenario's run")
