@@ -39,6 +39,15 @@ SCALE_FLOOR = 1e-2
 # 100-300 (a schedule of 50 gains); beyond, the rounds only creep (a drone-class motor: 2890 iterations in
 # 11 rounds, 227-413 s, for a result the dense grid refused)
 MAX_ITERATIONS = 400
+# Weight of the proximal term PROXIMAL |theta/typical - the round's start|^2 of the NLP's objective
+# (tuning/slots.py), where the law has no regularizer. Without one a max-min optimum need not be
+# isolated: eq. (16)'s is a ridge (docs/tuning.md), along which nothing in the NLP but IPOPT's barrier
+# pulls. As the barrier parameter fell to 1e-11 the Newton step along the ridge grew to 6 typical
+# magnitudes from a point that met its tolerance but for a 1.3e-7 primal residual (the drift along the
+# ridge, second order in the local data), across the law's kinks: Maximum_Iterations_Exceeded or
+# Infeasible_Problem_Detected (the README servo's law (16), starts 2 and 3). The term makes the optimum
+# the point of the ridge nearest the start; it costs at most PROXIMAL x radius^2 (4e-6) in t.
+PROXIMAL = 1e-6
 FEASIBLE_IPOPT = 1e-8  # a round out of iterations is kept where its constraint violation is below this
 
 
@@ -105,6 +114,9 @@ def solve(
         while True:
             lo = np.maximum(model.lower, theta - radius * model.typical)
             hi = np.minimum(model.upper, theta + radius * model.typical)
+            # a parameter the round's points and objective do not see is held (see unseen())
+            held = unseen(model, theta, cand.P[:, active], smoothing)
+            lo, hi = np.where(held, theta, lo), np.where(held, theta, hi)
             args = (model, cand, active, fixed, theta, t_now, scale, lo, hi, smoothing, max_noise)
             z, sol, start = _run(*args)
             total_it += sol.stats()["iter_count"]
@@ -138,8 +150,11 @@ def solve(
         radius = min(2 * radius, radius0)  # a solved round restores the trust region
         new = np.asarray(z[:nth]).ravel() * model.typical
         at_edge = np.any(
-            (np.isclose(new, lo, rtol=0, atol=1e-6 * model.typical) & (lo > model.lower))
-            | (np.isclose(new, hi, rtol=0, atol=1e-6 * model.typical) & (hi < model.upper))
+            ~held
+            & (
+                (np.isclose(new, lo, rtol=0, atol=1e-6 * model.typical) & (lo > model.lower))
+                | (np.isclose(new, hi, rtol=0, atol=1e-6 * model.typical) & (hi < model.upper))
+            )
         )
         theta = new
         t_now = float(z[nth])
@@ -184,6 +199,40 @@ def attempt_note(rnd: int, stats: dict, start: float) -> str:
         f"round {rnd}: IPOPT {stats['return_status']} after {stats['iter_count']} iterations from a start "
         f"{met} its constraints (violation {start:.1g}{first})"
     )
+
+
+def unseen(model: TuningModel, theta: np.ndarray, P: np.ndarray, smoothing: float) -> np.ndarray:
+    """(n_theta,) bool: the parameters that neither the local data of the points P (``model.local``: its
+    derivative is exactly zero at every point) nor the objective's regularizer depend on at theta.
+
+    A round holds them at their start. A gain law may be piecewise in its parameters (eq. (16)'s
+    min(|w|/omega_lambda, 1) saturates where omega_lambda is below a point's speed): on a flat piece
+    nothing in the NLP pulls such a parameter but IPOPT's barrier, which walks it to the middle of its
+    trust region, across the kinks of the active points, where the Newton model of the start no longer
+    holds. IPOPT then ended ``Infeasible_Problem_Detected`` or ran out of iterations from a start
+    meeting every constraint (the README servo's law (16), omega_lambda below its lowest speed), and
+    succeeded only once the trust region had been halved to within the piece."""
+    J = np.asarray(_map(_local_jacobian(model), P.shape[1])(theta, P))  # (n_phi, N n_theta)
+    seen = np.any(J.reshape(J.shape[0], P.shape[1], model.n_theta) != 0, axis=(0, 1))
+    if model.regularizer is not None and smoothing > 0:
+        seen |= _regularized(model)
+    return ~seen
+
+
+@functools.cache
+def _local_jacobian(model: TuningModel) -> ca.Function:
+    """(theta, point) -> d local / d theta (n_phi x n_theta), dense."""
+    th = ca.SX.sym("theta", model.n_theta)
+    pt = ca.SX.sym("point", len(model.point_names))
+    return ca.Function("local_jacobian", [th, pt], [ca.densify(ca.jacobian(model.local(th, pt), th))])
+
+
+@functools.cache
+def _regularized(model: TuningModel) -> np.ndarray:
+    """(n_theta,) bool: the parameters the law's regularizer depends on (structurally)."""
+    th = ca.SX.sym("theta", model.n_theta)
+    grad = ca.jacobian(model.regularizer(th), th)
+    return np.isin(np.arange(model.n_theta), np.asarray(grad.sparsity().get_col(), int))
 
 
 def _usable(stats: dict) -> bool:
@@ -348,6 +397,9 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
     lbg = np.concatenate([np.zeros(n_eq), *ineqs])
     ubg = np.concatenate([np.zeros(n_eq), np.full(sum(a.size for a in ineqs), np.inf)])
     solver = ipopt_solver(model, L)
+    # the proximal term where the objective has no regularizer of its own (see PROXIMAL)
+    prox = PROXIMAL if model.regularizer is None or smoothing == 0 else 0.0
+    par.append(np.concatenate([[prox], theta / model.typical]))
     x0, p = np.concatenate(z0), np.concatenate(par)
     sol = solver(x0=x0, p=p, lbx=np.concatenate(lbx), ubx=np.concatenate(ubx), lbg=lbg, ubg=ubg)
     start = float("nan")  # where IPOPT failed: the start's violation of the constraints, as built

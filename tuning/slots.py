@@ -261,11 +261,15 @@ def _assembled_solver(model: TuningModel, L: Layout) -> ca.Function:
     th_sx = ca.SX.sym("th", nth)
     r = model.regularizer(th_sx) if model.regularizer is not None else 0
     reg = ca.Function("reg", [th_sx], [r])
+    k = pi  # the proximal term's weight and centre follow the slots' parameters
 
     def objective(z: ca.MX, p: ca.MX) -> ca.MX:
-        return -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical))
+        prox = p[k] * ca.sumsqr(z[:nth] - p[k + 1 : k + 1 + nth])
+        return -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical)) + prox
 
-    nlp, jac_g, hess_lag = assemble(kinds, nth + 1, zi, pi, objective, regularizer_hessian(model))
+    nlp, jac_g, hess_lag = assemble(
+        kinds, nth + 1, zi, pi + 1 + nth, objective, regularizer_hessian(model), proximal=k
+    )
     exact = model.hessian == "exact"
     return _nlpsol_one_thread(
         f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",
@@ -294,7 +298,7 @@ def _whole_graph_solver(model: TuningModel, L: Layout) -> ca.Function:
     per_free, per_fixed, per_noise = nphi + 2 * n, nphi + n, nphi + n + nP
     nz = nth + 1 + per_free * L.free + per_fixed * L.fixed + per_noise * L.noise
     pf, px, pn = npt + 3, npt + 3 + n, npt + 1 + 2 * n + 2 * no
-    npar = 2 + pf * L.free + px * L.fixed + pn * L.noise
+    npar = 2 + pf * L.free + px * L.fixed + pn * L.noise + 1 + nth  # + the proximal weight and centre
     z = ca.MX.sym("z", nz)
     p = ca.MX.sym("p", npar)
     theta = z[:nth] * ca.DM(model.typical)
@@ -346,7 +350,8 @@ def _whole_graph_solver(model: TuningModel, L: Layout) -> ca.Function:
     th_sx = ca.SX.sym("th", nth)
     r = model.regularizer(th_sx) if model.regularizer is not None else 0
     reg = ca.Function("reg", [th_sx], [r])
-    f = -w_t * t + w_reg * reg(theta)
+    k = npar - 1 - nth
+    f = -w_t * t + w_reg * reg(theta) + p[k] * ca.sumsqr(z[:nth] - p[k + 1 :])
     g = ca.vertcat(*g_phi, *g_eq, *g_ineq)
     return _nlpsol_one_thread(
         f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",

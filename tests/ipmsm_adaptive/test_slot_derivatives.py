@@ -18,11 +18,14 @@ def test_assembled_jacobian_and_hessian_match_the_whole_graph(drive):
         kinds.append((sk, M, zi, pi))
         zi, pi = zi + sk.per * M, pi + sk.width * M
     reg = ca.Function("reg", [th := ca.SX.sym("th", nth)], [model.regularizer(th)])
+    k = pi  # the proximal term's weight and centre (tuning/slots.py)
 
     def objective(z, p):
-        return -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical))
+        prox = p[k] * ca.sumsqr(z[:nth] - p[k + 1 : k + 1 + nth])
+        return -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical)) + prox
 
-    nlp, jac_g, hess_lag = assemble(kinds, nth + 1, zi, pi, objective, regularizer_hessian(model))
+    pi += 1 + nth
+    nlp, jac_g, hess_lag = assemble(kinds, nth + 1, zi, pi, objective, regularizer_hessian(model), k)
     x, p, f, g = nlp["x"], nlp["p"], nlp["f"], nlp["g"]
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.numel())
     # the reference: CasADi differentiates the whole graph, expanded, as the solver did before
@@ -34,6 +37,7 @@ def test_assembled_jacobian_and_hessian_match_the_whole_graph(drive):
     for _ in range(2):
         xv, pv, lv = rng.normal(size=zi), rng.normal(size=pi), rng.normal(size=g.numel())
         pv[:2] = [1.0, 0.7]
+        pv[k] = 0.4
         g_a, J_a = jac_g(xv, pv)
         J_b = J_ref(xv, pv)
         H_a, H_b = hess_lag(xv, pv, 0.3, lv), H_ref(xv, pv, 0.3, lv)
@@ -43,3 +47,7 @@ def test_assembled_jacobian_and_hessian_match_the_whole_graph(drive):
             assert np.abs(b).max() > 0
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())
         assert hess_lag.sparsity_out(0).is_triu()
+        # the objective's own Hessian (regularizer and proximal term), which the constraints' dwarf above
+        a = np.asarray(ca.densify(hess_lag(xv, pv, 0.3, 0 * lv)))
+        b = np.asarray(ca.densify(H_ref(xv, pv, 0.3, 0 * lv)))
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())
