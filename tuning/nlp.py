@@ -39,15 +39,19 @@ SCALE_FLOOR = 1e-2
 # 100-300 (a schedule of 50 gains); beyond, the rounds only creep (a drone-class motor: 2890 iterations in
 # 11 rounds, 227-413 s, for a result the dense grid refused)
 MAX_ITERATIONS = 400
-# Weight of the proximal term PROXIMAL |theta/typical - the round's start|^2 of the NLP's objective
-# (tuning/slots.py), where the law has no regularizer. Without one a max-min optimum need not be
-# isolated: eq. (16)'s is a ridge (docs/tuning.md), along which nothing in the NLP but IPOPT's barrier
-# pulls. As the barrier parameter fell to 1e-11 the Newton step along the ridge grew to 6 typical
-# magnitudes from a point that met its tolerance but for a 1.3e-7 primal residual (the drift along the
-# ridge, second order in the local data), across the law's kinks: Maximum_Iterations_Exceeded or
-# Infeasible_Problem_Detected (the README servo's law (16), starts 2 and 3). The term makes the optimum
-# the point of the ridge nearest the start; it costs at most PROXIMAL x radius^2 (4e-6) in t.
+# The proximal term |L (theta/typical - the round's start)|^2 of the NLP's objective (tuning/slots.py), for
+# a law without a regularizer, with L^T L = PROXIMAL I + HOLD N N^T (N: the directions of theta that no
+# active point sees, flat()). Without a regularizer a max-min optimum need not be isolated: eq. (16)'s is
+# a ridge (docs/tuning.md), along which nothing in the NLP but IPOPT's barrier pulls. As the barrier
+# parameter fell to 1e-11 the Newton step along the ridge grew to 6 typical magnitudes from a point that
+# met its tolerance but for a 1.3e-7 primal residual (the drift along the ridge), across the law's kinks:
+# Maximum_Iterations_Exceeded or Infeasible_Problem_Detected (the README servo's law (16), starts 2 and
+# 3). PROXIMAL makes the optimum the point of the ridge nearest the start, at a cost of at most PROXIMAL
+# |step|^2 in t; HOLD keeps a round on the start's side of the kinks along a flat direction, where the
+# barrier's pull (up to 1e-3 / distance to the box) is 1e3 times weaker.
 PROXIMAL = 1e-6
+HOLD = 1.0
+FLAT = 1e-9  # a direction whose gain through the points' local data is below this (relative) is flat
 FEASIBLE_IPOPT = 1e-8  # a round out of iterations is kept where its constraint violation is below this
 
 
@@ -114,11 +118,11 @@ def solve(
         while True:
             lo = np.maximum(model.lower, theta - radius * model.typical)
             hi = np.minimum(model.upper, theta + radius * model.typical)
-            # a parameter the round's points and objective do not see is held (see unseen())
-            held = unseen(model, theta, cand.P[:, active], smoothing)
+            # a parameter the round's points and objective do not see is held (see flat())
+            held, null = flat(model, theta, cand.P[:, active], smoothing)
             lo, hi = np.where(held, theta, lo), np.where(held, theta, hi)
             args = (model, cand, active, fixed, theta, t_now, scale, lo, hi, smoothing, max_noise)
-            z, sol, start = _run(*args)
+            z, sol, start = _run(*args, null=null)
             total_it += sol.stats()["iter_count"]
             status = sol.stats()["return_status"]
             if sol.stats()["success"] or status == "Solved_To_Acceptable_Level" or _usable(sol.stats()):
@@ -201,22 +205,40 @@ def attempt_note(rnd: int, stats: dict, start: float) -> str:
     )
 
 
-def unseen(model: TuningModel, theta: np.ndarray, P: np.ndarray, smoothing: float) -> np.ndarray:
-    """(n_theta,) bool: the parameters that neither the local data of the points P (``model.local``: its
-    derivative is exactly zero at every point) nor the objective's regularizer depend on at theta.
+def flat(
+    model: TuningModel, theta: np.ndarray, P: np.ndarray, smoothing: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The directions of theta in which a round's NLP is flat at theta: (held (n_theta,) bool, the
+    parameters that neither the local data of the points P (``model.local``: its derivative is exactly
+    zero at every point) nor the regularizer depend on; N (n_theta, k), an orthonormal basis (in
+    theta/typical) of the other directions that leave the points' local data unchanged to first order,
+    for a law without a regularizer (else none)).
 
-    A round holds them at their start. A gain law may be piecewise in its parameters (eq. (16)'s
-    min(|w|/omega_lambda, 1) saturates where omega_lambda is below a point's speed): on a flat piece
-    nothing in the NLP pulls such a parameter but IPOPT's barrier, which walks it to the middle of its
-    trust region, across the kinks of the active points, where the Newton model of the start no longer
-    holds. IPOPT then ended ``Infeasible_Problem_Detected`` or ran out of iterations from a start
-    meeting every constraint (the README servo's law (16), omega_lambda below its lowest speed), and
-    succeeded only once the trust region had been halved to within the piece."""
-    J = np.asarray(_map(_local_jacobian(model), P.shape[1])(theta, P))  # (n_phi, N n_theta)
-    seen = np.any(J.reshape(J.shape[0], P.shape[1], model.n_theta) != 0, axis=(0, 1))
-    if model.regularizer is not None and smoothing > 0:
-        seen |= _regularized(model)
-    return ~seen
+    A round holds the first at their start (their bounds) and the proximal term HOLD weighs the second.
+    A gain law may be piecewise in its parameters: eq. (16)'s min(|w|/omega_lambda, 1) saturates where
+    omega_lambda is below a point's speed (omega_lambda is then a held parameter), and where omega_lambda
+    is above every active speed only lambda'/omega_lambda is seen (a flat direction). On such a piece
+    nothing in the NLP pulls but IPOPT's barrier, which walked the parameters to the middle of the trust
+    region, across the kinks of the active points, where the Newton model of the start no longer holds:
+    IPOPT ended ``Infeasible_Problem_Detected`` or ran out of iterations from a start meeting every
+    constraint (the README servo's law (16), omega_lambda below its lowest speed; a drone-class motor's,
+    above its highest), and succeeded only once the trust region had been halved to within the piece."""
+    nth, N = model.n_theta, P.shape[1]
+    J = np.asarray(_map(_local_jacobian(model), N)(theta, P)).reshape(-1, N, nth)  # (n_phi, N, n_theta)
+    J = (J / model.phi_typical[:, None, None] * model.typical[None, None, :]).reshape(-1, nth)
+    seen = np.any(J != 0, axis=0)
+    if model.regularizer is not None:
+        if smoothing > 0:
+            seen |= _regularized(model)
+        return ~seen, np.zeros((nth, 0))
+    idx = np.flatnonzero(seen)
+    if idx.size == 0:
+        return ~seen, np.zeros((nth, 0))
+    _, sv, vt = np.linalg.svd(J[:, idx])
+    rank = int(np.sum(sv > FLAT * sv[0])) if sv.size and sv[0] > 0 else 0
+    null = np.zeros((nth, idx.size - rank))
+    null[idx, :] = vt[rank:].T
+    return ~seen, null
 
 
 @functools.cache
@@ -299,7 +321,7 @@ def _slots(n: int, least: int = 4) -> int:
     return M if M >= n else 8 * -(-n // 8)
 
 
-def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothing, max_noise):
+def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothing, max_noise, null=None):
     n, nphi, _, nP = sizes(model)
     groups = {
         "free": [i for i in active if cand.condition[i] != NOISE and not fixed[i]],
@@ -397,9 +419,11 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
     lbg = np.concatenate([np.zeros(n_eq), *ineqs])
     ubg = np.concatenate([np.zeros(n_eq), np.full(sum(a.size for a in ineqs), np.inf)])
     solver = ipopt_solver(model, L)
-    # the proximal term where the objective has no regularizer of its own (see PROXIMAL)
-    prox = PROXIMAL if model.regularizer is None or smoothing == 0 else 0.0
-    par.append(np.concatenate([[prox], theta / model.typical]))
+    # the proximal term (a law without a regularizer; see PROXIMAL): L = sqrt(L^T L), column-major
+    nth = model.n_theta
+    NN = np.zeros((nth, nth)) if null is None else null @ null.T  # a projector
+    L = np.sqrt(PROXIMAL) * (np.eye(nth) - NN) + np.sqrt(PROXIMAL + HOLD) * NN
+    par.append(np.concatenate([L.ravel(order="F"), theta / model.typical]))
     x0, p = np.concatenate(z0), np.concatenate(par)
     sol = solver(x0=x0, p=p, lbx=np.concatenate(lbx), ubx=np.concatenate(ubx), lbg=lbg, ubg=ubg)
     start = float("nan")  # where IPOPT failed: the start's violation of the constraints, as built
