@@ -118,6 +118,9 @@ def solve(
         while True:
             lo = np.maximum(model.lower, theta - radius * model.typical)
             hi = np.minimum(model.upper, theta + radius * model.typical)
+            if model.smooth_box is not None:  # within the piece of a law with kinks at the active points
+                s_lo, s_hi = model.smooth_box(theta, cand.P[:, active])
+                lo, hi = np.maximum(lo, np.minimum(s_lo, theta)), np.minimum(hi, np.maximum(s_hi, theta))
             # a parameter the round's points and objective do not see is held (see flat())
             held, null = flat(model, theta, cand.P[:, active], smoothing)
             lo, hi = np.where(held, theta, lo), np.where(held, theta, hi)
