@@ -40,16 +40,11 @@ SCALE_FLOOR = 1e-2
 # 11 rounds, 227-413 s, for a result the dense grid refused)
 MAX_ITERATIONS = 400
 # The proximal term |L (theta/typical - the round's start)|^2 of the NLP's objective (tuning/slots.py), for
-# a law without a regularizer, with L^T L = PROXIMAL I + HOLD N N^T (N: the directions of theta that no
-# active point sees, flat()). Without a regularizer a max-min optimum need not be isolated: eq. (16)'s is
-# a ridge (docs/tuning.md), along which nothing in the NLP but IPOPT's barrier pulls. As the barrier
-# parameter fell to 1e-11 the Newton step along the ridge grew to 6 typical magnitudes from a point that
-# met its tolerance but for a 1.3e-7 primal residual (the drift along the ridge), across the law's kinks:
-# Maximum_Iterations_Exceeded or Infeasible_Problem_Detected (the README servo's law (16), starts 2 and
-# 3). PROXIMAL makes the optimum the point of the ridge nearest the start, at a cost of at most PROXIMAL
-# |step|^2 in t; HOLD keeps a round on the start's side of the kinks along a flat direction, where the
-# barrier's pull (up to 1e-3 / distance to the box) is 1e3 times weaker.
-PROXIMAL = 1e-6
+# a law without a regularizer: L^T L = HOLD N N^T, N the directions of theta that no active point sees
+# (flat()). Along such a direction nothing in the NLP pulls but IPOPT's barrier (up to 1e-3 / the distance
+# to the box), which walked eq. (16)'s parameters along the ray lambda'/omega_lambda = const (omega_lambda
+# above every active speed, a drone-class motor) by 19 typical magnitudes in one iteration; HOLD keeps the
+# round near its start there, and costs nothing in the directions the points see.
 HOLD = 1.0
 FLAT = 1e-9  # a direction whose gain through the points' local data is below this (relative) is flat
 FEASIBLE_IPOPT = 1e-8  # a round out of iterations is kept where its constraint violation is below this
@@ -422,10 +417,10 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
     lbg = np.concatenate([np.zeros(n_eq), *ineqs])
     ubg = np.concatenate([np.zeros(n_eq), np.full(sum(a.size for a in ineqs), np.inf)])
     solver = ipopt_solver(model, L)
-    # the proximal term (a law without a regularizer; see PROXIMAL): L = sqrt(L^T L), column-major
+    # the proximal term (a law without a regularizer; see HOLD): L = sqrt(L^T L), column-major
     nth = model.n_theta
     NN = np.zeros((nth, nth)) if null is None else null @ null.T  # a projector
-    L = np.sqrt(PROXIMAL) * (np.eye(nth) - NN) + np.sqrt(PROXIMAL + HOLD) * NN
+    L = np.sqrt(HOLD) * NN
     par.append(np.concatenate([L.ravel(order="F"), theta / model.typical]))
     x0, p = np.concatenate(z0), np.concatenate(par)
     sol = solver(x0=x0, p=p, lbx=np.concatenate(lbx), ubx=np.concatenate(ubx), lbg=lbg, ubg=ubg)

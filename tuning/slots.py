@@ -143,7 +143,7 @@ def _noise_function(model: TuningModel) -> ca.Function:
 
 
 def proximal(z: ca.MX, q: ca.MX, nth: int) -> ca.MX:
-    """The proximal term |L (z - c)|^2 of a law without a regularizer (tuning/nlp.py PROXIMAL, HOLD): z =
+    """The proximal term |L (z - c)|^2 of a law without a regularizer (tuning/nlp.py HOLD): z =
     theta/typical, q = [L (n_theta x n_theta, column-major), c (the round's start)]."""
     Lm = ca.reshape(q[: nth * nth], nth, nth)
     return ca.sumsqr(ca.mtimes(Lm, z - q[nth * nth :]))

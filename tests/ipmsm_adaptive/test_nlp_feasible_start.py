@@ -5,9 +5,10 @@ The case is the example servo's (docs/examples/motors/servo400.toml) law (16), e
 Hinkkanen, Luomi (2008), on its default envelope, from two starts of its global phase with lambda' on its
 cap: omega_lambda = 0.02 p.u., below every envelope speed, where eq. (16) saturates at every point and no
 constraint sees omega_lambda; and omega_lambda = 0.43 p.u., on the ridge of the optimum. Each NLP keeps
-its start's slowest decay as its floor, as tune does. Before the fix (the flat parameter held, the
-proximal term) IPOPT ended Infeasible_Problem_Detected or Maximum_Iterations_Exceeded there from a start
-meeting every constraint, and succeeded only after 1-5 halvings of the trust region. The optimum is
+its start's slowest decay as its floor, as tune does. Before the fix (a round holds the parameters its
+points do not see, and its trust region stays between eq. (16)'s kinks at the active points' speeds)
+IPOPT ended Infeasible_Problem_Detected or Maximum_Iterations_Exceeded there from a start meeting every
+constraint, and succeeded only after 1-5 halvings of the trust region. The optimum is
 cross-checked by a brute force over a small grid of (lambda', omega_lambda) through the same
 eigenvalues."""
 
