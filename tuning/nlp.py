@@ -85,7 +85,9 @@ def solve(
     Each round's NLP keeps theta within ``radius`` typical magnitudes of the round's start (the
     sector conditions are polynomial: far from the start the Newton model of IPOPT is poor). A
     round whose solution touches the trust region is followed by another from there; a round
-    that IPOPT cannot solve is retried with half the radius. The method ends when a round's
+    that IPOPT cannot solve is retried with half the radius. The trust region stays within the piece of
+    a law with kinks (``TuningModel.smooth_box``), and the directions no active point sees are held
+    (:func:`flat`): IPOPT's barrier alone walked them across the kinks. The method ends when a round's
     solution is interior to the trust region and no grid point violates. Noise points (condition 2) need
     ``max_noise`` (per noise output of the model; inf: not limited). A failing round is retried with
     half the radius until it falls below ``min_radius``. The work has a bound: after ``max_iterations``
@@ -420,8 +422,8 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
     # the proximal term (a law without a regularizer; see HOLD): L = sqrt(L^T L), column-major
     nth = model.n_theta
     NN = np.zeros((nth, nth)) if null is None else null @ null.T  # a projector
-    L = np.sqrt(HOLD) * NN
-    par.append(np.concatenate([L.ravel(order="F"), theta / model.typical]))
+    Lp = np.sqrt(HOLD) * NN
+    par.append(np.concatenate([Lp.ravel(order="F"), theta / model.typical]))
     x0, p = np.concatenate(z0), np.concatenate(par)
     sol = solver(x0=x0, p=p, lbx=np.concatenate(lbx), ubx=np.concatenate(ubx), lbg=lbg, ubg=ubg)
     start = float("nan")  # where IPOPT failed: the start's violation of the constraints, as built
