@@ -18,7 +18,9 @@ Optional parts, each used by the shared pipeline where given:
   the slopes), for the pointwise bound (tuning/bound.py), and ``from_pointwise`` to turn the
   per-speed optima into a start of this law;
 - ``gain_size``: a dimensionless size of the gains theta gives over the speed range, for the
-  tie-break among equally damped gains (tuning/tiebreak.py).
+  tie-break among equally damped gains (tuning/tiebreak.py);
+- ``smooth_box``: where a law is piecewise in its parameters, the piece around theta (the NLP's trust
+  region stays within it).
 
 Batched evaluation of many parameter vectors at once: :func:`evaluate`.
 """
@@ -91,6 +93,10 @@ class TuningModel:
     gain_size: Callable[[np.ndarray], np.ndarray] | None = None
     gain_size_unit: str = ""  # its unit, for the summary's row heading
     gain_size_meaning: str = ""  # what it measures, in a few words (the tie-break's line)
+    # (theta, P) -> (lower, upper): the box around theta within which ``local`` at the points P is smooth,
+    # for a law with kinks in its parameters (eq. (16): omega_lambda at a point's speed); None: smooth.
+    # Each exchange round's trust region stays within it (tuning/nlp.py)
+    smooth_box: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
     # the law's own remark for the table's summary: e.g. which parameters its box holds at one value, and why
     note: str = ""
 

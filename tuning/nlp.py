@@ -39,6 +39,14 @@ SCALE_FLOOR = 1e-2
 # 100-300 (a schedule of 50 gains); beyond, the rounds only creep (a drone-class motor: 2890 iterations in
 # 11 rounds, 227-413 s, for a result the dense grid refused)
 MAX_ITERATIONS = 400
+# The proximal term |L (theta/typical - the round's start)|^2 of the NLP's objective (tuning/slots.py), for
+# a law without a regularizer: L^T L = HOLD N N^T, N the directions of theta that no active point sees
+# (flat()). Along such a direction nothing in the NLP pulls but IPOPT's barrier (up to 1e-3 / the distance
+# to the box), which walked eq. (16)'s parameters along the ray lambda'/omega_lambda = const (omega_lambda
+# above every active speed, a drone-class motor) by 19 typical magnitudes in one iteration; HOLD keeps the
+# round near its start there, and costs nothing in the directions the points see.
+HOLD = 1.0
+FLAT = 1e-9  # a direction whose gain through the points' local data is below this (relative) is flat
 FEASIBLE_IPOPT = 1e-8  # a round out of iterations is kept where its constraint violation is below this
 
 
@@ -77,7 +85,9 @@ def solve(
     Each round's NLP keeps theta within ``radius`` typical magnitudes of the round's start (the
     sector conditions are polynomial: far from the start the Newton model of IPOPT is poor). A
     round whose solution touches the trust region is followed by another from there; a round
-    that IPOPT cannot solve is retried with half the radius. The method ends when a round's
+    that IPOPT cannot solve is retried with half the radius. The trust region stays within the piece of
+    a law with kinks (``TuningModel.smooth_box``), and the directions no active point sees are held
+    (:func:`flat`): IPOPT's barrier alone walked them across the kinks. The method ends when a round's
     solution is interior to the trust region and no grid point violates. Noise points (condition 2) need
     ``max_noise`` (per noise output of the model; inf: not limited). A failing round is retried with
     half the radius until it falls below ``min_radius``. The work has a bound: after ``max_iterations``
@@ -105,8 +115,14 @@ def solve(
         while True:
             lo = np.maximum(model.lower, theta - radius * model.typical)
             hi = np.minimum(model.upper, theta + radius * model.typical)
+            if model.smooth_box is not None:  # within the piece of a law with kinks at the active points
+                s_lo, s_hi = model.smooth_box(theta, cand.P[:, active])
+                lo, hi = np.maximum(lo, np.minimum(s_lo, theta)), np.minimum(hi, np.maximum(s_hi, theta))
+            # a parameter the round's points and objective do not see is held (see flat())
+            held, null = flat(model, theta, cand.P[:, active], smoothing)
+            lo, hi = np.where(held, theta, lo), np.where(held, theta, hi)
             args = (model, cand, active, fixed, theta, t_now, scale, lo, hi, smoothing, max_noise)
-            z, sol, start = _run(*args)
+            z, sol, start = _run(*args, null=null)
             total_it += sol.stats()["iter_count"]
             status = sol.stats()["return_status"]
             if sol.stats()["success"] or status == "Solved_To_Acceptable_Level" or _usable(sol.stats()):
@@ -138,8 +154,11 @@ def solve(
         radius = min(2 * radius, radius0)  # a solved round restores the trust region
         new = np.asarray(z[:nth]).ravel() * model.typical
         at_edge = np.any(
-            (np.isclose(new, lo, rtol=0, atol=1e-6 * model.typical) & (lo > model.lower))
-            | (np.isclose(new, hi, rtol=0, atol=1e-6 * model.typical) & (hi < model.upper))
+            ~held
+            & (
+                (np.isclose(new, lo, rtol=0, atol=1e-6 * model.typical) & (lo > model.lower))
+                | (np.isclose(new, hi, rtol=0, atol=1e-6 * model.typical) & (hi < model.upper))
+            )
         )
         theta = new
         t_now = float(z[nth])
@@ -184,6 +203,58 @@ def attempt_note(rnd: int, stats: dict, start: float) -> str:
         f"round {rnd}: IPOPT {stats['return_status']} after {stats['iter_count']} iterations from a start "
         f"{met} its constraints (violation {start:.1g}{first})"
     )
+
+
+def flat(
+    model: TuningModel, theta: np.ndarray, P: np.ndarray, smoothing: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The directions of theta in which a round's NLP is flat at theta: (held (n_theta,) bool, the
+    parameters that neither the local data of the points P (``model.local``: its derivative is exactly
+    zero at every point) nor the regularizer depend on; N (n_theta, k), an orthonormal basis (in
+    theta/typical) of the other directions that leave the points' local data unchanged to first order,
+    for a law without a regularizer (else none)).
+
+    A round holds the first at their start (their bounds) and the proximal term HOLD weighs the second.
+    A gain law may be piecewise in its parameters: eq. (16)'s min(|w|/omega_lambda, 1) saturates where
+    omega_lambda is below a point's speed (omega_lambda is then a held parameter), and where omega_lambda
+    is above every active speed only lambda'/omega_lambda is seen (a flat direction). On such a piece
+    nothing in the NLP pulls but IPOPT's barrier, which walked the parameters to the middle of the trust
+    region, across the kinks of the active points, where the Newton model of the start no longer holds:
+    IPOPT ended ``Infeasible_Problem_Detected`` or ran out of iterations from a start meeting every
+    constraint (the README servo's law (16), omega_lambda below its lowest speed; a drone-class motor's,
+    above its highest), and succeeded only once the trust region had been halved to within the piece."""
+    nth, N = model.n_theta, P.shape[1]
+    J = np.asarray(_map(_local_jacobian(model), N)(theta, P)).reshape(-1, N, nth)  # (n_phi, N, n_theta)
+    J = (J / model.phi_typical[:, None, None] * model.typical[None, None, :]).reshape(-1, nth)
+    seen = np.any(J != 0, axis=0)
+    if model.regularizer is not None:
+        if smoothing > 0:
+            seen |= _regularized(model)
+        return ~seen, np.zeros((nth, 0))
+    idx = np.flatnonzero(seen)
+    if idx.size == 0:
+        return ~seen, np.zeros((nth, 0))
+    _, sv, vt = np.linalg.svd(J[:, idx])
+    rank = int(np.sum(sv > FLAT * sv[0])) if sv.size and sv[0] > 0 else 0
+    null = np.zeros((nth, idx.size - rank))
+    null[idx, :] = vt[rank:].T
+    return ~seen, null
+
+
+@functools.cache
+def _local_jacobian(model: TuningModel) -> ca.Function:
+    """(theta, point) -> d local / d theta (n_phi x n_theta), dense."""
+    th = ca.SX.sym("theta", model.n_theta)
+    pt = ca.SX.sym("point", len(model.point_names))
+    return ca.Function("local_jacobian", [th, pt], [ca.densify(ca.jacobian(model.local(th, pt), th))])
+
+
+@functools.cache
+def _regularized(model: TuningModel) -> np.ndarray:
+    """(n_theta,) bool: the parameters the law's regularizer depends on (structurally)."""
+    th = ca.SX.sym("theta", model.n_theta)
+    grad = ca.jacobian(model.regularizer(th), th)
+    return np.isin(np.arange(model.n_theta), np.asarray(grad.sparsity().get_col(), int))
 
 
 def _usable(stats: dict) -> bool:
@@ -250,7 +321,7 @@ def _slots(n: int, least: int = 4) -> int:
     return M if M >= n else 8 * -(-n // 8)
 
 
-def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothing, max_noise):
+def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothing, max_noise, null=None):
     n, nphi, _, nP = sizes(model)
     groups = {
         "free": [i for i in active if cand.condition[i] != NOISE and not fixed[i]],
@@ -348,6 +419,11 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
     lbg = np.concatenate([np.zeros(n_eq), *ineqs])
     ubg = np.concatenate([np.zeros(n_eq), np.full(sum(a.size for a in ineqs), np.inf)])
     solver = ipopt_solver(model, L)
+    # the proximal term (a law without a regularizer; see HOLD): L = sqrt(L^T L), column-major
+    nth = model.n_theta
+    NN = np.zeros((nth, nth)) if null is None else null @ null.T  # a projector
+    Lp = np.sqrt(HOLD) * NN
+    par.append(np.concatenate([Lp.ravel(order="F"), theta / model.typical]))
     x0, p = np.concatenate(z0), np.concatenate(par)
     sol = solver(x0=x0, p=p, lbx=np.concatenate(lbx), ubx=np.concatenate(ubx), lbg=lbg, ubg=ubg)
     start = float("nan")  # where IPOPT failed: the start's violation of the constraints, as built

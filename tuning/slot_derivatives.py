@@ -84,12 +84,15 @@ def assemble(
     npar: int,
     objective: Callable[[ca.MX, ca.MX], ca.MX],
     reg: tuple[ca.Function, ca.Sparsity] | None,
+    proximal: int | None = None,
 ) -> tuple[dict[str, ca.MX], ca.Function, ca.Function]:
     """(the NLP {x, p, f, g}, jac_g, hess_lag) of the slots ``kinds`` [(kind, M slots, offset of their
     variables in x, offset of their parameters in p)]: g = [g_phi of every kind, g_eq of every kind,
     g_ineq of every kind], each slot's rows together, slots in order. ``objective(x, p)`` is f (of the
     shared variables only); ``reg``: (shared, p[:2]) -> the nonzeros of the upper triangle of its
-    Hessian, and their sparsity (None: f is linear)."""
+    Hessian, and their sparsity (None: f is linear); ``proximal``: where f has the proximal term
+    |L (theta/typical - c)|^2 (tuning/slots.py ``proximal``) with L = p[k : k + n_theta^2] (column-major),
+    k (None: it has none)."""
     x = ca.MX.sym("x", nz)
     p = ca.MX.sym("p", npar)
     lam_f = ca.MX.sym("lam_f")
@@ -139,6 +142,14 @@ def assemble(
         H_src.append(lam_f * reg[0](sh, p[:2]))
         H_r.append(rr)
         H_c.append(rc)
+    if proximal is not None:  # its Hessian 2 L^T L in theta, upper triangle (the entries are summed)
+        nth = n_shared - 1
+        Lm = ca.reshape(p[proximal : proximal + nth * nth], nth, nth)
+        Hq = 2 * lam_f * ca.mtimes(Lm.T, Lm)
+        r, c = np.triu_indices(nth)
+        H_src.append(ca.vertcat(*[Hq[int(i), int(j)] for i, j in zip(r, c, strict=True)]))
+        H_r.append(r)
+        H_c.append(c)
     g = ca.vertcat(*blocks[0], *blocks[1], *blocks[2])
     jsp, JS = _scatter(ng, nz, np.concatenate(J_r), np.concatenate(J_c))
     hsp, HS = _scatter(nz, nz, np.concatenate(H_r), np.concatenate(H_c))

@@ -142,6 +142,13 @@ def _noise_function(model: TuningModel) -> ca.Function:
     )
 
 
+def proximal(z: ca.MX, q: ca.MX, nth: int) -> ca.MX:
+    """The proximal term |L (z - c)|^2 of a law without a regularizer (tuning/nlp.py HOLD): z =
+    theta/typical, q = [L (n_theta x n_theta, column-major), c (the round's start)]."""
+    Lm = ca.reshape(q[: nth * nth], nth, nth)
+    return ca.sumsqr(ca.mtimes(Lm, z - q[nth * nth :]))
+
+
 @dataclass(frozen=True)
 class Layout:
     """Slot counts of one solver: free-equilibrium, fixed-equilibrium and noise slots."""
@@ -261,11 +268,22 @@ def _assembled_solver(model: TuningModel, L: Layout) -> ca.Function:
     th_sx = ca.SX.sym("th", nth)
     r = model.regularizer(th_sx) if model.regularizer is not None else 0
     reg = ca.Function("reg", [th_sx], [r])
+    k = pi  # the proximal term's matrix and centre follow the slots' parameters
+    own = model.regularizer is None
 
     def objective(z: ca.MX, p: ca.MX) -> ca.MX:
-        return -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical))
+        f = -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical))
+        return f + proximal(z[:nth], p[k : k + nth * nth + nth], nth) if own else f
 
-    nlp, jac_g, hess_lag = assemble(kinds, nth + 1, zi, pi, objective, regularizer_hessian(model))
+    nlp, jac_g, hess_lag = assemble(
+        kinds,
+        nth + 1,
+        zi,
+        pi + nth * nth + nth,
+        objective,
+        regularizer_hessian(model),
+        proximal=k if own else None,
+    )
     exact = model.hessian == "exact"
     return _nlpsol_one_thread(
         f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",
@@ -294,7 +312,7 @@ def _whole_graph_solver(model: TuningModel, L: Layout) -> ca.Function:
     per_free, per_fixed, per_noise = nphi + 2 * n, nphi + n, nphi + n + nP
     nz = nth + 1 + per_free * L.free + per_fixed * L.fixed + per_noise * L.noise
     pf, px, pn = npt + 3, npt + 3 + n, npt + 1 + 2 * n + 2 * no
-    npar = 2 + pf * L.free + px * L.fixed + pn * L.noise
+    npar = 2 + pf * L.free + px * L.fixed + pn * L.noise + nth * nth + nth  # + the proximal term's
     z = ca.MX.sym("z", nz)
     p = ca.MX.sym("p", npar)
     theta = z[:nth] * ca.DM(model.typical)
@@ -347,6 +365,8 @@ def _whole_graph_solver(model: TuningModel, L: Layout) -> ca.Function:
     r = model.regularizer(th_sx) if model.regularizer is not None else 0
     reg = ca.Function("reg", [th_sx], [r])
     f = -w_t * t + w_reg * reg(theta)
+    if model.regularizer is None:
+        f = f + proximal(z[:nth], p[npar - nth * nth - nth :], nth)
     g = ca.vertcat(*g_phi, *g_eq, *g_ineq)
     return _nlpsol_one_thread(
         f"tune_{model.law.replace('-', '_')}_{L.free}_{L.fixed}_{L.noise}",

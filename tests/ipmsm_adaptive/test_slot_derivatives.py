@@ -6,7 +6,7 @@ import numpy as np
 from helpers.tuning import small
 from sensorless.tuning.ipmsm_adaptive.laws import build_schedule
 from sensorless.tuning.slot_derivatives import assemble, regularizer_hessian, slot_kind
-from sensorless.tuning.slots import slot_rows
+from sensorless.tuning.slots import proximal, slot_rows
 
 
 def test_assembled_jacobian_and_hessian_match_the_whole_graph(drive):
@@ -18,11 +18,14 @@ def test_assembled_jacobian_and_hessian_match_the_whole_graph(drive):
         kinds.append((sk, M, zi, pi))
         zi, pi = zi + sk.per * M, pi + sk.width * M
     reg = ca.Function("reg", [th := ca.SX.sym("th", nth)], [model.regularizer(th)])
+    k = pi  # the proximal term's matrix and centre (tuning/slots.py)
 
     def objective(z, p):
-        return -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical))
+        prox = proximal(z[:nth], p[k : k + nth * nth + nth], nth)
+        return -p[0] * z[nth] + p[1] * reg(z[:nth] * ca.DM(model.typical)) + prox
 
-    nlp, jac_g, hess_lag = assemble(kinds, nth + 1, zi, pi, objective, regularizer_hessian(model))
+    pi += nth * nth + nth
+    nlp, jac_g, hess_lag = assemble(kinds, nth + 1, zi, pi, objective, regularizer_hessian(model), k)
     x, p, f, g = nlp["x"], nlp["p"], nlp["f"], nlp["g"]
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.numel())
     # the reference: CasADi differentiates the whole graph, expanded, as the solver did before
@@ -43,3 +46,7 @@ def test_assembled_jacobian_and_hessian_match_the_whole_graph(drive):
             assert np.abs(b).max() > 0
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())
         assert hess_lag.sparsity_out(0).is_triu()
+        # the objective's own Hessian (regularizer and proximal term), which the constraints' dwarf above
+        a = np.asarray(ca.densify(hess_lag(xv, pv, 0.3, 0 * lv)))
+        b = np.asarray(ca.densify(H_ref(xv, pv, 0.3, 0 * lv)))
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.abs(b).max())

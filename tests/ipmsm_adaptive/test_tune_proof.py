@@ -150,9 +150,9 @@ def test_tune_refuses_a_table_worse_than_the_drive_files(tmp_path, monkeypatch, 
         def stats(self):
             return {"success": False, "return_status": "Infeasible_Problem_Detected", "iter_count": 7}
 
-    def first_fails(*a):
+    def first_fails(*a, **k):
         calls.append("run")
-        return (None, Failed(), 5e-14) if calls.count("run") == 1 else run(*a)
+        return (None, Failed(), 5e-14) if calls.count("run") == 1 else run(*a, **k)
 
     def third_fails(*a, **k):
         calls.append("solve")

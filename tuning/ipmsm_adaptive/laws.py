@@ -112,7 +112,22 @@ def build_speed_dependent(
         hessian="exact",
         n_initial_active=8,
         starts=starts,
+        smooth_box=_speed_kinks,
     )
+
+
+def _speed_kinks(theta: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. (16) is smooth in omega_lambda between the speeds |w_hat| = |w_m| of the points P (at an
+    equilibrium w_hat = w_m; row 0 of a point): the box of omega_lambda between the nearest kinks below
+    and above it (at a kink, the two pieces that meet there); lambda' and alpha_fo are free."""
+    w = float(theta[1])
+    speeds = np.abs(np.asarray(P[0], float))
+    below = speeds[speeds < w * (1 - 1e-9)]
+    above = speeds[speeds > w * (1 + 1e-9)]
+    lo, hi = np.full(theta.size, -np.inf), np.full(theta.size, np.inf)
+    lo[1] = below.max() if below.size else -np.inf
+    hi[1] = above.min() if above.size else np.inf
+    return lo, hi
 
 
 def _ohm(v: float) -> float:
