@@ -20,6 +20,11 @@ import numpy as np
 from sensorless.design.compiled import compiled
 
 JIT_MIN_POINTS = 4096  # below this the ~0.3 s compile does not pay off
+# from this many points a batch runs on the machine's cores (CasADi's thread map: the same arithmetic per
+# point, so the same bits); a tuner's searches evaluate hundreds of batches of 1-4 thousand points, where
+# one core computes while the other waits (the README flow's criterion is wall time on 2 cores); the
+# threads cost ~0.1 ms per call
+THREAD_MIN_POINTS = 1024
 _POINTS: dict[ca.Function, int] = {}  # points evaluated so far, per Function (evaluate_batch)
 
 
@@ -49,7 +54,7 @@ def _mapped(fn: ca.Function, n: int, threads: int) -> ca.Function:
 
 
 def evaluate_batch(
-    fn: ca.Function, n: int, args: Sequence[np.ndarray], jit: bool | None = None
+    fn: ca.Function, n: int, args: Sequence[np.ndarray], jit: bool | None = None, threads: bool = True
 ) -> list[np.ndarray]:
     """Evaluate ``fn`` at ``n`` points; returns each output as an array (n, rows, cols).
 
@@ -57,7 +62,8 @@ def evaluate_batch(
     scalar) or all points (shape (rows, n), or (n,) for a scalar input). ``jit``: compile ``fn``
     whatever ``n`` (a caller that evaluates one Function again and again, on batches below
     JIT_MIN_POINTS: the library is compiled once per machine); None: once this process has evaluated
-    ``fn`` at JIT_MIN_POINTS points in all. Large batches (JIT_MIN_POINTS) run on several threads.
+    ``fn`` at JIT_MIN_POINTS points in all. Large batches (THREAD_MIN_POINTS) run on several threads
+    (``threads`` False: one; a caller whose parallelism is elsewhere, e.g. in Dask's workers).
     """
     if jit is None:
         # compiled once the Function has been asked for JIT_MIN_POINTS points in all, in one batch or
@@ -66,7 +72,7 @@ def evaluate_batch(
         _POINTS[fn] = _POINTS.get(fn, 0) + n
         jit = _POINTS[fn] >= JIT_MIN_POINTS
     f = _compiled(fn) if jit and fn.is_a("SXFunction") else fn  # (an External is compiled already)
-    fm = _mapped(f, n, min(4, os.cpu_count() or 1) if n >= JIT_MIN_POINTS else 1)
+    fm = _mapped(f, n, min(4, os.cpu_count() or 1) if threads and n >= THREAD_MIN_POINTS else 1)
     buf, run = fm.buffer()
     keep = []
     for i, a in enumerate(args):

@@ -13,6 +13,7 @@ holds: every recorded signal finite, and the position estimate not lost (:func:`
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
@@ -24,7 +25,9 @@ import casadi as ca
 import numpy as np
 from sensorless.design.compiled import compiled, is_cached, wanted_elsewhere
 from sensorless.design.family import LACKS, Drive, GainSet, require
+from sensorless.design.memo import by_content
 from sensorless.design.registry import family_of
+from sensorless.design.runtime import double_step_active
 from sensorless.design.scenario import Scenario
 from sensorless.symbolic.runtime import Field
 
@@ -343,3 +346,27 @@ def simulate(
         meta={**setup.meta, "samples": rec.shape[1]},
         wall_time=wall,
     )
+
+
+def simulated(drive: Drive, scenario: Scenario, gains: GainSet | None = None) -> Traces:
+    """:func:`simulate`, the traces kept for a later process (design/memo.py, on disk): the checks
+    ``sensorless tune`` proves its gains with are the report's (reports/tune_proof.py,
+    reports/time_domain.py), so the README flow's ``report`` reads the runs its ``tune`` made instead of
+    simulating them again (the same drive, scenario and gains: the same bytes). The traces are shared
+    between callers: read them, never change them. ``wall_time`` is 0 (it differs between runs)."""
+    tr, label = _kept(drive, scenario, gains)
+    if gains is None or label == gains.source:
+        return tr
+    # the gains' source is a label (left out of the memo's key): the caller's own, not the first caller's
+    meta = {
+        k: v.replace(label, gains.source) if label and isinstance(v, str) and label in v else v
+        for k, v in tr.meta.items()
+    }
+    return dataclasses.replace(tr, meta=meta)
+
+
+@by_content(maxsize=16, when=double_step_active, disk=True)
+def _kept(drive: Drive, scenario: Scenario, gains: GainSet | None) -> tuple[Traces, str]:
+    """(the traces, the label of ``gains`` they quote) of :func:`simulated`."""
+    tr = dataclasses.replace(simulate(drive, scenario, gains), wall_time=0.0)
+    return tr, gains.source if gains is not None else ""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import io
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -17,7 +18,7 @@ from sensorless.design.drive_analysis import DriveLinearization, linearize_drive
 from sensorless.design.family import Drive, GainSet
 from sensorless.design.low_speed import full_acceleration
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
-from sensorless.reports.svg_render import svg_later
+from sensorless.reports.svg_render import PendingSvg, svg_later
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
@@ -135,8 +136,10 @@ def summary(lin: DriveLinearization, drive: Drive) -> list[str]:
     return out
 
 
-def section(number: int, lin: DriveLinearization, drive: Drive) -> Section:
-    """The report section of the whole drive's poles."""
+def section(
+    number: int, lin: DriveLinearization, drive: Drive, svg: PendingSvg | str | None = None
+) -> Section:
+    """The report section of the whole drive's poles; ``svg``: its figure, drawn already (:func:`ahead`)."""
     text = (
         "The whole sampled drive linearized at its fixed point at each speed and load (design/"
         "drive_analysis.py): the loop the simulations run, with the current PI in the estimated frame, "
@@ -172,22 +175,42 @@ def section(number: int, lin: DriveLinearization, drive: Drive) -> Section:
     )
     table = Table(head, tuple(rows), numeric=frozenset(range(6)))
     fig = Figure(
-        svg_later(functools.partial(figure, lin, drive, f"{drive.name}: whole sampled drive, slow poles")),
+        svg if svg is not None else drawn(lin, drive),
         "Slow poles of the whole sampled drive (|s| below a quarter of the sampling limit), by speed.",
     )
     return Section(f"{number}. Whole sampled drive: poles", (Paragraph(text), table, fig))
 
 
-def add_to_report(rep: Report, drive: Drive, gains: GainSet, quick: bool = False) -> Report:
-    """``rep`` with report.json's ``drive_analysis`` and its section (last); unchanged where the family
-    declares no drive loop (said in report.json)."""
+def drawn(lin: DriveLinearization, drive: Drive) -> PendingSvg | str:
+    """The section's figure, drawn by a child process (reports/svg_render.py)."""
+    return svg_later(functools.partial(figure, lin, drive, f"{drive.name}: whole sampled drive, slow poles"))
+
+
+def ahead(drive: Drive, gains: GainSet, quick: bool = False) -> Callable[[Report], Report]:
+    """:func:`add_to_report` in two steps: the sweep and its figure now, the figure then drawn by a child
+    process while the report computes on (the report asks for it first, to have it drawn beside its
+    analyses rather than after them); the returned function adds the data and the section (last)."""
     import dataclasses
 
     try:
         lin = sweep(drive, gains, QUICK_SPEEDS if quick else N_SPEEDS)
     except ValueError as e:  # CapabilityError, or a loop that cannot be set up for this drive (said)
-        return dataclasses.replace(rep, data={**rep.data, "drive_analysis": {"not_analysed": str(e)}})
-    sec = section(len(rep.sections) + 1, lin, drive)
-    return dataclasses.replace(
-        rep, data={**rep.data, "drive_analysis": data(lin, drive)}, sections=(*rep.sections, sec)
-    )
+        why = str(e)
+        return lambda rep: dataclasses.replace(
+            rep, data={**rep.data, "drive_analysis": {"not_analysed": why}}
+        )
+    svg = drawn(lin, drive)
+
+    def add(rep: Report) -> Report:
+        sec = section(len(rep.sections) + 1, lin, drive, svg)
+        return dataclasses.replace(
+            rep, data={**rep.data, "drive_analysis": data(lin, drive)}, sections=(*rep.sections, sec)
+        )
+
+    return add
+
+
+def add_to_report(rep: Report, drive: Drive, gains: GainSet, quick: bool = False) -> Report:
+    """``rep`` with report.json's ``drive_analysis`` and its section (last); unchanged where the family
+    declares no drive loop (said in report.json)."""
+    return ahead(drive, gains, quick)(rep)

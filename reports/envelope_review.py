@@ -381,11 +381,16 @@ def report_with(judge: Judge[DriveT]) -> Callable[..., Report]:
         in the time domain besides the judge's built-in ones (reports/time_domain.py)."""
         fam = family_of(drive)
         rev = judge.review(drive, table, table_file)
+        runs = time_domain.scenarios(drive, judge.scenarios(drive), scenarios)
+        # the checks first, though their section comes later: their figures take longer to draw than
+        # the runs to simulate (or to read back from ``tune``'s proof, design/simulate.py ``simulated``),
+        # and the child processes that draw them (reports/svg_render.py) then run beside the analyses
+        # instead of after them
+        progress(f"time-domain checks first ({len(runs)} scenarios; their figures drawn beside the analyses)")
+        td, td_figs = time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
         found = judge.analyse(drive, rev, min_damping, resolution, progress)
         k = found.steps + 1
-        runs = time_domain.scenarios(drive, judge.scenarios(drive), scenarios)
-        progress(f"[{k}/{k + 1}] time-domain checks ({len(runs)} scenarios)")
-        td, td_figs = time_domain.checks(drive, rev.simulated, runs, rev.label, progress)
+        progress(f"[{k}/{k + 1}] time-domain checks ({len(runs)} scenarios): done first, above")
         progress(f"[{k + 1}/{k + 1}] verdict")
         limits = time_domain.limitations(drive)
         v = judge.verdict(drive, rev, found, Checks(runs, td), min_damping)

@@ -48,7 +48,7 @@ from sensorless.design.scenario import (
     spins_up,
     zero_speed_limit,
 )
-from sensorless.design.simulate import simulate
+from sensorless.design.simulate import simulate, simulated
 from sensorless.design.startup import ACCELERATION_LIMIT
 from sensorless.reports.causes import CATALOGUE, Failure, Named, classify_all, operating_torque_pu
 from sensorless.reports.document import Block, Figure, Paragraph, Section, Table, f, num
@@ -530,8 +530,8 @@ def checks(
         sc = item if isinstance(item, Scenario) else load_scenario(item, drive)
         progress(f"      simulating {sc.name}: {sc.title}")
         variant = JUDGED_STEP.get()
-        if variant is None:
-            tr = simulate(drive, sc, gains)
+        if variant is None:  # the run ``sensorless tune`` proved these gains with, where it did
+            tr = simulated(drive, sc, gains)
         else:  # the step under review, e.g. the fixed-point one (report --precision fixed)
             with step_variant(variant):
                 tr = simulate(drive, sc, gains)

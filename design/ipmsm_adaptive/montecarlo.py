@@ -61,7 +61,7 @@ MAX_ROUNDS = 40
 # a report's default spread of the true motor (1 sigma): winding resistance with its temperature rise,
 # inductance tolerance and saturation, magnet flux, the load's inertia (``report --montecarlo``)
 TYPICAL = {"R_s": 0.10, "L_d": 0.10, "L_q": 0.10, "psi_pm": 0.05, "J": 0.30}
-BLOCK = 2048  # points per compiled call: below batch.JIT_MIN_POINTS, where evaluate_batch takes fn as given
+BLOCK = 2048  # points per compiled call (on one thread: the workers are the parallelism)
 
 
 def parameters(drive: IpmsmDrive) -> tuple[Uncertain, ...]:
@@ -105,7 +105,7 @@ def _evaluate(fn: ca.Function, n: int, args: list[np.ndarray]) -> list[np.ndarra
                 if size > m:
                     a = np.pad(a, ((0, 0), (0, size - m)), mode="edge")
             part.append(a)
-        outs.append([o[:m] for o in evaluate_batch(f, size, part)])
+        outs.append([o[:m] for o in evaluate_batch(f, size, part, threads=False)])
     return [np.concatenate(col) for col in zip(*outs, strict=True)]
 
 

@@ -67,8 +67,10 @@ class Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every subcommand registered."""
+def build_parser(only: str = "") -> argparse.ArgumentParser:
+    """The argument parser with every subcommand registered; ``only``: that subcommand alone (main()
+    where the command line names one: registering a subcommand imports what it computes with, and the
+    other seven's imports cost a command ~0.1-0.5 s CPU, each of the README flow's four)."""
     import importlib
 
     from sensorless.reports.cli.common import version
@@ -79,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMAND_NAMES:
+    for name in (only,) if only in COMMAND_NAMES else COMMAND_NAMES:
         importlib.import_module(f"sensorless.reports.cli.{name}").register(sub)
     return parser
 
@@ -105,7 +107,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with interrupts.handled(f"sensorless {command}".strip(), watchdog=argv is None):
             try:
-                args = build_parser().parse_args(argv)
+                args = (build_parser(command) if command else build_parser()).parse_args(argv)
                 _refuse_empty(args)
                 with warnings.catch_warnings():
                     # numpy's warnings on NaN or overflow name no input and would leak to stderr: the

@@ -16,7 +16,7 @@ from sensorless.design.registry import family_of
 from sensorless.reports.cli import many
 from sensorless.reports.cli.common import MIN_DAMPING, Number, UsageError, foreign_table, load, version
 from sensorless.reports.document import report_json
-from sensorless.reports.drive_analysis import add_to_report as add_drive_analysis
+from sensorless.reports.drive_analysis import ahead as drive_analysis_ahead
 from sensorless.reports.family import hooks
 from sensorless.reports.files import OutputSet
 from sensorless.reports.html import render
@@ -119,6 +119,8 @@ def run(args: argparse.Namespace) -> int:
     out.check()  # before minutes of work
     t0 = time.perf_counter()
     gains = fam.gains(drive, table=table, table_file=args.gains) if table is not None else fam.gains(drive)
+    # the whole drive's section first (added last): its figure is then drawn beside the report's analyses
+    add_drive_analysis = drive_analysis_ahead(drive, gains, args.quick)
     judged = contextlib.nullcontext()
     if args.precision == "fixed":
         from sensorless.reports.codegen.fixed_generate import fixed_model
@@ -141,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
             scenarios=tuple(args.scenario),
         )
     rep = add_to_report(rep, drive, gains, args.min_damping, math.radians(args.max_bias), args.quick)
-    rep = add_drive_analysis(rep, drive, gains, args.quick)
+    rep = add_drive_analysis(rep)
     if args.precision == "fixed":
         from sensorless.reports.fixed_review import add_to_report as add_fixed_review
 

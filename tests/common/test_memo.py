@@ -146,3 +146,30 @@ def test_the_fingerprint_changes_with_any_source_file(tmp_path, monkeypatch):
     finally:
         monkeypatch.undo()
         memo.fingerprint.cache_clear()
+
+
+def test_kept_runs_quote_each_callers_label_and_run_once(monkeypatch):
+    """design/simulate.py ``simulated``: the same drive, scenario and gains read under another label (the
+    table's path as ``report`` names it, not as ``tune`` did) is one run, and its traces quote the label
+    of the caller that asked, not of the first one."""
+    from sensorless.design import simulate as sim
+    from sensorless.design.gain_set import GainSet
+
+    runs = []
+
+    def fake(drive, scenario, gains):
+        runs.append(gains.source)
+        t = np.arange(3.0)
+        meta = {"gain": gains.source, "startup": f"gains of {gains.source}", "scenario": scenario}
+        return sim.Traces(t=t, data={"w": t * 2}, units={}, docs={}, meta=meta, wall_time=1.5)
+
+    monkeypatch.setattr(sim, "simulate", fake)
+    sim._kept.cache_clear()
+    a = sim.simulated({"drive": 1}, "steps", GainSet("constant", {"k": 1.0}, "tune/gains.json"))
+    b = sim.simulated({"drive": 1}, "steps", GainSet("constant", {"k": 1.0}, "/abs/tune/gains.json"))
+    c = sim.simulated({"drive": 1}, "steps", GainSet("constant", {"k": 2.0}, "tune/gains.json"))
+    assert runs == ["tune/gains.json", "tune/gains.json"]  # b was a's run, c another
+    assert a.meta["gain"] == "tune/gains.json" and b.meta["gain"] == "/abs/tune/gains.json"
+    assert b.meta["startup"] == "gains of /abs/tune/gains.json" and b.meta["scenario"] == "steps"
+    assert b.data is a.data and a.wall_time == 0.0 and c.data["w"].tolist() == [0.0, 2.0, 4.0]
+    sim._kept.cache_clear()

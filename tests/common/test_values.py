@@ -119,7 +119,7 @@ def pll_registered():
 
     with _with_pll(), pytest.MonkeyPatch.context() as mp:
         parser = cli.build_parser()
-        mp.setattr(cli, "build_parser", lambda: parser)
+        mp.setattr(cli, "build_parser", lambda only="": parser)
         mp.setattr(drive_module, "load_drive", functools.cache(drive_module.load_drive))
         yield
 
