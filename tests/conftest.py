@@ -33,6 +33,10 @@ SHARED = {
         "readme-\\1"
     ),
     re.compile(r"tests/ipmsm_adaptive/test_any_motor\.py::.*\[(servo)\]"): "readme-\\1",
+    # the ODrive flow of a motor that is not a preset: the README's skate-odrive chain (readme_run)
+    re.compile(r"tests/pmsm_flux_observer/test_drive_file\.py::test_commands_end_to_end_on_.*"): (
+        "readme-skate-odrive"
+    ),
     # the session fixtures speed_dependent_small and tune_cli_small (tests/ipmsm_adaptive/conftest.py)
     re.compile(r"tests/ipmsm_adaptive/test_tune(_global)?\.py::.*"): "tune-ipmsm",
     # the session fixtures report_piippo_quick, report_deangelo_quick, another_day (tests/common/conftest.py):
