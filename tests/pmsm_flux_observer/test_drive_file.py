@@ -103,7 +103,7 @@ def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys, re
     # tune, codegen and report of an ODrive drive that is not a preset: the README's ODrive flow (its
     # skate motor, from the firmware's settings), run once in this process for the README test and this
     # one (group readme-skate-odrive of tests/conftest.py: one worker); test_datasheet_flow.py runs a
-    # minimal file in datasheet terms from init to export (tune: about half this test's CPU before)
+    # minimal file in datasheet terms from init to export
     run = readme_run("skate-odrive")
     step = {argv[0]: k for k, (argv, _, _) in enumerate(run.results)}
     codes = {c: run.results[step[c]][1] for c in ("tune", "codegen", "report")}
