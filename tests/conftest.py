@@ -33,12 +33,18 @@ SHARED = {
         "readme-\\1"
     ),
     re.compile(r"tests/ipmsm_adaptive/test_any_motor\.py::.*\[(servo)\]"): "readme-\\1",
+    # the ODrive flow of a motor that is not a preset: the README's skate-odrive chain (readme_run)
+    re.compile(r"tests/pmsm_flux_observer/test_drive_file\.py::test_commands_end_to_end_on_.*"): (
+        "readme-skate-odrive"
+    ),
     # the session fixtures speed_dependent_small and tune_cli_small (tests/ipmsm_adaptive/conftest.py)
     re.compile(r"tests/ipmsm_adaptive/test_tune(_global)?\.py::.*"): "tune-ipmsm",
     # the session fixtures report_piippo_quick, report_deangelo_quick, another_day (tests/common/conftest.py):
-    # only the tests that read them (test_outputs.py's other tests run beside the group, on the other worker)
+    # only the tests that read them (test_outputs.py's other tests run beside the group, on the other worker);
+    # test_results.py's diverged report reads report_deangelo_quick's analyses from the memo
     re.compile(
         r"tests/common/test_report\.py::.*|tests/common/test_outputs\.py::test_outputs_are_byte_identical_on_another_day"
+        r"|tests/common/test_results\.py::test_a_report_says_when_a_time_domain_check_does_not_hold"
     ): "report-runs",
 }
 

@@ -56,6 +56,9 @@ class ReadmeRun:
     dir: Path
     results: tuple[tuple[list[str], int, str], ...]
     outputs: tuple[str, ...] = ()
+    # in the same order, what each command asked of the memo of the minimum speed under the estimate
+    # errors (design/low_speed.py ``minimum_speed_under``): (hits, misses) during the command
+    memo: tuple[tuple[int, int], ...] = ()
 
     def code(self, command: str, file: str) -> int:
         """The exit status of the first ``command`` whose arguments name ``file``."""
@@ -67,6 +70,7 @@ def run_readme(where: Path, chain: str | None = None) -> ReadmeRun:
     holding the README's example files (``toml`` blocks that start with a ``# NAME.toml`` line) and the
     repository's docs/examples. A chain runs in a directory of its own: that it succeeds there shows it
     needs no other chain's outputs."""
+    from sensorless.design.low_speed import minimum_speed_under
     from sensorless.reports.cli.main import main
 
     for body in blocks("toml"):
@@ -74,16 +78,19 @@ def run_readme(where: Path, chain: str | None = None) -> ReadmeRun:
         if m:
             (where / m.group(1)).write_text(body, encoding="utf-8")
     shutil.copytree(README.parent / "docs" / "examples", where / "docs" / "examples")
-    results, outputs = [], []
+    results, outputs, memo = [], [], []
     cwd = os.getcwd()
     os.chdir(where)
     try:
         for argv in commands() if chain is None else chain_commands(chain):
             err, out = io.StringIO(), io.StringIO()
+            before = minimum_speed_under.cache_info()  # type: ignore[attr-defined]
             with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
                 code = main(argv)
+            after = minimum_speed_under.cache_info()  # type: ignore[attr-defined]
             results.append((argv, code, err.getvalue()))
             outputs.append(out.getvalue())
+            memo.append((after[0] - before[0], after[1] - before[1]))
     finally:
         os.chdir(cwd)
-    return ReadmeRun(where, tuple(results), tuple(outputs))
+    return ReadmeRun(where, tuple(results), tuple(outputs), tuple(memo))

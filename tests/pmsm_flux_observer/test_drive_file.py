@@ -11,7 +11,6 @@ import pytest
 from sensorless.design import registry
 from sensorless.design.drive import load_drive
 from sensorless.design.gain_table import GainTable, GainTableError
-from sensorless.design.low_speed import minimum_speed_under
 from sensorless.design.pmsm_drive import startup_values
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.main import main
@@ -93,28 +92,31 @@ def test_errors_name_file_and_key(tmp_path, capsys, edit, key):
     assert not (tmp_path / "o").exists()
 
 
-def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys):
-    # a coarse envelope (4 speeds per direction, kept by init): the same commands on a third of the points
+def test_commands_end_to_end_on_a_non_preset_motor(minimal, tmp_path, capsys, readme_run):
+    # a coarse envelope (4 speeds per direction): init keeps it
     text = MINIMAL.replace('firmware = "vesc"', 'firmware = "odrive"') + "\n[envelope]\nspeeds = 4\n"
     minimal.write_text(text)
     full = tmp_path / "full.toml"
     assert main(["init", str(minimal), "--out", str(full)]) == 0
     assert load_drive(str(full)).T_N == pytest.approx(load_drive(str(minimal)).T_N)
     assert load_drive(str(full)).envelope.rule.count == 4
-    assert main(["tune", str(full), "--law", "constant", "--out", str(tmp_path / "t"), "--quiet"]) in (0, 3)
-    out = capsys.readouterr().out
+    # tune, codegen and report of an ODrive drive that is not a preset: the README's ODrive flow (its
+    # skate motor, from the firmware's settings), run once in this process for the README test and this
+    # one (group readme-skate-odrive of tests/conftest.py: one worker); test_datasheet_flow.py runs a
+    # minimal file in datasheet terms from init to export
+    run = readme_run("skate-odrive")
+    step = {argv[0]: k for k, (argv, _, _) in enumerate(run.results)}
+    codes = {c: run.results[step[c]][1] for c in ("tune", "codegen", "report")}
+    assert codes["tune"] in (0, 3) and codes["codegen"] == 0 and codes["report"] in (0, 3), codes
+    out = run.outputs[step["tune"]]
     assert "ODrive defaults" in out and "VESC detection" in out
-    table = tmp_path / "t" / "gains_constant.json"
-    assert main(["codegen", str(full), "--gains", str(table), "--out", str(tmp_path / "c")]) == 0
     # --quick: the report's coarser low-speed grid (design/low_speed.py QUICK); the analyses it holds
-    # are the same, and the full grid under every corner of the estimate errors is half this test's CPU.
+    # are the same, and the full grid under every corner of the estimate errors is half a report's CPU.
     # The report's w_min of the tuned gains under the errors is the one tune's summary line computed in
     # this process, under another name of the table (design/memo.py: not keyed on it), not a second time
-    hits, misses = minimum_speed_under.cache_info()
-    r = ["report", str(full), "--gains", str(table), "--quick", "--out", str(tmp_path / "r")]
-    assert main(r) in (0, 3)
-    assert minimum_speed_under.cache_info() == (hits + 1, misses)
-    rep = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert "--quick" in run.results[step["report"]][0]
+    assert run.memo[step["report"]] == (1, 0)
+    rep = json.loads((run.dir / "report-skate-odrive" / "report.json").read_text())
     assert {"ODrive defaults", "VESC detection", "drive file", "tuned"} <= set(rep["analysis"])
     # box clamp: analysis refused in one line, simulation runs
     box = tmp_path / "box.toml"
