@@ -18,12 +18,12 @@ section takes the report's ``review``).
 
 A memo made with ``disk=True`` also keeps its results in ``$SENSORLESS_CACHE/memo`` (design/compiled.py
 ``cache_root``; ``SENSORLESS_NO_DISK_MEMO=1``: in-process only), for the next process that asks: the
-README flow's ``report`` asks for the analyses its ``tune`` made (the whole drive's minimum speed of
-the tuned gains for the I-f start of every check, and under the drive's estimate errors for the tune
-line) and the time-domain runs of its proof (design/simulate.py ``simulated``). A file is named by
-the SHA-256 of the function, its key and :func:`fingerprint` (the toolbox's source and the versions of what computes), so a result is reused only by the same code on the same
-content; a file that cannot be read is recomputed and written again (temp file + rename).
-"""
+README flow's ``report`` asks for the analyses its ``tune`` made (the whole drive's minimum speed of the
+tuned gains for the I-f start of every check, and under the drive's estimate errors for the tune line)
+and the time-domain runs of its proof (design/simulate.py ``simulated``). A file is named by the SHA-256
+of the function, its key and :func:`fingerprint` (the toolbox's source and the versions of what
+computes), so a result is reused only by the same code on the same content; a file that cannot be read
+is recomputed and written again (temp file + rename). """
 
 from __future__ import annotations
 
