@@ -23,7 +23,8 @@ tuned gains for the I-f start of every check, and under the drive's estimate err
 and the time-domain runs of its proof (design/simulate.py ``simulated``). A file is named by the SHA-256
 of the function, its key and :func:`fingerprint` (the toolbox's source and the versions of what
 computes), so a result is reused only by the same code on the same content; a file that cannot be read
-is recomputed and written again (temp file + rename). """
+is recomputed and written again (temp file + rename).
+"""
 
 from __future__ import annotations
 
