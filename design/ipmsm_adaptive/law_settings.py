@@ -24,8 +24,13 @@ class AdaptiveLawSettings:
     """Bounds and options of the adaptive observer's gain laws (``TuningSettings.law``)."""
 
     lambda_max: float | None = None  # bound on |lambda1|, |lambda2| [ohm]; None: the tuner's box
-    tune_alpha_fo: bool = False  # also tune the adaptation bandwidth alpha_fo (10)
+    # also tune the adaptation bandwidth alpha_fo (10), in 1-4x the drive file's: with the angle lag held
+    # (hold_lag) it buys the damping the gains alone cannot (docs/tuning.md, "alpha_fo tuned")
+    tune_alpha_fo: bool = True
     breakpoints: int = 11  # schedule: breakpoints per direction (plus one at zero speed)
+    # the tuned gains' angle lag under acceleration at most the drive file's at every envelope point (off
+    # only for the paper's law on its own preset, which reproduces the paper)
+    hold_lag: bool = True
 
     def check(self, file: str, prefix: str = "tuning.") -> None:
         """Raise DriveFileError for an inconsistent value (the key named with ``prefix``)."""

@@ -8,7 +8,9 @@ from sensorless.design.envelope import tuning_envelope
 
 
 def small(drive, **kw):
-    """``drive.tuning`` on the small envelope, with the fields ``kw`` replaced."""
+    """``drive.tuning`` on the small envelope, with the fields ``kw`` replaced; the adaptive observer's
+    laws as the paper tunes them (alpha_fo fixed, no bound on the angle lag under acceleration: the
+    brute forces of these tests are of the damping over lambda', omega_lambda) unless ``law`` is given."""
     env = tuning_envelope(
         drive.w_base,
         drive.T_N,
@@ -17,4 +19,7 @@ def small(drive, **kw):
         speeds=8,
         torques_TN=(-1.0, 1.0),
     )
+    law = drive.tuning.law
+    if "law" not in kw and hasattr(law, "hold_lag"):
+        kw["law"] = dataclasses.replace(law, tune_alpha_fo=False, hold_lag=False)
     return dataclasses.replace(drive.tuning, envelope=env, **kw)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING, Any
 
+from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.tuning.family import Tunable, TuningHooks
 from sensorless.tuning.ipmsm_adaptive.laws import build_schedule, build_speed_dependent
 
@@ -38,8 +39,15 @@ def _full_range(drive: IpmsmDrive) -> Any:
 
 def _paper_or_full(drive: IpmsmDrive) -> Any:
     """The paper's law on its own preset keeps the preset's envelope (it reproduces Piippo et al. 2008,
-    tuned at +-T_N); on any other drive it tunes over the full range too (``_full_range``)."""
-    return dataclasses.replace(drive.tuning, envelope=drive.envelope)
+    tuned at +-T_N, by the damping alone: alpha_fo the preset's, no bound on the angle lag under
+    acceleration; ``--tune-alpha-fo`` still tunes alpha_fo); on any other
+    drive it tunes over the full range too (``_full_range``)."""
+    s = dataclasses.replace(drive.tuning, envelope=drive.envelope)
+    if str(drive.file).startswith("preset:"):
+        s = dataclasses.replace(
+            s, law=dataclasses.replace(law_settings(s), hold_lag=False, tune_alpha_fo=False)
+        )
+    return s
 
 
 HOOKS = TuningHooks(
