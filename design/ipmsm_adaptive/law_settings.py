@@ -2,7 +2,9 @@
 
 Piippo, Hinkkanen, Luomi (2008): ``lambda_max`` bounds |lambda1|, |lambda2| of eq. (16) and of the
 schedule (ohm, or e.g. ``"5 R_s_hat"``; default the tuner's box), ``tune_alpha_fo`` also tunes the
-adaptation bandwidth alpha_fo of eq. (10), ``breakpoints`` is the schedule's number of speed
+adaptation bandwidth alpha_fo of eq. (10), ``hold_lag`` keeps the tuned gains' angle lag under
+acceleration at most the drive file's gains' (both on by default; the preset's paper law turns them
+off), ``breakpoints`` is the schedule's number of speed
 breakpoints per direction. The shared keys (envelope, decay floor, estimate errors, noise limits) are
 read by design/envelope.py, which hands these to :data:`LAW_KEYS`.
 """
@@ -28,8 +30,8 @@ class AdaptiveLawSettings:
     # (hold_lag) it buys the damping the gains alone cannot (docs/tuning.md, "alpha_fo tuned")
     tune_alpha_fo: bool = True
     breakpoints: int = 11  # schedule: breakpoints per direction (plus one at zero speed)
-    # the tuned gains' angle lag under acceleration at most the drive file's at every envelope point (off
-    # only for the paper's law on its own preset, which reproduces the paper)
+    # the tuned gains' angle lag under acceleration at most the drive file's at every envelope point
+    # (tuning/ipmsm_adaptive/model.py; docs/tuning.md "Tuned gains that run worse")
     hold_lag: bool = True
 
     def check(self, file: str, prefix: str = "tuning.") -> None:
@@ -59,12 +61,16 @@ def load(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -> Adapt
         if not isinstance(table["tune_alpha_fo"], bool):
             raise DriveFileError(file, "tuning.tune_alpha_fo", "expected true or false")
         out["tune_alpha_fo"] = table["tune_alpha_fo"]
+    if "hold_lag" in table:
+        if not isinstance(table["hold_lag"], bool):
+            raise DriveFileError(file, "tuning.hold_lag", "expected true or false")
+        out["hold_lag"] = table["hold_lag"]
     if "breakpoints" in table:
         out["breakpoints"] = read_int(table["breakpoints"], file, "tuning.breakpoints")
     return AdaptiveLawSettings(**out)
 
 
-LAW_KEYS = LawKeys(("lambda_max", "tune_alpha_fo", "breakpoints"), load)
+LAW_KEYS = LawKeys(("lambda_max", "tune_alpha_fo", "hold_lag", "breakpoints"), load)
 
 
 def law_settings(settings: TuningSettings) -> AdaptiveLawSettings:

@@ -19,7 +19,13 @@ def small(drive, **kw):
         speeds=8,
         torques_TN=(-1.0, 1.0),
     )
-    law = drive.tuning.law
-    if "law" not in kw and hasattr(law, "hold_lag"):
-        kw["law"] = dataclasses.replace(law, tune_alpha_fo=False, hold_lag=False)
+    kw.setdefault("law", paper_law(drive.tuning))
     return dataclasses.replace(drive.tuning, envelope=env, **kw)
+
+
+def paper_law(tuning):
+    """The adaptive observer's law settings of ``tuning`` as the paper tunes law (16): alpha_fo fixed, no
+    bound on the angle lag under acceleration (a drive of the user's own defaults to both on); the
+    brute forces of the law-(16) tests are of the damping over lambda', omega_lambda."""
+    law = tuning.law
+    return dataclasses.replace(law, tune_alpha_fo=False, hold_lag=False) if hasattr(law, "hold_lag") else law

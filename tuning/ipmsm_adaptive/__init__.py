@@ -32,22 +32,22 @@ def _full_range(drive: IpmsmDrive) -> Any:
     """The drive's [tuning] settings, their torques widened to the drive's torque limit +-T_max where
     they stop short of it: the speed loop applies +-T_max in every acceleration (motoring and
     regenerating), and gains tuned at +-T_N only were unstable just beyond it (piippo2008's schedule:
-    max Re +1.5 .. +11 1/s at T_max = 1.57 T_N for |w| >= 0.3 p.u., the rotor lost in fig9b)."""
+    max Re +1.5 .. +11 1/s at T_max = 1.57 T_N for |w| >= 0.3 p.u., the rotor lost in fig9b). On a
+    preset, whose file tunes the paper's law as the paper does, the other laws hold the angle lag under
+    acceleration and tune alpha_fo as on a drive of the user's own."""
     s = drive.tuning
-    return dataclasses.replace(s, envelope=s.resolved.widened(drive.control.T_max))
+    s = dataclasses.replace(s, envelope=s.resolved.widened(drive.control.T_max))
+    if str(drive.file).startswith("preset:"):
+        s = dataclasses.replace(
+            s, law=dataclasses.replace(law_settings(s), hold_lag=True, tune_alpha_fo=True)
+        )
+    return s
 
 
 def _paper_or_full(drive: IpmsmDrive) -> Any:
     """The paper's law on its own preset keeps the preset's envelope (it reproduces Piippo et al. 2008,
-    tuned at +-T_N, by the damping alone: alpha_fo the preset's, no bound on the angle lag under
-    acceleration; ``--tune-alpha-fo`` still tunes alpha_fo); on any other
-    drive it tunes over the full range too (``_full_range``)."""
-    s = dataclasses.replace(drive.tuning, envelope=drive.envelope)
-    if str(drive.file).startswith("preset:"):
-        s = dataclasses.replace(
-            s, law=dataclasses.replace(law_settings(s), hold_lag=False, tune_alpha_fo=False)
-        )
-    return s
+    tuned at +-T_N); on any other drive it tunes over the full range too (``_full_range``)."""
+    return dataclasses.replace(drive.tuning, envelope=drive.envelope)
 
 
 HOOKS = TuningHooks(
