@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
+from sensorless.design.ipmsm_adaptive.derive import ALPHA_FO_MAX_FS
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
 from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
@@ -122,7 +123,11 @@ def law_model(
         theta0 = np.append(theta0, a0)
         # never below the drive file's: the speed estimate lags an acceleration by about its rate over
         # alpha_fo, which the damping does not see (docs/tuning.md, "alpha_fo tuned")
-        lower, upper = np.append(lower, a0), np.append(upper, 4.0 * a0)
+        # and at most f_s/20 (init's own cap, design/ipmsm_adaptive/derive.py) where the drive file's is
+        # below it: the README servo's alpha_fo at 3.9x (f_s/5) ran the sampled drive unstable at 120 of
+        # 200 points, which the observer's linearization does not see (tune exit 3, no table)
+        cap = max(a0, min(4.0 * a0, 2 * np.pi * ALPHA_FO_MAX_FS / drive.control.T_s))
+        lower, upper = np.append(lower, a0), np.append(upper, cap)
         typical = np.append(typical, a0)
     motor = np.array(drive.motor.vector())
     inj = drive.injection
