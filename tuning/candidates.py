@@ -17,6 +17,11 @@ DAMPING, STABILITY, NOISE = 1, 0, 2  # a candidate's condition
 # 0.4519, slowest decay 4e-4 1/s under the seed's 2.0889 1/s, the global phase's tolerance 8.8e-4 1/s) was
 # refused for the seed's 0.0998.
 FEASIBILITY_TOL = 1e-7
+# A family's bounded figures (tuning/model.py ``TuningModel.bounded``) are held exactly at the points the
+# NLP and the global phase see; between them, on the dense grid, up to this much above (relative): the NLP
+# binds them at its grid points, and an optimum tight there ran 1-3 % above between them (ind5k5's schedule
+# with its angle lag under acceleration)
+BOUNDED_SLACK = 0.05
 
 
 @dataclass(frozen=True)
@@ -64,15 +69,17 @@ def margins(
     max_noise: np.ndarray | None = None,
 ) -> np.ndarray:
     """Numeric margin of every candidate at theta by eigenvalues (>= 0: satisfied): damping - t for
-    damping points, (-max Re - sigma)/scale for stability points, min over the limited outputs of
+    damping points (and the model's bounded figures' 1 - |figure|/bound there, the smaller),
+    (-max Re - sigma)/scale for stability points, min over the limited outputs of
     1 - noise/limit for noise points; -inf where no equilibrium."""
     nonoise = cand.condition != NOISE
     m = np.full(cand.size, -np.inf)
     e = evaluate(model, theta, cand.P[:, nonoise])
     p = e.poles
-    m[nonoise] = np.where(
-        cand.condition[nonoise] == DAMPING, worst_damping(p) - t, (-max_real(p) - cand.sigma[nonoise]) / scale
-    )
+    damp = cand.condition[nonoise] == DAMPING
+    m[nonoise] = np.where(damp, worst_damping(p) - t, (-max_real(p) - cand.sigma[nonoise]) / scale)
+    if e.bounded is not None:  # the family's bounded figures, held at the damping points (model.py)
+        m[nonoise] = np.where(damp, np.minimum(m[nonoise], e.bounded), m[nonoise])
     if (~nonoise).any():
         en = evaluate(model, theta, cand.P[:, ~nonoise], noise=True)
         m[~nonoise] = noise_margin(en.noise, max_noise)

@@ -21,6 +21,11 @@ Optional parts, each used by the shared pipeline where given:
   tie-break among equally damped gains (tuning/tiebreak.py);
 - ``smooth_box``: where a law is piecewise in its parameters, the piece around theta (the NLP's trust
   region stays within it).
+- ``bounded``: per-point linear figures of the closed loop (phi, x, point) -> (k,) that the tuned gains
+  must not make worse than the drive file's (|figure| <= |the drive file's| at each nominal point where
+  the drive file's gains are stable; ``bounded_reference``): e.g. the angle lag under acceleration, which
+  the damping does not see. Every step that judges the constraints (global phase, NLP, dense selection,
+  tie-break) holds them.
 
 Batched evaluation of many parameter vectors at once: :func:`evaluate`.
 """
@@ -99,6 +104,10 @@ class TuningModel:
     smooth_box: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
     # the law's own remark for the table's summary: e.g. which parameters its box holds at one value, and why
     note: str = ""
+    # (phi, x, point) -> (k,): figures that must not get worse than the drive file's gains' (module docstring)
+    bounded: ca.Function | None = None
+    bounded_names: tuple[str, ...] = ()  # what each figure is, for messages and the summary
+    bounded_tolerance: float = 0.0  # relative: |figure| <= (1 + this) |the drive file's|
 
     @property
     def n_theta(self) -> int:
@@ -126,6 +135,9 @@ class Evaluation:
     poles: np.ndarray  # (N, n) complex [1/s]; NaN rows where no equilibrium
     x0: np.ndarray  # (n_x, N)
     noise: np.ndarray | None  # (N, n_out) RMS of the noise outputs; inf where unstable
+    # (N,) min over the model's bounded figures of 1 - |figure| / reference (bounded_reference): >= 0 met;
+    # inf where not bounded (no figures, estimate errors, the drive file's gains unstable there)
+    bounded: np.ndarray | None = None
 
     @property
     def damping(self) -> np.ndarray:
@@ -196,12 +208,20 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
         if theta.ndim == 2:
             theta = np.concatenate([theta, np.repeat(theta[:, -1:], M - N, axis=1)], axis=1)
         e = evaluate(model, theta, P, noise)
-        return Evaluation(e.poles[:N], e.x0[:, :N], None if e.noise is None else e.noise[:N])
+        return Evaluation(
+            e.poles[:N],
+            e.x0[:, :N],
+            None if e.noise is None else e.noise[:N],
+            None if e.bounded is None else e.bounded[:N],
+        )
     x0 = model.equilibrium(theta, P)
     ok = np.isfinite(x0).all(axis=0)
     n = model.n_x
     out = np.full((N, n), np.nan + 0j)
     nz = None
+    bm = None
+    if model.bounded is not None:
+        bm = np.full(N, np.inf)
     if noise:
         if model.noise is None:
             raise ValueError(f"gain law {model.law} has no noise model")
@@ -217,4 +237,61 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
         if noise and good.any():
             B, C, D = _call(model.noise, N, [phi, xs, P])
             nz[good] = noise_rms(A[good], B[good], C[good], D[good], model.noise_sigma, model.T_s)
-    return Evaluation(out, x0, nz)
+        if bm is not None:
+            bm = bounded_margin(model, _call(model.bounded, N, [phi, xs, P])[0][:, :, 0], P, good)
+    return Evaluation(out, x0, nz, bm)
+
+
+# bounded_reference's cache: (model, the points' bytes) -> references; a tune evaluates the same grids often
+_REFERENCES: dict[tuple[int, bytes], np.ndarray] = {}
+
+
+def bounded_reference(model: TuningModel, P: np.ndarray) -> np.ndarray:
+    """(N, k) the bound of each of the model's ``bounded`` figures at the points P: (1 + tolerance) x
+    |the figure of the drive file's gains (theta0)|, at the points with the drive's own estimates where
+    those gains are stable; inf elsewhere (no bound: estimate-error points, or where the drive file's
+    gains are unstable, whose figure bounds nothing)."""
+    assert model.bounded is not None
+    k = int(model.bounded.size1_out(0))
+    N = P.shape[1]
+    out = np.full((N, k), np.inf)
+    if N == 0:
+        return out
+    nominal = np.all(P == model.make_points(P[0], P[1], model.nominal_estimate), axis=0)
+    if not nominal.any():
+        return out
+    Pn = np.ascontiguousarray(P[:, nominal])
+    Pu, inv = np.unique(Pn, axis=1, return_inverse=True)
+    key = (id(model), np.asarray(model.theta0, float).tobytes() + Pu.tobytes())
+    ref = _REFERENCES.get(key)
+    if ref is None:
+        theta0 = np.asarray(model.theta0, float)
+        x0 = model.equilibrium(theta0, Pu)
+        ok = np.isfinite(x0).all(axis=0)
+        ref = np.full((Pu.shape[1], k), np.inf)
+        if ok.any():
+            xs = np.where(ok, x0, 0.0)
+            phi = _call(model.local, Pu.shape[1], [theta0, Pu])[0][:, :, 0].T
+            A = _call(model.linearization, Pu.shape[1], [phi, xs, Pu])[0]
+            f = _call(model.bounded, Pu.shape[1], [phi, xs, Pu])[0][:, :, 0]
+            good = ok & np.isfinite(A).all(axis=(1, 2)) & np.isfinite(f).all(axis=1)
+            stable = np.zeros_like(good)
+            stable[good] = max_real(eigvals_batched(A[good])) < 0
+            ref[stable] = (1.0 + model.bounded_tolerance) * np.abs(f[stable])
+        if len(_REFERENCES) > 256:
+            _REFERENCES.clear()
+        _REFERENCES[key] = ref
+    out[nominal] = ref[np.asarray(inv).ravel()]
+    return out
+
+
+def bounded_margin(model: TuningModel, values: np.ndarray, P: np.ndarray, good: np.ndarray) -> np.ndarray:
+    """(N,) min over the figures of 1 - |value| / bound at the points P (``values`` (N, k) of the gains
+    judged; ``good``: where they have a finite linearization): >= 0 where every figure is within its
+    bound, inf where none is bounded, -inf where a bounded figure is not finite."""
+    ref = bounded_reference(model, P)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(np.isfinite(ref), 1.0 - np.abs(values) / ref, np.inf)
+    r = np.where(np.isnan(r), -np.inf, r)
+    r = r.min(axis=1) if r.shape[1] else np.full(P.shape[1], np.inf)
+    return np.where(good, r, np.inf)

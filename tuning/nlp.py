@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 from sensorless.design.noise import lyapunov
+from sensorless.tuning.bounded_rows import slot_bounds
 from sensorless.tuning.candidates import DAMPING, NOISE, STABILITY, Candidates, fixed_points, margins
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.sector import factors_from_poles, n_quadratic
@@ -354,19 +355,20 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
         condition, sigma = cand.condition[idx], cand.sigma[idx]
         gm = _pole_scale(pl + sigma[:, None], scale)
         xs = x0 / model.x_typical[:, None]
+        bounds, lo_b = slot_bounds(model, P, condition, len(act))  # the family's bounded figures
         for s in range(M):
             on = s < len(act)
             f0 = factors_from_poles((pl[s] + sigma[s]) / gm[s])  # start: the factors of the start poles
             flo = np.full(n, 0.0 if on else -np.inf)
             if name == "free":
-                par.append(np.concatenate([P[:, s], [condition[s], sigma[s], gm[s]]]))
+                par.append(np.concatenate([P[:, s], [condition[s], sigma[s], gm[s]], bounds[s]]))
                 z0.append(np.concatenate([phi0[:, s] / model.phi_typical, xs[:, s], f0]))
                 # Equilibria within half a typical magnitude of the start (the equilibrium set is
                 # periodic in the position error: stay on the branch the analysis follows).
                 lbx.append(np.concatenate([np.full(nphi, -np.inf), xs[:, s] - 0.5, flo]))
                 ubx.append(np.concatenate([np.full(nphi, np.inf), xs[:, s] + 0.5, np.full(n, np.inf)]))
             else:
-                par.append(np.concatenate([P[:, s], [condition[s], sigma[s], gm[s]], x0[:, s]]))
+                par.append(np.concatenate([P[:, s], [condition[s], sigma[s], gm[s]], x0[:, s], bounds[s]]))
                 z0.append(np.concatenate([phi0[:, s] / model.phi_typical, f0]))
                 lbx.append(np.concatenate([np.full(nphi, -np.inf), flo]))
                 ubx.append(np.full(nphi + n, np.inf))
@@ -375,7 +377,7 @@ def _run(model, cand, active, fixed, theta, t_now, scale, lower, upper, smoothin
         nq = n_quadratic(n)
         lo_d = np.zeros((M, nq))
         lo_d[len(act) :, :] = -np.inf
-        ineqs.append(lo_d.ravel())
+        ineqs.append(np.hstack([lo_d, lo_b]).ravel())
     if L.noise:
         act = groups["noise"]
         M = L.noise

@@ -33,6 +33,8 @@ class Figures:
     decay: np.ndarray  # -max Re per point [1/s]
     gains: dict[str, np.ndarray]  # the law's gains per point, keyed as in the gain table's points
     noise: np.ndarray | None = None  # (N, n_out) RMS of the noise outputs (design/noise.py)
+    # (N,) the model's bounded figures' margin (tuning/model.py Evaluation.bounded); None: none bounded
+    bounded: np.ndarray | None = None
 
     def worst(self) -> int:
         """Index of the worst-damped point (NaN counts as worst)."""
@@ -228,7 +230,7 @@ def figures(
     """Poles, damping, decay rate, gains (and noise) of ``theta`` at the points (w, T)."""
     est = model.nominal_estimate if est is None else est
     e = evaluate(model, theta, model.make_points(w, T, est), noise=noise and model.noise is not None)
-    return Figures(w, T, e.poles, e.damping, e.decay, model.point_gains(theta, w), e.noise)
+    return Figures(w, T, e.poles, e.damping, e.decay, model.point_gains(theta, w), e.noise, e.bounded)
 
 
 def where(f: Figures, k: int, wb: float) -> dict[str, float]:

@@ -97,6 +97,9 @@ def _margins(
     damp = condition == DAMPING
     # damping points: stable (Re < 0) required; stability points: Re <= -sigma
     m[:, cols[damp]] = np.where(np.isfinite(mr[:, damp]), -mr[:, damp] / scale - 1e-9, -np.inf)
+    if e.bounded is not None:  # the family's bounded figures (tuning/model.py), held at the damping points
+        bm = e.bounded.reshape(K, N)[:, inv]
+        m[:, cols[damp]] = np.minimum(m[:, cols[damp]], bm[:, damp])
     m[:, cols[~damp]] = np.where(np.isfinite(mr[:, ~damp]), (-mr[:, ~damp] - sigma[~damp]) / scale, -np.inf)
     ncols = sel[cand.condition[sel] == NOISE]
     if ncols.size and max_noise is not None:

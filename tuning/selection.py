@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from sensorless.tuning import nlp
 from sensorless.tuning.bound import Bound, pointwise_bound
-from sensorless.tuning.candidates import meets_floor
+from sensorless.tuning.candidates import BOUNDED_SLACK, meets_floor
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, figures
 from sensorless.tuning.slots import T_MAX
@@ -93,6 +93,8 @@ def select(
 
     def admissible(f: Figures) -> bool:
         ok = bool(np.all(meets_floor(f.decay, floor, scale)))
+        if ok and f.bounded is not None:  # the family's bounded figures (tuning/model.py)
+            ok = bool(np.all(f.bounded >= -BOUNDED_SLACK))
         if ok and use_noise:
             ok = bool(np.all(f.worst_noise() <= max_noise * (1 + 1e-6)))
         return ok

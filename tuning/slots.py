@@ -94,15 +94,31 @@ def _slot_function(model: TuningModel, free_x: bool) -> ca.Function:
     x = ca.SX.sym("x", n)
     pt = ca.SX.sym("point", npt)
     f = ca.SX.sym("f", n)
+    b = ca.SX.sym("bound", n_bounded(model))
     A, xdot = model.linearization(th, x, pt)
     eq = factor_equalities(A / scale, f, sigma / scale)
     if free_x:
         eq = ca.vertcat(xdot / (scale * ca.DM(model.x_typical)), eq)
-    damp = damping_inequalities(f, n, condition * t)
-    names = ["phi", "t", "x", "point", "kind", "sigma", "scale", "f"]
+    damp = ca.vertcat(damping_inequalities(f, n, condition * t), bounded_inequalities(model, th, x, pt, b))
+    names = ["phi", "t", "x", "point", "kind", "sigma", "scale", "f", "bound"]
     return ca.Function(
-        "slot", [th, t, x, pt, condition, sigma, scale, f], [eq, damp], names, ["g_eq", "g_damp"]
+        "slot", [th, t, x, pt, condition, sigma, scale, f, b], [eq, damp], names, ["g_eq", "g_damp"]
     )
+
+
+def n_bounded(model: TuningModel) -> int:
+    """How many bounded figures the model declares (``TuningModel.bounded``; 0: none)."""
+    return 0 if model.bounded is None else int(model.bounded.size1_out(0))
+
+
+def bounded_inequalities(model: TuningModel, phi: ca.SX, x: ca.SX, pt: ca.SX, b: ca.SX) -> ca.SX:
+    """The rows 1 - figure/b and 1 + figure/b (>= 0: |figure| <= b) of the model's bounded figures at a
+    slot, b > 0 their bounds (tuning/model.py ``bounded_reference``); none without. A slot whose figures
+    are not bounded there has the rows switched off by their lower bounds (tuning/nlp.py)."""
+    if model.bounded is None:
+        return ca.SX(0, 1)
+    r = model.bounded(phi, x, pt) / b
+    return ca.vertcat(1 - r, 1 + r)
 
 
 @functools.cache
@@ -199,8 +215,9 @@ def slot_rows(model: TuningModel, kind: str) -> ca.Function:
     nth = model.n_theta
     n, nphi, npt, nP = sizes(model)
     no = len(model.noise_outputs)
+    nb = n_bounded(model)
     per = {"free": nphi + 2 * n, "fixed": nphi + n, "noise": nphi + n + nP}[kind]
-    width = {"free": npt + 3, "fixed": npt + 3 + n, "noise": npt + 1 + 2 * n + 2 * no}[kind]
+    width = {"free": npt + 3 + nb, "fixed": npt + 3 + n + nb, "noise": npt + 1 + 2 * n + 2 * no}[kind]
     sh, v, s = ca.SX.sym("shared", nth + 1), ca.SX.sym("v", per), ca.SX.sym("s", width)
     theta, t = sh[:nth] * ca.DM(model.typical), sh[nth]
     phi_typ = ca.DM(model.phi_typical)
@@ -223,9 +240,17 @@ def slot_rows(model: TuningModel, kind: str) -> ca.Function:
     else:
         free = kind == "free"
         # the equilibrium: unknowns of the slot (scaled) where it moves with the gains, else data
-        X = v[nphi : nphi + n] * ca.DM(model.x_typical) if free else s[npt + 3 :]
+        X = v[nphi : nphi + n] * ca.DM(model.x_typical) if free else s[npt + 3 : npt + 3 + n]
         e, d = _slot_function(model, free)(
-            Phi, t, X, s[:npt], s[npt], s[npt + 1], s[npt + 2], v[nphi + (n if free else 0) :]
+            Phi,
+            t,
+            X,
+            s[:npt],
+            s[npt],
+            s[npt + 1],
+            s[npt + 2],
+            v[nphi + (n if free else 0) :],
+            s[width - nb :],
         )
     return ca.Function(
         f"slot_{kind}", [sh, v, s], [g_phi, e, d], ["shared", "v", "s"], ["g_phi", "g_eq", "g_ineq"]
@@ -311,7 +336,8 @@ def _whole_graph_solver(model: TuningModel, L: Layout) -> ca.Function:
     no = len(model.noise_outputs)
     per_free, per_fixed, per_noise = nphi + 2 * n, nphi + n, nphi + n + nP
     nz = nth + 1 + per_free * L.free + per_fixed * L.fixed + per_noise * L.noise
-    pf, px, pn = npt + 3, npt + 3 + n, npt + 1 + 2 * n + 2 * no
+    nb = n_bounded(model)
+    pf, px, pn = npt + 3 + nb, npt + 3 + n + nb, npt + 1 + 2 * n + 2 * no
     npar = 2 + pf * L.free + px * L.fixed + pn * L.noise + nth * nth + nth  # + the proximal term's
     z = ca.MX.sym("z", nz)
     p = ca.MX.sym("p", npar)
@@ -337,9 +363,21 @@ def _whole_graph_solver(model: TuningModel, L: Layout) -> ca.Function:
         S, pi = take(p, pi, width, M)
         Phi = tie(V[:nphi, :], S, M)
         # the equilibrium: unknowns of the slot (scaled) where it moves with the gains, else data
-        X = V[nphi : nphi + n, :] * ca.repmat(ca.DM(model.x_typical), 1, M) if free else S[npt + 3 :, :]
+        X = (
+            V[nphi : nphi + n, :] * ca.repmat(ca.DM(model.x_typical), 1, M)
+            if free
+            else S[npt + 3 : npt + 3 + n, :]
+        )
         e, d = _slot_function(model, free).map(M)(
-            Phi, t, X, S[:npt, :], S[npt, :], S[npt + 1, :], S[npt + 2, :], V[nphi + (n if free else 0) :, :]
+            Phi,
+            t,
+            X,
+            S[:npt, :],
+            S[npt, :],
+            S[npt + 1, :],
+            S[npt + 2, :],
+            V[nphi + (n if free else 0) :, :],
+            S[width - nb :, :],
         )
         g_eq.append(ca.vec(e))
         g_ineq.append(ca.vec(d))

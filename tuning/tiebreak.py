@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 from sensorless.tuning import search
-from sensorless.tuning.candidates import Candidates, lowest_decay, noise_margin
+from sensorless.tuning.candidates import BOUNDED_SLACK, Candidates, lowest_decay, noise_margin
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, figures
 from sensorless.tuning.selection import TIE
@@ -172,6 +172,8 @@ def _dense_ok(model, thetas, grids, target, floor2) -> tuple[np.ndarray, np.ndar
     dec = np.where(np.isfinite(e.decay), e.decay, -np.inf).reshape(K, N)
     margin = np.minimum(z - target, (dec - lowest_decay(floor2, grids.scale)) / grids.scale)
     margin = np.where(dec > 0, margin, np.minimum(margin, -1.0))
+    if e.bounded is not None:  # the family's bounded figures (tuning/model.py)
+        margin = np.minimum(margin, e.bounded.reshape(K, N) + BOUNDED_SLACK)
     if grids.max_noise is not None:
         margin = np.minimum(margin, noise_margin(e.noise.reshape(K, N, -1), grids.max_noise))
     ok = margin.min(axis=1) >= 0

@@ -2,9 +2,11 @@
 
 Piippo, Hinkkanen, Luomi (2008): ``lambda_max`` bounds |lambda1|, |lambda2| of eq. (16) and of the
 schedule (ohm, or e.g. ``"5 R_s_hat"``; default the tuner's box), ``tune_alpha_fo`` also tunes the
-adaptation bandwidth alpha_fo of eq. (10), ``breakpoints`` is the schedule's number of speed
-breakpoints per direction. The shared keys (envelope, decay floor, estimate errors, noise limits) are
-read by design/envelope.py, which hands these to :data:`LAW_KEYS`.
+adaptation bandwidth alpha_fo of eq. (10), ``hold_lag`` keeps the tuned gains' angle lag under
+acceleration at most the drive file's gains' (both off by default: on, they fix the tuned gains'
+larger peaks but make ``tune`` up to 7x slower; docs/tuning.md), ``breakpoints`` is the schedule's
+number of speed breakpoints per direction. The shared keys (envelope, decay floor, estimate errors,
+noise limits) are read by design/envelope.py, which hands these to :data:`LAW_KEYS`.
 """
 
 from __future__ import annotations
@@ -24,8 +26,14 @@ class AdaptiveLawSettings:
     """Bounds and options of the adaptive observer's gain laws (``TuningSettings.law``)."""
 
     lambda_max: float | None = None  # bound on |lambda1|, |lambda2| [ohm]; None: the tuner's box
-    tune_alpha_fo: bool = False  # also tune the adaptation bandwidth alpha_fo (10)
+    # also tune the adaptation bandwidth alpha_fo (10), in 1-4x the drive file's: with the angle lag held
+    # (hold_lag) it buys the damping the gains alone cannot (docs/tuning.md, "alpha_fo tuned")
+    tune_alpha_fo: bool = False
     breakpoints: int = 11  # schedule: breakpoints per direction (plus one at zero speed)
+    # the tuned gains' angle lag under acceleration at most the drive file's at every envelope point
+    # (tuning/ipmsm_adaptive/model.py; docs/tuning.md "Tuned gains that run worse")
+    # (opt-in: measured 1.7-7x tune's CPU on the example motors)
+    hold_lag: bool = False
 
     def check(self, file: str, prefix: str = "tuning.") -> None:
         """Raise DriveFileError for an inconsistent value (the key named with ``prefix``)."""
@@ -54,12 +62,16 @@ def load(table: Mapping[str, Any], file: str, rel: Mapping[str, float]) -> Adapt
         if not isinstance(table["tune_alpha_fo"], bool):
             raise DriveFileError(file, "tuning.tune_alpha_fo", "expected true or false")
         out["tune_alpha_fo"] = table["tune_alpha_fo"]
+    if "hold_lag" in table:
+        if not isinstance(table["hold_lag"], bool):
+            raise DriveFileError(file, "tuning.hold_lag", "expected true or false")
+        out["hold_lag"] = table["hold_lag"]
     if "breakpoints" in table:
         out["breakpoints"] = read_int(table["breakpoints"], file, "tuning.breakpoints")
     return AdaptiveLawSettings(**out)
 
 
-LAW_KEYS = LawKeys(("lambda_max", "tune_alpha_fo", "breakpoints"), load)
+LAW_KEYS = LawKeys(("lambda_max", "tune_alpha_fo", "hold_lag", "breakpoints"), load)
 
 
 def law_settings(settings: TuningSettings) -> AdaptiveLawSettings:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.tuning import paper_law
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import tuning_envelope
 from sensorless.tuning import search
@@ -53,7 +54,7 @@ def test_global_phase_and_selection_judge_the_floor_alike(below):
         speeds=4,
         torques_TN=(-1.5, 0.0, 1.5),
     )
-    st = dataclasses.replace(d.tuning, envelope=env)
+    st = dataclasses.replace(d.tuning, envelope=env, law=paper_law(d.tuning))
     model = tunable_for(d, "speed-dependent").build(d, st, None)
     W, T = env.grid()
     theta = np.array([10 * d.estimate.R_s, 0.5 * d.w_base])  # stable on this envelope

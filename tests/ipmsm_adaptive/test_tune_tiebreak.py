@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.tuning import paper_law
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import tuning_envelope
@@ -47,7 +48,7 @@ def case():
         speeds=4,
         torques_TN=(-1.0, 1.0),
     )
-    st = dataclasses.replace(drive.tuning, envelope=env, bound=False)
+    st = dataclasses.replace(drive.tuning, envelope=env, bound=False, law=paper_law(drive.tuning))
     r = tune(drive, "speed-dependent", st)
     R, wb = drive.estimate.R_s, drive.base.w
     Wd, Td = env.grid(env.dense_factor, env.dense_factor)
