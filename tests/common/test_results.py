@@ -147,7 +147,7 @@ def test_a_report_says_when_a_time_domain_check_does_not_hold(
     of the same report whose runs hold (report_deangelo_quick, tests/common/conftest.py: made first, in
     this process, group report-runs of tests/conftest.py; its analyses are then in the memo,
     design/memo.py, not computed a second time)."""
-    real = time_domain.simulate
+    real = time_domain.simulated  # the report's runs (kept: design/simulate.py, read, never changed)
 
     def diverging(drive, sc, gains=None, **kw):
         tr = real(drive, sc, gains, **kw)
@@ -155,7 +155,7 @@ def test_a_report_says_when_a_time_domain_check_does_not_hold(
         w[len(w) // 2 :] = np.nan
         return Traces(tr.t, {**tr.data, "w_m": w}, tr.units, tr.docs, tr.meta)
 
-    monkeypatch.setattr(time_domain, "simulate", diverging)
+    monkeypatch.setattr(time_domain, "simulated", diverging)
     out = tmp_path / "r"
     code, _, err = run(["report", "deangelo2006", "--quick", "--out", out], capsys)
     lines = [ln for ln in err.splitlines() if "warning" in ln]
