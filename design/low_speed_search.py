@@ -109,7 +109,8 @@ def search(
     given: set[str] = set()
     # blocks of speeds: a family that simulates its discrete observer over a window growing as 1/w (the
     # reduced-order family's steady errors) runs every point of a call as long as its slowest one
-    blocks = np.array_split(np.arange(n_speeds), SPEED_BLOCKS)[::-1]
+    # (no empty block where the grid has fewer speeds than SPEED_BLOCKS: CasADi refuses a map of none)
+    blocks = [b for b in np.array_split(np.arange(n_speeds), SPEED_BLOCKS)[::-1] if b.size]
 
     def run(blk: np.ndarray, cols: np.ndarray) -> np.ndarray:
         first, applied = failing(analyse(w[blk, None], T[None, cols]), crit)

@@ -219,3 +219,19 @@ def test_acceleration_criterion_judges_each_load_at_its_braking():
     lin = linearize_drive(drive, g, w, ls.torque[k])
     err = np.degrees(np.abs(lin.theta_err) + np.abs(lin.ramp_lag) * a)
     assert err[0] > LIMIT > err[1]
+
+
+def test_a_grid_with_fewer_speeds_than_blocks_gives_the_one_block_result(monkeypatch):
+    """The search analyses the speed grid in SPEED_BLOCKS batches; a grid of fewer speeds (4 < 8) left
+    empty blocks, which CasADi refuses ("Degenerate map operation"). Its w_min equals the search's with
+    the whole grid in one batch (the same grid, another path through the blocks)."""
+    from sensorless.design import low_speed_search
+
+    drive = load_drive("outrunner270")
+    gains = family_of(drive).gains(drive)
+    kw = dict(min_damping=0.2, n_speeds=4, n_torques=2, bisections=1)
+    blocked = minimum_speed(drive, dataclasses.replace(gains, source="blocks"), **kw)
+    monkeypatch.setattr(low_speed_search, "SPEED_BLOCKS", 1)
+    whole = minimum_speed(drive, dataclasses.replace(gains, source="one block"), **kw)
+    assert np.isfinite(blocked.w_min).all()
+    assert np.array_equal(blocked.w_min, whole.w_min)
