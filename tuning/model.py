@@ -242,8 +242,10 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
     return Evaluation(out, x0, nz, bm)
 
 
-# bounded_reference's cache: (model, the points' bytes) -> references; a tune evaluates the same grids often
-_REFERENCES: dict[tuple[int, bytes], np.ndarray] = {}
+# bounded_reference's cache: (id of the model, theta0's and the points' bytes) -> (the model, references);
+# a tune evaluates the same grids often. The entry holds its model, so that the id cannot be reused by
+# another model (another drive's) while the entry lives
+_REFERENCES: dict[tuple[int, bytes], tuple[TuningModel, np.ndarray]] = {}
 
 
 def bounded_reference(model: TuningModel, P: np.ndarray) -> np.ndarray:
@@ -263,7 +265,8 @@ def bounded_reference(model: TuningModel, P: np.ndarray) -> np.ndarray:
     Pn = np.ascontiguousarray(P[:, nominal])
     Pu, inv = np.unique(Pn, axis=1, return_inverse=True)
     key = (id(model), np.asarray(model.theta0, float).tobytes() + Pu.tobytes())
-    ref = _REFERENCES.get(key)
+    hit = _REFERENCES.get(key)
+    ref = None if hit is None else hit[1]
     if ref is None:
         theta0 = np.asarray(model.theta0, float)
         x0 = model.equilibrium(theta0, Pu)
@@ -280,7 +283,7 @@ def bounded_reference(model: TuningModel, P: np.ndarray) -> np.ndarray:
             ref[stable] = (1.0 + model.bounded_tolerance) * np.abs(f[stable])
         if len(_REFERENCES) > 256:
             _REFERENCES.clear()
-        _REFERENCES[key] = ref
+        _REFERENCES[key] = (model, ref)
     out[nominal] = ref[np.asarray(inv).ravel()]
     return out
 
