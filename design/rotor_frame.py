@@ -93,12 +93,12 @@ def equilibrium_function(loop: RotorFrameLoop) -> ca.Function:
     for _ in range(NEWTON_STEPS):
         Gk, Jk = g_fn(xk, w, T, plant, p)
         xk = xk - ca.solve(Jk, Gk)
-    Gk, Jk = g_fn(xk, w, T, plant, p)
-    y = [] if loop.output is None else [loop.output(xk, w, T, plant, p)]
+    at = point_function(loop).call([xk, w, T, plant, p])  # A, res[, y] where the steps end
+    y = at[2:]
     return ca.Function(
         f"{loop.name}_equilibrium_c",
         [w, T, plant, p],
-        [xk, ca.densify(Jk), ca.norm_inf(Gk), *y],
+        [xk, *at],
         ["w", "torque", "plant", "p"],
         ["x", "A", "res", *(["y"] if y else [])],
     )
