@@ -304,7 +304,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     base = load_section(Base, table(data, "base", file), file, "base")
     motor = load_motor(data, file)
     estimate = load_estimate(data, file)
-    rel = {"pu": base.w, "R_s_hat": estimate.R_s, "Rs_hat": estimate.R_s}
+    rel = {"pu": base.w, "pu/s": base.w, "R_s_hat": estimate.R_s, "Rs_hat": estimate.R_s}
     control = _load_control(table(data, "control", file), file, rel, base)
     obs_t = table(data, "observer", file)
     observer = load_section(Observer, obs_t, file, "observer", rel, skip=("gains",))
@@ -360,7 +360,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
 def _load_control(t: Mapping[str, Any], file: str, rel: Mapping[str, float], base: Base) -> Control:
     """[control]; ``i_noise`` (the current sensor's noise, A rms per axis and sample) is optional:
     default I_NOISE_DEFAULT times the base current, e.g. 0.018 A for the paper's 6.08 A."""
-    c = load_section(Control, t, file, "control", rel, optional=("i_noise", "i_resolution"))
+    c = load_section(Control, t, file, "control", rel, optional=("i_noise", "i_resolution", "speed_ramp"))
     if "i_noise" in t:
         return c
     return dataclasses.replace(c, i_noise=I_NOISE_DEFAULT * base.i)
