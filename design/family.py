@@ -34,7 +34,6 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
-
 from sensorless.design.gain_set import GainSet  # its own module (runtime.py imports it); read here too
 
 if TYPE_CHECKING:  # the result types below import this module: typed by name only where no cycle

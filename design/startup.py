@@ -99,9 +99,14 @@ def handover_reason(ls: LowSpeed, given_on: float | None = None) -> str:
         if why != "acceleration":  # no cap to explain: the file's handover runs, where w_min says
             return f"the whole drive's w_min at rated load is {w:.3g} p.u. (limited by {why}){given}"
     if why == "acceleration":
+        braking = (
+            f"along the speed reference's ramp ([control] speed_ramp = {ls.acceleration:.4g} rad/s^2)"
+            if ls.ramp > 0
+            else f"braking at p (T_max + T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated load"
+        )
         head = (
-            f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg braking at p (T_max + "
-            f"T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated load, the whole drive's lag to a speed ramp)"
+            f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg {braking}, the whole "
+            "drive's lag to a speed ramp)"
         )
     else:  # the rule's ON_FACTOR w_min reaches the rated speed: the handover is capped there
         return (
