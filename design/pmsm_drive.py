@@ -30,7 +30,7 @@ from sensorless.design.simulate import (
     provenance,
     sample_times,
 )
-from sensorless.design.speed_ramp import with_ramp
+from sensorless.design.speed_ramp import drive_ramp
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_drive import (
     INPUTS,
@@ -320,8 +320,7 @@ def loop_setup(
     if sc.startup:
         setup, line = startup_setup(drive, setup)
         meta = {**meta, "startup": line}
-    ramp = getattr(drive.control, "speed_ramp", 0.0)
-    setup = with_ramp(setup, ramp)  # outside the start: the start ramps towards the limited reference
+    setup = drive_ramp(drive, setup)  # outside the start: the start ramps towards the limited reference
     obs = setup.observer
     meas = tuple(f.name for f in obs.meas)
     if meas not in (MEAS, (*MEAS, W_CMD.name)):

@@ -13,6 +13,9 @@ from __future__ import annotations
 
 import dataclasses
 
+from sensorless.design.capabilities import Scaled
+from sensorless.design.family import Drive
+from sensorless.design.registry import family_of
 from sensorless.design.runtime import RuntimeSetup
 from sensorless.symbolic.speed_ramp import RAMP_ACC, with_speed_ramp
 
@@ -27,3 +30,15 @@ def with_ramp(setup: RuntimeSetup, rate: float) -> RuntimeSetup:
     obs.check_params(params)
     notes = (*setup.notes, f"speed reference ramped at {rate:.4g} rad/s^2 (electrical)")
     return dataclasses.replace(setup, observer=obs, params=params, notes=notes)
+
+
+def speed_ramp_of(drive: Drive) -> float:
+    """The drive's speed reference rate limit [rad/s^2] (its family's ``DriveScales.speed_ramp``: the
+    drive file's ``[control] speed_ramp``); 0 where it has none or its family gives no scales."""
+    fam = family_of(drive)
+    return float(fam.scales(drive).speed_ramp) if isinstance(fam, Scaled) else 0.0
+
+
+def drive_ramp(drive: Drive, setup: RuntimeSetup) -> RuntimeSetup:
+    """``setup`` with the drive's own speed reference rate limiter (:func:`with_ramp`; unchanged without)."""
+    return with_ramp(setup, speed_ramp_of(drive))

@@ -28,7 +28,7 @@ import functools
 
 import casadi as ca
 from sensorless.symbolic.controllers import ramp_step
-from sensorless.symbolic.runtime import Field, RuntimeObserver, core_function
+from sensorless.symbolic.runtime import X_MAX, Field, RuntimeObserver, core_function
 from sensorless.symbolic.startup import W_CMD
 
 RAMP_ACC = Field(
@@ -55,7 +55,7 @@ def with_speed_ramp(obs: RuntimeObserver) -> RuntimeObserver:
         def step(x, m, p, lam=None):
             w_r = x[n_x - 1]
             w_cmd = m[len(meas) - 1]
-            finite = ca.fabs(w_cmd) < ca.inf  # NaN compares false: a command that is not finite holds it
+            finite = ca.fabs(w_cmd) <= X_MAX  # NaN compares false: a command that is not finite holds it
             w_next = ca.if_else(finite, ramp_step(w_r, w_cmd, p[n_p], p[i_ts]), w_r)
             m_in = ca.vertcat(m[: n_m - 1], w_next) if takes_cmd else m[:n_m]
             x_in = ca.vertcat(x[: n_x - 1], x[n_x])
