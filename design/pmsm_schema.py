@@ -86,7 +86,11 @@ class PmsmControl:
     # optional: the speed reference's rate limit before the speed controller (symbolic/speed_ramp.py),
     # electrical rad/s^2 or "pu/s" (1 p.u. = the base speed); 0: none (the command steps)
     speed_ramp: float = q(
-        "acceleration", check="nonnegative", doc="speed reference's rate limit [rad/s^2]", default=0.0
+        "acceleration",
+        check="nonnegative",
+        doc="speed reference's rate limit [rad/s^2]",
+        default=0.0,
+        optional=True,
     )
 
 

@@ -360,7 +360,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
 def _load_control(t: Mapping[str, Any], file: str, rel: Mapping[str, float], base: Base) -> Control:
     """[control]; ``i_noise`` (the current sensor's noise, A rms per axis and sample) is optional:
     default I_NOISE_DEFAULT times the base current, e.g. 0.018 A for the paper's 6.08 A."""
-    c = load_section(Control, t, file, "control", rel, optional=("i_noise", "i_resolution", "speed_ramp"))
+    c = load_section(Control, t, file, "control", rel, optional=("i_noise", "i_resolution"))
     if "i_noise" in t:
         return c
     return dataclasses.replace(c, i_noise=I_NOISE_DEFAULT * base.i)
