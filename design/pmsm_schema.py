@@ -94,7 +94,7 @@ class PmsmControl:
     )
 
 
-def speed_ramp(t: Mapping[str, Any], file: str, w_base: float) -> float:
+def speed_ramp(t: Mapping[str, object], file: str, w_base: float) -> float:
     """``[control] speed_ramp`` of a table ``t`` [rad/s^2 electrical] ("pu/s": per unit of ``w_base``
     per second); 0 where it is not given; DriveFileError naming the key for a negative or unreadable one."""
     if "speed_ramp" not in t:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -174,8 +175,13 @@ def _startup_section(doc: DriveDocument, fam: ObserverFamily, drive: Drive, give
 
 
 def _speed_ramp(
-    doc: DriveDocument, fam: ObserverFamily, drive: Drive, values: Any, w_min: float, given: Any
-) -> tuple[Drive, Any, float] | None:
+    doc: DriveDocument,
+    fam: ObserverFamily,
+    drive: Drive,
+    values: dict[str, float] | None,
+    w_min: float,
+    given: Mapping[str, object] | None,
+) -> tuple[Drive, dict[str, float] | None, float] | None:
     """Add ``[control] speed_ramp`` (design/speed_ramp.py) to ``doc`` where the drive needs one, and
     return (the drive with it, its start's values, their w_min); None where it needs none. It needs one
     where the start's rule puts the handover at the rated speed (ON_FACTOR w_min at rated load, w_min
