@@ -211,7 +211,11 @@ def _speed_ramp(
         f"speed (w_min {w_min / w_base:.3g} p.u.); along this ramp it is lower (0: a step asks for the "
         "torque limit)",
     )
-    ramped = load_drive_text(doc.toml(), drive.file)
+    try:
+        ramped = load_drive_text(doc.toml(), drive.file)
+    except DriveFileError:  # a start's value out of range (its own error follows, naming the user's keys)
+        del ctl["speed_ramp"]
+        return None
     v, _, w = startup_values(ramped, fam.gains(ramped))
     if v is None or ON_FACTOR * w >= w_base * (1 - 1e-9):  # the ramp does not help: not derived
         del ctl["speed_ramp"]
