@@ -325,3 +325,12 @@ def test_odrive_ramped_velocity_input_is_the_drive_files_speed_ramp():
     assert load_drive_text(r.text, "cfg.toml").control.speed_ramp == pytest.approx(131.946891, rel=1e-8)
     data["axis0"]["controller"]["config"]["input_mode"] = 1
     assert "control" not in imported(odrive, json.dumps(data), {"u_dc": 24.0})[0]
+
+
+def test_vesc_speed_pid_ramp_is_the_drive_files_speed_ramp():
+    """s_pid_ramp_erpms_s 25000 ERPM/s (the firmware's default): 25000 x 2 pi/60 = 2617.99 rad/s^2;
+    -1 (VESC: no ramp) or absent (the examples' files) writes none."""
+    d, _ = imported(vesc, vesc_xml(**HUB, s_pid_ramp_erpms_s=25000))
+    assert si(d["control"]["speed_ramp"], "acceleration") == pytest.approx(25000 * math.pi / 30, rel=1e-11)
+    assert "control" not in imported(vesc, vesc_xml(**HUB, s_pid_ramp_erpms_s=-1))[0]
+    assert "control" not in imported(vesc, vesc_xml(**HUB))[0]
