@@ -17,7 +17,10 @@ The rules (each with its reason; :func:`if_values`):
   load): the drop back to open loop is below w_min, so the observer must hold the rotor while the drive
   brakes down to it (the 2807 drone motor with its tuned gains, speed steps: judged at p (T_max - T_N) /
   J the drive dropped back at 0.087 p.u. and lost the rotor at 0.11 p.u., braking at 4.9 times that;
-  judged at p (T_max + T_N) / J it drops back at 0.18 p.u. and holds 19 deg). Below that speed the
+  judged at p (T_max + T_N) / J it drops back at 0.18 p.u. and holds 19 deg); a drive whose speed
+  reference is rate-limited (``[control] speed_ramp``, design/speed_ramp.py) is asked for no more than
+  its ramp, so the slope is the lower of the two (the gimbal motor of docs/examples/motors: w_min 1 ->
+  0.184 p.u. at its start's 1375 rad/s^2, and every check passes). Below that speed the
   observer loses the rotor when the speed controller it takes over from the start accelerates or
   brakes at the torque limit; where the handover must be high (the acceleration limits it, or the
   rule's 2 w_min reaches 1 p.u. and is capped there) the start's line says why with the numbers
