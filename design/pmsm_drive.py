@@ -320,7 +320,10 @@ def loop_setup(
     if sc.startup:
         setup, line = startup_setup(drive, setup)
         meta = {**meta, "startup": line}
-    setup = drive_ramp(drive, setup)  # outside the start: the start ramps towards the limited reference
+    ramped = drive_ramp(drive, setup)  # outside the start: the start ramps towards the limited reference
+    if ramped is not setup:
+        meta = {**meta, "speed_ramp": ramped.notes[-1]}
+    setup = ramped
     obs = setup.observer
     meas = tuple(f.name for f in obs.meas)
     if meas not in (MEAS, (*MEAS, W_CMD.name)):

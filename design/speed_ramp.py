@@ -28,7 +28,7 @@ def with_ramp(setup: RuntimeSetup, rate: float) -> RuntimeSetup:
     obs = with_speed_ramp(setup.observer)
     params = {**setup.params, RAMP_ACC.name: float(rate)}
     obs.check_params(params)
-    notes = (*setup.notes, f"speed reference ramped at {rate:.4g} rad/s^2 (electrical)")
+    notes = (*setup.notes, f"speed reference ramped at {rate:.4g} rad/s^2 (electrical; [control] speed_ramp)")
     return dataclasses.replace(setup, observer=obs, params=params, notes=notes)
 
 
