@@ -32,10 +32,18 @@ def read_text(path: Path) -> str:
         raise DriveFileError(str(path), "(file)", f"cannot read: {e.strerror}") from None
 
 
-def q(dim: str, check: str | None = "positive", doc: str = "", default: Any = dataclasses.MISSING) -> Any:
+def q(
+    dim: str,
+    check: str | None = "positive",
+    doc: str = "",
+    default: Any = dataclasses.MISSING,
+    optional: bool = False,
+) -> Any:
     """A dataclass field holding a quantity of dimension ``dim`` (SI), validated by ``check``;
-    ``default`` for a key that may be left out (``load_section(optional=...)``)."""
-    return field(default=default, metadata={"dim": dim, "check": check, "doc": doc})
+    ``default`` for a key that may be left out (``load_section(optional=...)``, or always with
+    ``optional``: a key a shared section gained, which every family's loader keeps optional)."""
+    meta = {"dim": dim, "check": check, "doc": doc, **({"optional": True} if optional else {})}
+    return field(default=default, metadata=meta)
 
 
 _CHECKS: dict[str, tuple[Callable[[float], bool], str]] = {
@@ -83,7 +91,7 @@ def load_section(
         key = f"{section}.{f.name}"
         dim = f.metadata.get("dim")
         if f.name not in table:
-            if f.name in optional:
+            if f.name in optional or f.metadata.get("optional"):
                 continue
             raise DriveFileError(file, key, f"missing key ({f.metadata.get('doc', dim)})")
         raw = table[f.name]

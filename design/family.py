@@ -33,6 +33,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
 
+import numpy as np
 from sensorless.design.gain_set import GainSet  # its own module (runtime.py imports it); read here too
 
 if TYPE_CHECKING:  # the result types below import this module: typed by name only where no cycle
@@ -170,11 +171,23 @@ class DriveScales:
     # error of HOLD_ERROR (design/scenario.py); 0: none
     hold_speed: float = 0.0
     hold_time: float = 0.0
+    # the speed reference's rate limit [rad/s^2 electrical] (the drive file's [control] speed_ramp,
+    # symbolic/speed_ramp.py); 0: none, a step of the reference asks for the torque limit
+    speed_ramp: float = 0.0
 
     @property
     def t_acc(self) -> float:
-        """Time [s] to change the speed by 1 p.u. against the rated load at the torque limit."""
-        return self.J * self.w_base / self.pole_pairs / max(self.T_max - self.T_N, 0.1 * self.T_N)
+        """Time [s] to change the speed by 1 p.u. against the rated load at the torque limit, or along
+        the speed reference's ramp where that is slower (the generic segments then hold the ramp)."""
+        t = self.J * self.w_base / self.pole_pairs / max(self.T_max - self.T_N, 0.1 * self.T_N)
+        return max(t, self.w_base / self.speed_ramp) if self.speed_ramp > 0 else t
+
+    def braking(self, torque: float | np.ndarray) -> float | np.ndarray:
+        """The largest speed change [rad/s^2 electrical] at load ``torque``: the speed loop at the torque
+        limit with the load helping, p (T_max + |T|) / J, or the speed reference's ramp where that is
+        lower (the drive then is never asked for more than the ramp, but in a transient)."""
+        a = self.pole_pairs * (self.T_max + np.abs(np.asarray(torque, float))) / self.J
+        return np.minimum(a, self.speed_ramp) if self.speed_ramp > 0 else a
 
     @property
     def tau_m(self) -> float:

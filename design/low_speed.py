@@ -125,6 +125,8 @@ class LowSpeed:
     # [rad/s^2] the largest speed change at rated load, p (T_max + T_N) / J, whose lag the criteria
     # include (each load's own: braking_acceleration); 0: none
     acceleration: float = 0.0
+    # the speed reference's ramp [rad/s^2] (DriveScales.speed_ramp) where it limits ``acceleration``; 0: not
+    ramp: float = 0.0
 
     @property
     def rated(self) -> int:
@@ -233,12 +235,12 @@ def braking_acceleration(drive: Drive, torque: ArrayLike) -> np.ndarray:
     """The largest speed change [rad/s^2 electrical] of the drive running at load ``torque`` [N m]: its
     speed loop at the torque limit against the load's direction, the load helping, p (T_max + |T|) / J
     (braking a motoring load, or driving against a regenerating one: the speed steps' approach to zero
-    speed; accelerating against the load gives only p (T_max - |T|) / J); 0 without scales."""
+    speed; accelerating against the load gives only p (T_max - |T|) / J), or the speed reference's ramp
+    where the drive has one and it is lower (``DriveScales.braking``); 0 without scales."""
     fam = family_of(drive)
     if not isinstance(fam, Scaled):
         return np.zeros(np.shape(torque))
-    sc = fam.scales(drive)
-    return sc.pole_pairs * (sc.T_max + np.abs(np.asarray(torque, float))) / sc.J
+    return np.asarray(fam.scales(drive).braking(torque), float)
 
 
 def _analysis(
@@ -361,6 +363,7 @@ def minimum_speed(
         declared=scales.zero_speed if scales is not None else "",
         basis=basis,
         acceleration=a_max,
+        ramp=scales.speed_ramp if scales is not None and 0 < scales.speed_ramp <= a_max else 0.0,
     )
 
 
@@ -464,8 +467,13 @@ _CRITERION_TEXT = {
     "noise": lambda ls: f"angle noise > {np.degrees(ls.max_noise):.3g} deg rms",
     "stability": lambda ls: "stability under the estimate errors (no stable equilibrium at a corner)",
     "acceleration": lambda ls: (
-        f"angle error under the full braking (p (T_max + T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated "
-        "load) > "
-        f"{np.degrees(ls.max_bias):.3g} deg"
+        (
+            f"angle error under the speed reference's ramp ([control] speed_ramp = {ls.acceleration:.4g} "
+            "rad/s^2, below the full braking) > "
+            if ls.ramp > 0
+            else f"angle error under the full braking (p (T_max + T_N) / J = {ls.acceleration:.4g} rad/s^2 "
+            "at rated load) > "
+        )
+        + f"{np.degrees(ls.max_bias):.3g} deg"
     ),
 }

@@ -30,6 +30,7 @@ from sensorless.design.simulate import (
     provenance,
     sample_times,
 )
+from sensorless.design.speed_ramp import drive_ramp
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_drive import (
     INPUTS,
@@ -41,6 +42,7 @@ from sensorless.symbolic.pmsm_drive import (
     loop_function,
     observer_record,
 )
+from sensorless.symbolic.speed_ramp import W_RAMP
 from sensorless.symbolic.startup import W_CMD
 
 if TYPE_CHECKING:  # typed by name only
@@ -318,6 +320,10 @@ def loop_setup(
     if sc.startup:
         setup, line = startup_setup(drive, setup)
         meta = {**meta, "startup": line}
+    ramped = drive_ramp(drive, setup)  # outside the start: the start ramps towards the limited reference
+    if ramped is not setup:
+        meta = {**meta, "speed_ramp": ramped.notes[-1]}
+    setup = ramped
     obs = setup.observer
     meas = tuple(f.name for f in obs.meas)
     if meas not in (MEAS, (*MEAS, W_CMD.name)):
@@ -402,6 +408,9 @@ def _coordinates(
         held=(
             *(_Z[k] for k in ("nf_d1", "nf_d2", "nf_q1", "nf_q2", "nf_w1", "nf_w2")),
             *(ix(h) for h in frames.held),
+            # the speed reference's limiter: at a fixed point it has reached the reference (inside its
+            # limit w_ramp_next = w_ref, no dynamics: symbolic/controllers.py ramp_step)
+            *(ix(h) for h in (W_RAMP.name,) if h in names),
             n + len(names) - 1,  # the runtime contract's counter: 0 in steady state
         ),
         start=start,

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from sensorless.design.drive_file import load_section, q, table
-from sensorless.design.units import DriveFileError
+from sensorless.design.units import DriveFileError, parse_quantity
 
 
 @dataclass(frozen=True)
@@ -83,6 +83,29 @@ class PmsmControl:
     alpha_s: float = q("angular", doc="speed-control bandwidth [rad/s]")
     T_max: float = q("torque", doc="electromagnetic torque limit [N m]")
     u_dc: float = q("voltage", doc="nominal DC-link voltage [V]")
+    # optional: the speed reference's rate limit before the speed controller (symbolic/speed_ramp.py),
+    # electrical rad/s^2 or "pu/s" (1 p.u. = the base speed); 0: none (the command steps)
+    speed_ramp: float = q(
+        "acceleration",
+        check="nonnegative",
+        doc="speed reference's rate limit [rad/s^2]",
+        default=0.0,
+        optional=True,
+    )
+
+
+def speed_ramp(t: Mapping[str, object], file: str, w_base: float) -> float:
+    """``[control] speed_ramp`` of a table ``t`` [rad/s^2 electrical] ("pu/s": per unit of ``w_base``
+    per second); 0 where it is not given; DriveFileError naming the key for a negative or unreadable one."""
+    if "speed_ramp" not in t:
+        return 0.0
+    x, rel = parse_quantity(t["speed_ramp"], "acceleration", file=file, key="control.speed_ramp")
+    x = x * w_base if rel == "pu/s" else x
+    if not x >= 0:
+        raise DriveFileError(
+            file, "control.speed_ramp", f"non-physical value {t['speed_ramp']!r}: must be >= 0"
+        )
+    return x
 
 
 class PmsmDriveProperties:

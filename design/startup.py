@@ -17,7 +17,10 @@ The rules (each with its reason; :func:`if_values`):
   load): the drop back to open loop is below w_min, so the observer must hold the rotor while the drive
   brakes down to it (the 2807 drone motor with its tuned gains, speed steps: judged at p (T_max - T_N) /
   J the drive dropped back at 0.087 p.u. and lost the rotor at 0.11 p.u., braking at 4.9 times that;
-  judged at p (T_max + T_N) / J it drops back at 0.18 p.u. and holds 19 deg). Below that speed the
+  judged at p (T_max + T_N) / J it drops back at 0.18 p.u. and holds 19 deg); a drive whose speed
+  reference is rate-limited (``[control] speed_ramp``, design/speed_ramp.py) is asked for no more than
+  its ramp, so the slope is the lower of the two (the gimbal motor of docs/examples/motors: w_min 1 ->
+  0.184 p.u. at its start's 1375 rad/s^2, and every check passes). Below that speed the
   observer loses the rotor when the speed controller it takes over from the start accelerates or
   brakes at the torque limit; where the handover must be high (the acceleration limits it, or the
   rule's 2 w_min reaches 1 p.u. and is capped there) the start's line says why with the numbers
@@ -99,9 +102,14 @@ def handover_reason(ls: LowSpeed, given_on: float | None = None) -> str:
         if why != "acceleration":  # no cap to explain: the file's handover runs, where w_min says
             return f"the whole drive's w_min at rated load is {w:.3g} p.u. (limited by {why}){given}"
     if why == "acceleration":
+        braking = (
+            f"along the speed reference's ramp ([control] speed_ramp = {ls.acceleration:.4g} rad/s^2)"
+            if ls.ramp > 0
+            else f"braking at p (T_max + T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated load"
+        )
         head = (
-            f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg braking at p (T_max + "
-            f"T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated load, the whole drive's lag to a speed ramp)"
+            f"{ACCELERATION_LIMIT} {w:.3g} p.u. (angle error > {MAX_BIAS_DEG:g} deg {braking}, the whole "
+            "drive's lag to a speed ramp)"
         )
     else:  # the rule's ON_FACTOR w_min reaches the rated speed: the handover is capped there
         return (

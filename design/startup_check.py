@@ -121,7 +121,7 @@ def judge_startup(drive: OnPmsm, gains: GainSet) -> StartJudgement | None:
     k_t = c.T_max / math.hypot(i_d, i_q)  # torque per ampere (peak) at the torque limit, MTPA
     s_max = math.sin(LOAD_ANGLE_MAX)
     i_lim, T_N, J, p = c.T_max / k_t, drive.T_N, m.J, m.p
-    scales = DriveScales(T_N, c.T_max, J, p, drive.w_base, c.alpha_s)
+    scales = DriveScales(T_N, c.T_max, J, p, drive.w_base, c.alpha_s, speed_ramp=c.speed_ramp)
     a_ref = REFERENCE_PU * drive.w_base / generic_times(scales)["t_seg"]
     out: list[Shortfall] = []
 

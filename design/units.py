@@ -38,6 +38,8 @@ UNITS: dict[str, dict[str, float]] = {
     # electrical angular speed or bandwidth
     "angular": {"rad/s": 1.0, "Hz": 2 * math.pi, "kHz": 2e3 * math.pi},
     "mech_speed": {"rpm": 1.0, "r/min": 1.0},
+    # electrical angular acceleration (a speed reference's rate limit)
+    "acceleration": {"rad/s^2": 1.0},
     "viscous": {
         "Nms": 1.0,
         "N m s": 1.0,
@@ -99,6 +101,7 @@ UNITS: dict[str, dict[str, float]] = {
 # Units that scale with a property of the drive: resolved after the base/estimates are known.
 RELATIVE_UNITS: dict[str, tuple[str, ...]] = {
     "angular": ("pu", "w_min"),  # w_min: the design's minimum sensorless speed ([startup], design/startup.py)
+    "acceleration": ("pu/s",),  # per unit of the base speed (1 p.u., electrical) per second
     "resistance": ("R_s_hat", "Rs_hat"),
     "flux_derivative": ("Phi_1",),  # a multiple of the fundamental, e.g. Phi_5 = "0.04 Phi_1"
 }

@@ -252,7 +252,7 @@ def shared_cause(f: Failure, unstable: Callable[[Failure], bool | None] = lambda
                 f"{f.drop_accel_share:.2g} of the full acceleration p T_max / J{err}; the I-f current "
                 f"already produced {carried:.3g} T_N, its torque limit's {f.limit_pu:.3g} T_N",
                 "the open loop cannot catch a rotor braking at the torque limit: ramp the speed reference "
-                "below the handover ([startup] w_on) at the start's acceleration ([startup] acceleration) "
+                "at the start's acceleration ([control] speed_ramp = [startup] acceleration) "
                 "or lower [control] T_max, so that the drive drops back at the start's rate; an observer "
                 "that holds the full acceleration lower (sensorless tune) lowers w_on",
             )

@@ -45,6 +45,8 @@ def _speed(ax: Axes, tr: Traces) -> None:
     ax.plot(tr.t, tr["w_m"] * k, "k-", lw=1.0, label=r"$\omega_\mathrm{m}$")
     ax.plot(tr.t, tr["w_hat"] * k, "k--", lw=1.0, label=r"$\hat\omega_\mathrm{m}$")
     ax.plot(tr.t, tr["w_ref"] * k, "k:", lw=1.0, label=r"$\omega_\mathrm{m,ref}$")
+    if "w_ref_r" in tr.data:  # the drive's rate-limited reference, which its speed controller tracks
+        ax.plot(tr.t, tr["w_ref_r"] * k, "k-.", lw=0.8, label=r"$\omega_\mathrm{m,ref}$ ramped")
     ax.set_ylabel(rf"$\omega_\mathrm{{m}}$ ({unit})")
 
 
@@ -56,7 +58,8 @@ def _speed_error(ax: Axes, tr: Traces) -> None:
 
 def _tracking_error(ax: Axes, tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
-    ax.plot(tr.t, (tr["w_ref"] - tr["w_m"]) * k, "k-", lw=1.0, label=r"$\omega_\mathrm{ref} - \omega$")
+    ref = tr["w_ref_r"] if "w_ref_r" in tr.data else tr["w_ref"]  # what the speed controller tracks
+    ax.plot(tr.t, (ref - tr["w_m"]) * k, "k-", lw=1.0, label=r"$\omega_\mathrm{ref} - \omega$")
     ax.set_ylabel(rf"tracking error ({unit})")
 
 

@@ -294,6 +294,8 @@ def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None =
         if margin <= 0:
             return {}
         a_lim = scales.pole_pairs * margin / scales.J
+        if scales.speed_ramp > 0:  # the drive's own ramp of the reference: no faster than it
+            a_lim = min(a_lim, scales.speed_ramp)
         return {
             "open_s": ol.size * dt,
             "avail_s": (k_tail - k0) * dt,
@@ -395,7 +397,12 @@ def assess(tr: Traces, sc: Scenario, base_w: float, scales: DriveScales | None =
             )
             failures.append(evidence("speed_estimate", text, e.size - 1, lo=e.size - n_tail))
         if sc.mode == "speed" and not sc.stiff_load and has("w_ref"):
-            d = np.mean(np.asarray(tr["w_ref"])[tail] - w_m[tail]) / base_w
+            # the reference the speed controller tracks: the drive's rate-limited one where it has the
+            # limiter (symbolic/speed_ramp.py): a drive that follows its own ramp follows its reference
+            ref = tr["w_ref_r"] if has("w_ref_r") else tr["w_ref"]
+            d = np.mean(np.asarray(ref)[tail] - w_m[tail]) / base_w
+            if has("w_ref_r"):  # where the ramp has not reached the command at the end: said, by how much
+                m["final_ramp_gap_pu"] = f(np.mean(np.asarray(tr["w_ref"])[tail] - ref[tail]) / base_w)
             m["final_tracking_err_pu"] = f(d)
             if abs(d) > LIMITS["final_tracking_err_pu"]:
                 text = (

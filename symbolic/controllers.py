@@ -137,3 +137,17 @@ def low_pass_step(y: Sym, u: Sym, alpha: Sym, T_s: Sym) -> Sym:
     Nyquist frequency with the computation delay (docs/simulation.md).
     """
     return y + (1 - ca.exp(-alpha * T_s)) * (u - y)
+
+
+def ramp_step(w_r: Sym, w_cmd: Sym, a_max: Sym, T_s: Sym) -> Sym:
+    """The speed reference's rate limiter: w_r moves towards the command w_cmd by at most a_max T_s a
+    period (a_max [rad/s^2]); a_max <= 0 passes the command through (no limiter).
+
+    What drives put before the speed controller so that a step of the command becomes a ramp the
+    drive can follow (ODrive's velocity-ramp input mode, ``controller.config.vel_ramp_rate``; the
+    drive file's ``[control] speed_ramp``, docs/simulation.md). Inside the limit w_r_next = w_cmd
+    exactly, so at a steady operating point the limiter is no dynamics of the loop (its derivative
+    with respect to w_r is 0, with respect to w_cmd 1).
+    """
+    d = a_max * T_s
+    return ca.if_else(a_max > 0, w_r + ca.fmin(ca.fmax(w_cmd - w_r, -d), d), w_cmd)

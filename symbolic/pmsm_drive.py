@@ -11,7 +11,8 @@ a PMSM (salient or not); each block from its own symbolic definition:
   the loops, and an output ``u_c_d`` (a carrier voltage for HF injection), if it has one, is added on
   the estimated d axis of the voltage reference;
 - speed control: IP with the torque limit and MTPA current references (symbolic/controllers.py,
-  symbolic/pmsm.py);
+  symbolic/pmsm.py), on the observer's rate-limited speed reference ``w_ref_r`` where the runtime
+  observer carries the limiter (symbolic/speed_ramp.py; it is the drive's, generated to C with it);
 - current control: PI in the estimated rotor frame, decoupled, rotated to the stationary frame at the
   delay-compensated angle; a band-stop keeps a carrier out of its feedback.
 
@@ -184,11 +185,15 @@ def loop_function(
         x_obs_next, y = step(x_obs, ca.vertcat(i_meas, u_now, *cmd), p_obs, gain)
         Y = {name: y[k] for k, name in enumerate(y_names)}
         w_hat, theta_hat, u_c_d = Y["w_hat"], Y["theta_hat"], Y.get("u_c_d", 0)
+        # an observer wrapped in the speed reference's rate limiter (symbolic/speed_ramp.py): the speed
+        # controller tracks its limited reference
+        w_ref = Y.get("w_ref_r", V["w_ref"])
         # an observer wrapped in the open-loop I-f start (symbolic/startup.py): its mode and currents
         m_if, i_f, i_f_q = Y.get("startup_mode", 0), Y.get("i_f", 0), Y.get("i_f_q", 0)
     else:
         x_obs_next, y = ca.SX(0, 1), ca.SX(0, 1)
         w_hat, theta_hat, u_c_d = Z["w_m"], Z["theta_m"], 0
+        w_ref = V["w_ref"]
         m_if, i_f, i_f_q = 0, 0, 0
 
     sensor = Q["sensor"]
@@ -201,7 +206,7 @@ def loop_function(
     w_c = sensor * Z["w_m"] + (1 - sensor) * w_f_next
 
     # speed control (IP) or torque control, torque limit, MTPA references [12]
-    sc = speed_control(V["w_ref"], w_c, Z["x_s"], Q["alpha_s"], Q["J_hat"], Q["p"], T_s, Q["T_max"])
+    sc = speed_control(w_ref, w_c, Z["x_s"], Q["alpha_s"], Q["J_hat"], Q["p"], T_s, Q["T_max"])
     T_ext = ca.fmin(ca.fmax(V["T_ext"], -Q["T_max"]), Q["T_max"])
     speed_mode = Q["speed_mode"]
     T_ref = speed_mode * sc.T_ref + (1 - speed_mode) * T_ext

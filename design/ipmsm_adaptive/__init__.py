@@ -158,6 +158,7 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
             c.alpha_s,
             hold_speed=hold_speed,
             hold_time=hold_time,
+            speed_ramp=c.speed_ramp,
         )
 
     def simulation(self, drive: schema.IpmsmDrive, scenario: Scenario, gains: GainSet | None) -> LoopSetup:

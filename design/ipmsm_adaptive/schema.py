@@ -304,7 +304,7 @@ def load_complete(data: Mapping[str, Any], file: str, digest: str, kind: str) ->
     base = load_section(Base, table(data, "base", file), file, "base")
     motor = load_motor(data, file)
     estimate = load_estimate(data, file)
-    rel = {"pu": base.w, "R_s_hat": estimate.R_s, "Rs_hat": estimate.R_s}
+    rel = {"pu": base.w, "pu/s": base.w, "R_s_hat": estimate.R_s, "Rs_hat": estimate.R_s}
     control = _load_control(table(data, "control", file), file, rel, base)
     obs_t = table(data, "observer", file)
     observer = load_section(Observer, obs_t, file, "observer", rel, skip=("gains",))

@@ -191,7 +191,9 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
         if not why and drive.observer.firmware == "odrive":
             why, spin = ODRIVE_ONE_WAY, True
         m = drive.motor
-        return DriveScales(drive.T_N, c.T_max, m.J, m.p, drive.w_base, c.alpha_s, why, spin)
+        return DriveScales(
+            drive.T_N, c.T_max, m.J, m.p, drive.w_base, c.alpha_s, why, spin, speed_ramp=c.speed_ramp
+        )
 
     def drive_loop(
         self, drive: schema.FluxObserverDrive, scenario: Scenario, gains: GainSet | None

@@ -48,6 +48,7 @@ from sensorless.design.pmsm_schema import (
     PmsmEstimate,
     PmsmMotor,
     PmsmRating,
+    speed_ramp,
 )
 from sensorless.design.units import DriveFileError
 from sensorless.symbolic.pmsm_flux_observer.observer import CORRECTIONS, INDUCTANCES
@@ -247,7 +248,7 @@ def document(data: Mapping[str, Any], file: str) -> DriveDocument:
             sec[k] = Entry(v, r)
 
     ctl_t = table(data, "control", file) if "control" in data else {}
-    check_keys(ctl_t, ("alpha_c", "alpha_s", "T_max", "i_noise"), file, "control.")
+    check_keys(ctl_t, ("alpha_c", "alpha_s", "T_max", "i_noise", "speed_ramp"), file, "control.")
     alpha_c = (
         positive(ctl_t, "alpha_c", "angular", file, "control") if "alpha_c" in ctl_t else ALPHA_C / T_obs
     )
@@ -372,14 +373,15 @@ def load(data: Mapping[str, Any], file: str, digest: str, kind: str) -> FluxObse
     )
     estimate = load_section(PmsmEstimate, d["estimate"], file, "estimate")
     ctl = d["control"]
+    w_base = rating.n_N * math.pi / 30 * motor.p
     control = PmsmControl(
         T_s=observer.T_obs,
         alpha_c=positive(ctl, "alpha_c", "angular", file, "control"),
         alpha_s=positive(ctl, "alpha_s", "angular", file, "control"),
         T_max=positive(ctl, "T_max", "torque", file, "control"),
         u_dc=positive(d["inverter"], "u_dc", "voltage", file, "inverter"),
+        speed_ramp=speed_ramp(ctl, file, w_base),
     )
-    w_base = rating.n_N * math.pi / 30 * motor.p
     env_t = d["envelope"]
     keys = load_section(EnvelopeKeys, env_t, file, "envelope", {"pu": w_base}, skip=("torques",))
     torques = quantities(env_t, "torques", "torque", file, "envelope")

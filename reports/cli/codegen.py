@@ -16,6 +16,7 @@ import sys
 from sensorless.design.family import CapabilityError
 from sensorless.design.gain_table import GainTableError, read_gain_table
 from sensorless.design.registry import family_of
+from sensorless.design.speed_ramp import drive_ramp
 from sensorless.design.units import DriveFileError
 from sensorless.reports.cli.common import UsageError, foreign_table, load, version
 from sensorless.reports.codegen.generate import (
@@ -134,6 +135,8 @@ def run(args: argparse.Namespace) -> int:
 
         setup, line = startup_setup(drive, setup)
         setup = dataclasses.replace(setup, notes=(*setup.notes, line)) if "no I-f" in line else setup
+    # the drive's speed reference rate limiter ([control] speed_ramp): in the step, as the loop runs it
+    setup = drive_ramp(drive, setup)
     fixed = args.precision == "fixed"
     values = _param_values(args.param, fixed)
     names = (*output_names(prefix), f"{prefix}_formats.json") if fixed else output_names(prefix)

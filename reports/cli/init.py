@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -161,6 +162,9 @@ def _startup_section(doc: DriveDocument, fam: ObserverFamily, drive: Drive, give
         return True
     if values is None and given is None:
         return False
+    ramped = _speed_ramp(doc, fam, drive, values, w_min, given)
+    if ramped is not None:  # the start's values on the drive with its ramp
+        drive, values, w_min = ramped
     sec = doc.section(SECTION, note)
     if values is not None:
         sec.update(document_entries(values, drive.w_base, w_min))
@@ -168,6 +172,55 @@ def _startup_section(doc: DriveDocument, fam: ObserverFamily, drive: Drive, give
             doc.optional.setdefault(SECTION, []).extend(optional_lines(values))
     sec.update({k: Entry(v, given=True) for k, v in (given or {}).items()})
     return True
+
+
+def _speed_ramp(
+    doc: DriveDocument,
+    fam: ObserverFamily,
+    drive: Drive,
+    values: dict[str, float] | None,
+    w_min: float,
+    given: Mapping[str, object] | None,
+) -> tuple[Drive, dict[str, float] | None, float] | None:
+    """Add ``[control] speed_ramp`` (design/speed_ramp.py) to ``doc`` where the drive needs one, and
+    return (the drive with it, its start's values, their w_min); None where it needs none. It needs one
+    where the start's rule puts the handover at the rated speed (ON_FACTOR w_min at rated load, w_min
+    judged under the full braking p (T_max + T_N) / J: design/startup.py), so that no check below it
+    runs sensorless, and a speed reference ramped at the start's acceleration (a drive's own rate)
+    brings the handover below it (the gimbal of docs/examples/motors: w_min 1 p.u. under the full
+    braking, 0.18 p.u. along the ramp; every check passes). Not where the drive file gives the key, or
+    fixes the start's acceleration or its handover."""
+    from sensorless.design.pmsm_drive import startup_values
+    from sensorless.design.startup import ON_FACTOR
+
+    ctl = doc.sections.get("control")
+    if (
+        values is None
+        or ctl is None
+        or "speed_ramp" in ctl
+        or (given and ({"acceleration", "w_on"} & set(given)))
+    ):
+        return None
+    w_base = drive.w_base
+    if ON_FACTOR * w_min < w_base * (1 - 1e-9):
+        return None
+    a = float(f"{values['if_acc']:.6g}")
+    ctl["speed_ramp"] = Entry(
+        f"{a:.6g} rad/s^2",
+        f"the I-f start's acceleration: under the full braking the start's handover is at the rated "
+        f"speed (w_min {w_min / w_base:.3g} p.u.); along this ramp it is lower (0: a step asks for the "
+        "torque limit)",
+    )
+    try:
+        ramped = load_drive_text(doc.toml(), drive.file)
+    except DriveFileError:  # a start's value out of range (its own error follows, naming the user's keys)
+        del ctl["speed_ramp"]
+        return None
+    v, _, w = startup_values(ramped, fam.gains(ramped))
+    if v is None or ON_FACTOR * w >= w_base * (1 - 1e-9):  # the ramp does not help: not derived
+        del ctl["speed_ramp"]
+        return None
+    return ramped, v, w
 
 
 def _source(spec: str) -> tuple[str, str]:

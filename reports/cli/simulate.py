@@ -182,6 +182,8 @@ def print_summary(tr: Traces) -> None:
     k, unit = tr.meta["speed_scale"], tr.meta["speed_unit"]
     e_th = np.degrees(tr["theta_err"])
     e_w = (tr["w_m"] - tr["w_hat"]) * k
+    if "speed_ramp" in tr.meta:  # the drive's rate limiter on the speed reference (design/speed_ramp.py)
+        print(tr.meta["speed_ramp"])
     if "startup_mode" in tr.data:  # the open-loop I-f start: its theta_hat, w_hat are not estimates
         closed = np.asarray(tr["startup_mode"]) < 0.5
         on = int(np.count_nonzero(closed[1:] & ~closed[:-1]))

@@ -242,7 +242,9 @@ def test_a_handover_capped_at_the_rated_speed_says_why_and_no_handover_above_it_
     from sensorless.reports.low_speed import _handover, handover_advice
 
     def ls(w, why):
-        return SimpleNamespace(w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4)
+        return SimpleNamespace(
+            w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4, ramp=0.0
+        )
 
     assert handover_reason(ls(0.6, "decay")).startswith(f"{HANDOVER_CAPPED} (1 p.u.)")
     assert "w_min at rated load is 0.6 p.u. (limited by decay), 2 w_min = 1.2 p.u." in handover_reason(
@@ -281,7 +283,9 @@ def test_a_handover_the_drive_file_fixes_is_never_said_to_be_at_1_pu(tmp_path):
     from sensorless.design.startup import ACCELERATION_LIMIT, HANDOVER_CAPPED, handover_reason
 
     def ls(w, why):
-        return SimpleNamespace(w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4)
+        return SimpleNamespace(
+            w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4, ramp=0.0
+        )
 
     fast = handover_reason(ls(1.0, "acceleration"), 30.0)
     assert fast.startswith(ACCELERATION_LIMIT) and "handover at 1 p.u." not in fast

@@ -309,3 +309,28 @@ def test_malformed_xml_says_what_is_wrong_in_words(text, words):
         vesc.read(text, "m.xml", {}, KIND)
     msg = str(e.value)
     assert words in msg and "line 1" in msg and "invalid token" not in msg and "\n" not in msg
+
+
+def test_odrive_ramped_velocity_input_is_the_drive_files_speed_ramp():
+    """INPUT_MODE_VEL_RAMP (2) with vel_ramp_rate 3 turn/s^2 on 7 pole pairs: 2 pi 7 x 3 = 131.95 rad/s^2
+    electrical, which the written drive file loads as [control] speed_ramp; passthrough (1, the examples'
+    mode) writes none."""
+    from sensorless.design.drive import load_drive_text
+
+    data = json.loads(odrive_json())
+    data["axis0"]["controller"] = {"config": {"input_mode": 2, "vel_ramp_rate": 3.0}}
+    r = odrive.read(json.dumps(data), "cfg", {"u_dc": 24.0}, KIND)
+    d = tomllib.loads(r.text)
+    assert si(d["control"]["speed_ramp"], "acceleration") == pytest.approx(2 * math.pi * 7 * 3.0, rel=1e-11)
+    assert load_drive_text(r.text, "cfg.toml").control.speed_ramp == pytest.approx(131.946891, rel=1e-8)
+    data["axis0"]["controller"]["config"]["input_mode"] = 1
+    assert "control" not in imported(odrive, json.dumps(data), {"u_dc": 24.0})[0]
+
+
+def test_vesc_speed_pid_ramp_is_the_drive_files_speed_ramp():
+    """s_pid_ramp_erpms_s 25000 ERPM/s (the firmware's default): 25000 x 2 pi/60 = 2617.99 rad/s^2;
+    -1 (VESC: no ramp) or absent (the examples' files) writes none."""
+    d, _ = imported(vesc, vesc_xml(**HUB, s_pid_ramp_erpms_s=25000))
+    assert si(d["control"]["speed_ramp"], "acceleration") == pytest.approx(25000 * math.pi / 30, rel=1e-11)
+    assert "control" not in imported(vesc, vesc_xml(**HUB, s_pid_ramp_erpms_s=-1))[0]
+    assert "control" not in imported(vesc, vesc_xml(**HUB))[0]

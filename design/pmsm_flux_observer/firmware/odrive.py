@@ -16,6 +16,11 @@ The conventions converted here (ODrive v3: github.com/odriverobotics/ODrive,
   ki = kp^2/4), default 1000 each; the firmware refuses T kp >= 1 (ERROR_UNSTABLE_GAIN), and its
   forward Euler step is unstable for T observer_gain >= 2;
 - the loop runs at 8 kHz on v3 boards (the backup does not hold it: --f-s);
+- the ramped velocity input (``controller.config.input_mode`` = 2, INPUT_MODE_VEL_RAMP, with
+  ``controller.config.vel_ramp_rate`` [turn/s^2, mechanical]: "Ramped velocity control", ODrive v0.5
+  documentation, docs.odriverobotics.com/v/0.5.6/control-modes.html) is the speed reference's rate
+  limiter (``[control] speed_ramp``, design/speed_ramp.py): 2 pi pole_pairs vel_ramp_rate rad/s^2
+  electrical; another input mode passes the command, and the drive file gets none;
 - the open-loop start ``config.sensorless_ramp`` (``[startup]``, design/startup.py): ``current`` [A],
   ``accel`` [rad/s^2] and ``vel`` [rad/s], electrical: the I-f start's current, acceleration and
   handover speed w_on. ODrive does not return to open loop (sensorless "does not support stopping or
@@ -53,6 +58,8 @@ from sensorless.design.units import DriveFileError
 MOTOR = "axis0.motor.config."
 ESTIMATOR = "axis0.sensorless_estimator.config."
 RAMP = "axis0.config.sensorless_ramp."
+CONTROLLER = "axis0.controller.config."
+INPUT_MODE_VEL_RAMP = 2  # ODrive v0.5's InputMode enum
 FACTORY = {  # firmware defaults: a value still at its default was never set
     ESTIMATOR + "pm_flux_linkage": 1.58e-3,
     MOTOR + "torque_constant": 0.04,
@@ -195,6 +202,14 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         (float(given["u_dc"]), psi),
         notes,
     )
+    control: dict[str, Entry] = {}
+    mode = f.number(CONTROLLER + "input_mode", positive=False)
+    rate = f.number(CONTROLLER + "vel_ramp_rate")
+    if mode == INPUT_MODE_VEL_RAMP and rate is not None:
+        control["speed_ramp"] = Entry(
+            quantity(2 * math.pi * p * rate, "rad/s^2"),
+            "2 pi pole_pairs controller.config.vel_ramp_rate (turn/s^2; input_mode VEL_RAMP)",
+        )
     sections = {
         "drive": {
             "name": Entry(str(given.get("name") or Path(file).stem)),
@@ -206,6 +221,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         "inverter": inverter,
         "observer": observer,
         "gains": gains,
+        "control": control,
         "startup": startup,
     }
     return Imported(drive_document(header, sections), tuple(notes))

@@ -25,7 +25,11 @@ documented settings: github.com/vedderb/vesc_tool, github.com/vedderb/bldc ``mot
   ``foc_sl_openloop_hyst`` [s]: the time the I-f ramp takes across the band w_off..w_on, (w_on - w_off) /
   acceleration; ``foc_sl_erpm`` [ERPM] (the observer's lower speed in the hybrid sensor modes) is the
   user's and is not written (firmware/startup.py writes the judged start's fields).
-  VESC sets the open loop's current by its own (``foc_sl_openloop_boost_q``, ...): not written.
+  VESC sets the open loop's current by its own (``foc_sl_openloop_boost_q``, ...): not written;
+- ``s_pid_ramp_erpms_s`` [ERPM/s] (firmware 5.2 on): where it is > 0 the speed PID's set point steps
+  towards the speed command by at most that times dt (``utils_step_towards`` in ``motor/foc_math.c``
+  ``foc_run_pid_control_speed``): the speed reference's rate limiter, ``[control] speed_ramp`` =
+  x 2 pi/60 rad/s^2 electrical (design/speed_ramp.py); 0 or below (or absent): none.
 """
 
 from __future__ import annotations
@@ -316,6 +320,12 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         (u_dc, psi),
         notes,
     )
+    ramp = f.number("s_pid_ramp_erpms_s", positive=False)
+    control: dict[str, Entry] = {}
+    if ramp is not None and ramp > 0:
+        control["speed_ramp"] = Entry(
+            quantity(ramp * 2 * math.pi / 60, "rad/s^2"), "s_pid_ramp_erpms_s x 2 pi/60 (ERPM/s)"
+        )
     sections = {
         "drive": {
             "name": Entry(str(given.get("name") or stem)),
@@ -328,6 +338,7 @@ def read(text: str, file: str, given: Mapping[str, Any], kind: str) -> Imported:
         "observer": observer,
         "estimate": estimate,
         "gains": gains,
+        "control": control,
         "startup": startup,
     }
     return Imported(drive_document(header, sections), tuple(notes))
