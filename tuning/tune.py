@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.envelope import TuningSettings
 from sensorless.design.family import Drive
+from sensorless.design.low_speed import required_decay
 from sensorless.tuning import nlp, search, tiebreak
 from sensorless.tuning.bound import Bound, pointwise_bound, with_witness
 from sensorless.tuning.candidates import DAMPING, NOISE, Candidates, meets_floor
@@ -71,6 +72,15 @@ def tune(
         return tunable.tuner(drive, settings, progress)
     t_start = time.perf_counter()
     say = progress or (lambda s: None)
+    need = required_decay(drive)
+    if need > settings.min_decay:
+        # the decay the handover's w_min asks (design/low_speed.py): below it the tuned gains' w_min, and
+        # so the I-f handover, rises (a gimbal's to 0.69 p.u., above its start's and reversal's speeds);
+        # where no gain meets it on the envelope, the configured floor
+        try:
+            return tune(drive, law, dataclasses.replace(settings, min_decay=need), progress)
+        except nlp.TuningError as e:
+            say(f"decay >= {need:.4g} 1/s (the handover's criterion) not met: {e}; tuning without it")
     seed_res: TuneResult | None = None
     if tunable.seed is not None:
         seed_name = tunable.seed
