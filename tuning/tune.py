@@ -64,7 +64,36 @@ def tune(
     """Tune the gain law ``law`` (None: the default of the drive's observer family) on ``drive``
     over the envelope of ``settings`` (default: the tunable's, e.g. the drive's ``[tuning]``). Returns a
     TuneResult (or the own tuner's result). Raises nlp.TuningError if the constraints cannot be met
-    (with the evidence), CapabilityError if the law cannot be tuned."""
+    (with the evidence), CapabilityError if the law cannot be tuned.
+
+    Tuned gains slower anywhere on the dense grid than the decay the handover's w_min asks
+    (design/low_speed.py ``required_decay``) are tuned again with that floor (the seed too): below it
+    their w_min, and so the I-f handover, rises (a gimbal's to 0.69 p.u., above its start's and
+    reversal's 0.5 p.u.: those checks never handed over). Where no gain meets it, the first gains."""
+    res = _tune(drive, law, settings, progress)
+    need = required_decay(drive)
+    if not isinstance(res, TuneResult) or need <= res.floor or float(np.min(res.dense.decay)) >= need:
+        return res
+    say = progress or (lambda s: None)
+    say(
+        f"tuned gains decay at {float(np.min(res.dense.decay)):.4g} 1/s, below the {need:.4g} 1/s the "
+        "handover's w_min asks: tuning again with that floor"
+    )
+    st = settings if settings is not None else tunable_for(drive, law).settings(drive)
+    try:
+        return _tune(drive, law, dataclasses.replace(st, min_decay=need), progress)
+    except nlp.TuningError as e:
+        say(f"no gains meet decay >= {need:.4g} 1/s on the envelope ({e}): the first tuning's gains")
+        return res
+
+
+def _tune(
+    drive: Drive,
+    law: str | None,
+    settings: TuneSettings | None,
+    progress: Callable[[str], None] | None,
+) -> TuneOutcome:
+    """:func:`tune` without the handover's decay floor (a seed's floor is its law's)."""
     tunable = tunable_for(drive, law)
     law = tunable.name
     settings = settings if settings is not None else tunable.settings(drive)
@@ -72,21 +101,12 @@ def tune(
         return tunable.tuner(drive, settings, progress)
     t_start = time.perf_counter()
     say = progress or (lambda s: None)
-    need = required_decay(drive)
-    if need > settings.min_decay:
-        # the decay the handover's w_min asks (design/low_speed.py): below it the tuned gains' w_min, and
-        # so the I-f handover, rises (a gimbal's to 0.69 p.u., above its start's and reversal's speeds);
-        # where no gain meets it on the envelope, the configured floor
-        try:
-            return tune(drive, law, dataclasses.replace(settings, min_decay=need), progress)
-        except nlp.TuningError as e:
-            say(f"decay >= {need:.4g} 1/s (the handover's criterion) not met: {e}; tuning without it")
     seed_res: TuneResult | None = None
     if tunable.seed is not None:
         seed_name = tunable.seed
         say(f"{law}: tuning its start, the {seed_name} law, first")
         seed_set = dataclasses.replace(settings, pareto=0)
-        seed_res = tune(drive, seed_name, seed_set, progress=lambda m: say(f"  [{seed_name}] {m}"))
+        seed_res = _tune(drive, seed_name, seed_set, progress=lambda m: say(f"  [{seed_name}] {m}"))
     model = tunable.build(drive, settings, None if seed_res is None else seed_res.theta)
     env = settings.envelope
     wb = drive.w_base
