@@ -240,6 +240,12 @@ def required_decay(drive: Drive) -> float:
     return DECAY_SHARE * float(fam.scales(drive).alpha_s) if isinstance(fam, Scaled) else 0.0
 
 
+def handover_decay(drive: Drive) -> float:
+    """The decay rate [1/s] the I-f handover's w_min asks (:func:`required_decay`); 0 where the drive has
+    no I-f start: its family holds zero speed by itself (e.g. HF injection, design/pmsm_drive.py)."""
+    return 0.0 if family_of(drive).holds_zero_speed(drive) else required_decay(drive)
+
+
 def braking_acceleration(drive: Drive, torque: ArrayLike) -> np.ndarray:
     """The largest speed change [rad/s^2 electrical] of the drive running at load ``torque`` [N m]: its
     speed loop at the torque limit against the load's direction, the load helping, p (T_max + |T|) / J

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.envelope import TuningSettings
 from sensorless.design.family import Drive
-from sensorless.design.low_speed import required_decay
+from sensorless.design.low_speed import handover_decay
 from sensorless.tuning import nlp, search, tiebreak
 from sensorless.tuning.bound import Bound, pointwise_bound, with_witness
 from sensorless.tuning.candidates import DAMPING, NOISE, Candidates, meets_floor
@@ -66,12 +66,13 @@ def tune(
     TuneResult (or the own tuner's result). Raises nlp.TuningError if the constraints cannot be met
     (with the evidence), CapabilityError if the law cannot be tuned.
 
-    Tuned gains slower anywhere on the dense grid than the decay the handover's w_min asks
-    (design/low_speed.py ``required_decay``) are tuned again with that floor (the seed too): below it
-    their w_min, and so the I-f handover, rises (a gimbal's to 0.69 p.u., above its start's and
-    reversal's 0.5 p.u.: those checks never handed over). Where no gain meets it, the first gains."""
+    Tuned gains slower anywhere on the dense grid than the decay the I-f handover's w_min asks
+    (design/low_speed.py ``handover_decay``; none where the drive needs no I-f start) are tuned again
+    with that floor (the seed too): below it their w_min, and so the handover, rises (a gimbal's to
+    0.69 p.u., above its start's and reversal's 0.5 p.u.: those checks never handed over). Where no
+    gain meets it, the first gains."""
     res = _tune(drive, law, settings, progress)
-    need = required_decay(drive)
+    need = handover_decay(drive)
     if not isinstance(res, TuneResult) or need <= res.floor or float(np.min(res.dense.decay)) >= need:
         return res
     say = progress or (lambda s: None)
