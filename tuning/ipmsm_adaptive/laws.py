@@ -36,7 +36,7 @@ from sensorless.design.envelope import TuningSettings
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.design.units import MAGNITUDE
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law, schedule_law
-from sensorless.tuning.ipmsm_adaptive.model import law_model, law_values
+from sensorless.tuning.ipmsm_adaptive.model import law_model, law_values, settled
 from sensorless.tuning.model import TuningModel
 
 if TYPE_CHECKING:  # typed by name only
@@ -73,6 +73,7 @@ def build_speed_dependent(
     drive: IpmsmDrive, settings: TuningSettings, seed: np.ndarray | None = None
 ) -> TuningModel:
     """Law speed-dependent: eq. (16) with lambda' and omega_lambda free."""
+    settings = settled(drive, settings)
     law = get_law("speed")
     R = drive.estimate.R_s
     wb = drive.base.w
@@ -176,6 +177,7 @@ def build_schedule(
     ``seed``, the tuned speed-dependent parameters (lambda', omega_lambda[, alpha_fo]), when given.
     In the injection band the breakpoints keep the seed's gains (the drive file's without a seed):
     the module docstring."""
+    settings = settled(drive, settings)
     g = drive.gain("speed")
     baseline = np.array([g.lambda_p, g.w_lambda])
     grid = schedule_breakpoints(drive, settings, (g.w_lambda, *(() if seed is None else (seed[1],))))
@@ -297,7 +299,12 @@ def build_pointwise(
     drive: IpmsmDrive, settings: TuningSettings, seed: np.ndarray | None = None
 ) -> TuningModel:
     """The free gains at one operating point: theta = [lambda1, lambda2] (constant law, eq. (7)), in the
-    box of the schedule; the model of the pointwise bound (tuning/bound.py)."""
+    box of the schedule; the model of the pointwise bound (tuning/bound.py). The bound is of the damping
+    alone, without the laws' bound on the angle lag (``hold_lag``): still an upper bound of what they
+    reach, and evaluating the lag there cost the README servo's bound 3x its time for figures it never
+    reads."""
+    settings = settled(drive, settings)
+    settings = dataclasses.replace(settings, law=dataclasses.replace(law_settings(settings), hold_lag=False))
     law = get_law("constant")
     R = drive.estimate.R_s
     a0 = drive.observer.alpha_fo
