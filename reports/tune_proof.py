@@ -207,6 +207,11 @@ def prove(
     return Proof(label, w, t, mr, wd, tuple(checks))
 
 
+def failed_checks(proof: Proof) -> list[str]:
+    """The names of the time-domain checks ``proof``'s gains fail (status fail; a warn is not a failure)."""
+    return [c["name"] for c in proof.checks if time_domain.check_status(c) == "fail"]
+
+
 def worse(tuned: Proof, base: Proof, w_base: float) -> list[str]:
     """What the tuned gains do worse than the drive file's (module docstring), one clause each naming
     the point or the check; empty: no worse."""

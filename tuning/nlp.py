@@ -114,6 +114,7 @@ def solve(
 
     def kept(sol: Solution) -> Solution:
         return dataclasses.replace(sol, iterations=total_it, failed_attempts=tuple(attempts))
+
     for rnd in range(1, 100):
         # start each round feasible: below the worst damping of the active points at theta
         damp_act = [m[i] + t_now for i in active if cand.condition[i] == DAMPING and np.isfinite(m[i])]

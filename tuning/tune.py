@@ -78,6 +78,9 @@ def tune(
         seed_set = dataclasses.replace(settings, pareto=0)
         seed_res = tune(drive, seed_name, seed_set, progress=lambda m: say(f"  [{seed_name}] {m}"))
     model = tunable.build(drive, settings, None if seed_res is None else seed_res.theta)
+    if model.bounded is not None and not getattr(settings, "hold_bounded", True):
+        say(f"not held: {', '.join(model.bounded_names)} (the drive file's gains fail a check of their own)")
+        model = dataclasses.replace(model, bounded=None, bounded_names=())
     env = settings.envelope
     wb = drive.w_base
     W, T = env.grid()
