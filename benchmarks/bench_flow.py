@@ -16,7 +16,10 @@ them (``--in-process`` runs the rounds here, to see that difference). Compiled c
 first run; ``--cold-cache`` gives each round an empty cache (the first run on a machine). The analyses
 kept on disk (design/memo.py: ``report`` reuses those its ``tune`` made) start empty in every round: a
 round is a user's first flow on a new motor, not a rerun of the last round's. The imports
-are timed as their own row. Inside ``tune`` and ``report`` each progress line (stderr; for report also
+are timed as their own row. The toolbox's bytecode is compiled before the first round (``python -m
+compileall`` on its four packages, as ``pip install`` does): a shell with PYTHONDONTWRITEBYTECODE=1 would
+otherwise have every process compile its ~150 modules again (0.3-0.5 s CPU per command), which no
+installed user pays (``--source-compile``: leave the bytecode as it is, to see that cost). Inside ``tune`` and ``report`` each progress line (stderr; for report also
 stdout) is time-stamped; the time from one line to the next is that stage's. The report's figures are
 rendered by child processes while it computes on (reports/svg_render.py): its stage times are those
 of the main process, and the wait for the last figures falls in the last stage. Prints median stage
@@ -46,7 +49,9 @@ from pathlib import Path
 
 TARGET_S = 10.0  # init + tune + codegen + report, one process, imports included
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+PACKAGES = ("symbolic", "design", "tuning", "reports")  # setup.py ROOTS: the sensorless.* packages
 # the compiled-code cache of design/compiled.py (``cache_dir``; not imported here: the imports are timed)
 JIT_CACHE = Path(os.environ.get("SENSORLESS_CACHE") or Path.home() / ".cache" / "sensorless") / "jit"
 
@@ -177,6 +182,13 @@ def median_inner(rounds: list[dict], name: str) -> list[tuple[str, float]]:
     return [(runs[0][k][0], statistics.median(r[k][1] for r in runs)) for k in range(n)]
 
 
+def compile_bytecode() -> None:
+    """Compile the toolbox's modules to bytecode in their ``__pycache__`` (what ``pip install`` does;
+    Python reads it, PYTHONDONTWRITEBYTECODE or not), quietly; untimed."""
+    dirs = [str(ROOT / d) for d in PACKAGES]
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *dirs], check=True, stdout=subprocess.DEVNULL)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="rounds (default 3); medians are printed")
@@ -191,6 +203,11 @@ def main() -> None:
         action="store_true",
         help="each command in a process of its own, as the README's shell lines",
     )
+    ap.add_argument(
+        "--source-compile",
+        action="store_true",
+        help="do not compile the toolbox's bytecode first (each process compiles what it has not cached)",
+    )
     a = ap.parse_args()
     if a.cold_cache and a.in_process:
         ap.error("--cold-cache needs fresh processes (not --in-process)")
@@ -199,6 +216,8 @@ def main() -> None:
     if a.one_round:
         print(json.dumps(one_round(Path(a.one_round), BASELINE if a.baseline_round else COMMANDS)))
         return
+    if not a.source_compile:
+        compile_bytecode()
     base = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="bench_flow_"))
     rounds, baselines = [], []
 
@@ -242,6 +261,7 @@ def main() -> None:
     how = "all in this process" if a.in_process else "each in a fresh process"
     how = "each command in a process of its own" if a.separate else how
     how += ", empty compiled-code cache" if a.cold_cache else ""
+    how += ", bytecode compiled by each process" if a.source_compile else ""
     print(f"user flow on a minimal non-preset drive (servo400), {a.repeat} rounds ({how}); medians")
     for _name, argv in COMMANDS:
         print(f"  sensorless {' '.join(argv)}")
