@@ -25,7 +25,7 @@ import casadi as ca
 import numpy as np
 from sensorless.design.compiled import compiled, is_cached, wanted_elsewhere
 from sensorless.design.family import LACKS, Drive, GainSet, require
-from sensorless.design.memo import by_content, kept_function
+from sensorless.design.memo import by_content
 from sensorless.design.registry import family_of
 from sensorless.design.runtime import double_step_active
 from sensorless.design.scenario import Scenario
@@ -266,7 +266,9 @@ def noise(scenario: Scenario, n: int) -> np.ndarray:
 # --------------------------------------------------------------------------------------------------
 # The runner
 # --------------------------------------------------------------------------------------------------
-@kept_function
+# not kept on disk (design/memo.py kept_function): the serialized map of CHUNK steps is 6-10 MB,
+# slower to write and read back than to build (0.1 s against 0.07 s)
+@functools.cache
 def chunk_function(loop: ca.Function, n: int) -> ca.Function:
     """``n`` loop steps as one Function (z, V, q, p_obs, gain) -> (z after n steps, rec (n_rec, n))."""
     F = loop.mapaccum(n)
