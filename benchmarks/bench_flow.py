@@ -16,13 +16,17 @@ them (``--in-process`` runs the rounds here, to see that difference). Compiled c
 first run; ``--cold-cache`` gives each round an empty cache (the first run on a machine). The analyses
 kept on disk (design/memo.py: ``report`` reuses those its ``tune`` made) start empty in every round: a
 round is a user's first flow on a new motor, not a rerun of the last round's. The imports
-are timed as their own row. Inside ``tune`` and ``report`` each progress line (stderr; for report also
-stdout) is time-stamped; the time from one line to the next is that stage's. The report's figures are
-rendered by child processes while it computes on (reports/svg_render.py): its stage times are those
-of the main process, and the wait for the last figures falls in the last stage. Prints median stage
-times over the rounds, wall and CPU (the process's and its reaped children's, the figure renderers:
-on a shared machine the CPU time is the figure to compare), the total against the 10 s target, and the
-stages of report and tune.
+are timed as their own row. The toolbox's bytecode is compiled before the first round (``python -m
+compileall`` on its four packages, as ``pip install`` does): a shell with PYTHONDONTWRITEBYTECODE=1 would
+otherwise have every process compile its ~150 modules again (0.3-0.5 s CPU per command), which no
+installed user pays (``--source-compile``: leave the bytecode as it is, to see that cost). Inside
+``tune`` and ``report`` each progress line (stderr; for report also stdout) is time-stamped; the time
+from one line to the next is that stage's. The report's figures are rendered by child processes while
+it computes on (reports/svg_render.py): its stage times are those of the main process, and the wait for
+the last figures falls in the last stage. Prints median stage times over the rounds, wall and CPU (the
+process's and its reaped children's, the figure renderers: on a shared machine the CPU time is the
+figure to compare), the report's CPU split into its process and its children (``--separate`` too),
+the total against the 10 s target, and the stages of report and tune.
 """
 
 from __future__ import annotations
@@ -46,7 +50,9 @@ from pathlib import Path
 
 TARGET_S = 10.0  # init + tune + codegen + report, one process, imports included
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+PACKAGES = ("symbolic", "design", "tuning", "reports")  # setup.py ROOTS: the sensorless.* packages
 # the compiled-code cache of design/compiled.py (``cache_dir``; not imported here: the imports are timed)
 JIT_CACHE = Path(os.environ.get("SENSORLESS_CACHE") or Path.home() / ".cache" / "sensorless") / "jit"
 
@@ -119,14 +125,25 @@ def separate_round(work: Path, env: dict, commands: tuple = COMMANDS) -> dict:
     res: dict = {"stages": {}, "cpu": {}, "children": {}, "inner": {}}
     work.mkdir(parents=True, exist_ok=True)
     (work / "servo.toml").write_text(readme_servo())
-    run = "import sys; from sensorless.reports.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    # the command's own CPU, written at its exit (its figure renderers leave by os._exit: not theirs)
+    run = (
+        "import atexit, os, sys, time; "
+        "atexit.register(lambda: open(os.environ['BENCH_OWN_CPU'], 'w').write(repr(time.process_time()))); "
+        "from sensorless.reports.cli.main import main; sys.exit(main(sys.argv[1:]))"
+    )
+    own = work / "own_cpu.txt"
     for name, argv in commands:
         t0, c0 = time.perf_counter(), children_cpu()
         p = subprocess.run(
-            [sys.executable, "-c", run, *argv, "--force"], cwd=work, env=env, capture_output=True
+            [sys.executable, "-c", run, *argv, "--force"],
+            cwd=work,
+            env={**env, "BENCH_OWN_CPU": str(own)},
+            capture_output=True,
         )
         res["stages"][name], res["cpu"][name] = time.perf_counter() - t0, children_cpu() - c0
-        res["children"][name] = 0.0  # not told apart from the command's own process here
+        # the command's children: the report's figure renderers (and the C compiler with an empty cache)
+        res["children"][name] = max(0.0, res["cpu"][name] - float(own.read_text())) if own.exists() else 0.0
+        own.unlink(missing_ok=True)
         if p.returncode != 0 and not (commands is BASELINE and p.returncode == 3):
             raise SystemExit(f"sensorless {name} exited with {p.returncode}:\n{p.stderr.decode()}")
     return res
@@ -177,6 +194,13 @@ def median_inner(rounds: list[dict], name: str) -> list[tuple[str, float]]:
     return [(runs[0][k][0], statistics.median(r[k][1] for r in runs)) for k in range(n)]
 
 
+def compile_bytecode() -> None:
+    """Compile the toolbox's modules to bytecode in their ``__pycache__`` (what ``pip install`` does;
+    Python reads it, PYTHONDONTWRITEBYTECODE or not), quietly; untimed."""
+    dirs = [str(ROOT / d) for d in PACKAGES]
+    subprocess.run([sys.executable, "-m", "compileall", "-q", *dirs], check=True, stdout=subprocess.DEVNULL)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="rounds (default 3); medians are printed")
@@ -191,6 +215,11 @@ def main() -> None:
         action="store_true",
         help="each command in a process of its own, as the README's shell lines",
     )
+    ap.add_argument(
+        "--source-compile",
+        action="store_true",
+        help="do not compile the toolbox's bytecode first (each process compiles what it has not cached)",
+    )
     a = ap.parse_args()
     if a.cold_cache and a.in_process:
         ap.error("--cold-cache needs fresh processes (not --in-process)")
@@ -199,6 +228,8 @@ def main() -> None:
     if a.one_round:
         print(json.dumps(one_round(Path(a.one_round), BASELINE if a.baseline_round else COMMANDS)))
         return
+    if not a.source_compile:
+        compile_bytecode()
     base = Path(a.keep) if a.keep else Path(tempfile.mkdtemp(prefix="bench_flow_"))
     rounds, baselines = [], []
 
@@ -242,6 +273,7 @@ def main() -> None:
     how = "all in this process" if a.in_process else "each in a fresh process"
     how = "each command in a process of its own" if a.separate else how
     how += ", empty compiled-code cache" if a.cold_cache else ""
+    how += ", bytecode compiled by each process" if a.source_compile else ""
     print(f"user flow on a minimal non-preset drive (servo400), {a.repeat} rounds ({how}); medians")
     for _name, argv in COMMANDS:
         print(f"  sensorless {' '.join(argv)}")
@@ -262,11 +294,10 @@ def main() -> None:
     )
     kids = statistics.median(r["children"]["report"] for r in rounds)
     rep = statistics.median(r["cpu"]["report"] for r in rounds)
-    if not a.separate:
-        print(
-            f"  report's CPU: {rep - kids:.2f} s its process, {kids:.2f} s its children (the figure "
-            "renderers; with an empty cache the C compiler too; medians)"
-        )
+    print(
+        f"  report's CPU: {rep - kids:.2f} s its process, {kids:.2f} s its children (the figure "
+        "renderers; with an empty cache the C compiler too; medians)"
+    )
     verdict = "met" if cpu <= TARGET_S else "NOT met"
     print(f"target: init + tune + codegen + report <= {TARGET_S:g} s CPU, imports included: {verdict}")
     if baselines:

@@ -133,6 +133,52 @@ def wanted_elsewhere(fn: ca.Function) -> bool:
     return False
 
 
+def _index_file(key: bytes, cc: str) -> Path:
+    digest = hashlib.sha256(key + b"\0" + " ".join(CFLAGS).encode() + b"\0" + cc.encode()).hexdigest()
+    return cache_dir() / "index" / digest[:32]
+
+
+def indexed(key: bytes) -> ca.Function | None:
+    """The compiled Function that :func:`index` recorded under ``key`` (a caller's digest of what it
+    would build: its arguments and code), loaded from the cache without building it or generating its C
+    (a simulation's map of 1024 loop steps: 0.06-0.09 s to build and 0.02 s to generate); None where
+    nothing is recorded, its library is gone or no compiler is in use."""
+    cc = compiler()
+    if os.environ.get("SENSORLESS_NO_JIT") or cc is None:
+        return None
+    try:
+        name, lib = _index_file(key, cc).read_text().split("\n")[:2]
+        path = cache_dir() / lib
+        return ca.external(name, str(path)) if path.is_file() and Path(lib).name == lib else None
+    except (OSError, ValueError, RuntimeError):
+        return None
+
+
+def index(key: bytes, fn: ca.Function) -> None:
+    """Record that ``key`` gives ``compiled(fn)``, for :func:`indexed`, where its library is in the cache
+    (nothing for a Function left on the VM; temp file + rename: a reader never sees half a record; a
+    cache that cannot be written is no error)."""
+    cc = compiler()
+    if os.environ.get("SENSORLESS_NO_JIT") or cc is None:
+        return
+    try:
+        _, lib = _library(fn, cc)
+        if not lib.exists():
+            return
+        path = _index_file(key, cc)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-")
+        try:
+            with os.fdopen(fd, "w") as fh:
+                fh.write(f"{fn.name()}\n{lib.name}\n")
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+    except (OSError, RuntimeError):
+        pass
+
+
 @functools.cache
 def compiled(fn: ca.Function) -> ca.Function:
     """``fn`` compiled to native code (cached on disk), or ``fn`` itself if that is not possible."""

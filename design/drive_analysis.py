@@ -28,7 +28,6 @@ Two linear properties follow from the same Jacobians:
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import casadi as ca
@@ -38,6 +37,7 @@ from sensorless.design.batch import evaluate_batch
 from sensorless.design.compiled import compiled
 from sensorless.design.discrete import newton
 from sensorless.design.family import CapabilityError, Drive, GainSet, require
+from sensorless.design.memo import kept_function
 from sensorless.design.poles import sort_poles
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario, drive_units, load_scenario_text
@@ -96,7 +96,7 @@ def drive_loop(drive: Drive, gains: GainSet | None, scenario: Scenario | None = 
     return DriveLoop(setup, setup.coordinates, str(setup.meta.get("drive_note", "")))
 
 
-@functools.cache
+@kept_function
 def map_function(loop: ca.Function, key: tuple, n_z: int, i_err: int) -> ca.Function:
     """(y, v, z_rest, q, p_obs, gain) -> (y_next, Jy, Jw, e, De): the loop's one-step map in rotor
     coordinates (``key`` = LoopCoordinates.key()), its Jacobians with respect to y and to the speed
@@ -136,7 +136,7 @@ def map_function(loop: ca.Function, key: tuple, n_z: int, i_err: int) -> ca.Func
 WARM_STEPS = 512  # periods the loop runs from rest where Newton's method from rest finds no fixed point
 
 
-@functools.cache
+@kept_function
 def warm_function(fn: ca.Function, steps: int = WARM_STEPS) -> ca.Function:
     """(y, v, z_rest, q, p_obs, gain) -> y after ``steps`` periods of the one-step map ``fn`` (the loop
     run in rotor coordinates, i.e. simulated): a start for Newton's method near a stable fixed point;

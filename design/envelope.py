@@ -279,6 +279,10 @@ class TuningSettings:
     pareto: int = 0  # points of the damping-versus-noise front to compute (0: none)
     pareto_output: str = ""  # noise output of the front ("": the first limited one, else the family's first)
     bound: bool = True  # compute the pointwise bound (the certificate) on the dense grid
+    # hold the law's bounded figures (tuning/model.py TuningModel.bounded) to the drive file's gains'; off
+    # where those gains fail a time-domain check in the I-f start (reports/cli/tune.py): a reference that
+    # fails there is no bound (servo400's speed steps, which the tuned gains pass only unbounded)
+    hold_bounded: bool = True
     law: LawSettings = NoLawSettings()  # what the family's gain laws add (LawKeys)
 
     @property

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 from sensorless.design.capabilities import Linearizable, OpenLoopStart, Scaled, require
 from sensorless.design.family import CapabilityError, Drive, GainSet, Panel, TraceLine
+from sensorless.design.memo import kept_function
 from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_schema import PmsmControl, PmsmEstimate, PmsmMotor
 from sensorless.design.registry import family_of
@@ -44,6 +45,9 @@ from sensorless.symbolic.pmsm_drive import (
 )
 from sensorless.symbolic.speed_ramp import W_RAMP
 from sensorless.symbolic.startup import W_CMD
+
+# the loop around an observer step, built once per step and kept for later processes (design/memo.py)
+_loop_function = kept_function(loop_function)
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.family import GainSet
@@ -338,7 +342,7 @@ def loop_setup(
             "state (RuntimeObserver.steady_state) to start a simulation from"
         )
     step = setup.step_function()
-    loop = loop_function(step, tuple(f.name for f in obs.outputs))
+    loop = _loop_function(step, tuple(f.name for f in obs.outputs))
     T_s = drive.control.T_s
     q = _params(drive, sc, carrier, notch, speed_notch)
     v = inputs(sc, T_s)

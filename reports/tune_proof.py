@@ -207,6 +207,21 @@ def prove(
     return Proof(label, w, t, mr, wd, tuple(checks))
 
 
+# the causes (reports/causes.py) of a failure in the open-loop I-f start or its handover, whose remedy is a
+# lower handover (gains tuned for a lower w_min), not the observer's transient
+START_CAUSES = frozenset({"ramp_slower_than_reference", "if_current_below_load", "not_tested_sensorless"})
+
+
+def failed_in_the_start(proof: Proof) -> list[str]:
+    """The names of the time-domain checks ``proof``'s gains fail (status fail; a warn is not a failure)
+    with a cause of the I-f start (START_CAUSES)."""
+    return [
+        c["name"]
+        for c in proof.checks
+        if time_domain.check_status(c) == "fail" and START_CAUSES & set(c.get("causes", ()))
+    ]
+
+
 def worse(tuned: Proof, base: Proof, w_base: float) -> list[str]:
     """What the tuned gains do worse than the drive file's (module docstring), one clause each naming
     the point or the check; empty: no worse."""

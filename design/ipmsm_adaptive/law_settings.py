@@ -3,8 +3,9 @@
 Piippo, Hinkkanen, Luomi (2008): ``lambda_max`` bounds |lambda1|, |lambda2| of eq. (16) and of the
 schedule (ohm, or e.g. ``"5 R_s_hat"``; default the tuner's box), ``tune_alpha_fo`` also tunes the
 adaptation bandwidth alpha_fo of eq. (10), ``hold_lag`` keeps the tuned gains' angle lag under
-acceleration at most the drive file's gains' (both off by default: on, they fix the tuned gains'
-larger peaks but make ``tune`` up to 7x slower; docs/tuning.md), ``breakpoints`` is the schedule's
+acceleration at most the drive file's gains' (both on by default: without them the tuned gains ran
+peaks 2-7x the drive file's; the paper's law on its own preset keeps them off, tuning/ipmsm_adaptive;
+docs/tuning.md), ``breakpoints`` is the schedule's
 number of speed breakpoints per direction. The shared keys (envelope, decay floor, estimate errors,
 noise limits) are read by design/envelope.py, which hands these to :data:`LAW_KEYS`.
 """
@@ -28,12 +29,11 @@ class AdaptiveLawSettings:
     lambda_max: float | None = None  # bound on |lambda1|, |lambda2| [ohm]; None: the tuner's box
     # also tune the adaptation bandwidth alpha_fo (10), in 1-4x the drive file's: with the angle lag held
     # (hold_lag) it buys the damping the gains alone cannot (docs/tuning.md, "alpha_fo tuned")
-    tune_alpha_fo: bool = False
+    tune_alpha_fo: bool = True
     breakpoints: int = 11  # schedule: breakpoints per direction (plus one at zero speed)
     # the tuned gains' angle lag under acceleration at most the drive file's at every envelope point
     # (tuning/ipmsm_adaptive/model.py; docs/tuning.md "Tuned gains that run worse")
-    # (opt-in: measured 1.7-7x tune's CPU on the example motors)
-    hold_lag: bool = False
+    hold_lag: bool = True
 
     def check(self, file: str, prefix: str = "tuning.") -> None:
         """Raise DriveFileError for an inconsistent value (the key named with ``prefix``)."""

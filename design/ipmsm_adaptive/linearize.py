@@ -24,6 +24,7 @@ from sensorless.design.ipmsm_adaptive.operating_point import (
     solve_equilibrium,
 )
 from sensorless.design.linearization import Linearization
+from sensorless.design.memo import kept_function
 from sensorless.design.noise import noise_rms
 from sensorless.design.poles import eigvals_batched, sort_poles
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
@@ -37,7 +38,7 @@ if TYPE_CHECKING:  # python-control imports scipy.signal and matplotlib (~3 s): 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
 
 
-@functools.cache
+@kept_function
 def linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
     """Function (x0, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (A, B, C, D, ...).
 
@@ -67,7 +68,7 @@ def linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
 NOISE_OUTPUTS = ("theta_tilde", "w_hat")  # outputs of the noise gain: position error [rad], speed [rad/s]
 
 
-@functools.cache
+@kept_function
 def noise_function(law: str | GainLaw, injection: bool) -> ca.Function:
     """Function (x0, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (B_n, C_n, D_n).
 
@@ -89,7 +90,7 @@ def noise_function(law: str | GainLaw, injection: bool) -> ca.Function:
     return ca.Function(name, [s[k] for k in names], ca.cse(outs), names, ["B_n", "C_n", "D_n"])
 
 
-@functools.cache
+@kept_function
 def nominal_linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
     """As :func:`linearization_function` but at the closed-form equilibrium of exact estimates
     (no ``x0`` input; ``x0`` is an output): the fast path for sweeps, one Function for all of it."""

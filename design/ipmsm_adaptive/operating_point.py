@@ -16,6 +16,7 @@ import functools
 import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
+from sensorless.design.memo import kept_function
 from sensorless.design.rotor_frame import Continuation, RotorFrameLoop, continued_equilibria
 from sensorless.symbolic.ipmsm_adaptive.closed_loop import N_INJ, closed_loop
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
@@ -66,7 +67,7 @@ def coupled_system(
     ), i_s0
 
 
-@functools.cache
+@kept_function
 def mtpa_function() -> ca.Function:
     """Function mtpa(T_e [N m], motor [4], p) -> i_s0 [A] (rotor frame, [i_d, i_q])."""
     T_e, motor, p = ca.SX.sym("T_e"), ca.SX.sym("motor", N_MOTOR), ca.SX.sym("p")
@@ -74,7 +75,7 @@ def mtpa_function() -> ca.Function:
     return ca.Function("mtpa", [T_e, motor, p], [i_s0], ["T_e", "motor", "p"], ["i_s0"])
 
 
-@functools.cache
+@kept_function
 def nominal_equilibrium_function(injection: bool) -> ca.Function:
     """Closed-form equilibrium for exact estimates: x0 = [psi_s0; 0; w_m (; 0)]."""
     s = analysis_symbols("zero", injection)
@@ -86,7 +87,7 @@ def nominal_equilibrium_function(injection: bool) -> ca.Function:
     return ca.Function("nominal_equilibrium", [s[k] for k in ins], [ca.densify(x0)], ins, ["x0"])
 
 
-@functools.cache
+@kept_function
 def residual_function(law: str | GainLaw, injection: bool) -> ca.Function:
     """(x, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> x_dot of the coupled system."""
     s = analysis_symbols(law, injection)

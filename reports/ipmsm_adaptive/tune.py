@@ -25,7 +25,13 @@ OPTIONS = (
     *ENVELOPE_OPTIONS,
     Option(("--lambda-max",), {"help": "bound on |lambda1|, |lambda2|: ohm or e.g. 5R_s_hat"}),
     NOISE_OPTIONS[0],  # --errors
-    Option(("--tune-alpha-fo",), {"action": "store_true", "help": "also tune alpha_fo of eq. (10)"}),
+    Option(
+        ("--tune-alpha-fo",),
+        {
+            "action": "store_true",
+            "help": "also tune alpha_fo of eq. (10) (the default on a drive file of your own)",
+        },
+    ),
     Option(
         ("--breakpoints",),
         {

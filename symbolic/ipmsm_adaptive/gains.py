@@ -13,6 +13,7 @@ import functools
 import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, SupportsIndex
 
 import casadi as ca
 from sensorless.symbolic.frames import I2, J, Sym
@@ -65,6 +66,14 @@ class GainLaw:
     def width(self) -> int:
         """Width of the 'gain' input of the CasADi functions: max(n_params, 2); extra entries unused."""
         return max(self.n_params, 2)
+
+    def __reduce_ex__(self, protocol: SupportsIndex) -> str | tuple[Any, ...]:
+        """A schedule pickles as its breakpoints (its expression is a closure over them, which pickle
+        cannot store) and unpickles as :func:`schedule_law` of them, the same law: a schedule is then
+        content to key on, e.g. for the Functions built from it that design/memo.py keeps on disk."""
+        if self.grid:
+            return (schedule_law, (self.grid,))
+        return super().__reduce_ex__(protocol)
 
 
 @functools.cache

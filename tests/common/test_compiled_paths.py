@@ -124,6 +124,7 @@ def test_a_loop_runs_on_the_vm_until_compiling_pays_and_gives_the_same_bits_comp
     monkeypatch.setattr(sim, "compiled_chunk", lambda loop, n: calls.append(n) or real(loop, n))
     monkeypatch.setattr(sim, "is_cached", lambda fn: False)
     monkeypatch.setattr(sim, "wanted_elsewhere", lambda fn: False)  # (no other process has run it)
+    monkeypatch.setattr(sim, "indexed", lambda key: None)  # (nor compiled it)
     monkeypatch.setattr(sim, "_STEPS", {})
     vm = sim.simulate(drive, sc)
     n = vm.meta["samples"]
@@ -148,3 +149,25 @@ def test_a_function_another_process_asked_for_is_wanted_elsewhere(tmp_path, monk
     (mark,) = (tmp_path / "jit").glob("asked_for_*.wanted")
     mark.write_text("1")  # (pid 1: init, not this process)
     assert compiled.wanted_elsewhere(fn)
+
+
+def test_a_compiled_function_recorded_under_a_key_is_loaded_by_it_without_building_it(tmp_path, monkeypatch):
+    """design/compiled.py ``index``/``indexed`` (a simulation's chunk in the next process): the record
+    gives the same library, so the same bits; another key, or a library since removed, gives None."""
+    import casadi as ca
+
+    monkeypatch.setenv("SENSORLESS_CACHE", str(tmp_path))
+    x = ca.SX.sym("x")
+    fn = ca.Function("recorded", [x], [ca.sin(x) / 3])
+    assert compiled.indexed(b"key") is None
+    compiled.index(b"key", fn)  # not compiled yet: nothing to record
+    assert compiled.indexed(b"key") is None
+    lib = compiled.compiled(fn)
+    compiled.index(b"key", fn)
+    got = compiled.indexed(b"key")
+    assert got is not None and got.is_a("External") and got.name() == "recorded"
+    assert float(got(0.7)) == float(lib(0.7)) == float(fn(0.7))
+    assert compiled.indexed(b"other key") is None
+    (so,) = (tmp_path / "jit").glob("recorded_*.so")
+    so.unlink()
+    assert compiled.indexed(b"key") is None

@@ -173,3 +173,40 @@ def test_kept_runs_quote_each_callers_label_and_run_once(monkeypatch):
     assert b.meta["startup"] == "gains of /abs/tune/gains.json" and b.meta["scenario"] == "steps"
     assert b.data is a.data and a.wall_time == 0.0 and c.data["w"].tolist() == [0.0, 2.0, 4.0]
     sim._kept.cache_clear()
+
+
+def built_loop(calls):
+    """A builder as design/memo.py ``kept_function`` takes: a CasADi Function of structural arguments."""
+    import casadi as ca
+    from sensorless.design.memo import kept_function
+
+    @kept_function
+    def step_map(gain: float, n: int) -> ca.Function:
+        calls.append((gain, n))
+        x = ca.SX.sym("x", 2)
+        step = ca.Function("step", [x], [ca.vertcat(ca.sin(x[1]) * gain, x[0] - x[1] / 3)])
+        return step.mapaccum(n)
+
+    return step_map
+
+
+def test_a_kept_function_is_read_back_by_the_next_process_with_the_same_bits_and_code(tmp_path, monkeypatch):
+    import casadi as ca
+
+    monkeypatch.setenv("SENSORLESS_CACHE", str(tmp_path))
+    monkeypatch.delenv("SENSORLESS_NO_DISK_MEMO", raising=False)
+    calls1, calls2 = [], []
+    first = built_loop(calls1)
+    built = first(0.7, 5)
+    assert first(0.7, 5) is built and calls1 == [(0.7, 5)]
+    second = built_loop(calls2)  # "the next process": the first one's Function, from disk
+    read = second(0.7, 5)
+    assert calls2 == [] and read is not built and second(0.7, 5) is read
+    assert read.name() == built.name() and read.name_in() == built.name_in()
+    x0 = np.array([0.3, -1.1])
+    assert np.array_equal(np.asarray(read(x0)), np.asarray(built(x0)))  # the same evaluation, bit for bit
+    gen = [ca.CodeGenerator("f.c") for _ in range(2)]
+    gen[0].add(built)
+    gen[1].add(read)
+    assert gen[0].dump() == gen[1].dump()  # the same C (design/compiled.py keys its libraries by it)
+    assert np.asarray(second(0.8, 5)(x0)).shape == (2, 5) and calls2 == [(0.8, 5)]  # other arguments: built

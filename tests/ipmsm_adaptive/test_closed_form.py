@@ -142,3 +142,18 @@ def test_schedule_law_reproduces_speed_dependent_at_breakpoints_and_interpolates
     a = linearize(drive, w, drive.T_N, gain=(law, l1 + l2))
     b = linearize(drive, w, drive.T_N, gain="speed")
     assert np.allclose(a.poles, b.poles, rtol=1e-9)
+
+
+def test_a_schedule_pickles_as_its_grid_and_reads_back_as_the_same_law():
+    """A schedule's expression is a closure, so it pickles as its breakpoints (symbolic/ipmsm_adaptive/
+    gains.py): the same law comes back, and the key of a Function kept on disk (design/memo.py) is the
+    grid, different for another grid; the named laws pickle as before."""
+    import pickle
+
+    from sensorless.symbolic.ipmsm_adaptive.gains import get_law, schedule_law
+
+    law = schedule_law((-2.0, 0.5, 3.0))
+    assert pickle.loads(pickle.dumps(law)) is law
+    assert pickle.dumps(schedule_law((-2.0, 0.5, 3.0))) == pickle.dumps(law)
+    assert pickle.dumps(schedule_law((-2.0, 0.5, 3.5))) != pickle.dumps(law)
+    assert pickle.loads(pickle.dumps(get_law("speed"))) == get_law("speed")

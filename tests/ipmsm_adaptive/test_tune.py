@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 from helpers.closed_form_ipmsm import mtpa_reference, paper_gain, paper_matrices
-from helpers.tuning import small
+from helpers.tuning import paper_law, small
 from sensorless.design.envelope import tuning_envelope
 from sensorless.design.ipmsm_adaptive.linearize import linearize
 from sensorless.reports.cli.main import main
@@ -128,7 +128,9 @@ def test_paper_defaults_reproduce(drive, speed_dependent):
 
 @pytest.fixture(scope="module")
 def schedule(drive):
-    return tune(drive, "schedule", small(drive, law=dataclasses.replace(drive.tuning.law, breakpoints=6)))
+    return tune(
+        drive, "schedule", small(drive, law=dataclasses.replace(paper_law(drive.tuning), breakpoints=6))
+    )
 
 
 def test_schedule_at_least_as_good_as_speed_dependent(drive, speed_dependent, schedule):
@@ -161,7 +163,7 @@ def test_dense_reverification_rejects_between_grid_instability(drive, speed_depe
     are judged by the dense grid: a schedule perturbed in the null space of grid interpolation is
     identical on the grid (checked with the closed form), worse between, and not selected."""
     # more breakpoints than grid speeds: such perturbations exist
-    st = small(drive, law=dataclasses.replace(drive.tuning.law, breakpoints=11))
+    st = small(drive, law=dataclasses.replace(paper_law(drive.tuning), breakpoints=11))
     m = build_schedule(drive, st, speed_dependent.theta)
     env = st.envelope
     W, T = env.grid()
@@ -201,7 +203,9 @@ def test_stable_under_stated_estimate_errors(drive):
     )
     # without the pointwise bound (half of this tuning's time; test_tune_global.py checks it): not
     # what this test is about
-    st = dataclasses.replace(drive.tuning, envelope=env, errors=(0.2, 0.0, 0.1, 0.0), bound=False)
+    st = dataclasses.replace(
+        drive.tuning, envelope=env, errors=(0.2, 0.0, 0.1, 0.0), bound=False, law=paper_law(drive.tuning)
+    )
     r = tune(drive, "speed-dependent", st)
     assert len(r.robust) == 4 and all(x["stable"] for x in r.robust)
     env = st.envelope

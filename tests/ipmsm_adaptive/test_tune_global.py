@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.linalg
-from helpers.tuning import small
+from helpers.tuning import paper_law, small
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import tuning_envelope
@@ -118,7 +118,9 @@ def test_bound_at_a_speed_equals_a_brute_force_search(drive, w_pu):
     env = drive.tuning.envelope
     torques = env.torque_grid(env.dense_factor)
     w = w_pu * drive.base.w
-    b = pointwise_bound(build_pointwise(drive, drive.tuning), np.array([w]), torques, 10.0, 500.0)
+    # over (lambda1, lambda2) as the brute force (alpha_fo fixed, as the paper tunes)
+    st = dataclasses.replace(drive.tuning, law=paper_law(drive.tuning))
+    b = pointwise_bound(build_pointwise(drive, st), np.array([w]), torques, 10.0, 500.0)
     ref = brute_force(drive, w, torques, 10.0)
     assert b.feasible[0]
     assert b.damping[0] == pytest.approx(ref, abs=0.005)

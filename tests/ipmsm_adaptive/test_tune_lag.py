@@ -75,3 +75,38 @@ def test_the_whole_drive_lags_no_more_with_the_tuned_gains(tuned):
     g = r.table.gains
     obs, _ = _lag(d, (g["lambda_p"], g["w_lambda"]), g["alpha_fo"], W, T)
     np.testing.assert_allclose(whole["tuned"], obs, rtol=0.1)
+
+
+def test_a_drive_file_holds_the_lag_and_tunes_alpha_fo_by_default_the_papers_preset_law_does_not():
+    """The defaults (design/ipmsm_adaptive/law_settings.py): on a drive file of the user's own both laws
+    hold the lag and tune alpha_fo; the paper's law on its own preset tunes as the paper does (neither),
+    while the schedule on the preset (not the paper's reproduction) holds them too."""
+    from sensorless.tuning.family import tunable_for
+
+    own = load_drive(MOTOR)
+    preset = load_drive("piippo2008")
+    for drive, law, on in (
+        (own, "speed-dependent", True),
+        (own, "schedule", True),
+        (preset, "speed-dependent", False),
+        (preset, "schedule", True),
+    ):
+        s = law_settings(tunable_for(drive, law).settings(drive))
+        assert (s.hold_lag, s.tune_alpha_fo) == (on, on), (drive.name, law)
+
+
+def test_alpha_fo_is_not_a_parameter_where_its_box_is_one_value():
+    """alpha_fo's box is [the drive file's, min(4x, f_s/20)]: where the drive file's is already at f_s/20
+    the law has no alpha_fo parameter (it would only triple the candidates); below it, it has one."""
+    from sensorless.design.ipmsm_adaptive.derive import ALPHA_FO_MAX_FS
+    from sensorless.tuning.family import tunable_for
+
+    d = load_drive(MOTOR)
+    cap = 2 * np.pi * ALPHA_FO_MAX_FS / d.control.T_s
+    for a0, tuned in ((cap, False), (0.5 * cap, True)):
+        dd = dataclasses.replace(d, observer=dataclasses.replace(d.observer, alpha_fo=a0))
+        t = tunable_for(dd, "speed-dependent")
+        m = t.build(dd, t.settings(dd), None)
+        assert ("alpha_fo" in m.names) == tuned
+        if tuned:
+            assert m.upper[-1] == pytest.approx(min(4 * a0, cap)) and m.lower[-1] == a0

@@ -96,6 +96,16 @@ def _proof(label, stable, passed, w_base=100.0, untested=""):
     )
 
 
+def test_only_a_failure_in_the_start_unbinds_the_drive_files_figures():
+    """The drive file's gains bound the tuned gains' figures (the angle lag) unless they fail a check in
+    the I-f start (reports/cli/tune.py): a failure of the observer's own, or a pass, keeps the bound."""
+    p = _proof("drive file", [True, True], False)  # fig9b failed: observer_lag_acceleration
+    assert tune_proof.failed_in_the_start(p) == []
+    assert tune_proof.failed_in_the_start(_proof("drive file", [True, True], True)) == []
+    c = {**p.checks[0], "causes": ["not_tested_sensorless", "ramp_slower_than_reference"]}
+    assert tune_proof.failed_in_the_start(dataclasses.replace(p, checks=(c,))) == ["fig9b"]
+
+
 def test_worse_names_the_point_and_the_check():
     base = _proof("drive file", [True, True], True)
     assert tune_proof.worse(_proof("tuned", [True, True], True), base, 100.0) == []

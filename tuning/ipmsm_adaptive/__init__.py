@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING, Any
 
+from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.tuning.family import Tunable, TuningHooks
 from sensorless.tuning.ipmsm_adaptive.laws import build_schedule, build_speed_dependent
 
@@ -37,9 +38,14 @@ def _full_range(drive: IpmsmDrive) -> Any:
 
 
 def _paper_or_full(drive: IpmsmDrive) -> Any:
-    """The paper's law on its own preset keeps the preset's envelope (it reproduces Piippo et al. 2008,
-    tuned at +-T_N); on any other drive it tunes over the full range too (``_full_range``)."""
-    return dataclasses.replace(drive.tuning, envelope=drive.envelope)
+    """The paper's law on its own preset keeps the preset's envelope and tunes as the paper does (it
+    reproduces Piippo et al. 2008: tuned at +-T_N, alpha_fo fixed, no bound on the angle lag); on any
+    other drive it tunes over the full range too (``_full_range``), with the law's defaults."""
+    s = dataclasses.replace(drive.tuning, envelope=drive.envelope)
+    if str(drive.file).startswith("preset:"):
+        paper = dataclasses.replace(law_settings(s), tune_alpha_fo=False, hold_lag=False)
+        s = dataclasses.replace(s, law=paper)
+    return s
 
 
 HOOKS = TuningHooks(

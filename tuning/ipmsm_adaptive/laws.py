@@ -36,7 +36,7 @@ from sensorless.design.envelope import TuningSettings
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.design.units import MAGNITUDE
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law, schedule_law
-from sensorless.tuning.ipmsm_adaptive.model import law_model, law_values
+from sensorless.tuning.ipmsm_adaptive.model import alpha_fo_cap, law_model, law_values, settled
 from sensorless.tuning.model import TuningModel
 
 if TYPE_CHECKING:  # typed by name only
@@ -57,11 +57,11 @@ def _lambda_max(settings: TuningSettings, R: float) -> float:
     return lam if lam is not None else GAIN_BOX * R
 
 
-def _grid_starts(a: np.ndarray, b: np.ndarray, settings: TuningSettings, a0: float) -> np.ndarray:
+def _grid_starts(a: np.ndarray, b: np.ndarray, settings: TuningSettings, drive: IpmsmDrive) -> np.ndarray:
     """The global phase's starts: every pair of a value of ``a`` and one of ``b`` (rows: [a, b]), with
     the alpha_fo starts when it is tuned too."""
     A, B = np.meshgrid(a, b)
-    return with_alpha_fo_starts(np.column_stack([A.ravel(), B.ravel()]), settings, a0)
+    return with_alpha_fo_starts(np.column_stack([A.ravel(), B.ravel()]), settings, drive)
 
 
 def _alpha_reg(th: ca.SX, law: GainLaw, settings: TuningSettings, a0: float) -> ca.SX:
@@ -73,6 +73,7 @@ def build_speed_dependent(
     drive: IpmsmDrive, settings: TuningSettings, seed: np.ndarray | None = None
 ) -> TuningModel:
     """Law speed-dependent: eq. (16) with lambda' and omega_lambda free."""
+    settings = settled(drive, settings)
     law = get_law("speed")
     R = drive.estimate.R_s
     wb = drive.base.w
@@ -91,7 +92,7 @@ def build_speed_dependent(
         """Global phase: a log grid of lambda' (0.25 R̂s .. the bound) x omega_lambda (0.02 .. 5 p.u.)."""
         lp = np.geomspace(0.25 * R, lam_max, 10)
         wl = np.geomspace(0.02 * wb, 5.0 * wb, 10)
-        return _grid_starts(lp, wl, settings, a0)
+        return _grid_starts(lp, wl, settings, drive)
 
     return _model(
         drive,
@@ -176,6 +177,7 @@ def build_schedule(
     ``seed``, the tuned speed-dependent parameters (lambda', omega_lambda[, alpha_fo]), when given.
     In the injection band the breakpoints keep the seed's gains (the drive file's without a seed):
     the module docstring."""
+    settings = settled(drive, settings)
     g = drive.gain("speed")
     baseline = np.array([g.lambda_p, g.w_lambda])
     grid = schedule_breakpoints(drive, settings, (g.w_lambda, *(() if seed is None else (seed[1],))))
@@ -276,11 +278,15 @@ def _sample(speeds: np.ndarray, v: np.ndarray, at: np.ndarray) -> np.ndarray:
     return out
 
 
-def with_alpha_fo_starts(starts: np.ndarray, settings: Any, a0: float) -> np.ndarray:
-    """The global phase's starts, each at 1, 2 and 4 x the drive's alpha_fo (its box) when it is tuned too."""
+def with_alpha_fo_starts(starts: np.ndarray, settings: Any, drive: IpmsmDrive) -> np.ndarray:
+    """The global phase's starts, each at 1, 2 and 4 x the drive's alpha_fo, within its box (the
+    values that the cap makes equal, once: prius's cap 1.48x made its 2x and 4x starts the same, a third
+    of its global phase's and pointwise bound's candidates), when it is tuned too."""
     if not law_settings(settings).tune_alpha_fo:
         return starts
-    return np.vstack([np.column_stack([starts, np.full(len(starts), k * a0)]) for k in (1.0, 2.0, 4.0)])
+    a0 = drive.observer.alpha_fo
+    alphas = np.unique(np.clip(np.array([1.0, 2.0, 4.0]) * a0, a0, alpha_fo_cap(drive)))
+    return np.vstack([np.column_stack([starts, np.full(len(starts), a)]) for a in alphas])
 
 
 def _signed_log(lo: float, hi: float, R: float, n: int) -> np.ndarray:
@@ -297,17 +303,21 @@ def build_pointwise(
     drive: IpmsmDrive, settings: TuningSettings, seed: np.ndarray | None = None
 ) -> TuningModel:
     """The free gains at one operating point: theta = [lambda1, lambda2] (constant law, eq. (7)), in the
-    box of the schedule; the model of the pointwise bound (tuning/bound.py)."""
+    box of the schedule; the model of the pointwise bound (tuning/bound.py). The bound is of the damping
+    alone, without the laws' bound on the angle lag (``hold_lag``): still an upper bound of what they
+    reach, and evaluating the lag there cost the README servo's bound 3x its time for figures it never
+    reads."""
+    settings = settled(drive, settings)
+    settings = dataclasses.replace(settings, law=dataclasses.replace(law_settings(settings), hold_lag=False))
     law = get_law("constant")
     R = drive.estimate.R_s
-    a0 = drive.observer.alpha_fo
     lam_max = _lambda_max(settings, R)
     g = drive.gain("speed")
 
     def starts() -> np.ndarray:
         l1 = _signed_log(max(LAMBDA1_MIN * R, -lam_max), lam_max, R, 9)
         l2 = _signed_log(-lam_max, lam_max, R, 8)
-        return _grid_starts(l1, l2, settings, a0)
+        return _grid_starts(l1, l2, settings, drive)
 
     return _model(
         drive,

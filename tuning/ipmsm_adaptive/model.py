@@ -9,6 +9,7 @@ evaluates. theta is the law's parameter vector, plus alpha_fo (10) when ``tune_a
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import TYPE_CHECKING, Any
 
@@ -93,6 +94,27 @@ def _closed_loop(
     return local, linear, noise, lag
 
 
+def alpha_fo_cap(drive: IpmsmDrive) -> float:
+    """The upper end of a tuned alpha_fo's box [rad/s]; its lower end is the drive file's alpha_fo: never
+    below it, since the speed estimate lags an acceleration by about its rate over alpha_fo, which the
+    damping does not see (docs/tuning.md, "alpha_fo tuned"); at most 4x it and f_s/20 (init's own cap,
+    design/ipmsm_adaptive/derive.py) where the drive file's is below that: the README servo's alpha_fo
+    at 3.9x (f_s/5) ran the sampled drive unstable at 120 of 200 points, which the observer's
+    linearization does not see (tune exit 3, no table)."""
+    a0 = drive.observer.alpha_fo
+    return max(a0, min(4.0 * a0, 2 * np.pi * ALPHA_FO_MAX_FS / drive.control.T_s))
+
+
+def settled(drive: IpmsmDrive, settings: TuningSettings) -> TuningSettings:
+    """``settings`` with alpha_fo not tuned where its box is one value (the drive file's alpha_fo already
+    at the cap, :func:`alpha_fo_cap`: the README servo's f_s/20): a parameter that cannot move would
+    only triple the global phase's and the pointwise bound's candidates (docs/tuning.md)."""
+    law = law_settings(settings)
+    if law.tune_alpha_fo and alpha_fo_cap(drive) <= drive.observer.alpha_fo * (1 + 1e-9):
+        return dataclasses.replace(settings, law=dataclasses.replace(law, tune_alpha_fo=False))
+    return settings
+
+
 @functools.cache
 def law_values(law: GainLaw) -> ca.Function:
     """(w_hat, params) -> (lambda1, lambda2) of a law, numerically."""
@@ -121,13 +143,7 @@ def law_model(
     if tune_alpha:
         names, units = (*names, "alpha_fo"), (*units, "rad/s")
         theta0 = np.append(theta0, a0)
-        # never below the drive file's: the speed estimate lags an acceleration by about its rate over
-        # alpha_fo, which the damping does not see (docs/tuning.md, "alpha_fo tuned")
-        # and at most f_s/20 (init's own cap, design/ipmsm_adaptive/derive.py) where the drive file's is
-        # below it: the README servo's alpha_fo at 3.9x (f_s/5) ran the sampled drive unstable at 120 of
-        # 200 points, which the observer's linearization does not see (tune exit 3, no table)
-        cap = max(a0, min(4.0 * a0, 2 * np.pi * ALPHA_FO_MAX_FS / drive.control.T_s))
-        lower, upper = np.append(lower, a0), np.append(upper, cap)
+        lower, upper = np.append(lower, a0), np.append(upper, alpha_fo_cap(drive))
         typical = np.append(typical, a0)
     motor = np.array(drive.motor.vector())
     inj = drive.injection
