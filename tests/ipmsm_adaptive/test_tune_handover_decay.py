@@ -13,6 +13,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+from helpers.tuning import paper_law
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import tuning_envelope
 from sensorless.design.ipmsm_adaptive.linearize import linearize
@@ -24,7 +25,8 @@ GIMBAL = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors" / 
 def test_tuned_gains_decay_as_the_handover_asks():
     d = load_drive(GIMBAL)
     env = tuning_envelope(d.w_base, d.T_N, speed_min=0.05, speed_max=1.0, speeds=4, torques_TN=(-1.0, 1.0))
-    st = dataclasses.replace(d.tuning, envelope=env)
+    # the law's two parameters (alpha_fo fixed: the poles below take lambda', omega_lambda)
+    st = dataclasses.replace(d.tuning, envelope=env, law=paper_law(d.tuning))
     assert st.min_decay == 0  # the file asks for no floor: the handover's is the tuner's own
     r = tune(d, "speed-dependent", st)
     need = 0.1 * d.control.alpha_s  # a tenth of the speed-loop bandwidth [rad/s] (design/low_speed.py)
