@@ -68,7 +68,7 @@ def tune(
 
     Tuned gains slower anywhere on the dense grid than the decay the I-f handover's w_min asks
     (design/low_speed.py ``handover_decay``; none where the drive needs no I-f start) are tuned again
-    with that floor (the seed too): below it their w_min, and so the handover, rises (a gimbal's to
+    with that floor (from the same seed): below it their w_min, and so the handover, rises (a gimbal's to
     0.69 p.u., above its start's and reversal's 0.5 p.u.: those checks never handed over). Where no
     gain meets it, the first gains."""
     res = _tune(drive, law, settings, progress)
@@ -82,7 +82,10 @@ def tune(
     )
     st = settings if settings is not None else tunable_for(drive, law).settings(drive)
     try:
-        return _tune(drive, law, dataclasses.replace(st, min_decay=need), progress)
+        # the seed as tuned (its law's floor): a seed law of few parameters may meet the floor nowhere
+        # where the law it starts does (the gimbal's speed-dependent law with alpha_fo tuned and the lag
+        # held: no candidate at 11.94 1/s; its schedule: 0.035 p.u., every check passed)
+        return _tune(drive, law, dataclasses.replace(st, min_decay=need), progress, res.seed)
     except nlp.TuningError as e:
         say(f"no gains meet decay >= {need:.4g} 1/s on the envelope ({e}): the first tuning's gains")
         return res
@@ -93,8 +96,10 @@ def _tune(
     law: str | None,
     settings: TuneSettings | None,
     progress: Callable[[str], None] | None,
+    seed: TuneResult | None = None,
 ) -> TuneOutcome:
-    """:func:`tune` without the handover's decay floor (a seed's floor is its law's)."""
+    """:func:`tune` without the handover's decay floor; ``seed``: the seed law's result where it is
+    already tuned."""
     tunable = tunable_for(drive, law)
     law = tunable.name
     settings = settings if settings is not None else tunable.settings(drive)
@@ -103,7 +108,9 @@ def _tune(
     t_start = time.perf_counter()
     say = progress or (lambda s: None)
     seed_res: TuneResult | None = None
-    if tunable.seed is not None:
+    if tunable.seed is not None and seed is not None:
+        seed_res = seed
+    elif tunable.seed is not None:
         seed_name = tunable.seed
         say(f"{law}: tuning its start, the {seed_name} law, first")
         seed_set = dataclasses.replace(settings, pareto=0)
