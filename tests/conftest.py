@@ -26,6 +26,10 @@ os.environ.setdefault("SENSORLESS_TUNE_UNCHECKED", "1")
 # test that patches what an analysis calls would leave its result for another worker (and the user's
 # cache); tests/common/test_memo.py tests the disk layer
 os.environ.setdefault("SENSORLESS_NO_DISK_MEMO", "1")
+# the CasADi libraries the suite compiles (design/compiled.py) at -O0: on an empty cache the suite compiles
+# ~100 of them and runs each briefly (side by side on the README test and six analysis files, from empty
+# caches: 127.2 s CPU at the product's -O1, 118.6 s at -O0; the same bits: no fast-math either way)
+os.environ.setdefault("SENSORLESS_CC_OPT", "-O0")
 
 # the node ids of a group's tests -> the group (one worker runs them all); \1 is the README chain
 SHARED = {
