@@ -231,6 +231,21 @@ def full_acceleration(drive: Drive) -> float:
     return float(sc.pole_pairs * max(0.0, sc.T_max - sc.T_N) / sc.J)
 
 
+def required_decay(drive: Drive) -> float:
+    """The decay rate [1/s] the low-speed criteria ask by default (:func:`minimum_speed`, and so the I-f
+    handover's w_min, design/startup.py): DECAY_SHARE of the speed-loop bandwidth of the family's
+    DriveScales (an observer much slower than the speed loop it feeds drives that loop on a lagging
+    estimate); 0 without scales."""
+    fam = family_of(drive)
+    return DECAY_SHARE * float(fam.scales(drive).alpha_s) if isinstance(fam, Scaled) else 0.0
+
+
+def handover_decay(drive: Drive) -> float:
+    """The decay rate [1/s] the I-f handover's w_min asks (:func:`required_decay`); 0 where the drive has
+    no I-f start: its family holds zero speed by itself (e.g. HF injection, design/pmsm_drive.py)."""
+    return 0.0 if family_of(drive).holds_zero_speed(drive) else required_decay(drive)
+
+
 def braking_acceleration(drive: Drive, torque: ArrayLike) -> np.ndarray:
     """The largest speed change [rad/s^2 electrical] of the drive running at load ``torque`` [N m]: its
     speed loop at the torque limit against the load's direction, the load helping, p (T_max + |T|) / J
@@ -335,7 +350,7 @@ def minimum_speed(
         drive = require(fam, EstimateScaling).with_estimate_errors(drive, errors)
     scales = fam.scales(drive) if isinstance(fam, Scaled) else None
     if min_decay is None:
-        min_decay = DECAY_SHARE * float(scales.alpha_s) if scales is not None else 0.0
+        min_decay = required_decay(drive)
     crit = {"damping": min_damping, "decay": min_decay, "bias": max_bias, "noise": max_bias / 3}
     # the acceleration at rated load (the headline's figure; each point is judged at its own load's)
     a_max = float(braking_acceleration(drive, drive.T_N)) if acceleration else 0.0

@@ -180,7 +180,7 @@ def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, flo
     file gives one, else the rules from the minimum sensorless speed at rated load (design/low_speed.py,
     at ``gains``); None where the observer holds zero speed. With one line saying which, and w_min
     [rad/s] (0 where not analysed). CapabilityError for a drive without a PMSM's data."""
-    from sensorless.design.low_speed import DECAY_SHARE, QUICK, minimum_speed
+    from sensorless.design.low_speed import QUICK, minimum_speed, required_decay
     from sensorless.design.poles import MIN_DAMPING
     from sensorless.design.startup import CURRENT_SHARE_MAX, ON_FACTOR, handover_reason, if_values
 
@@ -221,7 +221,8 @@ def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, flo
         except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
             if startup is None or startup.needs_w_min:
                 raise
-            sigma = DECAY_SHARE * require(fam, Scaled).scales(drive).alpha_s
+            require(fam, Scaled)
+            sigma = required_decay(drive)
             rules = if_values(drive.T_N, T_max, inertia, pole_pairs, k_t, 0.0, sigma, drive.w_base)
             return (*_startup_line({**rules, **given}, given, drive.w_base, ""), 0.0)
         with step_variant(None):

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from sensorless.design.envelope import TuningSettings
 from sensorless.design.family import Drive
+from sensorless.design.low_speed import handover_decay
 from sensorless.tuning import nlp, search, tiebreak
 from sensorless.tuning.bound import Bound, pointwise_bound, with_witness
 from sensorless.tuning.candidates import DAMPING, NOISE, Candidates, meets_floor
@@ -63,7 +64,42 @@ def tune(
     """Tune the gain law ``law`` (None: the default of the drive's observer family) on ``drive``
     over the envelope of ``settings`` (default: the tunable's, e.g. the drive's ``[tuning]``). Returns a
     TuneResult (or the own tuner's result). Raises nlp.TuningError if the constraints cannot be met
-    (with the evidence), CapabilityError if the law cannot be tuned."""
+    (with the evidence), CapabilityError if the law cannot be tuned.
+
+    Tuned gains slower anywhere on the dense grid than the decay the I-f handover's w_min asks
+    (design/low_speed.py ``handover_decay``; none where the drive needs no I-f start) are tuned again
+    with that floor (from the same seed): below it their w_min, and so the handover, rises (a gimbal's to
+    0.69 p.u., above its start's and reversal's 0.5 p.u.: those checks never handed over). Where no
+    gain meets it, the first gains."""
+    res = _tune(drive, law, settings, progress)
+    need = handover_decay(drive)
+    if not isinstance(res, TuneResult) or need <= res.floor or float(np.min(res.dense.decay)) >= need:
+        return res
+    say = progress or (lambda s: None)
+    say(
+        f"tuned gains decay at {float(np.min(res.dense.decay)):.4g} 1/s, below the {need:.4g} 1/s the "
+        "handover's w_min asks: tuning again with that floor"
+    )
+    st = settings if settings is not None else tunable_for(drive, law).settings(drive)
+    try:
+        # the seed as tuned (its law's floor): a seed law of few parameters may meet the floor nowhere
+        # where the law it starts does (the gimbal's speed-dependent law with alpha_fo tuned and the lag
+        # held: no candidate at 11.94 1/s; its schedule: 0.035 p.u., every check passed)
+        return _tune(drive, law, dataclasses.replace(st, min_decay=need), progress, res.seed)
+    except nlp.TuningError as e:
+        say(f"no gains meet decay >= {need:.4g} 1/s on the envelope ({e}): the first tuning's gains")
+        return res
+
+
+def _tune(
+    drive: Drive,
+    law: str | None,
+    settings: TuneSettings | None,
+    progress: Callable[[str], None] | None,
+    seed: TuneResult | None = None,
+) -> TuneOutcome:
+    """:func:`tune` without the handover's decay floor; ``seed``: the seed law's result where it is
+    already tuned."""
     tunable = tunable_for(drive, law)
     law = tunable.name
     settings = settings if settings is not None else tunable.settings(drive)
@@ -72,11 +108,13 @@ def tune(
     t_start = time.perf_counter()
     say = progress or (lambda s: None)
     seed_res: TuneResult | None = None
-    if tunable.seed is not None:
+    if tunable.seed is not None and seed is not None:
+        seed_res = seed
+    elif tunable.seed is not None:
         seed_name = tunable.seed
         say(f"{law}: tuning its start, the {seed_name} law, first")
         seed_set = dataclasses.replace(settings, pareto=0)
-        seed_res = tune(drive, seed_name, seed_set, progress=lambda m: say(f"  [{seed_name}] {m}"))
+        seed_res = _tune(drive, seed_name, seed_set, progress=lambda m: say(f"  [{seed_name}] {m}"))
     model = tunable.build(drive, settings, None if seed_res is None else seed_res.theta)
     if model.bounded is not None and not getattr(settings, "hold_bounded", True):
         say(f"not held: {', '.join(model.bounded_names)} (the drive file's gains fail a check of their own)")

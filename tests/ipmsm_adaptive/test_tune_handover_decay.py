@@ -1,0 +1,38 @@
+"""The default tuning keeps the decay the I-f handover's w_min asks (tuning/tune.py, design/low_speed.py).
+
+On the gimbal example (docs/examples/motors/gimbal.toml) the speed-dependent law tuned without a decay
+floor decays at about 1.4 1/s at 0.05 p.u., under the tenth of the speed-loop bandwidth (11.94 1/s)
+that the low-speed criteria ask: its w_min, and so the handover, rose to 0.69 p.u., above the start's
+and reversal's 0.5 p.u. Here: the tuned gains' decay, from their poles on the family's analysis path,
+at every speed of the envelope (the low ones included) against that share of the file's bandwidth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+from helpers.tuning import paper_law
+from sensorless.design.drive import load_drive
+from sensorless.design.envelope import tuning_envelope
+from sensorless.design.ipmsm_adaptive.linearize import linearize
+from sensorless.tuning.tune import tune
+
+GIMBAL = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors" / "gimbal.toml"
+
+
+def test_tuned_gains_decay_as_the_handover_asks():
+    d = load_drive(GIMBAL)
+    env = tuning_envelope(d.w_base, d.T_N, speed_min=0.05, speed_max=1.0, speeds=4, torques_TN=(-1.0, 1.0))
+    # the law's two parameters (alpha_fo fixed: the poles below take lambda', omega_lambda)
+    st = dataclasses.replace(d.tuning, envelope=env, law=paper_law(d.tuning))
+    assert st.min_decay == 0  # the file asks for no floor: the handover's is the tuner's own
+    r = tune(d, "speed-dependent", st)
+    need = 0.1 * d.control.alpha_s  # a tenth of the speed-loop bandwidth [rad/s] (design/low_speed.py)
+    Wd, Td = env.grid(env.dense_factor, env.dense_factor)
+    decay = -linearize(d, Wd, Td, gain=("speed", r.theta)).max_real  # from the poles, independently
+    assert np.min(decay) >= need * (1 - 1e-6), (np.min(decay), need)
+    low = np.abs(Wd) <= 0.2 * d.w_base  # the low-speed points, where the handover is placed
+    assert low.any() and np.min(decay[low]) >= need * (1 - 1e-6)
+    assert r.floor == need
