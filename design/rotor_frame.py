@@ -35,6 +35,7 @@ from sensorless.design.batch import evaluate_batch, mapped
 from sensorless.design.compiled import compiled
 from sensorless.design.pmsm_schema import PmsmMotor
 from sensorless.design.poles import eigvals_batched
+from sensorless.symbolic.linalg import charpoly
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current, stator_voltage
 
 NEWTON_STEPS = 12
@@ -72,6 +73,13 @@ class RotorFrameLoop:
     # where Newton's method from ``start`` misses the equilibrium: follow the branch from where it is
     # exact (:func:`continued_equilibria`); None: NEWTON_STEPS from ``start``
     continuation: Continuation | None = None
+    # the linear model from the speed w to the ``output`` too (a transfer function such as G_c(s) of the
+    # speed estimate): B = df_r/dw, C = dy/dx_r, D = dy/dw at the equilibrium
+    statespace: bool = False
+    # the characteristic polynomial of A in the same Function (design/poles.py ``eigvals_batched(A, c)``
+    # takes its roots): its SX terms where A has structural zeros, not a numeric product afterwards,
+    # which differs in the last bits (3e-15 relative)
+    charpoly: bool = False
 
     @property
     def n_x(self) -> int:
@@ -80,9 +88,8 @@ class RotorFrameLoop:
 
 @functools.cache
 def equilibrium_function(loop: RotorFrameLoop) -> ca.Function:
-    """(w, torque, plant, p) -> (x_r*, A, res[, y]): NEWTON_STEPS Newton steps on f_r(x_r) = 0 from the
-    loop's start, the Jacobian A = df_r/dx_r there, the residual |f_r(x_r*)|_inf and, where the loop
-    declares an ``output``, its value there."""
+    """(w, torque, plant, p) -> (x_r*, A, res, f_r[, y, ...]): NEWTON_STEPS Newton steps on f_r(x_r) = 0
+    from the loop's start, and :func:`point_function` where they end."""
     f = loop.rates
     x_r = ca.SX.sym("x_r", loop.n_x)
     w, T = ca.SX.sym("w"), ca.SX.sym("torque")
@@ -93,44 +100,84 @@ def equilibrium_function(loop: RotorFrameLoop) -> ca.Function:
     for _ in range(NEWTON_STEPS):
         Gk, Jk = g_fn(xk, w, T, plant, p)
         xk = xk - ca.solve(Jk, Gk)
-    at = point_function(loop).call([xk, w, T, plant, p])  # A, res[, y] where the steps end
-    y = at[2:]
+    at = point_function(loop)
     return ca.Function(
         f"{loop.name}_equilibrium_c",
         [w, T, plant, p],
-        [xk, *at],
+        [xk, *at.call([xk, w, T, plant, p])],
         ["w", "torque", "plant", "p"],
-        ["x", "A", "res", *(["y"] if y else [])],
+        ["x", *at.name_out()],
+    )
+
+
+@functools.cache
+def start_function(loop: RotorFrameLoop) -> ca.Function:
+    """(w, torque, plant, p) -> (x_r, A, res, f_r[, y, ...]): :func:`point_function` at the loop's
+    start, in one Function: where ``p`` is its continuation's anchor at every point the start is the
+    equilibrium (a closed form), and a sweep of thousands of points needs no Newton step."""
+    f = loop.rates
+    w, T = ca.SX.sym("w"), ca.SX.sym("torque")
+    plant, p = ca.SX.sym("plant", f.size1_in(3)), ca.SX.sym("p", f.size1_in(4))
+    x0 = loop.start(w, T, plant, p)
+    at = point_function(loop)
+    return ca.Function(
+        f"{loop.name}_start_c",
+        [w, T, plant, p],
+        ca.cse([ca.densify(x0), *at.call([x0, w, T, plant, p])]),
+        ["w", "torque", "plant", "p"],
+        ["x", *at.name_out()],
     )
 
 
 @dataclass(frozen=True)
 class Equilibria:
     """The equilibria of a :class:`RotorFrameLoop` at N operating points (NaN rows where Newton's method
-    does not converge)."""
+    does not converge) and what the loop declares there."""
 
     x: np.ndarray  # (N, n) the rotor-frame state
     A: np.ndarray  # (N, n, n) the Jacobian df_r/dx_r
     ok: np.ndarray  # (N,) converged
     y: np.ndarray | None  # (N, l) the loop's ``output`` there, None without one
+    # the linear model from w to the output (N, n, 1), (N, l, n), (N, l, 1) where the loop is ``statespace``
+    B: np.ndarray | None = None
+    C: np.ndarray | None = None
+    D: np.ndarray | None = None
+    c: np.ndarray | None = None  # (N, n+1) the characteristic polynomials of A (``charpoly``)
+
+    def poles(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """(N, n) the eigenvalues of A (the roots of ``c`` where the loop gives it) at the points in
+        ``rows`` (a mask; default: every point with an equilibrium), NaN elsewhere."""
+        sel = self.ok if rows is None else self.ok & rows
+        out = np.full(self.x.shape, np.nan + 0j)
+        if sel.any():
+            out[sel] = eigvals_batched(self.A[sel], None if self.c is None else self.c[sel])
+        return out
 
 
 @functools.cache
 def point_function(loop: RotorFrameLoop) -> ca.Function:
-    """(x_r, w, torque, plant, p) -> (A, res[, y]) at a given state: the Jacobian df_r/dx_r, the residual
-    |f_r|_inf and the loop's ``output``."""
+    """(x_r, w, torque, plant, p) -> (A, res, f_r[, y][, B, C, D][, c]) at a given state: the Jacobian
+    df_r/dx_r, the residual |f_r|_inf, the rates, the loop's ``output``, its linear model from w
+    (``statespace``) and the characteristic polynomial of A (``charpoly``)."""
     f = loop.rates
     x_r = ca.SX.sym("x_r", loop.n_x)
     w, T = ca.SX.sym("w"), ca.SX.sym("torque")
     plant, p = ca.SX.sym("plant", f.size1_in(3)), ca.SX.sym("p", f.size1_in(4))
     G = f(x_r, w, T, plant, p)
-    y = [] if loop.output is None else [loop.output(x_r, w, T, plant, p)]
+    A = ca.jacobian(G, x_r)
+    outs = {"A": A, "res": ca.norm_inf(G), "f_r": G}
+    if loop.output is not None:
+        outs["y"] = y = loop.output(x_r, w, T, plant, p)
+        if loop.statespace:
+            outs |= {"B": ca.jacobian(G, w), "C": ca.jacobian(y, x_r), "D": ca.jacobian(y, w)}
+    if loop.charpoly:
+        outs["c"] = ca.vertcat(*charpoly(A))
     return ca.Function(
         f"{loop.name}_point_c",
         [x_r, w, T, plant, p],
-        [ca.densify(ca.jacobian(G, x_r)), ca.norm_inf(G), *y],
+        ca.cse([ca.densify(v) for v in outs.values()]),  # dense: evaluate_batch
         ["x_r", "w", "torque", "plant", "p"],
-        ["A", "res", *(["y"] if y else [])],
+        list(outs),
     )
 
 
@@ -138,36 +185,50 @@ def equilibrium_points(
     loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
 ) -> Equilibria:
     """The equilibria at the N points (w, torque), batched: ``plant`` one vector or one column per
-    point, ``p`` likewise (continued where the loop declares a :class:`Continuation`)."""
-    if loop.continuation is not None:
-        return _continued_points(loop, w, torque, plant, p)
+    point, ``p`` likewise (continued where the loop declares a :class:`Continuation`; its start where
+    ``p`` is the continuation's anchor at every point)."""
     W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
-    out = evaluate_batch(
-        equilibrium_function(loop), W.size, [W, T, np.asarray(plant, float), np.asarray(p, float)]
-    )
-    x, A, res = out[0][:, :, 0], out[1], out[2]
-    ok = np.isfinite(A).all(axis=(1, 2)) & (res[:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0))
-    y = np.where(ok[:, None], out[3][:, :, 0], np.nan) if len(out) > 3 else None
-    return Equilibria(np.where(ok[:, None], x, np.nan), np.where(ok[:, None, None], A, np.nan), ok, y)
+    P, Q = np.asarray(plant, float), np.asarray(p, float)
+    cont = loop.continuation
+    if cont is not None and np.array_equal(_anchor(cont, P, Q, W.size), _columns(Q, W.size)):
+        out = _named(start_function(loop), W.size, [W, T, P, Q])
+        return _equilibria(out, np.isfinite(out["A"]).all(axis=(1, 2)))
+    if cont is not None:
+        x = continued_equilibria(loop, W, T, P, Q)
+        ok = np.isfinite(x).all(axis=0)
+        ins = [
+            np.where(ok[None, :], x, 0.0),
+            W[None, :],
+            T[None, :],
+            _columns(P, W.size),
+            _columns(Q, W.size),
+        ]
+        out = _named(point_function(loop), W.size, ins)
+        out["x"] = x.T[:, :, None]
+        return _equilibria(out, ok & np.isfinite(out["A"]).all(axis=(1, 2)))
+    out = _named(equilibrium_function(loop), W.size, [W, T, P, Q])
+    x = out["x"][:, :, 0]
+    ok = np.isfinite(out["A"]).all(axis=(1, 2))
+    return _equilibria(out, ok & (out["res"][:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0)))
 
 
-def _continued_points(
-    loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
-) -> Equilibria:
-    """:func:`equilibrium_points` of a loop with a :class:`Continuation`."""
-    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
-    x = continued_equilibria(loop, W, T, plant, p)
-    ok = np.isfinite(x).all(axis=0)
-    xs = np.where(ok[None, :], x, 0.0)
-    out = evaluate_batch(
-        point_function(loop),
-        W.size,
-        [xs, W[None, :], T[None, :], _columns(plant, W.size), _columns(p, W.size)],
-    )
-    A = out[0]
-    ok &= np.isfinite(A).all(axis=(1, 2))
-    y = np.where(ok[:, None], out[2][:, :, 0], np.nan) if len(out) > 2 else None
-    return Equilibria(np.where(ok[:, None], x.T, np.nan), np.where(ok[:, None, None], A, np.nan), ok, y)
+def _named(fn: ca.Function, n: int, args: list[np.ndarray]) -> dict[str, np.ndarray]:
+    """evaluate_batch of ``fn`` at n points, by output name."""
+    return dict(zip(fn.name_out(), evaluate_batch(fn, n, args), strict=True))
+
+
+def _equilibria(out: dict[str, np.ndarray], ok: np.ndarray) -> Equilibria:
+    """The :class:`Equilibria` of a batch's outputs, NaN where not ``ok``."""
+
+    def masked(k: str, matrix: bool = False) -> np.ndarray | None:
+        if k not in out:
+            return None
+        a = out[k] if matrix else out[k][:, :, 0]
+        return np.where(ok.reshape(-1, *[1] * (a.ndim - 1)), a, np.nan)
+
+    x, A, y, B, C, D, c = (masked(k, k in ("A", "B", "C", "D")) for k in ("x", "A", "y", "B", "C", "D", "c"))
+    assert x is not None and A is not None
+    return Equilibria(x, A, ok, y, B, C, D, c)
 
 
 def equilibria(
@@ -184,11 +245,8 @@ def continuous_poles(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(poles (N, n), x_r* (N, n)): the eigenvalues of the Jacobian at each point's equilibrium; a NaN
     row where there is none."""
-    x, A, ok = equilibria(loop, w, torque, plant, p)
-    poles = np.full(x.shape, np.nan + 0j)
-    if ok.any():
-        poles[ok] = eigvals_batched(A[ok])
-    return poles, x
+    e = equilibrium_points(loop, w, torque, plant, p)
+    return e.poles(), e.x
 
 
 @functools.cache
@@ -221,6 +279,11 @@ def _columns(a: ArrayLike, n: int) -> np.ndarray:
     return np.broadcast_to(a.reshape(-1, 1), (a.size, n)) if a.ndim <= 1 else a.reshape(a.shape[0], n)
 
 
+def _anchor(cont: Continuation, plant: np.ndarray, p: np.ndarray, n: int) -> np.ndarray:
+    """(k, n) the continuation's p0 at the n points."""
+    return np.asarray(cont.anchor.map(n)(_columns(plant, n), _columns(p, n)), float)
+
+
 def continued_equilibria(
     loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
 ) -> np.ndarray:
@@ -238,8 +301,10 @@ def continued_equilibria(
     W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
     n = W.size
     P, Q = _columns(plant, n), _columns(p, n)
-    Q0 = np.asarray(cont.anchor.map(n)(P, Q), float)
+    Q0 = _anchor(cont, P, Q, n)
     x = np.ascontiguousarray(evaluate_batch(loop.start, n, [W[None, :], T[None, :], P, Q])[0][:, :, 0].T)
+    if np.array_equal(Q0, Q):  # every point at the anchor: the start is the equilibrium
+        return x
     root = _rootfinder(loop)
     scale = 1.0 + np.abs(W) + np.abs(x).max(axis=0)
     tau = np.zeros(n)

@@ -2,9 +2,10 @@
 linearization, noise), equilibria and gains, and the fields every law of tuning/ipmsm_adaptive/
 laws.py shares (which laws, boxes and starts: there).
 
-The law is plugged into the analysis closed loop of design/ipmsm_adaptive/linearize.py
-(``linearization_function``): the NLP differentiates exactly the Jacobian that ``sensorless analyze``
-evaluates. theta is the law's parameter vector, plus alpha_fo (10) when ``tune_alpha_fo`` is set.
+The law is plugged into the analysis closed loop (design/ipmsm_adaptive/operating_point.py
+``rotor_frame_loop``, its Jacobians by design/rotor_frame.py ``point_function``): the NLP
+differentiates exactly the Jacobian that ``sensorless analyze`` evaluates. theta is the law's
+parameter vector, plus alpha_fo (10) when ``tune_alpha_fo`` is set.
 """
 
 from __future__ import annotations
@@ -18,8 +19,9 @@ from numpy.typing import ArrayLike
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
 from sensorless.design.ipmsm_adaptive.derive import ALPHA_FO_MAX_FS
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
-from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
-from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
+from sensorless.design.ipmsm_adaptive.linearize import noise_function
+from sensorless.design.ipmsm_adaptive.operating_point import P_NAMES, loop_parameters, rotor_frame_loop
+from sensorless.design.rotor_frame import continued_equilibria, point_function
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, taylor_law
 from sensorless.tuning.ipmsm_adaptive.size import gain_size_function
 from sensorless.tuning.model import TuningModel
@@ -38,7 +40,7 @@ def _closed_loop(
 
     local(theta, point) -> phi = [lambda1, lambda2, dlambda1/dw_hat, dlambda2/dw_hat, w_m, alpha_fo]:
     the law (16) or schedule and its slope at the point's speed, by AD of the one law expression.
-    linearization(phi, x, point) -> (A, x_dot): the analysis closed loop (ipmsm_adaptive/linearize.py)
+    linearization(phi, x, point) -> (A, x_dot): the analysis closed loop (rotor_frame ``point_function``)
     with the law replaced by its first-order expansion at w_m, which gives the same residual and Jacobian
     at any equilibrium (w_hat = w_m there; see ``taylor_law``). noise(phi, x, point) -> (B_n, C_n, D_n):
     the input from current-measurement noise and the outputs [theta_tilde, w_hat]
@@ -60,7 +62,6 @@ def _closed_loop(
         f"local_{law.name}", [th, pt], [ca.vertcat(at, pt[0], alpha_fo)], ["theta", "point"], ["phi"]
     )
 
-    lin = linearization_function(taylor_law(), False)
     phi = ca.SX.sym("phi", N_PHI)
     x = ca.SX.sym("x", 4)
     inj = drive.injection
@@ -75,9 +76,11 @@ def _closed_loop(
         "alpha_fo": phi[5],
         "inj": ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
     }
-    out = lin(**args)
+    loop = point_function(rotor_frame_loop(taylor_law(), False))
+    plant, p = ca.vertcat(args["motor"], args["p"]), ca.vertcat(*[args[k] for k in P_NAMES])
+    out = loop(x_r=x, w=pt[0], torque=pt[1], plant=plant, p=p)
     linear = ca.Function(
-        "closed_loop_local", [phi, x, pt], [out["A"], out["x_dot"]], ["phi", "x", "point"], ["A", "x_dot"]
+        "closed_loop_local", [phi, x, pt], [out["A"], out["f_r"]], ["phi", "x", "point"], ["A", "x_dot"]
     )
     # B = d x_dot / d w_m with the gains' expansion point (phi[4]) held: the analysis' B at an equilibrium
     ramp = ca.solve(out["A"], ca.solve(out["A"], out["B"]))
@@ -133,24 +136,14 @@ def law_model(
     inj = drive.injection
 
     def equilibrium(theta: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """Equilibria (4, N); theta (n_theta,) or one per point (n_theta, N)."""
+        """Equilibria (4, N); theta (n_theta,) or one per point (n_theta, N): the closed form where the
+        estimates are exact at every point, else continued (design/rotor_frame.py)."""
         N = P.shape[1]
-        exact = bool(np.all(P[2:6] == motor[:, None]))
-        if exact:  # closed form, independent of the gains
-            return solve_equilibrium(
-                law,
-                False,
-                {"w_m": P[0:1], "T_e": P[1:2], "motor": motor, "p": np.array(float(drive.motor.p))},
-                N,
-                True,
-            )
         theta = np.asarray(theta, float)
         th = theta.reshape(theta.shape[0], -1)
         gain = np.zeros((law.width, th.shape[1]))
         gain[: law.n_params] = th[: law.n_params]
         args = {
-            "w_m": P[0:1],
-            "T_e": P[1:2],
             "motor": motor,
             "p": np.array(float(drive.motor.p)),
             "estimate": P[2:6],
@@ -158,7 +151,7 @@ def law_model(
             "alpha_fo": th[law.n_params : law.n_params + 1] if tune_alpha else np.array(a0),
             "inj": np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
         }
-        return solve_equilibrium(law, False, args, N, False)
+        return continued_equilibria(rotor_frame_loop(law, False), P[0], P[1], *loop_parameters(args, N))
 
     def point_gains(theta: np.ndarray, w_hat: np.ndarray) -> dict[str, np.ndarray]:
         gain = np.zeros(law.width)
