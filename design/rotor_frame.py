@@ -60,6 +60,16 @@ class Continuation:
 
 
 @dataclass(frozen=True, eq=False)
+class Disturbance:
+    """An input ``d`` of a :class:`RotorFrameLoop` that is zero in the loop itself (e.g. the current
+    sensor's noise) and the outputs ``z`` it is judged by: :func:`disturbance_function` gives the loop's
+    linear model from it."""
+
+    rates: ca.Function  # (x_r, w, torque, plant, p, d) -> f_r: the loop's rates with d added
+    output: ca.Function  # (x_r, w, torque, plant, p, d) -> z
+
+
+@dataclass(frozen=True, eq=False)
 class RotorFrameLoop:
     """A family's continuous observer in rotor coordinates (module docstring); hashable by identity,
     so declare it once (e.g. in a ``functools.cache``d function)."""
@@ -80,6 +90,7 @@ class RotorFrameLoop:
     # takes its roots): its SX terms where A has structural zeros, not a numeric product afterwards,
     # which differs in the last bits (3e-15 relative)
     charpoly: bool = False
+    disturbance: Disturbance | None = None
 
     @property
     def n_x(self) -> int:
@@ -178,6 +189,28 @@ def point_function(loop: RotorFrameLoop) -> ca.Function:
         ca.cse([ca.densify(v) for v in outs.values()]),  # dense: evaluate_batch
         ["x_r", "w", "torque", "plant", "p"],
         list(outs),
+    )
+
+
+@functools.cache
+def disturbance_function(loop: RotorFrameLoop) -> ca.Function:
+    """(x_r, w, torque, plant, p) -> (B_d, C_d, D_d): the linear model of the loop's :class:`Disturbance`
+    at d = 0, B_d = df_r/dd, C_d = dz/dx_r, D_d = dz/dd (e.g. design/noise.py's noise gain)."""
+    dist = loop.disturbance
+    if dist is None:
+        raise ValueError(f"the loop {loop.name} declares no disturbance")
+    f = loop.rates
+    x_r, w, T = ca.SX.sym("x_r", loop.n_x), ca.SX.sym("w"), ca.SX.sym("torque")
+    plant, p = ca.SX.sym("plant", f.size1_in(3)), ca.SX.sym("p", f.size1_in(4))
+    d = ca.SX.sym("d", dist.rates.size1_in(5))
+    G, z = (fn(x_r, w, T, plant, p, d) for fn in (dist.rates, dist.output))
+    outs = [ca.jacobian(G, d), ca.jacobian(z, x_r), ca.jacobian(z, d)]
+    return ca.Function(
+        f"{loop.name}_disturbance_c",
+        [x_r, w, T, plant, p],
+        ca.cse([ca.densify(ca.substitute(o, d, ca.DM.zeros(d.shape))) for o in outs]),
+        ["x_r", "w", "torque", "plant", "p"],
+        ["B_d", "C_d", "D_d"],
     )
 
 

@@ -26,7 +26,7 @@ from sensorless.design.ipmsm_adaptive.operating_point import (
 from sensorless.design.linearization import Linearization
 from sensorless.design.noise import noise_rms
 from sensorless.design.poles import eigvals_batched, sort_poles
-from sensorless.design.rotor_frame import equilibrium_points, pmsm_steady_current
+from sensorless.design.rotor_frame import disturbance_function, equilibrium_points, pmsm_steady_current
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
 from sensorless.symbolic.ipmsm_adaptive.observer import error_term
 
@@ -35,31 +35,6 @@ if TYPE_CHECKING:  # python-control imports scipy.signal and matplotlib (~3 s): 
     from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
-
-
-NOISE_OUTPUTS = ("theta_tilde", "w_hat")  # outputs of the noise gain: position error [rad], speed [rad/s]
-
-
-@functools.cache
-def noise_function(law: str | GainLaw, injection: bool) -> ca.Function:
-    """Function (x0, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (B_n, C_n, D_n).
-
-    The current-measurement noise n (2x1, A, estimated rotor frame) added to the current the observer
-    measures (symbolic/ipmsm_adaptive/closed_loop.py): B_n = d x_dot/d n, and the outputs
-    y = [theta_tilde, w_hat] (the position error, i.e. minus the position estimate's deviation, and
-    the speed estimate) with C_n = dy/dx, D_n = dy/dn, all at x0 and n = 0. Jacobians of the same
-    coupled system as its ``rotor_frame_loop`` (operating_point.py); nothing is re-typed.
-    """
-    s = analysis_symbols(law, injection)
-    n = ca.SX.sym("i_noise", 2)
-    cl, _ = coupled_system(law, injection, s, i_noise=n)
-    x = s["x"]
-    y = ca.vertcat(x[2], cl.w_hat)
-    outs = [ca.jacobian(cl.x_dot, n), ca.jacobian(y, x), ca.jacobian(y, n)]
-    outs = [ca.densify(ca.substitute(o, n, ca.DM.zeros(2))) for o in outs]
-    names = ["x", *PARAM_NAMES]
-    name = f"noise_{get_law(law).name}{'_inj' if injection else ''}"
-    return ca.Function(name, [s[k] for k in names], ca.cse(outs), names, ["B_n", "C_n", "D_n"])
 
 
 @functools.cache
@@ -257,7 +232,7 @@ def linearize(
     array (..., 4) of [R̂s, L̂d, L̂q, ψ̂pm] broadcasting with the operating points (default: the
     drive's ``[estimate]``), so robustness maps over parameter errors are one call. Points where no
     equilibrium exists (possible with estimation errors) get NaN. ``noise`` also evaluates the input
-    from current-measurement noise (:func:`noise_function`, ``PoleSweep.noise_rms``). The discrete-time
+    from current-measurement noise (the loop's ``disturbance``, ``PoleSweep.noise_rms``). The discrete-time
     observer that runs is analysed beside this by one_step.py (its ``linearize`` takes a
     ``discretization``).
     """
@@ -284,10 +259,9 @@ def linearize(
         poles[rest] = sort_poles(eq.poles(rest)[rest])
     noise_input = None
     if noise:
-        nf = noise_function(law, injection)
+        nf = disturbance_function(rotor_frame_loop(law, injection))
         xs = np.where(np.isfinite(x0), x0, 0.0).T
-        args["w_m"], args["T_e"] = w_flat[None, :], T_flat[None, :]
-        B_n, C_n, D_n = evaluate_batch(nf, n_pts, [xs, *[args[k] for k in PARAM_NAMES]])
+        B_n, C_n, D_n = evaluate_batch(nf, n_pts, [xs, w_flat[None, :], T_flat[None, :], plant, p])
         bad = ~np.isfinite(x0).all(axis=1)
         B_n[bad] = np.nan
         noise_input = (B_n, C_n, D_n)

@@ -15,7 +15,7 @@ import functools
 
 import casadi as ca
 import numpy as np
-from sensorless.design.rotor_frame import Continuation, RotorFrameLoop
+from sensorless.design.rotor_frame import Continuation, Disturbance, RotorFrameLoop
 from sensorless.symbolic.ipmsm_adaptive.closed_loop import N_INJ, closed_loop
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current
@@ -111,6 +111,11 @@ def rotor_frame_loop(law: str | GainLaw, injection: bool) -> RotorFrameLoop:
     x0 = nominal_equilibrium_function(injection)(s["w_m"], s["T_e"], s["motor"], s["p"])
     args, names = [s["x"], s["w_m"], s["T_e"], plant, p], ["x_r", "w", "torque", "plant", "p"]
     name = f"ipmsm_adaptive_{get_law(law).name}{'_inj' if injection else ''}"
+    # the current sensor's noise n (2x1, A, estimated rotor frame) added to the current the observer
+    # measures, judged by the position error theta_tilde and the speed estimate (design/noise.py)
+    n = ca.SX.sym("i_noise", 2)
+    noisy, _ = coupled_system(law, injection, s, i_noise=n)
+    ins, in_names = [*args, n], [*names, "d"]
     return RotorFrameLoop(
         name,
         ca.Function(f"{name}_rates", args, [cl.x_dot], names, ["f_r"]),
@@ -119,6 +124,10 @@ def rotor_frame_loop(law: str | GainLaw, injection: bool) -> RotorFrameLoop:
         Continuation(ca.Function(f"{name}_exact", [plant, p], [exact], ["plant", "p"], ["p0"]), THETA_TILDE),
         statespace=True,
         charpoly=True,
+        disturbance=Disturbance(
+            ca.Function(f"{name}_noisy", ins, [noisy.x_dot], in_names, ["f_r"]),
+            ca.Function(f"{name}_noise_out", ins, [ca.vertcat(s["x"][2], noisy.w_hat)], in_names, ["z"]),
+        ),
     )
 
 

@@ -19,9 +19,8 @@ from numpy.typing import ArrayLike
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
 from sensorless.design.ipmsm_adaptive.derive import ALPHA_FO_MAX_FS
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
-from sensorless.design.ipmsm_adaptive.linearize import noise_function
-from sensorless.design.ipmsm_adaptive.operating_point import P_NAMES, loop_parameters, rotor_frame_loop
-from sensorless.design.rotor_frame import continued_equilibria, point_function
+from sensorless.design.ipmsm_adaptive.operating_point import loop_parameters, rotor_frame_loop
+from sensorless.design.rotor_frame import continued_equilibria, disturbance_function, point_function
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, taylor_law
 from sensorless.tuning.ipmsm_adaptive.size import gain_size_function
 from sensorless.tuning.model import TuningModel
@@ -43,9 +42,9 @@ def _closed_loop(
     linearization(phi, x, point) -> (A, x_dot): the analysis closed loop (rotor_frame ``point_function``)
     with the law replaced by its first-order expansion at w_m, which gives the same residual and Jacobian
     at any equilibrium (w_hat = w_m there; see ``taylor_law``). noise(phi, x, point) -> (B_n, C_n, D_n):
-    the input from current-measurement noise and the outputs [theta_tilde, w_hat]
-    (design/ipmsm_adaptive/linearize.py ``noise_function``). lag(phi, x, point) -> the steady position
-    error per unit of speed ramp [rad per rad/s^2], -[A^-2 B]_theta_tilde of the same linearization
+    the input from current-measurement noise and the outputs [theta_tilde, w_hat] (the loop's
+    ``disturbance``, design/rotor_frame.py ``disturbance_function``). lag(phi, x, point) -> the steady
+    position error per unit of speed ramp [rad per rad/s^2], -[A^-2 B]_theta_tilde of the same linearization
     (``PoleSweep.acceleration_lag``): what the damping does not see, and the time-domain checks punish.
     Drive constants are inlined.
     """
@@ -65,31 +64,26 @@ def _closed_loop(
     phi = ca.SX.sym("phi", N_PHI)
     x = ca.SX.sym("x", 4)
     inj = drive.injection
-    args = {
-        "x": x,
-        "w_m": pt[0],
-        "T_e": pt[1],
-        "motor": ca.DM(drive.motor.vector()),
-        "p": float(drive.motor.p),
-        "estimate": pt[2:6],
-        "gain": phi[:5],
-        "alpha_fo": phi[5],
-        "inj": ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
+    loop = rotor_frame_loop(taylor_law(), False)
+    ins = {
+        "x_r": x,
+        "w": pt[0],
+        "torque": pt[1],
+        "plant": ca.vertcat(ca.DM(drive.motor.vector()), float(drive.motor.p)),
+        "p": ca.vertcat(pt[2:6], phi[:5], phi[5], ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta])),
     }
-    loop = point_function(rotor_frame_loop(taylor_law(), False))
-    plant, p = ca.vertcat(args["motor"], args["p"]), ca.vertcat(*[args[k] for k in P_NAMES])
-    out = loop(x_r=x, w=pt[0], torque=pt[1], plant=plant, p=p)
+    out = point_function(loop)(**ins)
     linear = ca.Function(
         "closed_loop_local", [phi, x, pt], [out["A"], out["f_r"]], ["phi", "x", "point"], ["A", "x_dot"]
     )
     # B = d x_dot / d w_m with the gains' expansion point (phi[4]) held: the analysis' B at an equilibrium
     ramp = ca.solve(out["A"], ca.solve(out["A"], out["B"]))
     lag = ca.Function("acceleration_lag", [phi, x, pt], [-ramp[2]], ["phi", "x", "point"], ["lag"])
-    nz = noise_function(taylor_law(), False)(**args)
+    nz = disturbance_function(loop)(**ins)
     noise = ca.Function(
         "closed_loop_noise",
         [phi, x, pt],
-        [ca.densify(nz["B_n"]), ca.densify(nz["C_n"]), ca.densify(nz["D_n"])],
+        [ca.densify(nz["B_d"]), ca.densify(nz["C_d"]), ca.densify(nz["D_d"])],
         ["phi", "x", "point"],
         ["B_n", "C_n", "D_n"],
     )
