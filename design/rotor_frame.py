@@ -14,7 +14,13 @@ parameters); ``p`` the observer's parameters, one vector or one column per point
 Where Newton's method from ``start`` misses the equilibrium (an observer whose steady angle error under
 wrong estimates grows to tenths of a radian), the loop declares a :class:`Continuation`: the
 parameters ``p0`` at which ``start`` is the equilibrium (e.g. exact estimates), and
-:func:`continued_equilibria` follows the branch from there along p(tau) = p0 + tau (p - p0).
+:func:`continued_equilibria` follows the branch from there along p(tau) = p0 + tau (p - p0); where
+``p`` is ``p0`` at every point, :func:`start_function` is the closed form, no Newton step.
+
+At the equilibrium :func:`point_function` gives what the loop declares: its ``output``, the linear
+model from the speed to it (``statespace``: B, C, D), the characteristic polynomial of A
+(``charpoly``, for design/poles.py's batched roots), and :func:`disturbance_function` the model from a
+:class:`Disturbance` input (e.g. current-sensor noise). A tuner differentiates the same Functions.
 
 For an observer on a PMSM the plant is the motor in steady state at the operating point under ideal
 current control: :func:`pmsm_steady` gives its MTPA current and steady voltage in rotor coordinates

@@ -67,14 +67,6 @@ def coupled_system(
 
 
 @functools.cache
-def mtpa_function() -> ca.Function:
-    """Function mtpa(T_e [N m], motor [4], p) -> i_s0 [A] (rotor frame, [i_d, i_q])."""
-    T_e, motor, p = ca.SX.sym("T_e"), ca.SX.sym("motor", N_MOTOR), ca.SX.sym("p")
-    i_s0 = mtpa_current(T_e, PmsmParams.of(motor), p)
-    return ca.Function("mtpa", [T_e, motor, p], [i_s0], ["T_e", "motor", "p"], ["i_s0"])
-
-
-@functools.cache
 def nominal_equilibrium_function(injection: bool) -> ca.Function:
     """Closed-form equilibrium for exact estimates: x0 = [psi_s0; 0; w_m (; 0)]."""
     s = analysis_symbols("zero", injection)
