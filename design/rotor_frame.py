@@ -6,7 +6,7 @@ steady state at an operating point, written in rotor coordinates where the stead
 point, as one SX Function ``rates(x_r, w, torque, plant, p) -> f_r``, and a Function giving Newton's
 start ``start(w, torque, plant, p) -> x_r``. This module builds, once per loop, Newton's method on
 those SX expressions and the Jacobian at its end (:func:`equilibrium_function`), evaluates it over N
-operating points at once (``Function.map`` through design/batch.py, :func:`equilibria`) and returns
+operating points at once (``Function.map`` through design/batch.py, :func:`equilibrium_points`) and returns
 the eigenvalues of the Jacobians (:func:`continuous_poles`). Nothing is re-typed: the family's SX
 rates are differentiated by CasADi. ``plant`` is one vector for all points (e.g. the true motor's
 parameters); ``p`` the observer's parameters, one vector or one column per point.
@@ -103,15 +103,18 @@ class RotorFrameLoop:
         return int(self.rates.size1_in(0))
 
 
+def _symbols(loop: RotorFrameLoop) -> tuple[ca.SX, ...]:
+    """Fresh symbols (x_r, w, torque, plant, p) of the loop's inputs."""
+    sizes = (loop.n_x, 1, 1, loop.rates.size1_in(3), loop.rates.size1_in(4))
+    return tuple(ca.SX.sym(k, m) for k, m in zip(("x_r", "w", "torque", "plant", "p"), sizes, strict=True))
+
+
 @functools.cache
 def equilibrium_function(loop: RotorFrameLoop) -> ca.Function:
     """(w, torque, plant, p) -> (x_r*, A, res, f_r[, y, ...]): NEWTON_STEPS Newton steps on f_r(x_r) = 0
     from the loop's start, and :func:`point_function` where they end."""
-    f = loop.rates
-    x_r = ca.SX.sym("x_r", loop.n_x)
-    w, T = ca.SX.sym("w"), ca.SX.sym("torque")
-    plant, p = ca.SX.sym("plant", f.size1_in(3)), ca.SX.sym("p", f.size1_in(4))
-    G = f(x_r, w, T, plant, p)
+    x_r, w, T, plant, p = _symbols(loop)
+    G = loop.rates(x_r, w, T, plant, p)
     g_fn = ca.Function("G", [x_r, w, T, plant, p], [G, ca.jacobian(G, x_r)])
     xk = loop.start(w, T, plant, p)
     for _ in range(NEWTON_STEPS):
@@ -132,9 +135,7 @@ def start_function(loop: RotorFrameLoop) -> ca.Function:
     """(w, torque, plant, p) -> (x_r, A, res, f_r[, y, ...]): :func:`point_function` at the loop's
     start, in one Function: where ``p`` is its continuation's anchor at every point the start is the
     equilibrium (a closed form), and a sweep of thousands of points needs no Newton step."""
-    f = loop.rates
-    w, T = ca.SX.sym("w"), ca.SX.sym("torque")
-    plant, p = ca.SX.sym("plant", f.size1_in(3)), ca.SX.sym("p", f.size1_in(4))
+    _, w, T, plant, p = _symbols(loop)
     x0 = loop.start(w, T, plant, p)
     at = point_function(loop)
     return ca.Function(
@@ -176,11 +177,8 @@ def point_function(loop: RotorFrameLoop) -> ca.Function:
     """(x_r, w, torque, plant, p) -> (A, res, f_r[, y][, B, C, D][, c]) at a given state: the Jacobian
     df_r/dx_r, the residual |f_r|_inf, the rates, the loop's ``output``, its linear model from w
     (``statespace``) and the characteristic polynomial of A (``charpoly``)."""
-    f = loop.rates
-    x_r = ca.SX.sym("x_r", loop.n_x)
-    w, T = ca.SX.sym("w"), ca.SX.sym("torque")
-    plant, p = ca.SX.sym("plant", f.size1_in(3)), ca.SX.sym("p", f.size1_in(4))
-    G = f(x_r, w, T, plant, p)
+    x_r, w, T, plant, p = _symbols(loop)
+    G = loop.rates(x_r, w, T, plant, p)
     A = ca.jacobian(G, x_r)
     outs = {"A": A, "res": ca.norm_inf(G), "f_r": G}
     if loop.output is not None:
@@ -205,9 +203,7 @@ def disturbance_function(loop: RotorFrameLoop) -> ca.Function:
     dist = loop.disturbance
     if dist is None:
         raise ValueError(f"the loop {loop.name} declares no disturbance")
-    f = loop.rates
-    x_r, w, T = ca.SX.sym("x_r", loop.n_x), ca.SX.sym("w"), ca.SX.sym("torque")
-    plant, p = ca.SX.sym("plant", f.size1_in(3)), ca.SX.sym("p", f.size1_in(4))
+    x_r, w, T, plant, p = _symbols(loop)
     d = ca.SX.sym("d", dist.rates.size1_in(5))
     G, z = (fn(x_r, w, T, plant, p, d) for fn in (dist.rates, dist.output))
     outs = [ca.jacobian(G, d), ca.jacobian(z, x_r), ca.jacobian(z, d)]
@@ -227,28 +223,23 @@ def equilibrium_points(
     point, ``p`` likewise (continued where the loop declares a :class:`Continuation`; its start where
     ``p`` is the continuation's anchor at every point)."""
     W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
-    P, Q = np.asarray(plant, float), np.asarray(p, float)
-    cont = loop.continuation
-    if cont is not None and np.array_equal(_anchor(cont, P, Q, W.size), _columns(Q, W.size)):
-        out = _named(start_function(loop), W.size, [W, T, P, Q])
-        return _equilibria(out, np.isfinite(out["A"]).all(axis=(1, 2)))
-    if cont is not None:
+    n, cont = W.size, loop.continuation
+    P, Q = _columns(plant, n), _columns(p, n)
+    if cont is None:
+        out = _named(equilibrium_function(loop), n, [W, T, P, Q])
+        x = out["x"][:, :, 0]
+        ok = np.isfinite(out["A"]).all(axis=(1, 2))
+        ok &= out["res"][:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0)
+    elif np.array_equal(_anchor(cont, P, Q, n), Q):  # the start is the equilibrium: no Newton step
+        out = _named(start_function(loop), n, [W, T, P, Q])
+        ok = np.isfinite(out["A"]).all(axis=(1, 2))
+    else:
         x = continued_equilibria(loop, W, T, P, Q)
-        ok = np.isfinite(x).all(axis=0)
-        ins = [
-            np.where(ok[None, :], x, 0.0),
-            W[None, :],
-            T[None, :],
-            _columns(P, W.size),
-            _columns(Q, W.size),
-        ]
-        out = _named(point_function(loop), W.size, ins)
+        found = np.isfinite(x).all(axis=0)
+        out = _named(point_function(loop), n, [np.where(found, x, 0.0), W[None, :], T[None, :], P, Q])
         out["x"] = x.T[:, :, None]
-        return _equilibria(out, ok & np.isfinite(out["A"]).all(axis=(1, 2)))
-    out = _named(equilibrium_function(loop), W.size, [W, T, P, Q])
-    x = out["x"][:, :, 0]
-    ok = np.isfinite(out["A"]).all(axis=(1, 2))
-    return _equilibria(out, ok & (out["res"][:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0)))
+        ok = found & np.isfinite(out["A"]).all(axis=(1, 2))
+    return _equilibria(out, ok)
 
 
 def _named(fn: ca.Function, n: int, args: list[np.ndarray]) -> dict[str, np.ndarray]:
@@ -259,24 +250,16 @@ def _named(fn: ca.Function, n: int, args: list[np.ndarray]) -> dict[str, np.ndar
 def _equilibria(out: dict[str, np.ndarray], ok: np.ndarray) -> Equilibria:
     """The :class:`Equilibria` of a batch's outputs, NaN where not ``ok``."""
 
-    def masked(k: str, matrix: bool = False) -> np.ndarray | None:
-        if k not in out:
+    def masked(k: str) -> np.ndarray | None:
+        a = out.get(k)
+        if a is None:
             return None
-        a = out[k] if matrix else out[k][:, :, 0]
+        a = a[:, :, 0] if k in ("x", "y", "c") else a  # vectors per point; matrices stay (N, r, c)
         return np.where(ok.reshape(-1, *[1] * (a.ndim - 1)), a, np.nan)
 
-    x, A, y, B, C, D, c = (masked(k, k in ("A", "B", "C", "D")) for k in ("x", "A", "y", "B", "C", "D", "c"))
+    x, A, y, B, C, D, c = map(masked, ("x", "A", "y", "B", "C", "D", "c"))
     assert x is not None and A is not None
     return Equilibria(x, A, ok, y, B, C, D, c)
-
-
-def equilibria(
-    loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(x_r* (N, n), A (N, n, n), converged (N,)) at the N points (w, torque), batched; a point where
-    Newton's method does not converge has NaN in x_r* and A."""
-    e = equilibrium_points(loop, w, torque, plant, p)
-    return e.x, e.A, e.ok
 
 
 def continuous_poles(

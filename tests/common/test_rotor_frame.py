@@ -22,7 +22,6 @@ from sensorless.design.rotor_frame import (
     Continuation,
     RotorFrameLoop,
     continuous_poles,
-    equilibria,
     equilibrium_points,
     pmsm_plant,
     pmsm_steady,
@@ -54,7 +53,8 @@ def test_equilibria_and_poles_of_a_rotating_linear_system():
 def test_a_point_without_an_equilibrium_is_nan():
     # x0^2 + 1 = 0 has no real root; x0^2 - T = 0 has one for T > 0
     loop = _loop(lambda x, w, T, k, a: ca.vertcat(x[0] ** 2 - T, -a * x[1]))
-    x, A, ok = equilibria(loop, [0.0, 0.0], [4.0, -1.0], [1.0], [3.0])
+    e = equilibrium_points(loop, [0.0, 0.0], [4.0, -1.0], [1.0], [3.0])
+    x, A, ok = e.x, e.A, e.ok
     assert ok.tolist() == [True, False]
     assert x[0] == pytest.approx([2.0, 0.0]) and np.isnan(x[1]).all() and np.isnan(A[1]).all()
     poles, _ = continuous_poles(loop, [0.0, 0.0], [4.0, -1.0], [1.0], [3.0])
@@ -108,8 +108,8 @@ def test_the_continuation_follows_the_branch_newton_from_the_start_leaves(monkey
     want = np.sort(np.stack([-np.sqrt(1 + a**2), -np.ones(4)], axis=1), axis=1)
     assert np.sort(poles.real, axis=1) == pytest.approx(want) and np.abs(poles.imag).max() < 1e-12
     # without the continuation Newton's method from 0 leaves the branch at a = tan(1.3) (another root)
-    x, _, ok = equilibria(_angle_loop(rate, False), [0.0], [0.0], [0.0], a[:1])
-    assert not (ok[0] and abs(x[0, 0] - 1.3) < 1e-6)
+    e = equilibrium_points(_angle_loop(rate, False), [0.0], [0.0], [0.0], a[:1])
+    assert not (e.ok[0] and abs(e.x[0, 0] - 1.3) < 1e-6)
 
 
 def test_the_continuation_ends_at_a_fold(monkeypatch):
