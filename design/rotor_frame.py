@@ -302,8 +302,9 @@ def _columns(a: ArrayLike, n: int) -> np.ndarray:
 
 
 def _anchor(cont: Continuation, plant: np.ndarray, p: np.ndarray, n: int) -> np.ndarray:
-    """(k, n) the continuation's p0 at the n points."""
-    return np.asarray(cont.anchor.map(n)(_columns(plant, n), _columns(p, n)), float)
+    """(k, n) the continuation's p0 at the n points (through evaluate_batch, whose map per batch size is
+    kept: a tuner's searches call this with ever-changing sizes)."""
+    return evaluate_batch(cont.anchor, n, [_columns(plant, n), _columns(p, n)])[0][:, :, 0].T
 
 
 def continued_equilibria(
