@@ -19,7 +19,7 @@ from numpy.typing import ArrayLike
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
 from sensorless.design.ipmsm_adaptive.derive import ALPHA_FO_MAX_FS
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
-from sensorless.design.ipmsm_adaptive.operating_point import loop_parameters, rotor_frame_loop
+from sensorless.design.ipmsm_adaptive.operating_point import rotor_frame_loop
 from sensorless.design.rotor_frame import continued_equilibria, disturbance_function, point_function
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, taylor_law
 from sensorless.tuning.ipmsm_adaptive.size import gain_size_function
@@ -128,6 +128,8 @@ def law_model(
         typical = np.append(typical, a0)
     motor = np.array(drive.motor.vector())
     inj = drive.injection
+    loop, plant = rotor_frame_loop(law, False), np.append(motor, float(drive.motor.p))
+    inj_vector = np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta])
 
     def equilibrium(theta: np.ndarray, P: np.ndarray) -> np.ndarray:
         """Equilibria (4, N); theta (n_theta,) or one per point (n_theta, N): the closed form where the
@@ -137,15 +139,10 @@ def law_model(
         th = theta.reshape(theta.shape[0], -1)
         gain = np.zeros((law.width, th.shape[1]))
         gain[: law.n_params] = th[: law.n_params]
-        args = {
-            "motor": motor,
-            "p": np.array(float(drive.motor.p)),
-            "estimate": P[2:6],
-            "gain": gain,
-            "alpha_fo": th[law.n_params : law.n_params + 1] if tune_alpha else np.array(a0),
-            "inj": np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
-        }
-        return continued_equilibria(rotor_frame_loop(law, False), P[0], P[1], *loop_parameters(args, N))
+        alpha = th[law.n_params : law.n_params + 1] if tune_alpha else np.array([[a0]])
+        cols = [P[2:6], gain, alpha, inj_vector[:, None]]  # the loop's p (operating_point.P_NAMES)
+        p = np.vstack([np.broadcast_to(c, (c.shape[0], N)) for c in cols])
+        return continued_equilibria(loop, P[0], P[1], plant, p)
 
     def point_gains(theta: np.ndarray, w_hat: np.ndarray) -> dict[str, np.ndarray]:
         gain = np.zeros(law.width)
