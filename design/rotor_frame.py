@@ -230,7 +230,7 @@ def equilibrium_points(
         x = out["x"][:, :, 0]
         ok = np.isfinite(out["A"]).all(axis=(1, 2))
         ok &= out["res"][:, 0, 0] <= RESIDUAL * np.maximum(np.abs(x).max(axis=1), 1.0)
-    elif np.array_equal(_anchor(cont, P, Q, n), Q):  # the start is the equilibrium: no Newton step
+    elif np.array_equal(_anchor(cont, P, Q), Q):  # the start is the equilibrium: no Newton step
         out = _named(start_function(loop), n, [W, T, P, Q])
         ok = np.isfinite(out["A"]).all(axis=(1, 2))
     else:
@@ -301,14 +301,15 @@ def _columns(a: ArrayLike, n: int) -> np.ndarray:
     return np.broadcast_to(a.reshape(-1, 1), (a.size, n)) if a.ndim <= 1 else a.reshape(a.shape[0], n)
 
 
-def _anchor(cont: Continuation, plant: np.ndarray, p: np.ndarray, n: int) -> np.ndarray:
-    """(k, n) the continuation's p0 at the n points: padded to a power of two, so that a tuner's searches,
-    which call this with ever-changing sizes, reuse a few maps (one costs ~5 ms to build)."""
-    m = 1 << max(0, (n - 1).bit_length())
+def _anchor(cont: Continuation, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """(k, n) the continuation's p0 at the n points of the columns P, Q: padded to a power of two, so
+    that a tuner's searches, which call this with ever-changing sizes, reuse a few maps (one costs ~5
+    ms to build), on CasADi's VM (a selection: not worth a compiled library)."""
+    n = P.shape[1]
     if n == 0:
-        return np.zeros((cont.anchor.size1_out(0), 0))
-    P, Q = (np.pad(_columns(a, n), ((0, 0), (0, m - n)), mode="edge") for a in (plant, p))
-    return evaluate_batch(cont.anchor, m, [P, Q])[0][:n, :, 0].T
+        return Q  # (k, 0)
+    idx = np.minimum(np.arange(1 << (n - 1).bit_length()), n - 1)  # padded with the last point
+    return evaluate_batch(cont.anchor, idx.size, [P[:, idx], Q[:, idx]], jit=False)[0][:n, :, 0].T
 
 
 def continued_equilibria(
@@ -328,7 +329,7 @@ def continued_equilibria(
     W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
     n = W.size
     P, Q = _columns(plant, n), _columns(p, n)
-    Q0 = _anchor(cont, P, Q, n)
+    Q0 = _anchor(cont, P, Q)
     x = np.ascontiguousarray(evaluate_batch(loop.start, n, [W[None, :], T[None, :], P, Q])[0][:, :, 0].T)
     if np.array_equal(Q0, Q):  # every point at the anchor: the start is the equilibrium
         return x
