@@ -302,14 +302,20 @@ def _columns(a: ArrayLike, n: int) -> np.ndarray:
 
 
 def _anchor(cont: Continuation, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """(k, n) the continuation's p0 at the n points of the columns P, Q: padded to a power of two, so
-    that a tuner's searches, which call this with ever-changing sizes, reuse a few maps (one costs ~5
-    ms to build), on CasADi's VM (a selection: not worth a compiled library)."""
+    """(k, n) the continuation's p0 at the n points of the columns P, Q, on CasADi's VM and one thread (a
+    selection: not worth a compiled library): once where every point has the same columns (one drive,
+    one gain); else padded to a power of two, so that a tuner's searches, which call this with
+    ever-changing sizes, reuse a few maps (one costs ~5 ms to build)."""
     n = P.shape[1]
     if n == 0:
         return Q  # (k, 0)
+    if (P == P[:, :1]).all() and (Q == Q[:, :1]).all():
+        p0 = evaluate_batch(cont.anchor, 1, [P[:, 0], Q[:, 0]], jit=False, threads=False)[0][0]
+        return np.broadcast_to(p0, Q.shape)
     idx = np.minimum(np.arange(1 << (n - 1).bit_length()), n - 1)  # padded with the last point
-    return evaluate_batch(cont.anchor, idx.size, [P[:, idx], Q[:, idx]], jit=False)[0][:n, :, 0].T
+    return evaluate_batch(cont.anchor, idx.size, [P[:, idx], Q[:, idx]], jit=False, threads=False)[0][
+        :n, :, 0
+    ].T
 
 
 def continued_equilibria(
