@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
+from sensorless.design.batch import evaluate_batch
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
 from sensorless.design.ipmsm_adaptive.derive import ALPHA_FO_MAX_FS
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
@@ -142,6 +143,8 @@ def law_model(
         alpha = th[law.n_params : law.n_params + 1] if tune_alpha else np.array([[a0]])
         cols = [P[2:6], gain, alpha, inj_vector[:, None]]  # the loop's p (operating_point.P_NAMES)
         p = np.vstack([np.broadcast_to(c, (c.shape[0], N)) for c in cols])
+        if np.all(P[2:6] == motor[:, None]):  # exact estimates: the loop's start, whatever the gains
+            return evaluate_batch(loop.start, N, [P[0:1], P[1:2], plant, p])[0][:, :, 0].T
         return continued_equilibria(loop, P[0], P[1], plant, p)
 
     def point_gains(theta: np.ndarray, w_hat: np.ndarray) -> dict[str, np.ndarray]:
