@@ -32,6 +32,7 @@ from the shared PMSM model (symbolic/pmsm.py) for the plant vector :func:`pmsm_p
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import casadi as ca
@@ -96,7 +97,9 @@ class RotorFrameLoop:
     # takes its roots): its SX terms where A has structural zeros, not a numeric product afterwards,
     # which differs in the last bits (3e-15 relative)
     charpoly: bool = False
-    disturbance: Disturbance | None = None
+    # builds its :class:`Disturbance` where one is asked for (its SX expressions cost about as much to
+    # build as the loop's own: not every command needs them); None: none
+    disturbance: Callable[[], Disturbance] | None = None
 
     @property
     def n_x(self) -> int:
@@ -200,9 +203,9 @@ def point_function(loop: RotorFrameLoop) -> ca.Function:
 def disturbance_function(loop: RotorFrameLoop) -> ca.Function:
     """(x_r, w, torque, plant, p) -> (B_d, C_d, D_d): the linear model of the loop's :class:`Disturbance`
     at d = 0, B_d = df_r/dd, C_d = dz/dx_r, D_d = dz/dd (e.g. design/noise.py's noise gain)."""
-    dist = loop.disturbance
-    if dist is None:
+    if loop.disturbance is None:
         raise ValueError(f"the loop {loop.name} declares no disturbance")
+    dist = loop.disturbance()
     x_r, w, T, plant, p = _symbols(loop)
     d = ca.SX.sym("d", dist.rates.size1_in(5))
     G, z = (fn(x_r, w, T, plant, p, d) for fn in (dist.rates, dist.output))

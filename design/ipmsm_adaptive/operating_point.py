@@ -103,11 +103,6 @@ def rotor_frame_loop(law: str | GainLaw, injection: bool) -> RotorFrameLoop:
     x0 = nominal_equilibrium_function(injection)(s["w_m"], s["T_e"], s["motor"], s["p"])
     args, names = [s["x"], s["w_m"], s["T_e"], plant, p], ["x_r", "w", "torque", "plant", "p"]
     name = f"ipmsm_adaptive_{get_law(law).name}{'_inj' if injection else ''}"
-    # the current sensor's noise n (2x1, A, estimated rotor frame) added to the current the observer
-    # measures, judged by the position error theta_tilde and the speed estimate (design/noise.py)
-    n = ca.SX.sym("i_noise", 2)
-    noisy, _ = coupled_system(law, injection, s, i_noise=n)
-    ins, in_names = [*args, n], [*names, "d"]
     return RotorFrameLoop(
         name,
         ca.Function(f"{name}_rates", args, [cl.x_dot], names, ["f_r"]),
@@ -116,10 +111,24 @@ def rotor_frame_loop(law: str | GainLaw, injection: bool) -> RotorFrameLoop:
         Continuation(ca.Function(f"{name}_exact", [plant, p], [exact], ["plant", "p"], ["p0"]), THETA_TILDE),
         statespace=True,
         charpoly=True,
-        disturbance=Disturbance(
-            ca.Function(f"{name}_noisy", ins, [noisy.x_dot], in_names, ["f_r"]),
-            ca.Function(f"{name}_noise_out", ins, [ca.vertcat(s["x"][2], noisy.w_hat)], in_names, ["z"]),
-        ),
+        disturbance=functools.partial(_current_noise, law, injection),
+    )
+
+
+@functools.cache
+def _current_noise(law: str | GainLaw, injection: bool) -> Disturbance:
+    """The current sensor's noise n (2x1, A, estimated rotor frame) added to the current the observer
+    measures, judged by the position error theta_tilde and the speed estimate (design/noise.py)."""
+    s = analysis_symbols(law, injection)
+    n = ca.SX.sym("i_noise", 2)
+    noisy, _ = coupled_system(law, injection, s, i_noise=n)
+    plant = ca.vertcat(s["motor"], s["p"])
+    p = ca.vertcat(s["estimate"], s["gain"], s["alpha_fo"], s["inj"])
+    ins, names = [s["x"], s["w_m"], s["T_e"], plant, p, n], ["x_r", "w", "torque", "plant", "p", "d"]
+    name = f"ipmsm_adaptive_{get_law(law).name}{'_inj' if injection else ''}"
+    return Disturbance(
+        ca.Function(f"{name}_noisy", ins, [noisy.x_dot], names, ["f_r"]),
+        ca.Function(f"{name}_noise_out", ins, [ca.vertcat(s["x"][2], noisy.w_hat)], names, ["z"]),
     )
 
 
