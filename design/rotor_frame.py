@@ -7,7 +7,7 @@ point, as one SX Function ``rates(x_r, w, torque, plant, p) -> f_r``, and a Func
 start ``start(w, torque, plant, p) -> x_r``. This module builds, once per loop, Newton's method on
 those SX expressions and the Jacobian at its end (:func:`equilibrium_function`), evaluates it over N
 operating points at once (``Function.map`` through design/batch.py, :func:`equilibrium_points`) and returns
-the eigenvalues of the Jacobians (:func:`continuous_poles`). Nothing is re-typed: the family's SX
+the eigenvalues of the Jacobians (:meth:`Equilibria.poles`). Nothing is re-typed: the family's SX
 rates are differentiated by CasADi. ``plant`` is one vector for all points (e.g. the true motor's
 parameters); ``p`` the observer's parameters, one vector or one column per point.
 
@@ -263,15 +263,6 @@ def _equilibria(out: dict[str, np.ndarray], ok: np.ndarray) -> Equilibria:
     x, A, y, B, C, D, c = map(masked, ("x", "A", "y", "B", "C", "D", "c"))
     assert x is not None and A is not None
     return Equilibria(x, A, ok, y, B, C, D, c)
-
-
-def continuous_poles(
-    loop: RotorFrameLoop, w: ArrayLike, torque: ArrayLike, plant: ArrayLike, p: ArrayLike
-) -> tuple[np.ndarray, np.ndarray]:
-    """(poles (N, n), x_r* (N, n)): the eigenvalues of the Jacobian at each point's equilibrium; a NaN
-    row where there is none."""
-    e = equilibrium_points(loop, w, torque, plant, p)
-    return e.poles(), e.x
 
 
 @functools.cache
