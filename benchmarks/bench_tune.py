@@ -20,9 +20,10 @@ import time
 
 import numpy as np
 from sensorless.design.drive import load_drive
-from sensorless.design.ipmsm_adaptive.linearize import drive_arguments, nominal_linearization_function
-from sensorless.design.ipmsm_adaptive.operating_point import PARAM_NAMES
+from sensorless.design.ipmsm_adaptive.linearize import drive_arguments
+from sensorless.design.ipmsm_adaptive.operating_point import loop_parameters, rotor_frame_loop
 from sensorless.design.poles import worst_damping
+from sensorless.design.rotor_frame import start_function
 from sensorless.tuning import nlp
 from sensorless.tuning.family import tunable_for
 from sensorless.tuning.model import poles
@@ -35,10 +36,9 @@ def grid_search(drive, W, T, lp, wl, fn):
     P1, P2 = P1.ravel(), P2.ravel()
     n, N = P1.size, W.size
     _, args = drive_arguments(drive, "speed")
-    args["w_m"], args["T_e"] = np.tile(W, n)[None], np.tile(T, n)[None]
-    args["gain"] = np.vstack([np.repeat(P1, N), np.repeat(P2, N)])
-    out = fn(*[args[k] for k in PARAM_NAMES])
-    A = np.asarray(out[0]).reshape(4, n * N, 4).transpose(1, 0, 2)
+    plant, p = loop_parameters(dict(args, gain=np.vstack([np.repeat(P1, N), np.repeat(P2, N)])), n * N)
+    out = fn(w=np.tile(W, n)[None], torque=np.tile(T, n)[None], plant=plant, p=p)
+    A = np.asarray(out["A"]).reshape(4, n * N, 4).transpose(1, 0, 2)
     ev = np.linalg.eigvals(A)
     worst = (-ev.real / np.abs(ev)).min(axis=1).reshape(n, N).min(axis=1)
     k = int(np.argmax(worst))
@@ -59,7 +59,7 @@ def main() -> None:
     lp = np.linspace(model.lower[0], model.upper[0], a.pairs)
     wl = np.linspace(model.lower[1], 3 * wb, a.pairs)
     law, _ = drive_arguments(drive, "speed")
-    fn = nominal_linearization_function(law, False).map(W.size * a.pairs**2)  # built once, like the NLP
+    fn = start_function(rotor_frame_loop(law, False)).map(W.size * a.pairs**2)  # built once, like the NLP
 
     def run_nlp():
         base_p, _ = poles(model, model.theta0, model.make_points(W, T, model.nominal_estimate))

@@ -20,92 +20,21 @@ from sensorless.design.ipmsm_adaptive.operating_point import (
     PARAM_NAMES,
     analysis_symbols,
     coupled_system,
-    nominal_equilibrium_function,
-    solve_equilibrium,
+    loop_parameters,
+    rotor_frame_loop,
 )
 from sensorless.design.linearization import Linearization
-from sensorless.design.memo import kept_function
 from sensorless.design.noise import noise_rms
 from sensorless.design.poles import eigvals_batched, sort_poles
+from sensorless.design.rotor_frame import disturbance_function, equilibrium_points, pmsm_steady_current
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
 from sensorless.symbolic.ipmsm_adaptive.observer import error_term
-from sensorless.symbolic.linalg import charpoly
 
 if TYPE_CHECKING:  # python-control imports scipy.signal and matplotlib (~3 s): only where used
     import control
     from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
-
-
-@kept_function
-def linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
-    """Function (x0, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (A, B, C, D, ...).
-
-    A = d x_dot/dx, B = d x_dot/d w_m, C = d w_hat/dx, D = d w_hat/d w_m, all at x0; also the
-    residual x_dot(x0) (zero at an equilibrium), w_hat(x0) and the MTPA current i_s0.
-    """
-    s = analysis_symbols(law, injection)
-    cl, i_s0 = coupled_system(law, injection, s)
-    x, w_m = s["x"], s["w_m"]
-    A = ca.jacobian(cl.x_dot, x)
-    outs = {
-        "A": A,
-        "B": ca.jacobian(cl.x_dot, w_m),
-        "C": ca.jacobian(cl.w_hat, x),
-        "D": ca.jacobian(cl.w_hat, w_m),
-        "x_dot": cl.x_dot,
-        "w_hat": cl.w_hat,
-        "i_s0": i_s0,
-        "charpoly": ca.vertcat(*charpoly(A)),
-    }
-    names = ["x", *PARAM_NAMES]
-    name = f"linearize_{get_law(law).name}{'_inj' if injection else ''}"
-    dense = ca.cse([ca.densify(v) for v in outs.values()])  # dense for batch evaluation
-    return ca.Function(name, [s[k] for k in names], dense, names, list(outs))
-
-
-NOISE_OUTPUTS = ("theta_tilde", "w_hat")  # outputs of the noise gain: position error [rad], speed [rad/s]
-
-
-@kept_function
-def noise_function(law: str | GainLaw, injection: bool) -> ca.Function:
-    """Function (x0, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (B_n, C_n, D_n).
-
-    The current-measurement noise n (2x1, A, estimated rotor frame) added to the current the observer
-    measures (symbolic/ipmsm_adaptive/closed_loop.py): B_n = d x_dot/d n, and the outputs
-    y = [theta_tilde, w_hat] (the position error, i.e. minus the position estimate's deviation, and
-    the speed estimate) with C_n = dy/dx, D_n = dy/dn, all at x0 and n = 0. Jacobians of the same
-    coupled system as :func:`linearization_function`; nothing is re-typed.
-    """
-    s = analysis_symbols(law, injection)
-    n = ca.SX.sym("i_noise", 2)
-    cl, _ = coupled_system(law, injection, s, i_noise=n)
-    x = s["x"]
-    y = ca.vertcat(x[2], cl.w_hat)
-    outs = [ca.jacobian(cl.x_dot, n), ca.jacobian(y, x), ca.jacobian(y, n)]
-    outs = [ca.densify(ca.substitute(o, n, ca.DM.zeros(2))) for o in outs]
-    names = ["x", *PARAM_NAMES]
-    name = f"noise_{get_law(law).name}{'_inj' if injection else ''}"
-    return ca.Function(name, [s[k] for k in names], ca.cse(outs), names, ["B_n", "C_n", "D_n"])
-
-
-@kept_function
-def nominal_linearization_function(law: str | GainLaw, injection: bool) -> ca.Function:
-    """As :func:`linearization_function` but at the closed-form equilibrium of exact estimates
-    (no ``x0`` input; ``x0`` is an output): the fast path for sweeps, one Function for all of it."""
-    f = linearization_function(law, injection)
-    s = analysis_symbols(law, injection)
-    ins = ["w_m", "T_e", "motor", "p"]
-    x0 = nominal_equilibrium_function(injection)(*[s[k] for k in ins])
-    outs = ca.cse([*f(x0, *[s[k] for k in PARAM_NAMES]), ca.densify(x0)])
-    return ca.Function(
-        f"{f.name()}_nominal",
-        [s[k] for k in PARAM_NAMES],
-        outs,
-        list(PARAM_NAMES),
-        [*f.name_out(), "x0"],
-    )
 
 
 @functools.cache
@@ -303,45 +232,36 @@ def linearize(
     array (..., 4) of [R̂s, L̂d, L̂q, ψ̂pm] broadcasting with the operating points (default: the
     drive's ``[estimate]``), so robustness maps over parameter errors are one call. Points where no
     equilibrium exists (possible with estimation errors) get NaN. ``noise`` also evaluates the input
-    from current-measurement noise (:func:`noise_function`, ``PoleSweep.noise_rms``). The discrete-time
+    from current-measurement noise (the loop's ``disturbance``, ``PoleSweep.noise_rms``). The discrete-time
     observer that runs is analysed beside this by one_step.py (its ``linearize`` takes a
     ``discretization``).
     """
     w_flat, T_flat, est = operating_points(w_m, T_e, estimate)
     n_pts = w_flat.size
     law, args = drive_arguments(drive, gain)
-    args["w_m"], args["T_e"] = w_flat[None, :], T_flat[None, :]
     if estimate is not None:
         args["estimate"] = np.ascontiguousarray(est)
-    exact = estimate is None and bool(np.array_equal(args["motor"], args["estimate"]))
-    if exact:
-        fn = nominal_linearization_function(law, injection)
-        out = evaluate_batch(fn, n_pts, [args[k] for k in PARAM_NAMES])
-        x0 = out[8][:, :, 0]
-    else:
-        x0 = solve_equilibrium(law, injection, args, n_pts, exact).T
-        fn = linearization_function(law, injection)
-        out = evaluate_batch(fn, n_pts, [x0.T, *[args[k] for k in PARAM_NAMES]])
-    A, charpoly = out[0], out[7][:, :, 0]
-    n = A.shape[1]
-    poles = np.full((n_pts, n), np.nan + 0j)
-    ok = np.isfinite(A).all(axis=(1, 2))
+    plant, p = loop_parameters(args, n_pts)
+    # exact estimates: the closed form at every point, in one Function (rotor_frame start_function)
+    eq = equilibrium_points(rotor_frame_loop(law, injection), w_flat, T_flat, plant, p)
+    A, x0 = eq.A, eq.x
+    poles = np.full(x0.shape, np.nan + 0j)
     frozen = np.zeros(n_pts, bool)
     if injection:
         # Above w_Delta the injection is off (fade = 0): the PI integrator x_eps has no input and
         # its row of A is zero. Its structural pole at the origin says nothing about stability;
         # report it as NaN and analyse the adaptive observer's four poles.
-        frozen = ok & np.all(A[:, 4, :] == 0, axis=1)
+        frozen = eq.ok & np.all(A[:, 4, :] == 0, axis=1)
         if frozen.any():
             poles[frozen, :4] = sort_poles(eigvals_batched(A[frozen][:, :4, :4]))
-    rest = ok & ~frozen
+    rest = eq.ok & ~frozen
     if rest.any():
-        poles[rest] = sort_poles(eigvals_batched(A[rest], charpoly[rest]))
+        poles[rest] = sort_poles(eq.poles(rest)[rest])
     noise_input = None
     if noise:
-        nf = noise_function(law, injection)
+        nf = disturbance_function(rotor_frame_loop(law, injection))
         xs = np.where(np.isfinite(x0), x0, 0.0).T
-        B_n, C_n, D_n = evaluate_batch(nf, n_pts, [xs, *[args[k] for k in PARAM_NAMES]])
+        B_n, C_n, D_n = evaluate_batch(nf, n_pts, [xs, w_flat[None, :], T_flat[None, :], plant, p])
         bad = ~np.isfinite(x0).all(axis=1)
         B_n[bad] = np.nan
         noise_input = (B_n, C_n, D_n)
@@ -353,11 +273,11 @@ def linearize(
         w=w_flat,
         torque=T_flat,
         x0=x0,
-        i_s0=out[6][:, :, 0],
+        i_s0=pmsm_steady_current(T_flat, plant),  # plant = [motor, p]: design/rotor_frame.py pmsm_plant
         A=A,
-        B=out[1],
-        C=out[2],
-        D=out[3],
+        B=eq.B,
+        C=eq.C,
+        D=eq.D,
         poles=poles,
     )
 

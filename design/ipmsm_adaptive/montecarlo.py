@@ -8,7 +8,7 @@ operating points in compiled mapped calls (below); J does not enter it (the loop
 true speed) and is spread for the time domain only.
 
 Equilibria: with estimation errors the observer's equilibrium is the end of the branch that
-operating_point.solve_equilibrium follows: Newton's method continued along the estimates from the
+design/rotor_frame.py continued_equilibria follows: Newton's method continued along the estimates from the
 exact-estimate closed form. A draw is a small perturbation of the drive, so the nominal drive's
 equilibrium at the same operating point (found once per process by that continuation, 120 points)
 is a very good start: :data:`FAST_STEPS` Newton steps from it, compiled into one Function with the
@@ -17,12 +17,12 @@ to rounding level at ~95 % of the points of a 10 % spread. A point is accepted w
 (the continuation's residual rule), its last step was at rounding level (so Newton converged, on
 the branch the nominal start lies on) and its position moved less than the continuation's step
 reach (0.3 rad) from the start. Every other point (mostly points without equilibrium) goes through
-the continuation, with solve_equilibrium's steps, acceptance rules (residual, a position jump under
+the continuation, with continued_equilibria's steps, acceptance rules (residual, a position jump under
 0.3 rad) and step control (start 0.25, doubled to at most 0.5 after a success, halved after a
 failure, lost below 1e-3), so both follow the same equilibrium branch (a whole step at once can land
 on another equilibrium within the position rule: an unstable one, where the branch is stable). Each
 round's Newton iterations are one compiled call for all its points (the iterations unrolled; each
-point then stops where solve_equilibrium's Newton would), not a rootfinder per point. On 500 draws
+point then stops where continued_equilibria's Newton would), not a rootfinder per point. On 500 draws
 of the preset's typical spreads and 300 of wider estimate errors, both paths give the same
 equilibria (1e-11) and the same points without one as the previous all-continuation code; the
 damping differs only at |w_hat| = w_lambda, the gain law's kink, where rounding picks the side (as
@@ -39,16 +39,18 @@ import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.compiled import compiled
 from sensorless.design.family import GainSet
-from sensorless.design.ipmsm_adaptive.linearize import PoleSweep, drive_arguments, linearization_function
+from sensorless.design.ipmsm_adaptive.linearize import PoleSweep, drive_arguments
 from sensorless.design.ipmsm_adaptive.operating_point import (
     PARAM_NAMES,
     nominal_equilibrium_function,
     residual_function,
+    rotor_frame_loop,
 )
 from sensorless.design.ipmsm_adaptive.runtime import law_of, with_alpha_fo
 from sensorless.design.montecarlo import Uncertain
 from sensorless.design.montecarlo import perturbed as shared_perturbed
 from sensorless.design.poles import eigvals_batched, sort_poles
+from sensorless.design.rotor_frame import pmsm_steady_current, point_function
 from sensorless.symbolic.ipmsm_adaptive.gains import get_law
 
 if TYPE_CHECKING:  # typed by name only
@@ -138,7 +140,7 @@ def _newton(
     step: ca.Function, x: np.ndarray, ins: list[np.ndarray], scale: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """One continuation round's Newton solves from ``x`` (m, n_x): (end points, accepted). All
-    iterations are computed at once; each point stops at the first iteration where solve_equilibrium's
+    iterations are computed at once; each point stops at the first iteration where continued_equilibria's
     Newton would: a non-finite residual or step (rejected), a step at rounding level after a residual
     at rest (accepted), or a position beyond the step's reach (rejected)."""
     m = x.shape[0]
@@ -146,7 +148,7 @@ def _newton(
     K = X.shape[2]
     with np.errstate(invalid="ignore"):
         # at rest: x_dot in V (flux rates) and rad/s^2 within 1e-6 of the point's size, as
-        # solve_equilibrium accepts; the Newton step that follows takes it to rounding level
+        # continued_equilibria accepts; the Newton step that follows takes it to rounding level
         rest = np.isfinite(R).all(axis=1) & (np.abs(R).max(axis=1) <= 1e-6 * scale[:, None])
         go = np.isfinite(R).all(axis=1) & np.isfinite(DX).all(axis=1)
         # done: at rest before the step, and the step small enough (1e-8 relative) that, Newton
@@ -202,9 +204,20 @@ def _equilibria(
 
 
 @functools.cache
+def _linear_function(law: Any) -> ca.Function:
+    """(x, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> design/rotor_frame.py ``point_function``
+    of the loop (A, res, f_r, y, B, C, D, c), in this module's inputs."""
+    ins = residual_function(law, False).sx_in()
+    x, w, T, motor, p, *q = ins
+    lin = point_function(rotor_frame_loop(law, False))
+    outs = lin.call([x, w, T, ca.vertcat(motor, p), ca.vertcat(*q)])
+    return ca.Function(f"mc_linear_{get_law(law).name}", ins, outs, ["x", *PARAM_NAMES], lin.name_out())
+
+
+@functools.cache
 def _fast_function(law: Any) -> ca.Function:
-    """(x_start, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (x, dx, A, B, C, D, x_dot, w_hat,
-    i_s0, charpoly): :data:`FAST_STEPS` Newton steps from x_start (dx: the last one), then the
+    """(x_start, w_m, T_e, motor, p, estimate, gain, alpha_fo, inj) -> (x, dx, then the outputs of
+    :func:`_linear_function`): :data:`FAST_STEPS` Newton steps from x_start (dx: the last one), then the
     linearization at the result; one compiled call per block of points, no Python between the steps."""
     step = _newton_function(law, False)
     ins = step.sx_in()
@@ -214,15 +227,15 @@ def _fast_function(law: Any) -> ca.Function:
         J, r = step.call([x, *rest])
         dx = ca.solve(J, r)
         x = x - dx
-    lin = linearization_function(law, False)
+    lin = _linear_function(law)
     outs = [x, dx, *lin.call([x, *rest])]
     names = ["x_end", "dx", *lin.name_out()]
     return ca.Function(f"mc_fast_{get_law(law).name}", ins, outs, step.name_in(), names)
 
 
-def _sweep_parts(out: list[np.ndarray], good: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _sweep_parts(out: dict[str, np.ndarray], good: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(A with NaN where ``good`` is False, its sorted poles) from a linearization's outputs."""
-    A, charpoly = out[0], out[7][:, :, 0]
+    A, charpoly = out["A"], out["c"][:, :, 0]
     A[~good] = np.nan
     poles = np.full((A.shape[0], A.shape[1]), np.nan + 0j)
     ok = np.isfinite(A).all(axis=(1, 2))
@@ -289,8 +302,9 @@ def law_draws(
     out = _evaluate(
         _fast_function(law), n, [np.where(has[:, None], x_start, 0.0).T, *[cols[k] for k in PARAM_NAMES]]
     )
-    x0, dx, lin = out[0][:, :, 0], out[1][:, :, 0], out[2:]
-    r = lin[4][:, :, 0]
+    x0, dx = out[0][:, :, 0], out[1][:, :, 0]
+    lin = dict(zip(_linear_function(law).name_out(), out[2:], strict=True))
+    r = lin["f_r"][:, :, 0]
     scale = 1.0 + np.abs(cols["w_m"][0]) + np.abs(x0).max(axis=1)
     # accepted: at rest (as the continuation accepts), the last step at rounding level (Newton then
     # converged quadratically), and the position within the continuation's step reach of the start
@@ -305,10 +319,10 @@ def law_draws(
         group = None if complete else np.repeat(np.arange(n_d), n_p)[rest]
         xr = _equilibria(law, False, sub, rest.size, group)
         gr = np.isfinite(xr).all(axis=1)
-        fn = linearization_function(law, False)
+        fn = _linear_function(law)
         lr = _evaluate(fn, rest.size, [np.where(gr[:, None], xr, 0.0).T, *[sub[kk] for kk in PARAM_NAMES]])
         x0[rest] = xr
-        for a, b in zip(lin, lr, strict=True):
+        for a, b in zip(lin.values(), lr, strict=True):
             a[rest] = b
     good = np.isfinite(x0).all(axis=1)
     if not complete:
@@ -321,11 +335,13 @@ def law_draws(
         w=cols["w_m"][0].copy(),
         torque=cols["T_e"][0].copy(),
         x0=x0,
-        i_s0=lin[6][:, :, 0],
+        i_s0=pmsm_steady_current(
+            cols["T_e"][0], np.vstack([cols["motor"], np.broadcast_to(cols["p"], (1, n))])
+        ),
         A=A,
-        B=lin[1],
-        C=lin[2],
-        D=lin[3],
+        B=lin["B"],
+        C=lin["C"],
+        D=lin["D"],
         poles=poles,
     )
 

@@ -15,9 +15,8 @@ import functools
 
 import casadi as ca
 import numpy as np
-from sensorless.design.batch import evaluate_batch
 from sensorless.design.memo import kept_function
-from sensorless.design.rotor_frame import Continuation, RotorFrameLoop, continued_equilibria
+from sensorless.design.rotor_frame import Continuation, Disturbance, RotorFrameLoop
 from sensorless.symbolic.ipmsm_adaptive.closed_loop import N_INJ, closed_loop
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
 from sensorless.symbolic.pmsm import PmsmParams, flux_from_current, mtpa_current
@@ -43,6 +42,7 @@ def analysis_symbols(law: str | GainLaw, injection: bool) -> dict[str, ca.SX]:
 
 
 PARAM_NAMES = ("w_m", "T_e", "motor", "p", "estimate", "gain", "alpha_fo", "inj")
+P_NAMES = ("estimate", "gain", "alpha_fo", "inj")  # the rotor-frame loop's ``p``, in order
 
 
 def coupled_system(
@@ -65,14 +65,6 @@ def coupled_system(
         w_hat_override,
         i_noise,
     ), i_s0
-
-
-@kept_function
-def mtpa_function() -> ca.Function:
-    """Function mtpa(T_e [N m], motor [4], p) -> i_s0 [A] (rotor frame, [i_d, i_q])."""
-    T_e, motor, p = ca.SX.sym("T_e"), ca.SX.sym("motor", N_MOTOR), ca.SX.sym("p")
-    i_s0 = mtpa_current(T_e, PmsmParams.of(motor), p)
-    return ca.Function("mtpa", [T_e, motor, p], [i_s0], ["T_e", "motor", "p"], ["i_s0"])
 
 
 @kept_function
@@ -99,8 +91,11 @@ def residual_function(law: str | GainLaw, injection: bool) -> ca.Function:
 @functools.cache
 def rotor_frame_loop(law: str | GainLaw, injection: bool) -> RotorFrameLoop:
     """The coupled system as a :class:`RotorFrameLoop` (design/rotor_frame.py): its state is already in
-    the (estimated) rotor frame; ``plant`` = [motor, p], ``p`` = [estimate, gain, alpha_fo, inj]; Newton's
-    start the closed-form equilibrium of exact estimates, continued along the estimates from it."""
+    the (estimated) rotor frame; ``plant`` = [motor, p], ``p`` = [estimate, gain, alpha_fo, inj]
+    (:func:`loop_parameters`); Newton's start the closed-form equilibrium of exact estimates, continued
+    along the estimates from it; its output the speed estimate w_hat, with the state-space model from
+    w_m to it (G_c(s), eq. (15)) and the characteristic polynomial that design/poles.py takes the
+    quartic's roots of."""
     s = analysis_symbols(law, injection)
     cl, _ = coupled_system(law, injection, s)
     plant = ca.vertcat(s["motor"], s["p"])
@@ -113,40 +108,41 @@ def rotor_frame_loop(law: str | GainLaw, injection: bool) -> RotorFrameLoop:
         name,
         ca.Function(f"{name}_rates", args, [cl.x_dot], names, ["f_r"]),
         ca.Function(f"{name}_start", args[1:], [x0], names[1:], ["x_r"]),
-        continuation=Continuation(
-            ca.Function(f"{name}_exact", [plant, p], [exact], ["plant", "p"], ["p0"]), THETA_TILDE
-        ),
+        ca.Function(f"{name}_speed", args, [cl.w_hat], names, ["w_hat"]),
+        Continuation(ca.Function(f"{name}_exact", [plant, p], [exact], ["plant", "p"], ["p0"]), THETA_TILDE),
+        statespace=True,
+        charpoly=True,
+        disturbance=functools.partial(_current_noise, law, injection),
     )
 
 
-def _columns(fn: ca.Function, args: dict[str, np.ndarray], n: int) -> dict[str, np.ndarray]:
-    """``args`` (one instance or one column per point, as evaluate_batch takes them) as (rows, n) views."""
-    out = {}
-    for k in PARAM_NAMES:
-        rows = fn.size1_in(fn.index_in(k))
-        a = np.asarray(args[k], float)
-        out[k] = np.broadcast_to(a.reshape(rows, 1), (rows, n)) if a.size == rows else a.reshape(rows, n)
-    return out
+@functools.cache
+def _current_noise(law: str | GainLaw, injection: bool) -> Disturbance:
+    """The current sensor's noise n (2x1, A, estimated rotor frame) added to the current the observer
+    measures, judged by the position error theta_tilde and the speed estimate (design/noise.py)."""
+    s = analysis_symbols(law, injection)
+    n = ca.SX.sym("i_noise", 2)
+    noisy, _ = coupled_system(law, injection, s, i_noise=n)
+    plant = ca.vertcat(s["motor"], s["p"])
+    p = ca.vertcat(s["estimate"], s["gain"], s["alpha_fo"], s["inj"])
+    ins, names = [s["x"], s["w_m"], s["T_e"], plant, p, n], ["x_r", "w", "torque", "plant", "p", "d"]
+    name = f"ipmsm_adaptive_{get_law(law).name}{'_inj' if injection else ''}"
+    return Disturbance(
+        ca.Function(f"{name}_noisy", ins, [noisy.x_dot], names, ["f_r"]),
+        ca.Function(f"{name}_noise_out", ins, [ca.vertcat(s["x"][2], noisy.w_hat)], names, ["z"]),
+    )
 
 
-def solve_equilibrium(
-    law: str | GainLaw, injection: bool, args: dict[str, np.ndarray], n: int, exact: bool
-) -> np.ndarray:
-    """Equilibria for ``n`` operating points as an (n_x, n) array; NaN columns where none is found.
-
-    With exact estimates the closed form; with estimation errors, Newton's method continued along the
-    estimates est(tau) = true + tau (est - true) from tau = 0 (exact estimates, closed-form equilibrium
-    with theta_tilde = 0) to tau = 1 (design/rotor_frame.py ``continued_equilibria``). This follows the
-    equilibrium branch that starts at the exact-estimate equilibrium; a single Newton solve from
-    theta_tilde = 0 misses it once the position error grows to tenths of a radian. Where the branch
-    ends (a fold: the observer cannot hold the rotor position) the point is NaN.
-    """
-    if exact:
-        ins = [np.asarray(args[k], float) for k in ("w_m", "T_e", "motor", "p")]
-        return np.ascontiguousarray(
-            evaluate_batch(nominal_equilibrium_function(injection), n, ins)[0][:, :, 0].T
-        )
-    c = _columns(residual_function(law, injection), args, n)
-    plant = np.vstack([c["motor"], c["p"]])
-    p = np.vstack([c["estimate"], c["gain"], c["alpha_fo"], c["inj"]])
-    return continued_equilibria(rotor_frame_loop(law, injection), c["w_m"][0], c["T_e"][0], plant, p)
+def loop_parameters(args: dict[str, np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(plant, p) of :func:`rotor_frame_loop` at ``n`` points from the analysis inputs ``args`` (named
+    as PARAM_NAMES; each one instance or one column per point, as evaluate_batch takes them): one
+    vector where every input is one, else one column per point."""
+    a = {k: np.asarray(args[k], float) for k in ("motor", "p", *P_NAMES)}
+    if all(v.ndim < 2 or v.shape[1] == 1 for v in a.values()):
+        v = {k: x.ravel() for k, x in a.items()}
+        return np.concatenate([v["motor"], v["p"]]), np.concatenate([v[k] for k in P_NAMES])
+    c = {
+        k: x if x.ndim == 2 and x.shape[1] == n else np.broadcast_to(x.reshape(-1, 1), (x.size, n))
+        for k, x in a.items()
+    }
+    return np.vstack([c["motor"], c["p"]]), np.vstack([c[k] for k in P_NAMES])

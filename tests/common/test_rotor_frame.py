@@ -21,8 +21,6 @@ from sensorless.design.pmsm_schema import PmsmMotor
 from sensorless.design.rotor_frame import (
     Continuation,
     RotorFrameLoop,
-    continuous_poles,
-    equilibria,
     equilibrium_points,
     pmsm_plant,
     pmsm_steady,
@@ -43,7 +41,8 @@ def test_equilibria_and_poles_of_a_rotating_linear_system():
     W = np.array([-300.0, 0.0, 5.0, 1000.0])
     T = np.array([1.0, -2.0, 0.5, 3.0])
     a = np.array([[10.0, 20.0, 30.0, 40.0]])  # one parameter vector per point
-    poles, x = continuous_poles(loop, W, T, [2.0], a)
+    e = equilibrium_points(loop, W, T, [2.0], a)
+    poles, x = e.poles(), e.x
     for j in range(W.size):
         M = np.array([[a[0, j], -W[j]], [W[j], a[0, j]]])
         assert np.allclose(x[j], np.linalg.solve(M, [2.0 * T[j], 0.0]), rtol=1e-12, atol=1e-12)
@@ -54,10 +53,11 @@ def test_equilibria_and_poles_of_a_rotating_linear_system():
 def test_a_point_without_an_equilibrium_is_nan():
     # x0^2 + 1 = 0 has no real root; x0^2 - T = 0 has one for T > 0
     loop = _loop(lambda x, w, T, k, a: ca.vertcat(x[0] ** 2 - T, -a * x[1]))
-    x, A, ok = equilibria(loop, [0.0, 0.0], [4.0, -1.0], [1.0], [3.0])
+    e = equilibrium_points(loop, [0.0, 0.0], [4.0, -1.0], [1.0], [3.0])
+    x, A, ok = e.x, e.A, e.ok
     assert ok.tolist() == [True, False]
     assert x[0] == pytest.approx([2.0, 0.0]) and np.isnan(x[1]).all() and np.isnan(A[1]).all()
-    poles, _ = continuous_poles(loop, [0.0, 0.0], [4.0, -1.0], [1.0], [3.0])
+    poles = e.poles()
     assert np.sort(poles[0].real) == pytest.approx([-3.0, 4.0]) and np.isnan(poles[1]).all()
 
 
@@ -104,12 +104,12 @@ def test_the_continuation_follows_the_branch_newton_from_the_start_leaves(monkey
     assert e.ok.all()
     assert e.x[:, 0] == pytest.approx(np.arctan(a), abs=1e-12) and e.x[:, 1] == pytest.approx(np.arctan(a))
     # d rate/d angle = -(cos + a sin) = -sqrt(1 + a^2) on this branch; dz/dt's pole -1
-    poles, _ = continuous_poles(_angle_loop(rate, True), np.zeros(4), np.zeros(4), [0.0], a[None, :])
+    poles = equilibrium_points(_angle_loop(rate, True), np.zeros(4), np.zeros(4), [0.0], a[None, :]).poles()
     want = np.sort(np.stack([-np.sqrt(1 + a**2), -np.ones(4)], axis=1), axis=1)
     assert np.sort(poles.real, axis=1) == pytest.approx(want) and np.abs(poles.imag).max() < 1e-12
     # without the continuation Newton's method from 0 leaves the branch at a = tan(1.3) (another root)
-    x, _, ok = equilibria(_angle_loop(rate, False), [0.0], [0.0], [0.0], a[:1])
-    assert not (ok[0] and abs(x[0, 0] - 1.3) < 1e-6)
+    e = equilibrium_points(_angle_loop(rate, False), [0.0], [0.0], [0.0], a[:1])
+    assert not (e.ok[0] and abs(e.x[0, 0] - 1.3) < 1e-6)
 
 
 def test_the_continuation_ends_at_a_fold(monkeypatch):

@@ -100,12 +100,12 @@ def test_closed_loop_poles_and_Gc_match_eqs_12_to_15(drive):
 
 
 def test_mtpa_matches_brute_force(drive):
-    from sensorless.design.ipmsm_adaptive.operating_point import mtpa_function
+    """The operating points' MTPA current (design/rotor_frame.py, the sweeps' i_d, i_q columns)."""
+    from sensorless.design.rotor_frame import pmsm_plant, pmsm_steady_current
 
     m = drive.motor
-    f = mtpa_function()
-    for T in (-30.0, -14.0, -0.5, 0.1, 14.0, 22.0, 60.0):
-        got = np.asarray(f(T, m.vector(), m.p)).ravel()
+    torques = (-30.0, -14.0, -0.5, 0.1, 14.0, 22.0, 60.0)
+    for T, got in zip(torques, pmsm_steady_current(np.array(torques), pmsm_plant(m)), strict=True):
         ref = mtpa_reference(T, m.L_d, m.L_q, m.psi_pm, m.p)
         assert np.allclose(got, ref, rtol=1e-8, atol=1e-10), (T, got, ref)
 

@@ -9,15 +9,11 @@ import numpy as np
 import pytest
 import scipy.linalg
 from helpers.tuning import paper_law, small
-from sensorless.design.batch import evaluate_batch
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import tuning_envelope
-from sensorless.design.ipmsm_adaptive.linearize import (
-    drive_arguments,
-    linearize,
-    nominal_linearization_function,
-)
-from sensorless.design.ipmsm_adaptive.operating_point import PARAM_NAMES
+from sensorless.design.ipmsm_adaptive.linearize import drive_arguments, linearize
+from sensorless.design.ipmsm_adaptive.operating_point import loop_parameters, rotor_frame_loop
+from sensorless.design.rotor_frame import equilibrium_points
 from sensorless.reports.cli.main import main
 from sensorless.symbolic.ipmsm_adaptive.gains import schedule_law
 from sensorless.tuning.bound import pointwise_bound
@@ -87,15 +83,15 @@ def brute_force(drive, w, torques, floor):
     by a grid and two refinements, through the analysis Function (not the tuning model)."""
     R = drive.estimate.R_s
     law, args = drive_arguments(drive, ("constant", [0.0, 0.0]))
-    fn = nominal_linearization_function(law, False)
+    loop = rotor_frame_loop(law, False)
     NT = torques.size
 
     def best(l1, l2):
         L1, L2 = (a.ravel() for a in np.meshgrid(l1, l2))
         K = L1.size
-        a = dict(args, w_m=np.full((1, K * NT), w), T_e=np.tile(torques, K)[None])
-        a["gain"] = np.vstack([np.repeat(L1, NT), np.repeat(L2, NT)])
-        A = evaluate_batch(fn, K * NT, [a[k] for k in PARAM_NAMES])[0]
+        gain = np.vstack([np.repeat(L1, NT), np.repeat(L2, NT)])
+        plant, p = loop_parameters(dict(args, gain=gain), K * NT)
+        A = equilibrium_points(loop, np.full(K * NT, w), np.tile(torques, K), plant, p).A
         p = np.linalg.eigvals(A)
         z = (-p.real / np.abs(p)).min(axis=1).reshape(K, NT).min(axis=1)
         d = (-p.real).min(axis=1).reshape(K, NT).min(axis=1)

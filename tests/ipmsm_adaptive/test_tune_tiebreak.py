@@ -11,16 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from helpers.tuning import paper_law
-from sensorless.design.batch import evaluate_batch
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import tuning_envelope
-from sensorless.design.ipmsm_adaptive.linearize import (
-    drive_arguments,
-    linearize,
-    nominal_linearization_function,
-)
-from sensorless.design.ipmsm_adaptive.operating_point import PARAM_NAMES
-from sensorless.design.poles import eigvals_batched, max_real, worst_damping
+from sensorless.design.ipmsm_adaptive.linearize import drive_arguments, linearize
+from sensorless.design.ipmsm_adaptive.operating_point import loop_parameters, rotor_frame_loop
+from sensorless.design.poles import max_real, worst_damping
+from sensorless.design.rotor_frame import equilibrium_points
 from sensorless.tuning.tiebreak import TIE_TOL
 from sensorless.tuning.tune import tune
 
@@ -70,17 +66,12 @@ def brute_force(drive, Wd, Td, lps, wls):
     (the pair a per-point gain input), and the poles of its matrices as linearize finds them."""
     law, args = drive_arguments(drive, ("speed", [lps[0], wls[0]]))
     assert np.array_equal(args["motor"], args["estimate"])  # linearize's exact-estimate path
-    fn = nominal_linearization_function(law, False)
     LP, WL = (a.ravel() for a in np.meshgrid(lps, wls, indexing="ij"))
     K, N = LP.size, Wd.size
     gain = np.zeros((args["gain"].size, K * N))
     gain[0], gain[1] = np.repeat(LP, N), np.repeat(WL, N)
-    a = dict(args, w_m=np.tile(Wd, K)[None], T_e=np.tile(Td, K)[None], gain=gain)
-    out = evaluate_batch(fn, K * N, [a[k] for k in PARAM_NAMES])
-    A, charpoly = out[0], out[7][:, :, 0]
-    poles = np.full(A.shape[:2], np.nan + 0j)
-    ok = np.isfinite(A).all(axis=(1, 2))
-    poles[ok] = eigvals_batched(A[ok], charpoly[ok])
+    plant, p = loop_parameters(dict(args, gain=gain), K * N)
+    poles = equilibrium_points(rotor_frame_loop(law, False), np.tile(Wd, K), np.tile(Td, K), plant, p).poles()
     D = np.min(worst_damping(poles).reshape(K, N), axis=1)  # np.min: a NaN (no equilibrium) stays NaN
     C = np.min(-max_real(poles).reshape(K, N), axis=1)
     return D.reshape(lps.size, wls.size), C.reshape(lps.size, wls.size)

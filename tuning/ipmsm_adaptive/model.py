@@ -2,9 +2,10 @@
 linearization, noise), equilibria and gains, and the fields every law of tuning/ipmsm_adaptive/
 laws.py shares (which laws, boxes and starts: there).
 
-The law is plugged into the analysis closed loop of design/ipmsm_adaptive/linearize.py
-(``linearization_function``): the NLP differentiates exactly the Jacobian that ``sensorless analyze``
-evaluates. theta is the law's parameter vector, plus alpha_fo (10) when ``tune_alpha_fo`` is set.
+The law is plugged into the analysis closed loop (design/ipmsm_adaptive/operating_point.py
+``rotor_frame_loop``, its Jacobians by design/rotor_frame.py ``point_function``): the NLP
+differentiates exactly the Jacobian that ``sensorless analyze`` evaluates. theta is the law's
+parameter vector, plus alpha_fo (10) when ``tune_alpha_fo`` is set.
 """
 
 from __future__ import annotations
@@ -16,11 +17,12 @@ from typing import TYPE_CHECKING, Any
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
+from sensorless.design.batch import evaluate_batch
 from sensorless.design.envelope import NOISE_OUTPUTS, TuningSettings
 from sensorless.design.ipmsm_adaptive.derive import ALPHA_FO_MAX_FS
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
-from sensorless.design.ipmsm_adaptive.linearize import linearization_function, noise_function
-from sensorless.design.ipmsm_adaptive.operating_point import solve_equilibrium
+from sensorless.design.ipmsm_adaptive.operating_point import rotor_frame_loop
+from sensorless.design.rotor_frame import continued_equilibria, disturbance_function, point_function
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, taylor_law
 from sensorless.tuning.ipmsm_adaptive.size import gain_size_function
 from sensorless.tuning.model import TuningModel
@@ -39,12 +41,12 @@ def _closed_loop(
 
     local(theta, point) -> phi = [lambda1, lambda2, dlambda1/dw_hat, dlambda2/dw_hat, w_m, alpha_fo]:
     the law (16) or schedule and its slope at the point's speed, by AD of the one law expression.
-    linearization(phi, x, point) -> (A, x_dot): the analysis closed loop (ipmsm_adaptive/linearize.py)
+    linearization(phi, x, point) -> (A, x_dot): the analysis closed loop (rotor_frame ``point_function``)
     with the law replaced by its first-order expansion at w_m, which gives the same residual and Jacobian
     at any equilibrium (w_hat = w_m there; see ``taylor_law``). noise(phi, x, point) -> (B_n, C_n, D_n):
-    the input from current-measurement noise and the outputs [theta_tilde, w_hat]
-    (design/ipmsm_adaptive/linearize.py ``noise_function``). lag(phi, x, point) -> the steady position
-    error per unit of speed ramp [rad per rad/s^2], -[A^-2 B]_theta_tilde of the same linearization
+    the input from current-measurement noise and the outputs [theta_tilde, w_hat] (the loop's
+    ``disturbance``, design/rotor_frame.py ``disturbance_function``). lag(phi, x, point) -> the steady
+    position error per unit of speed ramp [rad per rad/s^2], -[A^-2 B]_theta_tilde of the same linearization
     (``PoleSweep.acceleration_lag``): what the damping does not see, and the time-domain checks punish.
     Drive constants are inlined.
     """
@@ -61,33 +63,29 @@ def _closed_loop(
         f"local_{law.name}", [th, pt], [ca.vertcat(at, pt[0], alpha_fo)], ["theta", "point"], ["phi"]
     )
 
-    lin = linearization_function(taylor_law(), False)
     phi = ca.SX.sym("phi", N_PHI)
     x = ca.SX.sym("x", 4)
     inj = drive.injection
-    args = {
-        "x": x,
-        "w_m": pt[0],
-        "T_e": pt[1],
-        "motor": ca.DM(drive.motor.vector()),
-        "p": float(drive.motor.p),
-        "estimate": pt[2:6],
-        "gain": phi[:5],
-        "alpha_fo": phi[5],
-        "inj": ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
+    loop = rotor_frame_loop(taylor_law(), False)
+    ins = {
+        "x_r": x,
+        "w": pt[0],
+        "torque": pt[1],
+        "plant": ca.vertcat(ca.DM(drive.motor.vector()), float(drive.motor.p)),
+        "p": ca.vertcat(pt[2:6], phi[:5], phi[5], ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta])),
     }
-    out = lin(**args)
+    out = point_function(loop)(**ins)
     linear = ca.Function(
-        "closed_loop_local", [phi, x, pt], [out["A"], out["x_dot"]], ["phi", "x", "point"], ["A", "x_dot"]
+        "closed_loop_local", [phi, x, pt], [out["A"], out["f_r"]], ["phi", "x", "point"], ["A", "x_dot"]
     )
     # B = d x_dot / d w_m with the gains' expansion point (phi[4]) held: the analysis' B at an equilibrium
     ramp = ca.solve(out["A"], ca.solve(out["A"], out["B"]))
     lag = ca.Function("acceleration_lag", [phi, x, pt], [-ramp[2]], ["phi", "x", "point"], ["lag"])
-    nz = noise_function(taylor_law(), False)(**args)
+    nz = disturbance_function(loop)(**ins)
     noise = ca.Function(
         "closed_loop_noise",
         [phi, x, pt],
-        [ca.densify(nz["B_n"]), ca.densify(nz["C_n"]), ca.densify(nz["D_n"])],
+        [ca.densify(nz["B_d"]), ca.densify(nz["C_d"]), ca.densify(nz["D_d"])],
         ["phi", "x", "point"],
         ["B_n", "C_n", "D_n"],
     )
@@ -147,34 +145,23 @@ def law_model(
         typical = np.append(typical, a0)
     motor = np.array(drive.motor.vector())
     inj = drive.injection
+    loop, plant = rotor_frame_loop(law, False), np.append(motor, float(drive.motor.p))
+    inj_vector = np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta])
 
     def equilibrium(theta: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """Equilibria (4, N); theta (n_theta,) or one per point (n_theta, N)."""
+        """Equilibria (4, N); theta (n_theta,) or one per point (n_theta, N): the closed form where the
+        estimates are exact at every point, else continued (design/rotor_frame.py)."""
         N = P.shape[1]
-        exact = bool(np.all(P[2:6] == motor[:, None]))
-        if exact:  # closed form, independent of the gains
-            return solve_equilibrium(
-                law,
-                False,
-                {"w_m": P[0:1], "T_e": P[1:2], "motor": motor, "p": np.array(float(drive.motor.p))},
-                N,
-                True,
-            )
         theta = np.asarray(theta, float)
         th = theta.reshape(theta.shape[0], -1)
         gain = np.zeros((law.width, th.shape[1]))
         gain[: law.n_params] = th[: law.n_params]
-        args = {
-            "w_m": P[0:1],
-            "T_e": P[1:2],
-            "motor": motor,
-            "p": np.array(float(drive.motor.p)),
-            "estimate": P[2:6],
-            "gain": gain,
-            "alpha_fo": th[law.n_params : law.n_params + 1] if tune_alpha else np.array(a0),
-            "inj": np.array([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta]),
-        }
-        return solve_equilibrium(law, False, args, N, False)
+        alpha = th[law.n_params : law.n_params + 1] if tune_alpha else np.array([[a0]])
+        cols = [P[2:6], gain, alpha, inj_vector[:, None]]  # the loop's p (operating_point.P_NAMES)
+        p = np.vstack([np.broadcast_to(c, (c.shape[0], N)) for c in cols])
+        if np.all(P[2:6] == motor[:, None]):  # exact estimates: the loop's start, whatever the gains
+            return evaluate_batch(loop.start, N, [P[0:1], P[1:2], plant, p])[0][:, :, 0].T
+        return continued_equilibria(loop, P[0], P[1], plant, p)
 
     def point_gains(theta: np.ndarray, w_hat: np.ndarray) -> dict[str, np.ndarray]:
         gain = np.zeros(law.width)

@@ -22,7 +22,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.rotor_frame import RotorFrameLoop, equilibria
+from sensorless.design.rotor_frame import RotorFrameLoop, equilibrium_points
 from sensorless.design.units import DriveFileError
 from sensorless.tuning.model import TuningModel
 
@@ -89,7 +89,7 @@ def constant_law_model(
         N = P.shape[1]
         th = np.asarray(th, float).reshape(n_th, -1)  # one theta, or one per point
         p = np.vstack([np.broadcast_to(np.asarray(r, float), (N,)) for r in p_of(th, P[2:])])
-        return equilibria(loop, P[0], P[1], plant, p)[0].T
+        return equilibrium_points(loop, P[0], P[1], plant, p).x.T
 
     def make_points(w: np.ndarray, T: np.ndarray, est: np.ndarray) -> np.ndarray:
         w_b, T_b = np.broadcast_arrays(np.asarray(w, float), np.asarray(T, float))

@@ -47,7 +47,7 @@ from sensorless.design.pmsm_schema import (
 )
 from sensorless.design.rotor_frame import (
     RotorFrameLoop,
-    continuous_poles,
+    equilibrium_points,
     pmsm_plant,
     pmsm_steady,
     pmsm_steady_current,
@@ -230,7 +230,8 @@ class PllObserverFamily(ObserverFamily):
             raise CapabilityError(f"{self.name}: no linearization options ({', '.join(options)})")
         W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
         setup, motor, T_s = self.runtime(drive, gains), pmsm_plant(drive.motor), drive.T_s
-        poles, x = continuous_poles(rotor_loop(), W, T, motor, setup.p)
+        e = equilibrium_points(rotor_loop(), W, T, motor, setup.p)
+        poles, x = e.poles(), e.x
         # the sampled observer that runs (the shared analysis), from the continuous equilibrium
         plant = pmsm_zoh_plant(motor[:4], W, pmsm_steady_current(T, motor), T_s)
         y, Jd = fixed_points(sampled_loop(setup.discretization), x, W, plant, setup.p)
