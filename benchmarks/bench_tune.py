@@ -15,6 +15,7 @@ and warm, with the schedule's dense worst damping against the pointwise bound's 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import time
 
@@ -52,9 +53,14 @@ def main() -> None:
     ap.add_argument("--no-schedule", action="store_true", help="skip the end-to-end schedule timing")
     a = ap.parse_args()
     drive = load_drive("piippo2008")
-    settings = drive.tuning
+    # law (16) as the paper tunes it (alpha_fo fixed, no angle-lag bound: the defaults of a user's drive
+    # tune alpha_fo and hold the lag), so both searches are over the same (lambda', omega_lambda)
+    law = drive.tuning.law
+    settings = dataclasses.replace(
+        drive.tuning, law=dataclasses.replace(law, tune_alpha_fo=False, hold_lag=False)
+    )
     wb, R = drive.base.w, drive.estimate.R_s
-    W, T = settings.envelope.grid(wb, drive.T_N)
+    W, T = settings.envelope.grid()
     model = tunable_for(drive, "speed-dependent").build(drive, settings, None)
     lp = np.linspace(model.lower[0], model.upper[0], a.pairs)
     wl = np.linspace(model.lower[1], 3 * wb, a.pairs)

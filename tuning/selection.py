@@ -24,6 +24,9 @@ TIE = 5e-4
 DRIVE_FILE = "drive file's gains"  # the label of the drive file's gains among the starts
 
 
+ENVELOPE_INFEASIBLE = "the envelope is infeasible"  # no gain at all at some speed
+
+
 def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> str:
     """The message of an infeasible envelope, with its evidence."""
     wb = drive.w_base
@@ -46,10 +49,14 @@ def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> s
         pts = "; ".join(
             f"{speeds[j] / wb:+.3f} p.u. (best slowest decay {b.decay[j]:.4g} 1/s)" for j in bad[:6]
         )
+        todo = ""
+        if settings.min_decay > 0:
+            best = float(np.min(b.decay[bad]))
+            todo = f": lower --min-decay to at most {best:.4g} 1/s, or narrow the envelope"
         return (
-            f"the envelope is infeasible: at {bad.size} of {speeds.size} envelope speeds no gain "
+            f"{ENVELOPE_INFEASIBLE}: at {bad.size} of {speeds.size} envelope speeds no gain "
             f"({', '.join(b.names)} anywhere in the box) is {what} at every torque, so no gain law is: "
-            f"{pts}{' and more' if bad.size > 6 else ''}"
+            f"{pts}{' and more' if bad.size > 6 else ''}{todo}"
         )
     return (
         f"no {model.law} gains found that are {what} at every envelope point (best of "

@@ -45,7 +45,7 @@ from sensorless.tuning.conditions import candidates as _candidates
 from sensorless.tuning.family import TuneOutcome, TuneSettings, tunable_for
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.result import Figures, TuneResult, figures, gain_table
-from sensorless.tuning.selection import DRIVE_FILE, infeasible, ridge_of, select
+from sensorless.tuning.selection import DRIVE_FILE, ENVELOPE_INFEASIBLE, infeasible, ridge_of, select
 
 # A law of a few parameters has several local optima: the NLP runs from this many distinct feasible
 # starts of the global phase (one NLP each); a rich one from the best start only.
@@ -114,7 +114,25 @@ def _tune(
         seed_name = tunable.seed
         say(f"{law}: tuning its start, the {seed_name} law, first")
         seed_set = dataclasses.replace(settings, pareto=0)
-        seed_res = _tune(drive, seed_name, seed_set, progress=lambda m: say(f"  [{seed_name}] {m}"))
+        seed_say = lambda m: say(f"  [{seed_name}] {m}")  # noqa: E731
+        try:
+            seed_res = _tune(drive, seed_name, seed_set, progress=seed_say)
+        except nlp.TuningError as e:
+            if settings.min_decay <= 0 or str(e).startswith(ENVELOPE_INFEASIBLE):
+                raise  # no floor of the user's, or no gain at all meets it somewhere: no law can
+            # an explicit floor as the handover's (tune): a seed law of few parameters may meet it nowhere
+            # where the law it starts does (the gimbal's speed-dependent law at 12 1/s, margin -6e-5 at
+            # 0.05 p.u.; its schedule meets it), so the seed as tuned without it, the law with it
+            say(f"{seed_name} law: {e}: tuning it without the decay floor, then {law} with it")
+            no_floor = dataclasses.replace(seed_set, min_decay=0.0)
+            seed_res = _tune(drive, seed_name, no_floor, progress=seed_say)
+            try:
+                return _tune(drive, law, settings, progress, seed_res)
+            except nlp.TuningError as e2:
+                raise nlp.TuningError(
+                    f"{e2}; with decay >= {settings.min_decay:g} 1/s neither the {seed_name} law nor {law} "
+                    "has gains: lower --min-decay (or the drive file's [tuning] min_decay) or try another law"
+                ) from None
     model = tunable.build(drive, settings, None if seed_res is None else seed_res.theta)
     if model.bounded is not None and not getattr(settings, "hold_bounded", True):
         say(f"not held: {', '.join(model.bounded_names)} (the drive file's gains fail a check of their own)")
