@@ -236,12 +236,21 @@ def pointwise_bound(
         w = (speeds[mid] - speeds[left]) / np.where(right > left, speeds[right] - speeds[left], 1.0)
         th = np.vstack([x[left], x[right], x[left] + w[:, None] * (x[right] - x[left])])
         offer(th, np.tile(mid, 3))
-        xs, fs = _pattern_search(
-            score, x[mid], mid, f[mid], los, his, typ, step=0.02, step_min=0.004, fine=False
+        # the short search sees the extreme and middle torques only, as the basin search does (its gains
+        # kept where they score better on every torque); the NLP (every torque) polishes the speeds near
+        # the lowest bound after it, the search on every torque the others. On every torque at every
+        # speed it was a fifth of prius's tune (8.4 of 32 s CPU), whose NLP polishes 107 of the 133.
+        f_few = score_few(x[mid] * typ, mid)
+        xs, _ = _pattern_search(
+            score_few, x[mid], mid, f_few, los, his, typ, step=0.02, step_min=0.004, fine=False
         )
-        x[mid], f[mid] = xs, fs
+        offer(xs, mid)
         ok = f[gi] >= 0
         low = mid[(f[mid] < (np.min(f[gi][ok]) if ok.any() else 1.0) + near) | (f[mid] < 0)]
+        rest = np.setdiff1d(mid, low)  # no NLP there: the search on every torque finishes them
+        x[rest], f[rest] = _pattern_search(
+            score, x[rest], rest, f[rest], los, his, typ, step=0.02, step_min=0.004, fine=False
+        )
         _polish(model, speeds, torques, low, x, f, floor, scale, limit, typ, figures)
     theta = x * typ
     z, d, nz = figures(theta, speeds)
