@@ -199,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(e)) from None
     proof: list[str] = []
     if base is not None:
-        kept, proof = _proved(drive, r, settings, json_name, base)
+        kept, proof = _proved(drive, r, settings, json_name, base, progress)
         if kept is None:
             print("\n".join(r.summary_lines(drive)))
             print("\n".join(proof))
@@ -252,17 +252,22 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> tuple[list, Proof, Callable]:
-    """(the proof's time-domain runs, the drive file's gains' proof, progress) (reports/tune_proof.py)."""
+def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> tuple[list, Proof]:
+    """(the proof's time-domain runs, the drive file's gains' proof) (reports/tune_proof.py)."""
     from sensorless.reports import tune_proof
 
     runs = tune_proof.runs(drive)
     progress(f"proof: the drive file's and the tuned gains, {len(runs)} time-domain checks, +-T_max")
-    return runs, tune_proof.prove(drive, None, "drive file", runs, tune_proof.ANALYSIS, progress), progress
+    return runs, tune_proof.prove(drive, None, "drive file", runs, tune_proof.ANALYSIS, progress)
 
 
 def _proved(
-    drive: Drive, r: TuneOutcome, settings: TuneSettings, table_file: str, proved: tuple
+    drive: Drive,
+    r: TuneOutcome,
+    settings: TuneSettings,
+    table_file: str,
+    proved: tuple[list, Proof],
+    progress: Callable[[str], None],
 ) -> tuple[TuneOutcome | None, list[str]]:
     """(the result whose table is written, lines saying its proof) or (None, lines ending with what the
     last candidate does worse): the tuned gains and then the tuner's fallbacks (tuning/tune.py), each
@@ -271,7 +276,7 @@ def _proved(
     from sensorless.tuning.tune import fallbacks
 
     fam = family_of(drive)
-    runs, base, progress = proved
+    runs, base = proved
     lines = [f"proof (linear analysis over +-T_max, {len(runs)} time-domain checks): {base.line()}"]
     cands: list[tuple[str, TuneOutcome]] = [("tuned", r)]
     i = 0
