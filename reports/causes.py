@@ -127,6 +127,10 @@ CATALOGUE: dict[str, Cause] = {
     )
 }
 
+# the causes of a failure in the open-loop I-f start or its handover, whose remedy is a lower handover
+# (gains tuned for a lower w_min), not the observer's transient (reports/tune_proof.py failed_in_the_start)
+START_CAUSES = frozenset({"ramp_slower_than_reference", "if_current_below_load", "not_tested_sensorless"})
+
 # what can fail in a check (reports/time_domain.py); the closed-loop ones are judged on the observer
 KINDS = ("diverged", "rejected", "lost", "position", "speed_estimate", "tracking", "slip", "no_handover")
 CLOSED_LOOP = frozenset({"diverged", "rejected", "lost", "position"})

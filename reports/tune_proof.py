@@ -35,7 +35,7 @@ from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario, builtin_names
 from sensorless.design.simulate import simulated
 from sensorless.reports import time_domain
-from sensorless.reports.causes import classify_all
+from sensorless.reports.causes import START_CAUSES, classify_all
 
 # (drive, gains, w [rad/s electrical], torque [N m]) -> the figures (a Linearization, design/linearization.py)
 Analysis = Callable[[Drive, GainSet, np.ndarray, np.ndarray], "Linearization | Combined"]
@@ -205,11 +205,6 @@ def prove(
             }
         )
     return Proof(label, w, t, mr, wd, tuple(checks))
-
-
-# the causes (reports/causes.py) of a failure in the open-loop I-f start or its handover, whose remedy is a
-# lower handover (gains tuned for a lower w_min), not the observer's transient
-START_CAUSES = frozenset({"ramp_slower_than_reference", "if_current_below_load", "not_tested_sensorless"})
 
 
 def failed_in_the_start(proof: Proof) -> list[str]:
