@@ -371,7 +371,10 @@ def pmsm_steady(w: ca.SX, T_e: ca.SX, plant: ca.SX) -> tuple[ca.SX, ca.SX]:
 
 
 @functools.cache
-def _steady_current() -> ca.Function:
+def steady_current_function() -> ca.Function:
+    """casadi.Function (T_e [N m], plant) -> the rotor-frame MTPA current [i_d, i_q] of
+    :func:`pmsm_steady`. Built once: design/motor_data.py evaluates it point by point (80 times on each
+    load of a drive file), :func:`pmsm_steady_current` in batches."""
     T_e, plant = ca.SX.sym("T_e"), ca.SX.sym("plant", 5)
     return ca.Function("pmsm_steady_current", [T_e, plant], [pmsm_steady(0, T_e, plant)[0]])
 
@@ -380,4 +383,4 @@ def pmsm_steady_current(torque: np.ndarray, plant: np.ndarray) -> np.ndarray:
     """(N, 2) rotor-frame MTPA currents for the torques (N,) [N m] of the motor ``plant`` (one vector,
     or one column per point: e.g. a Monte-Carlo draw's motor)."""
     T = np.ravel(torque).astype(float)
-    return evaluate_batch(_steady_current(), T.size, [T, plant])[0][:, :, 0]
+    return evaluate_batch(steady_current_function(), T.size, [T, plant])[0][:, :, 0]
