@@ -125,8 +125,8 @@ class LowSpeed:
     # [rad/s^2] the largest speed change at rated load, p (T_max + T_N) / J, whose lag the criteria
     # include (each load's own: braking_acceleration); 0: none
     acceleration: float = 0.0
-    # the speed reference's ramp [rad/s^2] (DriveScales.speed_ramp) where it limits ``acceleration``; 0: not
-    ramp: float = 0.0
+    # ``acceleration`` is the speed reference's ramp (DriveScales.speed_ramp, below the full braking)
+    ramped: bool = False
 
     @property
     def rated(self) -> int:
@@ -378,7 +378,7 @@ def minimum_speed(
         declared=scales.zero_speed if scales is not None else "",
         basis=basis,
         acceleration=a_max,
-        ramp=scales.speed_ramp if scales is not None and 0 < scales.speed_ramp <= a_max else 0.0,
+        ramped=scales is not None and 0 < scales.speed_ramp <= a_max,
     )
 
 
@@ -485,7 +485,7 @@ _CRITERION_TEXT = {
         (
             f"angle error under the speed reference's ramp ([control] speed_ramp = {ls.acceleration:.4g} "
             "rad/s^2, below the full braking) > "
-            if ls.ramp > 0
+            if ls.ramped
             else f"angle error under the full braking (p (T_max + T_N) / J = {ls.acceleration:.4g} rad/s^2 "
             "at rated load) > "
         )

@@ -299,22 +299,12 @@ def _integer(v: object, file: str, key: str) -> int:
 # --------------------------------------------------------------------------------------------------
 # The rated point (MTPA current and steady voltage), for the plausibility checks and derived drives
 # --------------------------------------------------------------------------------------------------
-@functools.cache
-def _mtpa_function() -> ca.Function:
-    """casadi.Function (T [N m], [R_s, L_d, L_q, psi_pm], p) -> MTPA current [i_d, i_q] (symbolic/pmsm.py).
-
-    Built once: evaluating the expression in DM arithmetic costs milliseconds per call, and
-    :func:`mtpa_torque` calls it 80 times on every load of a drive file."""
-    import casadi as ca
-    from sensorless.symbolic.pmsm import PmsmParams, mtpa_current
-
-    T, m, p = ca.SX.sym("T"), ca.SX.sym("motor", 4), ca.SX.sym("p")
-    return ca.Function("mtpa", [T, m, p], [mtpa_current(T, PmsmParams(m[0], m[1], m[2], m[3]), p)])
-
-
 def mtpa_torque_current(T: float, motor: PmsmMotor) -> tuple[float, float]:
-    """(i_d, i_q) [A, peak] of the MTPA current for torque ``T`` [N m] (symbolic/pmsm.py, evaluated)."""
-    i = _mtpa_function()(T, motor.vector(), motor.p)
+    """(i_d, i_q) [A, peak] of the MTPA current for torque ``T`` [N m]: the shared steady current
+    (design/rotor_frame.py ``steady_current_function``, symbolic/pmsm.py), evaluated."""
+    from sensorless.design.rotor_frame import pmsm_plant, steady_current_function
+
+    i = steady_current_function()(T, pmsm_plant(motor))
     return float(i[0]), float(i[1])
 
 

@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from sensorless.design.batch import evaluate_batch, mapped
 from sensorless.design.compiled import compiled
+from sensorless.design.memo import kept_function
 from sensorless.design.pmsm_schema import PmsmMotor
 from sensorless.design.poles import eigvals_batched
 from sensorless.symbolic.linalg import charpoly
@@ -79,7 +80,10 @@ class Disturbance:
 @dataclass(frozen=True, eq=False)
 class RotorFrameLoop:
     """A family's continuous observer in rotor coordinates (module docstring); hashable by identity,
-    so declare it once (e.g. in a ``functools.cache``d function)."""
+    so declare it once (e.g. in a ``functools.cache``d function). The Functions built from it are
+    kept on disk by its content (design/memo.py ``kept_function``: its Functions pickle as their
+    serialization; a ``disturbance`` builder must pickle too, a module-level function or a partial
+    of one, else they are kept in the process only)."""
 
     name: str  # for the Functions built from it
     rates: ca.Function  # (x_r[n], w, torque, plant[m], p[k]) -> f_r[n]
@@ -112,7 +116,7 @@ def _symbols(loop: RotorFrameLoop) -> tuple[ca.SX, ...]:
     return tuple(ca.SX.sym(k, m) for k, m in zip(("x_r", "w", "torque", "plant", "p"), sizes, strict=True))
 
 
-@functools.cache
+@kept_function
 def equilibrium_function(loop: RotorFrameLoop) -> ca.Function:
     """(w, torque, plant, p) -> (x_r*, A, res, f_r[, y, ...]): NEWTON_STEPS Newton steps on f_r(x_r) = 0
     from the loop's start, and :func:`point_function` where they end."""
@@ -133,7 +137,7 @@ def equilibrium_function(loop: RotorFrameLoop) -> ca.Function:
     )
 
 
-@functools.cache
+@kept_function
 def start_function(loop: RotorFrameLoop) -> ca.Function:
     """(w, torque, plant, p) -> (x_r, A, res, f_r[, y, ...]): :func:`point_function` at the loop's
     start, in one Function: where ``p`` is its continuation's anchor at every point the start is the
@@ -175,7 +179,7 @@ class Equilibria:
         return out
 
 
-@functools.cache
+@kept_function
 def point_function(loop: RotorFrameLoop) -> ca.Function:
     """(x_r, w, torque, plant, p) -> (A, res, f_r[, y][, B, C, D][, c]) at a given state: the Jacobian
     df_r/dx_r, the residual |f_r|_inf, the rates, the loop's ``output``, its linear model from w
@@ -199,7 +203,7 @@ def point_function(loop: RotorFrameLoop) -> ca.Function:
     )
 
 
-@functools.cache
+@kept_function
 def disturbance_function(loop: RotorFrameLoop) -> ca.Function:
     """(x_r, w, torque, plant, p) -> (B_d, C_d, D_d): the linear model of the loop's :class:`Disturbance`
     at d = 0, B_d = df_r/dd, C_d = dz/dx_r, D_d = dz/dd (e.g. design/noise.py's noise gain)."""
@@ -371,7 +375,10 @@ def pmsm_steady(w: ca.SX, T_e: ca.SX, plant: ca.SX) -> tuple[ca.SX, ca.SX]:
 
 
 @functools.cache
-def _steady_current() -> ca.Function:
+def steady_current_function() -> ca.Function:
+    """casadi.Function (T_e [N m], plant) -> the rotor-frame MTPA current [i_d, i_q] of
+    :func:`pmsm_steady`. Built once: design/motor_data.py evaluates it point by point (80 times on each
+    load of a drive file), :func:`pmsm_steady_current` in batches."""
     T_e, plant = ca.SX.sym("T_e"), ca.SX.sym("plant", 5)
     return ca.Function("pmsm_steady_current", [T_e, plant], [pmsm_steady(0, T_e, plant)[0]])
 
@@ -380,4 +387,4 @@ def pmsm_steady_current(torque: np.ndarray, plant: np.ndarray) -> np.ndarray:
     """(N, 2) rotor-frame MTPA currents for the torques (N,) [N m] of the motor ``plant`` (one vector,
     or one column per point: e.g. a Monte-Carlo draw's motor)."""
     T = np.ravel(torque).astype(float)
-    return evaluate_batch(_steady_current(), T.size, [T, plant])[0][:, :, 0]
+    return evaluate_batch(steady_current_function(), T.size, [T, plant])[0][:, :, 0]

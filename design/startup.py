@@ -104,7 +104,7 @@ def handover_reason(ls: LowSpeed, given_on: float | None = None) -> str:
     if why == "acceleration":
         braking = (
             f"along the speed reference's ramp ([control] speed_ramp = {ls.acceleration:.4g} rad/s^2)"
-            if ls.ramp > 0
+            if ls.ramped
             else f"braking at p (T_max + T_N) / J = {ls.acceleration:.4g} rad/s^2 at rated load"
         )
         head = (

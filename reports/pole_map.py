@@ -8,7 +8,7 @@ right-half-plane pole of the motoring mode lives. Both panels are drawn here sid
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -30,22 +30,48 @@ def pole_csv(sweep: Linearization, w_base: float) -> str:
 
     The family's own columns and notes (``Linearization.point_columns``, ``notes``: e.g. the operating
     point's current, the gain law) follow the operating point and open the header."""
-    n = sweep.poles.shape[1]
-    extra = sweep.point_columns()
-    head = ["w_m_pu", "w_m_rad_s", f"{sweep.torque_name}_Nm", *extra]
-    for k in range(n):
-        head += [f"pole{k}_re_1_s", f"pole{k}_im_1_s"]
-    head += ["worst_damping", "max_real_1_s", REASON]
+    return pole_table(
+        sweep,
+        w_base,
+        {"pole": sweep.poles},
+        notes=sweep.notes(),
+        before=sweep.point_columns(),
+        after={"worst_damping": sweep.worst_damping, "max_real_1_s": sweep.max_real},
+    )
+
+
+def pole_table(
+    sweep: Linearization,
+    w_base: float,
+    poles: Mapping[str, np.ndarray],
+    *,
+    notes: Sequence[str] = (),
+    legend: str = "",
+    before: Mapping[str, np.ndarray] | None = None,
+    after: Mapping[str, np.ndarray] | None = None,
+    why: str = NO_POLES,
+) -> str:
+    """CSV text of a pole table (:func:`pole_csv`'s and other ones): per operating point of ``sweep``
+    the speed [p.u., rad/s] and torque, the columns ``before``, each set of ``poles`` (its prefix ->
+    (N, n) [1/s]) as re/im pairs, the columns ``after`` and the reason column (``why`` where a value is
+    not finite). The header's comment: ``notes``, the speed base, ``legend`` (what the prefixes mean)."""
+    before, after = before or {}, after or {}
+    head = ["w_m_pu", "w_m_rad_s", f"{sweep.torque_name}_Nm", *before]
+    for prefix, set_ in poles.items():
+        for k in range(set_.shape[1]):
+            head += [f"{prefix}{k}_re_1_s", f"{prefix}{k}_im_1_s"]
+    head += [*after, REASON]
+    comment = [*notes, f"speed base {w_base:.10g} rad/s (electrical)", *([legend] if legend else [])]
     buf = io.StringIO()
-    buf.write("# " + "".join(f"{note}; " for note in sweep.notes()))
-    buf.write(f"speed base {w_base:.10g} rad/s (electrical)\n")
+    buf.write("# " + "; ".join(comment) + "\n")
     buf.write(",".join(head) + "\n")
     for j in range(sweep.w.size):
-        row = [sweep.w[j] / w_base, sweep.w[j], sweep.torque[j], *(col[j] for col in extra.values())]
-        for p in sweep.poles[j]:
-            row += [p.real, p.imag]
-        row += [sweep.worst_damping[j], sweep.max_real[j]]
-        buf.write(csv_row(row, NO_POLES) + "\n")
+        row = [sweep.w[j] / w_base, sweep.w[j], sweep.torque[j], *(col[j] for col in before.values())]
+        for set_ in poles.values():
+            for p in set_[j]:
+                row += [p.real, p.imag]
+        row += [col[j] for col in after.values()]
+        buf.write(csv_row(row, why) + "\n")
     return buf.getvalue()
 
 

@@ -28,7 +28,9 @@ import functools
 
 import casadi as ca
 from sensorless.symbolic.controllers import ramp_step
-from sensorless.symbolic.runtime import X_MAX, Field, RuntimeObserver, core_function
+from sensorless.symbolic.frames import Sym
+from sensorless.symbolic.observer_wrapper import InnerStep, wrap_observer
+from sensorless.symbolic.runtime import X_MAX, Field, RuntimeObserver
 from sensorless.symbolic.startup import W_CMD
 
 RAMP_ACC = Field(
@@ -44,63 +46,36 @@ def with_speed_ramp(obs: RuntimeObserver) -> RuntimeObserver:
     n_x, n_p, n_m = len(obs.state), len(obs.params), len(obs.meas)
     takes_cmd = obs.meas[-1].name == W_CMD.name
     meas = obs.meas if takes_cmd else (*obs.meas, W_CMD)
-    state = (*obs.state[:-1], W_RAMP, obs.state[-1])
-    params = (*obs.params, RAMP_ACC)
-    outputs = (*obs.outputs[:-2], W_REF_R, *obs.outputs[-2:])
     i_ts = [f.name for f in obs.params].index("T_s")
+    n_y = len(obs.outputs)
 
-    def make(disc: str) -> ca.Function:
-        inner = obs.core(disc)
+    def step(inner: InnerStep, x: Sym, m: Sym, p: Sym) -> tuple[Sym, Sym]:
+        w_r = x[n_x - 1]
+        w_cmd = m[len(meas) - 1]
+        finite = ca.fabs(w_cmd) <= X_MAX  # NaN compares false: a command that is not finite holds it
+        w_next = ca.if_else(finite, ramp_step(w_r, w_cmd, p[n_p], p[i_ts]), w_r)
+        m_in = ca.vertcat(m[: n_m - 1], w_next) if takes_cmd else m[:n_m]
+        x_in_next, y_in = inner(ca.vertcat(x[: n_x - 1], x[n_x]), m_in)
+        x_next = ca.vertcat(x_in_next[: n_x - 1], w_next, x_in_next[n_x - 1])
+        y = ca.vertcat(y_in[: n_y - 2], w_next, y_in[n_y - 2 :])
+        return x_next, y
 
-        def step(x, m, p, lam=None):
-            w_r = x[n_x - 1]
-            w_cmd = m[len(meas) - 1]
-            finite = ca.fabs(w_cmd) <= X_MAX  # NaN compares false: a command that is not finite holds it
-            w_next = ca.if_else(finite, ramp_step(w_r, w_cmd, p[n_p], p[i_ts]), w_r)
-            m_in = ca.vertcat(m[: n_m - 1], w_next) if takes_cmd else m[:n_m]
-            x_in = ca.vertcat(x[: n_x - 1], x[n_x])
-            x_in_next, y_in = inner(x_in, m_in, p[:n_p], lam if lam is not None else ca.SX(0, 1))
-            n_y = len(obs.outputs)
-            x_next = ca.vertcat(x_in_next[: n_x - 1], w_next, x_in_next[n_x - 1])
-            y = ca.vertcat(y_in[: n_y - 2], w_next, y_in[n_y - 2 :])
-            return x_next, y
+    def steady(x_in: Sym, p: Sym, op: Sym) -> Sym:
+        # at a steady operating point the reference has reached the speed (op[1])
+        return ca.vertcat(x_in[: n_x - 1], op[1], x_in[n_x - 1])
 
-        return core_function(f"{obs.name}_ramp_{disc}", step, state, meas, params, obs.lam)
-
-    def initial() -> ca.Function:
-        p = ca.SX.sym("p", len(params))
-        x0 = obs.initial_state()(p[:n_p])
-        return ca.Function(
-            f"{obs.name}_ramp_init", [p], [ca.vertcat(x0[: n_x - 1], 0, x0[n_x - 1])], ["p"], ["x0"]
-        )
-
-    steady = None
-    if obs.steady_state is not None:
-        inner_steady = obs.steady_state
-
-        def steady_fn() -> ca.Function:
-            p, op = ca.SX.sym("p", len(params)), ca.SX.sym("op", 4)
-            x_in = inner_steady()(p[:n_p], op)
-            # at a steady operating point the reference has reached the speed (op[1])
-            return ca.Function(
-                f"{obs.name}_ramp_steady", [p, op], [ca.vertcat(x_in[: n_x - 1], op[1], x_in[n_x - 1])]
-            )
-
-        steady = steady_fn
-    return RuntimeObserver(
-        name=f"{obs.name}_ramp",
-        title=f"{obs.title}, with the speed reference's rate limiter",
-        state=state,
+    return wrap_observer(
+        obs,
+        suffix="ramp",
+        title="with the speed reference's rate limiter",
+        state=(*obs.state[:-1], W_RAMP, obs.state[-1]),
         meas=meas,
-        params=params,
-        outputs=outputs,
-        lam=obs.lam,
-        schedule_state=obs.schedule_state,
-        core=make,
-        initial_state=initial,
-        discretizations=obs.discretizations,
-        steady_state=steady,
-        doc_init=f"{obs.doc_init}; the speed reference at rest (0)",
-        doc_in=obs.doc_in if takes_cmd else f"{obs.doc_in}; the speed command",
-        doc_out=f"{obs.doc_out}; the rate-limited speed reference",
+        params=(*obs.params, RAMP_ACC),
+        outputs=(*obs.outputs[:-2], W_REF_R, *obs.outputs[-2:]),
+        step=step,
+        initial=lambda x0: ca.vertcat(x0[: n_x - 1], 0, x0[n_x - 1]),
+        steady=steady,
+        doc_init="the speed reference at rest (0)",
+        doc_in=None if takes_cmd else "the speed command",
+        doc_out="the rate-limited speed reference",
     )

@@ -84,8 +84,9 @@ import functools
 import math
 
 import casadi as ca
-from sensorless.symbolic.frames import wrap_angle
-from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, core_function, guarded
+from sensorless.symbolic.frames import Sym, wrap_angle
+from sensorless.symbolic.observer_wrapper import InnerStep, wrap_observer
+from sensorless.symbolic.runtime import REJECTS, RESET, VALID, Field, RuntimeObserver, guarded
 
 PARAMS = (
     Field("if_i", "A", "I-f start: current amplitude (peak), d axis of the open-loop frame", "nonnegative"),
@@ -148,151 +149,127 @@ def with_startup(obs: RuntimeObserver) -> RuntimeObserver:
     params = (*obs.params, *PARAMS)
     meas = (*obs.meas, W_CMD)
     outputs = (*outs, *OUTPUTS, VALID, RESET)
+    i_ts = [f.name for f in obs.params].index("T_s")
 
-    def make(disc: str) -> ca.Function:
-        inner = obs.core(disc)
+    def step(inner: InnerStep, x: Sym, meas: Sym, p: Sym) -> tuple[Sym, Sym]:
+        P = {f.name: p[n_p + k] for k, f in enumerate(PARAMS)}
+        T_s = p[i_ts]
+        x_in_next, y_in = inner(x[:n_x], meas[: len(obs.meas)])
+        w_cmd = meas[len(obs.meas)]
+        th, w_r, d_lp, t_on, w_prev, dw, th_prev, w_lag, mode = (x[n_x + k] for k in range(9))
+        theta_obs, w_obs = y_in[k_th], y_in[k_w]
+        # the load angle by the observer and its swing: about the steady load angle, the low-passed
+        # load's share (d_lp) plus the frame's own acceleration's (k_a a_r / i_if in sine), so that
+        # the ramp's end (a step of the steady angle, 15 deg at the rules' acceleration) is no swing
+        delta = wrap_angle(th - theta_obs)
+        target = ca.fmin(ca.fmax(w_cmd, -P["if_w_on"]), P["if_w_on"])
+        step_r = P["if_acc"] * T_s
+        w_r_next = w_r + ca.fmin(ca.fmax(target - w_r, -step_r), step_r)
+        i_if = ca.fmax(P["if_i"], 1e-12)
+        s_acc = P["if_k_a"] * (w_r_next - w_r) / T_s / i_if
+        delta_load = ca.asin(ca.fmin(ca.fmax(ca.sin(delta) - s_acc, -1), 1))
+        steady = ca.asin(ca.fmin(ca.fmax(ca.sin(d_lp) + s_acc, -1), 1))
+        swing = wrap_angle(delta - steady)
+        # the damping's swing: within +-SWING_MAX, and none from an observer off by 90 deg or more
+        # (lost while the ramp accelerated through low speeds: the start then holds the rotor alone)
+        agree_90 = ca.fabs(delta) < ca.pi / 2
+        swing_d = ca.if_else(agree_90, ca.fmin(ca.fmax(swing, -SWING_MAX), SWING_MAX), 0)
+        d_lp_next = wrap_angle(d_lp + P["if_w_hp"] * T_s * wrap_angle(delta_load - d_lp))
+        # open loop: the ramp towards the command (within +-w_on, above); the frame's speed damped
+        # against the swing, faded in with speed (module docstring); the angle with the period's speed
+        fade = ca.fmin(1, ca.fabs(w_r) / ca.fmax(P["if_w_off"], 1e-9))
+        w_ol = w_r - P["if_k_d"] * fade * swing_d
+        th_ol = wrap_angle(th + w_ol * T_s)
+        # handover at w_on, the observer's angle within 90 deg of the frame's (where an I-f start
+        # that holds the rotor keeps it; an observer off by half a turn is not handed the drive),
+        # the swing settled
+        agree = ca.logic_and(agree_90, ca.fabs(swing) < SETTLED)
+        at_on = ca.logic_and(ca.fabs(w_r) >= P["if_w_on"] * (1 - 1e-9), agree)
+        t_next = ca.if_else(at_on, ca.fmin(t_on + T_s, P["if_t_dwell"]), 0)
+        handover = ca.logic_and(at_on, t_on >= P["if_t_dwell"] * (1 - 1e-9))
+        # closed loop: back to open loop below w_off, at the observer's speed, the frame ahead of its
+        # angle by the load angle that carries the measured q-axis current
+        if k_i is None:
+            i_q = 0
+        else:
+            i_a, i_b = meas[k_i[0]], meas[k_i[1]]
+            i_q = -ca.sin(theta_obs) * i_a + ca.cos(theta_obs) * i_b
+        s_max = math.sin(DROP_MAX)
+        # the current the open loop needs: the load's (the closed loop's current less what its
+        # acceleration takes) and what the frame's acceleration towards the command takes
+        # low-passed at w_c: settled when the drive, braking at the I-f current's acceleration
+        # i_if / k_a = p k_t i_if / J (p T_max / J by the rules), has crossed the band from w_on to
+        # w_off (module docstring)
+        a_if = P["if_i"] / ca.fmax(P["if_k_a"], 1e-12)
+        w_c = DROP_SETTLE * a_if / ca.fmax(P["if_w_on"] - P["if_w_off"], 1e-9)
+        w_c = ca.fmin(ca.fmax(P["if_w_hp"], w_c), 0.5 / T_s)
+        dw_next = dw + w_c * T_s * ((w_obs - w_prev) / T_s - dw)
+        # the speed estimate's lag behind the rotor: its angle's rate less the estimate (a PLL's speed
+        # lags by a k_p / k_i under acceleration a while its angle's rate does not: braking at the
+        # torque limit through zero, VESC's PLL read +0.035 p.u. with the rotor at -0.062 p.u. on the
+        # 2017 VESC motor, and the frame started there slipped), low-passed: constant under a
+        # constant acceleration, so the low-pass adds no lag of its own; each sample within +-w_on
+        # (the first period after a reset has no previous angle)
+        lag_k = wrap_angle(theta_obs - th_prev) / T_s - w_obs
+        lag_k = ca.fmin(ca.fmax(lag_k, -P["if_w_on"]), P["if_w_on"])
+        w_lag_next = w_lag + w_c * T_s * (lag_k - w_lag)
+        w_fb = w_obs + w_lag  # the rotor's speed by the observer's angle: the fall-back's
+        a_f = P["if_acc"] * ca.sign(target - w_fb)
+        i_need = i_q - P["if_k_a"] * (dw - a_f)
+        d_drop = ca.asin(ca.fmin(ca.fmax(i_need / i_if, -s_max), s_max))
+        # the steady load angle's load share there (the frame's acceleration's is added per period)
+        d_load = ca.asin(ca.fmin(ca.fmax(ca.sin(d_drop) - P["if_k_a"] * a_f / i_if, -1), 1))
+        drop = ca.fabs(w_fb) < P["if_w_off"]
+        open_now = mode > 0.5
+        mode_next = ca.if_else(open_now, ca.if_else(handover, 0, 1), ca.if_else(drop, 1, 0))
+        th_next = ca.if_else(open_now, th_ol, wrap_angle(theta_obs + d_drop))
+        w_next = ca.if_else(open_now, w_r_next, w_fb)
+        d_next = ca.if_else(open_now, d_lp_next, d_load)
+        y_out = [y_in[k] for k in range(len(outs))]
+        y_out[k_th] = ca.if_else(open_now, th, theta_obs)
+        y_out[k_w] = ca.if_else(open_now, w_ol, w_obs)
+        i_f = ca.if_else(open_now, P["if_i"], 0)
+        i_f_q = ca.if_else(open_now, P["if_i"] * ca.sin(delta), 0)
+        y_if = (open_now, i_f, i_f_q)
+        t_next = ca.if_else(open_now, t_next, 0)
+        if obs.steady_state is not None:
+            # re-seeded on the frame at w_on while off by more than LOST (module docstring): steady
+            # at the frame's angle and speed, the current on its d axis
+            at_w_on = ca.fabs(w_r_next) >= P["if_w_on"] * (1 - 1e-9)
+            reseed = ca.logic_and(open_now, ca.logic_and(at_w_on, ca.fabs(delta) > LOST))
+            seed = obs.steady_state()(p[:n_p], ca.vertcat(th_ol, w_r_next, P["if_i"], 0))
+            x_in_next = ca.if_else(reseed, seed, x_in_next)
+        x_if = ca.vertcat(th_next, w_next, d_next, t_next, w_obs, dw_next, theta_obs, w_lag_next, mode_next)
+        cand = (ca.vertcat(x_in_next, x_if), ca.vertcat(*y_out, *y_if))
+        x_coast = ca.vertcat(
+            x[:n_x], wrap_angle(th + w_r * T_s), w_r, d_lp, t_on, w_prev, dw, th_prev, w_lag, mode
+        )
+        coast = (x_coast, ca.vertcat(*y_out, *y_if))
+        reset = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 0, 0, 0, 0, 1, 0)
+        # the wrapped step's own verdict counts: its sample rejected, the wrapper coasts too
+        ok = y_in[len(obs.outputs) - 2] > 0.5
+        return guarded(x, p, state, params, cand=cand, coast=coast, reset=reset, ok=ok)
 
-        def step(x, meas, p, lam=None):
-            P = {f.name: p[n_p + k] for k, f in enumerate(PARAMS)}
-            T_s = p[[f.name for f in obs.params].index("T_s")]
-            lam_in = lam if lam is not None else ca.SX(0, 1)
-            x_in_next, y_in = inner(x[:n_x], meas[: len(obs.meas)], p[:n_p], lam_in)
-            w_cmd = meas[len(obs.meas)]
-            th, w_r, d_lp, t_on, w_prev, dw, th_prev, w_lag, mode = (x[n_x + k] for k in range(9))
-            theta_obs, w_obs = y_in[k_th], y_in[k_w]
-            # the load angle by the observer and its swing: about the steady load angle, the low-passed
-            # load's share (d_lp) plus the frame's own acceleration's (k_a a_r / i_if in sine), so that
-            # the ramp's end (a step of the steady angle, 15 deg at the rules' acceleration) is no swing
-            delta = wrap_angle(th - theta_obs)
-            target = ca.fmin(ca.fmax(w_cmd, -P["if_w_on"]), P["if_w_on"])
-            step_r = P["if_acc"] * T_s
-            w_r_next = w_r + ca.fmin(ca.fmax(target - w_r, -step_r), step_r)
-            i_if = ca.fmax(P["if_i"], 1e-12)
-            s_acc = P["if_k_a"] * (w_r_next - w_r) / T_s / i_if
-            delta_load = ca.asin(ca.fmin(ca.fmax(ca.sin(delta) - s_acc, -1), 1))
-            steady = ca.asin(ca.fmin(ca.fmax(ca.sin(d_lp) + s_acc, -1), 1))
-            swing = wrap_angle(delta - steady)
-            # the damping's swing: within +-SWING_MAX, and none from an observer off by 90 deg or more
-            # (lost while the ramp accelerated through low speeds: the start then holds the rotor alone)
-            agree_90 = ca.fabs(delta) < ca.pi / 2
-            swing_d = ca.if_else(agree_90, ca.fmin(ca.fmax(swing, -SWING_MAX), SWING_MAX), 0)
-            d_lp_next = wrap_angle(d_lp + P["if_w_hp"] * T_s * wrap_angle(delta_load - d_lp))
-            # open loop: the ramp towards the command (within +-w_on, above); the frame's speed damped
-            # against the swing, faded in with speed (module docstring); the angle with the period's speed
-            fade = ca.fmin(1, ca.fabs(w_r) / ca.fmax(P["if_w_off"], 1e-9))
-            w_ol = w_r - P["if_k_d"] * fade * swing_d
-            th_ol = wrap_angle(th + w_ol * T_s)
-            # handover at w_on, the observer's angle within 90 deg of the frame's (where an I-f start
-            # that holds the rotor keeps it; an observer off by half a turn is not handed the drive),
-            # the swing settled
-            agree = ca.logic_and(agree_90, ca.fabs(swing) < SETTLED)
-            at_on = ca.logic_and(ca.fabs(w_r) >= P["if_w_on"] * (1 - 1e-9), agree)
-            t_next = ca.if_else(at_on, ca.fmin(t_on + T_s, P["if_t_dwell"]), 0)
-            handover = ca.logic_and(at_on, t_on >= P["if_t_dwell"] * (1 - 1e-9))
-            # closed loop: back to open loop below w_off, at the observer's speed, the frame ahead of its
-            # angle by the load angle that carries the measured q-axis current
-            if k_i is None:
-                i_q = 0
-            else:
-                i_a, i_b = meas[k_i[0]], meas[k_i[1]]
-                i_q = -ca.sin(theta_obs) * i_a + ca.cos(theta_obs) * i_b
-            s_max = math.sin(DROP_MAX)
-            # the current the open loop needs: the load's (the closed loop's current less what its
-            # acceleration takes) and what the frame's acceleration towards the command takes
-            # low-passed at w_c: settled when the drive, braking at the I-f current's acceleration
-            # i_if / k_a = p k_t i_if / J (p T_max / J by the rules), has crossed the band from w_on to
-            # w_off (module docstring)
-            a_if = P["if_i"] / ca.fmax(P["if_k_a"], 1e-12)
-            w_c = DROP_SETTLE * a_if / ca.fmax(P["if_w_on"] - P["if_w_off"], 1e-9)
-            w_c = ca.fmin(ca.fmax(P["if_w_hp"], w_c), 0.5 / T_s)
-            dw_next = dw + w_c * T_s * ((w_obs - w_prev) / T_s - dw)
-            # the speed estimate's lag behind the rotor: its angle's rate less the estimate (a PLL's speed
-            # lags by a k_p / k_i under acceleration a while its angle's rate does not: braking at the
-            # torque limit through zero, VESC's PLL read +0.035 p.u. with the rotor at -0.062 p.u. on the
-            # 2017 VESC motor, and the frame started there slipped), low-passed: constant under a
-            # constant acceleration, so the low-pass adds no lag of its own; each sample within +-w_on
-            # (the first period after a reset has no previous angle)
-            lag_k = wrap_angle(theta_obs - th_prev) / T_s - w_obs
-            lag_k = ca.fmin(ca.fmax(lag_k, -P["if_w_on"]), P["if_w_on"])
-            w_lag_next = w_lag + w_c * T_s * (lag_k - w_lag)
-            w_fb = w_obs + w_lag  # the rotor's speed by the observer's angle: the fall-back's
-            a_f = P["if_acc"] * ca.sign(target - w_fb)
-            i_need = i_q - P["if_k_a"] * (dw - a_f)
-            d_drop = ca.asin(ca.fmin(ca.fmax(i_need / i_if, -s_max), s_max))
-            # the steady load angle's load share there (the frame's acceleration's is added per period)
-            d_load = ca.asin(ca.fmin(ca.fmax(ca.sin(d_drop) - P["if_k_a"] * a_f / i_if, -1), 1))
-            drop = ca.fabs(w_fb) < P["if_w_off"]
-            open_now = mode > 0.5
-            mode_next = ca.if_else(open_now, ca.if_else(handover, 0, 1), ca.if_else(drop, 1, 0))
-            th_next = ca.if_else(open_now, th_ol, wrap_angle(theta_obs + d_drop))
-            w_next = ca.if_else(open_now, w_r_next, w_fb)
-            d_next = ca.if_else(open_now, d_lp_next, d_load)
-            y_out = [y_in[k] for k in range(len(outs))]
-            y_out[k_th] = ca.if_else(open_now, th, theta_obs)
-            y_out[k_w] = ca.if_else(open_now, w_ol, w_obs)
-            i_f = ca.if_else(open_now, P["if_i"], 0)
-            i_f_q = ca.if_else(open_now, P["if_i"] * ca.sin(delta), 0)
-            y_if = (open_now, i_f, i_f_q)
-            t_next = ca.if_else(open_now, t_next, 0)
-            if obs.steady_state is not None:
-                # re-seeded on the frame at w_on while off by more than LOST (module docstring): steady
-                # at the frame's angle and speed, the current on its d axis
-                at_w_on = ca.fabs(w_r_next) >= P["if_w_on"] * (1 - 1e-9)
-                reseed = ca.logic_and(open_now, ca.logic_and(at_w_on, ca.fabs(delta) > LOST))
-                seed = obs.steady_state()(p[:n_p], ca.vertcat(th_ol, w_r_next, P["if_i"], 0))
-                x_in_next = ca.if_else(reseed, seed, x_in_next)
-            x_if = ca.vertcat(
-                th_next, w_next, d_next, t_next, w_obs, dw_next, theta_obs, w_lag_next, mode_next
-            )
-            cand = (ca.vertcat(x_in_next, x_if), ca.vertcat(*y_out, *y_if))
-            x_coast = ca.vertcat(
-                x[:n_x], wrap_angle(th + w_r * T_s), w_r, d_lp, t_on, w_prev, dw, th_prev, w_lag, mode
-            )
-            coast = (x_coast, ca.vertcat(*y_out, *y_if))
-            reset = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 0, 0, 0, 0, 1, 0)
-            # the wrapped step's own verdict counts: its sample rejected, the wrapper coasts too
-            ok = y_in[len(obs.outputs) - 2] > 0.5
-            return guarded(x, p, state, params, cand=cand, coast=coast, reset=reset, ok=ok)
+    def steady_state(x_in: Sym, p: Sym, op: Sym) -> Sym:
+        w_on = p[n_p + 2]
+        mode = ca.if_else(ca.fabs(op[1]) >= w_on, 0, 1)  # running above w_on: the observer
+        w0 = op[1]  # in open loop below w_on: the frame turning with the rotor, parked on it
+        prev = wrap_angle(op[0] - op[1] * p[i_ts])
+        # the previous angle one period back at the speed: no lag in the steady state
+        return ca.vertcat(x_in[:-1], x_in[-1], op[0], w0, 0, 0, op[1], 0, prev, 0, mode, 0)
 
-        return core_function(f"{obs.name}_if_{disc}", step, state, meas, params, obs.lam)
-
-    def initial() -> ca.Function:
-        p = ca.SX.sym("p", len(params))
-        x0 = ca.vertcat(obs.initial_state()(p[:n_p]), 0, 0, 0, 0, 0, 0, 0, 0, 1, 0)  # at rest, open loop
-        return ca.Function(f"{obs.name}_if_init", [p], [x0], ["p"], ["x0"])
-
-    steady = None
-    if obs.steady_state is not None:
-
-        def steady_fn() -> ca.Function:
-            p, op = ca.SX.sym("p", len(params)), ca.SX.sym("op", 4)
-            x_in = obs.steady_state()(p[:n_p], op)
-            w_on = p[n_p + 2]
-            mode = ca.if_else(ca.fabs(op[1]) >= w_on, 0, 1)  # running above w_on: the observer
-            w0 = op[1]  # in open loop below w_on: the frame turning with the rotor, parked on it
-            prev = wrap_angle(op[0] - op[1] * p[[f.name for f in obs.params].index("T_s")])
-            return ca.Function(
-                f"{obs.name}_if_steady",
-                [p, op],
-                # the previous angle one period back at the speed: no lag in the steady state
-                [ca.vertcat(x_in[:-1], x_in[-1], op[0], w0, 0, 0, op[1], 0, prev, 0, mode, 0)],
-            )
-
-        steady = steady_fn
-    return RuntimeObserver(
-        name=f"{obs.name}_if",
-        title=f"{obs.title}, with the open-loop I-f start and handover",
+    return wrap_observer(
+        obs,
+        suffix="if",
+        title="with the open-loop I-f start and handover",
         state=state,
         meas=meas,
         params=params,
         outputs=outputs,
-        lam=obs.lam,
-        schedule_state=obs.schedule_state,
-        core=make,
-        initial_state=initial,
-        discretizations=obs.discretizations,
-        steady_state=steady,
-        doc_init=f"{obs.doc_init}; the I-f start in open loop at rest",
-        doc_in=f"{obs.doc_in}; the speed command",
-        doc_out=f"{obs.doc_out}; the start-up mode and its current command",
+        step=step,
+        initial=lambda x0: ca.vertcat(x0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 0),  # at rest, open loop
+        steady=steady_state,
+        doc_init="the I-f start in open loop at rest",
+        doc_in="the speed command",
+        doc_out="the start-up mode and its current command",
     )

@@ -9,17 +9,12 @@ matrices come from one batched numpy call.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
 from sensorless.design.ipmsm_adaptive.operating_point import (
-    PARAM_NAMES,
-    analysis_symbols,
-    coupled_system,
     loop_parameters,
     rotor_frame_loop,
 )
@@ -28,40 +23,12 @@ from sensorless.design.noise import noise_rms
 from sensorless.design.poles import eigvals_batched, sort_poles
 from sensorless.design.rotor_frame import disturbance_function, equilibrium_points, pmsm_steady_current
 from sensorless.symbolic.ipmsm_adaptive.gains import GainLaw, get_law
-from sensorless.symbolic.ipmsm_adaptive.observer import error_term
 
 if TYPE_CHECKING:  # python-control imports scipy.signal and matplotlib (~3 s): only where used
     import control
     from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
 
 STATE_NAMES = ("psi_hat_d", "psi_hat_q", "theta_tilde", "w_i", "x_eps")
-
-
-@functools.cache
-def paper_open_loop_function(law: str | GainLaw) -> ca.Function:
-    """Open adaptation loop (12) in the paper's error coordinates (i_tilde, theta_tilde).
-
-    Outputs A (3x3) = [[A1, A2], [0, 0]] and B (3x1) = [B1; 1] of eq. (11)-(12) with the speed error
-    w_m - w_hat as input, and C = [C1, 0] of (12) with F_eps as output; obtained by differentiating
-    the coupled system with the speed estimate imposed, then changing coordinates x -> z(x) with the
-    Jacobian M = dz/dx. The imposed speed is the closed loop's own w_hat(x0), so this holds at any
-    equilibrium.
-    """
-    s = analysis_symbols(law, False)
-    x = s["x"]
-    w_hat_in = ca.SX.sym("w_hat_in")
-    ol, _ = coupled_system(law, False, s, w_hat_override=w_hat_in)
-    cl, _ = coupled_system(law, False, s)
-    xo, fo, zo = x[0:3], ol.x_dot[0:3], ol.z[0:3]
-    M = ca.jacobian(zo, xo)
-    A = ca.mtimes([M, ca.jacobian(fo, xo), ca.inv(M)])
-    B = -M @ ca.jacobian(fo, w_hat_in)  # input: speed error w_m - w_hat
-    B_wm = M @ ca.jacobian(fo, s["w_m"])  # the same input seen through w_m (must equal B)
-    F_eps = error_term(ol.i_tilde, s["estimate"][2])  # eq. (8)
-    C = ca.jacobian(F_eps, xo) @ ca.inv(M)
-    outs = [ca.substitute(e, w_hat_in, cl.w_hat) for e in (A, B, B_wm, C)]
-    names = ["x", *PARAM_NAMES]
-    return ca.Function(f"paper_open_loop_{law}", [s[k] for k in names], outs, names, ["A", "B", "B_wm", "C"])
 
 
 def gain_parameters(

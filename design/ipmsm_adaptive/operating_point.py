@@ -88,7 +88,9 @@ def residual_function(law: str | GainLaw, injection: bool) -> ca.Function:
     return ca.Function("residual", [s[k] for k in names], [cl.x_dot], names, ["x_dot"])
 
 
-@functools.cache
+# kept on disk (design/memo.py): the coupled system's graph costs each process ~0.05 s per loop, and
+# the Functions design/rotor_frame.py builds from a loop are kept by its content
+@kept_function
 def rotor_frame_loop(law: str | GainLaw, injection: bool) -> RotorFrameLoop:
     """The coupled system as a :class:`RotorFrameLoop` (design/rotor_frame.py): its state is already in
     the (estimated) rotor frame; ``plant`` = [motor, p], ``p`` = [estimate, gain, alpha_fo, inj]

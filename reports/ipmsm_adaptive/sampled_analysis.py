@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import io
 import math
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
@@ -31,6 +30,7 @@ from sensorless.reports.document import Figure, Paragraph, Section, Table, f, nu
 from sensorless.reports.family import Option
 from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.options import UsageError
+from sensorless.reports.pole_map import pole_table
 from sensorless.reports.svg_render import svg_later
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
@@ -110,26 +110,21 @@ NO_POLES = "not finite here: no steady state found or the sampled observer overf
 
 def discrete_csv(a: DiscretePoleSweep, w_base: float) -> str:
     """CSV text: per operating point the continuous and discrete poles, steady errors, feedthrough."""
-    n = a.poles.shape[1]
-    head = ["w_m_pu", "w_m_rad_s", "T_e_Nm"]
-    for prefix in ("pole", "dpole"):
-        for k in range(n):
-            head += [f"{prefix}{k}_re_1_s", f"{prefix}{k}_im_1_s"]
-    head += ["err_theta_deg", "err_w_rad_s", "dw_hat_du_d_rad_s_V", "dw_hat_du_q_rad_s_V", "memory_abs_z"]
-    head += [REASON]
-    buf = io.StringIO()
-    buf.write(
-        f"# gain law: {a.law.name}; discretization: {a.discretization}; T_s {a.T_s:.10g} s; "
-        f"speed base {w_base:.10g} rad/s (electrical); pole = continuous, dpole = ln(z)/T_s\n"
+    return pole_table(
+        a,
+        w_base,
+        {"pole": a.poles, "dpole": a.poles_discrete},
+        notes=(f"gain law: {a.law.name}", f"discretization: {a.discretization}", f"T_s {a.T_s:.10g} s"),
+        legend="pole = continuous, dpole = ln(z)/T_s",
+        after={
+            "err_theta_deg": np.degrees(a.err_theta),
+            "err_w_rad_s": a.err_w,
+            "dw_hat_du_d_rad_s_V": a.feedthrough[:, 0],
+            "dw_hat_du_q_rad_s_V": a.feedthrough[:, 1],
+            "memory_abs_z": a.memory_z,
+        },
+        why=NO_POLES,
     )
-    buf.write(",".join(head) + "\n")
-    for j in range(a.w.size):
-        row = [a.w[j] / w_base, a.w[j], a.torque[j]]
-        for p in (*a.poles[j], *a.poles_discrete[j]):
-            row += [p.real, p.imag]
-        row += [np.degrees(a.err_theta[j]), a.err_w[j], *a.feedthrough[j], a.memory_z[j]]
-        buf.write(csv_row(row, NO_POLES) + "\n")
-    return buf.getvalue()
 
 
 def analyze_output(drive: IpmsmDrive, sweeps: list[tuple[str, float, Any, Any]], out: Any) -> None:

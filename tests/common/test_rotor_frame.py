@@ -8,6 +8,7 @@ checks the convergence flag. A loop whose equilibrium angle is atan(a) (every at
 is continued from a = 0 along the branch Newton's method from 0 leaves (a fold, asin(a) past a = 1, is
 NaN). And the PMSM steady state against hand formulas: i_d = 0 on a
 non-salient motor, T = 1.5 p (psi_pm i_q - (L_q - L_d) i_d i_q) on a salient one, and u = R i + w J psi.
+The Functions built from a loop are kept by its content: a second declaration reads them back from disk.
 """
 
 from __future__ import annotations
@@ -172,3 +173,36 @@ def test_gains_from_a_section_and_from_tables_with_one_line_errors():
         with pytest.raises(GainTableError) as e:
             table_gains(fam, drive, table, "t.json")
         assert str(e.value).startswith("t.json: ") and words in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_loops_functions_are_kept_by_its_content(tmp_path, monkeypatch):
+    """Two declarations of one loop (as two processes make them: equal content, other objects) share
+    the Functions built from it: the second reads the first's back from disk, the same evaluations to
+    the bit and the same C; a loop of other content gets its own."""
+    from sensorless.design.rotor_frame import point_function
+
+    monkeypatch.setenv("SENSORLESS_CACHE", str(tmp_path))
+    monkeypatch.delenv("SENSORLESS_NO_DISK_MEMO", raising=False)
+
+    def rotating(x, w, T, k, a):
+        return ca.vertcat(-a * x[0] + w * x[1] + k * T, -w * x[0] - a * x[1])
+
+    first, second = _loop(rotating), _loop(rotating)
+    point_function.__wrapped__.cache_clear()  # not the one an earlier test built in this process
+    built = point_function(first)
+    point_function.__wrapped__.cache_clear()  # the in-process memo emptied: "the next process"
+    read = point_function(second)
+    assert point_function.__wrapped__.cache_info() == (1, 0)  # read back from disk, not built
+    assert read is not built and read.name_out() == built.name_out()
+    assert len(list((tmp_path / "memo").glob("point_function-*.pickle"))) == 1
+    args = ([0.3, -1.1], 5.0, 2.0, 2.0, 10.0)
+    assert all(
+        np.array_equal(np.asarray(r), np.asarray(b)) for r, b in zip(read(*args), built(*args), strict=True)
+    )
+    gen = [ca.CodeGenerator("f.c") for _ in range(2)]
+    gen[0].add(built)
+    gen[1].add(read)
+    assert gen[0].dump() == gen[1].dump()
+    other = point_function(_loop(lambda x, w, T, k, a: ca.vertcat(-a * x[0] + k * T, -a * x[1])))
+    assert len(list((tmp_path / "memo").glob("point_function-*.pickle"))) == 2
+    assert not np.array_equal(np.asarray(other(*args)[0]), np.asarray(built(*args)[0]))

@@ -243,7 +243,7 @@ def test_a_handover_capped_at_the_rated_speed_says_why_and_no_handover_above_it_
 
     def ls(w, why):
         return SimpleNamespace(
-            w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4, ramp=0.0
+            w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4, ramped=False
         )
 
     assert handover_reason(ls(0.6, "decay")).startswith(f"{HANDOVER_CAPPED} (1 p.u.)")
@@ -284,7 +284,7 @@ def test_a_handover_the_drive_file_fixes_is_never_said_to_be_at_1_pu(tmp_path):
 
     def ls(w, why):
         return SimpleNamespace(
-            w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4, ramp=0.0
+            w_min_rated=w * 100.0, w_base=100.0, rated_limited_by=why, acceleration=1e4, ramped=False
         )
 
     fast = handover_reason(ls(1.0, "acceleration"), 30.0)

@@ -1,12 +1,47 @@
 """Automatic linearization vs the paper's closed form (11)-(15), written out independently here."""
 
 import dataclasses
+import functools
 
+import casadi as ca
 import numpy as np
 import pytest
 from helpers.closed_form_ipmsm import mtpa_reference, paper_gain, paper_matrices
-from sensorless.design.ipmsm_adaptive.linearize import drive_arguments, linearize, paper_open_loop_function
-from sensorless.design.ipmsm_adaptive.operating_point import PARAM_NAMES, nominal_equilibrium_function
+from sensorless.design.ipmsm_adaptive.linearize import drive_arguments, linearize
+from sensorless.design.ipmsm_adaptive.operating_point import (
+    PARAM_NAMES,
+    analysis_symbols,
+    coupled_system,
+    nominal_equilibrium_function,
+)
+from sensorless.symbolic.ipmsm_adaptive.observer import error_term
+
+
+@functools.cache
+def paper_open_loop_function(law: str) -> ca.Function:
+    """Open adaptation loop (12) in the paper's error coordinates (i_tilde, theta_tilde).
+
+    Outputs A (3x3) = [[A1, A2], [0, 0]] and B (3x1) = [B1; 1] of eq. (11)-(12) with the speed error
+    w_m - w_hat as input, and C = [C1, 0] of (12) with F_eps as output; obtained by differentiating
+    the coupled system with the speed estimate imposed, then changing coordinates x -> z(x) with the
+    Jacobian M = dz/dx. The imposed speed is the closed loop's own w_hat(x0), so this holds at any
+    equilibrium.
+    """
+    s = analysis_symbols(law, False)
+    x = s["x"]
+    w_hat_in = ca.SX.sym("w_hat_in")
+    ol, _ = coupled_system(law, False, s, w_hat_override=w_hat_in)
+    cl, _ = coupled_system(law, False, s)
+    xo, fo, zo = x[0:3], ol.x_dot[0:3], ol.z[0:3]
+    M = ca.jacobian(zo, xo)
+    A = ca.mtimes([M, ca.jacobian(fo, xo), ca.inv(M)])
+    B = -M @ ca.jacobian(fo, w_hat_in)  # input: speed error w_m - w_hat
+    B_wm = M @ ca.jacobian(fo, s["w_m"])  # the same input seen through w_m (must equal B)
+    F_eps = error_term(ol.i_tilde, s["estimate"][2])  # eq. (8)
+    C = ca.jacobian(F_eps, xo) @ ca.inv(M)
+    outs = [ca.substitute(e, w_hat_in, cl.w_hat) for e in (A, B, B_wm, C)]
+    names = ["x", *PARAM_NAMES]
+    return ca.Function(f"paper_open_loop_{law}", [s[k] for k in names], outs, names, ["A", "B", "B_wm", "C"])
 
 
 def random_cases(drive, n, rng):
