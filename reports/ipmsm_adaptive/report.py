@@ -361,13 +361,31 @@ def judgement(
     inj = pm.get(f"{label} + injection", {})
     rhp = {k: v["rhp_bands_pu"] for k, v in pm[label].items()}
     rhp_inj = {k: v["rhp_bands_pu"] for k, v in inj.items()}
-    reasons = []
+    reasons, notes = [], []
+    # w_Delta [p.u.]: the speed below which the drive injects (unknown: the injection's whole analysis
+    # decides)
+    w_delta = coupling[4] if len(coupling) >= 5 else float("inf")
     if any(rhp.values()):
         edge = max(abs(b) for bands in rhp.values() for band in bands for b in band)
-        if not any(rhp_inj.values()):
+        if not inj:  # the drive does not inject: nothing holds the observer there
             reasons.append(
-                f"RHP real pole below {edge:.3g} p.u. (rotor saliency, Section IV-B): "
-                "needs HF injection there; with the injection the linearized loop is stable."
+                f"RHP real pole below {edge:.3g} p.u. (rotor saliency, Section IV-B) and no HF injection "
+                "([injection] u_c = 0): the observer alone cannot hold sustained operation there; the HF "
+                "injection of Section V (19)-(22) stabilizes it, or the drive must not dwell below it."
+            )
+        elif not any(rhp_inj.values()) and edge <= w_delta:
+            # the drive that runs injects there (Section V: "the low-speed operation can be stabilized by
+            # augmenting the adaptive observer with an HF signal injection"): judged with the injection
+            notes.append(
+                f"The observer alone has a real RHP pole below {edge:.3g} p.u. (rotor saliency, Section "
+                f"IV-B); the drive injects there (|ω| < ω_Δ = {w_delta:.3g} p.u.), and the loop that runs, "
+                "the observer with the averaged HF injection (19)-(22), has no RHP pole at any analysed "
+                "speed: the verdict judges that loop (Section V)."
+            )
+        elif not any(rhp_inj.values()):
+            reasons.append(
+                f"RHP real pole below {edge:.3g} p.u. (rotor saliency, Section IV-B), above the injection's "
+                f"fade-out ω_Δ = {w_delta:.3g} p.u.: the observer alone runs there."
             )
         elif _regenerating_only(rhp_inj):
             a = min(abs(b) for bands in rhp_inj.values() for band in bands for b in band)
@@ -400,6 +418,7 @@ def judgement(
         "min_damping": min_damping,
         "envelope": envelope,
         "reasons": reasons,
+        "notes": notes,
         "rhp_bands_pu": rhp,
         "rhp_bands_pu_injection": rhp_inj,
     }
@@ -468,7 +487,7 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
         f"p.u. ({x['points']} grid points)"
         for x in v["findings"]
     )
-    return verdict_box(v["status"], summary, v["reasons"], v["limitations"], findings)
+    return verdict_box(v["status"], summary, v["reasons"], [*v.get("notes", ()), *v["limitations"]], findings)
 
 
 STEPS = 6  # the progress steps of the analysis (AdaptiveJudge.analyse)
