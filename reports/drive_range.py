@@ -19,7 +19,6 @@ observer-only judges read the damping), else ``pass``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from sensorless.design.capabilities import Linearizable, Scaled, require
@@ -101,7 +100,7 @@ class RangeJudgement:
 
     status: str
     findings: list[Finding] = field(default_factory=list)
-    data: dict[str, Any] = field(default_factory=dict)
+    data: dict[str, object] = field(default_factory=dict)
 
 
 def judge(drive: Drive, gains: GainSet, min_damping: float) -> RangeJudgement:
@@ -120,7 +119,7 @@ def judge(drive: Drive, gains: GainSet, min_damping: float) -> RangeJudgement:
     wb, T_N = drive.w_base, require(family_of(drive), Scaled).scales(drive).T_N
     at = lambda k: f"w = {w[k] / wb:+.3g} p.u., T = {t[k]:+.4g} N m ({t[k] / T_N:+.3g} T_N)"  # noqa: E731
     k_worst = int(np.nanargmin(np.where(stable, wd, np.inf))) if stable.any() else 0
-    data: dict[str, Any] = {
+    data: dict[str, object] = {
         "what": "the drive's real range, as `sensorless tune` proves it (reports/drive_range.py): speeds "
         f"+-[{SPEED_MIN:g}, 1] p.u. x torques {{-T_max, -T_N, 0, T_N, T_max}}; the whole sampled drive "
         "within the torque limit, the observer alone at +-T_max (the speed loop saturated)",

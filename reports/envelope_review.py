@@ -406,7 +406,7 @@ def report_with(judge: Judge[DriveT]) -> Callable[..., Report]:
         limits = time_domain.limitations(drive)
         v = judge.verdict(drive, rev, found, Checks(runs, td), min_damping)
         status, td_findings = settle(v.status, td)
-        ranged: dict[str, Any] = {}
+        ranged: dict[str, object] = {}
         if judge.drive_range:  # the range tune proves on, judged by the same rule (reports/drive_range.py)
             rj = drive_range.judge(drive, rev.gains, min_damping)
             status = time_domain.worst_status(status, rj.status)
