@@ -118,15 +118,18 @@ def judge(drive: Drive, gains: GainSet, min_damping: float) -> RangeJudgement:
         damped = stable & (wd >= min_damping)
     wb, T_N = drive.w_base, require(family_of(drive), Scaled).scales(drive).T_N
     at = lambda k: f"w = {w[k] / wb:+.3g} p.u., T = {t[k]:+.4g} N m ({t[k] / T_N:+.3g} T_N)"  # noqa: E731
-    k_worst = int(np.nanargmin(np.where(stable, wd, np.inf))) if stable.any() else 0
+    # the worst damping as the proof prints it (over every point with an equilibrium, unstable ones too)
+    found = np.isfinite(wd)
+    k_all = int(np.nanargmin(np.where(found, wd, np.inf))) if found.any() else 0
+    k_worst = int(np.nanargmin(np.where(stable, wd, np.inf))) if stable.any() else 0  # of the stable ones
     data: dict[str, object] = {
         "what": "the drive's real range, as `sensorless tune` proves it (reports/drive_range.py): speeds "
         f"+-[{SPEED_MIN:g}, 1] p.u. x torques {{-T_max, -T_N, 0, T_N, T_max}}; the whole sampled drive "
         "within the torque limit, the observer alone at +-T_max (the speed loop saturated)",
         "points": int(w.size),
         "stable_points": int(stable.sum()),
-        "worst_damping": float(wd[k_worst]) if stable.any() else None,
-        "worst_at": {"w_pu": float(w[k_worst] / wb), "T_Nm": float(t[k_worst])} if stable.any() else None,
+        "worst_damping": float(wd[k_all]) if found.any() else None,
+        "worst_at": {"w_pu": float(w[k_all] / wb), "T_Nm": float(t[k_all])} if found.any() else None,
         "min_damping": min_damping,
     }
     findings: list[Finding] = []

@@ -32,6 +32,7 @@ def test_the_verdict_over_the_range_is_the_tune_proofs(gimbal):
         j = drive_range.judge(gimbal, g, 0.2)
         assert j.status == status and j.data["points"] == proof.w.size == 200
         assert j.data["stable_points"] == int(proof.stable().sum())
+        assert j.data["worst_damping"] == proof.worst_damping  # the number tune's proof line prints
         assert np.abs(proof.torque).max() == pytest.approx(gimbal.control.T_max)  # +-T_max is in it
         causes = [c for x in j.findings for c in x["causes"]]
         assert ("rhp_band" in causes) == (status == "fail")
