@@ -468,16 +468,16 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
     frm = env["abs_speed_pu_from"]
     if frm is not None:
         summary = Paragraph(
-            f"Gains {v['gains']}: stable with damping ≥ {v['min_damping']:g} for |ω| ≥ {frm:.3g} p.u. "
-            "at all "
-            f"analysed torques (±1.5 T_N); {100 * env['fraction_ok']:.1f} % of the speed × torque grid "
-            "meets it.",
+            f"Gains {v['gains']}, the observer alone (eq. (15) linearized): stable with damping ≥ "
+            f"{v['min_damping']:g} for |ω| ≥ {frm:.3g} p.u. at all analysed torques (±1.5 T_N); "
+            f"{100 * env['fraction_ok']:.1f} % of the speed × torque grid meets it"
+            + ("." if v["status"] == "pass" else " (the verdict's other findings: below)."),
             "ok" if v["status"] == "pass" else "",
         )
     else:
         summary = Paragraph(
-            f"Gains {v['gains']}: the required damping {v['min_damping']:g} is not met at high speed "
-            "for some torque.",
+            f"Gains {v['gains']}, the observer alone (eq. (15) linearized): the required damping "
+            f"{v['min_damping']:g} is not met at high speed for some torque.",
             "bad",
         )
     findings = tuple(
