@@ -309,10 +309,10 @@ class Judging(Generic[EnvelopedT]):
         return builtin_names(drive.kind) if self.time_domain is None else self.time_domain
 
     # False: the verdict leaves the range out (the family's tune still proves its tables on it). The
-    # families left out: the whole-drive analysis over +-T_max finds no equilibrium at 54 of the 200 points
-    # on the reduced-order preset (|w| >= 0.6 p.u. within the torque limit) and poles at up to +23 1/s at
-    # 118 on the flux observer's hub-motor preset, whose time-domain checks pass: to be understood before
-    # a verdict rests on it
+    # families left out for now (docs/tuning.md "The proof before writing"): on the reduced-order preset
+    # the whole-drive analysis finds no equilibrium at 54 of the 200 points (|w| >= 0.6 p.u.); on the flux
+    # observer's hub-motor preset poles up to +22 1/s at 118 (a 12-Hz speed-loop limit cycle, simulated,
+    # which its torque-step checks do not close): their presets' verdicts would change with it
     drive_range: bool = False
 
     def conclude(
