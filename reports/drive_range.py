@@ -8,7 +8,13 @@ regenerating at the torque limit the speed loop reaches in every acceleration (d
 drive_analysis.py: observer, current PI in the estimated frame, speed PI on the estimate, delay,
 mechanics) where the family has a drive loop and the speed loop is within its torque limit, the
 family's observer linearization (``ObserverFamily.linearize``) at the saturated loads +-T_max and for a
-family without a drive loop.
+family without a drive loop. The whole-drive loop leaves out what has no fixed point in it (a low-speed
+mechanism of the family's own, e.g. an HF injection: the loop's note, design/drive_analysis.py), so
+inside that mechanism's band the range is judged without it. Judged there instead by the observer with
+the family's ``low_speed_options`` (measured, not kept): the test traction motor's tuned gains turned
+unstable at 6 points where the file's are stable (regenerating, the injection's coupling band), and
+poles at 0 ... +0.003 1/s appeared at the band's edge, where the injection's correction fades out:
+both to be settled before the range is judged that way.
 
 :func:`judge` reads it as a check with the one verdict rule (reports/time_domain.py ``status_with``): a
 point without a stable equilibrium makes it ``fail`` (cause ``rhp_band``, reports/causes.py, naming the
