@@ -602,7 +602,12 @@ def check_status(c: Status) -> str:
 def status_with(status: str, td: Sequence[Check]) -> str:
     """A verdict's status with the checks (one rule): any failed check makes it "fail", a check not
     tested sensorless at best "warn"."""
-    return max([status, *(check_status(c) for c in td)], key=STATUS_ORDER.index)
+    return worst_status(status, *(check_status(c) for c in td))
+
+
+def worst_status(*statuses: str) -> str:
+    """The worst of verdict statuses (STATUS_ORDER)."""
+    return max(statuses, key=STATUS_ORDER.index)
 
 
 def section(number: int, td: Sequence[Check], figs: list[Figure], left_out: Sequence[str] = ()) -> Section:

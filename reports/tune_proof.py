@@ -4,12 +4,11 @@ against the drive file's own gains.
 Tuned gains that run worse than the drive file's are a bug, so before a table is written as "tuned"
 its gains go through the checks a report holds them to, and the drive file's gains through the same:
 
-- the **linear analysis** over the drive's real range: speeds +-[0.05, 1] p.u. (both directions) x
-  torques {-T_max, -T_N, 0, T_N, T_max} (motoring and regenerating at the torque limit the speed loop
-  reaches in every acceleration; design/family.py ``DriveScales``). Which analysis is a step of its
-  own (:data:`Analysis`): the whole sampled drive where the family has a drive loop, the family's
-  observer linearization (``ObserverFamily.linearize``) at the saturated loads and without one
-  (:func:`drive_analysis`);
+- the **linear analysis** over the drive's real range (reports/drive_range.py, the range and analysis
+  ``sensorless report`` judges the gains under review on too): speeds +-[0.05, 1] p.u. (both
+  directions) x torques {-T_max, -T_N, 0, T_N, T_max} (motoring and regenerating at the torque limit
+  the speed loop reaches in every acceleration), the whole sampled drive where the family has a drive
+  loop, the family's observer linearization at the saturated loads and without one (:data:`ANALYSIS`);
 - the **time-domain checks** of ``sensorless report`` (reports/time_domain.py: a preset's paper
   scenarios, else the generic ones scaled to the drive), each simulated and judged by the same limits.
 
@@ -28,83 +27,26 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from sensorless.design.capabilities import Linearizable, Scaled, require
-from sensorless.design.family import CapabilityError, Drive, GainSet
+from sensorless.design.capabilities import Scaled
+from sensorless.design.family import Drive, GainSet
 from sensorless.design.linearization import Linearization
 from sensorless.design.registry import family_of
 from sensorless.design.scenario import Scenario, builtin_names
 from sensorless.design.simulate import simulated
 from sensorless.reports import time_domain
 from sensorless.reports.causes import START_CAUSES, classify_all
+from sensorless.reports.drive_range import (  # the range and its analysis, shared with the report
+    Combined,
+    drive_analysis,
+    envelope,
+    observer_analysis,
+)
 
 # (drive, gains, w [rad/s electrical], torque [N m]) -> the figures (a Linearization, design/linearization.py)
 Analysis = Callable[[Drive, GainSet, np.ndarray, np.ndarray], "Linearization | Combined"]
-ANALYSIS: Analysis  # the analysis ``sensorless tune`` proves with (set below: drive_analysis)
-SPEEDS = 20  # per direction, from SPEED_MIN to 1 p.u.
-SPEED_MIN = 0.05  # p.u.
-
-
-def observer_analysis(drive: Drive, gains: GainSet, w: np.ndarray, torque: np.ndarray) -> Linearization:
-    """The family's observer linearization (``sensorless analyze``): the default analysis."""
-    return require(family_of(drive), Linearizable).linearize(drive, gains, w, torque)
-
-
-# below the torque limit by this share: at a load of +-T_max the speed loop sits at its limit (saturated:
-# no closed-loop fixed point, Newton's result there is noise), so the observer-only analysis judges it
-SATURATED_SHARE = 0.999
-
-
-@dataclass(frozen=True)
-class Combined:
-    """The figures :func:`prove` reads, per envelope point, from two analyses."""
-
-    max_real: np.ndarray
-    worst_damping: np.ndarray
-
-
-def drive_analysis(
-    drive: Drive, gains: GainSet, w: np.ndarray, torque: np.ndarray
-) -> Linearization | Combined:
-    """The whole sampled drive (design/drive_analysis.py: observer, current PI in the estimated frame,
-    speed PI on the estimate, delay, mechanics) where the family has a drive loop and the speed loop is
-    within its torque limit; the observer-only linearization at the loads at +-T_max (the speed loop
-    saturated there: the observer runs with the torque command at the limit, its own set-up) and for a
-    family without a drive loop."""
-    from sensorless.design.drive_analysis import linearize_drive
-
-    obs = observer_analysis(drive, gains, w, torque)
-    fam = family_of(drive)
-    if not isinstance(fam, Scaled):
-        return obs
-    try:  # CapabilityError: no drive loop (design/drive_analysis.py)
-        T_max = fam.scales(drive).T_max
-        inside = np.abs(torque) < SATURATED_SHARE * T_max
-        if not inside.any():
-            return obs
-        lin = linearize_drive(drive, gains, w[inside], torque[inside])
-    except CapabilityError:
-        return obs
-    mr = np.array(obs.max_real, float, copy=True)
-    wd = np.array(obs.worst_damping, float, copy=True)
-    mr[inside], wd[inside] = lin.max_real, lin.worst_damping
-    return Combined(mr, wd)
-
-
-ANALYSIS = drive_analysis
-
-
-def envelope(drive: Drive) -> tuple[np.ndarray, np.ndarray] | None:
-    """(w [rad/s], torque [N m]) of the drive's real range (module docstring); None for a family
-    without scales (then the linear part of the proof is skipped and said so)."""
-    fam = family_of(drive)
-    if not isinstance(fam, Scaled):
-        return None
-    sc = fam.scales(drive)
-    mag = np.linspace(SPEED_MIN, 1.0, SPEEDS) * sc.w_base
-    w = np.concatenate([-mag[::-1], mag])
-    torques = np.unique([-sc.T_max, -sc.T_N, 0.0, sc.T_N, sc.T_max])
-    W, T = np.meshgrid(w, torques)
-    return W.ravel(), T.ravel()
+# the analysis ``sensorless tune`` proves with, over the drive's range: reports/drive_range.py, the one
+# ``sensorless report`` judges the gains under review on too
+ANALYSIS: Analysis = drive_analysis
 
 
 class ProofCheck(time_domain.Status):

@@ -85,6 +85,8 @@ class AdaptiveJudge(Judging["IpmsmDrive"]):
         return Review(choices, review, table is not None, table)
 
     time_domain = TIME_DOMAIN
+    # the verdict judges the drive's range as tune proves it (reports/drive_range.py)
+    drive_range = True
 
     def analyse(
         self,
@@ -359,13 +361,31 @@ def judgement(
     inj = pm.get(f"{label} + injection", {})
     rhp = {k: v["rhp_bands_pu"] for k, v in pm[label].items()}
     rhp_inj = {k: v["rhp_bands_pu"] for k, v in inj.items()}
-    reasons = []
+    reasons, notes = [], []
+    # w_Delta [p.u.]: the speed below which the drive injects (unknown: the injection's whole analysis
+    # decides)
+    w_delta = coupling[4] if len(coupling) >= 5 else float("inf")
     if any(rhp.values()):
         edge = max(abs(b) for bands in rhp.values() for band in bands for b in band)
-        if not any(rhp_inj.values()):
+        if not inj:  # the drive does not inject: nothing holds the observer there
             reasons.append(
-                f"RHP real pole below {edge:.3g} p.u. (rotor saliency, Section IV-B): "
-                "needs HF injection there; with the injection the linearized loop is stable."
+                f"RHP real pole below {edge:.3g} p.u. (rotor saliency, Section IV-B) and no HF injection "
+                "([injection] u_c = 0): the observer alone cannot hold sustained operation there; the HF "
+                "injection of Section V (19)-(22) stabilizes it, or the drive must not dwell below it."
+            )
+        elif not any(rhp_inj.values()) and edge <= w_delta:
+            # the drive that runs injects there (Section V: "the low-speed operation can be stabilized by
+            # augmenting the adaptive observer with an HF signal injection"): judged with the injection
+            notes.append(
+                f"The observer alone has a real RHP pole below {edge:.3g} p.u. (rotor saliency, Section "
+                f"IV-B); the drive injects there (|ω| < ω_Δ = {w_delta:.3g} p.u.), and the loop that runs, "
+                "the observer with the averaged HF injection (19)-(22), has no RHP pole at any analysed "
+                "speed: the verdict judges that loop (Section V)."
+            )
+        elif not any(rhp_inj.values()):
+            reasons.append(
+                f"RHP real pole below {edge:.3g} p.u. (rotor saliency, Section IV-B), above the injection's "
+                f"fade-out ω_Δ = {w_delta:.3g} p.u.: the observer alone runs there."
             )
         elif _regenerating_only(rhp_inj):
             a = min(abs(b) for bands in rhp_inj.values() for band in bands for b in band)
@@ -398,6 +418,7 @@ def judgement(
         "min_damping": min_damping,
         "envelope": envelope,
         "reasons": reasons,
+        "notes": notes,
         "rhp_bands_pu": rhp,
         "rhp_bands_pu_injection": rhp_inj,
     }
@@ -447,16 +468,16 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
     frm = env["abs_speed_pu_from"]
     if frm is not None:
         summary = Paragraph(
-            f"Gains {v['gains']}: stable with damping ≥ {v['min_damping']:g} for |ω| ≥ {frm:.3g} p.u. "
-            "at all "
-            f"analysed torques (±1.5 T_N); {100 * env['fraction_ok']:.1f} % of the speed × torque grid "
-            "meets it.",
+            f"Gains {v['gains']}, the observer alone (eq. (15) linearized): stable with damping ≥ "
+            f"{v['min_damping']:g} for |ω| ≥ {frm:.3g} p.u. at all analysed torques (±1.5 T_N); "
+            f"{100 * env['fraction_ok']:.1f} % of the speed × torque grid meets it"
+            + ("." if v["status"] == "pass" else " (the verdict's other findings: below)."),
             "ok" if v["status"] == "pass" else "",
         )
     else:
         summary = Paragraph(
-            f"Gains {v['gains']}: the required damping {v['min_damping']:g} is not met at high speed "
-            "for some torque.",
+            f"Gains {v['gains']}, the observer alone (eq. (15) linearized): the required damping "
+            f"{v['min_damping']:g} is not met at high speed for some torque.",
             "bad",
         )
     findings = tuple(
@@ -466,7 +487,7 @@ def verdict_block(v: dict[str, Any]) -> Verdict:
         f"p.u. ({x['points']} grid points)"
         for x in v["findings"]
     )
-    return verdict_box(v["status"], summary, v["reasons"], v["limitations"], findings)
+    return verdict_box(v["status"], summary, v["reasons"], [*v.get("notes", ()), *v["limitations"]], findings)
 
 
 STEPS = 6  # the progress steps of the analysis (AdaptiveJudge.analyse)

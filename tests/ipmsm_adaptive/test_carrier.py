@@ -247,3 +247,57 @@ def test_the_low_hold_check_fails_a_speed_loop_faster_than_the_injection(tmp_pat
         if not ok:
             assert set(chk["causes"]) == {"injection_speed_loop"}
             assert "alpha_s <= 10 Hz" in chk["failures"][0]["fix"]
+
+
+def test_an_rhp_band_the_injection_holds_is_a_note_the_verdict_judges_the_injected_loop():
+    """Piippo 2008, Section V: the injection (19)-(22) stabilizes the low speeds; where the drive injects
+    (w_Delta given, the band inside it) and the injected loop has no RHP band, the drive that runs is
+    stable there: a note, not a reason (the status stays pass); without the injection analysed (a drive
+    that does not inject) the band is a reason, said without claiming an injection; a band above
+    w_Delta is a reason too."""
+    from sensorless.reports.ipmsm_adaptive.report import verdict
+
+    held = {"+300": [], "-300": []}
+    v = verdict(_verdict_data(held), "g", 0.2, (0.0122, 23.0, 73.35, 300.0, 0.0747))
+    assert v["status"] == "pass" and v["reasons"] == []
+    assert "below 0.03 p.u." in v["notes"][0] and "ω_Δ = 0.0747 p.u." in v["notes"][0]
+    v = verdict(_verdict_data(held), "g", 0.2, (0.0122, 23.0, 73.35, 300.0, 0.02))  # band above w_Delta
+    assert v["status"] == "warn" and "above the injection's fade-out" in v["reasons"][0]
+    data = _verdict_data(held)
+    del data["pole_maps"]["g + injection"]  # the drive does not inject
+    v = verdict(data, "g", 0.2)
+    assert v["status"] == "warn" and "no HF injection" in v["reasons"][0] and not v["notes"]
+
+
+def test_inside_the_observers_rhp_band_the_injected_drive_holds_the_angle_the_bare_one_drifts():
+    """The cross-check of the note above, by simulation (independent of the linearization): ind5k5
+    (docs/examples/motors, HF injection by default, the drive file's gains) has a motoring RHP band of
+    the observer alone up to ~0.033 p.u. at T_N and none with the injection; simulated sensorless at
+    0.008 p.u. under T_N, the drive with the injection holds the angle within a few degrees, without it
+    the angle error grows (about doubling every half second) past 10 deg."""
+    from sensorless.design.ipmsm_adaptive import with_alpha_fo
+    from sensorless.design.ipmsm_adaptive.linearize import unstable_speed_bands
+    from sensorless.design.ipmsm_adaptive.runtime import law_of
+    from sensorless.design.scenario import drive_units, load_scenario_text
+    from sensorless.design.simulate import simulate
+
+    d = load_drive(MOTORS / "ind5k5.toml")
+    g = registry.family_of(d).gains(d)
+    w_pu = 0.008
+    w = np.linspace(0.001, 0.05, 50) * d.w_base
+    bands = unstable_speed_bands(with_alpha_fo(d, g), w, d.T_N, gain=law_of(g), injection=False)
+    assert any(a < w_pu * d.w_base < b for a, b in bands) and max(b for _, b in bands) < d.injection.w_Delta
+    assert not unstable_speed_bands(with_alpha_fo(d, g), w, d.T_N, gain=law_of(g), injection=True)
+    err = {}
+    for inj in (True, False):
+        text = (
+            '[scenario]\nname = "hold"\ntitle = "hold in the band"\nkind = "ipmsm-adaptive"\n'
+            f'duration = "4 s"\n[observer]\ninjection = {str(inj).lower()}\n[initial]\nw_m = "{w_pu} pu"\n'
+            f'[speed_reference]\nt = [0]\nvalue = ["{w_pu} pu"]\n'
+            '[load_torque]\nt = [0, 0.5]\nvalue = ["0 Nm", "1 T_N"]\n'
+        )
+        tr = simulate(d, load_scenario_text(text, "hold", drive_units(d)))
+        err[inj] = np.abs(np.degrees(np.asarray(tr["theta_err"])))
+    at = lambda t: err[False][round(t / d.T_s) - 1]  # noqa: E731
+    assert err[True].max() < 3.0  # held (the injection's own ripple and the load step)
+    assert at(2.0) < at(3.0) < at(4.0) and at(4.0) > 10.0 and at(4.0) > 2 * at(3.0)  # grows: the RHP pole

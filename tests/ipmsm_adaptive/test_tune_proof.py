@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from sensorless.design.drive import load_drive, preset_text
 from sensorless.design.envelope import with_tuning_keys
-from sensorless.reports import tune_proof
+from sensorless.reports import drive_range, tune_proof
 from sensorless.reports.cli.main import main
 from sensorless.tuning import nlp
 from sensorless.tuning.candidates import DAMPING, margins
@@ -219,7 +219,7 @@ def test_the_proof_analyses_the_whole_drive_below_the_torque_limit_the_observer_
     w, t = tune_proof.envelope(drive)
     both = tune_proof.drive_analysis(drive, g, w, t)
     obs = tune_proof.observer_analysis(drive, g, w, t)
-    sat = np.abs(t) >= tune_proof.SATURATED_SHARE * drive.control.T_max
+    sat = np.abs(t) >= drive_range.SATURATED_SHARE * drive.control.T_max
     assert sat.any() and (~sat).any()
     np.testing.assert_array_equal(both.max_real[sat], np.asarray(obs.max_real, float)[sat])
     whole = linearize_drive(drive, g, w[~sat], t[~sat])
