@@ -25,6 +25,7 @@ import numpy as np
 from sensorless.design.envelope import Envelope
 from sensorless.design.family import Drive, PerUnitBases
 from sensorless.design.gain_table import GainTable
+from sensorless.reports.figure_layout import pin_ticks
 
 if TYPE_CHECKING:  # typed by name only
     from matplotlib.figure import Figure as MplFigure
@@ -154,6 +155,7 @@ def svg_uri(fig: MplFigure) -> str:
         # here and keeping the positions saves that draw
         engine.execute(fig)
         fig.set_layout_engine(None)
+    pin_ticks(fig)  # the same ticks from fewer artists
     fig.savefig(buf, format="svg", metadata={"Date": None})
     plt.close(fig)
     return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
