@@ -25,6 +25,7 @@ import numpy as np
 from sensorless.design.envelope import Envelope
 from sensorless.design.family import Drive, PerUnitBases
 from sensorless.design.gain_table import GainTable
+from sensorless.reports.figure_layout import pin_ticks
 
 if TYPE_CHECKING:  # typed by name only
     from matplotlib.figure import Figure as MplFigure
@@ -135,13 +136,32 @@ STYLE = {"svg.hashsalt": "sensorless", "axes.titley": 1.0}
 def pyplot() -> ModuleType:
     """``matplotlib.pyplot`` on the Agg backend with the report figures' settings (STYLE), imported on
     first use: half a second that only the commands drawing figures pay."""
+    import sys
+
     import matplotlib
 
     matplotlib.use("Agg")
+    if "matplotlib.pyplot" not in sys.modules:
+        _import_pyplot()
     import matplotlib.pyplot as plt
 
     plt.rcParams.update(STYLE)
     return plt
+
+
+def _import_pyplot() -> None:
+    """Import pyplot without the property tables matplotlib writes, as it defines each Artist class,
+    into the docstring of its ``set`` (and of the functions whose docstrings quote them): a sixth of the
+    import's CPU (~0.13 s a process) for help() text that no command shows. A process that imported
+    pyplot before has them (nothing is changed then); the docstrings say where the tables are."""
+    from matplotlib import artist
+
+    kwdoc = artist.kwdoc
+    artist.kwdoc = lambda _cls: "Properties: see the matplotlib documentation of this Artist class."
+    try:
+        import matplotlib.pyplot  # noqa: F401
+    finally:
+        artist.kwdoc = kwdoc
 
 
 def svg_uri(fig: MplFigure) -> str:
@@ -154,6 +174,7 @@ def svg_uri(fig: MplFigure) -> str:
         # here and keeping the positions saves that draw
         engine.execute(fig)
         fig.set_layout_engine(None)
+    pin_ticks(fig)  # the same ticks from fewer artists
     fig.savefig(buf, format="svg", metadata={"Date": None})
     plt.close(fig)
     return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")

@@ -40,6 +40,8 @@ def data(lin: DriveLinearization, drive: Drive) -> dict[str, Any]:
     angle error and the lag under the full acceleration."""
     a = full_acceleration(drive)
     slow = lin.slow()
+    # properties of the whole sweep, each computed over every point: once, not once per point
+    max_real, damping, lag = lin.max_real, lin.worst_damping, lin.lag(a)
     f = lambda v: None if not np.isfinite(v) else float(v)  # noqa: E731
     points = []
     for k in range(lin.w.size):
@@ -49,10 +51,10 @@ def data(lin: DriveLinearization, drive: Drive) -> dict[str, Any]:
                 "w_pu": float(lin.w[k] / drive.w_base),
                 "T_pu": float(lin.torque[k] / drive.T_N),
                 "fixed_point": bool(np.isfinite(lin.y[k]).all()),
-                "max_real_per_s": f(lin.max_real[k]),
-                "worst_damping": f(lin.worst_damping[k]),
+                "max_real_per_s": f(max_real[k]),
+                "worst_damping": f(damping[k]),
                 "theta_err_deg": f(np.degrees(lin.theta_err[k])),
-                "lag_at_a_max_deg": f(np.degrees(lin.lag(a)[k])),
+                "lag_at_a_max_deg": f(np.degrees(lag[k])),
                 "slow_poles": [[float(p.real), float(p.imag)] for p in s if p.imag >= 0],
             }
         )
@@ -77,9 +79,10 @@ def csv(lin: DriveLinearization, drive: Drive) -> str:
     buf.write(f"; {lin.note}\n" if lin.note else "\n")
     buf.write(",".join(head) + "\n")
     g = lambda v: "nan" if not np.isfinite(v) else f"{v:.10g}"  # noqa: E731
+    max_real, damping, lag = lin.max_real, lin.worst_damping, lin.lag(a)  # once, not once per row
     for k in range(lin.w.size):
-        row = [lin.w[k] / drive.w_base, lin.torque[k] / drive.T_N, lin.max_real[k], lin.worst_damping[k]]
-        row += [np.degrees(lin.theta_err[k]), np.degrees(lin.lag(a)[k])]
+        row = [lin.w[k] / drive.w_base, lin.torque[k] / drive.T_N, max_real[k], damping[k]]
+        row += [np.degrees(lin.theta_err[k]), np.degrees(lag[k])]
         for p in lin.poles[k]:
             row += [p.real, p.imag]
         buf.write(",".join(g(v) for v in row) + "\n")
@@ -151,7 +154,8 @@ def section(
     )
     rows = []
     w, T = lin.w / drive.w_base, lin.torque / drive.T_N
-    a = full_acceleration(drive)
+    # each a computation over every point (properties of the sweep): once, not once per row
+    max_real, damping, lag = lin.max_real, lin.worst_damping, lin.lag(full_acceleration(drive))
     for t in TORQUES:
         sel = np.flatnonzero(np.isclose(T, t) & (w > 0))
         for k in sel[:: max(1, sel.size // 5)]:
@@ -159,10 +163,10 @@ def section(
                 (
                     num(T[k], 3),
                     num(w[k], 3),
-                    num(lin.max_real[k], 4),
-                    num(lin.worst_damping[k], 3),
+                    num(max_real[k], 4),
+                    num(damping[k], 3),
                     num(np.degrees(lin.theta_err[k]), 3),
-                    num(np.degrees(lin.lag(a)[k]), 3),
+                    num(np.degrees(lag[k]), 3),
                 )
             )
     head = (

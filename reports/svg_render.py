@@ -141,10 +141,12 @@ def _made(fig: Figure | Callable[[], Figure]) -> Figure:
 @functools.cache
 def _shared_before_fork() -> None:
     """Import and build here, once, what every child would otherwise import or build for itself, and
-    the children inherit: pyplot with the report's settings (document.py ``pyplot``) and matplotlib's
-    mathtext grammar (a class attribute, ~0.1 s CPU; the trace figures' labels are mathtext)."""
+    the children inherit: pyplot with the report's settings (document.py ``pyplot``), its SVG backend
+    and matplotlib's mathtext grammar (a class attribute, ~0.1 s CPU; the trace figures' labels are
+    mathtext)."""
     pyplot()
     from matplotlib import mathtext
+    from matplotlib.backends import backend_svg  # noqa: F401  (every figure is saved through it)
 
     mathtext.MathTextParser("path").parse("$x$")
 

@@ -1,10 +1,13 @@
 """reports/figure_layout.py: the fixed layout leaves every decoration inside the figure, apart from the
-others, and each axis label outside its tick labels, as matplotlib itself measures them after a draw."""
+others, and each axis label outside its tick labels, as matplotlib itself measures them after a draw;
+pinned ticks draw the very SVG matplotlib's own locators and formatters draw."""
+
+import io
 
 import numpy as np
 import pytest
 from sensorless.reports.document import pyplot
-from sensorless.reports.figure_layout import Bar, lay_out
+from sensorless.reports.figure_layout import Bar, lay_out, pin_ticks
 
 TOL = 1.0  # [px] rounding of text extents
 
@@ -79,3 +82,32 @@ def test_stacked_panels_sharing_the_time_axis_and_a_log_axis(plt):
     lay_out(fig, axes[:, None], title="traces", title_size=9, gap=0.15)
     _check(fig)
     plt.close(fig)
+
+
+def _stack(plt, pin):
+    """Panels sharing x, an offset text, a log axis with minor ticks and labels, a colorbar: saved as
+    SVG, with or without the ticks pinned; and the number of tick artists made."""
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(6.4, 6.5))
+    t = np.linspace(0.013, 2.07, 50)
+    axes[0].plot(t, 1e5 + 3 * np.sin(t), label=r"$\hat\omega$")  # offset text "+1e5"
+    axes[0].legend()
+    axes[1].semilogy(t, np.exp(3 * t))  # minor ticks with labels inside one decade's span
+    sc = axes[2].scatter(t, -t, c=t)
+    axes[2].set_xlim(0.013, 2.07)
+    fig.colorbar(sc, ax=axes[2], label="c")
+    axes[-1].set_xlabel("time (s)")
+    fig.set_layout_engine(None)
+    if pin:
+        pin_ticks(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="svg", metadata={"Date": None})
+    ticks = sum(len(a.majorTicks) + len(a.minorTicks) for ax in fig.axes for a in (ax.xaxis, ax.yaxis))
+    plt.close(fig)
+    return buf.getvalue(), ticks
+
+
+def test_pinned_ticks_draw_the_same_svg_from_fewer_ticks(plt):
+    (free, n_free), (pinned, n_pinned) = _stack(plt, False), _stack(plt, True)
+    assert b"xtick_1" in free and b"ytick" in free
+    assert pinned == free
+    assert n_pinned < n_free  # those outside the view are never made
