@@ -156,7 +156,11 @@ def _import_pyplot() -> None:
     pyplot before has them (nothing is changed then); the docstrings say where the tables are."""
     from matplotlib import artist
 
-    kwdoc = artist.kwdoc
+    kwdoc = getattr(artist, "kwdoc", None)
+    if kwdoc is None:  # a matplotlib without the hook: import it as it comes
+        import matplotlib.pyplot
+
+        return
     artist.kwdoc = lambda _cls: "Properties: see the matplotlib documentation of this Artist class."
     try:
         import matplotlib.pyplot  # noqa: F401
