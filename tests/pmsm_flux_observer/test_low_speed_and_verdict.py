@@ -23,7 +23,7 @@ from sensorless.design.simulate import simulate
 from sensorless.reports.pmsm_flux_observer import HOOKS
 from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings
 
-pytestmark = pytest.mark.long(24)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+pytestmark = pytest.mark.long(16)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
 
 FAST_PLL = 'foc_pll_ki = "1000000 1/s2"'  # foc_pll_kp^2/4: a double root at -1000 1/s
 # the drives' envelopes at 4 speeds per direction (the presets': 12): tuning and the report's review judge
