@@ -8,6 +8,7 @@ family is covered without editing any list.
 
 import ast
 import functools
+import gc
 import importlib.util
 import pkgutil
 import posixpath
@@ -142,6 +143,10 @@ def _package_sources() -> list[Path]:
     return sorted(p for layer in LAYERS for p in (ROOT / layer).rglob("*.py"))
 
 
+# the nodes :func:`_fold` can read a string from (a prefilter: the others, most nodes, skip the call)
+FOLDABLE = (ast.Constant, ast.BinOp, ast.Call, ast.JoinedStr)
+
+
 def _fold(node: ast.AST) -> str | None:
     """The string a expression always evaluates to, where the parser leaves it in pieces: a constant,
     a sum of such (``"pmsm_flux" + "_observer"``), an f-string of such, ``"".join`` of such, a
@@ -216,9 +221,26 @@ def _docstrings(nodes: tuple[ast.AST, ...]) -> frozenset[int]:
 @functools.cache
 def _parsed(text: str) -> tuple[tuple[ast.AST, ...], frozenset[int]]:
     """A module's nodes (ast.walk's order) and its docstrings (node ids), once per source text: the
-    checks below each read every shared module (the tree is kept alive by its nodes)."""
-    nodes = tuple(ast.walk(ast.parse(text)))
+    checks below each read every shared module (the tree is kept alive by its nodes). The collector
+    is off meanwhile: the trees are hundreds of thousands of objects, none of them garbage, and its
+    passes over them while they were made were half of the parsing's time."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        nodes = tuple(ast.walk(ast.parse(text)))
+    finally:
+        if was:
+            gc.enable()
     return nodes, _docstrings(nodes)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _forget_the_trees():
+    """The parsed modules are freed after this file's tests (each later collection on this worker
+    would otherwise walk them again)."""
+    yield
+    _parsed.cache_clear()
+    _file_strings.cache_clear()
 
 
 def _source(path: Path, text: str | None = None) -> str:
@@ -228,7 +250,8 @@ def _source(path: Path, text: str | None = None) -> str:
 def _strings(text: str) -> set[str]:
     """Every string value a module writes, however quoted or pieced together (docstrings left out)."""
     nodes, skip = _parsed(text)
-    return {s for node in nodes if id(node) not in skip and (s := _fold(node)) is not None}
+    foldable = (node for node in nodes if isinstance(node, FOLDABLE) and id(node) not in skip)
+    return {s for node in foldable if (s := _fold(node)) is not None}
 
 
 @functools.cache
@@ -365,7 +388,7 @@ def _names_used(path: Path, text: str | None = None) -> set[str]:
     for node in nodes:
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in modules:
             continue
-        if id(node) not in skip and (value := _fold(node)) is not None:
+        if isinstance(node, FOLDABLE) and id(node) not in skip and (value := _fold(node)) is not None:
             word = value.lstrip("-").replace("-", "_")  # an option flag is its dest
             if word.isidentifier():
                 out.add(word)
@@ -408,7 +431,7 @@ def _family_references(path: Path, text: str | None = None) -> set[str]:
             words = [node.attr]
         elif isinstance(node, ast.Name):
             words = [node.id]
-        elif id(node) not in skip and (value := _fold(node)) is not None:
+        elif isinstance(node, FOLDABLE) and id(node) not in skip and (value := _fold(node)) is not None:
             words = [w for part in re.split(r"[^\w-]+", value) for w in (part, part.replace("-", "_"))]
         out |= idents.intersection(words)
     return out
@@ -679,7 +702,7 @@ def _import_graph(root: Path) -> dict[str, set[str]]:
     for module, path in files.items():
         package = module if path.name == "__init__.py" else module.rpartition(".")[0]
         deps: set[str] = set()
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        for node in _parsed(path.read_text(encoding="utf-8"))[0]:  # parsed once for all the checks
             if isinstance(node, ast.Import):
                 names = [a.name for a in node.names]
             elif isinstance(node, ast.ImportFrom):

@@ -9,6 +9,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from helpers.figures_off import figures_off
 from helpers.fuzz import CC, pmsm_steady_segments, steady_rows
 from sensorless.design.drive import load_drive
 from sensorless.design.registry import family_of
@@ -599,11 +600,12 @@ def test_report_judges_the_fixed_step_and_reruns_the_poles_with_stored_constants
         return model.variant(setup, step)
 
     sc = dataclasses.replace(load_scenario("torque_steps", d), duration=0.05)
-    with judged_with(spy):
+    with judged_with(spy), figures_off():  # the checks' data (tests/helpers/figures_off.py)
         td, _ = time_domain.checks(d, None, [sc], "drive file", lambda m: None)
     assert ran and td[0]["name"] == "torque_steps"
     ran.clear()
-    time_domain.checks(d, None, [sc], "drive file", lambda m: None)
+    with figures_off():
+        time_domain.checks(d, None, [sc], "drive file", lambda m: None)
     assert not ran  # outside the block the checks run the double step
     poles = _drive_poles(d, family_of(d).gains(d), model, quick=True)
     assert poles["points"] > 0 and 0 < poles["max_relative_pole_shift"] < 0.01

@@ -158,43 +158,44 @@ def test_init_out_with_a_trailing_slash_writes_no_file_named_like_the_directory(
 
 
 # ----------------------------------------------------------------------------------- gain tables
-def _table(tmp_path, capsys, drive, name):
-    assert (
-        main(
-            [
-                "tune",
-                drive,
-                "--quiet",
-                "--out",
-                str(tmp_path / "t"),
-                # a small envelope: the table's drive is what the tests read, not its gains
-                *(["--speeds", "3", "--torque=1T_N"] if drive == "piippo2008" else []),
-            ]
-        )
-        == 0
+def _table(tmp_path, preset):
+    """A gain table of ``preset`` (its drive file's gains: what the tests read is the table's drive),
+    written by the writer `sensorless tune` uses (GainTable.to_json); a tuning for it cost ~1.5 s of
+    CPU and only the gains would differ."""
+    from sensorless.design.drive import load_drive
+    from sensorless.design.gain_table import GainTable
+    from sensorless.design.registry import family_of
+
+    drive = load_drive(preset)
+    g = family_of(drive).gains(drive)
+    table = GainTable(
+        law=g.law,
+        drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
+        gains=dict(g.values),
     )
-    capsys.readouterr()
-    return tmp_path / "t" / name
+    path = tmp_path / f"gains_{g.law}.json"
+    path.write_text(table.to_json())
+    return path
 
 
 @pytest.fixture(scope="module")
 def deangelo_table():
-    """A tuned gain table of the reduced-order preset (the document, for edited copies: the tests set
-    its gains, they do not read them): tuned on a tiny envelope (one speed, one load, without the
-    whole-drive check: ~2 s of CPU instead of ~15 s for two speeds and two loads with it) and written
-    by the writer `sensorless tune` uses."""
-    import dataclasses
+    """A gain table of the reduced-order preset (the document, for edited copies: the tests set its
+    gains, they do not read them), written by the writer `sensorless tune` uses (GainTable.to_json)
+    for the drive file's own gains: tuning one for these tests (one speed, one load) cost ~3 s of CPU
+    and only its gains, which the tests replace, would differ."""
     import json
 
     from sensorless.design.drive import load_drive
-    from sensorless.tuning.pmac_reduced_order.settings import default_settings
-    from sensorless.tuning.pmac_reduced_order.tuner import tune_constant_gains
+    from sensorless.design.gain_table import GainTable
 
     drive = load_drive("deangelo2006")
-    small = dataclasses.replace(
-        default_settings(drive), speeds_rpm=(250.0,), loads_Nm=(5.0,), whole_drive=False
+    table = GainTable(
+        law="constant",
+        drive={"name": drive.name, "kind": drive.kind, "sha256": drive.digest},
+        gains={"g": float(drive.observer.g), "Gamma": float(drive.observer.Gamma)},
     )
-    return json.loads(tune_constant_gains(drive, small).table.to_json())
+    return json.loads(table.to_json())
 
 
 def test_gain_table_errors_name_the_file_and_the_key(tmp_path, capsys, deangelo_table):
@@ -211,7 +212,7 @@ def test_gain_table_errors_name_the_file_and_the_key(tmp_path, capsys, deangelo_
 
 
 def test_analyze_warns_about_a_table_tuned_for_another_drive(tmp_path, capsys):
-    table = _table(tmp_path, capsys, "piippo2008", "gains_speed-dependent.json")
+    table = _table(tmp_path, "piippo2008")
     servo = write(tmp_path, SERVO, "servo.toml")
     assert (
         main(["analyze", servo, "--gains", str(table), "--points", "11", "--out", str(tmp_path / "a")]) == 0

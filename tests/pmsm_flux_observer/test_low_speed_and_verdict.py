@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.figures_off import figures_off
 from sensorless.design.drive import load_drive, load_drive_text
 from sensorless.design.low_speed import DECAY_SHARE, minimum_speed
 from sensorless.design.pmsm_flux_observer import FAMILY
@@ -22,13 +23,20 @@ from sensorless.design.simulate import simulate
 from sensorless.reports.pmsm_flux_observer import HOOKS
 from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings
 
-pytestmark = pytest.mark.long(24)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
+pytestmark = pytest.mark.long(16)  # CPU seconds of this file, measured: scheduled first (tests/conftest.py)
 
 FAST_PLL = 'foc_pll_ki = "1000000 1/s2"'  # foc_pll_kp^2/4: a double root at -1000 1/s
 # the drives' envelopes at 4 speeds per direction (the presets': 12): tuning and the report's review judge
 # every envelope point, the same criteria on a third of them (a drive file's [envelope], or the preset's
 # envelope replaced: a preset keeps its report's own scenarios)
 COARSE = "\n[envelope]\nspeeds = 4\n"
+
+
+def data_report(*args, **kw):
+    """The family's report (its data: these tests read no figure), without its figures
+    (tests/helpers/figures_off.py)."""
+    with figures_off():
+        return HOOKS.report(*args, **kw)
 
 
 def hub_text() -> str:
@@ -65,13 +73,13 @@ def test_the_final_speed_error_is_the_lag_of_vescs_default_pll(hub):
 
 
 def test_the_verdict_names_the_pll_root_and_the_fix_that_passes(hub):
-    rep = HOOKS.report(hub, resolution="quick")
+    rep = data_report(hub, resolution="quick")
     text = " ".join(rep.data["verdict"]["findings"])
     assert "roots -15.11 and -1985 1/s" in text
     assert "foc_pll_kp = 2000 1/s, foc_pll_ki = foc_pll_kp^2/4 = 1e+06 1/s^2" in text
     assert "R_s +-30 %" in text or "psi_pm +-10 %" in text  # which error loses it, not only that
     fast = load_drive_text(hub_text().replace('foc_pll_ki = "30000 1/s2"', FAST_PLL) + COARSE, "fast.toml")
-    fixed = HOOKS.report(fast, resolution="quick")
+    fixed = data_report(fast, resolution="quick")
     assert not any("PLL" in x for x in fixed.data["verdict"]["findings"])
     # the generic checks of a user's file: the final speed error is within the limit with the fix, where
     # the check ends sensorless: the whole drive's w_min at +T_N (0.26 p.u., its decay) puts the handover
@@ -117,7 +125,7 @@ def test_a_users_flux_drive_starts_and_reverses_through_the_i_f_start(tmp_path):
     assert main(["init", str(tmp_path / "min.toml"), "--out", str(tmp_path / "d.toml")]) == 0
     drive = load_drive(tmp_path / "d.toml")
     assert drive.envelope.rule.count == 4  # init keeps the coarse envelope
-    rep = HOOKS.report(drive, resolution="quick")
+    rep = data_report(drive, resolution="quick")
     td = {c["name"]: c for c in rep.data["time_domain"]}
     assert set(td) == {"speed_steps", "load_steps", "reversal", "start"}
     for name in ("reversal", "start"):
@@ -149,6 +157,6 @@ def test_each_tuned_pll_is_four_times_the_speed_loop_and_its_table_reports(hub, 
     )
     slowest = -max(np.roots([1.0, k_p, k_i]).real)
     assert slowest >= 4 * hub.control.alpha_s * (1 - 1e-9)
-    rep = HOOKS.report(hub, table=table, table_file="t.json", resolution="quick")
+    rep = data_report(hub, table=table, table_file="t.json", resolution="quick")
     assert not any("PLL" in x for x in rep.data["verdict"]["findings"])
     assert all(abs(c["metrics"]["final_speed_err_pu"]) < 0.02 for c in rep.data["time_domain"])
