@@ -24,6 +24,7 @@ observer-only judges read the damping), else ``pass``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -109,9 +110,20 @@ class RangeJudgement:
     data: dict[str, object] = field(default_factory=dict)
 
 
-def judge(drive: Drive, gains: GainSet, min_damping: float) -> RangeJudgement:
+@dataclass(frozen=True)
+class Remedy:
+    """A family's named cause of instability over the range and its change: ``gains`` the gains with that
+    change. A point unstable with the gains under review and stable with ``gains`` is put down to
+    ``cause`` (reports/causes.py), the others to ``rhp_band``."""
+
+    cause: str
+    why: str  # the cause in the design's numbers and what to do (one line)
+    gains: GainSet
+
+
+def judge(drive: Drive, gains: GainSet, min_damping: float, remedy: Remedy | None = None) -> RangeJudgement:
     """The gains over the drive's range (module docstring); ``pass`` with no data where the family has no
-    scales (the range is then not defined)."""
+    scales (the range is then not defined); ``remedy``: the family's named cause (:class:`Remedy`)."""
     pts = envelope(drive)
     if pts is None:
         return RangeJudgement("pass")
@@ -141,22 +153,22 @@ def judge(drive: Drive, gains: GainSet, min_damping: float) -> RangeJudgement:
     findings: list[Finding] = []
     status = "pass"
     if not stable.all():
-        bad = np.flatnonzero(~stable)
-        k = int(bad[np.argmax(np.nan_to_num(mr[bad], nan=np.inf))])
-        what = f"max Re {mr[k]:+.3g} 1/s" if np.isfinite(mr[k]) else "no equilibrium"
-        speeds = np.abs(w[bad]) / wb
         status = "fail"
-        findings.append(
-            {
-                "issue": "unstable over the drive's range",
-                "check": CHECK,
-                "causes": ["rhp_band"],
-                "text": f"the drive's range (+-T_max, the envelope `sensorless tune` proves): unstable at "
-                f"{bad.size} of {w.size} points, {_span(speeds)}, "
-                f"worst at {at(k)} ({what}) (cause: {CATALOGUE['rhp_band'].title}: "
-                f"{CATALOGUE['rhp_band'].fix})",
-            }
-        )
+        bad = np.flatnonzero(~stable)
+        cured = np.zeros(bad.size, bool)
+        if remedy is not None:  # the family's named cause, where its change makes the point stable
+            fixed = drive_analysis(drive, remedy.gains, w[bad], t[bad])
+            with np.errstate(invalid="ignore"):
+                cured = np.isfinite(fixed.max_real) & (np.asarray(fixed.max_real) < 0)
+            data["remedied_points"] = int(cured.sum())
+        for part, cause, why, change in (
+            (bad[cured], remedy.cause if remedy else "", remedy.why if remedy else "", ""),
+            (bad[~cured], "rhp_band", "", CATALOGUE["rhp_band"].fix),
+        ):
+            if part.size:
+                findings.append(
+                    _unstable(part, mr, w, t, wb, at, cause, why or CATALOGUE[cause].title, change)
+                )
     low = stable & ~damped
     if low.any():
         status = "warn" if status == "pass" else status
@@ -173,6 +185,31 @@ def judge(drive: Drive, gains: GainSet, min_damping: float) -> RangeJudgement:
             }
         )
     return RangeJudgement(status, findings, data)
+
+
+def _unstable(
+    part: np.ndarray,
+    mr: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    wb: float,
+    at: Callable[[int], str],
+    cause: str,
+    why: str,
+    change: str,
+) -> Finding:
+    """The finding of the unstable points ``part`` put down to ``cause``."""
+    k = int(part[np.argmax(np.nan_to_num(mr[part], nan=np.inf))])
+    what = f"max Re {mr[k]:+.3g} 1/s" if np.isfinite(mr[k]) else "no equilibrium"
+    fix = f": {change}" if change else ""
+    return {
+        "issue": "unstable over the drive's range",
+        "check": CHECK,
+        "causes": [cause],
+        "text": f"the drive's range (+-T_max, the envelope `sensorless tune` proves): unstable at "
+        f"{part.size} of {w.size} points, {_span(np.abs(w[part]) / wb)}, worst at {at(k)} ({what}) "
+        f"(cause: {why}{fix})",
+    }
 
 
 def _span(speeds: np.ndarray) -> str:

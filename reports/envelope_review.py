@@ -133,6 +133,11 @@ class Judge(Protocol[J]):
     # tune`` proves them (reports/drive_range.py): one envelope, one answer
     drive_range: bool
 
+    def range_remedy(self, drive: J, gains: GainSet) -> drive_range.Remedy | None:
+        """The family's named cause of instability over the range with its change (reports/drive_range.py
+        ``Remedy``); None: the shared cause (``rhp_band``)."""
+        ...
+
     def analyse(
         self, drive: J, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
     ) -> Analysis:
@@ -315,6 +320,9 @@ class Judging(Generic[EnvelopedT]):
     # which its torque-step checks do not close): their presets' verdicts would change with it
     drive_range: bool = False
 
+    def range_remedy(self, drive: EnvelopedT, gains: GainSet) -> drive_range.Remedy | None:
+        return None
+
     def conclude(
         self, v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
     ) -> tuple[dict[str, Any], Verdict]:
@@ -408,7 +416,7 @@ def report_with(judge: Judge[DriveT]) -> Callable[..., Report]:
         status, td_findings = settle(v.status, td)
         ranged: dict[str, object] = {}
         if judge.drive_range:  # the range tune proves on, judged by the same rule (reports/drive_range.py)
-            rj = drive_range.judge(drive, rev.gains, min_damping)
+            rj = drive_range.judge(drive, rev.gains, min_damping, judge.range_remedy(drive, rev.gains))
             status = time_domain.worst_status(status, rj.status)
             td_findings = [*rj.findings, *td_findings]
             ranged = {"drive_range": {"status": rj.status, **rj.data}}
