@@ -112,18 +112,28 @@ class RangeJudgement:
 
 @dataclass(frozen=True)
 class Remedy:
-    """A family's named cause of instability over the range and its change: ``gains`` the gains with that
-    change. A point unstable with the gains under review and stable with ``gains`` is put down to
-    ``cause`` (reports/causes.py), the others to ``rhp_band``."""
+    """A family's named cause of instability over the range and its change: ``gains`` (and ``drive``,
+    None: the same drive) with that change. A point unstable with the gains under review and stable with
+    the change is put down to ``cause`` (reports/causes.py), the others to ``rhp_band``: the cause is
+    what the change does, analysed, not a label."""
 
     cause: str
     why: str  # the cause in the design's numbers and what to do (one line)
     gains: GainSet
+    drive: Drive | None = None
 
 
-def judge(drive: Drive, gains: GainSet, min_damping: float, remedy: Remedy | None = None) -> RangeJudgement:
+# a family's remedy of the unstable points: (|w| [rad/s] of the stable points, of the unstable ones) ->
+# its Remedy, or None (the shared cause)
+Remedies = Callable[[np.ndarray, np.ndarray], "Remedy | None"]
+
+
+def judge(
+    drive: Drive, gains: GainSet, min_damping: float, remedies: Remedies | None = None
+) -> RangeJudgement:
     """The gains over the drive's range (module docstring); ``pass`` with no data where the family has no
-    scales (the range is then not defined); ``remedy``: the family's named cause (:class:`Remedy`)."""
+    scales (the range is then not defined); ``remedies``: the family's named cause (:class:`Remedy`)
+    where points are unstable."""
     pts = envelope(drive)
     if pts is None:
         return RangeJudgement("pass")
@@ -156,8 +166,9 @@ def judge(drive: Drive, gains: GainSet, min_damping: float, remedy: Remedy | Non
         status = "fail"
         bad = np.flatnonzero(~stable)
         cured = np.zeros(bad.size, bool)
+        remedy = None if remedies is None else remedies(np.abs(w[stable]), np.abs(w[bad]))
         if remedy is not None:  # the family's named cause, where its change makes the point stable
-            fixed = drive_analysis(drive, remedy.gains, w[bad], t[bad])
+            fixed = drive_analysis(remedy.drive or drive, remedy.gains, w[bad], t[bad])
             with np.errstate(invalid="ignore"):
                 cured = np.isfinite(fixed.max_real) & (np.asarray(fixed.max_real) < 0)
             data["remedied_points"] = int(cured.sum())

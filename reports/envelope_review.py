@@ -133,9 +133,12 @@ class Judge(Protocol[J]):
     # tune`` proves them (reports/drive_range.py): one envelope, one answer
     drive_range: bool
 
-    def range_remedy(self, drive: J, gains: GainSet) -> drive_range.Remedy | None:
+    def range_remedy(
+        self, drive: J, gains: GainSet, held: np.ndarray, lost: np.ndarray
+    ) -> drive_range.Remedy | None:
         """The family's named cause of instability over the range with its change (reports/drive_range.py
-        ``Remedy``); None: the shared cause (``rhp_band``)."""
+        ``Remedy``), given |w| [rad/s] of the stable points and of the unstable ones; None: the shared
+        cause (``rhp_band``)."""
         ...
 
     def analyse(
@@ -320,7 +323,9 @@ class Judging(Generic[EnvelopedT]):
     # which its torque-step checks do not close): their presets' verdicts would change with it
     drive_range: bool = False
 
-    def range_remedy(self, drive: EnvelopedT, gains: GainSet) -> drive_range.Remedy | None:
+    def range_remedy(
+        self, drive: EnvelopedT, gains: GainSet, held: np.ndarray, lost: np.ndarray
+    ) -> drive_range.Remedy | None:
         return None
 
     def conclude(
@@ -416,7 +421,9 @@ def report_with(judge: Judge[DriveT]) -> Callable[..., Report]:
         status, td_findings = settle(v.status, td)
         ranged: dict[str, object] = {}
         if judge.drive_range:  # the range tune proves on, judged by the same rule (reports/drive_range.py)
-            rj = drive_range.judge(drive, rev.gains, min_damping, judge.range_remedy(drive, rev.gains))
+            rj = drive_range.judge(
+                drive, rev.gains, min_damping, lambda *w: judge.range_remedy(drive, rev.gains, *w)
+            )
             status = time_domain.worst_status(status, rj.status)
             td_findings = [*rj.findings, *td_findings]
             ranged = {"drive_range": {"status": rj.status, **rj.data}}

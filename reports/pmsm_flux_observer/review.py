@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTable
 from sensorless.design.pmsm_flux_observer import FAMILY
@@ -80,7 +81,9 @@ class FluxJudge(Judging["FluxObserverDrive"]):
     # are put down to the PLL root, with its change (tests/pmsm_flux_observer/test_drive_range.py)
     drive_range = True
 
-    def range_remedy(self, drive: FluxObserverDrive, gains: GainSet) -> drive_range.Remedy | None:
+    def range_remedy(
+        self, drive: FluxObserverDrive, gains: GainSet, held: np.ndarray, lost: np.ndarray
+    ) -> drive_range.Remedy | None:
         why = pll_finding(gains, drive.control.alpha_s, [])
         fixed = pll_fixed(gains, drive.control.alpha_s)
         return None if not why or fixed is None else drive_range.Remedy("pll_root", why, fixed)

@@ -25,9 +25,9 @@ def test_the_range_fails_on_the_pll_root_and_the_pll_fix_holds_it(hub):
     """112 of the 118 unstable points are the PLL's (stable with the PLL's fix); the other 6, regenerating
     at low speed, are an RHP band the fix does not remove; the verdict names both."""
     d, g = hub
-    remedy = JUDGE.range_remedy(d, g)
+    remedy = JUDGE.range_remedy(d, g, np.zeros(0), np.zeros(0))
     assert remedy is not None and remedy.cause == "pll_root"
-    j = drive_range.judge(d, g, 0.2, remedy)
+    j = drive_range.judge(d, g, 0.2, lambda *w: JUDGE.range_remedy(d, g, *w))
     assert j.status == "fail"
     causes = [f["causes"] for f in j.findings if f["issue"].startswith("unstable")]
     assert causes == [["pll_root"], ["rhp_band"]]
@@ -50,7 +50,7 @@ def test_the_simulated_drive_oscillates_with_the_pll_defaults_and_settles_with_t
     )
     sc = load_scenario_text(text, "hold", drive_units(d))
     ptp = {}
-    for label, gains in (("file", g), ("fixed", JUDGE.range_remedy(d, g).gains)):
+    for label, gains in (("file", g), ("fixed", JUDGE.range_remedy(d, g, np.zeros(0), np.zeros(0)).gains)):
         tr = simulate(d, sc, gains)
         w = np.asarray(tr["w_m"]) / d.w_base
         n = round(0.2 / d.T_s)
