@@ -18,7 +18,8 @@ both to be settled before the range is judged that way.
 
 :func:`judge` reads it as a check with the one verdict rule (reports/time_domain.py ``status_with``): a
 point without a stable equilibrium makes it ``fail`` (cause ``rhp_band``, reports/causes.py, naming the
-point and the change that fixes it), a worst damping below the required one ``warn`` (as the
+point and the change that fixes it; or the family's own cause, :class:`Remedy`, at the points its change
+holds in this analysis), a worst damping below the required one ``warn`` (as the
 observer-only judges read the damping), else ``pass``.
 """
 

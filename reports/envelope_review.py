@@ -316,11 +316,7 @@ class Judging(Generic[EnvelopedT]):
     def scenarios(self, drive: EnvelopedT) -> Sequence[str]:
         return builtin_names(drive.kind) if self.time_domain is None else self.time_domain
 
-    # False: the verdict leaves the range out (the family's tune still proves its tables on it). The
-    # families left out for now (docs/tuning.md "The proof before writing"): on the reduced-order preset
-    # the whole-drive analysis finds no equilibrium at 54 of the 200 points (|w| >= 0.6 p.u.); on the flux
-    # observer's hub-motor preset poles up to +22 1/s at 118 (a 12-Hz speed-loop limit cycle, simulated,
-    # which its torque-step checks do not close): their presets' verdicts would change with it
+    # False: the verdict leaves the range out (every production family judges it: docs/tuning.md)
     drive_range: bool = False
 
     def range_remedy(
