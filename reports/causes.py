@@ -104,6 +104,13 @@ CATALOGUE: dict[str, Cause] = {
             "there (sensorless tune over an envelope that holds it), or keep the drive out of the band",
         ),
         Cause(
+            "sampling_period",
+            "sampling period too long for the speed",
+            "the sampled drive has no operating point it holds at this speed with its sampling period (its "
+            "loss moves up with a shorter period): a shorter sampling period ([control] T_s), or keep the "
+            "drive below this speed",
+        ),
+        Cause(
             "estimate_error",
             "estimate error",
             "the observer's estimate settled off the rotor at steady operation: the motor's parameter "

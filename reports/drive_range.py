@@ -18,12 +18,14 @@ both to be settled before the range is judged that way.
 
 :func:`judge` reads it as a check with the one verdict rule (reports/time_domain.py ``status_with``): a
 point without a stable equilibrium makes it ``fail`` (cause ``rhp_band``, reports/causes.py, naming the
-point and the change that fixes it), a worst damping below the required one ``warn`` (as the
+point and the change that fixes it; or the family's own cause, :class:`Remedy`, at the points its change
+holds in this analysis), a worst damping below the required one ``warn`` (as the
 observer-only judges read the damping), else ``pass``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -109,9 +111,30 @@ class RangeJudgement:
     data: dict[str, object] = field(default_factory=dict)
 
 
-def judge(drive: Drive, gains: GainSet, min_damping: float) -> RangeJudgement:
+@dataclass(frozen=True)
+class Remedy:
+    """A family's named cause of instability over the range and its change: ``gains`` (and ``drive``,
+    None: the same drive) with that change. A point unstable with the gains under review and stable with
+    the change is put down to ``cause`` (reports/causes.py), the others to ``rhp_band``: the cause is
+    what the change does, analysed, not a label."""
+
+    cause: str
+    why: str  # the cause in the design's numbers and what to do (one line)
+    gains: GainSet
+    drive: Drive | None = None
+
+
+# a family's remedy of the unstable points: (|w| [rad/s] of the stable points, of the unstable ones) ->
+# its Remedy, or None (the shared cause)
+Remedies = Callable[[np.ndarray, np.ndarray], "Remedy | None"]
+
+
+def judge(
+    drive: Drive, gains: GainSet, min_damping: float, remedies: Remedies | None = None
+) -> RangeJudgement:
     """The gains over the drive's range (module docstring); ``pass`` with no data where the family has no
-    scales (the range is then not defined)."""
+    scales (the range is then not defined); ``remedies``: the family's named cause (:class:`Remedy`)
+    where points are unstable."""
     pts = envelope(drive)
     if pts is None:
         return RangeJudgement("pass")
@@ -141,22 +164,23 @@ def judge(drive: Drive, gains: GainSet, min_damping: float) -> RangeJudgement:
     findings: list[Finding] = []
     status = "pass"
     if not stable.all():
-        bad = np.flatnonzero(~stable)
-        k = int(bad[np.argmax(np.nan_to_num(mr[bad], nan=np.inf))])
-        what = f"max Re {mr[k]:+.3g} 1/s" if np.isfinite(mr[k]) else "no equilibrium"
-        speeds = np.abs(w[bad]) / wb
         status = "fail"
-        findings.append(
-            {
-                "issue": "unstable over the drive's range",
-                "check": CHECK,
-                "causes": ["rhp_band"],
-                "text": f"the drive's range (+-T_max, the envelope `sensorless tune` proves): unstable at "
-                f"{bad.size} of {w.size} points, {_span(speeds)}, "
-                f"worst at {at(k)} ({what}) (cause: {CATALOGUE['rhp_band'].title}: "
-                f"{CATALOGUE['rhp_band'].fix})",
-            }
-        )
+        bad = np.flatnonzero(~stable)
+        cured = np.zeros(bad.size, bool)
+        remedy = None if remedies is None else remedies(np.abs(w[stable]), np.abs(w[bad]))
+        if remedy is not None:  # the family's named cause, where its change makes the point stable
+            fixed = drive_analysis(remedy.drive or drive, remedy.gains, w[bad], t[bad])
+            with np.errstate(invalid="ignore"):
+                cured = np.isfinite(fixed.max_real) & (np.asarray(fixed.max_real) < 0)
+            data["remedied_points"] = int(cured.sum())
+        for part, cause, why, change in (
+            (bad[cured], remedy.cause if remedy else "", remedy.why if remedy else "", ""),
+            (bad[~cured], "rhp_band", "", CATALOGUE["rhp_band"].fix),
+        ):
+            if part.size:
+                findings.append(
+                    _unstable(part, mr, w, t, wb, at, cause, why or CATALOGUE[cause].title, change)
+                )
     low = stable & ~damped
     if low.any():
         status = "warn" if status == "pass" else status
@@ -173,6 +197,31 @@ def judge(drive: Drive, gains: GainSet, min_damping: float) -> RangeJudgement:
             }
         )
     return RangeJudgement(status, findings, data)
+
+
+def _unstable(
+    part: np.ndarray,
+    mr: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    wb: float,
+    at: Callable[[int], str],
+    cause: str,
+    why: str,
+    change: str,
+) -> Finding:
+    """The finding of the unstable points ``part`` put down to ``cause``."""
+    k = int(part[np.argmax(np.nan_to_num(mr[part], nan=np.inf))])
+    what = f"max Re {mr[k]:+.3g} 1/s" if np.isfinite(mr[k]) else "no equilibrium"
+    fix = f": {change}" if change else ""
+    return {
+        "issue": "unstable over the drive's range",
+        "check": CHECK,
+        "causes": [cause],
+        "text": f"the drive's range (+-T_max, the envelope `sensorless tune` proves): unstable at "
+        f"{part.size} of {w.size} points, {_span(np.abs(w[part]) / wb)}, worst at {at(k)} ({what}) "
+        f"(cause: {why}{fix})",
+    }
 
 
 def _span(speeds: np.ndarray) -> str:

@@ -133,6 +133,14 @@ class Judge(Protocol[J]):
     # tune`` proves them (reports/drive_range.py): one envelope, one answer
     drive_range: bool
 
+    def range_remedy(
+        self, drive: J, gains: GainSet, held: np.ndarray, lost: np.ndarray
+    ) -> drive_range.Remedy | None:
+        """The family's named cause of instability over the range with its change (reports/drive_range.py
+        ``Remedy``), given |w| [rad/s] of the stable points and of the unstable ones; None: the shared
+        cause (``rhp_band``)."""
+        ...
+
     def analyse(
         self, drive: J, rev: Review, min_damping: float, resolution: str, progress: Callable[[str], None]
     ) -> Analysis:
@@ -308,12 +316,13 @@ class Judging(Generic[EnvelopedT]):
     def scenarios(self, drive: EnvelopedT) -> Sequence[str]:
         return builtin_names(drive.kind) if self.time_domain is None else self.time_domain
 
-    # False: the verdict leaves the range out (the family's tune still proves its tables on it). The
-    # families left out for now (docs/tuning.md "The proof before writing"): on the reduced-order preset
-    # the whole-drive analysis finds no equilibrium at 54 of the 200 points (|w| >= 0.6 p.u.); on the flux
-    # observer's hub-motor preset poles up to +22 1/s at 118 (a 12-Hz speed-loop limit cycle, simulated,
-    # which its torque-step checks do not close): their presets' verdicts would change with it
+    # False: the verdict leaves the range out (every production family judges it: docs/tuning.md)
     drive_range: bool = False
+
+    def range_remedy(
+        self, drive: EnvelopedT, gains: GainSet, held: np.ndarray, lost: np.ndarray
+    ) -> drive_range.Remedy | None:
+        return None
 
     def conclude(
         self, v: Judgement, status: str, td_findings: list[Finding], limits: list[str]
@@ -408,7 +417,9 @@ def report_with(judge: Judge[DriveT]) -> Callable[..., Report]:
         status, td_findings = settle(v.status, td)
         ranged: dict[str, object] = {}
         if judge.drive_range:  # the range tune proves on, judged by the same rule (reports/drive_range.py)
-            rj = drive_range.judge(drive, rev.gains, min_damping)
+            rj = drive_range.judge(
+                drive, rev.gains, min_damping, lambda *w: judge.range_remedy(drive, rev.gains, *w)
+            )
             status = time_domain.worst_status(status, rj.status)
             td_findings = [*rj.findings, *td_findings]
             ranged = {"drive_range": {"status": rj.status, **rj.data}}

@@ -109,6 +109,7 @@ def test_the_catalogue_holds_the_ids_other_modules_use():
         "injection_coupling_band",
         "injection_speed_loop",
         "rhp_band",
+        "sampling_period",
         "estimate_error",
         "speed_unreachable",
         "not_tested_sensorless",

@@ -19,7 +19,7 @@ from datetime import date
 from pathlib import Path
 
 import pytest
-from helpers.another_day import runs
+from helpers.another_day import exit_of, runs
 from sensorless.reports import files, interrupts
 from sensorless.reports.cli import codegen as codegen_cli
 from sensorless.reports.cli.main import main
@@ -419,7 +419,7 @@ def test_outputs_are_byte_identical_on_another_day(
             assert args[2:] == ["--quick", "--out", f"{tmp_path / 'today'}/report-{preset}"]
             shutil.copytree(today_reports[preset], tmp_path / "today" / f"report-{preset}")
             continue
-        assert main(args) == 0, args
+        assert main(args) == exit_of(args), args
     capsys.readouterr()
     later = another_day.outputs()
     d1, y1 = another_day.date, another_day.year

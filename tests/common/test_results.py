@@ -170,7 +170,9 @@ def test_a_report_says_when_a_time_domain_check_does_not_hold(
     data = json.loads((out / "report.json").read_text())
     assert data["verdict"]["status"] == "fail"
     held = json.loads((report_deangelo_quick / "report.json").read_text())
-    assert held["verdict"]["status"] != "fail" and all(c["passed"] for c in held["time_domain"])
+    # the held report's checks pass; its verdict fails on the drive's range only (docs/tuning.md)
+    assert all(c["passed"] for c in held["time_domain"])
+    assert {x["check"] for x in held["verdict"]["findings"]} <= {"drive_range"}
     for key in ("analysis", "low_speed", "drive_analysis"):  # what the diverged runs leave as it was
         assert data[key] == held[key], key
     assert [c["passed"] for c in data["time_domain"]] == [False, False]

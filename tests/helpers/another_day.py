@@ -41,6 +41,14 @@ datetime.datetime, datetime.date = _DT, _D
 
 # the presets whose `report --quick` both days make (today's: session fixtures, tests/common/conftest.py)
 REPORTS = ("piippo2008", "deangelo2006")
+# their exit status: deangelo2006's verdict is `fail` over the drive's range (at the paper's 180 us the
+# whole sampled drive holds no operating point from 0.6 p.u.: docs/tuning.md), its checks pass
+REPORT_EXIT = {"piippo2008": 0, "deangelo2006": 3}
+
+
+def exit_of(args: list[str]) -> int:
+    """The exit status a run of :func:`runs` gives."""
+    return REPORT_EXIT[args[1]] if args[0] == "report" else 0
 
 
 def runs(out: str) -> list[list[str]]:
@@ -67,8 +75,8 @@ def runs(out: str) -> list[list[str]]:
 LATER = """
 import sys
 from sensorless.reports.cli.main import main
-for args in {runs}:
-    assert main(args) == 0, args
+for args, code in {runs}:
+    assert main(args) == code, args
 """
 
 
@@ -85,7 +93,11 @@ class AnotherDay:
         self.stderr = root / "stderr.txt"  # a file, not a pipe: nobody reads it while the process runs
         with self.stderr.open("w") as err:
             self.process = subprocess.Popen(
-                [sys.executable, "-c", LATER.format(runs=runs(str(root / "later")))],
+                [
+                    sys.executable,
+                    "-c",
+                    LATER.format(runs=[(a, exit_of(a)) for a in runs(str(root / "later"))]),
+                ],
                 env=env,
                 stdout=subprocess.DEVNULL,
                 stderr=err,
