@@ -217,15 +217,17 @@ def kept_result(module: str, name: str, content: object, compute: Callable[[], R
     but are built from ``content`` alone (the drive, the settings and the numbers they were built
     from), which the caller passes whole (a tuple: each item's labels left out, as :func:`by_content`
     does for each argument). Not kept in the process (a caller asks once per command);
-    content that cannot be pickled, or no disk memo: computed."""
+    content that cannot be pickled, or no disk memo: computed. The result's arrays are read-only
+    whichever way it came (a caller that changed them would fail in the tests too, not only where the
+    disk memo is on)."""
     try:
         parts = tuple(map(_content, content)) if isinstance(content, tuple) else _content(content)
         key = pickle.dumps(parts, protocol=pickle.HIGHEST_PROTOCOL)
     except (pickle.PicklingError, TypeError, AttributeError):
-        return compute()
+        return frozen_result(compute())
     path = _named_path(module, name, key)
     if path is None:
-        return compute()
+        return frozen_result(compute())
     found, kept = _disk_get(path)
     if found:
         return frozen_result(cast(R, kept))

@@ -238,8 +238,8 @@ def test_a_result_kept_by_its_content_is_computed_once_per_content(tmp_path, mon
     memo.kept_result("m", "f", (Labelled((1.0,), "a.toml"), [1.0]), compute([4.0]))
     assert calls[-1] == [4.0]
     monkeypatch.setenv("SENSORLESS_NO_DISK_MEMO", "1")  # no disk memo: always computed
-    memo.kept_result("m", "f", (Labelled((1.0,), "a.toml"), [1.0]), compute([5.0]))
-    assert calls[-1] == [5.0]
+    c = memo.kept_result("m", "f", (Labelled((1.0,), "a.toml"), [1.0]), compute([5.0]))
+    assert calls[-1] == [5.0] and not c.values.flags.writeable  # read-only whichever way it came
     lam = lambda: None  # noqa: E731  (content that cannot be pickled: computed)
     monkeypatch.delenv("SENSORLESS_NO_DISK_MEMO")
     memo.kept_result("m", "f", (lam,), compute([6.0]))
