@@ -6,7 +6,10 @@ line's main), then ``sensorless tune DRIVE`` with its defaults, through the same
 law and settings (the schedule, its speed-dependent seed, the pointwise bound, the NLP, the dense
 re-verification) and the proof before the table is written (reports/tune_proof.py; the benchmark unsets
 $SENSORLESS_TUNE_UNCHECKED), which is what a user waits for. CPU seconds count the compiler's child
-processes too (design/compiled.py: the first run on a motor compiles its simulation loops). The
+processes too (design/compiled.py: the first run on a motor compiles its simulation loops; with
+``--repeat`` the later rounds also read the proof's runs and the pointwise bound that the first kept in
+$SENSORLESS_CACHE/memo: a user's second tune of the same drive; run with an empty $SENSORLESS_CACHE and
+``--repeat 1`` for the first). The
 baseline, timed in the same process between the motors, is the paper's law on the paper's preset
 (``tune(piippo2008, "speed-dependent")``): the ratio motor / baseline says how a motor compares with the
 tuner's best-known case whatever the machine's speed or load (this machine is shared; CPU seconds are

@@ -106,13 +106,17 @@ def fingerprint() -> bytes:
 
 def _disk_path(fn: Callable[..., object], key: bytes) -> Path | None:
     """The file of ``fn``'s result for ``key`` (None: the disk memo is off)."""
+    return _named_path(fn.__module__, fn.__qualname__, key)
+
+
+def _named_path(module: str, name: str, key: bytes) -> Path | None:
+    """The file of the result named ``name`` (of ``module``) for ``key`` (None: the disk memo is off)."""
     if os.environ.get("SENSORLESS_NO_DISK_MEMO"):
         return None
     from sensorless.design.compiled import cache_root
 
-    name = f"{fn.__module__}.{fn.__qualname__}"
-    digest = hashlib.sha256(fingerprint() + name.encode() + b"\0" + key).hexdigest()
-    return cache_root() / "memo" / f"{fn.__qualname__}-{digest}.pickle"
+    digest = hashlib.sha256(fingerprint() + f"{module}.{name}".encode() + b"\0" + key).hexdigest()
+    return cache_root() / "memo" / f"{name}-{digest}.pickle"
 
 
 def _disk_get(path: Path) -> tuple[bool, object]:
@@ -204,3 +208,29 @@ def kept_function(fn: Callable[P, R]) -> Callable[P, R]:
     pickles as its serialization, which rebuilds the same graph: the same evaluations to the bit and
     the same generated C). Arguments that cannot be pickled: built here, kept in the process only."""
     return functools.cache(by_content(maxsize=8, disk=True)(fn))  # type: ignore[return-value]
+
+
+def kept_result(module: str, name: str, content: object, compute: Callable[[], R]) -> R:
+    """``compute()``, kept on disk as a :func:`by_content` memo with ``disk=True`` keeps its results
+    (the same files, fingerprint and temp file + rename), under ``name`` and the pickled ``content``: for
+    a computation whose own inputs do not pickle (a tuning model holds closures and CasADi Functions)
+    but are built from ``content`` alone (the drive, the settings and the numbers they were built
+    from), which the caller passes whole (a tuple: each item's labels left out, as :func:`by_content`
+    does for each argument). Not kept in the process (a caller asks once per command);
+    content that cannot be pickled, or no disk memo: computed. The result's arrays are read-only
+    whichever way it came (a caller that changed them would fail in the tests too, not only where the
+    disk memo is on)."""
+    try:
+        parts = tuple(map(_content, content)) if isinstance(content, tuple) else _content(content)
+        key = pickle.dumps(parts, protocol=pickle.HIGHEST_PROTOCOL)
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return frozen_result(compute())
+    path = _named_path(module, name, key)
+    if path is None:
+        return frozen_result(compute())
+    found, kept = _disk_get(path)
+    if found:
+        return frozen_result(cast(R, kept))
+    value = frozen_result(compute())
+    _disk_put(path, value)
+    return value

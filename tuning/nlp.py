@@ -115,6 +115,27 @@ def solve(
     def kept(sol: Solution) -> Solution:
         return dataclasses.replace(sol, iterations=total_it, failed_attempts=tuple(attempts))
 
+    def round_end(where: str, keeping: str, budget: str) -> Solution | None:
+        """The end of a round with grid points violated (the bounded figures broken at some, or the
+        sector conditions): the round counts towards STALL where the model has bounded figures and a
+        verified round exists; the method keeps that round when it has stalled or spent the iteration
+        budget, and fails on the budget without one. None: the next round. ``where``, ``keeping`` and
+        ``budget`` word its lines (the progress note's start, its "keeping" and the failure's tail)."""
+        nonlocal stalled
+        if bounded and best is not None:
+            stalled += 1
+        if best is not None and (stalled >= STALL or total_it >= max_iterations):
+            if progress:
+                stop = f"{stalled} rounds since a verified one" if stalled >= STALL else ""
+                stop = stop or f"{total_it} IPOPT iterations (the budget)"
+                progress(f"{where}{stop}: {keeping}{best.rounds}")
+            return kept(best)
+        if total_it >= max_iterations:
+            raise TuningError(
+                f"no round met every grid point within {max_iterations} IPOPT iterations{budget}"
+            )
+        return None
+
     for rnd in range(1, 100):
         # start each round feasible: below the worst damping of the active points at theta
         damp_act = [m[i] + t_now for i in active if cand.condition[i] == DAMPING and np.isfinite(m[i])]
@@ -185,13 +206,9 @@ def solve(
                     f"{step:.3g} of the way there"
                 )
             active = _pick(m, cand, active, max(2, min(bad.size, n0)))
-            stalled += 1
-            if best is not None and (total_it >= max_iterations or stalled >= STALL):
-                if progress:
-                    progress(f"round {rnd}: {stalled} rounds since a verified one: keeping {best.rounds}")
-                return kept(best)
-            if total_it >= max_iterations:
-                raise TuningError(f"no round met every grid point within {max_iterations} IPOPT iterations")
+            done = round_end(f"round {rnd}: ", "keeping ", "")
+            if done is not None:
+                return done
             continue
         theta = new
         m = margins(model, theta, cand, t_now, scale, max_noise)
@@ -210,22 +227,19 @@ def solve(
             stalled = 0
             if not at_edge or gain < CREEP:  # creeping along a ridge: the worst damping barely moves
                 return kept(best)
-        elif bounded and best is not None:
-            stalled += 1
-            if stalled >= STALL:
-                if progress:
-                    progress(f"{stalled} rounds since a verified one: keeping round {best.rounds}")
-                return kept(best)
-        if total_it >= max_iterations:
-            if best is not None:
+            if total_it >= max_iterations:
                 if progress:
                     progress(f"{total_it} IPOPT iterations (the budget): keeping round {best.rounds}")
                 return kept(best)
-            raise TuningError(
-                f"no round met every grid point within {max_iterations} IPOPT iterations (the budget); "
-                f"{bad.size} grid points violate the last (worst: {cand.labels[int(np.argmin(m))]})"
+        else:
+            worst = cand.labels[int(np.argmin(m))]
+            done = round_end(
+                "",
+                "keeping round ",
+                f" (the budget); {bad.size} grid points violate the last (worst: {worst})",
             )
-        if bad.size:
+            if done is not None:
+                return done
             active = _pick(m, cand, active, max(2, min(bad.size, n0)))
     raise TuningError("the exchange method did not converge in 100 rounds")
 

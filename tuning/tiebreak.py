@@ -150,8 +150,13 @@ def _pattern(model, seeds, cand, grids, target) -> np.ndarray:
             break
         polls = np.clip(u[act, None, :] + h[act, None, None] * D[None], lo, hi).reshape(-1, n)
         th = np.exp(polls)
-        fp = np.where(_grid_ok(model, th, cand, grids, target), model.gain_size(th), np.inf)
-        fp = fp.reshape(act.size, -1)
+        # only a poll smaller than its seed's point can be the move: the grid (the dear part) judges those
+        size = model.gain_size(th)
+        small = size < np.repeat(f[act], D.shape[0]) * (1 - 1e-9)
+        ok = np.zeros(size.size, bool)
+        if small.any():
+            ok[small] = _grid_ok(model, th[small], cand, grids, target)
+        fp = np.where(ok, size, np.inf).reshape(act.size, -1)
         k = np.argmin(fp, axis=1)
         better = fp[np.arange(act.size), k] < f[act] * (1 - 1e-9)
         u[act[better]] = polls.reshape(act.size, -1, n)[better, k[better]]

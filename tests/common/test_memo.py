@@ -210,3 +210,38 @@ def test_a_kept_function_is_read_back_by_the_next_process_with_the_same_bits_and
     gen[1].add(read)
     assert gen[0].dump() == gen[1].dump()  # the same C (design/compiled.py keys its libraries by it)
     assert np.asarray(second(0.8, 5)(x0)).shape == (2, 5) and calls2 == [(0.8, 5)]  # other arguments: built
+
+
+def test_a_result_kept_by_its_content_is_computed_once_per_content(tmp_path, monkeypatch):
+    # kept_result: for a computation whose own inputs do not pickle; keyed by the content the caller
+    # names (its labels left out), read back by the next caller, recomputed for other content or code
+    from sensorless.design import memo
+
+    monkeypatch.setenv("SENSORLESS_CACHE", str(tmp_path))
+    monkeypatch.delenv("SENSORLESS_NO_DISK_MEMO", raising=False)
+    calls = []
+
+    def compute(x):
+        def run():
+            calls.append(x)
+            return Result(np.array(x, float))
+
+        return run
+
+    a = memo.kept_result("m", "f", (Labelled((1.0,), "a.toml"), [1.0]), compute([1.0]))
+    b = memo.kept_result("m", "f", (Labelled((1.0,), "/abs/a.toml"), [1.0]), compute([9.0]))
+    assert calls == [[1.0]] and b.values.tolist() == [1.0] and not b.values.flags.writeable
+    memo.kept_result("m", "f", (Labelled((2.0,), "a.toml"), [1.0]), compute([2.0]))  # other content
+    memo.kept_result("m", "g", (Labelled((1.0,), "a.toml"), [1.0]), compute([3.0]))  # another name
+    assert calls == [[1.0], [2.0], [3.0]] and a.values.tolist() == [1.0]
+    monkeypatch.setattr(memo, "fingerprint", lambda: b"other source")  # changed code: not reused
+    memo.kept_result("m", "f", (Labelled((1.0,), "a.toml"), [1.0]), compute([4.0]))
+    assert calls[-1] == [4.0]
+    monkeypatch.setenv("SENSORLESS_NO_DISK_MEMO", "1")  # no disk memo: always computed
+    c = memo.kept_result("m", "f", (Labelled((1.0,), "a.toml"), [1.0]), compute([5.0]))
+    assert calls[-1] == [5.0] and not c.values.flags.writeable  # read-only whichever way it came
+    lam = lambda: None  # noqa: E731  (content that cannot be pickled: computed)
+    monkeypatch.delenv("SENSORLESS_NO_DISK_MEMO")
+    memo.kept_result("m", "f", (lam,), compute([6.0]))
+    memo.kept_result("m", "f", (lam,), compute([7.0]))
+    assert calls[-2:] == [[6.0], [7.0]]
