@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.figures_off import figures_off
 from sensorless.design.drive import load_drive
 from sensorless.design.family import EstimateErrors
 from sensorless.design.low_speed import headline, minimum_speed, minimum_speed_under
@@ -124,7 +125,8 @@ def test_the_same_gains_under_two_labels_are_one_analysis_and_each_caller_names_
     assert second is first and minimum_speed.cache_info() == (hits + 1, misses)
     assert not any(n in repr(first) or n in json.dumps(first.data()) for n in names)
     for n in names:
-        text = section(1, second, drive, n).blocks[0].text
+        with figures_off():  # the section's text only (tests/helpers/figures_off.py)
+            text = section(1, second, drive, n).blocks[0].text
         assert f"(gains: {n})" in text and all(f"(gains: {m})" not in text for m in names if m != n)
 
 

@@ -11,6 +11,7 @@ from importlib import resources
 
 import numpy as np
 import pytest
+from helpers.figures_off import figures_off
 from sensorless.design import simulate as sim
 from sensorless.design.drive import load_drive
 from sensorless.design.simulate import MAX_SAMPLES, Traces, position_lost
@@ -157,7 +158,8 @@ def test_a_report_says_when_a_time_domain_check_does_not_hold(
 
     monkeypatch.setattr(time_domain, "simulated", diverging)
     out = tmp_path / "r"
-    code, _, err = run(["report", "deangelo2006", "--quick", "--out", out], capsys)
+    with figures_off():  # the report's data and text only (tests/helpers/figures_off.py)
+        code, _, err = run(["report", "deangelo2006", "--quick", "--out", out], capsys)
     lines = [ln for ln in err.splitlines() if "warning" in ln]
     assert code == 3 and len(lines) == 3, err
     # a run that does not hold makes the verdict "fail", whatever the poles say

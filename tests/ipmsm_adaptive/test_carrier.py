@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers.figures_off import figures_off
 from sensorless.design import registry
 from sensorless.design.drive import load_drive
 from sensorless.design.ipmsm_adaptive.carrier import coupling_limit, coupling_torque
@@ -242,7 +243,10 @@ def test_the_low_hold_check_fails_a_speed_loop_faster_than_the_injection(tmp_pat
         d = _drive(tmp_path, extra)
         assert math.isclose(d.control.alpha_s, 2 * math.pi * (10 if ok else 33.7737), rel_tol=1e-6)
         gains = registry.family_of(d).gains(d)
-        (chk,), _ = time_domain.checks(d, gains, [load_scenario("low_hold", d)], "drive file", lambda s: None)
+        with figures_off():  # the check's data only (tests/helpers/figures_off.py)
+            (chk,), _ = time_domain.checks(
+                d, gains, [load_scenario("low_hold", d)], "drive file", lambda s: None
+            )
         assert chk["passed"] is ok and chk["status"] == ("pass" if ok else "fail")
         if not ok:
             assert set(chk["causes"]) == {"injection_speed_loop"}

@@ -12,6 +12,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from helpers.figures_off import figures_off
 from helpers.report_checks import c_example_initializes, verdict_agrees_with_checks
 from sensorless.design.drive import load_drive
 from sensorless.reports.cli.main import main
@@ -51,7 +52,10 @@ def flow(tmp_path_factory):
     codes["codegen"] = main(
         ["codegen", str(edited), "--gains", str(table), "--precision", "float", "--out", str(d / "c")]
     )
-    codes["report"] = main(["report", str(edited), "--gains", str(table), "--quick", "--out", str(d / "r")])
+    with figures_off():  # its data and text only are read here (tests/helpers/figures_off.py)
+        codes["report"] = main(
+            ["report", str(edited), "--gains", str(table), "--quick", "--out", str(d / "r")]
+        )
     return drive, d, codes
 
 
