@@ -52,6 +52,7 @@ from sensorless.reports.document import (
     num,
     svg_uri,
 )
+from sensorless.reports.drive_range import Remedy
 from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
@@ -133,9 +134,7 @@ class Judge(Protocol[J]):
     # tune`` proves them (reports/drive_range.py): one envelope, one answer
     drive_range: bool
 
-    def range_remedy(
-        self, drive: J, gains: GainSet, held: np.ndarray, lost: np.ndarray
-    ) -> drive_range.Remedy | None:
+    def range_remedy(self, drive: J, gains: GainSet, held: np.ndarray, lost: np.ndarray) -> Remedy | None:
         """The family's named cause of instability over the range with its change (reports/drive_range.py
         ``Remedy``), given |w| [rad/s] of the stable points and of the unstable ones; None: the shared
         cause (``rhp_band``)."""
@@ -321,7 +320,7 @@ class Judging(Generic[EnvelopedT]):
 
     def range_remedy(
         self, drive: EnvelopedT, gains: GainSet, held: np.ndarray, lost: np.ndarray
-    ) -> drive_range.Remedy | None:
+    ) -> Remedy | None:
         return None
 
     def conclude(

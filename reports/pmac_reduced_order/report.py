@@ -21,6 +21,7 @@ from sensorless.design.pmac_reduced_order import FAMILY
 from sensorless.reports import drive_range
 from sensorless.reports.causes import CATALOGUE
 from sensorless.reports.document import Figure, Paragraph, Section, Table, Verdict, f, num, svg_uri
+from sensorless.reports.drive_range import Remedy
 from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, report_with
 from sensorless.reports.review import Review, gains_under_review, status_class, verdict_box
 from sensorless.reports.time_domain import Finding
@@ -49,7 +50,7 @@ class PmacJudge(Judging["PmacDrive"]):
 
     def range_remedy(
         self, drive: PmacDrive, gains: GainSet, held: np.ndarray, lost: np.ndarray
-    ) -> drive_range.Remedy | None:
+    ) -> Remedy | None:
         """The sampling period that holds the highest speed lost, where every lost speed is above a held
         one: the speed at which the whole drive loses its operating point moves with w^2 T_s = const
         (measured on deangelo2006 over +-T_N: lost from 0.6 p.u. at 180 us, 0.85 p.u. at 90 us, 1 p.u. at

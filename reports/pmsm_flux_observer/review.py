@@ -22,6 +22,7 @@ from sensorless.design.gain_table import GainTable
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.reports import drive_range
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num, svg_uri
+from sensorless.reports.drive_range import Remedy
 from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, poles_section_figure
 from sensorless.reports.pmsm_flux_observer.figures import bias_caption, bias_figure, front_figure
 from sensorless.reports.pmsm_flux_observer.findings import (
@@ -83,7 +84,7 @@ class FluxJudge(Judging["FluxObserverDrive"]):
 
     def range_remedy(
         self, drive: FluxObserverDrive, gains: GainSet, held: np.ndarray, lost: np.ndarray
-    ) -> drive_range.Remedy | None:
+    ) -> Remedy | None:
         why = pll_finding(gains, drive.control.alpha_s, [])
         fixed = pll_fixed(gains, drive.control.alpha_s)
         return None if not why or fixed is None else drive_range.Remedy("pll_root", why, fixed)
