@@ -139,10 +139,11 @@ def rotor_function(loop: SampledLoop) -> ca.Function:
 
 
 @functools.cache
-def orbit_function(loop: SampledLoop, n_steps: int) -> ca.Function:
-    """(x0, theta, w, plant, p, gain) -> (x, theta_k, out): ``n_steps`` periods of the runtime step on
-    the sampled plant from the runtime state x0 (counter included) with the motor at theta; column k
-    is the state after step k, the motor angle then (wrapped) and the step's outputs."""
+def _period_function(loop: SampledLoop) -> ca.Function:
+    """([x; theta], [w; plant; p; gain]) -> ([x_next; theta_next], out): one period of the runtime step
+    on the sampled plant, compiled; one per loop, shared by every orbit length (built per length, the
+    sampled plant's graph and the compiled library's lookup: analyze deangelo2006's nine orbit
+    Functions took 84 ms to build, 35 ms with the period shared)."""
     s = loop.symbols()
     x, theta = ca.SX.sym("x", len(loop.observer.state)), s["theta"]
     w, plant, p, gain = s["w"], s["plant"], s["p"], s["gain"]
@@ -154,11 +155,19 @@ def orbit_function(loop: SampledLoop, n_steps: int) -> ca.Function:
     # n_steps nor on the drive's numbers): the orbit is thousands of steps at each point, 3.5x faster
     # than on CasADi's virtual machine, the same bits (tests/common/test_compiled_paths.py)
     name = f"{loop.observer.name}_period"
-    one = compiled(ca.Function(name, [ca.vertcat(x, theta), par], [xc_next, out]))
-    F = one.mapaccum(n_steps)
-    ins = [ca.MX.sym(k, v.size1()) for k, v in [("x0", x), *((k, s[k]) for k in INPUTS[1:])]]
+    return compiled(ca.Function(name, [ca.vertcat(x, theta), par], [xc_next, out]))
+
+
+@functools.cache
+def orbit_function(loop: SampledLoop, n_steps: int) -> ca.Function:
+    """(x0, theta, w, plant, p, gain) -> (x, theta_k, out): ``n_steps`` periods of the runtime step on
+    the sampled plant from the runtime state x0 (counter included) with the motor at theta; column k
+    is the state after step k, the motor angle then (wrapped) and the step's outputs."""
+    s = loop.symbols()
+    n_x = len(loop.observer.state)
+    F = _period_function(loop).mapaccum(n_steps)
+    ins = [ca.MX.sym(k, v) for k, v in [("x0", n_x), *((k, s[k].size1()) for k in INPUTS[1:])]]
     xc, outs = F(ca.vertcat(ins[0], ins[1]), ca.repmat(ca.vertcat(*ins[2:]), 1, n_steps))
-    n_x = x.size1()
     return ca.Function(
         f"{loop.observer.name}_orbit{n_steps}",
         ins,

@@ -27,7 +27,6 @@ Sweeps over speed x load are ``Function.map`` calls.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -47,6 +46,7 @@ from sensorless.design.discrete import (
 )
 from sensorless.design.expm import expm_batched
 from sensorless.design.linearization import Linearization
+from sensorless.design.memo import kept_function
 from sensorless.design.noise import noise_rms_periodic
 from sensorless.design.pmac_reduced_order.one_step import (
     angle_period,
@@ -79,7 +79,9 @@ if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 
-@functools.cache
+# kept on disk (design/memo.py): with exact_state_function, built for both load-estimation variants, it
+# cost each analyze ~0.05 s of graph building (the implicit position's Jacobians); read back ~4 ms
+@kept_function
 def continuous_jacobian_function(
     orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool = True
 ) -> ca.Function:

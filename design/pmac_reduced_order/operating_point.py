@@ -8,11 +8,11 @@ Functions of linearize.py share the named inputs of :func:`symbols`; one_step.py
 
 from __future__ import annotations
 
-import functools
 from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
+from sensorless.design.memo import kept_function
 from sensorless.symbolic.pmac import EmfSeries, PmacParams, flux_derivative, operating_point_signals
 from sensorless.symbolic.pmac_reduced_order.observer import (
     zeta_tau,
@@ -74,7 +74,7 @@ def exact_state(
     return ca.vertcat(zeta, tau, theta, s["w"], sig.i, sig.v)
 
 
-@functools.cache
+@kept_function
 def exact_state_function(
     orders_m: tuple[int, ...], orders_o: tuple[int, ...], load_estimation: bool
 ) -> ca.Function:

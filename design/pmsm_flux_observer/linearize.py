@@ -36,6 +36,7 @@ from sensorless.design.discrete import (
 )
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.linearization import Linearization
+from sensorless.design.memo import kept_function
 from sensorless.design.noise import noise_rms_periodic
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.poles import eigvals_batched
@@ -98,7 +99,9 @@ def motor_vector(drive: FluxObserverDrive) -> np.ndarray:
     return pmsm_plant(drive.motor)
 
 
-@functools.cache
+# kept on disk by its content (design/memo.py: the gain law pickles as its serialization), as the
+# Functions design/rotor_frame.py builds from the loop are: a command reads the graph back, not builds it
+@kept_function
 def rotor_frame_loop(kind: str, rule: str, adapt: bool, law: ca.Function) -> RotorFrameLoop:
     """The continuous observer + PLL on the motor in steady state, in the rotor frame (design/rotor_frame.py):
     x_r = [flux state rotated by -theta (2), (lambda_hat), delta = theta - theta_pll, w_pll]; its ``p`` is
