@@ -130,10 +130,6 @@ class Judge(Protocol[J]):
         """The built-in scenarios the report checks in the time domain."""
         ...
 
-    # whether the verdict also judges the gains over the drive's real range (+-T_max) as ``sensorless
-    # tune`` proves them (reports/drive_range.py): one envelope, one answer
-    drive_range: bool
-
     def range_remedy(self, drive: J, gains: GainSet, held: np.ndarray, lost: np.ndarray) -> Remedy | None:
         """The family's named cause of instability over the range with its change (reports/drive_range.py
         ``Remedy``), given |w| [rad/s] of the stable points and of the unstable ones; None: the shared
@@ -315,9 +311,6 @@ class Judging(Generic[EnvelopedT]):
     def scenarios(self, drive: EnvelopedT) -> Sequence[str]:
         return builtin_names(drive.kind) if self.time_domain is None else self.time_domain
 
-    # False: the verdict leaves the range out (every production family judges it: docs/tuning.md)
-    drive_range: bool = False
-
     def range_remedy(
         self, drive: EnvelopedT, gains: GainSet, held: np.ndarray, lost: np.ndarray
     ) -> Remedy | None:
@@ -415,7 +408,9 @@ def report_with(judge: Judge[DriveT]) -> Callable[..., Report]:
         v = judge.verdict(drive, rev, found, Checks(runs, td), min_damping)
         status, td_findings = settle(v.status, td)
         ranged: dict[str, object] = {}
-        if judge.drive_range:  # the range tune proves on, judged by the same rule (reports/drive_range.py)
+        # the range tune proves on, judged by the same rule (reports/drive_range.py): one envelope, one
+        # answer, for every family with scales (the range is defined by them)
+        if drive_range.range_envelope(drive) is not None:
             rj = drive_range.judge(
                 drive, rev.gains, min_damping, lambda *w: judge.range_remedy(drive, rev.gains, *w)
             )

@@ -85,8 +85,6 @@ class AdaptiveJudge(Judging["IpmsmDrive"]):
         return Review(choices, review, table is not None, table)
 
     time_domain = TIME_DOMAIN
-    # the verdict judges the drive's range as tune proves it (reports/drive_range.py)
-    drive_range = True
 
     def analyse(
         self,

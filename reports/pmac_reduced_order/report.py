@@ -43,10 +43,9 @@ class PmacJudge(Judging["PmacDrive"]):
         return gains_under_review(FAMILY, drive, table, table_file, "paper gains")
 
     time_domain = TIME_DOMAIN
-    # the verdict judges the drive's range as tune proves it (reports/drive_range.py); where the sampled
-    # drive loses its operating point at high speed, the points a shorter sampling period holds are put
-    # down to the sampling period (tests/pmac_reduced_order/test_drive_range.py)
-    drive_range = True
+    # over the drive's range (reports/drive_range.py), where the sampled drive loses its operating point
+    # at high speed, the points a shorter sampling period holds are put down to the sampling period
+    # (tests/pmac_reduced_order/test_drive_range.py)
 
     def range_remedy(
         self, drive: PmacDrive, gains: GainSet, held: np.ndarray, lost: np.ndarray

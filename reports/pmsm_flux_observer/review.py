@@ -76,11 +76,10 @@ class FluxJudge(Judging["FluxObserverDrive"]):
         return (f"{o.firmware}: {o.correction}, {o.inductance_rule} inductance; T_obs = {T_us:g} us",)
 
     time_domain = TIME_DOMAIN
-    # the verdict judges the drive's range as tune proves it (reports/drive_range.py); where the PLL's
-    # slower root is slower than the speed loop closing on its speed needs, the whole drive oscillates
+    # over the drive's range (reports/drive_range.py), where the PLL's slower root is slower than the
+    # speed loop closing on its speed needs, the whole drive oscillates
     # (hubmotor48 with VESC's PLL defaults: a 12-Hz limit cycle at 0.8 p.u., simulated): those points
     # are put down to the PLL root, with its change (tests/pmsm_flux_observer/test_drive_range.py)
-    drive_range = True
 
     def range_remedy(
         self, drive: FluxObserverDrive, gains: GainSet, held: np.ndarray, lost: np.ndarray
