@@ -29,6 +29,7 @@ Two linear properties follow from the same Jacobians:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import casadi as ca
 import numpy as np
@@ -169,6 +170,7 @@ class DriveLinearization:
     ramp_lag: np.ndarray  # (N,) angle error per unit acceleration [rad per rad/s^2]
     T_s: float
     note: str = ""
+    torque_name: ClassVar[str] = "T_L"  # ``torque`` is the load's (the pole tables' heading)
 
     def slow(self) -> np.ndarray:
         """(N, n) the poles with |s| below SLOW_SHARE pi / T_s (the others NaN): the speed loop, the

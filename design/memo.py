@@ -145,6 +145,27 @@ def _disk_put(path: Path, value: object) -> None:
         pass
 
 
+def _pickled(content: object) -> bytes | None:
+    """The key of ``content`` (its pickled bytes); None: it cannot be pickled (not memoized)."""
+    try:
+        return pickle.dumps(content, protocol=pickle.HIGHEST_PROTOCOL)
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return None
+
+
+def _kept(path: Path | None, compute: Callable[[], R]) -> tuple[bool, R]:
+    """(found, value): the result kept in ``path``, else ``compute()``'s, then kept there (None: the
+    disk memo is off, computed); its arrays read-only whichever way it came (:func:`frozen_result`)."""
+    if path is not None:
+        found, kept = _disk_get(path)
+        if found:
+            return True, frozen_result(cast(R, kept))  # pickled under this key by the same code
+    value = frozen_result(compute())
+    if path is not None:
+        _disk_put(path, value)
+    return False, value
+
+
 def by_content(
     maxsize: int = 32, when: Callable[[], bool] = lambda: True, disk: bool = False
 ) -> Callable[[Callable[P, R]], Callable[P, R]]:
@@ -163,25 +184,16 @@ def by_content(
         def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
             if not when():
                 return fn(*args, **kwargs)
-            try:
-                content = (tuple(map(_content, args)), sorted((k, _content(v)) for k, v in kwargs.items()))
-                key = pickle.dumps(content, protocol=pickle.HIGHEST_PROTOCOL)
-            except (pickle.PicklingError, TypeError, AttributeError):
+            key = _pickled((tuple(map(_content, args)), sorted((k, _content(v)) for k, v in kwargs.items())))
+            if key is None:
                 return fn(*args, **kwargs)
             with lock:
                 if key in memo:
                     counts[0] += 1
                     memo.move_to_end(key)
                     return memo[key]
-            path = _disk_path(fn, key) if disk else None
-            found, kept = _disk_get(path) if path is not None else (False, None)
-            value: R
-            if found:
-                value = frozen_result(cast(R, kept))  # pickled by this function under this key
-            else:
-                value = frozen_result(fn(*args, **kwargs))  # outside the lock: computed in parallel
-                if path is not None:
-                    _disk_put(path, value)
+            # outside the lock: computed in parallel
+            found, value = _kept(_disk_path(fn, key) if disk else None, lambda: fn(*args, **kwargs))
             with lock:
                 counts[0 if found else 1] += 1
                 memo[key] = value
@@ -220,17 +232,5 @@ def kept_result(module: str, name: str, content: object, compute: Callable[[], R
     content that cannot be pickled, or no disk memo: computed. The result's arrays are read-only
     whichever way it came (a caller that changed them would fail in the tests too, not only where the
     disk memo is on)."""
-    try:
-        parts = tuple(map(_content, content)) if isinstance(content, tuple) else _content(content)
-        key = pickle.dumps(parts, protocol=pickle.HIGHEST_PROTOCOL)
-    except (pickle.PicklingError, TypeError, AttributeError):
-        return frozen_result(compute())
-    path = _named_path(module, name, key)
-    if path is None:
-        return frozen_result(compute())
-    found, kept = _disk_get(path)
-    if found:
-        return frozen_result(cast(R, kept))
-    value = frozen_result(compute())
-    _disk_put(path, value)
-    return value
+    key = _pickled(tuple(map(_content, content)) if isinstance(content, tuple) else _content(content))
+    return _kept(None if key is None else _named_path(module, name, key), compute)[1]

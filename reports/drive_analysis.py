@@ -9,7 +9,6 @@ paper's, which stays): a pole map of the drive's slow poles, a CSV of every poin
 from __future__ import annotations
 
 import functools
-import io
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -18,6 +17,7 @@ from sensorless.design.drive_analysis import DriveLinearization, linearize_drive
 from sensorless.design.family import Drive, GainSet
 from sensorless.design.low_speed import full_acceleration
 from sensorless.reports.document import Figure, Paragraph, Report, Section, Table, num
+from sensorless.reports.pole_map import pole_table
 from sensorless.reports.svg_render import PendingSvg, svg_later
 
 if TYPE_CHECKING:
@@ -68,25 +68,31 @@ def data(lin: DriveLinearization, drive: Drive) -> dict[str, Any]:
     }
 
 
+# why a row of the CSV has empty cells (its values there are not finite)
+NO_FIXED_POINT = "no fixed point of the drive's one-step map found here: no steady operating point"
+
+
 def csv(lin: DriveLinearization, drive: Drive) -> str:
-    """CSV text: one row per operating point; the slow poles as re/im pairs [1/s]."""
-    n = lin.poles.shape[1]
+    """CSV text (reports/pole_map.py ``pole_table``): one row per operating point, its torque also in
+    p.u. of T_N, the largest real part, worst damping, steady angle error and lag under the full
+    acceleration, then every pole as re/im pairs [1/s]; empty cells and a reason where no fixed point is
+    found."""
     a = full_acceleration(drive)
-    head = ["w_m_pu", "T_pu", "max_real_1_s", "worst_damping", "theta_err_deg", "lag_at_a_max_deg"]
-    head += [f"pole{k}_{c}_1_s" for k in range(n) for c in ("re", "im")]
-    buf = io.StringIO()
-    buf.write(f"# whole sampled drive (design/drive_analysis.py); a_max = {a:.6g} rad/s^2")
-    buf.write(f"; {lin.note}\n" if lin.note else "\n")
-    buf.write(",".join(head) + "\n")
-    g = lambda v: "nan" if not np.isfinite(v) else f"{v:.10g}"  # noqa: E731
-    max_real, damping, lag = lin.max_real, lin.worst_damping, lin.lag(a)  # once, not once per row
-    for k in range(lin.w.size):
-        row = [lin.w[k] / drive.w_base, lin.torque[k] / drive.T_N, max_real[k], damping[k]]
-        row += [np.degrees(lin.theta_err[k]), np.degrees(lag[k])]
-        for p in lin.poles[k]:
-            row += [p.real, p.imag]
-        buf.write(",".join(g(v) for v in row) + "\n")
-    return buf.getvalue()
+    note = (lin.note,) if lin.note else ()
+    return pole_table(
+        lin,
+        drive.w_base,
+        {"pole": lin.poles},
+        notes=("whole sampled drive (design/drive_analysis.py)", f"a_max = {a:.6g} rad/s^2", *note),
+        before={
+            "T_pu": lin.torque / drive.T_N,
+            "max_real_1_s": lin.max_real,
+            "worst_damping": lin.worst_damping,
+            "theta_err_deg": np.degrees(lin.theta_err),
+            "lag_at_a_max_deg": np.degrees(lin.lag(a)),
+        },
+        why=NO_FIXED_POINT,
+    )
 
 
 def figure(lin: DriveLinearization, drive: Drive, title: str) -> MplFigure:

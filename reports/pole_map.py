@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from sensorless.design.linearization import Linearization
@@ -23,6 +23,20 @@ if TYPE_CHECKING:  # typed by name only
 
 # why a pole table's row has empty cells (the linearization's values there are not finite)
 NO_POLES = "no finite poles here: no equilibrium found or the linearized observer overflows"
+
+
+class OperatingPoints(Protocol):
+    """What a pole table reads of its sweep besides the columns it is given: the operating points (a
+    :class:`Linearization`, or the whole drive's, design/drive_analysis.py)."""
+
+    @property
+    def w(self) -> np.ndarray: ...  # (N,) electrical speed [rad/s]
+
+    @property
+    def torque(self) -> np.ndarray: ...  # (N,) torque [N m]
+
+    @property
+    def torque_name(self) -> str: ...  # which torque: "T_e" or "T_L"
 
 
 def pole_csv(sweep: Linearization, w_base: float) -> str:
@@ -41,7 +55,7 @@ def pole_csv(sweep: Linearization, w_base: float) -> str:
 
 
 def pole_table(
-    sweep: Linearization,
+    sweep: OperatingPoints,
     w_base: float,
     poles: Mapping[str, np.ndarray],
     *,

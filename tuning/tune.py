@@ -82,14 +82,40 @@ def tune(
         "handover's w_min asks: tuning again with that floor"
     )
     st = settings if settings is not None else tunable_for(drive, law).settings(drive)
-    try:
-        # the seed as tuned (its law's floor): a seed law of few parameters may meet the floor nowhere
-        # where the law it starts does (the gimbal's speed-dependent law with alpha_fo tuned and the lag
-        # held: no candidate at 11.94 1/s; its schedule: 0.035 p.u., every check passed)
-        return _tune(drive, law, dataclasses.replace(st, min_decay=need), progress, res.seed)
-    except nlp.TuningError as e:
+
+    def first(e: nlp.TuningError) -> TuneOutcome:
         say(f"no gains meet decay >= {need:.4g} 1/s on the envelope ({e}): the first tuning's gains")
         return res
+
+    # the seed as the first tuning tuned it (the gimbal's speed-dependent law with alpha_fo tuned and the
+    # lag held: no candidate at 11.94 1/s; its schedule: 0.035 p.u., every check passed)
+    return _above_seed(drive, law, dataclasses.replace(st, min_decay=need), progress, res.seed, first)
+
+
+def _above_seed(
+    drive: Drive,
+    law: str | None,
+    settings: TuneSettings,
+    progress: Callable[[str], None] | None,
+    seed: TuneResult | None,
+    missed: Callable[[nlp.TuningError], TuneOutcome],
+) -> TuneOutcome:
+    """``law`` tuned with the decay floor ``settings.min_decay`` from its seed law's result under a lower
+    floor: a seed law of few parameters may meet a floor nowhere where the law it starts does (the
+    gimbal's speed-dependent law at 12 1/s, margin -6e-5 at 0.05 p.u.; its schedule meets it). Both
+    floors the tuning is held to take this one path: the handover's (:func:`tune`, ``seed`` the first
+    tuning's) and an explicit one the seed law cannot meet (:func:`_tune`, ``seed`` None: tuned here
+    without a floor). ``missed(e)``: the outcome where the law has no gains meeting the floor either."""
+    tunable = tunable_for(drive, law)
+    if seed is None and tunable.seed is not None:
+        say = progress or (lambda s: None)
+        seed_name = tunable.seed
+        no_floor = dataclasses.replace(settings, pareto=0, min_decay=0.0)
+        seed = _tune(drive, seed_name, no_floor, progress=lambda m: say(f"  [{seed_name}] {m}"))
+    try:
+        return _tune(drive, law, settings, progress, seed)
+    except nlp.TuningError as e:
+        return missed(e)
 
 
 def _tune(
@@ -121,19 +147,18 @@ def _tune(
         except nlp.TuningError as e:
             if settings.min_decay <= 0 or str(e).startswith(ENVELOPE_INFEASIBLE):
                 raise  # no floor of the user's, or no gain at all meets it somewhere: no law can
-            # an explicit floor as the handover's (tune): a seed law of few parameters may meet it nowhere
-            # where the law it starts does (the gimbal's speed-dependent law at 12 1/s, margin -6e-5 at
-            # 0.05 p.u.; its schedule meets it), so the seed as tuned without it, the law with it
+            # an explicit floor as the handover's (tune): the seed as tuned without it, the law with it
             say(f"{seed_name} law: {e}: tuning it without the decay floor, then {law} with it")
-            no_floor = dataclasses.replace(seed_set, min_decay=0.0)
-            seed_res = _tune(drive, seed_name, no_floor, progress=seed_say)
-            try:
-                return _tune(drive, law, settings, progress, seed_res)
-            except nlp.TuningError as e2:
-                raise nlp.TuningError(
-                    f"{e2}; with decay >= {settings.min_decay:g} 1/s neither the {seed_name} law nor {law} "
-                    "has gains: lower --min-decay (or the drive file's [tuning] min_decay) or try another law"
-                ) from None
+
+            why = (
+                f"with decay >= {settings.min_decay:g} 1/s neither the {seed_name} law nor {law} has gains: "
+                "lower --min-decay (or the drive file's [tuning] min_decay) or try another law"
+            )
+
+            def neither(e2: nlp.TuningError) -> TuneOutcome:
+                raise nlp.TuningError(f"{e2}; {why}") from None
+
+            return _above_seed(drive, law, settings, progress, None, neither)
     model = tunable.build(drive, settings, None if seed_res is None else seed_res.theta)
     if model.bounded is not None and not getattr(settings, "hold_bounded", True):
         say(f"not held: {', '.join(model.bounded_names)} (the drive file's gains fail a check of their own)")

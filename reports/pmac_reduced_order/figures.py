@@ -12,6 +12,7 @@ from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
 from sensorless.reports.document import pyplot
 from sensorless.reports.figure_layout import lay_out
+from sensorless.reports.pole_map import pole_table
 
 if TYPE_CHECKING:  # typed by name only
     from matplotlib.figure import Figure
@@ -36,31 +37,35 @@ def format_poles(poles: np.ndarray, digits: int = 4) -> str:
 
 
 def poles_csv(r: ObserverPoles, drive: PmacDrive) -> str:
-    """One row per operating point; poles as re/im pairs [1/s]; units and settings in the header."""
-    n_c, n_m = r.poles.shape[1], r.memory_z.shape[1]
-    head = ["speed_rpm", "w_rad_s", "T_L_Nm"]
-    head += [f"pole_c{k}_{ri}_1_s" for k in range(n_c) for ri in ("re", "im")]
-    head += [f"pole_d{k}_{ri}_1_s" for k in range(n_c) for ri in ("re", "im")]
-    head += [f"memory_abs_z{k}" for k in range(n_m)]
-    head += ["monodromy_steps", "worst_damping_c", "worst_damping_d"]
-    head += ["err_w_rad_s", "err_theta_rad", "err_T_L_Nm", "ripple_w_rad_s", "ripple_T_L_Nm", REASON]
-    buf = io.StringIO()
-    buf.write(
-        f"# {drive.name}: load-torque estimation {'on' if r.load_estimation else 'off (Gamma = 0)'}; "
-        f"discretization {r.method}, T_s = {r.T_s:.10g} s; speeds: electrical rad/s and mechanical r/min "
-        f"(p = {drive.motor.p}); errors: true minus estimate, steady state of the discrete observer\n"
+    """One row per operating point (reports/pole_map.py ``pole_table``, with the mechanical speed in
+    r/min beside it); continuous (``pole_c``) and discrete (``pole_d``) poles as re/im pairs [1/s], the
+    other one-step eigenvalues' |z|, the worst dampings, the steady errors; units and settings in the
+    header."""
+    head = (
+        f"{drive.name}: load-torque estimation {'on' if r.load_estimation else 'off (Gamma = 0)'}",
+        f"discretization {r.method}, T_s = {r.T_s:.10g} s",
+        f"speeds: electrical rad/s and mechanical r/min (p = {drive.motor.p})",
+        "errors: true minus estimate, steady state of the discrete observer",
     )
-    buf.write(",".join(head) + "\n")
-    wd_c = np.nanmin(r.damping, axis=1)
-    wd_d = np.nanmin(r.damping_discrete, axis=1)
-    for j in range(r.w.size):
-        row = [float(drive.w_to_rpm(r.w[j])), r.w[j], r.T_L[j]]
-        for p in (*r.poles[j], *r.poles_discrete[j]):
-            row += [p.real, p.imag]
-        row += [*r.memory_z[j], r.steps[j], wd_c[j], wd_d[j]]
-        row += [r.err_w[j], r.err_theta[j], r.err_T[j], r.ripple_w[j], r.ripple_T[j]]
-        buf.write(csv_row(row, OVERFLOW) + "\n")
-    return buf.getvalue()
+    return pole_table(
+        r,
+        drive.w_base,
+        {"pole_c": r.poles, "pole_d": r.poles_discrete},
+        notes=head,
+        before={"speed_rpm": np.array([float(drive.w_to_rpm(w)) for w in r.w])},
+        after={
+            **{f"memory_abs_z{k}": r.memory_z[:, k] for k in range(r.memory_z.shape[1])},
+            "monodromy_steps": r.steps,
+            "worst_damping_c": np.nanmin(r.damping, axis=1),
+            "worst_damping_d": np.nanmin(r.damping_discrete, axis=1),
+            "err_w_rad_s": r.err_w,
+            "err_theta_rad": r.err_theta,
+            "err_T_L_Nm": r.err_T,
+            "ripple_w_rad_s": r.ripple_w,
+            "ripple_T_L_Nm": r.ripple_T,
+        },
+        why=OVERFLOW,
+    )
 
 
 def study_csv(rows: Sequence[Any], drive: PmacDrive) -> str:

@@ -190,4 +190,6 @@ def test_analyze_drive_writes_the_whole_drive_beside_the_family_analysis(tmp_pat
     names = {p.name for p in (tmp_path / "a").iterdir()}
     assert {"poles.csv", "drive_poles.csv", "drive_poles.svg"} <= names  # the family's and the drive's
     rows = (tmp_path / "a" / "drive_poles.csv").read_text().splitlines()
-    assert rows[1].startswith("w_m_pu,T_pu,max_real_1_s") and len(rows) == 2 + 40 * 3
+    # the shared pole table (reports/pole_map.py): the operating point, then the drive's own columns
+    head = "w_m_pu,w_m_rad_s,T_L_Nm,T_pu,max_real_1_s"
+    assert rows[1].startswith(head) and rows[1].endswith(",no_value_reason") and len(rows) == 2 + 40 * 3

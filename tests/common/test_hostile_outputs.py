@@ -62,6 +62,40 @@ def test_a_flux_preset_point_without_a_sampled_fixed_point_is_said_not_written_a
         assert row["no_value_reason"] == reason and (row["worst_damping"] == "") == bool(reason)
 
 
+def test_the_whole_drive_csv_leaves_a_point_without_a_fixed_point_empty_and_says_why():
+    # `analyze --drive` wrote nan into every cell of such a row (deangelo2006: 54 of its 120 points);
+    # two points made here, the second without a fixed point (NaN, as linearize_drive leaves it)
+    from sensorless.design.drive_analysis import DriveLinearization
+    from sensorless.reports.drive_analysis import NO_FIXED_POINT
+    from sensorless.reports.drive_analysis import csv as drive_csv
+
+    drive = load_drive("piippo2008")
+    n = 3
+    y = np.array([[0.1, 0.2, 0.3], [np.nan] * n])
+    poles = np.array([[-10.0 + 5j, -10.0 - 5j, -300.0], [np.nan] * n])
+    lin = DriveLinearization(
+        w=drive.w_base * np.array([0.5, 0.9]),
+        torque=drive.T_N * np.array([1.0, -1.0]),
+        names=("a", "b", "c"),
+        y=y,
+        J=np.zeros((2, n, n)),
+        poles=poles,
+        theta_err=np.array([0.01, np.nan]),
+        ramp_lag=np.array([1e-6, np.nan]),
+        T_s=1e-4,
+    )
+    text = drive_csv(lin, drive)
+    assert "nan" not in text and "inf" not in text, text
+    rows = list(csv.DictReader(io.StringIO(text.split("\n", 1)[1])))
+    assert [r["no_value_reason"] for r in rows] == ["", NO_FIXED_POINT]
+    assert [r["T_pu"] for r in rows] == ["1", "-1"] and [r["T_L_Nm"] for r in rows] == [
+        format(drive.T_N, ".10g"),
+        format(-drive.T_N, ".10g"),
+    ]
+    assert float(rows[0]["worst_damping"]) == pytest.approx(10 / np.hypot(10, 5))
+    assert rows[1]["worst_damping"] == rows[1]["pole0_re_1_s"] == rows[1]["theta_err_deg"] == ""
+
+
 @pytest.mark.parametrize("v", [float("nan"), float("inf"), -float("inf"), None])
 def test_a_csv_cell_is_a_finite_number_or_empty_with_the_rows_reason(v):
     from sensorless.reports.csv_cells import row

@@ -1,6 +1,10 @@
 """`sensorless analyze deangelo2006` end to end: poles printed, outputs deterministic, clear errors."""
 
+import csv
+import math
+
 import pytest
+from sensorless.design.drive import load_drive
 from sensorless.reports.cli.main import main
 from sensorless.reports.pmac_reduced_order import analyze as analyze_pmac
 
@@ -23,8 +27,14 @@ def test_analyze_preset_prints_poles_and_writes_outputs(tmp_path, capsys):
     names = sorted(p.name for p in (tmp_path / "a").iterdir())
     assert names == ["poles.png", "poles.svg", "poles_TL.csv", "poles_noTL.csv"]
     head = (tmp_path / "a" / "poles_TL.csv").read_text().splitlines()
-    assert "rk2-model" in head[0] and head[1].startswith("speed_rpm,w_rad_s,T_L_Nm,pole_c0_re")
+    # the shared pole table (reports/pole_map.py), the mechanical speed beside the electrical one
+    assert "rk2-model" in head[0] and head[1].startswith("w_m_pu,w_m_rad_s,T_L_Nm,speed_rpm,pole_c0_re")
     assert len(head) == 2 + 4
+    rows = list(csv.DictReader(head[1:]))
+    p = load_drive("deangelo2006").motor.p  # electrical rad/s = r/min * 2 pi / 60 * pole pairs
+    for r in rows:
+        assert float(r["w_m_rad_s"]) == pytest.approx(float(r["speed_rpm"]) * 2 * math.pi / 60 * p, rel=1e-9)
+    assert sorted({float(r["speed_rpm"]) for r in rows}) == pytest.approx([-250.0, 250.0], rel=1e-9)
     # deterministic: the same command again gives byte-identical files
     assert run([*args, "--out", str(tmp_path / "b")], capsys)[0] == 0
     for p in (tmp_path / "a").iterdir():
