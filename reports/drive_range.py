@@ -83,21 +83,27 @@ def drive_analysis(
     drive loop."""
     from sensorless.design.drive_analysis import linearize_drive
 
-    obs = observer_analysis(drive, gains, w, torque)
     fam = family_of(drive)
     if not isinstance(fam, Scaled):
-        return obs
+        return observer_analysis(drive, gains, w, torque)
     try:  # CapabilityError: no drive loop (design/drive_analysis.py)
         T_max = fam.scales(drive).T_max
         inside = np.abs(torque) < SATURATED_SHARE * T_max
         if not inside.any():
-            return obs
+            return observer_analysis(drive, gains, w, torque)
         lin = linearize_drive(drive, gains, w[inside], torque[inside])
     except CapabilityError:
-        return obs
-    mr = np.array(obs.max_real, float, copy=True)
-    wd = np.array(obs.worst_damping, float, copy=True)
+        return observer_analysis(drive, gains, w, torque)
+    # the observer alone only where the whole drive is not analysed (each point's analysis is its own:
+    # the same numbers as at all points; at the range's 200 points the reduced-order family's orbits
+    # took 11 s, three fifths of them for points the whole drive then replaced)
+    out = ~inside
+    mr = np.empty(w.shape, float)
+    wd = np.empty(w.shape, float)
     mr[inside], wd[inside] = lin.max_real, lin.worst_damping
+    if out.any():
+        obs = observer_analysis(drive, gains, w[out], torque[out])
+        mr[out], wd[out] = np.asarray(obs.max_real, float), np.asarray(obs.worst_damping, float)
     return Combined(mr, wd)
 
 

@@ -20,3 +20,15 @@ def tune_cli_small(tmp_path_factory):
     with contextlib.redirect_stdout(stdout):
         code = main([*argv, "--out", str(out)])
     return argv, out, code, stdout.getvalue()
+
+
+@pytest.fixture(scope="session")
+def schedule_small(drive):
+    """piippo2008's schedule tuned on the small envelope (tests/helpers/tuning.py) with the default decay
+    floor (its speed-dependent seed's) and breakpoints, once per worker: test_tune.py (it beats its
+    seed, law (16)) and test_tune_global.py (it reaches the pointwise bound) read it, read only (group
+    "tune-ipmsm" of tests/conftest.py's SHARED: one worker)."""
+    from helpers.tuning import small
+    from sensorless.tuning.tune import tune
+
+    return tune(drive, "schedule", small(drive))

@@ -127,10 +127,8 @@ def test_paper_defaults_reproduce(drive, speed_dependent):
 
 
 @pytest.fixture(scope="module")
-def schedule(drive):
-    return tune(
-        drive, "schedule", small(drive, law=dataclasses.replace(paper_law(drive.tuning), breakpoints=6))
-    )
+def schedule(schedule_small):
+    return schedule_small  # one run per worker, shared with test_tune_global.py (its conftest.py)
 
 
 def test_schedule_at_least_as_good_as_speed_dependent(drive, speed_dependent, schedule):

@@ -126,13 +126,6 @@ def test_bound_at_a_speed_equals_a_brute_force_search(drive, w_pu):
     assert np.min(s.decay_rate) >= 10.0 * (1 - 1e-6)
 
 
-@pytest.fixture(scope="module")
-def schedule_small(drive):
-    """The schedule on the small envelope (tests/helpers/tuning.py) with the default decay floor (its
-    speed-dependent seed's)."""
-    return tune(drive, "schedule", small(drive))
-
-
 def test_schedule_reaches_the_bound_and_speed_dependent_beats_the_drive_file(drive, schedule_small):
     """Small envelope, dense grid, analysis path: schedule >= speed-dependent >= drive file, and the
     schedule within 0.01 of the pointwise bound's worst (no gain law does better than that bound)."""
