@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypedDict
@@ -231,6 +232,7 @@ class TuneResult:
 # its id is not reused by another model while the entry lives
 _FIGURES: collections.OrderedDict[tuple[int, bytes], tuple[TuningModel, Figures]] = collections.OrderedDict()
 FIGURES_KEPT = 32
+_FIGURES_LOCK = threading.Lock()  # a threaded scheduler may tune several drives in one process
 
 
 def figures(
@@ -242,18 +244,20 @@ def figures(
     noise = noise and model.noise is not None
     parts = [np.asarray(a, float) for a in (theta, w, T, est)]
     key = (id(model), repr([(a.shape, noise) for a in parts]).encode() + b"".join(a.tobytes() for a in parts))
-    hit = _FIGURES.get(key)
-    if hit is not None:
-        _FIGURES.move_to_end(key)
-        return hit[1]
+    with _FIGURES_LOCK:
+        hit = _FIGURES.get(key)
+        if hit is not None:
+            _FIGURES.move_to_end(key)
+            return hit[1]
     e = evaluate(model, theta, model.make_points(w, T, est), noise=noise)
     f = Figures(w, T, e.poles, e.damping, e.decay, model.point_gains(theta, w), e.noise, e.bounded)
     for a in (f.poles, f.damping, f.decay, f.noise, f.bounded, *f.gains.values()):
         if isinstance(a, np.ndarray):
             a.flags.writeable = False
-    _FIGURES[key] = (model, f)
-    if len(_FIGURES) > FIGURES_KEPT:
-        _FIGURES.popitem(last=False)
+    with _FIGURES_LOCK:
+        _FIGURES[key] = (model, f)
+        if len(_FIGURES) > FIGURES_KEPT:
+            _FIGURES.popitem(last=False)
     return f
 
 
