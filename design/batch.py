@@ -26,6 +26,23 @@ JIT_MIN_POINTS = 4096  # below this the ~0.3 s compile does not pay off
 # threads cost ~0.1 ms per call
 THREAD_MIN_POINTS = 1024
 _POINTS: dict[ca.Function, int] = {}  # points evaluated so far, per Function (evaluate_batch)
+# the cores a batch's thread map uses, read once (os.cpu_count reads /sys at every call: 50 us, 865 calls
+# in the README servo's tune)
+CORES = min(4, os.cpu_count() or 1)
+
+
+@functools.cache
+def _shape(
+    fn: ca.Function,
+) -> tuple[bool, tuple[tuple[int, int, str], ...], tuple[tuple[int, int, bool, str], ...]]:
+    """(whether ``fn`` is an SX Function, (rows, cols, name) of each input, (rows, cols, dense, name) of
+    each output): read once per Function (a few microseconds per query through SWIG, ~20 per batch)."""
+    ins = tuple((fn.size1_in(i), fn.size2_in(i), fn.name_in(i)) for i in range(fn.n_in()))
+    outs = tuple(
+        (fn.size1_out(j), fn.size2_out(j), fn.sparsity_out(j).is_dense(), fn.name_out(j))
+        for j in range(fn.n_out())
+    )
+    return fn.is_a("SXFunction"), ins, outs
 
 
 @functools.cache
@@ -47,10 +64,35 @@ def _compiled(fn: ca.Function) -> ca.Function:
     return compiled(flat)  # the VM (and a warning) where no compiler works
 
 
-# a search (tuning/bound.py) evaluates ~150 distinct batch sizes; building a map costs ~2 ms
+# A map of n points costs O(n) to build (CasADi lays out its n-fold inputs and outputs: 3.5 ms for 4096
+# points of the tuner's closed loop, about what evaluating them costs), and a tune asks for ~30 sizes
+# per Function, the largest once (217 maps, 0.6 s CPU of the README servo's tune). So a batch runs as
+# maps of a few sizes only: chunks of CHUNK points, then the rest padded up to a bucket size (1, 2, 3
+# or 4 times a power of two, at most CHUNK; the last point repeated, its results cut off). Each point
+# is evaluated by the same code whatever the map it is in: the same bits.
+CHUNK = 2048
+
+
 @functools.lru_cache(maxsize=512)
 def _mapped(fn: ca.Function, n: int, threads: int) -> ca.Function:
     return fn.map(n, "thread", threads) if threads > 1 else fn.map(n)
+
+
+def _bucket(n: int) -> int:
+    """The map size of a rest of n points: 1, 2, 3 or 4 times a power of two (at most 50 % padding)."""
+    p = 1
+    while 3 * p < n:
+        p *= 2
+    return min(c for c in (p, 2 * p, 3 * p, 4 * p) if c >= n)
+
+
+def _calls(n: int) -> list[tuple[int, int, int]]:
+    """The map calls of a batch of n points: (first point, points, map size)."""
+    out = [(k, CHUNK, CHUNK) for k in range(0, n - CHUNK + 1, CHUNK)]
+    done = len(out) * CHUNK
+    if n > done or n == 0:
+        out.append((done, n - done, _bucket(n - done) if n > done else 0))
+    return out
 
 
 def evaluate_batch(
@@ -71,35 +113,40 @@ def evaluate_batch(
         # points each: on CasADi's VM 7x the CPU of the compiled library)
         _POINTS[fn] = _POINTS.get(fn, 0) + n
         jit = _POINTS[fn] >= JIT_MIN_POINTS
-    f = _compiled(fn) if jit and fn.is_a("SXFunction") else fn  # (an External is compiled already)
-    fm = _mapped(f, n, min(4, os.cpu_count() or 1) if threads and n >= THREAD_MIN_POINTS else 1)
-    buf, run = fm.buffer()
-    keep = []
+    is_sx, ins, outs_shape = _shape(fn)
+    f = _compiled(fn) if jit and is_sx else fn  # (an External is compiled already)
+    calls = _calls(n)
+    total = calls[-1][0] + calls[-1][2]  # the points evaluated, padding included
+    cols = []  # per input: (total, rows) contiguous (a point's values together, as CasADi maps them)
     for i, a in enumerate(args):
-        rows = fn.size1_in(i)
-        if fn.size2_in(i) != 1:
-            raise ValueError(f"input {fn.name_in(i)} must be a column vector")
+        rows, width, name = ins[i]
+        if width != 1:
+            raise ValueError(f"input {name} must be a column vector")
         a = np.asarray(a, dtype=float)
         if a.size == rows:
-            a = np.broadcast_to(a.reshape(rows, 1), (rows, n))
-        else:
-            a = a.reshape(rows, n)
-        a = np.ascontiguousarray(a.T)  # CasADi stores the mapped (rows, n) input column-major
-        keep.append(a)
-        buf.set_arg(i, memoryview(a.reshape(-1)))
+            cols.append(np.ascontiguousarray(np.broadcast_to(a.reshape(1, rows), (total, rows))))
+            continue
+        a = a.reshape(rows, n).T
+        if total > n:  # the rest padded with its last point
+            a = np.concatenate([a, np.repeat(a[-1:], total - n, axis=0)])
+        cols.append(np.ascontiguousarray(a))
     outs = []
-    for j in range(fm.n_out()):
-        if not fm.sparsity_out(j).is_dense():
-            raise ValueError(f"output {fn.name_out(j)} must be dense (wrap it in casadi.densify)")
-        o = np.empty(fm.nnz_out(j))
-        buf.set_res(j, memoryview(o))
-        outs.append(o)
-    run()
+    for r, c, dense, name in outs_shape:
+        if not dense:
+            raise ValueError(f"output {name} must be dense (wrap it in casadi.densify)")
+        outs.append(np.empty((total, r * c)))
+    for k, _, m in calls:
+        many = threads and m >= THREAD_MIN_POINTS
+        buf, run = _mapped(f, m, CORES if many else 1).buffer()
+        for i, a in enumerate(cols):
+            buf.set_arg(i, memoryview(a[k : k + m].reshape(-1)))
+        for j, o in enumerate(outs):
+            buf.set_res(j, memoryview(o[k : k + m].reshape(-1)))
+        run()
     res = []
-    for j, o in enumerate(outs):
-        r, c = fn.size1_out(j), fn.size2_out(j)
-        # column-major (r, c*n) -> (n, r, c)
-        res.append(o.reshape(n, c, r).transpose(0, 2, 1))
+    for (r, c, _, _), o in zip(outs_shape, outs, strict=True):
+        # per point its (r, c) output column-major -> (n, r, c)
+        res.append(o[:n].reshape(n, c, r).transpose(0, 2, 1))
     return res
 
 

@@ -112,7 +112,7 @@ def dumps(doc: JsonValue) -> str:
     3.5-MB schedule table, against 0.21 s here; tune writes it, report hashes it)."""
     out: list[str] = []
     put = out.append
-    frepr, irepr = float.__repr__, int.__repr__
+    frepr, irepr, isfinite = float.__repr__, int.__repr__, math.isfinite
 
     def enc(x: JsonValue, level: int) -> None:
         t = type(x)
@@ -133,7 +133,9 @@ def dumps(doc: JsonValue) -> str:
                     put("," + nl)
                 if t is dict:
                     put(encode_basestring_ascii(item) + ": ")
-                    enc(x[item], level + 1)
+                    item = x[item]
+                if type(item) is float and isfinite(item):  # the common leaf, without a call
+                    put(frepr(item))
                 else:
                     enc(item, level + 1)
             put("\n" + " " * level + ("}" if t is dict else "]"))
@@ -159,10 +161,11 @@ def clean(x: object) -> JsonValue:
         return x if math.isfinite(x) else None
     if t is str or t is int or t is bool or x is None:
         return x
+    isfinite = math.isfinite  # (a finite float leaf is kept as it is, without a call)
     if t is list:
-        return [clean(v) for v in x]
+        return [v if type(v) is float and isfinite(v) else clean(v) for v in x]
     if isinstance(x, dict):
-        return {str(k): clean(v) for k, v in x.items()}
+        return {str(k): v if type(v) is float and isfinite(v) else clean(v) for k, v in x.items()}
     if isinstance(x, list | tuple):
         return [clean(v) for v in x]
     if hasattr(x, "tolist"):

@@ -15,13 +15,12 @@ numpy.linalg.eigvals.
 from __future__ import annotations
 
 import functools
-import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import casadi as ca
 import numpy as np
-from sensorless.design.batch import evaluate_batch
+from sensorless.design.batch import CORES, evaluate_batch
 from sensorless.symbolic.linalg import charpoly as charpoly_sx
 
 # The damping ratio a stability report requires by default (``sensorless report --min-damping``, every
@@ -155,7 +154,7 @@ _POOL: ThreadPoolExecutor | None = None
 
 
 def _threads() -> int:
-    return min(4, os.cpu_count() or 1)
+    return CORES
 
 
 def eigvals_finite(A: np.ndarray) -> np.ndarray:

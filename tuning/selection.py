@@ -27,8 +27,14 @@ DRIVE_FILE = "drive file's gains"  # the label of the drive file's gains among t
 ENVELOPE_INFEASIBLE = "the envelope is infeasible"  # no gain at all at some speed
 
 
-def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> str:
-    """The message of an infeasible envelope, with its evidence."""
+def infeasible(
+    drive, model, settings, cand, ranked, scale, max_noise, say, known: Bound | None = None
+) -> str:
+    """The message of an infeasible envelope, with its evidence. ``known``: a pointwise bound this tuning
+    computed already with the same decay floor, pole scale and noise limits (a seeded law's, on the dense
+    grid): where its speeds and torques hold the envelope's and it found gains meeting the constraints
+    at every speed, those gains are the evidence at every envelope speed, and no search is run again
+    (the README servo's handover floor: 0.3-0.5 s of a 9 s tune)."""
     wb = drive.w_base
     env = settings.envelope
     worst = cand.labels[int(ranked.worst_point[0])]
@@ -43,6 +49,13 @@ def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> s
     speeds = env.speed_grid()
     torques = env.torque_grid()
     say("no feasible candidate: is any gain at all feasible at each envelope speed?")
+    if _covers(known, speeds, torques, settings.min_decay):
+        names = known.names  # type: ignore[union-attr]
+        say(
+            f"  yes: the pointwise bound's gains (decay >= {settings.min_decay:.4g} 1/s, "
+            "on a grid holding the envelope's)"
+        )
+        return _shape_limit(model, what, ranked, worst, names)
     b = pointwise_bound(model.pointwise(), speeds, torques, settings.min_decay, scale, max_noise, coarse=1)
     bad = np.flatnonzero(~b.feasible)
     if bad.size:
@@ -58,11 +71,30 @@ def infeasible(drive, model, settings, cand, ranked, scale, max_noise, say) -> s
             f"({', '.join(b.names)} anywhere in the box) is {what} at every torque, so no gain law is: "
             f"{pts}{' and more' if bad.size > 6 else ''}{todo}"
         )
+    return _shape_limit(model, what, ranked, worst, b.names)
+
+
+def _shape_limit(model, what: str, ranked, worst: str, names: tuple[str, ...]) -> str:
+    """The message of an envelope where some gain meets the constraints at every speed, but no gain of
+    the law found does at every point."""
     return (
         f"no {model.law} gains found that are {what} at every envelope point (best of "
         f"{ranked.evaluated} candidates and a margin search: fails at {worst}, margin "
-        f"{ranked.margin[0]:.3g}); at every envelope speed some gain ({', '.join(b.names)}) is, so the "
+        f"{ranked.margin[0]:.3g}); at every envelope speed some gain ({', '.join(names)}) is, so the "
         f"limit is the {model.law} law's shape: try another law"
+    )
+
+
+def _covers(known: Bound | None, speeds: np.ndarray, torques: np.ndarray, floor: float) -> bool:
+    """Whether ``known`` shows gains meeting the constraints at each of ``speeds`` at every one of
+    ``torques``: its floor is ``floor``, its grid holds both exactly, and it is feasible at every
+    speed of its own (so at theirs, over its torques, which hold theirs)."""
+    return (
+        known is not None
+        and known.floor == floor
+        and bool(np.all(known.feasible))
+        and bool(np.all(np.isin(speeds, known.speeds)))
+        and bool(np.all(np.isin(torques, known.torques)))
     )
 
 

@@ -111,7 +111,7 @@ def _above_seed(
         say = progress or (lambda s: None)
         seed_name = tunable.seed
         no_floor = dataclasses.replace(settings, pareto=0, min_decay=0.0)
-        seed = _tune(drive, seed_name, no_floor, progress=lambda m: say(f"  [{seed_name}] {m}"))
+        seed = _tune(drive, seed_name, no_floor, progress=lambda m: say(f"  [{seed_name}] {m}"), table=False)
     try:
         return _tune(drive, law, settings, progress, seed)
     except nlp.TuningError as e:
@@ -124,9 +124,11 @@ def _tune(
     settings: TuneSettings | None,
     progress: Callable[[str], None] | None,
     seed: TuneResult | None = None,
+    table: bool = True,
 ) -> TuneOutcome:
     """:func:`tune` without the handover's decay floor; ``seed``: the seed law's result where it is
-    already tuned."""
+    already tuned. ``table`` False: the result has no gain table (None: a seed law's, whose table
+    nobody writes; the law it starts tabulates the seed's gains itself, 0.2 s of the README servo's)."""
     tunable = tunable_for(drive, law)
     law = tunable.name
     settings = settings if settings is not None else tunable.settings(drive)
@@ -143,7 +145,7 @@ def _tune(
         seed_set = dataclasses.replace(settings, pareto=0)
         seed_say = lambda m: say(f"  [{seed_name}] {m}")  # noqa: E731
         try:
-            seed_res = _tune(drive, seed_name, seed_set, progress=seed_say)
+            seed_res = _tune(drive, seed_name, seed_set, progress=seed_say, table=False)
         except nlp.TuningError as e:
             if settings.min_decay <= 0 or str(e).startswith(ENVELOPE_INFEASIBLE):
                 raise  # no floor of the user's, or no gain at all meets it somewhere: no law can
@@ -242,7 +244,7 @@ def _tune(
         dense=dense,
         dense_baseline=dense0,
         robust=rb,
-        table=None,  # type: ignore[arg-type]  (filled below from the result itself)
+        table=None,  # type: ignore[arg-type]  # filled below from the result itself
         seconds=seconds,
         selection=note,
         floor=floor,
@@ -260,8 +262,9 @@ def _tune(
             **({"nlp_failed": list(opt.nlp_failed)} if opt.nlp_failed else {}),
         },
     )
-    table = gain_table(drive, settings, result, scale)
-    return dataclasses.replace(result, table=table)
+    if not table:
+        return result
+    return dataclasses.replace(result, table=gain_table(drive, settings, result, scale))
 
 
 @dataclass(frozen=True)
@@ -308,7 +311,9 @@ def _optimize(
     model, say = pb.model, pb.say
     ranked = search.global_phase(model, cand, pb.scale, max_noise, extra, say)
     if not ranked.feasible[0]:
-        raise nlp.TuningError(infeasible(drive, model, pb.settings, cand, ranked, pb.scale, max_noise, say))
+        raise nlp.TuningError(
+            infeasible(drive, model, pb.settings, cand, ranked, pb.scale, max_noise, say, bound)
+        )
     # a few parameters: several distinct starts (local optima are common); many: the best one (for
     # a seeded law the better on the grid of its seed's gains and the pointwise optima)
     # (a law holding bounded figures: the best start only; prius's law (16) ran its second and third

@@ -68,3 +68,26 @@ def test_large_sweep_equals_small_sweeps(drive, injection):
     idx = np.arange(0, w.size, 250)
     small = linearize(drive, w[idx], drive.T_N, injection=injection)
     assert np.array_equal(big.A[idx], small.A)
+
+
+def test_batches_of_any_size_run_on_maps_of_a_few_sizes_with_the_bits_of_one_map(monkeypatch):
+    x = ca.SX.sym("x", 2)
+    p = ca.SX.sym("p", 1)
+    f = ca.Function("f_sizes", [x, p], [ca.densify(ca.vertcat(ca.exp(x[0]) / (1 + x[1] ** 2), p * x[1]))])
+    built = batch._mapped
+    sizes: set[int] = set()
+
+    def recorded(fn, n, threads):
+        sizes.add(n)
+        return built(fn, n, threads)
+
+    monkeypatch.setattr(batch, "_mapped", recorded)
+    rng = np.random.default_rng(1)
+    odd = (5, 100, batch.CHUNK - 1, batch.CHUNK + 1, 2 * batch.CHUNK + 777)
+    for n in (1, batch.CHUNK, *odd):
+        X = rng.normal(size=(2, n))
+        (y,) = batch.evaluate_batch(f, n, [X, 0.5], jit=False)
+        assert np.array_equal(y[:, :, 0].T, np.asarray(f.map(n)(X, 0.5)))  # one map of n points
+    # the chunk and the buckets of the rests (1, 2, 3 or 4 times a power of two), never a batch's own n
+    assert batch.CHUNK in sizes and sizes <= {batch._bucket(k) for k in range(1, batch.CHUNK + 1)}
+    assert not sizes & set(odd)
