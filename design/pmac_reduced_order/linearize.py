@@ -297,12 +297,18 @@ def analyze(
             T_e[:, None] - outs[:, out_of["T_L_hat"]],  # load-torque error (viscosity included) [N m]
         ]
     )  # (3, n, n_steps)
-    # a scheme can diverge at a point (too long T_s for its speed): NaN results there, not an exception
-    ok = (outs[:, out_of["valid"]] == 1).all(axis=1) & np.isfinite(xs).all(axis=(1, 2))
+    # a scheme can diverge at a point (too long T_s for its speed): NaN results there, not an exception.
+    # Judged over the point's own steps only: the batch runs to its longest point's end, and what a
+    # shorter point's orbit does after its own end must not make it invalid (batch independence)
+    k_idx = np.arange(n_steps)[None, :]
+    own = k_idx < (np.maximum(end, end_jac) if errors else end_jac)[:, None]  # (n, n_steps)
+    ok = (
+        np.where(own, outs[:, out_of["valid"]] == 1, True).all(axis=1)
+        & np.where(own[:, None], np.isfinite(xs), True).all(axis=(1, 2))
+    )
     if errors:
-        k_idx = np.arange(n_steps)[None, :]
         win = (k_idx >= (end - M)[:, None]) & (k_idx < end[:, None])  # (n, n_steps): each point's window
-        ok &= np.isfinite(err).all(axis=(0, 2))
+        ok &= np.where(own[None], np.isfinite(err), True).all(axis=(0, 2))
         e_win = np.where(win[None], err, 0.0)
         mean = np.where(ok, e_win.sum(axis=2) / M, np.nan)
         ptp = np.where(
