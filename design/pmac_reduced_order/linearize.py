@@ -320,11 +320,13 @@ def analyze(
         ok &= np.isfinite(err[:, np.arange(n), end_jac - 1]).all(axis=0)
         mean = ptp = np.full((3, n), np.nan)
     # one-step Jacobians along each point's last M_jac steps: the state after step j (at angle
-    # theta_j) is mapped one step further; shorter windows are padded with identities in front
+    # theta_j) is mapped one step further; shorter windows are padded with identities after their end
+    # (their last step repeated, masked): the product's pairing (ordered_product) then groups a point's
+    # own factors as it does alone, so its bits do not depend on the batch's longest window
     mj = int(M_jac.max())
     rows = np.arange(n)[:, None]
-    cols = np.maximum(end_jac[:, None] - 1 - mj + np.arange(mj)[None, :], 0)  # (n, mj)
-    keep = np.arange(mj)[None, :] >= (mj - M_jac)[:, None]
+    cols = (end_jac - 1 - M_jac)[:, None] + np.minimum(np.arange(mj)[None, :], (M_jac - 1)[:, None])
+    keep = np.arange(mj)[None, :] < M_jac[:, None]  # (n, mj)
     x_w = xs[rows, :, cols].reshape(n * mj, -1).T
     th_w = ths[rows, 0, cols].reshape(n * mj)
     ctx_w = [np.repeat(w_f, mj)[None], np.repeat(plant, mj, axis=1), p_run, np.zeros(0)]
@@ -368,10 +370,14 @@ def analyze(
         Fa[:, :, :nd, nd:] = G0
         Ga = np.zeros((n, mj, nd + 2, 2))
         Ga[:, :, :nd, :] = G1
-        Ga[:, :, nd:, :] = np.eye(2)
+        # the padding after a point's window is the identity of the augmented state (keeps the stored
+        # sample, adds no noise): the periodic covariance is the point's own whatever the batch
+        pad = ~keep[:, :, None, None]
+        Fa[:, :, nd:, nd:] = np.where(pad, np.eye(2), 0.0)
+        Ga[:, :, nd:, :] = np.where(pad, 0.0, np.eye(2))
         Ca = np.zeros((2, nd + 2))
         Ca[0, nd - 2], Ca[1, nd - 1] = 1.0, 1.0  # position error, speed estimate
-        noise_rms = noise_rms_periodic(Fa, Ga, Ca, float(drive.control.i_noise))
+        noise_rms = noise_rms_periodic(Fa, Ga, Ca, float(drive.control.i_noise), steps=M_jac)
         noise_rms[~ok] = np.nan
     # the monodromy over the window: its eigenvalues are the Floquet multipliers, z of one step for a
     # sinusoidal EMF (M_jac = 1)

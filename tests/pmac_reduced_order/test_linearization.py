@@ -186,3 +186,19 @@ def test_point_is_judged_over_its_own_window_only(deangelo2006, errors):
         a, b = getattr(alone, f.name), getattr(batch, f.name)
         if isinstance(a, np.ndarray):
             np.testing.assert_array_equal(b[:1], a, err_msg=f.name)
+
+
+def test_floquet_poles_and_noise_do_not_depend_on_the_batch(deangelo2006):
+    """With harmonics a point's window is M_jac steps (83 at 250 r/min, 521 at 20 r/min); a batch pads
+    the shorter windows to its longest. The padding must be exactly neutral: the Floquet product
+    pairs a point's own factors as alone, and the noise covariance (the tuner's path: noise, no error
+    window) is the mean over the point's own period, not over the padded one."""
+    w = deangelo2006.rpm_to_w(np.array([250.0, 20.0]))
+    alone = analyze(deangelo2006, w[0], 5.0, noise=True, errors=False)
+    batch = analyze(deangelo2006, w, 5.0, noise=True, errors=False)
+    assert batch.steps[0] < batch.steps[1]  # the construction: the 250 r/min window is padded
+    assert np.isfinite(alone.noise).all() and np.isfinite(alone.poles_discrete).all()
+    for f in dataclasses.fields(alone):
+        a, b = getattr(alone, f.name), getattr(batch, f.name)
+        if isinstance(a, np.ndarray):
+            np.testing.assert_array_equal(b[:1], a, err_msg=f.name)
