@@ -302,9 +302,8 @@ def analyze(
     # shorter point's orbit does after its own end must not make it invalid (batch independence)
     k_idx = np.arange(n_steps)[None, :]
     own = k_idx < (np.maximum(end, end_jac) if errors else end_jac)[:, None]  # (n, n_steps)
-    ok = np.where(own, outs[:, out_of["valid"]] == 1, True).all(axis=1) & np.where(
-        own[:, None], np.isfinite(xs), True
-    ).all(axis=(1, 2))
+    accepted = np.where(own, outs[:, out_of["valid"]] == 1, True).all(axis=1)
+    ok = accepted & np.where(own[:, None], np.isfinite(xs), True).all(axis=(1, 2))
     if errors:
         win = (k_idx >= (end - M)[:, None]) & (k_idx < end[:, None])  # (n, n_steps): each point's window
         ok &= np.where(own[None], np.isfinite(err), True).all(axis=(0, 2))
