@@ -55,14 +55,19 @@ def noise_rms(
     return out
 
 
-def noise_rms_periodic(F: np.ndarray, G: np.ndarray, C: np.ndarray, sigma: float) -> np.ndarray:
+def noise_rms_periodic(
+    F: np.ndarray, G: np.ndarray, C: np.ndarray, sigma: float, steps: np.ndarray | None = None
+) -> np.ndarray:
     """(N, n_y) RMS over one period of ``y_k = C x_k`` for ``x_(k+1) = F_k x_k + G_k n_k`` with
     independent per-sample noise of ``sigma`` per input: F (N, M, n, n), G (N, M, n, m), C (n_y, n).
 
     The covariance at the window's start solves P0 = Phi P0 Phi^T + W (Phi the product of the F_k,
     W the noise accumulated over the window), then propagates through the window; the variance is
-    the mean over its M samples. inf where the monodromy Phi is not stable (|z| >= 1)."""
+    the mean over its M samples. inf where the monodromy Phi is not stable (|z| >= 1).
+    ``steps`` (N,): each point's period, its first ``steps`` samples (the rest padding: F = I, G = 0,
+    left out of the mean); default M for all."""
     N, M, n, _ = F.shape
+    steps = np.full(N, M) if steps is None else np.asarray(steps)
     out = np.full((N, C.shape[0]), np.nan)
     ok = np.isfinite(F).all(axis=(1, 2, 3)) & np.isfinite(G).all(axis=(1, 2, 3))
     Phi = np.broadcast_to(np.eye(n), (N, n, n)).copy()
@@ -84,9 +89,9 @@ def noise_rms_periodic(F: np.ndarray, G: np.ndarray, C: np.ndarray, sigma: float
     K = np.eye(n * n)[None] - np.einsum("nij,nkl->nikjl", ph, ph).reshape(m, n * n, n * n)
     P = np.linalg.solve(K, w.reshape(m, n * n, 1)).reshape(m, n, n)
     acc = np.zeros((m, C.shape[0]))
-    fs, gs = f[stable], g[stable]
+    fs, gs, ms = f[stable], g[stable], steps[stable]
     for k in range(M):
-        acc += np.einsum("ij,njk,ik->ni", C, P, C)
+        acc += np.where((k < ms)[:, None], np.einsum("ij,njk,ik->ni", C, P, C), 0.0)
         P = fs[:, k] @ P @ fs[:, k].transpose(0, 2, 1) + sigma**2 * gs[:, k] @ gs[:, k].transpose(0, 2, 1)
-    out[stable] = np.sqrt(np.maximum(acc / M, 0.0))
+    out[stable] = np.sqrt(np.maximum(acc / ms[:, None], 0.0))
     return out

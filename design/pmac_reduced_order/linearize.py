@@ -297,12 +297,16 @@ def analyze(
             T_e[:, None] - outs[:, out_of["T_L_hat"]],  # load-torque error (viscosity included) [N m]
         ]
     )  # (3, n, n_steps)
-    # a scheme can diverge at a point (too long T_s for its speed): NaN results there, not an exception
-    ok = (outs[:, out_of["valid"]] == 1).all(axis=1) & np.isfinite(xs).all(axis=(1, 2))
+    # a scheme can diverge at a point (too long T_s for its speed): NaN results there, not an exception.
+    # Judged over the point's own steps only: the batch runs to its longest point's end, and what a
+    # shorter point's orbit does after its own end must not make it invalid (batch independence)
+    k_idx = np.arange(n_steps)[None, :]
+    own = k_idx < (np.maximum(end, end_jac) if errors else end_jac)[:, None]  # (n, n_steps)
+    accepted = np.where(own, outs[:, out_of["valid"]] == 1, True).all(axis=1)
+    ok = accepted & np.where(own[:, None], np.isfinite(xs), True).all(axis=(1, 2))
     if errors:
-        k_idx = np.arange(n_steps)[None, :]
         win = (k_idx >= (end - M)[:, None]) & (k_idx < end[:, None])  # (n, n_steps): each point's window
-        ok &= np.isfinite(err).all(axis=(0, 2))
+        ok &= np.where(own[None], np.isfinite(err), True).all(axis=(0, 2))
         e_win = np.where(win[None], err, 0.0)
         mean = np.where(ok, e_win.sum(axis=2) / M, np.nan)
         ptp = np.where(
@@ -314,11 +318,13 @@ def analyze(
         ok &= np.isfinite(err[:, np.arange(n), end_jac - 1]).all(axis=0)
         mean = ptp = np.full((3, n), np.nan)
     # one-step Jacobians along each point's last M_jac steps: the state after step j (at angle
-    # theta_j) is mapped one step further; shorter windows are padded with identities in front
+    # theta_j) is mapped one step further; shorter windows are padded with identities after their end
+    # (their last step repeated, masked): the product's pairing (ordered_product) then groups a point's
+    # own factors as it does alone, so its bits do not depend on the batch's longest window
     mj = int(M_jac.max())
     rows = np.arange(n)[:, None]
-    cols = np.maximum(end_jac[:, None] - 1 - mj + np.arange(mj)[None, :], 0)  # (n, mj)
-    keep = np.arange(mj)[None, :] >= (mj - M_jac)[:, None]
+    cols = (end_jac - 1 - M_jac)[:, None] + np.minimum(np.arange(mj)[None, :], (M_jac - 1)[:, None])
+    keep = np.arange(mj)[None, :] < M_jac[:, None]  # (n, mj)
     x_w = xs[rows, :, cols].reshape(n * mj, -1).T
     th_w = ths[rows, 0, cols].reshape(n * mj)
     ctx_w = [np.repeat(w_f, mj)[None], np.repeat(plant, mj, axis=1), p_run, np.zeros(0)]
@@ -362,10 +368,14 @@ def analyze(
         Fa[:, :, :nd, nd:] = G0
         Ga = np.zeros((n, mj, nd + 2, 2))
         Ga[:, :, :nd, :] = G1
-        Ga[:, :, nd:, :] = np.eye(2)
+        # the padding after a point's window is the identity of the augmented state (keeps the stored
+        # sample, adds no noise): the periodic covariance is the point's own whatever the batch
+        pad = ~keep[:, :, None, None]
+        Fa[:, :, nd:, nd:] = np.where(pad, np.eye(2), 0.0)
+        Ga[:, :, nd:, :] = np.where(pad, 0.0, np.eye(2))
         Ca = np.zeros((2, nd + 2))
         Ca[0, nd - 2], Ca[1, nd - 1] = 1.0, 1.0  # position error, speed estimate
-        noise_rms = noise_rms_periodic(Fa, Ga, Ca, float(drive.control.i_noise))
+        noise_rms = noise_rms_periodic(Fa, Ga, Ca, float(drive.control.i_noise), steps=M_jac)
         noise_rms[~ok] = np.nan
     # the monodromy over the window: its eigenvalues are the Floquet multipliers, z of one step for a
     # sinusoidal EMF (M_jac = 1)
