@@ -241,12 +241,33 @@ def lay_out(
     ``gap`` [in]: between the decorations of neighbouring axes (more than constrained layout's for a
     stack of panels that share their time axis, which would otherwise touch).
 
-    Call it once everything that takes room (tick formatters, limits, labels, titles) is set."""
+    Call it once everything that takes room (tick formatters, limits, labels, titles) is set.
+
+    The text is measured as the SVG will draw it, at the 72 dpi it is saved at, by the renderer that
+    draws it (svg_backend.py: measured here, the draw finds it measured)."""
+    from sensorless.reports.svg_backend import measuring_renderer
+
+    dpi = fig.dpi
+    fig.dpi = 72  # as when the figure is saved as SVG: text extents in points
+    try:
+        return _lay_out(fig, axes, bars, title, title_size, gap, measuring_renderer(fig))
+    finally:
+        fig.dpi = dpi
+
+
+def _lay_out(
+    fig: Figure,
+    axes: np.ndarray | Sequence[Sequence[Axes]],
+    bars: Sequence[Bar],
+    title: str | None,
+    title_size: float,
+    gap: float,
+    renderer: RendererBase,
+) -> list[Colorbar]:
     grid = np.asarray(axes, dtype=object)
     grid = grid.reshape(1, -1) if grid.ndim == 1 else grid
     n_r, n_c = grid.shape
     W, H = (float(v) for v in fig.get_size_inches())
-    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
     metrics = _Metrics(renderer)
     head = 0.0
     if title:

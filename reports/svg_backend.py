@@ -1,0 +1,125 @@
+"""The report figures' SVG backend: matplotlib's own, with each string measured and shaped once a process.
+
+matplotlib's SVG renderer draws text as paths: every string is measured (FreeType shaping of the whole
+string) to lay it out, then shaped again to place its glyphs, and a mathtext string is parsed (pyparsing,
+~10 ms) for each new renderer. figure_layout.py ``lay_out`` measured every tick label, axis label and
+title once more on an Agg renderer (hinted, at the figure's dpi), parsing the trace figures' mathtext
+labels again. Here one :class:`TextCache` (matplotlib's ``TextToPath`` remembering what it measured and
+shaped: the same numbers, computed once) serves :func:`measuring_renderer`, on which ``lay_out``
+measures, and the renderer that writes the SVG: the draw finds every string already measured, a
+repeated one (tick labels, the same axis label on each panel) already shaped, each mathtext string
+parsed once.
+
+Used through ``savefig(..., backend=BACKEND)`` (document.py ``svg_uri``): the SVG is matplotlib's
+``print_svg`` with :class:`Renderer` in place of ``RendererSVG``; its bytes are those matplotlib writes.
+"""
+
+from __future__ import annotations
+
+import codecs
+import functools
+import io
+from collections import OrderedDict
+from typing import TYPE_CHECKING, Any
+
+from matplotlib import cbook
+from matplotlib.backends.backend_mixed import MixedModeRenderer
+from matplotlib.backends.backend_svg import FigureCanvasSVG, RendererSVG
+from matplotlib.textpath import TextToPath
+
+if TYPE_CHECKING:  # typed by name only
+    from matplotlib.figure import Figure
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.ft2font import FT2Font
+
+BACKEND = "module://sensorless.reports.svg_backend"
+CACHED = 4096  # strings kept (a report's figures draw a few hundred distinct ones)
+
+
+class TextCache(TextToPath):
+    """``TextToPath`` that keeps each string's extents and glyph layout (they depend on the string and
+    the font only): what matplotlib computes, once."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._extents = functools.lru_cache(CACHED)(self._measured)
+        self._laid_out = functools.lru_cache(CACHED)(self._shaped)
+
+    def _measured(self, s: str, prop: FontProperties, ismath: Any) -> tuple[float, float, float]:
+        return super().get_text_width_height_descent(s, prop, ismath)
+
+    def get_text_width_height_descent(self, s: str, prop: FontProperties, ismath: Any) -> Any:
+        return self._extents(s, prop.copy(), ismath)  # a copy: the caller may change its own later
+
+    def _shaped(
+        self, font: FT2Font, s: str, features: Any, language: Any
+    ) -> tuple[tuple[tuple[str, float, float, float], ...], dict[str, Any]]:
+        kw = {} if features is None and language is None else {"features": features, "language": language}
+        info, glyphs, _ = super().get_glyphs_with_font(font, s, **kw)
+        return tuple(info), dict(glyphs)
+
+    def get_glyphs_with_font(
+        self,
+        font: FT2Font,
+        s: str,
+        glyph_map: Any = None,
+        return_new_glyphs_only: bool = False,
+        *,
+        features: Any = None,
+        language: Any = None,
+    ) -> tuple[list[tuple[str, float, float, float]], Any, list]:
+        """As matplotlib's: the glyphs of ``s`` (name, x, y, scale) and the outlines of those not in
+        ``glyph_map`` (only those, or ``glyph_map`` with them added)."""
+        info, paths = self._laid_out(font, s, features, language)
+        glyph_map = OrderedDict() if glyph_map is None else glyph_map
+        new = OrderedDict() if return_new_glyphs_only else glyph_map
+        for name, *_ in info:
+            if name not in glyph_map:
+                new[name] = paths[name]
+        return list(info), new, []
+
+
+TEXT = TextCache()  # this process's
+
+
+class Renderer(RendererSVG):
+    """matplotlib's SVG renderer on this process's :data:`TEXT`."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._text2path = TEXT
+
+
+def measuring_renderer(fig: Figure) -> Renderer:
+    """A renderer that measures text as the SVG's will (``fig.dpi`` must be 72, as when it is saved),
+    writing nothing anyone reads."""
+    width, height = fig.get_size_inches()
+    return Renderer(width * 72, height * 72, io.StringIO())
+
+
+class FigureCanvas(FigureCanvasSVG):
+    """matplotlib's SVG canvas drawing with :class:`Renderer`."""
+
+    def print_svg(
+        self, filename: Any, *, bbox_inches_restore: Any = None, metadata: Any = None, **_applied: Any
+    ) -> None:
+        # matplotlib's FigureCanvasSVG.print_svg, with Renderer in place of RendererSVG; ``_applied``:
+        # what print_figure passes a canvas not of matplotlib's own (dpi, facecolor, edgecolor,
+        # orientation), which it has set on the figure already and matplotlib's print_svg does not take
+        with cbook.open_file_cm(filename, "w", encoding="utf-8") as fh:
+            if not cbook.file_requires_unicode(fh):
+                fh = codecs.getwriter("utf-8")(fh)
+            dpi = self.figure.dpi
+            self.figure.dpi = 72
+            width, height = self.figure.get_size_inches()
+            w, h = width * 72, height * 72
+            renderer = MixedModeRenderer(
+                self.figure,
+                width,
+                height,
+                dpi,
+                Renderer(w, h, fh, image_dpi=dpi, metadata=metadata),
+                bbox_inches_restore=bbox_inches_restore,
+            )
+            self.figure.draw(renderer)
+            renderer.finalize()
