@@ -97,11 +97,23 @@ class _AxisRoom:
 
 
 class _Metrics:
-    """Text extents (width, height, descent) [px] on a renderer, each string measured once per layout."""
+    """Text extents (width, height, descent) [px] on a renderer, each string measured once per layout;
+    and the size of each text artist (an axis label, a title), laid out once per layout: its size does
+    not change as the axes move."""
 
     def __init__(self, renderer: RendererBase) -> None:
         self.renderer = renderer
         self._seen: dict[tuple[str, FontProperties], tuple[float, float, float]] = {}
+        self._sizes: dict[int, tuple[Text, float, float]] = {}
+
+    def size(self, text: Text) -> tuple[float, float]:
+        """(width, height) [px] of ``text`` as drawn (0 for none)."""
+        if not text.get_visible() or not text.get_text():
+            return 0.0, 0.0
+        if (known := self._sizes.get(id(text))) is None or known[0] is not text:
+            bb = text.get_window_extent(self.renderer)
+            known = self._sizes[id(text)] = (text, bb.width, bb.height)
+        return known[1], known[2]
 
     def __call__(self, s: str, prop: FontProperties) -> tuple[float, float, float]:
         from matplotlib import cbook
@@ -148,17 +160,14 @@ def room(ax: Axes, metrics: _Metrics, size: tuple[float, float]) -> Room:
     from matplotlib import rcParams
 
     dpi = ax.get_figure(root=True).dpi
-    renderer = metrics.renderer
     y = _axis_room(ax.yaxis, metrics, size[1])
     x = _axis_room(ax.xaxis, metrics, size[0])
     left, right = max(y.side1, x.low), max(y.side2, x.high)
     bottom, top = max(x.side1 + x.offset, y.low), max(x.side2, y.high, y.offset)
 
     def extent(text: Text) -> tuple[float, float]:
-        if not text.get_visible() or not text.get_text():
-            return 0.0, 0.0
-        bb = text.get_window_extent(renderer)
-        return bb.width / dpi, bb.height / dpi
+        w, h = metrics.size(text)
+        return w / dpi, h / dpi
 
     ylabel = xlabel = None
     if w := extent(ax.yaxis.label)[0]:

@@ -141,13 +141,16 @@ def _made(fig: Figure | Callable[[], Figure]) -> Figure:
 @functools.cache
 def _shared_before_fork() -> None:
     """Import and build here, once, what every child would otherwise import or build for itself, and
-    the children inherit: pyplot with the report's settings (document.py ``pyplot``), its SVG backend
-    and matplotlib's mathtext grammar (a class attribute, ~0.1 s CPU; the trace figures' labels are
-    mathtext)."""
+    the children inherit: pyplot with the report's settings (document.py ``pyplot``), the SVG backend
+    (svg_backend.py) and the flat ticks (figure_ticks.py) every figure is saved with, the image
+    plugins PIL imports to write the first rasterized image (a pole map's), and matplotlib's mathtext
+    grammar (a class attribute, ~0.1 s CPU; the trace figures' labels are mathtext)."""
     pyplot()
     from matplotlib import mathtext
-    from matplotlib.backends import backend_svg  # noqa: F401  (every figure is saved through it)
+    from PIL import Image
+    from sensorless.reports import figure_ticks, svg_backend  # noqa: F401  (every figure is saved with them)
 
+    Image.preinit()
     mathtext.MathTextParser("path").parse("$x$")
 
 
