@@ -20,8 +20,9 @@ import codecs
 import functools
 import io
 from collections import OrderedDict
-from typing import TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING
 
+import numpy as np
 from matplotlib import cbook
 from matplotlib.backends.backend_mixed import MixedModeRenderer
 from matplotlib.backends.backend_svg import FigureCanvasSVG, RendererSVG
@@ -33,6 +34,10 @@ if TYPE_CHECKING:  # typed by name only
     from matplotlib.ft2font import FT2Font
 
 BACKEND = "module://sensorless.reports.svg_backend"
+Glyph = tuple[str, float, float, float]  # a glyph's SVG name, x, y, scale (matplotlib's TextToPath)
+Outlines = OrderedDict[str, tuple[np.ndarray, np.ndarray]]  # glyph name -> its outline (vertices, codes)
+Features = tuple[str, ...] | None  # OpenType features of a text (matplotlib >= 3.10)
+Language = str | tuple[tuple[str, int, int], ...] | None
 CACHED = 4096  # strings kept (a report's figures draw a few hundred distinct ones)
 
 
@@ -44,38 +49,41 @@ class TextCache(TextToPath):
         super().__init__()
         self._extents = functools.lru_cache(CACHED)(self._measured)
         self._laid_out = functools.lru_cache(CACHED)(self._shaped)
+        self._outlines: Outlines = OrderedDict()  # every glyph's, by its SVG name
 
-    def _measured(self, s: str, prop: FontProperties, ismath: Any) -> tuple[float, float, float]:
+    def _measured(self, s: str, prop: FontProperties, ismath: bool | str) -> tuple[float, float, float]:
         return super().get_text_width_height_descent(s, prop, ismath)
 
-    def get_text_width_height_descent(self, s: str, prop: FontProperties, ismath: Any) -> Any:
+    def get_text_width_height_descent(
+        self, s: str, prop: FontProperties, ismath: bool | str
+    ) -> tuple[float, float, float]:
         return self._extents(s, prop.copy(), ismath)  # a copy: the caller may change its own later
 
-    def _shaped(
-        self, font: FT2Font, s: str, features: Any, language: Any
-    ) -> tuple[tuple[tuple[str, float, float, float], ...], dict[str, Any]]:
+    def _shaped(self, font: FT2Font, s: str, features: Features, language: Language) -> tuple[Glyph, ...]:
         kw = {} if features is None and language is None else {"features": features, "language": language}
-        info, glyphs, _ = super().get_glyphs_with_font(font, s, **kw)
-        return tuple(info), dict(glyphs)
+        # the outlines of glyphs not met before only (matplotlib's glyph_map: outlines by glyph name)
+        info, new, _ = super().get_glyphs_with_font(font, s, self._outlines, True, **kw)
+        self._outlines.update(new)
+        return tuple(info)
 
     def get_glyphs_with_font(
         self,
         font: FT2Font,
         s: str,
-        glyph_map: Any = None,
+        glyph_map: Outlines | None = None,
         return_new_glyphs_only: bool = False,
         *,
-        features: Any = None,
-        language: Any = None,
-    ) -> tuple[list[tuple[str, float, float, float]], Any, list]:
+        features: Features = None,
+        language: Language = None,
+    ) -> tuple[list[Glyph], Outlines, list[object]]:
         """As matplotlib's: the glyphs of ``s`` (name, x, y, scale) and the outlines of those not in
         ``glyph_map`` (only those, or ``glyph_map`` with them added)."""
-        info, paths = self._laid_out(font, s, features, language)
+        info = self._laid_out(font, s, features, language)
         glyph_map = OrderedDict() if glyph_map is None else glyph_map
         new = OrderedDict() if return_new_glyphs_only else glyph_map
         for name, *_ in info:
             if name not in glyph_map:
-                new[name] = paths[name]
+                new[name] = self._outlines[name]
         return list(info), new, []
 
 
@@ -85,7 +93,7 @@ TEXT = TextCache()  # this process's
 class Renderer(RendererSVG):
     """matplotlib's SVG renderer on this process's :data:`TEXT`."""
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)
         self._text2path = TEXT
 
@@ -101,7 +109,12 @@ class FigureCanvas(FigureCanvasSVG):
     """matplotlib's SVG canvas drawing with :class:`Renderer`."""
 
     def print_svg(
-        self, filename: Any, *, bbox_inches_restore: Any = None, metadata: Any = None, **_applied: Any
+        self,
+        filename: str | IO[str],
+        *,
+        bbox_inches_restore: object = None,
+        metadata: dict[str, object] | None = None,
+        **_applied: object,
     ) -> None:
         # matplotlib's FigureCanvasSVG.print_svg, with Renderer in place of RendererSVG; ``_applied``:
         # what print_figure passes a canvas not of matplotlib's own (dpi, facecolor, edgecolor,
