@@ -19,6 +19,7 @@ from __future__ import annotations
 import codecs
 import functools
 import io
+import sys
 from collections import OrderedDict
 from typing import IO, TYPE_CHECKING
 
@@ -105,6 +106,46 @@ def measuring_renderer(fig: Figure) -> Renderer:
     return Renderer(width * 72, height * 72, io.StringIO())
 
 
+def _painted(img: np.ndarray) -> tuple[slice, slice]:
+    """The rows and columns of an RGBA buffer's pixels with alpha > 0 (matplotlib's
+    ``cbook._get_nonzero_slices`` of its alpha channel): the alpha of each pixel read as the top byte
+    of its 32-bit word, the columns searched in the painted rows only (a pole map's scatter covers a
+    quarter of the figure-sized buffer)."""
+    packed = img.view(np.uint32).reshape(img.shape[:2])
+    on = packed >= 1 << 24 if sys.byteorder == "little" else (packed & 0xFF) != 0
+    rows = np.flatnonzero(on.any(axis=1))
+    if not rows.size:
+        return slice(0, 0), slice(0, 0)
+    cols = np.flatnonzero(on[rows[0] : rows[-1] + 1].any(axis=0))
+    return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
+
+
+class Mixed(MixedModeRenderer):
+    """matplotlib's mixed-mode renderer, finding a rasterized artist's pixels in the figure-sized buffer
+    faster (:func:`_painted`; the same image)."""
+
+    def stop_rasterizing(self) -> None:
+        raster = self._raster_renderer
+        if self._bbox_inches_restore or raster is None:  # not the report's case: matplotlib's own
+            return super().stop_rasterizing()
+        # matplotlib's MixedModeRenderer.stop_rasterizing, with _painted
+        self._renderer = self._vector_renderer
+        height = self._height * self.dpi
+        img = np.asarray(raster.buffer_rgba())
+        slice_y, slice_x = _painted(img)
+        cropped = img[slice_y, slice_x]
+        if cropped.size:
+            gc = self._renderer.new_gc()
+            self._renderer.draw_image(
+                gc,
+                slice_x.start * self._figdpi / self.dpi,
+                (height - slice_y.stop) * self._figdpi / self.dpi,
+                cropped[::-1],
+            )
+        self._raster_renderer = None
+        self.figure.dpi = self._figdpi
+
+
 class FigureCanvas(FigureCanvasSVG):
     """matplotlib's SVG canvas drawing with :class:`Renderer`."""
 
@@ -116,9 +157,9 @@ class FigureCanvas(FigureCanvasSVG):
         metadata: dict[str, object] | None = None,
         **_applied: object,
     ) -> None:
-        # matplotlib's FigureCanvasSVG.print_svg, with Renderer in place of RendererSVG; ``_applied``:
-        # what print_figure passes a canvas not of matplotlib's own (dpi, facecolor, edgecolor,
-        # orientation), which it has set on the figure already and matplotlib's print_svg does not take
+        # matplotlib's FigureCanvasSVG.print_svg, with Renderer and Mixed in place of RendererSVG and
+        # MixedModeRenderer; ``_applied``: what print_figure passes a canvas not of matplotlib's own (dpi,
+        # facecolor, edgecolor, orientation), set on the figure already; matplotlib's print_svg takes none
         with cbook.open_file_cm(filename, "w", encoding="utf-8") as fh:
             if not cbook.file_requires_unicode(fh):
                 fh = codecs.getwriter("utf-8")(fh)
@@ -126,7 +167,7 @@ class FigureCanvas(FigureCanvasSVG):
             self.figure.dpi = 72
             width, height = self.figure.get_size_inches()
             w, h = width * 72, height * 72
-            renderer = MixedModeRenderer(
+            renderer = Mixed(
                 self.figure,
                 width,
                 height,
