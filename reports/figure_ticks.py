@@ -21,12 +21,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.artist import Artist
+from matplotlib.artist import Artist, allow_rasterization
+from matplotlib.colors import to_rgba
 
 if TYPE_CHECKING:  # typed by name only
     from matplotlib.axis import Axis, Tick
     from matplotlib.backend_bases import RendererBase
     from matplotlib.figure import Figure
+    from matplotlib.text import Text
 
 
 class FlatTicks(Artist):
@@ -39,6 +41,7 @@ class FlatTicks(Artist):
         self._groups = groups
         self.set_zorder(axis.get_zorder())  # drawn where the axis draws its ticks
 
+    @allow_rasterization  # as every artist's draw: a rasterized artist before it ends its image here
     def draw(self, renderer: RendererBase) -> None:
         if not (self.get_visible() and self._axis.get_visible()):
             return
@@ -61,12 +64,55 @@ class FlatTicks(Artist):
                     mark.draw(renderer)
             for label in (tick.label1, tick.label2):
                 if label.get_visible():
-                    for loc, text in zip(locs, labels, strict=True):
-                        (label.set_y if vertical else label.set_x)(loc)
-                        label.set_text(text)
-                        label.draw(renderer)
+                    _draw_labels(label, locs, labels, vertical, renderer)
         renderer.close_group(f"{self._axis.axis_name}ticks")
         self.stale = False
+
+
+def _draw_labels(
+    label: Text, locs: np.ndarray, texts: list[str], vertical: bool, renderer: RendererBase
+) -> None:
+    """Each of ``texts`` at its location in ``label``'s style: what ``Text.draw`` does for each (its
+    group, its layout, ``draw_text`` of each line), with what is the same for all done once: the
+    positions (one transform), the graphics context (colour, alpha, clip). Labels with a box, path
+    effects, TeX, wrapping or rasterized are drawn by ``Text.draw``."""
+    plain = (
+        not (label.get_bbox_patch() or label.get_path_effects() or label.get_usetex() or label.get_wrap())
+        and not label.get_rasterized()
+    )
+    if not plain:
+        for loc, text in zip(locs, texts, strict=True):
+            (label.set_y if vertical else label.set_x)(loc)
+            label.set_text(text)
+            label.draw(renderer)
+        return
+    x0, y0 = label.get_unitless_position()
+    xy = np.column_stack((np.full(locs.size, x0), locs) if vertical else (locs, np.full(locs.size, y0)))
+    at = label.get_transform().transform(xy)
+    canvas_h = renderer.get_canvas_width_height()[1]
+    gc = renderer.new_gc()
+    gc.set_foreground(to_rgba(label.get_color()), isRGBA=True)
+    gc.set_alpha(label.get_alpha())
+    gc.set_url(label.get_url())
+    gc.set_antialiased(label.get_antialiased())
+    gc.set_snap(label.get_snap())
+    label._set_gc_clip(gc)
+    angle = label.get_rotation()
+    for text, (px, py) in zip(texts, at, strict=True):
+        if not text or not (np.isfinite(px) and np.isfinite(py)):
+            continue  # Text.draw draws nothing there
+        label.set_text(text)
+        renderer.open_group("text", label.get_gid())
+        _, lines, _ = label._get_layout(renderer)
+        for line, _wad, (x, y) in lines:
+            x, y = x + px, y + py
+            if renderer.flipy():
+                y = canvas_h - y
+            clean, ismath = label._preprocess_math(line)
+            mtext = label if len(lines) == 1 else None
+            renderer.draw_text(gc, x, y, clean, label.get_fontproperties(), angle, ismath=ismath, mtext=mtext)
+        renderer.close_group("text")
+    gc.restore()
 
 
 def _flat(axis: Axis) -> list[tuple[Tick, np.ndarray, list[str]]] | None:
