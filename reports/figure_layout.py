@@ -4,11 +4,11 @@ matplotlib's constrained layout finds the margins of a grid of axes by measuring
 every axes (ticks made as artists, each label laid out) twice, and the draw measures them all again to
 place each axis label: for a report figure that was more than half of its CPU time. The margins depend
 only on a few strings: the tick labels (from each axis' locator and formatter, as the draw makes them),
-the axis labels and the titles. :func:`lay_out` measures those strings' extents (text metrics, which
-matplotlib caches for the draw), places the axes, their colorbars and the figure's title with the room
-the constrained layout would leave (``PAD`` around every decorated axes; rows of equal height, columns
-of equal width), and pins each axis label where the draw would have put it, so that the draw does not
-search for it again.
+the axis labels and the titles. :func:`lay_out` measures those strings' extents as the SVG draws them
+(on svg_backend.py's renderer at 72 dpi, whose text cache the draw then finds filled), places the
+axes, their colorbars and the figure's title with the room the constrained layout would leave (``PAD``
+around every decorated axes; rows of equal height, columns of equal width), and pins each axis label
+where the draw would have put it, so that the draw does not search for it again.
 
 What it measures: the tick labels of both sides of each axis (major and minor, unrotated), the offset
 text, the axis labels, the centre title and tick labels overhanging the axes' ends; legends and texts
