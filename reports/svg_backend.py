@@ -21,6 +21,7 @@ import functools
 import io
 import sys
 from collections import OrderedDict
+from collections.abc import Iterable
 from typing import IO, TYPE_CHECKING
 
 import numpy as np
@@ -89,6 +90,17 @@ class TextCache(TextToPath):
 
 
 TEXT = TextCache()  # this process's
+
+
+def warm(texts: Iterable[str]) -> None:
+    """Parse the mathtext among ``texts`` here (svg_render.py ``svg_later``, before it forks): a figure
+    child then finds it parsed (matplotlib parses a mathtext string at one size for every size it is
+    drawn at), not each child again (~10 ms a string; a trace figure's labels are mathtext)."""
+    from matplotlib.font_manager import FontProperties
+
+    for s in texts:
+        if cbook.is_math_text(s):
+            TEXT.get_text_width_height_descent(s, FontProperties(), ismath=True)
 
 
 class Renderer(RendererSVG):

@@ -26,7 +26,7 @@ import signal
 import sys
 import time
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 from sensorless.reports.document import pyplot, svg_uri
@@ -154,16 +154,22 @@ def _shared_before_fork() -> None:
     mathtext.MathTextParser("path").parse("$x$")
 
 
-def svg_later(fig: Figure | Callable[[], Figure]) -> PendingSvg | str:
+def svg_later(fig: Figure | Callable[[], Figure], texts: Sequence[str] = ()) -> PendingSvg | str:
     """The figure's SVG data URI as :func:`svg_uri` gives it, rendered by a child process (module
     docstring); ``str()`` of the result is the URI. ``fig`` is a matplotlib figure (closed here) or a
     function without arguments that makes one: the child calls it, so building the figure leaves
     this process too (bind its arguments now, e.g. with functools.partial: it may also be called
-    later, here, if the child fails)."""
+    later, here, if the child fails). ``texts``: strings the figure draws that several figures share
+    (its mathtext labels), parsed here before the fork (svg_backend.py ``warm``): once a report, not
+    once a child."""
     if not forking():
         pyplot()  # the report's settings before the figure is made
         return svg_uri(_made(fig))
     _shared_before_fork()
+    if texts:
+        from sensorless.reports.svg_backend import warm
+
+        warm(texts)
     limit = len(os.sched_getaffinity(0)) or 1  # the CPUs this process may use
     while True:  # at most ``limit`` children at a time: wait for the oldest
         live = [p for p in (r() for r in _running) if p is not None and p._child is not None]
