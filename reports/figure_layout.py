@@ -139,13 +139,15 @@ def _axis_room(axis: Axis, metrics: _Metrics, along: float) -> _AxisRoom:
     prop = tick.label1.get_fontproperties()
     _, h_lp, d_lp = metrics("lp", prop)
     to_frac = axis.axes.transScale + axis.axes.transLimits
+    values = np.array([v for v, _ in shown], float)
+    at = np.column_stack((np.zeros_like(values), values) if vertical else (values, np.zeros_like(values)))
+    fracs = to_frac.transform(at)[:, 1 if vertical else 0]  # each tick's place along the axis, at once
     across = low = high = 0.0
-    for v, s in shown:
+    for (_, s), frac in zip(shown, fracs, strict=True):
         w, h, d = metrics(s, prop)
         h = max(h - d, h_lp - d_lp) + max(d, d_lp)  # a line's height as matplotlib's text layout has it
         across = max(across, (w if vertical else h) / dpi)
         half = (h if vertical else w) / dpi / 2  # a label is centred on its tick
-        frac = to_frac.transform((0.0, v) if vertical else (v, 0.0))[1 if vertical else 0]
         low = max(low, half - frac * along)
         high = max(high, half - (1 - frac) * along)
     extent = (tick.get_pad() + tick.get_tick_padding()) / 72 + across if across else 0.0
