@@ -104,7 +104,8 @@ def _draw_labels(
         label.set_text(text)
         renderer.open_group("text", label.get_gid())
         _, lines, _ = label._get_layout(renderer)
-        for line, _wad, (x, y) in lines:
+        for item in lines:  # (line, extents, (x, y)); matplotlib < 3.10: (line, extents, x, y)
+            line, (x, y) = item[0], item[-1] if len(item) == 3 else item[-2:]
             x, y = x + px, y + py
             if renderer.flipy():
                 y = canvas_h - y
