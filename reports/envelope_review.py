@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
@@ -50,13 +51,13 @@ from sensorless.reports.document import (
     drive_section,
     f,
     num,
-    svg_uri,
 )
 from sensorless.reports.drive_range import Remedy
 from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
 from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
+from sensorless.reports.svg_render import svg_later
 from sensorless.reports.time_domain import Check, Finding
 
 if TYPE_CHECKING:
@@ -289,7 +290,8 @@ def summary(lin: Linearization, gains: GainSet, w_base: float) -> dict[str, Any]
 
 def poles_section_figure(drive: Drive, lin: Linearization, label: str) -> Figure:
     """The report's figure of the poles over the envelope of the gains ``label``."""
-    return Figure(svg_uri(poles_figure(lin, drive.w_base, f"{drive.name}: poles, gains {label}")), CAPTION)
+    title = f"{drive.name}: poles, gains {label}"
+    return Figure(svg_later(functools.partial(poles_figure, lin, drive.w_base, title)), CAPTION)
 
 
 class Judging(Generic[EnvelopedT]):

@@ -4,11 +4,11 @@ matplotlib's constrained layout finds the margins of a grid of axes by measuring
 every axes (ticks made as artists, each label laid out) twice, and the draw measures them all again to
 place each axis label: for a report figure that was more than half of its CPU time. The margins depend
 only on a few strings: the tick labels (from each axis' locator and formatter, as the draw makes them),
-the axis labels and the titles. :func:`lay_out` measures those strings' extents (text metrics, which
-matplotlib caches for the draw), places the axes, their colorbars and the figure's title with the room
-the constrained layout would leave (``PAD`` around every decorated axes; rows of equal height, columns
-of equal width), and pins each axis label where the draw would have put it, so that the draw does not
-search for it again.
+the axis labels and the titles. :func:`lay_out` measures those strings' extents as the SVG draws them
+(on svg_backend.py's renderer at 72 dpi, whose text cache the draw then finds filled), places the
+axes, their colorbars and the figure's title with the room the constrained layout would leave (``PAD``
+around every decorated axes; rows of equal height, columns of equal width), and pins each axis label
+where the draw would have put it, so that the draw does not search for it again.
 
 What it measures: the tick labels of both sides of each axis (major and minor, unrotated), the offset
 text, the axis labels, the centre title and tick labels overhanging the axes' ends; legends and texts
@@ -97,11 +97,23 @@ class _AxisRoom:
 
 
 class _Metrics:
-    """Text extents (width, height, descent) [px] on a renderer, each string measured once per layout."""
+    """Text extents (width, height, descent) [px] on a renderer, each string measured once per layout;
+    and the size of each text artist (an axis label, a title), laid out once per layout: its size does
+    not change as the axes move."""
 
     def __init__(self, renderer: RendererBase) -> None:
         self.renderer = renderer
         self._seen: dict[tuple[str, FontProperties], tuple[float, float, float]] = {}
+        self._sizes: dict[int, tuple[Text, float, float]] = {}
+
+    def size(self, text: Text) -> tuple[float, float]:
+        """(width, height) [px] of ``text`` as drawn (0 for none)."""
+        if not text.get_visible() or not text.get_text():
+            return 0.0, 0.0
+        if (known := self._sizes.get(id(text))) is None or known[0] is not text:
+            bb = text.get_window_extent(self.renderer)
+            known = self._sizes[id(text)] = (text, bb.width, bb.height)
+        return known[1], known[2]
 
     def __call__(self, s: str, prop: FontProperties) -> tuple[float, float, float]:
         from matplotlib import cbook
@@ -127,13 +139,15 @@ def _axis_room(axis: Axis, metrics: _Metrics, along: float) -> _AxisRoom:
     prop = tick.label1.get_fontproperties()
     _, h_lp, d_lp = metrics("lp", prop)
     to_frac = axis.axes.transScale + axis.axes.transLimits
+    values = np.array([v for v, _ in shown], float)
+    at = np.column_stack((np.zeros_like(values), values) if vertical else (values, np.zeros_like(values)))
+    fracs = to_frac.transform(at)[:, 1 if vertical else 0]  # each tick's place along the axis, at once
     across = low = high = 0.0
-    for v, s in shown:
+    for (_, s), frac in zip(shown, fracs, strict=True):
         w, h, d = metrics(s, prop)
         h = max(h - d, h_lp - d_lp) + max(d, d_lp)  # a line's height as matplotlib's text layout has it
         across = max(across, (w if vertical else h) / dpi)
         half = (h if vertical else w) / dpi / 2  # a label is centred on its tick
-        frac = to_frac.transform((0.0, v) if vertical else (v, 0.0))[1 if vertical else 0]
         low = max(low, half - frac * along)
         high = max(high, half - (1 - frac) * along)
     extent = (tick.get_pad() + tick.get_tick_padding()) / 72 + across if across else 0.0
@@ -148,17 +162,14 @@ def room(ax: Axes, metrics: _Metrics, size: tuple[float, float]) -> Room:
     from matplotlib import rcParams
 
     dpi = ax.get_figure(root=True).dpi
-    renderer = metrics.renderer
     y = _axis_room(ax.yaxis, metrics, size[1])
     x = _axis_room(ax.xaxis, metrics, size[0])
     left, right = max(y.side1, x.low), max(y.side2, x.high)
     bottom, top = max(x.side1 + x.offset, y.low), max(x.side2, y.high, y.offset)
 
     def extent(text: Text) -> tuple[float, float]:
-        if not text.get_visible() or not text.get_text():
-            return 0.0, 0.0
-        bb = text.get_window_extent(renderer)
-        return bb.width / dpi, bb.height / dpi
+        w, h = metrics.size(text)
+        return w / dpi, h / dpi
 
     ylabel = xlabel = None
     if w := extent(ax.yaxis.label)[0]:
@@ -241,12 +252,33 @@ def lay_out(
     ``gap`` [in]: between the decorations of neighbouring axes (more than constrained layout's for a
     stack of panels that share their time axis, which would otherwise touch).
 
-    Call it once everything that takes room (tick formatters, limits, labels, titles) is set."""
+    Call it once everything that takes room (tick formatters, limits, labels, titles) is set.
+
+    The text is measured as the SVG will draw it, at the 72 dpi it is saved at, by the renderer that
+    draws it (svg_backend.py: measured here, the draw finds it measured)."""
+    from sensorless.reports.svg_backend import measuring_renderer
+
+    dpi = fig.dpi
+    fig.dpi = 72  # as when the figure is saved as SVG: text extents in points
+    try:
+        return _lay_out(fig, axes, bars, title, title_size, gap, measuring_renderer(fig))
+    finally:
+        fig.dpi = dpi
+
+
+def _lay_out(
+    fig: Figure,
+    axes: np.ndarray | Sequence[Sequence[Axes]],
+    bars: Sequence[Bar],
+    title: str | None,
+    title_size: float,
+    gap: float,
+    renderer: RendererBase,
+) -> list[Colorbar]:
     grid = np.asarray(axes, dtype=object)
     grid = grid.reshape(1, -1) if grid.ndim == 1 else grid
     n_r, n_c = grid.shape
     W, H = (float(v) for v in fig.get_size_inches())
-    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
     metrics = _Metrics(renderer)
     head = 0.0
     if title:

@@ -106,6 +106,30 @@ def panels_of(traces: Traces) -> dict[str, Callable[[Axes, Traces], None]]:
     return {**PANELS, **{p.name: _declared(p) for p in own}}
 
 
+class _Labels:
+    """Stands in for an Axes to collect the labels a panel draws (its lines' and its y label)."""
+
+    def __init__(self) -> None:
+        self.texts: list[str] = []
+
+    def plot(self, *_args: object, label: str | None = None, **_kw: object) -> None:
+        if label:
+            self.texts.append(label)
+
+    def set_ylabel(self, text: str, *_args: object, **_kw: object) -> None:
+        self.texts.append(text)
+
+
+def labels(traces: Traces, panels: tuple[str, ...]) -> list[str]:
+    """The labels :func:`plot_traces` draws for ``panels`` (each panel drawn on a recorder): what the
+    report's trace figures share (reports/svg_render.py ``svg_later`` ``texts``)."""
+    draw = panels_of(traces)
+    rec = _Labels()
+    for name in panels:
+        draw[name](rec, traces)  # type: ignore[arg-type]  # a recorder in place of an Axes
+    return [*dict.fromkeys(rec.texts), "time (s)"]
+
+
 def open_loop_intervals(traces: Traces) -> list[tuple[float, float]]:
     """(start, end) [s] of each interval in which the open-loop I-f start had the loop (its output
     ``startup_mode`` is 1); none for a run without it."""

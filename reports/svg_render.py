@@ -26,7 +26,7 @@ import signal
 import sys
 import time
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 from sensorless.reports.document import pyplot, svg_uri
@@ -141,26 +141,35 @@ def _made(fig: Figure | Callable[[], Figure]) -> Figure:
 @functools.cache
 def _shared_before_fork() -> None:
     """Import and build here, once, what every child would otherwise import or build for itself, and
-    the children inherit: pyplot with the report's settings (document.py ``pyplot``), its SVG backend
-    and matplotlib's mathtext grammar (a class attribute, ~0.1 s CPU; the trace figures' labels are
-    mathtext)."""
+    the children inherit: pyplot with the report's settings (document.py ``pyplot``), the SVG backend
+    (svg_backend.py) and the flat ticks (figure_ticks.py) every figure is saved with, the image
+    plugins PIL imports to write the first rasterized image (a pole map's), and matplotlib's mathtext
+    grammar (a class attribute, ~0.1 s CPU; the trace figures' labels are mathtext)."""
     pyplot()
     from matplotlib import mathtext
-    from matplotlib.backends import backend_svg  # noqa: F401  (every figure is saved through it)
+    from PIL import Image
+    from sensorless.reports import figure_ticks, svg_backend  # noqa: F401  (every figure is saved with them)
 
+    Image.preinit()
     mathtext.MathTextParser("path").parse("$x$")
 
 
-def svg_later(fig: Figure | Callable[[], Figure]) -> PendingSvg | str:
+def svg_later(fig: Figure | Callable[[], Figure], texts: Sequence[str] = ()) -> PendingSvg | str:
     """The figure's SVG data URI as :func:`svg_uri` gives it, rendered by a child process (module
     docstring); ``str()`` of the result is the URI. ``fig`` is a matplotlib figure (closed here) or a
     function without arguments that makes one: the child calls it, so building the figure leaves
     this process too (bind its arguments now, e.g. with functools.partial: it may also be called
-    later, here, if the child fails)."""
+    later, here, if the child fails). ``texts``: strings the figure draws that several figures share
+    (its mathtext labels), parsed here before the fork (svg_backend.py ``warm``): once a report, not
+    once a child."""
     if not forking():
         pyplot()  # the report's settings before the figure is made
         return svg_uri(_made(fig))
     _shared_before_fork()
+    if texts:
+        from sensorless.reports.svg_backend import warm
+
+        warm(texts)
     limit = len(os.sched_getaffinity(0)) or 1  # the CPUs this process may use
     while True:  # at most ``limit`` children at a time: wait for the oldest
         live = [p for p in (r() for r in _running) if p is not None and p._child is not None]

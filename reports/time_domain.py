@@ -526,7 +526,7 @@ def checks(
     """Simulate each scenario (a Scenario, or a built-in name or file) with ``gains`` (None: each
     scenario's own choice) and judge it, each failure with its cause (reports/causes.py); (checks,
     figures)."""
-    from sensorless.reports.sim_figure import plot_traces
+    from sensorless.reports.sim_figure import labels, plot_traces
 
     fam = family_of(drive)
     scales: DriveScales | None = fam.scales(drive) if isinstance(fam, Scaled) else None
@@ -546,7 +546,7 @@ def checks(
         check = entry(sc, j, classify_all(j.failures, family, unstable), label)
         out.append(check)
         make = functools.partial(plot_traces, tr, sc.figure, f"{drive.name}: {sc.title}")
-        figs.append(Figure(svg_later(make), check["caption"]))
+        figs.append(Figure(svg_later(make, labels(tr, sc.figure)), check["caption"]))
     return out, figs
 
 

@@ -11,6 +11,7 @@ load-torque estimate as a reason).
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -20,10 +21,11 @@ from sensorless.design.gain_table import GainTable
 from sensorless.design.pmac_reduced_order import FAMILY
 from sensorless.reports import drive_range
 from sensorless.reports.causes import CATALOGUE
-from sensorless.reports.document import Figure, Paragraph, Section, Table, Verdict, f, num, svg_uri
+from sensorless.reports.document import Figure, Paragraph, Section, Table, Verdict, f, num
 from sensorless.reports.drive_range import Remedy
 from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, report_with
 from sensorless.reports.review import Review, gains_under_review, status_class, verdict_box
+from sensorless.reports.svg_render import svg_later
 from sensorless.reports.time_domain import Finding
 
 if TYPE_CHECKING:  # typed by name only
@@ -98,8 +100,9 @@ class PmacJudge(Judging["PmacDrive"]):
                 )
             figs.append(
                 Figure(
-                    svg_uri(
-                        plot_poles(
+                    svg_later(
+                        functools.partial(
+                            plot_poles,
                             results,
                             drive,
                             f"{drive.name}: observer poles ({label}), continuous o, discrete x",

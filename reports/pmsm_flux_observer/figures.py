@@ -46,13 +46,11 @@ def bias_caption(settings: FluxTuneSettings) -> str:
     )
 
 
-def bias_figure(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings) -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    plt.rcParams["svg.hashsalt"] = "sensorless"
+def bias_curves(
+    drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSettings
+) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """What :func:`bias_figure` draws: speeds [p.u.], the steady angle bias [deg] of the sampled
+    observer at T_N under each estimate error alone, and the largest |bias| over the worst corners."""
     s = drive.envelope.speed_grid(2)
     s = s[s > 0]
     T = np.full(s.size, drive.T_N)
@@ -64,18 +62,33 @@ def bias_figure(drive: FluxObserverDrive, gains: GainSet, settings: FluxTuneSett
     for sign in (-1, 1):
         r = 1 + sign * settings.errors["L"]
         cases[f"L {sign * 100 * settings.errors['L']:+g} %"] = {"L_d": e.L_d * r, "L_q": e.L_q * r}
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    curves = {}
     for label, est in cases.items():
         err = FAMILY.linearize(drive, gains, s, T, estimate=est).theta_err_discrete
         assert err is not None  # the family's linearization is of the sampled observer
-        ax.plot(s / drive.w_base, np.degrees(err), label=label)
+        curves[label] = np.degrees(err)
     worst = np.zeros(s.size)
     for c in corners(settings.errors)[1:]:
         est = corner_estimate(e, c)
         err = FAMILY.linearize(drive, gains, s, T, estimate=est).theta_err_discrete
         assert err is not None
         worst = np.fmax(worst, np.abs(np.degrees(err)))
-    ax.plot(s / drive.w_base, worst, "k--", label="worst corner |bias|")
+    return s / drive.w_base, curves, worst
+
+
+def bias_figure(curves: tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]) -> Any:
+    """The steady angle bias over speed of :func:`bias_curves` (drawing only: a figure child's)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams["svg.hashsalt"] = "sensorless"
+    w, cases, worst = curves
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    for label, bias in cases.items():
+        ax.plot(w, bias, label=label)
+    ax.plot(w, worst, "k--", label="worst corner |bias|")
     ax.set_ylim(-45, 45)
     ax.set_xlabel("speed (p.u.)")
     ax.set_ylabel("angle bias (deg)")

@@ -11,6 +11,7 @@ simulation alone.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -21,10 +22,10 @@ from sensorless.design.family import GainSet
 from sensorless.design.gain_table import GainTable
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.reports import drive_range
-from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num, svg_uri
+from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.drive_range import Remedy
 from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, poles_section_figure
-from sensorless.reports.pmsm_flux_observer.figures import bias_caption, bias_figure, front_figure
+from sensorless.reports.pmsm_flux_observer.figures import bias_caption, bias_curves, bias_figure, front_figure
 from sensorless.reports.pmsm_flux_observer.findings import (
     damping_finding,
     holds_nowhere_finding,
@@ -33,6 +34,7 @@ from sensorless.reports.pmsm_flux_observer.findings import (
 )
 from sensorless.reports.pmsm_flux_observer.startup import reversal_finding, startup_findings
 from sensorless.reports.review import Review, gains_under_review
+from sensorless.reports.svg_render import svg_later
 from sensorless.tuning.pmsm_flux_observer import (
     FluxTuneSettings,
     assess_any,
@@ -151,7 +153,8 @@ class FluxJudge(Judging["FluxObserverDrive"]):
         cmp_table = Table(head, rows, caption, frozenset({2, 3, 4, 5, 6}))
         W, T = self.points(drive, 1 if resolution == "quick" else 2)
         fig = poles_section_figure(drive, FAMILY.linearize(drive, rev.gains, W, T), rev.label)
-        bias_fig = Figure(svg_uri(bias_figure(drive, rev.gains, settings)), bias_caption(settings))
+        curves = bias_curves(drive, rev.gains, settings)  # here: the child only draws
+        bias_fig = Figure(svg_later(functools.partial(bias_figure, curves)), bias_caption(settings))
         text = (
             "Judged as the tuner judges (tuning/pmsm_flux_observer): a speed holds when the sampled "
             "observer "
@@ -168,7 +171,7 @@ class FluxJudge(Judging["FluxObserverDrive"]):
         if table is not None and pf is not None and pf.get("metric") == "bias":
             items += (
                 Figure(
-                    svg_uri(front_figure(pf, analysis.get(rev.label, {}))),
+                    svg_later(functools.partial(front_figure, pf, analysis.get(rev.label, {}))),
                     f"Damping-versus-bias front of the {table.law} law (sensorless tune --pareto): the "
                     "candidates that hold down to the hold speed and that no other beats in both worst "
                     "damping and worst angle bias over the speeds from it up; x: the gains under review.",

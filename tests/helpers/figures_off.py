@@ -47,8 +47,8 @@ def figures_off() -> Iterator[None]:
                 if getattr(m, "svg_uri", None) is uri:
                     mp.setattr(m, "svg_uri", _no_uri)
                 if getattr(m, "svg_later", None) is later:
-                    mp.setattr(m, "svg_later", lambda fig: "")
+                    mp.setattr(m, "svg_later", lambda fig, texts=(): "")
         mp.setattr(envelope_review, "poles_figure", lambda *a: None)
-        mp.setattr(review, "bias_figure", lambda *a: None)
+        mp.setattr(review, "bias_curves", lambda *a: None)
         mp.setattr(review, "front_figure", lambda *a: None)
         yield
