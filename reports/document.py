@@ -172,7 +172,7 @@ def svg_uri(fig: MplFigure) -> str:
     """A matplotlib figure as an SVG data URI (closed afterwards; no date inside)."""
     plt = pyplot()  # STYLE set here, where the SVG is written: its element ids hash with svg.hashsalt
     from sensorless.reports.figure_ticks import flatten_ticks  # matplotlib's Artist: imported after pyplot
-    from sensorless.reports.svg_backend import BACKEND
+    from sensorless.reports.svg_backend import BACKEND, supported
 
     buf = io.BytesIO()
     engine = fig.get_layout_engine()
@@ -182,9 +182,12 @@ def svg_uri(fig: MplFigure) -> str:
         engine.execute(fig)
         fig.set_layout_engine(None)
     pin_ticks(fig)  # the same ticks from fewer artists
-    flatten_ticks(fig)  # and those drawn as a few artists per axis
-    # matplotlib's SVG, drawn with each string measured and shaped once (svg_backend.py)
-    fig.savefig(buf, format="svg", metadata={"Date": None}, backend=BACKEND)
+    if supported():  # a matplotlib these were checked on (svg_backend.py TESTED)
+        flatten_ticks(fig)  # and those drawn as a few artists per axis
+        # matplotlib's SVG, drawn with each string measured and shaped once (svg_backend.py)
+        fig.savefig(buf, format="svg", metadata={"Date": None}, backend=BACKEND)
+    else:
+        fig.savefig(buf, format="svg", metadata={"Date": None})
     plt.close(fig)
     return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 

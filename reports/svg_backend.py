@@ -36,6 +36,9 @@ if TYPE_CHECKING:  # typed by name only
     from matplotlib.ft2font import FT2Font
 
 BACKEND = "module://sensorless.reports.svg_backend"
+# the matplotlib versions this module and figure_ticks.py were checked on (they reach into matplotlib's
+# private renderer, text and axis internals): on any other, the report draws with matplotlib as it comes
+TESTED = ((3, 11),)
 Glyph = tuple[str, float, float, float]  # a glyph's SVG name, x, y, scale (matplotlib's TextToPath)
 Outlines = OrderedDict[str, tuple[np.ndarray, np.ndarray]]  # glyph name -> its outline (vertices, codes)
 Features = tuple[str, ...] | None  # OpenType features of a text (matplotlib >= 3.10)
@@ -92,12 +95,22 @@ class TextCache(TextToPath):
 TEXT = TextCache()  # this process's
 
 
+@functools.cache
+def supported() -> bool:
+    """Whether this matplotlib is one of :data:`TESTED` (the fast path: this backend, flat ticks)."""
+    import matplotlib
+
+    return tuple(int(p) for p in matplotlib.__version__.split(".")[:2]) in TESTED
+
+
 def warm(texts: Iterable[str]) -> None:
     """Parse the mathtext among ``texts`` here (svg_render.py ``svg_later``, before it forks): a figure
     child then finds it parsed (matplotlib parses a mathtext string at one size for every size it is
     drawn at), not each child again (~10 ms a string; a trace figure's labels are mathtext)."""
     from matplotlib.font_manager import FontProperties
 
+    if not supported():
+        return
     for s in texts:
         if cbook.is_math_text(s):
             TEXT.get_text_width_height_descent(s, FontProperties(), ismath=True)
@@ -111,11 +124,11 @@ class Renderer(RendererSVG):
         self._text2path = TEXT
 
 
-def measuring_renderer(fig: Figure) -> Renderer:
+def measuring_renderer(fig: Figure) -> RendererSVG:
     """A renderer that measures text as the SVG's will (``fig.dpi`` must be 72, as when it is saved),
-    writing nothing anyone reads."""
+    writing nothing anyone reads (matplotlib's own where this matplotlib is not :func:`supported`)."""
     width, height = fig.get_size_inches()
-    return Renderer(width * 72, height * 72, io.StringIO())
+    return (Renderer if supported() else RendererSVG)(width * 72, height * 72, io.StringIO())
 
 
 def _painted(img: np.ndarray) -> tuple[slice, slice]:

@@ -2,8 +2,12 @@
 ticks give (grid lines, tick marks on both sides, labels, minor ticks of a log axis, a colorbar, axes
 sharing an axis, an axis that keeps its own ticks for its offset text), from fewer tick artists."""
 
+import base64
+
 import numpy as np
-from sensorless.reports.document import pyplot
+import pytest
+from sensorless.reports import svg_backend
+from sensorless.reports.document import pyplot, svg_uri
 from sensorless.reports.figure_layout import lay_out, pin_ticks
 from sensorless.reports.figure_ticks import FlatTicks, flatten_ticks
 
@@ -40,9 +44,30 @@ def _pixels(flat: bool) -> tuple[np.ndarray, int, int]:
     return pixels, ticks, n_flat
 
 
+@pytest.mark.skipif(not svg_backend.supported(), reason="a matplotlib the flat ticks were not checked on")
 def test_flat_ticks_draw_the_same_pixels_from_fewer_tick_artists():
     (own, n_own, none), (flat, n_flat, flats) = _pixels(False), _pixels(True)
     assert none == 0 and flats >= 12  # every axis but the one with an offset text, and the colorbar's
     assert n_flat < n_own / 2
     diff = np.abs(own.astype(int) - flat.astype(int))
     assert diff.max() <= 1, np.argwhere(diff > 1)[:5]
+
+
+def test_another_matplotlib_draws_with_matplotlib_as_it_comes(monkeypatch):
+    """On a matplotlib outside svg_backend.TESTED the report's figures are matplotlib's own SVG: no flat
+    ticks, no cached text (a figure still laid out and written)."""
+    plt = pyplot()
+    tested = svg_backend.supported()
+
+    def svg(fast: bool) -> bytes:
+        monkeypatch.setattr(svg_backend, "supported", lambda: fast)
+        fig, ax = plt.subplots(figsize=(3, 2))
+        ax.plot([0, 1, 2], [1, 0, 2])
+        ax.set_xlabel("speed (p.u.)")
+        lay_out(fig, [[ax]])
+        return base64.b64decode(svg_uri(fig).split(",", 1)[1])
+
+    plain = svg(False)
+    assert plain.startswith(b"<?xml") and b'id="xtick_1"' in plain  # matplotlib's own tick groups
+    if tested:  # and on this one, the flat ticks in their place
+        assert b'id="xtick_1"' not in svg(True)
