@@ -47,7 +47,7 @@ import tempfile
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, ParamSpec, TypeVar, cast
+from typing import Any, Generic, ParamSpec, TypeVar, cast
 
 import numpy as np
 
@@ -66,6 +66,40 @@ def _content(value: Any) -> Any:
     if len(kept) == len(dataclasses.fields(value)):
         return value
     return (type(value), tuple((name, getattr(value, name)) for name in kept))
+
+
+class OwnedMemo(Generic[R]):
+    """An in-process memo of results computed from an object not worth pickling (a tuning model with its
+    CasADi Functions) and some arrays: keyed on the object's identity and the arrays' bytes; an entry
+    holds its object, so that the id cannot be reused by another object while the entry lives. The
+    ``maxsize`` most recent entries; safe from several threads (a threaded scheduler may tune several
+    drives in one process)."""
+
+    def __init__(self, maxsize: int) -> None:
+        self.maxsize = maxsize
+        self._memo: collections.OrderedDict[tuple[int, bytes], tuple[object, R]] = collections.OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, owner: object, key: bytes) -> R | None:
+        """The result kept for ``owner`` and ``key``, or None."""
+        with self._lock:
+            hit = self._memo.get((id(owner), key))
+            if hit is None:
+                return None
+            self._memo.move_to_end((id(owner), key))
+            return hit[1]
+
+    def put(self, owner: object, key: bytes, value: R) -> R:
+        """Keep ``value`` for ``owner`` and ``key``; returns it."""
+        with self._lock:
+            self._memo[(id(owner), key)] = (owner, value)
+            if len(self._memo) > self.maxsize:
+                self._memo.popitem(last=False)
+        return value
+
+    def clear(self) -> None:
+        with self._lock:
+            self._memo.clear()
 
 
 def frozen_result(value: R) -> R:

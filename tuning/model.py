@@ -40,6 +40,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from sensorless.design.batch import evaluate_batch
+from sensorless.design.memo import OwnedMemo
 from sensorless.design.noise import noise_rms
 from sensorless.design.poles import eigvals_batched, max_real, worst_damping
 
@@ -242,13 +243,11 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
     return Evaluation(out, x0, nz, bm)
 
 
-# bounded_reference's cache: (id of the model, theta0's and the points' bytes) -> (the model, references);
-# a tune evaluates the same grids often. The entry holds its model, so that the id cannot be reused by
-# another model (another drive's) while the entry lives
-_REFERENCES: dict[tuple[int, bytes], tuple[TuningModel, np.ndarray]] = {}
-# the same per column of the points as asked (not made distinct): (id of the model, theta0's and the
-# points' bytes) -> (the model, (N_nominal, k) references)
-_SEEN: dict[tuple[int, bytes], tuple[TuningModel, np.ndarray]] = {}
+# bounded_reference's caches (a tune evaluates the same grids often): the references of the distinct
+# points, keyed on theta0's and those points' bytes; and, for the points as asked (not made distinct,
+# which sorts them: np.unique along an axis, 0.1-0.2 s of the README servo's tune), their references
+_REFERENCES: OwnedMemo[np.ndarray] = OwnedMemo(256)
+_SEEN: OwnedMemo[np.ndarray] = OwnedMemo(32)
 
 
 def bounded_reference(model: TuningModel, P: np.ndarray) -> np.ndarray:
@@ -266,17 +265,15 @@ def bounded_reference(model: TuningModel, P: np.ndarray) -> np.ndarray:
     if not nominal.any():
         return out
     Pn = np.ascontiguousarray(P[:, nominal])
-    # the same points again (a tune asks for its grids over and over): their references as before, without
-    # sorting them for their distinct columns (np.unique along an axis: 0.1-0.2 s of the README servo's)
-    seen_key = (id(model), np.asarray(model.theta0, float).tobytes() + repr(Pn.shape).encode() + Pn.tobytes())
-    seen = _SEEN.get(seen_key)
-    if seen is not None:
-        out[nominal] = seen[1]
+    theta0_bytes = np.asarray(model.theta0, float).tobytes()
+    seen_key = theta0_bytes + repr(Pn.shape).encode() + Pn.tobytes()
+    seen = _SEEN.get(model, seen_key)
+    if seen is not None:  # the same points again: their references as before
+        out[nominal] = seen
         return out
     Pu, inv = np.unique(Pn, axis=1, return_inverse=True)
-    key = (id(model), np.asarray(model.theta0, float).tobytes() + Pu.tobytes())
-    hit = _REFERENCES.get(key)
-    ref = None if hit is None else hit[1]
+    key = theta0_bytes + Pu.tobytes()
+    ref = _REFERENCES.get(model, key)
     if ref is None:
         theta0 = np.asarray(model.theta0, float)
         x0 = model.equilibrium(theta0, Pu)
@@ -291,13 +288,8 @@ def bounded_reference(model: TuningModel, P: np.ndarray) -> np.ndarray:
             stable = np.zeros_like(good)
             stable[good] = max_real(eigvals_batched(A[good])) < 0
             ref[stable] = (1.0 + model.bounded_tolerance) * np.abs(f[stable])
-        if len(_REFERENCES) > 256:
-            _REFERENCES.clear()
-        _REFERENCES[key] = (model, ref)
-    out[nominal] = ref[np.asarray(inv).ravel()]
-    if len(_SEEN) > 32:
-        _SEEN.clear()
-    _SEEN[seen_key] = (model, out[nominal])
+        _REFERENCES.put(model, key, ref)
+    out[nominal] = _SEEN.put(model, seen_key, ref[np.asarray(inv).ravel()])
     return out
 
 

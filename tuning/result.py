@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TypedDict
@@ -18,6 +17,7 @@ import numpy as np
 from sensorless.design.envelope import ESTIMATE_KEYS, TuningSettings, tuning_keys
 from sensorless.design.family import Drive
 from sensorless.design.gain_table import GainTable
+from sensorless.design.memo import OwnedMemo
 from sensorless.tuning import nlp
 from sensorless.tuning.bound import Bound
 from sensorless.tuning.model import TuningModel, evaluate
@@ -225,14 +225,10 @@ class TuneResult:
         return out
 
 
-# figures' memo: (id of the model, the arguments' bytes) -> (the model, its Figures). A tune asks for the
-# same gains on the same grid again and again (the drive file's gains on the dense grid in every
-# selection and as the table's baseline, the kept gains in the tie-break and the table, a seed's gains
-# in its law's table: 7 of 23 calls, 0.26 s CPU on the README servo); an entry holds its model, so that
-# its id is not reused by another model while the entry lives
-_FIGURES: collections.OrderedDict[tuple[int, bytes], tuple[TuningModel, Figures]] = collections.OrderedDict()
-FIGURES_KEPT = 32
-_FIGURES_LOCK = threading.Lock()  # a threaded scheduler may tune several drives in one process
+# figures' memo: a tune asks for the same gains on the same grid again and again (the drive file's gains
+# on the dense grid in every selection and as the table's baseline, the kept gains in the tie-break and
+# the table, a seed's gains in its law's table: 7 of 23 calls, 0.26 s CPU on the README servo)
+_FIGURES: OwnedMemo[Figures] = OwnedMemo(32)
 
 
 def figures(
@@ -243,22 +239,16 @@ def figures(
     est = model.nominal_estimate if est is None else est
     noise = noise and model.noise is not None
     parts = [np.asarray(a, float) for a in (theta, w, T, est)]
-    key = (id(model), repr([(a.shape, noise) for a in parts]).encode() + b"".join(a.tobytes() for a in parts))
-    with _FIGURES_LOCK:
-        hit = _FIGURES.get(key)
-        if hit is not None:
-            _FIGURES.move_to_end(key)
-            return hit[1]
+    key = repr([(a.shape, noise) for a in parts]).encode() + b"".join(a.tobytes() for a in parts)
+    hit = _FIGURES.get(model, key)
+    if hit is not None:
+        return hit
     e = evaluate(model, theta, model.make_points(w, T, est), noise=noise)
     f = Figures(w, T, e.poles, e.damping, e.decay, model.point_gains(theta, w), e.noise, e.bounded)
-    for a in (f.poles, f.damping, f.decay, f.noise, f.bounded, *f.gains.values()):
+    for a in (f.poles, f.damping, f.decay, f.noise, f.bounded, *f.gains.values()):  # (w, T: the caller's)
         if isinstance(a, np.ndarray):
             a.flags.writeable = False
-    with _FIGURES_LOCK:
-        _FIGURES[key] = (model, f)
-        if len(_FIGURES) > FIGURES_KEPT:
-            _FIGURES.popitem(last=False)
-    return f
+    return _FIGURES.put(model, key, f)
 
 
 def where(f: Figures, k: int, wb: float) -> dict[str, float]:
