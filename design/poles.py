@@ -153,10 +153,6 @@ def backward_error(c: np.ndarray, x: np.ndarray) -> np.ndarray:
 _POOL: ThreadPoolExecutor | None = None
 
 
-def _threads() -> int:
-    return CORES
-
-
 def eigvals_finite(A: np.ndarray) -> np.ndarray:
     """Eigenvalues of each matrix in (..., n, n), complex; NaN for a matrix that is not finite (a
     linearization or a product of exponentials that overflowed: numpy would raise LinAlgError)."""
@@ -175,7 +171,7 @@ def eigvals_batched(A: np.ndarray, c: np.ndarray | None = None, tol: float = 1e-
     """
     global _POOL
     N = A.shape[0]
-    k = _threads()
+    k = CORES
     if N >= 8192 and k > 1:
         if _POOL is None:
             _POOL = ThreadPoolExecutor(k, thread_name_prefix="sensorless-poles")
