@@ -54,6 +54,23 @@ def built(tmp_path_factory):
     return d, setup, model, model.program(setup), out, exe
 
 
+def the_clis_model_is(monkeypatch, d, model):
+    """The commands' fixed-point model of ``d`` at its drive file's gains is ``model`` (``built``'s: the
+    ranges of every scenario and check, seconds to run again in each command); any other drive or
+    gains go to fixed_generate.fixed_model as they do without this. Returns the drives asked for."""
+    from sensorless.reports.codegen import fixed_generate
+
+    real, asked = fixed_generate.fixed_model, []
+
+    def fixed_model(drive, gains, setup):
+        asked.append(drive.name)
+        mine = drive.digest == d.digest and (gains is None or gains == family_of(d).gains(d))
+        return model if mine else real(drive, gains, setup)
+
+    monkeypatch.setattr(fixed_generate, "fixed_model", fixed_model)
+    return asked
+
+
 def replay(exe, out, raw, x0=None, params=None, code=0):
     """The C on raw samples, from *_init or from the raw state ``x0``, with the drive's parameter
     struct or the raw words ``params``; ``code``: the exit status expected."""
@@ -270,14 +287,16 @@ def test_stored_constants_move_the_poles_little(built):
     assert abs(poles["spectral_radius_stored"] - poles["spectral_radius_double"]) < 1e-4
 
 
-def test_cli_writes_the_fixed_point_files_together(built, tmp_path, capsys):
+def test_cli_writes_the_fixed_point_files_together(built, tmp_path, capsys, monkeypatch):
     """The files, and with --param the parameter struct's words for SI values (params_from_si's, in
-    the formats of the C written beside them); a wrong --param is one line before anything is run."""
+    the formats of the C written beside them); a wrong --param is one line before anything is run.
+    (The command's model is ``built``'s, the_clis_model_is.)"""
     import json
 
     from sensorless.reports.cli.main import main
 
-    _d, setup, _model, fx, _out, _exe = built
+    d, setup, model, fx, _out, _exe = built
+    asked = the_clis_model_is(monkeypatch, d, model)
     out = tmp_path / "c"
     args = ["codegen", "outrunner270", "--precision", "fixed", "--out", str(out), "--param", "k_p=3000"]
     assert main(args) == 0
@@ -291,25 +310,34 @@ def test_cli_writes_the_fixed_point_files_together(built, tmp_path, capsys):
     assert all(d["reason"] for d in data["inputs"])
     assert "no floating point" in (out / "outrunner270.h").read_text()
     assert "Cortex-M0+" in capsys.readouterr().out
+    assert asked == ["outrunner270"]
     for bad, why in [("psi=1", "unknown parameter 'psi'"), ("k_p", "'k_p' is not NAME=VALUE")]:
         assert main([*args[:-1], bad, "--force"]) == 2
         assert f"argument --param: {why}" in capsys.readouterr().err
 
 
-def test_simulate_runs_the_fixed_point_step_and_says_so(built, tmp_path, capsys):
+def test_simulate_runs_the_fixed_point_step_and_says_so(built, tmp_path, capsys, monkeypatch):
     """`sensorless simulate --precision fixed`: the run is the fixed-point step of `codegen --precision
     fixed` (its traces those of the step variant of the same formats, not the double step's), the
-    command says which step ran and the traces' metadata carry it."""
+    command says which step ran and the traces' metadata carry it. (The command's model is
+    ``built``'s, the_clis_model_is; its figures, most of its CPU, are not drawn: the traces are read
+    here, tests/common/test_cli_simulate.py checks the figures.)"""
     import dataclasses
     import json
 
+    from matplotlib.figure import Figure
+    from sensorless.reports import sim_figure
     from sensorless.reports.cli.main import main
+    from sensorless.reports.files import OutputSet
 
     d, _setup, model, *_ = built
+    asked = the_clis_model_is(monkeypatch, d, model)
+    monkeypatch.setattr(sim_figure, "plot_traces", lambda *a: Figure())
+    monkeypatch.setattr(OutputSet, "add_figures", lambda *a: None)
     out = tmp_path / "s"
     args = ["simulate", "outrunner270", "--scenario", "torque_steps", "--duration", "0.03", "--format", "npz"]
     assert main([*args, "--quiet", "--out", str(out), "--precision", "fixed"]) == 0
-    assert "observer step: fixed precision" in capsys.readouterr().out
+    assert "observer step: fixed precision" in capsys.readouterr().out and asked == ["outrunner270"]
     z = np.load(out / "traces.npz")
     assert json.loads(str(z["meta"]))["precision"] == "fixed"
     got = z["theta_hat"]

@@ -12,6 +12,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from helpers.fuzz import SANITIZE_O0
 from helpers.hash_seed import here_and_fresh
 from helpers.plant_pmac import codegen_trajectory
 from sensorless.design.gain_table import GainTable, read_gain_table
@@ -425,8 +426,7 @@ def test_sanitized_hostile_inputs_params_and_instances(tmp_path, precision):
     restores the exact initial state."""
     src = codegen(tmp_path / "c", "--precision", precision)
     (src / "harness.c").write_text(HARNESS)
-    san = ["-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer"]
-    exe = build(src, tmp_path / "h", san, files=("harness.c", f"{P}.c"))
+    exe = build(src, tmp_path / "h", SANITIZE_O0, files=("harness.c", f"{P}.c"))
     r = subprocess.run([str(exe)], capture_output=True, text=True)
     assert r.returncode == 0 and r.stderr == "" and r.stdout == "ok\n", r.stdout[-2000:] + r.stderr[-2000:]
 
