@@ -9,6 +9,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from helpers.cbuild import build as cbuild
 from helpers.figures_off import figures_off
 from helpers.fuzz import CC, pmsm_steady_segments, steady_rows
 from sensorless.design.drive import load_drive
@@ -33,14 +34,8 @@ def compile_replay(d, setup, model, out):
     files = generate_fixed(setup, model, Provenance(d.name, d.file, d.digest, "sensorless test"), d.name)
     for name, text in files.items():
         (out / name).write_text(text)
-    exe = out / "replay"
-    r = subprocess.run(
-        [CC, *STRICT, "-o", str(exe), str(out / "main.c"), str(out / f"{d.name}.c")],
-        capture_output=True,
-        text=True,
-    )
-    assert r.returncode == 0 and r.stderr == "", r.stderr
-    return exe
+    exe = out / "replay"  # once per process for the same C (tests/helpers/cbuild.py)
+    return cbuild([CC, *STRICT, "-o", str(exe), str(out / "main.c"), str(out / f"{d.name}.c")], exe)
 
 
 def codegen_model(d):
@@ -254,22 +249,27 @@ def test_closed_loop_angle_error_within_0p2_deg_of_the_double_step(built):
     assert not fix.problems()
 
 
-@pytest.mark.parametrize(("preset", "scenario"), [("piippo2008", "fig9b"), ("deangelo2006", "fig2")])
-def test_the_other_families_c_equals_the_model(tmp_path, preset, scenario):
+@pytest.mark.parametrize(("preset", "scenario"), [("piippo2008", None), ("deangelo2006", "fig2")])
+def test_the_other_families_c_equals_the_model(tmp_path, request, preset, scenario):
     """The adaptive observer (sin/cos, filters with unbounded states) and the reduced-order one (its
     harmonic EMF, a division by a magnitude proven positive): C == model on 150 closed-loop samples
-    and 30 hostile words; ranges from 0.3 s of one scenario to keep the test short. The C builds
-    warning-free for a Cortex-M0+ and calls only libgcc's integer routines (no float operation)."""
+    and 30 hostile words. piippo2008 in the formats `codegen` generates (piippo_codegen, which the
+    tests below need anyway), deangelo2006 with ranges from 0.3 s of one scenario to keep the test
+    short. The C builds warning-free for a Cortex-M0+ and calls only libgcc's integer routines (no
+    float operation)."""
     import dataclasses
 
     from sensorless.reports.codegen.fixed_model import FixedModel
 
-    d = load_drive(preset)
-    fam = family_of(d)
-    setup = fam.runtime(d, fam.gains(d))
-    model = FixedModel.of(
-        d, None, [dataclasses.replace(load_scenario(scenario, d), duration=0.3)], compile=False
-    )
+    if scenario is None:
+        d, setup, model = request.getfixturevalue("piippo_codegen")
+    else:
+        d = load_drive(preset)
+        fam = family_of(d)
+        setup = fam.runtime(d, fam.gains(d))
+        model = FixedModel.of(
+            d, None, [dataclasses.replace(load_scenario(scenario, d), duration=0.3)], compile=False
+        )
     fx = model.program(setup)
     exe = compile_replay(d, setup, model, tmp_path)
     x, meas = model.data(setup)

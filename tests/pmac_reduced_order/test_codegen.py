@@ -12,6 +12,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from helpers.cbuild import build as cbuild
 from helpers.fuzz import SANITIZE_O0
 from helpers.hash_seed import here_and_fresh
 from helpers.plant_pmac import codegen_trajectory
@@ -49,10 +50,8 @@ def codegen(out, *args):
 
 
 def build(src, exe, extra=(), files=("main.c", f"{P}.c")):
-    cmd = [CC, *STRICT, *extra, "-o", str(exe), *[str(src / f) for f in files], "-lm"]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    assert r.returncode == 0 and r.stderr == "", r.stderr
-    return exe
+    """``exe`` built warning-free (once per process for the same C: tests/helpers/cbuild.py)."""
+    return cbuild([CC, *STRICT, *extra, "-o", str(exe), *[str(src / f) for f in files], "-lm"], exe)
 
 
 def replay(exe, meas, tmp_path, *args):
