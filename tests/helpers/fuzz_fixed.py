@@ -29,10 +29,9 @@ import numpy as np
 from sensorless.design.runtime import run_trajectory
 from sensorless.reports.codegen.fixed_model import step_raw
 
-from helpers.fuzz import CC
+from helpers.fuzz import CC, SANITIZE_O0
 
 STRICT = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
-SANITIZE = ["-O1", "-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all"]
 
 
 def segment_model(setup: Any, segments: np.ndarray) -> Any:
@@ -70,7 +69,7 @@ def fixed_fuzz(
     exe = src / "fuzz"
     if not exe.exists():
         r = subprocess.run(
-            [CC, *STRICT, *SANITIZE, "-o", str(exe), str(src / "main.c"), str(src / f"{P}.c")],
+            [CC, *STRICT, *SANITIZE_O0, "-o", str(exe), str(src / "main.c"), str(src / f"{P}.c")],
             capture_output=True,
             text=True,
         )

@@ -14,6 +14,7 @@ import functools
 
 import casadi as ca
 import numpy as np
+from sensorless.design.runtime import CHUNK
 from sensorless.symbolic.pmsm import (
     PmsmParams,
     current_from_flux,
@@ -85,16 +86,17 @@ def simulate(setup, drive, profile: np.ndarray, theta0: float = 0.0) -> dict[str
     i0 = np.zeros(2)
     psi0 = np.array([motor.L_d * i0[0] + motor.psi_pm, motor.L_q * i0[1]])
     z0 = np.concatenate([psi0, [theta0], setup.initial_state(), np.zeros(2)])
-    _, rec = F.mapaccum(n)(
-        z0,
-        profile.T,
-        setup.p,
-        np.asarray(setup.gain),
-        motor.vector(),
-        drive.control.T_s,
-        motor.p,
-    )
-    rec = np.asarray(rec).T
+    # in chunks of at most design/runtime.CHUNK steps (a mapaccum of 10^4 steps or more takes CasADi
+    # ~15x longer to build), the loop state carried from one to the next: the same numbers
+    parts = []
+    for k in range(0, n, CHUNK):
+        prof = profile[k : k + CHUNK]
+        zs, rec = F.mapaccum(prof.shape[0])(
+            z0, prof.T, setup.p, np.asarray(setup.gain), motor.vector(), drive.control.T_s, motor.p
+        )
+        z0 = np.asarray(zs)[:, -1]
+        parts.append(np.asarray(rec))
+    rec = np.hstack(parts).T
     n_y = step.size1_out(1)
     return {
         "meas": rec[:, 0:4],

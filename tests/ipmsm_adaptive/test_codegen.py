@@ -10,6 +10,7 @@ import subprocess
 
 import numpy as np
 import pytest
+from helpers.fuzz import SANITIZE_O0
 from helpers.hash_seed import here_and_fresh
 from helpers.runtime_loop import TRAJECTORY_SEGMENTS, profile_from_segments, simulate
 from sensorless.design.gain_table import GainTable, read_gain_table
@@ -239,8 +240,7 @@ def test_sanitized_hostile_inputs_params_instances_and_gains(tmp_path, schedule_
     args = ["--precision", precision] + (["--gains", schedule_table] if gains == "schedule" else [])
     src = codegen(tmp_path / "c", *args)
     (src / "harness.c").write_text(HARNESS)
-    san = ["-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer"]
-    exe = build(src, tmp_path / "h", san, files=("harness.c", "piippo2008.c"))
+    exe = build(src, tmp_path / "h", SANITIZE_O0, files=("harness.c", "piippo2008.c"))
     r = subprocess.run([str(exe)], capture_output=True, text=True)
     assert r.returncode == 0 and r.stderr == "", r.stdout[-2000:] + r.stderr[-2000:]
     w, l1, l2 = np.loadtxt(r.stdout.splitlines()).T

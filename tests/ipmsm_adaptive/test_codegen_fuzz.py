@@ -1,12 +1,11 @@
 """Hostile input: the generated C of the adaptive observer keeps its promises on every step and recovers
-(tests/helpers/fuzz.py). Seeded, >= 10^6 steps per build under -fsanitize=address,undefined, double and
-float, with the HF injection on (the drive's default) and off."""
-
-import dataclasses
+(tests/helpers/fuzz.py). Seeded, >= 10^6 steps per run under -fsanitize=address,undefined, double and
+float, with the HF injection on (the drive's default) and off (one build per precision: the injection
+is a field of the parameter struct, set at run time)."""
 
 import numpy as np
 import pytest
-from helpers.fuzz import CC, fuzz_and_check, pmsm_steady_segments, steady_rows
+from helpers.fuzz import CC, fuzz_and_check, fuzzer, pmsm_steady_segments, steady_rows
 from sensorless.design.ipmsm_adaptive import FAMILY
 
 pytestmark = pytest.mark.skipif(CC is None, reason="no host C compiler (gcc/cc) on PATH")
@@ -27,10 +26,28 @@ def segments(drive):
     return pmsm_steady_segments((m.R_s, m.L_d, m.L_q, m.psi_pm, m.p), drive.control.T_s, rows, RECOVER + 1000)
 
 
+@pytest.fixture(scope="module")
+def harness(drive, tmp_path_factory):
+    """``harness(precision)``: the fuzz harness of the drive's C (its gains, the injection on), built once
+    per precision; x_eps held beyond X_EPS_HELD (with the injection off no segment may start so: the
+    test requires none held)."""
+    setup = FAMILY.runtime(drive, FAMILY.gains(drive))
+    assert setup.params["injection"] == 1.0
+    built = {}
+
+    def get(precision):
+        if precision not in built:
+            work = tmp_path_factory.mktemp(f"fuzz_{precision}")
+            built[precision] = fuzzer(setup, precision=precision, work=work, held={"x_eps": X_EPS_HELD})
+        return setup, built[precision]
+
+    return get
+
+
 @pytest.mark.parametrize("precision", ["double", "float"])
 @pytest.mark.parametrize("injection", [1.0, 0.0])
 def test_hostile_samples_keep_every_range_and_bound_and_the_observer_recovers(
-    drive, segments, tmp_path, precision, injection
+    drive, segments, harness, tmp_path, precision, injection
 ):
     """Every step: finite, angles in (-pi, pi], the state within its bounds, valid/reset flags, the
     counter below its bound (the harness). After every burst: back within RECOVER clean samples.
@@ -38,8 +55,7 @@ def test_hostile_samples_keep_every_range_and_bound_and_the_observer_recovers(
     it while the speed stays above w_Delta (where nothing corrects it, by the family's design): the
     segments that start with |x_eps| > 10 rad/s are measured but not required to recover, and are a
     minority; with the injection off every segment is."""
-    setup = FAMILY.runtime(drive, FAMILY.gains(drive))
-    setup = dataclasses.replace(setup, params={**setup.params, "injection": injection})
+    setup, exe = harness(precision)
     r = fuzz_and_check(
         setup,
         segments,
@@ -49,6 +65,7 @@ def test_hostile_samples_keep_every_range_and_bound_and_the_observer_recovers(
         tol_w=0.05 * drive.base.w,
         seed=1 + int(injection) + 2 * (precision == "float"),
         work=tmp_path,
-        held={"x_eps": X_EPS_HELD} if injection else None,
+        exe=exe,
+        params={"injection": injection},
     )
     assert r["held_segments"] <= (0.3 * r["segments"] if injection else 0)

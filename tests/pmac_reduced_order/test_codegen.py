@@ -12,6 +12,8 @@ import subprocess
 
 import numpy as np
 import pytest
+from helpers.cbuild import build as cbuild
+from helpers.fuzz import SANITIZE_O0
 from helpers.hash_seed import here_and_fresh
 from helpers.plant_pmac import codegen_trajectory
 from sensorless.design.gain_table import GainTable, read_gain_table
@@ -48,10 +50,8 @@ def codegen(out, *args):
 
 
 def build(src, exe, extra=(), files=("main.c", f"{P}.c")):
-    cmd = [CC, *STRICT, *extra, "-o", str(exe), *[str(src / f) for f in files], "-lm"]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    assert r.returncode == 0 and r.stderr == "", r.stderr
-    return exe
+    """``exe`` built warning-free (once per process for the same C: tests/helpers/cbuild.py)."""
+    return cbuild([CC, *STRICT, *extra, "-o", str(exe), *[str(src / f) for f in files], "-lm"], exe)
 
 
 def replay(exe, meas, tmp_path, *args):
@@ -425,8 +425,7 @@ def test_sanitized_hostile_inputs_params_and_instances(tmp_path, precision):
     restores the exact initial state."""
     src = codegen(tmp_path / "c", "--precision", precision)
     (src / "harness.c").write_text(HARNESS)
-    san = ["-g", "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer"]
-    exe = build(src, tmp_path / "h", san, files=("harness.c", f"{P}.c"))
+    exe = build(src, tmp_path / "h", SANITIZE_O0, files=("harness.c", f"{P}.c"))
     r = subprocess.run([str(exe)], capture_output=True, text=True)
     assert r.returncode == 0 and r.stderr == "" and r.stdout == "ok\n", r.stdout[-2000:] + r.stderr[-2000:]
 
