@@ -5,11 +5,16 @@ import io
 import shutil
 
 import pytest
+from helpers.figures_off import figure_files_off
 from sensorless.reports.cli.main import main
 
 
 def run(args, capsys):
-    code = main(args)
+    """``main(args)``, its figure files built but not rendered (tests/helpers/figures_off.py): the tests
+    that call it check the file names and the data; the preset analysis below renders its figures and
+    checks their bytes."""
+    with figure_files_off():
+        code = main(args)
     out = capsys.readouterr()
     return code, out.out, out.err
 
