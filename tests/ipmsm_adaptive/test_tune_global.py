@@ -81,13 +81,15 @@ def test_infeasible_envelope_reports_its_evidence():
 # ---------------------------------------------------------------------------------------- the bound
 def brute_force(drive, w, torques, floor):
     """max over (lambda1, lambda2) of min over the torques of the worst damping with decay >= floor,
-    by a grid and two refinements, through the analysis Function (not the tuning model)."""
+    by a grid, a finer grid around each of its six best points (the damping has several local maxima
+    over the gains: one start, refined, can end on the wrong one) and two refinements of the best,
+    through the analysis Function (not the tuning model)."""
     R = drive.estimate.R_s
     law, args = drive_arguments(drive, ("constant", [0.0, 0.0]))
     loop = rotor_frame_loop(law, False)
     NT = torques.size
 
-    def best(l1, l2):
+    def scores(l1, l2):
         L1, L2 = (a.ravel() for a in np.meshgrid(l1, l2))
         K = L1.size
         gain = np.vstack([np.repeat(L1, NT), np.repeat(L2, NT)])
@@ -96,15 +98,19 @@ def brute_force(drive, w, torques, floor):
         p = np.linalg.eigvals(A)
         z = (-p.real / np.abs(p)).min(axis=1).reshape(K, NT).min(axis=1)
         d = (-p.real).min(axis=1).reshape(K, NT).min(axis=1)
-        z = np.where(d >= floor, z, -np.inf)
+        return np.where(d >= floor, z, -np.inf), L1, L2
+
+    def around(a1, a2, half, n):  # the best of an n x n grid of half-width half * R around (a1, a2)
+        z, L1, L2 = scores(
+            np.linspace(a1 - half * R, a1 + half * R, n), np.linspace(a2 - half * R, a2 + half * R, n)
+        )
         k = int(np.argmax(z))
         return z[k], L1[k], L2[k]
 
-    z, a1, a2 = best(np.linspace(-0.9, 20, 100) * R, np.linspace(-20, 20, 161) * R)
-    z, a1, a2 = best(np.linspace(a1 - 0.3 * R, a1 + 0.3 * R, 41), np.linspace(a2 - 0.3 * R, a2 + 0.3 * R, 41))
-    z, _, _ = best(
-        np.linspace(a1 - 0.02 * R, a1 + 0.02 * R, 21), np.linspace(a2 - 0.02 * R, a2 + 0.02 * R, 21)
-    )
+    z, L1, L2 = scores(np.linspace(-0.9, 20, 50) * R, np.linspace(-20, 20, 81) * R)  # steps 0.43, 0.5 R
+    _, a1, a2 = max((around(L1[k], L2[k], 0.6, 25) for k in np.argsort(-z)[:6]), key=lambda t: t[0])
+    _, a1, a2 = around(a1, a2, 0.06, 21)
+    z, _, _ = around(a1, a2, 0.006, 21)
     return z
 
 
