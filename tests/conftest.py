@@ -16,6 +16,12 @@ bound the wall time alone. (``--dist loadgroup`` would say the groups with marke
 import os
 import re
 
+# numpy's OpenBLAS in one thread in the test processes (set before numpy is first imported): the suite
+# runs one pytest-xdist worker per core, and a second BLAS thread per worker only spins for a core the
+# other worker is using (a 225 x 226 SVD of tests/helpers/simulation.py: 0.73 s of CPU with two threads
+# on two busy cores, 0.014 s with one). Dask's workers run so by default (tuning/slots.py).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import pytest
 from sensorless.design.drive import load_drive
 

@@ -25,6 +25,7 @@ from families.pll import tuning as pll_tuning
 from families.pll.constant_law import GRID
 from families.pll.design import FAMILY
 from families.pll.symbolic import OUTPUTS, STATE
+from helpers.figures_off import figure_files_off
 from helpers.fuzz import fuzz, pmsm_steady_segments, steady_rows
 from sensorless.design.drive import load_drive, preset_names
 from sensorless.design.family import GainSet, ObserverFamily
@@ -112,7 +113,10 @@ def test_reads_the_shared_pmsm_records_and_refuses_a_salient_motor(drive, tmp_pa
 
 # --------------------------------------------------------------------------------------- analyze
 def test_analyze_writes_poles_from_the_casadi_jacobians(drive, tmp_path, capsys):
-    code, stdout, err = run(["analyze", DRIVE, "--out", tmp_path], capsys)
+    # the figure built, not rendered (tests/helpers/figures_off.py): its name is checked here; the
+    # report below renders this family's figures
+    with figure_files_off():
+        code, stdout, err = run(["analyze", DRIVE, "--out", tmp_path], capsys)
     assert code == 0, err
     names = ["poles.csv", "poles.png", "poles.svg", "poles_discrete.csv"]
     assert sorted(p.name for p in tmp_path.iterdir()) == names  # the shared analyze output
@@ -218,25 +222,32 @@ def test_tune_goes_through_the_shared_pipeline_and_the_analysis_confirms_its_tab
 def test_tuned_bandwidth_matches_a_brute_force_search_and_stays_below_its_bound(drive, tuned):
     """Independent of the tuner: every bandwidth of a 40-point log grid over the box, refined three
     times 10-fold around the best (21 points over the neighbouring steps each time), through the
-    family's analysis (FAMILY.linearize, continuous poles) on the table's dense grid; the best worst
-    damping among those that decay at least at the floor. The tuner may stop up to its tie tolerance
-    (5e-4) below the best it found, and the brute force resolves the bandwidth to better than 0.02 %
-    (103 analyses; 80 points refined twice 20-fold took 162 for 0.02 %): tolerance 1e-3 in damping,
-    1 % in the bandwidth. The pointwise bound (no bandwidth does better at any speed) is at least the
-    tuned worst damping."""
+    family's loop (its continuous poles: the equilibria of every bandwidth at every point in one batched
+    call of the shared equilibrium_points, as FAMILY.linearize computes them; FAMILY.linearize itself
+    at the best bandwidth, below) on the table's dense grid; the best worst damping among those that
+    decay at least at the floor. The tuner may stop up to its tie tolerance (5e-4) below the best it
+    found, and the brute force resolves the bandwidth to better than 0.02 % (103 bandwidths; 80 points
+    refined twice 20-fold took 162 for 0.02 %): tolerance 1e-3 in damping, 1 % in the bandwidth. The
+    pointwise bound (no bandwidth does better at any speed) is at least the tuned worst damping."""
+    from sensorless.design.poles import max_real, worst_damping
+    from sensorless.design.rotor_frame import equilibrium_points
+
     table = read_gain_table(tuned)
     s = table.summary
     W, T = _dense_points(table)
     floor = s["decay_floor_1_s"]
     lo, hi = table.envelope["bounds"]["w_pll"]
+    loop, motor = design.rotor_loop(), design.pmsm_plant(drive.motor)
 
     def best_of(ws):
-        z, d = [], []
-        for w in ws:
-            lin = FAMILY.linearize(drive, GainSet("pll", {"w_pll": float(w)}), W, T)
-            z.append(np.min(lin.worst_damping))
-            d.append(np.min(lin.decay_rate))
-        z = np.where(np.array(d) >= floor, z, -np.inf)
+        p = np.column_stack([FAMILY.runtime(drive, GainSet("pll", {"w_pll": float(w)})).p for w in ws])
+        n = W.size
+        poles = equilibrium_points(
+            loop, np.tile(W, ws.size), np.tile(T, ws.size), motor, np.repeat(p, n, axis=1)
+        ).poles()
+        z = worst_damping(poles).reshape(ws.size, n).min(axis=1)
+        d = (-max_real(poles)).reshape(ws.size, n).min(axis=1)
+        z = np.where(d >= floor, z, -np.inf)
         k = int(np.argmax(z))
         return ws[k], z[k]
 
@@ -247,6 +258,8 @@ def test_tuned_bandwidth_matches_a_brute_force_search_and_stays_below_its_bound(
         ws = np.geomspace(w_best / step, w_best * step, 21)
     w_best, z_best = best_of(ws)
     assert np.isfinite(z_best)
+    lin = FAMILY.linearize(drive, GainSet("pll", {"w_pll": float(w_best)}), W, T)
+    assert np.min(lin.worst_damping) == pytest.approx(z_best, abs=1e-9)  # the family's own analysis
     assert s["worst_damping"] == pytest.approx(z_best, abs=1e-3)
     assert table.gains["w_pll"] == pytest.approx(w_best, rel=0.01)
     assert s["bound"]["worst_damping"] >= s["worst_damping"] - 1e-9
@@ -353,7 +366,8 @@ def test_simulate_runs_its_scenario_on_the_shared_drive_loop(drive, tuned, tmp_p
     assert code == 0 and stdout.split()[0] == "speed_steps"
     out = tmp_path / "sim"
     args = ["simulate", DRIVE, "--scenario", SCENARIO, "--gains", tuned, "--quiet", "--out", out]
-    code, stdout, err = run(args, capsys)
+    with figure_files_off():  # the traces are read here; the figure built, not rendered (as above)
+        code, stdout, err = run(args, capsys)
     assert code == 0, err
     assert sorted(p.name for p in out.iterdir()) == ["speed_steps.png", "speed_steps.svg", "traces.csv"]
     assert "pll table" in stdout and "position error: RMS" in stdout

@@ -52,3 +52,26 @@ def figures_off() -> Iterator[None]:
         mp.setattr(review, "bias_curves", lambda *a: None)
         mp.setattr(review, "front_figure", lambda *a: None)
         yield
+
+
+@contextlib.contextmanager
+def figure_files_off() -> Iterator[None]:
+    """Within the block, the figure files a command writes (``OutputSet.add_figure``: analyze's pole
+    maps, simulate's traces) are built but not rendered: each is staged under its name as an empty
+    file once the figure is checked to have drawn something (axes with artists on them). For the
+    tests that read a command's data and check its file list only: rendering a figure to PNG and SVG
+    was most of such a command's CPU (analyze piippo2008 --discrete: ~60 %); the rendered bytes are
+    checked by the tests that write figures (tests/ipmsm_adaptive/test_cli_analyze.py's preset
+    analysis, tests/common/test_outputs.py, the README's commands)."""
+    from sensorless.reports.document import pyplot
+    from sensorless.reports.files import OutputSet
+
+    def staged(self: OutputSet, name: str, fig: object, **kwargs: float) -> None:
+        axes = fig.get_axes()  # type: ignore[attr-defined]
+        assert axes and any(ax.has_data() for ax in axes), f"{name}: an empty figure"
+        pyplot().close(fig)
+        self.add_bytes(name, b"")
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(OutputSet, "add_figure", staged)
+        yield

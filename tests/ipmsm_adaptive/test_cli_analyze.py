@@ -5,11 +5,16 @@ import io
 import shutil
 
 import pytest
+from helpers.figures_off import figure_files_off
 from sensorless.reports.cli.main import main
 
 
 def run(args, capsys):
-    code = main(args)
+    """``main(args)``, its figure files built but not rendered (tests/helpers/figures_off.py): the tests
+    that call it check the file names and the data; the preset analysis below renders its figures and
+    checks their bytes."""
+    with figure_files_off():
+        code = main(args)
     out = capsys.readouterr()
     return code, out.out, out.err
 
@@ -22,12 +27,12 @@ def quiet_run(args):
     return code, out.getvalue(), err.getvalue()
 
 
-ALL = ["analyze", "piippo2008", "--gain-set", "all", "--points", "401"]
+ALL = ["analyze", "piippo2008", "--gain-set", "all", "--points", "201"]
 
 
 @pytest.fixture(scope="module")
 def preset_all(tmp_path_factory):
-    """``analyze piippo2008 --gain-set all --points 401``, run once for this module: (directory, exit
+    """``analyze piippo2008 --gain-set all --points 201``, run once for this module: (directory, exit
     status, stdout, {file name: bytes})."""
     out = tmp_path_factory.mktemp("analyze") / "a"
     code, stdout, _ = quiet_run([*ALL, "--out", str(out)])
@@ -41,7 +46,7 @@ def rerun(preset_all, tmp_path_factory):
     the --force run and the determinism check (the same bytes as the first run's)."""
     out = tmp_path_factory.mktemp("analyze") / "b"
     shutil.copytree(preset_all[0], out)
-    args = ["analyze", "piippo2008", "--gain", "all", "--points", "401", "--out", str(out)]
+    args = ["analyze", "piippo2008", "--gain", "all", "--points", "201", "--out", str(out)]
     refused = quiet_run([*args, "--torque", "14"])
     after_refused = {p.name: p.read_bytes() for p in out.iterdir()}
     forced = quiet_run([*args, "--force"])
