@@ -276,19 +276,18 @@ def newton(
             r[:, j] = np.angle(np.exp(1j * r[:, j]))
         return r
 
+    # the arguments as evaluate_batch takes them: one instance, or a column per point (a scalar input:
+    # one value per point), read once (the iterations take the columns of the points still iterating)
+    given = [np.asarray(a, float) for a in args]
+    per_point = [
+        None if a.size == fn.size1_in(k) else a if a.ndim == 1 else a.reshape(fn.size1_in(k), n)
+        for k, a in enumerate(given, start=1)
+    ]
+
     def at(idx: np.ndarray) -> list[np.ndarray]:
         """The arguments at the points idx (evaluate_batch: one instance, or one column per point)."""
-        out = []
-        for k, a in enumerate(args, start=1):
-            a = np.asarray(a, float)
-            rows = fn.size1_in(k)
-            if a.size == rows:  # one instance
-                out.append(a)
-            elif a.ndim == 1:  # a scalar input per point
-                out.append(a[idx])
-            else:
-                out.append(a.reshape(rows, n)[:, idx])
-        return out
+        cols = zip(given, per_point, strict=True)
+        return [a if c is None else c[idx] if c.ndim == 1 else c[:, idx] for a, c in cols]
 
     todo = np.arange(n)  # the points still iterating (only they are evaluated)
     size = np.full(n, np.inf)  # damped: the scaled residual at each point's last accepted iterate
@@ -385,9 +384,7 @@ def discrete_poles(J: np.ndarray, T_s: float | np.ndarray, n_poles: int) -> tupl
     return poles_by_size(eigenvalues_by_size(J), T_s, n_poles)
 
 
-def poles_by_size(
-    z: np.ndarray, T_s: float | np.ndarray, n_poles: int
-) -> tuple[np.ndarray, np.ndarray]:
+def poles_by_size(z: np.ndarray, T_s: float | np.ndarray, n_poles: int) -> tuple[np.ndarray, np.ndarray]:
     """:func:`discrete_poles` of the eigenvalues ``z`` of :func:`eigenvalues_by_size` (a caller that
     needs them too computes them once)."""
     T = np.asarray(T_s, float).reshape(-1, 1)
