@@ -292,16 +292,17 @@ def newton(
     todo = np.arange(n)  # the points still iterating (only they are evaluated)
     size = np.full(n, np.inf)  # damped: the scaled residual at each point's last accepted iterate
     last = np.zeros((n, n_y))  # damped: the step that led to the iterate
-    # a point's iteration is a function of its state (y, size, last) alone, so a point whose state
-    # repeats the one of two iterations before cycles to the end (a residual just above the 1e-13 that
-    # stops it, the step flipping between two neighbouring floats: the damped flux analysis' 200
+    # damped: a point's iteration is a function of its state (y, size, last) alone, so a point whose
+    # state repeats the one of two iterations before cycles to the end (a residual just above the 1e-13
+    # that stops it, the step flipping between two neighbouring floats: the damped flux analysis' 200
     # iterations on a few dozen points per batch); its last state is known from the cycle's parity
-    # and it leaves the batch: the same y as iterating on (where each evaluation runs the same code)
+    # and it leaves the batch: the same y as iterating on (where each evaluation runs the same code).
+    # Not looked for in a plain Newton's few iterations (its cost per iteration, for a few saved)
     # the states at the start of the last two iterations (iteration it in past[it % 2]; only the rows of
     # the points still iterating are written: every earlier iteration iterated them)
-    past = [(np.empty_like(y), np.empty_like(size), np.empty_like(last)) for _ in range(2)]
+    past = [(np.empty_like(y), np.empty_like(size), np.empty_like(last)) for _ in range(2 if damped else 0)]
     for it in range(iterations):
-        if it >= 2 and settled(fn, jit):
+        if damped and it >= 2 and settled(fn, jit):
             same = np.ones(todo.size, bool)
             for a, b in zip((y, size, last), past[it % 2], strict=True):
                 a_, b_ = a[todo].reshape(todo.size, -1), b[todo].reshape(todo.size, -1)
@@ -312,8 +313,9 @@ def newton(
                 todo = todo[~same]
                 if todo.size == 0:
                     break
-        for a, b in zip((y, size, last), past[it % 2], strict=True):
-            b[todo] = a[todo]
+        if damped:
+            for a, b in zip((y, size, last), past[it % 2], strict=True):
+                b[todo] = a[todo]
         y_next, Jy, *_ = evaluate_batch(fn, todo.size, [y[todo].T, *at(todo)], jit=jit)
         r = y_next[:, :, 0] - y[todo]
         for j in angles:
