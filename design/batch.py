@@ -95,6 +95,14 @@ def _calls(n: int) -> list[tuple[int, int, int]]:
     return out
 
 
+def settled(fn: ca.Function, jit: bool | None = None) -> bool:
+    """Whether every later :func:`evaluate_batch` of ``fn`` with this ``jit`` runs the same code (the
+    virtual machine or the compiled library, not one and then the other): ``jit`` given, or ``fn``
+    compiled already. A caller that reuses a point's earlier results (design/discrete.py ``newton``'s
+    cycles) relies on it: the two may differ in the last bits."""
+    return jit is not None or _POINTS.get(fn, 0) >= JIT_MIN_POINTS
+
+
 def evaluate_batch(
     fn: ca.Function, n: int, args: Sequence[np.ndarray], jit: bool | None = None, threads: bool = True
 ) -> list[np.ndarray]:

@@ -35,7 +35,7 @@ from typing import TypeAlias
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
-from sensorless.design.batch import evaluate_batch
+from sensorless.design.batch import evaluate_batch, settled
 from sensorless.design.compiled import compiled
 from sensorless.design.expm import expm_batched
 from sensorless.design.poles import sort_poles
@@ -276,24 +276,46 @@ def newton(
             r[:, j] = np.angle(np.exp(1j * r[:, j]))
         return r
 
+    # the arguments as evaluate_batch takes them: one instance, or a column per point (a scalar input:
+    # one value per point), read once (the iterations take the columns of the points still iterating)
+    given = [np.asarray(a, float) for a in args]
+    per_point = [
+        None if a.size == fn.size1_in(k) else a if a.ndim == 1 else a.reshape(fn.size1_in(k), n)
+        for k, a in enumerate(given, start=1)
+    ]
+
     def at(idx: np.ndarray) -> list[np.ndarray]:
         """The arguments at the points idx (evaluate_batch: one instance, or one column per point)."""
-        out = []
-        for k, a in enumerate(args, start=1):
-            a = np.asarray(a, float)
-            rows = fn.size1_in(k)
-            if a.size == rows:  # one instance
-                out.append(a)
-            elif a.ndim == 1:  # a scalar input per point
-                out.append(a[idx])
-            else:
-                out.append(a.reshape(rows, n)[:, idx])
-        return out
+        cols = zip(given, per_point, strict=True)
+        return [a if c is None else c[idx] if c.ndim == 1 else c[:, idx] for a, c in cols]
 
     todo = np.arange(n)  # the points still iterating (only they are evaluated)
     size = np.full(n, np.inf)  # damped: the scaled residual at each point's last accepted iterate
     last = np.zeros((n, n_y))  # damped: the step that led to the iterate
-    for _ in range(iterations):
+    # damped: a point's iteration is a function of its state (y, size, last) alone, so a point whose
+    # state repeats the one of two iterations before cycles to the end (a residual just above the 1e-13
+    # that stops it, the step flipping between two neighbouring floats: the damped flux analysis' 200
+    # iterations on a few dozen points per batch); its last state is known from the cycle's parity
+    # and it leaves the batch: the same y as iterating on (where each evaluation runs the same code).
+    # Not looked for in a plain Newton's few iterations (its cost per iteration, for a few saved)
+    # the states at the start of the last two iterations (iteration it in past[it % 2]; only the rows of
+    # the points still iterating are written: every earlier iteration iterated them)
+    past = [(np.empty_like(y), np.empty_like(size), np.empty_like(last)) for _ in range(2 if damped else 0)]
+    for it in range(iterations):
+        if damped and it >= 2 and settled(fn, jit):
+            same = np.ones(todo.size, bool)
+            for a, b in zip((y, size, last), past[it % 2], strict=True):
+                a_, b_ = a[todo].reshape(todo.size, -1), b[todo].reshape(todo.size, -1)
+                same &= (a_.view(np.int64) == b_.view(np.int64)).all(axis=1)
+            if same.any():
+                if (iterations - it) % 2:  # ends on the other state of the cycle: the one before
+                    y[todo[same]] = past[(it - 1) % 2][0][todo[same]]
+                todo = todo[~same]
+                if todo.size == 0:
+                    break
+        if damped:
+            for a, b in zip((y, size, last), past[it % 2], strict=True):
+                b[todo] = a[todo]
         y_next, Jy, *_ = evaluate_batch(fn, todo.size, [y[todo].T, *at(todo)], jit=jit)
         r = y_next[:, :, 0] - y[todo]
         for j in angles:
@@ -361,7 +383,12 @@ def eigenvalues_by_size(J: np.ndarray) -> np.ndarray:
 def discrete_poles(J: np.ndarray, T_s: float | np.ndarray, n_poles: int) -> tuple[np.ndarray, np.ndarray]:
     """(ln(z)/T_s of the ``n_poles`` largest |z|, sorted like sort_poles; |z| of the others) of each
     one-step Jacobian (N, n, n). ``T_s`` may be per point (N,), e.g. the length of a window of steps."""
-    z = eigenvalues_by_size(J)
+    return poles_by_size(eigenvalues_by_size(J), T_s, n_poles)
+
+
+def poles_by_size(z: np.ndarray, T_s: float | np.ndarray, n_poles: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`discrete_poles` of the eigenvalues ``z`` of :func:`eigenvalues_by_size` (a caller that
+    needs them too computes them once)."""
     T = np.asarray(T_s, float).reshape(-1, 1)
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.log(z[:, :n_poles]) / T

@@ -49,6 +49,8 @@ SHARED = {
     ),
     # the session fixtures speed_dependent_small and tune_cli_small (tests/ipmsm_adaptive/conftest.py)
     re.compile(r"tests/ipmsm_adaptive/test_tune(_global)?\.py::.*"): "tune-ipmsm",
+    # the session fixture outrunner_constant (tests/pmsm_flux_observer/conftest.py)
+    re.compile(r"tests/pmsm_flux_observer/test_(tune|criterion)\.py::.*"): "tune-flux",
     # the session fixtures report_piippo_quick, report_deangelo_quick, another_day (tests/common/conftest.py):
     # only the tests that read them (test_outputs.py's other tests run beside the group, on the other worker);
     # test_results.py's diverged report reads report_deangelo_quick's analyses from the memo

@@ -27,11 +27,11 @@ import casadi as ca
 import numpy as np
 from sensorless.design.discrete import (
     SampledLoop,
-    discrete_poles,
     eigenvalues_by_size,
     fixed_points,
     pmsm_zoh_plant,
     pmsm_zoh_sample,
+    poles_by_size,
     sensitivities,
 )
 from sensorless.design.family import CapabilityError, GainSet
@@ -186,16 +186,22 @@ def discrete_analysis(
     one-step Jacobian; inf where unstable). With ``observer_decay``, last: (N,) the decay rate [1/s] of
     the observer's own modes, without the PLL's (``_observer_decay``, sampled)."""
     m = drive.motor
-    i_r = pmsm_steady_current(T, pmsm_plant(m))
-    plant = pmsm_zoh_plant(m.vector(), W, i_r, drive.observer.T_obs)
+    T_obs = drive.observer.T_obs
+    # the true motor's samples depend on the operating point alone: computed once per distinct (speed,
+    # torque), since a tuner's assessment repeats the envelope for every candidate and estimate corner
+    # (each point's matrix exponential is its own: the same numbers as point by point)
+    points, at = np.unique(np.column_stack([W, T]), axis=0, return_inverse=True)
+    i_r = pmsm_steady_current(points[:, 1], pmsm_plant(m))
+    plant = pmsm_zoh_plant(m.vector(), points[:, 0], i_r, T_obs)[at.ravel()]
     # damped: the continuous equilibrium may lie outside the sampled one's Newton basin near a slow
     # observer mode (hubmotor48 at rated load near 1 p.u.: a full step landed on another fixed point)
     y, Jd = fixed_points(loop, y0, W, plant, p, gain, iterations=DAMPED_STEPS, damped=True)
-    poles = discrete_poles(Jd, drive.observer.T_obs, loop.n_y)[0]
+    z = eigenvalues_by_size(Jd)
+    poles = poles_by_size(z, T_obs, loop.n_y)[0]
     sens = sensitivities(loop, y, W, plant, p, gain)
     err = -sens["out"][:, loop.observer.index("outputs", "theta_hat")]  # atan2's range: no wrap
-    z = np.abs(eigenvalues_by_size(Jd)[:, 0])
-    own = (_sampled_observer_decay(Jd, poles, drive.observer.T_obs),) if observer_decay else ()
+    z = np.abs(z[:, 0])
+    own = (_sampled_observer_decay(Jd, poles, T_obs),) if observer_decay else ()
     if sigma is None:
         return poles, z, err, *own
     # the current samples are meas[0:2] (stationary frame: the noise is isotropic, so its rotation

@@ -10,7 +10,6 @@ import math
 
 import numpy as np
 import pytest
-from sensorless.design.drive import load_drive
 from sensorless.design.family import GainSet
 from sensorless.design.pmsm_flux_observer.schema import PLL_SPEED_LOOP
 from sensorless.tuning.pmsm_flux_observer import (
@@ -20,23 +19,16 @@ from sensorless.tuning.pmsm_flux_observer import (
     judged,
     odrive_defaults,
     shortfalls,
-    tune_constant,
     vesc_detection,
 )
 
 
-def with_speeds(d, n):
-    """``d`` with ``n`` speeds per direction in its envelope."""
-    env = dataclasses.replace(d.envelope, rule=dataclasses.replace(d.envelope.rule, count=n))
-    return dataclasses.replace(d, envelope=env)
-
-
 @pytest.fixture(scope="module")
-def drive():
-    """The ODrive-class preset on a coarser envelope (4 speeds per direction, the preset's: 12): the same
-    criterion, a third of the points."""
-    d = load_drive("outrunner270")
-    return with_speeds(d, 4)
+def drive(outrunner_coarse):
+    """The ODrive-class preset on a coarser envelope (4 speeds per direction, the preset's: 12; conftest.py):
+    the same criterion, a third of the points."""
+    assert outrunner_coarse.envelope.rule.count == 4
+    return outrunner_coarse
 
 
 def _rank(drive, a, c):
@@ -63,8 +55,10 @@ def _rank(drive, a, c):
     return (0 if ok else 1, lim, -decay)
 
 
-def test_tuned_is_never_worse_than_the_better_firmware_default_on_a_brute_force_grid(drive):
-    tuned = tune_constant(drive, FluxTuneSettings())
+def test_tuned_is_never_worse_than_the_better_firmware_default_on_a_brute_force_grid(
+    drive, outrunner_constant
+):
+    tuned = outrunner_constant  # tune_constant(drive, FluxTuneSettings()) (conftest.py)
     assert tuned.missed == []  # a well-tuned datasheet motor meets the defaults: no exit 3
     g = GainSet("constant", dict(tuned.table.gains), "tuned")
     T = drive.observer.T_obs

@@ -22,21 +22,17 @@ from sensorless.tuning.pmsm_flux_observer import (
     tune_constant,
 )
 
-SPEEDS = 4
+
+@pytest.fixture(scope="module")
+def drive(outrunner_coarse):
+    """The ODrive-class preset on a coarser envelope (conftest.py): the same laws and limits, tuned and
+    judged on fewer points."""
+    return outrunner_coarse
 
 
 @pytest.fixture(scope="module")
-def drive():
-    """The ODrive-class preset on a coarser envelope (SPEEDS per direction, the preset's: 12): the same
-    laws and limits, tuned and judged on fewer points."""
-    d = load_drive("outrunner270")
-    env = dataclasses.replace(d.envelope, rule=dataclasses.replace(d.envelope.rule, count=SPEEDS))
-    return dataclasses.replace(d, envelope=env)
-
-
-@pytest.fixture(scope="module")
-def tuned(drive):
-    return tune_constant(drive, FluxTuneSettings())
+def tuned(outrunner_constant):
+    return outrunner_constant
 
 
 def test_constant_law_limits_and_table(drive, tuned):
@@ -57,10 +53,8 @@ def test_baselines_are_the_firmware_defaults(tuned, drive):
     assert (v["foc_pll_kp"], v["foc_pll_ki"]) == (2000.0, 30000.0)
 
 
-def test_schedule_table_runs_as_a_schedule_over_the_pll_speed(drive):
-    from sensorless.tuning.pmsm_flux_observer import tune_schedule
-
-    out = tune_schedule(drive, FluxTuneSettings())
+def test_schedule_table_runs_as_a_schedule_over_the_pll_speed(drive, outrunner_schedule):
+    out = outrunner_schedule
     fam = family_of(drive)
     gains = fam.gains(drive, table=out.table, table_file="s.json")
     setup = fam.runtime(drive, gains)
@@ -173,14 +167,12 @@ def test_angle_noise_scales_with_the_sensor_noise(drive):
     assert fin.any() and np.allclose(a4.noise[fin], 2 * a3.noise[fin])
 
 
-def test_schedule_is_held_below_its_lowest_holding_speed(drive):
+def test_schedule_is_held_below_its_lowest_holding_speed(drive, outrunner_schedule):
     """Where no candidate holds (every one lacks an equilibrium under some error corner) the criterion
     ties; the schedule keeps the lowest holding speed's gain there rather than the grid's smallest."""
-    from sensorless.tuning.pmsm_flux_observer import assess, constant_candidate, tune_schedule
-
     s = FluxTuneSettings()
     a = assess(drive, [constant_candidate(drive, float(k)) for k in k_grid(drive)], s)
     first = int(np.flatnonzero(a.holds.any(axis=0))[0])
     assert first > 0  # the outrunner has speeds where no gain holds
-    ks = tune_schedule(drive, s).table.gains["observer_gain"]
+    ks = outrunner_schedule.table.gains["observer_gain"]
     assert ks[:first] == [ks[first]] * first and ks[first] > k_grid(drive)[0]

@@ -5,7 +5,10 @@ criterion.py ranks and judges them."""
 
 from __future__ import annotations
 
+import collections
 import math
+import pickle
+import threading
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -64,27 +67,7 @@ def assess(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTuneSet
             rows.append([p[n] for n in names])
             gains.append(k_0)
     nc, npt = len(cs), W.size
-    n = len(cands) * nc * npt
-    P = np.repeat(np.asarray(rows).T, npt, axis=1)
-    G = np.repeat(np.asarray(gains)[None, :], npt, axis=1)
-    Wn, Tn = np.tile(W, len(cands) * nc), np.tile(T, len(cands) * nc)
-    o = drive.observer
-    law = constant_law()
-    frame = rotor_frame_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
-    loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
-    m = motor_vector(drive)
-    s = np.full((n, loop.n_y), np.nan + 0j)
-    zmax, err = np.full(n, np.nan), np.full(n, np.nan)
-    noise: np.ndarray = np.full((n, 2), np.nan)
-    own = np.full(n, np.nan)
-    sigma = current_noise(drive)
-    for j in range(0, n, CHUNK):
-        sl = slice(j, min(j + CHUNK, n))
-        y0 = equilibrium_points(frame, Wn[sl], Tn[sl], m, with_gain(P[:, sl], G[:, sl])).x
-        s[sl], zmax[sl], err[sl], nz, own[sl] = discrete_analysis(
-            drive, loop, y0, Wn[sl], Tn[sl], P[:, sl], G[:, sl], sigma, observer_decay=True
-        )
-        noise[sl] = nz
+    s, zmax, err, noise, own = _points(drive, np.asarray(rows), np.asarray(gains), W, T, len(cands))
     ok = np.isfinite(zmax)
     zeta = worst_damping(s).reshape(len(cands), nc, npt)
     bias = np.abs(np.where(ok, err, np.nan)).reshape(len(cands), nc, npt)
@@ -105,6 +88,68 @@ def assess(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTuneSet
         np.where(ok, own, np.nan).reshape(len(cands), nc, npt)[:, 0],
         np.array([pll_slow_root(g) for g in cands]),
     )
+
+
+# each candidate's figures at its points (the envelope x the error corners), kept in this process by the
+# bytes of everything they are computed from: a tune judges the firmware defaults and the drive file's
+# gains again beside its refinement, and a report in the same process the tuned gains and the defaults
+# (each point's Newton iteration is its own: the same numbers in any batch). ~40 kB a candidate
+_KEPT: collections.OrderedDict[bytes, tuple[np.ndarray, ...]] = collections.OrderedDict()
+_KEPT_MAX = 256
+_KEPT_LOCK = threading.Lock()
+
+
+def _points(
+    drive: FluxObserverDrive, rows: np.ndarray, gains: np.ndarray, W: np.ndarray, T: np.ndarray, n_cand: int
+) -> tuple[np.ndarray, ...]:
+    """(poles, largest |z|, angle error, (PLL angle, speed) noise, observer decay) at each point of
+    :func:`assess`'s layout: candidate, corner, envelope point; ``rows`` (candidates x corners, PARAMS)
+    and ``gains`` (the same) the runtime parameters and k_0 of each candidate's corners."""
+    o = drive.observer
+    law = constant_law()
+    frame = rotor_frame_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
+    loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
+    m = motor_vector(drive)
+    sigma = current_noise(drive)
+    npt, nc = W.size, rows.shape[0] // n_cand
+    per = nc * npt
+    common = pickle.dumps(
+        (W, T, m, drive.motor.vector(), o.T_obs, o.inductance_rule, o.lambda_adaptation, sigma, loop.n_y)
+    )
+    keys = [common + rows[c * nc : (c + 1) * nc].tobytes() + gains[c * nc : (c + 1) * nc].tobytes()
+            for c in range(n_cand)]  # fmt: skip
+    with _KEPT_LOCK:
+        kept = {k: _KEPT[k] for k in keys if k in _KEPT}
+    new = list(dict.fromkeys(k for k in keys if k not in kept))  # each missing candidate once
+    if new:
+        first = [keys.index(k) for k in new]
+        idx = np.concatenate([np.arange(c * per, (c + 1) * per) for c in first])
+        P = np.repeat(rows.T, npt, axis=1)[:, idx]
+        G = np.repeat(gains[None, :], npt, axis=1)[:, idx]
+        Wn, Tn = np.tile(W, n_cand * nc)[idx], np.tile(T, n_cand * nc)[idx]
+        k = idx.size
+        out = (
+            np.full((k, loop.n_y), np.nan + 0j),
+            np.full(k, np.nan),
+            np.full(k, np.nan),
+            np.full((k, 2), np.nan),
+            np.full(k, np.nan),
+        )
+        for j in range(0, k, CHUNK):
+            sl = slice(j, min(j + CHUNK, k))
+            y0 = equilibrium_points(frame, Wn[sl], Tn[sl], m, with_gain(P[:, sl], G[:, sl])).x
+            figs = discrete_analysis(
+                drive, loop, y0, Wn[sl], Tn[sl], P[:, sl], G[:, sl], sigma, observer_decay=True
+            )
+            for a, f in zip(out, figs, strict=True):
+                a[sl] = f
+        with _KEPT_LOCK:
+            for i, key in enumerate(new):
+                kept[key] = _KEPT[key] = tuple(a[i * per : (i + 1) * per].copy() for a in out)
+                _KEPT.move_to_end(key)
+            while len(_KEPT) > _KEPT_MAX:
+                _KEPT.popitem(last=False)
+    return tuple(np.concatenate([kept[key][j] for key in keys]) for j in range(5))
 
 
 def noise_limits(settings: FluxTuneSettings) -> tuple[tuple[str, float], ...]:

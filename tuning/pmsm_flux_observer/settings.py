@@ -22,9 +22,11 @@ KP_T = 0.5  # T k_p at most (ODrive flags T k_p >= 1 as unstable; half of it lea
 K_GRID = 24  # candidate observer gains (log grid: 1.33 apart on the outrunner)
 
 
-# points per batched evaluation: below design/batch.py's JIT threshold, so a tune never waits for the
-# compiler on a cold cache (~17 s for an unrolled Newton Function)
-CHUNK = 4000
+# points per batched evaluation (a bound on memory, ~1 kB per point): the voltage-scaled law's 112
+# candidates x 9 estimate cases x the README skate's 48 points in one batch. The sampled observer's
+# damped Newton ends on a few dozen points that take its 200 iterations, at ~1 ms each whatever their
+# number: in chunks of 4000 the README skate's tune paid them 13 times (1.8 s of its 10.9 s CPU)
+CHUNK = 1 << 16
 
 
 REFINE = 9  # candidates between the best grid point's neighbours
