@@ -110,12 +110,11 @@ class Batch:
         return self.fd < 0 or bool(select.select([self.fd], [], [], 0)[0])
 
     def collect(self) -> None:
-        """Wait for the child; each of its figures gets its bytes (or b"": rendered here when asked)."""
-        if self.fd < 0:
-            return
+        """Wait for the child; each of its figures gets its bytes (or b"": rendered here when asked,
+        as after a wait that was interrupted)."""
+        fd, self.fd = self.fd, -1
         self._finalizer.detach()
-        data = _collect(self.pid, self.fd)
-        self.fd = -1
+        data = _collect(self.pid, fd) if fd >= 0 else b""
         parts, at = [], 0
         for _ in self.jobs:
             if at + FRAME.size > len(data):
