@@ -14,7 +14,8 @@ renders them together. A child costs more than the figure it draws alone (each c
 the part of the parent's memory it touches, and fills the font and text caches again): one child per
 figure spent ~20 % more CPU on the README servo's twelve figures than a few children each drawing
 several. The parent never waits for a child while it computes; once it waits for a figure (it has
-nothing else to do), it draws the queued figures no child has taken itself, in the order asked.
+nothing else to do), it draws the queued figures no child has taken itself, in the order asked, then
+the last figures of a child's share that the child has not started (the two balance the end).
 
 The child only renders (numpy and matplotlib, no CasADi, no threads of its own), leaves by ``os._exit``
 (no atexit handlers, no second flush of inherited buffers), writes nothing but its pipe and dies at once
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import functools
 import gc
+import mmap
 import os
 import select
 import signal
@@ -73,11 +75,15 @@ class PendingSvg:
             elif batch.finished():
                 batch.collect()
             else:  # while it renders: a free child takes the later half of the queue, this process
-                # draws the oldest queued figure (or, none left, waits)
+                # draws the oldest queued figure, else the last one a child has not started (or waits)
                 jobs = _queued()
                 _start(jobs[len(jobs) // 2 :] if len(jobs) > 1 else [])
                 if not _steal():
-                    batch.collect()
+                    mine = next((q for b in [batch, *_live()] if (q := b.claim()) is not None), None)
+                    if mine is None:
+                        batch.collect()
+                    else:
+                        mine._render_here()
         self._fig = None
         return self._value
 
@@ -96,14 +102,33 @@ class PendingSvg:
 
 
 class Batch:
-    """A child process rendering ``jobs`` in order; it writes them all once done (FRAME, bytes)."""
+    """A child process rendering ``jobs`` in order; it writes them all once done (FRAME, bytes).
 
-    def __init__(self, pid: int, fd: int, jobs: Sequence[PendingSvg]) -> None:
+    ``flags``: memory the child shares with this process (created before the fork; a private one if
+    not given), one byte per figure that the child sets when it starts drawing it, then one per figure
+    that this process sets when it draws the figure itself (:meth:`claim`): the child skips it."""
+
+    def __init__(self, pid: int, fd: int, jobs: Sequence[PendingSvg], flags: mmap.mmap | None = None) -> None:
         self.pid, self.fd = pid, fd
         self.jobs = [weakref.ref(p) for p in jobs]  # a figure nobody waits for any more is not kept
+        self.flags = flags if flags is not None else mmap.mmap(-1, 2 * len(jobs))
         for p in jobs:
             p._batch = self
         self._finalizer = weakref.finalize(self, _reap, os.getpid(), pid, fd)
+
+    def claim(self) -> PendingSvg | None:
+        """The last figure the child has not started, now this process's to draw (None: it has started
+        them all). The child draws in order: a figure started means all before it are. Both may draw
+        one figure if the child starts it just as it is claimed: the same bytes, the child's unused."""
+        n = len(self.jobs)
+        for i in reversed(range(n)):
+            if self.fd < 0 or self.flags[i]:
+                return None
+            p = self.jobs[i]()
+            if p is not None and p._value is None and p._batch is self and not self.flags[n + i]:
+                self.flags[n + i] = 1
+                return p
+        return None
 
     def finished(self) -> bool:
         """Whether the child has written (it writes once every figure is drawn), or has exited."""
@@ -193,6 +218,7 @@ def _start(jobs: list[PendingSvg]) -> None:
     if not jobs or len(live) >= children():
         return
     try:
+        flags = mmap.mmap(-1, 2 * len(jobs))  # shared with the child (Batch)
         read_end, write_end = os.pipe()
     except OSError:
         return  # they stay queued: rendered here when asked
@@ -203,11 +229,11 @@ def _start(jobs: list[PendingSvg]) -> None:
         os.close(write_end)
         return
     if pid == 0:
-        _child(jobs, read_end, write_end, [b.fd for b in live])
+        _child(jobs, flags, read_end, write_end, [b.fd for b in live])
     os.close(write_end)
     for p in jobs:
         _unqueue(p)
-    _running.append(weakref.ref(Batch(pid, read_end, jobs)))
+    _running.append(weakref.ref(Batch(pid, read_end, jobs, flags)))
 
 
 def _collect(pid: int, fd: int) -> bytes:
@@ -249,7 +275,9 @@ def _reap(owner: int, pid: int, fd: int) -> None:
             pass
 
 
-def _child(jobs: Sequence[PendingSvg], read_end: int, write_end: int, siblings: list[int]) -> None:
+def _child(
+    jobs: Sequence[PendingSvg], flags: mmap.mmap, read_end: int, write_end: int, siblings: list[int]
+) -> None:
     """Render ``jobs`` into the pipe (each FRAME and its bytes, all at the end: the parent reads when it
     is done computing, and a full pipe would stall the figures after the first) and leave; never
     returns. ``siblings``: the read ends of the other children's pipes, closed here so that only the
@@ -267,12 +295,15 @@ def _child(jobs: Sequence[PendingSvg], read_end: int, write_end: int, siblings: 
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, 1)
         os.dup2(devnull, 2)
-        out = []
-        for p in jobs:
-            try:
-                uri = svg_uri(_made(p._fig)).encode("ascii")
-            except Exception:  # this figure is drawn by the parent (it says why), the others here
-                uri = b""
+        out, n = [], len(jobs)
+        for i, p in enumerate(jobs):
+            uri = b""
+            if not flags[n + i]:  # not claimed by the parent (Batch.claim)
+                flags[i] = 1
+                try:
+                    uri = svg_uri(_made(p._fig)).encode("ascii")
+                except Exception:  # this figure is drawn by the parent (it says why), the others here
+                    uri = b""
             out += [FRAME.pack(len(uri)), uri]
         view = memoryview(b"".join(out))
         while view:

@@ -90,7 +90,7 @@ def test_a_hung_child_is_killed_and_rendered_here(monkeypatch):
             os._exit(0)
     os.close(write_end)
     p = svg_render.PendingSvg(fig)
-    svg_render.Batch(pid, read_end, [p])
+    svg_render.Batch(pid, read_end, [p]).flags[0] = 1  # it has started the figure: waited for
     assert str(p) == expected
     with pytest.raises(ChildProcessError):  # killed and reaped
         os.waitpid(pid, os.WNOHANG)
@@ -127,3 +127,23 @@ def test_figures_no_child_takes_are_drawn_here_when_asked(monkeypatch):
     pending = [svg_render.svg_later(functools.partial(small, k)) for k in (10, 11)]
     assert all(isinstance(p, svg_render.PendingSvg) and p._batch is None for p in pending)
     assert [str(p) for p in pending] == [svg_uri(small(k)) for k in (10, 11)]
+
+
+def test_figures_a_child_has_not_started_are_drawn_here_last_first():
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # a child that has started nothing yet (it holds its pipe open)
+        try:
+            os.close(read_end)
+            time.sleep(3600)
+        finally:
+            os._exit(0)
+    os.close(write_end)
+    jobs = [svg_render.PendingSvg(functools.partial(small, k)) for k in (12, 13)]
+    batch = svg_render.Batch(pid, read_end, jobs)
+    assert str(jobs[0]) == svg_uri(small(12))  # both drawn here: the last claimed first
+    assert jobs[1]._value == svg_uri(small(13)) and batch.flags[:] == bytes([0, 0, 1, 1])  # the child skips
+    del batch, jobs
+    gc.collect()
+    with pytest.raises(ChildProcessError):  # the child, no longer wanted, is killed and reaped
+        os.waitpid(pid, os.WNOHANG)
