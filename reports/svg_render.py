@@ -88,7 +88,15 @@ class PendingSvg:
         return self._value
 
     def _render_here(self) -> None:
-        self._value = svg_uri(_made(self._fig))
+        # without garbage collection meanwhile, as in a child: a figure makes thousands of objects, and
+        # the passes they set off would go over this process's whole heap (its analyses' too)
+        enabled = gc.isenabled()
+        gc.disable()
+        try:
+            self._value = svg_uri(_made(self._fig))
+        finally:
+            if enabled:
+                gc.enable()
         self._batch = None
 
     def _given(self, data: bytes) -> None:
