@@ -119,7 +119,7 @@ class Batch:
     def __init__(self, pid: int, fd: int, jobs: Sequence[PendingSvg], flags: mmap.mmap | None = None) -> None:
         self.pid, self.fd = pid, fd
         self.jobs = [weakref.ref(p) for p in jobs]  # a figure nobody waits for any more is not kept
-        self.flags = flags if flags is not None else mmap.mmap(-1, 2 * len(jobs))
+        self.flags = flags if flags is not None else mmap.mmap(-1, 2 * len(jobs) or 1)
         for p in jobs:
             p._batch = self
         self._finalizer = weakref.finalize(self, _reap, os.getpid(), pid, fd)
@@ -226,7 +226,7 @@ def _start(jobs: list[PendingSvg]) -> None:
     if not jobs or len(live) >= children():
         return
     try:
-        flags = mmap.mmap(-1, 2 * len(jobs))  # shared with the child (Batch)
+        flags = mmap.mmap(-1, 2 * len(jobs) or 1)  # shared with the child (Batch)
         read_end, write_end = os.pipe()
     except OSError:
         return  # they stay queued: rendered here when asked
