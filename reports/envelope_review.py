@@ -57,7 +57,7 @@ from sensorless.reports.figure_layout import lay_out
 from sensorless.reports.files import OutputSet
 from sensorless.reports.pole_map import pole_csv
 from sensorless.reports.review import Review, gains_under_review, opening, settle, status_class, verdict_box
-from sensorless.reports.svg_render import svg_later
+from sensorless.reports.svg_render import polling, svg_later
 from sensorless.reports.time_domain import Check, Finding
 
 if TYPE_CHECKING:
@@ -394,6 +394,7 @@ def report_with(judge: Judge[DriveT]) -> Callable[..., Report]:
         """The stability report (module docstring); ``scenarios``: the user's scenario files, checked
         in the time domain besides the judge's built-in ones (reports/time_domain.py)."""
         fam = family_of(drive)
+        progress = polling(progress)  # a queued figure goes to a child free by then (svg_render.py)
         rev = judge.review(drive, table, table_file)
         runs = time_domain.scenarios(drive, judge.scenarios(drive), scenarios)
         # the checks first, though their section comes later: their figures take longer to draw than

@@ -1,28 +1,38 @@
 """Report figures rendered to SVG in forked child processes while the report computes on (Linux).
 
 matplotlib takes longer to lay out and draw a report's figures than the report takes for its numbers,
-and all of it runs in Python on one core. :func:`svg_later` forks: the child, a copy of this process
-with the figure (or the function and data that make it) in it, builds and renders the data URI of
-:func:`~sensorless.reports.document.svg_uri` into a pipe and exits; the parent goes on computing, and
-``str()`` of the returned object (what the HTML template does with a figure's ``uri``) waits for the
-bytes. They are the bytes the parent would have rendered: the same figure in the same matplotlib
-state (SVG ids are hashes of the content).
+and all of it runs in Python on one core. :func:`svg_later` queues the figure (or the function and data
+that make it) and returns at once; a forked child, a copy of this process with the queued figures in
+it, builds and renders the data URI of :func:`~sensorless.reports.document.svg_uri` of each into a pipe
+and exits; the parent goes on computing, and ``str()`` of the returned object (what the HTML template
+does with a figure's ``uri``) waits for the bytes. They are the bytes the parent would have rendered:
+the same figure in the same matplotlib state (SVG ids are hashes of the content).
 
-At most one child per CPU (of those this process may run on) runs at a time. The child only renders
-(numpy and matplotlib, no CasADi, no threads of its own), leaves by ``os._exit`` (no atexit handlers,
-no second flush of inherited buffers), writes nothing but its pipe and dies at once on Ctrl-C or
-SIGTERM (the parent reports it). A child whose figure is no longer wanted (the report was abandoned
-or interrupted) is killed and reaped. Without fork (not Linux), with SENSORLESS_NO_FORK=1, or if a
-child fails, the figure is rendered here.
+At most one child per CPU but one (the parent's: :func:`children`) runs at a time, and a child takes
+every figure queued when it starts: figures that arrive while the children are busy wait, and the next child
+renders them together. A child costs more than the figure it draws alone (each copies, page by page,
+the part of the parent's memory it touches, and fills the font and text caches again): one child per
+figure spent ~20 % more CPU on the README servo's twelve figures than a few children each drawing
+several. The parent never waits for a child while it computes; once it waits for a figure (it has
+nothing else to do), it draws the queued figures no child has taken itself, in the order asked, then
+the last figures of a child's share that the child has not started (the two balance the end).
+
+The child only renders (numpy and matplotlib, no CasADi, no threads of its own), leaves by ``os._exit``
+(no atexit handlers, no second flush of inherited buffers), writes nothing but its pipe and dies at once
+on Ctrl-C or SIGTERM (the parent reports it). A child whose figures are no longer wanted (the report
+was abandoned or interrupted) is killed and reaped. Without fork (not Linux), with SENSORLESS_NO_FORK=1,
+or if a child fails, the figure is rendered here.
 """
 
 from __future__ import annotations
 
 import functools
 import gc
+import mmap
 import os
 import select
 import signal
+import struct
 import sys
 import time
 import weakref
@@ -35,7 +45,9 @@ if TYPE_CHECKING:  # typed by name only
     from matplotlib.figure import Figure
 
 PREFIX = b"data:image/svg+xml;base64,"
-_running: list[weakref.ref[PendingSvg]] = []  # children not yet collected, oldest first
+FRAME = struct.Struct(">Q")  # each figure's length before its bytes in a child's pipe (0: it failed)
+_queue: list[weakref.ref[PendingSvg]] = []  # figures no child has taken yet, oldest first
+_running: list[weakref.ref[Batch]] = []  # children not yet collected, oldest first
 TIMEOUT_S = 120.0  # far above any figure's ~1 s; past it the child is killed and the figure drawn here
 
 
@@ -50,25 +62,186 @@ class PendingSvg:
     def __init__(self, fig: Figure | Callable[[], Figure]) -> None:
         self._fig: Figure | Callable[[], Figure] | None = fig  # kept to render it here if the child fails
         self._value: str | None = None
-        self._child: tuple[int, int] | None = None  # (pid, read end of its pipe)
-        self._finalizer: weakref.finalize | None = None
+        self._batch: Batch | None = None  # the child rendering it (None: queued, or done)
 
     def result(self) -> str:
-        """The data URI (waits for the child)."""
-        if self._value is None:
-            data = b""
-            if self._child is not None:
-                pid, fd = self._child
-                self._child = None
-                if self._finalizer is not None:
-                    self._finalizer.detach()
-                data = _collect(pid, fd)
-            self._value = data.decode("ascii") if data.startswith(PREFIX) else svg_uri(_made(self._fig))
-            self._fig = None
+        """The data URI (waits for the child, drawing queued figures here meanwhile)."""
+        while self._value is None:
+            batch = self._batch
+            if batch is None:  # no child took it: nothing else to do here but draw it
+                _unqueue(self)
+                _start(_queued())  # the others queued, to the children free to take them
+                self._render_here()
+            elif batch.finished():
+                batch.collect()
+            else:  # while it renders: a free child takes the later half of the queue, this process
+                # draws the oldest queued figure, else the last one a child has not started (or waits)
+                jobs = _queued()
+                _start(jobs[len(jobs) // 2 :] if len(jobs) > 1 else [])
+                if not _steal():
+                    mine = next((q for b in [batch, *_live()] if (q := b.claim()) is not None), None)
+                    if mine is None:
+                        batch.collect()
+                    else:
+                        mine._render_here()
+        self._fig = None
         return self._value
+
+    def _render_here(self) -> None:
+        # without garbage collection meanwhile, as in a child: a figure makes thousands of objects, and
+        # the passes they set off would go over this process's whole heap (its analyses' too)
+        enabled = gc.isenabled()
+        gc.disable()
+        try:
+            self._value = svg_uri(_made(self._fig))
+        finally:
+            if enabled:
+                gc.enable()
+        self._batch = None
+
+    def _given(self, data: bytes) -> None:
+        """Its bytes as a child wrote them (b"": the child failed; rendered here when asked)."""
+        self._batch = None
+        if data.startswith(PREFIX):
+            self._value = data.decode("ascii")
 
     def __str__(self) -> str:
         return self.result()
+
+
+class Batch:
+    """A child process rendering ``jobs`` in order; it writes them all once done (FRAME, bytes).
+
+    ``flags``: memory the child shares with this process (created before the fork; a private one if
+    not given), one byte per figure that the child sets when it starts drawing it, then one per figure
+    that this process sets when it draws the figure itself (:meth:`claim`): the child skips it."""
+
+    def __init__(self, pid: int, fd: int, jobs: Sequence[PendingSvg], flags: mmap.mmap | None = None) -> None:
+        self.pid, self.fd = pid, fd
+        self.jobs = [weakref.ref(p) for p in jobs]  # a figure nobody waits for any more is not kept
+        self.flags = flags if flags is not None else mmap.mmap(-1, 2 * len(jobs) or 1)
+        for p in jobs:
+            p._batch = self
+        self._finalizer = weakref.finalize(self, _reap, os.getpid(), pid, fd)
+
+    def claim(self) -> PendingSvg | None:
+        """The last figure the child has not started, now this process's to draw (None: it has started
+        them all). The child draws in order: a figure started means all before it are. Both may draw
+        one figure if the child starts it just as it is claimed: the same bytes, the child's unused."""
+        n = len(self.jobs)
+        for i in reversed(range(n)):
+            if self.fd < 0 or self.flags[i]:
+                return None
+            p = self.jobs[i]()
+            if p is not None and p._value is None and p._batch is self and not self.flags[n + i]:
+                self.flags[n + i] = 1
+                return p
+        return None
+
+    def finished(self) -> bool:
+        """Whether the child has written (it writes once every figure is drawn), or has exited."""
+        return self.fd < 0 or bool(select.select([self.fd], [], [], 0)[0])
+
+    def collect(self) -> None:
+        """Wait for the child; each of its figures gets its bytes (or b"": rendered here when asked,
+        as after a wait that was interrupted)."""
+        fd, self.fd = self.fd, -1
+        self._finalizer.detach()
+        data = _collect(self.pid, fd) if fd >= 0 else b""
+        parts, at = [], 0
+        for _ in self.jobs:
+            if at + FRAME.size > len(data):
+                break
+            (n,) = FRAME.unpack_from(data, at)
+            parts.append(data[at + FRAME.size : at + FRAME.size + n])
+            at += FRAME.size + n
+        parts += [b""] * (len(self.jobs) - len(parts))  # a child that failed: all rendered here
+        for ref, part in zip(self.jobs, parts, strict=True):
+            if (p := ref()) is not None and p._batch is self:
+                p._given(part)
+
+
+def children() -> int:
+    """How many children may render at once: one per CPU this process may use but the one it computes
+    (or, its computing done, draws queued figures) on; one on a single CPU."""
+    return max(1, len(os.sched_getaffinity(0)) - 1)
+
+
+def poll() -> None:
+    """Collect the children that are done and give the queued figures to a child now free: a report
+    calls it at each of its progress lines (reports/envelope_review.py), so that a figure queued behind
+    a busy child waits for the next progress line, not for the next figure."""
+    if _queue:
+        _start(_queued())
+
+
+def polling(progress: Callable[[str], None]) -> Callable[[str], None]:
+    """``progress`` that also :func:`poll`s."""
+
+    def told(text: str) -> None:
+        progress(text)
+        poll()
+
+    return told
+
+
+def _queued() -> list[PendingSvg]:
+    """The queued figures still wanted, oldest first (the queue keeps only those)."""
+    live = [p for p in (r() for r in _queue) if p is not None and p._value is None and p._batch is None]
+    _queue[:] = [weakref.ref(p) for p in live]
+    return live
+
+
+def _unqueue(p: PendingSvg) -> None:
+    _queue[:] = [r for r in _queue if r() is not None and r() is not p]
+
+
+def _steal() -> bool:
+    """Draw the oldest queued figure here (this process would otherwise wait); False if none is."""
+    jobs = _queued()
+    if not jobs:
+        return False
+    _unqueue(jobs[0])
+    jobs[0]._render_here()
+    return True
+
+
+def _live() -> list[Batch]:
+    """The children still rendering; those that have written are collected."""
+    live = []
+    for b in (r() for r in _running):
+        if b is None or b.fd < 0:
+            continue
+        if b.finished():
+            b.collect()
+        else:
+            live.append(b)
+    _running[:] = [weakref.ref(b) for b in live]
+    return live
+
+
+def _start(jobs: list[PendingSvg]) -> None:
+    """Give ``jobs`` to a new child if fewer than :func:`children` run; else they stay queued."""
+    live = _live()
+    if not jobs or len(live) >= children():
+        return
+    try:
+        flags = mmap.mmap(-1, 2 * len(jobs) or 1)  # shared with the child (Batch)
+        read_end, write_end = os.pipe()
+    except OSError:
+        return  # they stay queued: rendered here when asked
+    try:
+        pid = os.fork()
+    except OSError:
+        os.close(read_end)
+        os.close(write_end)
+        return
+    if pid == 0:
+        _child(jobs, flags, read_end, write_end, [b.fd for b in live])
+    os.close(write_end)
+    for p in jobs:
+        _unqueue(p)
+    _running.append(weakref.ref(Batch(pid, read_end, jobs, flags)))
 
 
 def _collect(pid: int, fd: int) -> bytes:
@@ -110,10 +283,14 @@ def _reap(owner: int, pid: int, fd: int) -> None:
             pass
 
 
-def _child(fig: Figure | Callable[[], Figure], read_end: int, write_end: int, siblings: list[int]) -> None:
-    """Render into the pipe and leave; never returns. ``siblings``: the read ends of the other
-    children's pipes, closed here so that only the parent holds them (a child whose parent is gone
-    then gets a broken pipe instead of waiting for a reader)."""
+def _child(
+    jobs: Sequence[PendingSvg], flags: mmap.mmap, read_end: int, write_end: int, siblings: list[int]
+) -> None:
+    """Render ``jobs`` into the pipe (each FRAME and its bytes, all at the end: the parent reads when it
+    is done computing, and a full pipe would stall the figures after the first) and leave; never
+    returns. ``siblings``: the read ends of the other children's pipes, closed here so that only the
+    parent holds them (a child whose parent is gone then gets a broken pipe instead of waiting for a
+    reader)."""
     code = 1
     try:
         # a short life: no garbage collection, whose passes over the whole inherited heap would copy
@@ -126,7 +303,17 @@ def _child(fig: Figure | Callable[[], Figure], read_end: int, write_end: int, si
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, 1)
         os.dup2(devnull, 2)
-        view = memoryview(svg_uri(_made(fig)).encode("ascii"))
+        out, n = [], len(jobs)
+        for i, p in enumerate(jobs):
+            uri = b""
+            if not flags[n + i]:  # not claimed by the parent (Batch.claim)
+                flags[i] = 1
+                try:
+                    uri = svg_uri(_made(p._fig)).encode("ascii")
+                except Exception:  # this figure is drawn by the parent (it says why), the others here
+                    uri = b""
+            out += [FRAME.pack(len(uri)), uri]
+        view = memoryview(b"".join(out))
         while view:
             view = view[os.write(write_end, view) :]
         code = 0
@@ -170,30 +357,9 @@ def svg_later(fig: Figure | Callable[[], Figure], texts: Sequence[str] = ()) -> 
         from sensorless.reports.svg_backend import warm
 
         warm(texts)
-    limit = len(os.sched_getaffinity(0)) or 1  # the CPUs this process may use
-    while True:  # at most ``limit`` children at a time: wait for the oldest
-        live = [p for p in (r() for r in _running) if p is not None and p._child is not None]
-        _running[:] = [weakref.ref(p) for p in live]
-        if len(live) < limit:
-            break
-        live[0].result()
     pending = PendingSvg(fig)
-    try:
-        read_end, write_end = os.pipe()
-    except OSError:
-        return svg_uri(_made(fig))
-    try:
-        pid = os.fork()
-    except OSError:
-        os.close(read_end)
-        os.close(write_end)
-        return svg_uri(_made(fig))
-    if pid == 0:
-        _child(fig, read_end, write_end, [q._child[1] for q in live if q._child is not None])
-    os.close(write_end)
-    pending._child = (pid, read_end)
-    pending._finalizer = weakref.finalize(pending, _reap, os.getpid(), pid, read_end)
-    _running.append(weakref.ref(pending))
     if not callable(fig):
-        pyplot().close(fig)  # pyplot forgets it; it can still be rendered here if the child fails
+        pyplot().close(fig)  # pyplot forgets it; it is rendered from this object (here or in a child)
+    _queue.append(weakref.ref(pending))
+    _start(_queued())
     return pending

@@ -57,13 +57,13 @@ def test_a_failed_child_is_rendered_here_instead():
     read_end, write_end = os.pipe()
     os.close(write_end)
     p = svg_render.PendingSvg(fig)
-    p._child = (pid, read_end)
+    svg_render.Batch(pid, read_end, [p])
     assert str(p) == expected
 
 
 def test_an_abandoned_child_is_killed_and_reaped():
     p = svg_render.svg_later(figure(3))
-    pid = p._child[0]
+    pid = p._batch.pid
     del p
     gc.collect()
     with pytest.raises(ChildProcessError):  # already reaped: no zombie left behind
@@ -90,7 +90,60 @@ def test_a_hung_child_is_killed_and_rendered_here(monkeypatch):
             os._exit(0)
     os.close(write_end)
     p = svg_render.PendingSvg(fig)
-    p._child = (pid, read_end)
+    svg_render.Batch(pid, read_end, [p]).flags[0] = 1  # it has started the figure: waited for
     assert str(p) == expected
     with pytest.raises(ChildProcessError):  # killed and reaped
+        os.waitpid(pid, os.WNOHANG)
+
+
+def small(k: int):
+    """A figure cheaper to draw than :func:`figure` (one line, no layout engine)."""
+    fig, ax = plt.subplots(figsize=(2, 1.5))
+    ax.plot([0, 1], [0, k])
+    return fig
+
+
+def _made_in(parent: int, k: int):
+    """small(k), or an error in any process but ``parent`` (a figure that fails in its child)."""
+    if os.getpid() != parent:
+        raise RuntimeError("fails in the child")
+    return small(k)
+
+
+def test_one_child_renders_several_figures_each_as_rendered_here(monkeypatch):
+    monkeypatch.setattr(svg_render, "children", lambda: 8)  # a free child whatever else runs
+    jobs = [
+        svg_render.PendingSvg(functools.partial(small, 7)),
+        svg_render.PendingSvg(functools.partial(_made_in, os.getpid(), 8)),  # fails there: drawn here
+        svg_render.PendingSvg(functools.partial(small, 9)),
+    ]
+    svg_render._start(jobs)
+    assert len({id(p._batch) for p in jobs}) == 1 and jobs[0]._batch is not None  # one child, all three
+    assert [str(p) for p in jobs] == [svg_uri(small(k)) for k in (7, 8, 9)]
+
+
+def test_figures_no_child_takes_are_drawn_here_when_asked(monkeypatch):
+    monkeypatch.setattr(svg_render, "children", lambda: 0)  # every child busy: the figures wait
+    pending = [svg_render.svg_later(functools.partial(small, k)) for k in (10, 11)]
+    assert all(isinstance(p, svg_render.PendingSvg) and p._batch is None for p in pending)
+    assert [str(p) for p in pending] == [svg_uri(small(k)) for k in (10, 11)]
+
+
+def test_figures_a_child_has_not_started_are_drawn_here_last_first():
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # a child that has started nothing yet (it holds its pipe open)
+        try:
+            os.close(read_end)
+            time.sleep(3600)
+        finally:
+            os._exit(0)
+    os.close(write_end)
+    jobs = [svg_render.PendingSvg(functools.partial(small, k)) for k in (12, 13)]
+    batch = svg_render.Batch(pid, read_end, jobs)
+    assert str(jobs[0]) == svg_uri(small(12))  # both drawn here: the last claimed first
+    assert jobs[1]._value == svg_uri(small(13)) and batch.flags[:] == bytes([0, 0, 1, 1])  # the child skips
+    del batch, jobs
+    gc.collect()
+    with pytest.raises(ChildProcessError):  # the child, no longer wanted, is killed and reaped
         os.waitpid(pid, os.WNOHANG)
