@@ -48,6 +48,7 @@ PREFIX = b"data:image/svg+xml;base64,"
 FRAME = struct.Struct(">Q")  # each figure's length before its bytes in a child's pipe (0: it failed)
 _queue: list[weakref.ref[PendingSvg]] = []  # figures no child has taken yet, oldest first
 _running: list[weakref.ref[Batch]] = []  # children not yet collected, oldest first
+FONT_FILES = (".ttf", ".otf", ".ttc", ".pfb", ".pfa", ".afm")  # what FreeType reads fonts from
 TIMEOUT_S = 120.0  # far above any figure's ~1 s; past it the child is killed and the figure drawn here
 
 
@@ -230,6 +231,7 @@ def _start(jobs: list[PendingSvg]) -> None:
         read_end, write_end = os.pipe()
     except OSError:
         return  # they stay queued: rendered here when asked
+    fonts = font_files()
     try:
         pid = os.fork()
     except OSError:
@@ -238,6 +240,7 @@ def _start(jobs: list[PendingSvg]) -> None:
         return
     if pid == 0:
         _child(jobs, flags, read_end, write_end, [b.fd for b in live])
+    own_font_files(fonts)
     os.close(write_end)
     for p in jobs:
         _unqueue(p)
@@ -319,6 +322,50 @@ def _child(
         code = 0
     finally:
         os._exit(code)
+
+
+def font_files() -> dict[int, tuple[str, int]]:
+    """The font files this process holds open (Linux): descriptor -> (path, offset), read just before a
+    fork for :func:`own_font_files` after it."""
+    try:
+        names = os.listdir("/proc/self/fd")
+    except OSError:
+        return {}
+    files = {}
+    for name in names:
+        try:
+            path = os.readlink(f"/proc/self/fd/{name}")
+            if path.lower().endswith(FONT_FILES):
+                files[int(name)] = (path, os.lseek(int(name), 0, os.SEEK_CUR))
+        except OSError:  # the listing's own descriptor, closed since
+            continue
+    return files
+
+
+def own_font_files(files: dict[int, tuple[str, int]]) -> None:
+    """Open again, each in its own descriptor, the font files of ``files`` (this process's
+    :func:`font_files` just before it forked): the child keeps the ones it inherited to itself.
+
+    FreeType reads a font through a buffered file (a seek, then a read), and a forked child shares each
+    inherited file's offset with its parent: a parent drawing text while a child drew (or closed the
+    fonts only matplotlib's cache held, which matplotlib empties in a child) read glyph data from
+    wherever the other had left it, "failed to load glyph" (seen in a suite run). Here the parent opens
+    each file again, in the same descriptor, at the offset its buffered file knows (the one before the
+    fork, not the shared one: the child runs meanwhile), so every cache that holds the font stays valid."""
+    for fd, (path, offset) in files.items():
+        try:
+            if os.readlink(f"/proc/self/fd/{fd}") != path:  # closed since the listing (a font collected)
+                continue
+            own = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        except OSError:  # closed, or the file is gone: nothing to reopen
+            continue
+        try:
+            os.lseek(own, offset, os.SEEK_SET)
+            os.dup2(own, fd, inheritable=os.get_inheritable(fd))
+        except OSError:  # left shared, as without this function
+            pass
+        finally:
+            os.close(own)
 
 
 def _made(fig: Figure | Callable[[], Figure]) -> Figure:

@@ -147,3 +147,36 @@ def test_figures_a_child_has_not_started_are_drawn_here_last_first():
     gc.collect()
     with pytest.raises(ChildProcessError):  # the child, no longer wanted, is killed and reaped
         os.waitpid(pid, os.WNOHANG)
+
+
+def test_after_a_fork_the_parent_reads_its_fonts_at_offsets_of_its_own():
+    """A forked child and its parent share each inherited file's offset, and FreeType reads a font by a
+    seek and a read: a parent drawing text while a child drew got "failed to load glyph". After
+    ``own_font_files`` in the parent, the child's seek in an inherited font file leaves the parent's
+    offset where it was before the fork (without it, it moves: the test can fail), and the parent's font
+    still draws."""
+    from matplotlib import font_manager
+    from matplotlib.ft2font import FT2Font
+
+    path = font_manager.findfont("DejaVu Sans")
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        for fix in (False, True):
+            font = FT2Font(path)  # a font of this test's own, opened before the fork, fresh each time
+            os.lseek(fd, 0, os.SEEK_SET)
+            files = svg_render.font_files()
+            assert files[fd] == (path, 0)
+            pid = os.fork()
+            if pid == 0:
+                try:
+                    os.lseek(fd, 12345, os.SEEK_SET)
+                finally:
+                    os._exit(0)
+            if fix:
+                svg_render.own_font_files(files)
+            _, status = os.waitpid(pid, 0)
+            assert os.waitstatus_to_exitcode(status) == 0
+            assert (os.lseek(fd, 0, os.SEEK_CUR) == 0) == fix, fix
+            font.set_text("0.475")  # reads through its own file
+    finally:
+        os.close(fd)
