@@ -76,19 +76,25 @@ def test_no_fork_renders_here(monkeypatch):
     assert isinstance(out, str) and out == svg_uri(figure(4))
 
 
-def test_a_hung_child_is_killed_and_rendered_here(monkeypatch):
-    monkeypatch.setattr(svg_render, "TIMEOUT_S", 0.5)
-    fig = figure(6)
-    expected = svg_uri(figure(6))
+def _silent_child() -> tuple[int, int]:
+    """A forked child that holds its pipe's write end open and never writes: (its pid, the read end)."""
     read_end, write_end = os.pipe()
     pid = os.fork()
-    if pid == 0:  # a child that holds its pipe open and never writes (a deadlock after fork)
+    if pid == 0:
         try:
             os.close(read_end)
             time.sleep(3600)
         finally:
             os._exit(0)
     os.close(write_end)
+    return pid, read_end
+
+
+def test_a_hung_child_is_killed_and_rendered_here(monkeypatch):
+    monkeypatch.setattr(svg_render, "TIMEOUT_S", 0.5)
+    fig = figure(6)
+    expected = svg_uri(figure(6))
+    pid, read_end = _silent_child()  # holds its pipe open and never writes (a deadlock after fork)
     p = svg_render.PendingSvg(fig)
     svg_render.Batch(pid, read_end, [p]).flags[0] = 1  # it has started the figure: waited for
     assert str(p) == expected
@@ -130,15 +136,7 @@ def test_figures_no_child_takes_are_drawn_here_when_asked(monkeypatch):
 
 
 def test_figures_a_child_has_not_started_are_drawn_here_last_first():
-    read_end, write_end = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # a child that has started nothing yet (it holds its pipe open)
-        try:
-            os.close(read_end)
-            time.sleep(3600)
-        finally:
-            os._exit(0)
-    os.close(write_end)
+    pid, read_end = _silent_child()  # has started nothing yet
     jobs = [svg_render.PendingSvg(functools.partial(small, k)) for k in (12, 13)]
     batch = svg_render.Batch(pid, read_end, jobs)
     assert str(jobs[0]) == svg_uri(small(12))  # both drawn here: the last claimed first
