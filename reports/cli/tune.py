@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import math
 import os
 import sys
@@ -32,6 +33,7 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+from sensorless.design import forked
 from sensorless.design.envelope import TuningSettings
 from sensorless.design.family import CapabilityError, Drive
 from sensorless.design.registry import families, family_of
@@ -181,20 +183,16 @@ def run(args: argparse.Namespace) -> int:
         # a lower handover, i.e. gains tuned for a lower w_min), their figures bound nothing
         # (TuningSettings.hold_bounded: servo400's speed steps); the proof still holds the tuned gains
         # to every check they pass. A failure of the observer's own (piippo2008's fig6a, without
-        # injection at 0.01 p.u.) keeps them: the lag-held schedule passes it there
-        from sensorless.reports.tune_proof import failed_in_the_start
-
-        base = _drive_file_proof(drive, progress)
-        failed = failed_in_the_start(base[1])
-        if failed and isinstance(settings, TuningSettings) and settings.hold_bounded:
-            settings = dataclasses.replace(settings, hold_bounded=False)
-            progress(
-                f"the drive file's gains fail {', '.join(failed)} in the I-f start: the tuning does not "
-                "hold their figures"
-            )
+        # injection at 0.01 p.u.) keeps them: the lag-held schedule passes it there. The proof runs in
+        # a child process while the tuning starts as if they passed (they mostly do): where they fail in
+        # the start, the tuning stops at its next progress line and starts again without the bound.
+        pending = _drive_file_proof(drive, progress)
     try:
         with interrupts.budget(limit, note):
-            r = tune(drive, tunable.name, settings, progress=progress)
+            if args.unchecked:
+                r = tune(drive, tunable.name, settings, progress=progress)
+            else:
+                base, settings, r = _tuned_beside_the_proof(drive, tunable.name, settings, pending, progress)
     except (TuningError, CapabilityError) as e:
         raise UsageError(str(e)) from None
     proof: list[str] = []
@@ -252,13 +250,69 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> tuple[list, Proof]:
-    """(the proof's time-domain runs, the drive file's gains' proof) (reports/tune_proof.py)."""
+def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> forked.Pending[tuple[list, Proof]]:
+    """(the proof's time-domain runs, the drive file's gains' proof) (reports/tune_proof.py), computed by a
+    child process (design/forked.py) while this one tunes."""
     from sensorless.reports import tune_proof
 
     runs = tune_proof.runs(drive)
     progress(f"proof: the drive file's and the tuned gains, {len(runs)} time-domain checks, +-T_max")
-    return runs, tune_proof.prove(drive, None, "drive file", runs, tune_proof.ANALYSIS, progress)
+    prove = functools.partial(tune_proof.prove, drive, None, "drive file", runs, tune_proof.ANALYSIS)
+    return forked.later(lambda: (runs, prove(progress)), stderr=True)
+
+
+class _Unbound(Exception):
+    """The drive file's gains fail a check in the I-f start: the tuning, started before that was known,
+    stops."""
+
+
+def _tuned_beside_the_proof(
+    drive: Drive,
+    law: str,
+    settings: TuneSettings,
+    pending: forked.Pending[tuple[list, Proof]],
+    progress: Callable[[str], None],
+) -> tuple[tuple[list, Proof], TuneSettings, TuneOutcome]:
+    """(the drive file's proof, the settings, the tuned result): the tuning with the settings the drive
+    file's proof gives (``hold_bounded`` False where its gains fail a check in the I-f start), run while
+    the proof is computed (``pending``) under the settings as given; where the proof, once there, asks for
+    other settings, the tuning stops at its next progress line and runs again with them: the result is
+    the sequential one."""
+    from sensorless.reports.tune_proof import failed_in_the_start
+    from sensorless.tuning.tune import tune
+
+    def unbound(base: tuple[list, Proof]) -> list[str]:
+        failed = failed_in_the_start(base[1])
+        return failed if failed and isinstance(settings, TuningSettings) and settings.hold_bounded else []
+
+    known: list[tuple[list, Proof]] = []  # the proof, once collected
+
+    def watched(msg: str) -> None:
+        progress(msg)
+        if not known and pending.forked and pending.done():
+            known.append(pending.result())
+            if unbound(known[0]):
+                raise _Unbound
+
+    if not pending.forked:  # no child: the proof first, as it decides the settings
+        known.append(pending.result())
+    r = None
+    if not (known and unbound(known[0])):
+        try:
+            r = tune(drive, law, settings, progress=watched)
+        except _Unbound:
+            pass
+    base = known[0] if known else pending.result()
+    failed = unbound(base)
+    if failed:
+        settings = dataclasses.replace(settings, hold_bounded=False)
+        progress(
+            f"the drive file's gains fail {', '.join(failed)} in the I-f start: the tuning does not "
+            "hold their figures"
+        )
+        r = tune(drive, law, settings, progress=progress)
+    assert r is not None
+    return base, settings, r
 
 
 def _proved(
