@@ -61,6 +61,7 @@ def tune(
     law: str | None = None,
     settings: TuneSettings | None = None,
     progress: Callable[[str], None] | None = None,
+    retuning: Callable[[TuneOutcome], None] | None = None,
 ) -> TuneOutcome:
     """Tune the gain law ``law`` (None: the default of the drive's observer family) on ``drive``
     over the envelope of ``settings`` (default: the tunable's, e.g. the drive's ``[tuning]``). Returns a
@@ -71,7 +72,9 @@ def tune(
     (design/low_speed.py ``handover_decay``; none where the drive needs no I-f start) are tuned again
     with that floor (from the same seed): below it their w_min, and so the handover, rises (a gimbal's to
     0.69 p.u., above its start's and reversal's 0.5 p.u.: those checks never handed over). Where no
-    gain meets it, the first gains."""
+    gain meets it, the first gains. ``retuning(first)``: called with the first tuning's result before
+    that second tuning, whose result it is unless the second finds gains (the command line starts
+    proving it meanwhile)."""
     res = _tune(drive, law, settings, progress)
     need = handover_decay(drive)
     if not isinstance(res, TuneResult) or need <= res.floor or float(np.min(res.dense.decay)) >= need:
@@ -81,6 +84,8 @@ def tune(
         f"tuned gains decay at {float(np.min(res.dense.decay)):.4g} 1/s, below the {need:.4g} 1/s the "
         "handover's w_min asks: tuning again with that floor"
     )
+    if retuning is not None:
+        retuning(res)
     st = settings if settings is not None else tunable_for(drive, law).settings(drive)
 
     def first(e: nlp.TuningError) -> TuneOutcome:

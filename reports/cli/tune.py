@@ -187,17 +187,20 @@ def run(args: argparse.Namespace) -> int:
         # a child process while the tuning starts as if they passed (they mostly do): where they fail in
         # the start, the tuning stops at its next progress line and starts again without the bound.
         pending = _drive_file_proof(drive, progress)
+    early = None
     try:
         with interrupts.budget(limit, note):
             if args.unchecked:
                 r = tune(drive, tunable.name, settings, progress=progress)
             else:
-                base, settings, r = _tuned_beside_the_proof(drive, tunable.name, settings, pending, progress)
+                base, settings, r, early = _tuned_beside_the_proof(
+                    drive, tunable.name, settings, pending, json_name, progress
+                )
     except (TuningError, CapabilityError) as e:
         raise UsageError(str(e)) from None
     proof: list[str] = []
     if base is not None:
-        kept, proof = _proved(drive, r, settings, json_name, base, progress)
+        kept, proof = _proved(drive, r, settings, json_name, base, progress, early)
         if kept is None:
             print("\n".join(r.summary_lines(drive)))
             print("\n".join(proof))
@@ -250,15 +253,17 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> forked.Pending[tuple[list, Proof]]:
-    """(the proof's time-domain runs, the drive file's gains' proof) (reports/tune_proof.py), computed by a
-    child process (design/forked.py) while this one tunes."""
+def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> tuple[list, forked.Pending[Proof]]:
+    """(the proof's time-domain runs, the drive file's gains' proof) (reports/tune_proof.py), the proof
+    computed by a child process (design/forked.py) while this one tunes."""
     from sensorless.reports import tune_proof
 
     runs = tune_proof.runs(drive)
     progress(f"proof: the drive file's and the tuned gains, {len(runs)} time-domain checks, +-T_max")
-    prove = functools.partial(tune_proof.prove, drive, None, "drive file", runs, tune_proof.ANALYSIS)
-    return forked.later(lambda: (runs, prove(progress)), stderr=True)
+    prove = functools.partial(
+        tune_proof.prove, drive, None, "drive file", runs, tune_proof.ANALYSIS, progress
+    )
+    return runs, forked.later(prove, stderr=True)
 
 
 class _Unbound(Exception):
@@ -266,26 +271,37 @@ class _Unbound(Exception):
     stops."""
 
 
+# the proof of the first tuning's gains, started while the tuning runs again with the handover's floor
+# (tuning/tune.py ``retuning``): (that result, its proof)
+Early = tuple["TuneOutcome", forked.Pending["Proof"]]
+
+
 def _tuned_beside_the_proof(
     drive: Drive,
     law: str,
     settings: TuneSettings,
-    pending: forked.Pending[tuple[list, Proof]],
+    proof: tuple[list, forked.Pending[Proof]],
+    table_file: str,
     progress: Callable[[str], None],
-) -> tuple[tuple[list, Proof], TuneSettings, TuneOutcome]:
-    """(the drive file's proof, the settings, the tuned result): the tuning with the settings the drive
-    file's proof gives (``hold_bounded`` False where its gains fail a check in the I-f start), run while
-    the proof is computed (``pending``) under the settings as given; where the proof, once there, asks for
-    other settings, the tuning stops at its next progress line and runs again with them: the result is
-    the sequential one."""
-    from sensorless.reports.tune_proof import failed_in_the_start
+) -> tuple[tuple[list, Proof], TuneSettings, TuneOutcome, Early | None]:
+    """(the drive file's proof, the settings, the tuned result, the early proof of its gains if any): the
+    tuning with the settings the drive file's proof gives (``hold_bounded`` False where its gains fail a
+    check in the I-f start), run while the proof is computed (``proof``: :func:`_drive_file_proof`) under
+    the settings as given; where the proof, once there, asks for other settings, the tuning stops at its
+    next progress line and runs again with them: the result is the sequential one. Where the tuning runs
+    again with the handover's floor, a child proves the first tuning's gains meanwhile (the result unless
+    the second tuning finds gains)."""
+    from sensorless.reports import tune_proof
     from sensorless.tuning.tune import tune
 
-    def unbound(base: tuple[list, Proof]) -> list[str]:
-        failed = failed_in_the_start(base[1])
+    runs, pending = proof
+
+    def unbound(base: Proof) -> list[str]:
+        failed = tune_proof.failed_in_the_start(base)
         return failed if failed and isinstance(settings, TuningSettings) and settings.hold_bounded else []
 
-    known: list[tuple[list, Proof]] = []  # the proof, once collected
+    known: list[Proof] = []  # the drive file's proof, once collected
+    early: list[Early] = []
 
     def watched(msg: str) -> None:
         progress(msg)
@@ -294,14 +310,21 @@ def _tuned_beside_the_proof(
             if unbound(known[0]):
                 raise _Unbound
 
+    def retuning(first: TuneOutcome) -> None:
+        g = family_of(drive).gains(drive, table=first.table, table_file=table_file)
+        prove = functools.partial(tune_proof.prove, drive, g, "tuned", runs, tune_proof.ANALYSIS, progress)
+        early.append((first, forked.later(prove, stderr=True)))
+
     if not pending.forked:  # no child: the proof first, as it decides the settings
         known.append(pending.result())
     r = None
     if not (known and unbound(known[0])):
         try:
-            r = tune(drive, law, settings, progress=watched)
+            r = tune(drive, law, settings, progress=watched, retuning=retuning)
         except _Unbound:
-            pass
+            for _, p in early:
+                p.cancel()
+            early.clear()
     base = known[0] if known else pending.result()
     failed = unbound(base)
     if failed:
@@ -310,9 +333,13 @@ def _tuned_beside_the_proof(
             f"the drive file's gains fail {', '.join(failed)} in the I-f start: the tuning does not "
             "hold their figures"
         )
-        r = tune(drive, law, settings, progress=progress)
+        r = tune(drive, law, settings, progress=progress, retuning=retuning)
     assert r is not None
-    return base, settings, r
+    kept = next(((res, p) for res, p in early if res is r), None)
+    for res, p in early:
+        if res is not r:
+            p.cancel()  # the second tuning found gains: the first's proof is not wanted
+    return (runs, base), settings, r, kept
 
 
 def _proved(
@@ -322,10 +349,12 @@ def _proved(
     table_file: str,
     proved: tuple[list, Proof],
     progress: Callable[[str], None],
+    early: Early | None = None,
 ) -> tuple[TuneOutcome | None, list[str]]:
     """(the result whose table is written, lines saying its proof) or (None, lines ending with what the
     last candidate does worse): the tuned gains and then the tuner's fallbacks (tuning/tune.py), each
-    against the drive file's gains (``proved``: :func:`_drive_file_proof`; reports/tune_proof.py)."""
+    against the drive file's gains (``proved``: the drive file's proof; reports/tune_proof.py). ``early``:
+    the tuned gains' proof, already started (:func:`_tuned_beside_the_proof`)."""
     from sensorless.reports import tune_proof
     from sensorless.tuning.tune import fallbacks
 
@@ -337,7 +366,10 @@ def _proved(
     while i < len(cands):
         label, res = cands[i]
         g = fam.gains(drive, table=res.table, table_file=table_file)
-        p = tune_proof.prove(drive, g, label, runs, tune_proof.ANALYSIS, progress)
+        if i == 0 and early is not None and early[0] is res:
+            p = early[1].result()
+        else:
+            p = tune_proof.prove(drive, g, label, runs, tune_proof.ANALYSIS, progress, beside=True)
         lines.append(f"proof: {p.line()}")
         bad = tune_proof.worse(p, base, drive.w_base)
         if not bad:

@@ -248,10 +248,10 @@ def test_the_tuning_beside_the_drive_files_proof_ends_as_after_it(drive, monkeyp
         base = dataclasses.replace(base, checks=({**base.checks[0], "causes": ["not_tested_sensorless"]},))
     assert bool(tune_proof.failed_in_the_start(base)) == fails_in_the_start
     runs: list = []
-    pending = forked.later(lambda: (runs, base))  # as cli_tune._drive_file_proof gives it
+    pending = forked.later(lambda: base)  # as cli_tune._drive_file_proof gives it
     seen = []
 
-    def fake_tune(drive, law, settings, progress):
+    def fake_tune(drive, law, settings, progress, retuning):
         seen.append(settings.hold_bounded)
         # a tuning's progress lines: the first one's go on until the proof stops it (if it does)
         for _ in range(3000 if fails_in_the_start and settings.hold_bounded else 3):
@@ -264,7 +264,10 @@ def test_the_tuning_beside_the_drive_files_proof_ends_as_after_it(drive, monkeyp
     settings = tunable_for(drive, "schedule").settings(drive)
     assert settings.hold_bounded
     t0 = time.perf_counter()
-    got, st, r = cli_tune._tuned_beside_the_proof(drive, "schedule", settings, pending, lines.append)
+    got, st, r, early = cli_tune._tuned_beside_the_proof(
+        drive, "schedule", settings, (runs, pending), "gains.json", lines.append
+    )
+    assert early is None  # (no second tuning, whose first result is proved beside it)
     assert got[0] == runs and got[1].line() == base.line()  # (a copy, from the child)
     if fails_in_the_start:
         assert seen == [True, False] and not st.hold_bounded and r == "tuned with hold_bounded=False"
