@@ -51,7 +51,7 @@ if TYPE_CHECKING:  # typed by name only
     from collections.abc import Callable
 
     from sensorless.reports.tune_proof import Proof
-    from sensorless.tuning.family import TuneOutcome, TuneSettings
+    from sensorless.tuning.family import Tunable, TuneOutcome, TuneSettings
 
 UNCHECKED_ENV = "SENSORLESS_TUNE_UNCHECKED"  # set: --unchecked by default (the test suite's other tests)
 
@@ -199,7 +199,12 @@ def run(args: argparse.Namespace) -> int:
     except (TuningError, CapabilityError) as e:
         raise UsageError(str(e)) from None
     proof: list[str] = []
+    names = (json_name, csv_name, speeds_name, pareto_name)
+    ready = None  # (a result, what is written of it), prepared while its proof runs
     if base is not None:
+        if early is None or early[0] is not r:
+            early = _proving(drive, r, base[0], json_name, progress)
+        ready = (r, _outputs(drive, tunable, settings, r, names))  # while a child proves r
         kept, proof = _proved(drive, r, settings, json_name, base, progress, early)
         if kept is None:
             print("\n".join(r.summary_lines(drive)))
@@ -214,18 +219,13 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(r.summary_lines(drive)))
     if proof:
         print("\n".join(proof))
-    tuned = fam.gains(drive, table=r.table, table_file=json_name)
-    low = tune_line(drive, tuned, fam.min_damping(), estimate_errors(drive, tunable, settings))
-    if low:
-        print(low)
-    for line in h.startup_lines(drive, tuned) if h.startup_lines is not None else ():
+    lines, texts = (
+        ready[1] if ready is not None and ready[0] is r else _outputs(drive, tunable, settings, r, names)
+    )
+    for line in lines:
         print(line)
-    out.add_text(json_name, r.table.to_json())
-    out.add_text(csv_name, table_csv(r.table, tunable.columns))
-    if "speeds" in r.table.summary:
-        out.add_text(speeds_name, speeds_csv(r.table))
-    if "pareto" in r.table.summary:
-        out.add_text(pareto_name, pareto_csv(r.table))
+    for name, text in texts.items():
+        out.add_text(name, text)
     for p in out.commit():
         print(f"wrote {p}")
     own = getattr(r, "shortfalls", None)
@@ -253,6 +253,26 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _outputs(
+    drive: Drive, tunable: Tunable, settings: TuneSettings, r: TuneOutcome, names: tuple[str, str, str, str]
+) -> tuple[list[str], dict[str, str]]:
+    """(the lines printed after the summary: the low-speed line and the I-f start's, the texts of the
+    files written) of the result ``r``; ``names``: the files' (JSON, CSV, speeds, pareto)."""
+    fam = family_of(drive)
+    h = hooks(fam)
+    json_name, csv_name, speeds_name, pareto_name = names
+    tuned = fam.gains(drive, table=r.table, table_file=json_name)
+    low = tune_line(drive, tuned, fam.min_damping(), estimate_errors(drive, tunable, settings))
+    lines = [low] if low else []
+    lines += list(h.startup_lines(drive, tuned)) if h.startup_lines is not None else []
+    texts = {json_name: r.table.to_json(), csv_name: table_csv(r.table, tunable.columns)}
+    if "speeds" in r.table.summary:
+        texts[speeds_name] = speeds_csv(r.table)
+    if "pareto" in r.table.summary:
+        texts[pareto_name] = pareto_csv(r.table)
+    return lines, texts
+
+
 def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> tuple[list, forked.Pending[Proof]]:
     """(the proof's time-domain runs, the drive file's gains' proof) (reports/tune_proof.py), the proof
     computed by a child process (design/forked.py) while this one tunes."""
@@ -274,6 +294,20 @@ class _Unbound(Exception):
 # the proof of the first tuning's gains, started while the tuning runs again with the handover's floor
 # (tuning/tune.py ``retuning``): (that result, its proof)
 Early = tuple["TuneOutcome", forked.Pending["Proof"]]
+
+
+def _proving(
+    drive: Drive, r: TuneOutcome, runs: list, table_file: str, progress: Callable[[str], None]
+) -> Early:
+    """(r, the proof of its gains, computed by a child process; reports/tune_proof.py): while this one
+    tunes on or prepares what it writes."""
+    from sensorless.reports import tune_proof
+
+    g = family_of(drive).gains(drive, table=r.table, table_file=table_file)
+    prove = functools.partial(
+        tune_proof.prove, drive, g, "tuned", runs, tune_proof.ANALYSIS, progress, beside=True
+    )
+    return r, forked.later(prove, stderr=True)
 
 
 def _tuned_beside_the_proof(
@@ -311,9 +345,7 @@ def _tuned_beside_the_proof(
                 raise _Unbound
 
     def retuning(first: TuneOutcome) -> None:
-        g = family_of(drive).gains(drive, table=first.table, table_file=table_file)
-        prove = functools.partial(tune_proof.prove, drive, g, "tuned", runs, tune_proof.ANALYSIS, progress)
-        early.append((first, forked.later(prove, stderr=True)))
+        early.append(_proving(drive, first, runs, table_file, progress))
 
     if not pending.forked:  # no child: the proof first, as it decides the settings
         known.append(pending.result())
