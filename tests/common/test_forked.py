@@ -63,3 +63,32 @@ def test_without_fork_the_value_is_computed_here(monkeypatch):
     monkeypatch.setenv("SENSORLESS_NO_FORK", "1")
     p = forked.later(os.getpid)
     assert not p.forked and p.result() == os.getpid()
+
+
+def test_a_computation_in_steps_keeps_the_childs_state_for_its_requests():
+    """The child stays for follow-up requests (``then``), answered in order with what its first step
+    built: here a pid and a counter only the child's copy of ``seen`` holds."""
+    seen: list[int] = []
+
+    def first():
+        seen.append(0)
+        return os.getpid()
+
+    def then(x):
+        seen.append(x)
+        return os.getpid(), list(seen)
+
+    p = forked.later(first, then=then)
+    a, b = p.ask(5), p.ask(7)
+    pid = p.result()
+    assert pid != os.getpid()
+    assert b() == (pid, [0, 5, 7]) and a() == (pid, [0, 5])  # in the child, in order, whatever is read first
+    assert seen == []  # nothing ran here
+    p.close()
+    with pytest.raises(ChildProcessError):
+        os.waitpid(pid, os.WNOHANG)  # ended and reaped
+    # a child gone before a request: the reply is computed here
+    q = forked.later(first, then=then)
+    q.result()
+    q.cancel()
+    assert q.ask(3)() == (os.getpid(), [3])

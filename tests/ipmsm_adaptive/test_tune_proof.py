@@ -175,7 +175,7 @@ def test_tune_refuses_a_table_worse_than_the_drive_files(tmp_path, monkeypatch, 
     monkeypatch.setattr(nlp, "_run", first_fails)
     monkeypatch.setattr(nlp, "solve", third_fails)
 
-    def fake(drive, gains, label, runs, analysis=None, progress=None, beside=False):
+    def fake(drive, gains, label, scenarios, analysis=None, progress=None, beside=False):
         calls.append(label)
         return _proof(label, [True, gains is None], True, drive.w_base)
 
