@@ -50,6 +50,7 @@ from sensorless.tuning.nlp import TuningError
 if TYPE_CHECKING:  # typed by name only
     from collections.abc import Callable
 
+    from sensorless.design.family import EstimateErrors, GainSet
     from sensorless.reports.tune_proof import Proof
     from sensorless.tuning.family import Tunable, TuneOutcome, TuneSettings
 
@@ -200,12 +201,13 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(e)) from None
     proof: list[str] = []
     names = (json_name, csv_name, speeds_name, pareto_name)
-    ready = None  # (a result, what is written of it), prepared while its proof runs
+    ready = None  # (a result, its files' texts), prepared while its proof runs
+    after = None  # the lines after the proof (_after), where the child that proved the kept result gave them
     if base is not None:
         if early is None or early[0] is not r:
-            early = _proving(drive, r, json_name, pending[1])
-        ready = (r, _outputs(drive, tunable, settings, r, names))  # while a child proves r
-        kept, proof = _proved(drive, r, settings, json_name, base, progress, early)
+            early = _proving(drive, r, json_name, estimate_errors(drive, tunable, settings), pending[1])
+        ready = (r, _texts(tunable, r, names))  # while a child proves r
+        kept, proof, after = _proved(drive, r, settings, json_name, base, progress, early)
         pending[1].close()
         if kept is None:
             print("\n".join(r.summary_lines(drive)))
@@ -220,10 +222,11 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(r.summary_lines(drive)))
     if proof:
         print("\n".join(proof))
-    lines, texts = (
-        ready[1] if ready is not None and ready[0] is r else _outputs(drive, tunable, settings, r, names)
-    )
-    for line in lines:
+    if after is None:
+        tuned = fam.gains(drive, table=r.table, table_file=json_name)
+        after = _after(drive, tuned, estimate_errors(drive, tunable, settings))
+    texts = ready[1] if ready is not None and ready[0] is r else _texts(tunable, r, names)
+    for line in after:
         print(line)
     for name, text in texts.items():
         out.add_text(name, text)
@@ -254,38 +257,44 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _outputs(
-    drive: Drive, tunable: Tunable, settings: TuneSettings, r: TuneOutcome, names: tuple[str, str, str, str]
-) -> tuple[list[str], dict[str, str]]:
-    """(the lines printed after the summary: the low-speed line and the I-f start's, the texts of the
-    files written) of the result ``r``; ``names``: the files' (JSON, CSV, speeds, pareto)."""
+def _after(drive: Drive, gains: GainSet, errors: EstimateErrors) -> list[str]:
+    """The lines printed after the summary and the proof: the tuned ``gains``' low-speed line (under
+    ``errors``, the tune run's estimate errors) and the I-f start's."""
     fam = family_of(drive)
     h = hooks(fam)
+    low = tune_line(drive, gains, fam.min_damping(), errors)
+    return ([low] if low else []) + (
+        list(h.startup_lines(drive, gains)) if h.startup_lines is not None else []
+    )
+
+
+def _texts(tunable: Tunable, r: TuneOutcome, names: tuple[str, str, str, str]) -> dict[str, str]:
+    """The texts of the files written for the result ``r``; ``names``: the files' (JSON, CSV, speeds,
+    pareto)."""
     json_name, csv_name, speeds_name, pareto_name = names
-    tuned = fam.gains(drive, table=r.table, table_file=json_name)
-    low = tune_line(drive, tuned, fam.min_damping(), estimate_errors(drive, tunable, settings))
-    lines = [low] if low else []
-    lines += list(h.startup_lines(drive, tuned)) if h.startup_lines is not None else []
     texts = {json_name: r.table.to_json(), csv_name: table_csv(r.table, tunable.columns)}
     if "speeds" in r.table.summary:
         texts[speeds_name] = speeds_csv(r.table)
     if "pareto" in r.table.summary:
         texts[pareto_name] = pareto_csv(r.table)
-    return lines, texts
+    return texts
 
 
 def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> tuple[list, forked.Pending[Proof]]:
     """(the proof's time-domain runs, the drive file's gains' proof) (reports/tune_proof.py), the proof
     computed by a child process (design/forked.py) while this one tunes; the child stays for the tuned
-    gains' proof (:func:`_proving`), which reuses what the first one built (its simulations' set-up and
-    the I-f start's: 0.2 s CPU instead of 1.0 s on the README servo)."""
+    gains' proof and the lines printed after it (:func:`_proving`, :func:`_after`), which reuse what the
+    first one built (its simulations' set-up, the whole drive's linearization and the I-f start's: 0.2 s
+    CPU instead of 1.0 s for the proof on the README servo)."""
     from sensorless.reports import tune_proof
 
     runs = tune_proof.runs(drive)
     progress(f"proof: the drive file's and the tuned gains, {len(runs)} time-domain checks, +-T_max")
     prove = functools.partial(tune_proof.prove, drive, scenarios=runs, analysis=tune_proof.ANALYSIS)
     first = functools.partial(prove, None, "drive file", progress=progress)
-    return runs, forked.later(first, stderr=True, then=lambda g: prove(g, "tuned", progress=progress))
+    return runs, forked.later(
+        first, stderr=True, then=lambda q: (prove(q[0], "tuned", progress=progress), _after(drive, *q))
+    )
 
 
 class _Unbound(Exception):
@@ -293,16 +302,19 @@ class _Unbound(Exception):
     stops."""
 
 
-# a result and the function that gives its proof (started while this process tunes on or prepares what
-# it writes)
-Early = tuple["TuneOutcome", "Callable[[], Proof]"]
+# a result and the function that gives its proof and the lines printed after it (:func:`_after`), started
+# while this process tunes on or prepares what it writes
+Early = tuple["TuneOutcome", "Callable[[], tuple[Proof, list[str]]]"]
 
 
-def _proving(drive: Drive, r: TuneOutcome, table_file: str, prover: forked.Pending[Proof]) -> Early:
-    """(r, the function that gives the proof of its gains): asked of the drive file's proof's child
-    (:func:`_drive_file_proof`), while this process tunes on or prepares what it writes."""
+def _proving(
+    drive: Drive, r: TuneOutcome, table_file: str, errors: EstimateErrors, prover: forked.Pending[Proof]
+) -> Early:
+    """(r, the function that gives the proof of its gains and the lines after it): asked of the drive
+    file's proof's child (:func:`_drive_file_proof`), while this process tunes on or prepares what it
+    writes."""
     g = family_of(drive).gains(drive, table=r.table, table_file=table_file)
-    return r, prover.ask(g)
+    return r, prover.ask((g, errors))
 
 
 def _tuned_beside_the_proof(
@@ -324,6 +336,7 @@ def _tuned_beside_the_proof(
     from sensorless.tuning.tune import tune
 
     runs, pending = proof
+    tunable = tunable_for(drive, law)
 
     def unbound(base: Proof) -> list[str]:
         failed = tune_proof.failed_in_the_start(base)
@@ -340,7 +353,7 @@ def _tuned_beside_the_proof(
                 raise _Unbound
 
     def retuning(first: TuneOutcome) -> None:
-        early.append(_proving(drive, first, table_file, pending))
+        early.append(_proving(drive, first, table_file, estimate_errors(drive, tunable, settings), pending))
 
     if not pending.forked:  # no child: the proof first, as it decides the settings
         known.append(pending.result())
@@ -372,11 +385,12 @@ def _proved(
     proved: tuple[list, Proof],
     progress: Callable[[str], None],
     early: Early | None = None,
-) -> tuple[TuneOutcome | None, list[str]]:
-    """(the result whose table is written, lines saying its proof) or (None, lines ending with what the
-    last candidate does worse): the tuned gains and then the tuner's fallbacks (tuning/tune.py), each
-    against the drive file's gains (``proved``: the drive file's proof; reports/tune_proof.py). ``early``:
-    the tuned gains' proof, already started (:func:`_tuned_beside_the_proof`)."""
+) -> tuple[TuneOutcome | None, list[str], list[str] | None]:
+    """(the result whose table is written, lines saying its proof, the lines after it if ``early``
+    gave them) or (None, lines ending with what the last candidate does worse, None): the tuned gains and
+    then the tuner's fallbacks (tuning/tune.py), each against the drive file's gains (``proved``: the
+    drive file's proof; reports/tune_proof.py). ``early``: the tuned gains' proof, already started
+    (:func:`_proving`)."""
     from sensorless.reports import tune_proof
     from sensorless.tuning.tune import fallbacks
 
@@ -388,8 +402,9 @@ def _proved(
     while i < len(cands):
         label, res = cands[i]
         g = fam.gains(drive, table=res.table, table_file=table_file)
+        after = None
         if i == 0 and early is not None and early[0] is res:
-            p = early[1]()
+            p, after = early[1]()
         else:
             p = tune_proof.prove(drive, g, label, runs, tune_proof.ANALYSIS, progress, beside=True)
         lines.append(f"proof: {p.line()}")
@@ -397,9 +412,9 @@ def _proved(
         if not bad:
             if i:
                 lines.append(f"proof: kept {label} (the tuned gains ran worse than the drive file's)")
-            return res, lines
+            return res, lines, after
         lines.append(f"proof: {label} worse than the drive file's gains: " + "; ".join(bad))
         if i == 0:
             cands += fallbacks(drive, r, settings)
         i += 1
-    return None, lines
+    return None, lines, None
