@@ -167,11 +167,15 @@ def _reap(owner: int, pid: int, *fds: int) -> None:
         os.kill(pid, signal.SIGKILL)
     except OSError:  # already gone
         pass
-    for step in [*(lambda f=f: os.close(f) for f in fds), lambda: os.waitpid(pid, 0)]:
+    for fd in fds:
         try:
-            step()
+            os.close(fd)
         except OSError:
             pass
+    try:
+        os.waitpid(pid, 0)
+    except OSError:
+        pass
 
 
 def _messages(fd: int) -> Iterator[bytes]:
@@ -208,9 +212,10 @@ def _child(
             os.dup2(devnull, 2)
         data = pickle.dumps(fn(), protocol=pickle.HIGHEST_PROTOCOL)
         _write(write_end, _HEAD.pack(len(data)) + data)
-        for msg in _messages(req_read) if then is not None else ():
-            data = pickle.dumps(then(pickle.loads(msg)), protocol=pickle.HIGHEST_PROTOCOL)
-            _write(write_end, _HEAD.pack(len(data)) + data)
+        if then is not None:
+            for msg in _messages(req_read):
+                data = pickle.dumps(then(pickle.loads(msg)), protocol=pickle.HIGHEST_PROTOCOL)
+                _write(write_end, _HEAD.pack(len(data)) + data)
         code = 0
     finally:
         os._exit(code)
