@@ -33,9 +33,10 @@ import struct
 import sys
 import weakref
 from collections.abc import Callable, Iterator
-from typing import Any, Generic, TypeVar
+from typing import Generic, TypeVar, cast
 
 T = TypeVar("T")
+R = TypeVar("R")  # a follow-up request's reply
 _HEAD = struct.Struct("<Q")  # a message: its length, then its pickle
 
 
@@ -44,11 +45,11 @@ def forking() -> bool:
     return sys.platform == "linux" and hasattr(os, "fork") and not os.environ.get("SENSORLESS_NO_FORK")
 
 
-class Pending(Generic[T]):
+class Pending(Generic[T, R]):
     """The value of a function a child process computes (:func:`later`), and its replies to follow-up
     requests (``then``)."""
 
-    def __init__(self, fn: Callable[[], T], then: Callable[[Any], Any] | None = None) -> None:
+    def __init__(self, fn: Callable[[], T], then: Callable[..., R] | None = None) -> None:
         self._fn: Callable[[], T] | None = fn  # kept to compute it here if the child fails
         self._then = then
         self.forked = False  # a child computes it (else result() does, here)
@@ -58,8 +59,8 @@ class Pending(Generic[T]):
         self._finalizer: weakref.finalize | None = None
         self._has_value = False
         self._value: T | None = None
-        self._requests: list[Any] = []  # follow-up requests sent (answered in this order)
-        self._replies: dict[int, Any] = {}  # replies read and not yet taken, by request
+        self._requests: list[object] = []  # follow-up requests sent (answered in this order)
+        self._replies: dict[int, R | None] = {}  # replies read and not yet taken, by request
         self._taken = 0  # replies taken
 
     def _read(self, timeout: float | None) -> None:
@@ -77,7 +78,7 @@ class Pending(Generic[T]):
     def _whole(self) -> bool:
         return len(self._buf) >= _HEAD.size and len(self._buf) >= _HEAD.size + _HEAD.unpack_from(self._buf)[0]
 
-    def _message(self) -> tuple[bool, Any]:
+    def _message(self) -> tuple[bool, object]:
         """(True, the child's next message) or (False, None) where it ended without one."""
         self._read(None)
         if not self._whole():
@@ -102,13 +103,13 @@ class Pending(Generic[T]):
                 self._end()
             fn, self._fn = self._fn, None
             assert fn is not None
-            self._value = value if ok else fn()
+            self._value = cast(T, value) if ok else fn()
             self._has_value = True
             if self._then is None:
                 self._end()
         return self._value  # type: ignore[return-value]
 
-    def ask(self, request: Any) -> Callable[[], Any]:
+    def ask(self, request: object) -> Callable[[], R]:
         """Send the child a follow-up request; returns the function that gives its reply,
         ``then(request)`` (computed here where the child is gone). The child answers in the order asked."""
         assert self._then is not None
@@ -122,7 +123,7 @@ class Pending(Generic[T]):
                 self._end()
         return lambda: self._reply(k)
 
-    def _reply(self, k: int) -> Any:
+    def _reply(self, k: int) -> R:
         self.result()  # the first value comes first
         while k not in self._replies:
             j = len(self._replies) + self._taken
@@ -131,9 +132,9 @@ class Pending(Generic[T]):
                 self._end()
                 assert self._then is not None
                 value = self._then(self._requests[j]) if j == k else None  # (an earlier one: not wanted)
-            self._replies[j] = value
+            self._replies[j] = cast("R | None", value)
         self._taken += 1
-        return self._replies.pop(k)
+        return cast(R, self._replies.pop(k))
 
     def close(self) -> None:
         """No more requests: the child ends (after the replies not yet read, which are dropped)."""
@@ -192,7 +193,7 @@ def _messages(fd: int) -> Iterator[bytes]:
 
 
 def _child(
-    fn: Callable[[], object], then: Callable[[Any], Any] | None, fds: tuple[int, int, int, int], stderr: bool
+    fn: Callable[[], object], then: Callable[..., object] | None, fds: tuple[int, int, int, int], stderr: bool
 ) -> None:
     """Compute, pickle into the pipe, answer the requests (``then``) and leave; never returns
     (``stderr``: keep it, for progress lines)."""
@@ -221,14 +222,14 @@ def _child(
         os._exit(code)
 
 
-def later(fn: Callable[[], T], stderr: bool = False, then: Callable[[Any], Any] | None = None) -> Pending[T]:
+def later(fn: Callable[[], T], stderr: bool = False, then: Callable[..., R] | None = None) -> Pending[T, R]:
     """``fn()``'s value, computed by a forked child while this process goes on (module docstring);
     bind the arguments now (functools.partial). ``then``: the child stays for follow-up requests of
     the same computation, ``then(request)`` each (:meth:`Pending.ask`), with what ``fn`` built.
     ``stderr``: the child's progress lines go to this process's stderr (where they would have gone; a
     child that fails and is computed again here says them twice), else to /dev/null. Flushes stdout
     and stderr first (the child must not write what this process has buffered)."""
-    pending = Pending(fn, then)
+    pending: Pending[T, R] = Pending(fn, then)
     if not forking():
         return pending  # result() computes it here
     sys.stdout.flush()

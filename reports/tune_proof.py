@@ -126,6 +126,11 @@ def prove(
     env = envelope(drive)
     w = t = mr = np.zeros(0)
     wd = float("nan")
+    lin: (
+        forked.Pending[tuple[np.ndarray, np.ndarray], None]
+        | Callable[[], tuple[np.ndarray, np.ndarray]]
+        | None
+    )
     lin = None
     if env is not None:
         w, t = env

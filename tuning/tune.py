@@ -79,7 +79,7 @@ def tune(
     proving it meanwhile)."""
     need = handover_decay(drive)
     st0 = settings if settings is not None else tunable_for(drive, law).settings(drive)
-    ahead: list[forked.Pending[tuple[list[str], str | None]]] = []
+    ahead: list[forked.Pending[tuple[list[str], str | None], None]] = []
 
     def seeded(seed: TuneResult) -> None:
         # the second tuning (below) depends only on the seed law's result: where its gains decay below the

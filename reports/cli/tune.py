@@ -200,13 +200,13 @@ def run(args: argparse.Namespace) -> int:
     except (TuningError, CapabilityError) as e:
         raise UsageError(str(e)) from None
     proof: list[str] = []
-    names = (json_name, csv_name, speeds_name, pareto_name)
+    outputs = (json_name, csv_name, speeds_name, pareto_name)
     ready = None  # (a result, its files' texts), prepared while its proof runs
     after = None  # the lines after the proof (_after), where the child that proved the kept result gave them
     if base is not None:
         if early is None or early[0] is not r:
             early = _proving(drive, r, json_name, estimate_errors(drive, tunable, settings), pending[1])
-        ready = (r, _texts(tunable, r, names))  # while a child proves r
+        ready = (r, _texts(tunable, r, outputs))  # while a child proves r
         kept, proof, after = _proved(drive, r, settings, json_name, base, progress, early)
         pending[1].close()
         if kept is None:
@@ -225,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
     if after is None:
         tuned = fam.gains(drive, table=r.table, table_file=json_name)
         after = _after(drive, tuned, estimate_errors(drive, tunable, settings))
-    texts = ready[1] if ready is not None and ready[0] is r else _texts(tunable, r, names)
+    texts = ready[1] if ready is not None and ready[0] is r else _texts(tunable, r, outputs)
     for line in after:
         print(line)
     for name, text in texts.items():
@@ -280,7 +280,7 @@ def _texts(tunable: Tunable, r: TuneOutcome, names: tuple[str, str, str, str]) -
     return texts
 
 
-def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> tuple[list, forked.Pending[Proof]]:
+def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> tuple[list, Prover]:
     """(the proof's time-domain runs, the drive file's gains' proof) (reports/tune_proof.py), the proof
     computed by a child process (design/forked.py) while this one tunes; the child stays for the tuned
     gains' proof and the lines printed after it (:func:`_proving`, :func:`_after`), which reuse what the
@@ -302,14 +302,14 @@ class _Unbound(Exception):
     stops."""
 
 
+# the drive file's proof's child, which stays for the tuned gains' proof and the lines after it (_after)
+Prover = forked.Pending["Proof", tuple["Proof", list[str]]]
 # a result and the function that gives its proof and the lines printed after it (:func:`_after`), started
 # while this process tunes on or prepares what it writes
 Early = tuple["TuneOutcome", "Callable[[], tuple[Proof, list[str]]]"]
 
 
-def _proving(
-    drive: Drive, r: TuneOutcome, table_file: str, errors: EstimateErrors, prover: forked.Pending[Proof]
-) -> Early:
+def _proving(drive: Drive, r: TuneOutcome, table_file: str, errors: EstimateErrors, prover: Prover) -> Early:
     """(r, the function that gives the proof of its gains and the lines after it): asked of the drive
     file's proof's child (:func:`_drive_file_proof`), while this process tunes on or prepares what it
     writes."""
@@ -321,7 +321,7 @@ def _tuned_beside_the_proof(
     drive: Drive,
     law: str,
     settings: TuneSettings,
-    proof: tuple[list, forked.Pending[Proof]],
+    proof: tuple[list, Prover],
     table_file: str,
     progress: Callable[[str], None],
 ) -> tuple[tuple[list, Proof], TuneSettings, TuneOutcome, Early | None]:
@@ -366,6 +366,7 @@ def _tuned_beside_the_proof(
     base = known[0] if known else pending.result()
     failed = unbound(base)
     if failed:
+        assert isinstance(settings, TuningSettings)  # (unbound says so)
         settings = dataclasses.replace(settings, hold_bounded=False)
         progress(
             f"the drive file's gains fail {', '.join(failed)} in the I-f start: the tuning does not "
