@@ -15,6 +15,7 @@ numpy.linalg.eigvals.
 from __future__ import annotations
 
 import functools
+import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -151,6 +152,17 @@ def backward_error(c: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 _POOL: ThreadPoolExecutor | None = None
+
+
+def _forget_pool() -> None:
+    """In a forked child (design/forked.py): the parent's pool threads do not exist here, and a map on
+    its executor would wait for them forever; the child starts its own."""
+    global _POOL
+    _POOL = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
 
 
 def eigvals_finite(A: np.ndarray) -> np.ndarray:

@@ -23,10 +23,12 @@ point and the check, and writes nothing.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from sensorless.design import forked
 from sensorless.design.capabilities import Scaled
 from sensorless.design.family import Drive, GainSet
 from sensorless.design.linearization import Linearization
@@ -115,18 +117,51 @@ def prove(
     scenarios: Sequence[Scenario],
     analysis: Analysis = observer_analysis,
     progress: Callable[[str], None] = lambda s: None,
+    beside: bool = False,
 ) -> Proof:
-    """The figures of ``gains`` (None: the drive file's, each scenario its own choice, as ``report``)."""
+    """The figures of ``gains`` (None: the drive file's, each scenario its own choice, as ``report``).
+    ``beside``: the linear analysis in a forked child while the simulations run here (design/forked.py;
+    a caller with a core to spare: the last proof of ``sensorless tune``)."""
     fam = family_of(drive)
     env = envelope(drive)
     w = t = mr = np.zeros(0)
     wd = float("nan")
+    lin: (
+        forked.Pending[tuple[np.ndarray, np.ndarray], None]
+        | Callable[[], tuple[np.ndarray, np.ndarray]]
+        | None
+    )
+    lin = None
     if env is not None:
         w, t = env
-        lin = analysis(drive, gains if gains is not None else fam.gains(drive), w, t)
-        mr = np.asarray(lin.max_real, float)
-        d = np.asarray(lin.worst_damping, float)
+        linear = functools.partial(
+            _linear, analysis, drive, gains if gains is not None else fam.gains(drive), w, t
+        )
+        lin = forked.later(linear) if beside else linear
+    checks = _checks(drive, gains, label, scenarios, progress)
+    if lin is not None:
+        mr, d = lin.result() if isinstance(lin, forked.Pending) else lin()
         wd = float(np.nanmin(d)) if np.isfinite(d).any() else float("nan")
+    return Proof(label, w, t, mr, wd, checks)
+
+
+def _linear(
+    analysis: Analysis, drive: Drive, gains: GainSet, w: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(max Re [1/s], worst damping) of ``gains`` at the points (w, t) by ``analysis``."""
+    lin = analysis(drive, gains, w, t)
+    return np.asarray(lin.max_real, float), np.asarray(lin.worst_damping, float)
+
+
+def _checks(
+    drive: Drive,
+    gains: GainSet | None,
+    label: str,
+    scenarios: Sequence[Scenario],
+    progress: Callable[[str], None],
+) -> tuple[ProofCheck, ...]:
+    """The time-domain checks of ``gains`` (None: the drive file's), judged as the report judges them."""
+    fam = family_of(drive)
     scales = fam.scales(drive) if isinstance(fam, Scaled) else None
     family, unstable = time_domain.finders(drive, gains)
     checks: list[ProofCheck] = []
@@ -146,7 +181,7 @@ def prove(
                 "causes": sorted({n.cause for n in named}),
             }
         )
-    return Proof(label, w, t, mr, wd, tuple(checks))
+    return tuple(checks)
 
 
 def failed_in_the_start(proof: Proof) -> list[str]:

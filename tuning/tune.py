@@ -28,12 +28,14 @@ own value of the worst damping is kept in the summary only for comparison.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from sensorless.design import forked
 from sensorless.design.envelope import TuningSettings
 from sensorless.design.family import Drive
 from sensorless.design.low_speed import handover_decay
@@ -61,6 +63,7 @@ def tune(
     law: str | None = None,
     settings: TuneSettings | None = None,
     progress: Callable[[str], None] | None = None,
+    retuning: Callable[[TuneOutcome], None] | None = None,
 ) -> TuneOutcome:
     """Tune the gain law ``law`` (None: the default of the drive's observer family) on ``drive``
     over the envelope of ``settings`` (default: the tunable's, e.g. the drive's ``[tuning]``). Returns a
@@ -71,25 +74,68 @@ def tune(
     (design/low_speed.py ``handover_decay``; none where the drive needs no I-f start) are tuned again
     with that floor (from the same seed): below it their w_min, and so the handover, rises (a gimbal's to
     0.69 p.u., above its start's and reversal's 0.5 p.u.: those checks never handed over). Where no
-    gain meets it, the first gains."""
-    res = _tune(drive, law, settings, progress)
+    gain meets it, the first gains. ``retuning(first)``: called with the first tuning's result before
+    that second tuning, whose result it is unless the second finds gains (the command line starts
+    proving it meanwhile)."""
     need = handover_decay(drive)
+    st0 = settings if settings is not None else tunable_for(drive, law).settings(drive)
+    ahead: list[forked.Pending[tuple[list[str], str | None], None]] = []
+
+    def seeded(seed: TuneResult) -> None:
+        # the second tuning (below) depends only on the seed law's result: where its gains decay below the
+        # handover's floor (the law starts from them and keeps their decay), it is likely, and a child
+        # tunes it while this process tunes the law (on a core the NLP leaves idle)
+        if forked.forking() and need > 0 and float(np.min(seed.grid.decay)) < need:
+            again = dataclasses.replace(st0, min_decay=need)
+            ahead.append(forked.later(functools.partial(_tuned_ahead, drive, law, again, seed)))
+
+    try:
+        res = _tune(drive, law, settings, progress, seeded=seeded)
+    except BaseException:
+        for p in ahead:
+            p.cancel()
+        raise
     if not isinstance(res, TuneResult) or need <= res.floor or float(np.min(res.dense.decay)) >= need:
+        for p in ahead:
+            p.cancel()
         return res
     say = progress or (lambda s: None)
     say(
         f"tuned gains decay at {float(np.min(res.dense.decay)):.4g} 1/s, below the {need:.4g} 1/s the "
         "handover's w_min asks: tuning again with that floor"
     )
-    st = settings if settings is not None else tunable_for(drive, law).settings(drive)
+    if retuning is not None:
+        retuning(res)
 
     def first(e: nlp.TuningError) -> TuneOutcome:
         say(f"no gains meet decay >= {need:.4g} 1/s on the envelope ({e}): the first tuning's gains")
         return res
 
+    if ahead and ahead[0].forked and res.seed is not None:
+        lines, failed = ahead[0].result()  # the child's second tuning, from this same seed
+        if failed is not None:  # no gains: its lines and its error, as if tuned here
+            for line in lines:
+                say(line)
+            return first(nlp.TuningError(failed))
+        # it found gains (a result that does not pickle): tuned again here
     # the seed as the first tuning tuned it (the gimbal's speed-dependent law with alpha_fo tuned and the
     # lag held: no candidate at 11.94 1/s; its schedule: 0.035 p.u., every check passed)
-    return _above_seed(drive, law, dataclasses.replace(st, min_decay=need), progress, res.seed, first)
+    return _above_seed(drive, law, dataclasses.replace(st0, min_decay=need), progress, res.seed, first)
+
+
+def _tuned_ahead(
+    drive: Drive, law: str | None, settings: TuneSettings, seed: TuneResult
+) -> tuple[list[str], str | None]:
+    """The second tuning of :func:`tune` (``settings``: the handover's floor) from the seed law's result
+    ``seed``, run by a child process ahead of time: (its progress lines, the message of its TuningError);
+    None for a message where it found gains (their result holds CasADi Functions, which do not pickle:
+    the parent tunes again itself)."""
+    lines: list[str] = []
+    try:
+        _tune(drive, law, settings, lines.append, seed)
+    except nlp.TuningError as e:
+        return lines, str(e)
+    return lines, None
 
 
 def _above_seed(
@@ -125,10 +171,12 @@ def _tune(
     progress: Callable[[str], None] | None,
     seed: TuneResult | None = None,
     table: bool = True,
+    seeded: Callable[[TuneResult], None] | None = None,
 ) -> TuneOutcome:
     """:func:`tune` without the handover's decay floor; ``seed``: the seed law's result where it is
     already tuned. ``table`` False: the result has no gain table (None: a seed law's, whose table
-    nobody writes; the law it starts tabulates the seed's gains itself, 0.2 s of the README servo's)."""
+    nobody writes; the law it starts tabulates the seed's gains itself, 0.2 s of the README servo's).
+    ``seeded(seed)``: called with the seed law's result where it is tuned here."""
     tunable = tunable_for(drive, law)
     law = tunable.name
     settings = settings if settings is not None else tunable.settings(drive)
@@ -161,6 +209,8 @@ def _tune(
                 raise nlp.TuningError(f"{e2}; {why}") from None
 
             return _above_seed(drive, law, settings, progress, None, neither)
+        if seeded is not None:
+            seeded(seed_res)
     model = tunable.build(drive, settings, None if seed_res is None else seed_res.theta)
     if model.bounded is not None and not getattr(settings, "hold_bounded", True):
         say(f"not held: {', '.join(model.bounded_names)} (the drive file's gains fail a check of their own)")

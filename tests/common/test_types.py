@@ -45,6 +45,7 @@ CHECKED = [
     "sensorless.design.memo",
     "sensorless.design.drive_analysis",
     "sensorless.design.poles",
+    "sensorless.design.forked",
     "sensorless.design.discrete",
     "sensorless.design.runtime",
     "sensorless.tuning.conditions",

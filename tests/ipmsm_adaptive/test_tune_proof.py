@@ -5,6 +5,7 @@ nothing written) a table that runs worse than the drive file's gains (reports/tu
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -152,6 +153,7 @@ def test_tune_refuses_a_table_worse_than_the_drive_files(tmp_path, monkeypatch, 
     138 iterations from a start meeting its constraints to 5e-14). Constructed: the first IPOPT run
     fails, the third start's NLP fails."""
     monkeypatch.delenv("SENSORLESS_TUNE_UNCHECKED", raising=False)
+    monkeypatch.setenv("SENSORLESS_NO_FORK", "1")  # the fakes below record their calls in this process
     monkeypatch.setattr(tune_proof, "runs", lambda drive: [])
     why = "IPOPT found no gains meeting the constraints from this start (Infeasible_Problem_Detected)"
     run, solve, calls = nlp._run, nlp.solve, []
@@ -173,7 +175,7 @@ def test_tune_refuses_a_table_worse_than_the_drive_files(tmp_path, monkeypatch, 
     monkeypatch.setattr(nlp, "_run", first_fails)
     monkeypatch.setattr(nlp, "solve", third_fails)
 
-    def fake(drive, gains, label, runs, analysis=None, progress=None):
+    def fake(drive, gains, label, scenarios, analysis=None, progress=None, beside=False):
         calls.append(label)
         return _proof(label, [True, gains is None], True, drive.w_base)
 
@@ -227,3 +229,49 @@ def test_the_proof_analyses_the_whole_drive_below_the_torque_limit_the_observer_
     # the drive has slow modes the observer alone has not (the speed loop, the mechanics): the proof
     # now sees them
     assert (both.max_real[~sat] > np.asarray(obs.max_real, float)[~sat] + 1.0).any()
+
+
+@pytest.mark.parametrize("fails_in_the_start", [False, True])
+def test_the_tuning_beside_the_drive_files_proof_ends_as_after_it(drive, monkeypatch, fails_in_the_start):
+    """``sensorless tune`` proves the drive file's gains in a child process (design/forked.py) while it
+    tunes with their figures held (reports/cli/tune.py). Where the proof, once there, says they fail a
+    check in the I-f start, the tuning stops at its next progress line and runs again without the hold,
+    as it would have run after the proof; else the first tuning is the result."""
+    from sensorless.design import forked
+    from sensorless.reports.cli import tune as cli_tune
+    from sensorless.tuning import tune as tuning
+
+    if not forked.forking():
+        pytest.skip("no fork here")
+    base = _proof("drive file", [True, True], not fails_in_the_start)
+    if fails_in_the_start:
+        base = dataclasses.replace(base, checks=({**base.checks[0], "causes": ["not_tested_sensorless"]},))
+    assert bool(tune_proof.failed_in_the_start(base)) == fails_in_the_start
+    runs: list = []
+    pending = forked.later(lambda: base)  # as cli_tune._drive_file_proof gives it
+    seen = []
+
+    def fake_tune(drive, law, settings, progress, retuning):
+        seen.append(settings.hold_bounded)
+        # a tuning's progress lines: the first one's go on until the proof stops it (if it does)
+        for _ in range(3000 if fails_in_the_start and settings.hold_bounded else 3):
+            progress("a step")
+            time.sleep(0.01)
+        return f"tuned with hold_bounded={settings.hold_bounded}"
+
+    monkeypatch.setattr(tuning, "tune", fake_tune)
+    lines: list[str] = []
+    settings = tunable_for(drive, "schedule").settings(drive)
+    assert settings.hold_bounded
+    t0 = time.perf_counter()
+    got, st, r, early = cli_tune._tuned_beside_the_proof(
+        drive, "schedule", settings, (runs, pending), "gains.json", lines.append
+    )
+    assert early is None  # (no second tuning, whose first result is proved beside it)
+    assert got[0] == runs and got[1].line() == base.line()  # (a copy, from the child)
+    if fails_in_the_start:
+        assert seen == [True, False] and not st.hold_bounded and r == "tuned with hold_bounded=False"
+        assert any("does not hold their figures" in ln for ln in lines)
+        assert time.perf_counter() - t0 < 50  # the first tuning was stopped (its 3000 lines take 30 s)
+    else:
+        assert seen == [True] and st == settings and r == "tuned with hold_bounded=True"
