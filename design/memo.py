@@ -68,31 +68,28 @@ def _content(value: Any) -> Any:
     return (type(value), tuple((name, getattr(value, name)) for name in kept))
 
 
-class OwnedMemo(Generic[R]):
-    """An in-process memo of results computed from an object not worth pickling (a tuning model with its
-    CasADi Functions) and some arrays: keyed on the object's identity and the arrays' bytes; an entry
-    holds its object, so that the id cannot be reused by another object while the entry lives. The
-    ``maxsize`` most recent entries; safe from several threads (a threaded scheduler may tune several
-    drives in one process)."""
+class BytesMemo(Generic[R]):
+    """An in-process memo keyed on bytes (what a result is computed from): the ``maxsize`` most recent
+    entries; safe from several threads (a threaded scheduler may tune several drives in one process)."""
 
     def __init__(self, maxsize: int) -> None:
         self.maxsize = maxsize
-        self._memo: collections.OrderedDict[tuple[int, bytes], tuple[object, R]] = collections.OrderedDict()
+        self._memo: collections.OrderedDict[bytes, R] = collections.OrderedDict()
         self._lock = threading.Lock()
 
-    def get(self, owner: object, key: bytes) -> R | None:
-        """The result kept for ``owner`` and ``key``, or None."""
+    def get(self, key: bytes) -> R | None:
+        """The result kept for ``key``, or None."""
         with self._lock:
-            hit = self._memo.get((id(owner), key))
-            if hit is None:
+            if key not in self._memo:
                 return None
-            self._memo.move_to_end((id(owner), key))
-            return hit[1]
+            self._memo.move_to_end(key)
+            return self._memo[key]
 
-    def put(self, owner: object, key: bytes, value: R) -> R:
-        """Keep ``value`` for ``owner`` and ``key``; returns it."""
+    def put(self, key: bytes, value: R) -> R:
+        """Keep ``value`` for ``key``; returns it."""
         with self._lock:
-            self._memo[(id(owner), key)] = (owner, value)
+            self._memo[key] = value
+            self._memo.move_to_end(key)
             if len(self._memo) > self.maxsize:
                 self._memo.popitem(last=False)
         return value
@@ -100,6 +97,32 @@ class OwnedMemo(Generic[R]):
     def clear(self) -> None:
         with self._lock:
             self._memo.clear()
+
+
+class OwnedMemo(Generic[R]):
+    """A :class:`BytesMemo` of results computed from an object not worth pickling (a tuning model with
+    its CasADi Functions) and some arrays: keyed on the object's identity and the arrays' bytes; an entry
+    holds its object, so that the id cannot be reused by another object while the entry lives."""
+
+    def __init__(self, maxsize: int) -> None:
+        self._memo: BytesMemo[tuple[object, R]] = BytesMemo(maxsize)
+
+    def get(self, owner: object, key: bytes) -> R | None:
+        """The result kept for ``owner`` and ``key``, or None."""
+        hit = self._memo.get(_owned(owner, key))
+        return None if hit is None else hit[1]
+
+    def put(self, owner: object, key: bytes, value: R) -> R:
+        """Keep ``value`` for ``owner`` and ``key``; returns it."""
+        self._memo.put(_owned(owner, key), (owner, value))
+        return value
+
+    def clear(self) -> None:
+        self._memo.clear()
+
+
+def _owned(owner: object, key: bytes) -> bytes:
+    return id(owner).to_bytes(8, "little") + key
 
 
 def frozen_result(value: R) -> R:

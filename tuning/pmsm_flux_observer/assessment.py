@@ -5,15 +5,14 @@ criterion.py ranks and judges them."""
 
 from __future__ import annotations
 
-import collections
 import math
 import pickle
-import threading
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
+from sensorless.design.memo import BytesMemo
 from sensorless.design.pmsm_flux_observer import corner_estimate
 from sensorless.design.pmsm_flux_observer.gains import constant_law, pll_gains, runtime_params
 from sensorless.design.pmsm_flux_observer.linearize import (
@@ -94,9 +93,7 @@ def assess(drive: FluxObserverDrive, cands: list[GainSet], settings: FluxTuneSet
 # bytes of everything they are computed from: a tune judges the firmware defaults and the drive file's
 # gains again beside its refinement, and a report in the same process the tuned gains and the defaults
 # (each point's Newton iteration is its own: the same numbers in any batch). ~40 kB a candidate
-_KEPT: collections.OrderedDict[bytes, tuple[np.ndarray, ...]] = collections.OrderedDict()
-_KEPT_MAX = 256
-_KEPT_LOCK = threading.Lock()
+_KEPT: BytesMemo[tuple[np.ndarray, ...]] = BytesMemo(256)
 
 
 def _points(
@@ -118,8 +115,7 @@ def _points(
     )
     keys = [common + rows[c * nc : (c + 1) * nc].tobytes() + gains[c * nc : (c + 1) * nc].tobytes()
             for c in range(n_cand)]  # fmt: skip
-    with _KEPT_LOCK:
-        kept = {k: _KEPT[k] for k in keys if k in _KEPT}
+    kept = {k: v for k in dict.fromkeys(keys) if (v := _KEPT.get(k)) is not None}
     new = list(dict.fromkeys(k for k in keys if k not in kept))  # each missing candidate once
     if new:
         first = [keys.index(k) for k in new]
@@ -143,12 +139,8 @@ def _points(
             )
             for a, f in zip(out, figs, strict=True):
                 a[sl] = f
-        with _KEPT_LOCK:
-            for i, key in enumerate(new):
-                kept[key] = _KEPT[key] = tuple(a[i * per : (i + 1) * per].copy() for a in out)
-                _KEPT.move_to_end(key)
-            while len(_KEPT) > _KEPT_MAX:
-                _KEPT.popitem(last=False)
+        for i, key in enumerate(new):
+            kept[key] = _KEPT.put(key, tuple(a[i * per : (i + 1) * per].copy() for a in out))
     return tuple(np.concatenate([kept[key][j] for key in keys]) for j in range(5))
 
 
