@@ -41,7 +41,7 @@ _HEAD = struct.Struct("<Q")  # a message: its length, then its pickle
 
 
 def forking() -> bool:
-    """Whether :func:`later` runs its function in a child process here."""
+    """Whether :func:`later` (and reports/svg_render.py's figures) run in child processes here."""
     return sys.platform == "linux" and hasattr(os, "fork") and not os.environ.get("SENSORLESS_NO_FORK")
 
 
@@ -118,7 +118,7 @@ class Pending(Generic[T, R]):
         if self._child is not None:
             try:
                 data = pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL)
-                _write(self._child[2], _HEAD.pack(len(data)) + data)
+                write_all(self._child[2], _HEAD.pack(len(data)) + data)
             except (OSError, pickle.PicklingError, TypeError, AttributeError):
                 self._end()
         return lambda: self._reply(k)
@@ -151,23 +151,30 @@ class Pending(Generic[T, R]):
             self._child = None
             if self._finalizer is not None:
                 self._finalizer.detach()
-            _reap(os.getpid(), pid, fd, req)
+            reap(os.getpid(), pid, fd, req)
 
 
-def _write(fd: int, data: bytes) -> None:
+def write_all(fd: int, data: bytes) -> None:
+    """Write all of ``data`` to ``fd`` (a pipe takes it in pieces)."""
     view = memoryview(data)
     while view:
         view = view[os.write(fd, view) :]
 
 
-def _reap(owner: int, pid: int, *fds: int) -> None:
-    """Kill and reap a child whose value is no longer wanted (only in the process that forked it)."""
-    if os.getpid() != owner:
-        return
+def kill(pid: int) -> None:
+    """SIGKILL to a child, if it is still there."""
     try:
         os.kill(pid, signal.SIGKILL)
     except OSError:  # already gone
         pass
+
+
+def reap(owner: int, pid: int, *fds: int) -> None:
+    """Kill and reap a child whose value is no longer wanted, closing ``fds`` (only in the process that
+    forked it: a finalizer may also run in a child)."""
+    if os.getpid() != owner:
+        return
+    kill(pid)
     for fd in fds:
         try:
             os.close(fd)
@@ -212,11 +219,11 @@ def _child(
         if not stderr:
             os.dup2(devnull, 2)
         data = pickle.dumps(fn(), protocol=pickle.HIGHEST_PROTOCOL)
-        _write(write_end, _HEAD.pack(len(data)) + data)
+        write_all(write_end, _HEAD.pack(len(data)) + data)
         if then is not None:
             for msg in _messages(req_read):
                 data = pickle.dumps(then(pickle.loads(msg)), protocol=pickle.HIGHEST_PROTOCOL)
-                _write(write_end, _HEAD.pack(len(data)) + data)
+                write_all(write_end, _HEAD.pack(len(data)) + data)
         code = 0
     finally:
         os._exit(code)
@@ -250,5 +257,5 @@ def later(fn: Callable[[], T], stderr: bool = False, then: Callable[..., R] | No
     os.close(req_read)
     pending.forked = True
     pending._child = (pid, read_end, req_write)
-    pending._finalizer = weakref.finalize(pending, _reap, os.getpid(), pid, read_end, req_write)
+    pending._finalizer = weakref.finalize(pending, reap, os.getpid(), pid, read_end, req_write)
     return pending

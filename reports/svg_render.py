@@ -33,12 +33,12 @@ import os
 import select
 import signal
 import struct
-import sys
 import time
 import weakref
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
+from sensorless.design.forked import forking, kill, reap, write_all
 from sensorless.reports.document import pyplot, svg_uri
 
 if TYPE_CHECKING:  # typed by name only
@@ -50,11 +50,6 @@ _queue: list[weakref.ref[PendingSvg]] = []  # figures no child has taken yet, ol
 _running: list[weakref.ref[Batch]] = []  # children not yet collected, oldest first
 FONT_FILES = (".ttf", ".otf", ".ttc", ".pfb", ".pfa", ".afm")  # what FreeType reads fonts from
 TIMEOUT_S = 120.0  # far above any figure's ~1 s; past it the child is killed and the figure drawn here
-
-
-def forking() -> bool:
-    """Whether figures are rendered in child processes here."""
-    return sys.platform == "linux" and hasattr(os, "fork") and not os.environ.get("SENSORLESS_NO_FORK")
 
 
 class PendingSvg:
@@ -123,7 +118,7 @@ class Batch:
         self.flags = flags if flags is not None else mmap.mmap(-1, 2 * len(jobs) or 1)
         for p in jobs:
             p._batch = self
-        self._finalizer = weakref.finalize(self, _reap, os.getpid(), pid, fd)
+        self._finalizer = weakref.finalize(self, reap, os.getpid(), pid, fd)
 
     def claim(self) -> PendingSvg | None:
         """The last figure the child has not started, now this process's to draw (None: it has started
@@ -261,29 +256,10 @@ def _collect(pid: int, fd: int) -> bytes:
             chunks.append(chunk)
     finally:
         if not whole:  # interrupted or too slow: the child's work is not wanted
-            _kill(pid)
+            kill(pid)
         os.close(fd)
         _, status = os.waitpid(pid, 0)
     return b"".join(chunks) if whole and os.waitstatus_to_exitcode(status) == 0 else b""
-
-
-def _kill(pid: int) -> None:
-    try:
-        os.kill(pid, signal.SIGKILL)
-    except OSError:  # already gone
-        pass
-
-
-def _reap(owner: int, pid: int, fd: int) -> None:
-    """Kill and reap a child whose result is no longer wanted (only in the process that forked it)."""
-    if os.getpid() != owner:
-        return
-    _kill(pid)
-    for step in (lambda: os.close(fd), lambda: os.waitpid(pid, 0)):
-        try:
-            step()
-        except OSError:
-            pass
 
 
 def _child(
@@ -316,9 +292,7 @@ def _child(
                 except Exception:  # this figure is drawn by the parent (it says why), the others here
                     uri = b""
             out += [FRAME.pack(len(uri)), uri]
-        view = memoryview(b"".join(out))
-        while view:
-            view = view[os.write(write_end, view) :]
+        write_all(write_end, b"".join(out))
         code = 0
     finally:
         os._exit(code)
