@@ -246,7 +246,7 @@ def test_tune_ends_at_its_time_budget_with_one_line_and_nothing_written(tmp_path
     assert not (tmp_path / "t").exists()
 
 
-def test_a_budget_the_computation_swallows_rings_again_and_ends_the_block():
+def test_a_budget_the_computation_swallows_rings_again_and_ends_the_block(monkeypatch):
     # CasADi swallowed the budget's alarm inside a Function call and the tune computed on (past the
     # watchdog's GRACE: it ended the pytest worker that ran main([...]) in-process)
     import signal
@@ -254,6 +254,7 @@ def test_a_budget_the_computation_swallows_rings_again_and_ends_the_block():
 
     from sensorless.reports import interrupts
 
+    monkeypatch.setattr(interrupts, "REPEAT", 0.05)  # the second alarm after 0.05 s, not 0.25 (idle)
     swallowed = 0
     with pytest.raises(interrupts.Interrupted) as e:
         with interrupts.budget(0.05, "the budget ran out"):
@@ -278,7 +279,7 @@ def test_main_run_in_process_is_never_ended_by_the_watchdog(monkeypatch, capsys)
     from sensorless.reports.cli import main as cli
 
     ended = []
-    monkeypatch.setattr(interrupts, "GRACE", 0.05)
+    monkeypatch.setattr(interrupts, "GRACE", 0.02)
     monkeypatch.setattr(interrupts, "kill_children", lambda: ended.append("children"))
     monkeypatch.setattr(interrupts.os, "_exit", ended.append)  # (the old code's watchdog: recorded)
 
@@ -288,7 +289,7 @@ def test_main_run_in_process_is_never_ended_by_the_watchdog(monkeypatch, capsys)
             time.sleep(30)
         except KeyboardInterrupt:
             pass
-        time.sleep(0.5)
+        time.sleep(0.2)  # (idle: this test's wall time)
         return 0
 
     parser = argparse.ArgumentParser()
