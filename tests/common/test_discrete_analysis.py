@@ -127,7 +127,8 @@ def test_adaptive_discrete_analysis_is_unchanged_and_is_the_runtime_step(drive, 
     x0c = a.x0[0]  # [psi_d, psi_q, theta_tilde, w_i]
     n = 6000
     th = 0.4 + w * T_s * np.arange(n)
-    meas = np.array([np.r_[rot(t) @ i_s0, rot(t) @ u_z] for t in th])
+    R = np.array([rot(t) for t in th])  # each sample's rotation as before, the products in one batch
+    meas = np.hstack([R @ i_s0, R @ u_z])
     xs, _ = run_trajectory(setup, meas, state(np.r_[x0c[[0, 1, 3, 2]], w], 0.4))
     y_sim = coords(xs[-1], th[-1] + w * T_s)
     assert np.allclose(y_sim[[0, 1]], a.y_d[0][[0, 1]], rtol=0, atol=1e-10)

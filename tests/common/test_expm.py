@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.linalg import expm
 from sensorless.design.expm import expm_batched
 
 
 def test_agrees_with_scipy_over_every_pade_degree_and_scaling():
+    from scipy.linalg import expm  # here, not at every worker's collection (scipy: ~0.3 s)
+
     rng = np.random.default_rng(7)
     base = rng.standard_normal((60, 5, 5))
     # 1-norms from 1e-4 (degree 3) through 1e3 (degree 13 with squaring), in one stack
@@ -53,6 +54,8 @@ def test_zero_matrix_is_identity(n):
 
 
 def test_stable_matrices_and_a_jordan_block_match_scipy():
+    from scipy.linalg import expm
+
     # the reduced-order observer's Floquet sub-intervals: decaying 3 x 3 matrices over ten decades
     rng = np.random.default_rng(1)
     scale = np.geomspace(1e-8, 30, 200)[:, None, None]

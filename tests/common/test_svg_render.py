@@ -91,7 +91,7 @@ def _silent_child() -> tuple[int, int]:
 
 
 def test_a_hung_child_is_killed_and_rendered_here(monkeypatch):
-    monkeypatch.setattr(svg_render, "TIMEOUT_S", 0.5)
+    monkeypatch.setattr(svg_render, "TIMEOUT_S", 0.1)  # the wait this test sits through (idle)
     fig = figure(6)
     expected = svg_uri(figure(6))
     pid, read_end = _silent_child()  # holds its pipe open and never writes (a deadlock after fork)

@@ -9,7 +9,6 @@ Viscosity B omega loads the shaft. Integrated with scipy's DOP853 to 1e-11 and s
 """
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 
 class Plant:
@@ -56,6 +55,8 @@ class Plant:
 
     def run(self, T_s, t_end, steps):
         """Samples at k T_s, k = 0..N, with T_L piecewise constant: steps = [(t_start, T_L), ...]."""
+        from scipy.integrate import solve_ivp  # here: scipy.integrate is ~0.45 s of a worker's collection
+
         N = round(t_end / T_s)
         t = np.arange(N + 1) * T_s
         y0 = [0.3, self.w_ref, steps[0][1] + self.B * self.w_ref / self.p_r]
@@ -96,6 +97,8 @@ class ProfilePlant(Plant):
 
     def run_profile(self, T_s):
         """Samples at k T_s, k = 0..N (N T_s the total duration): t, Y (theta, w, x_i), i, v, T_L + B w."""
+        from scipy.integrate import solve_ivp  # as in run
+
         N = round(sum(s[0] for s in self.segments) / T_s)
         t = np.arange(N + 1) * T_s
         Y, ref, slope, TL = np.empty((3, N + 1)), np.empty(N + 1), np.empty(N + 1), np.empty(N + 1)

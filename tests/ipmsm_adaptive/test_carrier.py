@@ -65,9 +65,10 @@ def _mtpa(T: float, m) -> tuple[float, float]:
     """The MTPA current for the torque T by brute force: the smallest amplitude whose best angle reaches
     T = 1.5 p (psi_pm i_q + (L_d - L_q) i_d i_q) (bisection on the amplitude, a fine scan of the angle)."""
     beta = np.linspace(0, np.pi / 2, 200001)  # angle from the q axis towards -d
+    sin_b, cos_b = np.sin(beta), np.cos(beta)  # once, not in each of the bisection's 61 scans
 
     def best(i):
-        i_d, i_q = -i * np.sin(beta), i * np.cos(beta)
+        i_d, i_q = -i * sin_b, i * cos_b
         Te = 1.5 * m.p * (m.psi_pm * i_q + (m.L_d - m.L_q) * i_d * i_q)
         k = int(np.argmax(Te))
         return Te[k], i_d[k], i_q[k]

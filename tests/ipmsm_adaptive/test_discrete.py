@@ -9,7 +9,6 @@ import math
 import numpy as np
 import pytest
 from helpers.simulation import matrix_pencil
-from scipy.integrate import solve_ivp
 from sensorless.design.discrete import zoh_voltage
 from sensorless.design.ipmsm_adaptive import FAMILY
 from sensorless.design.ipmsm_adaptive.linearize import linearize
@@ -62,6 +61,8 @@ def test_zoh_voltage_brings_the_motor_back_to_its_sampled_current(drive, w_pu, T
     """Eqs. (1)-(2) integrated in the stationary frame by scipy (written here, independent of the
     package) over one period with the stationary-frame voltage T(theta_0) u_z held: the current at the
     end, seen in the rotor frame, is i_s0 again (to 1e-9 A)."""
+    from scipy.integrate import solve_ivp  # here, not at every worker's collection (~0.45 s)
+
     m = drive.motor
     w = w_pu * drive.base.w
     i_s0 = linearize(drive, w, T * drive.T_N).i_s0[0]

@@ -4,8 +4,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
-from scipy.linalg import expm
 from sensorless.design.ipmsm_adaptive.linearize import drive_arguments, linearize
 from sensorless.design.ipmsm_adaptive.operating_point import PARAM_NAMES, residual_function
 
@@ -83,6 +81,9 @@ def test_injection_stabilizes_low_speeds(drive, T_sign):
 def test_linearization_predicts_nonlinear_response(drive):
     """Simulate the coupled nonlinear system from a small perturbation of its equilibrium and compare
     with exp(A t) from the Jacobian: the linear model is what the nonlinear system does."""
+    from scipy.integrate import solve_ivp  # here, not at every worker's collection (~0.45 s)
+    from scipy.linalg import expm
+
     for w_pu, gain in ((0.5, "speed"), (-0.3, "constant"), (0.01, "speed")):
         w0, T = w_pu * drive.base.w, drive.T_N
         s = linearize(drive, w0, T, gain=gain)

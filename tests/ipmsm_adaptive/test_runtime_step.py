@@ -7,7 +7,6 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
-import scipy.signal as sg
 from helpers.runtime_loop import profile_from_segments, simulate
 from sensorless.design.drive import load_drive_text
 from sensorless.design.ipmsm_adaptive import FAMILY
@@ -82,6 +81,8 @@ def test_wrap_angle_range():
 def test_filters_are_the_prewarped_bilinear_prototypes(drive):
     """LPF: equals scipy's Butterworth design; BPF: H(e^{jwT}) = H_a(j K tan(wT/2)) at every w (the
     bilinear map), unit gain and zero phase at the carrier, zeros at DC and Nyquist."""
+    import scipy.signal as sg  # here, not at collection: scipy.signal (with scipy.stats) ~0.5 s a worker
+
     T_s, w_c, B, w_lp = drive.control.T_s, drive.injection.w_c, drive.runtime.w_bp, drive.runtime.w_lp
     lp = [float(ca.evalf(v)) for v in low_pass(w_lp, T_s)]
     b, a = sg.butter(2, w_lp / (2 * math.pi), "low", fs=1 / T_s)

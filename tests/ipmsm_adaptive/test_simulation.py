@@ -12,7 +12,6 @@ import casadi as ca
 import numpy as np
 import pytest
 from helpers.simulation import matrix_pencil, piippo2008, run, run_text
-from scipy.integrate import solve_ivp
 from sensorless.design.ipmsm_adaptive.one_step import linearize
 from sensorless.symbolic.pmsm import Mechanics, PmsmParams, plant_period
 
@@ -24,6 +23,8 @@ DEG = np.pi / 180
 # --------------------------------------------------------------------------------------------------
 def test_sampled_plant_matches_scipy_in_the_stationary_frame():
     """RK4 between samples (rotor frame) vs. scipy's adaptive RK on eqs. (1)-(3) in alpha-beta."""
+    from scipy.integrate import solve_ivp  # here, not at every worker's collection (~0.45 s)
+
     m = piippo2008().motor
     R, Ld, Lq, psi_f, p, J = m.R_s, m.L_d, m.L_q, m.psi_pm, m.p, m.J
     T_s, T_L = 2e-4, 3.0

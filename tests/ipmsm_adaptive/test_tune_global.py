@@ -7,8 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.linalg
-import scipy.signal
 from helpers.tuning import paper_law, small
 from sensorless.design.drive import load_drive
 from sensorless.design.envelope import tuning_envelope
@@ -190,6 +188,9 @@ def simulate_noise(A, B, C, D, sigma, T_s, n=200_000, seed=1):
     sampled recursion x[k+1] = Phi x[k] + Gam n[k], x[0] = 0, run in the eigenvector basis of Phi, one
     first-order recursion per mode (scipy's lfilter: the same sums as a Python loop over the samples,
     to 1e-12, in a seventh of its time)."""
+    import scipy.linalg
+    import scipy.signal  # here, not at collection (every worker collects every file): ~0.5 s
+
     m = A.shape[0]
     M = scipy.linalg.expm(np.block([[A, B], [np.zeros((B.shape[1], m + B.shape[1]))]]) * T_s)
     Phi, Gam = M[:m, :m], M[:m, m:]
