@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import casadi as ca
 import numpy as np
-from sensorless.design.batch import CORES, evaluate_batch
+from sensorless.design.batch import CORES, JIT_MIN_POINTS, evaluate_batch, settled
 from sensorless.symbolic.linalg import charpoly as charpoly_sx
 
 # The damping ratio a stability report requires by default (``sensorless report --min-damping``, every
@@ -191,6 +191,29 @@ def eigvals_batched(A: np.ndarray, c: np.ndarray | None = None, tol: float = 1e-
         parts = _POOL.map(_eigvals_serial, np.array_split(A, k), cs)
         return np.concatenate(list(parts))
     return _eigvals_serial(A, c, tol)
+
+
+def batched_path(n: int, N: int) -> bool:
+    """Whether :func:`eigvals_batched` of ``N`` (n, n) matrices takes the quartic formula's path (whose
+    results differ in the last bits from LAPACK's, which it takes otherwise, matrix by matrix)."""
+    return n == 4 and N >= 64
+
+
+def charpoly_settled(n: int, N: int, before: bool) -> bool:
+    """Whether :func:`eigvals_batched` of ``N`` (n, n) matrices computed (or computes) every matrix's
+    characteristic polynomial with the code every later call uses (design/batch.py's compiled library,
+    not CasADi's virtual machine first): ``before``, whether that code was settled before the call
+    (:func:`charpoly_ready`), or else each part the call evaluates is large enough to settle it. A caller
+    that keeps eigenvalues to reuse them for later calls' asks (tuning/search.py)."""
+    if not batched_path(n, N) or before:
+        return True
+    part = N // CORES if N >= 8192 and CORES > 1 else N  # eigvals_batched's smallest part
+    return part >= JIT_MIN_POINTS
+
+
+def charpoly_ready(n: int) -> bool:
+    """Whether the characteristic polynomials of (n, n) matrices run the code every later call runs."""
+    return n != 4 or settled(_charpoly_function(n))
 
 
 def _eigvals_serial(A: np.ndarray, c: np.ndarray | None = None, tol: float = 1e-12) -> np.ndarray:

@@ -237,7 +237,9 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
             out[good] = eigvals_batched(A[good])
         if noise and good.any():
             B, C, D = _call(model.noise, N, [phi, xs, P])
-            nz[good] = noise_rms(A[good], B[good], C[good], D[good], model.noise_sigma, model.T_s)
+            nz[good] = noise_rms(
+                A[good], B[good], C[good], D[good], model.noise_sigma, model.T_s, poles=out[good]
+            )
         if bm is not None:
             bm = bounded_margin(model, _call(model.bounded, N, [phi, xs, P])[0][:, :, 0], P, good)
     return Evaluation(out, x0, nz, bm)

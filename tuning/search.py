@@ -25,7 +25,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from sensorless.design.poles import max_real, worst_damping
+from sensorless.design.batch import JIT_MIN_POINTS
+from sensorless.design.memo import OwnedMemo
+from sensorless.design.poles import batched_path, charpoly_ready, charpoly_settled, max_real, worst_damping
 from sensorless.tuning.candidates import (
     DAMPING,
     FEASIBILITY_TOL,
@@ -88,8 +90,7 @@ def _margins(
     # the damping and stability points share their point data: evaluate each distinct point once
     Pu, inv = np.unique(cand.P[:, cols], axis=1, return_inverse=True)
     N = Pu.shape[1]
-    e = evaluate(model, np.repeat(thetas, N, axis=0).T, np.tile(Pu, (1, K)))
-    p = e.poles.reshape(K, N, -1)
+    p, bounded = _poles(model, thetas, Pu)
     z = worst_damping(p.reshape(K * N, -1)).reshape(K, N)[:, inv]
     mr = max_real(p.reshape(K * N, -1)).reshape(K, N)[:, inv]
     condition, sigma = cand.condition[cols], cand.sigma[cols]
@@ -97,8 +98,8 @@ def _margins(
     damp = condition == DAMPING
     # damping points: stable (Re < 0) required; stability points: Re <= -sigma
     m[:, cols[damp]] = np.where(np.isfinite(mr[:, damp]), -mr[:, damp] / scale - 1e-9, -np.inf)
-    if e.bounded is not None:  # the family's bounded figures (tuning/model.py), held at the damping points
-        bm = e.bounded.reshape(K, N)[:, inv]
+    if bounded is not None:  # the family's bounded figures (tuning/model.py), held at the damping points
+        bm = bounded[:, inv]
         m[:, cols[damp]] = np.minimum(m[:, cols[damp]], bm[:, damp])
     m[:, cols[~damp]] = np.where(np.isfinite(mr[:, ~damp]), (-mr[:, ~damp] - sigma[~damp]) / scale, -np.inf)
     ncols = sel[cand.condition[sel] == NOISE]
@@ -110,6 +111,65 @@ def _margins(
     worst_z = zd.min(axis=1) if damp.any() else np.zeros(K)
     k = np.argmin(m, axis=1)
     return worst_z, m[np.arange(K), k], k
+
+
+# _poles' rows, per model and distinct points: each candidate's (poles (N, n), bounded margins (N,) or
+# None), keyed on its bytes. The tie-break (tuning/tiebreak.py) starts from the global phase's candidates
+# on the same points (20 400 of its 33 200 points on the README servo's seed law: 0.17 s CPU; 0.25 s on
+# the traction test motor's)
+_ROWS: OwnedMemo[dict[bytes, tuple[np.ndarray, np.ndarray | None]]] = OwnedMemo(4)
+ROWS_POINTS = 100_000  # candidates x points kept per model and points (6.4 MB of poles)
+
+
+def _poles(model: TuningModel, thetas: np.ndarray, Pu: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """(K, N, n) the poles and (K, N) the bounded margins (None: the model has no bounded figures) of
+    each theta (K, n_theta) at the points Pu (whose equilibria do not move with the gains), as one batch
+    gives them. A row kept from an earlier batch is reused where it has the bits this batch would give
+    it: computed by the code every later batch runs (a batch of JIT_MIN_POINTS points at least: design/
+    batch.py's compiled library; and the eigenvalues' too: design/poles.py ``charpoly_settled``), on the
+    eigenvalue path (design/poles.py ``batched_path``) this batch takes."""
+    K, N, n = thetas.shape[0], Pu.shape[1], model.n_x
+    key = repr(Pu.shape).encode() + Pu.tobytes()
+    rows = _ROWS.get(model, key)
+    names = [th.tobytes() for th in thetas]
+    miss = [k for k, b in enumerate(names) if rows is None or b not in rows]
+
+    def batch(ks: list[int]) -> tuple[np.ndarray, np.ndarray | None, int]:
+        th = thetas[ks]
+        e = evaluate(model, np.repeat(th, N, axis=0).T, np.tile(Pu, (1, len(ks))))
+        p = e.poles.reshape(len(ks), N, -1)
+        good = int(np.isfinite(p).all(axis=2).sum())  # the matrices whose eigenvalues were computed
+        return p, None if e.bounded is None else e.bounded.reshape(len(ks), N), good
+
+    if rows is None or len(miss) == K:
+        ready = charpoly_ready(n)
+        p, bm, good = batch(list(range(K)))
+        if K * N >= JIT_MIN_POINTS and batched_path(n, good) and charpoly_settled(n, good, ready):
+            p.flags.writeable = False  # (its rows are kept)
+            if bm is not None:
+                bm.flags.writeable = False
+            keep = rows if rows is not None and (len(rows) + K) * N <= ROWS_POINTS else {}
+            if K * N > ROWS_POINTS:
+                return p, bm
+            keep.update((b, (p[k], None if bm is None else bm[k])) for k, b in enumerate(names))
+            _ROWS.put(model, key, keep)
+        return p, bm
+    new = set(miss)
+    kept_good = sum(
+        int(np.isfinite(rows[b][0]).all(axis=1).sum()) for k, b in enumerate(names) if k not in new
+    )
+    pm, bm, good = batch(miss) if miss else (None, None, 0)
+    if not batched_path(n, kept_good + good) or (good and not batched_path(n, good)):
+        # in one batch every row would take another eigenvalue path than the kept ones or the new ones took
+        p, bm, _ = batch(list(range(K)))
+        return p, bm
+    out = {b: rows[b] for b in names if b in rows}
+    for j, k in enumerate(miss):
+        assert pm is not None
+        out[names[k]] = (pm[j], None if bm is None else bm[j])
+    poles = np.stack([out[b][0] for b in names])
+    bounded = [out[b][1] for b in names]
+    return poles, None if bounded[0] is None else np.stack(bounded)  # type: ignore[arg-type]
 
 
 def rank(

@@ -256,3 +256,33 @@ def test_dumps_is_the_standard_librarys_indented_json():
         dumps({"x": [float("nan")]})
     table = clean({"points": [{"w": 0.1 * k, "poles": [[-1.0 * k, 2.0]], "n": k} for k in range(50)]})
     assert dumps(table) == _json.dumps(table, indent=1, sort_keys=True, allow_nan=False)
+
+
+def test_to_json_is_the_indented_json_of_the_cleaned_document():
+    """``to_json`` cleans while it encodes (design/gain_table.py ``_encode``): its text is
+    ``json.dumps(clean(doc), indent=1, sort_keys=True)`` on what clean changes (numpy values, tuples,
+    non-finite floats, keys other than str) and what it keeps."""
+    import json as _json
+
+    import numpy as np
+    from sensorless.design.gain_table import clean
+
+    nan, inf = float("nan"), float("inf")
+    t = GainTable(
+        drive={"name": "x", "sha256": "0" * 64},
+        law="schedule",
+        gains={"lambda1": np.array([1.0, np.nan, 2.5]), "lambda2": (0.5, -0.0)},
+        envelope={"speeds": np.float64(3.25), "n": np.int64(7), 2: "two"},
+        points=[{"poles": [[-1.0, 0.0], [nan, inf]], "damping": -inf, "w": [0.0, -0.0, 1e-300]}],
+        summary={"ok": True, "none": None, "worst": [1, 2.5, nan], "nested": {"t": (np.float32(1.5),)}},
+    )
+    doc = {
+        "format": "sensorless-gain-table/2",
+        "drive": t.drive,
+        "law": t.law,
+        "gains": t.gains,
+        "envelope": t.envelope,
+        "points": t.points,
+        "summary": t.summary,
+    }
+    assert t.to_json() == _json.dumps(clean(doc), indent=1, sort_keys=True, allow_nan=False) + "\n"

@@ -1,0 +1,79 @@
+"""What the tuner reuses gives the bits it would compute: the global phase's candidate rows in the
+tie-break's searches (tuning/search.py ``_poles``), and the tuner's poles deciding stability in the noise
+figure (design/noise.py ``noise_rms``). On the example servo's law (16), its default envelope."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sensorless.design.drive import load_drive
+from sensorless.design.noise import noise_rms
+from sensorless.design.poles import eigvals_batched
+from sensorless.tuning import search
+from sensorless.tuning.conditions import candidates
+from sensorless.tuning.family import tunable_for
+from sensorless.tuning.model import _call, evaluate
+from sensorless.tuning.result import figures
+
+SERVO = Path(__file__).resolve().parents[2] / "docs" / "examples" / "motors" / "servo400.toml"
+
+
+@pytest.fixture(scope="module")
+def servo():
+    drive = load_drive(str(SERVO))
+    tunable = tunable_for(drive, "speed-dependent")
+    settings = tunable.settings(drive)
+    model = tunable.build(drive, settings, None)
+    W, T = settings.envelope.grid()
+    scale = float(np.abs(figures(model, np.asarray(model.theta0, float), W, T).poles).max())
+    cand = candidates(model, settings, W, T, drive.w_base, scale, None)
+    return model, settings, cand, scale
+
+
+def test_kept_candidate_rows_give_the_bits_of_a_fresh_batch(servo, monkeypatch):
+    model, _, cand, scale = servo
+    starts = np.clip(np.asarray(model.starts(), float), model.lower, model.upper)
+    search._ROWS.clear()
+    first = search._margins(model, starts, cand, scale, None)  # the global phase's batch: kept
+    # the tie-break's pool: most of the same gains in another order, and some new ones
+    rng = np.random.default_rng(0)
+    new = starts[:5] * np.array([1.01, 0.99])
+    pool = np.vstack([starts[rng.permutation(len(starts))[:60]], new])
+    points: list[int] = []
+
+    def counted(m, theta, P, noise=False):
+        points.append(P.shape[1])
+        return evaluate(m, theta, P, noise)
+
+    monkeypatch.setattr(search, "evaluate", counted)
+    reused = search._margins(model, pool, cand, scale, None)
+    assert sum(points) < len(pool) * len(cand.labels) / 2  # only the new gains were evaluated
+    search._ROWS.clear()
+    fresh = search._margins(model, pool, cand, scale, None)
+    for a, b in zip(reused, fresh, strict=True):
+        assert a.tobytes() == b.tobytes()
+    again = search._margins(model, starts, cand, scale, None)  # the first batch from the kept rows
+    for a, b in zip(first, again, strict=True):
+        assert a.tobytes() == b.tobytes()
+    search._ROWS.clear()
+
+
+def test_the_tuners_poles_decide_stability_as_lapack_does(servo):
+    model, settings, _, _ = servo
+    Wd, Td = settings.envelope.grid(4, 4)
+    P = model.make_points(Wd, Td, model.nominal_estimate)
+    theta = np.asarray(model.theta0, float)
+    x0 = model.equilibrium(theta, P)
+    phi = _call(model.local, P.shape[1], [theta, P])[0][:, :, 0].T
+    A = _call(model.linearization, P.shape[1], [phi, x0, P])[0]
+    B, C, D = _call(model.noise, P.shape[1], [phi, x0, P])
+    # some unstable matrices too: the same ones mirrored (every pole's real part negated)
+    A2 = np.concatenate([A, -A])
+    B2, C2, D2 = (np.concatenate([X, X]) for X in (B, C, D))
+    poles = eigvals_batched(A2)
+    with_poles = noise_rms(A2, B2, C2, D2, model.noise_sigma, model.T_s, poles=poles)
+    without = noise_rms(A2, B2, C2, D2, model.noise_sigma, model.T_s)
+    assert np.isinf(without).any() and np.isfinite(without).any()
+    assert with_poles.tobytes() == without.tobytes()
