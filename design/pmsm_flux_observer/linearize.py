@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
+from sensorless.design.batch import evaluate_batch
 from sensorless.design.discrete import (
     SampledLoop,
     eigenvalues_by_size,
@@ -215,6 +216,25 @@ def sampled_plant(drive: FluxObserverDrive, W: np.ndarray, T: np.ndarray) -> np.
     points, at = np.unique(np.column_stack([W, T]), axis=0, return_inverse=True)
     i_r = pmsm_steady_current(points[:, 1], pmsm_plant(m))
     return pmsm_zoh_plant(m.vector(), points[:, 0], i_r, drive.observer.T_obs)[at.ravel()]
+
+
+@functools.cache
+def _steady_voltage() -> ca.Function:
+    """(w, T_e, plant) -> the rotor-frame steady voltage u_r of :func:`rotor_frame_loop`'s motor."""
+    w, T_e, m = ca.SX.sym("w"), ca.SX.sym("T_e"), ca.SX.sym("plant", 5)
+    return ca.Function("pmsm_steady_voltage", [w, T_e, m], [pmsm_steady(w, T_e, m)[1]])
+
+
+def gain_voltage(drive: FluxObserverDrive, W: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(N,) the smaller of the voltage amplitudes |u| the observer gain's factor max(k_slow, |u|/u_ref)
+    (VESC's schedule, symbolic ``observer_gain``) reads at the points: the continuous loop's steady
+    voltage (:func:`rotor_frame_loop`) and the voltage the sampled loop holds over the period
+    (:func:`sampled_loop`'s stored u_prev, of :func:`sampled_plant`). Neither depends on the observer's
+    state or estimates, so where k_slow is below |u|/u_ref at both, the factor is that of |u|, the same
+    number for every such k_slow."""
+    u_r = evaluate_batch(_steady_voltage(), W.size, [W, T, pmsm_plant(drive.motor)])[0][:, :, 0]
+    u_d = sampled_plant(drive, W, T)[:, 2:4]
+    return np.minimum(np.hypot(u_r[:, 0], u_r[:, 1]), np.hypot(u_d[:, 0], u_d[:, 1]))
 
 
 def sampled_fixed_points(
