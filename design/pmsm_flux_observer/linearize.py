@@ -20,6 +20,7 @@ judged by simulation.
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -347,6 +348,30 @@ def linearize(
         law=gains.law,
         observer_decay=own,
     )
+
+
+def sampled_angle_errors(
+    drive: FluxObserverDrive, gains: GainSet, w: Any, torque: Any, estimates: Sequence[Mapping[str, float]]
+) -> np.ndarray:
+    """(len(estimates), N) the sampled observer's steady angle error theta - theta_hat [rad] at speeds
+    ``w`` x torques (broadcast together) under each of the ``estimates`` (runtime parameter overrides,
+    as :func:`linearize`'s): its ``theta_err_discrete`` of each, in one batch (each point's numbers
+    are its own: the same as one :func:`linearize` per estimate, without its continuous poles)."""
+    o = drive.observer
+    if o.correction == "box-clamp":
+        linearize(drive, gains, w, torque)  # its CapabilityError
+    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
+    setup = runtime_setup(drive, gains)
+    assert setup.schedule is not None  # the family's runtime set-up always has its schedule (gains.py)
+    P = np.repeat(
+        np.column_stack([setup.observer.pack_params({**setup.params, **e}) for e in estimates]), W.size, 1
+    )
+    Wk, Tk = np.tile(W, len(estimates)), np.tile(T, len(estimates))
+    law, rule, adapt = setup.schedule.law, o.inductance_rule, o.lambda_adaptation
+    loop = rotor_frame_loop("gradient", rule, adapt, law)
+    y0 = equilibrium_points(loop, Wk, Tk, motor_vector(drive), with_gain(P, setup.gain)).x
+    err = discrete_analysis(drive, sampled_loop("gradient", rule, adapt, law), y0, Wk, Tk, P, setup.gain)[2]
+    return err.reshape(len(estimates), W.size)
 
 
 def _observer_decay(A: np.ndarray, poles: np.ndarray) -> np.ndarray:

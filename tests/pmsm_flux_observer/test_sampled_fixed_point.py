@@ -55,3 +55,19 @@ def test_points_without_a_continuous_equilibrium_are_left_out_and_the_others_unc
     assert np.isnan(y[[1, 3]]).all() and np.isfinite(y[[0, 2, 4]]).all()
     np.testing.assert_array_equal(y, y_all)
     np.testing.assert_array_equal(Jd, Jd_all)
+
+
+def test_the_angle_errors_under_several_estimates_in_one_batch_are_each_linearizations():
+    """sampled_angle_errors (the report's bias curves) runs the estimates in one batch: each row the
+    ``theta_err_discrete`` of the family's linearization under that estimate, bit for bit."""
+    from sensorless.design.pmsm_flux_observer.linearize import sampled_angle_errors
+
+    d = load_drive("hubmotor48")
+    fam, e = family_of(d), d.estimate
+    gains = fam.gains(d)
+    w = np.array([0.2, 0.5, 0.8, 1.0]) * d.w_base
+    estimates = [{"R_s": 1.3 * e.R_s}, {"psi_pm": 0.9 * e.psi_pm, "L_d": 1.2 * e.L_d, "L_q": 1.2 * e.L_q}]
+    errs = sampled_angle_errors(d, gains, w, d.T_N, estimates)
+    assert errs.shape == (2, w.size) and np.isfinite(errs).any()
+    for err, est in zip(errs, estimates, strict=True):
+        np.testing.assert_array_equal(err, fam.linearize(d, gains, w, d.T_N, estimate=est).theta_err_discrete)

@@ -124,7 +124,7 @@ def _points(
         P = np.repeat(rows.T, npt, axis=1)[:, idx]
         G = np.repeat(gains[None, :], npt, axis=1)[:, idx]
         Wn, Tn = np.tile(W, n_cand * nc)[idx], np.tile(T, n_cand * nc)[idx]
-        # each distinct observer at each point once (the voltage-scaled grid's slow gains: 56 % of its
+        # each distinct observer at each point once (the voltage-scaled grid's slow gains: 62 % of its
         # points), in the layout's order; the others take its numbers
         u, back = _distinct_columns(np.vstack([_slow_gain_unread(drive, P, W, T, idx % npt), G, Wn, Tn]))
         k = u.size
