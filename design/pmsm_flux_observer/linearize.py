@@ -20,11 +20,13 @@ judged by simulation.
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
+from sensorless.design.batch import evaluate_batch
 from sensorless.design.discrete import (
     SampledLoop,
     eigenvalues_by_size,
@@ -185,17 +187,9 @@ def discrete_analysis(
     [rad/s] for that current-sensor noise (design/noise.py, the per-sample propagation through the
     one-step Jacobian; inf where unstable). With ``observer_decay``, last: (N,) the decay rate [1/s] of
     the observer's own modes, without the PLL's (``_observer_decay``, sampled)."""
-    m = drive.motor
     T_obs = drive.observer.T_obs
-    # the true motor's samples depend on the operating point alone: computed once per distinct (speed,
-    # torque), since a tuner's assessment repeats the envelope for every candidate and estimate corner
-    # (each point's matrix exponential is its own: the same numbers as point by point)
-    points, at = np.unique(np.column_stack([W, T]), axis=0, return_inverse=True)
-    i_r = pmsm_steady_current(points[:, 1], pmsm_plant(m))
-    plant = pmsm_zoh_plant(m.vector(), points[:, 0], i_r, T_obs)[at.ravel()]
-    # damped: the continuous equilibrium may lie outside the sampled one's Newton basin near a slow
-    # observer mode (hubmotor48 at rated load near 1 p.u.: a full step landed on another fixed point)
-    y, Jd = fixed_points(loop, y0, W, plant, p, gain, iterations=DAMPED_STEPS, damped=True)
+    plant = sampled_plant(drive, W, T)
+    y, Jd = sampled_fixed_points(loop, y0, W, plant, p, gain)
     z = eigenvalues_by_size(Jd)
     poles = poles_by_size(z, T_obs, loop.n_y)[0]
     sens = sensitivities(loop, y, W, plant, p, gain)
@@ -211,6 +205,63 @@ def discrete_analysis(
     C[0, n - 2] = C[1, n - 1] = 1.0  # delta = theta - theta_pll, w_pll
     noise = noise_rms_periodic(Jd[:, None], sens["Jm"][:, None, :, 0:2], C, sigma)
     return poles, z, err, noise, *own
+
+
+def sampled_plant(drive: FluxObserverDrive, W: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(N, 4) the sampled loop's plant vectors (design/discrete.py ``pmsm_zoh_plant``: the true motor's
+    MTPA current and the voltage that holds it under zero-order hold) at speeds W, torques T. They
+    depend on the operating point alone: computed once per distinct (speed, torque), since a tuner's
+    assessment repeats the envelope for every candidate and estimate corner (each point's matrix
+    exponential is its own: the same numbers as point by point)."""
+    m = drive.motor
+    points, at = np.unique(np.column_stack([W, T]), axis=0, return_inverse=True)
+    i_r = pmsm_steady_current(points[:, 1], pmsm_plant(m))
+    return pmsm_zoh_plant(m.vector(), points[:, 0], i_r, drive.observer.T_obs)[at.ravel()]
+
+
+@functools.cache
+def _steady_voltage() -> ca.Function:
+    """(w, T_e, plant) -> the rotor-frame steady voltage u_r of :func:`rotor_frame_loop`'s motor."""
+    w, T_e, m = ca.SX.sym("w"), ca.SX.sym("T_e"), ca.SX.sym("plant", 5)
+    return ca.Function("pmsm_steady_voltage", [w, T_e, m], [pmsm_steady(w, T_e, m)[1]])
+
+
+def gain_voltage(drive: FluxObserverDrive, W: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(N,) the smaller of the voltage amplitudes |u| the observer gain's factor max(k_slow, |u|/u_ref)
+    (VESC's schedule, symbolic ``observer_gain``) reads at the points: the continuous loop's steady
+    voltage (:func:`rotor_frame_loop`) and the voltage the sampled loop holds over the period
+    (:func:`sampled_loop`'s stored u_prev, of :func:`sampled_plant`). Neither depends on the observer's
+    state or estimates, so where k_slow is below |u|/u_ref at both, the factor is that of |u|, the same
+    number for every such k_slow."""
+    u_r = evaluate_batch(_steady_voltage(), W.size, [W, T, pmsm_plant(drive.motor)])[0][:, :, 0]
+    u_d = sampled_plant(drive, W, T)[:, 2:4]
+    return np.minimum(np.hypot(u_r[:, 0], u_r[:, 1]), np.hypot(u_d[:, 0], u_d[:, 1]))
+
+
+def sampled_fixed_points(
+    loop: SampledLoop, y0: np.ndarray, W: np.ndarray, plant: np.ndarray, p: np.ndarray, gain: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """(fixed points y (N, n_y), one-step Jacobians there (N, n_y, n_y)) of the sampled observer by
+    design/discrete.py's damped Newton from the continuous equilibria ``y0`` (NaN rows: none found);
+    ``plant`` (N, n_plant), ``p`` and ``gain`` one vector or one column per point.
+
+    Damped: the continuous equilibrium may lie outside the sampled one's Newton basin near a slow
+    observer mode (hubmotor48 at rated load near 1 p.u.: a full step landed on another fixed point).
+    Only the points with a start are iterated: Newton gives a NaN start NaN, but iterates it from 0
+    first, and such points took all DAMPED_STEPS iterations (two thirds of the hub drive's Newton
+    evaluations in its tune); each point's iteration is its own, so the others' numbers are the same."""
+    start = np.isfinite(y0).all(axis=1)
+    if start.all():
+        return fixed_points(loop, y0, W, plant, p, gain, iterations=DAMPED_STEPS, damped=True)
+    n, n_y = y0.shape
+    y, Jd = np.full((n, n_y), np.nan), np.full((n, n_y, n_y), np.nan)
+    if start.any():
+        p_, g_ = (a[:, start] if a.ndim == 2 and a.shape[1] == n else a for a in map(np.asarray, (p, gain)))
+        at = plant[start] if np.ndim(plant) == 2 else plant
+        y[start], Jd[start] = fixed_points(
+            loop, y0[start], W[start], at, p_, g_, iterations=DAMPED_STEPS, damped=True
+        )
+    return y, Jd
 
 
 def _sampled_observer_decay(Jd: np.ndarray, poles: np.ndarray, T: float) -> np.ndarray:
@@ -297,6 +348,30 @@ def linearize(
         law=gains.law,
         observer_decay=own,
     )
+
+
+def sampled_angle_errors(
+    drive: FluxObserverDrive, gains: GainSet, w: Any, torque: Any, estimates: Sequence[Mapping[str, float]]
+) -> np.ndarray:
+    """(len(estimates), N) the sampled observer's steady angle error theta - theta_hat [rad] at speeds
+    ``w`` x torques (broadcast together) under each of the ``estimates`` (runtime parameter overrides,
+    as :func:`linearize`'s): its ``theta_err_discrete`` of each, in one batch (each point's numbers
+    are its own: the same as one :func:`linearize` per estimate, without its continuous poles)."""
+    o = drive.observer
+    if o.correction == "box-clamp":
+        linearize(drive, gains, w, torque)  # its CapabilityError
+    W, T = (np.ravel(a).astype(float) for a in np.broadcast_arrays(w, torque))
+    setup = runtime_setup(drive, gains)
+    assert setup.schedule is not None  # the family's runtime set-up always has its schedule (gains.py)
+    P = np.repeat(
+        np.column_stack([setup.observer.pack_params({**setup.params, **e}) for e in estimates]), W.size, 1
+    )
+    Wk, Tk = np.tile(W, len(estimates)), np.tile(T, len(estimates))
+    law, rule, adapt = setup.schedule.law, o.inductance_rule, o.lambda_adaptation
+    loop = rotor_frame_loop("gradient", rule, adapt, law)
+    y0 = equilibrium_points(loop, Wk, Tk, motor_vector(drive), with_gain(P, setup.gain)).x
+    err = discrete_analysis(drive, sampled_loop("gradient", rule, adapt, law), y0, Wk, Tk, P, setup.gain)[2]
+    return err.reshape(len(estimates), W.size)
 
 
 def _observer_decay(A: np.ndarray, poles: np.ndarray) -> np.ndarray:

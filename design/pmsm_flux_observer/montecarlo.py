@@ -19,16 +19,16 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from sensorless.design.discrete import discrete_poles, fixed_points, pmsm_zoh_plant
+from sensorless.design.discrete import discrete_poles, pmsm_zoh_plant
 from sensorless.design.family import CapabilityError, GainSet
 from sensorless.design.montecarlo import Uncertain
 from sensorless.design.montecarlo import perturbed as shared_perturbed
 from sensorless.design.pmsm_drive import startup_values
 from sensorless.design.pmsm_flux_observer.gains import runtime_setup
 from sensorless.design.pmsm_flux_observer.linearize import (
-    DAMPED_STEPS,
     FluxLinearization,
     rotor_frame_loop,
+    sampled_fixed_points,
     sampled_loop,
     with_gain,
 )
@@ -128,7 +128,7 @@ def linearize_draws(
     sampled = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, setup.schedule.law)
     zoh = pmsm_zoh_plant(motors, W, i_r, o.T_obs)
     y0 = np.where(ok[:, None], eq.x, np.nan)
-    _, Jd = fixed_points(sampled, y0, W, zoh, rep(P), rep(gain), iterations=DAMPED_STEPS, damped=True)
+    _, Jd = sampled_fixed_points(sampled, y0, W, zoh, rep(P), rep(gain))
     poles_d = discrete_poles(Jd, o.T_obs, sampled.n_y)[0]
     if not complete:
         bad = np.isnan(poles_d).all(axis=1).reshape(n_d, n_p).any(axis=1)

@@ -7,7 +7,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.family import GainSet
-from sensorless.design.pmsm_flux_observer import FAMILY, corner_estimate
+from sensorless.design.pmsm_flux_observer import corner_estimate
+from sensorless.design.pmsm_flux_observer.linearize import sampled_angle_errors
 from sensorless.reports.figure_layout import lay_out
 from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, corners
 
@@ -62,16 +63,11 @@ def bias_curves(
     for sign in (-1, 1):
         r = 1 + sign * settings.errors["L"]
         cases[f"L {sign * 100 * settings.errors['L']:+g} %"] = {"L_d": e.L_d * r, "L_q": e.L_q * r}
-    curves = {}
-    for label, est in cases.items():
-        err = FAMILY.linearize(drive, gains, s, T, estimate=est).theta_err_discrete
-        assert err is not None  # the family's linearization is of the sampled observer
-        curves[label] = np.degrees(err)
+    worst_cases = [corner_estimate(e, c) for c in corners(settings.errors)[1:]]
+    errs = sampled_angle_errors(drive, gains, s, T, [*cases.values(), *worst_cases])  # one batch
+    curves = {label: np.degrees(err) for label, err in zip(cases, errs, strict=False)}
     worst = np.zeros(s.size)
-    for c in corners(settings.errors)[1:]:
-        est = corner_estimate(e, c)
-        err = FAMILY.linearize(drive, gains, s, T, estimate=est).theta_err_discrete
-        assert err is not None
+    for err in errs[len(cases) :]:
         worst = np.fmax(worst, np.abs(np.degrees(err)))
     return s / drive.w_base, curves, worst
 

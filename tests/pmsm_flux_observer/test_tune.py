@@ -176,3 +176,37 @@ def test_schedule_is_held_below_its_lowest_holding_speed(drive, outrunner_schedu
     assert first > 0  # the outrunner has speeds where no gain holds
     ks = outrunner_schedule.table.gains["observer_gain"]
     assert ks[:first] == [ks[first]] * first and ks[first] > k_grid(drive)[0]
+
+
+def test_candidates_that_differ_in_a_slow_gain_the_observer_does_not_read_are_judged_as_alone(monkeypatch):
+    """assess evaluates each distinct observer at each point once: where VESC's factor max(k_slow,
+    |u|/u_ref) is the voltage's, candidates that differ in the slow gain alone are one observer (fewer
+    points evaluated than alone). Judged together, each candidate gets the numbers it gets alone, bit
+    for bit; and the slow gain still counts where the factor reads it (the candidates differ there)."""
+    from sensorless.design.family import GainSet
+    from sensorless.tuning.pmsm_flux_observer import assessment
+
+    d = load_drive("hubmotor48")
+    d = dataclasses.replace(
+        d, envelope=dataclasses.replace(d.envelope, rule=dataclasses.replace(d.envelope.rule, count=4))
+    )
+    g = {"foc_observer_gain": 1.2e5, "foc_pll_kp": 1250.0, "foc_pll_ki": 1250.0**2 / 4}  # holds at the top
+    cands = [
+        GainSet("voltage-scaled", {**g, "foc_observer_gain_slow": s}, "candidate") for s in (0.01, 0.1, 0.5)
+    ]
+    s = FluxTuneSettings()
+    points = []
+    analysis = assessment.discrete_analysis
+    monkeypatch.setattr(
+        assessment, "discrete_analysis", lambda *a, **kw: points.append(len(a[2])) or analysis(*a, **kw)
+    )
+    assessment._KEPT.clear()  # no candidate's numbers from an earlier test
+    together = assess(d, cands, s)
+    for c, cand in enumerate(cands):
+        assessment._KEPT.clear()
+        alone = assess(d, [cand], s)
+        for f in dataclasses.fields(alone):
+            np.testing.assert_array_equal(getattr(together, f.name)[c], getattr(alone, f.name)[0])
+    assert points[0] < sum(points[1:])  # points evaluated together, and each candidate's alone
+    assert together.holds.any(axis=1).all()
+    assert not np.array_equal(together.bias[0], together.bias[2])
