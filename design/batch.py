@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import casadi as ca
 import numpy as np
@@ -161,3 +161,34 @@ def evaluate_batch(
 def mapped(fn: ca.Function, n: int) -> ca.Function:
     """``fn.map(n)`` (serial), cached: building a map costs as much as evaluating many points."""
     return _mapped(fn, n, 1)
+
+
+def bound_call(
+    fn: ca.Function, args: Sequence[np.ndarray]
+) -> tuple[Callable[[], None], list[np.ndarray]] | None:
+    """``fn`` bound to the memory of ``args`` through CasADi's buffer interface: (a function that
+    evaluates ``fn`` on the arguments' current values, its results). Each argument is a float array the
+    caller keeps and writes between calls, its input's entries in column-major order (a (rows, cols)
+    input as a C-ordered (cols, rows) array); each result likewise, a new (cols, rows) array. The same
+    Function on the same numbers as calling it, without converting every argument and result through
+    casadi.DM (which costs more than evaluating a large compiled Function). None where an input or
+    output is not dense or an argument's size is not its input's."""
+    if len(args) != fn.n_in() or not all(
+        fn.sparsity_in(i).is_dense() and a.dtype == float and a.flags.c_contiguous and a.size == fn.nnz_in(i)
+        for i, a in enumerate(args)
+    ):
+        return None
+    if not all(fn.sparsity_out(j).is_dense() for j in range(fn.n_out())):
+        return None
+    res = [np.empty((fn.size2_out(j), fn.size1_out(j))) for j in range(fn.n_out())]
+    buf, run = fn.buffer()
+    for i, a in enumerate(args):
+        buf.set_arg(i, memoryview(a.reshape(-1)))
+    for j, r in enumerate(res):
+        buf.set_res(j, memoryview(r.reshape(-1)))
+    held = (buf, tuple(args), tuple(res))  # the buffer reads and writes their memory: kept while it lives
+
+    def call(held: tuple = held) -> None:
+        run()
+
+    return call, res
