@@ -26,6 +26,8 @@ from sensorless.design.family import Drive, GainSet, ObserverFamily, require
 from sensorless.reports.codegen.c_graph import Node
 
 if TYPE_CHECKING:  # typed by name only
+    from collections.abc import Callable
+
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -213,6 +215,37 @@ def _states(loop: ca.Function, n: int, native: bool = True) -> ca.Function:
     return compiled(fn) if native else fn
 
 
+def _chunks(fn: ca.Function, z0: np.ndarray, const: list) -> Callable[[np.ndarray], np.ndarray]:
+    """A function of one chunk's inputs V (columns are samples, at most CHUNK) -> the loop's states
+    after each of them, the chain carried on from ``z0`` call to call. The last chunk is padded by
+    holding its last inputs. Through CasADi's buffer interface between numpy arrays where ``fn`` takes
+    them so (design/batch.py ``bound_call``: the same bits, without converting every chunk through
+    casadi.DM, a third of a probe run's CPU), else as a Function call."""
+    from sensorless.design.batch import bound_call
+
+    chunk = fn.size2_in(1)
+    z = np.array(z0, float).reshape(-1)
+    Vt = np.empty((chunk, fn.size1_in(1)))  # column-major V
+    bound = bound_call(fn, [z, Vt, *(np.array(c, float).reshape(-1) for c in const)])
+
+    def run(V: np.ndarray) -> np.ndarray:
+        k = V.shape[1]
+        if bound is None:
+            if k < chunk:
+                V = np.hstack([V, np.repeat(V[:, -1:], chunk - k, axis=1)])
+            zs = np.asarray(fn(z, V, *const))[:, :k]
+        else:
+            call, (zt,) = bound
+            Vt[:k] = V.T
+            Vt[k:] = V[:, -1]
+            call()
+            zs = zt[:k].T
+        z[:] = zs[:, -1]
+        return zs
+
+    return run
+
+
 def probe_runs(
     drive: Drive, gains: GainSet, scenarios: list[Scenario], compile: bool = True, analysed: bool = False
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -237,16 +270,12 @@ def probe_runs(
         n_m = ls.loop.size1_in(0) - len(ls.z0)
         z = np.concatenate([ls.z0, np.zeros(n_m)])
         fn = _states(ls.loop, CHUNK, compile)
-        cols = [z[:, None]]
+        z_all = np.empty((len(z), n + 1))
+        z_all[:, 0] = z
+        run = _chunks(fn, z, [ls.q, ls.p_obs, ls.gain])
         for k0 in range(0, n, CHUNK):
             V = ls.inputs[:, k0 : k0 + CHUNK]
-            k = V.shape[1]
-            if k < CHUNK:
-                V = np.hstack([V, np.repeat(V[:, -1:], CHUNK - k, axis=1)])
-            zs = np.asarray(fn(z, V, ls.q, ls.p_obs, ls.gain))[:, :k]
-            cols.append(zs)
-            z = zs[:, -1]
-        z_all = np.hstack(cols)
+            z_all[:, k0 + 1 : k0 + 1 + V.shape[1]] = run(V)
         runs.setdefault(observer, []).append((z_all[-(n_x + n_m) : -n_m, :-1], z_all[-n_m:, 1:]))
     return {k: (np.hstack([x for x, _ in v]), np.hstack([m for _, m in v])) for k, v in runs.items()}
 
