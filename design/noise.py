@@ -80,7 +80,12 @@ def noise_rms(
 
 
 def noise_rms_periodic(
-    F: np.ndarray, G: np.ndarray, C: np.ndarray, sigma: float, steps: np.ndarray | None = None
+    F: np.ndarray,
+    G: np.ndarray,
+    C: np.ndarray,
+    sigma: float,
+    steps: np.ndarray | None = None,
+    rho: np.ndarray | None = None,
 ) -> np.ndarray:
     """(N, n_y) RMS over one period of ``y_k = C x_k`` for ``x_(k+1) = F_k x_k + G_k n_k`` with
     independent per-sample noise of ``sigma`` per input: F (N, M, n, n), G (N, M, n, m), C (n_y, n).
@@ -89,7 +94,9 @@ def noise_rms_periodic(
     W the noise accumulated over the window), then propagates through the window; the variance is
     the mean over its M samples. inf where the monodromy Phi is not stable (|z| >= 1).
     ``steps`` (N,): each point's period, its first ``steps`` samples (the rest padding: F = I, G = 0,
-    left out of the mean); default M for all."""
+    left out of the mean); default M for all. ``rho`` (N,): the monodromy's spectral radius where the
+    caller has computed it with the same eigenvalue routine (a one-step window, M = 1: the largest |z| of
+    design/discrete.py ``eigenvalues_by_size`` of the same F), instead of computing it again."""
     N, M, n, _ = F.shape
     steps = np.full(N, M) if steps is None else np.asarray(steps)
     out = np.full((N, C.shape[0]), np.nan)
@@ -101,7 +108,7 @@ def noise_rms_periodic(
     for k in range(M):
         Phi = f[:, k] @ Phi
         W = f[:, k] @ W @ f[:, k].transpose(0, 2, 1) + sigma**2 * g[:, k] @ g[:, k].transpose(0, 2, 1)
-    rho = np.abs(eigvals_finite(Phi)).max(axis=1)
+    rho = np.abs(eigvals_finite(Phi)).max(axis=1) if rho is None else np.where(ok, rho, 0.0)
     ok &= np.isfinite(rho)  # the product overflowed: no noise figure
     stable = ok & (rho < 1)
     out[ok & ~stable] = np.inf

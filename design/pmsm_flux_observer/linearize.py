@@ -203,7 +203,8 @@ def discrete_analysis(
     n = loop.n_y
     C = np.zeros((2, n))
     C[0, n - 2] = C[1, n - 1] = 1.0  # delta = theta - theta_pll, w_pll
-    noise = noise_rms_periodic(Jd[:, None], sens["Jm"][:, None, :, 0:2], C, sigma)
+    # the one-step window's monodromy is Jd: its spectral radius is z, from the same eigenvalues
+    noise = noise_rms_periodic(Jd[:, None], sens["Jm"][:, None, :, 0:2], C, sigma, rho=z)
     return poles, z, err, noise, *own
 
 
