@@ -191,8 +191,10 @@ def _call(fn: ca.Function, n: int, args: list[np.ndarray]) -> list[np.ndarray]:
 
 
 # fixed_equilibria's memo: the equilibria of points where they do not move with the gains, per model and
-# points (a tune evaluates the same envelope and dense grids for hundreds of candidate gains)
+# points (a tune evaluates the same envelope and dense grids for hundreds of candidate gains); point sets
+# up to FIXED_X0_POINTS (a key of 6 rows: 0.8 MB)
 _FIXED_X0: OwnedMemo[np.ndarray] = OwnedMemo(32)
+FIXED_X0_POINTS = 16384
 
 
 def _period(P: np.ndarray) -> int:
@@ -219,7 +221,8 @@ def fixed_equilibria(model: TuningModel, theta: np.ndarray, P: np.ndarray) -> np
     if x is None:
         x = np.array(model.equilibrium(theta if theta.ndim == 1 else theta[:, :n], base), float)
         x.flags.writeable = False
-        _FIXED_X0.put(model, key, x)
+        if n <= FIXED_X0_POINTS:
+            _FIXED_X0.put(model, key, x)
     return np.tile(x, (1, N // n))
 
 
