@@ -39,10 +39,10 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from sensorless.design.batch import evaluate_batch
+from sensorless.design.batch import evaluate_batch, settled
 from sensorless.design.memo import OwnedMemo
 from sensorless.design.noise import noise_rms
-from sensorless.design.poles import eigvals_batched, max_real, worst_damping
+from sensorless.design.poles import batched_path, charpoly_ready, eigvals_batched, max_real, worst_damping
 
 
 @dataclass(frozen=True, eq=False)  # identity-hashed: Functions are cached per model
@@ -171,19 +171,70 @@ def _bucket(n: int) -> int:
 
 def _call(fn: ca.Function, n: int, args: list[np.ndarray]) -> list[np.ndarray]:
     """Outputs of ``fn`` at n points as arrays (n, rows, cols): the batched path of design/batch.py
-    (numpy buffers, JIT for large batches), padded to a bucket size by repeating the last point."""
+    (numpy buffers, JIT for large batches, maps of a few bucket sizes). Padded to a bucket size by
+    repeating the last point until ``fn`` is compiled for good (design/batch.py ``settled``): the padding
+    counts towards the points that switch it from CasADi's VM to the compiled library, whose last bits
+    may differ; from then on a point's bits do not depend on its batch, and padding is only work."""
+    fn = _dense(fn)
     m = _bucket(n)
-    if m > n:
-        padded = []
-        for i, a in enumerate(args):
-            a = np.asarray(a, float)
-            rows = fn.size1_in(i)
-            if a.size != rows:  # one column per point: repeat the last
-                a = a.reshape(rows, n)
-                a = np.concatenate([a, np.repeat(a[:, -1:], m - n, axis=1)], axis=1)
-            padded.append(a)
-        args = padded
-    return [o[:n] for o in evaluate_batch(_dense(fn), m, args)]
+    if m == n or settled(fn):
+        return evaluate_batch(fn, n, args)
+    padded = []
+    for i, a in enumerate(args):
+        a = np.asarray(a, float)
+        rows = fn.size1_in(i)
+        if a.size != rows:  # one column per point: repeat the last
+            a = a.reshape(rows, n)
+            a = np.concatenate([a, np.repeat(a[:, -1:], m - n, axis=1)], axis=1)
+        padded.append(a)
+    return [o[:n] for o in evaluate_batch(fn, m, padded)]
+
+
+# fixed_equilibria's memo: the equilibria of points where they do not move with the gains, per model and
+# points (a tune evaluates the same envelope and dense grids for hundreds of candidate gains); point sets
+# up to FIXED_X0_POINTS (a key of 6 rows: 0.8 MB)
+_FIXED_X0: OwnedMemo[np.ndarray] = OwnedMemo(32)
+FIXED_X0_POINTS = 16384
+
+
+def _period(P: np.ndarray) -> int:
+    """The smallest n such that the columns of P (N of them) are its first n repeated (``np.tile``: a
+    batch of K candidates on the same points), or N."""
+    N = P.shape[1]
+    again = np.flatnonzero(np.all(P == P[:, :1], axis=0))[1:9]  # a few tries: most batches repeat or not
+    for n in again:
+        if N % n == 0 and np.array_equal(P[:, n:], P[:, :-n]):
+            return int(n)
+    return N
+
+
+def fixed_equilibria(model: TuningModel, theta: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(n_x, N) the equilibria at points P where none moves with the gains (``fixed_equilibrium`` true at
+    all of them): each distinct set of points solved once per model (the equilibrium of such a point is
+    the same whatever the gains or the batch: the closed form at exact estimates, on the VM or compiled
+    alike), a batch of candidates on the same points (``np.tile``) solving them once."""
+    N = P.shape[1]
+    n = _period(P)
+    base = np.ascontiguousarray(P[:, :n], dtype=float)
+    key = repr(base.shape).encode() + base.tobytes()
+    x = _FIXED_X0.get(model, key)
+    if x is None:
+        x = np.array(model.equilibrium(theta if theta.ndim == 1 else theta[:, :n], base), float)
+        x.flags.writeable = False
+        if n <= FIXED_X0_POINTS:
+            _FIXED_X0.put(model, key, x)
+    return np.tile(x, (1, N // n))
+
+
+def _eigvals(n: int, A: np.ndarray, extra: int) -> np.ndarray:
+    """Eigenvalues of A (N, n, n) as a batch with ``extra`` copies of its last matrix gives them
+    (evaluate's padding): without the copies where that runs the same code (design/poles.py: the same
+    path either way, and on the batched one the characteristic polynomials compiled for good)."""
+    N = A.shape[0]
+    batched = batched_path(n, N)
+    if extra and (batched != batched_path(n, N + extra) or (batched and not charpoly_ready(n))):
+        return eigvals_batched(np.concatenate([A, np.repeat(A[-1:], extra, axis=0)]))[:N]
+    return eigvals_batched(A)
 
 
 def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool = False) -> Evaluation:
@@ -198,24 +249,34 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
             np.zeros((model.n_x, 0)),
             np.zeros((0, n_out)) if noise else None,
         )
-    # Every batched call below (equilibrium, local data, linearization, characteristic polynomials)
-    # builds a mapped Function per batch size, ~2-20 ms each: padded to a bucket size (repeating the
-    # last point, results cut back to N), the searches' ever-changing sizes reuse a few of them. Not
-    # where an equilibrium must be solved for (estimate errors): padding would add Newton solves.
+    # A batch of points where the equilibria do not move with the gains is evaluated as if padded to a
+    # bucket size (repeating the last point, results cut back to N), as it was when every batched call
+    # built a mapped Function per size: the same paths (VM or compiled, eigenvalue method), so the same
+    # bits; the copies themselves only where they change a path (_call, _eigvals) or the noise figure is
+    # asked for. Not where an equilibrium must be solved for (estimate errors): no padding there.
     M = _bucket(N)
     closed = model.fixed_equilibrium is not None and bool(np.all(model.fixed_equilibrium(P)))
-    if M > N and closed:
+    x0 = fixed_equilibria(model, theta, P) if closed else model.equilibrium(theta, P)
+    if M > N and closed and noise:
         P = np.concatenate([P, np.repeat(P[:, -1:], M - N, axis=1)], axis=1)
         if theta.ndim == 2:
             theta = np.concatenate([theta, np.repeat(theta[:, -1:], M - N, axis=1)], axis=1)
-        e = evaluate(model, theta, P, noise)
+        x0 = np.concatenate([x0, np.repeat(x0[:, -1:], M - N, axis=1)], axis=1)
+        e = _evaluate(model, theta, P, x0, noise, 0)
         return Evaluation(
             e.poles[:N],
             e.x0[:, :N],
             None if e.noise is None else e.noise[:N],
             None if e.bounded is None else e.bounded[:N],
         )
-    x0 = model.equilibrium(theta, P)
+    return _evaluate(model, theta, P, x0, noise, M - N if closed else 0)
+
+
+def _evaluate(
+    model: TuningModel, theta: np.ndarray, P: np.ndarray, x0: np.ndarray, noise: bool, extra: int
+) -> Evaluation:
+    """:func:`evaluate` at the equilibria x0, as a batch with ``extra`` copies of its last point gives it."""
+    N = P.shape[1]
     ok = np.isfinite(x0).all(axis=0)
     n = model.n_x
     out = np.full((N, n), np.nan + 0j)
@@ -234,7 +295,7 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
         A = _call(model.linearization, N, [phi, xs, P])[0]
         good = ok & np.isfinite(A).all(axis=(1, 2))
         if good.any():
-            out[good] = eigvals_batched(A[good])
+            out[good] = _eigvals(n, A[good], extra if good[-1] else 0)
         if noise and good.any():
             B, C, D = _call(model.noise, N, [phi, xs, P])
             nz[good] = noise_rms(

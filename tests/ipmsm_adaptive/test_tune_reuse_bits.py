@@ -1,6 +1,8 @@
 """What the tuner reuses gives the bits it would compute: the global phase's candidate rows in the
-tie-break's searches (tuning/search.py ``_poles``), and the tuner's poles deciding stability in the noise
-figure (design/noise.py ``noise_rms``). On the example servo's law (16), its default envelope."""
+tie-break's searches (tuning/search.py ``_poles``), the tuner's poles deciding stability in the noise
+figure (design/noise.py ``noise_rms``), and a batch's equilibria and its evaluation without the copies
+that pad it to a bucket size (tuning/model.py ``evaluate``). On the example servo's law (16), its
+default envelope."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import pytest
 from sensorless.design.drive import load_drive
 from sensorless.design.noise import noise_rms
 from sensorless.design.poles import eigvals_batched
+from sensorless.tuning import model as tuning_model
 from sensorless.tuning import search
 from sensorless.tuning.conditions import candidates
 from sensorless.tuning.family import tunable_for
@@ -77,3 +80,25 @@ def test_the_tuners_poles_decide_stability_as_lapack_does(servo):
     without = noise_rms(A2, B2, C2, D2, model.noise_sigma, model.T_s)
     assert np.isinf(without).any() and np.isfinite(without).any()
     assert with_poles.tobytes() == without.tobytes()
+
+
+@pytest.mark.parametrize("n_points", [17, 111])  # 3 x: 51 padded to 64 (LAPACK -> quartic path), 333
+def test_a_batch_gives_the_bits_of_its_padded_batch(servo, n_points):
+    model, settings, _, _ = servo
+    W, T = settings.envelope.grid(4, 4)
+    base = model.make_points(W, T, model.nominal_estimate)[:, :n_points]
+    starts = np.clip(np.asarray(model.starts(), float), model.lower, model.upper)[:3]
+    P = np.tile(base, (1, 3))  # three candidates on the same points: their equilibria solved once
+    theta = np.repeat(starts, n_points, axis=0).T
+    tuning_model._FIXED_X0.clear()
+    e = evaluate(model, theta, P)
+    pad = tuning_model._bucket(P.shape[1]) - P.shape[1]
+    assert pad > 0
+    Pp = np.concatenate([P, np.repeat(P[:, -1:], pad, axis=1)], axis=1)
+    tp = np.concatenate([theta, np.repeat(theta[:, -1:], pad, axis=1)], axis=1)
+    tuning_model._FIXED_X0.clear()
+    padded = evaluate(model, tp, Pp)  # a bucket size: no copies added
+    assert e.poles.tobytes() == padded.poles[: P.shape[1]].tobytes()
+    assert e.bounded is not None and padded.bounded is not None
+    assert e.bounded.tobytes() == padded.bounded[: P.shape[1]].tobytes()
+    assert e.x0.tobytes() == np.asarray(model.equilibrium(theta, P), float).tobytes()
