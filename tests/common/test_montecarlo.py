@@ -118,6 +118,9 @@ def test_bad_input_is_one_line_and_writes_nothing(servo, tmp_path, capsys, argv,
 def test_runs_on_an_example_motor_with_deterministic_outputs(servo, tmp_path, capsys):
     argv = [servo, "--samples", "40", "--spread", "R_s=10%,L_d=10%u,psi_pm=5%,J=30%"]
     argv += ["--estimate-error", "R_s=20%", "--time-domain", "1", "--seed", "3", "--scheduler", "synchronous"]
+    # a damping floor some draws meet and others miss (at the report's 0.2 the drive file's gains meet it in
+    # none of the 40: the count of passes below could not tell a wrong pass column from a right one)
+    argv += ["--min-damping", "0.1"]
     code, cap = _run([*argv, "--out", str(tmp_path / "a"), "--quiet"], capsys)
     assert code in (0, 3), cap.err
     s = json.loads((tmp_path / "a" / "summary.json").read_text())
@@ -131,7 +134,7 @@ def test_runs_on_an_example_motor_with_deterministic_outputs(servo, tmp_path, ca
     rows = (tmp_path / "a" / "draws.csv").read_text().splitlines()
     assert len(rows) == 41 and rows[0].startswith("draw,plant_R_s,")
     passes = sum(int(r.split(",")[-3]) for r in rows[1:])
-    assert passes == round(40 * y["damping"]["value"])
+    assert 0 < passes < 40 and passes == round(40 * y["damping"]["value"])
     code2, _ = _run([*argv, "--out", str(tmp_path / "b"), "--quiet"], capsys)
     assert code2 == code
     for f in sorted((tmp_path / "a").iterdir()):
