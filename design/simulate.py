@@ -313,56 +313,46 @@ def run_loop(
     compile: bool = True,
 ) -> np.ndarray:
     """Run the loop over all input columns; returns rec as (n_rec, N). ``progress(done, total)``."""
-    n = setup.inputs.shape[1]
     fn = compiled_chunk(setup.loop, chunk) if compile else chunk_function(setup.loop, chunk)
-    n_rec = setup.loop.size1_out(1)
-    out = np.empty((n_rec, n))
-    z = np.asarray(setup.z0, float)
-    const = [setup.q, setup.p_obs, setup.gain]
-    buffered = _buffered(fn, z, const)
-    if buffered is not None:
-        buffered(setup.inputs, out, progress)
-        return out
-    for k0 in range(0, n, chunk):
-        k1 = min(k0 + chunk, n)
-        V = setup.inputs[:, k0:k1]
-        if k1 - k0 < chunk:  # pad the last chunk by holding its last inputs; the excess is dropped
-            V = np.hstack([V, np.repeat(V[:, -1:], chunk - (k1 - k0), axis=1)])
-        z_end, rec = fn(z, V, *const)
-        out[:, k0:k1] = np.asarray(rec)[:, : k1 - k0]
-        z = np.asarray(z_end).ravel()
-        if progress is not None:
-            progress(k1, n)
-    return out
+    return run_chunks(fn, setup.z0, [setup.q, setup.p_obs, setup.gain], setup.inputs, progress)
 
 
-def _buffered(
-    fn: ca.Function, z0: np.ndarray, const: list[np.ndarray]
-) -> Callable[[np.ndarray, np.ndarray, Callable[[int, int], None] | None], None] | None:
-    """:func:`run_loop`'s chunks between numpy arrays (design/batch.py ``bound_call``): the same bits
-    without converting each chunk's inputs and record through casadi.DM (a quarter of a simulation's
-    CPU); None where the chunk Function does not take them so (then it is called as a Function is)."""
-    chunk, n_v = fn.size2_in(1), fn.size1_in(1)
+def run_chunks(
+    fn: ca.Function,
+    z0: np.ndarray,
+    const: list,
+    inputs: np.ndarray,
+    progress: Callable[[int, int], None] | None = None,
+) -> np.ndarray:
+    """``fn`` (z, V, *const) -> (z_end, rec), a chunk of ``fn.size2_in(1)`` control periods, chained over
+    every input column from ``z0``: rec as (n_rec, N). The last chunk is padded by holding its last
+    inputs (the excess dropped). Between numpy arrays through CasADi's buffer interface (design/batch.py
+    ``bound_call``: the same bits without converting each chunk's inputs and record through casadi.DM, a
+    quarter of a simulation's CPU) where ``fn`` takes them so, else as a Function is called."""
+    chunk, n_v, n = fn.size2_in(1), fn.size1_in(1), inputs.shape[1]
+    out = np.empty((fn.size1_out(1), n))
     z = np.array(z0, float).reshape(-1)  # each chunk's start, the previous chunk's end copied in
     V = np.empty((chunk, n_v))  # column-major (n_v, chunk)
     bound = bound_call(fn, [z, V, *(np.array(c, float).reshape(-1) for c in const)])
-    if bound is None:
-        return None
-    call, (z_end, rec) = bound
-
-    def go(inputs: np.ndarray, out: np.ndarray, progress: Callable[[int, int], None] | None) -> None:
-        n = inputs.shape[1]
-        for k0 in range(0, n, chunk):
-            k1 = min(k0 + chunk, n)
+    for k0 in range(0, n, chunk):
+        k1 = min(k0 + chunk, n)
+        if bound is None:
+            Vk = inputs[:, k0:k1]
+            if k1 - k0 < chunk:
+                Vk = np.hstack([Vk, np.repeat(Vk[:, -1:], chunk - (k1 - k0), axis=1)])
+            z_end, rec = fn(z, Vk, *const)
+            out[:, k0:k1] = np.asarray(rec)[:, : k1 - k0]
+            z = np.asarray(z_end).ravel()
+        else:
+            call, (z_end, rec) = bound
             V[: k1 - k0] = inputs[:, k0:k1].T
-            V[k1 - k0 :] = inputs[:, k1 - 1]  # the last chunk padded by holding its last inputs
+            V[k1 - k0 :] = inputs[:, k1 - 1]
             call()
             out[:, k0:k1] = rec[: k1 - k0].T
             z[:] = z_end.reshape(-1)
-            if progress is not None:
-                progress(k1, n)
-
-    return go
+        if progress is not None:
+            progress(k1, n)
+    return out
 
 
 def simulate(

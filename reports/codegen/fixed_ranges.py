@@ -26,8 +26,6 @@ from sensorless.design.family import Drive, GainSet, ObserverFamily, require
 from sensorless.reports.codegen.c_graph import Node
 
 if TYPE_CHECKING:  # typed by name only
-    from collections.abc import Callable
-
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -205,45 +203,15 @@ def _probe(step: ca.Function) -> ca.Function:
 
 @functools.cache
 def _states(loop: ca.Function, n: int, native: bool = True) -> ca.Function:
-    """(z, V, q, p, gain) -> every loop state of ``n`` steps, compiled (design/compiled.py)."""
+    """(z, V, q, p, gain) -> (the last state, every loop state) of ``n`` steps, compiled (design/compiled.py):
+    a chunk in design/simulate.py ``run_chunks``'s terms, its record the states."""
     from sensorless.design.compiled import compiled
 
     args = [ca.MX.sym(loop.name_in(k), loop.sparsity_in(k)) for k in range(loop.n_in())]
     V = ca.MX.sym("V", loop.size1_in(1), n)
     zs, _ = loop.mapaccum(n)(args[0], V, *args[2:])
-    fn = ca.Function(f"{loop.name()}_states{n}", [args[0], V, *args[2:]], [zs])
+    fn = ca.Function(f"{loop.name()}_states{n}", [args[0], V, *args[2:]], [zs[:, n - 1], zs])
     return compiled(fn) if native else fn
-
-
-def _chunks(fn: ca.Function, z0: np.ndarray, const: list) -> Callable[[np.ndarray], np.ndarray]:
-    """A function of one chunk's inputs V (columns are samples, at most CHUNK) -> the loop's states
-    after each of them, the chain carried on from ``z0`` call to call. The last chunk is padded by
-    holding its last inputs. Through CasADi's buffer interface between numpy arrays where ``fn`` takes
-    them so (design/batch.py ``bound_call``: the same bits, without converting every chunk through
-    casadi.DM, a third of a probe run's CPU), else as a Function call."""
-    from sensorless.design.batch import bound_call
-
-    chunk = fn.size2_in(1)
-    z = np.array(z0, float).reshape(-1)
-    Vt = np.empty((chunk, fn.size1_in(1)))  # column-major V
-    bound = bound_call(fn, [z, Vt, *(np.array(c, float).reshape(-1) for c in const)])
-
-    def run(V: np.ndarray) -> np.ndarray:
-        k = V.shape[1]
-        if bound is None:
-            if k < chunk:
-                V = np.hstack([V, np.repeat(V[:, -1:], chunk - k, axis=1)])
-            zs = np.asarray(fn(z, V, *const))[:, :k]
-        else:
-            call, (zt,) = bound
-            Vt[:k] = V.T
-            Vt[k:] = V[:, -1]
-            call()
-            zs = zt[:k].T
-        z[:] = zs[:, -1]
-        return zs
-
-    return run
 
 
 def probe_runs(
@@ -257,6 +225,7 @@ def probe_runs(
     whole-drive analysis linearizes (the family's ``AnalysedLoop.drive_loop``, whose observer can be
     another: the drive without its EMF harmonics) run on the scenarios, not the simulation's."""
     from sensorless.design.registry import family_of
+    from sensorless.design.simulate import run_chunks
     from sensorless.design.units import DriveFileError
 
     fam = family_of(drive)
@@ -266,16 +235,10 @@ def probe_runs(
             ls, observer, n_x = _probe_setup(fam, drive, sc, gains, analysed)
         except (DriveFileError, ValueError):
             continue
-        n = ls.inputs.shape[1]
         n_m = ls.loop.size1_in(0) - len(ls.z0)
         z = np.concatenate([ls.z0, np.zeros(n_m)])
         fn = _states(ls.loop, CHUNK, compile)
-        z_all = np.empty((len(z), n + 1))
-        z_all[:, 0] = z
-        run = _chunks(fn, z, [ls.q, ls.p_obs, ls.gain])
-        for k0 in range(0, n, CHUNK):
-            V = ls.inputs[:, k0 : k0 + CHUNK]
-            z_all[:, k0 + 1 : k0 + 1 + V.shape[1]] = run(V)
+        z_all = np.hstack([z[:, None], run_chunks(fn, z, [ls.q, ls.p_obs, ls.gain], ls.inputs)])
         runs.setdefault(observer, []).append((z_all[-(n_x + n_m) : -n_m, :-1], z_all[-n_m:, 1:]))
     return {k: (np.hstack([x for x, _ in v]), np.hstack([m for _, m in v])) for k, v in runs.items()}
 
