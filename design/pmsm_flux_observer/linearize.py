@@ -243,26 +243,12 @@ def sampled_fixed_points(
     loop: SampledLoop, y0: np.ndarray, W: np.ndarray, plant: np.ndarray, p: np.ndarray, gain: Any
 ) -> tuple[np.ndarray, np.ndarray]:
     """(fixed points y (N, n_y), one-step Jacobians there (N, n_y, n_y)) of the sampled observer by
-    design/discrete.py's damped Newton from the continuous equilibria ``y0`` (NaN rows: none found);
-    ``plant`` (N, n_plant), ``p`` and ``gain`` one vector or one column per point.
+    design/discrete.py's damped Newton from the continuous equilibria ``y0`` (NaN rows: none found, and
+    none iterated); ``plant`` (N, n_plant), ``p`` and ``gain`` one vector or one column per point.
 
     Damped: the continuous equilibrium may lie outside the sampled one's Newton basin near a slow
-    observer mode (hubmotor48 at rated load near 1 p.u.: a full step landed on another fixed point).
-    Only the points with a start are iterated: Newton gives a NaN start NaN, but iterates it from 0
-    first, and such points took all DAMPED_STEPS iterations (two thirds of the hub drive's Newton
-    evaluations in its tune); each point's iteration is its own, so the others' numbers are the same."""
-    start = np.isfinite(y0).all(axis=1)
-    if start.all():
-        return fixed_points(loop, y0, W, plant, p, gain, iterations=DAMPED_STEPS, damped=True)
-    n, n_y = y0.shape
-    y, Jd = np.full((n, n_y), np.nan), np.full((n, n_y, n_y), np.nan)
-    if start.any():
-        p_, g_ = (a[:, start] if a.ndim == 2 and a.shape[1] == n else a for a in map(np.asarray, (p, gain)))
-        at = plant[start] if np.ndim(plant) == 2 else plant
-        y[start], Jd[start] = fixed_points(
-            loop, y0[start], W[start], at, p_, g_, iterations=DAMPED_STEPS, damped=True
-        )
-    return y, Jd
+    observer mode (hubmotor48 at rated load near 1 p.u.: a full step landed on another fixed point)."""
+    return fixed_points(loop, y0, W, plant, p, gain, iterations=DAMPED_STEPS, damped=True)
 
 
 def _sampled_observer_decay(Jd: np.ndarray, poles: np.ndarray, T: float) -> np.ndarray:

@@ -22,13 +22,13 @@ def test_the_sampled_fixed_point_continues_the_continuous_equilibrium():
     assert (lin.decay_rate_discrete > 0).all() and (lin.decay_rate > 0).all()
 
 
-def test_points_without_a_continuous_equilibrium_are_left_out_and_the_others_unchanged():
-    """sampled_fixed_points iterates only the points that have a start (the continuous equilibrium):
-    the others NaN, as the shared damped Newton leaves them after iterating them, and the rest the same
-    numbers, bit for bit, as that Newton on all the points."""
-    from sensorless.design.discrete import fixed_points
+def test_points_without_a_continuous_equilibrium_are_left_out_and_the_others_unchanged(monkeypatch):
+    """The damped Newton (design/discrete.py ``newton``, through sampled_fixed_points) iterates only the
+    points that have a start (the continuous equilibrium): the others NaN, never evaluated (it once
+    iterated them from 0 for every damped step), and the rest the same numbers, bit for bit, as Newton
+    on those points alone."""
+    from sensorless.design import discrete
     from sensorless.design.pmsm_flux_observer.linearize import (
-        DAMPED_STEPS,
         motor_vector,
         rotor_frame_loop,
         sampled_fixed_points,
@@ -50,11 +50,20 @@ def test_points_without_a_continuous_equilibrium_are_left_out_and_the_others_unc
     y0[[1, 3]] = np.nan
     loop = sampled_loop("gradient", o.inductance_rule, o.lambda_adaptation, law)
     plant = sampled_plant(d, w, T)
+    evaluated = []
+    real = discrete.evaluate_batch
+    monkeypatch.setattr(
+        discrete, "evaluate_batch", lambda fn, n, *a, **k: evaluated.append(n) or real(fn, n, *a, **k)
+    )
     y, Jd = sampled_fixed_points(loop, y0, w, plant, p, setup.gain)
-    y_all, Jd_all = fixed_points(loop, y0, w, plant, p, setup.gain, iterations=DAMPED_STEPS, damped=True)
-    assert np.isnan(y[[1, 3]]).all() and np.isfinite(y[[0, 2, 4]]).all()
-    np.testing.assert_array_equal(y, y_all)
-    np.testing.assert_array_equal(Jd, Jd_all)
+    with_nan = sum(evaluated)
+    evaluated.clear()
+    kept = [0, 2, 4]
+    y_alone, Jd_alone = sampled_fixed_points(loop, y0[kept], w[kept], plant[kept], p, setup.gain)
+    assert with_nan == sum(evaluated)  # the points without a start cost nothing
+    assert np.isnan(y[[1, 3]]).all() and np.isnan(Jd[[1, 3]]).all() and np.isfinite(y[kept]).all()
+    np.testing.assert_array_equal(y[kept], y_alone)
+    np.testing.assert_array_equal(Jd[kept], Jd_alone)
 
 
 def test_the_angle_errors_under_several_estimates_in_one_batch_are_each_linearizations():
