@@ -40,6 +40,7 @@ import functools
 import hashlib
 import importlib.metadata
 import importlib.util
+import io
 import os
 import pickle
 import sys
@@ -203,11 +204,20 @@ def _disk_put(path: Path, value: object) -> None:
 
 
 def _pickled(content: object) -> bytes | None:
-    """The key of ``content`` (its pickled bytes); None: it cannot be pickled (not memoized)."""
+    """The key of ``content`` (its pickled bytes); None: it cannot be pickled (not memoized), or holds
+    a cycle. Pickled without the pickler's memo (``fast``): with it, an object met a second time is
+    written as a reference to the first, so equal content pickled differently wherever the same string
+    or tuple was one object in one process and two equal ones in another (a gain table's keys read back
+    from its JSON file by ``report`` against the same names ``tune`` held as the drive's own strings:
+    every analysis ``tune`` kept was missed). Without it the bytes are the content's alone."""
+    buf = io.BytesIO()
+    pickler = pickle.Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL)
+    pickler.fast = True
     try:
-        return pickle.dumps(content, protocol=pickle.HIGHEST_PROTOCOL)
-    except (pickle.PicklingError, TypeError, AttributeError):
-        return None
+        pickler.dump(content)
+    except (pickle.PicklingError, TypeError, AttributeError, ValueError, RecursionError):
+        return None  # ValueError: a cycle (the fast pickler refuses one rather than recursing forever)
+    return buf.getvalue()
 
 
 def _kept(path: Path | None, compute: Callable[[], R]) -> tuple[bool, R]:

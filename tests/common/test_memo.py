@@ -41,6 +41,24 @@ def test_equal_content_is_one_computation_and_different_content_another():
     assert len(calls) == 3 and f.cache_info() == (1, 3)
 
 
+def test_equal_content_is_one_computation_whichever_of_its_objects_are_one_object():
+    # pickle writes an object met twice as a reference to the first: the key must not depend on
+    # whether two equal strings or lists are the same object (a gain table read back from its file)
+    f, calls = counted()
+    name = "".join(["la", "mbda"])  # equal to the literal, another object
+    literal = "lambda"
+    assert name == literal and name is not literal
+    values = [1.0, 2.0]
+    a = f({"x": values, literal: values})  # one list twice, one string object
+    assert f({"x": [1.0, 2.0], name: [1.0, 2.0]}) is a
+    assert len(calls) == 1
+    cyclic: list = []
+    cyclic.append(cyclic)
+    f({"x": [1.0], "cycle": cyclic})  # a cycle: not keyed (computed), never an error
+    f({"x": [1.0], "cycle": cyclic})
+    assert len(calls) == 3
+
+
 def test_the_oldest_result_is_dropped_past_maxsize():
     f, calls = counted(maxsize=2)
     for x in (1.0, 2.0, 3.0, 1.0):
