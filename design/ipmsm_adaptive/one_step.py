@@ -254,11 +254,15 @@ def discretization_study(
     drive's gains or a (law, params) pair); ``progress(text)`` is told each scheme and T_s.
     """
     rows = []
+    # the continuous analysis is the same for every scheme and T_s: once, not once per row (as
+    # :func:`linearize` with a discretization computes it, at the drive file's estimates)
+    continuous = linearize_continuous(drive, w, torque, gain=gain)
+    params, est = gain_parameters(drive, gain)[1], np.array(drive.estimate.vector())
     for T_s in sampling:
         for m in schemes:
             if progress is not None:
                 progress(f"{m} at {T_s * 1e6:g} us")
-            a = linearize(drive, w, torque, gain=gain, discretization=m, T_s=T_s)
+            a = discrete_sweep(drive, continuous, params, m, T_s, est)
             k = int(np.nanargmax(np.abs(a.err_theta)))
             stable = a.decay_rate > 0
             rel = np.abs(a.decay_rate_discrete[stable] / a.decay_rate[stable] - 1)
