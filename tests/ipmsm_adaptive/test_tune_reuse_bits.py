@@ -102,3 +102,28 @@ def test_a_batch_gives_the_bits_of_its_padded_batch(servo, n_points):
     assert e.bounded is not None and padded.bounded is not None
     assert e.bounded.tobytes() == padded.bounded[: P.shape[1]].tobytes()
     assert e.x0.tobytes() == np.asarray(model.equilibrium(theta, P), float).tobytes()
+
+
+def test_the_laws_of_a_drive_share_its_closed_loop_compiled_or_not(servo):
+    """Every law's model on a drive has the drive's linearization, noise and lag Functions
+    (tuning/ipmsm_adaptive/model.py ``_loop_functions``): a later law's evaluations may run on the
+    library the first compiled, where a Function of its own would have started on CasADi's VM, so the
+    two must give the same bits."""
+    from sensorless.design.batch import evaluate_batch
+
+    model, settings, _, _ = servo
+    drive = load_drive(str(SERVO))
+    tunable = tunable_for(drive, "schedule")
+    other = tunable.build(drive, tunable.settings(drive), None)
+    assert other.law != model.law
+    assert other.linearization is model.linearization and other.noise is model.noise
+    W, T = settings.envelope.grid(4, 4)
+    P = model.make_points(W, T, model.nominal_estimate)
+    theta = np.asarray(model.theta0, float)
+    x0 = model.equilibrium(theta, P)
+    phi = _call(model.local, P.shape[1], [theta, P])[0][:, :, 0].T
+    for fn in (model.linearization, model.noise):
+        on_vm = evaluate_batch(fn, P.shape[1], [phi, x0, P], jit=False)
+        built = evaluate_batch(fn, P.shape[1], [phi, x0, P], jit=True)
+        for a, b in zip(on_vm, built, strict=True):
+            assert np.isfinite(a).all() and a.tobytes() == b.tobytes()

@@ -63,16 +63,34 @@ def _closed_loop(
         f"local_{law.name}", [th, pt], [ca.vertcat(at, pt[0], alpha_fo)], ["theta", "point"], ["phi"]
     )
 
+    inj = drive.injection
+    linear, noise, lag = _loop_functions(
+        tuple(drive.motor.vector()), float(drive.motor.p), (inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta)
+    )
+    return local, linear, noise, lag
+
+
+# The law enters the closed loop only through phi (its expansion at w_m): the linearization, noise and lag
+# are the drive's, one set per process for every law tuned on it (a seeded law, its seed law, their
+# pointwise bound's model, the second tuning with the handover's floor). Built per model, each was a new
+# Function that ran on CasADi's VM again until it had seen JIT_MIN_POINTS (design/batch.py), then
+# generated its C again to find its library.
+@functools.lru_cache(maxsize=8)
+def _loop_functions(
+    motor: tuple[float, ...], pole_pairs: float, injection: tuple[float, float, float, float]
+) -> tuple[ca.Function, ca.Function, ca.Function]:
+    """(linearization, noise, lag) of :func:`_closed_loop` for the motor's vector, its pole pairs and the
+    injection's (w_c, u_c, alpha_i, w_Delta)."""
+    pt = ca.SX.sym("point", len(POINT_NAMES))
     phi = ca.SX.sym("phi", N_PHI)
     x = ca.SX.sym("x", 4)
-    inj = drive.injection
     loop = rotor_frame_loop(taylor_law(), False)
     ins = {
         "x_r": x,
         "w": pt[0],
         "torque": pt[1],
-        "plant": ca.vertcat(ca.DM(drive.motor.vector()), float(drive.motor.p)),
-        "p": ca.vertcat(pt[2:6], phi[:5], phi[5], ca.DM([inj.w_c, inj.u_c, inj.alpha_i, inj.w_Delta])),
+        "plant": ca.vertcat(ca.DM(list(motor)), pole_pairs),
+        "p": ca.vertcat(pt[2:6], phi[:5], phi[5], ca.DM(list(injection))),
     }
     out = point_function(loop)(**ins)
     linear = ca.Function(
@@ -89,7 +107,7 @@ def _closed_loop(
         ["phi", "x", "point"],
         ["B_n", "C_n", "D_n"],
     )
-    return local, linear, noise, lag
+    return linear, noise, lag
 
 
 def alpha_fo_cap(drive: IpmsmDrive) -> float:
