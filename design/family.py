@@ -28,8 +28,9 @@ lacks says so in one line (:class:`CapabilityError`, ``capabilities.require``).
 
 from __future__ import annotations
 
+import importlib
 import itertools
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
 
@@ -375,3 +376,21 @@ def require(family: ObserverFamily[Any], capability: type[C]) -> C:
     if not isinstance(family, capability):
         raise CapabilityError(f"observer family {family.name!r} {LACKS[capability]}")
     return family
+
+
+def later(module: str, *names: str) -> object:
+    """Functions ``names`` of ``module``, which each imports at its first call (one name: the function;
+    several: a tuple). A family's hook modules (``tuning``, ``report``) name what they compute with this
+    way: every command reads every registered family's hooks for its options and laws, and computes with
+    one family's. Write the real import beside it under ``TYPE_CHECKING`` so that the type checker reads
+    the functions' signatures and the import checks see the dependency (docs/architecture.md)."""
+
+    def function(name: str) -> Callable[..., object]:
+        def call(*args: object, **kwargs: object) -> object:
+            return getattr(importlib.import_module(module), name)(*args, **kwargs)
+
+        call.__module__, call.__name__, call.__qualname__ = module, name, name
+        return call
+
+    found = tuple(function(n) for n in names)
+    return found[0] if len(found) == 1 else found
