@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import importlib
 import itertools
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
 
@@ -378,19 +378,23 @@ def require(family: ObserverFamily[Any], capability: type[C]) -> C:
     return family
 
 
+@dataclass(frozen=True)
+class Later:
+    """The function ``name`` of ``module``, imported at the first call (:func:`later`); a record of two
+    names, so that it pickles as the function does."""
+
+    module: str
+    name: str
+
+    def __call__(self, *args: object, **kwargs: object) -> object:
+        return getattr(importlib.import_module(self.module), self.name)(*args, **kwargs)
+
+
 def later(module: str, *names: str) -> object:
     """Functions ``names`` of ``module``, which each imports at its first call (one name: the function;
     several: a tuple). A family's hook modules (``tuning``, ``report``) name what they compute with this
     way: every command reads every registered family's hooks for its options and laws, and computes with
     one family's. Write the real import beside it under ``TYPE_CHECKING`` so that the type checker reads
     the functions' signatures and the import checks see the dependency (docs/architecture.md)."""
-
-    def function(name: str) -> Callable[..., object]:
-        def call(*args: object, **kwargs: object) -> object:
-            return getattr(importlib.import_module(module), name)(*args, **kwargs)
-
-        call.__module__, call.__name__, call.__qualname__ = module, name, name
-        return call
-
-    found = tuple(function(n) for n in names)
+    found = tuple(Later(module, n) for n in names)
     return found[0] if len(found) == 1 else found

@@ -2,7 +2,8 @@
 
 Piippo, Hinkkanen, Luomi (2008). analyze.py (pole maps, unstable bands), tune.py (envelope options of
 the shared NLP), simulate.py (the scenario options of ``simulate``), report.py and figures.py (the
-stability report, imported where it is computed: every command reads these hooks for their options).
+stability report) and causes.py (its causes of failed checks): these two imported where they run, since
+every command reads these hooks for their options.
 """
 
 from __future__ import annotations
@@ -11,12 +12,14 @@ from typing import TYPE_CHECKING
 
 from sensorless.design.family import later
 from sensorless.reports.family import ReportHooks
-from sensorless.reports.ipmsm_adaptive import analyze, causes, simulate, tune
+from sensorless.reports.ipmsm_adaptive import analyze, simulate, tune
 
 if TYPE_CHECKING:
+    from sensorless.reports.ipmsm_adaptive.causes import failure_cause
     from sensorless.reports.ipmsm_adaptive.report import compute
 else:
     compute = later(f"{__name__}.report", "compute")
+    failure_cause = later(f"{__name__}.causes", "failure_cause")
 
 HOOKS = ReportHooks(
     analyze_options=analyze.OPTIONS,
@@ -28,6 +31,6 @@ HOOKS = ReportHooks(
     simulate_options=simulate.OPTIONS,
     simulate_scenario=simulate.scenario,
     report=compute,
-    failure_cause=causes.failure_cause,
+    failure_cause=failure_cause,
     settings_sections=("runtime", "tuning"),  # [runtime], [tuning]: settings, in their own sections
 )
