@@ -34,7 +34,7 @@ if TYPE_CHECKING:  # typed by name only
 # lists the importers and their options
 if TYPE_CHECKING:
     from sensorless.design.pmsm_flux_observer.firmware import odrive, simplefoc, vesc
-else:
+else:  # each module as the two functions read of it below (SimpleFOC's files are written, never read)
     odrive, simplefoc, vesc = (
         SimpleNamespace(read=later(m, "read"), export=later(m, "export"))
         for m in (f"{FirmwareDrive.__module__}.{name}" for name in ("odrive", "simplefoc", "vesc"))
