@@ -102,7 +102,10 @@ class MonteCarloModule(Protocol[E]):
 class MonteCarlo(Protocol[E]):
     """Spreads its drive's parameters over draws (design/montecarlo.py, ``sensorless montecarlo``)."""
 
-    montecarlo: MonteCarloModule[E]  # its Monte-Carlo module (design/<family>/montecarlo.py)
+    @property
+    def montecarlo(self) -> MonteCarloModule[E]:
+        """Its Monte-Carlo module (design/<family>/montecarlo.py; a property may import it when read)."""
+        ...
 
 
 @runtime_checkable

@@ -28,6 +28,7 @@ lacks says so in one line (:class:`CapabilityError`, ``capabilities.require``).
 
 from __future__ import annotations
 
+import importlib
 import itertools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -375,3 +376,25 @@ def require(family: ObserverFamily[Any], capability: type[C]) -> C:
     if not isinstance(family, capability):
         raise CapabilityError(f"observer family {family.name!r} {LACKS[capability]}")
     return family
+
+
+@dataclass(frozen=True)
+class Later:
+    """The function ``name`` of ``module``, imported at the first call (:func:`later`); a record of two
+    names, so that it pickles as the function does."""
+
+    module: str
+    name: str
+
+    def __call__(self, *args: object, **kwargs: object) -> object:
+        return getattr(importlib.import_module(self.module), self.name)(*args, **kwargs)
+
+
+def later(module: str, *names: str) -> object:
+    """Functions ``names`` of ``module``, which each imports at its first call (one name: the function;
+    several: a tuple). A family's hook modules (``tuning``, ``report``) name what they compute with this
+    way: every command reads every registered family's hooks for its options and laws, and computes with
+    one family's. Write the real import beside it under ``TYPE_CHECKING`` so that the type checker reads
+    the functions' signatures and the import checks see the dependency (docs/architecture.md)."""
+    found = tuple(Later(module, n) for n in names)
+    return found[0] if len(found) == 1 else found

@@ -17,12 +17,15 @@ from __future__ import annotations
 import functools
 import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 from sensorless.design.batch import CORES, JIT_MIN_POINTS, evaluate_batch, settled
 from sensorless.symbolic.linalg import charpoly as charpoly_sx
+
+if TYPE_CHECKING:  # imported where the pool starts: most commands never split a batch (its logging too)
+    from concurrent.futures import ThreadPoolExecutor
 
 # The damping ratio a stability report requires by default (``sensorless report --min-damping``, every
 # family's report); ``sensorless tune`` warns (exit status 3) when the best gains it finds stay below it.
@@ -186,6 +189,8 @@ def eigvals_batched(A: np.ndarray, c: np.ndarray | None = None, tol: float = 1e-
     k = CORES
     if N >= 8192 and k > 1:
         if _POOL is None:
+            from concurrent.futures import ThreadPoolExecutor
+
             _POOL = ThreadPoolExecutor(k, thread_name_prefix="sensorless-poles")
         cs = [None] * k if c is None else np.array_split(c, k)
         parts = _POOL.map(_eigvals_serial, np.array_split(A, k), cs)

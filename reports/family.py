@@ -17,16 +17,19 @@ import argparse
 import importlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic
+from typing import TYPE_CHECKING, Any, Generic
 
-from sensorless.design.family import CapabilityError, DriveT, GainSet, ObserverFamily
+from sensorless.design.family import CapabilityError, DriveT, ObserverFamily
 from sensorless.design.registry import families
-from sensorless.design.scenario import Scenario
-from sensorless.reports.causes import Failure, Named
-from sensorless.reports.document import Report
-from sensorless.reports.files import OutputSet
 from sensorless.reports.options import COUNT, FINITE
-from sensorless.tuning.family import Tunable, TuneSettings
+
+if TYPE_CHECKING:  # typed by name only: a command reads the hooks' options without these modules
+    from sensorless.design.family import GainSet
+    from sensorless.design.scenario import Scenario
+    from sensorless.reports.causes import Failure, Named
+    from sensorless.reports.document import Report
+    from sensorless.reports.files import OutputSet
+    from sensorless.tuning.family import Tunable, TuneSettings
 
 
 @dataclass(frozen=True)

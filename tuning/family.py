@@ -24,6 +24,13 @@ if TYPE_CHECKING:  # typed by name only
     from sensorless.tuning.model import TuningModel
 
 Progress = Callable[[str], None]
+
+
+class TuningError(RuntimeError):
+    """The tuning NLP failed or the envelope is infeasible (the message says which and where); here, not
+    in tuning/nlp.py, so that the settings of a tuner of its own need not import the NLP."""
+
+
 O = TypeVar("O", bound=Drive, contravariant=True)  # the drive an outcome speaks of
 
 

@@ -24,14 +24,10 @@ import numpy as np
 from sensorless.design.noise import lyapunov
 from sensorless.tuning.bounded_rows import slot_bounds
 from sensorless.tuning.candidates import DAMPING, NOISE, STABILITY, Candidates, fixed_points, margins
+from sensorless.tuning.family import TuningError
 from sensorless.tuning.model import TuningModel, evaluate
 from sensorless.tuning.sector import factors_from_poles, n_quadratic
 from sensorless.tuning.slots import SOLVER_OPTIONS, T_MAX, WHOLE_GRAPH_SLOTS, Layout, ipopt_solver, sizes
-
-
-class TuningError(RuntimeError):
-    """The tuning NLP failed or the envelope is infeasible (the message says which and where)."""
-
 
 CREEP = 5e-4  # a round at the trust-region edge that gains less than this ends the method
 # the smallest pole magnitude a slot's frequency scale counts, relative to its largest (_pole_scale)

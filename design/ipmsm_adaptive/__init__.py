@@ -24,9 +24,8 @@ from sensorless.design.family import (
     ObserverFamily,
     PerUnitBases,
 )
-from sensorless.design.ipmsm_adaptive import derive, one_step, schema, simulation
-from sensorless.design.ipmsm_adaptive import montecarlo as _montecarlo
 from sensorless.design.ipmsm_adaptive import runtime as _runtime
+from sensorless.design.ipmsm_adaptive import schema, simulation
 from sensorless.design.ipmsm_adaptive.runtime import with_alpha_fo
 from sensorless.design.ipmsm_adaptive.simulation import injection_off
 from sensorless.design.law_gains import table_gains
@@ -59,14 +58,25 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
     estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
     panels = simulation.PANELS
 
-    # Monte-Carlo: the electrical parameters and J, spread in one batched linearization
-    montecarlo: MonteCarloModule[schema.IpmsmDrive] = _montecarlo
+    # the modules below are imported by the methods that use them: every command registers every family,
+    # and one that does not load, linearize or spread this family's drives need not import them
+
+    @property
+    def montecarlo(self) -> MonteCarloModule[schema.IpmsmDrive]:
+        """Monte-Carlo: the electrical parameters and J, spread in one batched linearization."""
+        from sensorless.design.ipmsm_adaptive import montecarlo
+
+        return montecarlo
 
     def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.IpmsmDrive:
+        from sensorless.design.ipmsm_adaptive import derive
+
         return derive.load(data, file, digest, self.kind)
 
     def document(self, data: Mapping[str, Any], file: str) -> DriveDocument:
         """The complete drive document of a (minimal) drive file (derive.py; ``sensorless init``)."""
+        from sensorless.design.ipmsm_adaptive import derive
+
         return derive.document(data, file)
 
     def gains(
@@ -93,6 +103,8 @@ class AdaptiveFluxObserver(ObserverFamily[schema.IpmsmDrive]):
     ) -> PoleSweep:
         """Closed-loop poles (design/ipmsm_adaptive/linearize.py); options: injection, estimate, and
         discretization (with T_s): also the discrete-time observer that runs (one_step.py)."""
+        from sensorless.design.ipmsm_adaptive import one_step
+
         if options.get("injection") and not drive.injection.enabled:
             raise CapabilityError(injection_off(drive))
         return one_step.linearize(

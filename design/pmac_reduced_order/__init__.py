@@ -17,15 +17,14 @@ from typing import TYPE_CHECKING, Any
 
 from sensorless.design.family import CapabilityError, DriveScales, GainSet, GainTableData, ObserverFamily
 from sensorless.design.law_gains import table_gains
-from sensorless.design.pmac_reduced_order import derive, schema, simulation
-from sensorless.design.pmac_reduced_order import linearize as _linearize
-from sensorless.design.pmac_reduced_order import montecarlo as _montecarlo
 from sensorless.design.pmac_reduced_order import runtime as _runtime
+from sensorless.design.pmac_reduced_order import schema, simulation
 
 if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
     from sensorless.design.capabilities import MonteCarloModule
     from sensorless.design.drive_file import DriveDocument
+    from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -48,14 +47,25 @@ class ReducedOrderObserver(ObserverFamily[schema.PmacDrive]):
     estimate_keys = simulation.SCENARIO_ESTIMATE_KEYS
     panels = simulation.PANELS
 
-    # Monte-Carlo: its motor's and estimates' parameters, linearized on the exact-estimate orbit
-    montecarlo: MonteCarloModule[schema.PmacDrive] = _montecarlo
+    # the modules below are imported by the methods that use them: every command registers every family,
+    # and one that does not load, linearize or spread this family's drives need not import them
+
+    @property
+    def montecarlo(self) -> MonteCarloModule[schema.PmacDrive]:
+        """Monte-Carlo: its motor's and estimates' parameters, linearized on the exact-estimate orbit."""
+        from sensorless.design.pmac_reduced_order import montecarlo
+
+        return montecarlo
 
     def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.PmacDrive:
+        from sensorless.design.pmac_reduced_order import derive
+
         return derive.load(data, file, digest, self.kind)
 
     def document(self, data: Mapping[str, Any], file: str) -> DriveDocument:
         """The complete drive document of a (minimal) drive file (derive.py; ``sensorless init``)."""
+        from sensorless.design.pmac_reduced_order import derive
+
         return derive.document(data, file)
 
     def gains(
@@ -82,12 +92,14 @@ class ReducedOrderObserver(ObserverFamily[schema.PmacDrive]):
 
     def linearize(
         self, drive: schema.PmacDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
-    ) -> _linearize.ObserverPoles:
+    ) -> ObserverPoles:
         """Observer poles, continuous and discrete (linearize.analyze); ``torque`` is the load T_L.
 
         Options: load_estimation, method, T_s, settle_time, n_angles."""
+        from sensorless.design.pmac_reduced_order.linearize import analyze
+
         g = gains.values
-        return _linearize.analyze(drive, w, torque, g=g["g"], Gamma=g["Gamma"], **options)
+        return analyze(drive, w, torque, g=g["g"], Gamma=g["Gamma"], **options)
 
     def low_speed_options(self, drive: schema.PmacDrive) -> dict[str, Any]:
         """Its noise model, and the discrete observer's steady errors (the angle bias) where the

@@ -23,10 +23,7 @@ from sensorless.design.family import (
 )
 from sensorless.design.law_gains import table_gains
 from sensorless.design.pmsm_drive import CURRENT_PANEL, ESTIMATE_KEYS, loop_setup
-from sensorless.design.pmsm_flux_observer import gains as _gains
 from sensorless.design.pmsm_flux_observer import laws as _laws
-from sensorless.design.pmsm_flux_observer import linearize as _linearize
-from sensorless.design.pmsm_flux_observer import montecarlo as _montecarlo
 from sensorless.design.pmsm_flux_observer import schema
 from sensorless.design.simulate import StateFrames
 
@@ -34,6 +31,7 @@ if TYPE_CHECKING:  # typed by name only
     from numpy.typing import ArrayLike
     from sensorless.design.capabilities import MonteCarloModule
     from sensorless.design.drive_file import DriveDocument
+    from sensorless.design.pmsm_flux_observer.linearize import FluxLinearization
     from sensorless.design.runtime import RuntimeSetup
     from sensorless.design.scenario import Scenario
     from sensorless.design.simulate import LoopSetup
@@ -43,6 +41,8 @@ if TYPE_CHECKING:  # typed by name only
 def simulation(drive: schema.FluxObserverDrive, sc: Scenario, gains: GainSet | None) -> LoopSetup:
     """The loop set-up of ``sc``: the scenario's estimate errors scale the observer's model as the
     controllers'."""
+    from sensorless.design.pmsm_flux_observer import gains as _gains
+
     k = sc.estimate_scale
     setup = _gains.runtime_setup(drive, gains or _gains.drive_gains(drive), sc.discretization)
     params = dict(setup.params)
@@ -115,8 +115,15 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
     # lag (tuning/pmsm_flux_observer/criterion.py)
     required_damping = 0.0
 
-    # Monte-Carlo: the electrical parameters and J, each draw's sampled observer in one batch
-    montecarlo: MonteCarloModule[schema.FluxObserverDrive] = _montecarlo
+    # the modules below are imported by the methods that use them: every command registers every family,
+    # and one that does not load, linearize or spread this family's drives need not import them
+
+    @property
+    def montecarlo(self) -> MonteCarloModule[schema.FluxObserverDrive]:
+        """Monte-Carlo: the electrical parameters and J, each draw's sampled observer in one batch."""
+        from sensorless.design.pmsm_flux_observer import montecarlo
+
+        return montecarlo
 
     def load(self, data: Mapping[str, Any], file: str, digest: str) -> schema.FluxObserverDrive:
         return schema.load(data, file, digest, self.kind)
@@ -134,6 +141,8 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
     ) -> GainSet:
         if name is not None:
             raise CapabilityError(f"{drive.file}: one [gains] section; there is no [gains.{name}] to choose")
+        from sensorless.design.pmsm_flux_observer import gains as _gains
+
         if table is None:
             return _gains.drive_gains(drive)
         T_obs = drive.observer.T_obs
@@ -146,17 +155,21 @@ class FluxObserverFamily(ObserverFamily[schema.FluxObserverDrive]):
     def runtime(
         self, drive: schema.FluxObserverDrive, gains: GainSet, *, discretization: str | None = None
     ) -> RuntimeSetup:
-        return _gains.runtime_setup(drive, gains, discretization)
+        from sensorless.design.pmsm_flux_observer.gains import runtime_setup
+
+        return runtime_setup(drive, gains, discretization)
 
     def linearize(
         self, drive: schema.FluxObserverDrive, gains: GainSet, w: ArrayLike, torque: ArrayLike, **options: Any
-    ) -> _linearize.FluxLinearization:
+    ) -> FluxLinearization:
+        from sensorless.design.pmsm_flux_observer.linearize import linearize
+
         unknown = set(options) - {"estimate"}
         if unknown:
             raise CapabilityError(
                 f"observer family {self.name!r}: no linearization options {sorted(unknown)}"
             )
-        return _linearize.linearize(drive, gains, w, torque, **options)
+        return linearize(drive, gains, w, torque, **options)
 
     def estimate_errors(self, drive: schema.FluxObserverDrive) -> EstimateErrors:
         """The tuner's default errors (:data:`ERRORS`), which its report judges the gains under too."""

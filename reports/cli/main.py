@@ -45,7 +45,7 @@ def user_errors() -> tuple[type[BaseException], ...]:
     from sensorless.design.units import DriveFileError, UnknownName
     from sensorless.reports.cli.common import UsageError
     from sensorless.reports.files import OutputError
-    from sensorless.tuning.nlp import TuningError
+    from sensorless.tuning.family import TuningError
 
     return (
         DriveFileError,

@@ -15,12 +15,8 @@ from sensorless.design.low_speed import MAX_BIAS_DEG
 from sensorless.design.registry import family_of
 from sensorless.reports.cli import many
 from sensorless.reports.cli.common import MIN_DAMPING, Number, UsageError, foreign_table, load, version
-from sensorless.reports.document import report_json
-from sensorless.reports.drive_analysis import ahead as drive_analysis_ahead
 from sensorless.reports.family import hooks
 from sensorless.reports.files import OutputSet
-from sensorless.reports.html import render
-from sensorless.reports.low_speed import add_to_report
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.gain_table import GainTable
@@ -87,7 +83,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Compute the report, then write both files at once."""
+    # here, not at the top: what the report computes and renders (Jinja2) is this command's alone
     from sensorless.design.gain_table import read_gain_table
+    from sensorless.reports.document import report_json
+    from sensorless.reports.drive_analysis import ahead as drive_analysis_ahead
+    from sensorless.reports.html import render
+    from sensorless.reports.low_speed import add_to_report
 
     files = many.drive_files(args.drive)
     if files is not None:

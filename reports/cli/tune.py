@@ -44,8 +44,7 @@ from sensorless.reports.family import add_family_options, hooks, refuse_foreign
 from sensorless.reports.files import OutputSet
 from sensorless.reports.gain_csv import pareto_csv, speeds_csv, table_csv
 from sensorless.reports.low_speed import tune_line
-from sensorless.tuning.family import all_tunables, estimate_errors, tunable_for
-from sensorless.tuning.nlp import TuningError
+from sensorless.tuning.family import TuningError, all_tunables, estimate_errors, tunable_for
 
 if TYPE_CHECKING:  # typed by name only
     from collections.abc import Callable

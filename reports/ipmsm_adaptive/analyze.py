@@ -16,15 +16,36 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.ipmsm_adaptive import FAMILY, injection_off, with_alpha_fo
-from sensorless.design.ipmsm_adaptive.linearize import unstable_speed_bands
 from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
-from sensorless.reports.ipmsm_adaptive import sampled_analysis
 from sensorless.reports.options import Number, Renamed, UsageError, parse_torques
+from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
+
+# the discrete-time observer's options (sampled_analysis.py): its analysis is imported where it runs
+SAMPLED_OPTIONS = (
+    Option(
+        ("--discrete",),
+        {
+            "action": "store_true",
+            "help": "also the discrete-time observer that runs (its one-step map at the sampling period)",
+        },
+    ),
+    Option(
+        ("--discretization",),
+        {"help": "the observer's discretization scheme to analyse (default: the drive file's)"},
+    ),
+    Option(
+        ("--study",),
+        {
+            "action": "store_true",
+            "help": "also the discretization study (every scheme over sampling periods)",
+        },
+    ),
+)
 
 OPTIONS = (
     Option(
@@ -56,7 +77,7 @@ OPTIONS = (
         ("--points",),
         {"type": Number(3, 100_000, integer=True), "help": "speed grid points (3..100000); default 2001"},
     ),
-    *sampled_analysis.OPTIONS,
+    *SAMPLED_OPTIONS,
 )
 
 
@@ -73,17 +94,35 @@ def gain_choices(drive: IpmsmDrive, args: argparse.Namespace) -> dict[str, Any]:
     return {n: FAMILY.gains(drive, name=n) for n in names}
 
 
+def scheme(drive: IpmsmDrive, args: argparse.Namespace) -> str | None:
+    """The scheme to analyse in discrete time (None: continuous only); refuses what cannot be done."""
+    if not (args.discrete or args.discretization):
+        return None
+    name = args.discretization or drive.run.discretization
+    if name not in DISCRETIZATIONS:
+        raise UsageError(f"--discretization: unknown scheme {name!r} (known: {', '.join(DISCRETIZATIONS)})")
+    if args.injection:
+        raise UsageError(
+            "--discrete/--discretization: the discrete-time analysis is of the observer without the HF "
+            "injection (its sampled chain is periodic at the carrier); leave out --injection"
+        )
+    return name
+
+
 def check(drive: IpmsmDrive, args: argparse.Namespace) -> None:
     """The options against the drive, before anything is computed: gains, table, torques, injection."""
     gain_choices(drive, args)
     if args.injection and not drive.injection.enabled:
         raise UsageError(f"argument --injection: {injection_off(drive)}")
     parse_torques(args.torque, drive.T_N)
-    sampled_analysis.scheme(drive, args)
+    scheme(drive, args)
 
 
 def analyze(drive: IpmsmDrive, args: argparse.Namespace, out: OutputSet) -> None:
     """Print the bands and worst damping per gain and torque; stage CSV and figures into ``out``."""
+    from sensorless.design.ipmsm_adaptive.linearize import unstable_speed_bands
+    from sensorless.reports.ipmsm_adaptive import sampled_analysis
+
     choices = gain_choices(drive, args)
     torques = parse_torques(args.torque, drive.T_N)
     speed_max = 1.0 if args.speed_max is None else args.speed_max  # ranges: OPTIONS
@@ -91,7 +130,7 @@ def analyze(drive: IpmsmDrive, args: argparse.Namespace, out: OutputSet) -> None
     wb = drive.w_base
     w = np.linspace(-speed_max, speed_max, points) * wb
     inj = bool(args.injection)
-    disc = sampled_analysis.scheme(drive, args)
+    disc = scheme(drive, args)
     opts = {"injection": inj} if disc is None else {"discretization": disc}
 
     print(f"{drive.name}: {drive.source}")

@@ -2,13 +2,12 @@
 
 Piippo, Hinkkanen, Luomi (2008) analyse the continuous observer; design/ipmsm_adaptive/one_step.py
 linearizes the runtime step (what simulation runs and C is printed from) on the motor sampled under
-zero-order hold. Here: the command-line options, the printed table and CSV beside the continuous
+zero-order hold. Here: the printed table and CSV beside the continuous
 analysis, the study of every discretization over the sampling period, and the report's section.
 """
 
 from __future__ import annotations
 
-import argparse
 import functools
 import math
 from collections.abc import Callable, Mapping
@@ -27,51 +26,13 @@ from sensorless.design.ipmsm_adaptive.runtime import law_of
 from sensorless.reports.csv_cells import REASON
 from sensorless.reports.csv_cells import row as csv_row
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
-from sensorless.reports.family import Option
 from sensorless.reports.figure_layout import lay_out
-from sensorless.reports.options import UsageError
 from sensorless.reports.pole_map import pole_table
 from sensorless.reports.svg_render import svg_later
 from sensorless.symbolic.ipmsm_adaptive.step import DISCRETIZATIONS
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
-
-OPTIONS = (
-    Option(
-        ("--discrete",),
-        {
-            "action": "store_true",
-            "help": "also the discrete-time observer that runs (its one-step map at the sampling period)",
-        },
-    ),
-    Option(
-        ("--discretization",),
-        {"help": "the observer's discretization scheme to analyse (default: the drive file's)"},
-    ),
-    Option(
-        ("--study",),
-        {
-            "action": "store_true",
-            "help": "also the discretization study (every scheme over sampling periods)",
-        },
-    ),
-)
-
-
-def scheme(drive: IpmsmDrive, args: argparse.Namespace) -> str | None:
-    """The scheme to analyse in discrete time (None: continuous only); refuses what cannot be done."""
-    if not (args.discrete or args.discretization):
-        return None
-    name = args.discretization or drive.run.discretization
-    if name not in DISCRETIZATIONS:
-        raise UsageError(f"--discretization: unknown scheme {name!r} (known: {', '.join(DISCRETIZATIONS)})")
-    if args.injection:
-        raise UsageError(
-            "--discrete/--discretization: the discrete-time analysis is of the observer without the HF "
-            "injection (its sampled chain is periodic at the carrier); leave out --injection"
-        )
-    return name
 
 
 def header(a: DiscretePoleSweep) -> str:

@@ -13,14 +13,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sensorless.design.pmac_reduced_order import FAMILY
-from sensorless.design.pmac_reduced_order.discretization import discretization_study
-from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
 from sensorless.reports.family import Option
 from sensorless.reports.files import OutputSet
 from sensorless.reports.options import RELATIVE_LIMIT, option_error, quantities
 from sensorless.symbolic.pmac_reduced_order.step import DISCRETIZATIONS
 
 if TYPE_CHECKING:  # typed by name only
+    from sensorless.design.pmac_reduced_order.linearize import ObserverPoles
     from sensorless.design.pmac_reduced_order.schema import PmacDrive
 
 OPTIONS = (
@@ -154,6 +153,8 @@ def analyze(drive: PmacDrive, args: argparse.Namespace, out: OutputSet) -> None:
         from sensorless.reports.pmac_reduced_order.figures import study_csv
 
         print("discretization study (load-torque estimation on): steady errors vs scheme and T_s")
+        from sensorless.design.pmac_reduced_order.discretization import discretization_study
+
         rows = discretization_study(
             drive,
             list(DISCRETIZATIONS),

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from sensorless.reports.envelope_options import ENVELOPE_OPTIONS, NOISE_OPTIONS
 from sensorless.reports.family import Option
 from sensorless.reports.options import Number, UsageError, parse_max_noise
-from sensorless.tuning.nlp import TuningError
+from sensorless.tuning.family import TuningError
 from sensorless.tuning.pmac_reduced_order.settings import ConstantGainSettings, default_settings
 
 if TYPE_CHECKING:  # typed by name only

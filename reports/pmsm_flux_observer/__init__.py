@@ -18,19 +18,26 @@ import dataclasses
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from sensorless.design.family import later
 from sensorless.design.pmsm_flux_observer import FAMILY
-from sensorless.reports import envelope_review
 from sensorless.reports.envelope_options import NOISE_OPTIONS
 from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.options import Number, UsageError, parse_max_noise
-from sensorless.reports.pmsm_flux_observer.findings import failure_cause
 from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
-from sensorless.reports.pmsm_flux_observer.review import JUDGE
-from sensorless.reports.pmsm_flux_observer.startup import tune_startup
-from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings, check_variant
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+    from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings
+
+# what computes is imported where it runs: every command reads these hooks for their options
+if TYPE_CHECKING:
+    from sensorless.reports.pmsm_flux_observer.findings import failure_cause
+    from sensorless.reports.pmsm_flux_observer.review import analyze, report
+    from sensorless.reports.pmsm_flux_observer.startup import tune_startup
+else:
+    failure_cause = later(f"{__name__}.findings", "failure_cause")
+    analyze, report = later(f"{__name__}.review", "analyze", "report")
+    tune_startup = later(f"{__name__}.startup", "tune_startup")
 
 
 # ------------------------------------------------------------------------------------------ analyze
@@ -90,6 +97,8 @@ TUNE_OPTIONS = (
 
 
 def tune_settings(drive: FluxObserverDrive, args: argparse.Namespace, tunable: Any) -> FluxTuneSettings:
+    from sensorless.tuning.pmsm_flux_observer import check_variant
+
     check_variant(drive, tunable.name)  # up front: a law the drive's observer variant cannot run
     s = tunable.settings(drive)
     errors = dict(s.errors)
@@ -128,13 +137,13 @@ def describe(drive: FluxObserverDrive, settings: FluxTuneSettings) -> str:
 
 
 HOOKS = ReportHooks(
-    analyze=envelope_review.analyze_with(JUDGE),
+    analyze=analyze,
     analyze_check=analyze_check,
     tune_options=TUNE_OPTIONS,
     tune_settings=tune_settings,
     describe_envelope=describe,
     startup_lines=tune_startup,
-    report=envelope_review.report_with(JUDGE),
+    report=report,
     failure_cause=failure_cause,
     settings_sections=("gains", "envelope", "control"),
     init_options=INIT_OPTIONS,

@@ -11,10 +11,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any
 
 from sensorless.design.drive_file import name_problem
-from sensorless.design.family import CapabilityError, DriveT, GainSet
+from sensorless.design.family import CapabilityError, DriveT, GainSet, later
 from sensorless.design.motor_data import mtpa_torque_current
 from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.design.pmsm_flux_observer.firmware import (
@@ -22,16 +23,22 @@ from sensorless.design.pmsm_flux_observer.firmware import (
     POLE_PAIRS_RANGE,
     U_DC_RANGE,
     FirmwareDrive,
-    odrive,
-    simplefoc,
-    vesc,
 )
-from sensorless.design.pmsm_flux_observer.firmware.startup import change_lines
 from sensorless.reports.family import Exporter, Importer, Option
 from sensorless.reports.options import Number, UsageError, drive_name
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+
+# each firmware's reader and writer, imported where a file is read or written: ``sensorless init``
+# lists the importers and their options
+if TYPE_CHECKING:
+    from sensorless.design.pmsm_flux_observer.firmware import odrive, simplefoc, vesc
+else:  # each module as the two functions read of it below (SimpleFOC's files are written, never read)
+    odrive, simplefoc, vesc = (
+        SimpleNamespace(read=later(m, "read"), export=later(m, "export"))
+        for m in (f"{FirmwareDrive.__module__}.{name}" for name in ("odrive", "simplefoc", "vesc"))
+    )
 
 POLE_PAIRS = Option(
     ("--pole-pairs",),
@@ -134,6 +141,7 @@ def firmware_record(drive: FluxObserverDrive, gains: GainSet) -> FirmwareDrive:
     """What an export writes: the drive's estimates (what the firmware is given), loop and gains, and its
     I-f start judged at the gains (design/startup_check.py): the drive file's values kept where they
     hold, each one that does not replaced by the value that fixes it, with one line saying why."""
+    from sensorless.design.pmsm_flux_observer.firmware.startup import change_lines
     from sensorless.design.startup_check import judge_startup
 
     e, obs = drive.estimate, drive.observer

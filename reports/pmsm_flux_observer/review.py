@@ -24,7 +24,15 @@ from sensorless.design.pmsm_flux_observer import FAMILY
 from sensorless.reports import drive_range
 from sensorless.reports.document import Figure, Paragraph, Section, Table, f, num
 from sensorless.reports.drive_range import Remedy
-from sensorless.reports.envelope_review import Analysis, Checks, Judgement, Judging, poles_section_figure
+from sensorless.reports.envelope_review import (
+    Analysis,
+    Checks,
+    Judgement,
+    Judging,
+    analyze_with,
+    poles_section_figure,
+    report_with,
+)
 from sensorless.reports.pmsm_flux_observer.figures import bias_caption, bias_curves, bias_figure, front_figure
 from sensorless.reports.pmsm_flux_observer.findings import (
     damping_finding,
@@ -252,3 +260,6 @@ class FluxJudge(Judging["FluxObserverDrive"]):
 
 
 JUDGE = FluxJudge()
+# the family's analyze and report (its hooks, reports/pmsm_flux_observer/__init__.py, name them)
+analyze = analyze_with(JUDGE)
+report = report_with(JUDGE)

@@ -11,12 +11,20 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING, Any
 
+from sensorless.design.family import later
 from sensorless.design.ipmsm_adaptive.law_settings import law_settings
 from sensorless.tuning.family import Tunable, TuningHooks
-from sensorless.tuning.ipmsm_adaptive.laws import build_schedule, build_speed_dependent
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.ipmsm_adaptive.schema import IpmsmDrive
+
+# the builders, imported where a law is tuned: every `tune` lists every family's laws
+if TYPE_CHECKING:
+    from sensorless.tuning.ipmsm_adaptive.laws import build_schedule, build_speed_dependent
+else:
+    build_schedule, build_speed_dependent = later(
+        f"{__name__}.laws", "build_schedule", "build_speed_dependent"
+    )
 
 _POINTS = (
     ("w_m_pu", "w_m_pu"),

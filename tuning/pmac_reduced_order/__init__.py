@@ -6,9 +6,17 @@ through the shared NLP: tuner.py has a closed form and a compass search on the d
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+from sensorless.design.family import later
 from sensorless.tuning.family import Tunable, TuningHooks
 from sensorless.tuning.pmac_reduced_order.settings import default_settings
-from sensorless.tuning.pmac_reduced_order.tuner import tune_constant_gains
+
+# the tuner, imported where it runs: every `tune` lists every family's laws
+if TYPE_CHECKING:
+    from sensorless.tuning.pmac_reduced_order.tuner import tune_constant_gains
+else:
+    tune_constant_gains = later(f"{__name__}.tuner", "tune_constant_gains")
 
 HOOKS = TuningHooks(
     tunables=(

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 from sensorless.design.envelope import SpeedRule
-from sensorless.tuning.nlp import TuningError
+from sensorless.tuning.family import TuningError
 
 if TYPE_CHECKING:  # typed by name only
     from sensorless.design.pmac_reduced_order.schema import PmacDrive

@@ -49,7 +49,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sensorless.tuning.nlp import TuningError
+from sensorless.tuning.family import TuningError
 from sensorless.tuning.pmac_reduced_order.objective import (
     compass_search,
     drive_check,

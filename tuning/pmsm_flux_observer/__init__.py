@@ -21,40 +21,88 @@ observer's decay rate k/2, within the limit (the PLL does not feed back into the
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import importlib
+from typing import TYPE_CHECKING, Any
 
-from sensorless.design.family import EstimateErrors
+from sensorless.design.family import EstimateErrors, later
 from sensorless.design.pmsm_flux_observer import ERROR_KEYS
 from sensorless.design.pmsm_flux_observer.laws import TABLE_LAWS
 from sensorless.tuning.family import Tunable, TuningHooks
-from sensorless.tuning.pmsm_flux_observer.assessment import (
-    Assessment,
-    assess,
-    assess_any,
-    assess_linearized,
-    figures,
-    front,
-    hold_speed,
-    low_limit,
-)
-from sensorless.tuning.pmsm_flux_observer.constant import tune_constant
-from sensorless.tuning.pmsm_flux_observer.criterion import best, judged, requirements, shortfalls
-from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome
-from sensorless.tuning.pmsm_flux_observer.schedule import tune_schedule
-from sensorless.tuning.pmsm_flux_observer.settings import (
-    FluxTuneSettings,
-    check_variant,
-    constant_candidate,
-    corners,
-    default_settings,
-    k_grid,
-    odrive_defaults,
-    vesc_detection,
-)
-from sensorless.tuning.pmsm_flux_observer.voltage_scaled import tune_voltage_scaled
 
-if TYPE_CHECKING:  # typed by name only
+if TYPE_CHECKING:  # typed by name; at run time each name is imported from its module when first read
     from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
+    from sensorless.tuning.pmsm_flux_observer.assessment import (
+        Assessment,
+        assess,
+        assess_any,
+        assess_linearized,
+        figures,
+        front,
+        hold_speed,
+        low_limit,
+    )
+    from sensorless.tuning.pmsm_flux_observer.constant import tune_constant
+    from sensorless.tuning.pmsm_flux_observer.constant import tune_constant as _tune_constant
+    from sensorless.tuning.pmsm_flux_observer.criterion import best, judged, requirements, shortfalls
+    from sensorless.tuning.pmsm_flux_observer.outcome import FluxOutcome
+    from sensorless.tuning.pmsm_flux_observer.schedule import tune_schedule
+    from sensorless.tuning.pmsm_flux_observer.schedule import tune_schedule as _tune_schedule
+    from sensorless.tuning.pmsm_flux_observer.settings import (
+        FluxTuneSettings,
+        check_variant,
+        constant_candidate,
+        corners,
+        default_settings,
+        k_grid,
+        odrive_defaults,
+        vesc_detection,
+    )
+    from sensorless.tuning.pmsm_flux_observer.settings import default_settings as _default_settings
+    from sensorless.tuning.pmsm_flux_observer.voltage_scaled import tune_voltage_scaled
+    from sensorless.tuning.pmsm_flux_observer.voltage_scaled import (
+        tune_voltage_scaled as _tune_voltage_scaled,
+    )
+else:  # the hooks' functions, each importing its module at its first call
+    _default_settings = later(f"{__name__}.settings", "default_settings")
+    _tune_constant = later(f"{__name__}.constant", "tune_constant")
+    _tune_schedule = later(f"{__name__}.schedule", "tune_schedule")
+    _tune_voltage_scaled = later(f"{__name__}.voltage_scaled", "tune_voltage_scaled")
+
+# the package's names by their modules (read through __getattr__, PEP 562): `tune` lists every family's
+# laws, and only a flux drive's tune or report computes with them
+_MODULES = {
+    "Assessment": "assessment",
+    "assess": "assessment",
+    "assess_any": "assessment",
+    "assess_linearized": "assessment",
+    "figures": "assessment",
+    "front": "assessment",
+    "hold_speed": "assessment",
+    "low_limit": "assessment",
+    "tune_constant": "constant",
+    "best": "criterion",
+    "judged": "criterion",
+    "requirements": "criterion",
+    "shortfalls": "criterion",
+    "FluxOutcome": "outcome",
+    "tune_schedule": "schedule",
+    "FluxTuneSettings": "settings",
+    "check_variant": "settings",
+    "constant_candidate": "settings",
+    "corners": "settings",
+    "default_settings": "settings",
+    "k_grid": "settings",
+    "odrive_defaults": "settings",
+    "vesc_detection": "settings",
+    "tune_voltage_scaled": "voltage_scaled",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _MODULES:
+        return getattr(importlib.import_module(f"{__name__}.{_MODULES[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "HOOKS",
@@ -102,23 +150,23 @@ HOOKS = TuningHooks(
             "constant",
             "flux observer: observer_gain (gamma lambda^2) and pll_bandwidth, constant over speed (ODrive's "
             "terms)",
-            default_settings,
-            tuner=tune_constant,
+            _default_settings,
+            tuner=_tune_constant,
             columns=(_LEAD, ()),
         ),
         Tunable(
             "voltage-scaled",
             "flux observer: VESC's foc_observer_gain, foc_observer_gain_slow (scaled with the voltage at run "
             "time), PLL",
-            default_settings,
-            tuner=tune_voltage_scaled,
+            _default_settings,
+            tuner=_tune_voltage_scaled,
             columns=(_LEAD, ()),
         ),
         Tunable(
             "schedule",
             "flux observer: gamma lambda^2 free over speed, with the PLL",
-            default_settings,
-            tuner=tune_schedule,
+            _default_settings,
+            tuner=_tune_schedule,
             columns=(_LEAD, ()),
         ),
     ),
