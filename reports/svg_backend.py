@@ -117,12 +117,45 @@ def warm(texts: Iterable[str]) -> None:
             TEXT.get_text_width_height_descent(s, FontProperties(), ismath=True)
 
 
+@functools.lru_cache(CACHED)
+def _font_heights(prop: FontProperties) -> tuple[float, float, float] | tuple[None, None, None]:
+    """(ascent, descent, line gap) [px at 72 dpi] of the font of ``prop``, from its OS/2 or hhea table:
+    matplotlib's ``Text._get_layout`` at the figure's 72 dpi (the same expressions), for the hook it
+    asks a renderer first. It looked the font up and read two of its tables for every text laid out
+    (~1000 a report's figures), where a figure uses a few fonts."""
+    from matplotlib.font_manager import fontManager, get_font
+
+    font = get_font(fontManager._find_fonts_by_props(prop))
+    dpi = 72
+    for table_name, linegap_key, ascent_key, descent_key in (
+        ("OS/2", "sTypoLineGap", "sTypoAscender", "sTypoDescender"),
+        ("hhea", "lineGap", "ascent", "descent"),
+    ):
+        table = font.get_sfnt_table(table_name)
+        if table is None:
+            continue
+        fontsize = prop.get_size_in_points()
+        units_per_em = font.get_sfnt_table("head")["unitsPerEm"]
+        scale = 1 / units_per_em * fontsize * dpi / 72
+        return table[ascent_key] * scale, -table[descent_key] * scale, table[linegap_key] * scale
+    return None, None, None  # matplotlib measures "lp" instead
+
+
 class Renderer(RendererSVG):
-    """matplotlib's SVG renderer on this process's :data:`TEXT`."""
+    """matplotlib's SVG renderer on this process's :data:`TEXT`, with each font's height metrics read
+    once (:func:`_font_heights`). It measures and draws at 72 dpi only: the figure's dpi whenever it is
+    in use (``print_svg`` and figure_layout.py ``lay_out`` set it)."""
 
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)
         self._text2path = TEXT
+
+    def _get_font_height_metrics(
+        self, prop: FontProperties
+    ) -> tuple[float, float, float] | tuple[None, None, None]:
+        # matplotlib's Text._get_layout asks a renderer with this (private) method before reading the
+        # font's tables itself (its PDF and PS renderers have it)
+        return _font_heights(prop.copy())  # a copy: the caller may change its own later
 
 
 def measuring_renderer(fig: Figure) -> RendererSVG:

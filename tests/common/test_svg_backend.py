@@ -33,3 +33,26 @@ def test_rasterized_artists_give_matplotlibs_own_bytes():
     own, ours = _svg(None), _svg(svg_backend.BACKEND)
     assert own.count(b"<image") == 5  # four scatters and the colorbar, each its own image
     assert ours == own
+
+
+def _text_svg() -> bytes:
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(4, 3))
+    ax.plot([0, 1], [0, 1], label="one\ntwo lines")
+    ax.legend(fontsize=7)
+    ax.set_title("title\nof three\nlines", fontsize=11, fontweight="bold")
+    ax.text(0.1, 0.5, "serif,\nitalic", family="serif", style="italic", fontsize=13)
+    ax.set_xlabel(r"$\hat\omega$ (rad/s)")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="svg", metadata={"Date": None}, backend=svg_backend.BACKEND)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+@pytest.mark.skipif(not svg_backend.supported(), reason="a matplotlib the backend was not checked on")
+def test_font_heights_read_once_lay_out_text_as_matplotlib_does(monkeypatch):
+    """Multi-line texts in several fonts and sizes (their line spacing is the font's height metrics)
+    are placed where matplotlib places them reading each font's tables for every text."""
+    ours = _text_svg()
+    monkeypatch.delattr(svg_backend.Renderer, "_get_font_height_metrics")
+    assert ours == _text_svg()
