@@ -16,7 +16,6 @@ Used through ``savefig(..., backend=BACKEND)`` (document.py ``svg_uri``): the SV
 
 from __future__ import annotations
 
-import codecs
 import functools
 import io
 import sys
@@ -233,10 +232,12 @@ class FigureCanvas(FigureCanvasSVG):
     ) -> None:
         # matplotlib's FigureCanvasSVG.print_svg, with Renderer and Mixed in place of RendererSVG and
         # MixedModeRenderer; ``_applied``: what print_figure passes a canvas not of matplotlib's own (dpi,
-        # facecolor, edgecolor, orientation), set on the figure already; matplotlib's print_svg takes none
+        # facecolor, edgecolor, orientation), set on the figure already; matplotlib's print_svg takes none.
+        # The SVG is written to a string, then to the file at once: matplotlib writes a binary file
+        # through a codecs writer, a Python call and an encode for each of the ~5000 pieces of a figure
         with cbook.open_file_cm(filename, "w", encoding="utf-8") as fh:
-            if not cbook.file_requires_unicode(fh):
-                fh = codecs.getwriter("utf-8")(fh)
+            text = io.StringIO()
+            name = getattr(fh, "name", "")  # the images' file names if not inline, as matplotlib's
             dpi = self.figure.dpi
             self.figure.dpi = 72
             width, height = self.figure.get_size_inches()
@@ -246,8 +247,10 @@ class FigureCanvas(FigureCanvasSVG):
                 width,
                 height,
                 dpi,
-                Renderer(w, h, fh, image_dpi=dpi, metadata=metadata),
+                Renderer(w, h, text, name if isinstance(name, str) else "", image_dpi=dpi, metadata=metadata),
                 bbox_inches_restore=bbox_inches_restore,
             )
             self.figure.draw(renderer)
             renderer.finalize()
+            svg = text.getvalue()
+            fh.write(svg if cbook.file_requires_unicode(fh) else svg.encode("utf-8"))
