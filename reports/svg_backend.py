@@ -11,7 +11,9 @@ repeated one (tick labels, the same axis label on each panel) already shaped, ea
 parsed once.
 
 Used through ``savefig(..., backend=BACKEND)`` (document.py ``svg_uri``): the SVG is matplotlib's
-``print_svg`` with :class:`Renderer` in place of ``RendererSVG``; its bytes are those matplotlib writes.
+``print_svg`` with :class:`Renderer` in place of ``RendererSVG`` (each font's height metrics read once)
+and :class:`Mixed` in place of ``MixedModeRenderer`` (one raster buffer for all rasterized artists),
+written to a string and encoded once; its bytes are those matplotlib writes.
 """
 
 from __future__ import annotations
