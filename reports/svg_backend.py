@@ -11,12 +11,13 @@ repeated one (tick labels, the same axis label on each panel) already shaped, ea
 parsed once.
 
 Used through ``savefig(..., backend=BACKEND)`` (document.py ``svg_uri``): the SVG is matplotlib's
-``print_svg`` with :class:`Renderer` in place of ``RendererSVG``; its bytes are those matplotlib writes.
+``print_svg`` with :class:`Renderer` in place of ``RendererSVG`` (each font's height metrics read once)
+and :class:`Mixed` in place of ``MixedModeRenderer`` (one raster buffer for all rasterized artists),
+written to a string and encoded once; its bytes are those matplotlib writes.
 """
 
 from __future__ import annotations
 
-import codecs
 import functools
 import io
 import sys
@@ -26,6 +27,7 @@ from typing import IO, TYPE_CHECKING
 
 import numpy as np
 from matplotlib import cbook
+from matplotlib.backends.backend_agg import RendererAgg
 from matplotlib.backends.backend_mixed import MixedModeRenderer
 from matplotlib.backends.backend_svg import FigureCanvasSVG, RendererSVG
 from matplotlib.textpath import TextToPath
@@ -116,12 +118,45 @@ def warm(texts: Iterable[str]) -> None:
             TEXT.get_text_width_height_descent(s, FontProperties(), ismath=True)
 
 
+@functools.lru_cache(CACHED)
+def _font_heights(prop: FontProperties) -> tuple[float, float, float] | tuple[None, None, None]:
+    """(ascent, descent, line gap) [px at 72 dpi] of the font of ``prop``, from its OS/2 or hhea table:
+    matplotlib's ``Text._get_layout`` at the figure's 72 dpi (the same expressions), for the hook it
+    asks a renderer first. It looked the font up and read two of its tables for every text laid out
+    (~1000 a report's figures), where a figure uses a few fonts."""
+    from matplotlib.font_manager import fontManager, get_font
+
+    font = get_font(fontManager._find_fonts_by_props(prop))
+    dpi = 72
+    for table_name, linegap_key, ascent_key, descent_key in (
+        ("OS/2", "sTypoLineGap", "sTypoAscender", "sTypoDescender"),
+        ("hhea", "lineGap", "ascent", "descent"),
+    ):
+        table = font.get_sfnt_table(table_name)
+        if table is None:
+            continue
+        fontsize = prop.get_size_in_points()
+        units_per_em = font.get_sfnt_table("head")["unitsPerEm"]
+        scale = 1 / units_per_em * fontsize * dpi / 72
+        return table[ascent_key] * scale, -table[descent_key] * scale, table[linegap_key] * scale
+    return None, None, None  # matplotlib measures "lp" instead
+
+
 class Renderer(RendererSVG):
-    """matplotlib's SVG renderer on this process's :data:`TEXT`."""
+    """matplotlib's SVG renderer on this process's :data:`TEXT`, with each font's height metrics read
+    once (:func:`_font_heights`). It measures and draws at 72 dpi only: the figure's dpi whenever it is
+    in use (``print_svg`` and figure_layout.py ``lay_out`` set it)."""
 
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)
         self._text2path = TEXT
+
+    def _get_font_height_metrics(
+        self, prop: FontProperties
+    ) -> tuple[float, float, float] | tuple[None, None, None]:
+        # matplotlib's Text._get_layout asks a renderer with this (private) method before reading the
+        # font's tables itself (its PDF and PS renderers have it)
+        return _font_heights(prop.copy())  # a copy: the caller may change its own later
 
 
 def measuring_renderer(fig: Figure) -> RendererSVG:
@@ -147,7 +182,20 @@ def _painted(img: np.ndarray) -> tuple[slice, slice]:
 
 class Mixed(MixedModeRenderer):
     """matplotlib's mixed-mode renderer, finding a rasterized artist's pixels in the figure-sized buffer
-    faster (:func:`_painted`; the same image)."""
+    faster (:func:`_painted`; the same image), and drawing every rasterized artist of the figure on one
+    such buffer, cleared after each: matplotlib makes a new one for each, and a pole map rasterizes ten
+    (its scatters and colorbars) on 7 MB buffers, new pages to fault in each time."""
+
+    _spare: RendererAgg | None = None  # the buffer of the last rasterized artist, cleared
+
+    def start_rasterizing(self) -> None:
+        spare = self._spare
+        if self._bbox_inches_restore or spare is None:  # the first, or not the report's case
+            return super().start_rasterizing()
+        # matplotlib's MixedModeRenderer.start_rasterizing, on the cleared buffer: as a new one is
+        self.figure.dpi = self.dpi
+        self._spare = None
+        self._raster_renderer = self._renderer = spare
 
     def stop_rasterizing(self) -> None:
         raster = self._raster_renderer
@@ -166,7 +214,9 @@ class Mixed(MixedModeRenderer):
                 slice_x.start * self._figdpi / self.dpi,
                 (height - slice_y.stop) * self._figdpi / self.dpi,
                 cropped[::-1],
-            )
+            )  # written out (PNG) already: the buffer is free
+        raster.clear()  # as RendererAgg makes it: every pixel the clear colour
+        self._spare = raster
         self._raster_renderer = None
         self.figure.dpi = self._figdpi
 
@@ -184,10 +234,12 @@ class FigureCanvas(FigureCanvasSVG):
     ) -> None:
         # matplotlib's FigureCanvasSVG.print_svg, with Renderer and Mixed in place of RendererSVG and
         # MixedModeRenderer; ``_applied``: what print_figure passes a canvas not of matplotlib's own (dpi,
-        # facecolor, edgecolor, orientation), set on the figure already; matplotlib's print_svg takes none
+        # facecolor, edgecolor, orientation), set on the figure already; matplotlib's print_svg takes none.
+        # The SVG is written to a string, then to the file at once: matplotlib writes a binary file
+        # through a codecs writer, a Python call and an encode for each of the ~5000 pieces of a figure
         with cbook.open_file_cm(filename, "w", encoding="utf-8") as fh:
-            if not cbook.file_requires_unicode(fh):
-                fh = codecs.getwriter("utf-8")(fh)
+            text = io.StringIO()
+            name = getattr(fh, "name", "")  # the images' file names if not inline, as matplotlib's
             dpi = self.figure.dpi
             self.figure.dpi = 72
             width, height = self.figure.get_size_inches()
@@ -197,8 +249,10 @@ class FigureCanvas(FigureCanvasSVG):
                 width,
                 height,
                 dpi,
-                Renderer(w, h, fh, image_dpi=dpi, metadata=metadata),
+                Renderer(w, h, text, name if isinstance(name, str) else "", image_dpi=dpi, metadata=metadata),
                 bbox_inches_restore=bbox_inches_restore,
             )
             self.figure.draw(renderer)
             renderer.finalize()
+            svg = text.getvalue()
+            fh.write(svg if cbook.file_requires_unicode(fh) else svg.encode("utf-8"))
