@@ -212,9 +212,17 @@ def linearize(
     sweep = linearize_continuous(drive, w_m, T_e, gain=gain, **options)
     if discretization is None:
         return sweep
-    est = operating_points(w_m, T_e, options.get("estimate"))[2]
-    est = np.array(drive.estimate.vector()) if est is None else est
-    return discrete_sweep(drive, sweep, gain_parameters(drive, gain)[1], discretization, T_s, est)
+    params, est = _discrete_inputs(drive, w_m, T_e, gain, options.get("estimate"))
+    return discrete_sweep(drive, sweep, params, discretization, T_s, est)
+
+
+def _discrete_inputs(
+    drive: IpmsmDrive, w_m: Any, T_e: Any, gain: str | tuple | None, estimate: Any
+) -> tuple[np.ndarray, np.ndarray]:
+    """The gain law's parameters and the estimates (per point, or the drive file's) that
+    :func:`discrete_sweep` takes beside the continuous analysis of the same points, gain and estimate."""
+    est = operating_points(w_m, T_e, estimate)[2]
+    return gain_parameters(drive, gain)[1], np.array(drive.estimate.vector()) if est is None else est
 
 
 # --------------------------------------------------------------------------------------------------
@@ -257,7 +265,7 @@ def discretization_study(
     # the continuous analysis is the same for every scheme and T_s: once, not once per row (as
     # :func:`linearize` with a discretization computes it, at the drive file's estimates)
     continuous = linearize_continuous(drive, w, torque, gain=gain)
-    params, est = gain_parameters(drive, gain)[1], np.array(drive.estimate.vector())
+    params, est = _discrete_inputs(drive, w, torque, gain, None)
     for T_s in sampling:
         for m in schemes:
             if progress is not None:
