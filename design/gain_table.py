@@ -173,22 +173,16 @@ def _encode(doc: object, cleaning: bool) -> str:
             if set(map(type, x)) == only_floats:
                 return "[" + inner + ("," + inner).join(map(rep, x)) + nl(level) + "]"
             pair = nl(up + 1)
-            return (
-                "["
-                + inner
-                + ("," + inner).join(
-                    [
-                        rep(v)
-                        if type(v) is float
-                        else "[" + pair + rep(v[0]) + "," + pair + rep(v[1]) + inner + "]"
-                        if type(v) is list and len(v) == 2 and type(v[0]) is float and type(v[1]) is float
-                        else enc(v, up)
-                        for v in x
-                    ]
-                )
-                + nl(level)
-                + "]"
-            )
+            items = []
+            for v in x:
+                if type(v) is float:
+                    items.append(rep(v))
+                elif type(v) is list and len(v) == 2 and type(v[0]) is float and type(v[1]) is float:
+                    # a pole's [re, im], the bulk of a table: written here, without a call of its own
+                    items.append("[" + pair + rep(v[0]) + "," + pair + rep(v[1]) + inner + "]")
+                else:
+                    items.append(enc(v, up))
+            return "[" + inner + ("," + inner).join(items) + nl(level) + "]"
         if t is dict:
             if not x:
                 return "{}"
