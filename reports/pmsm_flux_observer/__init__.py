@@ -25,15 +25,13 @@ from sensorless.reports.family import Option, ReportHooks
 from sensorless.reports.options import Number, UsageError, parse_max_noise
 from sensorless.reports.pmsm_flux_observer.firmware_io import EXPORTERS, IMPORTERS
 
-if TYPE_CHECKING:  # typed by name only
-    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
-    from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings
-
 # what computes is imported where it runs: every command reads these hooks for their options
 if TYPE_CHECKING:
+    from sensorless.design.pmsm_flux_observer.schema import FluxObserverDrive
     from sensorless.reports.pmsm_flux_observer.findings import failure_cause
     from sensorless.reports.pmsm_flux_observer.review import analyze, report
     from sensorless.reports.pmsm_flux_observer.startup import tune_startup
+    from sensorless.tuning.pmsm_flux_observer import FluxTuneSettings
 else:
     failure_cause = later(f"{__name__}.findings", "failure_cause")
     analyze, report = later(f"{__name__}.review", "analyze", "report")
