@@ -1,5 +1,6 @@
 """Installation: the console script exists and runs, and only the ``sensorless`` namespace is installed."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -44,3 +45,30 @@ def test_every_source_folder_is_a_package():
         and not (d / "__init__.py").is_file()
     ]
     assert not missing, missing
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in Linux's /proc")
+def test_commands_load_numpy_with_one_blas_thread(tmp_path):
+    """The command line's numpy starts no OpenBLAS worker threads unless the user asks for them
+    (reports/cli/main.py): counted in a fresh interpreter whose environment names no thread count.
+    The same interpreter with OPENBLAS_NUM_THREADS=2 must show the worker, else the count proves nothing."""
+    code = (
+        "import os, sys\n"
+        "import sensorless.reports.cli.main\n"
+        "import numpy\n"
+        "print(len(os.listdir('/proc/self/task')))\n"
+    )
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "GOTO_NUM_THREADS")
+    }
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env)
+    assert r.returncode == 0, r.stderr
+    assert int(r.stdout) == 1, f"{r.stdout.strip()} threads after importing numpy under the command line"
+    if (os.cpu_count() or 1) > 1:  # the user's own setting is kept, and starts OpenBLAS's workers
+        env["OPENBLAS_NUM_THREADS"] = "2"
+        r = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env
+        )
+        assert r.returncode == 0 and int(r.stdout) == 2, r.stderr or r.stdout
