@@ -43,6 +43,7 @@ from sensorless.design.batch import evaluate_batch, settled
 from sensorless.design.memo import OwnedMemo
 from sensorless.design.noise import noise_rms
 from sensorless.design.poles import batched_path, charpoly_ready, eigvals_batched, max_real, worst_damping
+from sensorless.tuning.equilibria import fixed_equilibria
 
 
 @dataclass(frozen=True, eq=False)  # identity-hashed: Functions are cached per model
@@ -190,42 +191,6 @@ def _call(fn: ca.Function, n: int, args: list[np.ndarray]) -> list[np.ndarray]:
     return [o[:n] for o in evaluate_batch(fn, m, padded)]
 
 
-# fixed_equilibria's memo: the equilibria of points where they do not move with the gains, per model and
-# points (a tune evaluates the same envelope and dense grids for hundreds of candidate gains); point sets
-# up to FIXED_X0_POINTS (a key of 6 rows: 0.8 MB)
-_FIXED_X0: OwnedMemo[np.ndarray] = OwnedMemo(32)
-FIXED_X0_POINTS = 16384
-
-
-def _period(P: np.ndarray) -> int:
-    """The smallest n such that the columns of P (N of them) are its first n repeated (``np.tile``: a
-    batch of K candidates on the same points), or N."""
-    N = P.shape[1]
-    again = np.flatnonzero(np.all(P == P[:, :1], axis=0))[1:9]  # a few tries: most batches repeat or not
-    for n in again:
-        if N % n == 0 and np.array_equal(P[:, n:], P[:, :-n]):
-            return int(n)
-    return N
-
-
-def fixed_equilibria(model: TuningModel, theta: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """(n_x, N) the equilibria at points P where none moves with the gains (``fixed_equilibrium`` true at
-    all of them): each distinct set of points solved once per model (the equilibrium of such a point is
-    the same whatever the gains or the batch: the closed form at exact estimates, on the VM or compiled
-    alike), a batch of candidates on the same points (``np.tile``) solving them once."""
-    N = P.shape[1]
-    n = _period(P)
-    base = np.ascontiguousarray(P[:, :n], dtype=float)
-    key = repr(base.shape).encode() + base.tobytes()
-    x = _FIXED_X0.get(model, key)
-    if x is None:
-        x = np.array(model.equilibrium(theta if theta.ndim == 1 else theta[:, :n], base), float)
-        x.flags.writeable = False
-        if n <= FIXED_X0_POINTS:
-            _FIXED_X0.put(model, key, x)
-    return np.tile(x, (1, N // n))
-
-
 def _eigvals(n: int, A: np.ndarray, extra: int) -> np.ndarray:
     """Eigenvalues of A (N, n, n) as a batch with ``extra`` copies of its last matrix gives them
     (evaluate's padding): without the copies where that runs the same code (design/poles.py: the same
@@ -256,7 +221,7 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
     # asked for. Not where an equilibrium must be solved for (estimate errors): no padding there.
     M = _bucket(N)
     closed = model.fixed_equilibrium is not None and bool(np.all(model.fixed_equilibrium(P)))
-    x0 = fixed_equilibria(model, theta, P) if closed else model.equilibrium(theta, P)
+    x0 = fixed_equilibria(model, P) if closed else model.equilibrium(theta, P)
     if M > N and closed and noise:
         P = np.concatenate([P, np.repeat(P[:, -1:], M - N, axis=1)], axis=1)
         if theta.ndim == 2:
