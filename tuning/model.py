@@ -43,7 +43,6 @@ from sensorless.design.batch import evaluate_batch, settled
 from sensorless.design.memo import OwnedMemo
 from sensorless.design.noise import noise_rms
 from sensorless.design.poles import batched_path, charpoly_ready, eigvals_batched, max_real, worst_damping
-from sensorless.tuning.equilibria import fixed_equilibria
 
 
 @dataclass(frozen=True, eq=False)  # identity-hashed: Functions are cached per model
@@ -189,6 +188,50 @@ def _call(fn: ca.Function, n: int, args: list[np.ndarray]) -> list[np.ndarray]:
             a = np.concatenate([a, np.repeat(a[:, -1:], m - n, axis=1)], axis=1)
         padded.append(a)
     return [o[:n] for o in evaluate_batch(fn, m, padded)]
+
+
+# The equilibria of points where they do not move with the gains (``TuningModel.fixed_equilibrium``),
+# solved once a point per model: such a point's equilibrium is the same whatever the gains or the batch it
+# is solved in (the closed form at exact estimates, on CasADi's VM or compiled alike), and the tuner asks
+# for the same points again and again: a tune the same envelope and dense grids for hundreds of candidate
+# gains (a batch of K candidates on the same points, ``np.tile``), the pointwise bound (tuning/bound.py)
+# thousands of gains at each of a few hundred points, in ever-changing subsets of its speeds x torques (a
+# fifth of its evaluation's CPU went to the same equilibria again). Only those points: elsewhere
+# (estimate errors) the equilibrium is solved for and moves with the gains. Per model: the points solved
+# (their bytes as one item each, sorted) and their equilibria (n_x, K) in that order, replaced whole when
+# it grows, never changed in place (a threaded scheduler may tune in several threads); up to
+# FIXED_X0_POINTS points a model (6 rows and 4 states: 5 MB; a tune's models hold a few thousand each)
+_FIXED_X0: OwnedMemo[tuple[np.ndarray, np.ndarray]] = OwnedMemo(16)
+FIXED_X0_POINTS = 1 << 16
+
+
+def _point_keys(P: np.ndarray) -> np.ndarray:
+    """(N,) the columns of P as single items of their bytes (np.void): sortable, comparable whole."""
+    cols = np.ascontiguousarray(P.T, dtype=float)
+    return cols.view(np.dtype((np.void, cols.shape[1] * cols.itemsize))).ravel()
+
+
+def fixed_equilibria(model: TuningModel, P: np.ndarray) -> np.ndarray:
+    """(n_x, N) the equilibria at the points P, none of which moves with the gains (``fixed_equilibrium``
+    true at all of them): those the model has solved from its table (above), the others solved once each
+    (at the drive file's gains, which they do not depend on) and added to it."""
+    q = _point_keys(P)
+    kept = _FIXED_X0.get(model, b"")
+    keys, x = kept if kept is not None else (q[:0], np.zeros((model.n_x, 0)))
+    at = np.searchsorted(keys, q)
+    found = np.zeros(q.size, bool)
+    inside = at < keys.size
+    found[inside] = keys[at[inside]] == q[inside]
+    if found.all():
+        return x[:, at]
+    new, first = np.unique(q[~found], return_index=True)
+    solved = np.asarray(model.equilibrium(model.theta0, P[:, np.flatnonzero(~found)[first]]), float)
+    keys, x = np.concatenate([keys, new]), np.concatenate([x, solved], axis=1)
+    order = np.argsort(keys, kind="stable")
+    keys, x = keys[order], x[:, order]
+    if keys.size <= FIXED_X0_POINTS:
+        _FIXED_X0.put(model, b"", (keys, x))
+    return x[:, np.searchsorted(keys, q)]
 
 
 def _eigvals(n: int, A: np.ndarray, extra: int) -> np.ndarray:

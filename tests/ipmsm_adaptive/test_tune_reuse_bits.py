@@ -2,7 +2,8 @@
 tie-break's searches (tuning/search.py ``_poles``), the tuner's poles deciding stability in the noise
 figure (design/noise.py ``noise_rms``), a batch's equilibria and its evaluation without the copies
 that pad it to a bucket size (tuning/model.py ``evaluate``), and the equilibria kept where they do not
-move with the gains (tuning/equilibria.py). On the example servo's law (16), its default envelope."""
+move with the gains (tuning/model.py ``fixed_equilibria``). On the example servo's law (16), its
+default envelope."""
 
 from __future__ import annotations
 
@@ -14,8 +15,8 @@ import pytest
 from sensorless.design.drive import load_drive
 from sensorless.design.noise import noise_rms
 from sensorless.design.poles import eigvals_batched
-from sensorless.tuning import equilibria, search
 from sensorless.tuning import model as tuning_model
+from sensorless.tuning import search
 from sensorless.tuning.conditions import candidates
 from sensorless.tuning.family import tunable_for
 from sensorless.tuning.model import _call, evaluate
@@ -91,13 +92,13 @@ def test_a_batch_gives_the_bits_of_its_padded_batch(servo, n_points):
     starts = np.clip(np.asarray(model.starts(), float), model.lower, model.upper)[:3]
     P = np.tile(base, (1, 3))  # three candidates on the same points: their equilibria solved once
     theta = np.repeat(starts, n_points, axis=0).T
-    equilibria._TABLES.clear()
+    tuning_model._FIXED_X0.clear()
     e = evaluate(model, theta, P)
     pad = tuning_model._bucket(P.shape[1]) - P.shape[1]
     assert pad > 0
     Pp = np.concatenate([P, np.repeat(P[:, -1:], pad, axis=1)], axis=1)
     tp = np.concatenate([theta, np.repeat(theta[:, -1:], pad, axis=1)], axis=1)
-    equilibria._TABLES.clear()
+    tuning_model._FIXED_X0.clear()
     padded = evaluate(model, tp, Pp)  # a bucket size: no copies added
     assert e.poles.tobytes() == padded.poles[: P.shape[1]].tobytes()
     assert e.bounded is not None and padded.bounded is not None
@@ -106,10 +107,10 @@ def test_a_batch_gives_the_bits_of_its_padded_batch(servo, n_points):
 
 
 def test_the_fixed_equilibria_are_solved_once_a_point_with_the_bits_of_a_fresh_solve(servo):
-    """tuning/equilibria.py: the points a model has solved (where the equilibrium does not move with the
-    gains) are looked up in any subset, order or repetition (the pointwise bound's polls, a batch of
-    candidates on the same points), only the others are solved, and each gets the bits the model's own
-    equilibrium gives it in a batch of its own, at other gains."""
+    """tuning/model.py ``fixed_equilibria``: the points a model has solved (where the equilibrium does
+    not move with the gains) are looked up in any subset, order or repetition (the pointwise bound's
+    polls, a batch of candidates on the same points), only the others are solved, and each gets the bits
+    the model's own equilibrium gives it in a batch of its own, at other gains."""
     model, settings, _, _ = servo
     solved: list[int] = []
 
@@ -122,11 +123,11 @@ def test_the_fixed_equilibria_are_solved_once_a_point_with_the_bits_of_a_fresh_s
     grid = model.make_points(W, T, model.nominal_estimate)
     n = grid.shape[1]
     assert model.fixed_equilibrium is not None and model.fixed_equilibrium(grid).all()
-    half = equilibria.fixed_equilibria(own, grid[:, : n // 2])
+    half = tuning_model.fixed_equilibria(own, grid[:, : n // 2])
     rng = np.random.default_rng(1)
     P = grid[:, np.concatenate([rng.permutation(n), rng.integers(0, n, 2 * n)])]
-    mixed = equilibria.fixed_equilibria(own, P)
-    again = equilibria.fixed_equilibria(own, P[:, ::-1])
+    mixed = tuning_model.fixed_equilibria(own, P)
+    again = tuning_model.fixed_equilibria(own, P[:, ::-1])
     assert solved == [n // 2, n - n // 2]  # each point once: the new ones of the mixed batch, then none
     theta = np.clip(np.asarray(model.starts(), float), model.lower, model.upper)[0]
     for x, Q in ((half, grid[:, : n // 2]), (mixed, P), (again, P[:, ::-1])):
