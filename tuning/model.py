@@ -211,10 +211,12 @@ def _point_keys(P: np.ndarray) -> np.ndarray:
     return cols.view(np.dtype((np.void, cols.shape[1] * cols.itemsize))).ravel()
 
 
-def fixed_equilibria(model: TuningModel, P: np.ndarray) -> np.ndarray:
-    """(n_x, N) the equilibria at the points P, none of which moves with the gains (``fixed_equilibrium``
-    true at all of them): those the model has solved from its table (above), the others solved once each
-    (at the drive file's gains, which they do not depend on) and added to it."""
+def fixed_equilibria(model: TuningModel, P: np.ndarray) -> np.ndarray | None:
+    """(n_x, N) the equilibria at the points P where none moves with the gains (``fixed_equilibrium``
+    true at all of them), else None: those the model has solved from its table (above), the others solved
+    once each (at the drive file's gains, which they do not depend on) and added to it."""
+    if model.fixed_equilibrium is None or not np.all(model.fixed_equilibrium(P)):
+        return None
     q = _point_keys(P)
     kept = _FIXED_X0.get(model, b"")
     keys, x = kept if kept is not None else (q[:0], np.zeros((model.n_x, 0)))
@@ -263,8 +265,10 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
     # bits; the copies themselves only where they change a path (_call, _eigvals) or the noise figure is
     # asked for. Not where an equilibrium must be solved for (estimate errors): no padding there.
     M = _bucket(N)
-    closed = model.fixed_equilibrium is not None and bool(np.all(model.fixed_equilibrium(P)))
-    x0 = fixed_equilibria(model, P) if closed else model.equilibrium(theta, P)
+    x0 = fixed_equilibria(model, P)
+    closed = x0 is not None
+    if x0 is None:
+        x0 = model.equilibrium(theta, P)
     if M > N and closed and noise:
         P = np.concatenate([P, np.repeat(P[:, -1:], M - N, axis=1)], axis=1)
         if theta.ndim == 2:
@@ -347,7 +351,9 @@ def bounded_reference(model: TuningModel, P: np.ndarray) -> np.ndarray:
     ref = _REFERENCES.get(model, key)
     if ref is None:
         theta0 = np.asarray(model.theta0, float)
-        x0 = model.equilibrium(theta0, Pu)
+        x0 = fixed_equilibria(model, Pu)
+        if x0 is None:
+            x0 = model.equilibrium(theta0, Pu)
         ok = np.isfinite(x0).all(axis=0)
         ref = np.full((Pu.shape[1], k), np.inf)
         if ok.any():
