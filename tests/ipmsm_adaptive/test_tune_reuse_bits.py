@@ -129,6 +129,8 @@ def test_the_fixed_equilibria_are_solved_once_a_point_with_the_bits_of_a_fresh_s
     mixed = tuning_model.fixed_equilibria(own, P)
     again = tuning_model.fixed_equilibria(own, P[:, ::-1])
     assert solved == [n // 2, n - n // 2]  # each point once: the new ones of the mixed batch, then none
+    wrong = np.hstack([grid[:, :3], model.make_points(W[:1], T[:1], 1.1 * model.nominal_estimate)])
+    assert tuning_model.fixed_equilibria(own, wrong) is None  # an estimate error: moves with the gains
     theta = np.clip(np.asarray(model.starts(), float), model.lower, model.upper)[0]
     for x, Q in ((half, grid[:, : n // 2]), (mixed, P), (again, P[:, ::-1])):
         fresh = np.asarray(model.equilibrium(np.repeat(theta[:, None], Q.shape[1], axis=1), Q), float)
