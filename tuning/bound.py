@@ -181,7 +181,6 @@ def pointwise_bound(
     use_noise = max_noise is not None and model.noise is not None and bool(np.isfinite(max_noise).any())
     limit = np.asarray(max_noise, float) if use_noise else None
     evals = 0
-    shared = _fixed_equilibria(model, speeds, torques)
 
     def figures(
         th: np.ndarray, sp: np.ndarray, tq: np.ndarray = torques
@@ -191,7 +190,7 @@ def pointwise_bound(
         nonlocal evals
         m, nt = sp.size, tq.size
         P = model.make_points(np.repeat(sp, nt), np.tile(tq, m), est)
-        e = evaluate(shared, np.repeat(th, nt, axis=0).T, P, noise=use_noise)
+        e = evaluate(model, np.repeat(th, nt, axis=0).T, P, noise=use_noise)
         evals += m * nt
         z = e.damping.reshape(m, nt)
         d = e.decay.reshape(m, nt)
@@ -349,34 +348,6 @@ def with_witness(
         theta=np.where(pick, th, bound.theta),
         noise=None if bound.noise is None or nz is None else np.where(pick, nz, bound.noise),
     )
-
-
-def _fixed_equilibria(model: TuningModel, speeds: np.ndarray, torques: np.ndarray) -> TuningModel:
-    """``model`` whose equilibria at the points (speeds x torques, the nominal estimates) are computed
-    once, where they do not move with the gains (``TuningModel.fixed_equilibrium``: the closed form,
-    whatever the gains), and looked up for every candidate gain there: a search scores thousands of
-    gains at each of a few hundred points (a fifth of the evaluation's CPU went to the same equilibria
-    again). Points elsewhere (other estimates) are left to the model's own ``equilibrium``."""
-    if model.fixed_equilibrium is None:
-        return model
-    est = np.asarray(model.nominal_estimate, float)
-    P_all = model.make_points(np.repeat(speeds, torques.size), np.tile(torques, speeds.size), est)
-    if not np.all(model.fixed_equilibrium(P_all)):
-        return model
-    own = model.equilibrium
-    x_all = np.asarray(own(model.theta0, P_all))  # (n_x, S * NT); the same at any gains
-    s_order, t_order = np.argsort(speeds, kind="stable"), np.argsort(torques, kind="stable")
-    s_sorted, t_sorted = speeds[s_order], torques[t_order]
-
-    def equilibrium(theta: np.ndarray, P: np.ndarray) -> np.ndarray:
-        i = s_order[np.clip(np.searchsorted(s_sorted, P[0]), 0, speeds.size - 1)]
-        j = t_order[np.clip(np.searchsorted(t_sorted, P[1]), 0, torques.size - 1)]
-        k = i * torques.size + j
-        if not np.array_equal(P, P_all[:, k]):  # not all of them the bound's points: as the model does
-            return own(theta, P)
-        return x_all[:, k]
-
-    return dataclasses.replace(model, equilibrium=equilibrium)
 
 
 def _neighbours(ci: np.ndarray, x: np.ndarray, offer, f: np.ndarray) -> None:

@@ -190,40 +190,50 @@ def _call(fn: ca.Function, n: int, args: list[np.ndarray]) -> list[np.ndarray]:
     return [o[:n] for o in evaluate_batch(fn, m, padded)]
 
 
-# fixed_equilibria's memo: the equilibria of points where they do not move with the gains, per model and
-# points (a tune evaluates the same envelope and dense grids for hundreds of candidate gains); point sets
-# up to FIXED_X0_POINTS (a key of 6 rows: 0.8 MB)
-_FIXED_X0: OwnedMemo[np.ndarray] = OwnedMemo(32)
-FIXED_X0_POINTS = 16384
+# The equilibria of points where they do not move with the gains (``TuningModel.fixed_equilibrium``),
+# solved once a point per model: such a point's equilibrium is the same whatever the gains or the batch it
+# is solved in (the closed form at exact estimates, on CasADi's VM or compiled alike), and the tuner asks
+# for the same points again and again: a tune the same envelope and dense grids for hundreds of candidate
+# gains (a batch of K candidates on the same points, ``np.tile``), the pointwise bound (tuning/bound.py)
+# thousands of gains at each of a few hundred points, in ever-changing subsets of its speeds x torques (a
+# fifth of its evaluation's CPU went to the same equilibria again). Only those points: elsewhere
+# (estimate errors) the equilibrium is solved for and moves with the gains. Per model: the points solved
+# (their bytes as one item each, sorted) and their equilibria (n_x, K) in that order, replaced whole when
+# it grows, never changed in place (a threaded scheduler may tune in several threads); up to
+# FIXED_X0_POINTS points a model (6 rows and 4 states: 5 MB; a tune's models hold a few thousand each)
+_FIXED_X0: OwnedMemo[tuple[np.ndarray, np.ndarray]] = OwnedMemo(16)
+FIXED_X0_POINTS = 1 << 16
 
 
-def _period(P: np.ndarray) -> int:
-    """The smallest n such that the columns of P (N of them) are its first n repeated (``np.tile``: a
-    batch of K candidates on the same points), or N."""
-    N = P.shape[1]
-    again = np.flatnonzero(np.all(P == P[:, :1], axis=0))[1:9]  # a few tries: most batches repeat or not
-    for n in again:
-        if N % n == 0 and np.array_equal(P[:, n:], P[:, :-n]):
-            return int(n)
-    return N
+def _point_keys(P: np.ndarray) -> np.ndarray:
+    """(N,) the columns of P as single items of their bytes (np.void): sortable, comparable whole."""
+    cols = np.ascontiguousarray(P.T, dtype=float)
+    return cols.view(np.dtype((np.void, cols.shape[1] * cols.itemsize))).ravel()
 
 
-def fixed_equilibria(model: TuningModel, theta: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """(n_x, N) the equilibria at points P where none moves with the gains (``fixed_equilibrium`` true at
-    all of them): each distinct set of points solved once per model (the equilibrium of such a point is
-    the same whatever the gains or the batch: the closed form at exact estimates, on the VM or compiled
-    alike), a batch of candidates on the same points (``np.tile``) solving them once."""
-    N = P.shape[1]
-    n = _period(P)
-    base = np.ascontiguousarray(P[:, :n], dtype=float)
-    key = repr(base.shape).encode() + base.tobytes()
-    x = _FIXED_X0.get(model, key)
-    if x is None:
-        x = np.array(model.equilibrium(theta if theta.ndim == 1 else theta[:, :n], base), float)
-        x.flags.writeable = False
-        if n <= FIXED_X0_POINTS:
-            _FIXED_X0.put(model, key, x)
-    return np.tile(x, (1, N // n))
+def fixed_equilibria(model: TuningModel, P: np.ndarray) -> np.ndarray | None:
+    """(n_x, N) the equilibria at the points P where none moves with the gains (``fixed_equilibrium``
+    true at all of them), else None: those the model has solved from its table (above), the others solved
+    once each (at the drive file's gains, which they do not depend on) and added to it."""
+    if model.fixed_equilibrium is None or not np.all(model.fixed_equilibrium(P)):
+        return None
+    q = _point_keys(P)
+    kept = _FIXED_X0.get(model, b"")
+    keys, x = kept if kept is not None else (q[:0], np.zeros((model.n_x, 0)))
+    at = np.searchsorted(keys, q)
+    found = np.zeros(q.size, bool)
+    inside = at < keys.size
+    found[inside] = keys[at[inside]] == q[inside]
+    if found.all():
+        return x[:, at]
+    new, first = np.unique(q[~found], return_index=True)
+    solved = np.asarray(model.equilibrium(model.theta0, P[:, np.flatnonzero(~found)[first]]), float)
+    keys, x = np.concatenate([keys, new]), np.concatenate([x, solved], axis=1)
+    order = np.argsort(keys, kind="stable")
+    keys, x = keys[order], x[:, order]
+    if keys.size <= FIXED_X0_POINTS:
+        _FIXED_X0.put(model, b"", (keys, x))
+    return x[:, np.searchsorted(keys, q)]
 
 
 def _eigvals(n: int, A: np.ndarray, extra: int) -> np.ndarray:
@@ -255,8 +265,10 @@ def evaluate(model: TuningModel, theta: np.ndarray, P: np.ndarray, noise: bool =
     # bits; the copies themselves only where they change a path (_call, _eigvals) or the noise figure is
     # asked for. Not where an equilibrium must be solved for (estimate errors): no padding there.
     M = _bucket(N)
-    closed = model.fixed_equilibrium is not None and bool(np.all(model.fixed_equilibrium(P)))
-    x0 = fixed_equilibria(model, theta, P) if closed else model.equilibrium(theta, P)
+    x0 = fixed_equilibria(model, P)
+    closed = x0 is not None
+    if x0 is None:
+        x0 = model.equilibrium(theta, P)
     if M > N and closed and noise:
         P = np.concatenate([P, np.repeat(P[:, -1:], M - N, axis=1)], axis=1)
         if theta.ndim == 2:
@@ -339,7 +351,9 @@ def bounded_reference(model: TuningModel, P: np.ndarray) -> np.ndarray:
     ref = _REFERENCES.get(model, key)
     if ref is None:
         theta0 = np.asarray(model.theta0, float)
-        x0 = model.equilibrium(theta0, Pu)
+        x0 = fixed_equilibria(model, Pu)
+        if x0 is None:
+            x0 = model.equilibrium(theta0, Pu)
         ok = np.isfinite(x0).all(axis=0)
         ref = np.full((Pu.shape[1], k), np.inf)
         if ok.any():

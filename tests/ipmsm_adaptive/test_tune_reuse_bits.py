@@ -1,11 +1,13 @@
 """What the tuner reuses gives the bits it would compute: the global phase's candidate rows in the
 tie-break's searches (tuning/search.py ``_poles``), the tuner's poles deciding stability in the noise
-figure (design/noise.py ``noise_rms``), and a batch's equilibria and its evaluation without the copies
-that pad it to a bucket size (tuning/model.py ``evaluate``). On the example servo's law (16), its
+figure (design/noise.py ``noise_rms``), a batch's equilibria and its evaluation without the copies
+that pad it to a bucket size (tuning/model.py ``evaluate``), and the equilibria kept where they do not
+move with the gains (tuning/model.py ``fixed_equilibria``). On the example servo's law (16), its
 default envelope."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -102,6 +104,37 @@ def test_a_batch_gives_the_bits_of_its_padded_batch(servo, n_points):
     assert e.bounded is not None and padded.bounded is not None
     assert e.bounded.tobytes() == padded.bounded[: P.shape[1]].tobytes()
     assert e.x0.tobytes() == np.asarray(model.equilibrium(theta, P), float).tobytes()
+
+
+def test_the_fixed_equilibria_are_solved_once_a_point_with_the_bits_of_a_fresh_solve(servo):
+    """tuning/model.py ``fixed_equilibria``: the points a model has solved (where the equilibrium does
+    not move with the gains) are looked up in any subset, order or repetition (the pointwise bound's
+    polls, a batch of candidates on the same points), only the others are solved, and each gets the bits
+    the model's own equilibrium gives it in a batch of its own, at other gains."""
+    model, settings, _, _ = servo
+    solved: list[int] = []
+
+    def counted(theta: np.ndarray, P: np.ndarray) -> np.ndarray:
+        solved.append(P.shape[1])
+        return model.equilibrium(theta, P)
+
+    own = dataclasses.replace(model, equilibrium=counted)  # a model of its own: a table of its own
+    W, T = settings.envelope.grid(4, 4)
+    grid = model.make_points(W, T, model.nominal_estimate)
+    n = grid.shape[1]
+    assert model.fixed_equilibrium is not None and model.fixed_equilibrium(grid).all()
+    half = tuning_model.fixed_equilibria(own, grid[:, : n // 2])
+    rng = np.random.default_rng(1)
+    P = grid[:, np.concatenate([rng.permutation(n), rng.integers(0, n, 2 * n)])]
+    mixed = tuning_model.fixed_equilibria(own, P)
+    again = tuning_model.fixed_equilibria(own, P[:, ::-1])
+    assert solved == [n // 2, n - n // 2]  # each point once: the new ones of the mixed batch, then none
+    wrong = np.hstack([grid[:, :3], model.make_points(W[:1], T[:1], 1.1 * model.nominal_estimate)])
+    assert tuning_model.fixed_equilibria(own, wrong) is None  # an estimate error: moves with the gains
+    theta = np.clip(np.asarray(model.starts(), float), model.lower, model.upper)[0]
+    for x, Q in ((half, grid[:, : n // 2]), (mixed, P), (again, P[:, ::-1])):
+        fresh = np.asarray(model.equilibrium(np.repeat(theta[:, None], Q.shape[1], axis=1), Q), float)
+        assert np.isfinite(x).all() and x.tobytes() == fresh.tobytes()
 
 
 def test_the_laws_of_a_drive_share_its_closed_loop_compiled_or_not(servo):
