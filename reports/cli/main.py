@@ -19,6 +19,7 @@ Exit statuses (docs/conventions.md):
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import sys
 import warnings
@@ -110,12 +111,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     swallows ends the process (the watchdog, reports/interrupts.py). ``argv`` given: a caller's run in
     its own process (a test), which the watchdog never ends."""
     words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    # the garbage collector's generations are this run's to arrange unless a caller froze objects itself
+    ours = argv is None or gc.get_freeze_count() == 0
     command = words[0] if words and words[0] in COMMAND_NAMES else ""
     try:
         with interrupts.handled(f"sensorless {command}".strip(), watchdog=argv is None):
             try:
                 args = (build_parser(command) if command else build_parser()).parse_args(argv)
                 _refuse_empty(args)
+                if ours:
+                    # what the imports built (~100 000 objects) lives as long as the process: out of the
+                    # collector's full passes, each of which walked all of it (0.03-0.05 s a report)
+                    gc.freeze()
                 with warnings.catch_warnings():
                     # numpy's warnings on NaN or overflow name no input and would leak to stderr: the
                     # commands check what they write and say why a number is not finite
@@ -129,6 +136,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if argv is None:
             interrupts.ignore()
+            # the process exits next, freeing everything with it: the collection at the interpreter's
+            # exit would only walk the whole heap (0.05-0.09 s CPU after a report)
+            gc.freeze()
+        elif ours:
+            gc.unfreeze()  # a caller's process goes on: its garbage is collectable as before
 
 
 def _refuse_empty(args: argparse.Namespace) -> None:
