@@ -144,8 +144,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if argv is None:
             interrupts.ignore()
-            # the process exits next, freeing everything with it: the collection at the interpreter's
-            # exit would only walk the whole heap (0.05-0.09 s CPU after a report)
+            # the process exits next, freeing everything with it: the collections at the interpreter's
+            # exit would only walk the whole heap (after a report: 0.17 -> 0.02 s CPU from atexit to the end)
             gc.freeze()
         elif ours:  # a caller's process goes on: its garbage is collectable as before
             gc.unfreeze()
