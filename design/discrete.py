@@ -86,9 +86,14 @@ class SampledLoop:
         }
 
 
-def _period(loop: SampledLoop, s: dict[str, Sym], derivatives: bool = False) -> dict[str, Sym]:
-    """One period from motor angle theta: the map y -> y_next (SX of the symbols ``s``) and, with
-    ``derivatives``, the step's outputs and the derivatives of :func:`sensitivity_function`."""
+SENSITIVITIES = ("out", "Jx", "Jm", "Dm")  # :func:`sensitivity_function`'s outputs
+OUTPUTS = ("out", "Dm")  # :func:`output_function`'s
+
+
+def _period(loop: SampledLoop, s: dict[str, Sym], derivatives: Sequence[str] = ()) -> dict[str, Sym]:
+    """One period from motor angle theta: the map y -> y_next (SX of the symbols ``s``) and the
+    ``derivatives`` named (of :data:`SENSITIVITIES`: the step's outputs and the derivatives of
+    :func:`sensitivity_function`), each built the one way whichever others are asked for."""
     obs = loop.observer
     n_x = len(obs.state) - 1
     x = ca.SX.sym("x", n_x)
@@ -97,10 +102,13 @@ def _period(loop: SampledLoop, s: dict[str, Sym], derivatives: bool = False) -> 
     T_s = p[obs.index("params", "T_s")]
     x_next, out = loop.step()(ca.vertcat(x, 0), m, p, gain)
     y_next = loop.rotor(x_next[:n_x], theta + w * T_s)
-    per = {"y_next": y_next}
-    if derivatives:
-        per |= {"out": out, "Jx": ca.jacobian(y_next, x), "Jm": ca.jacobian(y_next, m)}
-        per["Dm"] = ca.jacobian(out, m)
+    made = {
+        "out": lambda: out,
+        "Jx": lambda: ca.jacobian(y_next, x),
+        "Jm": lambda: ca.jacobian(y_next, m),
+        "Dm": lambda: ca.jacobian(out, m),
+    }
+    per = {"y_next": y_next} | {k: made[k]() for k in SENSITIVITIES if k in derivatives}
     f = ca.Function("period", [x, m, *s.values()], list(per.values()))
     x0 = loop.state(s["y"], theta, w, plant, p)
     m0 = loop.sample(theta, w, plant, p)
@@ -123,11 +131,23 @@ def sensitivity_function(loop: SampledLoop) -> ca.Function:
     y_next with respect to the runtime state (without the counter) and the samples ``meas``, and of
     the outputs with respect to ``meas``: where a perturbation of either enters the map."""
     s = loop.symbols()
-    per = _period(loop, s, derivatives=True)
-    names = ["out", "Jx", "Jm", "Dm"]
-    outs = ca.cse([ca.densify(per[k]) for k in names])
+    per = _period(loop, s, SENSITIVITIES)
+    outs = ca.cse([ca.densify(per[k]) for k in SENSITIVITIES])
     name = f"{loop.observer.name}_one_step_sens_{loop.discretization.replace('-', '_')}"
-    return ca.Function(name, list(s.values()), outs, list(INPUTS), names)
+    return ca.Function(name, list(s.values()), outs, list(INPUTS), list(SENSITIVITIES))
+
+
+@functools.cache
+def output_function(loop: SampledLoop) -> ca.Function:
+    """(y, theta, w, plant, p, gain) -> (out, Dm): of :func:`sensitivity_function`'s outputs those an
+    analysis of the map's fixed points reads (the step's outputs, their derivative with respect to
+    ``meas``: the feedthrough), their bits, from a graph without the map's derivatives (the adaptive
+    observer's report builds it for seven loops: a third less graph to build and clean)."""
+    s = loop.symbols()
+    per = _period(loop, s, OUTPUTS)
+    outs = ca.cse([ca.densify(per[k]) for k in OUTPUTS])
+    name = f"{loop.observer.name}_one_step_out_{loop.discretization.replace('-', '_')}"
+    return ca.Function(name, list(s.values()), outs, list(INPUTS), list(OUTPUTS))
 
 
 @functools.cache
@@ -365,16 +385,18 @@ def sensitivities(
     p: np.ndarray,
     gain: ArrayLike = (),
     theta: float | np.ndarray = 0.0,
+    outputs_only: bool = False,
 ) -> dict[str, np.ndarray]:
     """:func:`sensitivity_function` at the points y (N, n_y) (NaN rows stay NaN): out (N, n_out),
-    Jx (N, n_y, n_x), Jm (N, n_y, n_meas), Dm (N, n_out, n_meas)."""
+    Jx (N, n_y, n_x), Jm (N, n_y, n_meas), Dm (N, n_out, n_meas); ``outputs_only``: out and Dm alone
+    (:func:`output_function`: the same bits)."""
     n = y.shape[0]
     bad = ~np.isfinite(y).all(axis=1)
     ys = np.where(bad[:, None], 0.0, y)
-    out, Jx, Jm, Dm = evaluate_batch(
-        sensitivity_function(loop), n, [ys.T, *_args(loop, theta, w, plant, p, gain)]
-    )
-    res = {"out": out[:, :, 0], "Jx": Jx, "Jm": Jm, "Dm": Dm}
+    fn = output_function(loop) if outputs_only else sensitivity_function(loop)
+    values = evaluate_batch(fn, n, [ys.T, *_args(loop, theta, w, plant, p, gain)])
+    res = dict(zip(OUTPUTS if outputs_only else SENSITIVITIES, values, strict=True))
+    res["out"] = res["out"][:, :, 0]
     return {k: np.where(bad.reshape(-1, *([1] * (v.ndim - 1))), np.nan, v) for k, v in res.items()}
 
 

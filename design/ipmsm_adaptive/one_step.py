@@ -152,7 +152,7 @@ def discrete_sweep(
     loop = sampled_loop(discretization, sweep.law)
     g = np.asarray(gain, float)[: sweep.law.n_params]
     y, J = shared.fixed_points(loop, y0, sweep.w, plant, p, g, scale=scale)
-    sens = shared.sensitivities(loop, y, sweep.w, plant, p, g)
+    sens = shared.sensitivities(loop, y, sweep.w, plant, p, g, outputs_only=True)
     # d w_hat / d u in the estimated frame: u_ab = T(theta_hat) u_est, theta_hat = -theta_tilde here
     th = -np.nan_to_num(y[:, 3])
     T = np.stack([np.stack([np.cos(th), -np.sin(th)], -1), np.stack([np.sin(th), np.cos(th)], -1)], -2)

@@ -208,3 +208,24 @@ def test_reduced_order_sinusoidal_fixed_point_is_the_runtime_step(deangelo2006, 
     z = np.linalg.eigvals(Jfd).astype(complex)
     z = z[np.argsort(-np.abs(z))][:3]
     same_poles(r.poles_discrete[0], np.log(z) / T_s, 1e-6)
+
+
+@pytest.mark.parametrize("scheme", ["zoh", "heun", "euler", "heun-model"])
+def test_the_output_function_gives_the_sensitivity_functions_bits(scheme):
+    """design/discrete.py ``output_function`` (what the adaptive family's discrete sweep evaluates) is
+    ``sensitivity_function``'s out and Dm from a smaller graph: the same numbers, bit for bit, at points
+    around a fixed point and far from it (law (16): the schedule's derivatives are in Dm)."""
+    from sensorless.design import discrete
+    from sensorless.design.ipmsm_adaptive.one_step import sampled_loop
+    from sensorless.symbolic.ipmsm_adaptive.gains import LAWS
+
+    loop = sampled_loop(scheme, LAWS["speed"])
+    full, lean = discrete.sensitivity_function(loop), discrete.output_function(loop)
+    rng = np.random.default_rng(7)
+    args = [rng.normal(size=(full.size1_in(i), 64)) for i in range(full.n_in())]
+    T_s = loop.observer.index("params", "T_s")
+    args[4][T_s] = 1e-4  # a sampling period (the others: any numbers)
+    out_f, _, _, Dm_f = (np.asarray(v) for v in full(*args))
+    out_l, Dm_l = (np.asarray(v) for v in lean(*args))
+    assert np.isfinite(out_f).all() and np.abs(Dm_f).max() > 0
+    assert out_l.tobytes() == out_f.tobytes() and Dm_l.tobytes() == Dm_f.tobytes()

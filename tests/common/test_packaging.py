@@ -1,5 +1,6 @@
 """Installation: the console script exists and runs, and only the ``sensorless`` namespace is installed."""
 
+import gc
 import os
 import subprocess
 import sys
@@ -72,3 +73,39 @@ def test_commands_load_numpy_with_one_blas_thread(tmp_path):
             [sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env
         )
         assert r.returncode == 0 and int(r.stdout) == 2, r.stderr or r.stdout
+
+
+def test_commands_leave_the_garbage_collector_as_they_found_it(tmp_path):
+    """main() freezes what the imports built and collects the young generation less often
+    (reports/cli/main.py): given arguments (a caller whose process goes on) it undoes both on the way
+    out, and leaves a caller's own frozen objects frozen; run as the script (arguments from sys.argv),
+    the process exits with its heap frozen, for no collection to walk."""
+    from sensorless.reports.cli.main import YOUNG_COLLECTION, main
+
+    # a run that parses, imports, then fails on the missing file: exit status 2
+    missing = [str(tmp_path / "missing.toml"), "--out", str(tmp_path / "out.toml")]
+    assert gc.get_freeze_count() == 0, "an earlier test left objects frozen"
+    threshold = gc.get_threshold()
+    assert threshold[0] != YOUNG_COLLECTION, "an earlier test left the collector's thresholds changed"
+    assert main(["init", *missing]) == 2
+    assert gc.get_freeze_count() == 0 and gc.get_threshold() == threshold
+    gc.freeze()
+    try:
+        frozen = gc.get_freeze_count()
+        assert frozen > 0
+        assert main(["init", *missing]) == 2
+        assert gc.get_freeze_count() == frozen
+    finally:
+        gc.unfreeze()
+    code = (
+        "import atexit, gc, sys\n"
+        "from sensorless.reports.cli.main import main\n"
+        "atexit.register(lambda: print(gc.get_freeze_count(), gc.get_threshold()[0]))\n"
+        "sys.argv = ['sensorless', 'init', 'missing.toml', '--out', 'out.toml']\n"
+        "sys.exit(main())\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    frozen_at_exit, young = (int(v) for v in r.stdout.split())
+    assert frozen_at_exit > 0, "the script's run left nothing frozen for its exit"
+    assert young == YOUNG_COLLECTION

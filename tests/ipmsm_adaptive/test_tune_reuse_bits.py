@@ -160,3 +160,20 @@ def test_the_laws_of_a_drive_share_its_closed_loop_compiled_or_not(servo):
         built = evaluate_batch(fn, P.shape[1], [phi, x0, P], jit=True)
         for a, b in zip(on_vm, built, strict=True):
             assert np.isfinite(a).all() and a.tobytes() == b.tobytes()
+
+
+def test_a_sweeps_noise_figure_decided_by_its_poles_gives_the_bits_of_lapacks():
+    """``PoleSweep.noise_rms`` hands its poles to design/noise.py (the report's noise over the envelope):
+    the figure LAPACK's eigenvalues give, bit for bit, over speeds that cross the low-speed unstable
+    band (both decisions taken)."""
+    from sensorless.design.ipmsm_adaptive.linearize import linearize
+
+    drive = load_drive(str(SERVO))
+    w = np.linspace(-0.2, 0.2, 81) * drive.w_base
+    T = np.array([-1.0, 0.0, 1.0]) * drive.T_N
+    s = linearize(drive, w[:, None], T[None, :], noise=True)
+    sigma, T_s = 0.05, float(drive.control.T_s)
+    B, C, D = s.noise_input
+    without = noise_rms(s.A, B, C, D, sigma, T_s)
+    assert np.isinf(without).any() and np.isfinite(without).any()
+    assert s.noise_rms(sigma, T_s).tobytes() == without.tobytes()
