@@ -125,11 +125,13 @@ def separate_round(work: Path, env: dict, commands: tuple = COMMANDS) -> dict:
     res: dict = {"stages": {}, "cpu": {}, "children": {}, "inner": {}}
     work.mkdir(parents=True, exist_ok=True)
     (work / "servo.toml").write_text(readme_servo())
-    # the command's own CPU, written at its exit (its figure renderers leave by os._exit: not theirs)
+    # the command's own CPU, written at its exit (its figure renderers leave by os._exit: not theirs);
+    # main() reads sys.argv as the console script does (main(argv) is a caller's run: it keeps the
+    # collector as it found it and has no watchdog)
     run = (
         "import atexit, os, sys, time; "
         "atexit.register(lambda: open(os.environ['BENCH_OWN_CPU'], 'w').write(repr(time.process_time()))); "
-        "from sensorless.reports.cli.main import main; sys.exit(main(sys.argv[1:]))"
+        "from sensorless.reports.cli.main import main; sys.exit(main())"
     )
     own = work / "own_cpu.txt"
     for name, argv in commands:
