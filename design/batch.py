@@ -20,14 +20,13 @@ import numpy as np
 from sensorless.design.compiled import compiled
 
 JIT_MIN_POINTS = 4096  # below this the ~0.3 s compile does not pay off
-# from this many points a batch runs on the machine's cores (CasADi's thread map: the same arithmetic per
-# point, so the same bits); a tuner's searches evaluate hundreds of batches of 1-4 thousand points, where
-# one core computes while the other waits (the README flow's criterion is wall time on 2 cores); the
-# threads cost ~0.1 ms per call
-THREAD_MIN_POINTS = 1024
 _POINTS: dict[ca.Function, int] = {}  # points evaluated so far, per Function (evaluate_batch)
-# the cores a batch's thread map uses, read once (os.cpu_count reads /sys at every call: 50 us, 865 calls
-# in the README servo's tune)
+# the cores design/poles.py splits a large batch of eigenvalues over, read once (os.cpu_count reads /sys
+# at every call: 50 us, 865 calls in the README servo's tune). A batch of a Function runs on one thread:
+# CasADi's thread map (the same code per point, the same bits) took 1.2-1.8x the CPU of the serial map
+# on the 2-core machine from 1100 to 40 000 points of the tuner's closed loop when the other core was
+# free (its wall time 0.7-1.4x), 2-4x and more wall time when it was busy (benchmarks/bench_batch_threads.py);
+# the README flow's target is CPU
 CORES = min(4, os.cpu_count() or 1)
 
 
@@ -74,8 +73,8 @@ CHUNK = 2048
 
 
 @functools.lru_cache(maxsize=512)
-def _mapped(fn: ca.Function, n: int, threads: int) -> ca.Function:
-    return fn.map(n, "thread", threads) if threads > 1 else fn.map(n)
+def _mapped(fn: ca.Function, n: int) -> ca.Function:
+    return fn.map(n)
 
 
 def _bucket(n: int) -> int:
@@ -104,7 +103,7 @@ def settled(fn: ca.Function, jit: bool | None = None) -> bool:
 
 
 def evaluate_batch(
-    fn: ca.Function, n: int, args: Sequence[np.ndarray], jit: bool | None = None, threads: bool = True
+    fn: ca.Function, n: int, args: Sequence[np.ndarray], jit: bool | None = None
 ) -> list[np.ndarray]:
     """Evaluate ``fn`` at ``n`` points; returns each output as an array (n, rows, cols).
 
@@ -112,8 +111,7 @@ def evaluate_batch(
     scalar) or all points (shape (rows, n), or (n,) for a scalar input). ``jit``: compile ``fn``
     whatever ``n`` (a caller that evaluates one Function again and again, on batches below
     JIT_MIN_POINTS: the library is compiled once per machine); None: once this process has evaluated
-    ``fn`` at JIT_MIN_POINTS points in all. Large batches (THREAD_MIN_POINTS) run on several threads
-    (``threads`` False: one; a caller whose parallelism is elsewhere, e.g. in Dask's workers).
+    ``fn`` at JIT_MIN_POINTS points in all.
     """
     if jit is None:
         # compiled once the Function has been asked for JIT_MIN_POINTS points in all, in one batch or
@@ -144,8 +142,7 @@ def evaluate_batch(
             raise ValueError(f"output {name} must be dense (wrap it in casadi.densify)")
         outs.append(np.empty((total, r * c)))
     for k, _, m in calls:
-        many = threads and m >= THREAD_MIN_POINTS
-        buf, run = _mapped(f, m, CORES if many else 1).buffer()
+        buf, run = _mapped(f, m).buffer()
         for i, a in enumerate(cols):
             buf.set_arg(i, memoryview(a[k : k + m].reshape(-1)))
         for j, o in enumerate(outs):
@@ -160,7 +157,7 @@ def evaluate_batch(
 
 def mapped(fn: ca.Function, n: int) -> ca.Function:
     """``fn.map(n)`` (serial), cached: building a map costs as much as evaluating many points."""
-    return _mapped(fn, n, 1)
+    return _mapped(fn, n)
 
 
 def bound_call(

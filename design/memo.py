@@ -162,6 +162,14 @@ def fingerprint() -> bytes:
     return h.digest()
 
 
+def before_fork() -> None:
+    """:func:`fingerprint` computed now where the disk memo is on (it hashes the toolbox's source: 20-30
+    ms CPU), for a process about to fork children that use the memo too (design/forked.py): a child is a
+    copy of this process, so it is computed once for both."""
+    if not os.environ.get("SENSORLESS_NO_DISK_MEMO"):
+        fingerprint()
+
+
 def _disk_path(fn: Callable[..., object], key: bytes) -> Path | None:
     """The file of ``fn``'s result for ``key`` (None: the disk memo is off)."""
     return _named_path(fn.__module__, fn.__qualname__, key)

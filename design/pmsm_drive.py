@@ -10,6 +10,7 @@ inputs.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any, Protocol
@@ -217,7 +218,7 @@ def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, flo
             # run itself is given (design/runtime.py step_variant: e.g. the fixed-point step)
             with step_variant(None):
                 opts: SpeedOptions = {**QUICK, "acceleration": True}
-                ls = minimum_speed(drive, gains, min_damping=MIN_DAMPING, **opts)
+                ls = minimum_speed(handover_drive(drive), gains, min_damping=MIN_DAMPING, **opts)
         except CapabilityError:  # no analysis (e.g. no linearization): the speeds must be given
             if startup is None or startup.needs_w_min:
                 raise
@@ -258,6 +259,18 @@ def compute_startup_values(drive: OnPmsm, gains: GainSet) -> tuple[dict[str, flo
                 f"over where its criteria do not hold (raise startup.w_on to {ON_FACTOR:g} w_min)"
             )
     return (*_startup_line(values, given, drive.w_base, warn), w_min)
+
+
+def handover_drive(drive: OnPmsm) -> OnPmsm:
+    """``drive`` as the handover's w_min analyses it: without its ``[startup]`` section and its text's
+    digest. The analysis runs no I-f start (design/drive_analysis.py ``analysis_scenario``) and the
+    section is what its w_min places, so neither changes the result (tests/common/test_startup.py);
+    keyed without them (design/memo.py), the analysis ``init`` makes before it writes the section is the
+    one ``tune`` proves the drive file's gains with (0.1-0.2 s CPU of the README servo's tune)."""
+    fam = family_of(drive)
+    bare = fam.with_startup(drive, None) if isinstance(fam, OpenLoopStart) else drive
+    # (every family's drive is a frozen dataclass, read here through the Drive Protocol)
+    return dataclasses.replace(bare, digest="")  # type: ignore[type-var]
 
 
 def _handover_decay(drive: OnPmsm, gains: GainSet, ls: LowSpeed) -> float:

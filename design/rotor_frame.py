@@ -308,12 +308,10 @@ def _anchor(cont: Continuation, P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     if n == 0:
         return Q  # (k, 0)
     if (P == P[:, :1]).all() and (Q == Q[:, :1]).all():
-        p0 = evaluate_batch(cont.anchor, 1, [P[:, 0], Q[:, 0]], jit=False, threads=False)[0][0]
+        p0 = evaluate_batch(cont.anchor, 1, [P[:, 0], Q[:, 0]], jit=False)[0][0]
         return np.broadcast_to(p0, Q.shape)
     idx = np.minimum(np.arange(1 << (n - 1).bit_length()), n - 1)  # padded with the last point
-    return evaluate_batch(cont.anchor, idx.size, [P[:, idx], Q[:, idx]], jit=False, threads=False)[0][
-        :n, :, 0
-    ].T
+    return evaluate_batch(cont.anchor, idx.size, [P[:, idx], Q[:, idx]], jit=False)[0][:n, :, 0].T
 
 
 def continued_equilibria(

@@ -209,9 +209,11 @@ def _tune(
                 raise nlp.TuningError(f"{e2}; {why}") from None
 
             return _above_seed(drive, law, settings, progress, None, neither)
-        if seeded is not None:
-            seeded(seed_res)
     model = tunable.build(drive, settings, None if seed_res is None else seed_res.theta)
+    if seeded is not None and seed_res is not None and seed is None:
+        # after the build, before any evaluation: a child forked here (tune's second tuning) builds the
+        # same law and finds what this build made for it (its rotor-frame loop, its gain-size Function)
+        seeded(seed_res)
     if model.bounded is not None and not getattr(settings, "hold_bounded", True):
         say(f"not held: {', '.join(model.bounded_names)} (the drive file's gains fail a check of their own)")
         model = dataclasses.replace(model, bounded=None, bounded_names=())

@@ -107,7 +107,7 @@ def _evaluate(fn: ca.Function, n: int, args: list[np.ndarray]) -> list[np.ndarra
                 if size > m:
                     a = np.pad(a, ((0, 0), (0, size - m)), mode="edge")
             part.append(a)
-        outs.append([o[:m] for o in evaluate_batch(f, size, part, threads=False)])
+        outs.append([o[:m] for o in evaluate_batch(f, size, part)])
     return [np.concatenate(col) for col in zip(*outs, strict=True)]
 
 

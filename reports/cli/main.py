@@ -35,8 +35,8 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 # numpy's and scipy's OpenBLAS in one thread unless the user says otherwise (read when numpy is first
 # imported). Its matrices here are small (a drive's state has tens of entries), so its worker threads
 # cost more than they save: they spin when numpy loads (0.07-0.1 s CPU per command, 4 commands in the
-# README flow) and again whenever it is woken. A command's parallelism is CasADi's thread maps and the
-# forked figure renderers; with one BLAS thread it computes the bits the test suite and a Dask worker do.
+# README flow) and again whenever it is woken. A command's parallelism is its forked children (tune's
+# proof, the figure renderers); with one BLAS thread it computes the bits the test suite and a Dask worker do.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 # The subcommands (each module's register(subparsers) sets ``func``); imported by main() once Ctrl-C

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import importlib
 import math
 import os
 import sys
@@ -285,8 +286,13 @@ def _drive_file_proof(drive: Drive, progress: Callable[[str], None]) -> tuple[li
     gains' proof and the lines printed after it (:func:`_proving`, :func:`_after`), which reuse what the
     first one built (its simulations' set-up, the whole drive's linearization and the I-f start's: 0.2 s
     CPU instead of 1.0 s for the proof on the README servo)."""
+    from sensorless.design import memo
     from sensorless.reports import tune_proof
 
+    # what the child and this process both compute, done once before it forks: the disk memo's
+    # fingerprint, and numpy.ma, which np.unique imports at its first call (numpy 2.4: 15-30 ms CPU)
+    memo.before_fork()
+    importlib.import_module("numpy.ma")
     runs = tune_proof.runs(drive)
     progress(f"proof: the drive file's and the tuned gains, {len(runs)} time-domain checks, +-T_max")
     prove = functools.partial(tune_proof.prove, drive, scenarios=runs, analysis=tune_proof.ANALYSIS)

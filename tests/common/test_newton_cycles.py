@@ -29,9 +29,9 @@ def test_a_cycling_point_ends_where_iterating_on_ends():
     calls: list[int] = []
     orig = discrete.evaluate_batch
 
-    def counted(fn, m, args, jit=None, threads=True):
+    def counted(fn, m, args, jit=None):
         calls.append(m)
-        return orig(fn, m, args, jit, threads)
+        return orig(fn, m, args, jit)
 
     for iterations in (30, 31):  # both parities
         plain, short = stuck_map(f"plain{iterations}"), stuck_map(f"short{iterations}")

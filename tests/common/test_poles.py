@@ -77,9 +77,9 @@ def test_batches_of_any_size_run_on_maps_of_a_few_sizes_with_the_bits_of_one_map
     built = batch._mapped
     sizes: set[int] = set()
 
-    def recorded(fn, n, threads):
+    def recorded(fn, n):
         sizes.add(n)
-        return built(fn, n, threads)
+        return built(fn, n)
 
     monkeypatch.setattr(batch, "_mapped", recorded)
     rng = np.random.default_rng(1)

@@ -10,6 +10,7 @@ seeing no motion, the mode return to open loop in the next period (|w_hat| < w_o
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from pathlib import Path
@@ -340,3 +341,41 @@ def test_the_drop_back_has_read_the_braking_when_the_drive_crosses_the_band_at_t
     assert settled > 0.9  # the low-passes of this test's numbers settled
     assert dw == pytest.approx(-a * settled, rel=0.03)  # read before the drop-back period
     assert wl == pytest.approx(lag * settled, rel=0.03)
+
+
+@pytest.mark.parametrize("name", ["servo400", "hubmotor48"])
+def test_the_handovers_analysis_reads_neither_the_start_nor_the_files_text(name):
+    """The handover's w_min (design/pmsm_drive.py ``handover_drive``) is the same with a ``[startup]``
+    section that changes every key (its current, acceleration, handover speeds, damping, high-pass and
+    dwell) and without one: the analysis runs no I-f start. So the drive is keyed without the section and
+    its text's digest (design/memo.py), and the analysis ``init`` makes before it writes the section is
+    the one ``tune`` asks for (one computation: a memo hit here)."""
+    from sensorless.design.drive import load_drive_text, preset_text
+    from sensorless.design.low_speed import QUICK, minimum_speed
+    from sensorless.design.memo import uncached
+    from sensorless.design.pmsm_drive import handover_drive, startup_values
+    from sensorless.design.poles import MIN_DAMPING
+
+    text = preset_text(name) or (MOTORS / f"{name}.toml").read_text(encoding="utf-8")
+    plain = load_drive_text(text, "drive.toml")
+    started = load_drive_text(
+        text + '\n[startup]\ncurrent = "1 A"\nacceleration = "300 rad/s2"\nw_on = "3 w_min"\n'
+        'w_off = "1.5 w_min"\ndamping = "10 1/s"\nw_hp = "5 rad/s"\ndwell = "0.05 s"\n',
+        "drive.toml",
+    )
+    fam = family_of(plain)
+    assert fam.startup(plain) is None and fam.startup(started) is not None and started.digest != plain.digest
+    gains = fam.gains(plain)
+    kw = {**QUICK, "acceleration": True}
+    # the analysis itself, of the drive as read (no memo): the section changes nothing it gives
+    a = uncached(minimum_speed)(plain, gains, min_damping=MIN_DAMPING, **kw)
+    b = uncached(minimum_speed)(started, gains, min_damping=MIN_DAMPING, **kw)
+    assert a.w_min_rated > 0
+    for f in dataclasses.fields(a):
+        assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
+    # the handover's: one computation for both drives, the same w_min as the analysis of the drive as read
+    minimum_speed.cache_clear()  # type: ignore[attr-defined]
+    assert startup_values(plain, gains)[2] == a.w_min_rated
+    assert startup_values(started, gains)[2] == a.w_min_rated
+    assert minimum_speed.cache_info() == (1, 1)  # type: ignore[attr-defined]
+    assert handover_drive(started).digest == "" and fam.startup(handover_drive(started)) is None
