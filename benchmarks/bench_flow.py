@@ -26,7 +26,8 @@ it computes on (reports/svg_render.py): its stage times are those of the main pr
 the last figures falls in the last stage. Prints median stage times over the rounds, wall and CPU (the
 process's and its reaped children's, the figure renderers: on a shared machine the CPU time is the
 figure to compare), the report's CPU split into its process and its children (``--separate`` too),
-the total against the 10 s target, and the stages of report and tune.
+the total against the 10 s target (wall, what a user waits for, and CPU, what one core would take),
+and the stages of report and tune.
 """
 
 from __future__ import annotations
@@ -300,8 +301,17 @@ def main() -> None:
         f"  report's CPU: {rep - kids:.2f} s its process, {kids:.2f} s its children (the figure "
         "renderers; with an empty cache the C compiler too; medians)"
     )
-    verdict = "met" if cpu <= TARGET_S else "NOT met"
-    print(f"target: init + tune + codegen + report <= {TARGET_S:g} s CPU, imports included: {verdict}")
+
+    # the issue's target is the flow's time (its tune figures are wall seconds): what a user waits for on
+    # this machine's cores; its CPU is the stricter figure (what one core would take, and the one a
+    # busy machine disturbs less), printed beside it
+    def met(t: float) -> str:
+        return "met" if t <= TARGET_S else "NOT met"
+
+    print(
+        f"target: init + tune + codegen + report <= {TARGET_S:g} s, imports included: wall {med:.2f} s on "
+        f"{os.cpu_count()} cores: {met(med)}; CPU {cpu:.2f} s (what one core would take): {met(cpu)}"
+    )
     if baselines:
         b = statistics.median(baselines)
         print(
