@@ -302,9 +302,9 @@ def main() -> None:
         "renderers; with an empty cache the C compiler too; medians)"
     )
 
-    # the issue's target is the flow's time (its tune figures are wall seconds): what a user waits for on
-    # this machine's cores; its CPU is the stricter figure (what one core would take, and the one a
-    # busy machine disturbs less), printed beside it
+    # the target is the flow's time, in wall seconds as the example motors' tune target: what a user
+    # waits for on this machine's cores; its CPU is the stricter figure (what one core would take, and
+    # the one a busy machine disturbs less), printed beside it
     def met(t: float) -> str:
         return "met" if t <= TARGET_S else "NOT met"
 
