@@ -32,18 +32,7 @@ def row(values: Iterable[SupportsFloat | None], why: str, spec: str = ".10g") ->
     """A CSV line of ``values`` (each :func:`cell`) ending with the reason column: ``why`` where a value
     is missing, else empty. ``why`` must hold no comma or quote (one cell)."""
     assert "," not in why and '"' not in why, why
-    cells: list[str] = []
-    missing = False
-    for v in values:
-        # a float (most cells: a gain table's CSV writes 63 600) without finite()'s conversion, once
-        if type(v) is float:
-            if math.isfinite(v):
-                cells.append(format(v, spec))
-                continue
-        elif v is not None and finite(v):
-            cells.append(format(float(v), spec))
-            continue
-        cells.append("")
-        missing = True
-    cells.append(why if missing else "")
+    # a float (most cells: a gain table's CSV writes 63 600) formatted without cell()'s conversion
+    cells = [format(v, spec) if type(v) is float and math.isfinite(v) else cell(v, spec) for v in values]
+    cells.append(why if "" in cells else "")  # (a number's text is never empty)
     return ",".join(cells)
